@@ -1,0 +1,98 @@
+"""Public library API: run a deck, check a deck.
+
+The CLI (``cli/poise_cli``) is a thin adapter over these functions.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from poise.results.data import RunResult
+
+
+@dataclass
+class CheckReport:
+    """What ``poise check`` prints: the compiled model without solving.
+
+    Attributes
+    ----------
+    deck : str
+    bodies : list[dict]
+        One dict per body: ``id``, ``label``, ``kind`` (``rigid``/``point``/``ground``), ``mass``.
+    constraints : list[dict]
+        One dict per constraint element: ``tag``, ``id``, ``type``, ``n_equations``, ``line``.
+    forces : list[dict]
+        One dict per force element: ``tag``, ``id``, ``type``, ``line``.
+    n_coordinates : int
+        Number of tangent coordinates (6 per rigid body, 3 per point body, + extra unknowns).
+    n_equations : int
+        Number of constraint equations before redundancy removal.
+    n_redundant : int
+    dof : int
+        Degrees of freedom = n_coordinates - rank of the constraint Jacobian.
+    redundant : list[dict]
+        Removed equations: ``tag``, ``id``, ``equation`` (e.g. ``"rot_x"``), ``line``.
+    active_effects : list[str]
+    warnings : list[str]
+    analyses : list[dict]
+        One dict per Simulate: ``analysis_type``, ``method``, ``n_frames``.
+    """
+
+    deck: str
+    bodies: list = field(default_factory=list)
+    constraints: list = field(default_factory=list)
+    forces: list = field(default_factory=list)
+    n_coordinates: int = 0
+    n_equations: int = 0
+    n_redundant: int = 0
+    dof: int = 0
+    redundant: list = field(default_factory=list)
+    active_effects: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    analyses: list = field(default_factory=list)
+
+
+def run_deck(
+    path: str,
+    overrides: dict[str, Any] | None = None,
+    command: str = "",
+    progress: Callable[[str], None] | None = None,
+) -> RunResult:
+    """Parse, compile and run every analysis of a deck.
+
+    Parameters
+    ----------
+    path : str
+        Deck file.
+    overrides : dict, optional
+        ``Param_Static`` (and later ``Param_Transient``) attribute overrides from the CLI, e.g.
+        ``{"method": "FIM_S", "max_num_iter": 50, "max_imbalance": 1e-6, "stability": 1e-3}``.
+        CLI values win over deck values, which win over defaults.
+    command : str
+        The command line, recorded in the results.
+    progress : callable, optional
+        Called with one summary line per finished analysis.
+
+    Returns
+    -------
+    RunResult
+        Always returned for a valid deck, converged or not.
+
+    Raises
+    ------
+    poise.errors.DeckError
+        Invalid deck (exit code 3).
+    """
+    from poise.runner import run
+    return run(path, overrides=overrides, command=command, progress=progress)
+
+
+def check_deck(path: str) -> CheckReport:
+    """Parse and compile a deck, detect redundant equations; no solve."""
+    from poise.runner import check
+    return check(path)
+
+
+def solve(deck_or_path, **overrides) -> RunResult:
+    """Convenience wrapper: ``poise.solve("deck.xml", method="FIM_S")``."""
+    return run_deck(str(deck_or_path), overrides=overrides, command="poise.solve")

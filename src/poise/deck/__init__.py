@@ -1,0 +1,1 @@
+"""Deck layer: XML text -> :class:`poise.deck.spec.DeckSpec` (plain data with source locations)."""

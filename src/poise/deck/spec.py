@@ -1,0 +1,117 @@
+"""The parsed deck: plain data with source locations (the first of three representations).
+
+The parser (``poise.deck.parser``) turns XML into a :class:`DeckSpec`. Nothing here knows about
+numerics; the compiler (``poise.model.compile``) turns a DeckSpec into a compiled model.
+
+Attribute values are already typed by the schema (``poise.deck.schema``):
+
+* ``real``        -> float
+* ``int``         -> int
+* ``bool``        -> bool
+* ``enum``        -> str, upper-cased canonical value
+* ``str``         -> str
+* ``real_or_expr``-> float if the text is a plain number, else :class:`Expr`
+* ``expr``        -> :class:`Expr` (always)
+* ``int_list``    -> tuple[int, ...]
+* ``real_list``   -> tuple[float, ...]
+
+Attribute names are lower-cased; element tags are canonical (schema spelling, e.g.
+``Force_SpringDamper``) whatever the case in the file.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from poise.errors import SourceLoc
+
+
+@dataclass(frozen=True)
+class Expr:
+    """An expression-valued attribute, kept as text until the expression compiler reads it.
+
+    Attributes
+    ----------
+    text : str
+        The expression exactly as written in the deck (without surrounding quotes).
+    loc : SourceLoc
+        Location of the owning element.
+    attr : str
+        Attribute name (lower case), for error messages (``fx_expression col 14: ...``).
+    """
+
+    text: str
+    loc: SourceLoc
+    attr: str
+
+
+@dataclass
+class Element:
+    """One deck element (model element or command).
+
+    Attributes
+    ----------
+    tag : str
+        Canonical element name.
+    attrs : dict[str, Any]
+        Typed attribute values, lower-case names. Attributes the schema does not know are not
+        stored (a warning was emitted for each).
+    loc : SourceLoc
+        Source location (file, line, tag, id).
+    text : str or None
+        Element text content (tabular data of ``Reference_Spline``, ``Reference_Array``, ...).
+    is_command : bool
+        True when the element came from the command section (or is a command element).
+    """
+
+    tag: str
+    attrs: dict[str, Any]
+    loc: SourceLoc
+    text: str | None = None
+    is_command: bool = False
+
+    @property
+    def id(self) -> int | None:
+        return self.attrs.get("id")
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self.attrs.get(name, default)
+
+    def has(self, name: str) -> bool:
+        return name in self.attrs
+
+
+@dataclass
+class DeckSpec:
+    """A parsed and validated deck.
+
+    Attributes
+    ----------
+    path : str
+        The deck path as given.
+    sha256 : str
+        SHA-256 of the deck bytes.
+    model : list[Element]
+        Model elements in document order.
+    commands : list[Element]
+        Command elements in document order (``Simulate``, ``Stop``, command versions of
+        ``Param_Static`` etc.).
+    warnings : list
+        :class:`poise.errors.Problem` warnings (unknown attributes, ...), already located.
+    """
+
+    path: str
+    sha256: str
+    model: list[Element] = field(default_factory=list)
+    commands: list[Element] = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+
+    def elements(self, tag: str) -> list[Element]:
+        """Model elements with canonical tag ``tag`` in document order."""
+        return [e for e in self.model if e.tag == tag]
+
+    def by_id(self, tag: str) -> dict[int, Element]:
+        return {e.id: e for e in self.model if e.tag == tag and e.id is not None}
+
+    def tags(self) -> set[str]:
+        return {e.tag for e in self.model}

@@ -1,0 +1,113 @@
+"""Error types and source locations.
+
+Every problem found in a deck is reported as ``FILE:LINE: <Tag id=N>: message``. Errors in a deck
+are collected (not raised one by one) and raised together as one :class:`DeckError`; the CLI maps
+it to exit code 3.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class SourceLoc:
+    """Where an object came from in a deck.
+
+    Attributes
+    ----------
+    file : str
+        Deck path as given by the user.
+    line : int
+        1-based line number of the element's start tag (0 if unknown).
+    tag : str
+        Canonical element name (e.g. ``"Force_SpringDamper"``).
+    id : int or None
+        The element's ``id`` attribute when present.
+    """
+
+    file: str = "<deck>"
+    line: int = 0
+    tag: str = ""
+    id: int | None = None
+
+    def prefix(self, attr: str | None = None) -> str:
+        """``FILE:LINE: <Tag id=N>:`` (plus ``attr`` when given)."""
+        who = f"<{self.tag} id={self.id}>" if self.id is not None else f"<{self.tag}>"
+        s = f"{self.file}:{self.line}: {who}"
+        if attr:
+            s += f" {attr}"
+        return s + ":"
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One located problem in a deck."""
+
+    loc: SourceLoc
+    message: str
+    attr: str | None = None
+
+    def __str__(self) -> str:
+        return f"{self.loc.prefix(self.attr)} {self.message}"
+
+
+class PoiseError(Exception):
+    """Base class of all poise errors."""
+
+    exit_code = 4
+
+
+class DeckError(PoiseError):
+    """Invalid deck: one or more located problems (exit code 3)."""
+
+    exit_code = 3
+
+    def __init__(self, problems: list[Problem] | Problem | str):
+        if isinstance(problems, (Problem, str)):
+            problems = [problems]
+        self.problems: list = list(problems)
+        super().__init__("\n".join(str(p) for p in self.problems))
+
+
+class ModelError(DeckError):
+    """A deck that parses but describes an ill-posed model (e.g. zero mass in a free direction).
+
+    Exit code 3 like any other invalid deck; the message names the element and its line.
+    """
+
+
+class EvaluationError(PoiseError):
+    """An element produced NaN/Inf or an expression failed to evaluate (division by zero, ...).
+
+    Raised inside a solve; the solver driver turns it into a failed status with this message.
+    """
+
+    exit_code = 1
+
+    def __init__(self, message: str, loc: SourceLoc | None = None, attr: str | None = None):
+        self.loc = loc
+        self.attr = attr
+        text = f"{loc.prefix(attr)} {message}" if loc is not None else message
+        super().__init__(text)
+
+
+class UsageError(PoiseError):
+    exit_code = 2
+
+
+@dataclass
+class ProblemCollector:
+    """Collects problems during a validation pass and raises them together."""
+
+    problems: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+
+    def error(self, loc: SourceLoc, message: str, attr: str | None = None) -> None:
+        self.problems.append(Problem(loc, message, attr))
+
+    def warn(self, loc: SourceLoc, message: str, attr: str | None = None) -> None:
+        self.warnings.append(Problem(loc, message, attr))
+
+    def raise_if_any(self, cls: type[DeckError] = DeckError) -> None:
+        if self.problems:
+            raise cls(self.problems)

@@ -1,0 +1,1 @@
+"""Results: in-memory run results and the HDF5 writer/reader."""
