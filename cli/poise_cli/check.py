@@ -1,0 +1,84 @@
+"""``poise check``: parse and compile a deck, report its structure; no solve."""
+from __future__ import annotations
+
+import dataclasses
+
+import click
+
+from poise_cli.errors import report_exception
+from poise_cli.options import debug_option, json_option
+from poise_cli.summary import print_json, sanitize
+
+
+def _table(rows: list[list[str]], indent: str = "  ") -> list[str]:
+    if not rows:
+        return []
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return [indent + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+
+
+def _s(v) -> str:
+    return "" if v is None else str(v)
+
+
+def format_report(rep) -> list[str]:
+    lines = [f"deck: {rep.deck}"]
+    lines.append(f"analyses: {len(rep.analyses)}")
+    for i, a in enumerate(rep.analyses):
+        lines.append(f"  {i}: {_s(a.get('analysis_type'))} {_s(a.get('method'))}, "
+                     f"{_s(a.get('n_frames'))} frame(s)")
+    lines.append(f"bodies: {len(rep.bodies)}")
+    lines += _table([["id", "label", "kind", "mass"]] + [
+        [_s(b.get("id")), _s(b.get("label")), _s(b.get("kind")), _s(b.get("mass"))]
+        for b in rep.bodies]) if rep.bodies else []
+    lines.append(f"constraints: {len(rep.constraints)} ({rep.n_equations} equations)")
+    lines += _table([["tag", "id", "type", "equations", "line"]] + [
+        [_s(c.get("tag")), _s(c.get("id")), _s(c.get("type")), _s(c.get("n_equations")),
+         _s(c.get("line"))] for c in rep.constraints]) if rep.constraints else []
+    lines.append(f"forces: {len(rep.forces)}")
+    lines += _table([["tag", "id", "type", "line"]] + [
+        [_s(f.get("tag")), _s(f.get("id")), _s(f.get("type")), _s(f.get("line"))]
+        for f in rep.forces]) if rep.forces else []
+    lines.append(f"coordinates: {rep.n_coordinates}")
+    lines.append(f"constraint equations: {rep.n_equations}")
+    lines.append(f"redundant equations: {rep.n_redundant}")
+    lines += _table([["tag", "id", "equation", "line"]] + [
+        [_s(r.get("tag")), _s(r.get("id")), _s(r.get("equation")), _s(r.get("line"))]
+        for r in rep.redundant]) if rep.redundant else []
+    lines.append(f"degrees of freedom: {rep.dof}")
+    lines.append("active effects: " + (", ".join(rep.active_effects) or "(none)"))
+    return lines
+
+
+@click.command(short_help="Validate a deck and print its structure (no solve).")
+@click.argument("deck", type=click.Path(exists=True, dir_okay=False, readable=True))
+@json_option
+@debug_option
+def check(deck, as_json, debug):
+    """Parse and compile DECK; print bodies, constraints, degrees of freedom, redundant
+    equations and active effects without solving.
+
+    Exit code 0 for a valid deck, 3 for an invalid one (every problem printed on stderr).
+    """
+    ctx = click.get_current_context()
+    try:
+        from poise.api import check_deck
+        rep = check_deck(deck)
+    except (Exception, KeyboardInterrupt) as exc:
+        code, info = report_exception(exc, debug=debug)
+        if as_json:
+            print_json({"deck": deck, "exit_code": code, **info})
+        ctx.exit(code)
+        return
+    warnings = [str(w) for w in rep.warnings]
+    for w in warnings:
+        click.echo(f"warning: {w}", err=True)
+    if as_json:
+        data = dataclasses.asdict(rep) if dataclasses.is_dataclass(rep) else dict(vars(rep))
+        data["warnings"] = warnings
+        data["status"] = "valid"
+        data["exit_code"] = 0
+        print_json(sanitize(data))
+    else:
+        click.echo("\n".join(format_report(rep)))
+    ctx.exit(0)

@@ -1,0 +1,60 @@
+"""Exception -> exit code mapping and error reporting for the CLI.
+
+Exit codes
+----------
+0  every analysis converged
+1  an analysis did not converge (the results file was written)
+2  usage error (bad option, missing file, unreadable results file)
+3  invalid deck (``poise.errors.DeckError``): every located problem printed on stderr
+4  internal error: one line on stderr, traceback only with ``--debug``
+"""
+from __future__ import annotations
+
+import sys
+import traceback
+
+import click
+
+EXIT_OK = 0
+EXIT_NOT_CONVERGED = 1
+EXIT_USAGE = 2
+EXIT_INVALID_DECK = 3
+EXIT_INTERNAL = 4
+EXIT_INTERRUPTED = 130
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict]:
+    """Print ``exc`` on stderr the way the CLI reports it and return ``(exit_code, info)``.
+
+    ``info`` is merged into the ``--json`` summary: ``status`` plus ``problems`` (invalid deck)
+    or ``error`` (other errors).
+    """
+    from poise.errors import DeckError, UsageError  # light module (dataclasses only)
+
+    if isinstance(exc, DeckError):
+        problems = [str(p) for p in exc.problems] or [str(exc)]
+        if debug:
+            traceback.print_exception(exc, file=sys.stderr)
+        for line in problems:
+            click.echo(line, err=True)
+        n = len(problems)
+        click.echo(f"poise: invalid deck: {n} problem{'s' if n != 1 else ''}", err=True)
+        return EXIT_INVALID_DECK, {"status": "invalid_deck", "problems": problems}
+    if isinstance(exc, UsageError):
+        click.echo(f"poise: error: {_one_line(exc)}", err=True)
+        return EXIT_USAGE, {"status": "usage_error", "error": _one_line(exc)}
+    if isinstance(exc, KeyboardInterrupt):
+        click.echo("poise: interrupted", err=True)
+        return EXIT_INTERRUPTED, {"status": "interrupted", "error": "interrupted"}
+    msg = f"{type(exc).__name__}: {_one_line(exc)}" if str(exc) else type(exc).__name__
+    if debug:
+        traceback.print_exception(exc, file=sys.stderr)
+        click.echo(f"poise: internal error: {msg}", err=True)
+    else:
+        click.echo(f"poise: internal error: {msg}; rerun with --debug for the traceback",
+                   err=True)
+    return EXIT_INTERNAL, {"status": "internal_error", "error": msg}

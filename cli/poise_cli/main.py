@@ -1,0 +1,40 @@
+"""``poise`` command group.
+
+Keep this module (and the command modules it imports) light: no numpy, scipy, h5py or lxml at
+import time. Heavy imports happen inside the command functions.
+"""
+from __future__ import annotations
+
+import click
+
+from poise import __version__
+from poise_cli.check import check
+from poise_cli.show import show
+from poise_cli.solve import solve
+
+CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+
+
+@click.group(context_settings=CONTEXT_SETTINGS)
+@click.version_option(__version__, "-V", "--version", prog_name="poise",
+                      message="%(prog)s %(version)s")
+def cli() -> None:
+    """Static equilibria of MotionSolve-style XML multibody decks, results in HDF5.
+
+    \b
+    Exit codes:
+      0  every analysis converged
+      1  an analysis did not converge (results file written)
+      2  usage error
+      3  invalid deck (located problems on stderr)
+      4  internal error (rerun with --debug for the traceback)
+    """
+
+
+cli.add_command(solve)
+cli.add_command(check)
+cli.add_command(show)
+
+
+def main() -> None:  # pragma: no cover - console entry alias
+    cli(prog_name="poise")

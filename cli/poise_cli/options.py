@@ -1,0 +1,48 @@
+"""Shared click options and option -> override mapping."""
+from __future__ import annotations
+
+import click
+
+#: CLI option name -> ``Param_Static`` attribute name used as override key by poise.api.run_deck
+OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability")
+
+METHODS = ("FIM_D", "FIM_S", "MKEAM")
+
+json_option = click.option(
+    "--json", "as_json", is_flag=True,
+    help="Print a machine-readable JSON summary on stdout.")
+
+debug_option = click.option(
+    "--debug", is_flag=True,
+    help="Show full tracebacks for internal errors.")
+
+quiet_option = click.option(
+    "-q", "--quiet", is_flag=True,
+    help="Print nothing on stderr except errors (no summary lines, no warnings).")
+
+
+def solver_options(f):
+    """The ``Param_Static`` overrides of ``poise solve`` (applied in reverse for help order)."""
+    opts = [
+        click.option("--method", type=click.Choice(METHODS, case_sensitive=False), default=None,
+                     metavar="[" + "|".join(METHODS) + "]",
+                     help="Equilibrium method (overrides the deck's Param_Static method). "
+                          "Default FIM_D."),
+        click.option("--max-num-iter", type=click.IntRange(min=1), default=None,
+                     help="Maximum Newton iterations per frame."),
+        click.option("--max-imbalance", type=click.FloatRange(min=0, min_open=True),
+                     default=None, help="Convergence tolerance on the force imbalance."),
+        click.option("--max-error", type=click.FloatRange(min=0, min_open=True), default=None,
+                     help="Convergence tolerance on the (scaled) displacement step."),
+        click.option("--stability", type=click.FloatRange(min=0), default=None,
+                     help="Stability factor added to the Jacobian diagonal (Param_Static "
+                          "stability)."),
+    ]
+    for opt in reversed(opts):
+        f = opt(f)
+    return f
+
+
+def collect_overrides(**values) -> dict:
+    """Only the options the user actually gave, keyed by Param_Static attribute name."""
+    return {k: values[k] for k in OVERRIDE_KEYS if values.get(k) is not None}

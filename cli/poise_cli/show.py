@@ -1,0 +1,99 @@
+"""``poise show``: summarise a results file."""
+from __future__ import annotations
+
+from collections import Counter
+
+import click
+
+from poise_cli.errors import EXIT_USAGE, report_exception
+from poise_cli.options import debug_option, json_option
+from poise_cli.summary import analysis_line, analysis_time, fmt_num, print_json, sanitize
+
+#: per-frame stability classes are listed one by one up to this many frames
+MAX_LISTED_FRAMES = 20
+
+
+def _stability_lines(stab: list[str] | None) -> list[str]:
+    if not stab:
+        return []
+    counts = Counter(stab)
+    line = "  stability: " + ", ".join(f"{k} x{v}" for k, v in sorted(counts.items()))
+    out = [line]
+    if len(stab) <= MAX_LISTED_FRAMES and len(counts) > 1:
+        out.append("  stability per frame: " + " ".join(stab))
+    return out
+
+
+def format_summary(s: dict) -> list[str]:
+    lines = [
+        f"file: {s['file']} ({s['format']} v{s['format_version']}, poise {s['poise_version']})",
+        f"deck: {s['deck']} (sha256 {str(s['deck_sha256'])[:16]})",
+        f"status: {s['status']}",
+    ]
+    if s.get("units"):
+        lines.append(f"units: {s['units']}")
+    lines.append("active effects: " + (", ".join(s["active_effects"]) or "(none)"))
+    if s.get("command"):
+        lines.append(f"command: {s['command']}")
+    for a in s["analyses"]:
+        lines.append(analysis_line(a["index"], a["analysis_type"], a["method"], a["status"],
+                                   a["iterations"], a["imbalance"], a["frames"],
+                                   analysis_time(s["timings"], a["index"]), ""))
+        if a.get("message"):
+            lines.append(f"  message: {' '.join(str(a['message']).split())}")
+        lines.append(f"  frames: {a['frames']}, final imbalance {fmt_num(a['imbalance'])}, "
+                     f"final error {fmt_num(a['error'])}")
+        if a.get("reactions_unique") is not None:
+            lines.append(f"  reactions unique: {'yes' if a['reactions_unique'] else 'no'}")
+        red = a["datasets"].get("redundant/id")
+        if red is not None:
+            lines.append(f"  redundant equations: {red[0] if red else 0}")
+        lines += _stability_lines(a.get("stability"))
+    if s["timings"]:
+        total = sum(v for v in s["timings"].values() if isinstance(v, (int, float)))
+        lines.append("timings [s]: " + ", ".join(
+            f"{k} {v:.3g}" for k, v in s["timings"].items()) + f" (sum {total:.3g})")
+    if s["counts"]:
+        lines.append("counts: " + ", ".join(f"{k} {v}" for k, v in s["counts"].items()))
+    if s["warnings"]:
+        lines.append(f"warnings: {len(s['warnings'])}")
+        lines += [f"  {w}" for w in s["warnings"]]
+    return lines
+
+
+@click.command(short_help="Summarise an HDF5 results file.")
+@click.argument("results", type=click.Path(exists=True, dir_okay=False, readable=True))
+@json_option
+@debug_option
+def show(results, as_json, debug):
+    """Summarise the HDF5 results file RESULTS: status, per analysis type, method, frames,
+    iterations, final imbalance, stability classes, timings and counts.
+
+    Exit code 0 when the file was read (whatever the run's status), 2 when RESULTS is not a
+    poise results file.
+    """
+    ctx = click.get_current_context()
+    try:
+        from poise.results.hdf5 import ResultsFormatError, read_summary
+        try:
+            summary = read_summary(results)
+        except ResultsFormatError as exc:
+            click.echo(f"poise: error: {exc}", err=True)
+            if as_json:
+                print_json({"file": results, "exit_code": EXIT_USAGE,
+                            "status": "usage_error", "error": str(exc)})
+            ctx.exit(EXIT_USAGE)
+            return
+    except (Exception, KeyboardInterrupt) as exc:
+        if isinstance(exc, click.exceptions.Exit):
+            raise
+        code, info = report_exception(exc, debug=debug)
+        if as_json:
+            print_json({"file": results, "exit_code": code, **info})
+        ctx.exit(code)
+        return
+    if as_json:
+        print_json(sanitize(summary))
+    else:
+        click.echo("\n".join(format_summary(summary)))
+    ctx.exit(0)

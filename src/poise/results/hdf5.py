@@ -1,0 +1,377 @@
+"""HDF5 results writer and reader.
+
+Layout (documented dataset by dataset in ``docs/results-format.md``)::
+
+    /                       attrs: format, format_version, poise_version, deck, deck_sha256,
+                                   status, units, active_effects, command
+    /model/...              RunResult.model_datasets
+    /timings                attrs: wall time per phase [s] (the only non-reproducible values)
+    /counts                 attrs: residual/Jacobian/factorisation counts
+    /warnings               (W,) variable-length UTF-8 strings
+    /analysis_000           attrs: analysis_type, method, status, message, settings (JSON), + attrs
+        time, bodies/..., joints/..., frames/..., iterations/..., ...
+
+Determinism: the same :class:`~poise.results.data.RunResult` always produces the same bytes.
+Objects are written in sorted name order, datasets are contiguous (no chunking, no
+compression, no filters), object modification times are not recorded (``track_times=False``),
+link/attribute creation order is not tracked (HDF5 iterates by name), and the file uses the
+default ``libver="earliest"`` object-header format, which stores no timestamps. No ``created``
+attribute exists; wall-clock timings live only in ``/timings`` attributes.
+
+Atomicity: the file is written to ``.<name>.tmp-<pid>`` in the destination directory, flushed and
+fsync'ed, then renamed over the final name with :func:`os.replace`. Any exception removes the
+temp file. A process killed mid-write can leave only the hidden temp file, never a partial file
+under the final name.
+"""
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import h5py
+import numpy as np
+
+from poise.results.data import AnalysisResult, RunResult
+
+FORMAT = "poise-results"
+FORMAT_VERSION = 1
+
+_STR = h5py.string_dtype("utf-8")
+
+
+class ResultsFormatError(ValueError):
+    """The file is not a poise results file (or an unsupported format version)."""
+
+
+# --------------------------------------------------------------------------------------------
+# conversion helpers
+# --------------------------------------------------------------------------------------------
+
+def _to_array(value: Any, what: str) -> np.ndarray:
+    """Convert a dataset value to an array HDF5 can store deterministically."""
+    arr = np.asarray(value)
+    kind = arr.dtype.kind
+    if kind in "US" or (kind == "O" and all(isinstance(x, (str, bytes)) for x in arr.flat)):
+        out = np.empty(arr.shape, dtype=_STR)
+        for idx, x in np.ndenumerate(arr):
+            out[idx] = x.decode("utf-8") if isinstance(x, bytes) else str(x)
+        return out
+    if kind in "biuf":
+        return arr
+    raise TypeError(f"{what}: cannot store dtype {arr.dtype} in HDF5 results")
+
+
+def _attr_value(value: Any, what: str) -> Any:
+    """Convert an attribute value; ``None`` means "do not write"."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (bool, np.bool_)):
+        return np.bool_(value)
+    if isinstance(value, (int, np.integer)):
+        return np.int64(value)
+    if isinstance(value, (float, np.floating)):
+        return np.float64(value)
+    if isinstance(value, dict):
+        return json.dumps(value, sort_keys=True, default=str)
+    if isinstance(value, (list, tuple, np.ndarray)):
+        arr = np.asarray(value) if len(value) else np.asarray(value, dtype=_STR)
+        if arr.dtype.kind == "O" and not all(isinstance(x, (str, bytes)) for x in arr.flat):
+            return json.dumps(list(value), sort_keys=True, default=str)
+        return _to_array(arr, what)
+    return str(value)
+
+
+def _set_attrs(obj: h5py.HLObject, attrs: dict[str, Any], where: str) -> None:
+    for key in sorted(attrs):
+        v = _attr_value(attrs[key], f"{where}@{key}")
+        if v is not None:
+            obj.attrs[key] = v
+
+
+def _check_relpath(key: str, where: str) -> list[str]:
+    parts = key.split("/")
+    if not key or key.startswith("/") or any(p in ("", ".", "..") for p in parts):
+        raise ValueError(f"{where}: invalid dataset path {key!r} (must be relative, e.g. 'bodies/id')")
+    return parts
+
+
+def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str) -> None:
+    for key in sorted(datasets):
+        parts = _check_relpath(key, where)
+        parent = group
+        for p in parts[:-1]:
+            parent = parent.require_group(p)
+        arr = _to_array(datasets[key], f"{where}/{key}")
+        # contiguous layout, no filters, no timestamps: identical input -> identical bytes
+        parent.create_dataset(parts[-1], data=arr, dtype=arr.dtype, track_times=False)
+
+
+def _write_file(result: RunResult, path: str) -> None:
+    import poise
+
+    with h5py.File(path, "w") as f:
+        root_attrs = {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "poise_version": poise.__version__,
+            "deck": str(result.deck),
+            "deck_sha256": str(result.deck_sha256),
+            "status": result.status,
+            "units": str(result.units),
+            "active_effects": [str(e) for e in result.active_effects],
+            "command": str(result.command),
+        }
+        _set_attrs(f, root_attrs, "/")
+
+        model = f.create_group("model")
+        _write_datasets(model, result.model_datasets, "/model")
+
+        timings = f.create_group("timings")
+        _set_attrs(timings, {k: float(v) for k, v in result.timings.items()}, "/timings")
+        counts = f.create_group("counts")
+        _set_attrs(counts, {k: int(v) for k, v in result.counts.items()}, "/counts")
+
+        warnings = np.array([str(w) for w in result.warnings], dtype=object)
+        f.create_dataset("warnings", data=_to_array(warnings.astype(_STR), "/warnings"),
+                         dtype=_STR, track_times=False)
+
+        for a in sorted(result.analyses, key=lambda a: a.index):
+            name = analysis_group_name(a.index)
+            g = f.create_group(name)
+            base = {
+                "analysis_type": str(a.analysis_type),
+                "method": str(a.method),
+                "status": str(a.status),
+                "message": str(a.message),
+                "settings": a.settings_json(),
+            }
+            clash = set(base) & set(a.attrs)
+            if clash:
+                raise ValueError(f"/{name}: attrs {sorted(clash)} clash with reserved attributes")
+            _set_attrs(g, {**a.attrs, **base}, f"/{name}")
+            _write_datasets(g, a.datasets, f"/{name}")
+
+
+def analysis_group_name(index: int) -> str:
+    return f"analysis_{int(index):03d}"
+
+
+def _fsync_path(path: str, directory: bool = False) -> None:
+    flags = os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError:
+        if directory:  # some platforms cannot open directories; best effort
+            return
+        raise
+    try:
+        os.fsync(fd)
+    except OSError:
+        if not directory:
+            raise
+    finally:
+        os.close(fd)
+
+
+def write_results(result: RunResult, path: str) -> None:
+    """Write ``result`` to ``path`` atomically.
+
+    The data go to ``.<name>.tmp-<pid>`` next to ``path``; after a successful write and fsync
+    the temp file is renamed to ``path`` (replacing an existing file). On any exception the temp
+    file is removed and the exception propagates; ``path`` is then untouched.
+    """
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    tmp = os.path.join(directory, f".{os.path.basename(path)}.tmp-{os.getpid()}")
+    try:
+        _write_file(result, tmp)
+        _fsync_path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    _fsync_path(directory, directory=True)
+
+
+# --------------------------------------------------------------------------------------------
+# reading
+# --------------------------------------------------------------------------------------------
+
+def _py(value: Any) -> Any:
+    """HDF5 attribute/dataset value -> plain JSON-friendly Python."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8")
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind in "OS":
+            return [_py(x) for x in value.tolist()]
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _read_strings(ds: h5py.Dataset) -> np.ndarray:
+    return np.asarray(ds.asstr()[()], dtype=object) if ds.shape else np.asarray(ds.asstr()[()])
+
+
+def _read_dataset(ds: h5py.Dataset) -> np.ndarray:
+    if h5py.check_string_dtype(ds.dtype) is not None:
+        data = ds.asstr()[()]
+        return np.asarray(data, dtype=str) if isinstance(data, np.ndarray) else np.asarray(data)
+    return ds[()]
+
+
+def _collect(group: h5py.Group) -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+
+    def visit(name: str, obj: Any) -> None:
+        if isinstance(obj, h5py.Dataset):
+            out[name] = _read_dataset(obj)
+
+    group.visititems(visit)
+    return out
+
+
+def _open_checked(path: str) -> h5py.File:
+    try:
+        f = h5py.File(path, "r")
+    except OSError as e:
+        raise ResultsFormatError(f"{path}: not an HDF5 file ({e})") from None
+    fmt = _py(f.attrs.get("format"))
+    if fmt != FORMAT:
+        f.close()
+        raise ResultsFormatError(f"{path}: not a poise results file (format={fmt!r})")
+    version = _py(f.attrs.get("format_version"))
+    if version != FORMAT_VERSION:
+        f.close()
+        raise ResultsFormatError(f"{path}: unsupported format_version {version!r} "
+                                 f"(this poise reads {FORMAT_VERSION})")
+    return f
+
+
+def _analysis_groups(f: h5py.File) -> list[tuple[int, h5py.Group]]:
+    out = []
+    for name in f:
+        if name.startswith("analysis_") and isinstance(f[name], h5py.Group):
+            try:
+                out.append((int(name[len("analysis_"):]), f[name]))
+            except ValueError:
+                continue
+    return sorted(out, key=lambda t: t[0])
+
+
+_RESERVED = ("analysis_type", "method", "status", "message", "settings")
+
+
+def read_results(path: str) -> RunResult:
+    """Read a whole results file back into a :class:`RunResult` (inverse of write_results)."""
+    with _open_checked(path) as f:
+        attrs = {k: _py(v) for k, v in f.attrs.items()}
+        analyses = []
+        for index, g in _analysis_groups(f):
+            ga = {k: _py(v) for k, v in g.attrs.items()}
+            analyses.append(AnalysisResult(
+                index=index,
+                analysis_type=ga.get("analysis_type", ""),
+                method=ga.get("method", ""),
+                status=ga.get("status", ""),
+                message=ga.get("message", ""),
+                settings=json.loads(ga.get("settings") or "{}"),
+                datasets=_collect(g),
+                attrs={k: v for k, v in ga.items() if k not in _RESERVED},
+            ))
+        warnings = [_py(x) for x in _read_strings(f["warnings"]).tolist()] if "warnings" in f else []
+        return RunResult(
+            deck=attrs.get("deck", ""),
+            deck_sha256=attrs.get("deck_sha256", ""),
+            units=attrs.get("units", ""),
+            active_effects=list(attrs.get("active_effects", [])),
+            command=attrs.get("command", ""),
+            analyses=analyses,
+            model_datasets=_collect(f["model"]) if "model" in f else {},
+            timings={k: _py(v) for k, v in f["timings"].attrs.items()} if "timings" in f else {},
+            counts={k: _py(v) for k, v in f["counts"].attrs.items()} if "counts" in f else {},
+            warnings=warnings,
+        )
+
+
+def _last(g: h5py.Group, key: str) -> Any:
+    if key in g and isinstance(g[key], h5py.Dataset) and g[key].shape and g[key].shape[0]:
+        return _py(g[key][-1])
+    return None
+
+
+def read_summary(path: str) -> dict:
+    """Summary of a results file for ``poise show`` (plain JSON-serialisable dict).
+
+    Keys: ``file``, ``format``, ``format_version``, ``poise_version``, ``deck``,
+    ``deck_sha256``, ``status``, ``units``, ``active_effects``, ``command``, ``warnings``,
+    ``timings``, ``counts``, ``model`` (dataset path -> shape) and ``analyses``: one dict per
+    analysis with ``index``, ``group``, ``analysis_type``, ``method``, ``status``, ``message``,
+    ``settings`` (dict), ``frames``, ``iterations`` (sum of ``frames/iterations``),
+    ``imbalance`` / ``error`` (last frame), ``stability`` (list per frame or ``None``),
+    ``reactions_unique`` (or ``None``), ``attrs`` (other attributes) and ``datasets``
+    (path -> shape).
+
+    Raises :class:`ResultsFormatError` when ``path`` is not a poise results file.
+    """
+    with _open_checked(path) as f:
+        out: dict[str, Any] = {"file": os.fspath(path)}
+        for k in ("format", "format_version", "poise_version", "deck", "deck_sha256", "status",
+                  "units", "active_effects", "command"):
+            out[k] = _py(f.attrs.get(k))
+        out["active_effects"] = list(out["active_effects"] or [])
+        out["warnings"] = [_py(x) for x in _read_strings(f["warnings"]).tolist()] \
+            if "warnings" in f else []
+        out["timings"] = {k: _py(v) for k, v in f["timings"].attrs.items()} if "timings" in f else {}
+        out["counts"] = {k: _py(v) for k, v in f["counts"].attrs.items()} if "counts" in f else {}
+
+        def shapes(g: h5py.Group) -> dict[str, list[int]]:
+            d: dict[str, list[int]] = {}
+            g.visititems(lambda n, o: d.__setitem__(n, list(o.shape))
+                         if isinstance(o, h5py.Dataset) else None)
+            return d
+
+        out["model"] = shapes(f["model"]) if "model" in f else {}
+        analyses = []
+        for index, g in _analysis_groups(f):
+            ga = {k: _py(v) for k, v in g.attrs.items()}
+            try:
+                settings = json.loads(ga.get("settings") or "{}")
+            except ValueError:
+                settings = {"_raw": ga.get("settings")}
+            frames = int(g["time"].shape[0]) if "time" in g else 0
+            iterations = None
+            if "frames/iterations" in g:
+                iterations = int(np.sum(g["frames/iterations"][()]))
+            elif "iterations/iteration" in g:
+                iterations = int(g["iterations/iteration"].shape[0])
+            stability = None
+            if "frames/stability" in g:
+                stability = [_py(x) for x in _read_strings(g["frames/stability"]).tolist()]
+            analyses.append({
+                "index": index,
+                "group": g.name,
+                "analysis_type": ga.get("analysis_type"),
+                "method": ga.get("method"),
+                "status": ga.get("status"),
+                "message": ga.get("message", ""),
+                "settings": settings,
+                "frames": frames,
+                "iterations": iterations,
+                "imbalance": _last(g, "frames/imbalance"),
+                "error": _last(g, "frames/error"),
+                "stability": stability,
+                "reactions_unique": ga.get("reactions_unique"),
+                "attrs": {k: v for k, v in ga.items()
+                          if k not in _RESERVED and k != "reactions_unique"},
+                "datasets": shapes(g),
+            })
+        out["analyses"] = analyses
+        return out
