@@ -1,0 +1,279 @@
+"""HDF5 results writer/reader: round trip, layout, determinism, atomicity."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from poise.results import hdf5
+from poise.results.data import AnalysisResult, RunResult
+from poise.results.hdf5 import (
+    FORMAT,
+    FORMAT_VERSION,
+    ResultsFormatError,
+    read_results,
+    read_summary,
+    write_results,
+)
+
+
+def make_result(timings=None) -> RunResult:
+    F, B, J = 3, 2, 1
+    rng = np.random.default_rng(0)
+    a0 = AnalysisResult(
+        index=0, analysis_type="static", method="FIM_S", status="converged",
+        message="converged", settings={"max_num_iter": 25, "max_imbalance": 1e-6},
+        datasets={
+            "time": np.array([0.0]),
+            "bodies/id": np.array([10, 20]),
+            "bodies/label": np.array(["arm", "bras \u00e9l\u00e8ve"]),
+            "bodies/position": rng.normal(size=(1, B, 3)),
+            "bodies/orientation": np.broadcast_to(np.eye(3), (1, B, 3, 3)).copy(),
+            "joints/id": np.array([5]),
+            "joints/force": rng.normal(size=(1, J, 3)),
+            "joints/torque": rng.normal(size=(1, J, 3)),
+            "frames/converged": np.array([True]),
+            "frames/iterations": np.array([5]),
+            "frames/imbalance": np.array([3.2e-9]),
+            "frames/error": np.array([1e-12]),
+            "frames/stability": np.array(["unknown"]),
+            "iterations/frame": np.zeros(5, dtype=np.int64),
+            "iterations/iteration": np.arange(5),
+            "iterations/imbalance": np.logspace(0, -8, 5),
+            "iterations/worst_equation": np.array(["<Constraint_Joint id=5> rot_x"] * 5),
+            "iterations/event": np.array(["assembly", "newton", "newton", "newton", "newton"]),
+            "redundant/tag": np.array([], dtype=str),
+            "redundant/id": np.zeros(0, dtype=np.int64),
+            "deep/nested/path/value": np.array([[1, 2], [3, 4]], dtype=np.int32),
+        },
+        attrs={"reactions_unique": True, "n_redundant": 0},
+    )
+    a1 = AnalysisResult(
+        index=1, analysis_type="static", method="FIM_D", status="failed",
+        message="no convergence after 25 iterations\n(fallback: FIM_S)",
+        settings={"method": "FIM_D"},
+        datasets={
+            "time": np.arange(F, dtype=float),
+            "bodies/position": np.zeros((F, B, 3)),
+            "frames/converged": np.array([True, True, False]),
+            "frames/iterations": np.array([3, 4, 25]),
+            "frames/imbalance": np.array([1e-9, 1e-9, 12.5]),
+            "frames/error": np.array([0.0, 0.0, 0.1]),
+            "frames/stability": np.array(["stable", "stable", "unknown"]),
+        },
+    )
+    return RunResult(
+        deck="decks/x.xml", deck_sha256="ab" * 32,
+        units="force=NEWTON mass=KILOGRAM length=MILLIMETER time=SECOND",
+        active_effects=["gravity", "revolute"], command="poise solve decks/x.xml",
+        analyses=[a0, a1],
+        model_datasets={"bodies/id": np.array([10, 20]), "bodies/mass": np.array([1.0, 2.5])},
+        timings=timings if timings is not None else {"parse": 0.01, "solve": 0.2},
+        counts={"residuals": 40, "jacobians": 12},
+        warnings=["decks/x.xml:3: <Part id=10>: unknown attribute 'foo' ignored"],
+    )
+
+
+def test_round_trip(tmp_path):
+    path = tmp_path / "r.h5"
+    src = make_result()
+    write_results(src, str(path))
+    back = read_results(str(path))
+    assert back.deck == src.deck and back.deck_sha256 == src.deck_sha256
+    assert back.units == src.units and back.command == src.command
+    assert back.active_effects == src.active_effects
+    assert back.warnings == src.warnings
+    assert back.timings == src.timings and back.counts == src.counts
+    assert back.status == "failed"
+    assert set(back.model_datasets) == set(src.model_datasets)
+    assert [a.index for a in back.analyses] == [0, 1]
+    for a, b in zip(src.analyses, back.analyses, strict=True):
+        assert (b.analysis_type, b.method, b.status, b.message) == \
+            (a.analysis_type, a.method, a.status, a.message)
+        assert b.settings == a.settings
+        assert set(b.datasets) == set(a.datasets)
+        for k, v in a.datasets.items():
+            w = b.datasets[k]
+            assert w.shape == v.shape, k
+            if v.dtype.kind == "U":
+                assert w.tolist() == v.tolist(), k
+            else:
+                assert w.dtype == v.dtype, k
+                np.testing.assert_array_equal(w, v, err_msg=k)
+    assert back.analyses[0].attrs == {"reactions_unique": True, "n_redundant": 0}
+
+
+def test_layout_and_attributes(tmp_path):
+    path = tmp_path / "r.h5"
+    write_results(make_result(), str(path))
+    with h5py.File(path, "r") as f:
+        assert f.attrs["format"] == FORMAT
+        assert f.attrs["format_version"] == FORMAT_VERSION
+        assert f.attrs["status"] == "failed"
+        assert list(f.attrs["active_effects"]) == ["gravity", "revolute"]
+        assert "created" not in f.attrs
+        for k in ("poise_version", "deck", "deck_sha256", "units", "command"):
+            assert k in f.attrs
+        assert set(f) >= {"model", "timings", "counts", "warnings", "analysis_000",
+                          "analysis_001"}
+        assert f["timings"].attrs["solve"] == pytest.approx(0.2)
+        assert f["counts"].attrs["residuals"] == 40
+        g = f["analysis_000"]
+        assert g.attrs["analysis_type"] == "static" and g.attrs["method"] == "FIM_S"
+        assert json.loads(g.attrs["settings"]) == {"max_imbalance": 1e-6, "max_num_iter": 25}
+        assert bool(g.attrs["reactions_unique"]) is True
+        assert isinstance(g["bodies"], h5py.Group)
+        assert g["bodies/position"].shape == (1, 2, 3)
+        assert g["deep/nested/path/value"].dtype == np.int32
+        lab = g["bodies/label"]
+        assert h5py.check_string_dtype(lab.dtype).encoding == "utf-8"
+        assert h5py.check_string_dtype(lab.dtype).length is None  # variable length
+        assert lab.asstr()[1] == "bras \u00e9l\u00e8ve"
+        assert g["frames/converged"].dtype == np.bool_
+        assert g["redundant/tag"].shape == (0,)
+        for name in ("bodies/position", "bodies/label", "iterations/event"):
+            assert g[name].chunks is None and g[name].compression is None
+        assert h5py.check_string_dtype(f["warnings"].dtype) is not None
+
+
+def _dataset_bytes(path) -> dict:
+    out = {}
+    with h5py.File(path, "r") as f:
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset):
+                data = obj[()]
+                out[name] = repr(data.tolist()) if data.dtype.kind == "O" else data.tobytes()
+        f.visititems(visit)
+    return out
+
+
+def test_deterministic_bytes(tmp_path):
+    p1, p2 = tmp_path / "a.h5", tmp_path / "b.h5"
+    write_results(make_result(), str(p1))
+    time.sleep(1.1)  # HDF5 object timestamps have 1 s resolution: they must not be written
+    write_results(make_result(), str(p2))
+    assert p1.read_bytes() == p2.read_bytes()
+
+
+def test_timings_only_difference(tmp_path):
+    p1, p2 = tmp_path / "a.h5", tmp_path / "b.h5"
+    write_results(make_result({"parse": 0.01, "solve": 0.2}), str(p1))
+    write_results(make_result({"parse": 0.37, "solve": 9.5}), str(p2))
+    assert _dataset_bytes(p1) == _dataset_bytes(p2)
+    b1, b2 = p1.read_bytes(), p2.read_bytes()
+    assert len(b1) == len(b2)
+    assert sum(x != y for x, y in zip(b1, b2, strict=True)) <= 16  # the two float attributes
+
+
+def test_summary(tmp_path):
+    path = tmp_path / "r.h5"
+    write_results(make_result(), str(path))
+    s = read_summary(str(path))
+    json.dumps(s)  # plain JSON-serialisable
+    assert s["status"] == "failed" and s["format_version"] == 1
+    a0, a1 = s["analyses"]
+    assert a0["iterations"] == 5 and a0["imbalance"] == pytest.approx(3.2e-9)
+    assert a0["reactions_unique"] is True and a0["frames"] == 1
+    assert a0["datasets"]["bodies/position"] == [1, 2, 3]
+    assert a1["frames"] == 3 and a1["iterations"] == 32
+    assert a1["imbalance"] == pytest.approx(12.5)
+    assert a1["stability"] == ["stable", "stable", "unknown"]
+    assert s["model"] == {"bodies/id": [2], "bodies/mass": [2]}
+
+
+def test_not_a_results_file(tmp_path):
+    plain = tmp_path / "plain.h5"
+    with h5py.File(plain, "w") as f:
+        f["x"] = 1
+    with pytest.raises(ResultsFormatError, match="not a poise results file"):
+        read_summary(str(plain))
+    text = tmp_path / "t.h5"
+    text.write_text("hello")
+    with pytest.raises(ResultsFormatError):
+        read_summary(str(text))
+
+
+def _leftovers(d):
+    return sorted(p.name for p in d.iterdir())
+
+
+def test_atomic_on_exception(tmp_path, monkeypatch):
+    final = tmp_path / "out.h5"
+    calls = {"n": 0}
+    real = hdf5._write_datasets
+
+    def boom(group, datasets, where):
+        calls["n"] += 1
+        if where.startswith("/analysis_001"):
+            raise RuntimeError("disk on fire")
+        return real(group, datasets, where)
+
+    monkeypatch.setattr(hdf5, "_write_datasets", boom)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        write_results(make_result(), str(final))
+    assert calls["n"] >= 2  # failed mid-write, after data went to the temp file
+    assert _leftovers(tmp_path) == []
+
+
+def test_atomic_keeps_previous_file(tmp_path):
+    final = tmp_path / "out.h5"
+    write_results(make_result(), str(final))
+    before = final.read_bytes()
+    bad = make_result()
+    bad.analyses[0].datasets["/absolute"] = np.zeros(1)
+    with pytest.raises(ValueError, match="invalid dataset path"):
+        write_results(bad, str(final))
+    assert final.read_bytes() == before
+    assert _leftovers(tmp_path) == ["out.h5"]
+
+
+def test_sigkill_mid_write_leaves_no_final_file(tmp_path):
+    final = tmp_path / "killed.h5"
+    script = textwrap.dedent(f"""
+        import sys, time
+        sys.path.insert(0, {os.path.dirname(__file__)!r})
+        from test_hdf5 import make_result
+        from poise.results import hdf5
+        real = hdf5._write_datasets
+        def slow(group, datasets, where):
+            real(group, datasets, where)
+            if where.startswith("/analysis_000"):
+                group.file.flush()
+                print("mid-write", flush=True)
+                time.sleep(60)
+        hdf5._write_datasets = slow
+        hdf5.write_results(make_result(), {str(final)!r})
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "mid-write"
+        tmps = [p for p in tmp_path.iterdir() if p.name.startswith(".killed.h5.tmp-")]
+        assert len(tmps) == 1 and tmps[0].stat().st_size > 0
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    assert not final.exists()
+
+
+def test_overwrites_existing(tmp_path):
+    final = tmp_path / "out.h5"
+    final.write_bytes(b"old junk")
+    write_results(make_result(), str(final))
+    assert read_summary(str(final))["status"] == "failed"
+    assert _leftovers(tmp_path) == ["out.h5"]
+
+
+def test_reserved_attr_clash(tmp_path):
+    r = make_result()
+    r.analyses[0].attrs["method"] = "X"
+    with pytest.raises(ValueError, match="clash"):
+        write_results(r, str(tmp_path / "x.h5"))
+    assert _leftovers(tmp_path) == []
