@@ -1,0 +1,370 @@
+"""CLI tests: every command, every exit code, --json, atomic writes, light imports.
+
+Most tests monkeypatch ``poise.api.run_deck`` / ``check_deck`` with hand-built results so the CLI
+is tested independently of the numerical core; ``test_invalid_decks_subprocess`` runs the real
+CLI on every ``decks/invalid/*.xml``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from importlib.util import find_spec
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import poise
+import poise.api
+from poise.api import CheckReport
+from poise.errors import DeckError, Problem, SourceLoc
+from poise.results import hdf5
+from poise.results.data import AnalysisResult, RunResult
+from poise_cli.main import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+POISE = Path(sys.executable).with_name("poise")
+LINE_RE = re.compile(r"^analysis \d+: \w+ \w+ (converged in|failed after) \d+ iterations?")
+
+
+def make_result(statuses=("converged",), warnings=()) -> RunResult:
+    analyses = []
+    for i, st in enumerate(statuses):
+        ok = st == "converged"
+        analyses.append(AnalysisResult(
+            index=i, analysis_type="static", method="FIM_S", status=st,
+            message="converged" if ok else "imbalance 1.2e+01 > max_imbalance after 25 iterations",
+            settings={"method": "FIM_S"},
+            datasets={
+                "time": np.array([0.0]),
+                "bodies/id": np.array([2]),
+                "bodies/label": np.array(["link"]),
+                "bodies/position": np.zeros((1, 1, 3)),
+                "frames/converged": np.array([ok]),
+                "frames/iterations": np.array([5 if ok else 25]),
+                "frames/imbalance": np.array([3.2e-9 if ok else 12.0]),
+                "frames/error": np.array([1e-10]),
+                "frames/stability": np.array(["unknown"]),
+            },
+            attrs={"reactions_unique": True},
+        ))
+    return RunResult(deck="d.xml", deck_sha256="0" * 64, units="length=MILLIMETER",
+                     active_effects=["gravity"], command="poise solve d.xml",
+                     analyses=analyses, timings={"parse": 0.001, "analysis_000": 0.012},
+                     counts={"residuals": 7}, warnings=list(warnings))
+
+
+@pytest.fixture
+def deck(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    p = tmp_path / "pendulum.xml"
+    p.write_text("<MotionSolve/>\n")
+    return p
+
+
+@pytest.fixture
+def fake_run(monkeypatch):
+    """Install a fake run_deck; returns the list of recorded calls."""
+    calls = []
+
+    def install(result=None, exc=None, progress_lines=()):
+        def run_deck(path, overrides=None, command="", progress=None):
+            calls.append({"path": path, "overrides": overrides, "command": command})
+            for line in progress_lines:
+                progress(line)
+            if exc is not None:
+                raise exc
+            return result
+        monkeypatch.setattr(poise.api, "run_deck", run_deck)
+        return calls
+    return install
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, list(args), prog_name="poise")
+
+
+def deck_error():
+    return DeckError([
+        Problem(SourceLoc("d.xml", 12, "Part", 3), "mass must be > 0", "mass"),
+        Problem(SourceLoc("d.xml", 20, "Constraint_Joint", 7), "unknown marker id 99"),
+    ])
+
+
+# ---- help / version / light import ------------------------------------------------------------
+
+def test_help():
+    r = invoke("--help")
+    assert r.exit_code == 0
+    for cmd in ("solve", "check", "show"):
+        assert cmd in r.output
+    for cmd in ("solve", "check", "show"):
+        r = invoke(cmd, "--help")
+        assert r.exit_code == 0, r.output
+
+
+def test_version():
+    r = invoke("--version")
+    assert r.exit_code == 0
+    assert r.output.strip() == f"poise {poise.__version__}"
+
+
+def test_import_is_light():
+    code = ("import sys, poise_cli.main; "
+            "print(','.join(m for m in ('numpy', 'scipy', 'h5py', 'lxml') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == ""
+
+
+@pytest.mark.skipif(not POISE.exists(), reason="console script not installed in this env")
+def test_console_script_help():
+    r = subprocess.run([str(POISE), "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "solve" in r.stdout
+
+
+# ---- solve ------------------------------------------------------------------------------------
+
+def test_solve_converged(deck, fake_run):
+    calls = fake_run(make_result())
+    r = invoke("solve", str(deck))
+    assert r.exit_code == 0, r.output
+    out = Path.cwd() / "pendulum.h5"
+    assert out.exists()
+    assert calls[0]["overrides"] == {}
+    assert calls[0]["path"] == str(deck)
+    lines = r.stderr.splitlines()
+    assert any(LINE_RE.match(x) for x in lines), r.stderr
+    assert "analysis 0: static FIM_S converged in 5 iterations, imbalance 3.2e-09, 0.012 s" \
+        in lines
+    assert f"wrote {out}" in lines
+    assert r.stdout == ""
+    assert "\x1b[" not in r.stderr  # no colours when stderr is not a TTY
+
+
+def test_solve_overrides_only_given(deck, fake_run):
+    calls = fake_run(make_result())
+    r = invoke("solve", str(deck), "-o", "x.h5", "--method", "fim_d", "--max-num-iter", "50",
+               "--max-imbalance", "1e-6", "--stability", "0.001")
+    assert r.exit_code == 0, r.output
+    assert calls[0]["overrides"] == {"method": "FIM_D", "max_num_iter": 50,
+                                     "max_imbalance": 1e-6, "stability": 0.001}
+    assert calls[0]["command"].startswith("poise ")
+    assert Path("x.h5").exists()
+
+
+def test_solve_failed_exit_1_file_written(deck, fake_run):
+    fake_run(make_result(("converged", "failed")))
+    r = invoke("solve", str(deck), "-o", "out.h5")
+    assert r.exit_code == 1
+    assert Path("out.h5").exists()
+    assert "analysis 1: static FIM_S failed after 25 iterations" in r.stderr
+    assert "1 of 2 analyses did not converge" in r.stderr
+    s = hdf5.read_summary("out.h5")
+    assert s["status"] == "failed"
+    assert [a["status"] for a in s["analyses"]] == ["converged", "failed"]
+
+
+def test_solve_json(deck, fake_run):
+    fake_run(make_result(("converged", "failed")))
+    r = invoke("solve", str(deck), "--json", "--quiet")
+    assert r.exit_code == 1
+    assert r.stderr == ""
+    data = json.loads(r.stdout)
+    for key in ("deck", "output", "status", "exit_code", "analyses", "timings"):
+        assert key in data
+    assert data["status"] == "failed" and data["exit_code"] == 1
+    assert data["output"].endswith("pendulum.h5")
+    a = data["analyses"][1]
+    assert set(a) >= {"index", "analysis_type", "method", "status", "message", "frames",
+                      "iterations", "imbalance"}
+    assert (a["index"], a["frames"], a["iterations"], a["imbalance"]) == (1, 1, 25, 12.0)
+    assert "write" in data["timings"]
+
+
+def test_solve_quiet_and_warnings(deck, fake_run):
+    w = "d.xml:4: <Part id=2>: unknown attribute 'colour' ignored"
+    fake_run(make_result(warnings=[w]))
+    r = invoke("solve", str(deck))
+    assert r.exit_code == 0
+    assert f"warning: {w}" in r.stderr.splitlines()
+    r = invoke("solve", str(deck), "-q")
+    assert r.exit_code == 0 and r.stderr == ""
+
+
+def test_solve_runner_progress_not_duplicated(deck, fake_run):
+    fake_run(make_result(), progress_lines=["analysis 0: static FIM_S converged (runner)"])
+    r = invoke("solve", str(deck))
+    assert r.exit_code == 0
+    lines = [x for x in r.stderr.splitlines() if x.startswith("analysis 0:")]
+    assert lines == ["analysis 0: static FIM_S converged (runner)"]
+
+
+def test_solve_invalid_deck_exit_3(deck, fake_run):
+    fake_run(exc=deck_error())
+    r = invoke("solve", str(deck))
+    assert r.exit_code == 3
+    lines = r.stderr.splitlines()
+    assert "d.xml:12: <Part id=3> mass: mass must be > 0" in lines
+    assert "d.xml:20: <Constraint_Joint id=7>: unknown marker id 99" in lines
+    assert "Traceback" not in r.stderr
+    assert not Path("pendulum.h5").exists()
+
+
+def test_solve_invalid_deck_json(deck, fake_run):
+    fake_run(exc=deck_error())
+    r = invoke("solve", str(deck), "--json")
+    assert r.exit_code == 3
+    data = json.loads(r.stdout)
+    assert data["status"] == "invalid_deck" and data["exit_code"] == 3
+    assert len(data["problems"]) == 2 and data["output"] is None
+
+
+def test_solve_internal_error_exit_4(deck, fake_run):
+    fake_run(exc=ZeroDivisionError("float division by zero"))
+    r = invoke("solve", str(deck))
+    assert r.exit_code == 4
+    assert r.stderr.strip() == ("poise: internal error: ZeroDivisionError: float division by "
+                                "zero; rerun with --debug for the traceback")
+    r = invoke("solve", str(deck), "--debug")
+    assert r.exit_code == 4
+    assert "Traceback" in r.stderr and "ZeroDivisionError" in r.stderr
+
+
+def test_solve_usage_errors_exit_2(deck, fake_run):
+    fake_run(make_result())
+    assert invoke("solve", "missing.xml").exit_code == 2
+    assert invoke("solve", str(deck), "--method", "NEWTON").exit_code == 2
+    assert invoke("solve", str(deck), "--max-num-iter", "0").exit_code == 2
+    assert invoke("solve", str(deck), "--bogus").exit_code == 2
+    assert invoke("solve", str(deck), "-o", "no/such/dir/out.h5").exit_code == 2
+    assert invoke("frobnicate").exit_code == 2
+
+
+def test_solve_atomic_write_failure(deck, fake_run, monkeypatch):
+    fake_run(make_result(("converged", "converged")))
+    real = hdf5._write_datasets
+
+    def boom(group, datasets, where):
+        if where.startswith("/analysis_001"):
+            raise OSError(28, "No space left on device")
+        return real(group, datasets, where)
+
+    monkeypatch.setattr(hdf5, "_write_datasets", boom)
+    r = invoke("solve", str(deck), "-o", "out.h5")
+    assert r.exit_code == 4
+    assert "No space left on device" in r.stderr and "Traceback" not in r.stderr
+    assert sorted(os.listdir(".")) == ["pendulum.xml"]  # no final file, no temp file
+
+
+# ---- check ------------------------------------------------------------------------------------
+
+def make_report(deck):
+    return CheckReport(
+        deck=str(deck),
+        bodies=[{"id": 1, "label": "ground", "kind": "ground", "mass": 0.0},
+                {"id": 2, "label": "link", "kind": "rigid", "mass": 1.5}],
+        constraints=[{"tag": "Constraint_Joint", "id": 5, "type": "REVOLUTE",
+                      "n_equations": 5, "line": 30}],
+        forces=[{"tag": "Force_SpringDamper", "id": 9, "type": "TRANSLATION", "line": 40}],
+        n_coordinates=6, n_equations=5, n_redundant=0, dof=1, redundant=[],
+        active_effects=["gravity", "revolute"], warnings=["d.xml:2: <Units>: note"],
+        analyses=[{"analysis_type": "static", "method": "FIM_D", "n_frames": 1}],
+    )
+
+
+def test_check(deck, monkeypatch):
+    monkeypatch.setattr(poise.api, "check_deck", lambda path: make_report(path))
+    r = invoke("check", str(deck))
+    assert r.exit_code == 0, r.output
+    out = r.stdout
+    for needle in ("bodies: 2", "constraints: 1 (5 equations)", "degrees of freedom: 1",
+                   "redundant equations: 0", "active effects: gravity, revolute", "REVOLUTE"):
+        assert needle in out
+    assert "warning: d.xml:2: <Units>: note" in r.stderr
+    r = invoke("check", str(deck), "--json")
+    assert r.exit_code == 0
+    data = json.loads(r.stdout)
+    assert data["dof"] == 1 and data["bodies"][1]["label"] == "link"
+    assert data["status"] == "valid"
+
+
+def test_check_invalid_deck(deck, monkeypatch):
+    def bad(path):
+        raise deck_error()
+    monkeypatch.setattr(poise.api, "check_deck", bad)
+    r = invoke("check", str(deck))
+    assert r.exit_code == 3
+    assert "d.xml:12: <Part id=3> mass: mass must be > 0" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_check_internal_error(deck, monkeypatch):
+    def bad(path):
+        raise KeyError("oops")
+    monkeypatch.setattr(poise.api, "check_deck", bad)
+    r = invoke("check", str(deck))
+    assert r.exit_code == 4
+    assert "rerun with --debug" in r.stderr and "Traceback" not in r.stderr
+
+
+# ---- show -------------------------------------------------------------------------------------
+
+def test_show(tmp_path):
+    path = tmp_path / "r.h5"
+    res = make_result(("converged", "failed"))
+    res.analyses[1].datasets["time"] = np.arange(3.0)
+    res.analyses[1].datasets["frames/iterations"] = np.array([3, 4, 25])
+    res.analyses[1].datasets["frames/imbalance"] = np.array([1e-9, 1e-9, 12.0])
+    res.analyses[1].datasets["frames/stability"] = np.array(["stable", "stable", "unknown"])
+    hdf5.write_results(res, str(path))
+    r = invoke("show", str(path))
+    assert r.exit_code == 0, r.output
+    out = r.stdout
+    assert "status: failed" in out
+    assert "analysis 0: static FIM_S converged in 5 iterations, imbalance 3.2e-09, 0.012 s" in out
+    assert "analysis 1: static FIM_S failed after 32 iterations (3 frames)" in out
+    assert "stability: stable x2, unknown x1" in out
+    assert "timings [s]:" in out and "counts: residuals 7" in out
+    r = invoke("show", str(path), "--json")
+    data = json.loads(r.stdout)
+    assert data["status"] == "failed"
+    assert data["analyses"][1]["stability"] == ["stable", "stable", "unknown"]
+
+
+def test_show_after_solve(deck, fake_run):
+    fake_run(make_result())
+    assert invoke("solve", str(deck), "-q").exit_code == 0
+    r = invoke("show", "pendulum.h5")
+    assert r.exit_code == 0 and "status: converged" in r.stdout
+
+
+def test_show_not_results(tmp_path):
+    p = tmp_path / "x.h5"
+    p.write_text("not hdf5")
+    r = invoke("show", str(p))
+    assert r.exit_code == 2
+    assert "not an HDF5 file" in r.stderr and "Traceback" not in r.stderr
+    assert invoke("show", str(tmp_path / "missing.h5")).exit_code == 2
+
+
+# ---- the real CLI on invalid decks ------------------------------------------------------------
+
+INVALID_DECKS = sorted((ROOT / "decks" / "invalid").glob("*.xml"))
+HAVE_RUNNER = find_spec("poise.runner") is not None
+
+
+@pytest.mark.skipif(not HAVE_RUNNER, reason="poise.runner (numerical core) not available yet")
+@pytest.mark.parametrize("deck_path", INVALID_DECKS, ids=lambda p: p.name)
+def test_invalid_decks_subprocess(deck_path, tmp_path):
+    cmd = [sys.executable, "-c", "from poise_cli.main import cli; cli(prog_name='poise')",
+           "solve", str(deck_path), "-o", str(tmp_path / "out.h5")]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 3, r.stderr
+    assert re.search(r":\d+:", r.stderr), r.stderr
+    assert re.search(re.escape(deck_path.name) + r":\d+:", r.stderr), r.stderr
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "out.h5").exists()
