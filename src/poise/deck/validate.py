@@ -1,0 +1,293 @@
+"""Deck validation: one pass over a :class:`~poise.deck.spec.DeckSpec`, every problem collected.
+
+Messages read ``FILE:LINE: <Tag id=N>: problem; expected ..., got ...``. Problems that belong to
+the whole file rather than one element (malformed XML, no ground body) read ``FILE:LINE: problem``.
+Warnings (moving body without mass, unknown attributes from the parser, ...) go to
+``DeckSpec.warnings``; errors are raised together as one :class:`~poise.errors.DeckError`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from poise.deck.schema import NAMESPACES, Attr, ElementSchema, element_schema, namespace_of
+from poise.deck.spec import DeckSpec, Element, Expr
+from poise.errors import Problem, ProblemCollector, SourceLoc
+
+ORTHO_TOL = 1e-6
+_KIND_TEXT = {"real": "a real number", "int": "an integer", "bool": "TRUE or FALSE",
+              "real_or_expr": "a number or an expression", "int_list": "a list of integers",
+              "real_list": "a list of real numbers", "expr": "an expression", "str": "text"}
+_DCM = tuple(f"a{r}{c}" for c in range(3) for r in range(3))
+
+
+@dataclass(frozen=True)
+class FileProblem(Problem):
+    """A problem of the whole file: ``FILE:LINE: message`` (no element prefix)."""
+
+    def __str__(self) -> str:
+        return f"{self.loc.file}:{self.loc.line}: {self.message}"
+
+
+def _ns_text(ns: str) -> str:
+    return " or ".join(NAMESPACES[ns])
+
+
+# --------------------------------------------------------------------------- attribute checks
+def _check_value(pc: ProblemCollector, el: Element, a: Attr, v: Any) -> None:
+    """Type, enum and bounds check of one typed attribute value."""
+    k = a.kind
+    if k == "enum":
+        if v not in a.choices:
+            pc.error(el.loc, f"unknown value for '{a.name}'; expected one of "
+                             f"{', '.join(a.choices)}, got '{v}'")
+        return
+    if k in ("str", "expr"):
+        return
+    if isinstance(v, str):
+        what = "empty value" if not v.strip() else "invalid value"
+        if k in ("real", "int"):
+            what = "not a number" if not _looks_numeric(v) else "not an integer"
+        pc.error(el.loc, f"attribute '{a.name}' is {what}; expected {_KIND_TEXT[k]}, got '{v}'")
+        return
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        if not np.isfinite(v):
+            pc.error(el.loc, f"attribute '{a.name}' is not finite; expected {_KIND_TEXT[k]}, got {v}")
+            return
+        bad = ((a.lo is not None and (v < a.lo or (a.lo_open and v == a.lo)))
+               or (a.hi is not None and (v > a.hi or (a.hi_open and v == a.hi))))
+        if bad:
+            pc.error(el.loc, f"attribute '{a.name}' out of range; expected {a.bounds_text()}, "
+                             f"got {v:g}")
+
+
+def _looks_numeric(v: str) -> bool:
+    try:
+        float(v.strip().replace("d", "e").replace("D", "e"))
+        return True
+    except ValueError:
+        return False
+
+
+def _check_element(pc: ProblemCollector, el: Element, sch: ElementSchema) -> None:
+    for name, v in el.attrs.items():
+        a = sch.attrs.get(name)
+        if a is not None:
+            _check_value(pc, el, a, v)
+    if el.is_command:
+        if "id" in sch.attrs and "id" not in el.attrs:
+            pc.error(el.loc, "missing required attribute 'id'; expected the id of the model "
+                             "element to modify, got nothing")
+        return
+    for a in sch.attrs.values():
+        if not a.required or a.name in el.attrs:
+            continue
+        if el.tag == "Body_Rigid" and a.name == "cg_id" and el.get("isground") is True:
+            continue
+        exp = (f"one of {', '.join(a.choices)}" if a.choices else
+               f"an id of {_ns_text(a.ref)}" if a.ref else _KIND_TEXT.get(a.kind, a.kind))
+        pc.error(el.loc, f"missing required attribute '{a.name}'; expected {exp}, got nothing")
+
+
+# --------------------------------------------------------------------------- model checks
+def _num(el: Element, name: str, default: float = 0.0) -> float:
+    v = el.get(name, default)
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else default
+
+
+def _inertia(el: Element) -> np.ndarray:
+    xx, yy, zz = (_num(el, f"inertia_{c}") for c in ("xx", "yy", "zz"))
+    xy, yz, xz = (_num(el, f"inertia_{c}") for c in ("xy", "yz", "xz"))
+    return np.array([[xx, -xy, -xz], [-xy, yy, -yz], [-xz, -yz, zz]])
+
+
+def _check_body(pc: ProblemCollector, el: Element, markers: dict[int, Element]) -> None:
+    for attr in ("cg_id", "im_id"):
+        mid = el.get(attr)
+        m = markers.get(mid) if isinstance(mid, int) else None
+        if m is not None and m.get("body_id") != el.id and isinstance(m.get("body_id"), int):
+            pc.error(el.loc, f"{attr} marker {mid} belongs to body {m.get('body_id')}; expected a "
+                             f"marker on body {el.id}, got marker of line {m.loc.line}")
+    if el.get("isground") is True:
+        return
+    mass = el.get("mass")
+    if not isinstance(mass, (int, float)) or isinstance(mass, bool) or mass == 0:
+        if not isinstance(mass, str):
+            pc.warn(el.loc, "moving body has no mass; it must be fully constrained or fixed to a "
+                            "massive body")
+        return
+    if el.tag != "Body_Rigid":
+        return
+    tensor = _inertia(el)
+    if not np.any(tensor):
+        if mass > 0:
+            pc.warn(el.loc, "moving body has mass but no inertia; its rotations must be constrained")
+        return
+    eig = np.linalg.eigvalsh(tensor)
+    if eig.min() <= 1e-12 * max(1.0, float(np.abs(eig).max())):
+        pc.error(el.loc, "inertia tensor is not positive definite (products of inertia are "
+                         "+integral(xy dm)); expected all eigenvalues > 0, got "
+                         f"[{', '.join(f'{x:.6g}' for x in eig)}]")
+
+
+def _check_marker(pc: ProblemCollector, el: Element) -> None:
+    given = [n for n in _DCM if n in el.attrs]
+    forms = sum(bool(x) for x in (given, [n for n in ("psi", "theta", "phi") if el.has(n)],
+                                  [n for n in ("yaw", "pitch", "roll") if el.has(n)],
+                                  [n for n in ("e0", "e1", "e2", "e3") if el.has(n)]))
+    if forms > 1:
+        pc.warn(el.loc, "several orientation forms given; direction cosines win, then Euler "
+                        "parameters, then psi/theta/phi, then yaw/pitch/roll")
+    if given:
+        if len(given) < 9:
+            missing = [n for n in _DCM if n not in el.attrs]
+            pc.error(el.loc, f"incomplete direction cosines; expected all of a00..a22, got "
+                             f"missing {', '.join(missing)}")
+            return
+        if any(not isinstance(el.attrs[n], float) for n in _DCM):
+            return  # already reported as non-numeric
+        A = np.array([[el.attrs[f"a{r}{c}"] for c in range(3)] for r in range(3)])
+        err = float(np.abs(A.T @ A - np.eye(3)).max())
+        if err > ORTHO_TOL:
+            pc.error(el.loc, f"direction cosines are not orthonormal; expected unit, mutually "
+                             f"orthogonal columns (tolerance {ORTHO_TOL:g}), got max |A^T A - I| = {err:.3g}")
+        elif np.linalg.det(A) < 0:
+            pc.error(el.loc, "direction cosines form a left-handed frame; expected det = +1, got -1")
+    quat = [el.get(f"e{k}") for k in range(4)]
+    if any(q is not None for q in quat) and all(isinstance(q, float) for q in quat):
+        n = float(np.sqrt(sum(q * q for q in quat)))
+        if abs(n - 1.0) > ORTHO_TOL:
+            pc.warn(el.loc, f"Euler parameters are not normalised (norm {n:.6g}); they will be normalised")
+
+
+def _check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Element]) -> None:
+    t = el.tag
+    if t == "Constraint_Joint":
+        jt = el.get("type")
+        if jt == "SCREW" and not el.has("pitch"):
+            pc.error(el.loc, "SCREW joint needs 'pitch'; expected a real number, got nothing")
+        if jt == "RACK_PINION" and not el.has("pitch_diameter"):
+            pc.error(el.loc, "RACK_PINION joint needs 'pitch_diameter'; expected a real number, got nothing")
+    if t in ("Constraint_Joint", "Constraint_Jprim"):
+        mi, mj = markers.get(el.get("i_marker_id")), markers.get(el.get("j_marker_id"))
+        if mi is not None and mj is not None and mi.get("body_id") == mj.get("body_id"):
+            pc.error(el.loc, f"I and J markers are on the same body; expected markers on two "
+                             f"different bodies, got both on body {mi.get('body_id')}")
+    if t == "Force_SpringDamper" and el.get("type") == "TRANSLATIONAL":
+        ln = el.get("length")
+        if isinstance(ln, float) and ln < 0:
+            pc.error(el.loc, f"attribute 'length' out of range; expected >= 0 for a translational "
+                             f"spring, got {ln:g}")
+    if t == "Force_Scalar_TwoBody" and not el.is_command and not any(
+            el.has(n) for n in ("val", "val_expression", "usrsub_param_string", "script_name")):
+        pc.error(el.loc, "no magnitude; expected 'val' or 'val_expression', got neither")
+    if t == "Simulate":
+        st, en = el.get("start_time", 0.0), el.get("end_time")
+        if isinstance(st, float) and isinstance(en, float) and en < st:
+            pc.error(el.loc, f"end_time before start_time; expected end_time >= {st:g}, got {en:g}")
+
+
+# --------------------------------------------------------------------------- driver
+def validate(spec: DeckSpec) -> None:
+    """Validate a parsed deck; raise one :class:`~poise.errors.DeckError` listing every problem.
+
+    Parameters
+    ----------
+    spec : DeckSpec
+        Parsed deck. Validation warnings are appended to ``spec.warnings``.
+
+    Raises
+    ------
+    DeckError
+        When at least one problem was found (all problems, sorted by line).
+    """
+    pc = ProblemCollector()
+    good: list[Element] = []
+    for el in [*spec.model, *spec.commands]:
+        sch = element_schema(el.tag)
+        if sch is None:
+            pc.error(el.loc, f"unknown element <{el.tag}>; expected a MotionSolve element name, "
+                             f"got <{el.tag}>")
+            continue
+        if not sch.supported:
+            pc.error(el.loc, f"<{sch.tag}> is not supported yet")
+            continue
+        if el.is_command and sch.kind == "model":
+            pc.error(el.loc, f"<{sch.tag}> is a model element; expected it inside <Model>, got it "
+                             f"in the command section")
+            continue
+        _check_element(pc, el, sch)
+        good.append(el)
+
+    # ids: unique within each element type, and within a shared namespace (bodies)
+    ids: dict[str, dict[int, Element]] = {ns: {} for ns in NAMESPACES}
+    per_tag: dict[str, dict[int, Element]] = {}
+    for el in good:
+        if el.is_command or not isinstance(el.id, int):
+            continue
+        seen = per_tag.setdefault(el.tag, {})
+        if el.id in seen:
+            pc.error(el.loc, f"duplicate id {el.id}; expected ids unique among <{el.tag}>, got "
+                             f"id {el.id} also at line {seen[el.id].loc.line}")
+            continue
+        seen[el.id] = el
+        ns = namespace_of(el.tag)
+        if ns is not None:
+            other = ids[ns].get(el.id)
+            if other is not None:
+                pc.error(el.loc, f"{ns} id {el.id} is also used by <{other.tag}> at line "
+                                 f"{other.loc.line}; expected unique {ns} ids, got a clash")
+            else:
+                ids[ns][el.id] = el
+    for el in spec.commands:  # arrays may be defined in the command section
+        if el.tag == "Reference_Array" and isinstance(el.id, int):
+            ids["array"].setdefault(el.id, el)
+    markers = ids["marker"]
+
+    for el in good:
+        sch = element_schema(el.tag)
+        for name, v in el.attrs.items():
+            a = sch.attrs.get(name)
+            if a is None or a.ref is None or not isinstance(v, int) or isinstance(v, bool):
+                continue
+            if v == 0 and a.zero_ok:
+                continue
+            if v not in ids[a.ref] and not (a.lo is not None and v < a.lo):
+                pc.error(el.loc, f"attribute '{name}' refers to a missing {_ns_text(a.ref)}; "
+                                 f"expected an existing {a.ref} id, got {v}")
+        if el.is_command and "id" in sch.attrs and isinstance(el.id, int) and el.tag != "Reference_Array":
+            if el.id not in per_tag.get(el.tag, {}):
+                pc.error(el.loc, f"command modifies a missing <{el.tag}>; expected the id of a model "
+                                 f"<{el.tag}>, got {el.id}")
+        if el.is_command:
+            continue
+        if el.tag in ("Body_Rigid", "Body_Point"):
+            _check_body(pc, el, markers)
+        elif el.tag == "Reference_Marker":
+            _check_marker(pc, el)
+            body = ids["body"].get(el.get("body_id"))
+            bt = el.get("body_type")
+            if body is not None and bt in ("RIGIDBODY", "POINTBODY"):
+                want = "POINTBODY" if body.tag == "Body_Point" else "RIGIDBODY"
+                if bt != want:
+                    pc.warn(el.loc, f"body_type {bt} does not match <{body.tag}> {body.id}; using {want}")
+        _check_specific(pc, el, markers)
+
+    grounds = [e for e in good if e.tag == "Body_Rigid" and not e.is_command and e.get("isground") is True]
+    if not grounds:
+        first = next((e for e in spec.model if e.tag in NAMESPACES["body"]), None)
+        loc = SourceLoc(spec.path, first.loc.line if first else 1, "xml")
+        pc.problems.append(FileProblem(loc, "no ground body; expected one <Body_Rigid "
+                                            "isground=\"TRUE\">, got none"))
+    for g in grounds[1:]:
+        pc.error(g.loc, f"more than one ground body; expected exactly one <Body_Rigid "
+                        f"isground=\"TRUE\">, got another at line {grounds[0].loc.line}")
+
+    spec.warnings.extend(pc.warnings)
+    pc.problems.sort(key=lambda p: p.loc.line)
+    pc.raise_if_any()
+
+
+__all__ = ["validate", "FileProblem", "Expr"]
