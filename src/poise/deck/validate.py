@@ -170,7 +170,7 @@ def _check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Elemen
             pc.error(el.loc, "SCREW joint needs 'pitch'; expected a real number, got nothing")
         if jt == "RACK_PINION" and not el.has("pitch_diameter"):
             pc.error(el.loc, "RACK_PINION joint needs 'pitch_diameter'; expected a real number, got nothing")
-    if t in ("Constraint_Joint", "Constraint_Jprim"):
+    if t in ("Constraint_Joint", "Constraint_Jprim") and not el.is_command:
         mi, mj = markers.get(el.get("i_marker_id")), markers.get(el.get("j_marker_id"))
         if mi is not None and mj is not None and mi.get("body_id") == mj.get("body_id"):
             pc.error(el.loc, f"I and J markers are on the same body; expected markers on two "
@@ -261,6 +261,7 @@ def validate(spec: DeckSpec) -> None:
             if el.id not in per_tag.get(el.tag, {}):
                 pc.error(el.loc, f"command modifies a missing <{el.tag}>; expected the id of a model "
                                  f"<{el.tag}>, got {el.id}")
+        _check_specific(pc, el, markers)
         if el.is_command:
             continue
         if el.tag in ("Body_Rigid", "Body_Point"):
@@ -273,7 +274,6 @@ def validate(spec: DeckSpec) -> None:
                 want = "POINTBODY" if body.tag == "Body_Point" else "RIGIDBODY"
                 if bt != want:
                     pc.warn(el.loc, f"body_type {bt} does not match <{body.tag}> {body.id}; using {want}")
-        _check_specific(pc, el, markers)
 
     grounds = [e for e in good if e.tag == "Body_Rigid" and not e.is_command and e.get("isground") is True]
     if not grounds:
