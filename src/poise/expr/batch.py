@@ -1,0 +1,308 @@
+"""Batch compiler: many expressions -> grouped vectorised programs (see CONTRACT.md)."""
+from __future__ import annotations
+
+import gc
+from dataclasses import dataclass
+
+import numpy as np
+
+from poise.errors import DeckError, EvaluationError
+
+from .functions import DomainError
+from .lower import Lowering, extract
+from .program import GroupEnv, build
+
+__all__ = ["compile_batch", "Batch", "EvalContext", "EvalResult"]
+
+
+@dataclass
+class EvalContext:
+    """State in which a batch is evaluated (global components, deck units, radians).
+
+    Attributes
+    ----------
+    time : float
+    P : (n_markers, 3) ndarray
+        Marker origins.
+    A : (n_markers, 3, 3) ndarray
+        Marker axes as columns.
+    scalars : (n_scalars,) ndarray
+        Scalar unknowns (implicit variables, Control_Diff states).
+    reactions : (n_channels,) ndarray
+        Reaction channel values.
+    angle_ref : (n_angles,) ndarray or None
+        Continuity reference of each registered AX/AY/AZ angle (None: principal values).
+    static : bool
+        Static / quasi-static analysis: velocity measures and IMPACT/BISTOP velocities are 0.
+    """
+
+    time: float = 0.0
+    P: np.ndarray | None = None
+    A: np.ndarray | None = None
+    scalars: np.ndarray | None = None
+    reactions: np.ndarray | None = None
+    angle_ref: np.ndarray | None = None
+    static: bool = True
+
+
+@dataclass
+class EvalResult:
+    """Values and derivatives of all n instances of a batch.
+
+    Attributes
+    ----------
+    value : (n,) ndarray
+    d_slot : (n, S, 3) ndarray
+        d value / d slot vector (zero for padding and global-frame slots).
+    slot_marker, slot_kind : (n, S) int ndarray
+        Marker index (-1 unused) and kind (0 origin, 1/2/3 x/y/z axis column) of each slot.
+    d_time : (n,) ndarray
+    d_scalar : (n, U) ndarray
+    scalar_index : (n, U) int ndarray
+        Scalar unknown of each column, -1 unused.
+    d_reaction : (n, C) ndarray
+    reaction_index : (n, C) int ndarray
+        Reaction channel of each column, -1 unused.
+    """
+
+    value: np.ndarray
+    d_slot: np.ndarray
+    slot_marker: np.ndarray
+    slot_kind: np.ndarray
+    d_time: np.ndarray
+    d_scalar: np.ndarray
+    scalar_index: np.ndarray
+    d_reaction: np.ndarray
+    reaction_index: np.ndarray
+
+
+class _Group:
+    """Instances sharing one structural key."""
+
+    def __init__(self, key, rows, insts, splines, n_total):
+        self.key = key
+        self.rows_idx = np.asarray(rows, dtype=np.intp)
+        m = len(rows)
+        self.m = m
+        self.rows = slice(None) if m == n_total and np.all(self.rows_idx == np.arange(m)) \
+            else self.rows_idx
+        i0 = insts[0]
+        self.params = np.array([it.params for it in insts], dtype=float).reshape(m, -1).T.copy()
+        self.S = len(i0.slots)
+        self.kinds = [k for _, k in i0.slots]
+        self.slot_marker = np.array([[s[0] for s in it.slots] for it in insts],
+                                    dtype=np.intp).reshape(m, self.S)
+        self.U = len(i0.scalars)
+        self.scalars = np.array([it.scalars for it in insts], dtype=np.intp).reshape(m, self.U)
+        self.C = len(i0.reactions)
+        self.reactions = np.array([it.reactions for it in insts],
+                                  dtype=np.intp).reshape(m, self.C)
+        self.angles = np.array([it.angles for it in insts], dtype=np.intp).reshape(m, -1)
+        self.spl = []
+        for k in range(len(i0.splines)):
+            ids = np.array([it.splines[k] for it in insts], dtype=np.intp)
+            uniq = np.unique(ids)
+            if len(uniq) == 1:
+                self.spl.append([(splines[uniq[0]], slice(None))])
+            else:
+                self.spl.append([(splines[u], np.nonzero(ids == u)[0]) for u in uniq])
+        self.uses_time = "time" in repr(key)
+        self.fn = build(key)
+
+    def evaluate(self, ctx, P_ext, A_ext):
+        env = GroupEnv()
+        m = self.m
+        env.params = self.params
+        env.ones = np.ones(m)
+        env.t = np.full(m, float(ctx.time))
+        env.vecs = [P_ext[self.slot_marker[:, s]] if kind == 0
+                    else A_ext[self.slot_marker[:, s], :, kind - 1]
+                    for s, kind in enumerate(self.kinds)]
+        env.sc = np.asarray(ctx.scalars, dtype=float)[self.scalars] if self.U else None
+        env.rx = np.asarray(ctx.reactions, dtype=float)[self.reactions] if self.C else None
+        if self.angles.shape[1] and ctx.angle_ref is not None and len(ctx.angle_ref):
+            env.ang = np.asarray(ctx.angle_ref, dtype=float)[self.angles]
+        else:
+            env.ang = None
+        env.spl = self.spl
+        env.static = bool(ctx.static)
+        v, g = self.fn(env)
+        if np.ndim(v) == 0 or v.shape[0] != m:
+            v = np.broadcast_to(v, (m,))
+        return v, g
+
+
+def compile_batch(exprs, resolver) -> "Batch":
+    """Compile expressions into a :class:`Batch`.
+
+    Parameters
+    ----------
+    exprs : list of poise.deck.spec.Expr or float
+        One expression per instance.
+    resolver : Resolver
+        Model-side resolution of marker, variable, spline, array and reaction ids.
+
+    Returns
+    -------
+    Batch
+
+    Raises
+    ------
+    poise.errors.DeckError
+        All syntax / name / argument problems of the batch, located
+        (``FILE:LINE: <Tag id=N> attr col C: message``).
+    """
+    gc_was_enabled = gc.isenabled()
+    gc.disable()              # many small objects: the cyclic GC would dominate compile time
+    try:
+        return _compile(exprs, resolver)
+    finally:
+        if gc_was_enabled:
+            gc.enable()
+
+
+def _compile(exprs, resolver):
+    low = Lowering(resolver)
+    keys: dict = {}
+    order: list = []
+    text_cache: dict = {}
+    for i, e in enumerate(exprs):
+        ir = None
+        if hasattr(e, "text"):
+            ck = e.text
+            hit = text_cache.get(ck)
+            # lowering is context free except for error locations: reuse when error-free
+            if hit is not None:
+                ir = hit
+            else:
+                ir = low.lower_expr(e)
+                if ir is not None:
+                    text_cache[ck] = ir
+        else:
+            ir = low.lower_expr(e)
+        if ir is None:
+            continue
+        key, inst = extract(ir)
+        if key not in keys:
+            keys[key] = ([], [])
+            order.append(key)
+        keys[key][0].append(i)
+        keys[key][1].append(inst)
+    if low.problems or low.var_problems:
+        seen, probs = set(), []
+        for p in low.var_problems + low.problems:
+            if str(p) not in seen:
+                seen.add(str(p))
+                probs.append(p)
+        raise DeckError(probs)
+    n = len(exprs)
+    groups = [_Group(k, keys[k][0], keys[k][1], low.splines, n) for k in order]
+    return Batch(list(exprs), groups)
+
+
+class Batch:
+    """Compiled expressions (n instances in their original order).
+
+    Attributes
+    ----------
+    n : int
+    slot_marker, slot_kind : (n, S) int ndarray
+    scalar_index : (n, U) int ndarray
+    reaction_index : (n, C) int ndarray
+    time_mask : (n,) bool ndarray
+        Instances whose expression reads TIME.
+    state_mask : (n,) bool ndarray
+        Instances depending on any slot, scalar unknown or reaction channel.
+    """
+
+    def __init__(self, exprs, groups):
+        self.exprs = exprs
+        self.groups = groups
+        n = self.n = len(exprs)
+        S = max((g.S for g in groups), default=0)
+        U = max((g.U for g in groups), default=0)
+        C = max((g.C for g in groups), default=0)
+        self.S, self.U, self.C = S, U, C
+        self.slot_marker = np.full((n, S), -1, dtype=np.intp)
+        self.slot_kind = np.zeros((n, S), dtype=np.intp)
+        self.scalar_index = np.full((n, U), -1, dtype=np.intp)
+        self.reaction_index = np.full((n, C), -1, dtype=np.intp)
+        self.time_mask = np.zeros(n, dtype=bool)
+        self.state_mask = np.zeros(n, dtype=bool)
+        for g in groups:
+            r = g.rows
+            self.slot_marker[r, :g.S] = g.slot_marker
+            self.slot_kind[r, :g.S] = np.array(g.kinds, dtype=np.intp)
+            self.scalar_index[r, :g.U] = g.scalars
+            self.reaction_index[r, :g.C] = g.reactions
+            self.time_mask[r] = g.uses_time
+            self.state_mask[r] = (g.S + g.U + g.C) > 0
+        self._global_slots = self.slot_marker < 0
+        self._has_global = bool(self._global_slots[:, :S].any()) if S else False
+
+    @property
+    def depends_on_time(self) -> bool:
+        """True if any instance reads TIME."""
+        return bool(self.time_mask.any())
+
+    @property
+    def depends_on_state(self) -> bool:
+        """True if any instance depends on a marker, scalar unknown or reaction channel."""
+        return bool(self.state_mask.any())
+
+    def _fail(self, g, message, mask):
+        j = int(np.argmax(mask))
+        i = int(g.rows_idx[j])
+        e = self.exprs[i]
+        loc, attr = (e.loc, e.attr) if hasattr(e, "loc") else (None, None)
+        text = f" in '{e.text}'" if hasattr(e, "text") else ""
+        raise EvaluationError(f"{message}{text}", loc, attr)
+
+    def evaluate(self, ctx: EvalContext) -> EvalResult:
+        """Evaluate all instances with first derivatives.
+
+        Raises
+        ------
+        poise.errors.EvaluationError
+            Division by zero, SQRT of a negative, LOG of <= 0, ASIN/ACOS out of range, NaN/Inf
+            value or derivative; names the first failing instance's element and attribute.
+        """
+        n, S, U, C = self.n, self.S, self.U, self.C
+        value = np.empty(n)
+        d_slot = np.zeros((n, S, 3))
+        d_time = np.zeros(n)
+        d_scalar = np.zeros((n, U))
+        d_reaction = np.zeros((n, C))
+        P_ext = A_ext = None
+        if S:
+            P = np.asarray(ctx.P, dtype=float).reshape(-1, 3)
+            A = np.asarray(ctx.A, dtype=float).reshape(-1, 3, 3)
+            P_ext = np.concatenate([P, np.zeros((1, 3))])
+            A_ext = np.concatenate([A, np.eye(3)[None]])
+        with np.errstate(all="ignore"):
+            for g in self.groups:
+                try:
+                    v, grad = g.evaluate(ctx, P_ext, A_ext)
+                except DomainError as e:
+                    self._fail(g, e.message, e.mask)
+                bad = ~np.isfinite(v)
+                if bad.any():
+                    self._fail(g, "non-finite value", bad)
+                r = g.rows
+                value[r] = v
+                for k, d in grad.items():
+                    if not np.isfinite(d).all():
+                        b = ~np.isfinite(d)
+                        self._fail(g, "non-finite derivative", b if b.ndim == 1 else b.any(1))
+                    if k.__class__ is int:
+                        d_slot[r, k] = d
+                    elif k == "t":
+                        d_time[r] = d
+                    elif k[0] == "u":
+                        d_scalar[r, k[1]] = d
+                    else:
+                        d_reaction[r, k[1]] = d
+        if self._has_global:
+            d_slot[self._global_slots] = 0.0
+        return EvalResult(value, d_slot, self.slot_marker, self.slot_kind, d_time,
+                          d_scalar, self.scalar_index, d_reaction, self.reaction_index)

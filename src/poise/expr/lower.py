@@ -1,0 +1,390 @@
+"""Semantic lowering: AST -> structural IR + per-instance data.
+
+The IR is a tree of tuples. Before :func:`extract` it carries concrete data:
+
+* ``("c", value)`` constant, ``("time",)``
+* ``("neg", a)``, ``("bin", op, a, b)`` with op in ``+ - * / ^``
+* ``("fn", NAME, (args...))`` (math/special functions, IF, IMPACT, BISTOP)
+* ``("meas", NAME, ((marker_index, kind), ...), angle_key or None)``
+* ``("sc", scalar_index)``, ``("rx", reaction_channel)``
+* ``("spl", KIND, order, x, z, spline_table_index)``
+
+:func:`extract` replaces the concrete data by local numbers (constants -> parameter numbers,
+slots/scalars/reactions deduplicated per expression) giving a hashable *structural key*; equal
+keys are evaluated together as one vectorised group. Constant subtrees are folded.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from poise.errors import Problem
+
+from .ast import BinOp, Call, Name, Num, Param, Unary
+from .functions import ARITY, FUNCTIONS, DomainError
+from .measures import CONTINUOUS, MEASURE_ARITY, MEASURE_SLOTS, VELOCITY_MEASURES
+from .parser import parse
+from .splines import SPLINE_KINDS, PreparedSpline
+from .tokens import ExprSyntaxError, make_template
+
+__all__ = ["Lowering", "extract", "Instance"]
+
+CONSTANTS = {"PI": math.pi, "DTOR": math.pi / 180.0, "RTOD": 180.0 / math.pi}
+REACTION_FUNCS = {"JOINT", "JPRIM", "MOTION", "MATE", "SFORCE", "VFORCE", "VTORQ", "GFORCE",
+                  "BUSH", "SPDP"}
+RESULTANT_FUNCS = {"FM": 1, "FX": 2, "FY": 3, "FZ": 4, "TM": 5, "TX": 6, "TY": 7, "TZ": 8}
+_IMPURE = {"IMPACT", "BISTOP"}
+_BINOPS = {"+": "+", "-": "-", "*": "*", "/": "/", "**": "^"}
+
+
+class _Fail(Exception):
+    """Internal: a located problem was recorded; abandon the current subtree."""
+
+
+def fold_bin(op, a, b):
+    """Fold a binary operation on two floats; None when not foldable (error or non-finite)."""
+    with np.errstate(all="ignore"):
+        if op == "+":
+            v = a + b
+        elif op == "-":
+            v = a - b
+        elif op == "*":
+            v = a * b
+        elif op == "/":
+            if b == 0:
+                return None
+            v = a / b
+        else:
+            if a < 0 and b != int(b):
+                return None
+            if a == 0 and b < 0:
+                return None
+            v = float(np.power(a, b))
+    return v if math.isfinite(v) else None
+
+
+def _fold_fn(name, vals):
+    try:
+        with np.errstate(all="ignore"):
+            v, _ = FUNCTIONS[name]([np.array([x]) for x in vals], [False] * len(vals))
+    except DomainError:
+        return None
+    v = float(v[0])
+    return v if math.isfinite(v) else None
+
+
+class Lowering:
+    """Lowers expressions of one batch (shared caches for variables and splines).
+
+    Parameters
+    ----------
+    resolver : Resolver
+        Model-side name resolution (see CONTRACT.md).
+    """
+
+    def __init__(self, resolver):
+        self.resolver = resolver
+        self.problems: list[Problem] = []
+        self.var_problems: list[Problem] = []   # problems inside inlined variables
+        self.var_cache: dict = {}
+        self.var_stack: list = []
+        self.spline_index: dict = {}
+        self.splines: list[PreparedSpline] = []
+        self._ctx = None          # (loc, attr) of the text being lowered
+        self.nums: list = []      # numbers of the template being lowered
+
+    # -- errors ----------------------------------------------------------------------------
+    def error(self, col, message):
+        loc, attr = self._ctx
+        self.problems.append(Problem(loc, message, f"{attr} col {col}" if col else attr))
+        raise _Fail
+
+    # -- entry -----------------------------------------------------------------------------
+    def lower_expr(self, expr):
+        """Lower one ``Expr`` (or float) to concrete IR; None if a problem was recorded."""
+        if not hasattr(expr, "text"):
+            return ("c", float(expr))
+        return self._lower_text(expr.text, expr.loc, expr.attr)
+
+    def _lower_text(self, text, loc, attr):
+        saved = self._ctx, self.nums, self.problems
+        self._ctx = (loc, attr)
+        try:
+            tmpl, self.nums = make_template(text)
+            try:
+                node = parse(tmpl)
+            except ExprSyntaxError:
+                node = None
+            if node is not None:
+                # fast path: cached template parse; on any problem redo it from the original
+                # text so that reported columns are exact
+                self.problems = []
+                try:
+                    return self.lower(node)
+                except _Fail:
+                    pass
+                finally:
+                    self.problems = saved[2]
+            try:
+                node = parse(text)
+            except ExprSyntaxError as e:
+                self.error(e.col, e.message)
+            return self.lower(node)
+        except _Fail:
+            return None
+        finally:
+            self._ctx, self.nums = saved[0], saved[1]
+
+    # -- nodes -----------------------------------------------------------------------------
+    def lower(self, node):
+        if isinstance(node, Param):
+            return ("c", self.nums[node.index])
+        if isinstance(node, Num):
+            return ("c", node.value)
+        if isinstance(node, BinOp):
+            a = self.lower(node.left)
+            b = self.lower(node.right)
+            op = _BINOPS[node.op]
+            if a[0] == "c" and b[0] == "c":
+                v = fold_bin(op, a[1], b[1])
+                if v is not None:
+                    return ("c", v)
+            return ("bin", op, a, b)
+        if isinstance(node, Unary):
+            a = self.lower(node.arg)
+            if node.op == "+":
+                return a
+            return ("c", -a[1]) if a[0] == "c" else ("neg", a)
+        if isinstance(node, Name):
+            if node.name == "TIME":
+                return ("time",)
+            if node.name in CONSTANTS:
+                return ("c", CONSTANTS[node.name])
+            self.error(node.col, f"unknown name {node.name!r}")
+        if isinstance(node, Call):
+            return self.call(node)
+        raise TypeError(node)  # pragma: no cover
+
+    def _arity(self, node, lo, hi):
+        n = len(node.args)
+        if not lo <= n <= hi:
+            want = f"{lo}" if lo == hi else (f"{lo}..{hi}" if hi < 99 else f"at least {lo}")
+            self.error(node.col, f"{node.name} takes {want} arguments, got {n}")
+
+    def int_arg(self, node, i, default=0):
+        """Integer constant argument ``i`` of a call (``default`` when omitted)."""
+        if i >= len(node.args):
+            return default
+        ir = self.lower(node.args[i])
+        if ir[0] != "c" or ir[1] != int(ir[1]):
+            self.error(node.args[i].col, f"{node.name} argument {i + 1} must be an integer "
+                       "constant")
+        return int(ir[1])
+
+    def marker(self, node, i):
+        mid = self.int_arg(node, i)
+        if mid == 0:
+            return -1
+        try:
+            return int(self.resolver.marker_index(mid))
+        except KeyError:
+            self.error(node.args[i].col, f"unknown marker id {mid}")
+
+    def call(self, node):
+        name = node.name
+        if name in ARITY:
+            self._arity(node, *ARITY[name])
+            args = [self.lower(a) for a in node.args]
+            if name in ("MAX", "MIN") and len(args) > 2:
+                acc = args[0]
+                for b in args[1:]:
+                    acc = self._fn(name, [acc, b])
+                return acc
+            return self._fn(name, args)
+        if name in MEASURE_SLOTS:
+            self._arity(node, *MEASURE_ARITY[name])
+            ids = [self.marker(node, i) for i in range(3)]
+            slots = tuple((ids[w], kind) for w, kind in MEASURE_SLOTS[name])
+            key = None
+            if name in CONTINUOUS:
+                key = int(self.resolver.angle_key(ids[0], ids[1], CONTINUOUS[name]))
+            return ("meas", name, slots, key)
+        if name in VELOCITY_MEASURES:
+            self._arity(node, *VELOCITY_MEASURES[name])
+            for i in range(len(node.args)):
+                self.marker(node, i)
+            return ("c", 0.0)
+        if name in REACTION_FUNCS or name in RESULTANT_FUNCS or name == "FRICTION":
+            return self.reaction(node)
+        if name in SPLINE_KINDS:
+            return self.spline(node)
+        if name in ("VARVAL", "DIF", "DIF1"):
+            self._arity(node, 1, 1)
+            return self.state(node, self.int_arg(node, 0))
+        if name == "ARYVAL":
+            self._arity(node, 2, 2)
+            aid, k = self.int_arg(node, 0), self.int_arg(node, 1)
+            try:
+                vals = np.asarray(self.resolver.array(aid), dtype=float).ravel()
+            except KeyError:
+                self.error(node.args[0].col, f"unknown Reference_Array id {aid}")
+            if not 1 <= k <= len(vals):
+                self.error(node.args[1].col, f"ARYVAL index {k} outside 1..{len(vals)}")
+            return ("c", float(vals[k - 1]))
+        self.error(node.col, f"unknown function {name!r}")
+
+    def _fn(self, name, args):
+        if name not in _IMPURE and all(a[0] == "c" for a in args):
+            v = _fold_fn(name, [a[1] for a in args])
+            if v is not None:
+                return ("c", v)
+        return ("fn", name, tuple(args))
+
+    def reaction(self, node):
+        name = node.name
+        if name in RESULTANT_FUNCS:
+            self._arity(node, 1, 3)
+            i, j, k = (self.int_arg(node, n) for n in range(3))
+            call = (name, i, j, RESULTANT_FUNCS[name], k)
+        elif name == "FRICTION":
+            self._arity(node, 2, 3)
+            call = (name, self.int_arg(node, 0), 0, self.int_arg(node, 1), self.int_arg(node, 2))
+        else:
+            self._arity(node, 3, 4)
+            call = (name,) + tuple(self.int_arg(node, n) for n in range(4))
+        try:
+            ch = self.resolver.reaction(*call)
+        except NotImplementedError as e:
+            self.error(node.col, str(e) or f"{name} is not supported")
+        except KeyError:
+            self.error(node.col, f"{name}: unknown element id {call[1]}")
+        return ("rx", int(ch))
+
+    def spline(self, node):
+        self._arity(node, 3, 4)
+        x = self.lower(node.args[0])
+        z = self.lower(node.args[1])
+        sid = self.int_arg(node, 2)
+        order = self.int_arg(node, 3)
+        if not 0 <= order <= 2:
+            self.error(node.args[3].col, f"{node.name} derivative order must be 0, 1 or 2")
+        key = (node.name, sid)
+        if key not in self.spline_index:
+            try:
+                xs, ys, zs, lin = self.resolver.spline(sid)
+            except KeyError:
+                self.error(node.args[2].col, f"unknown Reference_Spline id {sid}")
+            try:
+                sp = PreparedSpline(node.name, xs, ys, zs, lin)
+            except ValueError as e:
+                self.error(node.args[2].col, f"Reference_Spline id {sid}: {e}")
+            self.spline_index[key] = len(self.splines)
+            self.splines.append(sp)
+        return ("spl", node.name, order, x, z, self.spline_index[key])
+
+    def state(self, node, vid):
+        r = self.resolver
+        name = node.name
+        try:
+            if name == "DIF":
+                return ("sc", int(r.diff_state(vid)))
+            if name == "DIF1":
+                k = r.diff_derivative(vid)
+                return ("c", 0.0) if k is None else ("sc", int(k))
+            kind, val = r.variable(vid)
+        except KeyError:
+            what = "Reference_Variable" if name == "VARVAL" else "Control_Diff"
+            self.error(node.args[0].col, f"unknown {what} id {vid}")
+        if kind == "implicit":
+            return ("sc", int(val))
+        if vid in self.var_stack:
+            chain = " -> ".join(str(v) for v in self.var_stack + [vid])
+            self.error(node.col, f"recursive VARVAL: {chain}")
+        if vid not in self.var_cache:
+            if not hasattr(val, "text"):
+                self.var_cache[vid] = ("c", float(val))
+            else:
+                self.var_stack.append(vid)
+                outer, self.problems = self.problems, self.var_problems
+                try:
+                    self.var_cache[vid] = self._lower_text(val.text, val.loc, val.attr)
+                finally:
+                    self.var_stack.pop()
+                    self.problems = outer
+        ir = self.var_cache[vid]
+        if ir is None:
+            self.error(node.col, f"Reference_Variable id {vid} is invalid")
+        return ir
+
+
+class Instance:
+    """Per-instance data of one lowered expression (see :func:`extract`)."""
+
+    __slots__ = ("params", "slots", "scalars", "reactions", "angles", "splines")
+
+    def __init__(self):
+        self.params: list = []
+        self.slots: list = []
+        self.scalars: list = []
+        self.reactions: list = []
+        self.angles: list = []
+        self.splines: list = []
+
+
+def extract(ir):
+    """Split concrete IR into a structural key and per-instance data.
+
+    Returns
+    -------
+    key : tuple
+        Hashable IR with constants/slots/... replaced by local numbers.
+    inst : Instance
+        Parameter values, slot ``(marker, kind)`` pairs, scalar/reaction indices, angle keys and
+        spline table indices, in the order the key refers to them.
+    """
+    inst = Instance()
+    slot_map, sc_map, rx_map = {}, {}, {}
+
+    def local(mapping, lst, v):
+        if v not in mapping:
+            mapping[v] = len(lst)
+            lst.append(v)
+        return mapping[v]
+
+    def walk(n):
+        tag = n[0]
+        if tag == "c":
+            inst.params.append(n[1])
+            return ("c", len(inst.params) - 1)
+        if tag == "time":
+            return n
+        if tag == "neg":
+            return ("neg", walk(n[1]))
+        if tag == "bin":
+            return ("bin", n[1], walk(n[2]), walk(n[3]))
+        if tag == "fn":
+            return ("fn", n[1], tuple(walk(a) for a in n[2]))
+        if tag == "meas":
+            loc = []
+            for s in n[2]:
+                if s[0] < 0:                      # global frame: never shared
+                    inst.slots.append(s)
+                    loc.append(len(inst.slots) - 1)
+                else:
+                    loc.append(local(slot_map, inst.slots, s))
+            a = -1
+            if n[3] is not None:
+                inst.angles.append(n[3])
+                a = len(inst.angles) - 1
+            return ("meas", n[1], tuple(loc), a)
+        if tag == "sc":
+            return ("sc", local(sc_map, inst.scalars, n[1]))
+        if tag == "rx":
+            return ("rx", local(rx_map, inst.reactions, n[1]))
+        if tag == "spl":
+            inst.splines.append(n[5])
+            return ("spl", n[1], n[2], walk(n[3]), walk(n[4]), len(inst.splines) - 1)
+        raise ValueError(tag)  # pragma: no cover
+
+    return walk(ir), inst
