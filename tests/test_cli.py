@@ -400,3 +400,9 @@ def test_invalid_deck_all_problems_check_json(tmp_path):
     assert data["exit_code"] == 3 and data["status"] == "invalid_deck"
     assert len(data["problems"]) == len(located)
     assert "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("module", ["poise_cli", "poise_cli.main"])
+def test_python_dash_m(module):
+    r = subprocess.run([sys.executable, "-m", module, "--version"], capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.strip() == f"poise {poise.__version__}"

@@ -38,3 +38,7 @@ cli.add_command(show)
 
 def main() -> None:  # pragma: no cover - console entry alias
     cli(prog_name="poise")
+
+
+if __name__ == "__main__":  # ``python -m poise_cli.main`` (also ``python -m poise_cli``)
+    cli(prog_name="poise")
