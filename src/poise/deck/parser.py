@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import io
 import re
+from dataclasses import replace
 from typing import Any
 
 from lxml import etree
@@ -34,6 +35,33 @@ _TRUE = {"TRUE", "YES", "1", "T", "ON"}
 _FALSE = {"FALSE", "NO", "0", "F", "OFF"}
 _ENTITY = re.compile(rb"<!ENTITY", re.IGNORECASE)
 _SECTIONS = ("model", "command")
+_TAG_SCAN = re.compile(rb"<!--.*?-->|<!\[CDATA\[.*?\]\]>|<\?.*?\?>|<[A-Za-z_:]", re.S)
+_BIG_LINE = 65535  # libxml2 stores element line numbers in 16 bits
+
+
+def _start_tag_lines(data: bytes, wanted: set[int]) -> dict[int, int]:
+    """Line numbers of the start tags with the given 0-based ordinals (document order).
+
+    libxml2 reports 65535 for every element beyond that line once the tree has been pruned, so
+    big decks are fixed up by scanning the raw bytes: outside comments, CDATA and processing
+    instructions, ``<`` followed by a name character always opens a start tag.
+    """
+    out: dict[int, int] = {}
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in data[:4]:
+        return out  # UTF-16/32 decks: keep libxml2's numbers
+    k, line, pos = 0, 1, 0
+    last = max(wanted) if wanted else -1
+    for m in _TAG_SCAN.finditer(data):
+        if m.end() - m.start() != 2:
+            continue
+        if k in wanted:
+            line += data.count(b"\n", pos, m.start())
+            pos = m.start()
+            out[k] = line
+        k += 1
+        if k > last:
+            break
+    return out
 
 
 # --------------------------------------------------------------------------- value typing
@@ -214,6 +242,9 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
                               no_network=True, load_dtd=False, dtd_validation=False, huge_tree=False,
                               remove_comments=True, remove_pis=True)
         stack: list[str] = []
+        ordinal = -1
+        ord_stack: list[int] = []  # start-tag ordinal of each open element
+        big: dict[int, Element] = {}  # ordinal -> element whose line libxml2 capped
         first = True
         for event, elem in ctx:
             if not isinstance(elem.tag, str):
@@ -225,6 +256,7 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
                     if dtd is not None and any(True for _ in dtd.iterentities()):
                         raise DeckError(FileProblem(SourceLoc(path, 1, "xml"),
                                                     "entity declarations are not allowed in a deck"))
+                ordinal += 1
                 name = _local(elem.tag).lower()
                 parent = stack[-1] if stack else None
                 if parent is None:
@@ -241,11 +273,15 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
                             f"nested element <{_local(elem.tag)}> ignored"))
                 seen_model = seen_model or role == "model"
                 stack.append(role)
+                ord_stack.append(ordinal)
                 continue
             role = stack.pop()
+            own = ord_stack.pop()
             if role == "deck":
                 el = b.build(_local(elem.tag), elem.attrib, elem.text, elem.sourceline or 0)
                 items.append((el, stack[-1]))
+                if el.loc.line >= _BIG_LINE:
+                    big[own] = el
             if stack:  # keep memory bounded: drop processed elements
                 elem.clear()
                 parent_el = elem.getparent()
@@ -261,6 +297,18 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
     except Exception as e:  # any other lxml / decoding failure is still a deck problem
         raise DeckError(FileProblem(SourceLoc(path, 0, "xml"),
                                     f"cannot parse deck: {type(e).__name__}: {e}")) from None
+    if big:
+        fixed = _start_tag_lines(data, set(big))
+        moved: dict[int, SourceLoc] = {}
+        for k, el in big.items():
+            if k in fixed:
+                old_loc, el.loc = el.loc, replace(el.loc, line=fixed[k])
+                moved[id(old_loc)] = el.loc
+                for name, v in el.attrs.items():
+                    if isinstance(v, Expr):
+                        el.attrs[name] = replace(v, loc=el.loc)
+        b.warnings = [replace(w, loc=moved[id(w.loc)]) if id(w.loc) in moved else w
+                      for w in b.warnings]
     if not items and not stack and first:
         raise DeckError(FileProblem(SourceLoc(path, 1, "xml"), "empty deck"))
 
