@@ -145,7 +145,7 @@ def joint_residuals(dk: Deck, q):
 
 
 def dof_and_redundancy(dk: Deck):
-    r0, n = joint_residuals(dk, np.zeros(0) if False else np.zeros(6 * (len(dk.bodies) - 1)))
+    r0, n = joint_residuals(dk, np.zeros(6 * (len(dk.bodies) - 1)))
     h = 1e-7
     J = np.empty((len(r0), n))
     for k in range(n):
