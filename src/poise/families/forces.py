@@ -1,0 +1,236 @@
+"""Force families between two markers, vectorised.
+
+All two-body force elements share one slot layout (markers I, J, R):
+``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J, x_R, y_R, z_R]`` (slots 0..10), where R is the
+reference marker of vector-force components (the global frame when absent).
+
+Each family computes the force ``F`` and torque ``T`` acting on the body of I at the I origin
+(global components) and their derivatives with respect to the slot vectors. The generic
+:func:`apply_two_body` then applies ``(F, T)`` to I and, unless the element is action-only, the
+equal and opposite action to J: ``-F`` at ``P_J`` plus the torque ``-T - (P_I - P_J) x F``.
+Laws follow ``conventions.md`` (statics: velocities are zero, damping vanishes).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.errors import EvaluationError
+from poise.families.base import ForceFamily, add_force_at_point, add_torque_via_axes
+from poise.model.rotation import skew
+
+S_PI, S_XI, S_YI, S_ZI, S_PJ, S_XJ, S_YJ, S_ZJ, S_XR, S_YR, S_ZR = range(11)
+N_SLOTS = 11
+SLOT_ML = np.array([0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2])
+SLOT_KIND = np.array([0, 1, 2, 3, 0, 1, 2, 3, 1, 2, 3])
+_I3 = np.eye(3)
+# angle measure (about axis k of J): (u slot, e1 slot, e2 slot): theta = atan2(u.e2, u.e1)
+ANGLE_SLOTS = {0: (S_YI, S_YJ, S_ZJ), 1: (S_ZI, S_ZJ, S_XJ), 2: (S_XI, S_XJ, S_YJ)}
+
+
+def sl(s):
+    return slice(3 * s, 3 * s + 3)
+
+
+def angle_gradient(Y, axis):
+    """Gradient of the angle about J axis ``axis`` (0=x: AX, 1=y: AY, 2=z: AZ), (n, 33)."""
+    su, s1, s2 = ANGLE_SLOTS[axis]
+    u, e1, e2 = Y[:, su], Y[:, s1], Y[:, s2]
+    c = np.einsum("ni,ni->n", u, e1)
+    s = np.einsum("ni,ni->n", u, e2)
+    r2 = c * c + s * s
+    g = np.zeros((Y.shape[0], 3 * N_SLOTS))
+    g[:, sl(su)] = (c[:, None] * e2 - s[:, None] * e1) / r2[:, None]
+    g[:, sl(s1)] = -s[:, None] * u / r2[:, None]
+    g[:, sl(s2)] = c[:, None] * u / r2[:, None]
+    return g
+
+
+def principal_angle(Y, axis):
+    su, s1, s2 = ANGLE_SLOTS[axis]
+    u, e1, e2 = Y[:, su], Y[:, s1], Y[:, s2]
+    return np.arctan2(np.einsum("ni,ni->n", u, e2), np.einsum("ni,ni->n", u, e1))
+
+
+def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
+    """Assemble ``rho`` (n, 33) and ``G`` (n, 33, 33) from the action (F, T) on I.
+
+    ``action_only`` (n,) bool: no reaction on J for those instances.
+    """
+    n = Y.shape[0]
+    rho = np.zeros((n, 3 * N_SLOTS))
+    G = np.zeros((n, 3 * N_SLOTS, 3 * N_SLOTS)) if need_jac else None
+    add_force_at_point(rho, G, S_PI, F, dF)
+    add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
+    react = ~np.asarray(action_only, bool)
+    if react.any():
+        d = Y[:, S_PI] - Y[:, S_PJ]
+        Fj = -F * react[:, None]
+        Tj = (-T - np.cross(d, F)) * react[:, None]
+        dFj = dTj = None
+        if need_jac:
+            dFj = -dF * react[:, None, None]
+            # d(d x F) = -[F]x dd + [d]x dF
+            dd = np.zeros((n, 3, 3 * N_SLOTS))
+            dd[:, :, sl(S_PI)] = _I3
+            dd[:, :, sl(S_PJ)] = -_I3
+            dcross = -np.matmul(skew(F), dd) + np.matmul(skew(d), dF)
+            dTj = (-dT - dcross) * react[:, None, None]
+        add_force_at_point(rho, G, S_PJ, Fj, dFj)
+        add_torque_via_axes(rho, G, (S_XJ, S_YJ, S_ZJ), Tj, dTj, Y)
+    return rho, G
+
+
+class TwoBodyForce(ForceFamily):
+    """Common constructor for the marker-pair force families."""
+
+    @classmethod
+    def build(cls, name, I, J, R, owner, action_only=None, **params):
+        n = len(I)
+        fam = cls(name=name, markers=np.stack([I, J, R], 1).astype(int), slot_ml=SLOT_ML,
+                  slot_kind=np.broadcast_to(SLOT_KIND, (n, N_SLOTS)).copy(),
+                  owner=np.asarray(owner, int))
+        fam.action_only = np.zeros(n, bool) if action_only is None else np.asarray(action_only, bool)
+        for k, v in params.items():
+            setattr(fam, k, np.asarray(v))
+        fam.locs = params.get("locs", None)
+        return fam
+
+    def compute(self, Y, ctx, need_jac):
+        """Return F, T (n,3) and dF, dT (n,3,33)."""
+        raise NotImplementedError
+
+    def forces(self, kin, ctx, need_jac=True):
+        F, T, dF, dT = self.compute(kin.Y, ctx, need_jac)
+        return apply_two_body(kin.Y, F, T, dF, dT, self.action_only, need_jac)
+
+
+class LineForce(TwoBodyForce):
+    """Force of magnitude ``f = -k (L - length) + preload`` along J->I (positive repels).
+
+    Covers ``Force_SpringDamper TRANSLATIONAL`` (k, length, preload) and
+    ``Force_Scalar_TwoBody FORCE`` (k = 0, preload = value). Parameters: ``k``, ``length``,
+    ``preload`` (n,), ``element_locs`` list for error messages.
+    """
+
+    def compute(self, Y, ctx, need_jac):
+        d = Y[:, S_PI] - Y[:, S_PJ]
+        L = np.linalg.norm(d, axis=1)
+        if np.any(L <= 1e-300):
+            i = int(np.argmin(L))
+            raise EvaluationError("the I and J markers coincide: the line of action is undefined",
+                                  self.element_locs[i] if self.element_locs else None)
+        u = d / L[:, None]
+        f = -self.k * (L - self.length) + self.preload
+        F = f[:, None] * u
+        T = np.zeros_like(F)
+        dF = dT = None
+        if need_jac:
+            n = len(L)
+            uu = u[:, :, None] * u[:, None, :]
+            dFdd = (-self.k)[:, None, None] * uu + (f / L)[:, None, None] * (_I3 - uu)
+            dF = np.zeros((n, 3, 3 * N_SLOTS))
+            dF[:, :, sl(S_PI)] = dFdd
+            dF[:, :, sl(S_PJ)] = -dFdd
+            dT = np.zeros_like(dF)
+        return F, T, dF, dT
+
+
+class AxisForce(TwoBodyForce):
+    """Action-only force of constant magnitude along J's z axis (``Force_Scalar_TwoBody``
+    ``FORCE`` with ``is_action_only``). Parameter ``value`` (n,)."""
+
+    def compute(self, Y, ctx, need_jac):
+        z = Y[:, S_ZJ]
+        F = self.value[:, None] * z
+        T = np.zeros_like(F)
+        dF = dT = None
+        if need_jac:
+            n = len(F)
+            dF = np.zeros((n, 3, 3 * N_SLOTS))
+            dF[:, :, sl(S_ZJ)] = self.value[:, None, None] * _I3
+            dT = np.zeros_like(dF)
+        return F, T, dF, dT
+
+
+class AxisTorque(TwoBodyForce):
+    """Torque ``tau = -k (AZ(I,J) - length) + preload`` about J's z axis.
+
+    ``Force_SpringDamper ROTATIONAL`` and ``Force_Scalar_TwoBody TORQUE`` (k = 0). AZ is the
+    continuous angle (full turns counted) held in ``ctx.angle[self.angle_index]``.
+    """
+
+    def compute(self, Y, ctx, need_jac):
+        theta = ctx.angle[self.angle_index]
+        tau = -self.k * (theta - self.length) + self.preload
+        z = Y[:, S_ZJ]
+        T = tau[:, None] * z
+        F = np.zeros_like(T)
+        dF = dT = None
+        if need_jac:
+            n = len(T)
+            g = angle_gradient(Y, 2)
+            dT = np.zeros((n, 3, 3 * N_SLOTS))
+            dT += z[:, :, None] * (-self.k)[:, None, None] * g[:, None, :]
+            dT[:, :, sl(S_ZJ)] += tau[:, None, None] * _I3
+            dF = np.zeros_like(dT)
+        return F, T, dF, dT
+
+
+class Bushing(TwoBodyForce):
+    """``Force_Bushing``: ``F_J = -K (DX,DY,DZ)(I,J,J) + preload``, ``T_J = -Kt (AX,AY,AZ)(I,J)
+    + preload_t`` in J's axes, applied at I; reaction on J with the offset moment.
+
+    Parameters: ``kt3`` (n,3) translational stiffness, ``kr3`` (n,3) rotational, ``f0`` (n,3),
+    ``t0`` (n,3), ``angle_index`` (n,3) into ``ctx.angle``.
+    """
+
+    def compute(self, Y, ctx, need_jac):
+        n = Y.shape[0]
+        d = Y[:, S_PI] - Y[:, S_PJ]
+        AJ = np.stack([Y[:, S_XJ], Y[:, S_YJ], Y[:, S_ZJ]], axis=2)       # columns
+        D = np.einsum("nik,ni->nk", AJ, d)
+        th = ctx.angle[self.angle_index]                                    # (n,3)
+        FJ = -self.kt3 * D + self.f0
+        TJ = -self.kr3 * th + self.t0
+        F = np.einsum("nik,nk->ni", AJ, FJ)
+        T = np.einsum("nik,nk->ni", AJ, TJ)
+        dF = dT = None
+        if need_jac:
+            W = 3 * N_SLOTS
+            dD = np.zeros((n, 3, W))
+            AJt = np.swapaxes(AJ, 1, 2)
+            dD[:, :, sl(S_PI)] = AJt
+            dD[:, :, sl(S_PJ)] = -AJt
+            for k, s in enumerate((S_XJ, S_YJ, S_ZJ)):
+                dD[:, k, sl(s)] += d
+            dth = np.stack([angle_gradient(Y, k) for k in range(3)], axis=1)   # (n,3,W)
+            dFJ = -self.kt3[:, :, None] * dD
+            dTJ = -self.kr3[:, :, None] * dth
+            dF = np.matmul(AJ, dFJ)
+            dT = np.matmul(AJ, dTJ)
+            for k, s in enumerate((S_XJ, S_YJ, S_ZJ)):
+                dF[:, :, sl(s)] += FJ[:, k][:, None, None] * _I3
+                dT[:, :, sl(s)] += TJ[:, k][:, None, None] * _I3
+        return F, T, dF, dT
+
+
+class VectorForce(TwoBodyForce):
+    """Constant force and torque components along the reference marker R's axes, applied at I.
+
+    ``Force_Vector_OneBody`` (action-only; reaction to ground) and ``Force_Vector_TwoBody``
+    (reaction on the floating marker's body). Parameters ``fc`` (n,3), ``tc`` (n,3).
+    """
+
+    def compute(self, Y, ctx, need_jac):
+        AR = np.stack([Y[:, S_XR], Y[:, S_YR], Y[:, S_ZR]], axis=2)
+        F = np.einsum("nik,nk->ni", AR, self.fc)
+        T = np.einsum("nik,nk->ni", AR, self.tc)
+        dF = dT = None
+        if need_jac:
+            n = Y.shape[0]
+            dF = np.zeros((n, 3, 3 * N_SLOTS))
+            dT = np.zeros_like(dF)
+            for k, s in enumerate((S_XR, S_YR, S_ZR)):
+                dF[:, :, sl(s)] = self.fc[:, k][:, None, None] * _I3
+                dT[:, :, sl(s)] = self.tc[:, k][:, None, None] * _I3
+        return F, T, dF, dT

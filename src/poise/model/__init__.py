@@ -1,0 +1,1 @@
+"""Compiled model layer: DeckSpec -> Model (flat arrays, index maps) and State."""

@@ -1,0 +1,70 @@
+"""Sparse assembly with a pattern built once.
+
+Blocks of (row, col) index arrays are registered at compile time (``-1`` marks an entry that
+does not exist, e.g. a ground coordinate). The union pattern is sorted once; every later
+assembly is one ``np.bincount`` of the concatenated values into the CSR data array (or into a
+dense array for small systems).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+
+class Assembler:
+    """Fixed-pattern assembler for an ``N x N`` matrix.
+
+    Parameters
+    ----------
+    N : int
+        Matrix size.
+    blocks : list of (rows, cols)
+        Integer arrays of equal shape; flattened in C order. Entries with a negative row or
+        column are ignored. Values passed to :meth:`assemble` must follow the same order and
+        shapes.
+    dense : bool
+        Produce dense ``ndarray`` instead of CSR.
+    """
+
+    def __init__(self, N: int, blocks, dense: bool = False):
+        self.N = N
+        self.dense = dense
+        self.sizes = []
+        valids = []
+        keys = []
+        for rows, cols in blocks:
+            rows = np.asarray(rows).ravel()
+            cols = np.asarray(cols).ravel()
+            v = (rows >= 0) & (cols >= 0)
+            self.sizes.append(rows.size)
+            valids.append(v)
+            keys.append(rows[v].astype(np.int64) * N + cols[v])
+        self.valid = np.concatenate(valids) if valids else np.zeros(0, bool)
+        allkeys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+        if dense:
+            self.slot = allkeys
+            self.nnz = N * N
+        else:
+            uniq, inv = np.unique(allkeys, return_inverse=True)
+            self.slot = inv
+            self.nnz = uniq.size
+            r = uniq // N
+            self.indices = (uniq % N).astype(np.int32)
+            self.indptr = np.searchsorted(r, np.arange(N + 1)).astype(np.int32)
+
+    def assemble(self, values):
+        """Assemble the matrix from a list of value arrays (same order/shapes as the blocks)."""
+        vals = np.concatenate([np.asarray(v, float).ravel() for v in values])
+        vals = vals[self.valid]
+        data = np.bincount(self.slot, weights=vals, minlength=self.nnz)
+        if self.dense:
+            return data.reshape(self.N, self.N)
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.N, self.N))
+
+
+def scatter_add(n: int, idx: np.ndarray, vals: np.ndarray) -> np.ndarray:
+    """Dense vector of length ``n`` with ``vals`` added at ``idx`` (negative idx ignored)."""
+    idx = np.asarray(idx).ravel()
+    vals = np.asarray(vals, float).ravel()
+    v = idx >= 0
+    return np.bincount(idx[v], weights=vals[v], minlength=n)

@@ -1,0 +1,307 @@
+"""The compiled model (flat arrays + index maps) and the solver state.
+
+Coordinates: each moving rigid body has 6 tangent coordinates (translation of its CG marker
+origin, then a spatial rotation increment), each point body 3; ground has none. The
+configuration itself is stored on the rotation group (``State.rot``), so there is no singular
+parametrisation and any number of full turns is possible; continuous relative angles (AZ etc.)
+are tracked in ``State.angle`` by unwrapping along the solution path.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from poise.errors import EvaluationError
+from poise.families.base import local_residual_tangent, slot_kinematics
+from poise.model.assembly import Assembler, scatter_add
+from poise.model.rotation import expm_so3, wrap_angle
+
+MAX_SUBSTEP_ROTATION = np.pi / 4   # rad; larger rotation updates are applied in sub-steps
+DENSE_MAX = 600                    # KKT size up to which dense LU is used
+
+
+@dataclass
+class State:
+    """Configuration and multipliers.
+
+    Attributes
+    ----------
+    pos : (nb, 3) CG marker origins of moving bodies [length]
+    rot : (nb, 3, 3) CG marker axes as columns [-]
+    lam : (nc,) constraint multipliers (forces [force] / torques [force*length])
+    angle : (na,) continuous relative angles of the model's angle table [rad]
+    t : float analysis time
+    """
+
+    pos: np.ndarray
+    rot: np.ndarray
+    lam: np.ndarray
+    angle: np.ndarray
+    t: float = 0.0
+
+    def copy(self) -> "State":
+        return State(self.pos.copy(), self.rot.copy(), self.lam.copy(), self.angle.copy(), self.t)
+
+
+@dataclass
+class Evaluation:
+    """Residual and Jacobian at a state.
+
+    Attributes
+    ----------
+    r : (nq,) generalised force imbalance ``Phi_q^T lam - Q`` (force rows then moment rows per body)
+    phi : (nc,) constraint values (inactive/redundant rows included, unscaled)
+    J : (N, N) KKT Jacobian (dense ndarray or CSR), N = nq + nc, or None
+    """
+
+    r: np.ndarray
+    phi: np.ndarray
+    J: object = None
+
+
+@dataclass
+class EvalContext:
+    """What element kernels may read besides slot vectors."""
+
+    t: float
+    angle: np.ndarray
+    static: bool = True
+
+
+@dataclass
+class Model:
+    """Compiled model. Built by :func:`poise.model.compile.compile_model`.
+
+    Attributes (n* sizes: nb moving bodies, nm markers (index 0 = global frame), nc rows)
+    ----------
+    body_id, body_label : (nb,) deck ids and labels of moving bodies
+    body_kind : (nb,) 0 rigid, 1 point
+    body_mass : (nb,) effective mass (deck mass x units factor) [force*time^2/length]
+    body_inertia : (nb, 3, 3) inertia about the CG in the body (CG marker) frame, effective
+    body_off : (nb,) first tangent coordinate of each body
+    marker_id : (nm,); marker_body : (nm,) moving-body index or nb for ground
+    marker_s0 : (nm, 3) origin in the body frame (ground: global)
+    marker_A0 : (nm, 3, 3) axes in the body frame (ground: global)
+    families : list of Family
+    nq, nc : sizes
+    row_info : list of dict per constraint row (tag, id, equation, line, kind 'trans'|'rot')
+    angle_I, angle_J, angle_axis : (na,) continuous-angle table
+    gravity : (3,) [length/time^2]
+    L : model length scale [length]
+    """
+
+    body_id: np.ndarray
+    body_label: list
+    body_kind: np.ndarray
+    body_mass: np.ndarray
+    body_inertia: np.ndarray
+    body_off: np.ndarray
+    marker_id: np.ndarray
+    marker_body: np.ndarray
+    marker_s0: np.ndarray
+    marker_A0: np.ndarray
+    families: list
+    nq: int
+    nc: int
+    row_info: list
+    angle_I: np.ndarray
+    angle_J: np.ndarray
+    angle_axis: np.ndarray
+    gravity: np.ndarray
+    L: float
+    init_pos: np.ndarray
+    init_rot: np.ndarray
+    gravity_on: bool = False
+    active_effects: list = field(default_factory=list)
+    outputs: dict = field(default_factory=dict)
+    coord_info: list = field(default_factory=list)
+    units: str = ""
+    dense: bool = True
+
+    # ------------------------------------------------------------------ setup
+    def finalize(self):
+        """Build index maps and the fixed sparsity pattern (called once by the compiler)."""
+        nb = len(self.body_id)
+        self.nb = nb
+        self.N = self.nq + self.nc
+        self.dense = self.N <= DENSE_MAX
+        rigid = self.body_kind == 0
+        self.trans_idx = (self.body_off[:, None] + np.arange(3)).ravel()
+        self.rot_body = np.nonzero(rigid)[0]
+        self.rot_idx = (self.body_off[rigid][:, None] + 3 + np.arange(3)).ravel()
+        # per-coordinate kind (0 force row, 1 moment row)
+        kind = np.zeros(self.nq, int)
+        kind[self.rot_idx] = 1
+        self.q_kind = kind
+        blocks = []
+        for fam in self.families:
+            g = fam.gcol
+            blocks.append((np.repeat(g[:, :, None], g.shape[1], 2), np.repeat(g[:, None, :], g.shape[1], 1)))
+            if fam.is_constraint:
+                rows = self.nq + fam.crow
+                blocks.append((np.repeat(rows[:, :, None], g.shape[1], 2),
+                               np.repeat(g[:, None, :], fam.m, 1)))
+                blocks.append((np.repeat(g[:, None, :], fam.m, 1),
+                               np.repeat(rows[:, :, None], g.shape[1], 2)))
+        # mass blocks (regularisation)
+        tb = self.body_off[:, None] + np.arange(3)
+        blocks.append((np.repeat(tb[:, :, None], 3, 2), np.repeat(tb[:, None, :], 3, 1)))
+        rb = self.body_off[rigid][:, None] + 3 + np.arange(3)
+        blocks.append((np.repeat(rb[:, :, None], 3, 2), np.repeat(rb[:, None, :], 3, 1)))
+        # diagonal of the multiplier block (removed / redundant rows)
+        lr = self.nq + np.arange(self.nc)
+        blocks.append((lr, lr))
+        self.assembler = Assembler(self.N, blocks, dense=self.dense)
+        self.row_active = np.ones(self.nc, bool)
+        self.row_kind = np.array([1 if ri["kind"] == "rot" else 0 for ri in self.row_info], int)
+
+    # ------------------------------------------------------------------ state
+    def initial_state(self, t: float = 0.0) -> State:
+        st = State(self.init_pos.copy(), self.init_rot.copy(), np.zeros(self.nc),
+                   np.zeros(len(self.angle_I)), t)
+        if len(self.angle_I):
+            st.angle = self._principal_angles(st)
+        return st
+
+    def _ext(self, state):
+        nb = self.nb
+        pos = np.zeros((nb + 1, 3))
+        rot = np.zeros((nb + 1, 3, 3))
+        pos[:nb] = state.pos
+        rot[:nb] = state.rot
+        rot[nb] = np.eye(3)
+        return pos, rot
+
+    def marker_kinematics(self, state):
+        """Marker origins (nm,3) and axes (nm,3,3) in global components."""
+        pos, rot = self._ext(state)
+        mb = self.marker_body
+        P = pos[mb] + np.einsum("nij,nj->ni", rot[mb], self.marker_s0)
+        A = np.matmul(rot[mb], self.marker_A0)
+        return P, A, pos
+
+    def _principal_angles(self, state):
+        _, A, _ = self.marker_kinematics(state)
+        return principal_angles(A, self.angle_I, self.angle_J, self.angle_axis)
+
+    def retract(self, state: State, dq: np.ndarray, dlam: np.ndarray | None = None) -> State:
+        """New state ``state (+) dq`` on the configuration manifold.
+
+        Rotation increments larger than ``MAX_SUBSTEP_ROTATION`` are applied in equal sub-steps
+        so that continuous angles count every full turn.
+        """
+        new = state.copy()
+        dq = np.asarray(dq, float)
+        dt = dq[self.trans_idx].reshape(-1, 3)
+        dr = dq[self.rot_idx].reshape(-1, 3) if len(self.rot_idx) else np.zeros((0, 3))
+        big = float(np.max(np.linalg.norm(dr, axis=1))) if len(dr) else 0.0
+        nsub = max(1, int(np.ceil(big / MAX_SUBSTEP_ROTATION))) if len(self.angle_I) else 1
+        E = expm_so3(dr / nsub)
+        for _ in range(nsub):
+            new.pos += dt / nsub
+            if len(dr):
+                new.rot[self.rot_body] = np.matmul(E, new.rot[self.rot_body])
+            if len(self.angle_I):
+                p = self._principal_angles(new)
+                new.angle = new.angle + wrap_angle(p - new.angle)
+        if dlam is not None:
+            new.lam = new.lam + dlam
+        return new
+
+    # ------------------------------------------------------------------ mass
+    def mass_blocks(self, state):
+        """Translational (nb,3,3) and rotational (nr,3,3) mass blocks in global axes."""
+        mt = self.body_mass[:, None, None] * np.eye(3)
+        R = state.rot[self.rot_body]
+        Jg = np.matmul(R, np.matmul(self.body_inertia[self.rot_body], np.swapaxes(R, 1, 2)))
+        return mt, Jg
+
+    def mass_diagonal(self, state) -> np.ndarray:
+        """Diagonal of the mass matrix in tangent coordinates, (nq,)."""
+        mt, Jg = self.mass_blocks(state)
+        d = np.zeros(self.nq)
+        d[self.trans_idx] = np.repeat(self.body_mass, 3)
+        if len(self.rot_idx):
+            d[self.rot_idx] = np.einsum("nii->ni", Jg).ravel()
+        return d
+
+    # ------------------------------------------------------------------ evaluate
+    def evaluate(self, state: State, need_jac: bool = True, eps_mass: float = 0.0,
+                 keep: bool = False) -> Evaluation:
+        """Residual ``[Phi_q^T lam - Q; Phi]`` and (optionally) the KKT Jacobian.
+
+        Parameters
+        ----------
+        eps_mass : float
+            Multiple of the mass matrix added to the coordinate block of the Jacobian only
+            (``sqrt(stability)``); the residual never includes it.
+        keep : bool
+            Keep per-family slot data (``self.last``) for reaction outputs.
+        """
+        P, A, pos = self.marker_kinematics(state)
+        ctx = EvalContext(t=state.t, angle=state.angle)
+        r = np.zeros(self.nq)
+        phi = np.zeros(self.nc)
+        vals = []
+        last = []
+        for fam in self.families:
+            kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A,
+                                  self.marker_body, pos)
+            if fam.is_constraint:
+                lam = state.lam[fam.crow]
+                ph, phy, G = fam.constraints(kin, lam, ctx)
+                rho = np.einsum("nmy,nm->ny", phy, lam)
+                rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac)
+                phi[fam.crow.ravel()] = ph.ravel()
+                if need_jac:
+                    Pq = np.matmul(phy, kin.B)                          # (n, m, 6K)
+                    act = self.row_active[fam.crow][:, :, None]
+                    Pq = Pq * act
+                    vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
+                if keep:
+                    last.append((fam, kin, rho))
+            else:
+                rho, G = fam.forces(kin, ctx, need_jac)
+                rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac)
+                if need_jac:
+                    vals.append(Kl)
+                if keep:
+                    last.append((fam, kin, rho))
+            r += scatter_add(self.nq, fam.gcol, rl)
+        if self.gravity_on:
+            r[self.trans_idx] -= (self.body_mass[:, None] * self.gravity[None, :]).ravel()
+        phi = np.where(self.row_active, phi, 0.0)
+        if keep:
+            self.last = last
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(phi))):
+            raise EvaluationError(self._nonfinite_message(r, phi))
+        J = None
+        if need_jac:
+            mt, Jg = self.mass_blocks(state)
+            vals += [eps_mass * mt, eps_mass * Jg, (~self.row_active).astype(float)]
+            J = self.assembler.assemble(vals)
+        return Evaluation(r=r, phi=phi, J=J)
+
+    def _nonfinite_message(self, r, phi):
+        bad = np.nonzero(~np.isfinite(phi))[0]
+        if len(bad):
+            ri = self.row_info[bad[0]]
+            return (f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}>: equation "
+                    f"{ri['equation']} is not finite (NaN/Inf)")
+        bad = np.nonzero(~np.isfinite(r))[0]
+        ci = self.coord_info[bad[0]]
+        return f"non-finite force on {ci} (NaN/Inf produced by an element acting on it)"
+
+
+def principal_angles(A, I, J, axis):
+    """Principal relative angles (na,) of marker I about marker J's axis (0 x, 1 y, 2 z)."""
+    if len(I) == 0:
+        return np.zeros(0)
+    u_col = np.array([1, 2, 0])[axis]   # AX: y_I, AY: z_I, AZ: x_I
+    e1_col = u_col
+    e2_col = np.array([2, 0, 1])[axis]  # AX: z_J, AY: x_J, AZ: y_J
+    u = A[I, :, u_col]
+    e1 = A[J, :, e1_col]
+    e2 = A[J, :, e2_col]
+    return np.arctan2(np.einsum("ni,ni->n", u, e2), np.einsum("ni,ni->n", u, e1))

@@ -1,0 +1,189 @@
+"""Run every analysis of a deck: parse -> compile -> solve -> RunResult.
+
+This is the one place that sequences analyses: each ``Simulate`` starts from the state the
+previous one left; command versions of ``Param_Static`` between them change the live settings;
+CLI overrides win over the deck (defaults < deck < CLI).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from poise import __version__
+from poise.deck.spec import DeckSpec
+from poise.errors import DeckError, EvaluationError, Problem
+from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult, RunResult
+from poise.settings import StaticSettings
+
+
+def _load(path):
+    from poise.deck.parser import load_deck
+    return load_deck(path)
+
+
+def _static_settings(el_list) -> StaticSettings:
+    s = StaticSettings()
+    for el in el_list:
+        s = s.updated(el.attrs)
+    return s
+
+
+def _analysis_kind(el, t_now) -> tuple[str, float | None]:
+    at = str(el.attrs.get("analysis_type", "STATIC")).upper().replace("-", "_")
+    end = el.attrs.get("end_time")
+    if end is None and el.attrs.get("duration") is not None:
+        end = t_now + float(el.attrs["duration"])
+    if at in ("QUASISTATIC", "QUASI_STATIC"):
+        return "quasistatic", end
+    if at == "STATIC":
+        if end is not None and float(end) > t_now:
+            return "quasistatic", float(end)
+        return "static", None
+    return at.lower(), end
+
+
+def plan(spec: DeckSpec, overrides: dict | None):
+    """List of (Simulate element, StaticSettings) in command order."""
+    overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
+    base = [e for e in spec.model if e.tag == "Param_Static"]
+    live = _static_settings(base)
+    out = []
+    for el in spec.commands:
+        if el.tag == "Param_Static":
+            live = live.updated(el.attrs)
+        elif el.tag == "Simulate":
+            try:
+                s = live.updated(overrides)
+            except (ValueError, TypeError) as e:
+                raise DeckError(Problem(el.loc, f"invalid solver settings: {e}")) from None
+            out.append((el, s))
+        elif el.tag == "Stop":
+            break
+    return out
+
+
+def run(path: str, overrides=None, command: str = "", progress=None) -> RunResult:
+    t0 = time.perf_counter()
+    spec = _load(path)
+    t1 = time.perf_counter()
+    from poise.model.compile import compile_model
+    model = compile_model(spec)
+    t2 = time.perf_counter()
+    analyses = plan(spec, overrides)
+    problems = []
+    for el, s in analyses:
+        kind, _ = _analysis_kind(el, 0.0)
+        if kind == "quasistatic":
+            problems.append(Problem(el.loc, "quasi-static analysis (end_time beyond the start) is "
+                                    "not supported yet; expected a single static analysis"))
+        elif kind != "static":
+            problems.append(Problem(el.loc, f"analysis_type {kind.upper()} is not supported; "
+                                    "expected Static"))
+        if s.method == "MKEAM":
+            problems.append(Problem(el.loc, "method MKEAM is not supported yet; expected FIM_S "
+                                    "or FIM_D"))
+    if problems:
+        raise DeckError(problems)
+    if not analyses:
+        raise DeckError(Problem(spec.commands[0].loc if spec.commands else
+                                spec.model[0].loc if spec.model else _noloc(path),
+                                "no Simulate command; expected at least one "
+                                "<Simulate analysis_type=\"Static\"/>"))
+    res = RunResult(deck=path, deck_sha256=spec.sha256, units=model.units,
+                    active_effects=list(model.active_effects), command=command)
+    res.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
+    res.model_datasets = model_datasets(model)
+    from poise.solvers.static import StaticAnalysis
+    state = model.initial_state()
+    counts = {}
+    redundancy = None
+    for k, (el, s) in enumerate(analyses):
+        ta = time.perf_counter()
+        sa = StaticAnalysis(model, s, redundancy=redundancy)
+        state, ar = sa.run(state, index=k)
+        redundancy = sa.redundancy
+        res.timings[f"analysis_{k:03d}"] = time.perf_counter() - ta
+        for key, v in sa.counters.as_dict().items():
+            counts[key] = counts.get(key, 0) + v
+        res.analyses.append(ar)
+        if progress:
+            progress(summary_line(ar))
+    t3 = time.perf_counter()
+    res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2)
+    res.counts = counts
+    return res
+
+
+def _noloc(path):
+    from poise.errors import SourceLoc
+    return SourceLoc(path, 0, "MotionSolve", None)
+
+
+def summary_line(ar: AnalysisResult) -> str:
+    it = int(np.sum(ar.datasets.get("frames/iterations", [0])))
+    imb = ar.datasets.get("frames/imbalance", np.array([np.nan]))
+    imb = float(np.max(imb)) if len(imb) else float("nan")
+    st = ar.status if ar.status == STATUS_CONVERGED else f"FAILED ({ar.message})"
+    return (f"analysis {ar.index}: {ar.analysis_type} {ar.method} {st} in {it} iterations, "
+            f"imbalance {imb:.3g}")
+
+
+def model_datasets(model) -> dict:
+    d = {
+        "bodies/id": model.body_id,
+        "bodies/label": np.asarray(model.body_label, dtype=str) if len(model.body_label) else np.zeros(0, str),
+        "bodies/kind": np.asarray(["rigid" if k == 0 else "point" for k in model.body_kind], dtype=str)
+        if len(model.body_kind) else np.zeros(0, str),
+        "bodies/mass": model.body_mass,
+        "length_scale": np.array(model.L),
+        "n_coordinates": np.array(model.nq),
+        "n_equations": np.array(model.nc),
+    }
+    for g, o in model.outputs.items():
+        d[f"{g}/id"] = np.asarray(o["ids"])
+    return d
+
+
+def check(path: str):
+    from poise.api import CheckReport
+    from poise.model.compile import compile_model
+    from poise.solvers.static import detect_redundancy
+    spec = _load(path)
+    model = compile_model(spec)
+    rep = CheckReport(deck=path)
+    for i, bid in enumerate(model.body_id):
+        rep.bodies.append(dict(id=int(bid), label=model.body_label[i],
+                               kind="rigid" if model.body_kind[i] == 0 else "point",
+                               mass=float(model.body_mass[i])))
+    seen = {}
+    for ri in model.row_info:
+        key = (ri["tag"], ri["id"])
+        if key not in seen:
+            el = next(e for e in spec.model if e.tag == ri["tag"] and e.id == ri["id"])
+            seen[key] = dict(tag=ri["tag"], id=ri["id"], type=str(el.attrs.get("type", "")),
+                             n_equations=0, line=ri["line"])
+        seen[key]["n_equations"] += 1
+    rep.constraints = list(seen.values())
+    for el in spec.model:
+        if el.tag.startswith("Force_") and el.tag != "Force_Gravity":
+            rep.forces.append(dict(tag=el.tag, id=el.id, type=str(el.attrs.get("type", "")),
+                                   line=el.loc.line))
+    red = detect_redundancy(model, model.initial_state())
+    rep.n_coordinates = model.nq
+    rep.n_equations = model.nc
+    rep.n_redundant = len(red)
+    rep.dof = model.nq - (model.nc - len(red))
+    rep.redundant = [dict(tag=model.row_info[r]["tag"], id=model.row_info[r]["id"],
+                          equation=model.row_info[r]["equation"], line=model.row_info[r]["line"])
+                     for r in red]
+    rep.active_effects = list(model.active_effects)
+    rep.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
+    for el, s in plan(spec, None):
+        kind, _ = _analysis_kind(el, 0.0)
+        method = "FIM_S" if (kind == "static" and s.method == "FIM_D") else s.method
+        rep.analyses.append(dict(analysis_type=kind, method=method, n_frames=1))
+    return rep
+
+
+__all__ = ["run", "check", "plan", "STATUS_FAILED", "EvaluationError", "__version__"]

@@ -1,0 +1,1 @@
+"""Solvers: FIM_S (Newton), FIM_D (DAE continuation), MKEAM (kinetic-energy attrition)."""

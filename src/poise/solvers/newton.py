@@ -1,0 +1,262 @@
+"""FIM_S: Newton-Raphson on the force imbalance ``F(q, lam) = [Phi_q^T lam - Q; Phi] = 0``.
+
+* Complete analytic Jacobian (element stiffness, constraint Jacobian, geometric stiffness of
+  reactions); ``sqrt(stability) * M`` is added to the coordinate block of the Jacobian only.
+* Convergence (scale-aware, in the deck's units): every force row ``< max_imbalance``, every
+  moment row ``< max_imbalance * L``; every constraint row ``< max_error * L`` (translational)
+  or ``< max_error`` (rotational); and the last update ``< max_error`` (translations relative to
+  L, rotations in radians). ``imbalance`` reported = infinity norm of the force/moment residual,
+  never including the regularisation.
+* Step control: the Newton step is scaled down uniformly if a body translates more than
+  ``max_translation_step * L`` or rotates more than ``max_rotation_step``; then a backtracking
+  line search on the tolerance-scaled residual norm.
+* Before Newton: least-change assembly onto the constraints when the input violates them, and
+  least-squares initial multipliers (so the first Jacobian already has the reaction stiffness).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from poise.errors import EvaluationError
+from poise.solvers.history import History
+from poise.solvers.linalg import Factor, SingularMatrix
+from poise.solvers.status import MESSAGES, Status
+
+ASSEMBLY_MAX_ITER = 50
+ASSEMBLY_TOL = 1e-10          # relative constraint violation after assembly
+LINE_SEARCH_MAX = 8
+ARMIJO = 1e-4
+
+
+@dataclass
+class FrameOutcome:
+    status: Status
+    iterations: int
+    imbalance: float
+    error: float
+    message: str = ""
+
+    @property
+    def ok(self):
+        return self.status.ok
+
+
+class Counters:
+    def __init__(self):
+        self.residuals = 0
+        self.jacobians = 0
+        self.factorizations = 0
+
+    def as_dict(self):
+        return dict(residuals=self.residuals, jacobians=self.jacobians,
+                    factorizations=self.factorizations)
+
+
+class Scales:
+    """Tolerances per equation from the settings and the model size L."""
+
+    def __init__(self, model, settings):
+        L = model.L
+        self.L = L
+        self.r_tol = np.where(model.q_kind == 1, settings.max_imbalance * L, settings.max_imbalance)
+        self.phi_tol = np.where(model.row_kind == 1, settings.max_error, settings.max_error * L)
+        self.q_len = np.where(model.q_kind == 1, 1.0, L)     # update scale: rotation rad, trans / L
+        self.max_error = settings.max_error
+
+
+def measures(model, ev, sc: Scales):
+    """(imbalance, constraint error (relative), scaled infinity norm, worst-equation name)."""
+    imb = float(np.max(np.abs(ev.r))) if ev.r.size else 0.0
+    zr = np.abs(ev.r) / sc.r_tol
+    zp = np.abs(ev.phi) / sc.phi_tol if ev.phi.size else np.zeros(0)
+    cerr = float(np.max(zp) * sc.max_error) if zp.size else 0.0
+    z = np.concatenate([zr, zp])
+    k = int(np.argmax(z)) if z.size else 0
+    worst = ""
+    if z.size:
+        if k < model.nq:
+            worst = model.coord_info[k]
+        else:
+            ri = model.row_info[k - model.nq]
+            worst = f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}> {ri['equation']}"
+    return imb, cerr, float(z.max()) if z.size else 0.0, worst
+
+
+def merit(ev, sc):
+    z = np.concatenate([ev.r / sc.r_tol, ev.phi / sc.phi_tol])
+    return 0.5 * float(z @ z)
+
+
+def _weighted_kkt(model, ev, W):
+    """KKT matrix with ``diag(W)`` in the coordinate block and the constraint Jacobian."""
+    nq = model.nq
+    J = ev.J
+    if sp.issparse(J):
+        B = J[:nq, nq:]
+        Cm = J[nq:, :nq]
+        D = J[nq:, nq:]
+        return sp.bmat([[sp.diags(W), B], [Cm, D]], format="csc")
+    K = np.array(J, copy=True)
+    K[:nq, :nq] = np.diag(W)
+    return K
+
+
+def _coord_weights(model):
+    return np.where(model.q_kind == 1, model.L ** 2, 1.0)
+
+
+def _evaluate(model, state, cnt, need_jac=True, eps=0.0):
+    cnt.residuals += 1
+    if need_jac:
+        cnt.jacobians += 1
+    return model.evaluate(state, need_jac=need_jac, eps_mass=eps)
+
+
+def _factor(J, cnt):
+    cnt.factorizations += 1
+    return Factor(J)
+
+
+def singular_message(model, row):
+    if row is None:
+        return ""
+    if row < model.nq:
+        return f"; no stiffness or mass in {model.coord_info[row]}"
+    ri = model.row_info[row - model.nq]
+    return (f"; at {ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}> equation "
+            f"{ri['equation']}")
+
+
+def assemble(model, state, settings, history: History, frame: int, cnt: Counters):
+    """Least-change projection onto the constraints (Gauss-Newton on the KKT system).
+
+    Returns ``(state, assembled: bool, status)``; ``assembled`` says whether anything moved.
+    """
+    if model.nc == 0:
+        return state, False, Status.CONVERGED
+    sc = Scales(model, settings)
+    W = _coord_weights(model)
+    moved = False
+    for it in range(ASSEMBLY_MAX_ITER + 1):
+        ev = _evaluate(model, state, cnt, need_jac=True)
+        viol = np.abs(ev.phi) / np.where(model.row_kind == 1, 1.0, model.L)
+        v = float(viol.max())
+        if v <= ASSEMBLY_TOL:
+            return state, moved, Status.CONVERGED
+        if it == ASSEMBLY_MAX_ITER:
+            break
+        K = _weighted_kkt(model, ev, W)
+        try:
+            f = _factor(K, cnt)
+        except SingularMatrix:
+            return state, moved, Status.ASSEMBLY_FAILED
+        rhs = np.concatenate([np.zeros(model.nq), -ev.phi])
+        x = f.solve(rhs)
+        dq = x[:model.nq]
+        state = model.retract(state, dq)
+        moved = True
+        sn = float(np.max(np.abs(dq) / sc.q_len))
+        history.add(frame, it, float(np.max(np.abs(ev.r))) if ev.r.size else 0.0, v,
+                    sn, 1.0, "", "assembly")
+    return state, moved, Status.ASSEMBLY_FAILED
+
+
+def initial_multipliers(model, state, cnt: Counters):
+    """Least-squares multipliers ``argmin ||Phi_q^T lam - Q||_{W^-1}`` at the current state."""
+    if model.nc == 0:
+        return state
+    st = state.copy()
+    st.lam[:] = 0.0
+    ev = _evaluate(model, st, cnt, need_jac=True)
+    W = _coord_weights(model)
+    K = _weighted_kkt(model, ev, W)
+    try:
+        f = _factor(K, cnt)
+    except SingularMatrix:
+        return state
+    Q = -ev.r                     # with lam = 0, r = -Q
+    x = f.solve(np.concatenate([Q, np.zeros(model.nc)]))
+    st.lam = np.where(model.row_active, x[model.nq:], 0.0)
+    return st
+
+
+def _limit_step(model, dq, settings):
+    L = model.L
+    fac = 1.0
+    t = dq[model.trans_idx].reshape(-1, 3)
+    if len(t):
+        mt = float(np.max(np.linalg.norm(t, axis=1)))
+        lim = settings.max_translation_step * L
+        if mt > lim:
+            fac = min(fac, lim / mt)
+    if len(model.rot_idx):
+        r = dq[model.rot_idx].reshape(-1, 3)
+        mr = float(np.max(np.linalg.norm(r, axis=1)))
+        if mr > settings.max_rotation_step:
+            fac = min(fac, settings.max_rotation_step / mr)
+    return fac
+
+
+def newton(model, state, settings, history: History, frame: int, cnt: Counters,
+           max_iter: int | None = None, event: str = "newton"):
+    """Newton iterations from ``state``. Returns ``(state, FrameOutcome)``."""
+    sc = Scales(model, settings)
+    eps = float(np.sqrt(settings.stability))
+    max_iter = settings.max_num_iter if max_iter is None else max_iter
+    last_step = np.inf
+    it = 0
+    try:
+        ev = _evaluate(model, state, cnt, need_jac=True, eps=eps)
+    except EvaluationError as e:
+        return state, FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
+    while True:
+        imb, cerr, zinf, worst = measures(model, ev, sc)
+        err = max(cerr, last_step if np.isfinite(last_step) else 0.0)
+        res_ok = zinf <= 1.0
+        step_ok = (not np.isfinite(last_step)) or last_step <= settings.max_error
+        if res_ok and step_ok:
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            return state, FrameOutcome(Status.CONVERGED, it, imb, err, "converged")
+        if it >= max_iter:
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            return state, FrameOutcome(Status.MAX_ITERATIONS, it, imb, err,
+                                       MESSAGES[Status.MAX_ITERATIONS] + f"; worst equation: {worst}")
+        try:
+            f = _factor(ev.J, cnt)
+        except SingularMatrix as e:
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
+                                       MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
+        rhs = -np.concatenate([ev.r, ev.phi])
+        x = f.solve(rhs)
+        if not np.all(np.isfinite(x)):
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
+                                       MESSAGES[Status.SINGULAR_JACOBIAN])
+        dq, dl = x[:model.nq], x[model.nq:]
+        alpha = _limit_step(model, dq, settings)
+        m0 = merit(ev, sc)
+        best = None
+        for _ in range(LINE_SEARCH_MAX + 1):
+            trial = model.retract(state, alpha * dq, alpha * dl)
+            try:
+                ev_t = _evaluate(model, trial, cnt, need_jac=True, eps=eps)
+                m1 = merit(ev_t, sc)
+            except EvaluationError:
+                ev_t, m1 = None, np.inf
+            if ev_t is not None and (best is None or m1 < best[0]):
+                best = (m1, alpha, trial, ev_t)
+            if not settings.line_search or m1 <= (1.0 - ARMIJO * alpha) * m0:
+                break
+            alpha *= 0.5
+        if best is None:
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            return state, FrameOutcome(Status.NONFINITE, it, imb, err,
+                                       MESSAGES[Status.NONFINITE])
+        m1, alpha, state, ev = best
+        last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0
+        history.add(frame, it, imb, err, last_step, alpha, worst, event)
+        it += 1

@@ -1,0 +1,141 @@
+"""One static analysis (FIM_S): redundancy -> assembly -> multipliers -> Newton -> outputs.
+
+``FIM_D`` requested for a pure static analysis falls back to FIM_S (recorded in the message),
+as the specification says.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
+from poise.solvers.history import History
+from poise.solvers.newton import Counters, FrameOutcome, assemble, initial_multipliers, newton
+from poise.solvers.outputs import element_loads
+from poise.solvers.redundancy import min_norm_multipliers, redundant_rows
+from poise.solvers.status import MESSAGES, Status
+
+
+def detect_redundancy(model, state) -> np.ndarray:
+    """Redundant constraint rows at ``state`` (sets ``model.row_active``)."""
+    model.row_active[:] = True
+    if model.nc == 0:
+        return np.zeros(0, int)
+    ev = model.evaluate(state, need_jac=True)
+    J = ev.J
+    Pq = J[model.nq:, :model.nq]
+    col = np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
+    red = redundant_rows(Pq, col)
+    model.row_active[red] = False
+    return red
+
+
+class StaticAnalysis:
+    """A single static equilibrium with FIM_S.
+
+    Parameters
+    ----------
+    model : Model
+    settings : StaticSettings
+    redundancy : ndarray or None
+        Redundant rows found by an earlier analysis (detection runs once per model).
+    """
+
+    def __init__(self, model, settings, redundancy=None):
+        self.model = model
+        self.settings = settings
+        self.redundancy = redundancy
+        self.counters = Counters()
+        self.history = History()
+
+    def run(self, state, index: int = 0):
+        model, s = self.model, self.settings
+        notes = []
+        method = "FIM_S"
+        if s.method == "FIM_D":
+            notes.append("FIM_D falls back to FIM_S for a pure static analysis")
+        if self.redundancy is None:
+            self.redundancy = detect_redundancy(model, state)
+        else:
+            model.row_active[:] = True
+            model.row_active[self.redundancy] = False
+        red = self.redundancy
+        if len(red):
+            notes.append(f"{len(red)} redundant constraint equations removed")
+        state, moved, ast = assemble(model, state, s, self.history, 0, self.counters)
+        if moved:
+            notes.append("initial configuration assembled onto the constraints")
+        if not ast.ok:
+            out = FrameOutcome(Status.ASSEMBLY_FAILED, 0, np.nan, np.nan,
+                               MESSAGES[Status.ASSEMBLY_FAILED])
+        else:
+            state = initial_multipliers(model, state, self.counters)
+            state, out = newton(model, state, s, self.history, 0, self.counters)
+        ar = AnalysisResult(index=index, analysis_type="static", method=method,
+                            settings=dict(s.as_dict(), method_requested=s.method))
+        ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
+        ar.message = "; ".join([out.message] + notes)
+        ar.attrs["reactions_unique"] = bool(len(red) == 0)
+        ar.attrs["assembled"] = bool(moved)
+        ar.datasets.update(self.frame_datasets(state, [out]))
+        ar.datasets.update(self.history.datasets())
+        ar.datasets.update(self.redundancy_datasets())
+        return state, ar
+
+    # ------------------------------------------------------------------ outputs
+    def frame_datasets(self, state, outcomes):
+        model = self.model
+        d = {"time": np.array([state.t])}
+        d["bodies/id"] = model.body_id
+        d["bodies/position"] = state.pos[None].copy()
+        d["bodies/orientation"] = state.rot[None].copy()
+        lam = state.lam
+        if len(self.redundancy) and model.nc:
+            ev = model.evaluate(state, need_jac=True)
+            Pq = ev.J[model.nq:, :model.nq]
+            allrows = np.ones(model.nc, bool)
+            model.row_active[:] = True
+            Pfull = model.evaluate(state, need_jac=True).J[model.nq:, :model.nq]
+            model.row_active[:] = allrows
+            model.row_active[self.redundancy] = False
+            w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
+            act = np.ones(model.nc, bool)
+            act[self.redundancy] = False
+            lam = min_norm_multipliers(Pfull, state.lam, act, w)
+            del Pq
+        st = state.copy()
+        st.lam = lam
+        saved = model.row_active.copy()
+        model.row_active[:] = True
+        loads = element_loads(model, st)
+        model.row_active[:] = saved
+        for g, o in model.outputs.items():
+            F, T = loads.get(g, (np.zeros((len(o["ids"]), 3)), np.zeros((len(o["ids"]), 3))))
+            d[f"{g}/id"] = np.asarray(o["ids"])
+            if g == "forces":
+                d["forces/tag"] = np.asarray(o["tag"], dtype=str)
+            d[f"{g}/force"] = F[None]
+            d[f"{g}/torque"] = T[None]
+            if g in ("joints", "jprims"):
+                uniq = np.ones(len(o["ids"]), bool)
+                for r in self.redundancy:
+                    ri = model.row_info[r]
+                    if ri["group"] == g:
+                        uniq[ri["owner"]] = False
+                d[f"{g}/unique"] = uniq
+        d["frames/converged"] = np.array([o.ok for o in outcomes])
+        d["frames/iterations"] = np.array([o.iterations for o in outcomes], dtype=np.int64)
+        d["frames/imbalance"] = np.array([o.imbalance for o in outcomes])
+        d["frames/error"] = np.array([o.error for o in outcomes])
+        d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
+        d["frames/stability"] = np.array(["unknown"] * len(outcomes), dtype=str)
+        return d
+
+    def redundancy_datasets(self):
+        m = self.model
+        rows = [m.row_info[r] for r in self.redundancy]
+        return {
+            "redundant/tag": np.array([r["tag"] for r in rows], dtype=str),
+            "redundant/id": np.array([r["id"] for r in rows], dtype=np.int64),
+            "redundant/equation": np.array([r["equation"] for r in rows], dtype=str),
+            "redundant/line": np.array([r["line"] for r in rows], dtype=np.int64),
+        }

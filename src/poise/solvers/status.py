@@ -1,0 +1,31 @@
+"""Solver outcome codes (a status, never an exception, for non-convergence)."""
+from __future__ import annotations
+
+from enum import Enum
+
+
+class Status(str, Enum):
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "max_iterations"
+    DIVERGED = "diverged"
+    SINGULAR_JACOBIAN = "singular_jacobian"
+    NONFINITE = "nonfinite"
+    ASSEMBLY_FAILED = "assembly_failed"
+    STEP_TOO_SMALL = "step_too_small"
+
+    @property
+    def ok(self) -> bool:
+        return self is Status.CONVERGED
+
+
+MESSAGES = {
+    Status.CONVERGED: "converged",
+    Status.MAX_ITERATIONS: "did not converge within max_num_iter iterations (raise max_num_iter, "
+                           "start closer to equilibrium, or try MKEAM)",
+    Status.DIVERGED: "Newton iterations diverged (start closer to equilibrium or try MKEAM)",
+    Status.SINGULAR_JACOBIAN: "singular Jacobian (a direction without stiffness or mass: "
+                              "increase stability, or check for an unrestrained body)",
+    Status.NONFINITE: "an element produced NaN or Inf",
+    Status.ASSEMBLY_FAILED: "could not bring the input configuration onto the constraints",
+    Status.STEP_TOO_SMALL: "quasi-static step became smaller than the minimum",
+}
