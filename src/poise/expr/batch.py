@@ -115,8 +115,8 @@ class _Group:
         env.params = self.params
         env.ones = np.ones(m)
         env.t = np.full(m, float(ctx.time))
-        env.vecs = [P_ext[self.slot_marker[:, s]] if kind == 0
-                    else A_ext[self.slot_marker[:, s], :, kind - 1]
+        env.vecs = [np.take(P_ext, self.slot_marker[:, s], axis=0) if kind == 0
+                    else np.take(A_ext[kind - 1], self.slot_marker[:, s], axis=0)
                     for s, kind in enumerate(self.kinds)]
         env.sc = np.asarray(ctx.scalars, dtype=float)[self.scalars] if self.U else None
         env.rx = np.asarray(ctx.reactions, dtype=float)[self.reactions] if self.C else None
@@ -237,6 +237,7 @@ class Batch:
             self.reaction_index[r, :g.C] = g.reactions
             self.time_mask[r] = g.uses_time
             self.state_mask[r] = (g.S + g.U + g.C) > 0
+        self._needs_axes = any(k > 0 for g in groups for k in g.kinds)
         self._global_slots = self.slot_marker < 0
         self._has_global = bool(self._global_slots[:, :S].any()) if S else False
 
@@ -276,9 +277,11 @@ class Batch:
         P_ext = A_ext = None
         if S:
             P = np.asarray(ctx.P, dtype=float).reshape(-1, 3)
-            A = np.asarray(ctx.A, dtype=float).reshape(-1, 3, 3)
             P_ext = np.concatenate([P, np.zeros((1, 3))])
-            A_ext = np.concatenate([A, np.eye(3)[None]])
+            if self._needs_axes:
+                A = np.asarray(ctx.A, dtype=float).reshape(-1, 3, 3)
+                # per axis column k: (n_markers + 1, 3) contiguous, last row = global frame
+                A_ext = [np.concatenate([A[:, :, k], np.eye(3)[k:k + 1]]) for k in range(3)]
         with np.errstate(all="ignore"):
             for g in self.groups:
                 try:
