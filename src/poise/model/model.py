@@ -15,7 +15,7 @@ import numpy as np
 from poise.errors import EvaluationError
 from poise.families.base import local_residual_tangent, slot_kinematics
 from poise.model.assembly import Assembler, scatter_add
-from poise.model.rotation import expm_so3, wrap_angle
+from poise.model.rotation import expm_so3, se3_left_jacobian, wrap_angle
 
 MAX_SUBSTEP_ROTATION = np.pi / 4   # rad; larger rotation updates are applied in sub-steps
 DENSE_MAX = 600                    # KKT size up to which dense LU is used
@@ -197,11 +197,22 @@ class Model:
         dr = dq[self.rot_idx].reshape(-1, 3) if len(self.rot_idx) else np.zeros((0, 3))
         big = float(np.max(np.linalg.norm(dr, axis=1))) if len(dr) else 0.0
         nsub = max(1, int(np.ceil(big / MAX_SUBSTEP_ROTATION))) if len(self.angle_I) else 1
-        E = expm_so3(dr / nsub)
+        rb = self.rot_body
+        # rigid bodies move along the screw of the spatial twist (w, v0), v0 = dr_cg - w x r_cg:
+        # a rotation about any fixed point (a hinge) is then followed exactly, for any angle.
+        w = dr / nsub
+        v0 = (dt[rb] - np.cross(dr, state.pos[rb])) / nsub if len(rb) else np.zeros((0, 3))
+        E = expm_so3(w)
+        V = se3_left_jacobian(w)
+        Vv = np.einsum("nij,nj->ni", V, v0)
+        pt = np.ones(self.nb, bool)
+        pt[rb] = False
         for _ in range(nsub):
-            new.pos += dt / nsub
-            if len(dr):
-                new.rot[self.rot_body] = np.matmul(E, new.rot[self.rot_body])
+            if pt.any():
+                new.pos[pt] += dt[pt] / nsub
+            if len(rb):
+                new.pos[rb] = np.einsum("nij,nj->ni", E, new.pos[rb]) + Vv
+                new.rot[rb] = np.matmul(E, new.rot[rb])
             if len(self.angle_I):
                 p = self._principal_angles(new)
                 new.angle = new.angle + wrap_angle(p - new.angle)

@@ -43,6 +43,22 @@ def expm_so3(w: np.ndarray) -> np.ndarray:
     return I + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
+def se3_left_jacobian(w: np.ndarray) -> np.ndarray:
+    """``V(w) = I + (1-cos t)/t^2 K + (t - sin t)/t^3 K^2`` (K = skew(w), t = |w|), (..., 3, 3).
+
+    ``exp`` of a spatial twist (w, v0) moves a point p to ``expm(w) p + V(w) v0``.
+    """
+    w = np.asarray(w, dtype=float)
+    th = np.linalg.norm(w, axis=-1)
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    c = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
+    K = skew(w)
+    I = np.broadcast_to(np.eye(3), K.shape)
+    return I + b[..., None, None] * K + c[..., None, None] * (K @ K)
+
+
 def orthonormalize(R: np.ndarray) -> np.ndarray:
     """Nearest rotation matrices (polar decomposition via SVD), (..., 3, 3)."""
     U, _, Vt = np.linalg.svd(R)

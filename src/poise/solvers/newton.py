@@ -183,20 +183,22 @@ def initial_multipliers(model, state, cnt: Counters):
     return st
 
 
-def _limit_step(model, dq, settings):
-    L = model.L
+def _limit_step(model, state, dq, settings):
+    """Uniform step factor so that no body moves (actual screw displacement of its CG) more than
+    ``max_translation_step * L`` nor rotates more than ``max_rotation_step``."""
     fac = 1.0
-    t = dq[model.trans_idx].reshape(-1, 3)
-    if len(t):
-        mt = float(np.max(np.linalg.norm(t, axis=1)))
-        lim = settings.max_translation_step * L
-        if mt > lim:
-            fac = min(fac, lim / mt)
     if len(model.rot_idx):
         r = dq[model.rot_idx].reshape(-1, 3)
         mr = float(np.max(np.linalg.norm(r, axis=1)))
         if mr > settings.max_rotation_step:
-            fac = min(fac, settings.max_rotation_step / mr)
+            fac = settings.max_rotation_step / mr
+    lim = settings.max_translation_step * model.L
+    for _ in range(4):
+        trial = model.retract(state, fac * dq)
+        disp = float(np.max(np.linalg.norm(trial.pos - state.pos, axis=1))) if model.nb else 0.0
+        if disp <= lim * 1.0001:
+            break
+        fac *= 0.9 * lim / disp
     return fac
 
 
@@ -237,7 +239,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
                                        MESSAGES[Status.SINGULAR_JACOBIAN])
         dq, dl = x[:model.nq], x[model.nq:]
-        alpha = _limit_step(model, dq, settings)
+        alpha = _limit_step(model, state, dq, settings)
         m0 = merit(ev, sc)
         best = None
         for _ in range(LINE_SEARCH_MAX + 1):
