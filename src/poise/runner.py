@@ -98,7 +98,7 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     state = model.initial_state()
     counts = {}
     redundancy = None
-    for k, (el, s) in enumerate(analyses):
+    for k, (_el, s) in enumerate(analyses):
         ta = time.perf_counter()
         sa = StaticAnalysis(model, s, redundancy=redundancy)
         state, ar = sa.run(state, index=k)

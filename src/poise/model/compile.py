@@ -9,8 +9,6 @@ import numpy as np
 
 from poise.deck.spec import DeckSpec, Element, Expr
 from poise.errors import ProblemCollector
-from poise.families import constraints as C
-from poise.families import forces as Fo
 from poise.model import units as U
 from poise.model.model import Model
 from poise.model.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
@@ -208,6 +206,43 @@ class _Builder:
         return self.marker_index[mid]
 
 
+class CompileContext:
+    """What element compilers add to: constraint rows, families, output groups, angles.
+
+    Element compilers are functions ``compiler(spec, ctx)`` listed in :func:`element_compilers`;
+    each handles one group of deck elements and only runs work for elements present in the deck.
+    """
+
+    def __init__(self, builder):
+        self.b = builder
+        self.pc = builder.pc
+        self.rows: list[dict] = []
+        self.families: list = []
+        self.outputs: dict = {}
+        self.angles: list[tuple[int, int, int]] = []
+
+    def angle(self, I: int, J: int, axis: int) -> int:
+        """Register a continuous angle of marker I about marker J's axis (0 x, 1 y, 2 z)."""
+        self.angles.append((I, J, axis))
+        return len(self.angles) - 1
+
+    def marker(self, el, attr, required=True) -> int:
+        return self.b.mk(el, attr, required)
+
+    def effect(self, name: str) -> None:
+        self.b.effects.append(name)
+
+    def add_row(self, el, equation: str, kind: str, group: str, owner: int) -> int:
+        self.rows.append(_row(el, equation, kind, group, owner))
+        return len(self.rows) - 1
+
+
+def element_compilers():
+    """The ordered list of element compilers (add new element groups here)."""
+    from poise.model import compile_constraints, compile_forces
+    return [compile_constraints.compile_joints, compile_forces.compile_forces]
+
+
 def compile_model(spec: DeckSpec) -> Model:
     """Compile a validated :class:`DeckSpec` into a :class:`Model`.
 
@@ -226,169 +261,11 @@ def compile_model(spec: DeckSpec) -> Model:
         i = b.body_index[bid]
         bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * b.L) ** 2 * np.eye(3)
 
-    rows: list[dict] = []
-    fams = []
-    outputs: dict = {}
-    angles: list[tuple[int, int, int]] = []
-
-    def angle(I, J, axis):
-        angles.append((I, J, axis))
-        return len(angles) - 1
-
-    # ------------------------------------------------------------ constraints
-    for tag, group in (("Constraint_Joint", "joints"), ("Constraint_Jprim", "jprims")):
-        els = spec.elements(tag)
-        if not els:
-            continue
-        acc = {"point": [], "perp": [], "plane": []}
-        ids = []
-        for k, el in enumerate(els):
-            jt = str(el.attrs.get("type", "")).upper()
-            eqs = C.JOINT_EQUATIONS.get(jt)
-            if eqs is None:
-                b.pc.error(el.loc, f"joint type {jt} is not supported yet; supported: "
-                           + ", ".join(sorted(C.JOINT_EQUATIONS)), "type")
-                continue
-            I = b.mk(el, "i_marker_id")
-            J = b.mk(el, "j_marker_id")
-            ids.append(el.id)
-            names = C.equation_names(eqs)
-            ni = 0
-            for e in eqs:
-                if e[0] == "point":
-                    r0 = len(rows)
-                    for nm in names[ni:ni + 3]:
-                        rows.append(_row(el, nm, "trans", group, len(ids) - 1))
-                    acc["point"].append((I, J, len(ids) - 1, [r0, r0 + 1, r0 + 2]))
-                    ni += 3
-                else:
-                    r0 = len(rows)
-                    rows.append(_row(el, names[ni], "rot" if e[0] == "perp" else "trans", group,
-                                     len(ids) - 1))
-                    acc[e[0]].append((I, J, len(ids) - 1, [r0], e))
-                    ni += 1
-            b.effects.append(f"{tag}:{jt}")
-        outputs[group] = dict(tag=tag, ids=np.array(ids, int))
-        if acc["point"]:
-            a = acc["point"]
-            f = C.Coincident.build(f"{group}:coincident", np.array([x[0] for x in a]),
-                                   np.array([x[1] for x in a]), [x[2] for x in a])
-            f.crow = np.array([x[3] for x in a], int)
-            f.group = group
-            fams.append(f)
-        if acc["perp"]:
-            a = acc["perp"]
-            e4 = [x[4] for x in a]
-            f = C.Perpendicular.build(
-                f"{group}:perpendicular", np.array([x[0] for x in a]), np.array([x[1] for x in a]),
-                [e[1] for e in e4], [e[2] for e in e4],
-                [e[3] if len(e) > 3 else 1 for e in e4], [e[4] if len(e) > 3 else 1 for e in e4],
-                [1.0 if len(e) > 3 else 0.0 for e in e4], [x[2] for x in a])
-            f.crow = np.array([x[3] for x in a], int)
-            f.group = group
-            fams.append(f)
-        if acc["plane"]:
-            a = acc["plane"]
-            f = C.InPlane.build(f"{group}:inplane", np.array([x[0] for x in a]),
-                                np.array([x[1] for x in a]), [x[4][1] for x in a],
-                                [x[2] for x in a])
-            f.crow = np.array([x[3] for x in a], int)
-            f.group = group
-            fams.append(f)
-
-    # ------------------------------------------------------------ forces
-    force_rows = []   # (tag, id, loc) per force element, output group "forces"
-    per_type: dict[str, list] = {}
-
-    def add(kind, el, **kw):
-        force_rows.append(el)
-        per_type.setdefault(kind, []).append(dict(owner=len(force_rows) - 1, el=el, **kw))
-
+    ctx = CompileContext(b)
+    for compiler in element_compilers():
+        compiler(spec, ctx)
+    rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
     pc = b.pc
-    for el in spec.elements("Force_SpringDamper"):
-        t = str(el.attrs.get("type", "TRANSLATIONAL")).upper()
-        I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
-        k = _num(el, "stiffness", 0.0, pc)
-        pre = _num(el, "preload", 0.0, pc)
-        if t == "ROTATIONAL":
-            L0 = _num(el, "length", None, pc)
-            if L0 is None:
-                L0 = _num(el, "angle", 0.0, pc)
-            add("AxisTorque", el, I=I, J=J, R=GLOBAL, k=k, length=L0, preload=pre, ax=False,
-                ang=angle(I, J, 2))
-        else:
-            add("LineForce", el, I=I, J=J, R=GLOBAL, k=k, length=_num(el, "length", 0.0, pc),
-                preload=pre, ax=False)
-        b.effects.append(f"Force_SpringDamper:{t}")
-    for el in spec.elements("Force_Scalar_TwoBody"):
-        t = str(el.attrs.get("type", "FORCE")).upper()
-        I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
-        val = el.attrs.get("val", el.attrs.get("val_expression", 0.0))
-        if isinstance(val, Expr):
-            pc.error(el.loc, "expressions are not supported yet (coming with the expression "
-                     "language); expected a number", "val_expression")
-            val = 0.0
-        ao = bool(el.attrs.get("is_action_only", False))
-        if t == "TORQUE":
-            add("AxisTorque", el, I=I, J=J, R=GLOBAL, k=0.0, length=0.0, preload=val, ax=ao,
-                ang=angle(I, J, 2))
-        elif ao:
-            add("AxisForce", el, I=I, J=J, R=GLOBAL, value=val, ax=True)
-        else:
-            add("LineForce", el, I=I, J=J, R=GLOBAL, k=0.0, length=0.0, preload=val, ax=False)
-        b.effects.append(f"Force_Scalar_TwoBody:{t}")
-    for el in spec.elements("Force_Bushing"):
-        I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
-        g = lambda n: float(_num(el, n, 0.0, pc) or 0.0)  # noqa: E731
-        add("Bushing", el, I=I, J=J, R=GLOBAL, ax=False,
-            kt3=[g("kx"), g("ky"), g("kz")], kr3=[g("ktx"), g("kty"), g("ktz")],
-            f0=[g("preload_x"), g("preload_y"), g("preload_z")],
-            t0=[g("preload_tx"), g("preload_ty"), g("preload_tz")],
-            ang=[angle(I, J, 0), angle(I, J, 1), angle(I, J, 2)])
-        b.effects.append("Force_Bushing")
-    for tag in ("Force_Vector_OneBody", "Force_Vector_TwoBody"):
-        for el in spec.elements(tag):
-            one = tag.endswith("OneBody")
-            I = b.mk(el, "marker_id" if one else "i_marker_id")
-            J = GLOBAL if one else b.mk(el, "j_floating_marker_id")
-            R = b.mk(el, "ref_marker_id", required=False)
-            t = str(el.attrs.get("type", "FORCEANDTORQUE")).upper()
-            comp = []
-            for nm in ("fx", "fy", "fz", "tx", "ty", "tz"):
-                v = el.attrs.get(f"{nm}_expression", el.attrs.get(nm, 0.0))
-                if isinstance(v, Expr):
-                    pc.error(el.loc, "expressions are not supported yet (coming with the "
-                             "expression language); expected a number", f"{nm}_expression")
-                    v = 0.0
-                comp.append(float(v or 0.0))
-            if t == "FORCEONLY":
-                comp[3:] = [0.0] * 3
-            elif t == "TORQUEONLY":
-                comp[:3] = [0.0] * 3
-            add("VectorForce", el, I=I, J=J, R=R, fc=comp[:3], tc=comp[3:], ax=one)
-            b.effects.append(tag)
-
-    classes = {"LineForce": Fo.LineForce, "AxisForce": Fo.AxisForce, "AxisTorque": Fo.AxisTorque,
-               "Bushing": Fo.Bushing, "VectorForce": Fo.VectorForce}
-    for kind, items in per_type.items():
-        cls = classes[kind]
-        params = {}
-        for key in items[0]:
-            if key in ("owner", "el", "I", "J", "R", "ax", "ang"):
-                continue
-            params[key] = np.array([it[key] for it in items], float)
-        f = cls.build(f"forces:{kind}", np.array([it["I"] for it in items]),
-                      np.array([it["J"] for it in items]), np.array([it["R"] for it in items]),
-                      [it["owner"] for it in items], action_only=[it["ax"] for it in items],
-                      **params)
-        if "ang" in items[0]:
-            f.angle_index = np.array([it["ang"] for it in items], int)
-        f.element_locs = [it["el"].loc for it in items]
-        f.group = "forces"
-        fams.append(f)
-    if force_rows:
-        outputs["forces"] = dict(tag=np.array([e.tag for e in force_rows]),
-                                 ids=np.array([e.id for e in force_rows], int))
 
     # ------------------------------------------------------------ gravity
     grav = np.zeros(3)
