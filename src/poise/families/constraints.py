@@ -87,7 +87,6 @@ class Perpendicular(ConstraintFamily):
 
     @classmethod
     def build(cls, name, I, J, ci, cj, ci2, cj2, coef2, owner):
-        n = len(I)
         kinds = np.stack([ci, cj, ci2, cj2], 1).astype(int)
         fam = cls(name=name, markers=np.stack([I, J], 1).astype(int),
                   slot_ml=np.array([0, 1, 0, 1]), slot_kind=kinds,
