@@ -134,3 +134,8 @@ def test_recursive_variable_and_error_inside_variable():
     s = str(ei.value)
     assert "deck.xml:203: <Reference_Variable id=103> expr col 9: expected ')'" in s
     assert "expr col 3: Reference_Variable id 103 is invalid" in s
+
+
+def test_hash_is_not_a_valid_character():
+    with pytest.raises(DeckError, match="col 3: invalid character '#'"):
+        compile_batch([mkexpr("1 # 2")], FakeResolver())

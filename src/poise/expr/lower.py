@@ -113,7 +113,7 @@ class Lowering:
         try:
             tmpl, self.nums = make_template(text)
             try:
-                node = parse(tmpl)
+                node = parse(tmpl, True) if "#" not in text else None
             except ExprSyntaxError:
                 node = None
             if node is not None:

@@ -124,13 +124,15 @@ class _Parser:
 
 
 @lru_cache(maxsize=65536)
-def parse(text: str) -> Node:
+def parse(text: str, template: bool = False) -> Node:
     """Parse an expression text into an AST.
 
     Parameters
     ----------
     text : str
         Expression as written in the deck.
+    template : bool
+        Parse a template from :func:`poise.expr.tokens.make_template` (``#`` = parameter).
 
     Returns
     -------
@@ -142,7 +144,7 @@ def parse(text: str) -> Node:
     ExprSyntaxError
         With a message and the 1-based column of the problem.
     """
-    toks = tokenize(text)
+    toks = tokenize(text, template)
     if toks[0].kind == "eof":
         raise ExprSyntaxError("empty expression", 1)
     p = _Parser(toks)

@@ -64,8 +64,11 @@ _TOKEN_RE = re.compile(
 _DEG = math.pi / 180.0
 
 
-def tokenize(text: str) -> list[Token]:
+def tokenize(text: str, template: bool = False) -> list[Token]:
     """Split ``text`` into tokens (whitespace dropped) ending with an ``eof`` token.
+
+    With ``template=True`` each ``#`` is a parameter token (see :func:`make_template`);
+    otherwise ``#`` is an invalid character.
 
     Raises
     ------
@@ -100,7 +103,7 @@ def tokenize(text: str) -> list[Token]:
                     end += 1
                     skip = end
             append(Token("num", text[pos:end], value, pos + 1))
-        elif kind == "param":
+        elif kind == "param" and template:
             append(Token("param", "#", float(n_param), pos + 1))
             n_param += 1
         else:
