@@ -182,3 +182,9 @@ def test_plain_float_batch_and_empty():
     assert list(res.value) == [1.0, 2.0] and res.d_slot.shape == (2, 0, 3)
     b = compile_batch([], FakeResolver())
     assert b.evaluate(EvalContext()).value.shape == (0,)
+
+
+def test_global_frame_only_needs_no_markers():
+    b = compile_batch([mkexpr("DX(0) + DM(0, 0) + AZ(0)")], FakeResolver())
+    res = b.evaluate(EvalContext())
+    assert res.value[0] == 0.0 and np.all(res.d_slot == 0)

@@ -276,10 +276,12 @@ class Batch:
         d_reaction = np.zeros((n, C))
         P_ext = A_ext = None
         if S:
-            P = np.asarray(ctx.P, dtype=float).reshape(-1, 3)
+            P = np.asarray(ctx.P if ctx.P is not None else np.zeros((0, 3)),
+                           dtype=float).reshape(-1, 3)
             P_ext = np.concatenate([P, np.zeros((1, 3))])
             if self._needs_axes:
-                A = np.asarray(ctx.A, dtype=float).reshape(-1, 3, 3)
+                A = np.asarray(ctx.A if ctx.A is not None else np.zeros((0, 3, 3)),
+                               dtype=float).reshape(-1, 3, 3)
                 # per axis column k: (n_markers + 1, 3) contiguous, last row = global frame
                 A_ext = [np.concatenate([A[:, :, k], np.eye(3)[k:k + 1]]) for k in range(3)]
         with np.errstate(all="ignore"):
