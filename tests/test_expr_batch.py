@@ -188,3 +188,14 @@ def test_global_frame_only_needs_no_markers():
     b = compile_batch([mkexpr("DX(0) + DM(0, 0) + AZ(0)")], FakeResolver())
     res = b.evaluate(EvalContext())
     assert res.value[0] == 0.0 and np.all(res.d_slot == 0)
+
+
+def test_resolver_raising_keyerror_for_global_frame():
+    class R(FakeResolver):
+        def marker_index(self, id):
+            if id == 0:
+                raise KeyError(0)
+            return super().marker_index(id)
+
+    b = compile_batch([mkexpr("DX(1)")], R())
+    assert list(b.slot_marker[0]) == [0, -1, -1]

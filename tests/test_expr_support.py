@@ -24,6 +24,8 @@ class FakeResolver:
         self.calls = []
 
     def marker_index(self, id):
+        if id == 0:
+            return -1
         if 1 <= id <= N_MARKERS:
             return id - 1
         raise KeyError(id)

@@ -184,11 +184,11 @@ class Lowering:
 
     def marker(self, node, i):
         mid = self.int_arg(node, i)
-        if mid == 0:
-            return -1
         try:
             return int(self.resolver.marker_index(mid))
         except KeyError:
+            if mid == 0:          # global frame (contract: maps to -1)
+                return -1
             self.error(node.args[i].col, f"unknown marker id {mid}")
 
     def call(self, node):
