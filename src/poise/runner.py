@@ -7,11 +7,12 @@ CLI overrides win over the deck (defaults < deck < CLI).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from poise import __version__
-from poise.deck.spec import DeckSpec
+from poise.deck.spec import DeckSpec, Element
 from poise.errors import DeckError, EvaluationError, Problem
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult, RunResult
 from poise.settings import StaticSettings
@@ -43,24 +44,77 @@ def _analysis_kind(el, t_now) -> tuple[str, float | None]:
     return at.lower(), end
 
 
-def plan(spec: DeckSpec, overrides: dict | None):
-    """List of (Simulate element, StaticSettings) in command order."""
+@dataclass
+class AnalysisRequest:
+    """One ``Simulate`` command with the live settings at that point of the command list.
+
+    Attributes
+    ----------
+    simulate : Element
+    kind : str
+        ``"static"`` or ``"quasistatic"`` (or another analysis_type, lower case).
+    settings : StaticSettings
+        Effective Param_Static (defaults < model element < earlier commands < CLI).
+    transient : dict
+        Effective Param_Transient attributes (model element, then command versions).
+    commands : list[Element]
+        Command elements met since the previous Simulate (Force_Gravity changes, ...).
+    """
+
+    simulate: Element
+    kind: str
+    settings: StaticSettings
+    transient: dict = field(default_factory=dict)
+    commands: list = field(default_factory=list)
+
+
+def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
+    """The analyses of a deck in command order."""
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    base = [e for e in spec.model if e.tag == "Param_Static"]
-    live = _static_settings(base)
+    live = _static_settings([e for e in spec.model if e.tag == "Param_Static"])
+    transient: dict = {}
+    for e in spec.model:
+        if e.tag == "Param_Transient":
+            transient.update(e.attrs)
     out = []
+    pending = []
     for el in spec.commands:
         if el.tag == "Param_Static":
             live = live.updated(el.attrs)
+        elif el.tag == "Param_Transient":
+            transient.update(el.attrs)
         elif el.tag == "Simulate":
             try:
                 s = live.updated(overrides)
             except (ValueError, TypeError) as e:
                 raise DeckError(Problem(el.loc, f"invalid solver settings: {e}")) from None
-            out.append((el, s))
+            kind, _ = _analysis_kind(el, 0.0)
+            out.append(AnalysisRequest(el, kind, s, dict(transient), pending))
+            pending = []
         elif el.tag == "Stop":
             break
+        else:
+            pending.append(el)
     return out
+
+
+def analysis_class(req: AnalysisRequest):
+    """The analysis driver for a request, or a message saying why it is not available.
+
+    Returns ``(cls, None)`` or ``(None, message)``. Drivers take
+    ``cls(model, request, redundancy=...)`` and provide ``run(state, index) -> (state,
+    AnalysisResult)``, ``counters`` and ``redundancy``.
+    """
+    from poise.solvers.static import StaticAnalysis
+    m = req.settings.method
+    if req.kind == "static":
+        if m == "MKEAM":
+            return None, "method MKEAM is not supported yet; expected FIM_S or FIM_D"
+        return StaticAnalysis, None
+    if req.kind == "quasistatic":
+        return None, ("quasi-static analysis (end_time beyond the start) is not supported yet; "
+                      "expected a single static analysis")
+    return None, f"analysis_type {req.kind.upper()} is not supported; expected Static"
 
 
 def run(path: str, overrides=None, command: str = "", progress=None) -> RunResult:
@@ -72,17 +126,12 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     t2 = time.perf_counter()
     analyses = plan(spec, overrides)
     problems = []
-    for el, s in analyses:
-        kind, _ = _analysis_kind(el, 0.0)
-        if kind == "quasistatic":
-            problems.append(Problem(el.loc, "quasi-static analysis (end_time beyond the start) is "
-                                    "not supported yet; expected a single static analysis"))
-        elif kind != "static":
-            problems.append(Problem(el.loc, f"analysis_type {kind.upper()} is not supported; "
-                                    "expected Static"))
-        if s.method == "MKEAM":
-            problems.append(Problem(el.loc, "method MKEAM is not supported yet; expected FIM_S "
-                                    "or FIM_D"))
+    drivers = []
+    for req in analyses:
+        cls, msg = analysis_class(req)
+        if cls is None:
+            problems.append(Problem(req.simulate.loc, msg))
+        drivers.append(cls)
     if problems:
         raise DeckError(problems)
     if not analyses:
@@ -94,17 +143,16 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
                     active_effects=list(model.active_effects), command=command)
     res.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
     res.model_datasets = model_datasets(model)
-    from poise.solvers.static import StaticAnalysis
     state = model.initial_state()
     counts = {}
     redundancy = None
-    for k, (_el, s) in enumerate(analyses):
+    for k, (req, cls) in enumerate(zip(analyses, drivers)):
         ta = time.perf_counter()
-        sa = StaticAnalysis(model, s, redundancy=redundancy)
-        state, ar = sa.run(state, index=k)
-        redundancy = sa.redundancy
+        drv = cls(model, req, redundancy=redundancy)
+        state, ar = drv.run(state, index=k)
+        redundancy = drv.redundancy
         res.timings[f"analysis_{k:03d}"] = time.perf_counter() - ta
-        for key, v in sa.counters.as_dict().items():
+        for key, v in drv.counters.as_dict().items():
             counts[key] = counts.get(key, 0) + v
         res.analyses.append(ar)
         if progress:
@@ -179,10 +227,11 @@ def check(path: str):
                      for r in red]
     rep.active_effects = list(model.active_effects)
     rep.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
-    for el, s in plan(spec, None):
-        kind, _ = _analysis_kind(el, 0.0)
-        method = "FIM_S" if (kind == "static" and s.method == "FIM_D") else s.method
-        rep.analyses.append(dict(analysis_type=kind, method=method, n_frames=1))
+    for req in plan(spec, None):
+        method = req.settings.method
+        if req.kind == "static" and method == "FIM_D":
+            method = "FIM_S"
+        rep.analyses.append(dict(analysis_type=req.kind, method=method))
     return rep
 
 

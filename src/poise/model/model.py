@@ -118,6 +118,7 @@ class Model:
     coord_info: list = field(default_factory=list)
     units: str = ""
     dense: bool = True
+    frame_hooks: list = field(default_factory=list)
 
     # ------------------------------------------------------------------ setup
     def finalize(self):
@@ -154,6 +155,17 @@ class Model:
         blocks.append((lr, lr))
         self.assembler = Assembler(self.N, blocks, dense=self.dense)
         self.row_active = np.ones(self.nc, bool)
+        # per-body length scale: largest marker lever of the body (>= 1e-3 L); used to weight
+        # rotations against translations in least-squares problems and rank tests
+        lever = np.linalg.norm(self.marker_s0, axis=1)
+        ell = np.zeros(nb)
+        mb = self.marker_body
+        on = mb < nb
+        np.maximum.at(ell, mb[on], lever[on])
+        self.body_scale = np.maximum(ell, 1e-3 * self.L)
+        qs = np.ones(self.nq)
+        qs[self.rot_idx] = np.repeat(self.body_scale[rigid], 3)
+        self.q_scale = qs            # length per unit of each coordinate (rad -> length)
         self.row_kind = np.array([1 if ri["kind"] == "rot" else 0 for ri in self.row_info], int)
 
     # ------------------------------------------------------------------ state

@@ -29,20 +29,40 @@ class Factor:
             except RuntimeError as e:
                 raise SingularMatrix(str(e)) from None
             u = np.abs(self.lu.U.diagonal())
-            if u.min() <= 1e-14 * u.max():
-                k = int(np.argmin(u))
-                raise SingularMatrix("singular matrix (tiny pivot)", row=int(np.nonzero(self.lu.perm_r == k)[0][0]))
+            self._pivot_row = int(np.nonzero(self.lu.perm_r == int(np.argmin(u)))[0][0])
+            if not np.all(np.isfinite(u)) or u.min() == 0.0:
+                raise SingularMatrix("singular matrix (zero pivot)", row=self._pivot_row)
         else:
             J = np.asarray(J)
             with np.errstate(all="ignore"):
                 lu, piv = sla.lu_factor(J, check_finite=False)
             d = np.abs(np.diag(lu))
-            if not np.all(np.isfinite(lu)) or d.min() <= 1e-14 * max(d.max(), 1e-300):
-                k = int(np.argmin(d))
-                raise SingularMatrix("singular matrix (tiny pivot)", row=k)
+            self._pivot_row = int(np.argmin(d))
+            if not np.all(np.isfinite(lu)) or d.min() <= 1e-15 * max(d.max(), 1e-300):
+                raise SingularMatrix("singular matrix (tiny pivot)", row=self._pivot_row)
             self.lu = (lu, piv)
+        self.J = J
 
-    def solve(self, b):
+    def _solve(self, b):
         if self.sparse:
             return self.lu.solve(b)
         return sla.lu_solve(self.lu, b, check_finite=False)
+
+    def solve(self, b, refine: int = 2, rtol: float = 1e-8):
+        """Solve with iterative refinement; raise SingularMatrix if the residual stays large."""
+        x = self._solve(b)
+        nb = np.linalg.norm(b)
+        if nb == 0:
+            return x
+        for _ in range(refine + 1):
+            if not np.all(np.isfinite(x)):
+                raise SingularMatrix("singular matrix (non-finite solution)", row=self._pivot_row)
+            res = b - self.J @ x
+            if np.linalg.norm(res) <= rtol * nb:
+                return x
+            x = x + self._solve(res)
+        res = b - self.J @ x
+        if not np.all(np.isfinite(x)) or np.linalg.norm(res) > 1e-4 * nb:
+            raise SingularMatrix("singular matrix (linear solve residual "
+                                 f"{np.linalg.norm(res) / nb:.1e})", row=self._pivot_row)
+        return x

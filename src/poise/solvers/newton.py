@@ -105,7 +105,7 @@ def _weighted_kkt(model, ev, W):
 
 
 def _coord_weights(model):
-    return np.where(model.q_kind == 1, model.L ** 2, 1.0)
+    return model.q_scale ** 2
 
 
 def _evaluate(model, state, cnt, need_jac=True, eps=0.0):
@@ -154,7 +154,10 @@ def assemble(model, state, settings, history: History, frame: int, cnt: Counters
         except SingularMatrix:
             return state, moved, Status.ASSEMBLY_FAILED
         rhs = np.concatenate([np.zeros(model.nq), -ev.phi])
-        x = f.solve(rhs)
+        try:
+            x = f.solve(rhs)
+        except SingularMatrix:
+            return state, moved, Status.ASSEMBLY_FAILED
         dq = x[:model.nq]
         state = model.retract(state, dq)
         moved = True
@@ -178,7 +181,10 @@ def initial_multipliers(model, state, cnt: Counters):
     except SingularMatrix:
         return state
     Q = -ev.r                     # with lam = 0, r = -Q
-    x = f.solve(np.concatenate([Q, np.zeros(model.nc)]))
+    try:
+        x = f.solve(np.concatenate([Q, np.zeros(model.nc)]))
+    except SingularMatrix:
+        return state
     st.lam = np.where(model.row_active, x[model.nq:], 0.0)
     return st
 
@@ -233,7 +239,12 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
                                        MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
         rhs = -np.concatenate([ev.r, ev.phi])
-        x = f.solve(rhs)
+        try:
+            x = f.solve(rhs)
+        except SingularMatrix as e:
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
+                                       MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
         if not np.all(np.isfinite(x)):
             history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
             return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,

@@ -13,7 +13,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-RATIO_TOL = 1e-9
+RATIO_TOL = 1e-9     # always redundant below this pivot ratio
+RATIO_MAX = 1e-5     # never redundant above this pivot ratio
+GAP_MIN = 1e3        # a gap of this factor between sorted ratios separates the two groups
 SHIFT = 1e-13
 ORDERING_NATURAL_MAX = 20000
 
@@ -43,15 +45,39 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
         # fall back to a dense rank-revealing QR (small systems only)
         return _dense_redundant(P.toarray())
     ratio = u[lu.perm_r] / dd
-    red = np.nonzero((ratio < RATIO_TOL) | empty)[0]
+    thr = rank_threshold(ratio[~empty])
+    red = np.nonzero((ratio < thr) | empty)[0]
     return red
+
+
+def rank_threshold(ratio: np.ndarray) -> float:
+    """Pivot-ratio threshold from the largest gap among the small ratios.
+
+    Rounding in long closed loops lifts the pivots of dependent rows above machine precision
+    (about 1e-9 for a 10 000-link loop) while independent rows of long loops come close to
+    dependence (about 1e-4). Numerical rank is therefore decided by the largest gap (a factor
+    >= ``GAP_MIN``) among ratios below ``RATIO_MAX``; without such a gap, ``RATIO_TOL`` applies.
+    """
+    r = np.sort(ratio[ratio < RATIO_MAX * GAP_MIN])
+    r = np.maximum(r, 1e-300)
+    thr = RATIO_TOL
+    if len(r) >= 2:
+        lg = np.log10(r)
+        gaps = np.diff(lg)
+        k = int(np.argmax(gaps))
+        if gaps[k] >= np.log10(GAP_MIN) and r[k] < RATIO_MAX:
+            thr = max(thr, float(np.sqrt(r[k] * r[k + 1])))
+    elif len(r) == 1 and r[0] < RATIO_MAX * 1e-2:
+        thr = max(thr, float(r[0]) * 10)
+    return thr
 
 
 def _dense_redundant(P):
     import scipy.linalg as sla
     q, r, piv = sla.qr(P.T, mode="economic", pivoting=True)
     dg = np.abs(np.diag(r))
-    rank = int(np.sum(dg > RATIO_TOL ** 0.5 * max(dg.max(), 1e-300)))
+    rel = (dg / max(dg.max(), 1e-300)) ** 2
+    rank = int(np.sum(rel >= rank_threshold(rel)))
     return np.sort(piv[rank:])
 
 

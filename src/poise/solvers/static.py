@@ -40,9 +40,10 @@ class StaticAnalysis:
         Redundant rows found by an earlier analysis (detection runs once per model).
     """
 
-    def __init__(self, model, settings, redundancy=None):
+    def __init__(self, model, request, redundancy=None):
         self.model = model
-        self.settings = settings
+        self.request = request
+        self.settings = request.settings
         self.redundancy = redundancy
         self.counters = Counters()
         self.history = History()
@@ -77,6 +78,7 @@ class StaticAnalysis:
         ar.attrs["reactions_unique"] = bool(len(red) == 0)
         ar.attrs["assembled"] = bool(moved)
         ar.datasets.update(self.frame_datasets(state, [out]))
+        ar.datasets.update(stack_frames([frame_outputs(model, state)]))
         ar.datasets.update(self.history.datasets())
         ar.datasets.update(self.redundancy_datasets())
         return state, ar
@@ -130,6 +132,7 @@ class StaticAnalysis:
         d["frames/stability"] = np.array(["unknown"] * len(outcomes), dtype=str)
         return d
 
+
     def redundancy_datasets(self):
         m = self.model
         rows = [m.row_info[r] for r in self.redundancy]
@@ -139,3 +142,28 @@ class StaticAnalysis:
             "redundant/equation": np.array([r["equation"] for r in rows], dtype=str),
             "redundant/line": np.array([r["line"] for r in rows], dtype=np.int64),
         }
+
+
+def frame_outputs(model, state) -> dict:
+    """Per-frame datasets from the model's output hooks (requests, contact points, ...).
+
+    Each hook in ``model.frame_hooks`` is ``hook(model, state) -> {path: array}`` for ONE frame;
+    callers stack frames along a new leading axis (see :func:`stack_frames`).
+    """
+    out = {}
+    for hook in getattr(model, "frame_hooks", []):
+        out.update(hook(model, state))
+    return out
+
+
+def stack_frames(per_frame: list[dict]) -> dict:
+    """Stack a list of per-frame dicts along axis 0 (keys ending in ``/id`` are not stacked)."""
+    if not per_frame:
+        return {}
+    out = {}
+    for k in per_frame[0]:
+        if k.endswith("/id") or k.endswith("/tag") or k.endswith("/label"):
+            out[k] = np.asarray(per_frame[0][k])
+        else:
+            out[k] = np.stack([np.asarray(f[k]) for f in per_frame])
+    return out
