@@ -130,6 +130,9 @@ class StaticAnalysis:
         d["frames/error"] = np.array([o.error for o in outcomes])
         d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
         d["frames/stability"] = np.array(["unknown"] * len(outcomes), dtype=str)
+        if all(o.ok for o in outcomes):
+            from poise.solvers.stability import classify, stability_datasets
+            d.update(stability_datasets([classify(model, state)]))
         return d
 
 
