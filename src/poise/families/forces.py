@@ -113,21 +113,25 @@ class LineForce(TwoBodyForce):
     """
 
     def compute(self, Y, ctx, need_jac):
+        # F = f u = -k d + c u with c = k length + preload: the first term is smooth everywhere,
+        # the second needs a defined direction (L > 0) unless c = 0.
         d = Y[:, S_PI] - Y[:, S_PJ]
         L = np.linalg.norm(d, axis=1)
-        if np.any(L <= 1e-300):
-            i = int(np.argmin(L))
+        c = self.k * self.length + self.preload
+        bad = (L <= 1e-300) & (c != 0.0)
+        if np.any(bad):
+            i = int(np.nonzero(bad)[0][0])
             raise EvaluationError("the I and J markers coincide: the line of action is undefined",
                                   self.element_locs[i] if self.element_locs else None)
-        u = d / L[:, None]
-        f = -self.k * (L - self.length) + self.preload
-        F = f[:, None] * u
+        Ls = np.where(L > 1e-300, L, 1.0)
+        u = d / Ls[:, None]
+        F = -self.k[:, None] * d + c[:, None] * u
         T = np.zeros_like(F)
         dF = dT = None
         if need_jac:
             n = len(L)
             uu = u[:, :, None] * u[:, None, :]
-            dFdd = (-self.k)[:, None, None] * uu + (f / L)[:, None, None] * (_I3 - uu)
+            dFdd = (-self.k)[:, None, None] * _I3 + (c / Ls)[:, None, None] * (_I3 - uu)
             dF = np.zeros((n, 3, 3 * N_SLOTS))
             dF[:, :, sl(S_PI)] = dFdd
             dF[:, :, sl(S_PJ)] = -dFdd

@@ -1,6 +1,8 @@
 """Linear algebra chosen once per model: dense LU for small systems, SuperLU for large ones."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
@@ -34,7 +36,8 @@ class Factor:
                 raise SingularMatrix("singular matrix (zero pivot)", row=self._pivot_row)
         else:
             J = np.asarray(J)
-            with np.errstate(all="ignore"):
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore")
                 lu, piv = sla.lu_factor(J, check_finite=False)
             d = np.abs(np.diag(lu))
             self._pivot_row = int(np.argmin(d))

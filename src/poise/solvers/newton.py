@@ -124,7 +124,14 @@ def singular_message(model, row):
     if row is None:
         return ""
     if row < model.nq:
-        return f"; no stiffness or mass in {model.coord_info[row]}"
+        b = int(np.searchsorted(model.body_off, row, side="right") - 1)
+        comp = row - model.body_off[b]
+        what = ("translation along " + "XYZ"[comp]) if comp < 3 else ("rotation about " + "XYZ"[comp - 3])
+        if model.body_mass[b] == 0.0:
+            return (f"; body {int(model.body_id[b])} has zero mass and nothing restrains its "
+                    f"{what} ({model.coord_info[row]}): add mass, a constraint or a force, or "
+                    "increase stability")
+        return f"; no stiffness or mass in {model.coord_info[row]} ({what})"
     ri = model.row_info[row - model.nq]
     return (f"; at {ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}> equation "
             f"{ri['equation']}")

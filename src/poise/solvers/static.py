@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.errors import EvaluationError
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.history import History
 from poise.solvers.newton import Counters, FrameOutcome, assemble, initial_multipliers, newton
@@ -54,23 +55,30 @@ class StaticAnalysis:
         method = "FIM_S"
         if s.method == "FIM_D":
             notes.append("FIM_D falls back to FIM_S for a pure static analysis")
-        if self.redundancy is None:
-            self.redundancy = detect_redundancy(model, state)
-        else:
-            model.row_active[:] = True
-            model.row_active[self.redundancy] = False
-        red = self.redundancy
-        if len(red):
-            notes.append(f"{len(red)} redundant constraint equations removed")
-        state, moved, ast = assemble(model, state, s, self.history, 0, self.counters)
-        if moved:
-            notes.append("initial configuration assembled onto the constraints")
-        if not ast.ok:
-            out = FrameOutcome(Status.ASSEMBLY_FAILED, 0, np.nan, np.nan,
-                               MESSAGES[Status.ASSEMBLY_FAILED])
-        else:
-            state = initial_multipliers(model, state, self.counters)
-            state, out = newton(model, state, s, self.history, 0, self.counters)
+        moved = False
+        try:
+            if self.redundancy is None:
+                self.redundancy = detect_redundancy(model, state)
+            else:
+                model.row_active[:] = True
+                model.row_active[self.redundancy] = False
+            red = self.redundancy
+            if len(red):
+                notes.append(f"{len(red)} redundant constraint equations removed")
+            state, moved, ast = assemble(model, state, s, self.history, 0, self.counters)
+            if moved:
+                notes.append("initial configuration assembled onto the constraints")
+            if not ast.ok:
+                out = FrameOutcome(Status.ASSEMBLY_FAILED, 0, np.nan, np.nan,
+                                   MESSAGES[Status.ASSEMBLY_FAILED])
+            else:
+                state = initial_multipliers(model, state, self.counters)
+                state, out = newton(model, state, s, self.history, 0, self.counters)
+        except EvaluationError as e:
+            if self.redundancy is None:
+                self.redundancy = np.zeros(0, int)
+            red = self.redundancy
+            out = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
         ar = AnalysisResult(index=index, analysis_type="static", method=method,
                             settings=dict(s.as_dict(), method_requested=s.method))
         ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
@@ -108,7 +116,10 @@ class StaticAnalysis:
         st.lam = lam
         saved = model.row_active.copy()
         model.row_active[:] = True
-        loads = element_loads(model, st)
+        try:
+            loads = element_loads(model, st)
+        except EvaluationError:
+            loads = {}
         model.row_active[:] = saved
         for g, o in model.outputs.items():
             F, T = loads.get(g, (np.zeros((len(o["ids"]), 3)), np.zeros((len(o["ids"]), 3))))
