@@ -1,0 +1,392 @@
+"""Benchmarks behind ``make bench``: hanging chains, CLI start-up and a small deck end to end.
+
+    python -m poise.bench [--out bench/results.jsonl] [--markdown docs/performance.md]
+                          [--sizes 10,100,1000,10000] [--repeat 3] [--cli-repeat 7]
+
+* **Hanging chains** (``poise.gen.chain``, revolute joints, N = 10 ... 10 000), generated into a
+  temporary directory. Every repetition runs in a fresh subprocess (``--worker``) that imports
+  poise first (import time is reported separately, not inside parse/compile), then times
+  parse (read + XML + validation), compile, and the static analysis exactly as ``poise solve``
+  runs it (redundancy detection, assembly, initial multipliers, Newton, outputs). The worker also
+  times one sparse LU (``scipy.sparse.linalg.splu``, COLAMD, as the solver uses) of the KKT matrix
+  ``model.evaluate(state).J`` at the solution, and one Jacobian evaluation. Peak memory is the
+  worker's peak resident set size (``getrusage(RUSAGE_SELF).ru_maxrss``: whole process,
+  interpreter and libraries included).
+* **``poise --help``** and **``poise solve decks/pendulum_multiturn.xml``** (process start to HDF5
+  written): wall time of the console script, median of ``--cli-repeat`` runs with min/max.
+
+Output: one JSON object per benchmark (``--out``, JSON lines, machine info in every object) and a
+markdown report (``--markdown``) with the targets of issue 2 §9 marked PASS/MISS. The report has
+no dates, so regenerating it changes only the numbers. Nothing here is asserted by the tests
+(``tests/test_bench.py`` only runs a 10-link smoke case).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from importlib import metadata
+from pathlib import Path
+
+SIZES = (10, 100, 1000, 10000)
+GIB = 1024.0 ** 3
+TARGETS = {
+    "chain1000_iterations": 10,
+    "chain1000_solve_s": 0.3,
+    "chain10000_solve_s": 3.0,
+    "chain10000_peak_bytes": 1.0 * GIB,
+    "iteration_per_lu": 2.0,
+    "help_s": 0.3,
+    "small_deck_s": 0.4,
+}
+SMALL_DECK = "decks/pendulum_multiturn.xml"
+
+
+# --------------------------------------------------------------------------- machine
+def machine_info() -> dict:
+    def ver(p):
+        try:
+            return metadata.version(p)
+        except metadata.PackageNotFoundError:
+            return None
+    cpu = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:
+        usable = os.cpu_count()
+    return dict(cpu=cpu, cores=os.cpu_count(), usable_cores=usable,
+                python=platform.python_version(), implementation=platform.python_implementation(),
+                system=f"{platform.system()} {platform.machine()}",
+                numpy=ver("numpy"), scipy=ver("scipy"), lxml=ver("lxml"), h5py=ver("h5py"),
+                poise=ver("poise"))
+
+
+def _stats(xs):
+    xs = [x for x in xs if x is not None]
+    if not xs:
+        return None
+    return dict(median=statistics.median(xs), min=min(xs), max=max(xs), n=len(xs))
+
+
+# --------------------------------------------------------------------------- worker (one case)
+def _worker(deck: str, n: int) -> dict:
+    """Run one chain case in this process; return the measurements (called via ``--worker``)."""
+    import resource
+
+    t = time.perf_counter()
+    import numpy as np
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    import poise.solvers.static as static_mod
+    from poise.deck.parser import load_deck
+    from poise.model.compile import compile_model
+    from poise.runner import analysis_class, model_datasets, plan
+    t_import = time.perf_counter() - t
+
+    phases: dict[str, float] = {}
+
+    def timed(name, fn):
+        def wrapper(*a, **kw):
+            t0 = time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                phases[name] = phases.get(name, 0.0) + time.perf_counter() - t0
+        return wrapper
+
+    # phase timers around the static driver's steps (module globals, no source change)
+    static_mod.detect_redundancy = timed("redundancy", static_mod.detect_redundancy)
+    static_mod.assemble = timed("assembly", static_mod.assemble)
+    static_mod.initial_multipliers = timed("multipliers", static_mod.initial_multipliers)
+    static_mod.newton = timed("newton", static_mod.newton)
+    static_mod.min_norm_multipliers = timed("min_norm_reactions", static_mod.min_norm_multipliers)
+
+    t0 = time.perf_counter()
+    spec = load_deck(deck)
+    t1 = time.perf_counter()
+    model = compile_model(spec)
+    t2 = time.perf_counter()
+    # the solve exactly as runner.run sequences it (one static analysis)
+    reqs = plan(spec, None)
+    model_datasets(model)
+    state = model.initial_state()
+    cls, msg = analysis_class(reqs[0])
+    drv = cls(model, reqs[0], redundancy=None)
+    state, ar = drv.run(state, index=0)
+    t3 = time.perf_counter()
+    iters = int(np.sum(ar.datasets["frames/iterations"]))
+
+    # one Jacobian evaluation and one sparse LU of the same KKT matrix at the solution
+    eps = float(np.sqrt(reqs[0].settings.stability))
+    ev_times = []
+    for _ in range(3):
+        te = time.perf_counter()
+        ev = model.evaluate(state, need_jac=True, eps_mass=eps)
+        ev_times.append(time.perf_counter() - te)
+    J = ev.J
+    Jc = sp.csc_matrix(J) if not sp.issparse(J) else J.tocsc()
+    lu_times = []
+    for _ in range(5):
+        tl = time.perf_counter()
+        spla.splu(Jc, permc_spec="COLAMD")
+        lu_times.append(time.perf_counter() - tl)
+    ru = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    peak = ru if sys.platform == "darwin" else ru * 1024
+    newton_s = phases.get("newton", 0.0)
+    return dict(n=n, nq=model.nq, nc=model.nc, nnz=int(Jc.nnz), kkt_size=int(Jc.shape[0]),
+                import_s=t_import, parse_s=t1 - t0, compile_s=t2 - t1, solve_s=t3 - t2,
+                iterations=iters, newton_s=newton_s,
+                iteration_s=newton_s / iters if iters else None,
+                lu_s=statistics.median(lu_times), evaluate_s=statistics.median(ev_times),
+                phases=phases, counters=drv.counters.as_dict(),
+                redundant=int(len(drv.redundancy)), status=ar.status,
+                peak_rss_bytes=int(peak))
+
+
+# --------------------------------------------------------------------------- parent
+def _run_worker(deck: Path, n: int) -> dict:
+    cmd = [sys.executable, "-m", "poise.bench", "--worker", str(deck), "--n", str(n)]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"benchmark worker failed for N={n}:\n{r.stderr}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
+    from poise.gen.chain import build_chain_deck
+    deck = tmp / f"chain_{n}.xml"
+    deck.write_text(build_chain_deck(n, "revolute"))
+    runs = [_run_worker(deck, n) for _ in range(repeat)]
+    keys = ("import_s", "parse_s", "compile_s", "solve_s", "newton_s", "iteration_s", "lu_s",
+            "evaluate_s", "peak_rss_bytes")
+    out = dict(bench="chain", n=n, joint="revolute", repeat=repeat)
+    for k in ("nq", "nc", "nnz", "kkt_size", "iterations", "redundant", "status", "counters"):
+        out[k] = runs[0][k]
+    out["statuses"] = sorted({r["status"] for r in runs})
+    for k in keys:
+        out[k] = _stats([r[k] for r in runs])
+    phase_names = sorted({p for r in runs for p in r["phases"]})
+    out["phases"] = {p: _stats([r["phases"].get(p, 0.0) for r in runs]) for p in phase_names}
+    it = out["iteration_s"]
+    out["iteration_per_lu"] = (it["median"] / out["lu_s"]["median"]
+                               if it and out["lu_s"]["median"] > 0 else None)
+    return out
+
+
+def _poise_cmd() -> list[str]:
+    exe = Path(sys.executable).parent / "poise"
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "poise_cli"]
+
+
+def _wall(cmd, repeat, cwd=None) -> tuple[dict, int]:
+    times, rc = [], 0
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        r = subprocess.run(cmd, capture_output=True, cwd=cwd)
+        times.append(time.perf_counter() - t0)
+        rc = max(rc, r.returncode)
+    return _stats(times), rc
+
+
+def bench_cli(repeat: int, tmp: Path, root: Path) -> list[dict]:
+    out = []
+    st, rc = _wall(_poise_cmd() + ["--help"], repeat)
+    out.append(dict(bench="help", command="poise --help", repeat=repeat, wall_s=st, returncode=rc))
+    deck = root / SMALL_DECK
+    h5 = tmp / "small.h5"
+    st, rc = _wall(_poise_cmd() + ["solve", str(deck), "-o", str(h5)], repeat)
+    out.append(dict(bench="small_deck", command=f"poise solve {SMALL_DECK} -o small.h5",
+                    repeat=repeat, wall_s=st, returncode=rc, written=h5.exists()))
+    return out
+
+
+# --------------------------------------------------------------------------- report
+def _pf(ok) -> str:
+    return "—" if ok is None else ("PASS" if ok else "MISS")
+
+
+def _s(x, digits=3) -> str:
+    if x is None:
+        return "—"
+    if x >= 100:
+        return f"{x:.0f}"
+    return f"{x:.{digits}g}"
+
+
+def _mmm(st, unit="s") -> str:
+    if not st:
+        return "—"
+    return f"{_s(st['median'])} ({_s(st['min'])}–{_s(st['max'])})"
+
+
+def targets(results: list[dict]) -> list[tuple[str, str, str, bool | None]]:
+    """(target, limit, measured, ok) rows for the report."""
+    chains = {r["n"]: r for r in results if r["bench"] == "chain"}
+    cli = {r["bench"]: r for r in results if r["bench"] in ("help", "small_deck")}
+    rows = []
+    c1 = chains.get(1000)
+    if c1:
+        ok = c1["status"] == "converged" and c1["iterations"] <= TARGETS["chain1000_iterations"]
+        rows.append(("N = 1000 chain converges, Newton iterations", "≤ 10",
+                     f"{c1['iterations']} ({c1['status']})", ok))
+        v = c1["solve_s"]["median"]
+        rows.append(("N = 1000 chain solve time", "≤ 0.3 s", f"{_s(v)} s",
+                     v <= TARGETS["chain1000_solve_s"]))
+    c4 = chains.get(10000)
+    if c4:
+        v = c4["solve_s"]["median"]
+        rows.append(("N = 10 000 chain solve time", "≤ 3 s", f"{_s(v)} s",
+                     v <= TARGETS["chain10000_solve_s"] and c4["status"] == "converged"))
+        tot = c4["parse_s"]["median"] + c4["compile_s"]["median"] + v
+        rows.append(("N = 10 000 chain parse + compile + solve (informative)", "—",
+                     f"{_s(tot)} s", None))
+        m = c4["peak_rss_bytes"]["max"]
+        rows.append(("N = 10 000 chain peak memory (RSS)", "≤ 1 GiB", f"{m / 2**20:.0f} MiB",
+                     m <= TARGETS["chain10000_peak_bytes"]))
+    for n, c in sorted(chains.items()):
+        if n < 1000 or c["iteration_per_lu"] is None:
+            continue
+        v = c["iteration_per_lu"]
+        rows.append((f"N = {n}: time per Newton iteration / one sparse LU", "≤ 2",
+                     f"{v:.2f} ({_s(c['iteration_s']['median'] * 1e3)} ms / "
+                     f"{_s(c['lu_s']['median'] * 1e3)} ms)", v <= TARGETS["iteration_per_lu"]))
+    if "help" in cli:
+        v = cli["help"]["wall_s"]["median"]
+        rows.append(("`poise --help` wall time", "≤ 0.3 s", f"{_s(v)} s",
+                     v <= TARGETS["help_s"] and cli["help"]["returncode"] == 0))
+    if "small_deck" in cli:
+        c = cli["small_deck"]
+        v = c["wall_s"]["median"]
+        rows.append(("small deck end to end (process start → HDF5 written)", "≤ 0.4 s",
+                     f"{_s(v)} s", v <= TARGETS["small_deck_s"] and c["returncode"] == 0
+                     and c["written"]))
+    return rows
+
+
+PROFILE_NOTES = """\
+## Where the time goes
+
+See the solve-phase table above (measured by every `make bench`).
+"""
+
+
+def render_markdown(results: list[dict], machine: dict) -> str:
+    chains = [r for r in results if r["bench"] == "chain"]
+    cli = [r for r in results if r["bench"] in ("help", "small_deck")]
+    out = ["# Performance", "",
+           "Generated by `make bench` (`python -m poise.bench`); do not edit by hand. Targets are "
+           "those of issue 2 §9 on a 2-core machine; they are measured here and never asserted in "
+           "timed tests.", "",
+           "## Machine", "",
+           f"- CPU: {machine['cpu'] or 'unknown'}; {machine['cores']} cores "
+           f"({machine['usable_cores']} usable)",
+           f"- {machine['system']}, {machine['implementation']} {machine['python']}",
+           f"- numpy {machine['numpy']}, scipy {machine['scipy']}, lxml {machine['lxml']}, "
+           f"h5py {machine['h5py']}", "",
+           "## Targets", "",
+           "| target | limit | measured (median) | result |", "|---|---|---|---|"]
+    for name, lim, meas, ok in targets(results):
+        out.append(f"| {name} | {lim} | {meas} | {_pf(ok)} |")
+    if chains:
+        rep = chains[0]["repeat"]
+        out += ["", "## Hanging chains (revolute joints)", "",
+                f"`poise.gen.chain` decks (link 100 mm, span 0.8·N·100 mm, 3 redundant "
+                f"equations). Median of {rep} runs (min–max), each in a fresh process; times in "
+                "seconds. *LU* is one `splu` (COLAMD) of the KKT matrix at the solution; "
+                "*iter/LU* is the Newton time per iteration over that. *Peak RSS* is the whole "
+                "worker process (`ru_maxrss`, interpreter and libraries included).", "",
+                "| N | unknowns | nnz | parse | compile | solve | iterations | time/iteration | "
+                "one LU | iter/LU | peak RSS | status |",
+                "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for c in chains:
+            it = c["iteration_s"]
+            out.append(
+                f"| {c['n']} | {c['kkt_size']} | {c['nnz']} | {_mmm(c['parse_s'])} | "
+                f"{_mmm(c['compile_s'])} | {_mmm(c['solve_s'])} | {c['iterations']} | "
+                f"{_s(it['median']) if it else '—'} | {_s(c['lu_s']['median'])} | "
+                f"{_s(c['iteration_per_lu'], 2) if c['iteration_per_lu'] else '—'} | "
+                f"{c['peak_rss_bytes']['max'] / 2**20:.0f} MiB | {c['status']} |")
+        names = ["redundancy", "assembly", "multipliers", "newton", "min_norm_reactions"]
+        out += ["", "### Solve phases (median seconds)", "",
+                "Phases of the static analysis; *evaluate* is one residual + KKT Jacobian "
+                "evaluation at the solution; counters are for the whole analysis.", "",
+                "| N | " + " | ".join(names) + " | evaluate | residuals | Jacobians | "
+                "factorisations |", "|---" * (len(names) + 5) + "|"]
+        for c in chains:
+            ph = c["phases"]
+            cells = [_s(ph[p]["median"]) if p in ph else "—" for p in names]
+            k = c["counters"]
+            out.append(f"| {c['n']} | " + " | ".join(cells) + f" | {_s(c['evaluate_s']['median'])}"
+                       f" | {k['residuals']} | {k['jacobians']} | {k['factorizations']} |")
+    if cli:
+        out += ["", "## Command line", "",
+                f"Wall time of the console script, median of {cli[0]['repeat']} runs (min–max).",
+                "", "| command | wall time (s) | exit code |", "|---|---|---|"]
+        for c in cli:
+            out.append(f"| `{c['command']}` | {_mmm(c['wall_s'])} | {c['returncode']} |")
+    out += ["", PROFILE_NOTES]
+    return "\n".join(out).rstrip() + "\n"
+
+
+# --------------------------------------------------------------------------- main
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m poise.bench",
+                                 description="Run the poise benchmarks (make bench).")
+    ap.add_argument("--out", default="bench/results.jsonl", help="JSON lines output")
+    ap.add_argument("--markdown", default=None, help="markdown report (docs/performance.md)")
+    ap.add_argument("--sizes", default=",".join(map(str, SIZES)), help="chain sizes, comma-separated")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per chain size (fresh processes)")
+    ap.add_argument("--cli-repeat", type=int, default=7, help="runs per command-line benchmark")
+    ap.add_argument("--no-cli", action="store_true", help="skip the command-line benchmarks")
+    ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--n", type=int, default=0, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.worker:
+        print(json.dumps(_worker(args.worker, args.n)))
+        return 0
+    root = Path(__file__).resolve().parents[2]
+    machine = machine_info()
+    results = []
+    with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
+        tmp = Path(td)
+        for n in [int(x) for x in args.sizes.split(",") if x.strip()]:
+            r = bench_chain(n, max(1, args.repeat), tmp)
+            print(f"chain N={n}: parse {_s(r['parse_s']['median'])} s, compile "
+                  f"{_s(r['compile_s']['median'])} s, solve {_s(r['solve_s']['median'])} s, "
+                  f"{r['iterations']} iterations, {r['status']}", file=sys.stderr)
+            results.append(r)
+        if not args.no_cli and (root / SMALL_DECK).exists():
+            for r in bench_cli(max(1, args.cli_repeat), tmp, root):
+                print(f"{r['command']}: {_s(r['wall_s']['median'])} s", file=sys.stderr)
+                results.append(r)
+    if args.out:
+        p = Path(args.out)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        with p.open("w") as f:
+            for r in results:
+                f.write(json.dumps(dict(r, machine=machine), sort_keys=True) + "\n")
+    if args.markdown:
+        p = Path(args.markdown)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(render_markdown(results, machine))
+    for name, lim, meas, ok in targets(results):
+        print(f"{_pf(ok):4s} {name}: {meas} (target {lim})", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
