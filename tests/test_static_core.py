@@ -210,3 +210,24 @@ def test_smooth_decks_converge_within_six_iterations(deck):
     a = res.analyses[0]
     assert a.converged
     assert a.datasets["frames/iterations"][0] <= 6
+
+
+def test_fallback_chain_recorded_and_switchable(tmp_path):
+    deck = str(DECKS / "pendulum_multiturn.xml")
+    res = run_deck(deck, overrides={"max_num_iter": 2})
+    a = res.analyses[0]
+    assert a.converged
+    assert "fallback strategy" in a.message
+    events = set(a.datasets["iterations/event"])
+    assert any(e.startswith("fallback: stability") for e in events)
+    assert any(e.startswith("fallback: continuation") for e in events)
+    # same equilibrium as the plain solve
+    ref = run_deck(deck).analyses[0]
+    np.testing.assert_allclose(a.datasets["bodies/position"], ref.datasets["bodies/position"],
+                               atol=1e-6)
+    off = run_deck(deck, overrides={"max_num_iter": 2, "fallback": False}).analyses[0]
+    assert not off.converged
+    assert not any(e.startswith("fallback") for e in off.datasets["iterations/event"])
+    r = subprocess.run([POISE, "solve", deck, "-o", str(tmp_path / "o.h5"), "--max-num-iter",
+                        "2", "--no-fallback", "-q"], capture_output=True, text=True)
+    assert r.returncode == 1

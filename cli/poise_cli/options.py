@@ -4,7 +4,7 @@ from __future__ import annotations
 import click
 
 #: CLI option name -> ``Param_Static`` attribute name used as override key by poise.api.run_deck
-OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability")
+OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability", "fallback")
 
 METHODS = ("FIM_D", "FIM_S", "MKEAM")
 
@@ -35,8 +35,11 @@ def solver_options(f):
         click.option("--max-error", type=click.FloatRange(min=0, min_open=True), default=None,
                      help="Convergence tolerance on the (scaled) displacement step."),
         click.option("--stability", type=click.FloatRange(min=0), default=None,
-                     help="Stability factor added to the Jacobian diagonal (Param_Static "
-                          "stability)."),
+                     help="sqrt(stability) x mass matrix is added to the Jacobian only "
+                          "(Param_Static stability)."),
+        click.option("--no-fallback", "no_fallback", is_flag=True, default=False,
+                     help="Do not run the fallback chain (larger stability, continuation, "
+                          "MKEAM) when FIM_S fails."),
     ]
     for opt in reversed(opts):
         f = opt(f)

@@ -30,7 +30,7 @@ def default_output(deck: str) -> str:
 @json_option
 @debug_option
 def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stability,
-          quiet, as_json, debug):
+          no_fallback, quiet, as_json, debug):
     """Solve every analysis of DECK and write the results to an HDF5 file.
 
     The file is written even when an analysis fails (exit code 1). Options given here override
@@ -44,7 +44,8 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
                                  param_hint="'-o' / '--output'")
     overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
                                   max_imbalance=max_imbalance, max_error=max_error,
-                                  stability=stability)
+                                  stability=stability,
+                                  fallback=False if no_fallback else None)
     command = shlex.join(["poise", *sys.argv[1:]])
     reported: list[str] = []
 

@@ -39,6 +39,8 @@ class StaticSettings:
         Largest rotation per Newton iteration [rad] (applied in sub-steps, turns counted).
     line_search : bool
         Backtracking line search on the scaled residual norm.
+    fallback : bool
+        Run the fallback chain (solvers/fallback.py) when FIM_S fails (``--no-fallback``).
     """
 
     method: str = "FIM_D"
@@ -52,6 +54,7 @@ class StaticSettings:
     max_translation_step: float = 1.0
     max_rotation_step: float = 6.283185307179586 * 4
     line_search: bool = True
+    fallback: bool = True
 
     def __post_init__(self):
         if self.method not in METHODS:

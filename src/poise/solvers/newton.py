@@ -216,15 +216,27 @@ def _limit_step(model, state, dq, settings):
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
-           max_iter: int | None = None, event: str = "newton"):
-    """Newton iterations from ``state``. Returns ``(state, FrameOutcome)``."""
+           max_iter: int | None = None, event: str = "newton", offset=None):
+    """Newton iterations from ``state``. Returns ``(state, FrameOutcome)``.
+
+    ``offset`` (optional ``(r0, phi0)``) solves the shifted system ``F(x) - offset = 0`` (used
+    by the homotopy continuation of the fallback chain); convergence is then judged on the
+    shifted residual and the reported imbalance is the shifted one.
+    """
     sc = Scales(model, settings)
     eps = float(np.sqrt(settings.stability))
     max_iter = settings.max_num_iter if max_iter is None else max_iter
     last_step = np.inf
     it = 0
+    def ev_at(st):
+        e = _evaluate(model, st, cnt, need_jac=True, eps=eps)
+        if offset is not None:
+            e.r = e.r - offset[0]
+            e.phi = e.phi - offset[1]
+        return e
+
     try:
-        ev = _evaluate(model, state, cnt, need_jac=True, eps=eps)
+        ev = ev_at(state)
     except EvaluationError as e:
         return state, FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
     while True:
@@ -263,7 +275,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
         for _ in range(LINE_SEARCH_MAX + 1):
             trial = model.retract(state, alpha * dq, alpha * dl)
             try:
-                ev_t = _evaluate(model, trial, cnt, need_jac=True, eps=eps)
+                ev_t = ev_at(trial)
                 m1 = merit(ev_t, sc)
             except EvaluationError:
                 ev_t, m1 = None, np.inf

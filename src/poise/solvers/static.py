@@ -73,7 +73,20 @@ class StaticAnalysis:
                                    MESSAGES[Status.ASSEMBLY_FAILED])
             else:
                 state = initial_multipliers(model, state, self.counters)
+                start = state.copy()
                 state, out = newton(model, state, s, self.history, 0, self.counters)
+                if not out.ok and s.fallback and out.status != Status.NONFINITE:
+                    from poise.solvers.fallback import run_chain
+                    state2, out2, used = run_chain(model, start, s, self.history, 0,
+                                                   self.counters, out)
+                    if out2.ok:
+                        notes.append(f"plain Newton failed ({out.status.value}); converged with "
+                                     f"the fallback strategy '{used}'")
+                        state, out = state2, out2
+                        self.fallback_used = used
+                    else:
+                        notes.append("fallback chain (stability, continuation"
+                                     + (", mkeam" if _has_mkeam() else "") + ") did not converge")
         except EvaluationError as e:
             if self.redundancy is None:
                 self.redundancy = np.zeros(0, int)
@@ -181,3 +194,11 @@ def stack_frames(per_frame: list[dict]) -> dict:
         else:
             out[k] = np.stack([np.asarray(f[k]) for f in per_frame])
     return out
+
+
+def _has_mkeam() -> bool:
+    try:
+        from poise.solvers.mkeam import relax  # noqa: F401
+    except ImportError:
+        return False
+    return True
