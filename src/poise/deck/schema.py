@@ -331,16 +331,16 @@ for _t, _d in _UNS_FORCES.items():
        [ID(), LABEL()], open_attrs=True)
 
 # --------------------------------------------------------------------------- reference data, control
-el("Reference_Array", "both", False, "Array of values given as element text.", [
+el("Reference_Array", "both", True, "Array of values given as element text.", [
     ID(), LABEL(), E("type", "IC RESTART PRINT X Y U", "array type"),
     A("num_element", "int", "number of values", lo=0), *USR()])
-el("Reference_Variable", "both", False, "Algebraic variable usable through VARVAL(id).", [
+el("Reference_Variable", "both", True, "Algebraic variable usable through VARVAL(id).", [
     ID(), LABEL(), E("type", "EXPRESSION USERSUB", "how it is given", default="EXPRESSION"),
     A("expr", "expr", "defining expression"), *USR(), B("is_implicit", "implicit (adds an equation)"),
     E("autobalance", "DEFAULT CONDITIONAL DISABLED PENALTY", "static autobalance mode"),
     R("penalty", "penalty"), R("penalty1", "penalty1"), A("dot_form", "str", "derivative form"),
     R("ic", "initial value"), B("static_hold", "hold value fixed in statics")])
-el("Reference_Spline", "model", False, "Curve y(x) (or surface y(x,z)) given as element text.", [
+el("Reference_Spline", "model", True, "Curve y(x) (or surface y(x,z)) given as element text.", [
     ID(), LABEL(), A("num_xy_pair", "int", "number of (x, y) pairs", lo=0),
     A("num_x", "int", "number of x values (surface form)", lo=0),
     A("num_z", "int", "number of z values (surface form)", lo=0),
@@ -359,7 +359,7 @@ for _t in ("Control_StateEqn", "Control_SISO"):
 el("Post_Graphic", "model", True, "Graphic/geometry; all attributes kept as data (used by contact).",
    [ID(), LABEL(), A("type", "str", "geometry type"), A("body_id", "int", "owning body", ref="body")],
    open_attrs=True)
-el("Post_Request", "model", False, "Output request.", [
+el("Post_Request", "model", True, "Output request.", [
     ID(), LABEL(), A("comment", "str", "comment"),
     E("type", "MARKER_DISPLACEMENT MARKER_VELOCITY MARKER_ACCELERATION MARKER_FORCE ELEMENTAL_FORCE "
       "EXPRESSION USERSUB", "request type"),

@@ -71,18 +71,45 @@ def _looks_numeric(v: str) -> bool:
         return False
 
 
+_REQUIRED: dict[str, tuple] = {}   # tag -> required attributes (schema order)
+_REFS: dict[str, dict] = {}        # tag -> {name: Attr} of id-reference attributes
+
+
+def _required(sch: ElementSchema) -> tuple:
+    r = _REQUIRED.get(sch.tag)
+    if r is None:
+        r = _REQUIRED[sch.tag] = tuple(a for a in sch.attrs.values() if a.required)
+    return r
+
+
+def _refs(sch: ElementSchema) -> dict:
+    r = _REFS.get(sch.tag)
+    if r is None:
+        r = _REFS[sch.tag] = {n: a for n, a in sch.attrs.items() if a.ref is not None}
+    return r
+
+
 def _check_element(pc: ProblemCollector, el: Element, sch: ElementSchema) -> None:
+    get = sch.attrs.get
     for name, v in el.attrs.items():
-        a = sch.attrs.get(name)
-        if a is not None:
-            _check_value(pc, el, a, v)
+        a = get(name)
+        if a is None:
+            continue
+        # fast paths (no problem possible): finite unbounded float, bool of a bool attribute
+        tv = type(v)
+        if (tv is float and a.lo is None and a.hi is None and v - v == 0.0
+                and a.kind not in ("enum", "str", "expr")):
+            continue
+        if tv is bool and a.kind == "bool":
+            continue
+        _check_value(pc, el, a, v)
     if el.is_command:
         if "id" in sch.attrs and "id" not in el.attrs:
             pc.error(el.loc, "missing required attribute 'id'; expected the id of the model "
                              "element to modify, got nothing")
         return
-    for a in sch.attrs.values():
-        if not a.required or a.name in el.attrs:
+    for a in _required(sch):
+        if a.name in el.attrs:
             continue
         if el.tag == "Body_Rigid" and a.name == "cg_id" and el.get("isground") is True:
             continue
@@ -148,18 +175,41 @@ def _check_marker(pc: ProblemCollector, el: Element) -> None:
             return
         if any(not isinstance(el.attrs[n], float) for n in _DCM):
             return  # already reported as non-numeric
-        A = np.array([[el.attrs[f"a{r}{c}"] for c in range(3)] for r in range(3)])
-        err = float(np.abs(A.T @ A - np.eye(3)).max())
+        pre = _DCM_CHECK.get(id(el))
+        if pre is not None:
+            err, det = pre
+        else:
+            A = np.array([[el.attrs[f"a{r}{c}"] for c in range(3)] for r in range(3)])
+            err, det = float(np.abs(A.T @ A - np.eye(3)).max()), None
         if err > ORTHO_TOL:
             pc.error(el.loc, f"direction cosines are not orthonormal; expected unit, mutually "
                              f"orthogonal columns (tolerance {ORTHO_TOL:g}), got max |A^T A - I| = {err:.3g}")
-        elif np.linalg.det(A) < 0:
+        elif (np.linalg.det(A) if det is None else det) < 0:
             pc.error(el.loc, "direction cosines form a left-handed frame; expected det = +1, got -1")
     quat = [el.get(f"e{k}") for k in range(4)]
     if any(q is not None for q in quat) and all(isinstance(q, float) for q in quat):
         n = float(np.sqrt(sum(q * q for q in quat)))
         if abs(n - 1.0) > ORTHO_TOL:
             pc.warn(el.loc, f"Euler parameters are not normalised (norm {n:.6g}); they will be normalised")
+
+
+_DCM_CHECK: dict[int, tuple[float, float]] = {}   # id(marker) -> (max |A^T A - I|, det A)
+
+
+def _precompute_dcm(els: list[Element]) -> None:
+    """Orthonormality errors and determinants of every complete numeric DCM, in one batch
+    (the per-marker checks then only look them up)."""
+    _DCM_CHECK.clear()
+    sel = [el for el in els if el.tag == "Reference_Marker" and not el.is_command
+           and all(type(el.attrs.get(n)) is float for n in _DCM)]
+    if not sel:
+        return
+    A = np.array([[el.attrs[n] for n in _DCM] for el in sel]).reshape(-1, 3, 3)  # [c][r]
+    A = np.swapaxes(A, 1, 2)                                                     # [r][c]
+    err = np.abs(np.matmul(np.swapaxes(A, 1, 2), A) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(A)
+    for el, e, d in zip(sel, err.tolist(), det.tolist()):
+        _DCM_CHECK[id(el)] = (e, d)
 
 
 def _check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Element]) -> None:
@@ -190,6 +240,27 @@ def _check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Elemen
 
 
 # --------------------------------------------------------------------------- driver
+def _check_expression_syntax(pc: ProblemCollector, els: list[Element]) -> None:
+    """Syntax of every expression attribute (``attr col C: message``); names and ids are
+    resolved later by the model compiler. Template parses are cached by ``poise.expr``."""
+    from poise.expr.parser import parse
+    from poise.expr.tokens import ExprSyntaxError, make_template
+    for el in els:
+        for name, v in el.attrs.items():
+            if not isinstance(v, Expr) or v.text.strip().upper() == "NULL":
+                continue
+            try:
+                tmpl, _ = make_template(v.text)
+                if "#" in v.text:
+                    raise ExprSyntaxError("template", 0)
+                parse(tmpl, True)
+            except ExprSyntaxError:
+                try:
+                    parse(v.text)
+                except ExprSyntaxError as e:
+                    pc.error(el.loc, e.message, f"{name} col {e.col}")
+
+
 def validate(spec: DeckSpec) -> None:
     """Validate a parsed deck; raise one :class:`~poise.errors.DeckError` listing every problem.
 
@@ -246,11 +317,13 @@ def validate(spec: DeckSpec) -> None:
             ids["array"].setdefault(el.id, el)
     markers = ids["marker"]
 
+    _precompute_dcm(good)
     for el in good:
         sch = element_schema(el.tag)
-        for name, v in el.attrs.items():
-            a = sch.attrs.get(name)
-            if a is None or a.ref is None or not isinstance(v, int) or isinstance(v, bool):
+        refs = _refs(sch)
+        for name, v in (el.attrs.items() if refs else ()):
+            a = refs.get(name)
+            if a is None or not isinstance(v, int) or isinstance(v, bool):
                 continue
             if v == 0 and a.zero_ok:
                 continue
@@ -275,6 +348,9 @@ def validate(spec: DeckSpec) -> None:
                 if bt != want:
                     pc.warn(el.loc, f"body_type {bt} does not match <{body.tag}> {body.id}; using {want}")
 
+    _check_expression_syntax(pc, good)
+
+    _DCM_CHECK.clear()
     grounds = [e for e in good if e.tag == "Body_Rigid" and not e.is_command and e.get("isground") is True]
     if not grounds:
         first = next((e for e in spec.model if e.tag in NAMESPACES["body"]), None)

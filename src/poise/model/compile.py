@@ -220,6 +220,9 @@ class CompileContext:
         self.families: list = []
         self.outputs: dict = {}
         self.angles: list[tuple[int, int, int]] = []
+        self.expr_forces: list = []      # (owner, el) of expression forces (compile_expr)
+        self.frame_hooks: list = []      # per-frame output hooks (requests, ...)
+        self.gravity_fn = None           # callable t -> (3,) for TIME-dependent gravity
 
     def angle(self, I: int, J: int, axis: int) -> int:
         """Register a continuous angle of marker I about marker J's axis (0 x, 1 y, 2 z)."""
@@ -240,7 +243,13 @@ class CompileContext:
 def element_compilers():
     """The ordered list of element compilers (add new element groups here)."""
     from poise.model import compile_constraints, compile_forces
-    return [compile_constraints.compile_joints, compile_forces.compile_forces]
+    return [compile_constraints.compile_joints, compile_forces.compile_forces,
+            _compile_expressions]
+
+
+def _compile_expressions(spec, ctx):
+    from poise.model.compile_expr import compile_expressions
+    compile_expressions(spec, ctx)
 
 
 def compile_model(spec: DeckSpec) -> Model:
@@ -272,8 +281,10 @@ def compile_model(spec: DeckSpec) -> Model:
     gels = [e for e in spec.model if e.tag == "Force_Gravity"]
     if gels:
         el = gels[-1]
-        grav = np.array([_num(el, "grav_x", 0.0, pc), _num(el, "grav_y", 0.0, pc),
-                         _num(el, "grav_z", 0.0, pc)], float)
+        gpc = None if any(isinstance(el.attrs.get(k), Expr)   # expressions: compile_expr
+                          for k in ("grav_x", "grav_y", "grav_z")) else pc
+        grav = np.array([_num(el, "grav_x", 0.0, gpc), _num(el, "grav_y", 0.0, gpc),
+                         _num(el, "grav_z", 0.0, gpc)], float)
         b.effects.insert(0, "gravity")
 
     pc.raise_if_any()
@@ -303,9 +314,10 @@ def compile_model(spec: DeckSpec) -> Model:
         **bodies, **markers, families=fams, nq=b.nq, nc=nc, row_info=rows,
         angle_I=np.array([a[0] for a in angles], int), angle_J=np.array([a[1] for a in angles], int),
         angle_axis=np.array([a[2] for a in angles], int), gravity=grav, L=b.L,
-        gravity_on=bool(gels) and np.any(grav != 0), active_effects=effects, outputs=outputs,
-        units=udesc,
+        gravity_on=bool(gels) and (np.any(grav != 0) or ctx.gravity_fn is not None),
+        active_effects=effects, outputs=outputs, units=udesc, gravity_fn=ctx.gravity_fn,
     )
+    model.frame_hooks.extend(ctx.frame_hooks)
     model.spec_warnings = list(pc.warnings)
     model.finalize()
     return model

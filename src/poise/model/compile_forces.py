@@ -40,10 +40,11 @@ def compile_forces(spec, ctx):
         t = str(el.attrs.get("type", "FORCE")).upper()
         I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
         val = el.attrs.get("val", el.attrs.get("val_expression", 0.0))
-        if isinstance(val, Expr):
-            pc.error(el.loc, "expressions are not supported yet (coming with the expression "
-                     "language); expected a number", "val_expression")
-            val = 0.0
+        if isinstance(val, Expr):          # expression force: compiled by compile_expr
+            force_rows.append(el)
+            ctx.expr_forces.append((len(force_rows) - 1, el))
+            b.effects.append(f"Force_Scalar_TwoBody:{t}")
+            continue
         ao = bool(el.attrs.get("is_action_only", False))
         if t == "TORQUE":
             add("AxisTorque", el, I=I, J=J, R=GLOBAL, k=0.0, length=0.0, preload=val, ax=ao,
@@ -70,6 +71,12 @@ def compile_forces(spec, ctx):
             J = GLOBAL if one else b.mk(el, "j_floating_marker_id")
             R = b.mk(el, "ref_marker_id", required=False)
             t = str(el.attrs.get("type", "FORCEANDTORQUE")).upper()
+            if any(isinstance(el.attrs.get(f"{nm}_expression"), Expr)
+                   for nm in ("fx", "fy", "fz", "tx", "ty", "tz")):
+                force_rows.append(el)      # expression force: compiled by compile_expr
+                ctx.expr_forces.append((len(force_rows) - 1, el))
+                b.effects.append(tag)
+                continue
             comp = []
             for nm in ("fx", "fy", "fz", "tx", "ty", "tz"):
                 v = el.attrs.get(f"{nm}_expression", el.attrs.get(nm, 0.0))

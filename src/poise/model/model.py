@@ -67,6 +67,8 @@ class EvalContext:
     t: float
     angle: np.ndarray
     static: bool = True
+    P: np.ndarray | None = None      # (nm, 3) marker origins (expression families)
+    A: np.ndarray | None = None      # (nm, 3, 3) marker axes as columns
 
 
 @dataclass
@@ -119,6 +121,7 @@ class Model:
     units: str = ""
     dense: bool = True
     frame_hooks: list = field(default_factory=list)
+    gravity_fn: object = None        # TIME-dependent gravity: callable t -> (3,), else None
 
     # ------------------------------------------------------------------ setup
     def finalize(self):
@@ -263,7 +266,7 @@ class Model:
             Keep per-family slot data (``self.last``) for reaction outputs.
         """
         P, A, pos = self.marker_kinematics(state)
-        ctx = EvalContext(t=state.t, angle=state.angle)
+        ctx = EvalContext(t=state.t, angle=state.angle, P=P, A=A)
         r = np.zeros(self.nq)
         phi = np.zeros(self.nc)
         vals = []
@@ -293,7 +296,8 @@ class Model:
                     last.append((fam, kin, rho))
             r += scatter_add(self.nq, fam.gcol, rl)
         if self.gravity_on:
-            r[self.trans_idx] -= (self.body_mass[:, None] * self.gravity[None, :]).ravel()
+            g = self.gravity if self.gravity_fn is None else self.gravity_fn(state.t)
+            r[self.trans_idx] -= (self.body_mass[:, None] * g[None, :]).ravel()
         phi = np.where(self.row_active, phi, 0.0)
         if keep:
             self.last = last

@@ -1,0 +1,260 @@
+"""Force families whose magnitudes/components are deck expressions (exact derivatives).
+
+Marker layout per instance: ``[I, J, R, E_1, ..., E_X]`` where ``E_*`` are the further moving
+markers the instance's expressions read. Slots: the 11 two-body slots of ``forces.py``
+(``P_I x_I y_I z_I P_J x_J y_J z_J x_R y_R z_R``) followed by 4 slots (``P x y z``) per extra
+marker. A slot the expressions read on I or J reuses the standard slot; slots of ground markers
+(and of the global frame) are dropped because they carry no coordinates. Padding markers are the
+global frame (index 0).
+
+Each expression attribute is one :class:`poise.expr.Batch` over all instances of the family; its
+``d_slot (n, S_e, 3)`` is scattered into the family's slot gradient ``(n, 3S)`` through a map
+fixed at compile time, then chained through the force law:
+
+* vector forces (``Force_Vector_OneBody/TwoBody`` with any ``*_expression`` not a number):
+  ``F = A_R c_F``, ``T = A_R c_T`` (components along R's axes), applied at I; TwoBody reaction on
+  the floating marker's body (``-F`` at ``P_J`` plus ``-T - (P_I - P_J) x F``), OneBody
+  action-only;
+* scalar forces (``Force_Scalar_TwoBody val_expression``): FORCE two-body ``F = f u`` with ``u``
+  the unit vector J->I (positive repels); FORCE action-only ``F = f z_J``; TORQUE ``T = tau z_J``
+  (action-only when ``is_action_only``).
+
+Expressions are evaluated at ``EvalContext.t`` (so quasi-static time drives them) and read the
+marker kinematics ``EvalContext.P/A`` and continuous angles ``EvalContext.angle``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.errors import EvaluationError
+from poise.families.base import ForceFamily, add_force_at_point, add_torque_via_axes
+from poise.families.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_XR, S_YI, S_YJ, S_YR, S_ZI
+from poise.families.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
+from poise.model.rotation import skew
+
+_I3 = np.eye(3)
+VEC_ATTRS = ("fx", "fy", "fz", "tx", "ty", "tz")
+ST_LINE, ST_AXIS, ST_TORQUE = 0, 1, 2
+
+
+def sl(s):
+    return slice(3 * s, 3 * s + 3)
+
+
+def apply_two_body_w(Y, F, T, dF, dT, action_only, need_jac):
+    """``forces.apply_two_body`` for any slot count (extra slots only enter through dF, dT)."""
+    n, S = Y.shape[:2]
+    W = 3 * S
+    rho = np.zeros((n, W))
+    G = np.zeros((n, W, W)) if need_jac else None
+    add_force_at_point(rho, G, S_PI, F, dF)
+    add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
+    react = ~np.asarray(action_only, bool)
+    if react.any():
+        d = Y[:, S_PI] - Y[:, S_PJ]
+        Fj = -F * react[:, None]
+        Tj = (-T - np.cross(d, F)) * react[:, None]
+        dFj = dTj = None
+        if need_jac:
+            dFj = -dF * react[:, None, None]
+            dd = np.zeros((n, 3, W))
+            dd[:, :, sl(S_PI)] = _I3
+            dd[:, :, sl(S_PJ)] = -_I3
+            dcross = -np.matmul(skew(F), dd) + np.matmul(skew(d), dF)
+            dTj = (-dT - dcross) * react[:, None, None]
+        add_force_at_point(rho, G, S_PJ, Fj, dFj)
+        add_torque_via_axes(rho, G, (S_XJ, S_YJ, S_ZJ), Tj, dTj, Y)
+    return rho, G
+
+
+class ExprForce(ForceFamily):
+    """Common part: expression batches, slot maps, evaluation of values and slot gradients."""
+
+    batches: list
+    slot_maps: list          # per batch: (rows, batch_slot, family_slot) index arrays
+
+    def depends_on_time(self) -> bool:
+        return any(b.depends_on_time for b in self.batches)
+
+    def _expr_values(self, ctx, need_jac):
+        """Values (n, nb) and slot gradients (n, nb, 3S) of all batches."""
+        from poise.expr import EvalContext as XC
+        xc = XC(time=float(ctx.t), P=getattr(ctx, "P", None), A=getattr(ctx, "A", None),
+                angle_ref=ctx.angle, static=bool(getattr(ctx, "static", True)))
+        n, S = self.n, len(self.slot_ml)
+        vals = np.zeros((n, len(self.batches)))
+        grads = np.zeros((n, len(self.batches), S, 3)) if need_jac else None
+        for k, (b, (r, bs, fs)) in enumerate(zip(self.batches, self.slot_maps)):
+            out = b.evaluate(xc)
+            vals[:, k] = out.value
+            if need_jac and len(r):
+                grads[r, k, fs] = out.d_slot[r, bs]
+        if need_jac:
+            grads = grads.reshape(n, len(self.batches), 3 * S)
+        return vals, grads
+
+    def forces(self, kin, ctx, need_jac=True):
+        F, T, dF, dT = self.compute(kin.Y, ctx, need_jac)
+        return apply_two_body_w(kin.Y, F, T, dF, dT, self.action_only, need_jac)
+
+
+class ExprVectorForce(ExprForce):
+    """Vector force/torque with expression components along R's axes (see module doc)."""
+
+    def compute(self, Y, ctx, need_jac):
+        c, dc = self._expr_values(ctx, need_jac)          # (n,6), (n,6,W)
+        AR = np.stack([Y[:, S_XR], Y[:, S_YR], Y[:, S_ZR]], axis=2)
+        F = np.einsum("nik,nk->ni", AR, c[:, :3])
+        T = np.einsum("nik,nk->ni", AR, c[:, 3:])
+        dF = dT = None
+        if need_jac:
+            dF = np.matmul(AR, dc[:, :3])
+            dT = np.matmul(AR, dc[:, 3:])
+            for k, s in enumerate((S_XR, S_YR, S_ZR)):
+                dF[:, :, sl(s)] += c[:, k][:, None, None] * _I3
+                dT[:, :, sl(s)] += c[:, 3 + k][:, None, None] * _I3
+        return F, T, dF, dT
+
+
+class ExprScalarForce(ExprForce):
+    """Scalar force along J->I / along z_J (action-only) or torque about z_J (module doc)."""
+
+    def compute(self, Y, ctx, need_jac):
+        v, dv = self._expr_values(ctx, need_jac)
+        f = v[:, 0]
+        n = Y.shape[0]
+        W = Y.shape[1] * 3
+        st = self.stype
+        line, axis, torq = st == ST_LINE, st == ST_AXIS, st == ST_TORQUE
+        d = Y[:, S_PI] - Y[:, S_PJ]
+        L = np.linalg.norm(d, axis=1)
+        if np.any(line & (L <= 1e-300)):
+            i = int(np.argmax(line & (L <= 1e-300)))
+            raise EvaluationError("the I and J markers coincide: the line of action is "
+                                  "undefined", self.element_locs[i], "val_expression")
+        Ls = np.where(line, L, 1.0)
+        u = d / Ls[:, None]
+        z = Y[:, S_ZJ]
+        dirF = np.where(line[:, None], u, np.where(axis[:, None], z, 0.0))
+        F = f[:, None] * dirF
+        T = (f * torq)[:, None] * z
+        dF = dT = None
+        if need_jac:
+            df = dv[:, 0]                                    # (n, W)
+            dF = dirF[:, :, None] * df[:, None, :]
+            uu = u[:, :, None] * u[:, None, :]
+            Pm = (f / Ls)[:, None, None] * (_I3 - uu) * line[:, None, None]
+            dF[:, :, sl(S_PI)] += Pm
+            dF[:, :, sl(S_PJ)] -= Pm
+            dF[:, :, sl(S_ZJ)] += (f * axis)[:, None, None] * _I3
+            dT = (torq[:, None] * z)[:, :, None] * df[:, None, :]
+            dT[:, :, sl(S_ZJ)] += (f * torq)[:, None, None] * _I3
+            assert dF.shape == (n, 3, W)
+        return F, T, dF, dT
+
+
+# ====================================================================================== build
+def _layout(batches, I, J, ground):
+    """Extra marker columns and per-batch slot maps.
+
+    Returns ``(extra (n, X) marker indices, slot_maps)``.
+    """
+    n = len(I)
+    extras = [dict() for _ in range(n)]
+    for b in batches:
+        for i in range(n):
+            for m in b.slot_marker[i]:
+                m = int(m)
+                if m < 0 or ground[m] or m == I[i] or m == J[i] or m in extras[i]:
+                    continue
+                extras[i][m] = len(extras[i])
+    X = max((len(e) for e in extras), default=0)
+    extra = np.zeros((n, X), int)            # padding: global frame (index 0)
+    for i, e in enumerate(extras):
+        for m, k in e.items():
+            extra[i, k] = m
+    maps = []
+    for b in batches:
+        rows, bs, fs = [], [], []
+        for i in range(n):
+            for s, (m, kind) in enumerate(zip(b.slot_marker[i], b.slot_kind[i])):
+                m, kind = int(m), int(kind)
+                if m < 0 or ground[m]:
+                    continue
+                if m == I[i]:
+                    f = kind
+                elif m == J[i]:
+                    f = 4 + kind
+                else:
+                    f = N_SLOTS + 4 * extras[i][m] + kind
+                rows.append(i)
+                bs.append(s)
+                fs.append(f)
+        maps.append((np.array(rows, np.intp), np.array(bs, np.intp), np.array(fs, np.intp)))
+    return extra, maps
+
+
+def _build(cls, name, I, J, R, owner, action_only, batches, ground, locs):
+    I, J, R = (np.asarray(a, int) for a in (I, J, R))
+    extra, maps = _layout(batches, I, J, ground)
+    X = extra.shape[1]
+    n = len(I)
+    slot_ml = np.concatenate([SLOT_ML, np.repeat(3 + np.arange(X), 4)]).astype(int)
+    slot_kind = np.concatenate([SLOT_KIND, np.tile([0, 1, 2, 3], X)]).astype(int)
+    fam = cls(name=name, markers=np.concatenate([np.stack([I, J, R], 1), extra], 1),
+              slot_ml=slot_ml, slot_kind=np.broadcast_to(slot_kind, (n, len(slot_kind))).copy(),
+              owner=np.asarray(owner, int))
+    fam.action_only = np.asarray(action_only, bool)
+    fam.batches = batches
+    fam.slot_maps = maps
+    fam.element_locs = locs
+    fam.group = "forces"
+    return fam
+
+
+def build_vector_family(items, ctx, res, ground):
+    """Family for expression ``Force_Vector_OneBody/TwoBody`` elements ``[(owner, el), ...]``."""
+    from poise.model.compile_expr import compile_batch_located
+    b = ctx.b
+    I, J, R, ao, comps = [], [], [], [], []
+    for _, el in items:
+        one = el.tag.endswith("OneBody")
+        I.append(b.mk(el, "marker_id" if one else "i_marker_id"))
+        J.append(0 if one else b.mk(el, "j_floating_marker_id"))
+        R.append(b.mk(el, "ref_marker_id", required=False))
+        ao.append(one)
+        t = str(el.attrs.get("type", "FORCEANDTORQUE")).upper()
+        row = []
+        for k, nm in enumerate(VEC_ATTRS):
+            v = el.attrs.get(f"{nm}_expression", el.attrs.get(nm, 0.0))
+            if (t == "FORCEONLY" and k >= 3) or (t == "TORQUEONLY" and k < 3):
+                v = 0.0
+            row.append(v if hasattr(v, "text") else float(v or 0.0))
+        comps.append(row)
+    batches = [compile_batch_located([c[k] for c in comps], res, ctx.pc) for k in range(6)]
+    if any(bt is None for bt in batches):
+        return None
+    return _build(ExprVectorForce, "forces:ExprVectorForce", I, J, R, [o for o, _ in items], ao,
+                  batches, ground, [el.loc for _, el in items])
+
+
+def build_scalar_family(items, ctx, res, ground):
+    """Family for ``Force_Scalar_TwoBody`` elements with ``val_expression``."""
+    from poise.model.compile_expr import compile_batch_located
+    b = ctx.b
+    I, J, ao, st, vals = [], [], [], [], []
+    for _, el in items:
+        I.append(b.mk(el, "i_marker_id"))
+        J.append(b.mk(el, "j_marker_id"))
+        a_o = bool(el.attrs.get("is_action_only", False))
+        t = str(el.attrs.get("type", "FORCE")).upper()
+        ao.append(a_o)
+        st.append(ST_TORQUE if t == "TORQUE" else (ST_AXIS if a_o else ST_LINE))
+        vals.append(el.attrs.get("val", el.attrs.get("val_expression", 0.0)))
+    batch = compile_batch_located(vals, res, ctx.pc)
+    if batch is None:
+        return None
+    fam = _build(ExprScalarForce, "forces:ExprScalarForce", I, J, [0] * len(I),
+                 [o for o, _ in items], ao, [batch], ground, [el.loc for _, el in items])
+    fam.stype = np.asarray(st, int)
+    return fam

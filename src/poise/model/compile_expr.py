@@ -1,0 +1,378 @@
+"""Expressions in the model: the resolver of ``poise.expr`` (CONTRACT.md), expression forces,
+time-dependent gravity and ``Post_Request`` outputs.
+
+* :class:`ModelResolver` maps deck ids to compiled indices: marker id -> compiled marker index
+  (id 0 -> index 0, the model's global frame), explicit ``Reference_Variable`` -> inlined
+  expression, ``Reference_Spline`` / ``Reference_Array`` -> data parsed from the element text,
+  ``AX/AY/AZ`` -> the model's continuous-angle table (``CompileContext.angle``), element-force
+  functions (JOINT, JPRIM, MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH, SPDP) and resultants
+  (FM, FX, ..., TZ) -> *reaction channels* evaluated by :func:`channel_values`.
+* Reaction channels are available in ``Post_Request`` expressions only (evaluated after
+  convergence, exactly, from the converged multipliers). Inside forces and gravity they are
+  rejected with a located DeckError (no lagged iteration).
+* Implicit ``Reference_Variable`` and ``Control_Diff`` are not supported yet (located DeckError).
+"""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from poise.deck.spec import Expr
+from poise.errors import DeckError, EvaluationError, Problem
+from poise.model.compile import GLOBAL
+
+#: element-force function -> (output group, deck tags or None for "any tag of the group")
+REACTION_KINDS = {
+    "JOINT": ("joints", ("Constraint_Joint",)),
+    "JPRIM": ("jprims", ("Constraint_Jprim",)),
+    "MOTION": ("motions", ("Motion_Joint", "Motion_Marker")),
+    "SFORCE": ("forces", ("Force_Scalar_TwoBody",)),
+    "VFORCE": ("forces", ("Force_Vector_TwoBody", "Force_Vector_OneBody")),
+    "VTORQ": ("forces", ("Force_Vector_TwoBody", "Force_Vector_OneBody")),
+    "GFORCE": ("forces", ("Force_Vector_TwoBody", "Force_Vector_OneBody")),
+    "BUSH": ("forces", ("Force_Bushing",)),
+    "SPDP": ("forces", ("Force_SpringDamper",)),
+}
+RESULTANTS = ("FM", "FX", "FY", "FZ", "TM", "TX", "TY", "TZ")
+#: ELEMENTAL_FORCE elem_type spellings -> element-force function
+ELEM_TYPES = {"JOINT": "JOINT", "CONSTRAINT_JOINT": "JOINT", "JPRIM": "JPRIM",
+              "CONSTRAINT_JPRIM": "JPRIM", "MOTION": "MOTION", "MOTION_JOINT": "MOTION",
+              "SFORCE": "SFORCE", "FORCE_SCALAR_TWOBODY": "SFORCE", "VFORCE": "VFORCE",
+              "VTORQ": "VTORQ", "GFORCE": "GFORCE", "FORCE_VECTOR_TWOBODY": "GFORCE",
+              "FORCE_VECTOR_ONEBODY": "GFORCE", "BUSH": "BUSH", "FORCE_BUSHING": "BUSH",
+              "BUSHING": "BUSH", "SPDP": "SPDP", "FORCE_SPRINGDAMPER": "SPDP",
+              "SPRINGDAMPER": "SPDP"}
+
+_SPLIT = re.compile(r"[\s,;]+")
+
+
+def _numbers(el):
+    txt = (el.text or "").strip()
+    if not txt:
+        return np.zeros(0)
+    try:
+        return np.array([float(t.replace("D", "E").replace("d", "e"))
+                         for t in _SPLIT.split(txt) if t], float)
+    except ValueError as e:
+        raise DeckError(Problem(el.loc, f"element text is not a list of numbers ({e})")) from None
+
+
+class ModelResolver:
+    """Model-side resolver for :func:`poise.expr.compile_batch` (see ``poise/expr/CONTRACT.md``).
+
+    ``allow_reactions`` False makes element-force functions a located DeckError (forces,
+    gravity); True registers reaction channels (requests).
+    """
+
+    def __init__(self, spec, ctx):
+        self.spec = spec
+        self.ctx = ctx
+        self.b = ctx.b
+        self.allow_reactions = False
+        self.where = "forces"
+        self.channels: list[tuple] = []
+        self._chan_index: dict = {}
+        self.vars = {e.id: e for e in spec.elements("Reference_Variable")}
+        self.splines = {e.id: e for e in spec.elements("Reference_Spline")}
+        self.arrays = {e.id: e for e in spec.elements("Reference_Array")}
+        self._spline_cache: dict = {}
+        self._elements: dict = {}
+        for e in spec.model:
+            if e.id is not None:
+                self._elements.setdefault((e.tag, e.id), e)
+
+    # ------------------------------------------------------------------ contract
+    def marker_index(self, id: int) -> int:
+        return self.b.marker_index[int(id)]          # 0 -> 0: the global frame; KeyError else
+
+    def variable(self, id: int):
+        el = self.vars[int(id)]
+        if el.attrs.get("is_implicit"):
+            # rejected at compile time (compile_expressions); keep lowering going
+            return ("explicit", 0.0)
+        if str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
+            return ("explicit", 0.0)
+        return ("explicit", el.attrs.get("expr", 0.0))
+
+    def diff_state(self, id: int) -> int:
+        raise KeyError(id)
+
+    def diff_derivative(self, id: int):
+        raise KeyError(id)
+
+    def spline(self, id: int):
+        id = int(id)
+        if id in self._spline_cache:
+            return self._spline_cache[id]
+        el = self.splines[id]
+        v = _numbers(el)
+        a = el.attrs
+        lin = bool(a.get("linear_extrap", False))
+        nx, nz = a.get("num_x"), a.get("num_z")
+        if nz and nx and int(nz) > 1:
+            nx, nz = int(nx), int(nz)
+            if len(v) != nz + nx * (nz + 1):
+                raise DeckError(Problem(el.loc, f"surface spline text has {len(v)} numbers; "
+                                        f"expected num_z + num_x*(num_z+1) = "
+                                        f"{nz + nx * (nz + 1)}"))
+            z = v[:nz]
+            rows = v[nz:].reshape(nx, nz + 1)
+            out = (rows[:, 0], rows[:, 1:].T.copy(), z, lin)
+        else:
+            n = a.get("num_xy_pair")
+            if len(v) % 2:
+                raise DeckError(Problem(el.loc, f"spline text has {len(v)} numbers; expected "
+                                        "x y pairs"))
+            if n is not None and int(n) != len(v) // 2:
+                raise DeckError(Problem(el.loc, f"num_xy_pair={n} but the text has "
+                                        f"{len(v) // 2} x y pairs", "num_xy_pair"))
+            xy = v.reshape(-1, 2)
+            out = (xy[:, 0], xy[:, 1], None, lin)
+        self._spline_cache[id] = out
+        return out
+
+    def array(self, id: int):
+        el = self.arrays[int(id)]
+        v = _numbers(el)
+        n = el.attrs.get("num_element")
+        if n is not None and int(n) != len(v):
+            raise DeckError(Problem(el.loc, f"num_element={n} but the text has {len(v)} values",
+                                    "num_element"))
+        return v
+
+    def reaction(self, kind: str, id: int, jflag: int, comp: int, rm: int) -> int:
+        kind = kind.upper()
+        if not self.allow_reactions:
+            raise NotImplementedError(
+                f"{kind}() is not supported in {self.where} yet (reaction and element-force "
+                "functions are only available in Post_Request expressions)")
+        if kind in RESULTANTS:
+            if not 1 <= comp <= 8:
+                raise NotImplementedError(f"{kind}: component {comp} outside 1..8")
+            key = ("RES", self.marker_index(id), self.marker_index(jflag) if jflag else -1,
+                   comp, self.marker_index(rm), int(jflag) != 0)
+        elif kind in REACTION_KINDS:
+            if not 1 <= comp <= 8:
+                raise NotImplementedError(f"{kind}: component {comp} outside 1..8; expected "
+                                          "1 |F|, 2-4 Fx Fy Fz, 5 |T|, 6-8 Tx Ty Tz")
+            if jflag not in (0, 1):
+                raise NotImplementedError(f"{kind}: jflag {jflag}; expected 0 or 1")
+            group, tags = REACTION_KINDS[kind]
+            el = next((self._elements[(t, id)] for t in tags if (t, id) in self._elements), None)
+            if el is None:
+                raise KeyError(id)
+            key = ("EL", group, el.tag, int(id), int(jflag), int(comp),
+                   self.marker_index(rm))
+        else:
+            raise NotImplementedError(f"{kind}() is not supported yet")
+        if key not in self._chan_index:
+            self._chan_index[key] = len(self.channels)
+            self.channels.append(key)
+        return self._chan_index[key]
+
+    def angle_key(self, i_idx: int, j_idx: int, axis: int) -> int:
+        return self.ctx.angle(int(i_idx) if i_idx >= 0 else GLOBAL,
+                              int(j_idx) if j_idx >= 0 else GLOBAL, int(axis))
+
+    # ------------------------------------------------------------------ element markers
+    def element_markers(self, tag, id):
+        """(I, J) compiled marker indices of a deck element (J = global frame when absent)."""
+        el = self._elements.get((tag, id))
+        if el is None:
+            return GLOBAL, GLOBAL
+        a = el.attrs
+        if "joint_id" in a and "i_marker_id" not in a:
+            return self.element_markers("Constraint_Joint", a["joint_id"])
+        i = a.get("i_marker_id", a.get("marker_id"))
+        j = a.get("j_marker_id", a.get("j_floating_marker_id"))
+        mi = self.b.marker_index.get(i, GLOBAL) if i is not None else GLOBAL
+        mj = self.b.marker_index.get(j, GLOBAL) if j is not None else GLOBAL
+        return mi, mj
+
+
+def compile_batch_located(exprs, resolver, pc):
+    """``compile_batch`` whose DeckError problems are added to the collector (None on error)."""
+    from poise.expr import compile_batch
+    try:
+        return compile_batch(exprs, resolver)
+    except DeckError as e:
+        for p in e.problems:
+            if isinstance(p, Problem):
+                pc.problems.append(p)
+            else:
+                pc.error(exprs[0].loc if hasattr(exprs[0], "loc") else None, str(p))
+        return None
+
+
+# ====================================================================================== channels
+def _resolve(v, A, rm):
+    return v if rm == GLOBAL else v @ A[rm]          # components along RM's axes
+
+
+def _pick(F, T, comp):
+    c = int(comp)
+    if c == 1:
+        return float(np.linalg.norm(F))
+    if c <= 4:
+        return float(F[c - 2])
+    if c == 5:
+        return float(np.linalg.norm(T))
+    return float(T[c - 6])
+
+
+def channel_values(model, state, channels, info):
+    """Values of reaction channels at ``state`` (exact, from ``state.lam``).
+
+    ``info`` is the :class:`ExprInfo` holding element marker indices. Loads come from
+    :func:`poise.solvers.outputs.element_loads` (force/torque on I at the I origin, global);
+    ``jflag=1`` gives the equal and opposite action on J about the J origin; components are
+    resolved in marker RM's axes (0 = global).
+    """
+    if not channels:
+        return np.zeros(0)
+    from poise.solvers.outputs import element_loads
+    loads = element_loads(model, state)
+    P, A, _ = model.marker_kinematics(state)
+    out = np.zeros(len(channels))
+    owners = info.owner_maps(model)
+    for k, ch in enumerate(channels):
+        if ch[0] == "EL":
+            _, group, tag, id, jflag, comp, rm = ch
+            if group not in loads or (tag, id) not in owners.get(group, {}):
+                raise EvaluationError(f"no reaction output for <{tag} id={id}> "
+                                      f"(group {group!r} not compiled)")
+            o = owners[group][(tag, id)]
+            F, T = loads[group][0][o], loads[group][1][o]
+            if jflag:
+                mi, mj = info.markers[(tag, id)]
+                F, T = -F, -T - np.cross(P[mi] - P[mj], F)
+                T = T  # about the J origin
+            out[k] = _pick(_resolve(F, A, rm), _resolve(T, A, rm), comp)
+        else:
+            _, mi, mj, comp, rm, _ = ch
+            Fs, Ts = np.zeros(3), np.zeros(3)
+            for group, omap in owners.items():
+                if group not in loads:
+                    continue
+                for (tag, id), o in omap.items():
+                    ei, ej = info.markers[(tag, id)]
+                    F, T = loads[group][0][o], loads[group][1][o]
+                    if ei == mi and (mj < 0 or ej == mj):
+                        Fs += F
+                        Ts += T
+                    elif ej == mi and (mj < 0 or ei == mj):
+                        Fs -= F
+                        Ts += -T - np.cross(P[ei] - P[ej], F)
+            out[k] = _pick(_resolve(Fs, A, rm), _resolve(Ts, A, rm), comp)
+    return out
+
+
+class ExprInfo:
+    """Element marker indices for reaction channels (built at compile time)."""
+
+    def __init__(self, resolver, outputs):
+        self.markers = {}
+        self._outputs = outputs
+        self._res = resolver
+        self._owners = None
+
+    def owner_maps(self, model):
+        if self._owners is None:
+            om = {}
+            for group, o in model.outputs.items():
+                ids = np.asarray(o["ids"])
+                tags = o.get("tag")
+                if tags is None or np.ndim(tags) == 0:
+                    tags = [str(tags) if tags is not None else ""] * len(ids)
+                om[group] = {}
+                for k, (t, i) in enumerate(zip(tags, ids)):
+                    key = (str(t), int(i))
+                    om[group][key] = k
+                    if key not in self.markers:
+                        self.markers[key] = self._res.element_markers(*key)
+            self._owners = om
+        return self._owners
+
+
+# ====================================================================================== compiler
+def _is_null(v):
+    return isinstance(v, Expr) and v.text.strip().upper() == "NULL"
+
+
+def compile_expressions(spec, ctx):
+    """Element compiler: expression forces, gravity expressions, Post_Request hooks."""
+    from poise.families import expr_forces as XF
+    pc = ctx.pc
+    res = ModelResolver(spec, ctx)
+    ctx.expr_resolver = res
+    for el in spec.elements("Reference_Variable"):
+        if el.attrs.get("is_implicit"):
+            pc.error(el.loc, "implicit Reference_Variable not supported yet; expected "
+                     "is_implicit=\"FALSE\" (an explicit expression)", "is_implicit")
+        elif str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
+            pc.error(el.loc, "user-subroutine Reference_Variable is not supported; expected "
+                     "type=\"EXPRESSION\"", "type")
+    ground = _ground_markers(ctx.b)
+
+    # ------------------------------------------------------------ forces
+    items = list(getattr(ctx, "expr_forces", []))
+    res.where = "force expressions"
+    vec = [(o, el) for o, el in items if el.tag.startswith("Force_Vector")]
+    sca = [(o, el) for o, el in items if el.tag == "Force_Scalar_TwoBody"]
+    if vec:
+        fam = XF.build_vector_family(vec, ctx, res, ground)
+        if fam is not None:
+            ctx.families.append(fam)
+    if sca:
+        fam = XF.build_scalar_family(sca, ctx, res, ground)
+        if fam is not None:
+            ctx.families.append(fam)
+
+    # ------------------------------------------------------------ gravity
+    gels = [e for e in spec.model if e.tag == "Force_Gravity"]
+    if gels:
+        el = gels[-1]
+        comps = [el.attrs.get(k, 0.0) for k in ("grav_x", "grav_y", "grav_z")]
+        if any(isinstance(c, Expr) for c in comps):
+            res.where = "gravity"
+            batch = compile_batch_located(comps, res, pc)
+            if batch is not None:
+                if batch.depends_on_state:
+                    k = int(np.argmax(batch.state_mask))
+                    pc.error(el.loc, "gravity may depend on TIME only; for a state-dependent "
+                             "load use a Force_Vector_TwoBody", ("grav_x", "grav_y", "grav_z")[k])
+                else:
+                    ctx.gravity_fn = GravityFunction(batch)
+
+    # ------------------------------------------------------------ requests
+    reqs = spec.elements("Post_Request")
+    if reqs:
+        from poise.model.requests import build_request_hook
+        res.allow_reactions = True
+        res.where = "requests"
+        hook = build_request_hook(reqs, ctx, res)
+        if hook is not None:
+            ctx.frame_hooks = getattr(ctx, "frame_hooks", []) + [hook]
+
+
+class GravityFunction:
+    """``g(t)`` (3,) from a batch of TIME-only expressions."""
+
+    depends_on_time = True
+
+    def __init__(self, batch):
+        self.batch = batch
+
+    def __call__(self, t: float) -> np.ndarray:
+        from poise.expr import EvalContext as XC
+        return np.asarray(self.batch.evaluate(XC(time=float(t))).value, float)
+
+
+def _ground_markers(b):
+    """(nm,) bool: compiled marker index on ground (index 0 = global frame)."""
+    out = np.zeros(len(b.marker_els) + 1, bool)
+    out[0] = True
+    for k, e in enumerate(b.marker_els):
+        out[k + 1] = e.attrs.get("body_id") not in b.body_index
+    return out
