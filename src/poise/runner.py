@@ -109,7 +109,8 @@ def analysis_class(req: AnalysisRequest):
     m = req.settings.method
     if req.kind == "static":
         if m == "MKEAM":
-            return None, "method MKEAM is not supported yet; expected FIM_S or FIM_D"
+            from poise.solvers.mkeam import MkeamAnalysis
+            return MkeamAnalysis, None
         return StaticAnalysis, None
     if req.kind == "quasistatic":
         return None, ("quasi-static analysis (end_time beyond the start) is not supported yet; "

@@ -138,6 +138,12 @@ class LineForce(TwoBodyForce):
             dT = np.zeros_like(dF)
         return F, T, dF, dT
 
+    def potential_energy(self, kin, ctx):
+        """``k/2 (L - length)^2 - preload L`` per instance (MKEAM history)."""
+        d = kin.Y[:, S_PI] - kin.Y[:, S_PJ]
+        L = np.linalg.norm(d, axis=1)
+        return 0.5 * self.k * (L - self.length) ** 2 - self.preload * L
+
 
 class AxisForce(TwoBodyForce):
     """Action-only force of constant magnitude along J's z axis (``Force_Scalar_TwoBody``
@@ -179,6 +185,12 @@ class AxisTorque(TwoBodyForce):
             dF = np.zeros_like(dT)
         return F, T, dF, dT
 
+    def potential_energy(self, kin, ctx):
+        """``k/2 (AZ - length)^2 - preload AZ`` (AZ continuous; exact when I's z stays along J's
+        z, as in a hinge); per instance."""
+        theta = ctx.angle[self.angle_index]
+        return 0.5 * self.k * (theta - self.length) ** 2 - self.preload * theta
+
 
 class Bushing(TwoBodyForce):
     """``Force_Bushing``: ``F_J = -K (DX,DY,DZ)(I,J,J) + preload``, ``T_J = -Kt (AX,AY,AZ)(I,J)
@@ -216,6 +228,16 @@ class Bushing(TwoBodyForce):
                 dF[:, :, sl(s)] += FJ[:, k][:, None, None] * _I3
                 dT[:, :, sl(s)] += TJ[:, k][:, None, None] * _I3
         return F, T, dF, dT
+
+    def potential_energy(self, kin, ctx):
+        """Translational part ``D^T K D / 2 - f0 . D``; None (not conservative in general) when a
+        rotational stiffness or torque preload is present."""
+        if np.any(self.kr3 != 0) or np.any(self.t0 != 0):
+            return None
+        Y = kin.Y
+        AJ = np.stack([Y[:, S_XJ], Y[:, S_YJ], Y[:, S_ZJ]], axis=2)
+        D = np.einsum("nik,ni->nk", AJ, Y[:, S_PI] - Y[:, S_PJ])
+        return np.sum(0.5 * self.kt3 * D * D - self.f0 * D, axis=1)
 
 
 class VectorForce(TwoBodyForce):
