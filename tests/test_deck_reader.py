@@ -334,8 +334,10 @@ def test_schema_table_and_markdown():
     md = render_markdown()
     for tag in SCHEMAS:
         assert f"## `{tag}`" in md
-    for tag in ("Motion_Joint", "Motion_Marker", "Control_Diff", "Force_Contact", "Body_Flexible"):
+    for tag in ("Control_Diff", "Force_Contact", "Body_Flexible"):
         assert element_schema(tag).supported is False
+    for tag in ("Motion_Joint", "Motion_Marker"):
+        assert element_schema(tag).supported is True       # motions (issue 4)
     for tag in ("Post_Request", "Reference_Spline", "Reference_Array", "Reference_Variable"):
         assert element_schema(tag).supported is True       # expressions (issue 3)
     for tag in ("Param_Unit", "UNITS", "Force_Gravity", "Reference_Marker", "Body_Rigid", "Body_Point",

@@ -66,6 +66,7 @@ class AnalysisRequest:
     settings: StaticSettings
     transient: dict = field(default_factory=dict)
     commands: list = field(default_factory=list)
+    arrays: dict = field(default_factory=dict)     # Reference_Array values by id (PRINT times)
 
 
 def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
@@ -78,6 +79,9 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
             transient.update(e.attrs)
     out = []
     pending = []
+    from poise.solvers.quasistatic import print_arrays
+    arrays = print_arrays(spec)
+    t_now = 0.0
     for el in spec.commands:
         if el.tag == "Param_Static":
             live = live.updated(el.attrs)
@@ -88,8 +92,10 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
                 s = live.updated(overrides)
             except (ValueError, TypeError) as e:
                 raise DeckError(Problem(el.loc, f"invalid solver settings: {e}")) from None
-            kind, _ = _analysis_kind(el, 0.0)
-            out.append(AnalysisRequest(el, kind, s, dict(transient), pending))
+            kind, end = _analysis_kind(el, t_now)
+            out.append(AnalysisRequest(el, kind, s, dict(transient), pending, arrays))
+            if kind == "quasistatic" and end is not None:
+                t_now = float(end)
             pending = []
         elif el.tag == "Stop":
             break
@@ -113,8 +119,8 @@ def analysis_class(req: AnalysisRequest):
             return MkeamAnalysis, None
         return StaticAnalysis, None
     if req.kind == "quasistatic":
-        return None, ("quasi-static analysis (end_time beyond the start) is not supported yet; "
-                      "expected a single static analysis")
+        from poise.solvers.quasistatic import QuasiStaticAnalysis
+        return QuasiStaticAnalysis, None
     return None, f"analysis_type {req.kind.upper()} is not supported; expected Static"
 
 

@@ -288,11 +288,11 @@ _MOT = [E("val_type", DMS, "expression is a displacement, velocity or accelerati
         R("ic_disp", "initial displacement (V and A)"), R("ic_vel", "initial velocity (A)"),
         E("type", "EXPRESSION USERSUB", "how the motion is given", default="EXPRESSION"),
         A("expr", "expr", "motion expression, usually of TIME"), *USR()]
-el("Motion_Joint", "both", False, "Motion on a joint's free coordinate.", [
+el("Motion_Joint", "both", True, "Motion on a joint's free coordinate.", [
     ID(), LABEL(), A("joint_id", "int", "driven joint", required=True, ref="joint", lo=1),
     E("joint_type", "R T", "driven freedom (model element)"), E("motion_type", "R T", "driven freedom (command)"),
     *_MOT])
-el("Motion_Marker", "both", False, "Motion between two markers along one direction.", [
+el("Motion_Marker", "both", True, "Motion between two markers along one direction.", [
     ID(), LABEL(), *_IJ, E("direction", "X Y Z B1 B2 B3", "driven direction (J axes)", required=True), *_MOT])
 
 # --------------------------------------------------------------------------- forces

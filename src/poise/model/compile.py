@@ -242,9 +242,9 @@ class CompileContext:
 
 def element_compilers():
     """The ordered list of element compilers (add new element groups here)."""
-    from poise.model import compile_constraints, compile_forces
+    from poise.model import compile_constraints, compile_forces, compile_motions
     return [compile_constraints.compile_joints, compile_forces.compile_forces,
-            _compile_expressions]
+            compile_motions.compile_motions, _compile_expressions]
 
 
 def _compile_expressions(spec, ctx):

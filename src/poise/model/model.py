@@ -235,6 +235,33 @@ class Model:
             new.lam = new.lam + dlam
         return new
 
+    def local_difference(self, a: State, b: State) -> np.ndarray:
+        """Tangent increment ``dq`` at ``a`` with ``retract(a, dq) == b`` (the log map).
+
+        Rotation part ``w = log(R_b R_a^T)`` (spatial, per rigid body; |w| < pi); translation
+        part the CG increment of the screw ``retract`` follows (point bodies: ``p_b - p_a``),
+        so the two maps are exact inverses and extrapolating ``dq`` linearly follows hinges.
+        Used by quasi-static predictors.
+        """
+        dq = np.zeros(self.nq)
+        dp = b.pos - a.pos
+        dq[self.trans_idx] = dp.ravel()
+        rb = self.rot_body
+        if len(rb):
+            w = _log_so3(np.matmul(b.rot[rb], np.swapaxes(a.rot[rb], 1, 2)))
+            E = expm_so3(w)
+            V = se3_left_jacobian(w)
+            v0 = np.linalg.solve(V, (b.pos[rb] - np.einsum("nij,nj->ni", E, a.pos[rb]))[..., None])[..., 0]
+            dt = v0 + np.cross(w, a.pos[rb])
+            ti = self.body_off[rb][:, None] + np.arange(3)
+            dq[ti.ravel()] = dt.ravel()
+            dq[(self.body_off[rb][:, None] + 3 + np.arange(3)).ravel()] = w.ravel()
+        return dq
+
+    def depends_on_time(self) -> bool:
+        """True if any element family of the scene depends on the analysis time."""
+        return any(f.depends_on_time() for f in self.families)
+
     # ------------------------------------------------------------------ mass
     def mass_blocks(self, state):
         """Translational (nb,3,3) and rotational (nr,3,3) mass blocks in global axes."""
@@ -319,6 +346,28 @@ class Model:
         bad = np.nonzero(~np.isfinite(r))[0]
         ci = self.coord_info[bad[0]]
         return f"non-finite force on {ci} (NaN/Inf produced by an element acting on it)"
+
+
+def _log_so3(R):
+    """Rotation vectors (n, 3) of rotation matrices (n, 3, 3) (angle in [0, pi])."""
+    tr = np.einsum("nii->n", R)
+    c = np.clip(0.5 * (tr - 1.0), -1.0, 1.0)
+    th = np.arccos(c)
+    v = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1)
+    s = np.sin(th)
+    small = th < 1e-6
+    fac = np.where(small, 0.5 + th ** 2 / 12.0, th / (2.0 * np.where(small, 1.0, s)))
+    w = fac[:, None] * v
+    near_pi = th > np.pi - 1e-3
+    for i in np.nonzero(near_pi)[0]:
+        B = 0.5 * (R[i] + np.eye(3))          # = cos-part + (1-c) a a^T
+        k = int(np.argmax(np.diag(B)))
+        a = B[:, k] / np.sqrt(max(B[k, k], 1e-300))
+        a /= np.linalg.norm(a)
+        if np.dot(a, v[i]) < 0:
+            a = -a
+        w[i] = th[i] * a
+    return w
 
 
 def principal_angles(A, I, J, axis):
