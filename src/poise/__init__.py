@@ -4,6 +4,14 @@ Imports are lazy so that ``import poise`` (and ``poise --help``) stays light.
 """
 from __future__ import annotations
 
+import os
+
+# The solver's dense work is on 3x3 .. 12x12 blocks and vectors: multi-threaded OpenBLAS only adds
+# thread start-up and, on a loaded machine, busy-waiting (a 1000-link chain solved 1.8x slower on
+# 2 cores with another process running). Takes effect when poise is imported before numpy; an
+# explicit setting in the environment wins.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 __version__ = "0.1.0"
 
 __all__ = ["__version__", "solve", "load_deck"]

@@ -87,11 +87,12 @@ def _worker(deck: str, n: int) -> dict:
     import resource
 
     t = time.perf_counter()
+    import poise  # noqa: F401  (first, as in `poise solve`: it configures BLAS threads)
+    import poise.solvers.static as static_mod
     import numpy as np
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    import poise.solvers.static as static_mod
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
     from poise.runner import analysis_class, model_datasets, plan

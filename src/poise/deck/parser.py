@@ -65,9 +65,18 @@ def _start_tag_lines(data: bytes, wanted: set[int]) -> dict[int, int]:
 
 
 # --------------------------------------------------------------------------- value typing
+_PLAIN = frozenset("0123456789.+-eE")
+
+
 def parse_number(text: str) -> float | None:
     """Plain number in Fortran/C notation (``1.E-3``, ``1.5D0``, ``-9810.``) or None."""
     t = text.strip()
+    # fast path: over these characters float() accepts exactly what _NUMBER accepts
+    if t and _PLAIN.issuperset(t):
+        try:
+            return float(t)
+        except ValueError:
+            return None
     if not _NUMBER.match(t):
         return None
     return float(t.replace("d", "e").replace("D", "e"))
@@ -137,6 +146,40 @@ def _local(tag: Any) -> str:
     return etree.QName(tag).localname if isinstance(tag, str) else ""
 
 
+_LOCAL: dict[str, str] = {}          # element tag as written -> local name
+
+
+def _local_tag(tag: Any) -> str:
+    if not isinstance(tag, str):
+        return ""
+    v = _LOCAL.get(tag)
+    if v is None:
+        v = _LOCAL[tag] = _local(tag)
+    return v
+
+
+_LOWER_LOCAL: dict[str, str] = {}   # attribute / tag name as written -> lower-case local name
+
+
+def _lower_local(name: str) -> str:
+    v = _LOWER_LOCAL.get(name)
+    if v is None:
+        v = _LOWER_LOCAL[name] = _local(name).lower()
+    return v
+
+
+_ATTR_CACHE: dict[tuple[str, str], Attr | None] = {}   # (tag, lower-case name) -> Attr
+
+
+def _schema_attr(sch, n: str) -> Attr | None:
+    key = (sch.tag, n)
+    try:
+        return _ATTR_CACHE[key]
+    except KeyError:
+        a = _ATTR_CACHE[key] = sch.attr(n)
+        return a
+
+
 # --------------------------------------------------------------------------- element building
 class _Builder:
     """Builds :class:`Element` objects and collects warnings."""
@@ -147,7 +190,8 @@ class _Builder:
 
     def build(self, name: str, attrib: Any, text: str | None, line: int) -> Element:
         sch = element_schema(name)
-        raw = {_local(k).lower(): v for k, v in attrib.items()}
+        low = _LOWER_LOCAL
+        raw = {low.get(k) or _lower_local(k): v for k, v in attrib.items()}
         ident = _parse_int(raw["id"]) if "id" in raw else None
         tag = sch.tag if sch else name
         loc = SourceLoc(self.path, line, tag, ident)
@@ -159,7 +203,7 @@ class _Builder:
         else:
             written: dict[str, str] = {}
             for n, v in raw.items():
-                a = sch.attr(n)
+                a = _schema_attr(sch, n)
                 if a is None:
                     if sch.open_attrs:
                         attrs[n] = _guess(v)
@@ -171,18 +215,28 @@ class _Builder:
                         loc, f"attribute '{a.name}' given twice (as '{written[a.name]}' and '{n}'); "
                         f"'{n}' is used"))
                 written[a.name] = n
-                attrs[a.name] = coerce(a, v, loc)
+                if a.kind == "real":   # the common case, inlined: same result as coerce()
+                    x = parse_number(v)
+                    attrs[a.name] = v if x is None else x
+                else:
+                    attrs[a.name] = coerce(a, v, loc)
         txt = text.strip() if text and text.strip() else None
         return Element(tag=tag, attrs=attrs, loc=loc, text=txt)
 
 
+_DEFAULTS: dict[str, tuple] = {}   # canonical tag -> ((name, default), ...) in schema order
+
+
 def _apply_defaults(el: Element) -> None:
-    sch = element_schema(el.tag)
-    if sch is None:
-        return
-    for a in sch.attrs.values():
-        if a.default is not None and a.name not in el.attrs:
-            el.attrs[a.name] = a.default
+    d = _DEFAULTS.get(el.tag)
+    if d is None:
+        sch = element_schema(el.tag)
+        d = _DEFAULTS[el.tag] = () if sch is None else tuple(
+            (a.name, a.default) for a in sch.attrs.values() if a.default is not None)
+    attrs = el.attrs
+    for name, default in d:
+        if name not in attrs:
+            attrs[name] = default
 
 
 # --------------------------------------------------------------------------- security pre-scan
@@ -257,7 +311,7 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
                         raise DeckError(FileProblem(SourceLoc(path, 1, "xml"),
                                                     "entity declarations are not allowed in a deck"))
                 ordinal += 1
-                name = _local(elem.tag).lower()
+                name = _local_tag(elem.tag).lower()
                 parent = stack[-1] if stack else None
                 if parent is None:
                     role = name if name in _SECTIONS else "root"
@@ -278,7 +332,7 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
             role = stack.pop()
             own = ord_stack.pop()
             if role == "deck":
-                el = b.build(_local(elem.tag), elem.attrib, elem.text, elem.sourceline or 0)
+                el = b.build(_local_tag(elem.tag), elem.attrib, elem.text, elem.sourceline or 0)
                 items.append((el, stack[-1]))
                 if el.loc.line >= _BIG_LINE:
                     big[own] = el

@@ -42,21 +42,25 @@ class Assembler:
         self.valid = np.concatenate(valids) if valids else np.zeros(0, bool)
         allkeys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
         if dense:
-            self.slot = allkeys
+            slot = allkeys
             self.nnz = N * N
         else:
             uniq, inv = np.unique(allkeys, return_inverse=True)
-            self.slot = inv
+            slot = inv.ravel()
             self.nnz = uniq.size
             r = uniq // N
             self.indices = (uniq % N).astype(np.int32)
             self.indptr = np.searchsorted(r, np.arange(N + 1)).astype(np.int32)
+        # one slot per registered entry (valid or not): invalid entries go to the extra bin
+        # ``nnz``, so assembly needs no boolean gather of the values
+        self.slot = slot
+        self.slot_all = np.full(self.valid.size, self.nnz, dtype=np.intp)
+        self.slot_all[self.valid] = slot
 
     def assemble(self, values):
         """Assemble the matrix from a list of value arrays (same order/shapes as the blocks)."""
         vals = np.concatenate([np.asarray(v, float).ravel() for v in values])
-        vals = vals[self.valid]
-        data = np.bincount(self.slot, weights=vals, minlength=self.nnz)
+        data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
         if self.dense:
             return data.reshape(self.N, self.N)
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.N, self.N))

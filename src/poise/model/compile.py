@@ -75,6 +75,15 @@ class _Builder:
         els = [e for e in self.spec.model if e.tag == "Reference_Marker"]
         byid = {e.id: e for e in els}
         glob: dict[int, tuple] = {}
+        # direction cosines of all markers orthonormalised in one batch (same as _orientation)
+        dcm = [e for e in els if any(k in e.attrs for k in _DCM)]
+        pre = {}
+        if dcm:
+            Ms = np.array([[[a.get("a00", 1.0), a.get("a01", 0.0), a.get("a02", 0.0)],
+                            [a.get("a10", 0.0), a.get("a11", 1.0), a.get("a12", 0.0)],
+                            [a.get("a20", 0.0), a.get("a21", 0.0), a.get("a22", 1.0)]]
+                           for a in (e.attrs for e in dcm)], float)
+            pre = dict(zip(map(id, dcm), orthonormalize(Ms)))
 
         def resolve(mid, stack=()):
             if mid in glob:
@@ -82,7 +91,7 @@ class _Builder:
             el = byid[mid]
             p = np.array([_num(el, "pos_x", 0.0, self.pc), _num(el, "pos_y", 0.0, self.pc),
                           _num(el, "pos_z", 0.0, self.pc)], float)
-            R = _orientation(el)
+            R = pre[id(el)] if id(el) in pre else _orientation(el)
             rm = el.attrs.get("rm_id")
             if rm:
                 if rm in stack or rm not in byid:
