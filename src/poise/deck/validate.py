@@ -243,6 +243,8 @@ def _check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Elemen
 def _check_expression_syntax(pc: ProblemCollector, els: list[Element]) -> None:
     """Syntax of every expression attribute (``attr col C: message``); names and ids are
     resolved later by the model compiler. Template parses are cached by ``poise.expr``."""
+    if not any(isinstance(v, Expr) for el in els for v in el.attrs.values()):
+        return  # no expression: do not import poise.expr (it pulls in scipy.interpolate)
     from poise.expr.parser import parse
     from poise.expr.tokens import ExprSyntaxError, make_template
     for el in els:
