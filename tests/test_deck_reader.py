@@ -26,7 +26,7 @@ CASES = [
     ("negative_mass.xml", 11, "attribute 'mass' out of range; expected >= 0, got -2"),
     ("inertia_not_pd.xml", 11, "inertia tensor is not positive definite"),
     ("unknown_element.xml", 15, "unknown element <Force_Magic>"),
-    ("unsupported_element.xml", 15, "<Force_Contact> is not supported yet"),
+    ("unsupported_element.xml", 15, "<Force_Beam> is not supported yet"),
     ("entity_bomb.xml", 4, "entity declarations"),
     ("external_entity.xml", 4, "entity declarations"),
     ("malformed_xml.xml", 11, "malformed XML"),
@@ -334,8 +334,9 @@ def test_schema_table_and_markdown():
     md = render_markdown()
     for tag in SCHEMAS:
         assert f"## `{tag}`" in md
-    for tag in ("Control_Diff", "Force_Contact", "Body_Flexible"):
+    for tag in ("Control_Diff", "Body_Flexible"):
         assert element_schema(tag).supported is False
+    assert element_schema("Force_Contact").supported is True     # contact (issue 5)
     for tag in ("Motion_Joint", "Motion_Marker"):
         assert element_schema(tag).supported is True       # motions (issue 4)
     for tag in ("Post_Request", "Reference_Spline", "Reference_Array", "Reference_Variable"):

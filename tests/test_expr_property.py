@@ -21,7 +21,7 @@ LITERALS = [("2", 2.0), ("2.", 2.0), ("2.0", 2.0), (".5", 0.5), ("0.5", 0.5),
             ("PI", math.pi), ("DTOR", math.pi / 180), ("rtod", 180 / math.pi)]
 
 
-_TIES = []        # records IF conditions hit exactly at 0 (derivative is branch-defined there)
+_TIES = []        # records IF conditions at 0 and MIN/MAX ties (derivative is branch-defined there)
 
 
 def _if(c, a, b, d):
@@ -38,7 +38,13 @@ def _sincos(name):
 
 
 def _minmax(name):
-    return min if name.upper() == "MIN" else max
+    f = min if name.upper() == "MIN" else max
+
+    def g(a, b):
+        if a == b:             # kink: the derivative is branch-defined there, like IF at 0
+            _TIES.append(1)
+        return f(a, b)
+    return g
 
 
 def step(x, x0, h0, x1, h1):

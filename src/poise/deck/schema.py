@@ -327,7 +327,8 @@ _UNS_FORCES = {"Force_Beam": "Timoshenko beam", "Force_Field": "6x6 field elemen
                "Force_Contact": "contact between Post_Graphic geometries", "Force_MultiPoint": "multi-point force",
                "Force_Tire": "tyre model", "Force_StateEqn": "state-equation force", "Force_JointFriction": "joint friction"}
 for _t, _d in _UNS_FORCES.items():
-    el(_t, "both" if _t in ("Force_Beam", "Force_Contact") else "model", False, _d.capitalize() + ".",
+    el(_t, "both" if _t in ("Force_Beam", "Force_Contact") else "model", _t == "Force_Contact",
+       _d.capitalize() + ".",
        [ID(), LABEL()], open_attrs=True)
 
 # --------------------------------------------------------------------------- reference data, control

@@ -253,7 +253,12 @@ def element_compilers():
     """The ordered list of element compilers (add new element groups here)."""
     from poise.model import compile_constraints, compile_forces, compile_motions
     return [compile_constraints.compile_joints, compile_forces.compile_forces,
-            compile_motions.compile_motions, _compile_expressions]
+            compile_motions.compile_motions, _compile_expressions, _compile_contacts]
+
+
+def _compile_contacts(spec, ctx):
+    from poise.model.compile_contact import compile_contacts
+    compile_contacts(spec, ctx)
 
 
 def _compile_expressions(spec, ctx):

@@ -290,7 +290,8 @@ class Model:
             Multiple of the mass matrix added to the coordinate block of the Jacobian only
             (``sqrt(stability)``); the residual never includes it.
         keep : bool
-            Keep per-family slot data (``self.last``) for reaction outputs.
+            Keep per-family slot data (``self.last``: tuples ``(family, kin, rho, phi_y)``,
+            ``phi_y`` None for force families) for reaction outputs.
         """
         P, A, pos = self.marker_kinematics(state)
         ctx = EvalContext(t=state.t, angle=state.angle, P=P, A=A)
@@ -313,14 +314,16 @@ class Model:
                     Pq = Pq * act
                     vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
                 if keep:
-                    last.append((fam, kin, rho))
+                    last.append((fam, kin, rho, phy))
             else:
                 rho, G = fam.forces(kin, ctx, need_jac)
                 rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac)
                 if need_jac:
                     vals.append(Kl)
                 if keep:
-                    last.append((fam, kin, rho))
+                    last.append((fam, kin, rho, None))
+            if not np.isfinite(rl).all():
+                raise EvaluationError(_family_nonfinite(fam, rl))
             r += scatter_add(self.nq, fam.gcol, rl)
         if self.gravity_on:
             g = self.gravity if self.gravity_fn is None else self.gravity_fn(state.t)
@@ -368,6 +371,15 @@ def _log_so3(R):
             a = -a
         w[i] = th[i] * a
     return w
+
+
+def _family_nonfinite(fam, rl) -> str:
+    """Message naming the deck element whose kernel produced NaN/Inf."""
+    k = int(np.nonzero(~np.isfinite(rl).all(axis=1))[0][0])
+    locs = getattr(fam, "element_locs", None)
+    if locs:
+        return f"{locs[k].prefix()} produced a non-finite force (NaN/Inf)"
+    return f"element family {fam.name} (instance {k}) produced a non-finite value (NaN/Inf)"
 
 
 def principal_angles(A, I, J, axis):

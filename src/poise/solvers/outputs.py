@@ -4,15 +4,21 @@ from __future__ import annotations
 import numpy as np
 
 
-def element_loads(model, state):
+def element_loads(model, state, lam=None, reuse: bool = False):
     """Force and torque each element applies to the body of its I marker (at I, global).
 
-    Returns ``{group: (F (n_group, 3), T (n_group, 3))}`` for the groups ``joints``, ``jprims``,
-    ``forces`` present in the model. Uses ``state.lam`` for constraint reactions.
+    Returns ``{group: (F (n_group, 3), T (n_group, 3))}`` for the output groups present in the
+    model (``joints``, ``jprims``, ``motions``, ``forces``, ...). Constraint reactions use
+    ``lam`` (default ``state.lam``). With ``reuse=True`` the slot data kept by the last
+    ``model.evaluate(state, keep=True)`` are used instead of evaluating again.
     """
-    model.evaluate(state, need_jac=False, keep=True)
+    if not reuse:
+        model.evaluate(state, need_jac=False, keep=True)
+    lam = state.lam if lam is None else lam
     out = {}
-    for fam, kin, rho in model.last:
+    for fam, kin, rho, phy in model.last:
+        if phy is not None:
+            rho = np.einsum("nmy,nm->ny", phy, lam[fam.crow])
         group = getattr(fam, "group", None)
         if group is None or group not in model.outputs:
             continue

@@ -36,16 +36,21 @@ class StabilityInfo:
     min_eigenvalue: float      # smallest eigenvalue of the reduced stiffness [force/length]
 
 
-def classify(model, state) -> StabilityInfo:
-    """Classify the equilibrium ``state`` of ``model`` (uses ``model.row_active``)."""
+def classify(model, state, J=None) -> StabilityInfo:
+    """Classify the equilibrium ``state`` of ``model`` (uses ``model.row_active``).
+
+    ``J`` may be a KKT Jacobian already evaluated at ``state`` without regularisation (any
+    state of ``row_active``: inactive rows are dropped here).
+    """
     nq = model.nq
     if nq == 0:
         return StabilityInfo("stable", 0, 0, "", np.nan)
     if nq > DENSE_LIMIT:
         return StabilityInfo("unknown", -1, -1, f"not classified: {nq} coordinates > {DENSE_LIMIT}",
                              np.nan)
-    ev = model.evaluate(state, need_jac=True, eps_mass=0.0)
-    J = ev.J.toarray() if hasattr(ev.J, "toarray") else np.asarray(ev.J)
+    if J is None:
+        J = model.evaluate(state, need_jac=True, eps_mass=0.0).J
+    J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
     K = J[:nq, :nq]
     act = model.row_active
     Pq = J[nq:, :nq][act]

@@ -111,26 +111,20 @@ class StaticAnalysis:
         d["bodies/id"] = model.body_id
         d["bodies/position"] = state.pos[None].copy()
         d["bodies/orientation"] = state.rot[None].copy()
-        lam = state.lam
-        if len(self.redundancy) and model.nc:
-            ev = model.evaluate(state, need_jac=True)
-            Pq = ev.J[model.nq:, :model.nq]
-            allrows = np.ones(model.nc, bool)
-            model.row_active[:] = True
-            Pfull = model.evaluate(state, need_jac=True).J[model.nq:, :model.nq]
-            model.row_active[:] = allrows
-            model.row_active[self.redundancy] = False
-            w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
-            act = np.ones(model.nc, bool)
-            act[self.redundancy] = False
-            lam = min_norm_multipliers(Pfull, state.lam, act, w)
-            del Pq
-        st = state.copy()
-        st.lam = lam
+        # one evaluation (all rows active, slot data kept) serves the minimum-norm reactions,
+        # the element loads and the stability classification
         saved = model.row_active.copy()
         model.row_active[:] = True
+        J = None
         try:
-            loads = element_loads(model, st)
+            ev = model.evaluate(state, need_jac=True, keep=True)
+            J = ev.J
+            lam = state.lam
+            if len(self.redundancy) and model.nc:
+                Pfull = J[model.nq:, :model.nq]
+                w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
+                lam = min_norm_multipliers(Pfull, state.lam, saved, w)
+            loads = element_loads(model, state, lam=lam, reuse=True)
         except EvaluationError:
             loads = {}
         model.row_active[:] = saved
@@ -154,9 +148,9 @@ class StaticAnalysis:
         d["frames/error"] = np.array([o.error for o in outcomes])
         d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
         d["frames/stability"] = np.array(["unknown"] * len(outcomes), dtype=str)
-        if all(o.ok for o in outcomes):
+        if all(o.ok for o in outcomes) and J is not None:
             from poise.solvers.stability import classify, stability_datasets
-            d.update(stability_datasets([classify(model, state)]))
+            d.update(stability_datasets([classify(model, state, J=J)]))
         return d
 
 
