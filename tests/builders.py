@@ -51,3 +51,9 @@ def random_rotation(rng):
     q /= np.linalg.norm(q)
     from poise.model.rotation import from_euler_parameters
     return from_euler_parameters(*q)
+
+
+def stable_seed(*parts) -> int:
+    """Deterministic seed from strings/numbers (Python's hash() of str varies per process)."""
+    import zlib
+    return zlib.crc32(repr(parts).encode())

@@ -96,17 +96,29 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) ->
 
 
 def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray | None,
-                           slot_ml, K: int, need_jac: bool = True):
-    """Local residual ``B^T rho`` (n, 6K) and tangent ``B^T G B + C`` (n, 6K, 6K)."""
+                           slot_ml, K: int, need_jac: bool = True, ext: dict | None = None,
+                           U: int = 0):
+    """Local residual ``[B^T rho; rho_s]`` (n, 6K+U) and tangent (n, 6K+U, 6K+U).
+
+    The marker block of the tangent is ``B^T G B + C``. With ``U`` scalar columns (extra unknowns
+    the family reads), ``ext`` may hold ``rho_s`` (n, U) (residual rows of the scalar unknowns
+    the family owns or its generalised forces on them), ``G_ys`` (n, 3S, U) = d rho / d s,
+    ``G_sy`` (n, U, 3S) = d rho_s / d y and ``G_ss`` (n, U, U); missing pieces are zero.
+    """
     B = kin.B
+    n = B.shape[0]
     r = np.einsum("nyi,ny->ni", B, rho)
+    ext = ext or {}
+    if U:
+        rs = ext.get("rho_s")
+        r = np.concatenate([r, np.zeros((n, U)) if rs is None else rs], axis=1)
     if not need_jac:
         return r, None
     if G is None:
-        Kl = np.zeros((B.shape[0], 6 * K, 6 * K))
+        Kl = np.zeros((n, 6 * K, 6 * K))
     else:
         Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(G, B))
-    n, S = kin.V.shape[:2]
+    S = kin.V.shape[1]
     rho3 = rho.reshape(n, S, 3)
     for s in range(S):
         k = slot_ml[s]
@@ -118,6 +130,16 @@ def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray |
         blk[:, 1, 1] -= d
         blk[:, 2, 2] -= d
         Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk
+    if U:
+        full = np.zeros((n, 6 * K + U, 6 * K + U))
+        full[:, :6 * K, :6 * K] = Kl
+        if ext.get("G_ys") is not None:
+            full[:, :6 * K, 6 * K:] = np.matmul(np.swapaxes(B, 1, 2), ext["G_ys"])
+        if ext.get("G_sy") is not None:
+            full[:, 6 * K:, :6 * K] = np.matmul(ext["G_sy"], B)
+        if ext.get("G_ss") is not None:
+            full[:, 6 * K:, 6 * K:] = ext["G_ss"]
+        Kl = full
     return r, Kl
 
 
@@ -142,9 +164,11 @@ class Family:
         Index of the owning deck element in its output group (joints, forces, ...).
     m : int
         Constraint rows per instance (0 for force families).
-    gcol : (n, 6K) int
+    gcol : (n, 6K + U) int
         Global coordinate index of each local coordinate, -1 where the body has none (set by the
-        compiler).
+        compiler); the last U columns are the scalar unknowns of ``scols``.
+    scols : (n, U) int or None
+        Indices (into ``State.extra``) of the scalar unknowns each instance reads (-1 = none).
     crow : (n, m) int
         Global constraint row of each instance row (set by the compiler).
     """
@@ -158,6 +182,12 @@ class Family:
     gcol: np.ndarray = field(default=None, repr=False)
     crow: np.ndarray = field(default=None, repr=False)
     row_names: tuple = ()
+    scols: np.ndarray = field(default=None, repr=False)
+
+    @property
+    def U(self) -> int:
+        """Number of scalar-unknown columns per instance."""
+        return 0 if self.scols is None else int(self.scols.shape[1])
 
     @property
     def n(self) -> int:
@@ -176,16 +206,21 @@ class Family:
 
 
 class ForceFamily(Family):
-    """Force families implement ``forces(kin, ctx) -> (rho (n,3S), G (n,3S,3S) or None)``."""
+    """Force families implement ``forces(kin, ctx, need_jac) -> (rho (n,3S), G (n,3S,3S) or
+    None[, ext])``; ``ext`` (families with scalar columns) as in :func:`local_residual_tangent`."""
 
     def forces(self, kin: SlotKinematics, ctx) -> tuple[np.ndarray, np.ndarray | None]:
         raise NotImplementedError
 
 
 class ConstraintFamily(Family):
-    """Constraint families implement ``constraints(kin, lam, ctx) -> (phi, phi_y, G)``.
+    """Constraint families implement ``constraints(kin, lam, ctx) -> (phi, phi_y, G[, ext])``.
 
     ``lam`` has shape (n, m); ``phi`` (n, m); ``phi_y`` (n, m, 3S); ``G`` (n, 3S, 3S) or None.
+    Families with scalar columns may return ``ext`` with ``phi_s`` (n, m, U) = d phi / d s and
+    the multiplier-weighted Hessian blocks ``G_ys`` (n, 3S, U) and ``G_ss`` (n, U, U)
+    (``G_sy`` defaults to the transpose of ``G_ys``); ``rho_s = phi_s^T lam`` is added by the
+    model.
     """
 
     def constraints(self, kin: SlotKinematics, lam: np.ndarray, ctx):

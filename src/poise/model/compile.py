@@ -229,6 +229,8 @@ class CompileContext:
         self.families: list = []
         self.outputs: dict = {}
         self.angles: list[tuple[int, int, int]] = []
+        self.extra_names: list[str] = []
+        self.extra0: list[float] = []
         self.expr_forces: list = []      # (owner, el) of expression forces (compile_expr)
         self.frame_hooks: list = []      # per-frame output hooks (requests, ...)
         self.gravity_fn = None           # callable t -> (3,) for TIME-dependent gravity
@@ -247,6 +249,14 @@ class CompileContext:
     def add_row(self, el, equation: str, kind: str, group: str, owner: int) -> int:
         self.rows.append(_row(el, equation, kind, group, owner))
         return len(self.rows) - 1
+
+    def add_extra(self, name: str, initial: float = 0.0) -> int:
+        """Register a scalar unknown (appended after the bodies' coordinates); returns its index
+        into ``State.extra``. ``name`` labels it in messages (e.g. ``"<Control_Diff id=3> y"``).
+        Families read it through ``Family.scols``."""
+        self.extra_names.append(name)
+        self.extra0.append(float(initial))
+        return len(self.extra_names) - 1
 
 
 def element_compilers():
@@ -321,15 +331,20 @@ def compile_model(spec: DeckSpec) -> Model:
                 point = (kinds[bsafe] == 1) & ~ground
                 c[point, 3:] = -1
             cols.append(c)
+        if f.scols is not None and f.U:
+            cols.append(np.where(f.scols >= 0, b.nq + f.scols, -1))
         f.gcol = np.concatenate(cols, axis=1)
     nc = len(rows)
+    ne = len(ctx.extra_names)
+    bodies["coord_info"] = list(bodies["coord_info"]) + [f"{nm}" for nm in ctx.extra_names]
     effects = list(dict.fromkeys(b.effects))
     model = Model(
-        **bodies, **markers, families=fams, nq=b.nq, nc=nc, row_info=rows,
+        **bodies, **markers, families=fams, nq=b.nq + ne, nc=nc, row_info=rows,
         angle_I=np.array([a[0] for a in angles], int), angle_J=np.array([a[1] for a in angles], int),
         angle_axis=np.array([a[2] for a in angles], int), gravity=grav, L=b.L,
         gravity_on=bool(gels) and (np.any(grav != 0) or ctx.gravity_fn is not None),
         active_effects=effects, outputs=outputs, units=udesc, gravity_fn=ctx.gravity_fn,
+        n_extra=ne, extra0=np.array(ctx.extra0, float), extra_names=list(ctx.extra_names),
     )
     model.frame_hooks.extend(ctx.frame_hooks)
     model.spec_warnings = list(pc.warnings)

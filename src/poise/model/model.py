@@ -32,6 +32,8 @@ class State:
     lam : (nc,) constraint multipliers (forces [force] / torques [force*length])
     angle : (na,) continuous relative angles of the model's angle table [rad]
     t : float analysis time
+    extra : (ne,) scalar unknowns (Control_Diff states, implicit variables, curve and surface
+        parameters, ...), the last ``ne`` tangent coordinates
     """
 
     pos: np.ndarray
@@ -39,9 +41,11 @@ class State:
     lam: np.ndarray
     angle: np.ndarray
     t: float = 0.0
+    extra: np.ndarray = None
 
     def copy(self) -> "State":
-        return State(self.pos.copy(), self.rot.copy(), self.lam.copy(), self.angle.copy(), self.t)
+        return State(self.pos.copy(), self.rot.copy(), self.lam.copy(), self.angle.copy(), self.t,
+                     None if self.extra is None else self.extra.copy())
 
 
 @dataclass
@@ -67,6 +71,7 @@ class EvalContext:
     t: float
     angle: np.ndarray
     static: bool = True
+    extra: np.ndarray | None = None  # (ne,) scalar unknowns
     P: np.ndarray | None = None      # (nm, 3) marker origins (expression families)
     A: np.ndarray | None = None      # (nm, 3, 3) marker axes as columns
 
@@ -121,6 +126,9 @@ class Model:
     units: str = ""
     dense: bool = True
     frame_hooks: list = field(default_factory=list)
+    n_extra: int = 0
+    extra0: np.ndarray = None
+    extra_names: list = field(default_factory=list)
     gravity_fn: object = None        # TIME-dependent gravity: callable t -> (3,), else None
 
     # ------------------------------------------------------------------ setup
@@ -134,9 +142,14 @@ class Model:
         self.trans_idx = (self.body_off[:, None] + np.arange(3)).ravel()
         self.rot_body = np.nonzero(rigid)[0]
         self.rot_idx = (self.body_off[rigid][:, None] + 3 + np.arange(3)).ravel()
-        # per-coordinate kind (0 force row, 1 moment row)
+        # per-coordinate kind (0 force row, 1 moment row, 2 scalar unknown)
+        self.extra_off = self.nq - self.n_extra
+        self.extra_idx = np.arange(self.extra_off, self.nq)
+        if self.extra0 is None:
+            self.extra0 = np.zeros(self.n_extra)
         kind = np.zeros(self.nq, int)
         kind[self.rot_idx] = 1
+        kind[self.extra_idx] = 2
         self.q_kind = kind
         blocks = []
         for fam in self.families:
@@ -174,7 +187,7 @@ class Model:
     # ------------------------------------------------------------------ state
     def initial_state(self, t: float = 0.0) -> State:
         st = State(self.init_pos.copy(), self.init_rot.copy(), np.zeros(self.nc),
-                   np.zeros(len(self.angle_I)), t)
+                   np.zeros(len(self.angle_I)), t, np.array(self.extra0, float).copy())
         if len(self.angle_I):
             st.angle = self._principal_angles(st)
         return st
@@ -231,6 +244,8 @@ class Model:
             if len(self.angle_I):
                 p = self._principal_angles(new)
                 new.angle = new.angle + wrap_angle(p - new.angle)
+        if self.n_extra:
+            new.extra = new.extra + dq[self.extra_idx]
         if dlam is not None:
             new.lam = new.lam + dlam
         return new
@@ -256,6 +271,8 @@ class Model:
             ti = self.body_off[rb][:, None] + np.arange(3)
             dq[ti.ravel()] = dt.ravel()
             dq[(self.body_off[rb][:, None] + 3 + np.arange(3)).ravel()] = w.ravel()
+        if self.n_extra:
+            dq[self.extra_idx] = b.extra - a.extra
         return dq
 
     def depends_on_time(self) -> bool:
@@ -294,7 +311,7 @@ class Model:
             ``phi_y`` None for force families) for reaction outputs.
         """
         P, A, pos = self.marker_kinematics(state)
-        ctx = EvalContext(t=state.t, angle=state.angle, P=P, A=A)
+        ctx = EvalContext(t=state.t, angle=state.angle, P=P, A=A, extra=state.extra)
         r = np.zeros(self.nq)
         phi = np.zeros(self.nc)
         vals = []
@@ -302,22 +319,33 @@ class Model:
         for fam in self.families:
             kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A,
                                   self.marker_body, pos)
+            U = fam.U
             if fam.is_constraint:
                 lam = state.lam[fam.crow]
-                ph, phy, G = fam.constraints(kin, lam, ctx)
+                out = fam.constraints(kin, lam, ctx)
+                ph, phy, G = out[:3]
+                ext = out[3] if len(out) > 3 else None
                 rho = np.einsum("nmy,nm->ny", phy, lam)
-                rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac)
+                if U:
+                    ext = _constraint_ext(ext, lam, fam.n, fam.m, U)
+                rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac,
+                                                ext, U)
                 phi[fam.crow.ravel()] = ph.ravel()
                 if need_jac:
                     Pq = np.matmul(phy, kin.B)                          # (n, m, 6K)
+                    if U:
+                        Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
                     act = self.row_active[fam.crow][:, :, None]
                     Pq = Pq * act
                     vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
                 if keep:
                     last.append((fam, kin, rho, phy))
             else:
-                rho, G = fam.forces(kin, ctx, need_jac)
-                rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac)
+                out = fam.forces(kin, ctx, need_jac)
+                rho, G = out[:2]
+                ext = out[2] if len(out) > 2 else None
+                rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac,
+                                                ext, U)
                 if need_jac:
                     vals.append(Kl)
                 if keep:
@@ -371,6 +399,19 @@ def _log_so3(R):
             a = -a
         w[i] = th[i] * a
     return w
+
+
+def _constraint_ext(ext, lam, n, m, U):
+    """Scalar-column pieces of a constraint family: ``rho_s = phi_s^T lam`` etc."""
+    ext = dict(ext or {})
+    phi_s = ext.get("phi_s")
+    if phi_s is None:
+        phi_s = np.zeros((n, m, U))
+    ext["phi_s"] = phi_s
+    ext["rho_s"] = np.einsum("nmu,nm->nu", phi_s, lam)
+    if ext.get("G_ys") is not None and ext.get("G_sy") is None:
+        ext["G_sy"] = np.swapaxes(ext["G_ys"], 1, 2)
+    return ext
 
 
 def _family_nonfinite(fam, rl) -> str:
