@@ -24,8 +24,9 @@ demo: install
 	$(VENV)/bin/poise solve decks/pendulum_multiturn.xml -o demo_results.h5
 	$(VENV)/bin/poise show demo_results.h5
 
+# slow tests are skipped locally (pyproject addopts) and included in CI (CI=true), where they fit
 test: install
-	$(PY) -m pytest -q $(PYTEST_ARGS)
+	$(PY) -m pytest -q $(if $(CI),-m "slow or not slow",) $(PYTEST_ARGS)
 
 test-all: install
 	$(PY) -m pytest -q -m "slow or not slow" $(PYTEST_ARGS)
