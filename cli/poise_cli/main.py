@@ -8,9 +8,11 @@ from __future__ import annotations
 import click
 
 from poise import __version__
+from poise_cli.batch import batch
 from poise_cli.check import check
 from poise_cli.show import show
 from poise_cli.solve import solve
+from poise_cli.sweep import sweep
 
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 
@@ -34,6 +36,8 @@ def cli() -> None:
 cli.add_command(solve)
 cli.add_command(check)
 cli.add_command(show)
+cli.add_command(batch)
+cli.add_command(sweep)
 
 
 def main() -> None:  # pragma: no cover - console entry alias

@@ -14,13 +14,16 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "solve", "load_deck"]
+__all__ = ["__version__", "solve", "sweep", "load_deck"]
 
 
 def __getattr__(name):  # lazy public API
     if name == "solve":
         from poise.api import solve
         return solve
+    if name == "sweep":
+        from poise.api import sweep
+        return sweep
     if name == "load_deck":
         from poise.deck.parser import load_deck
         return load_deck

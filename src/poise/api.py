@@ -94,5 +94,28 @@ def check_deck(path: str) -> CheckReport:
 
 
 def solve(deck_or_path, **overrides) -> RunResult:
-    """Convenience wrapper: ``poise.solve("deck.xml", method="FIM_S")``."""
+    """Convenience wrapper: ``poise.solve("deck.xml", method="FIM_S")``.
+
+    ``deck_or_path`` is a deck path (str or path-like) or an already parsed (possibly modified)
+    :class:`poise.deck.spec.DeckSpec` from ``poise.load_deck``. Keyword arguments are
+    ``Param_Static`` overrides (``method``, ``max_num_iter``, ``max_imbalance``, ...).
+    """
+    from poise.deck.spec import DeckSpec
+    if isinstance(deck_or_path, DeckSpec):
+        from poise.runner import run_spec
+        return run_spec(deck_or_path, overrides=overrides, command="poise.solve")
     return run_deck(str(deck_or_path), overrides=overrides, command="poise.solve")
+
+
+def sweep(deck, sets: dict, mode: str = "grid", out_dir: str = "sweep", scheduler=None,
+          outputs=(), n=None, seed=0, workers=None, overrides=None, force=False) -> list[dict]:
+    """Parameter sweep on Dask distributed; returns the index rows (one dict per case).
+
+    ``sets`` maps ``"Tag[id].attr"`` / ``"Tag.attr"`` to a list of values or a range string
+    (``"10:100:10"``, ``"FIM_S,MKEAM"``); ``mode`` is ``grid``, ``zip`` or ``random`` (``n``
+    cases, ``seed``). See :func:`poise.sweep.run_sweep` for everything else.
+    """
+    from poise.sweep import run_sweep
+    return run_sweep(deck, sets, mode=mode, out_dir=out_dir, scheduler=scheduler,
+                     outputs=outputs, n=n, seed=seed, workers=workers, overrides=overrides,
+                     force=force)

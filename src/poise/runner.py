@@ -19,6 +19,8 @@ from poise.settings import StaticSettings
 
 
 def _load(path):
+    if isinstance(path, DeckSpec):  # already parsed (run_spec: sweeps, poise.solve(spec))
+        return path
     from poise.deck.parser import load_deck
     return load_deck(path)
 
@@ -127,6 +129,7 @@ def analysis_class(req: AnalysisRequest):
 def run(path: str, overrides=None, command: str = "", progress=None) -> RunResult:
     t0 = time.perf_counter()
     spec = _load(path)
+    path = spec.path
     t1 = time.perf_counter()
     from poise.model.compile import compile_model
     model = compile_model(spec)
@@ -150,6 +153,7 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
                     active_effects=list(model.active_effects), command=command)
     res.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
     res.model_datasets = model_datasets(model)
+    res.model_datasets.update(joint_marker_datasets(spec, model))
     state = model.initial_state()
     counts = {}
     redundancy = None
@@ -168,6 +172,37 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2)
     res.counts = counts
     return res
+
+
+def run_spec(spec: DeckSpec, overrides=None, command: str = "", progress=None) -> RunResult:
+    """Run an already-parsed (possibly modified) :class:`DeckSpec`; same as :func:`run`."""
+    return run(spec, overrides=overrides, command=command, progress=progress)
+
+
+def joint_marker_datasets(spec: DeckSpec, model) -> dict:
+    """``/model/markers/*`` and ``/model/joints/{i,j}_{marker,body}`` (stick-figure drawing).
+
+    Body id -1 = ground / global frame; marker offsets are in the body (CG marker) frame, for
+    ground markers in the global frame.
+    """
+    nb = len(model.body_id)
+    mb = np.asarray(model.marker_body)
+    bid = np.where(mb < nb, np.asarray(model.body_id)[np.minimum(mb, max(nb - 1, 0))], -1) \
+        if nb else np.full(len(mb), -1)
+    d = {"markers/id": np.asarray(model.marker_id, np.int64),
+         "markers/body_id": np.asarray(bid, np.int64),
+         "markers/offset": np.asarray(model.marker_s0, float)}
+    jo = model.outputs.get("joints")
+    if jo is not None:
+        joints = spec.by_id("Constraint_Joint")
+        m2b = dict(zip(d["markers/id"].tolist(), d["markers/body_id"].tolist()))
+        im = [int(joints[int(j)].attrs.get("i_marker_id", -1)) for j in jo["ids"]]
+        jm = [int(joints[int(j)].attrs.get("j_marker_id", -1)) for j in jo["ids"]]
+        d["joints/i_marker"] = np.asarray(im, np.int64)
+        d["joints/j_marker"] = np.asarray(jm, np.int64)
+        d["joints/i_body"] = np.asarray([m2b.get(m, -1) for m in im], np.int64)
+        d["joints/j_body"] = np.asarray([m2b.get(m, -1) for m in jm], np.int64)
+    return d
 
 
 def _noloc(path):

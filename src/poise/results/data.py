@@ -92,6 +92,9 @@ class RunResult:
         Residual / Jacobian / factorisation counts summed over the run.
     warnings : list[str]
         Located warnings emitted while reading/compiling the deck.
+    attrs : dict[str, Any]
+        Extra root attributes (e.g. ``run_overrides``, ``sweep_case_hash`` written by
+        ``poise batch``/``poise sweep``); may not clash with the reserved root attributes.
     """
 
     deck: str
@@ -104,6 +107,7 @@ class RunResult:
     timings: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    attrs: dict[str, Any] = field(default_factory=dict)
 
     @property
     def status(self) -> str:

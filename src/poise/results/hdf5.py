@@ -124,7 +124,11 @@ def _write_file(result: RunResult, path: str) -> None:
             "active_effects": [str(e) for e in result.active_effects],
             "command": str(result.command),
         }
-        _set_attrs(f, root_attrs, "/")
+        extra = getattr(result, "attrs", None) or {}
+        clash = set(extra) & set(root_attrs)
+        if clash:
+            raise ValueError(f"/: attrs {sorted(clash)} clash with reserved root attributes")
+        _set_attrs(f, {**extra, **root_attrs}, "/")
 
         model = f.create_group("model")
         _write_datasets(model, result.model_datasets, "/model")
@@ -267,6 +271,8 @@ def _analysis_groups(f: h5py.File) -> list[tuple[int, h5py.Group]]:
 
 
 _RESERVED = ("analysis_type", "method", "status", "message", "settings")
+_ROOT_RESERVED = ("format", "format_version", "poise_version", "deck", "deck_sha256", "status",
+                  "units", "active_effects", "command")
 
 
 def read_results(path: str) -> RunResult:
@@ -298,6 +304,7 @@ def read_results(path: str) -> RunResult:
             timings={k: _py(v) for k, v in f["timings"].attrs.items()} if "timings" in f else {},
             counts={k: _py(v) for k, v in f["counts"].attrs.items()} if "counts" in f else {},
             warnings=warnings,
+            attrs={k: v for k, v in attrs.items() if k not in _ROOT_RESERVED},
         )
 
 

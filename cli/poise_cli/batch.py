@@ -1,0 +1,101 @@
+"""``poise batch``: solve many decks in parallel local processes."""
+from __future__ import annotations
+
+import os
+import shlex
+import sys
+
+import click
+
+from poise_cli.options import collect_overrides, json_option, quiet_option, solver_options
+from poise_cli.summary import fmt_num, print_json, styled_status
+
+
+def _line(row: dict) -> str:
+    it = row.get("iterations")
+    t = row.get("time")
+    parts = [f"{row['deck']}: {styled_status(row['status'])}"]
+    if it is not None:
+        parts.append(f"{it} iterations")
+    if row.get("imbalance") is not None:
+        parts.append(f"imbalance {fmt_num(row['imbalance'])}")
+    if t is not None:
+        parts.append(f"{t:.3g} s")
+    line = ", ".join(parts)
+    if row.get("skipped"):
+        line += " (skipped, up to date)"
+    elif row.get("message"):
+        line += f": {row['message']}"
+    return line
+
+
+@click.command(short_help="Solve many decks in parallel, one results file each.")
+@click.argument("decks", nargs=-1, required=True,
+                type=click.Path(exists=True, dir_okay=False, readable=True))
+@click.option("-j", "--jobs", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Parallel worker processes (0 = number of CPUs).")
+@click.option("--out-dir", type=click.Path(file_okay=False), default="poise_batch",
+              show_default=True, help="Directory for <stem>.h5 files and summary.csv/.json.")
+@click.option("--force", is_flag=True, help="Solve every deck even if its results are up to date.")
+@solver_options
+@quiet_option
+@json_option
+def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_error,
+          stability, no_fallback, quiet, as_json):
+    """Solve every DECK in parallel local processes.
+
+    \b
+    Writes OUT_DIR/<deck stem>.h5 per deck (equal stems: <stem>-2.h5, ...) and the summary
+    table OUT_DIR/summary.csv and OUT_DIR/summary.json (deck, output, status, exit_code,
+    iterations, time, imbalance, skipped, message). Decks whose results file records the same
+    deck hash, solver options and poise version are skipped unless --force. Exit code: the
+    worst deck's (0 converged, 1 not converged, 3 invalid deck, 4 internal error).
+    """
+    from poise.batch import BATCH_KEYS, BATCH_VERSION, run_batch, sanitize, worst_exit_code, \
+        write_table
+    overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
+                                  max_imbalance=max_imbalance, max_error=max_error,
+                                  stability=stability, fallback=False if no_fallback else None)
+    command = shlex.join(["poise", *sys.argv[1:]])
+
+    def on_row(row):
+        if not quiet:
+            click.echo(_line(row), err=True)
+
+    try:
+        rows = run_batch(list(decks), out_dir, jobs=jobs, overrides=overrides, force=force,
+                         command=command, on_row=on_row)
+    except KeyboardInterrupt:
+        click.echo("poise: interrupted", err=True)
+        sys.exit(130)
+    code = worst_exit_code(r["exit_code"] for r in rows)
+    counts = {}
+    for r in rows:
+        counts[r["status"]] = counts.get(r["status"], 0) + 1
+    n_skipped = sum(bool(r["skipped"]) for r in rows)
+    summary = {"batch_version": BATCH_VERSION, "out_dir": out_dir, "exit_code": code,
+               "counts": counts, "skipped": n_skipped}
+    write_table(rows, os.path.join(out_dir, "summary"), keys=BATCH_KEYS, extra=summary)
+    if as_json:
+        print_json(sanitize({**summary, "rows": rows}))
+    else:
+        _print_table(rows)
+    if not quiet:
+        click.echo(f"poise batch: {len(rows)} decks: "
+                   + ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
+                   + (f" ({n_skipped} skipped, up to date)" if n_skipped else "")
+                   + f"; summary in {os.path.join(out_dir, 'summary.csv')}", err=True)
+    sys.exit(code)
+
+
+def _print_table(rows):
+    heads = ("deck", "status", "iterations", "time [s]", "message")
+    data = [(r["deck"], "skipped" if r["skipped"] else r["status"],
+             "" if r["iterations"] is None else str(r["iterations"]),
+             "" if r["time"] is None else f"{r['time']:.3g}",
+             ("skipped (up to date)" if r["skipped"] else (r["message"] or ""))[:100])
+            for r in rows]
+    w = [max(len(h), *(len(d[i]) for d in data)) for i, h in enumerate(heads)]
+    click.echo("  ".join(h.ljust(w[i]) for i, h in enumerate(heads)).rstrip())
+    for d in data:
+        click.echo("  ".join(x.ljust(w[i]) for i, x in enumerate(d)).rstrip())

@@ -1,0 +1,92 @@
+"""``poise sweep``: parameter sweep of one deck on Dask distributed."""
+from __future__ import annotations
+
+import os
+import sys
+
+import click
+
+from poise_cli.errors import report_exception
+from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
+    solver_options
+from poise_cli.summary import print_json
+
+
+@click.command(short_help="Parameter sweep of a deck on Dask (local cluster or scheduler).")
+@click.argument("deck", type=click.Path(exists=True, dir_okay=False, readable=True))
+@click.option("--set", "sets", multiple=True, required=True, metavar="TAG[ID].ATTR=VALUES",
+              help="Attribute to vary: Tag[id].attr or Tag.attr (single element such as "
+                   "Param_Static), VALUES an inclusive range a:b:step or a list v1,v2. Repeat.")
+@click.option("--grid", "mode", flag_value="grid", default=True,
+              help="All combinations (default).")
+@click.option("--zip", "mode", flag_value="zip", help="Parameters in lock-step (equal lengths).")
+@click.option("--random", "n_random", type=click.IntRange(min=1), default=None, metavar="N",
+              help="N random cases (ranges of reals sampled uniformly, lists by choice).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed for --random.")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Existing Dask scheduler, e.g. tcp://host:8786 (default: a local cluster).")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Worker processes of the local cluster (default: number of CPUs).")
+@click.option("--out-dir", type=click.Path(file_okay=False), default="poise_sweep",
+              show_default=True, help="Directory for case_NNNNN.h5 and index.csv/index.json.")
+@click.option("--output", "outputs", multiple=True, metavar="GROUP[ID].DATASET",
+              help="Index column(s) from the last frame, e.g. bodies[2].position, "
+                   "joints[1].force, requests[1].values. Repeat.")
+@click.option("--force", is_flag=True, help="Rerun cases whose results file is complete.")
+@solver_options
+@quiet_option
+@json_option
+@debug_option
+def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs, force,
+          method, max_num_iter, max_imbalance, max_error, stability, no_fallback, quiet,
+          as_json, debug):
+    """Solve DECK once per combination of --set values on Dask distributed.
+
+    \b
+    Each case writes OUT_DIR/case_NNNNN.h5; OUT_DIR/index.csv and index.json hold one row per
+    case: case, the parameter values, file, status, exit_code, iterations, wall_time,
+    imbalance, resumed, message and the --output columns. Cases whose file is complete and was
+    made with the same values are not run again (resume after an interruption).
+    Exit code: the worst case's (0, 1, 3, 4); 2 for a bad --set/--output; 3 invalid deck.
+    """
+    ctx = click.get_current_context()
+    overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
+                                  max_imbalance=max_imbalance, max_error=max_error,
+                                  stability=stability, fallback=False if no_fallback else None)
+    if n_random is not None:
+        mode = "random"
+
+    def on_row(row):
+        if not quiet and (row.get("exit_code") or 0) not in (0, 1):
+            click.echo(f"case {row['case']}: {row['status']}: {row.get('message', '')}", err=True)
+
+    try:
+        from poise.batch import worst_exit_code
+        from poise.sweep import INDEX_VERSION, run_sweep
+        rows = run_sweep(deck, list(sets), mode=mode, out_dir=out_dir, scheduler=scheduler,
+                         outputs=list(outputs), n=n_random, seed=seed, workers=workers,
+                         overrides=overrides, force=force, progress=None if not quiet else False,
+                         on_row=on_row)
+    except (Exception, KeyboardInterrupt) as exc:
+        code, info = report_exception(exc, debug=debug)
+        if as_json:
+            print_json({"index_version": 1, "deck": deck, "out_dir": out_dir,
+                        "exit_code": code, **info})
+        ctx.exit(code)
+        return
+    code = worst_exit_code(r["exit_code"] for r in rows)
+    counts: dict = {}
+    for r in rows:
+        counts[r["status"]] = counts.get(r["status"], 0) + 1
+    n_resumed = sum(bool(r.get("resumed")) for r in rows)
+    if as_json:
+        print_json({"index_version": INDEX_VERSION, "deck": deck, "out_dir": out_dir,
+                    "exit_code": code, "n_cases": len(rows), "counts": counts,
+                    "resumed": n_resumed, "index": os.path.join(out_dir, "index.csv")})
+    if not quiet:
+        click.echo(f"poise sweep: {len(rows)} cases: "
+                   + ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
+                   + f" ({n_resumed} resumed, {len(rows) - n_resumed} run); index in "
+                   + os.path.join(out_dir, "index.csv"), err=True)
+    sys.stdout.flush()
+    ctx.exit(code)

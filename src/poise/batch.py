@@ -1,0 +1,225 @@
+"""Batch runs: solve many decks in parallel local processes, one results file per deck.
+
+Used by ``poise batch``. Workers are started with the ``spawn`` method (safe with threads, the
+same on every platform); each solves one deck with :func:`poise.api.run_deck` and writes
+``OUT_DIR/<stem>.h5`` itself, returning only a small summary row.
+
+Up-to-date check (re-runs skip work): a results file is reused when its root attributes record
+the same ``deck_sha256`` (hash of the deck bytes now), the same ``poise_version`` and the same
+``run_overrides`` (JSON of the solver options given to ``poise batch``), and it has a ``status``.
+
+Summary rows (``BATCH_KEYS``, stable; ``batch_version`` 1):
+
+``deck`` path as given, ``output`` results file (``null`` when none was written), ``status``
+(``converged``, ``failed``, ``invalid_deck``, ``internal_error``), ``exit_code`` (0, 1, 3, 4),
+``iterations`` (total over analyses), ``time`` (parse + compile + solve wall time, seconds, of
+the run that produced the file), ``imbalance`` (last frame of the last analysis), ``skipped``
+(true when the file was up to date), ``message`` (failed analyses' messages, the located deck
+problems joined by ``"; "``, or ``skipped (up to date)``).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+BATCH_VERSION = 1
+BATCH_KEYS = ("deck", "output", "status", "exit_code", "iterations", "time", "imbalance",
+              "skipped", "message")
+
+#: severity order of exit codes (worst last)
+_RANK = {0: 0, 1: 1, 3: 2, 4: 3}
+
+
+def worst_exit_code(codes) -> int:
+    codes = list(codes)
+    return max(codes, key=lambda c: _RANK.get(c, 3)) if codes else 0
+
+
+def overrides_json(overrides: dict | None) -> str:
+    return json.dumps({k: v for k, v in (overrides or {}).items() if v is not None},
+                      sort_keys=True, default=str)
+
+
+def file_sha256(path: str) -> str:
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+def _finite(x) -> float | None:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def result_stats(res) -> dict:
+    """``status``, ``exit_code``, ``iterations``, ``time``, ``imbalance``, ``message`` of a
+    :class:`~poise.results.data.RunResult` (fresh or read back from a file)."""
+    import numpy as np
+    it = 0
+    for a in res.analyses:
+        fi = a.datasets.get("frames/iterations")
+        if fi is not None:
+            it += int(np.sum(fi))
+    imb = None
+    if res.analyses:
+        fimb = res.analyses[-1].datasets.get("frames/imbalance")
+        if fimb is not None and len(fimb):
+            imb = _finite(fimb[-1])
+    t = sum(float(res.timings.get(k, 0.0)) for k in ("parse", "compile", "solve"))
+    msgs = [f"analysis {a.index}: {' '.join(str(a.message).split())}"
+            for a in res.analyses if not a.converged and a.message]
+    return dict(status=res.status, exit_code=res.exit_code, iterations=it, time=t,
+                imbalance=imb, message="; ".join(msgs))
+
+
+def output_paths(decks: list[str], out_dir: str) -> list[str]:
+    """``out_dir/<stem>.h5``; later decks with an already used stem get ``<stem>-2.h5``, …"""
+    used: set[str] = set()
+    out = []
+    for d in decks:
+        stem = Path(d).stem
+        name, k = stem, 1
+        while name.lower() in used:
+            k += 1
+            name = f"{stem}-{k}"
+        used.add(name.lower())
+        out.append(os.path.join(out_dir, name + ".h5"))
+    return out
+
+
+def up_to_date(deck: str, output: str, overrides: dict | None) -> bool:
+    """Whether ``output`` holds the results of ``deck`` with these overrides (see module doc)."""
+    if not os.path.isfile(output):
+        return False
+    try:
+        import h5py
+
+        import poise
+        with h5py.File(output, "r") as f:
+            a = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        return (a.get("format") == "poise-results" and "status" in a
+                and a.get("poise_version") == poise.__version__
+                and a.get("deck_sha256") == file_sha256(deck)
+                and a.get("run_overrides") == overrides_json(overrides))
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+def _row(deck, output, **kw) -> dict:
+    row = dict.fromkeys(BATCH_KEYS)
+    row.update(deck=deck, output=output, skipped=False, message="")
+    row.update(kw)
+    return row
+
+
+def skipped_row(deck: str, output: str) -> dict:
+    from poise.results.hdf5 import read_results
+    st = result_stats(read_results(output))
+    st["message"] = "skipped (up to date)"
+    return _row(deck, output, skipped=True, **st)
+
+
+def solve_one(deck: str, output: str, overrides: dict | None, command: str) -> dict:
+    """Solve one deck and write its results file (runs in a worker process)."""
+    from poise.errors import DeckError
+    try:
+        from poise.api import run_deck
+        res = run_deck(deck, overrides, command=command)
+    except DeckError as e:
+        problems = [str(p) for p in e.problems] or [str(e)]
+        return _row(deck, None, status="invalid_deck", exit_code=3,
+                    message="; ".join(problems), problems=problems)
+    except Exception as e:  # noqa: BLE001 - reported as a row, never kills the batch
+        return _row(deck, None, status="internal_error", exit_code=4,
+                    message=f"{type(e).__name__}: {' '.join(str(e).split())}")
+    try:
+        from poise.results.hdf5 import write_results
+        res.attrs["run_overrides"] = overrides_json(overrides)
+        write_results(res, output)
+    except Exception as e:  # noqa: BLE001
+        return _row(deck, None, status="internal_error", exit_code=4,
+                    message=f"writing {output}: {type(e).__name__}: {e}")
+    return _row(deck, output, **result_stats(res))
+
+
+def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | None = None,
+              force: bool = False, command: str = "poise batch",
+              on_row=None) -> list[dict]:
+    """Solve ``decks`` (in parallel), return one row per deck in the order given.
+
+    ``jobs`` ≤ 0 means ``os.cpu_count()``. ``on_row(row)`` is called as each deck finishes.
+    """
+    os.makedirs(out_dir, exist_ok=True)
+    outs = output_paths(decks, out_dir)
+    rows: list[Any] = [None] * len(decks)
+    todo = []
+    for k, (d, o) in enumerate(zip(decks, outs)):
+        if not force and up_to_date(d, o, overrides):
+            try:
+                rows[k] = skipped_row(d, o)
+                if on_row:
+                    on_row(rows[k])
+                continue
+            except Exception:  # noqa: BLE001 - unreadable: solve again
+                pass
+        todo.append(k)
+    jobs = jobs if jobs and jobs > 0 else (os.cpu_count() or 1)
+    if jobs == 1 or len(todo) <= 1:
+        for k in todo:
+            rows[k] = solve_one(decks[k], outs[k], overrides, command)
+            if on_row:
+                on_row(rows[k])
+        return rows
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=ctx) as ex:
+        futs = {ex.submit(solve_one, decks[k], outs[k], overrides, command): k for k in todo}
+        for fut in as_completed(futs):
+            k = futs[fut]
+            try:
+                rows[k] = fut.result()
+            except Exception as e:  # noqa: BLE001 - a worker died
+                rows[k] = _row(decks[k], None, status="internal_error", exit_code=4,
+                               message=f"worker failed: {type(e).__name__}: {e}")
+            if on_row:
+                on_row(rows[k])
+    return rows
+
+
+def write_table(rows: list[dict], path_stem: str, keys=None, extra: dict | None = None) -> None:
+    """``<path_stem>.csv`` and ``<path_stem>.json`` (``{"rows": [...], **extra}``), atomically."""
+    import csv
+    keys = list(keys) if keys else list(dict.fromkeys(k for r in rows for k in r))
+    tmp = f"{path_stem}.csv.tmp-{os.getpid()}"
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in keys})
+    os.replace(tmp, f"{path_stem}.csv")
+    tmp = f"{path_stem}.json.tmp-{os.getpid()}"
+    with open(tmp, "w") as f:
+        json.dump({**(extra or {}), "rows": [sanitize(r) for r in rows]}, f, indent=1,
+                  sort_keys=False)
+        f.write("\n")
+    os.replace(tmp, f"{path_stem}.json")
+
+
+def sanitize(obj):
+    """Non-finite floats -> None, numpy scalars -> Python (JSON-safe)."""
+    if isinstance(obj, dict):
+        return {k: sanitize(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [sanitize(v) for v in obj]
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
