@@ -26,7 +26,7 @@ CASES = [
     ("negative_mass.xml", 11, "attribute 'mass' out of range; expected >= 0, got -2"),
     ("inertia_not_pd.xml", 11, "inertia tensor is not positive definite"),
     ("unknown_element.xml", 15, "unknown element <Force_Magic>"),
-    ("unsupported_element.xml", 15, "<Force_Beam> is not supported yet"),
+    ("unsupported_element.xml", 15, "<Force_MultiPoint> is not supported yet"),
     ("entity_bomb.xml", 4, "entity declarations"),
     ("external_entity.xml", 4, "entity declarations"),
     ("malformed_xml.xml", 11, "malformed XML"),

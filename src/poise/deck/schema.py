@@ -270,14 +270,15 @@ el("Constraint_Joint", "both", True,
 el("Constraint_Jprim", "both", True, "Joint primitive.", [
     ID(), LABEL(), E("type", JPRIM_TYPES, "primitive type", required=True), *_IJ,
     B("is_virtual", "virtual joint flag")])
-el("Constraint_Coupler", "model", False, "Coupler between 2 or 3 joints.", [
+el("Constraint_Coupler", "model", True, "Coupler between 2 or 3 joints (poise.families.couplers).", [
     ID(), LABEL(), A("joint1_id", "int", "first joint", ref="joint"), E("freedom_1", "T R", "freedom of joint 1"),
     A("joint2_id", "int", "second joint", ref="joint"), E("freedom_2", "T R", "freedom of joint 2"),
     A("joint3_id", "int", "third joint", ref="joint"), E("freedom_3", "T R", "freedom of joint 3"),
     A("coefficients", "real_list", "scale factors c1, c2[, c3]"), B("is_virtual", "virtual flag"), *USR()])
-el("Constraint_Gear", "model", False, "Gear between two joints.", [
+el("Constraint_Gear", "model", True, "Gear between two joints (poise.families.gears).", [
     ID(), LABEL(), A("joint1_id", "int", "first joint", ref="joint"), A("joint2_id", "int", "second joint", ref="joint"),
-    M("cv_marker_id", "contact-point marker"), B("is_virtual", "virtual flag")])
+    M("cv_marker_id", "contact-point marker (origin) and common-velocity direction (z), on the carrier", required=True, lo=1),
+    B("is_virtual", "virtual flag"), *USR()])
 el("Constraint_UserConstr", "both", False, "User-defined constraint (UCOSUB).", [ID(), LABEL(), *USR()],
    open_attrs=True, aliases=("Constraint_Usrconstr",))
 for _t in ("PTCV", "CVCV", "PTSF", "CVSF", "SFSF", "PTdSF"):
@@ -323,11 +324,27 @@ el("Force_Scalar_TwoBody", "both", True, "Scalar force along J->I or torque abou
     ID(), LABEL(), *_IJ, E("type", "FORCE TORQUE", "force or torque", required=True),
     B("is_action_only", "TRUE: no reaction (one-body scalar force)"),
     R("val", "constant magnitude"), A("val_expression", "real_or_expr", "magnitude expression"), *USR()])
-_UNS_FORCES = {"Force_Beam": "Timoshenko beam", "Force_Field": "6x6 field element",
-               "Force_Contact": "contact between Post_Graphic geometries", "Force_MultiPoint": "multi-point force",
+# Force_Field / Force_Beam: poise.families.field_beam (docs/DESIGN.md "Fields and beams")
+el("Force_Field", "model", True, "Linear 6x6 field: [F;T]_J = -K (X - length) + preload, X = [DX..AZ](I,J) in J.", [
+    ID(), LABEL(), *_IJ, [R(f"k{i}{j}", f"stiffness K{i}{j} (row {i}, column {j})", default=0.0)
+                          for i in range(1, 7) for j in range(1, 7)],
+    [R(f"c{i}{j}", f"damping C{i}{j} (vanishes in statics)", default=0.0) for i in range(1, 7) for j in range(1, 7)],
+    R("cratio", "damping ratio (vanishes in statics)", default=0.0),
+    SIX("length_{}", "reference displacement/angle", default=0.0), SIX("preload_{}", "preload at the reference", default=0.0),
+    *USR()])
+el("Force_Beam", "both", True, "Straight uniform massless Timoshenko beam J->I along J's x axis (linear 6x6 law in J axes).", [
+    ID(), LABEL(), *_IJ, R("length", "free length (J origin to I origin)", lo=0, lo_open=True),
+    R("e", "Young's modulus", lo=0, lo_open=True), R("g", "shear modulus", lo=0, lo_open=True),
+    R("area", "cross-section area", lo=0, lo_open=True), R("ixx", "torsional constant", lo=0),
+    R("iyy", "area moment about J y", lo=0), R("izz", "area moment about J z", lo=0),
+    R("asy", "shear-area correction factor for y shear", default=0.0, lo=0),
+    R("asz", "shear-area correction factor for z shear", default=0.0, lo=0),
+    R("cratio", "damping ratio (vanishes in statics)", default=0.0),
+    SIX("preload_{}", "preload (J axes)", default=0.0)])
+_UNS_FORCES = {"Force_Contact": "contact between Post_Graphic geometries", "Force_MultiPoint": "multi-point force",
                "Force_Tire": "tyre model", "Force_StateEqn": "state-equation force", "Force_JointFriction": "joint friction"}
 for _t, _d in _UNS_FORCES.items():
-    el(_t, "both" if _t in ("Force_Beam", "Force_Contact") else "model", _t == "Force_Contact",
+    el(_t, "both" if _t == "Force_Contact" else "model", _t == "Force_Contact",
        _d.capitalize() + ".",
        [ID(), LABEL()], open_attrs=True)
 

@@ -262,8 +262,11 @@ class CompileContext:
 def element_compilers():
     """The ordered list of element compilers (add new element groups here)."""
     from poise.model import compile_constraints, compile_forces, compile_motions
+    from poise.model import compile_couplers, compile_field_beam, compile_gears
     return [compile_constraints.compile_joints, compile_forces.compile_forces,
-            compile_motions.compile_motions, _compile_expressions, _compile_contacts]
+            compile_motions.compile_motions, compile_couplers.compile_couplers,
+            compile_gears.compile_gears, compile_field_beam.compile_field_beam,
+            _compile_expressions, _compile_contacts]
 
 
 def _compile_contacts(spec, ctx):
