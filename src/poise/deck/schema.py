@@ -281,8 +281,30 @@ el("Constraint_Gear", "model", True, "Gear between two joints (poise.families.ge
     B("is_virtual", "virtual flag"), *USR()])
 el("Constraint_UserConstr", "both", False, "User-defined constraint (UCOSUB).", [ID(), LABEL(), *USR()],
    open_attrs=True, aliases=("Constraint_Usrconstr",))
-for _t in ("PTCV", "CVCV", "PTSF", "CVSF", "SFSF", "PTdSF"):
-    el(f"Constraint_{_t}", "model", False, f"Higher-pair constraint {_t}.", [ID(), LABEL()], open_attrs=True)
+# higher pairs (poise.model.compile_curves; docs/DESIGN.md "Curves and surfaces")
+_CV = A("curve_id", "int", "Reference_ParamCurve id", ref="curve", lo=1)
+_SF = A("surface_id", "int", "Reference_ParamSurface id", ref="surface", lo=1)
+el("Constraint_PTCV", "model", True, "Point (I origin) on a curve fixed in J (3 rows, u unknown).", [
+    ID(), LABEL(), *_IJ, _CV,
+    *xyz("disp_", "0", "initial contact-point guess, global coordinates"), R("vel_0", "initial sliding speed (ignored)")])
+el("Constraint_CVCV", "model", True, "Curve in I touches curve in J with a common tangent (5 rows).", [
+    ID(), LABEL(), *_IJ, A("i_curve_id", "int", "curve fixed in I", ref="curve", lo=1),
+    A("j_curve_id", "int", "curve fixed in J", ref="curve", lo=1),
+    *xyz("i_disp_", "0", "initial contact guess on curve I, I-marker coordinates"),
+    *xyz("j_disp_", "0", "initial contact guess on curve J, J-marker coordinates"),
+    R("i_vel0", "ignored"), R("j_vel0", "ignored"), B("is_no_slip", "no-slip (not supported: ignored with a warning)")])
+el("Constraint_PTSF", "model", True, "Point (I origin) on a surface fixed in J (3 rows, u, v unknown).", [
+    ID(), LABEL(), *_IJ, _SF, *xyz("disp_", "0", "initial contact-point guess, J-marker coordinates")])
+el("Constraint_CVSF", "model", True, "Curve in I on a surface in J, tangent in the tangent plane (5 rows).", [
+    ID(), LABEL(), *_IJ, _CV, _SF,
+    *xyz("i_disp_", "0", "initial contact guess on the curve, I-marker coordinates"),
+    *xyz("j_disp_", "0", "initial contact guess on the surface, J-marker coordinates")])
+el("Constraint_SFSF", "model", True, "Surface in I touches surface in J, common normal (5 rows).", [
+    ID(), LABEL(), *_IJ, A("i_surface_id", "int", "surface fixed in I", ref="surface", lo=1),
+    A("j_surface_id", "int", "surface fixed in J", ref="surface", lo=1),
+    *xyz("i_disp_", "0", "initial contact guess on surface I, I-marker coordinates"),
+    *xyz("j_disp_", "0", "initial contact guess on surface J, J-marker coordinates")])
+el("Constraint_PTdSF", "model", False, "Higher-pair constraint PTdSF.", [ID(), LABEL()], open_attrs=True)
 
 # --------------------------------------------------------------------------- motions
 _MOT = [E("val_type", DMS, "expression is a displacement, velocity or acceleration", default="D"),
@@ -363,7 +385,24 @@ el("Reference_Spline", "model", True, "Curve y(x) (or surface y(x,z)) given as e
     A("num_x", "int", "number of x values (surface form)", lo=0),
     A("num_z", "int", "number of z values (surface form)", lo=0),
     B("linear_extrap", "extrapolate linearly outside the data"), A("file_name", "str", "data file"), *USR()])
-for _t in ("Reference_ParamCurve", "Reference_ParamSurface", "Reference_DeformCurve", "Reference_DeformSurface"):
+_PC = [B("is_u_closed", "closed in u (periodic spline; analytic: u wraps into [u_start, u_end))"),
+       A("u_start", "real", "first u (analytic; spline data: default 0)"),
+       A("u_end", "real", "last u (analytic; spline data: default 1)"),
+       B("is_curve_points", "text holds points the spline passes through (always so in poise)"),
+       A("num_pts", "int", "number of x y z points in the element text (spline form)", lo=2),
+       A("matrix_id", "int", "Reference_Matrix with the points (not supported)"), *USR()]
+el("Reference_ParamCurve", "model", True,
+   "Curve c(u) in a marker frame: spline through x y z points (text) or x/y/z_expression of U.", [
+       ID(), LABEL(), *_PC, *[A(f"{c}_expression", "expr", f"{c}(U), analytic form (poise)") for c in "xyz"]],
+   open_attrs=True)
+el("Reference_ParamSurface", "model", True,
+   "Surface s(u, v) in a marker frame: x/y/z_expression of U and V, or a grid of points (text).", [
+       ID(), LABEL(), *_PC, B("is_v_closed", "closed in v"), A("v_start", "real", "first v"),
+       A("v_end", "real", "last v"), A("num_u", "int", "grid points along u (spline form)", lo=2),
+       A("num_v", "int", "grid points along v (spline form)", lo=2),
+       *[A(f"{c}_expression", "expr", f"{c}(U, V), analytic form (poise)") for c in "xyz"]],
+   open_attrs=True)
+for _t in ("Reference_DeformCurve", "Reference_DeformSurface"):
     el(_t, "model", False, _t.split("_")[1] + ".", [ID(), LABEL()], open_attrs=True)
 el("Control_Diff", "both", False, "First-order differential equation state DIF(id).", [
     ID(), LABEL(), B("is_implicit", "FALSE: y' = expr; TRUE: 0 = expr"), R("ic", "initial value"),

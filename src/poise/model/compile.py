@@ -266,7 +266,12 @@ def element_compilers():
     return [compile_constraints.compile_joints, compile_forces.compile_forces,
             compile_motions.compile_motions, compile_couplers.compile_couplers,
             compile_gears.compile_gears, compile_field_beam.compile_field_beam,
-            _compile_expressions, _compile_contacts]
+            _compile_expressions, _compile_contacts, _compile_curves]
+
+
+def _compile_curves(spec, ctx):
+    from poise.model.compile_curves import compile_curves
+    compile_curves(spec, ctx)
 
 
 def _compile_contacts(spec, ctx):

@@ -92,6 +92,13 @@ class _Dyn:
                                      np.repeat(rb[:, :, None], 3, 2).ravel()]).astype(int)
         self._mi_c = np.concatenate([model.trans_idx,
                                      np.repeat(rb[:, None, :], 3, 1).ravel()]).astype(int)
+        # curve/surface parameters (families with ``inertial_extras``) move with a fictitious
+        # mass so RATTLE carries them with the bodies (see extra_mass); other scalar unknowns
+        # stay massless (held per iteration, MkeamAnalysis._resolve_extras)
+        xi = [model.extra_off + fam.scols[fam.scols >= 0] for fam in model.families
+              if getattr(fam, "inertial_extras", False)]
+        self.x_idx = np.unique(np.concatenate(xi)).astype(int) if xi else np.zeros(0, int)
+        self.x_mass = None
 
     def minv(self, state):
         """Inverse mass as a (nq, nq) dense or sparse block-diagonal matrix."""
@@ -100,12 +107,33 @@ class _Dyn:
         vals = [np.repeat(1.0 / m.body_mass, 3)]
         if len(m.rot_body):
             vals.append(np.linalg.inv(Jg).ravel())
+        r, c = self._mi_r, self._mi_c
+        if len(self.x_idx):
+            vals.append(1.0 / self.extra_mass(state))
+            r = np.concatenate([r, self.x_idx])
+            c = np.concatenate([c, self.x_idx])
         v = np.concatenate(vals)
         if m.dense:
             Mi = np.zeros((m.nq, m.nq))
-            Mi[self._mi_r, self._mi_c] = v
+            Mi[r, c] = v
             return Mi
-        return sp.csr_matrix((v, (self._mi_r, self._mi_c)), shape=(m.nq, m.nq))
+        return sp.csr_matrix((v, (r, c)), shape=(m.nq, m.nq))
+
+    def extra_mass(self, state):
+        """Fictitious masses of the curve/surface parameters, fixed at the first call:
+        ``m_min * |d Phi / d s|^2`` (the smallest body mass times the squared length of the
+        parameter's constraint-Jacobian column: the mass of the lightest body sliding along the
+        curve at the start), floored at ``m_min * (1e-3 L)^2``. Any positive value leaves the
+        equilibria (and the potential) unchanged; it only shapes the relaxation path."""
+        if self.x_mass is None:
+            m = self.m
+            ev = m.evaluate(state, need_jac=True)
+            G = ev.J[m.nq:, :m.nq]
+            G = G.toarray() if sp.issparse(G) else np.asarray(G)
+            col = np.sum(G[:, self.x_idx] ** 2, axis=0)
+            mmin = float(np.min(m.body_mass))
+            self.x_mass = mmin * np.maximum(col, (1e-3 * m.L) ** 2)
+        return self.x_mass
 
     def at(self, state):
         """(Q, G, K, Minv) at ``state`` (uses ``state.lam`` for the geometric stiffness)."""
@@ -135,7 +163,7 @@ class _Dyn:
         m = self.m
         self.cnt.residuals += 1
         P, A, pos = m.marker_kinematics(state)
-        ctx = EvalContext(t=state.t, angle=state.angle)
+        ctx = EvalContext(t=state.t, angle=state.angle, extra=state.extra, P=P, A=A)
         phi = np.zeros(m.nc)
         for fam in self.cfams:
             kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, m.marker_body, pos)
@@ -164,6 +192,8 @@ def retract_flat(model, state, dq):
     if len(model.angle_I):
         p = model._principal_angles(new)
         new.angle = state.angle + wrap_angle(p - state.angle)
+    if model.n_extra:
+        new.extra = state.extra + dq[model.extra_idx]
     return new
 
 
@@ -237,7 +267,10 @@ class MkeamAnalysis(StaticAnalysis):
     def _h_limit(self, a: _Point):
         m = self.model
         # Gershgorin bound of the largest eigenvalue of M^-1/2 K M^-1/2 (mass-scaled rows)
-        d = 1.0 / np.sqrt(m.mass_diagonal(a.state))
+        md = m.mass_diagonal(a.state)
+        if len(self.dyn.x_idx):
+            md[self.dyn.x_idx] = self.dyn.extra_mass(a.state)
+        d = np.where(md > 0, 1.0 / np.sqrt(np.where(md > 0, md, 1.0)), 0.0)   # scalars: no mass
         K = a.K
         if sp.issparse(K):
             rs = np.asarray(abs(K) @ d).ravel() * d
