@@ -8,8 +8,10 @@ from __future__ import annotations
 import click
 
 from poise import __version__
+from poise_cli.animate import animate
 from poise_cli.batch import batch
 from poise_cli.check import check
+from poise_cli.plot import plot
 from poise_cli.show import show
 from poise_cli.solve import solve
 from poise_cli.sweep import sweep
@@ -38,6 +40,8 @@ cli.add_command(check)
 cli.add_command(show)
 cli.add_command(batch)
 cli.add_command(sweep)
+cli.add_command(plot)
+cli.add_command(animate)
 
 
 def main() -> None:  # pragma: no cover - console entry alias

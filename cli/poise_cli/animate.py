@@ -1,0 +1,43 @@
+"""``poise animate``: stick-figure animation of the iterations / frames of a results file."""
+from __future__ import annotations
+
+import click
+
+from poise_cli.errors import report_exception
+from poise_cli.options import debug_option, json_option, quiet_option
+from poise_cli.plot import results_or_usage
+from poise_cli.summary import print_json
+
+
+@click.command(short_help="Animate a results file as a stick figure (GIF, MP4 or PNG).")
+@click.argument("results", type=click.Path(exists=True, dir_okay=False, readable=True))
+@click.option("-o", "--out", required=True, type=click.Path(dir_okay=False),
+              help="Output .gif (Pillow), .mp4 (needs ffmpeg) or .png (one frame).")
+@click.option("--analysis", type=int, default=None, help="Analysis index (default: the last).")
+@click.option("--frame", type=int, default=None,
+              help="Only this frame (negative: from the end).")
+@click.option("--fps", type=click.IntRange(min=1), default=4, show_default=True)
+@quiet_option
+@json_option
+@debug_option
+def animate(results, out, analysis, frame, fps, quiet, as_json, debug):
+    """Draw each body of RESULTS as its CG joined to its joint points, one picture per MKEAM
+    iterate of a static MKEAM solve (then the final equilibrium), or per output frame
+    (quasi-static runs: per output time)."""
+    ctx = click.get_current_context()
+    try:
+        results_or_usage(results)
+        from poise.animate import animate_results
+        info = animate_results(results, out, analysis=analysis, frame=frame, fps=fps)
+    except (Exception, KeyboardInterrupt) as exc:
+        code, info = report_exception(exc, debug=debug)
+        if as_json:
+            print_json({"results": results, "output": None, "exit_code": code, **info})
+        ctx.exit(code)
+        return
+    if as_json:
+        print_json({"results": results, "exit_code": 0, **info})
+    if not quiet:
+        click.echo(f"wrote {out} ({info['frames']} frames, {info['width']}x{info['height']}, "
+                   f"plane {info['plane']})", err=True)
+    ctx.exit(0)

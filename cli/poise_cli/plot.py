@@ -1,0 +1,68 @@
+"""``poise plot``: convergence history and quasi-static time histories as a PNG."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from poise_cli.errors import report_exception
+from poise_cli.options import debug_option, json_option, quiet_option
+from poise_cli.summary import print_json
+
+
+def id_list(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        return [int(x) for x in value.replace(" ", "").split(",") if x]
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated ids, got {value!r}") from None
+
+
+def results_or_usage(path: str) -> None:
+    """Exit 2 when PATH is not a poise results file."""
+    from poise.errors import UsageError
+    from poise.results.hdf5 import ResultsFormatError, _open_checked
+    try:
+        _open_checked(path).close()
+    except ResultsFormatError as e:
+        raise UsageError(str(e)) from None
+
+
+@click.command(short_help="Plot convergence and time histories of a results file (PNG).")
+@click.argument("results", type=click.Path(exists=True, dir_okay=False, readable=True))
+@click.option("-o", "--out", type=click.Path(dir_okay=False), default=None,
+              help="PNG file. Default: <results stem>.png next to the results file.")
+@click.option("--analysis", type=int, default=None, help="Analysis index (default: the last).")
+@click.option("--bodies", callback=id_list, default=None, metavar="IDS",
+              help="Body ids for position histories, e.g. 2,3.")
+@click.option("--joints", callback=id_list, default=None, metavar="IDS",
+              help="Joint ids for force histories.")
+@click.option("--requests", callback=id_list, default=None, metavar="IDS",
+              help="Post_Request ids for channel histories.")
+@quiet_option
+@json_option
+@debug_option
+def plot(results, out, analysis, bodies, joints, requests, quiet, as_json, debug):
+    """Plot the convergence history of RESULTS (imbalance and error per iteration, log scale,
+    frame starts marked; MKEAM kinetic energy per iteration) and, for quasi-static runs, time
+    histories of body positions, joint forces and request channels."""
+    ctx = click.get_current_context()
+    out = out or str(Path(results).with_suffix(".png"))
+    try:
+        results_or_usage(results)
+        from poise.plot import plot_results
+        info = plot_results(results, out, analysis=analysis, bodies=bodies, joints=joints,
+                            requests=requests)
+    except (Exception, KeyboardInterrupt) as exc:
+        code, info = report_exception(exc, debug=debug)
+        if as_json:
+            print_json({"results": results, "output": None, "exit_code": code, **info})
+        ctx.exit(code)
+        return
+    if as_json:
+        print_json({"results": results, "exit_code": 0, **info})
+    if not quiet:
+        click.echo(f"wrote {out} ({info['width']}x{info['height']}, "
+                   f"{', '.join(info['panels'])})", err=True)
+    ctx.exit(0)
