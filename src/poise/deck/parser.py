@@ -84,7 +84,7 @@ def parse_number(text: str) -> float | None:
 
 def _parse_int(text: str) -> int | None:
     v = parse_number(text)
-    if v is None or v != int(v):
+    if v is None or not abs(v) < 2.0 ** 63 or v != int(v):   # NaN, inf, beyond int64: invalid
         return None
     return int(v)
 

@@ -137,6 +137,33 @@ def singular_message(model, row):
             f"{ri['equation']}")
 
 
+def inconsistent_redundant(model, state, sc: Scales) -> str:
+    """Removed (redundant) constraint rows violated at ``state`` beyond their tolerance.
+
+    Redundant rows are pinned inactive, so Newton never sees them; when the joints contradict
+    each other (e.g. two hinges of one door on parallel but offset axes) the active rows can be
+    met while a removed one is not. Returns a message naming the worst such row, or "".
+    """
+    if model.nc == 0 or model.row_active.all():
+        return ""
+    saved = model.row_active.copy()
+    model.row_active[:] = True
+    try:
+        phi = model.evaluate(state, need_jac=False).phi
+    except EvaluationError:
+        return ""
+    finally:
+        model.row_active[:] = saved
+    z = np.where(saved, 0.0, np.abs(phi) / sc.phi_tol)
+    k = int(np.argmax(z))
+    if not z[k] > 1.0:
+        return ""
+    ri = model.row_info[k]
+    return (f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}> equation {ri['equation']} "
+            f"(removed as redundant) is violated by {abs(phi[k]):.6g} "
+            f"(tolerance {sc.phi_tol[k]:.3g})")
+
+
 def assemble(model, state, settings, history: History, frame: int, cnt: Counters):
     """Least-change projection onto the constraints (Gauss-Newton on the KKT system).
 
@@ -245,7 +272,11 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
         res_ok = zinf <= 1.0
         step_ok = (not np.isfinite(last_step)) or last_step <= settings.max_error
         if res_ok and step_ok:
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            bad = "" if offset is not None else inconsistent_redundant(model, state, sc)
+            history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event)
+            if bad:
+                return state, FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, imb, err,
+                                           MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
             return state, FrameOutcome(Status.CONVERGED, it, imb, err, "converged")
         if it >= max_iter:
             history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
@@ -272,13 +303,15 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
         alpha = _limit_step(model, state, dq, settings)
         m0 = merit(ev, sc)
         best = None
+        eval_error = ""
         for _ in range(LINE_SEARCH_MAX + 1):
             trial = model.retract(state, alpha * dq, alpha * dl)
             try:
                 ev_t = ev_at(trial)
                 m1 = merit(ev_t, sc)
-            except EvaluationError:
+            except EvaluationError as e:
                 ev_t, m1 = None, np.inf
+                eval_error = str(e)
             if ev_t is not None and (best is None or m1 < best[0]):
                 best = (m1, alpha, trial, ev_t)
             if not settings.line_search or m1 <= (1.0 - ARMIJO * alpha) * m0:
@@ -287,7 +320,8 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
         if best is None:
             history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
             return state, FrameOutcome(Status.NONFINITE, it, imb, err,
-                                       MESSAGES[Status.NONFINITE])
+                                       MESSAGES[Status.NONFINITE] + "; every trial step failed: "
+                                       + eval_error)
         m1, alpha, state, ev = best
         last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0
         history.add(frame, it, imb, err, last_step, alpha, worst, event)

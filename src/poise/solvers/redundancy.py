@@ -91,6 +91,26 @@ def min_norm_multipliers(Phi_q, lam, active, row_weight):
     red = np.nonzero(~active)[0]
     if len(red) == 0:
         return lam
+    Y = left_null_basis(Phi_q, active)
+    Wy = row_weight[:, None] * Y
+    M = Y.T @ Wy
+    mu = lam - Y @ np.linalg.solve(M, Wy.T @ lam)
+    return mu
+
+
+def dependent_rows(Phi_q, active, rel=1e-8) -> np.ndarray:
+    """Rows taking part in a dependency (their multipliers are not unique): every row with a
+    non-negligible entry in a left null vector of ``Phi_q``, removed or kept."""
+    if np.all(active):
+        return np.zeros(0, int)
+    Y = np.abs(left_null_basis(Phi_q, active))
+    return np.nonzero(Y.max(axis=1) > rel * Y.max())[0]
+
+
+def left_null_basis(Phi_q, active):
+    """Columns ``y_k = e_k - (coefficients of row k on the independent rows)`` for each removed
+    row k: a basis of the left null space of ``Phi_q`` (``y^T Phi_q = 0``)."""
+    red = np.nonzero(~active)[0]
     P = sp.csr_matrix(Phi_q)
     ind = np.nonzero(active)[0]
     Pi = P[ind]
@@ -102,7 +122,4 @@ def min_norm_multipliers(Phi_q, lam, active, row_weight):
         coef = lu.solve(rhs)
         Y[k, c] = 1.0
         Y[ind, c] = -coef
-    Wy = row_weight[:, None] * Y
-    M = Y.T @ Wy
-    mu = lam - Y @ np.linalg.solve(M, Wy.T @ lam)
-    return mu
+    return Y

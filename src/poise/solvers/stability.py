@@ -12,6 +12,9 @@ criterion — documented limitation).
 The inertia of ``K_red`` (counts of negative, zero and positive eigenvalues) classifies the frame:
 any negative eigenvalue -> ``unstable``; else any zero eigenvalue -> ``neutral``; else ``stable``.
 Modes of negative and zero eigenvalues are described by the body with the largest participation.
+``K_red`` is Jacobi-equilibrated before the eigen-decomposition (a congruence, so the inertia is
+unchanged): the zero threshold is then relative to each direction's own stiffness, and a stiff/soft
+mix (1e9 next to 1 N/m) is not mistaken for a neutral system.
 
 Dense eigen-decomposition is used up to ``DENSE_LIMIT`` coordinates; larger models report
 ``unknown`` (documented in docs/results-format.md).
@@ -25,6 +28,7 @@ import scipy.linalg as sla
 
 DENSE_LIMIT = 3000
 ZERO_REL = 1e-8
+DIAG_FLOOR = 1e-24     # relative floor of the diagonal in the Jacobi equilibration
 
 
 @dataclass
@@ -65,21 +69,31 @@ def classify(model, state, J=None) -> StabilityInfo:
     if N.shape[1] == 0:
         return StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
     Kr = N.T @ Ku @ N
-    w, V = np.linalg.eigh(0.5 * (Kr + Kr.T))
-    scale = max(float(np.max(np.abs(w))), float(np.max(np.abs(np.diag(Ku)))), 1e-300)
-    tol = ZERO_REL * scale
+    Kr = 0.5 * (Kr + Kr.T)
+    # Jacobi equilibration (a congruence: the inertia is unchanged, Sylvester): a stiff/soft mix
+    # (a 1e9 N/m spring next to a 1 N/m one) is judged per direction, not against the stiffest
+    dg = np.abs(np.diag(Kr))
+    ref = max(float(dg.max()), float(np.max(np.abs(np.diag(Ku)))))
+    fl = DIAG_FLOOR * ref if ref > 1e-280 else 1.0        # all-zero stiffness: no scaling
+    sj = 1.0 / np.sqrt(np.maximum(dg, fl))
+    w, V = np.linalg.eigh(Kr * sj[:, None] * sj[None, :])
+    tol = ZERO_REL * max(float(np.max(np.abs(w))), 1.0)
     neg = w < -tol
     zero = np.abs(w) <= tol
+    X = N @ (sj[:, None] * V)                 # eigenvectors in (length) coordinates
+    X /= np.maximum(np.linalg.norm(X, axis=0), 1e-300)
+    kmin = int(np.argmin(w))
+    wmin = float(X[:, kmin] @ Ku @ X[:, kmin])   # Rayleigh quotient [force/length]
     modes = []
     for label, mask in (("unstable", neg), ("neutral", zero)):
         for k in np.nonzero(mask)[0][:6]:
-            q = (N @ V[:, k]) / d
+            q = X[:, k] / d
             modes.append(f"{label}: {_describe(model, q)}")
         extra = int(mask.sum()) - 6
         if extra > 0:
             modes.append(f"{label}: ... {extra} more")
     klass = "unstable" if neg.any() else "neutral" if zero.any() else "stable"
-    return StabilityInfo(klass, int(neg.sum()), int(zero.sum()), "; ".join(modes), float(w.min()))
+    return StabilityInfo(klass, int(neg.sum()), int(zero.sum()), "; ".join(modes), wmin)
 
 
 def _describe(model, q):

@@ -12,7 +12,7 @@ from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.history import History
 from poise.solvers.newton import Counters, FrameOutcome, assemble, initial_multipliers, newton
 from poise.solvers.outputs import element_loads
-from poise.solvers.redundancy import min_norm_multipliers, redundant_rows
+from poise.solvers.redundancy import dependent_rows, min_norm_multipliers, redundant_rows
 from poise.solvers.status import MESSAGES, Status
 
 
@@ -75,7 +75,8 @@ class StaticAnalysis:
                 state = initial_multipliers(model, state, self.counters)
                 start = state.copy()
                 state, out = newton(model, state, s, self.history, 0, self.counters)
-                if not out.ok and s.fallback and out.status != Status.NONFINITE:
+                if not out.ok and s.fallback and out.status not in (
+                        Status.NONFINITE, Status.INCONSISTENT_CONSTRAINTS):
                     from poise.solvers.fallback import run_chain
                     state2, out2, used = run_chain(model, start, s, self.history, 0,
                                                    self.counters, out)
@@ -116,6 +117,7 @@ class StaticAnalysis:
         saved = model.row_active.copy()
         model.row_active[:] = True
         J = None
+        dep = np.asarray(self.redundancy, int)
         try:
             ev = model.evaluate(state, need_jac=True, keep=True)
             J = ev.J
@@ -124,6 +126,8 @@ class StaticAnalysis:
                 Pfull = J[model.nq:, :model.nq]
                 w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
                 lam = min_norm_multipliers(Pfull, state.lam, saved, w)
+            if len(self.redundancy) and model.nc:
+                dep = dependent_rows(J[model.nq:, :model.nq], saved)
             loads = element_loads(model, state, lam=lam, reuse=True)
         except EvaluationError:
             loads = {}
@@ -137,7 +141,7 @@ class StaticAnalysis:
             d[f"{g}/torque"] = T[None]
             if g in ("joints", "jprims"):
                 uniq = np.ones(len(o["ids"]), bool)
-                for r in self.redundancy:
+                for r in dep:
                     ri = model.row_info[r]
                     if ri["group"] == g:
                         uniq[ri["owner"]] = False

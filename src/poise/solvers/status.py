@@ -12,6 +12,7 @@ class Status(str, Enum):
     NONFINITE = "nonfinite"
     ASSEMBLY_FAILED = "assembly_failed"
     STEP_TOO_SMALL = "step_too_small"
+    INCONSISTENT_CONSTRAINTS = "inconsistent_constraints"
 
     @property
     def ok(self) -> bool:
@@ -28,4 +29,7 @@ MESSAGES = {
     Status.NONFINITE: "an element produced NaN or Inf",
     Status.ASSEMBLY_FAILED: "could not bring the input configuration onto the constraints",
     Status.STEP_TOO_SMALL: "quasi-static step became smaller than the minimum",
+    Status.INCONSISTENT_CONSTRAINTS: "redundant constraint equations contradict the others (the "
+                                     "joints cannot all be satisfied: align their markers or "
+                                     "remove the redundant joint)",
 }
