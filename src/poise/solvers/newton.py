@@ -63,7 +63,7 @@ class Scales:
         self.L = L
         self.r_tol = np.where(model.q_kind == 1, settings.max_imbalance * L, settings.max_imbalance)
         self.phi_tol = np.where(model.row_kind == 1, settings.max_error, settings.max_error * L)
-        self.q_len = np.where(model.q_kind == 1, 1.0, L)     # update scale: rotation rad, trans / L
+        self.q_len = np.where(model.q_kind == 0, L, 1.0)     # update scale: trans / L, rad, scalars
         self.max_error = settings.max_error
 
 
