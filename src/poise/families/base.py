@@ -37,24 +37,57 @@ POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3
 _I3 = np.eye(3)
 
 
-@dataclass
 class SlotKinematics:
     """Slot vectors and their maps to local body coordinates for n instances.
 
     Attributes
     ----------
     Y : (n, S, 3) slot vectors (global)
-    B : (n, 3S, 6K) d y / d local coordinates
     V : (n, S, 3) lever (point slots) or axis (axis slots) used by the connection term
+    pt : (n, S) bool, point slots
+    B : (n, 3S, 6K) d y / d local coordinates. Built on first access only: each slot's block is
+        ``[I | -skew(v)]`` (point) or ``[0 | -skew(a)]`` (axis) within its marker's 6 columns, and
+        the kernels below use that structure instead of the dense matrix.
     """
 
-    Y: np.ndarray
-    B: np.ndarray
-    V: np.ndarray
+    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk")
+
+    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None):
+        self.Y = Y
+        self.V = V
+        self.pt = pt
+        self.slot_ml = slot_ml
+        self.K = K
+        self._B = B
+        self._Sk = None
+
+    @property
+    def Sk(self) -> np.ndarray:
+        """``skew(V)`` (n, S, 3, 3); ``B_s = [pt_s I | -Sk_s]``."""
+        if self._Sk is None:
+            self._Sk = skew(self.V)
+        return self._Sk
+
+    @property
+    def B(self) -> np.ndarray:
+        if self._B is None:
+            n, S = self.pt.shape
+            K = self.K
+            B = np.zeros((n, 3 * S, 6 * K))
+            sk = -self.Sk
+            for s in range(S):
+                k = self.slot_ml[s]
+                rows = slice(3 * s, 3 * s + 3)
+                pt = self.pt[:, s]
+                if pt.any():
+                    B[pt, rows, 6 * k:6 * k + 3] = _I3
+                B[:, rows, 6 * k + 3:6 * k + 6] = sk[:, s]
+            self._B = B
+        return self._B
 
 
 def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) -> SlotKinematics:
-    """Evaluate slot vectors and their B-matrices.
+    """Evaluate slot vectors (the B-matrices are implicit, see :class:`SlotKinematics`).
 
     Parameters
     ----------
@@ -72,65 +105,254 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) ->
         Body reference (CG) positions.
     """
     n, K = markers.shape
-    S = len(slot_ml)
     mk = markers[:, slot_ml]                                   # (n, S)
     kind = slot_kind
-    Pm = P[mk]                                                 # (n, S, 3)
-    ax = np.clip(kind - 1, 0, 2)
-    Am = A[mk, :, ax]                                          # (n, S, 3): column ax
-    is_pt = (kind == POINT)[..., None]
-    Y = np.where(is_pt, Pm, Am)
-    bodies = marker_body[mk]
-    lever = Pm - body_pos[np.maximum(bodies, 0)]
-    V = np.where(is_pt, lever, Am)
-    B = np.zeros((n, 3 * S, 6 * K))
-    sk = -skew(V)                                              # (n, S, 3, 3)
+    pt = kind == POINT
+    if pt.all():
+        Pm = P[mk]
+        Y = Pm
+        V = Pm - body_pos[np.maximum(marker_body[mk], 0)]
+    elif not pt.any():
+        Y = A[mk, :, kind - 1]                                 # (n, S, 3): column kind-1
+        V = Y
+    else:
+        Pm = P[mk]                                             # (n, S, 3)
+        ax = np.clip(kind - 1, 0, 2)
+        Am = A[mk, :, ax]                                      # (n, S, 3): column ax
+        is_pt = pt[..., None]
+        Y = np.where(is_pt, Pm, Am)
+        lever = Pm - body_pos[np.maximum(marker_body[mk], 0)]
+        V = np.where(is_pt, lever, Am)
+    return SlotKinematics(Y=Y, V=V, pt=pt, slot_ml=np.asarray(slot_ml), K=K)
+
+
+def _cross(a, b):
+    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
+    """``B^T rho`` (n, 6K): per slot ``pt_s rho_s`` on the marker's translation and
+    ``v_s x rho_s`` on its rotation."""
+    n, S = kin.pt.shape
+    rho3 = rho.reshape(n, S, 3)
+    vr = _cross(kin.V, rho3)                                   # (n, S, 3)
+    r = np.zeros((n, 2 * K, 3))
+    pt = kin.pt
     for s in range(S):
-        k = slot_ml[s]
-        rows = slice(3 * s, 3 * s + 3)
-        pt = kind[:, s] == POINT
-        if pt.any():
-            B[pt, rows, 6 * k:6 * k + 3] = _I3
-        B[:, rows, 6 * k + 3:6 * k + 6] = sk[:, s]
-    return SlotKinematics(Y=Y, B=B, V=V)
+        k = kin.slot_ml[s]
+        r[:, 2 * k + 1] += vr[:, s]
+        ps = pt[:, s]
+        if ps.all():
+            r[:, 2 * k] += rho3[:, s]
+        elif ps.any():
+            r[:, 2 * k] += rho3[:, s] * ps[:, None]
+    return r.reshape(n, 6 * K)
+
+
+class LocalPattern:
+    """Static structure of one family's local tangent and constraint Jacobian.
+
+    Built once per family (:func:`local_pattern`) from the slot layout and the family's optional
+    structure declarations (:meth:`Family.g_blocks`, :meth:`Family.phi_y_mask`). ``kmask``
+    (L, L) and ``pmask`` (m, L), L = 6K + U, mark the entries that can be non-zero; the model
+    registers only those with the sparse assembler. ``kidx`` / ``pidx`` are their flat indices
+    (C order), None when the mask is full.
+    """
+
+    def __init__(self, fam):
+        K, S, U, m = fam.K, len(fam.slot_ml), fam.U, fam.m
+        ml = np.asarray(fam.slot_ml)
+        L = 6 * K + U
+        pt_any = (np.asarray(fam.slot_kind) == POINT).any(axis=0) if fam.n else np.zeros(S, bool)
+        gb = fam.g_blocks()
+        self.declared = gb is not None
+        gb = np.ones((S, S), bool) if gb is None else np.asarray(gb, bool)
+        km = np.zeros((L, L), bool)
+
+        def tr(k):
+            return slice(6 * k, 6 * k + 3)
+
+        def rt(k):
+            return slice(6 * k + 3, 6 * k + 6)
+
+        for s in range(S):                                     # connection term
+            km[rt(ml[s]), rt(ml[s])] = True
+        pairs = np.argwhere(gb)
+        for s, t in pairs:
+            k, l = ml[s], ml[t]
+            km[rt(k), rt(l)] = True
+            if pt_any[s]:
+                km[tr(k), rt(l)] = True
+            if pt_any[t]:
+                km[rt(k), tr(l)] = True
+            if pt_any[s] and pt_any[t]:
+                km[tr(k), tr(l)] = True
+        if U:
+            km[:, 6 * K:] = True
+            km[6 * K:, :] = True
+        self.s_idx = pairs[:, 0].copy()
+        self.t_idx = pairs[:, 1].copy()
+        self.pt_any = pt_any
+        self.pt_all = (np.asarray(fam.slot_kind) == POINT).all(axis=0) if fam.n else pt_any
+        self.kmask = km
+        self.kidx = None if km.all() else np.flatnonzero(km)
+        self.pmask = None
+        self.pidx = None
+        if m:
+            pm = fam.phi_y_mask()
+            pm = np.ones((m, 3 * S), bool) if pm is None else np.asarray(pm, bool)
+            qm = np.zeros((m, L), bool)
+            for s in range(S):
+                k = ml[s]
+                blk = pm[:, 3 * s:3 * s + 3]                  # (m, 3)
+                if pt_any[s]:
+                    qm[:, 6 * k:6 * k + 3] |= blk
+                cnt = blk.sum(axis=1)
+                # row p^T (-skew v) = (v x p)^T: component j is structurally zero only when p
+                # has its single non-zero in component j
+                rot = (cnt[:, None] >= 2) | ((cnt[:, None] == 1) & ~blk)
+                qm[:, 6 * k + 3:6 * k + 6] |= rot
+            if U:
+                qm[:, 6 * K:] = True
+            self.pmask = qm
+            self.pidx = None if qm.all() else np.flatnonzero(qm)
+
+    @property
+    def nk(self) -> int:
+        return int(self.kmask.sum())
+
+
+def local_pattern(fam) -> LocalPattern:
+    """The (cached) :class:`LocalPattern` of a family."""
+    pat = getattr(fam, "_local_pattern", None)
+    if pat is None:
+        pat = LocalPattern(fam)
+        fam._local_pattern = pat
+    return pat
+
+
+def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | None):
+    """``B^T G B + C`` (n, 6K, 6K) built block-wise.
+
+    Only the slot-pair blocks of G that the family declares (``pat.s_idx, pat.t_idx``) are
+    used; every pair is ``Sk_s G_st (-Sk_t)`` on (rot k, rot l), ``G_st (-Sk_t)`` on
+    (trans k, rot l) for point slots s, ``Sk_s G_st`` on (rot k, trans l) and ``G_st`` on
+    (trans k, trans l).
+    """
+    n, S = kin.pt.shape
+    ml = kin.slot_ml
+    Km = np.zeros((n, 2 * K, 3, 2 * K, 3))
+    # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
+    rho3 = rho.reshape(n, S, 3)
+    V = kin.V
+    outer = V[:, :, :, None] * rho3[:, :, None, :]              # (n, S, 3, 3)
+    d = np.einsum("nsi,nsi->ns", V, rho3)
+    for i in range(3):
+        outer[:, :, i, i] -= d
+    for s in range(S):
+        k = ml[s]
+        Km[:, 2 * k + 1, :, 2 * k + 1, :] += outer[:, s]
+    if G is not None and len(pat.s_idx):
+        s_idx, t_idx = pat.s_idx, pat.t_idx
+        G5 = G.reshape(n, S, 3, S, 3)
+        Gp = G5[:, s_idx, :, t_idx, :]                         # (P, n, 3, 3)
+        Sk = kin.Sk
+        Sks = np.swapaxes(Sk[:, s_idx], 0, 1)                  # (P, n, 3, 3)
+        Skt = np.swapaxes(Sk[:, t_idx], 0, 1)
+        RT = np.matmul(Sks, Gp)
+        RR = np.matmul(RT, Skt)
+        ps_any = pat.pt_any[s_idx]
+        pt_any_t = pat.pt_any[t_idx]
+        TR = np.matmul(Gp, Skt) if ps_any.any() else None
+        pt = kin.pt
+        for p in range(len(s_idx)):
+            s, t = s_idx[p], t_idx[p]
+            k, l = ml[s], ml[t]
+            Km[:, 2 * k + 1, :, 2 * l + 1, :] -= RR[p]
+            ws = None if pat.pt_all[s] else pt[:, s, None, None]
+            wt = None if pat.pt_all[t] else pt[:, t, None, None]
+            if ps_any[p]:
+                blk = TR[p] if ws is None else TR[p] * ws
+                Km[:, 2 * k, :, 2 * l + 1, :] -= blk
+            if pt_any_t[p]:
+                blk = RT[p] if wt is None else RT[p] * wt
+                Km[:, 2 * k + 1, :, 2 * l, :] += blk
+            if ps_any[p] and pt_any_t[p]:
+                blk = Gp[p]
+                if ws is not None:
+                    blk = blk * ws
+                if wt is not None:
+                    blk = blk * wt
+                Km[:, 2 * k, :, 2 * l, :] += blk
+    return Km.reshape(n, 6 * K, 6 * K)
+
+
+def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) -> np.ndarray:
+    """``phi_y B`` (n, m, 6K) from the slot structure (no dense B)."""
+    n, S = kin.pt.shape
+    m = phi_y.shape[1]
+    py = phi_y.reshape(n, m, S, 3)
+    # rotation columns: p^T (-Sk_s) = (v_s x p)^T
+    rot = _cross(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
+    Pq = np.zeros((n, m, 2 * K, 3))
+    pt = kin.pt
+    for s in range(S):
+        k = kin.slot_ml[s]
+        Pq[:, :, 2 * k + 1] += rot[:, :, s]
+        ps = pt[:, s]
+        if ps.all():
+            Pq[:, :, 2 * k] += py[:, :, s]
+        elif ps.any():
+            Pq[:, :, 2 * k] += py[:, :, s] * ps[:, None, None]
+    return Pq.reshape(n, m, 6 * K)
 
 
 def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray | None,
                            slot_ml, K: int, need_jac: bool = True, ext: dict | None = None,
-                           U: int = 0):
+                           U: int = 0, pat: LocalPattern | None = None):
     """Local residual ``[B^T rho; rho_s]`` (n, 6K+U) and tangent (n, 6K+U, 6K+U).
 
     The marker block of the tangent is ``B^T G B + C``. With ``U`` scalar columns (extra unknowns
     the family reads), ``ext`` may hold ``rho_s`` (n, U) (residual rows of the scalar unknowns
     the family owns or its generalised forces on them), ``G_ys`` (n, 3S, U) = d rho / d s,
     ``G_sy`` (n, U, 3S) = d rho_s / d y and ``G_ss`` (n, U, U); missing pieces are zero.
+
+    ``pat`` (the family's :class:`LocalPattern`) restricts ``G`` to its declared slot-pair
+    blocks; without it (or for families declaring none) ``G`` is used as a dense matrix.
     """
-    B = kin.B
-    n = B.shape[0]
-    r = np.einsum("nyi,ny->ni", B, rho)
+    n = rho.shape[0]
+    r = _local_residual(kin, rho, K)
     ext = ext or {}
     if U:
         rs = ext.get("rho_s")
         r = np.concatenate([r, np.zeros((n, U)) if rs is None else rs], axis=1)
     if not need_jac:
         return r, None
-    if G is None:
-        Kl = np.zeros((n, 6 * K, 6 * K))
+    if pat is not None and pat.declared:
+        Kl = _tangent_blocks(kin, rho, G, K, pat)
     else:
-        Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(G, B))
-    S = kin.V.shape[1]
-    rho3 = rho.reshape(n, S, 3)
-    for s in range(S):
-        k = slot_ml[s]
-        v = kin.V[:, s]
-        w = rho3[:, s]
-        blk = v[:, :, None] * w[:, None, :]
-        d = np.einsum("ni,ni->n", v, w)
-        blk[:, 0, 0] -= d
-        blk[:, 1, 1] -= d
-        blk[:, 2, 2] -= d
-        Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk
+        B = kin.B
+        if G is None:
+            Kl = np.zeros((n, 6 * K, 6 * K))
+        else:
+            Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(G, B))
+        S = kin.V.shape[1]
+        rho3 = rho.reshape(n, S, 3)
+        for s in range(S):
+            k = slot_ml[s]
+            v = kin.V[:, s]
+            w = rho3[:, s]
+            blk = v[:, :, None] * w[:, None, :]
+            d = np.einsum("ni,ni->n", v, w)
+            blk[:, 0, 0] -= d
+            blk[:, 1, 1] -= d
+            blk[:, 2, 2] -= d
+            Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk
     if U:
+        B = kin.B
         full = np.zeros((n, 6 * K + U, 6 * K + U))
         full[:, :6 * K, :6 * K] = Kl
         if ext.get("G_ys") is not None:
@@ -203,6 +425,19 @@ class Family:
 
     def depends_on_time(self) -> bool:
         return False
+
+    def g_blocks(self):
+        """Static structure of ``G``: (S, S) bool array of the slot-pair 3x3 blocks of ``G`` that
+        can be non-zero (all False: ``G`` is always None or zero), or None (the default): ``G``
+        may be dense. Declaring it lets the kernel skip zero blocks and keeps structural zeros
+        out of the sparse KKT pattern; a block returned non-zero outside the declaration would
+        be dropped, so declare conservatively."""
+        return None
+
+    def phi_y_mask(self):
+        """Static structure of ``phi_y`` (constraint families): (m, 3S) bool array of the entries
+        that can be non-zero, or None (the default): dense."""
+        return None
 
 
 class ForceFamily(Family):

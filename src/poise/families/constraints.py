@@ -81,6 +81,12 @@ class Coincident(ConstraintFamily):
         phi_y[:, :, 3:6] = -_I3
         return phi, phi_y, None
 
+    def g_blocks(self):
+        return np.zeros((2, 2), bool)                        # G is always None
+
+    def phi_y_mask(self):
+        return np.hstack([_I3, _I3]).astype(bool)
+
 
 class Perpendicular(ConstraintFamily):
     """``a_I . b_J + c (a2_I . b2_J) = 0``. Slots: a_I, b_J, a2_I, b2_J; c in {0, 1}."""
@@ -115,6 +121,13 @@ class Perpendicular(ConstraintFamily):
         G[:, 9:12, 6:9] = blk2
         return phi, phi_y, G
 
+    def g_blocks(self):
+        gb = np.zeros((4, 4), bool)
+        gb[0, 1] = gb[1, 0] = True
+        if np.any(self.coef2 != 0):
+            gb[2, 3] = gb[3, 2] = True
+        return gb
+
 
 class InPlane(ConstraintFamily):
     """``(P_I - P_J) . b_J = 0``. Slots: P_I, P_J, b_J."""
@@ -144,6 +157,11 @@ class InPlane(ConstraintFamily):
         G[:, 3:6, 6:9] = -blk
         G[:, 6:9, 3:6] = -blk
         return phi, phi_y, G
+
+    def g_blocks(self):
+        gb = np.zeros((3, 3), bool)
+        gb[0, 2] = gb[2, 0] = gb[1, 2] = gb[2, 1] = True
+        return gb
 
 
 assert POINT == 0

@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from poise.errors import EvaluationError
-from poise.families.base import local_residual_tangent, slot_kinematics
+from poise.families.base import (constraint_jacobian_local, local_pattern, local_residual_tangent,
+                                 slot_kinematics)
 from poise.model.assembly import Assembler, scatter_add
 from poise.model.rotation import expm_so3, se3_left_jacobian, wrap_angle
 
@@ -62,6 +63,7 @@ class Evaluation:
     r: np.ndarray
     phi: np.ndarray
     J: object = None
+    _pending: object = field(default=None, repr=False)   # deferred Jacobian (Model.jacobian)
 
 
 @dataclass
@@ -153,23 +155,25 @@ class Model:
         self.q_kind = kind
         blocks = []
         for fam in self.families:
+            # only the entries that can be non-zero (family slot structure, see LocalPattern)
             g = fam.gcol
-            blocks.append((np.repeat(g[:, :, None], g.shape[1], 2), np.repeat(g[:, None, :], g.shape[1], 1)))
+            pat = local_pattern(fam)
+            li, lj = np.nonzero(pat.kmask)
+            blocks.append((g[:, li], g[:, lj]))
             if fam.is_constraint:
                 rows = self.nq + fam.crow
-                blocks.append((np.repeat(rows[:, :, None], g.shape[1], 2),
-                               np.repeat(g[:, None, :], fam.m, 1)))
-                blocks.append((np.repeat(g[:, None, :], fam.m, 1),
-                               np.repeat(rows[:, :, None], g.shape[1], 2)))
-        # mass blocks (regularisation)
+                pr, pc = np.nonzero(pat.pmask)
+                blocks.append((rows[:, pr], g[:, pc]))
+                blocks.append((g[:, pc], rows[:, pr]))
+        # mass blocks (regularisation): translational diagonal, rotational 3x3
         tb = self.body_off[:, None] + np.arange(3)
-        blocks.append((np.repeat(tb[:, :, None], 3, 2), np.repeat(tb[:, None, :], 3, 1)))
+        blocks.append((tb, tb))
         rb = self.body_off[rigid][:, None] + 3 + np.arange(3)
         blocks.append((np.repeat(rb[:, :, None], 3, 2), np.repeat(rb[:, None, :], 3, 1)))
         # diagonal of the multiplier block (removed / redundant rows)
         lr = self.nq + np.arange(self.nc)
         blocks.append((lr, lr))
-        self.assembler = Assembler(self.N, blocks, dense=self.dense)
+        self.assembler = Assembler(self.N, blocks, dense=self.dense, groups=self._order_groups())
         self.row_active = np.ones(self.nc, bool)
         # per-body length scale: largest marker lever of the body (>= 1e-3 L); used to weight
         # rotations against translations in least-squares problems and rank tests
@@ -183,6 +187,21 @@ class Model:
         qs[self.rot_idx] = np.repeat(self.body_scale[rigid], 3)
         self.q_scale = qs            # length per unit of each coordinate (rad -> length)
         self.row_kind = np.array([1 if ri["kind"] == "rot" else 0 for ri in self.row_info], int)
+
+    def _order_groups(self) -> np.ndarray:
+        """Group of each KKT unknown for the fill-reducing ordering: one group per body's
+        coordinates, per scalar unknown and per element instance's constraint rows."""
+        grp = np.arange(self.N, dtype=np.int64)          # default: every unknown on its own
+        size = np.where(self.body_kind == 0, 6, 3)
+        bid = np.repeat(np.arange(len(size)), size)
+        start = np.repeat(self.body_off, size)
+        within = np.arange(bid.size) - np.repeat(np.cumsum(size) - size, size)
+        grp[start + within] = bid
+        for fam in self.families:
+            if fam.is_constraint and fam.n:
+                grp[self.nq + fam.crow] = (self.N + fam.crow[:, :1])
+        _, grp = np.unique(grp, return_inverse=True)
+        return grp.ravel()
 
     # ------------------------------------------------------------------ state
     def initial_state(self, t: float = 0.0) -> State:
@@ -297,12 +316,16 @@ class Model:
         return d
 
     # ------------------------------------------------------------------ evaluate
-    def evaluate(self, state: State, need_jac: bool = True, eps_mass: float = 0.0,
+    def evaluate(self, state: State, need_jac=True, eps_mass: float = 0.0,
                  keep: bool = False) -> Evaluation:
         """Residual ``[Phi_q^T lam - Q; Phi]`` and (optionally) the KKT Jacobian.
 
         Parameters
         ----------
+        need_jac : bool or "defer"
+            ``"defer"``: compute the residual now and keep the element data, so that
+            :meth:`jacobian` can assemble the Jacobian later without re-evaluating the elements
+            (line-search trials: only the accepted point pays for the Jacobian).
         eps_mass : float
             Multiple of the mass matrix added to the coordinate block of the Jacobian only
             (``sqrt(stability)``); the residual never includes it.
@@ -310,11 +333,12 @@ class Model:
             Keep per-family slot data (``self.last``: tuples ``(family, kin, rho, phi_y)``,
             ``phi_y`` None for force families) for reaction outputs.
         """
+        defer = isinstance(need_jac, str) and need_jac == "defer"
         P, A, pos = self.marker_kinematics(state)
         ctx = EvalContext(t=state.t, angle=state.angle, P=P, A=A, extra=state.extra)
         r = np.zeros(self.nq)
         phi = np.zeros(self.nc)
-        vals = []
+        pend = []
         last = []
         for fam in self.families:
             kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A,
@@ -328,31 +352,22 @@ class Model:
                 rho = np.einsum("nmy,nm->ny", phy, lam)
                 if U:
                     ext = _constraint_ext(ext, lam, fam.n, fam.m, U)
-                rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac,
-                                                ext, U)
                 phi[fam.crow.ravel()] = ph.ravel()
-                if need_jac:
-                    Pq = np.matmul(phy, kin.B)                          # (n, m, 6K)
-                    if U:
-                        Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
-                    act = self.row_active[fam.crow][:, :, None]
-                    Pq = Pq * act
-                    vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
                 if keep:
                     last.append((fam, kin, rho, phy))
             else:
-                out = fam.forces(kin, ctx, need_jac)
+                out = fam.forces(kin, ctx, bool(need_jac))
                 rho, G = out[:2]
                 ext = out[2] if len(out) > 2 else None
-                rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac,
-                                                ext, U)
-                if need_jac:
-                    vals.append(Kl)
+                phy = None
                 if keep:
                     last.append((fam, kin, rho, None))
+            rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, U)
             if not np.isfinite(rl).all():
                 raise EvaluationError(_family_nonfinite(fam, rl))
             r += scatter_add(self.nq, fam.gcol, rl)
+            if need_jac:
+                pend.append((fam, kin, rho, G, phy, ext))
         if self.gravity_on:
             g = self.gravity if self.gravity_fn is None else self.gravity_fn(state.t)
             r[self.trans_idx] -= (self.body_mass[:, None] * g[None, :]).ravel()
@@ -361,12 +376,41 @@ class Model:
             self.last = last
         if not (np.all(np.isfinite(r)) and np.all(np.isfinite(phi))):
             raise EvaluationError(self._nonfinite_message(r, phi))
-        J = None
+        ev = Evaluation(r=r, phi=phi, J=None)
         if need_jac:
-            mt, Jg = self.mass_blocks(state)
-            vals += [eps_mass * mt, eps_mass * Jg, (~self.row_active).astype(float)]
-            J = self.assembler.assemble(vals)
-        return Evaluation(r=r, phi=phi, J=J)
+            ev._pending = (state, pend, eps_mass, self.row_active.copy())
+            if not defer:
+                self.jacobian(ev)
+        return ev
+
+    def jacobian(self, ev: Evaluation):
+        """The KKT Jacobian of an evaluation (assembled now if it was deferred); sets ``ev.J``."""
+        if ev.J is not None:
+            return ev.J
+        state, pend, eps_mass, row_active = ev._pending
+        vals = []
+        for fam, kin, rho, G, phy, ext in pend:
+            pat = local_pattern(fam)
+            U = fam.U
+            _, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, True, ext, U, pat)
+            Kl = _gather(Kl, pat.kidx)
+            if fam.is_constraint:
+                Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
+                if U:
+                    Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
+                Pq = Pq * row_active[fam.crow][:, :, None]
+                Pq = Pq.reshape(fam.n, -1)
+                if pat.pidx is not None:
+                    Pq = Pq[:, pat.pidx]
+                vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
+            else:
+                vals.append(Kl)
+        _, Jg = self.mass_blocks(state)
+        vals += [eps_mass * np.repeat(self.body_mass, 3), eps_mass * Jg,
+                 (~row_active).astype(float)]
+        ev.J = self.assembler.assemble(vals)
+        ev._pending = None
+        return ev.J
 
     def _nonfinite_message(self, r, phi):
         bad = np.nonzero(~np.isfinite(phi))[0]
@@ -399,6 +443,12 @@ def _log_so3(R):
             a = -a
         w[i] = th[i] * a
     return w
+
+
+def _gather(Kl, idx):
+    """Flattened local tangent restricted to the family's structural entries."""
+    Kl = Kl.reshape(Kl.shape[0], -1)
+    return Kl if idx is None else Kl[:, idx]
 
 
 def _constraint_ext(ext, lam, n, m, U):

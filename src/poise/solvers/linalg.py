@@ -25,9 +25,16 @@ class Factor:
     def __init__(self, J):
         Factor.count += 1
         self.sparse = sp.issparse(J)
+        self.order = None
         if self.sparse:
+            order = getattr(J, "poise_column_order", None)
             try:
-                self.lu = spla.splu(J.tocsc(), permc_spec="COLAMD")
+                if order is not None:
+                    # fill-reducing order computed once per pattern (model.assembly)
+                    self.order = order()
+                    self.lu = spla.splu(J.tocsc()[:, self.order], permc_spec="NATURAL")
+                else:
+                    self.lu = spla.splu(J.tocsc(), permc_spec="COLAMD")
             except RuntimeError as e:
                 raise SingularMatrix(str(e)) from None
             u = np.abs(self.lu.U.diagonal())
@@ -48,7 +55,12 @@ class Factor:
 
     def _solve(self, b):
         if self.sparse:
-            return self.lu.solve(b)
+            y = self.lu.solve(b)
+            if self.order is None:
+                return y
+            x = np.empty_like(y)
+            x[self.order] = y
+            return x
         return sla.lu_solve(self.lu, b, check_finite=False)
 
     def solve(self, b, refine: int = 2, rtol: float = 1e-8):

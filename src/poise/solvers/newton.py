@@ -110,9 +110,17 @@ def _coord_weights(model):
 
 def _evaluate(model, state, cnt, need_jac=True, eps=0.0):
     cnt.residuals += 1
-    if need_jac:
+    if need_jac is True:
         cnt.jacobians += 1
     return model.evaluate(state, need_jac=need_jac, eps_mass=eps)
+
+
+def _jacobian(model, ev, cnt):
+    """The Jacobian of an evaluation made with ``need_jac="defer"`` (assembled on first use)."""
+    if ev.J is None:
+        cnt.jacobians += 1
+        model.jacobian(ev)
+    return ev.J
 
 
 def _factor(J, cnt):
@@ -175,13 +183,14 @@ def assemble(model, state, settings, history: History, frame: int, cnt: Counters
     W = _coord_weights(model)
     moved = False
     for it in range(ASSEMBLY_MAX_ITER + 1):
-        ev = _evaluate(model, state, cnt, need_jac=True)
+        ev = _evaluate(model, state, cnt, need_jac="defer")   # Jacobian only if violated
         viol = np.abs(ev.phi) / np.where(model.row_kind == 1, 1.0, model.L)
         v = float(viol.max())
         if v <= ASSEMBLY_TOL:
             return state, moved, Status.CONVERGED
         if it == ASSEMBLY_MAX_ITER:
             break
+        _jacobian(model, ev, cnt)
         K = _weighted_kkt(model, ev, W)
         try:
             f = _factor(K, cnt)
@@ -256,7 +265,9 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
     last_step = np.inf
     it = 0
     def ev_at(st):
-        e = _evaluate(model, st, cnt, need_jac=True, eps=eps)
+        # Jacobian deferred: line-search trials pay for the residual only, the accepted point
+        # assembles its Jacobian when it is factorised (never at the converged point)
+        e = _evaluate(model, st, cnt, need_jac="defer", eps=eps)
         if offset is not None:
             e.r = e.r - offset[0]
             e.phi = e.phi - offset[1]
@@ -283,7 +294,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             return state, FrameOutcome(Status.MAX_ITERATIONS, it, imb, err,
                                        MESSAGES[Status.MAX_ITERATIONS] + f"; worst equation: {worst}")
         try:
-            f = _factor(ev.J, cnt)
+            f = _factor(_jacobian(model, ev, cnt), cnt)
         except SingularMatrix as e:
             history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
             return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
