@@ -128,12 +128,13 @@ def test_reaction_in_force_rejected_with_column():
     assert "val_expression col 3" in msg and "Post_Request" in msg
 
 
-def test_implicit_variable_rejected():
+def test_implicit_variable_is_a_scalar_unknown():
+    # issue 8: implicit variables are scalar unknowns (tests/test_elements_8b.py)
     d = DeckBuilder().ground()
     d.body(2, 200, (0.0, -1.0, 0.0), point=True)
     d.add("Reference_Variable", id=3, type="EXPRESSION", is_implicit=True,
           expr=X("VARVAL(3)-1", "expr", "Reference_Variable", 3))
     d.add("Force_Scalar_TwoBody", id=1, type="FORCE", i_marker_id=200, j_marker_id=1000,
           val_expression=X("VARVAL(3)"))
-    msg = _deck_error(d)
-    assert "implicit Reference_Variable not supported yet" in msg and "Reference_Variable id=3" in msg
+    m = compile_model(d.spec)
+    assert m.n_extra == 1 and m.families[0].scols.tolist() == [[0]]

@@ -279,7 +279,7 @@ el("Constraint_Gear", "model", True, "Gear between two joints (poise.families.ge
     ID(), LABEL(), A("joint1_id", "int", "first joint", ref="joint"), A("joint2_id", "int", "second joint", ref="joint"),
     M("cv_marker_id", "contact-point marker (origin) and common-velocity direction (z), on the carrier", required=True, lo=1),
     B("is_virtual", "virtual flag"), *USR()])
-el("Constraint_UserConstr", "both", False, "User-defined constraint (UCOSUB).", [ID(), LABEL(), *USR()],
+el("Constraint_UserConstr", "both", True, "User-defined constraint (UCOSUB).", [ID(), LABEL(), *USR()],
    open_attrs=True, aliases=("Constraint_Usrconstr",))
 # higher pairs (poise.model.compile_curves; docs/DESIGN.md "Curves and surfaces")
 _CV = A("curve_id", "int", "Reference_ParamCurve id", ref="curve", lo=1)
@@ -404,7 +404,7 @@ el("Reference_ParamSurface", "model", True,
    open_attrs=True)
 for _t in ("Reference_DeformCurve", "Reference_DeformSurface"):
     el(_t, "model", False, _t.split("_")[1] + ".", [ID(), LABEL()], open_attrs=True)
-el("Control_Diff", "both", False, "First-order differential equation state DIF(id).", [
+el("Control_Diff", "both", True, "First-order differential equation state DIF(id).", [
     ID(), LABEL(), B("is_implicit", "FALSE: y' = expr; TRUE: 0 = expr"), R("ic", "initial value"),
     R("ic_dot", "initial derivative"), B("is_static_hold", "hold the state fixed in statics"),
     E("type", "EXPRESSION USERSUB", "how it is given", default="EXPRESSION"),

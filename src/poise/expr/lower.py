@@ -288,7 +288,10 @@ class Lowering:
         name = node.name
         try:
             if name == "DIF":
-                return ("sc", int(r.diff_state(vid)))
+                k = r.diff_state(vid)
+                if isinstance(k, tuple):           # ("const", value): statically held state
+                    return ("c", float(k[1]))
+                return ("sc", int(k))
             if name == "DIF1":
                 k = r.diff_derivative(vid)
                 return ("c", 0.0) if k is None else ("sc", int(k))

@@ -80,22 +80,39 @@ class ExprForce(ForceFamily):
         """Values (n, nb) and slot gradients (n, nb, 3S) of all batches."""
         from poise.expr import EvalContext as XC
         xc = XC(time=float(ctx.t), P=getattr(ctx, "P", None), A=getattr(ctx, "A", None),
-                angle_ref=ctx.angle, static=bool(getattr(ctx, "static", True)))
+                angle_ref=ctx.angle, static=bool(getattr(ctx, "static", True)),
+                scalars=getattr(ctx, "extra", None))
         n, S = self.n, len(self.slot_ml)
         vals = np.zeros((n, len(self.batches)))
         grads = np.zeros((n, len(self.batches), S, 3)) if need_jac else None
-        for k, (b, (r, bs, fs)) in enumerate(zip(self.batches, self.slot_maps)):
+        U = self.U
+        sgrads = np.zeros((n, len(self.batches), U)) if (need_jac and U) else None
+        smaps = getattr(self, "scalar_maps", None) or [None] * len(self.batches)
+        for k, (b, (r, bs, fs), sm) in enumerate(zip(self.batches, self.slot_maps, smaps)):
             out = b.evaluate(xc)
             vals[:, k] = out.value
             if need_jac and len(r):
                 grads[r, k, fs] = out.d_slot[r, bs]
+            if sgrads is not None and sm is not None and len(sm[0]):
+                np.add.at(sgrads, (sm[0], k, sm[2]), out.d_scalar[sm[0], sm[1]])
         if need_jac:
             grads = grads.reshape(n, len(self.batches), 3 * S)
+        self._sgrads = sgrads
         return vals, grads
 
     def forces(self, kin, ctx, need_jac=True):
         F, T, dF, dT = self.compute(kin.Y, ctx, need_jac)
-        return apply_two_body_w(kin.Y, F, T, dF, dT, self.action_only, need_jac)
+        rho, G = apply_two_body_w(kin.Y, F, T, dF, dT, self.action_only, need_jac)
+        if not self.U:
+            return rho, G
+        ext = {}
+        if need_jac:
+            # rho is linear in (F, T) at fixed slots: d rho / d s_u = rho(dF/ds_u, dT/ds_u)
+            dFs, dTs = self.scalar_chain(kin.Y, self._sgrads)          # (n, 3, U) each
+            ext["G_ys"] = np.stack(
+                [apply_two_body_w(kin.Y, dFs[:, :, u], dTs[:, :, u], None, None,
+                                  self.action_only, False)[0] for u in range(self.U)], axis=2)
+        return rho, G, ext
 
 
 class ExprVectorForce(ExprForce):
@@ -114,6 +131,11 @@ class ExprVectorForce(ExprForce):
                 dF[:, :, sl(s)] += c[:, k][:, None, None] * _I3
                 dT[:, :, sl(s)] += c[:, 3 + k][:, None, None] * _I3
         return F, T, dF, dT
+
+    def scalar_chain(self, Y, sg):
+        """dF/ds, dT/ds (n, 3, U) from the component gradients ``sg`` (n, 6, U)."""
+        AR = np.stack([Y[:, S_XR], Y[:, S_YR], Y[:, S_ZR]], axis=2)
+        return np.matmul(AR, sg[:, :3]), np.matmul(AR, sg[:, 3:])
 
 
 class ExprScalarForce(ExprForce):
@@ -151,6 +173,18 @@ class ExprScalarForce(ExprForce):
             dT[:, :, sl(S_ZJ)] += (f * torq)[:, None, None] * _I3
             assert dF.shape == (n, 3, W)
         return F, T, dF, dT
+
+    def scalar_chain(self, Y, sg):
+        """dF/ds, dT/ds (n, 3, U) from the magnitude gradient ``sg`` (n, 1, U)."""
+        st = self.stype
+        line, axis, torq = st == ST_LINE, st == ST_AXIS, st == ST_TORQUE
+        d = Y[:, S_PI] - Y[:, S_PJ]
+        L = np.linalg.norm(d, axis=1)
+        u = d / np.where(line & (L > 0), L, 1.0)[:, None]
+        z = Y[:, S_ZJ]
+        dirF = np.where(line[:, None], u, np.where(axis[:, None], z, 0.0))
+        df = sg[:, 0]                                        # (n, U)
+        return dirF[:, :, None] * df[:, None, :], (torq[:, None] * z)[:, :, None] * df[:, None, :]
 
 
 # ====================================================================================== build
@@ -207,6 +241,7 @@ def _build(cls, name, I, J, R, owner, action_only, batches, ground, locs):
     fam.action_only = np.asarray(action_only, bool)
     fam.batches = batches
     fam.slot_maps = maps
+    _scalar_layout(fam, batches)
     fam.element_locs = locs
     fam.group = "forces"
     return fam
@@ -258,3 +293,34 @@ def build_scalar_family(items, ctx, res, ground):
                  [o for o, _ in items], ao, [batch], ground, [el.loc for _, el in items])
     fam.stype = np.asarray(st, int)
     return fam
+
+
+def _scalar_layout(fam, batches):
+    """``fam.scols`` (n, U): the scalar unknowns (Control_Diff states, implicit variables) the
+    instance's expressions read, and per batch the map (rows, batch_col, family_col)."""
+    n = fam.n
+    cols = [dict() for _ in range(n)]
+    maps = []
+    for b in batches:
+        si = getattr(b, "scalar_index", None)
+        rows, bc, fc = [], [], []
+        if si is not None:
+            for i in range(n):
+                for c, k in enumerate(si[i]):
+                    k = int(k)
+                    if k < 0:
+                        continue
+                    if k not in cols[i]:
+                        cols[i][k] = len(cols[i])
+                    rows.append(i)
+                    bc.append(c)
+                    fc.append(cols[i][k])
+        maps.append((np.array(rows, np.intp), np.array(bc, np.intp), np.array(fc, np.intp)))
+    U = max((len(c) for c in cols), default=0)
+    if U:
+        sc = np.full((n, U), -1, int)
+        for i, c in enumerate(cols):
+            for k, j in c.items():
+                sc[i, j] = k
+        fam.scols = sc
+        fam.scalar_maps = maps

@@ -266,12 +266,23 @@ def element_compilers():
     return [compile_constraints.compile_joints, compile_forces.compile_forces,
             compile_motions.compile_motions, compile_couplers.compile_couplers,
             compile_gears.compile_gears, compile_field_beam.compile_field_beam,
-            _compile_expressions, _compile_contacts, _compile_curves]
+            _compile_expressions, _compile_contacts, _compile_diff_vars, _compile_user,
+            _compile_curves]
 
 
 def _compile_curves(spec, ctx):
     from poise.model.compile_curves import compile_curves
     compile_curves(spec, ctx)
+
+
+def _compile_diff_vars(spec, ctx):
+    from poise.model.compile_diff_vars import compile_diff_vars
+    compile_diff_vars(spec, ctx)
+
+
+def _compile_user(spec, ctx):
+    from poise.model.compile_user import compile_user
+    compile_user(spec, ctx)
 
 
 def _compile_contacts(spec, ctx):

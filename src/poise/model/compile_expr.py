@@ -10,7 +10,8 @@ time-dependent gravity and ``Post_Request`` outputs.
 * Reaction channels are available in ``Post_Request`` expressions only (evaluated after
   convergence, exactly, from the converged multipliers). Inside forces and gravity they are
   rejected with a located DeckError (no lagged iteration).
-* Implicit ``Reference_Variable`` and ``Control_Diff`` are not supported yet (located DeckError).
+* Implicit and user ``Reference_Variable`` and ``Control_Diff`` states are scalar unknowns
+  (``model/compile_diff_vars.py``): ``VARVAL``/``DIF`` read them, ``DIF1`` is 0 in statics.
 """
 from __future__ import annotations
 
@@ -88,18 +89,23 @@ class ModelResolver:
 
     def variable(self, id: int):
         el = self.vars[int(id)]
-        if el.attrs.get("is_implicit"):
-            # rejected at compile time (compile_expressions); keep lowering going
-            return ("explicit", 0.0)
-        if str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
-            return ("explicit", 0.0)
+        if el.attrs.get("is_implicit") or \
+                str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
+            # scalar unknown (model/compile_diff_vars.py); held: the constant ic
+            from poise.model.compile_diff_vars import scalar_unknown
+            k = scalar_unknown(self.ctx, "var", int(id))
+            return ("explicit", k[1]) if isinstance(k, tuple) else ("implicit", k)
         return ("explicit", el.attrs.get("expr", 0.0))
 
-    def diff_state(self, id: int) -> int:
-        raise KeyError(id)
+    def diff_state(self, id: int):
+        """Scalar index of Control_Diff ``id`` or ``("const", ic)`` when statically held."""
+        from poise.model.compile_diff_vars import scalar_unknown
+        return scalar_unknown(self.ctx, "diff", int(id))
 
     def diff_derivative(self, id: int):
-        raise KeyError(id)
+        from poise.model.compile_diff_vars import _els
+        _els(self.ctx, "Control_Diff")[int(id)]     # KeyError for unknown ids
+        return None                                  # DIF1 = 0 in statics
 
     def spline(self, id: int):
         id = int(id)
@@ -306,13 +312,6 @@ def compile_expressions(spec, ctx):
     pc = ctx.pc
     res = ModelResolver(spec, ctx)
     ctx.expr_resolver = res
-    for el in spec.elements("Reference_Variable"):
-        if el.attrs.get("is_implicit"):
-            pc.error(el.loc, "implicit Reference_Variable not supported yet; expected "
-                     "is_implicit=\"FALSE\" (an explicit expression)", "is_implicit")
-        elif str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
-            pc.error(el.loc, "user-subroutine Reference_Variable is not supported; expected "
-                     "type=\"EXPRESSION\"", "type")
     ground = _ground_markers(ctx.b)
 
     # ------------------------------------------------------------ forces

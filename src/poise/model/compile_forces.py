@@ -36,8 +36,14 @@ def compile_forces(spec, ctx):
             add("LineForce", el, I=I, J=J, R=GLOBAL, k=k, length=_num(el, "length", 0.0, pc),
                 preload=pre, ax=False)
         b.effects.append(f"Force_SpringDamper:{t}")
+    from poise.user_routines import uses_user_routine
     for el in spec.elements("Force_Scalar_TwoBody"):
         t = str(el.attrs.get("type", "FORCE")).upper()
+        if uses_user_routine(el):          # Python SFOSUB: compiled by compile_user
+            force_rows.append(el)
+            ctx.user_forces = getattr(ctx, "user_forces", []) + [(len(force_rows) - 1, el)]
+            b.effects.append(f"Force_Scalar_TwoBody:{t}:python")
+            continue
         I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
         val = el.attrs.get("val", el.attrs.get("val_expression", 0.0))
         if isinstance(val, Expr):          # expression force: compiled by compile_expr
@@ -71,6 +77,11 @@ def compile_forces(spec, ctx):
             J = GLOBAL if one else b.mk(el, "j_floating_marker_id")
             R = b.mk(el, "ref_marker_id", required=False)
             t = str(el.attrs.get("type", "FORCEANDTORQUE")).upper()
+            if uses_user_routine(el):      # Python GFOSUB: compiled by compile_user
+                force_rows.append(el)
+                ctx.user_forces = getattr(ctx, "user_forces", []) + [(len(force_rows) - 1, el)]
+                b.effects.append(f"{tag}:python")
+                continue
             if any(isinstance(el.attrs.get(f"{nm}_expression"), Expr)
                    for nm in ("fx", "fy", "fz", "tx", "ty", "tz")):
                 force_rows.append(el)      # expression force: compiled by compile_expr

@@ -104,7 +104,7 @@ def build_request_hook(reqs, ctx, res):
         except EvaluationError as e:
             msgs.append(f"reactions: {e}")
         P, A, _ = model.marker_kinematics(state)
-        xc = XC(time=float(state.t), P=P, A=A, angle_ref=state.angle,
+        xc = XC(time=float(state.t), P=P, A=A, angle_ref=state.angle, scalars=state.extra,
                 reactions=rx if rx is not None else np.full(len(channels), np.nan))
         for k, b in enumerate(batches):
             uses_rx = b.reaction_index.shape[1] > 0 and bool((b.reaction_index >= 0).any())

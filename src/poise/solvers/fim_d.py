@@ -93,6 +93,8 @@ class _Chart:
             w = y[m.rot_idx].reshape(-1, 3)
             st.rot[m.rot_body] = np.matmul(expm_so3(w), ref.rot[m.rot_body])
         st.lam = np.array(y[m.nq:], float)
+        if m.n_extra:                   # scalar unknowns: algebraic, y = extra - ref.extra
+            st.extra = ref.extra + y[m.extra_idx]
         if len(m.angle_I):
             p = m._principal_angles(st)
             st.angle = ref.angle + wrap_angle(p - ref.angle)

@@ -135,12 +135,43 @@ class _Dyn:
             self.x_mass = mmin * np.maximum(col, (1e-3 * m.L) ** 2)
         return self.x_mass
 
+    extras_free = False
+
+    def solve_algebraic(self, state, ev):
+        """Massless scalar unknowns (Control_Diff states, implicit / user variables) are
+        algebraic unknowns of the integration: at every force evaluation they are solved from
+        their own equations at the current body configuration (Newton on ``d e / d s``,
+        ``state.extra`` updated in place), so the bodies move under the forces of the reduced
+        system. Where ``d e / d s`` is singular (an integrator state whose equation does not
+        contain it) they are held and left to the final Newton polish (``extras_free``)."""
+        m = self.m
+        ix = np.setdiff1d(m.extra_idx, self.x_idx)
+        if not len(ix):
+            return ev
+        for _ in range(20):
+            J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
+            Jss = J[np.ix_(ix, ix)]
+            sv = np.linalg.svd(Jss, compute_uv=False)
+            if sv.min() <= 1e-10 * max(sv.max(), 1e-300):
+                self.extras_free = True
+                return ev
+            ds = np.linalg.solve(Jss, -ev.r[ix])
+            state.extra[ix - m.extra_off] += ds
+            ev = m.evaluate(state, need_jac=True)
+            self.cnt.residuals += 1
+            self.cnt.jacobians += 1
+            if np.all(np.abs(ds) <= 1e-12 * (1.0 + np.abs(state.extra[ix - m.extra_off]))):
+                break
+        return ev
+
     def at(self, state):
         """(Q, G, K, Minv) at ``state`` (uses ``state.lam`` for the geometric stiffness)."""
         m = self.m
         self.cnt.residuals += 1
         self.cnt.jacobians += 1
         ev = m.evaluate(state, need_jac=True)
+        if m.n_extra:
+            ev = self.solve_algebraic(state, ev)
         J = ev.J
         G = J[m.nq:, :m.nq]
         K = J[:m.nq, :m.nq]
@@ -220,6 +251,7 @@ class MkeamAnalysis(StaticAnalysis):
     def __init__(self, model, request, redundancy=None):
         super().__init__(model, request, redundancy)
         self.rows = []          # per-history-row MKEAM extras (row index, dict)
+        self.extras_free = False  # scalar unknowns MKEAM cannot determine (see _resolve_extras)
         self.iterates = []      # restart points (pos, rot)
 
     # ------------------------------------------------------------------ integrator
@@ -383,14 +415,33 @@ class MkeamAnalysis(StaticAnalysis):
         D = np.diag(1.0 / m.q_scale)             # dq = D dz, dz in length units
         K = D @ J[:m.nq, :m.nq] @ D
         G = J[m.nq:, :m.nq][m.row_active] @ D
-        N = sla.null_space(G) if G.shape[0] else np.eye(m.nq)
+        keep = np.arange(m.nq)
+        if m.n_extra:
+            # massless scalar unknowns (see _Dyn.solve_algebraic) are eliminated: reduced
+            # stiffness K_cc - K_ca K_aa^-1 K_ac when K_aa is regular, else they are held
+            a = np.setdiff1d(m.extra_idx, getattr(getattr(self, "dyn", None), "x_idx", []))
+            keep = np.setdiff1d(keep, a)
+            if len(a):
+                Kaa = K[np.ix_(a, a)]
+                sv = np.linalg.svd(Kaa, compute_uv=False)
+                Kc = K[np.ix_(keep, keep)]
+                Gc = G[:, keep]
+                if sv.min() > 1e-10 * max(sv.max(), 1e-300):
+                    X = np.linalg.solve(Kaa, K[np.ix_(a, keep)])
+                    Kc = Kc - K[np.ix_(keep, a)] @ X
+                    Gc = Gc - G[:, a] @ X
+                K, G = Kc, Gc
+            D = D[np.ix_(keep, keep)]
+        N = sla.null_space(G) if G.shape[0] else np.eye(K.shape[0])
         if N.shape[1] == 0:
             return np.inf, None
         Kr = N.T @ (0.5 * (K + K.T)) @ N
         w, V = np.linalg.eigh(Kr)
         k = int(np.argmin(w))
         scale = max(float(np.max(np.abs(w))), 1e-300)
-        return w[k] / scale, D @ (N @ V[:, k])
+        vec = np.zeros(m.nq)
+        vec[keep] = D @ (N @ V[:, k])
+        return w[k] / scale, vec
 
     # ------------------------------------------------------------------ driver
     def run(self, state, index: int = 0):
@@ -455,7 +506,42 @@ class MkeamAnalysis(StaticAnalysis):
             c = np.clip((np.einsum("nii->n", Rr) - 1.0) / 2.0, -1.0, 1.0)
             dr = float(np.max(np.arccos(c)))
         da = float(np.max(np.abs(s1.angle - s0.angle))) if len(s1.angle) else 0.0
-        return max(dt, dr, da)
+        de = 0.0
+        if m.n_extra:
+            de = float(np.max(np.abs(s1.extra - s0.extra) / np.maximum(1.0, np.abs(s0.extra))))
+        return max(dt, dr, da, de)
+
+    def _resolve_extras(self, state):
+        """Scalar unknowns (Control_Diff states, implicit variables, ...) have no mass: MKEAM
+        holds them during each KE-attrition iteration and re-solves them at each restart by
+        Newton on their own equations with the bodies fixed. When those equations do not
+        determine them (``d e / d s`` singular, e.g. an integrator state ``y' = target - DX``
+        whose equation does not contain y) they stay held and are found by the final Newton
+        polish (``self.extras_free``)."""
+        m = self.model
+        if not m.n_extra:
+            return state
+        ix = np.setdiff1d(m.extra_idx, self.dyn.x_idx)    # curve parameters move with RATTLE
+        if not len(ix):
+            return state
+        st = state
+        for _ in range(20):
+            ev = m.evaluate(st, need_jac=True)
+            self.counters.residuals += 1
+            self.counters.jacobians += 1
+            J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
+            Jss = J[np.ix_(ix, ix)]
+            rs = ev.r[ix]
+            sv = np.linalg.svd(Jss, compute_uv=False)
+            if sv.min() <= 1e-10 * max(sv.max(), 1e-300):
+                self.extras_free = True
+                return state
+            if np.max(np.abs(rs)) <= self.settings.max_imbalance:
+                return st
+            dq = np.zeros(m.nq)
+            dq[ix] = np.linalg.solve(Jss, -rs)
+            st = m.retract(st, dq)
+        return st
 
     def _mkeam(self, state):
         m, s = self.model, self.settings
@@ -474,7 +560,7 @@ class MkeamAnalysis(StaticAnalysis):
             if msg and "already at rest" not in msg:
                 self._row(it, np.nan, np.nan, msg, peak, steps, np.nan, "mkeam")
                 return state, False, f"MKEAM iteration {it}: {msg}", it
-            new = peak.state.copy()
+            new = self._resolve_extras(peak.state.copy())
             dq = self._dq(state, new)
             t_total += peak.t
             pe = self.potential_energy(new)
@@ -513,7 +599,7 @@ class MkeamAnalysis(StaticAnalysis):
         if not out.ok:
             return st, f"Newton polish did not converge ({out.message}); MKEAM point reported"
         d = self._dq(st, trial)
-        if d > POLISH_MAX_DQ:
+        if d > POLISH_MAX_DQ and not (self.extras_free or self.dyn.extras_free):
             return st, f"Newton polish moved {d:.3g} (> {POLISH_MAX_DQ}); MKEAM point reported"
         wmin, _ = self.projected_stiffness_min(trial)
         if wmin is not None and wmin < -1e-6:
