@@ -137,9 +137,10 @@ def test_user_routine_jacobians(point_b):
     _fd_check(m, st, tol=2e-5)
 
 
-def test_user_constraint_equals_builtin_joints():
-    a = _run("elem_user_constraint.xml").datasets
-    b = _run("elem_user_constraint_builtin.xml").datasets
+@pytest.mark.parametrize("method", ["FIM_S", "MKEAM"])   # FIM_D: static -> FIM_S
+def test_user_constraint_equals_builtin_joints(method):
+    a = _run("elem_user_constraint.xml", method).datasets
+    b = _run("elem_user_constraint_builtin.xml", method).datasets
     np.testing.assert_allclose(a["bodies/position"], b["bodies/position"], atol=1e-9)
     np.testing.assert_allclose(a["bodies/orientation"], b["bodies/orientation"], atol=1e-9)
     np.testing.assert_array_equal(a["userconstrs/id"], [1, 2])

@@ -163,11 +163,13 @@ def LABEL() -> Attr:
 
 
 def USR() -> list[Attr]:
-    return [A("usrsub_dll_name", "str", "user-subroutine library (not supported)"),
-            A("usrsub_fnc_name", "str", "user-subroutine function name (not supported)"),
-            A("usrsub_param_string", "str", "user-subroutine parameters, USER(...) (not supported)"),
-            A("script_name", "str", "user script (not supported)"),
-            A("interpreter", "str", "script interpreter, PYTHON or MATLAB (not supported)")]
+    # Python user routines (poise/user_routines.py) serve Constraint_UserConstr,
+    # Force_Scalar_TwoBody, Force_Vector_* and Reference_Variable; elsewhere they are rejected
+    return [A("usrsub_dll_name", "str", "user-subroutine library (DLLs are not supported)"),
+            A("usrsub_fnc_name", "str", "user function name (Python routines; see DESIGN section 12)"),
+            A("usrsub_param_string", "str", "user-routine parameters, USER(p1, p2, ...)"),
+            A("script_name", "str", "Python user script, relative to the deck's directory"),
+            A("interpreter", "str", "script interpreter; only PYTHON is supported")]
 
 
 def xyz(prefix, suffix, doc, kind="real", **kw) -> list[Attr]:
