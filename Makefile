@@ -4,12 +4,13 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: help install demo test test-all bench lint clean
+.PHONY: help install demo test test-all bench bench-quick lint clean
 
 help:
 	@echo "make demo    - create .venv, install, solve an example deck, print a summary"
 	@echo "make test    - run the test suite (creates .venv if needed)"
 	@echo "make bench   - run the benchmarks, write bench/results.jsonl and docs/performance.md"
+	@echo "make bench-quick - reduced ladder and sizes (~2-3 min), same outputs"
 	@echo "make lint    - ruff"
 
 $(STAMP): pyproject.toml
@@ -31,8 +32,18 @@ test: install
 test-all: install
 	$(PY) -m pytest -q -m "slow or not slow" $(PYTEST_ARGS)
 
-bench: install
+BENCH_STAMP := $(VENV)/.bench-installed
+$(BENCH_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e '.[dev,bench]'
+	@touch $(BENCH_STAMP)
+
+# chain bench + issue 7 (work-precision ladders, Exudyn peer, scaling); <= 20 min on 2 cores
+bench: install $(BENCH_STAMP)
 	$(PY) -m poise.bench --out bench/results.jsonl --markdown docs/performance.md
+
+bench-quick: install $(BENCH_STAMP)
+	$(PY) -m poise.bench --quick --sizes 10,100,1000 --repeat 1 --cli-repeat 3 \
+	    --out bench/results-quick.jsonl --markdown bench/performance-quick.md
 
 lint: install
 	$(VENV)/bin/ruff check src cli tests

@@ -9,7 +9,7 @@ import sys
 def test_bench_smoke(tmp_path):
     out = tmp_path / "results.jsonl"
     md = tmp_path / "performance.md"
-    r = subprocess.run([sys.executable, "-m", "poise.bench", "--sizes", "10", "--repeat", "1",
+    r = subprocess.run([sys.executable, "-m", "poise.bench", "--no-wp", "--sizes", "10", "--repeat", "1",
                         "--cli-repeat", "1", "--out", str(out), "--markdown", str(md)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr

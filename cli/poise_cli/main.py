@@ -10,6 +10,7 @@ import click
 from poise import __version__
 from poise_cli.animate import animate
 from poise_cli.batch import batch
+from poise_cli.bench import bench
 from poise_cli.check import check
 from poise_cli.plot import plot
 from poise_cli.show import show
@@ -42,6 +43,7 @@ cli.add_command(batch)
 cli.add_command(sweep)
 cli.add_command(plot)
 cli.add_command(animate)
+cli.add_command(bench)
 
 
 def main() -> None:  # pragma: no cover - console entry alias

@@ -400,6 +400,10 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="runs per chain size (fresh processes)")
     ap.add_argument("--cli-repeat", type=int, default=7, help="runs per command-line benchmark")
     ap.add_argument("--no-cli", action="store_true", help="skip the command-line benchmarks")
+    ap.add_argument("--quick", action="store_true",
+                    help="issue-7 suites with a reduced ladder and sizes (make bench-quick)")
+    ap.add_argument("--no-wp", action="store_true",
+                    help="skip the issue-7 suites (work-precision, peer, scaling)")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -421,17 +425,23 @@ def main(argv=None) -> int:
             for r in bench_cli(max(1, args.cli_repeat), tmp, root):
                 print(f"{r['command']}: {_s(r['wall_s']['median'])} s", file=sys.stderr)
                 results.append(r)
+        wp_md, wp_targets = [], []
+        if not args.no_wp:      # issue 7: work-precision, peer, scaling (poise.benchmarks)
+            from poise.benchmarks.main import run as run_issue7
+            wp_rows, wp_md, wp_targets = run_issue7(root, tmp, list(results), quick=args.quick)
     if args.out:
         p = Path(args.out)
         p.parent.mkdir(parents=True, exist_ok=True)
         with p.open("w") as f:
             for r in results:
                 f.write(json.dumps(dict(r, machine=machine), sort_keys=True) + "\n")
+            for r in wp_rows if not args.no_wp else []:
+                f.write(json.dumps(dict(r, machine=machine), sort_keys=True, default=float) + "\n")
     if args.markdown:
         p = Path(args.markdown)
         p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(render_markdown(results, machine))
-    for name, lim, meas, ok in targets(results):
+        p.write_text(render_markdown(results, machine) + "\n" + "\n".join(wp_md))
+    for name, lim, meas, ok in targets(results) + wp_targets:
         print(f"{_pf(ok):4s} {name}: {meas} (target {lim})", file=sys.stderr)
     return 0
 

@@ -169,7 +169,7 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
         if progress:
             progress(summary_line(ar))
     t3 = time.perf_counter()
-    res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2)
+    res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2, **res.timings)
     res.counts = counts
     return res
 

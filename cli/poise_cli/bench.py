@@ -1,0 +1,74 @@
+"""``poise bench DECK``: what accuracy costs on the user's own deck.
+
+Runs the deck over a tolerance ladder for the chosen methods (in-process, one warm-up, median of
+``--repeat`` runs) and prints a table: rung, status, iterations, counts, solve time, final
+imbalance and — with ``--reference-method`` — the CG-position error against a tight solution
+(rung 1e-12) of another method. ``--out`` writes the rows as JSON lines.
+"""
+from __future__ import annotations
+
+import json
+import tempfile
+from pathlib import Path
+
+import click
+
+
+def _cg(res):
+    import numpy as np
+    a = res.analyses[-1].datasets
+    return np.asarray(a["bodies/position"]), float(res.model_datasets.get("length_scale", 1.0))
+
+
+@click.command("bench")
+@click.argument("deck", type=click.Path(exists=True, dir_okay=False))
+@click.option("--methods", default="FIM_S", show_default=True,
+              help="Comma-separated methods: FIM_S, MKEAM, FIM_D.")
+@click.option("--tolerances", default="1e-2,1e-4,1e-6,1e-8,1e-10", show_default=True,
+              help="Comma-separated ladder rungs.")
+@click.option("--repeat", type=int, default=5, show_default=True, help="Timed runs per rung.")
+@click.option("--reference-method", default=None,
+              help="Method whose rung-1e-12 solution is the error reference (e.g. MKEAM).")
+@click.option("--out", type=click.Path(dir_okay=False), default=None, help="JSON lines file.")
+def bench(deck, methods, tolerances, repeat, reference_method, out):
+    """Time DECK over a tolerance ladder for each method and print the table."""
+    import numpy as np
+
+    from poise.api import run_deck
+    from poise.benchmarks.decks import with_settings
+    from poise.benchmarks.wp import method_settings, run_point
+
+    xml = Path(deck).read_text()
+    ref = None
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
+        if reference_method:
+            st, tr = method_settings(reference_method.upper(), 1e-12)
+            p = Path(td) / "ref.xml"
+            p.write_bytes(with_settings(xml, st, tr))
+            ref = _cg(run_deck(str(p)))
+        click.echo(f"{'method':6} {'rung':>7} {'status':9} {'iter':>5} {'res/jac/fac':>13} "
+                   f"{'solve s (min-max)':>24} {'imbalance':>10} {'error/L':>9}")
+        for m in [x.strip().upper() for x in methods.split(",") if x.strip()]:
+            for tol in [float(x) for x in tolerances.split(",") if x.strip()]:
+                st, tr = method_settings(m, tol)
+                r = run_point(xml, st, tr, repeat, Path(td))
+                err = None
+                if ref is not None:
+                    from poise.api import run_deck as rd
+                    p = Path(td) / "variant.xml"
+                    x, L = _cg(rd(str(p), overrides={"fallback": False}))
+                    if x.shape == ref[0].shape:
+                        err = float(np.max(np.abs(x - ref[0]))) / L
+                r.update(method=m, tol=tol, error=err, deck=deck)
+                rows.append(r)
+                c, s = r["counts"], r["solve_s"]
+                cnt = f"{c.get('residuals', 0)}/{c.get('jacobians', 0)}/{c.get('factorizations', 0)}"
+                click.echo(f"{m:6} {tol:7.0e} {r['status']:9} {r['iterations']:5d} {cnt:>13} "
+                           f"{s['median']:9.4g} ({s['min']:.3g}-{s['max']:.3g}) "
+                           f"{r['imbalance'] if r['imbalance'] is not None else float('nan'):10.2e} "
+                           f"{'—' if err is None else f'{err:9.1e}':>9}")
+    if out:
+        with open(out, "w") as f:
+            for r in rows:
+                f.write(json.dumps(r, default=float) + "\n")

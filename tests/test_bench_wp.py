@@ -1,0 +1,58 @@
+"""Smoke tests of the issue-7 benchmark code (no timing assertions)."""
+from __future__ import annotations
+
+import pytest
+from click.testing import CliRunner
+
+from poise.benchmarks import wp
+from poise.benchmarks.decks import BENCH_DIR, build_grid_deck, with_settings
+
+
+def test_bench_decks_exist():
+    for name, (file, *_rest) in wp.DECKS.items():
+        assert (BENCH_DIR / file).exists(), name
+
+
+def test_ladder_point_error_small(tmp_path):
+    xml = (BENCH_DIR / "pendulum_multiturn.xml").read_text()
+    st, tr = wp.method_settings("FIM_S", 1e-8)
+    r = wp.run_point(xml, st, tr, 1, tmp_path, wp.DECKS["pendulum_multiturn"][3],
+                     wp._reference_module(), warmup=False)
+    assert r["status"] == "converged" and r["error"] < 1e-8
+    assert set(r["counts"]) >= {"residuals", "jacobians", "factorizations"}
+
+
+def test_with_settings_transient():
+    out = with_settings((BENCH_DIR / "slider_crank_qs.xml").read_text(),
+                        {"method": "FIM_D"}, {"integr_tol": "1.0E-05"}).decode()
+    assert 'integr_tol="1.0E-05"' in out and 'method="FIM_D"' in out
+
+
+def test_grid_deck_solves(tmp_path):
+    from poise.api import run_deck
+    p = tmp_path / "g.xml"
+    p.write_text(build_grid_deck(3))
+    res = run_deck(str(p))
+    assert res.analyses[0].status == "converged"
+    assert "analysis_000" in res.timings and "solve" in res.timings
+
+
+def test_poise_bench_cli(tmp_path):
+    from poise_cli.main import cli
+    out = tmp_path / "b.jsonl"
+    r = CliRunner().invoke(cli, ["bench", str(BENCH_DIR / "chain_20.xml"), "--tolerances",
+                                 "1e-4", "--repeat", "1", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "FIM_S" in r.output and out.exists()
+
+
+def test_peer_skips_or_builds():
+    from poise.benchmarks import peer
+    ok, note = peer.exudyn_available()
+    if not ok:
+        pytest.skip(note)
+    ns = {}
+    exec(peer.SCRIPT, ns)
+    prob = peer.problem_pendulum(wp._reference_module())
+    o = ns["solve"](prob["spec"])
+    assert o["converged"] and peer._peer_error(o, prob) < 1e-6
