@@ -8,6 +8,7 @@ Deterministic (``derandomize=True`` / fixed seeds). Longer runs::
 
     POISE_FUZZ_EXAMPLES=200000 POISE_FUZZ_CLI=500 .venv/bin/pytest tests/test_fuzz_deck.py
 """
+import copy
 import os
 import random
 import subprocess
@@ -58,7 +59,7 @@ def mutate(data: bytes, rnd: random.Random) -> bytes:
         if op == 0 and e.getparent() is not None:              # delete an element
             e.getparent().remove(e)
         elif op == 1 and e.getparent() is not None:            # duplicate an element
-            e.addnext(etree.fromstring(etree.tostring(e)))
+            e.addnext(copy.deepcopy(e))
         elif op == 2 and e.attrib:                             # wrong type / huge / unicode
             k = rnd.choice(sorted(e.attrib))
             e.set(k, rnd.choice(VALUES))

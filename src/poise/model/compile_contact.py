@@ -33,12 +33,37 @@ def _get(el, *names, default=None):
     return default
 
 
-def _ids(v):
+def _ids(v, el=None, attr=None, pc=None):
+    """Id list of a ``*_graphics_id`` attribute; bad entries are reported (located) and skipped."""
     if v is None:
         return []
-    if isinstance(v, (int, float)):
-        return [int(v)]
-    return [int(float(t)) for t in str(v).replace(",", " ").split()]
+    items = [v] if isinstance(v, (int, float)) else str(v).replace(",", " ").split()
+    out = []
+    for t in items:
+        try:
+            f = float(t)
+            if not np.isfinite(f) or f != int(f):
+                raise ValueError
+            out.append(int(f))
+        except (TypeError, ValueError, OverflowError):
+            if pc is not None:
+                pc.error(el.loc, f"not a list of ids; expected integers, got {v!r}", attr)
+            return []
+    return out
+
+
+def _real(el, names, default, pc, what=None):
+    """A finite number from the first present attribute of ``names`` (located error otherwise)."""
+    v = _get(el, *names, default=default)
+    try:
+        f = float(v)
+        if not np.isfinite(f):
+            raise ValueError
+        return f
+    except (TypeError, ValueError, OverflowError):
+        pc.error(el.loc, f"attribute is not a finite number; expected a real number, got {v!r}",
+                 what or names[0])
+        return float(default) if default is not None else 0.0
 
 
 def compile_contacts(spec, ctx):
@@ -60,9 +85,9 @@ def compile_contacts(spec, ctx):
         if t == "SPHERE":
             mk = _get(g, "center_marker_id", "cm_id", "marker_id")
             return dict(kind="sphere", m=b.mk(g, _key(g, mk, "center_marker_id", "cm_id", "marker_id")),
-                        r=float(_get(g, "radius", default=0.0)), o=np.zeros(3))
+                        r=_real(g, ("radius",), 0.0, pc), o=np.zeros(3))
         if t in ("BOX", "BOXDEFINEDFROMCENTER", "BOXDEFINEDFROMCORNER"):
-            lens = np.array([float(_get(g, f"length_{c}", default=0.0)) for c in "xyz"])
+            lens = np.array([_real(g, (f"length_{c}",), 0.0, pc) for c in "xyz"])
             if t == "BOXDEFINEDFROMCORNER":
                 mk = _key(g, None, "corner_marker_id", "marker_id")
                 o = lens / 2
@@ -82,12 +107,14 @@ def compile_contacts(spec, ctx):
         if law != "IMPACT":
             pc.error(el.loc, f"cnf_type {law} is not supported; expected IMPACT", "cnf_type")
             continue
-        k = float(_get(el, "stiffness", default=0.0))
-        e = float(_get(el, "exponent", default=1.5))
-        dmax = float(_get(el, "dmax", default=0.0) or 0.0)
+        k = _real(el, ("stiffness",), 0.0, pc)
+        e = _real(el, ("exponent",), 1.5, pc)
+        dmax = _real(el, ("dmax",), 0.0, pc)
         ds = dmax if dmax > 0 else 1e-3 * L
-        gi = [geom(g, el, "i_graphics_id") for g in _ids(_get(el, "i_graphics_id"))]
-        gj = [geom(g, el, "j_graphics_id") for g in _ids(_get(el, "j_graphics_id"))]
+        gi = [geom(g, el, "i_graphics_id")
+              for g in _ids(_get(el, "i_graphics_id"), el, "i_graphics_id", pc)]
+        gj = [geom(g, el, "j_graphics_id")
+              for g in _ids(_get(el, "j_graphics_id"), el, "j_graphics_id", pc)]
         if not gi or not gj:
             pc.error(el.loc, "contact needs i_graphics_id and j_graphics_id; expected "
                      "Post_Graphic ids", "i_graphics_id")
