@@ -307,3 +307,16 @@ def test_user_field_rejected(tmp_path):
     p.write_text(text)
     with pytest.raises(DeckError, match=r"Force_Field id=1.*user field"):
         run_deck(str(p))
+
+
+def test_gear_on_cylindrical_joint_uses_rotation(tmp_path):
+    # a gear on a CYLINDRICAL joint couples the joint's rotation (no freedom attribute exists)
+    from poise.deck.parser import load_deck
+    from poise.model.compile import compile_model
+    src = (Path(__file__).resolve().parents[1] / "decks" / "elem_gear_pair.xml").read_text()
+    text = src.replace('type="REVOLUTE"', 'type="CYLINDRICAL"', 1)
+    assert text != src
+    p = tmp_path / "gear_cyl.xml"
+    p.write_text(text)
+    m = compile_model(load_deck(str(p)))
+    assert any(r["tag"] == "Constraint_Gear" for r in m.row_info)

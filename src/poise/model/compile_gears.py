@@ -39,8 +39,12 @@ def compile_gears(spec, ctx):
         carrier = _marker_body(b, cv)
         js = []
         for j in (1, 2):
-            jd = joint_coordinate(b, pc, el, el.attrs.get(f"joint{j}_id"), None,
-                                  f"joint{j}_id", "joint")
+            jid = el.attrs.get(f"joint{j}_id")
+            jel0 = next((e for e in spec.elements("Constraint_Joint") if e.id == jid), None)
+            # a gear on a CYLINDRICAL joint turns with it (rotational freedom), as in Adams GEAR
+            fr = "R" if (jel0 is not None and
+                         str(jel0.attrs.get("type", "")).upper() == "CYLINDRICAL") else None
+            jd = joint_coordinate(b, pc, el, jid, fr, f"joint{j}_id", "joint")
             if jd is None:
                 break
             jel = jd["jel"]
