@@ -17,18 +17,23 @@ from poise_cli.summary import print_json
 @click.option("--frame", type=int, default=None,
               help="Only this frame (negative: from the end).")
 @click.option("--fps", type=click.IntRange(min=1), default=4, show_default=True)
+@click.option("--no-graphics", is_flag=True,
+              help="Ignore Post_Graphic geometry: draw every body as a stick figure.")
 @quiet_option
 @json_option
 @debug_option
-def animate(results, out, analysis, frame, fps, quiet, as_json, debug):
-    """Draw each body of RESULTS as its CG joined to its joint points, one picture per MKEAM
-    iterate of a static MKEAM solve (then the final equilibrium), or per output frame
-    (quasi-static runs: per output time)."""
+def animate(results, out, analysis, frame, fps, no_graphics, quiet, as_json, debug):
+    """Draw each body of RESULTS as its Post_Graphic geometry (spheres, boxes, planes) where the
+    deck has some, else as its CG joined to its joint points: one picture per MKEAM iterate of a
+    static MKEAM solve (then the final equilibrium), per recorded Newton/assembly iterate of
+    another static solve (FIM_S and its fallbacks), or per output frame (quasi-static runs: per
+    output time)."""
     ctx = click.get_current_context()
     try:
         results_or_usage(results)
         from poise.animate import animate_results
-        info = animate_results(results, out, analysis=analysis, frame=frame, fps=fps)
+        info = animate_results(results, out, analysis=analysis, frame=frame, fps=fps,
+                                 graphics=not no_graphics)
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:

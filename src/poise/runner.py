@@ -154,6 +154,7 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     res.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
     res.model_datasets = model_datasets(model)
     res.model_datasets.update(joint_marker_datasets(spec, model))
+    res.model_datasets.update(graphics_datasets(spec, model))
     state = model.initial_state()
     counts = {}
     redundancy = None
@@ -203,6 +204,69 @@ def joint_marker_datasets(spec: DeckSpec, model) -> dict:
         d["joints/i_body"] = np.asarray([m2b.get(m, -1) for m in im], np.int64)
         d["joints/j_body"] = np.asarray([m2b.get(m, -1) for m in jm], np.int64)
     return d
+
+
+def graphics_datasets(spec: DeckSpec, model) -> dict:
+    """``/model/graphics/*``: the ``Post_Graphic`` spheres, boxes and planes (for ``poise animate``).
+
+    Empty when the deck has none. Offsets and axes are in the body (CG marker) frame of
+    ``body_id`` (ground, ``-1``: global). ``offset`` is the geometric centre (for
+    ``BoxDefinedFromCorner`` the corner marker plus half the lengths along its axes); ``axes``
+    are the marker's axes as columns (a plane's normal is the third column). Elements of other
+    types or with unreadable attributes are skipped (the contact compiler reports those it uses).
+    """
+    from poise.model.compile_contact import _get
+    els = list(spec.elements("Post_Graphic"))
+    if not els:
+        return {}
+    nb = len(model.body_id)
+    mindex = {int(m): k for k, m in enumerate(np.asarray(model.marker_id))}
+    rows = []
+
+    def num(el, name, default=None):
+        v = _get(el, name, default=default)
+        f = float(v)
+        if not np.isfinite(f):
+            raise ValueError(name)
+        return f
+
+    for el in els:
+        t = str(_get(el, "type", default="")).upper()
+        try:
+            if t == "SPHERE":
+                kind, names = "sphere", ("center_marker_id", "cm_id", "marker_id")
+            elif t in ("BOX", "BOXDEFINEDFROMCENTER"):
+                kind, names = "box", ("center_marker_id", "cm_id", "marker_id")
+            elif t == "BOXDEFINEDFROMCORNER":
+                kind, names = "box", ("corner_marker_id", "marker_id")
+            elif t == "PLANE":
+                kind, names = "plane", ("ref_marker_id", "rm_id", "marker_id", "center_marker_id")
+            else:
+                continue
+            mid = int(float(_get(el, *names)))
+            k = mindex[mid]
+            radius = num(el, "radius") if kind == "sphere" else np.nan
+            half = (np.array([num(el, f"length_{c}") for c in "xyz"]) / 2 if kind == "box"
+                    else np.full(3, np.nan))
+        except (KeyError, TypeError, ValueError, OverflowError):
+            continue
+        mb = int(model.marker_body[k])
+        A = np.asarray(model.marker_A0[k], float)
+        off = np.asarray(model.marker_s0[k], float).copy()
+        if t == "BOXDEFINEDFROMCORNER":
+            off = off + A @ half
+        rows.append((int(el.id), kind, mid, int(model.body_id[mb]) if mb < nb else -1, off, A,
+                     radius, half))
+    if not rows:
+        return {}
+    return {"graphics/id": np.array([r[0] for r in rows], np.int64),
+            "graphics/type": np.array([r[1] for r in rows], dtype=str),
+            "graphics/marker_id": np.array([r[2] for r in rows], np.int64),
+            "graphics/body_id": np.array([r[3] for r in rows], np.int64),
+            "graphics/offset": np.array([r[4] for r in rows], float),
+            "graphics/axes": np.array([r[5] for r in rows], float),
+            "graphics/radius": np.array([r[6] for r in rows], float),
+            "graphics/half_length": np.array([r[7] for r in rows], float)}
 
 
 def _noloc(path):

@@ -1,4 +1,13 @@
-"""Per-iteration history, recorded as data (written to ``iterations/...``)."""
+"""Per-iteration history, recorded as data (written to ``iterations/...``).
+
+Rows may carry the body poses of the iterate (``pos`` (B, 3), ``rot`` (B, 3, 3)): they are
+written as ``iterations/position`` / ``iterations/orientation`` (one row per history row; a row
+recorded without a pose repeats the previous recorded pose, NaN before the first). Memory is
+bounded: once ``B x 12 x stored rows`` would exceed :attr:`History.MAX_POSE_VALUES`, only every
+``k``-th pose-bearing row (k doubling as needed) and the last one are kept, and the datasets then
+hold only those rows, with ``iterations/pose_row`` naming their history rows and
+``attrs()["iterations_poses_stride"] = k``.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -10,16 +19,68 @@ COLUMNS = ("frame", "iteration", "imbalance", "error", "step_norm", "step_length
 class History:
     """Append-only table of solver iterations (every frame, every method)."""
 
+    MAX_POSE_VALUES = 5_000_000     # float values (12 per body per stored pose)
+
     def __init__(self):
         self.rows: list[tuple] = []
+        self._poses: dict[int, tuple] = {}     # history row -> (pos, rot), subsampled
+        self._last_pose: tuple | None = None   # (row, pos, rot) of the newest pose, always kept
+        self._n_posed = 0                      # pose-bearing rows seen
+        self.pose_stride = 1
 
     def add(self, frame, iteration, imbalance, error, step_norm=np.nan, step_length=np.nan,
-            worst_equation="", event="newton"):
+            worst_equation="", event="newton", pos=None, rot=None):
         self.rows.append((int(frame), int(iteration), float(imbalance), float(error),
                           float(step_norm), float(step_length), str(worst_equation), str(event)))
+        if pos is not None and rot is not None:
+            self._add_pose(len(self.rows) - 1, pos, rot)
+
+    def _add_pose(self, row, pos, rot):
+        p = np.array(pos, dtype=float, copy=True).reshape(-1, 3)
+        r = np.array(rot, dtype=float, copy=True).reshape(-1, 3, 3)
+        self._last_pose = (row, p, r)
+        k = self._n_posed
+        self._n_posed += 1
+        if k % self.pose_stride:
+            return
+        self._poses[row] = (k, p, r)
+        per = 12 * max(len(p), 1)
+        while len(self._poses) > 1 and len(self._poses) * per > self.MAX_POSE_VALUES:
+            self.pose_stride *= 2
+            self._poses = {rw: v for rw, v in self._poses.items() if v[0] % self.pose_stride == 0}
 
     def __len__(self):
         return len(self.rows)
+
+    def attrs(self) -> dict:
+        """Analysis attributes describing the recorded poses (empty when none were recorded)."""
+        if self._last_pose is None:
+            return {}
+        return {"iterations_poses_stride": int(self.pose_stride)}
+
+    def pose_datasets(self, prefix="iterations/") -> dict:
+        if self._last_pose is None:
+            return {}
+        poses = {rw: (p, r) for rw, (_, p, r) in self._poses.items()}
+        lr, lp, lrot = self._last_pose
+        poses[lr] = (lp, lrot)
+        B = lp.shape[0]
+        if self.pose_stride == 1:
+            rows = list(range(len(self.rows)))
+            P = np.full((len(rows), B, 3), np.nan)
+            R = np.full((len(rows), B, 3, 3), np.nan)
+            cur = None
+            for i in rows:
+                if i in poses and poses[i][0].shape[0] == B:
+                    cur = poses[i]
+                if cur is not None:
+                    P[i], R[i] = cur
+        else:
+            rows = sorted(poses)
+            P = np.stack([poses[i][0] for i in rows])
+            R = np.stack([poses[i][1] for i in rows])
+        return {prefix + "position": P, prefix + "orientation": R,
+                prefix + "pose_row": np.asarray(rows, dtype=np.int64)}
 
     def datasets(self, prefix="iterations/") -> dict:
         cols = list(zip(*self.rows)) if self.rows else [[] for _ in COLUMNS]
@@ -31,4 +92,5 @@ class History:
                 out[prefix + name] = np.asarray(col, dtype=str) if len(col) else np.zeros(0, dtype=str)
             else:
                 out[prefix + name] = np.asarray(col, dtype=float)
+        out.update(self.pose_datasets(prefix))
         return out

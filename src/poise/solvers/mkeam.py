@@ -493,6 +493,7 @@ class MkeamAnalysis(StaticAnalysis):
         ar.datasets.update(self.frame_datasets(state, [out]))
         ar.datasets.update(stack_frames([frame_outputs(model, state)]))
         ar.datasets.update(self.history.datasets())
+        ar.attrs.update(self.history.attrs())
         ar.datasets.update(self.mkeam_datasets(mk_state))
         ar.datasets.update(self.redundancy_datasets())
         return state, ar

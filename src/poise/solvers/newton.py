@@ -202,11 +202,12 @@ def assemble(model, state, settings, history: History, frame: int, cnt: Counters
         except SingularMatrix:
             return state, moved, Status.ASSEMBLY_FAILED
         dq = x[:model.nq]
+        prev = state                      # the row's pose: the configuration it measured
         state = model.retract(state, dq)
         moved = True
         sn = float(np.max(np.abs(dq) / sc.q_len))
         history.add(frame, it, float(np.max(np.abs(ev.r))) if ev.r.size else 0.0, v,
-                    sn, 1.0, "", "assembly")
+                    sn, 1.0, "", "assembly", pos=prev.pos, rot=prev.rot)
     return state, moved, Status.ASSEMBLY_FAILED
 
 
@@ -284,30 +285,35 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
         step_ok = (not np.isfinite(last_step)) or last_step <= settings.max_error
         if res_ok and step_ok:
             bad = "" if offset is not None else inconsistent_redundant(model, state, sc)
-            history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event)
+            history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
+                        pos=state.pos, rot=state.rot)
             if bad:
                 return state, FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, imb, err,
                                            MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
             return state, FrameOutcome(Status.CONVERGED, it, imb, err, "converged")
         if it >= max_iter:
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
+                        pos=state.pos, rot=state.rot)
             return state, FrameOutcome(Status.MAX_ITERATIONS, it, imb, err,
                                        MESSAGES[Status.MAX_ITERATIONS] + f"; worst equation: {worst}")
         try:
             f = _factor(_jacobian(model, ev, cnt), cnt)
         except SingularMatrix as e:
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
+                        pos=state.pos, rot=state.rot)
             return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
                                        MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
         rhs = -np.concatenate([ev.r, ev.phi])
         try:
             x = f.solve(rhs)
         except SingularMatrix as e:
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
+                        pos=state.pos, rot=state.rot)
             return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
                                        MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
         if not np.all(np.isfinite(x)):
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
+                        pos=state.pos, rot=state.rot)
             return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
                                        MESSAGES[Status.SINGULAR_JACOBIAN])
         dq, dl = x[:model.nq], x[model.nq:]
@@ -329,11 +335,14 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
                 break
             alpha *= 0.5
         if best is None:
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event)
+            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
+                        pos=state.pos, rot=state.rot)
             return state, FrameOutcome(Status.NONFINITE, it, imb, err,
                                        MESSAGES[Status.NONFINITE] + "; every trial step failed: "
                                        + eval_error)
+        prev = state                      # the row's pose: the iterate the row measured
         m1, alpha, state, ev = best
         last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0
-        history.add(frame, it, imb, err, last_step, alpha, worst, event)
+        history.add(frame, it, imb, err, last_step, alpha, worst, event,
+                    pos=prev.pos, rot=prev.rot)
         it += 1

@@ -102,6 +102,7 @@ class StaticAnalysis:
         ar.datasets.update(self.frame_datasets(state, [out]))
         ar.datasets.update(stack_frames([frame_outputs(model, state)]))
         ar.datasets.update(self.history.datasets())
+        ar.attrs.update(self.history.attrs())
         ar.datasets.update(self.redundancy_datasets())
         return state, ar
 
