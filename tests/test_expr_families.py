@@ -118,14 +118,20 @@ def test_state_dependent_gravity_rejected():
     assert "<Force_Gravity> grav_y:" in msg and "Force_Vector_TwoBody" in msg
 
 
-def test_reaction_in_force_rejected_with_column():
+def test_reaction_in_force_accepted_in_gravity_rejected_with_column():
+    # issue 3: forces may read reactions (ReactionFeed, tests/test_expr_reactions_euler.py);
+    # gravity still may not
     d = DeckBuilder().ground()
     d.body(2, 200, (0.0, -1.0, 0.0), point=True)
     d.add("Constraint_Jprim", id=1, type="INPLANE", i_marker_id=200, j_marker_id=1000)
     d.add("Force_Scalar_TwoBody", id=1, type="FORCE", i_marker_id=200, j_marker_id=1000,
           val_expression=X("1+JPRIM(1,0,2,0)"))
+    m = compile_model(d.spec)
+    assert m.reaction_feed is not None and m.families[m.eval_order[-1]].reads_reactions
+    d.add("Force_Gravity", grav_x=0.0, grav_y=X("-10+JPRIM(1,0,2,0)", "grav_y", "Force_Gravity",
+                                                None), grav_z=0.0)
     msg = _deck_error(d)
-    assert "val_expression col 3" in msg and "Post_Request" in msg
+    assert "grav_y col 5" in msg and "not supported in gravity" in msg, msg
 
 
 def test_implicit_variable_is_a_scalar_unknown():

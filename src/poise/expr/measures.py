@@ -14,11 +14,16 @@ Angles
   ``AY = atan2(zI.xJ, zI.zJ)``; made continuous with a reference value (``ref + wrap(p - ref)``).
 * ``PSI/THETA/PHI(I, J)`` – body-fixed 3-1-3 Euler angles of ``R = A_J^T A_I``:
   ``psi = atan2(R13, -R23)``, ``theta = atan2(hypot(R13, R23), R33)``, ``phi = atan2(R31, R32)``.
+  At gimbal lock (``sin(theta) = hypot(R13, R23)`` resp. ``hypot(R31, R32)`` at most
+  :data:`EULER_LOCK_TOL`: theta = 0 or pi, every planar rotation about a common z axis) the
+  split of the rotation between psi and phi is undefined; the convention is ``phi = 0``,
+  ``psi = atan2(R21, R11)`` (so ``R = Rz(psi) Rx(theta)``), with the derivative of that branch
+  (psi reads x_I as a fourth slot; phi's gradient is 0 there).
 * ``YAW/PITCH/ROLL(I, J)`` – ``R = Rz(yaw) Ry(-pitch) Rx(roll)``:
   ``yaw = atan2(R21, R11)``, ``pitch = atan2(R31, hypot(R11, R21))``, ``roll = atan2(R32, R33)``.
 
-At singular points (zero distance for ``DM``, gimbal lock for Euler angles) the gradient is
-set to 0 instead of NaN.
+At singular points (zero distance for ``DM``, gimbal lock for THETA/YAW/PITCH/ROLL) the
+gradient is set to 0 instead of NaN.
 """
 from __future__ import annotations
 
@@ -37,7 +42,7 @@ MEASURE_SLOTS = {
     "AY": ((0, 3), (1, 3), (1, 1)),
     "AZ": ((0, 1), (1, 1), (1, 2)),
     "YAW": ((0, 1), (1, 1), (1, 2)),
-    "PSI": ((0, 3), (1, 2), (1, 1)),
+    "PSI": ((0, 3), (1, 2), (1, 1), (0, 1)),      # z_I, y_J, x_J, x_I (lock branch)
     "PHI": ((1, 3), (0, 2), (0, 1)),
     "ROLL": ((1, 3), (0, 3), (0, 2)),
     # hypot forms: slots (u, a, b, c)
@@ -58,6 +63,8 @@ for _n in ("VM", "VR", "ACCM", "WX", "WY", "WZ", "WM", "WDTM"):
 """Velocity / acceleration measures: identically 0 in static analyses (arguments validated)."""
 
 _CSIGN = {"PSI": -1.0}
+EULER_LOCK_TOL = 1e-10
+"""|sin(theta)| at or below which PSI/PHI use the gimbal-lock convention phi = 0."""
 _TWO_PI = 2.0 * np.pi
 
 
@@ -124,6 +131,8 @@ def eval_measure(name: str, vecs: list, ref=None):
         dcc = dc[:, None]
         gu = dsa * a + dsb * b + dcc * c
         return v, [gu, dsa * u, dsb * u, dcc * u]
+    if name == "PSI":
+        return _psi(*vecs)
     u, cv, sv = vecs
     sg = _CSIGN.get(name, 1.0)
     s = _dot(u, sv)
@@ -131,6 +140,28 @@ def eval_measure(name: str, vecs: list, ref=None):
     v, ds, dc = _atan2_grad(s, c)
     ds2, dc2 = ds[:, None], (sg * dc)[:, None]
     grads = [ds2 * sv + dc2 * cv, dc2 * u, ds2 * u]
+    if name == "PHI":                # sin(theta) = hypot(R31, R32): lock -> phi = 0
+        lock = np.hypot(s, c) <= EULER_LOCK_TOL
+        if lock.any():
+            v = np.where(lock, 0.0, v)
+            grads = [np.where(lock[:, None], 0.0, g) for g in grads]
     if ref is not None:
         v = wrap_to_ref(v, ref)
     return v, grads
+
+
+def _psi(zI, yJ, xJ, xI):
+    """PSI = atan2(R13, -R23); at gimbal lock atan2(R21, R11) (``R_ij = a_J,i . a_I,j``)."""
+    r13, r23 = _dot(zI, xJ), _dot(zI, yJ)
+    v, ds, dc = _atan2_grad(r13, -r23)
+    ds2, dc2 = ds[:, None], dc[:, None]
+    g = [ds2 * xJ - dc2 * yJ, -dc2 * zI, ds2 * zI, np.zeros_like(xI)]
+    lock = np.hypot(r13, r23) <= EULER_LOCK_TOL
+    if lock.any():
+        vl, dsl, dcl = _atan2_grad(_dot(yJ, xI), _dot(xJ, xI))
+        dsl, dcl = dsl[:, None], dcl[:, None]
+        gl = [np.zeros_like(zI), dsl * xI, dcl * xI, dsl * yJ + dcl * xJ]
+        L = lock[:, None]
+        v = np.where(lock, vl, v)
+        g = [np.where(L, b, a) for a, b in zip(g, gl)]
+    return v, g

@@ -81,15 +81,17 @@ class ExprForce(ForceFamily):
         from poise.expr import EvalContext as XC
         xc = XC(time=float(ctx.t), P=getattr(ctx, "P", None), A=getattr(ctx, "A", None),
                 angle_ref=ctx.angle, static=bool(getattr(ctx, "static", True)),
-                scalars=getattr(ctx, "extra", None))
+                scalars=getattr(ctx, "extra", None), reactions=getattr(ctx, "reactions", None))
         n, S = self.n, len(self.slot_ml)
         vals = np.zeros((n, len(self.batches)))
         grads = np.zeros((n, len(self.batches), S, 3)) if need_jac else None
         U = self.U
         sgrads = np.zeros((n, len(self.batches), U)) if (need_jac and U) else None
         smaps = getattr(self, "scalar_maps", None) or [None] * len(self.batches)
+        dreac = []
         for k, (b, (r, bs, fs), sm) in enumerate(zip(self.batches, self.slot_maps, smaps)):
             out = b.evaluate(xc)
+            dreac.append(out.d_reaction)
             vals[:, k] = out.value
             if need_jac and len(r):
                 grads[r, k, fs] = out.d_slot[r, bs]
@@ -98,6 +100,14 @@ class ExprForce(ForceFamily):
         if need_jac:
             grads = grads.reshape(n, len(self.batches), 3 * S)
         self._sgrads = sgrads
+        rm = getattr(self, "reaction_maps", None)
+        if need_jac and rm is not None:
+            # d value / d reaction channel per local channel column (ReactionFeed coupling)
+            rg = np.zeros((n, len(self.batches), self.rcols.shape[1]))
+            for k, (rows, bc, fc) in enumerate(rm):
+                if len(rows):
+                    np.add.at(rg, (rows, k, fc), dreac[k][rows, bc])
+            self._rgrads = rg
         return vals, grads
 
     def forces(self, kin, ctx, need_jac=True):

@@ -366,6 +366,7 @@ def compile_model(spec: DeckSpec) -> Model:
         n_extra=ne, extra0=np.array(ctx.extra0, float), extra_names=list(ctx.extra_names),
     )
     model.frame_hooks.extend(ctx.frame_hooks)
+    model.reaction_feed = getattr(ctx, "reaction_feed", None)
     model.spec_warnings = list(pc.warnings)
     model.finalize()
     return model

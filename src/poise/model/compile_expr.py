@@ -7,9 +7,15 @@ time-dependent gravity and ``Post_Request`` outputs.
   ``AX/AY/AZ`` -> the model's continuous-angle table (``CompileContext.angle``), element-force
   functions (JOINT, JPRIM, MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH, SPDP) and resultants
   (FM, FX, ..., TZ) -> *reaction channels* evaluated by :func:`channel_values`.
-* Reaction channels are available in ``Post_Request`` expressions only (evaluated after
-  convergence, exactly, from the converged multipliers). Inside forces and gravity they are
-  rejected with a located DeckError (no lagged iteration).
+* Reaction channels in ``Post_Request`` expressions are evaluated after convergence, exactly,
+  from the converged multipliers. Inside expression forces they are evaluated at every
+  ``Model.evaluate`` from the constraint families (current ``phi_y`` and multipliers) and the
+  force families that do not read reactions, all evaluated first (:class:`ReactionFeed`); the
+  Newton Jacobian carries the exact derivative w.r.t. the multipliers of the constraint
+  channels, not the derivative w.r.t. the coordinates through the reaction (docs/DESIGN.md,
+  "Reactions inside forces"). A force reading an expression force that itself reads reactions
+  (order-dependent / cyclic) is a located DeckError; gravity and Control_Diff expressions
+  still reject reaction functions.
 * Implicit and user ``Reference_Variable`` and ``Control_Diff`` states are scalar unknowns
   (``model/compile_diff_vars.py``): ``VARVAL``/``DIF`` read them, ``DIF1`` is 0 in statics.
 """
@@ -152,7 +158,7 @@ class ModelResolver:
         if not self.allow_reactions:
             raise NotImplementedError(
                 f"{kind}() is not supported in {self.where} yet (reaction and element-force "
-                "functions are only available in Post_Request expressions)")
+                "functions are available in Post_Request and force expressions)")
         if kind in RESULTANTS:
             if not 1 <= comp <= 8:
                 raise NotImplementedError(f"{kind}: component {comp} outside 1..8")
@@ -227,19 +233,22 @@ def _pick(F, T, comp):
     return float(T[c - 6])
 
 
-def channel_values(model, state, channels, info):
+def channel_values(model, state, channels, info, loads=None, P=None, A=None):
     """Values of reaction channels at ``state`` (exact, from ``state.lam``).
 
     ``info`` is the :class:`ExprInfo` holding element marker indices. Loads come from
     :func:`poise.solvers.outputs.element_loads` (force/torque on I at the I origin, global);
     ``jflag=1`` gives the equal and opposite action on J about the J origin; components are
-    resolved in marker RM's axes (0 = global).
+    resolved in marker RM's axes (0 = global). ``loads``/``P``/``A`` given (inside
+    ``Model.evaluate``): used instead of evaluating the model at ``state``.
     """
     if not channels:
         return np.zeros(0)
-    from poise.solvers.outputs import element_loads
-    loads = element_loads(model, state)
-    P, A, _ = model.marker_kinematics(state)
+    if loads is None:
+        from poise.solvers.outputs import element_loads
+        loads = element_loads(model, state)
+    if P is None:
+        P, A, _ = model.marker_kinematics(state)
     out = np.zeros(len(channels))
     owners = info.owner_maps(model)
     for k, ch in enumerate(channels):
@@ -272,6 +281,154 @@ def channel_values(model, state, channels, info):
                         Ts += -T - np.cross(P[ei] - P[ej], F)
             out[k] = _pick(_resolve(Fs, A, rm), _resolve(Ts, A, rm), comp)
     return out
+
+
+class ReactionFeed:
+    """Reaction channels read by expression forces, evaluated inside ``Model.evaluate``.
+
+    ``Model.evaluate`` evaluates every family not in :attr:`readers` first (constraints with the
+    current multipliers, forces that read no reaction), then calls :meth:`values` with their
+    kept ``(fam, kin, rho, phi_y)`` tuples and passes the result as ``EvalContext.reactions`` to
+    the reader families. The values are exact at the current iterate (no lag).
+    """
+
+    def __init__(self, channels, info, readers):
+        self.channels = list(channels)
+        self.info = info
+        self.readers = list(readers)
+
+    def values(self, model, items, P, A):
+        from poise.solvers.outputs import loads_of
+        loads = loads_of(model, items)
+        return channel_values(model, None, self.channels, self.info, loads, P, A)
+
+    # ------------------------------------------------------------------ d / d lambda
+    def setup(self, model):
+        """Coupling pattern (called by ``Model.finalize``): per (reader instance, channel,
+        constraint-family instance the channel reads) one ``(6K_r, m)`` block of the KKT
+        Jacobian (reader's coordinates x the constraint's multipliers). Returns the blocks."""
+        fams = model.families
+        owners = self.info.owner_maps(model)
+        inv = {g: {o: key for key, o in om.items()} for g, om in owners.items()}
+        cons = [(fi, f) for fi, f in enumerate(fams) if f.is_constraint
+                and getattr(f, "group", None) in inv]
+        contrib = []                                 # per channel: [(fi, j, flip, ei, ej)]
+        for ch in self.channels:
+            lst = []
+            for fi, f in cons:
+                for j, o in enumerate(np.asarray(f.owner).ravel()):
+                    key = inv[f.group].get(int(o))
+                    if key is None:
+                        continue
+                    ei, ej = self.info.markers[key]
+                    if ch[0] == "EL":
+                        if (f.group, key[0], key[1]) == (ch[1], ch[2], ch[3]):
+                            lst.append((fi, j, bool(ch[4]), ei, ej))
+                    else:
+                        mi, mj = ch[1], ch[2]
+                        if ei == mi and (mj < 0 or ej == mj):
+                            lst.append((fi, j, False, ei, ej))
+                        elif ej == mi and (mj < 0 or ei == mj):
+                            lst.append((fi, j, True, ei, ej))
+            contrib.append(lst)
+        self.entries = []            # (reader fi, reader instance i, local col u, channel c, ...)
+        blocks = []
+        for ri, f in enumerate(fams):
+            if not getattr(f, "reads_reactions", False):
+                continue
+            _reader_layout(f)
+            K6 = 6 * f.K
+            for i in range(f.n):
+                for u, c in enumerate(f.rcols[i]):
+                    if c < 0:
+                        continue
+                    for fi, j, flip, ei, ej in contrib[int(c)]:
+                        g = fams[fi]
+                        rows = np.repeat(f.gcol[i, :K6][:, None], g.m, 1)
+                        cols = np.repeat((model.nq + g.crow[j])[None, :], K6, 0)
+                        self.entries.append((ri, i, u, int(c), fi, j, flip, ei, ej))
+                        blocks.append((rows, cols))
+        return blocks
+
+    def coupling(self, model, kept, P, A, lam, row_active):
+        """Values of the :meth:`setup` blocks: ``d r_reader / d lambda`` (exact: every channel is
+        linear in its element's multipliers at fixed coordinates)."""
+        from poise.families.base import local_residual_tangent
+        from poise.families.expr_forces import apply_two_body_w
+        out = []
+        cache = {}
+        for ri, i, u, c, fi, j, flip, ei, ej in self.entries:
+            f = model.families[ri]
+            if (ri, u) not in cache:
+                kin = kept[ri][1]
+                dFs, dTs = f.scalar_chain(kin.Y, f._rgrads)
+                drho = apply_two_body_w(kin.Y, dFs[:, :, u], dTs[:, :, u], None, None,
+                                        f.action_only, False)[0]
+                cache[(ri, u)] = local_residual_tangent(kin, drho, None, f.slot_ml, f.K,
+                                                        False, None, 0)[0]
+            rl = cache[(ri, u)][i]                                   # (6K,)
+            g, kin_g, _, phy = kept[fi]
+            dch = _channel_dlam(g, kin_g, phy, j, self.channels[c], flip, ei, ej, P, A,
+                                lam[g.crow[j]])
+            dch = dch * row_active[g.crow[j]]
+            out.append(rl[:, None] * dch[None, :])
+        return out
+
+
+def _reader_layout(fam):
+    """``fam.rcols`` (n, Cr): reaction channels each instance reads; per batch the map
+    (rows, batch_col, local_col) used to gather ``d_reaction``."""
+    n = fam.n
+    cols = [dict() for _ in range(n)]
+    maps = []
+    for b in fam.batches:
+        rows, bc, fc = [], [], []
+        for i in range(n):
+            for k, c in enumerate(b.reaction_index[i] if b.C else ()):
+                c = int(c)
+                if c < 0:
+                    continue
+                cols[i].setdefault(c, len(cols[i]))
+                rows.append(i)
+                bc.append(k)
+                fc.append(cols[i][c])
+        maps.append((np.array(rows, np.intp), np.array(bc, np.intp), np.array(fc, np.intp)))
+    C = max((len(c) for c in cols), default=0)
+    fam.rcols = np.full((n, C), -1, int)
+    for i, c in enumerate(cols):
+        for ch, k in c.items():
+            fam.rcols[i, k] = ch
+    fam.reaction_maps = maps
+
+
+def _channel_dlam(g, kin, phy, j, ch, flip, ei, ej, P, A, lam):
+    """d channel / d lambda (m,) of constraint family ``g``'s instance ``j`` (value linear in
+    lambda: F = -sum phi_y^T lam over I's point slots, T = -sum y x (phi_y^T lam) over I's axes)."""
+    S = len(g.slot_ml)
+    m = phy.shape[1]
+    dF = np.zeros((3, m))
+    dT = np.zeros((3, m))
+    Y = kin.Y[j]
+    for s in range(S):
+        if g.slot_ml[s] != 0:
+            continue
+        blk = phy[j, :, 3 * s:3 * s + 3].T                          # (3, m)
+        if int(g.slot_kind[j, s]) == 0:
+            dF -= blk
+        else:
+            dT -= np.cross(Y[s][:, None], blk, axis=0)
+    if flip:
+        dF, dT = -dF, -dT - np.cross((P[ei] - P[ej])[:, None], dF, axis=0)
+    rm = ch[-1] if ch[0] == "EL" else ch[4]
+    if rm != GLOBAL:
+        dF, dT = A[rm].T @ dF, A[rm].T @ dT
+    comp = int(ch[5] if ch[0] == "EL" else ch[3])
+    if comp in (1, 5):
+        M = dF if comp == 1 else dT
+        v = M @ lam
+        nv = float(np.linalg.norm(v))
+        return (v / nv) @ M if nv > 0 else np.zeros(m)
+    return dF[comp - 2] if comp <= 4 else dT[comp - 6]
 
 
 class ExprInfo:
@@ -317,16 +474,23 @@ def compile_expressions(spec, ctx):
     # ------------------------------------------------------------ forces
     items = list(getattr(ctx, "expr_forces", []))
     res.where = "force expressions"
+    res.allow_reactions = True
     vec = [(o, el) for o, el in items if el.tag.startswith("Force_Vector")]
     sca = [(o, el) for o, el in items if el.tag == "Force_Scalar_TwoBody"]
+    built = []
     if vec:
         fam = XF.build_vector_family(vec, ctx, res, ground)
         if fam is not None:
-            ctx.families.append(fam)
+            built.append((fam, vec, [f"{a}_expression" for a in XF.VEC_ATTRS]))
     if sca:
         fam = XF.build_scalar_family(sca, ctx, res, ground)
         if fam is not None:
-            ctx.families.append(fam)
+            built.append((fam, sca, ["val_expression"]))
+    for fam, _, _ in built:
+        ctx.families.append(fam)
+    res.allow_reactions = False
+    if res.channels:
+        _reaction_feed(ctx, res, built, pc, ground)
 
     # ------------------------------------------------------------ gravity
     gels = [e for e in spec.model if e.tag == "Force_Gravity"]
@@ -353,6 +517,69 @@ def compile_expressions(spec, ctx):
         hook = build_request_hook(reqs, ctx, res)
         if hook is not None:
             ctx.frame_hooks = getattr(ctx, "frame_hooks", []) + [hook]
+
+
+def _reaction_feed(ctx, res, built, pc, ground):
+    """Mark the expression families that read reaction channels, reject order-dependent reads
+    (an element-force function of an expression force that itself reads reactions, or a
+    resultant FX..TM that would include one) and attach the :class:`ReactionFeed`."""
+    readers, reading_els, reading_mk = [], set(), set()
+    for fam, its, _ in built:
+        reads = any(b.C and (b.reaction_index >= 0).any() for b in fam.batches)
+        fam.reads_reactions = bool(reads)
+        if reads:
+            readers.append(fam)
+            for k, (_, el) in enumerate(its):
+                reading_els.add((el.tag, el.id))
+                reading_mk.add((int(fam.markers[k, 0]), int(fam.markers[k, 1])))
+    if not readers:
+        return
+    bad = False
+    warned = set()
+    for fam, its, attrs in built:
+        if not fam.reads_reactions:
+            continue
+        for b, attr in zip(fam.batches, attrs):
+            if not b.C:
+                continue
+            for i, row in enumerate(b.reaction_index):
+                for c in row:
+                    if c < 0:
+                        continue
+                    ch = res.channels[int(c)]
+                    if _lagged_in_q(ch, ground) and (i, id(fam)) not in warned:
+                        warned.add((i, id(fam)))
+                        pc.warn(its[i][1].loc, "reads a reaction whose value depends on the "
+                                "configuration at fixed multipliers (a torque, jflag=1, a moving "
+                                "RM marker, a resultant or a force element): that coordinate "
+                                "derivative is not in the Newton Jacobian (only d/d multipliers "
+                                "is), so convergence is linear near the solution", attr)
+                    if ch[0] == "EL":
+                        cyc = (ch[2], ch[3]) in reading_els
+                        what = f"<{ch[2]} id={ch[3]}>"
+                    else:
+                        mi, mj = ch[1], ch[2]
+                        cyc = any((a == mi and (mj < 0 or bb == mj)) or
+                                  (bb == mi and (mj < 0 or a == mj)) for a, bb in reading_mk)
+                        what = "a resultant that includes it"
+                    if cyc:
+                        bad = True
+                        pc.error(its[i][1].loc, f"reads the element force of {what}, an "
+                                 "expression force that itself reads reactions (order-dependent "
+                                 "or cyclic); expected reactions of joints, jprims, motions or "
+                                 "forces that read no reaction", attr)
+    if bad:
+        return
+    ctx.reaction_feed = ReactionFeed(res.channels, ExprInfo(res, ctx.outputs), readers)
+
+
+def _lagged_in_q(ch, ground):
+    """True if channel ``ch``'s coordinate dependence at fixed multipliers is certainly missing
+    from the Jacobian (see :meth:`ReactionFeed.coupling`)."""
+    if ch[0] == "RES" or ch[1] not in ("joints", "jprims", "motions"):
+        return True
+    _, _, _, _, jflag, comp, rm = ch
+    return bool(jflag) or comp >= 5 or not ground[rm]
 
 
 class GravityFunction:

@@ -64,6 +64,7 @@ class Evaluation:
     phi: np.ndarray
     J: object = None
     _pending: object = field(default=None, repr=False)   # deferred Jacobian (Model.jacobian)
+    _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
 
 
 @dataclass
@@ -76,6 +77,7 @@ class EvalContext:
     extra: np.ndarray | None = None  # (ne,) scalar unknowns
     P: np.ndarray | None = None      # (nm, 3) marker origins (expression families)
     A: np.ndarray | None = None      # (nm, 3, 3) marker axes as columns
+    reactions: np.ndarray | None = None  # reaction channels read by expression forces
 
 
 @dataclass
@@ -132,6 +134,7 @@ class Model:
     extra0: np.ndarray = None
     extra_names: list = field(default_factory=list)
     gravity_fn: object = None        # TIME-dependent gravity: callable t -> (3,), else None
+    reaction_feed: object = None     # ReactionFeed: reaction channels read by forces, else None
 
     # ------------------------------------------------------------------ setup
     def finalize(self):
@@ -173,6 +176,9 @@ class Model:
         # diagonal of the multiplier block (removed / redundant rows)
         lr = self.nq + np.arange(self.nc)
         blocks.append((lr, lr))
+        # forces reading constraint reactions: d r / d lambda (ReactionFeed, after all others)
+        if self.reaction_feed is not None:
+            blocks += self.reaction_feed.setup(self)
         self.assembler = Assembler(self.N, blocks, dense=self.dense, groups=self._order_groups())
         self.row_active = np.ones(self.nc, bool)
         # per-body length scale: largest marker lever of the body (>= 1e-3 L); used to weight
@@ -187,6 +193,9 @@ class Model:
         qs[self.rot_idx] = np.repeat(self.body_scale[rigid], 3)
         self.q_scale = qs            # length per unit of each coordinate (rad -> length)
         self.row_kind = np.array([1 if ri["kind"] == "rot" else 0 for ri in self.row_info], int)
+        # evaluation order: families reading reaction channels last (after every constraint)
+        rd = [k for k, f in enumerate(self.families) if getattr(f, "reads_reactions", False)]
+        self.eval_order = [k for k in range(len(self.families)) if k not in rd] + rd
 
     def _order_groups(self) -> np.ndarray:
         """Group of each KKT unknown for the fill-reducing ordering: one group per body's
@@ -338,9 +347,16 @@ class Model:
         ctx = EvalContext(t=state.t, angle=state.angle, P=P, A=A, extra=state.extra)
         r = np.zeros(self.nq)
         phi = np.zeros(self.nc)
-        pend = []
+        pend = [None] * len(self.families)
         last = []
-        for fam in self.families:
+        feed = self.reaction_feed
+        done = {} if feed is not None else None
+        for fi in self.eval_order:
+            fam = self.families[fi]
+            if done is not None and ctx.reactions is None and \
+                    getattr(fam, "reads_reactions", False):
+                # reaction channels from every family evaluated so far (exact at this iterate)
+                ctx.reactions = feed.values(self, done.values(), P, A)
             kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A,
                                   self.marker_body, pos)
             U = fam.U
@@ -362,12 +378,14 @@ class Model:
                 phy = None
                 if keep:
                     last.append((fam, kin, rho, None))
+            if done is not None:
+                done[fi] = (fam, kin, rho, phy)
             rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, U)
             if not np.isfinite(rl).all():
                 raise EvaluationError(_family_nonfinite(fam, rl))
             r += scatter_add(self.nq, fam.gcol, rl)
             if need_jac:
-                pend.append((fam, kin, rho, G, phy, ext))
+                pend[fi] = (fam, kin, rho, G, phy, ext)
         if self.gravity_on:
             g = self.gravity if self.gravity_fn is None else self.gravity_fn(state.t)
             r[self.trans_idx] -= (self.body_mass[:, None] * g[None, :]).ravel()
@@ -378,6 +396,9 @@ class Model:
             raise EvaluationError(self._nonfinite_message(r, phi))
         ev = Evaluation(r=r, phi=phi, J=None)
         if need_jac:
+            pend = [p for p in pend if p is not None]     # assembly order: self.families
+            if feed is not None:
+                ev._coupling = feed.coupling(self, done, P, A, state.lam, self.row_active)
             ev._pending = (state, pend, eps_mass, self.row_active.copy())
             if not defer:
                 self.jacobian(ev)
@@ -408,6 +429,7 @@ class Model:
         _, Jg = self.mass_blocks(state)
         vals += [eps_mass * np.repeat(self.body_mass, 3), eps_mass * Jg,
                  (~row_active).astype(float)]
+        vals += ev._coupling
         ev.J = self.assembler.assemble(vals)
         ev._pending = None
         return ev.J

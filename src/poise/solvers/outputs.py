@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.families.base import _cross
+
 
 def element_loads(model, state, lam=None, reuse: bool = False):
     """Force and torque each element applies to the body of its I marker (at I, global).
@@ -15,9 +17,15 @@ def element_loads(model, state, lam=None, reuse: bool = False):
     if not reuse:
         model.evaluate(state, need_jac=False, keep=True)
     lam = state.lam if lam is None else lam
+    return loads_of(model, model.last, lam)
+
+
+def loads_of(model, items, lam=None):
+    """:func:`element_loads` from kept ``(fam, kin, rho, phi_y)`` tuples (``rho`` used as is
+    when ``lam`` is None, else ``phi_y^T lam`` for constraint families)."""
     out = {}
-    for fam, kin, rho, phy in model.last:
-        if phy is not None:
+    for fam, kin, rho, phy in items:
+        if phy is not None and lam is not None:
             rho = np.einsum("nmy,nm->ny", phy, lam[fam.crow])
         group = getattr(fam, "group", None)
         if group is None or group not in model.outputs:
@@ -35,7 +43,7 @@ def element_loads(model, state, lam=None, reuse: bool = False):
             pt = kind == 0
             Fi[pt] -= rho3[pt, s]
             ax = ~pt
-            Ti[ax] -= np.cross(kin.Y[ax, s], rho3[ax, s])
+            Ti[ax] -= _cross(kin.Y[ax, s], rho3[ax, s])
         np.add.at(F, fam.owner, Fi)
         np.add.at(T, fam.owner, Ti)
     return out
