@@ -27,10 +27,9 @@ from __future__ import annotations
 import numpy as np
 
 from poise.errors import EvaluationError
-from poise.families.base import ForceFamily, add_force_at_point, add_torque_via_axes
-from poise.families.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_XR, S_YI, S_YJ, S_YR, S_ZI
+from poise.families.base import ForceFamily
+from poise.families.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
 from poise.families.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
-from poise.model.rotation import skew
 
 _I3 = np.eye(3)
 VEC_ATTRS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -41,30 +40,8 @@ def sl(s):
     return slice(3 * s, 3 * s + 3)
 
 
-def apply_two_body_w(Y, F, T, dF, dT, action_only, need_jac):
-    """``forces.apply_two_body`` for any slot count (extra slots only enter through dF, dT)."""
-    n, S = Y.shape[:2]
-    W = 3 * S
-    rho = np.zeros((n, W))
-    G = np.zeros((n, W, W)) if need_jac else None
-    add_force_at_point(rho, G, S_PI, F, dF)
-    add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
-    react = ~np.asarray(action_only, bool)
-    if react.any():
-        d = Y[:, S_PI] - Y[:, S_PJ]
-        Fj = -F * react[:, None]
-        Tj = (-T - np.cross(d, F)) * react[:, None]
-        dFj = dTj = None
-        if need_jac:
-            dFj = -dF * react[:, None, None]
-            dd = np.zeros((n, 3, W))
-            dd[:, :, sl(S_PI)] = _I3
-            dd[:, :, sl(S_PJ)] = -_I3
-            dcross = -np.matmul(skew(F), dd) + np.matmul(skew(d), dF)
-            dTj = (-dT - dcross) * react[:, None, None]
-        add_force_at_point(rho, G, S_PJ, Fj, dFj)
-        add_torque_via_axes(rho, G, (S_XJ, S_YJ, S_ZJ), Tj, dTj, Y)
-    return rho, G
+# the generic two-body application works for any slot count
+apply_two_body_w = apply_two_body
 
 
 class ExprForce(ForceFamily):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.errors import EvaluationError
-from poise.families.base import ForceFamily, add_force_at_point, add_torque_via_axes
+from poise.families.base import ForceFamily, _cross, add_force_at_point, add_torque_via_axes
 from poise.model.rotation import skew
 
 S_PI, S_XI, S_YI, S_ZI, S_PJ, S_XJ, S_YJ, S_ZJ, S_XR, S_YR, S_ZR = range(11)
@@ -54,23 +54,24 @@ def principal_angle(Y, axis):
 def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
     """Assemble ``rho`` (n, 33) and ``G`` (n, 33, 33) from the action (F, T) on I.
 
-    ``action_only`` (n,) bool: no reaction on J for those instances.
+    ``action_only`` (n,) bool (or None: all react): no reaction on J for those instances.
     """
-    n = Y.shape[0]
-    rho = np.zeros((n, 3 * N_SLOTS))
-    G = np.zeros((n, 3 * N_SLOTS, 3 * N_SLOTS)) if need_jac else None
+    n, S = Y.shape[:2]              # any slot count >= 11: extra slots enter only through dF, dT
+    W = 3 * S
+    rho = np.zeros((n, W))
+    G = np.zeros((n, W, W)) if need_jac else None
     add_force_at_point(rho, G, S_PI, F, dF)
     add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
-    react = ~np.asarray(action_only, bool)
+    react = (np.ones(n, bool) if action_only is None else ~np.asarray(action_only, bool))
     if react.any():
         d = Y[:, S_PI] - Y[:, S_PJ]
         Fj = -F * react[:, None]
-        Tj = (-T - np.cross(d, F)) * react[:, None]
+        Tj = (-T - _cross(d, F)) * react[:, None]
         dFj = dTj = None
         if need_jac:
             dFj = -dF * react[:, None, None]
             # d(d x F) = -[F]x dd + [d]x dF
-            dd = np.zeros((n, 3, 3 * N_SLOTS))
+            dd = np.zeros((n, 3, W))
             dd[:, :, sl(S_PI)] = _I3
             dd[:, :, sl(S_PJ)] = -_I3
             dcross = -np.matmul(skew(F), dd) + np.matmul(skew(d), dF)
