@@ -72,8 +72,9 @@ def fake_run(monkeypatch):
     calls = []
 
     def install(result=None, exc=None, progress_lines=()):
-        def run_deck(path, overrides=None, command="", progress=None):
-            calls.append({"path": path, "overrides": overrides, "command": command})
+        def run_deck(path, overrides=None, command="", progress=None, quiet=False):
+            calls.append({"path": path, "overrides": overrides, "command": command,
+                          "quiet": quiet})
             for line in progress_lines:
                 progress(line)
             if exc is not None:
@@ -187,12 +188,14 @@ def test_solve_json(deck, fake_run):
 
 def test_solve_quiet_and_warnings(deck, fake_run):
     w = "d.xml:4: <Part id=2>: unknown attribute 'colour' ignored"
-    fake_run(make_result(warnings=[w]))
+    calls = fake_run(make_result(warnings=[w]))
     r = invoke("solve", str(deck))
     assert r.exit_code == 0
     assert f"warning: {w}" in r.stderr.splitlines()
     r = invoke("solve", str(deck), "-q")
     assert r.exit_code == 0 and r.stderr == ""
+    # --quiet reaches the run (it silences the quasi-static progress bar)
+    assert [c["quiet"] for c in calls] == [False, True]
 
 
 def test_solve_runner_progress_not_duplicated(deck, fake_run):

@@ -157,3 +157,104 @@ def test_sequence_continues_and_time_independence(tmp_path):
 def test_mkeam_quasistatic_uses_fim_s():
     ar = _run(_deck("qs_spring_ramp.xml"), "MKEAM").analyses[0]
     assert ar.method == "FIM_S" and "MKEAM" in ar.message
+
+
+@needs_expr
+@pytest.mark.parametrize("method", ["FIM_S", "FIM_D"])
+def test_print_array_output_times(tmp_path, method):
+    """Output times from a Reference_Array of type PRINT: start, the array's times inside
+    (start, end], end (times beyond end_time dropped)."""
+    p = _variant(tmp_path, "qs_spring_ramp.xml",
+                 '<Simulate analysis_type="Static" end_time="1.0" print_interval="0.05"/>',
+                 '<Simulate analysis_type="Static" end_time="1.0" print_array_id="7"/>')
+    text = open(p).read().replace(
+        "  </Model>",
+        '    <Reference_Array id="7" type="PRINT" num_element="4">0.1 0.35 0.5 2.0</Reference_Array>'
+        "\n  </Model>")
+    open(p, "w").write(text)
+    ar = _run(p, method).analyses[0]
+    assert ar.status == "converged", ar.message
+    t = ar.datasets["time"]
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.35, 0.5, 1.0], atol=1e-12)
+    np.testing.assert_allclose(ar.datasets["bodies/position"][:, 0, 0], 1.0 + 50 * t / 200.0,
+                               atol=1e-7)
+    assert ar.attrs["n_frames"] == 5
+
+
+def _events(ar):
+    d = ar.datasets
+    return (list(np.asarray(d["iterations/event"]).astype(str)),
+            list(np.asarray(d["iterations/frame"]).astype(int)),
+            list(np.asarray(d["iterations/worst_equation"]).astype(str)))
+
+
+@needs_expr
+def test_fim_d_fallbacks_recorded(monkeypatch):
+    """Every FIM_S fallback of FIM_D is an ``iterations`` row (event fallback_fim_s, the frame,
+    the reason) and counted in the attributes and the message; the path stays correct."""
+    import poise.solvers.fim_d as fd
+    real = fd._ida
+    calls = {"start": 0, "step": 0}
+
+    class FailingOnce:
+        def __init__(self, solver):
+            self.solver = solver
+
+        def step(self, *a, **k):
+            calls["step"] += 1
+            if calls["step"] == 2:
+                raise RuntimeError("injected step failure")
+            return self.solver.step(*a, **k)
+
+    def fake_ida(*a, **k):
+        calls["start"] += 1
+        if calls["start"] == 1:
+            raise RuntimeError("injected start failure")
+        return FailingOnce(real(*a, **k))
+
+    monkeypatch.setattr(fd, "_ida", fake_ida)
+    ar = _run(_deck("qs_spring_ramp.xml"), "FIM_D").analyses[0]
+    assert ar.status == "converged", ar.message
+    ev, fr, why = _events(ar)
+    rows = [(f, w) for e, f, w in zip(ev, fr, why) if e == "fallback_fim_s"]
+    assert len(rows) == ar.attrs["fim_s_fallbacks"] == 2
+    assert "IDA could not start" in rows[0][1] and "injected start failure" in rows[0][1]
+    assert rows[0][0] == 1
+    assert "IDA failed after" in rows[1][1] and "injected step failure" in rows[1][1]
+    assert "2 FIM_S fallbacks" in ar.message
+    t = ar.datasets["time"]
+    np.testing.assert_allclose(ar.datasets["bodies/position"][:, 0, 0], 1.0 + 50 * t / 200.0,
+                               atol=1e-7)
+    # too large for IDA's dense solver: the whole run falls back, recorded at frame 0
+    monkeypatch.setattr(fd, "_ida", real)
+    monkeypatch.setattr(fd, "DENSE_LIMIT", 0)
+    ar = _run(_deck("qs_spring_ramp.xml"), "FIM_D").analyses[0]
+    ev, fr, why = _events(ar)
+    rows = [(f, w) for e, f, w in zip(ev, fr, why) if e == "fallback_fim_s"]
+    assert len(rows) == 1 and rows[0][0] == 0 and "dense solver" in rows[0][1]
+    assert ar.status == "converged" and "FIM_S used" in ar.message
+
+
+@needs_expr
+@pytest.mark.parametrize("method", ["FIM_S", "FIM_D"])
+def test_quiet_silences_progress_bar(monkeypatch, capsys, method):
+    """``run_deck(quiet=True)`` (``poise solve --quiet``) turns the progress bar off even on a
+    terminal; without it the bar follows the terminal / CI detection."""
+    import poise.solvers.quasistatic as qsm
+    seen = []
+    orig = qsm.Progress.__init__
+
+    def init(self, total, label, enabled=None):
+        orig(self, total, label, enabled)
+        seen.append((label, enabled, self.enabled))
+
+    monkeypatch.setattr(qsm.Progress, "__init__", init)
+    monkeypatch.delenv("CI", raising=False)
+    monkeypatch.delenv("POISE_QUIET", raising=False)
+    monkeypatch.setattr(qsm.sys.stderr, "isatty", lambda: True, raising=False)
+    run_deck(_deck("qs_spring_ramp.xml"), {"method": method}, quiet=True)
+    assert seen and all(e is False and not on for _, e, on in seen)
+    seen.clear()
+    run_deck(_deck("qs_spring_ramp.xml"), {"method": method})
+    assert seen and all(e is None and on for _, e, on in seen)
+    assert qsm.PROGRESS.get() is None

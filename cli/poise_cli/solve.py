@@ -63,7 +63,7 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
 
     try:
         from poise.api import run_deck
-        result = run_deck(deck, overrides, command=command, progress=progress)
+        result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet)
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return

@@ -57,6 +57,7 @@ def run_deck(
     overrides: dict[str, Any] | None = None,
     command: str = "",
     progress: Callable[[str], None] | None = None,
+    quiet: bool = False,
 ) -> RunResult:
     """Parse, compile and run every analysis of a deck.
 
@@ -72,6 +73,9 @@ def run_deck(
         The command line, recorded in the results.
     progress : callable, optional
         Called with one summary line per finished analysis.
+    quiet : bool
+        No progress bar on stderr for long quasi-static runs (otherwise shown only when stderr
+        is a terminal, outside CI and with ``POISE_QUIET`` unset).
 
     Returns
     -------
@@ -84,7 +88,9 @@ def run_deck(
         Invalid deck (exit code 3).
     """
     from poise.runner import run
-    return run(path, overrides=overrides, command=command, progress=progress)
+    from poise.solvers.quasistatic import progress_bar
+    with progress_bar(False if quiet else None):
+        return run(path, overrides=overrides, command=command, progress=progress)
 
 
 def check_deck(path: str) -> CheckReport:

@@ -482,7 +482,7 @@ def add_torque_via_axes(rho, G, axis_slots, T, dT, Y):
     for s in axis_slots:
         a = Y[:, s]
         rows = slice(3 * s, 3 * s + 3)
-        rho[:, rows] += 0.5 * np.cross(a, T)
+        rho[:, rows] += 0.5 * _cross(a, T)
         if G is not None:
             if dT is not None:
                 G[:, rows, :] += 0.5 * np.matmul(skew(a), dT)

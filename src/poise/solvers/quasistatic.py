@@ -17,15 +17,19 @@
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import os
 import sys
 import time as _time
 
 import numpy as np
 
+from poise.model.model import Evaluation
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.history import History
-from poise.solvers.newton import Counters, FrameOutcome, assemble, initial_multipliers, newton
+from poise.solvers.newton import (Counters, FrameOutcome, Scales, assemble, initial_multipliers,
+                                  measures, newton)
 from poise.solvers.static import StaticAnalysis, detect_redundancy, frame_outputs, stack_frames
 from poise.solvers.status import MESSAGES, Status
 
@@ -79,6 +83,22 @@ def print_arrays(spec) -> dict:
 
 
 # ---------------------------------------------------------------------- progress
+#: ``False`` silences the progress bar of quasi-static runs started in this context (``poise
+#: solve --quiet`` through ``run_deck(quiet=True)``); ``None``: automatic (stderr is a terminal,
+#: not in CI, ``POISE_QUIET`` unset).
+PROGRESS: contextvars.ContextVar = contextvars.ContextVar("poise_progress", default=None)
+
+
+@contextlib.contextmanager
+def progress_bar(enabled: bool | None):
+    """Context in which quasi-static progress bars are ``enabled`` (None: automatic)."""
+    tok = PROGRESS.set(enabled)
+    try:
+        yield
+    finally:
+        PROGRESS.reset(tok)
+
+
 class Progress:
     """A one-line progress bar on stderr for runs longer than ~1 s (TTY only, not in CI)."""
 
@@ -211,6 +231,7 @@ class QuasiStaticAnalysis:
         self.counters = Counters()
         self.history = History()
         self.spec = spec if spec is not None else getattr(request, "spec", None)
+        self.progress_enabled = PROGRESS.get()
 
     def times(self, state):
         arrays = getattr(self.request, "arrays", None)
@@ -242,7 +263,7 @@ class QuasiStaticAnalysis:
         notes += n0
         frames, outcomes = [state], [out]
         time_indep = not model.depends_on_time()
-        prog = Progress(len(ts), "FIM_S")
+        prog = Progress(len(ts), "FIM_S", enabled=self.progress_enabled)
         if out.ok and time_indep and len(ts) > 1:
             notes.append("nothing in the scene depends on time: solved once, frame replicated")
             for t in ts[1:]:
@@ -267,7 +288,11 @@ class QuasiStaticAnalysis:
         return self.finish(frames, outcomes, index, "FIM_S", notes, moved, time_indep)
 
     # ------------------------------------------------------------------ results
-    def finish(self, frames, outcomes, index, method, notes, moved, time_indep, extra=None):
+    def finish(self, frames, outcomes, index, method, notes, moved, time_indep, extra=None,
+               measured=None):
+        """Results of the run. ``measured``: ``{frame index: history row}`` of frames whose
+        imbalance / constraint error are taken from their output evaluation (FIM_D's
+        interpolated frames); the outcome and the history row are filled in here."""
         model, s = self.model, self.settings
         ok = all(o.ok for o in outcomes) and len(frames) == len(self.times_cache(frames))
         ar = AnalysisResult(index=index, analysis_type="quasistatic", method=method,
@@ -284,7 +309,21 @@ class QuasiStaticAnalysis:
         ar.attrs["time_independent"] = bool(time_indep)
         ar.attrs["n_frames"] = len(frames)
         sa = StaticAnalysis(model, self.request, redundancy=self.redundancy)
-        per = [sa.frame_datasets(st, [o]) for st, o in zip(frames, outcomes)]
+        measured = measured or {}
+        sc = Scales(model, s) if measured else None
+
+        def measure(k):
+            def on_eval(ev, active):
+                phi = np.where(active, ev.phi, 0.0)
+                imb, cerr, _, worst = measures(model, Evaluation(r=ev.r, phi=phi, J=None), sc)
+                outcomes[k].imbalance, outcomes[k].error = imb, cerr
+                row = list(self.history.rows[measured[k]])
+                row[2], row[3], row[6] = imb, cerr, worst
+                self.history.rows[measured[k]] = tuple(row)
+            return on_eval
+
+        per = [sa.frame_datasets(st, [o], on_eval=measure(k) if k in measured else None)
+               for k, (st, o) in enumerate(zip(frames, outcomes))]
         d = {}
         for key in per[0]:
             if key.endswith("/id") or key.endswith("/tag") or key.endswith("/unique") \

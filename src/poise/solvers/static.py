@@ -107,7 +107,10 @@ class StaticAnalysis:
         return state, ar
 
     # ------------------------------------------------------------------ outputs
-    def frame_datasets(self, state, outcomes):
+    def frame_datasets(self, state, outcomes, on_eval=None):
+        """Datasets of one frame. ``on_eval(ev, active)``, if given, is called with the output
+        evaluation (all rows active) and the analysis' active-row mask before the outcomes are
+        read (FIM_D computes its interpolated frames' measures from it: no second evaluation)."""
         model = self.model
         d = {"time": np.array([state.t])}
         d["bodies/id"] = model.body_id
@@ -122,6 +125,8 @@ class StaticAnalysis:
         try:
             ev = model.evaluate(state, need_jac=True, keep=True)
             J = ev.J
+            if on_eval is not None:
+                on_eval(ev, saved)
             lam = state.lam
             if len(self.redundancy) and model.nc:
                 Pfull = J[model.nq:, :model.nq]
