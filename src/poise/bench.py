@@ -402,6 +402,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-cli", action="store_true", help="skip the command-line benchmarks")
     ap.add_argument("--quick", action="store_true",
                     help="issue-7 suites with a reduced ladder and sizes (make bench-quick)")
+    ap.add_argument("--no-expr", action="store_true",
+                    help="skip the expression benchmark (issue 3)")
     ap.add_argument("--no-wp", action="store_true",
                     help="skip the issue-7 suites (work-precision, peer, scaling)")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
@@ -426,9 +428,21 @@ def main(argv=None) -> int:
                 print(f"{r['command']}: {_s(r['wall_s']['median'])} s", file=sys.stderr)
                 results.append(r)
         wp_md, wp_targets = [], []
+        if not args.no_expr:    # issue 3: 10 000 expression-based forces
+            from poise import bench_expr
+            rx = bench_expr.bench_expressions()
+            print(f"expressions n={rx['n']}: compile {_s(rx['compile_s']['median'])} s, "
+                  f"evaluate {1e3 * rx['eval_s']['median']:.2f} ms", file=sys.stderr)
+            results.append(rx)
+            wp_md.append(bench_expr.markdown(rx))
+            wp_targets += bench_expr.targets(rx)
         if not args.no_wp:      # issue 7: work-precision, peer, scaling (poise.benchmarks)
             from poise.benchmarks.main import run as run_issue7
-            wp_rows, wp_md, wp_targets = run_issue7(root, tmp, list(results), quick=args.quick)
+            wp_rows, md7, t7 = run_issue7(root, tmp, [r for r in results
+                                                       if r.get("bench") != "expressions"],
+                                          quick=args.quick)
+            wp_md += md7
+            wp_targets += t7
     if args.out:
         p = Path(args.out)
         p.parent.mkdir(parents=True, exist_ok=True)
