@@ -193,11 +193,23 @@ def _poise_cmd() -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "poise_cli"]
 
 
+def _user_env() -> dict:
+    """The environment a user's process has: bytecode caching on (a development shell may set
+    PYTHONDONTWRITEBYTECODE, which would make every run recompile poise's modules)."""
+    env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
 def _wall(cmd, repeat, cwd=None) -> tuple[dict, int]:
+    """Median/min/max wall time of ``cmd`` over ``repeat`` runs after one warm-up run (which
+    writes the bytecode caches, as any second run of an installed program finds them)."""
+    env = _user_env()
+    subprocess.run(cmd, capture_output=True, cwd=cwd, env=env)
     times, rc = [], 0
     for _ in range(repeat):
         t0 = time.perf_counter()
-        r = subprocess.run(cmd, capture_output=True, cwd=cwd)
+        r = subprocess.run(cmd, capture_output=True, cwd=cwd, env=env)
         times.append(time.perf_counter() - t0)
         rc = max(rc, r.returncode)
     return _stats(times), rc

@@ -81,8 +81,10 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
             transient.update(e.attrs)
     out = []
     pending = []
-    from poise.solvers.quasistatic import print_arrays
-    arrays = print_arrays(spec)
+    arrays = {}
+    if any(e.tag == "Reference_Array" for e in spec.model):
+        from poise.solvers.quasistatic import print_arrays
+        arrays = print_arrays(spec)
     t_now = 0.0
     for el in spec.commands:
         if el.tag == "Param_Static":

@@ -8,7 +8,6 @@ dense array for small systems).
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 
 class Assembler:
@@ -65,6 +64,7 @@ class Assembler:
         data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
         if self.dense:
             return data.reshape(self.N, self.N)
+        import scipy.sparse as sp
         M = sp.csr_matrix((data, self.indices, self.indptr), shape=(self.N, self.N))
         if self.groups is not None:
             M.poise_column_order = self.column_order   # used by linalg.Factor
@@ -81,6 +81,7 @@ class Assembler:
         order). Reused by every factorisation of matrices with this pattern.
         """
         if self._order is None:
+            import scipy.sparse as sp
             import scipy.sparse.linalg as spla
             grp = np.asarray(self.groups, np.int64)
             G = int(grp.max()) + 1 if grp.size else 0

@@ -4,9 +4,10 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+
+# Dense systems up to this size are solved with numpy's LAPACK (gesv) and checked with an SVD:
+# no scipy import on the small-deck path (scipy.linalg/sparse cost ~0.25 s of process start).
+NUMPY_DENSE_MAX = 120
 
 
 class SingularMatrix(Exception):
@@ -24,9 +25,11 @@ class Factor:
 
     def __init__(self, J):
         Factor.count += 1
-        self.sparse = sp.issparse(J)
+        self.sparse = hasattr(J, "tocsc")
         self.order = None
+        self.numpy = False
         if self.sparse:
+            import scipy.sparse.linalg as spla
             order = getattr(J, "poise_column_order", None)
             try:
                 if order is not None:
@@ -41,7 +44,18 @@ class Factor:
             self._pivot_row = int(np.nonzero(self.lu.perm_r == int(np.argmin(u)))[0][0])
             if not np.all(np.isfinite(u)) or u.min() == 0.0:
                 raise SingularMatrix("singular matrix (zero pivot)", row=self._pivot_row)
+        elif np.asarray(J).shape[0] <= NUMPY_DENSE_MAX:
+            J = np.asarray(J)
+            if not np.all(np.isfinite(J)):
+                raise SingularMatrix("matrix has non-finite entries")
+            self.numpy = True
+            u_, sv, vh = np.linalg.svd(J)
+            # the coordinate/equation most involved in the weakest direction names the culprit
+            self._pivot_row = int(np.argmax(np.abs(vh[-1])))
+            if sv[-1] <= 1e-15 * max(sv[0], 1e-300):
+                raise SingularMatrix("singular matrix (tiny singular value)", row=self._pivot_row)
         else:
+            import scipy.linalg as sla
             J = np.asarray(J)
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -61,6 +75,9 @@ class Factor:
             x = np.empty_like(y)
             x[self.order] = y
             return x
+        if self.numpy:
+            return np.linalg.solve(self.J, b)
+        import scipy.linalg as sla
         return sla.lu_solve(self.lu, b, check_finite=False)
 
     def solve(self, b, refine: int = 2, rtol: float = 1e-8):

@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from poise.errors import EvaluationError
 from poise.solvers.history import History
@@ -94,7 +93,8 @@ def _weighted_kkt(model, ev, W):
     """KKT matrix with ``diag(W)`` in the coordinate block and the constraint Jacobian."""
     nq = model.nq
     J = ev.J
-    if sp.issparse(J):
+    if hasattr(J, "tocsc"):
+        import scipy.sparse as sp
         B = J[:nq, nq:]
         Cm = J[nq:, :nq]
         D = J[nq:, nq:]

@@ -10,14 +10,13 @@ the rows before it, so a ratio below ``RATIO_TOL`` marks row k as dependent on e
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 RATIO_TOL = 1e-9     # always redundant below this pivot ratio
 RATIO_MAX = 1e-5     # never redundant above this pivot ratio
 GAP_MIN = 1e3        # a gap of this factor between sorted ratios separates the two groups
 SHIFT = 1e-13
 ORDERING_NATURAL_MAX = 20000
+DENSE_MAX_ROWS = 300     # up to this many rows: numpy Cholesky in deck order (no scipy import)
 
 
 def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
@@ -28,10 +27,16 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
     Phi_q : sparse or dense (nc, nq)
     col_scale : (nq,) column scaling (1 for translations, 1/L for rotations)
     """
-    P = sp.csr_matrix(Phi_q) @ sp.diags(col_scale)
-    nc = P.shape[0]
+    nc = Phi_q.shape[0]
     if nc == 0:
         return np.zeros(0, int)
+    if nc <= DENSE_MAX_ROWS:
+        red = _dense_natural(Phi_q, col_scale)
+        if red is not None:
+            return red
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+    P = sp.csr_matrix(Phi_q) @ sp.diags(col_scale)
     A = (P @ P.T).tocsc()
     d = A.diagonal().copy()
     empty = d <= 1e-300
@@ -72,6 +77,26 @@ def rank_threshold(ratio: np.ndarray) -> float:
     return thr
 
 
+def _dense_natural(Phi_q, col_scale):
+    """Small systems: dense Cholesky of the same shifted Gram matrix in deck order (numpy only).
+
+    The pivots ``L_kk**2`` are exactly those of the sparse path; returns None when the shifted
+    Gram matrix is not numerically positive definite (the caller then uses the sparse path).
+    """
+    P = (Phi_q.toarray() if hasattr(Phi_q, "toarray") else np.asarray(Phi_q, float)) * col_scale
+    A = P @ P.T
+    d = np.diag(A).copy()
+    empty = d <= 1e-300
+    A[np.diag_indices_from(A)] += np.where(empty, 1.0, SHIFT * d)
+    try:
+        Lc = np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        return None
+    ratio = np.diag(Lc) ** 2 / np.where(empty, 1.0, d)
+    thr = rank_threshold(ratio[~empty])
+    return np.nonzero((ratio < thr) | empty)[0]
+
+
 def _dense_redundant(P):
     import scipy.linalg as sla
     q, r, piv = sla.qr(P.T, mode="economic", pivoting=True)
@@ -110,6 +135,8 @@ def dependent_rows(Phi_q, active, rel=1e-8) -> np.ndarray:
 def left_null_basis(Phi_q, active):
     """Columns ``y_k = e_k - (coefficients of row k on the independent rows)`` for each removed
     row k: a basis of the left null space of ``Phi_q`` (``y^T Phi_q = 0``)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
     red = np.nonzero(~active)[0]
     P = sp.csr_matrix(Phi_q)
     ind = np.nonzero(active)[0]

@@ -24,7 +24,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
 
 DENSE_LIMIT = 3000
 ZERO_REL = 1e-8
@@ -63,7 +62,7 @@ def classify(model, state, J=None) -> StabilityInfo:
     Ku = 0.5 * (Ku + Ku.T)
     if Pq.shape[0]:
         Pu = Pq / d[None, :]
-        N = sla.null_space(Pu, rcond=1e-10)
+        N = _null_space(Pu, rcond=1e-10)
     else:
         N = np.eye(nq)
     if N.shape[1] == 0:
@@ -126,3 +125,11 @@ def stability_datasets(infos: list[StabilityInfo]) -> dict:
         "frames/stability_modes": np.array([i.modes for i in infos], dtype=str),
         "frames/min_stiffness_eigenvalue": np.array([i.min_eigenvalue for i in infos]),
     }
+
+
+def _null_space(A, rcond=1e-10):
+    """Orthonormal basis of the null space of ``A`` by SVD (as scipy.linalg.null_space)."""
+    u, s, vh = np.linalg.svd(A, full_matrices=True)
+    tol = rcond * (s.max() if s.size else 0.0)
+    rank = int(np.sum(s > tol))
+    return vh[rank:].T.conj()
