@@ -3,10 +3,8 @@ from __future__ import annotations
 
 import click
 
-from poise_cli.errors import report_exception
 from poise_cli.options import debug_option, json_option, quiet_option
-from poise_cli.plot import results_or_usage
-from poise_cli.summary import print_json
+from poise_cli.plot import run_picture
 
 
 @click.command(short_help="Animate a results file as a stick figure (GIF, MP4 or PNG).")
@@ -29,20 +27,11 @@ def animate(results, out, analysis, frame, fps, no_graphics, quiet, as_json, deb
     another static solve (FIM_S and its fallbacks), or per output frame (quasi-static runs: per
     output time)."""
     ctx = click.get_current_context()
-    try:
-        results_or_usage(results)
+    def make():
         from poise.animate import animate_results
-        info = animate_results(results, out, analysis=analysis, frame=frame, fps=fps,
-                                 graphics=not no_graphics)
-    except (Exception, KeyboardInterrupt) as exc:
-        code, info = report_exception(exc, debug=debug)
-        if as_json:
-            print_json({"results": results, "output": None, "exit_code": code, **info})
-        ctx.exit(code)
-        return
-    if as_json:
-        print_json({"results": results, "exit_code": 0, **info})
-    if not quiet:
-        click.echo(f"wrote {out} ({info['frames']} frames, {info['width']}x{info['height']}, "
-                   f"plane {info['plane']})", err=True)
-    ctx.exit(0)
+        return animate_results(results, out, analysis=analysis, frame=frame, fps=fps,
+                               graphics=not no_graphics)
+
+    run_picture(ctx, results, make, as_json, debug, quiet,
+                lambda info: f"wrote {out} ({info['frames']} frames, "
+                             f"{info['width']}x{info['height']}, plane {info['plane']})")

@@ -19,6 +19,25 @@ def id_list(ctx, param, value):
         raise click.BadParameter(f"expected comma-separated ids, got {value!r}") from None
 
 
+def run_picture(ctx, results, make, as_json, debug, quiet, message) -> None:
+    """Shared body of ``poise plot`` / ``poise animate``: check the results file, call ``make()``
+    (returns an info dict), report errors with the CLI's exit codes, print the JSON or the line."""
+    try:
+        results_or_usage(results)
+        info = make()
+    except (Exception, KeyboardInterrupt) as exc:
+        code, info = report_exception(exc, debug=debug)
+        if as_json:
+            print_json({"results": results, "output": None, "exit_code": code, **info})
+        ctx.exit(code)
+        return
+    if as_json:
+        print_json({"results": results, "exit_code": 0, **info})
+    if not quiet:
+        click.echo(message(info), err=True)
+    ctx.exit(0)
+
+
 def results_or_usage(path: str) -> None:
     """Exit 2 when PATH is not a poise results file."""
     from poise.errors import UsageError
@@ -49,20 +68,11 @@ def plot(results, out, analysis, bodies, joints, requests, quiet, as_json, debug
     histories of body positions, joint forces and request channels."""
     ctx = click.get_current_context()
     out = out or str(Path(results).with_suffix(".png"))
-    try:
-        results_or_usage(results)
+    def make():
         from poise.plot import plot_results
-        info = plot_results(results, out, analysis=analysis, bodies=bodies, joints=joints,
+        return plot_results(results, out, analysis=analysis, bodies=bodies, joints=joints,
                             requests=requests)
-    except (Exception, KeyboardInterrupt) as exc:
-        code, info = report_exception(exc, debug=debug)
-        if as_json:
-            print_json({"results": results, "output": None, "exit_code": code, **info})
-        ctx.exit(code)
-        return
-    if as_json:
-        print_json({"results": results, "exit_code": 0, **info})
-    if not quiet:
-        click.echo(f"wrote {out} ({info['width']}x{info['height']}, "
-                   f"{', '.join(info['panels'])})", err=True)
-    ctx.exit(0)
+
+    run_picture(ctx, results, make, as_json, debug, quiet,
+                lambda info: f"wrote {out} ({info['width']}x{info['height']}, "
+                             f"{', '.join(info['panels'])})")
