@@ -160,21 +160,26 @@ class CurveFamily(ConstraintFamily):
         return phi, g[:, :, :3 * S], H[:, :3 * S, :3 * S], ext
 
     # geometry helpers: grouped evaluation over instances sharing a curve/surface object
+    def _groups(self, which):
+        """``[(geometry object, instance indices)]`` for slot ``which``, computed once."""
+        cache = self.__dict__.setdefault("_group_cache", {})
+        if which not in cache:
+            objs = [g[which] for g in self.geo]
+            cache[which] = [(obj, np.array([i for i, o in enumerate(objs) if o is obj]))
+                            for obj in dict.fromkeys(objs)]
+        return cache[which]
+
     def curve_derivs(self, which, u, order):
         n = len(u)
         out = np.zeros((order + 1, n, 3))
-        objs = [g[which] for g in self.geo]
-        for obj in dict.fromkeys(objs):
-            idx = np.array([i for i in range(n) if objs[i] is obj])
+        for obj, idx in self._groups(which):
             out[:, idx] = obj.derivs(u[idx], order)
         return out
 
     def surface_derivs(self, which, u, v, order):
         n = len(u)
-        objs = [g[which] for g in self.geo]
         out = {(i, j): np.zeros((n, 3)) for i in range(order + 1) for j in range(order + 1 - i)}
-        for obj in dict.fromkeys(objs):
-            idx = np.array([i for i in range(n) if objs[i] is obj])
+        for obj, idx in self._groups(which):
             d = obj.derivs(u[idx], v[idx], order)
             for k in out:
                 out[k][idx] = d[k]
