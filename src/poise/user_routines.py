@@ -298,12 +298,7 @@ class UserRoutine:
             return v, D
         for s, (key, hs) in enumerate(zip(self.slots, self._steps(h))):
             for c in range(3):
-                vp = dict(vec)
-                vm = dict(vec)
-                e = np.zeros(3)
-                e[c] = hs
-                vp[key] = vec[key] + e
-                vm[key] = vec[key] - e
+                vp, vm = _perturbed(vec, key, c, hs)
                 D[:, s, c] = (self.values(t, vp) - self.values(t, vm)) / (2 * hs)
         return v, D
 
@@ -317,12 +312,7 @@ class UserRoutine:
         scale = 1e-6 if der is not None else 1e-4
         for s, (key, hs) in enumerate(zip(self.slots, self._steps(scale))):
             for c in range(3):
-                vp = dict(vec)
-                vm = dict(vec)
-                e = np.zeros(3)
-                e[c] = hs
-                vp[key] = vec[key] + e
-                vm[key] = vec[key] - e
+                vp, vm = _perturbed(vec, key, c, hs)
                 gp = np.einsum("r,rk->k", w, self.evaluate(t, vp)[1].reshape(self.m, -1))
                 gm = np.einsum("r,rk->k", w, self.evaluate(t, vm)[1].reshape(self.m, -1))
                 H[:, 3 * s + c] = (gp - gm) / (2 * hs)
@@ -343,3 +333,13 @@ class _AllVectors(dict):
 
     def __contains__(self, key):
         return True
+
+
+def _perturbed(vec: dict, key, c: int, h: float):
+    """Copies of the slot-vector dict with component ``c`` of ``vec[key]`` moved by +h and -h."""
+    e = np.zeros(3)
+    e[c] = h
+    vp, vm = dict(vec), dict(vec)
+    vp[key] = vec[key] + e
+    vm[key] = vec[key] - e
+    return vp, vm

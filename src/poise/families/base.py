@@ -487,3 +487,36 @@ def add_torque_via_axes(rho, G, axis_slots, T, dT, Y):
             if dT is not None:
                 G[:, rows, :] += 0.5 * np.matmul(skew(a), dT)
             G[:, rows, rows] += -0.5 * skew(T)
+
+
+def column_map(index, cols):
+    """Map per-instance global indices to per-instance local columns (compile time).
+
+    ``index`` (n, C) holds global indices (negative = unused); ``cols`` is a list of n dicts
+    ``global -> local column`` extended in place (first use gets the next column). Returns the
+    ``(rows, c, local)`` int arrays of every used entry.
+    """
+    rows, cs, fs = [], [], []
+    for i in range(len(cols)):
+        d = cols[i]
+        for c, k in enumerate(index[i]):
+            k = int(k)
+            if k < 0:
+                continue
+            if k not in d:
+                d[k] = len(d)
+            rows.append(i)
+            cs.append(c)
+            fs.append(d[k])
+    ip = np.intp
+    return np.array(rows, ip), np.array(cs, ip), np.array(fs, ip)
+
+
+def columns_array(cols, width=None, fill=-1):
+    """(n, width) array with ``out[i, local] = global`` from the dicts of :func:`column_map`."""
+    width = max((len(d) for d in cols), default=0) if width is None else width
+    out = np.full((len(cols), width), fill, int)
+    for i, d in enumerate(cols):
+        for k, c in d.items():
+            out[i, c] = k
+    return out

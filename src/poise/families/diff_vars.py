@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import ForceFamily
+from poise.families.base import ForceFamily, column_map, columns_array
 
 
 class ScalarEquation(ForceFamily):
@@ -81,30 +81,11 @@ def layout(batch, own, ground):
             rows.append(i)
             bs.append(s)
             fs.append(4 * mk[i][m] + kind)
-    crow, bc, fc = [], [], []
-    for i in range(n):
-        for c, k in enumerate(batch.scalar_index[i]):
-            k = int(k)
-            if k < 0:
-                continue
-            if k not in sc[i]:
-                sc[i][k] = len(sc[i])
-            crow.append(i)
-            bc.append(c)
-            fc.append(sc[i][k])
-    X = max(1, max(len(d) for d in mk))
-    markers = np.zeros((n, X), int)
-    for i, d in enumerate(mk):
-        for m, k in d.items():
-            markers[i, k] = m
-    U = max(len(d) for d in sc)
-    scols = np.full((n, U), -1, int)
-    for i, d in enumerate(sc):
-        for k, c in d.items():
-            scols[i, c] = k
+    smap = column_map(batch.scalar_index, sc)
+    markers = columns_array(mk, width=max(1, max(len(d) for d in mk)), fill=0)
+    scols = columns_array(sc)
     ip = np.intp
-    return (markers, scols, (np.array(rows, ip), np.array(bs, ip), np.array(fs, ip)),
-            (np.array(crow, ip), np.array(bc, ip), np.array(fc, ip)))
+    return markers, scols, (np.array(rows, ip), np.array(bs, ip), np.array(fs, ip)), smap
 
 
 def build_scalar_equations(batch, own, ground, owner, locs, name="control:ScalarEquation"):

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.errors import EvaluationError
-from poise.families.base import ForceFamily
+from poise.families.base import ForceFamily, column_map, columns_array
 from poise.families.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
 from poise.families.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
 
@@ -189,11 +189,7 @@ def _layout(batches, I, J, ground):
                 if m < 0 or ground[m] or m == I[i] or m == J[i] or m in extras[i]:
                     continue
                 extras[i][m] = len(extras[i])
-    X = max((len(e) for e in extras), default=0)
-    extra = np.zeros((n, X), int)            # padding: global frame (index 0)
-    for i, e in enumerate(extras):
-        for m, k in e.items():
-            extra[i, k] = m
+    extra = columns_array(extras, fill=0)     # padding: global frame (index 0)
     maps = []
     for b in batches:
         rows, bs, fs = [], [], []
@@ -287,27 +283,11 @@ def _scalar_layout(fam, batches):
     instance's expressions read, and per batch the map (rows, batch_col, family_col)."""
     n = fam.n
     cols = [dict() for _ in range(n)]
-    maps = []
-    for b in batches:
-        si = getattr(b, "scalar_index", None)
-        rows, bc, fc = [], [], []
-        if si is not None:
-            for i in range(n):
-                for c, k in enumerate(si[i]):
-                    k = int(k)
-                    if k < 0:
-                        continue
-                    if k not in cols[i]:
-                        cols[i][k] = len(cols[i])
-                    rows.append(i)
-                    bc.append(c)
-                    fc.append(cols[i][k])
-        maps.append((np.array(rows, np.intp), np.array(bc, np.intp), np.array(fc, np.intp)))
+    empty = (np.zeros(0, np.intp),) * 3
+    maps = [column_map(b.scalar_index, cols) if getattr(b, "scalar_index", None) is not None
+            else empty for b in batches]
     U = max((len(c) for c in cols), default=0)
     if U:
-        sc = np.full((n, U), -1, int)
-        for i, c in enumerate(cols):
-            for k, j in c.items():
-                sc[i, j] = k
+        sc = columns_array(cols)
         fam.scols = sc
         fam.scalar_maps = maps
