@@ -10,8 +10,7 @@ recorded in the iteration history (``iterations/event`` = ``fallback: <strategy>
 2. ``continuation``: pseudo-transient continuation — Newton steps with ``mu M`` added to the
    Jacobian, ``mu`` relaxed by switched evolution relaxation (see :func:`continuation`): a damped
    pseudo-time flow far from equilibrium that turns into plain Newton near it.
-3. ``mkeam``: kinetic-energy attrition (only stable equilibria) followed by a Newton polish, when
-   the MKEAM driver is available.
+3. ``mkeam``: kinetic-energy attrition (only stable equilibria) followed by a Newton polish.
 
 ``--no-fallback`` (``fallback=False`` in the overrides) turns the chain off.
 """
@@ -40,17 +39,13 @@ def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome):
     if out.ok:
         return st, out, "stability"
     reason = out.status.value
-    # 2. homotopy continuation
+    # 2. pseudo-transient continuation
     history.add(frame, 0, np.nan, np.nan, event=f"fallback: continuation: {reason}")
     st, out = continuation(model, start.copy(), settings, history, frame, cnt)
     if out.ok:
         return st, out, "continuation"
     reason = out.status.value
-    # 3. MKEAM, when available
-    try:
-        from poise.solvers.mkeam import relax  # noqa: F401
-    except ImportError:
-        return st, out, ""
+    # 3. MKEAM (imported only when the chain gets this far)
     history.add(frame, 0, np.nan, np.nan, event=f"fallback: mkeam: {reason}")
     try:
         from poise.solvers.mkeam import relax

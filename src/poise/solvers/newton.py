@@ -253,13 +253,8 @@ def _limit_step(model, state, dq, settings):
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
-           max_iter: int | None = None, event: str = "newton", offset=None):
-    """Newton iterations from ``state``. Returns ``(state, FrameOutcome)``.
-
-    ``offset`` (optional ``(r0, phi0)``) solves the shifted system ``F(x) - offset = 0`` (used
-    by the homotopy continuation of the fallback chain); convergence is then judged on the
-    shifted residual and the reported imbalance is the shifted one.
-    """
+           max_iter: int | None = None, event: str = "newton"):
+    """Newton iterations from ``state``. Returns ``(state, FrameOutcome)``."""
     sc = Scales(model, settings)
     eps = float(np.sqrt(settings.stability))
     max_iter = settings.max_num_iter if max_iter is None else max_iter
@@ -268,11 +263,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
     def ev_at(st):
         # Jacobian deferred: line-search trials pay for the residual only, the accepted point
         # assembles its Jacobian when it is factorised (never at the converged point)
-        e = _evaluate(model, st, cnt, need_jac="defer", eps=eps)
-        if offset is not None:
-            e.r = e.r - offset[0]
-            e.phi = e.phi - offset[1]
-        return e
+        return _evaluate(model, st, cnt, need_jac="defer", eps=eps)
 
     try:
         ev = ev_at(state)
@@ -284,7 +275,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
         res_ok = zinf <= 1.0
         step_ok = (not np.isfinite(last_step)) or last_step <= settings.max_error
         if res_ok and step_ok:
-            bad = "" if offset is not None else inconsistent_redundant(model, state, sc)
+            bad = inconsistent_redundant(model, state, sc)
             history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
                         pos=state.pos, rot=state.rot)
             if bad:

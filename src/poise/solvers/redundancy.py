@@ -106,29 +106,32 @@ def _dense_redundant(P):
     return np.sort(piv[rank:])
 
 
-def min_norm_multipliers(Phi_q, lam, active, row_weight):
+def min_norm_multipliers(Phi_q, lam, active, row_weight, Y=None):
     """Minimum-norm multipliers equivalent to ``lam`` (which is zero on inactive rows).
 
     Among all ``mu`` with ``Phi_q^T mu = Phi_q^T lam`` returns the one minimising
     ``sum(row_weight * mu**2)``. Uses the left null space of ``Phi_q``: for each redundant row k,
     ``y_k = e_k - Phi_ind-coefficients`` from the normal equations of the independent rows.
+    ``Y`` may pass a basis already computed by :func:`left_null_basis`.
     """
     red = np.nonzero(~active)[0]
     if len(red) == 0:
         return lam
-    Y = left_null_basis(Phi_q, active)
+    if Y is None:
+        Y = left_null_basis(Phi_q, active)
     Wy = row_weight[:, None] * Y
     M = Y.T @ Wy
     mu = lam - Y @ np.linalg.solve(M, Wy.T @ lam)
     return mu
 
 
-def dependent_rows(Phi_q, active, rel=1e-8) -> np.ndarray:
+def dependent_rows(Phi_q, active, rel=1e-8, Y=None) -> np.ndarray:
     """Rows taking part in a dependency (their multipliers are not unique): every row with a
-    non-negligible entry in a left null vector of ``Phi_q``, removed or kept."""
+    non-negligible entry in a left null vector of ``Phi_q``, removed or kept (``Y`` as in
+    :func:`min_norm_multipliers`)."""
     if np.all(active):
         return np.zeros(0, int)
-    Y = np.abs(left_null_basis(Phi_q, active))
+    Y = np.abs(left_null_basis(Phi_q, active) if Y is None else Y)
     return np.nonzero(Y.max(axis=1) > rel * Y.max())[0]
 
 

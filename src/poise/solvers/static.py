@@ -12,7 +12,8 @@ from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.history import History
 from poise.solvers.newton import Counters, FrameOutcome, assemble, initial_multipliers, newton
 from poise.solvers.outputs import element_loads
-from poise.solvers.redundancy import dependent_rows, min_norm_multipliers, redundant_rows
+from poise.solvers.redundancy import (dependent_rows, left_null_basis, min_norm_multipliers,
+                                      redundant_rows)
 from poise.solvers.status import MESSAGES, Status
 
 
@@ -86,8 +87,8 @@ class StaticAnalysis:
                         state, out = state2, out2
                         self.fallback_used = used
                     else:
-                        notes.append("fallback chain (stability, continuation"
-                                     + (", mkeam" if _has_mkeam() else "") + ") did not converge")
+                        notes.append("fallback chain (stability, continuation, mkeam) did not "
+                                     "converge")
         except EvaluationError as e:
             if self.redundancy is None:
                 self.redundancy = np.zeros(0, int)
@@ -130,10 +131,10 @@ class StaticAnalysis:
             lam = state.lam
             if len(self.redundancy) and model.nc:
                 Pfull = J[model.nq:, :model.nq]
+                Y = left_null_basis(Pfull, saved)       # one factorisation serves both
                 w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
-                lam = min_norm_multipliers(Pfull, state.lam, saved, w)
-            if len(self.redundancy) and model.nc:
-                dep = dependent_rows(J[model.nq:, :model.nq], saved)
+                lam = min_norm_multipliers(Pfull, state.lam, saved, w, Y=Y)
+                dep = dependent_rows(Pfull, saved, Y=Y)
             loads = element_loads(model, state, lam=lam, reuse=True)
         except EvaluationError:
             loads = {}
@@ -199,10 +200,3 @@ def stack_frames(per_frame: list[dict]) -> dict:
             out[k] = np.stack([np.asarray(f[k]) for f in per_frame])
     return out
 
-
-def _has_mkeam() -> bool:
-    try:
-        from poise.solvers.mkeam import relax  # noqa: F401
-    except ImportError:
-        return False
-    return True
