@@ -381,12 +381,12 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
     return spec
 
 
-def load_deck(path: str, *, check: bool = True) -> DeckSpec:
+def load_deck(path, *, check: bool = True) -> DeckSpec:
     """Read, parse and validate a deck file.
 
     Parameters
     ----------
-    path : str
+    path : str or os.PathLike
         Deck path (used as given in every message).
     check : bool, optional
         Validate the deck (default True).
@@ -400,6 +400,7 @@ def load_deck(path: str, *, check: bool = True) -> DeckSpec:
     DeckError
         Unreadable file, malformed XML, or any validation problem (all collected).
     """
+    path = str(path)          # os.PathLike accepted; messages and locations carry text
     try:
         with open(path, "rb") as f:
             data = f.read()

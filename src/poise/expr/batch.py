@@ -114,7 +114,9 @@ class _Group:
         m = self.m
         env.params = self.params
         env.ones = np.ones(m)
-        env.t = np.full(m, float(ctx.time))
+        tm = ctx.time
+        # one time for all instances, or one per batch instance (frames evaluated together)
+        env.t = np.full(m, float(tm)) if np.ndim(tm) == 0 else np.asarray(tm, float)[self.rows_idx]
         env.vecs = [np.take(P_ext, self.slot_marker[:, s], axis=0) if kind == 0
                     else np.take(A_ext[kind - 1], self.slot_marker[:, s], axis=0)
                     for s, kind in enumerate(self.kinds)]
@@ -311,3 +313,48 @@ class Batch:
             d_slot[self._global_slots] = 0.0
         return EvalResult(value, d_slot, self.slot_marker, self.slot_kind, d_time,
                           d_scalar, self.scalar_index, d_reaction, self.reaction_index)
+
+    def tiled(self, F: int, n_markers: int, n_angles: int, n_scalars: int) -> "Batch":
+        """This batch repeated for ``F`` frames (instance ``f * n + i``), for evaluating many
+        frames in one call (:mod:`poise.model.frame_batch`): marker slots are shifted by
+        ``n_markers`` per frame, continuous angles by ``n_angles``, scalar unknowns by
+        ``n_scalars``; ``EvalContext.time`` may then be one time per tiled instance. Batches
+        reading reaction channels are not tiled (their models are evaluated frame by frame)."""
+        import copy
+        if self.C:
+            raise ValueError("batches reading reaction channels are not tiled")
+        n = self.n
+        fo = np.arange(F)
+
+        def shift(a, step):
+            a = np.asarray(a)
+            off = (step * fo).reshape((F,) + (1,) * a.ndim)
+            return np.where(a[None] >= 0, a[None] + off, a[None]).reshape((F * a.shape[0],)
+                                                                           + a.shape[1:])
+        t = copy.copy(self)
+        t.exprs = list(self.exprs) * F
+        t.n = n * F
+        groups = []
+        for g in self.groups:
+            h = copy.copy(g)
+            h.rows_idx = (g.rows_idx[None] + (n * fo)[:, None]).ravel()
+            h.rows = slice(None) if isinstance(g.rows, slice) else h.rows_idx
+            h.m = g.m * F
+            h.params = np.tile(g.params, (1, F))
+            h.slot_marker = shift(g.slot_marker, n_markers)
+            h.scalars = shift(g.scalars, n_scalars)
+            h.angles = shift(g.angles, n_angles)
+            h.spl = [[(sp, idx if isinstance(idx, slice) else
+                       (idx[None] + (g.m * fo)[:, None]).ravel()) for sp, idx in lst]
+                     for lst in g.spl]
+            groups.append(h)
+        t.groups = groups
+        t.slot_marker = shift(self.slot_marker, n_markers)
+        t.slot_kind = np.tile(self.slot_kind, (F, 1))
+        t.scalar_index = shift(self.scalar_index, n_scalars)
+        t.reaction_index = np.tile(self.reaction_index, (F, 1))
+        t.time_mask = np.tile(self.time_mask, F)
+        t.state_mask = np.tile(self.state_mask, F)
+        t._global_slots = t.slot_marker < 0
+        return t
+

@@ -56,7 +56,10 @@ class ExprForce(ForceFamily):
     def _expr_values(self, ctx, need_jac):
         """Values (n, nb) and slot gradients (n, nb, 3S) of all batches."""
         from poise.expr import EvalContext as XC
-        xc = XC(time=float(ctx.t), P=getattr(ctx, "P", None), A=getattr(ctx, "A", None),
+        t = ctx.t
+        # one time per frame (frames evaluated together, model/frame_batch): one per instance
+        t = np.repeat(np.asarray(t, float), self.n // len(t)) if np.ndim(t) else float(t)
+        xc = XC(time=t, P=getattr(ctx, "P", None), A=getattr(ctx, "A", None),
                 angle_ref=ctx.angle, static=bool(getattr(ctx, "static", True)),
                 scalars=getattr(ctx, "extra", None), reactions=getattr(ctx, "reactions", None))
         n, S = self.n, len(self.slot_ml)
@@ -86,6 +89,20 @@ class ExprForce(ForceFamily):
                     np.add.at(rg, (rows, k, fc), dreac[k][rows, bc])
             self._rgrads = rg
         return vals, grads
+
+    def tile_frames(self, t, F, model):
+        """Complete the frame-tiled copy ``t`` (:mod:`poise.model.frame_batch`): expression
+        batches and their slot / scalar maps repeated for ``F`` frames."""
+        n = self.n
+
+        def rows(a):
+            return (a[None] + (n * np.arange(F))[:, None]).ravel()
+        t.batches = [b.tiled(F, len(model.marker_id), len(model.angle_I), model.n_extra)
+                     for b in self.batches]
+        t.slot_maps = [(rows(r), np.tile(bs, F), np.tile(fs, F)) for r, bs, fs in self.slot_maps]
+        sm = getattr(self, "scalar_maps", None)
+        if sm is not None:
+            t.scalar_maps = [(rows(a), np.tile(b, F), np.tile(c, F)) for a, b, c in sm]
 
     def forces(self, kin, ctx, need_jac=True):
         F, T, dF, dT = self.compute(kin.Y, ctx, need_jac)

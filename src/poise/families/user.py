@@ -72,6 +72,8 @@ class UserConstraint(ConstraintFamily):
 class _UserForceMixin:
     """Replaces the expression batches of an expression-force family by a user function."""
 
+    tile_frames = None          # a user routine is called per frame (model/frame_batch.py)
+
     routine = None
     n_comp = 1
     comp_index = None          # positions of the user's values among the family components

@@ -20,9 +20,13 @@ def element_loads(model, state, lam=None, reuse: bool = False):
     return loads_of(model, model.last, lam)
 
 
-def loads_of(model, items, lam=None):
+def loads_of(model, items, lam=None, frames: int = 1):
     """:func:`element_loads` from kept ``(fam, kin, rho, phi_y)`` tuples (``rho`` used as is
-    when ``lam`` is None, else ``phi_y^T lam`` for constraint families)."""
+    when ``lam`` is None, else ``phi_y^T lam`` for constraint families).
+
+    ``frames > 1``: the items cover that many frames (:func:`poise.model.frame_batch.
+    evaluate_frames`; owners and rows shifted per frame, ``lam`` (frames * nc,)); the arrays
+    returned are (frames * n_group, 3), frame-major."""
     out = {}
     for fam, kin, rho, phy in items:
         if phy is not None and lam is not None:
@@ -30,7 +34,7 @@ def loads_of(model, items, lam=None):
         group = getattr(fam, "group", None)
         if group is None or group not in model.outputs:
             continue
-        n_out = len(model.outputs[group]["ids"])
+        n_out = len(model.outputs[group]["ids"]) * frames
         F, T = out.setdefault(group, (np.zeros((n_out, 3)), np.zeros((n_out, 3))))
         S = len(fam.slot_ml)
         rho3 = rho.reshape(fam.n, S, 3)

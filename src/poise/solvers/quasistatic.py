@@ -312,25 +312,33 @@ class QuasiStaticAnalysis:
         measured = measured or {}
         sc = Scales(model, s) if measured else None
 
+        def measure_row(k, r, phi):
+            if k not in measured:
+                return
+            imb, cerr, _, worst = measures(model, Evaluation(r=r, phi=phi, J=None), sc)
+            outcomes[k].imbalance, outcomes[k].error = imb, cerr
+            row = list(self.history.rows[measured[k]])
+            row[2], row[3], row[6] = imb, cerr, worst
+            self.history.rows[measured[k]] = tuple(row)
+
         def measure(k):
             def on_eval(ev, active):
-                phi = np.where(active, ev.phi, 0.0)
-                imb, cerr, _, worst = measures(model, Evaluation(r=ev.r, phi=phi, J=None), sc)
-                outcomes[k].imbalance, outcomes[k].error = imb, cerr
-                row = list(self.history.rows[measured[k]])
-                row[2], row[3], row[6] = imb, cerr, worst
-                self.history.rows[measured[k]] = tuple(row)
+                measure_row(k, ev.r, np.where(active, ev.phi, 0.0))
             return on_eval
 
-        per = [sa.frame_datasets(st, [o], on_eval=measure(k) if k in measured else None)
-               for k, (st, o) in enumerate(zip(frames, outcomes))]
-        d = {}
-        for key in per[0]:
-            if key.endswith("/id") or key.endswith("/tag") or key.endswith("/unique") \
-                    or key.endswith("/label"):
-                d[key] = per[0][key]
-            else:
-                d[key] = np.concatenate([np.asarray(p[key]) for p in per])
+        # all frames at once where the model allows it (same datasets, array work per frame)
+        from poise.solvers.frames import frames_datasets
+        d = frames_datasets(sa, frames, outcomes, measure_row if measured else None)
+        if d is None:
+            per = [sa.frame_datasets(st, [o], on_eval=measure(k) if k in measured else None)
+                   for k, (st, o) in enumerate(zip(frames, outcomes))]
+            d = {}
+            for key in per[0]:
+                if key.endswith("/id") or key.endswith("/tag") or key.endswith("/unique") \
+                        or key.endswith("/label"):
+                    d[key] = per[0][key]
+                else:
+                    d[key] = np.concatenate([np.asarray(p[key]) for p in per])
         ar.datasets.update(d)
         ar.datasets.update(stack_frames([frame_outputs(model, st) for st in frames]))
         ar.datasets.update(self.history.datasets())

@@ -1,0 +1,181 @@
+"""Per-frame output datasets of a quasi-static run, all frames at once.
+
+:meth:`poise.solvers.static.StaticAnalysis.frame_datasets` computes one frame's outputs from
+one residual + Jacobian evaluation: reactions (minimum-norm where constraints are redundant),
+element loads, the stability class, and for FIM_D's interpolated frames the imbalance and
+constraint error. :func:`frames_datasets` produces the same datasets for a whole list of frames
+from :func:`poise.model.frame_batch.evaluate_frames` (chunks of frames, one kernel call per
+tileable family per chunk) and a batched stability classification (stacked SVD null spaces and
+symmetric eigen-decompositions, grouped by constraint rank), so the per-frame cost is array work,
+not a Python pass over the model. It returns ``None`` where batching does not apply (see
+:func:`poise.model.frame_batch.batchable`) or a frame does not evaluate to finite values; the
+caller then uses the frame-by-frame path, which names the failing element.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.errors import EvaluationError
+
+
+def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
+    """Datasets of all ``frames`` (concatenated along the frame axis), as the frame-by-frame
+    path writes them.
+
+    Parameters
+    ----------
+    sa : StaticAnalysis
+        Provides the model and the redundant rows.
+    frames : list of State
+    outcomes : list of FrameOutcome (one per frame)
+    measure : callable or None
+        ``measure(k, r, phi)`` for every frame ``k``: ``r`` (nq,) residual and ``phi`` (nc,)
+        constraint values with the analysis' inactive (redundant) rows zeroed.
+    """
+    from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
+    from poise.solvers.outputs import loads_of
+    from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
+
+    model = sa.model
+    if not frames or not batchable(model):
+        return None
+    F = len(frames)
+    nq, nc = model.nq, model.nc
+    saved = model.row_active.copy()
+    red = np.asarray(sa.redundancy, int)
+    dep = red
+    w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
+    loads = {}
+    infos = []
+    C = chunk_size(model)
+    model.row_active[:] = True
+    try:
+        for a in range(0, F, C):
+            chunk = frames[a:a + C]
+            ev = evaluate_frames(model, chunk, need_jac=True)
+            if measure is not None:
+                for j in range(len(chunk)):
+                    measure(a + j, ev.r[j], np.where(saved, ev.phi[j], 0.0))
+            lam = np.stack([s.lam for s in chunk]) if nc else np.zeros((len(chunk), 0))
+            if len(red) and nc:
+                lam = lam.copy()
+                for j in range(len(chunk)):
+                    Pf = ev.J[j, nq:, :nq]
+                    Y = left_null_basis(Pf, saved)
+                    lam[j] = min_norm_multipliers(Pf, lam[j], saved, w, Y=Y)
+                    if a + j == 0:
+                        dep = dependent_rows(Pf, saved, Y=Y)
+            for g, (Fg, Tg) in loads_of(model, ev.items, lam.ravel(), frames=len(chunk)).items():
+                n_out = len(model.outputs[g]["ids"])
+                loads.setdefault(g, []).append((Fg.reshape(-1, n_out, 3),
+                                                Tg.reshape(-1, n_out, 3)))
+            ok = np.array([o.ok for o in outcomes[a:a + C]])
+            model.row_active[:] = saved
+            infos += classify_frames(model, ev.J, saved, ok)
+            model.row_active[:] = True
+    except EvaluationError:
+        return None
+    finally:
+        model.row_active[:] = saved
+    d = {"time": np.array([s.t for s in frames])}
+    d["bodies/id"] = model.body_id
+    d["bodies/position"] = np.stack([s.pos for s in frames])
+    d["bodies/orientation"] = np.stack([s.rot for s in frames])
+    for g, o in model.outputs.items():
+        n_out = len(o["ids"])
+        if g in loads:
+            Fg = np.concatenate([x[0] for x in loads[g]])
+            Tg = np.concatenate([x[1] for x in loads[g]])
+        else:
+            Fg = np.zeros((F, n_out, 3))
+            Tg = np.zeros((F, n_out, 3))
+        d[f"{g}/id"] = np.asarray(o["ids"])
+        if g == "forces":
+            d["forces/tag"] = np.asarray(o["tag"], dtype=str)
+        d[f"{g}/force"] = Fg
+        d[f"{g}/torque"] = Tg
+        if g in ("joints", "jprims"):
+            uniq = np.ones(n_out, bool)
+            for r in dep:
+                ri = model.row_info[r]
+                if ri["group"] == g:
+                    uniq[ri["owner"]] = False
+            d[f"{g}/unique"] = uniq
+    d["frames/converged"] = np.array([o.ok for o in outcomes])
+    d["frames/iterations"] = np.array([o.iterations for o in outcomes], dtype=np.int64)
+    d["frames/imbalance"] = np.array([o.imbalance for o in outcomes])
+    d["frames/error"] = np.array([o.error for o in outcomes])
+    d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
+    from poise.solvers.stability import stability_datasets
+    d.update(stability_datasets(infos))
+    return d
+
+
+def classify_frames(model, J, active, ok=None) -> list:
+    """Stability of ``F`` frames from their dense KKT Jacobians ``J`` (F, N, N).
+
+    The same classification as :func:`poise.solvers.stability.classify` (length-scaled
+    symmetric tangent stiffness reduced to the null space of the active constraint rows,
+    Jacobi-equilibrated, inertia with the ``ZERO_REL`` threshold), computed with stacked SVDs
+    and eigen-decompositions; frames with equal constraint rank share one call. Frames with
+    ``ok[k]`` False are ``unknown``.
+    """
+    from poise.solvers.stability import (DIAG_FLOOR, ZERO_REL, StabilityInfo, _describe)
+
+    F = J.shape[0]
+    nq = model.nq
+    unknown = StabilityInfo("unknown", -1, -1, "", np.nan)
+    ok = np.ones(F, bool) if ok is None else np.asarray(ok, bool)
+    if nq == 0:
+        return [StabilityInfo("stable", 0, 0, "", np.nan) if k else unknown for k in ok]
+    out = [unknown] * F
+    sel_ok = np.nonzero(ok)[0]
+    if not len(sel_ok):
+        return out
+    d = model.q_scale
+    Ku = J[sel_ok, :nq, :nq] / d[:, None] / d[None, :]
+    Ku = 0.5 * (Ku + np.swapaxes(Ku, 1, 2))
+    Pq = J[sel_ok, nq:, :nq][:, active]
+    Fo = len(sel_ok)
+    if Pq.shape[1]:
+        _, s, vh = np.linalg.svd(Pq / d[None, None, :], full_matrices=True)
+        tol = 1e-10 * (s.max(axis=1) if s.shape[1] else np.zeros(Fo))
+        rank = np.sum(s > tol[:, None], axis=1)
+    else:
+        vh = np.broadcast_to(np.eye(nq), (Fo, nq, nq))
+        rank = np.zeros(Fo, int)
+    for rk in np.unique(rank):
+        grp = np.nonzero(rank == rk)[0]
+        Nb = np.swapaxes(vh[grp, rk:, :], 1, 2)                      # (g, nq, k)
+        if Nb.shape[2] == 0:
+            for i in grp:
+                out[sel_ok[i]] = StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
+            continue
+        Kg = Ku[grp]
+        Kr = np.matmul(np.swapaxes(Nb, 1, 2), np.matmul(Kg, Nb))
+        Kr = 0.5 * (Kr + np.swapaxes(Kr, 1, 2))
+        dg = np.abs(np.diagonal(Kr, axis1=1, axis2=2))
+        ref = np.maximum(dg.max(axis=1), np.abs(np.diagonal(Kg, axis1=1, axis2=2)).max(axis=1))
+        fl = np.where(ref > 1e-280, DIAG_FLOOR * ref, 1.0)
+        sj = 1.0 / np.sqrt(np.maximum(dg, fl[:, None]))
+        wv, V = np.linalg.eigh(Kr * sj[:, :, None] * sj[:, None, :])
+        ztol = ZERO_REL * np.maximum(np.abs(wv).max(axis=1), 1.0)
+        neg = wv < -ztol[:, None]
+        zero = np.abs(wv) <= ztol[:, None]
+        X = np.matmul(Nb, sj[:, :, None] * V)
+        X /= np.maximum(np.linalg.norm(X, axis=1), 1e-300)[:, None, :]
+        kmin = np.argmin(wv, axis=1)
+        xk = X[np.arange(len(grp)), :, kmin]
+        wmin = np.einsum("gi,gij,gj->g", xk, Kg, xk)
+        for j, i in enumerate(grp):
+            modes = []
+            for label, mask in (("unstable", neg[j]), ("neutral", zero[j])):
+                for k in np.nonzero(mask)[0][:6]:
+                    modes.append(f"{label}: {_describe(model, X[j, :, k] / d)}")
+                extra = int(mask.sum()) - 6
+                if extra > 0:
+                    modes.append(f"{label}: ... {extra} more")
+            klass = "unstable" if neg[j].any() else "neutral" if zero[j].any() else "stable"
+            out[sel_ok[i]] = StabilityInfo(klass, int(neg[j].sum()), int(zero[j].sum()),
+                                           "; ".join(modes), float(wmin[j]))
+    return out
