@@ -136,13 +136,24 @@ class MotionConstraint(ConstraintFamily):
     def depends_on_time(self) -> bool:
         return bool(self.targets.depends_on_time(self.tidx))
 
+    def tile_frames(self, t, F, model):
+        """Frame tiling (:mod:`poise.model.frame_batch`): the per-instance arrays tiled by the
+        generic tiler suffice; :meth:`constraints` then reads one time per frame."""
+
+    def _targets(self, tt):
+        """Target of each instance at time ``tt`` (scalar), or at one time per frame (array
+        of F times; instances frame-major)."""
+        if np.ndim(tt) == 0:
+            return self.targets.values(tt)[0][self.tidx]
+        vals = np.stack([self.targets.values(float(x))[0] for x in tt])     # (F, n_targets)
+        return vals[np.arange(self.n) // (self.n // len(tt)), self.tidx]
+
     def constraints(self, kin, lam, ctx):
         need_hess = True
         v, g, H = measure(kin.Y, self.measure, need_hess)
         if self.measure == "AZ" and self.angle_index is not None:
             v = ctx.angle[self.angle_index]
-        f, _ = self.targets.values(ctx.t)
-        phi = (v - f[self.tidx])[:, None]
+        phi = (v - self._targets(ctx.t))[:, None]
         phi_y = g[:, None, :]
         G = lam[:, 0][:, None, None] * H
         return phi, phi_y, G

@@ -41,9 +41,11 @@ CHUNK_ENTRIES = 4_000_000   # dense Jacobian entries per chunk of frames (32 MB)
 
 def _tileable():
     from poise.families.constraints import Coincident, InPlane, Perpendicular
+    from poise.families.contact import ContactForce
+    from poise.families.field_beam import FieldForce
     from poise.families.forces import AxisForce, AxisTorque, Bushing, LineForce, VectorForce
     return (Coincident, Perpendicular, InPlane, LineForce, AxisForce, AxisTorque, Bushing,
-            VectorForce)
+            VectorForce, ContactForce, FieldForce)
 
 
 #: per-instance index arrays of tileable families shifted per frame: attribute -> table
