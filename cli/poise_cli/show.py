@@ -50,9 +50,7 @@ def format_summary(s: dict) -> list[str]:
             lines.append(f"  redundant equations: {red[0] if red else 0}")
         lines += _stability_lines(a.get("stability"))
     if s["timings"]:
-        total = sum(v for v in s["timings"].values() if isinstance(v, (int, float)))
-        lines.append("timings [s]: " + ", ".join(
-            f"{k} {v:.3g}" for k, v in s["timings"].items()) + f" (sum {total:.3g})")
+        lines.append(timings_line(s["timings"]))
     if s["counts"]:
         lines.append("counts: " + ", ".join(f"{k} {v}" for k, v in s["counts"].items()))
     if s["warnings"]:
@@ -97,3 +95,30 @@ def show(results, as_json, debug):
     else:
         click.echo("\n".join(format_summary(summary)))
     ctx.exit(0)
+
+
+def timings_line(t: dict) -> str:
+    """``parse, compile, solve (its phases + the rest), write; total`` — what the run's accuracy
+    cost. ``analysis_*`` entries are parts of ``solve`` (printed per analysis above)."""
+    def num(k):
+        v = t.get(k)
+        return float(v) if isinstance(v, (int, float)) else None
+    parts = []
+    for k in ("parse", "compile"):
+        if num(k) is not None:
+            parts.append(f"{k} {num(k):.3g}")
+    solve = num("solve")
+    if solve is not None:
+        ph = [(k[6:], num(k)) for k in t if k.startswith("solve_") and num(k) is not None]
+        inner = ", ".join(f"{k} {v:.3g}" for k, v in ph)
+        if ph:
+            inner += f", other {max(solve - sum(v for _, v in ph), 0.0):.3g}"
+        parts.append(f"solve {solve:.3g}" + (f" ({inner})" if inner else ""))
+    if num("write") is not None:
+        parts.append(f"write {num('write'):.3g}")
+    known = {"parse", "compile", "solve", "write"}
+    parts += [f"{k} {num(k):.3g}" for k in t if k not in known and not k.startswith(
+        ("solve_", "analysis_")) and num(k) is not None]
+    total = sum(num(k) or 0.0 for k in ("parse", "compile", "solve", "write"))
+    return "timings [s]: " + ", ".join(parts) + f"; total {total:.3g}"
+

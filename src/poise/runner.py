@@ -129,6 +129,8 @@ def analysis_class(req: AnalysisRequest):
 
 
 def run(path: str, overrides=None, command: str = "", progress=None) -> RunResult:
+    from poise import phases
+    phases.reset()
     t0 = time.perf_counter()
     spec = _load(path)
     path = spec.path
@@ -172,7 +174,10 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
         if progress:
             progress(summary_line(ar))
     t3 = time.perf_counter()
-    res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2, **res.timings)
+    # solve = its phases (poise.phases: evaluate, assemble, factorise) + the rest
+    res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2,
+                       **{f"solve_{k}": v for k, v in phases.snapshot().items()},
+                       **res.timings)
     res.counts = counts
     return res
 

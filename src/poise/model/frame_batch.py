@@ -142,6 +142,15 @@ def evaluate_frames(model, states, need_jac: bool = True) -> FrameEvaluation:
         A kernel produced NaN/Inf in some frame (callers fall back to frame-by-frame outputs,
         which name the element).
     """
+    from poise import phases
+    t_start = phases.now()
+    try:
+        return _evaluate_frames(model, states, need_jac)
+    finally:
+        phases.add("evaluate", phases.now() - t_start)
+
+
+def _evaluate_frames(model, states, need_jac):
     from poise.model.model import EvalContext, _constraint_ext
 
     F = len(states)

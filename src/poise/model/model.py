@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from poise import phases
 from poise.errors import EvaluationError
 from poise.families.base import (constraint_jacobian_local, local_pattern, local_residual_tangent,
                                  slot_kinematics)
@@ -342,6 +343,7 @@ class Model:
             Keep per-family slot data (``self.last``: tuples ``(family, kin, rho, phi_y)``,
             ``phi_y`` None for force families) for reaction outputs.
         """
+        t_start = phases.now()
         defer = isinstance(need_jac, str) and need_jac == "defer"
         P, A, pos = self.marker_kinematics(state)
         ctx = EvalContext(t=state.t, angle=state.angle, P=P, A=A, extra=state.extra)
@@ -393,6 +395,7 @@ class Model:
         if keep:
             self.last = last
         if not (np.all(np.isfinite(r)) and np.all(np.isfinite(phi))):
+            phases.add("evaluate", phases.now() - t_start)
             raise EvaluationError(self._nonfinite_message(r, phi))
         ev = Evaluation(r=r, phi=phi, J=None)
         if need_jac:
@@ -400,14 +403,16 @@ class Model:
             if feed is not None:
                 ev._coupling = feed.coupling(self, done, P, A, state.lam, self.row_active)
             ev._pending = (state, pend, eps_mass, self.row_active.copy())
-            if not defer:
-                self.jacobian(ev)
+        phases.add("evaluate", phases.now() - t_start)
+        if need_jac and not defer:
+            self.jacobian(ev)
         return ev
 
     def jacobian(self, ev: Evaluation):
         """The KKT Jacobian of an evaluation (assembled now if it was deferred); sets ``ev.J``."""
         if ev.J is not None:
             return ev.J
+        t_start = phases.now()
         state, pend, eps_mass, row_active = ev._pending
         vals = []
         for fam, kin, rho, G, phy, ext in pend:
@@ -432,6 +437,7 @@ class Model:
         vals += ev._coupling
         ev.J = self.assembler.assemble(vals)
         ev._pending = None
+        phases.add("assemble", phases.now() - t_start)
         return ev.J
 
     def _nonfinite_message(self, r, phi):

@@ -24,6 +24,14 @@ class Factor:
     count = 0
 
     def __init__(self, J):
+        from poise import phases
+        t0 = phases.now()
+        try:
+            self._factor(J)
+        finally:
+            phases.add("factorise", phases.now() - t0)
+
+    def _factor(self, J):
         Factor.count += 1
         self.sparse = hasattr(J, "tocsc")
         self.order = None
