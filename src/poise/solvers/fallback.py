@@ -76,8 +76,7 @@ def continuation(model, state, settings, history, frame, cnt):
         ev = _evaluate(model, state, cnt, need_jac=True)
     except EvaluationError as e:
         return state, FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
-    J = ev.J.toarray() if hasattr(ev.J, "toarray") else np.asarray(ev.J)
-    kd = np.abs(np.diag(J)[:model.nq])
+    kd = np.abs(np.asarray(ev.J.diagonal()).ravel()[:model.nq])     # dense or CSR, never densified
     md = np.maximum(model.mass_diagonal(state), 1e-300)
     mu = float(np.max(kd / md)) if model.nq else 0.0
     m_old = merit(ev, sc)
