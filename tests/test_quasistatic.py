@@ -225,14 +225,15 @@ def test_fim_d_fallbacks_recorded(monkeypatch):
     t = ar.datasets["time"]
     np.testing.assert_allclose(ar.datasets["bodies/position"][:, 0, 0], 1.0 + 50 * t / 200.0,
                                atol=1e-7)
-    # too large for IDA's dense solver: the whole run falls back, recorded at frame 0
+    # no size limit any more: a model on IDA's sparse solver is integrated, no fallback
     monkeypatch.setattr(fd, "_ida", real)
-    monkeypatch.setattr(fd, "DENSE_LIMIT", 0)
+    monkeypatch.setattr(fd, "SPARSE_MIN", 0)
     ar = _run(_deck("qs_spring_ramp.xml"), "FIM_D").analyses[0]
     ev, fr, why = _events(ar)
-    rows = [(f, w) for e, f, w in zip(ev, fr, why) if e == "fallback_fim_s"]
-    assert len(rows) == 1 and rows[0][0] == 0 and "dense solver" in rows[0][1]
-    assert ar.status == "converged" and "FIM_S used" in ar.message
+    assert "fallback_fim_s" not in ev and "ida" in ev
+    assert ar.status == "converged" and ar.attrs["ida_linear_solver"] == "sparse"
+    np.testing.assert_allclose(ar.datasets["bodies/position"][:, 0, 0], 1.0 + 50 * t / 200.0,
+                               atol=1e-7)
 
 
 @needs_expr

@@ -70,6 +70,16 @@ class Assembler:
             M.poise_column_order = self.column_order   # used by linalg.Factor
         return M
 
+    def pattern(self):
+        """Structural pattern: ``(rows, cols)`` of every entry an assembly can fill, unique and
+        row-major sorted (for a CSR assembler: the order of its ``data``). Dense assemblers keep
+        the same pattern (only the storage is dense)."""
+        if self.dense:
+            keys = np.unique(np.asarray(self.slot, np.int64))
+            return keys // self.N, keys % self.N
+        rows = np.repeat(np.arange(self.N, dtype=np.int64), np.diff(self.indptr))
+        return rows, self.indices.astype(np.int64)
+
     def column_order(self) -> np.ndarray:
         """Fill-reducing column order ``q`` (factorise ``A[:, q]`` in natural order), computed once.
 

@@ -1,0 +1,292 @@
+"""FIM_D (SUNDIALS IDA): the sparse linear-solver path with the analytic Jacobian, and the
+per-step table read from IDA's own counters (order, Newton iterations, failures)."""
+import importlib.util
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+import poise.solvers.fim_d as fd
+from poise.api import run_deck
+from poise.deck.schema import element_schema
+from poise.gen.chain import build_chain_deck
+
+needs_expr = pytest.mark.skipif(
+    importlib.util.find_spec("poise.families.expr_forces") is None
+    or not element_schema("Post_Request").supported,
+    reason="expression-valued forces not available in this tree")
+
+DECKS = os.path.join(os.path.dirname(__file__), "..", "decks")
+HARMONIC = {k: sum(1.0 / i for i in range(1, k + 1)) for k in range(1, 6)}
+
+
+def _qs_chain(tmp_path, n, load=200.0, dt=0.25, static='method="FIM_D"'):
+    """Revolute hanging chain (decks/gen_chain.py) with a load ramped from 0 at link n//3's end
+    pin (x and y components ``load * TIME`` N), quasi-static over [0, 1]."""
+    txt = build_chain_deck(n)
+    txt = txt.replace('<Param_Static method="FIM_S"', f"<Param_Static {static}")
+    k = n // 3
+    force = (f'    <Force_Vector_OneBody id="{n + 10}" type="FORCEONLY" marker_id="{10 * k + 3}" '
+             f'fx_expression="{load}*TIME" fy_expression="{load}*TIME" fz_expression="0"/>\n')
+    txt = txt.replace("  </Model>", force + "  </Model>")
+    txt = txt.replace('<Simulate analysis_type="Static"/>',
+                      f'<Simulate analysis_type="Static" end_time="1.0" print_interval="{dt}"/>')
+    p = tmp_path / f"qs_chain_{n}.xml"
+    p.write_text(txt)
+    return str(p)
+
+
+def _bushing_3d(tmp_path):
+    """The bushing block with a 3-D load ramped in time at an offset point: the block rotates
+    about all three axes (every entry of J_l(w) matters)."""
+    txt = open(os.path.join(DECKS, "bushing_block.xml")).read()
+    old = 'fx_expression="30.0" fy_expression="-80.0" fz_expression="0."'
+    assert old in txt
+    txt = txt.replace(old, 'fx_expression="150*TIME" fy_expression="-400*TIME" '
+                           'fz_expression="300*TIME"')
+    old = 'pos_x="250.0" pos_y="-200.0" pos_z="50.0"'
+    assert old in txt
+    txt = txt.replace(old, 'pos_x="250.0" pos_y="-120.0" pos_z="90.0"')
+    txt = txt.replace('<Param_Static method="FIM_S"', '<Param_Static method="FIM_D" stability="0"')
+    txt = txt.replace('<Simulate analysis_type="Static"/>',
+                      '<Simulate analysis_type="Static" end_time="1.0" print_interval="0.1"/>')
+    p = tmp_path / "qs_bushing_3d.xml"
+    p.write_text(txt)
+    return str(p)
+
+
+def _events(path):
+    with h5py.File(path, "r") as f:
+        return [e.decode() if isinstance(e, bytes) else str(e)
+                for e in f["analysis_000/iterations/event"][()]]
+
+
+def _check_steps(ar, max_order=5):
+    d = ar.datasets
+    n = ar.attrs["ida_steps"]
+    assert n > 0
+    for k in ("time", "step_size", "order", "nonlinear_iterations", "error_test_failures",
+              "convergence_failures", "jacobian_evaluations", "rebase"):
+        assert len(d[f"steps/{k}"]) == n, k
+    order = np.asarray(d["steps/order"])
+    assert order.dtype.kind == "i"
+    assert order.min() >= 1 and order.max() <= max_order, order
+    assert np.all(np.asarray(d["steps/nonlinear_iterations"]) >= 1)
+    assert np.all(np.asarray(d["steps/error_test_failures"]) >= 0)
+    assert np.all(np.asarray(d["steps/convergence_failures"]) >= 0)
+    h, t = np.asarray(d["steps/step_size"]), np.asarray(d["steps/time"])
+    assert np.all(h > 0) and np.all(np.diff(t) > 0)
+    return order
+
+
+@needs_expr
+def test_sparse_fim_d_above_old_dense_limit(tmp_path, monkeypatch):
+    """A chain of 510 links (N = 5665 unknowns; the former dense limit was 1500; more than
+    3000 coordinates, so the per-frame stability classification stays cheap) is integrated by
+    IDA with the sparse solver: no FIM_S fallback in the results file, every frame within 1e-6
+    (relative) of FIM_S, BDF orders in [1, 5]."""
+    from poise.results.hdf5 import write_results
+    path = _qs_chain(tmp_path, 510)
+    sizes = []
+    real = fd.SparseJacobian.__init__
+
+    def init(self, model):
+        sizes.append(model.N)
+        real(self, model)
+
+    monkeypatch.setattr(fd.SparseJacobian, "__init__", init)
+    res = {}
+    for m in ("FIM_D", "FIM_S"):
+        r = run_deck(path, {"method": m}, quiet=True)
+        write_results(r, str(tmp_path / f"{m}.h5"))
+        res[m] = r
+    assert sizes == [6 * 510 + 5 * 511]
+    a, b = res["FIM_D"].analyses[0], res["FIM_S"].analyses[0]
+    assert a.status == b.status == "converged", (a.message, b.message)
+    assert a.method == "FIM_D" and a.attrs["ida_linear_solver"] == "sparse"
+    assert a.attrs["fim_s_fallbacks"] == 0
+    ev = _events(str(tmp_path / "FIM_D.h5"))
+    assert "fallback_fim_s" not in ev
+    assert ev.count("ida") == len(a.datasets["time"]) - 2      # interior frames: IDA's
+    assert ev.count("final_fim_s") >= 1
+    pa, pb = a.datasets["bodies/position"], b.datasets["bodies/position"]
+    F = len(pb)
+    assert F == 5
+    err = np.abs(pa - pb).reshape(F, -1).max(axis=1)
+    scale = np.abs(pb).reshape(F, -1).max(axis=1)
+    assert np.all(err <= 1e-6 * scale), err / scale
+    # the load moved the chain: the comparison is not trivially between rest states
+    assert np.abs(pb[-1] - pb[0]).max() > 1.0
+    _check_steps(a)
+
+
+class _Capture:
+    """Records the Jacobians handed to IDA (sparse path) with the chart that produced them."""
+
+    def __init__(self, monkeypatch):
+        self.calls, self.patterns = [], []
+        real_jac, real_ida = fd._Chart.jacfn_sparse, fd._ida
+        cap = self
+
+        def jacfn_sparse(chart, t, y, yp, res, cj, JJ):
+            real_jac(chart, t, y, yp, res, cj, JJ)
+            cap.calls.append((chart, float(t), np.array(y), np.array(JJ)))
+
+        def ida(chart, *a, **k):
+            cap.patterns.append(chart.sparse.pattern())
+            return real_ida(chart, *a, **k)
+
+        monkeypatch.setattr(fd._Chart, "jacfn_sparse", jacfn_sparse)
+        monkeypatch.setattr(fd, "_ida", ida)
+
+
+def _fd_jacobian(chart, t, y):
+    """Central differences of IDA's residual ``resfn`` (yp does not enter: all algebraic)."""
+    m = chart.model
+    n = len(y)
+    scale = np.ones(n)
+    scale[:m.nq] = np.where(m.q_kind == 1, 1e-6, 1e-6 * m.L)
+    scale[m.nq:] = 1e-6 * max(1.0, np.abs(y[m.nq:]).max(initial=0.0))
+    J = np.empty((n, n))
+    rp, rm = np.empty(n), np.empty(n)
+    yp = np.zeros(n)
+    for j in range(n):
+        h = scale[j]
+        yy = y.copy()
+        yy[j] += h
+        chart.resfn(t, yy, yp, rp)
+        yy[j] -= 2 * h
+        chart.resfn(t, yy, yp, rm)
+        J[:, j] = (rp - rm) / (2 * h)
+    # removed (redundant) constraint rows: their multipliers are held at 0 (the KKT Jacobian's
+    # row and column of such a multiplier are the unit vector; Model.jacobian)
+    off = m.nq + np.nonzero(~m.row_active)[0]
+    assert np.all(y[off] == 0.0)
+    J[:, off] = 0.0
+    J[off, off] = 1.0
+    return J
+
+
+@needs_expr
+@pytest.mark.parametrize("case", ["chain", "bushing_3d"])
+def test_sparse_jacobian_equals_finite_differences(tmp_path, monkeypatch, case):
+    """Small models forced onto the sparse path: every CSC Jacobian handed to IDA (the KKT
+    Jacobian times diag(I, J_l(w)) on the union pattern) equals central differences of the IDA
+    residual, entries outside the pattern included; and the sparse run reproduces the dense
+    one."""
+    if case == "chain":
+        path = _qs_chain(tmp_path, 8, load=1000.0, dt=0.25,
+                         static='method="FIM_D" stability="0"')
+    else:
+        path = _bushing_3d(tmp_path)
+    dense = run_deck(path, None, quiet=True).analyses[0]
+    assert dense.attrs["ida_linear_solver"] == "dense"
+    monkeypatch.setattr(fd, "SPARSE_MIN", 0)
+    cap = _Capture(monkeypatch)
+    ar = run_deck(path, None, quiet=True).analyses[0]
+    assert ar.status == "converged" and ar.attrs["fim_s_fallbacks"] == 0, ar.message
+    assert ar.attrs["ida_linear_solver"] == "sparse" and len(cap.calls) >= 3
+    np.testing.assert_allclose(ar.datasets["bodies/position"], dense.datasets["bodies/position"],
+                               rtol=0, atol=1e-9 * np.abs(dense.datasets["bodies/position"]).max())
+    pattern = cap.patterns[0]
+    # the last Jacobians are far from the reference (rotations of several degrees+)
+    wmax = 0.0
+    for chart, t, y, JJ in (cap.calls[len(cap.calls) // 2], cap.calls[-1]):
+        m = chart.model
+        w = np.linalg.norm(y[m.rot_idx].reshape(-1, 3), axis=1).max()
+        wmax = max(wmax, w)
+        A = chart.sparse.matrix(JJ).toarray()
+        assert chart.sparse.nnz == pattern.nnz
+        Jfd = _fd_jacobian(chart, t, y)
+        s = np.abs(Jfd).max()
+        np.testing.assert_allclose(A, Jfd, rtol=0, atol=2e-7 * s)
+        # outside the pattern handed to IDA the residual does not depend on y
+        outside = pattern.toarray() == 0
+        assert np.abs(Jfd[outside]).max(initial=0.0) <= 2e-7 * s
+    assert wmax > 0.05
+    if case == "bushing_3d":
+        w = y[m.rot_idx].reshape(-1, 3)[0]
+        assert np.all(np.abs(w) > 1e-3), w          # rotated about all three axes
+
+
+def _residual_calls(monkeypatch):
+    calls = []
+    real = fd._Chart.resfn
+
+    def resfn(chart, t, y, yp, res):
+        calls.append((float(t), np.array(y), np.array(yp)))
+        return real(chart, t, y, yp, res)
+
+    monkeypatch.setattr(fd._Chart, "resfn", resfn)
+    return calls
+
+
+def test_step_order_matches_bdf_coefficient(monkeypatch):
+    """``steps/order`` (IDAGetLastOrder) checked independently: within one Newton solve IDA
+    evaluates the residual at ``y = y_pred + e``, ``y' = y'_pred + c_j e`` with
+    ``c_j h = sum_{i<=k} 1/i`` (fixed-leading-coefficient BDF of order k), so two residual calls
+    at an accepted step's time give ``c_j`` and hence k. ``nonlinear_iterations``
+    (IDAGetNumNonlinSolvIters) equals the number of residual evaluations of the step."""
+    calls = _residual_calls(monkeypatch)
+    ar = run_deck(os.path.join(DECKS, "qs_slider_crank_rev.xml"), {"method": "FIM_D"},
+                  quiet=True).analyses[0]
+    assert ar.status == "converged" and ar.attrs["fim_s_fallbacks"] == 0
+    order = _check_steps(ar)
+    assert order.max() >= 3                 # IDA raises the order on this smooth path
+    d = ar.datasets
+    t_steps, h = np.asarray(d["steps/time"]), np.asarray(d["steps/step_size"])
+    by_t = {}
+    for t, y, yp in calls:
+        by_t.setdefault(t, []).append((y, yp))
+    checked = 0
+    for i, (t, k) in enumerate(zip(t_steps, order)):
+        pts = by_t.get(float(t), [])
+        if len(pts) < 2:
+            continue
+        (y1, p1), (y2, p2) = pts[0], pts[-1]
+        dy = y2 - y1
+        cj = float(np.dot(p2 - p1, dy) / np.dot(dy, dy))
+        kk = min(HARMONIC, key=lambda q: abs(HARMONIC[q] - cj * h[i]))
+        assert abs(cj * h[i] - HARMONIC[k]) < 1e-6 * HARMONIC[k], (i, k, kk, cj * h[i])
+        checked += 1
+    assert checked >= 5
+    # Newton iterations: one residual evaluation each (steps with no failed attempt)
+    nli = np.asarray(d["steps/nonlinear_iterations"])
+    clean = (np.asarray(d["steps/error_test_failures"]) == 0) & \
+        (np.asarray(d["steps/convergence_failures"]) == 0)
+    n_at = np.array([len(by_t.get(float(t), [])) for t in t_steps])
+    sel = clean & (n_at > 0)
+    assert sel.sum() > 0.8 * len(t_steps)
+    np.testing.assert_array_equal(nli[sel], n_at[sel])
+
+
+def test_step_order_respects_max_order(tmp_path):
+    text = open(os.path.join(DECKS, "qs_slider_crank_rev.xml")).read()
+    old = '<Param_Transient dae_constr_tol="1.0E-8"/>'
+    assert old in text
+    text = text.replace(old, '<Param_Transient dae_constr_tol="1.0E-5" max_order="2"/>')
+    p = tmp_path / "max2.xml"
+    p.write_text(text)
+    ar = run_deck(str(p), {"method": "FIM_D"}, quiet=True).analyses[0]
+    assert ar.status == "converged"
+    order = _check_steps(ar, max_order=2)
+    assert order.max() == 2
+
+
+def test_step_counters_unavailable(monkeypatch):
+    """If IDA's memory cannot be located safely, the order is -1 (documented), the message says
+    why, and the integration is unchanged."""
+    deck = os.path.join(DECKS, "qs_slider_crank_rev.xml")
+    ref = run_deck(deck, {"method": "FIM_D"}, quiet=True).analyses[0]
+    monkeypatch.setattr(fd.IdaStats, "_BASICSIZE", -1)
+    ar = run_deck(deck, {"method": "FIM_D"}, quiet=True).analyses[0]
+    assert ar.status == "converged"
+    assert np.all(np.asarray(ar.datasets["steps/order"]) == -1)
+    assert np.all(np.asarray(ar.datasets["steps/convergence_failures"]) == -1)
+    assert "IDA step order not available: unknown scikit-sundae solver layout" in ar.message
+    assert ar.attrs["ida_steps"] == ref.attrs["ida_steps"]
+    np.testing.assert_array_equal(ar.datasets["steps/time"], ref.datasets["steps/time"])
+    np.testing.assert_array_equal(ar.datasets["steps/nonlinear_iterations"],
+                                  ref.datasets["steps/nonlinear_iterations"])
+    np.testing.assert_array_equal(ar.datasets["bodies/position"], ref.datasets["bodies/position"])
