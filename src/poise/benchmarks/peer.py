@@ -190,6 +190,28 @@ def exudyn_available() -> tuple[bool, str]:
         return False, f"exudyn not importable ({type(e).__name__}: {e}); install the 'bench' extra"
 
 
+#: The mandated dependencies of a ``poise solve`` process: numpy (everything), lxml (deck
+#: parsing), h5py (results file). Whole-process time of importing just these is a floor no change
+#: to poise can go below.
+FLOOR_IMPORTS = "import numpy, h5py, lxml.etree"
+#: The same floor set up as a poise process is: ``poise/__init__`` sets OPENBLAS_NUM_THREADS=1
+#: before numpy is imported (no BLAS thread pool to start) and ``poise`` ends its process with
+#: ``os._exit`` after the exit handlers (``poise_cli.main.end_process``).
+FLOOR_AS_POISE = ('import os; os.environ.setdefault("OPENBLAS_NUM_THREADS", "1"); '
+                  f'{FLOOR_IMPORTS}; os._exit(0)')
+
+
+def import_floor(repeat: int) -> dict:
+    """Whole-process wall time of ``python -c FLOOR_IMPORTS`` (``normal``) and of
+    ``python -c FLOOR_AS_POISE`` (``as_poise``), measured like the poise and peer processes
+    (:func:`poise.bench._wall`)."""
+    from poise.bench import _wall
+    out = {}
+    for key, code in (("normal", FLOOR_IMPORTS), ("as_poise", FLOOR_AS_POISE)):
+        out[key], _ = _wall([sys.executable, "-c", code], repeat)
+    return dict(command=f'python -c "{FLOOR_IMPORTS}"', command_as_poise=FLOOR_AS_POISE, **out)
+
+
 def _poise_point(deck: Path, repeat: int):
     """poise in-process at deck settings (warm-up + repeat); returns stats and the result."""
     from poise.api import run_deck
@@ -215,6 +237,9 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
     ns: dict = {}
     if ok:
         exec(compile(SCRIPT, "<exudyn-peer>", "exec"), ns)
+    floor = import_floor(repeat)
+    log(f"import floor ({FLOOR_IMPORTS}): {floor['normal']['median']:.3g} s, set up as a poise "
+        f"process {floor['as_poise']['median']:.3g} s")
     with tempfile.TemporaryDirectory(prefix="poise-peer-") as td:
         tdp = Path(td)
         for prob in probs:
@@ -260,6 +285,13 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
                 row["solve_ratio"] = ps / es if es > 0 else None
                 row["process_ratio"] = (row["poise"]["process_s"]["median"] /
                                         row["exudyn"]["process_s"]["median"])
+            if not prob.get("n"):       # small decks: the floor next to the whole-process ratio
+                row["import_floor"] = floor
+                fl, fp = floor["normal"]["median"], floor["as_poise"]["median"]
+                row["poise_above_floor_s"] = row["poise"]["process_s"]["median"] - fp
+                if ok:
+                    pe = row["exudyn"]["process_s"]["median"]
+                    row["floor_ratio"], row["floor_as_poise_ratio"] = fl / pe, fp / pe
             log(f"peer {prob['name']}: poise {row['poise']['solve_s']['median']:.3g} s err "
                 f"{row['poise']['error']:.1e}" + (
                     f"; exudyn {'ok' if row['exudyn']['converged'] else 'FAILED'} "

@@ -173,6 +173,34 @@ def peer_section(rows) -> list[str]:
                  f"{_e(err)}{'' if e.get('converged') else ' (at stop)'} | "
                  f"{_s(r.get('solve_ratio'))} | {_mmm(p['process_s'])} | "
                  f"{_mmm(e.get('process_s'))} | {_s(r.get('process_ratio'))} |")
+    return L + floor_section(rows)
+
+
+def floor_section(rows) -> list[str]:
+    """Whole process of the small decks next to the import floor of poise's mandated
+    dependencies (numpy, h5py, lxml), all measured the same way (``poise.bench._wall``)."""
+    rows = [r for r in rows if r.get("import_floor") and r.get("exudyn", {}).get("process_s")]
+    if not rows:
+        return []
+    fl = rows[0]["import_floor"]
+    L = ["", "### Whole process vs the import floor (small decks)", "",
+         f"*Import floor* = `{fl['command']}`, run as a process like the two above (same "
+         "interpreter and environment, one warm-up, median (min–max)). *Floor as poise* = the "
+         f"same imports set up the way a poise process is: `python -c '{fl['command_as_poise']}'`"
+         " (poise sets `OPENBLAS_NUM_THREADS=1` before importing numpy, and ends its process "
+         "with `os._exit` after the exit handlers). *poise above floor* = poise process − floor "
+         "as poise: poise's own imports (click, poise), parse, compile, solve and the HDF5 write."
+         " If the floor alone is above 0.8 × Exudyn, the target cannot be met with the "
+         "mandated dependencies.", "",
+         "| problem | poise process [s] | Exudyn process [s] | poise / Exudyn | import floor [s] | "
+         "floor / Exudyn | floor as poise [s] | floor as poise / Exudyn | poise above floor [s] |",
+         "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        f = r["import_floor"]
+        L.append(f"| {r['problem']} | {_mmm(r['poise']['process_s'])} | "
+                 f"{_mmm(r['exudyn']['process_s'])} | {_s(r.get('process_ratio'))} | "
+                 f"{_mmm(f['normal'])} | {_s(r.get('floor_ratio'))} | {_mmm(f['as_poise'])} | "
+                 f"{_s(r.get('floor_as_poise_ratio'))} | {_s(r.get('poise_above_floor_s'))} |")
     return L
 
 

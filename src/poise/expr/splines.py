@@ -20,7 +20,6 @@ extrapolated linearly from the two end curves outside the z range).
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import Akima1DInterpolator, CubicSpline
 
 __all__ = ["PreparedSpline", "SPLINE_KINDS"]
 
@@ -33,8 +32,12 @@ def _coefs(kind: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         c[2] = np.diff(y) / np.diff(x)
         c[3] = y[:-1]
         return c
+    # scipy.interpolate (with scipy.optimize/spatial/special: ~0.1-0.7 s) only when a deck has
+    # an AKISPL/CUBSPL curve of 3+ points, not whenever the expression language is loaded
     if kind == "AKISPL":
+        from scipy.interpolate import Akima1DInterpolator
         return np.array(Akima1DInterpolator(x, y).c, dtype=float)
+    from scipy.interpolate import CubicSpline
     return np.array(CubicSpline(x, y).c, dtype=float)
 
 

@@ -23,7 +23,15 @@ from poise.errors import DeckError, Problem
 from poise.families import motions as Mo
 
 INTEGRATION_PANEL = 1e-2
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
+_GAUSS: list = []     # 8-point Gauss-Legendre nodes and weights, computed on first use
+
+
+def _gauss_legendre():
+    """(nodes, weights) of ``np.polynomial.legendre.leggauss(8)``: imported lazily (numpy.polynomial
+    costs a few ms of start-up and only velocity/acceleration motions integrate)."""
+    if not _GAUSS:
+        _GAUSS.extend(np.polynomial.legendre.leggauss(8))
+    return _GAUSS
 
 
 class _Resolver:
@@ -120,7 +128,7 @@ class MotionTargets:
         h = 0.5 * (b - a)
         m = 0.5 * (a + b)
         acc = np.zeros((2, self.n))
-        for x, w in zip(_GL_X, _GL_W):
+        for x, w in zip(*_gauss_legendre()):
             tau = m + h * x
             fv, _ = self.f(tau)
             acc[0] += w * h * fv

@@ -99,11 +99,15 @@ def _check_relpath(key: str, where: str) -> list[str]:
 
 
 def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str) -> None:
+    groups: dict[tuple, h5py.Group] = {(): group}   # opened subgroups (one lookup per group)
     for key in sorted(datasets):
         parts = _check_relpath(key, where)
         parent = group
-        for p in parts[:-1]:
-            parent = parent.require_group(p)
+        for k in range(1, len(parts)):
+            path = tuple(parts[:k])
+            parent = groups.get(path)
+            if parent is None:
+                parent = groups[path] = groups[path[:-1]].require_group(parts[k - 1])
         arr = _to_array(datasets[key], f"{where}/{key}")
         # contiguous layout, no filters, no timestamps: identical input -> identical bytes
         parent.create_dataset(parts[-1], data=arr, dtype=arr.dtype, track_times=False)
