@@ -140,10 +140,15 @@ def wp_section(rows, procs, qs, decade, deck_docs) -> list[str]:
     if qs:
         L += ["", "### FIM_D vs FIM_S on a long quasi-static run", "",
               f"`{qs[0]['file']}` ({qs[0]['frames']} frames, slider load ramp), one run per rung.",
-              "", "| method | rung | status | iterations | solve [s] | error / L |",
-              "|---|---|---|---|---|---|"]
+              "", "| method | rung | status | Newton iterations | IDA steps | residuals / Jacobians "
+              "/ factorisations | solve [s] | error / L |",
+              "|---|---|---|---|---|---|---|---|"]
         for r in qs:
+            c = r.get("counts", {})
+            steps = r.get("ida_steps")
             L.append(f"| {r['method']} | {r['tol']:.0e} | {r['status']} | {r['iterations']} | "
+                     f"{'—' if steps is None else steps} | {c.get('residuals', '—')} / "
+                     f"{c.get('jacobians', '—')} / {c.get('factorizations', '—')} | "
                      f"{_s(r['solve_s']['median'])} | {_e(r.get('error'))} |")
     return L
 

@@ -167,6 +167,9 @@ def run_point(xml_text: str, static: dict, transient: dict | None, repeat: int, 
                counts=dict(res.counts), solve_s=_stats(solves), total_s=_stats(walls),
                parse_s=res.timings.get("parse"), compile_s=res.timings.get("compile"),
                imbalance=max(imb) if imb else None)
+    steps = [int(a.attrs["ida_steps"]) for a in an if "ida_steps" in a.attrs]
+    if steps:
+        out["ida_steps"] = sum(steps)
     if ref_fn is not None:
         out["error"] = deck_error(res, ref_fn, ref_mod)
     return out
