@@ -88,6 +88,7 @@ def _worker(deck: str, n: int) -> dict:
 
     t = time.perf_counter()
     import poise  # noqa: F401  (first, as in `poise solve`: it configures BLAS threads)
+    import poise.solvers.stability as stability_mod
     import poise.solvers.static as static_mod
     import numpy as np
     import scipy.sparse as sp
@@ -115,6 +116,8 @@ def _worker(deck: str, n: int) -> dict:
     static_mod.initial_multipliers = timed("multipliers", static_mod.initial_multipliers)
     static_mod.newton = timed("newton", static_mod.newton)
     static_mod.min_norm_multipliers = timed("min_norm_reactions", static_mod.min_norm_multipliers)
+    # imported by the static driver at call time: the stability classification of the frame
+    stability_mod.classify = timed("stability", stability_mod.classify)
 
     t0 = time.perf_counter()
     spec = load_deck(deck)
@@ -380,10 +383,14 @@ def render_markdown(results: list[dict], machine: dict) -> str:
                 f"{_s(it['median']) if it else '—'} | {_s(c['lu_s']['median'])} | "
                 f"{_s(c['iteration_per_lu'], 2) if c['iteration_per_lu'] else '—'} | "
                 f"{c['peak_rss_bytes']['max'] / 2**20:.0f} MiB | {c['status']} |")
-        names = ["redundancy", "assembly", "multipliers", "newton", "min_norm_reactions"]
+        names = ["redundancy", "assembly", "multipliers", "newton", "min_norm_reactions",
+                 "stability"]
         out += ["", "### Solve phases (median seconds)", "",
-                "Phases of the static analysis; *evaluate* is one residual + KKT Jacobian "
-                "evaluation at the solution; counters are for the whole analysis.", "",
+                "Phases of the static analysis; *stability* is the classification of the "
+                "converged frame (dense eigen-decomposition up to 3000 coordinates, sparse "
+                "LDLᵀ inertia of the KKT matrix above: N ≥ 500); *evaluate* is one residual + "
+                "KKT Jacobian evaluation at the solution; counters are for the whole analysis.",
+                "",
                 "| N | " + " | ".join(names) + " | evaluate | residuals | Jacobians | "
                 "factorisations |", "|---" * (len(names) + 5) + "|"]
         for c in chains:

@@ -1,0 +1,298 @@
+"""Sparse stability classification (models with more than ``DENSE_LIMIT`` coordinates).
+
+* the LDL^T inertia helper against numpy ``eigh`` on random sparse symmetric matrices;
+* with ``DENSE_LIMIT`` patched to 0 (every model on the sparse path), the same class, negative
+  and zero counts as the dense path on stable, neutral, unstable (one and two negative
+  eigenvalues), redundant, scalar-unknown, contact and stiff/soft models;
+* real large models (600-link chains, 3600 coordinates > 3000): hanging (stable), hanging with
+  spherical joints (600 neutral spins, each named by its link and axis) and upside down at
+  the compressed catenary (598 unstable modes);
+* a factorisation that cannot be trusted gives ``unknown`` with the reason, never a class.
+"""
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import poise.solvers.stability as stab
+from poise.api import run_deck
+from poise.gen.chain import build_chain_deck
+
+from .deckgen import Deck, rot_y, rot_z
+
+DECKS = Path(__file__).resolve().parents[2] / "decks"
+
+
+# ------------------------------------------------------------------ LDL^T inertia helper
+def _random_symmetric(rng, n):
+    A = sp.random(n, n, density=rng.uniform(0.05, 0.4), random_state=int(rng.integers(1 << 30)))
+    A = (A + A.T) * rng.uniform(0.1, 10.0)
+    d = rng.normal(size=n) * rng.choice([1e-3, 1.0, 100.0], size=n)
+    return (A + sp.diags(d)).tocsc()
+
+
+def test_ldlt_inertia_matches_eigh_on_random_sparse_matrices():
+    rng = np.random.default_rng(1234)
+    checked = 0
+    for _ in range(300):
+        n = int(rng.integers(1, 60))
+        A = _random_symmetric(rng, n)
+        w = np.linalg.eigvalsh(A.toarray())
+        ref = (int(np.sum(w < 0)), 0, int(np.sum(w > 0)))
+        for order in (None, rng.permutation(n)):
+            F = stab.SymmetricLDL(A, order)
+            assert F.ok, F.reason                     # non-zero diagonal: always a 1x1 pivot path
+            if F.backward_error < np.abs(w).min():    # Weyl: then the counted inertia is exact
+                assert F.inertia == ref, (n, F.inertia, ref)
+                checked += 1
+            x = np.arange(1.0, n + 1)
+            if F.backward_error < 1e-10 * np.abs(w).min():
+                np.testing.assert_allclose(A @ F.solve(x), x, rtol=1e-6, atol=1e-6)
+    assert checked > 500
+
+
+def test_ldlt_indefinite_kkt_and_refusals():
+    # [[k, g], [g, 0]] (one negative, one positive eigenvalue): fine when the zero comes last
+    A = sp.csc_matrix(np.array([[2.0, 1.0], [1.0, 0.0]]))
+    F = stab.SymmetricLDL(A, np.array([0, 1]))
+    assert F.ok and F.inertia == (1, 0, 1)
+    # a zero pivot first: an off-diagonal pivot would be needed -> not a valid LDL^T
+    F = stab.SymmetricLDL(sp.csc_matrix(np.array([[0.0, 1.0], [1.0, 0.0]])), np.array([0, 1]))
+    assert not F.ok and "off-diagonal pivot" in F.reason
+    # a tiny first pivot: valid factors, but the backward-error estimate exposes the growth
+    F = stab.SymmetricLDL(sp.csc_matrix(np.array([[1e-12, 1.0], [1.0, 1.0]])), np.array([0, 1]))
+    assert F.ok and F.backward_error > 1e-5
+
+
+# ------------------------------------------------------------------ sparse == dense
+def _both(monkeypatch, run):
+    """Run twice: dense (default) and with every model on the sparse path."""
+    dense = run()
+    monkeypatch.setattr(stab, "DENSE_LIMIT", 0)
+    sparse = run()
+    monkeypatch.undo()
+    out = []
+    for a in (dense, sparse):
+        assert a.converged, a.message
+        d = a.datasets
+        out.append((str(d["frames/stability"][0]), int(d["frames/n_negative"][0]),
+                    int(d["frames/n_zero"][0]), str(d["frames/stability_modes"][0]),
+                    float(d["frames/min_stiffness_eigenvalue"][0])))
+    return out
+
+
+def _deck_file(name, **over):
+    return lambda: run_deck(str(DECKS / name), overrides=over or None).analyses[0]
+
+
+def inverted_double_pendulum():
+    """Two 300 mm links standing upright on REVOLUTE joints (axes along Z), started exactly at
+    that equilibrium: two negative eigenvalues (both links fall)."""
+    d = Deck()
+    d.ground()
+    R = rot_z(np.pi / 2)                      # link x axis along +Y
+    d.marker(101, 1, (0, 0, 0))
+    d.body(2, 20, (0, 150, 0), R, mass=1.0, inertia=(5, 7500, 7500))
+    d.marker(21, 2, (0, 0, 0))
+    d.marker(22, 2, (0, 300, 0))
+    d.body(3, 30, (0, 450, 0), R, mass=1.0, inertia=(5, 7500, 7500))
+    d.marker(31, 3, (0, 300, 0))
+    d.joint(1, "REVOLUTE", 21, 101)
+    d.joint(2, "REVOLUTE", 31, 22)
+    return d
+
+
+def universal_inverted_pendulum():
+    m, l = 2.0, 400.0
+    d = Deck()
+    d.ground()
+    d.marker(101, 1, (0, 0, 0))
+    d.body(2, 20, (0, l / 2, 0), rot_z(np.pi / 2), mass=m,
+           inertia=(10, m * l * l / 12, m * l * l / 12))
+    d.marker(21, 2, (0, 0, 0), rot_y(np.pi / 2))
+    d.joint(1, "UNIVERSAL", 21, 101)
+    return d
+
+
+def stiff_soft():
+    m = 1e-3
+    d = Deck(units="m", static=dict(max_imbalance=1e-8, max_error=1e-12))
+    d.ground()
+    d.marker(101, 1, (0, 0, 0))
+    d.marker(102, 1, (300, 0, 0))
+    d.point(2, 20, (0, -10, 0), mass=m)
+    d.point(3, 30, (0, -510, 0), mass=m)
+    d.spring(1, 20, 101, 1e9 * 1e-3, 10.0)
+    d.spring(2, 30, 20, 1.0 * 1e-3, 500.0)
+    d.body(4, 40, (300, 0, 0), mass=m, inertia=(1e-2, 1e-2, 1e-2))
+    d.bushing(1, 40, 102, (1e9 * 1e-3,) * 3, (1e12,) * 3)
+    return d
+
+
+CASES = {
+    # name: (runner, expected (class, n_negative, n_zero))
+    "stable_chain": (_deck_file("chain_10.xml"), ("stable", 0, 0)),
+    "neutral_spherical_chain": (_deck_file("chain_10_spherical.xml"), ("neutral", 0, 10)),
+    "inverted_pendulum_fim_s": (_deck_file("mkeam_inverted_pendulum.xml", method="FIM_S"),
+                                ("unstable", 1, 0)),
+    "redundant_fourbar": (_deck_file("fourbar_spring.xml"), ("stable", 0, 0)),
+    "slider_crank": (_deck_file("slider_crank_load.xml"), ("stable", 0, 0)),
+    "scalar_unknown_integrator": (_deck_file("elem_diff_integrator.xml"), ("unstable", 1, 0)),
+    "box_on_plane_contact": (_deck_file("contact_box_plane.xml"), ("neutral", 0, 3)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_sparse_path_matches_dense_on_decks(name, monkeypatch):
+    run, expected = CASES[name]
+    dense, sparse = _both(monkeypatch, run)
+    assert dense[:3] == expected
+    assert sparse[:3] == expected
+    assert np.sign(dense[4]) == np.sign(sparse[4]) or expected[2] > 0
+    if name == "neutral_spherical_chain":
+        assert sparse[3].count("neutral: body") == 6 and "neutral: ... 4 more" in sparse[3]
+    if name == "inverted_pendulum_fim_s":
+        # one degree of freedom: the same mode, the same value [N/mm]
+        # (the sign of an eigenvector is arbitrary)
+        assert sparse[3].replace("-", "") == dense[3].replace("-", "") == \
+            "unstable: body 2 rotation about (0.00,0.00,1.00)"
+        np.testing.assert_allclose(sparse[4], dense[4], rtol=1e-6)
+
+
+@pytest.mark.parametrize("make, expected", [
+    (inverted_double_pendulum, ("unstable", 2, 0)),
+    (universal_inverted_pendulum, ("unstable", 2, 0)),
+    (stiff_soft, ("stable", 0, 0)),
+])
+def test_sparse_path_matches_dense_built(make, expected, monkeypatch, runner):
+    dense, sparse = _both(monkeypatch, lambda: runner.api(make(), f"{make.__name__}.xml"))
+    assert dense[:3] == sparse[:3] == expected
+    if expected[1]:
+        assert sparse[3].count("unstable: body") == expected[1]
+        assert sparse[4] < 0
+
+
+def test_unreliable_factorisation_gives_unknown_with_reason(monkeypatch):
+    monkeypatch.setattr(stab, "DENSE_LIMIT", 0)
+    monkeypatch.setattr(stab, "BERR_MAX", 0.0)          # no factorisation is accurate enough
+    a = run_deck(str(DECKS / "chain_10.xml")).analyses[0]
+    assert a.converged
+    assert a.datasets["frames/stability"][0] == "unknown"
+    assert a.datasets["frames/n_negative"][0] == -1 and a.datasets["frames/n_zero"][0] == -1
+    msg = str(a.datasets["frames/stability_modes"][0])
+    # 60 coordinates + 55 - 3 (redundant) constraint rows
+    assert msg.startswith("not classified: sparse inertia of the 112-unknown KKT matrix at "
+                          "shift +")
+    assert "backward error" in msg and "2 other augmentation weights failed too" in msg
+
+
+def _solved(path):
+    from poise.deck.parser import load_deck
+    from poise.model.compile import compile_model
+    from poise.runner import analysis_class, plan
+    spec = load_deck(str(path))
+    model = compile_model(spec)
+    req = plan(spec, None)[0]
+    drv = analysis_class(req)[0](model, req, redundancy=None)
+    state, ar = drv.run(model.initial_state(), index=0)
+    assert ar.status == "converged"
+    return model, state, drv
+
+
+@pytest.mark.parametrize("name", ["chain_10.xml", "fourbar_spring.xml"])
+def test_dependent_active_rows_are_dropped(name):
+    """All constraint rows active (3 of them dependent): the KKT matrix is singular; the sparse
+    path meets the zero/tiny pivot, finds the dependent rows with the redundancy test and
+    classifies as the dense path (SVD null space) does."""
+    model, state, drv = _solved(DECKS / name)
+    assert len(drv.redundancy) == 3
+    model.row_active[:] = True
+    J = model.evaluate(state, need_jac=True).J
+    dense = stab.classify(model, state, J=J)
+    P = stab._SparsePencil(model, J)
+    raw = stab._classify_pencil(model, P)
+    assert raw.klass == "unknown" and P.singular
+    sparse = stab._classify_sparse(model, J)
+    assert (sparse.klass, sparse.n_negative, sparse.n_zero) == \
+        (dense.klass, dense.n_negative, dense.n_zero) == ("stable", 0, 0)
+
+
+def test_describe_vectorised_matches_per_body_loop():
+    """``_describe`` (vectorised) names the same body and motion as the per-body loop it
+    replaced, on rigid and point bodies."""
+    from poise.deck.parser import load_deck
+    from poise.model.compile import compile_model
+
+    def loop(model, q):
+        part = []
+        for b in range(model.nb):
+            o = model.body_off[b]
+            t = q[o:o + 3]
+            r = q[o + 3:o + 6] * model.body_scale[b] if model.body_kind[b] == 0 else np.zeros(3)
+            part.append(np.linalg.norm(t) ** 2 + np.linalg.norm(r) ** 2)
+        return int(model.body_id[int(np.argmax(part))])
+
+    rng = np.random.default_rng(5)
+    for name in ("chain_10.xml", "elem_point_springs.xml", "elem_point_pendulum.xml"):
+        model = compile_model(load_deck(str(DECKS / name)))
+        for _ in range(50):
+            q = rng.normal(size=model.nq) * rng.choice([1e-3, 1.0, 1e3], size=model.nq)
+            s = stab._describe(model, q)
+            assert s.startswith(f"body {loop(model, q)} ")
+
+
+# ------------------------------------------------------------------ real large models
+def _chain(tmp_path, n, joint, up=False):
+    txt = build_chain_deck(n, joint)
+    if up:    # gravity +Y: the input arc relaxes to the compressed (inverted) catenary
+        txt = txt.replace('grav_y="-9810."', 'grav_y="9810."')
+    p = tmp_path / f"chain_{n}_{joint}_{'up' if up else 'down'}.xml"
+    p.write_text(txt)
+    a = run_deck(str(p)).analyses[0]
+    assert a.converged, a.message
+    return a
+
+
+def test_large_hanging_chain_is_stable(tmp_path):
+    a = _chain(tmp_path, 600, "revolute")               # 3600 coordinates > DENSE_LIMIT
+    assert 6 * 600 > stab.DENSE_LIMIT
+    d = a.datasets
+    assert (d["frames/stability"][0], d["frames/n_negative"][0], d["frames/n_zero"][0]) == \
+        ("stable", 0, 0)
+    assert d["frames/stability_modes"][0] == ""
+    # the lowest mode of a hanging chain: soft, but clearly positive (about 1.8e-3 N/mm)
+    assert 1e-4 < d["frames/min_stiffness_eigenvalue"][0] < 1e-2
+
+
+def test_large_spherical_chain_is_neutral_with_each_spin_named(tmp_path):
+    a = _chain(tmp_path, 600, "spherical")
+    d = a.datasets
+    assert (d["frames/stability"][0], d["frames/n_negative"][0], d["frames/n_zero"][0]) == \
+        ("neutral", 0, 600)
+    modes = str(d["frames/stability_modes"][0]).split("; ")
+    assert len(modes) == 7 and modes[-1] == "neutral: ... 594 more"
+    ids = list(d["bodies/id"])
+    for m in modes[:6]:
+        # "neutral: body K rotation about (ax,ay,az)": the spin of link K about its own axis
+        head, axis = m.split(" rotation about ")
+        body = int(head.split()[-1])
+        ax = np.array([float(v) for v in axis.strip("()").split(",")])
+        x_link = d["bodies/orientation"][0, ids.index(body)][:, 0]
+        assert abs(abs(ax @ x_link) - 1.0) < 0.02, (m, x_link)
+    assert abs(d["frames/min_stiffness_eigenvalue"][0]) < 1e-10
+
+
+def test_large_chain_upside_down_is_unstable(tmp_path):
+    a = _chain(tmp_path, 600, "revolute", up=True)
+    d = a.datasets
+    assert d["bodies/position"][0][:, 1].max() < 0          # still below the supports
+    # every in-plane degree of freedom (N - 2) buckles the compressed chain
+    assert (d["frames/stability"][0], d["frames/n_negative"][0], d["frames/n_zero"][0]) == \
+        ("unstable", 598, 0)
+    modes = str(d["frames/stability_modes"][0]).split("; ")
+    assert len(modes) == 7 and modes[-1] == "unstable: ... 592 more"
+    for m in modes[:6]:
+        assert m.startswith("unstable: body ") and " rotation about (" in m
+        assert m.endswith(",1.00)") or m.endswith(",-1.00)")     # in-plane: about Z
+    assert d["frames/min_stiffness_eigenvalue"][0] < 0
