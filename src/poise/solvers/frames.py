@@ -6,7 +6,8 @@ element loads, the stability class, and for FIM_D's interpolated frames the imba
 constraint error. :func:`frames_datasets` produces the same datasets for a whole list of frames
 from :func:`poise.model.frame_batch.evaluate_frames` (chunks of frames, one kernel call per
 tileable family per chunk) and a batched stability classification (stacked SVD null spaces and
-symmetric eigen-decompositions, grouped by constraint rank), so the per-frame cost is array work,
+symmetric eigen-decompositions, grouped by constraint rank:
+:func:`poise.solvers.stability.classify_dense_frames`), so the per-frame cost is array work,
 not a Python pass over the model. It returns ``None`` where batching does not apply (see
 :func:`poise.model.frame_batch.batchable`) or a frame does not evaluate to finite values; the
 caller then uses the frame-by-frame path, which names the failing element.
@@ -35,6 +36,8 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
     from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
     from poise.solvers.outputs import loads_of
     from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
+    from poise.solvers.stability import (DENSE_LIMIT, StabilityInfo, classify,
+                                         classify_dense_frames)
 
     model = sa.model
     if not frames or not batchable(model):
@@ -71,7 +74,12 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
                                                 Tg.reshape(-1, n_out, 3)))
             ok = np.array([o.ok for o in outcomes[a:a + C]])
             model.row_active[:] = saved
-            infos += classify_frames(model, ev.J, saved, ok)
+            if model.nq <= DENSE_LIMIT:
+                infos += classify_dense_frames(model, ev.J, saved, ok)
+            else:                                     # sparse inertia, frame by frame
+                infos += [classify(model, None, J=ev.J[j]) if ok[j] else
+                          StabilityInfo("unknown", -1, -1, "", np.nan)
+                          for j in range(len(chunk))]
             model.row_active[:] = True
     except EvaluationError:
         return None
@@ -109,73 +117,3 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
     from poise.solvers.stability import stability_datasets
     d.update(stability_datasets(infos))
     return d
-
-
-def classify_frames(model, J, active, ok=None) -> list:
-    """Stability of ``F`` frames from their dense KKT Jacobians ``J`` (F, N, N).
-
-    The same classification as :func:`poise.solvers.stability.classify` (length-scaled
-    symmetric tangent stiffness reduced to the null space of the active constraint rows,
-    Jacobi-equilibrated, inertia with the ``ZERO_REL`` threshold), computed with stacked SVDs
-    and eigen-decompositions; frames with equal constraint rank share one call. Frames with
-    ``ok[k]`` False are ``unknown``.
-    """
-    from poise.solvers.stability import (DIAG_FLOOR, ZERO_REL, StabilityInfo, _describe)
-
-    F = J.shape[0]
-    nq = model.nq
-    unknown = StabilityInfo("unknown", -1, -1, "", np.nan)
-    ok = np.ones(F, bool) if ok is None else np.asarray(ok, bool)
-    if nq == 0:
-        return [StabilityInfo("stable", 0, 0, "", np.nan) if k else unknown for k in ok]
-    out = [unknown] * F
-    sel_ok = np.nonzero(ok)[0]
-    if not len(sel_ok):
-        return out
-    d = model.q_scale
-    Ku = J[sel_ok, :nq, :nq] / d[:, None] / d[None, :]
-    Ku = 0.5 * (Ku + np.swapaxes(Ku, 1, 2))
-    Pq = J[sel_ok, nq:, :nq][:, active]
-    Fo = len(sel_ok)
-    if Pq.shape[1]:
-        _, s, vh = np.linalg.svd(Pq / d[None, None, :], full_matrices=True)
-        tol = 1e-10 * (s.max(axis=1) if s.shape[1] else np.zeros(Fo))
-        rank = np.sum(s > tol[:, None], axis=1)
-    else:
-        vh = np.broadcast_to(np.eye(nq), (Fo, nq, nq))
-        rank = np.zeros(Fo, int)
-    for rk in np.unique(rank):
-        grp = np.nonzero(rank == rk)[0]
-        Nb = np.swapaxes(vh[grp, rk:, :], 1, 2)                      # (g, nq, k)
-        if Nb.shape[2] == 0:
-            for i in grp:
-                out[sel_ok[i]] = StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
-            continue
-        Kg = Ku[grp]
-        Kr = np.matmul(np.swapaxes(Nb, 1, 2), np.matmul(Kg, Nb))
-        Kr = 0.5 * (Kr + np.swapaxes(Kr, 1, 2))
-        dg = np.abs(np.diagonal(Kr, axis1=1, axis2=2))
-        ref = np.maximum(dg.max(axis=1), np.abs(np.diagonal(Kg, axis1=1, axis2=2)).max(axis=1))
-        fl = np.where(ref > 1e-280, DIAG_FLOOR * ref, 1.0)
-        sj = 1.0 / np.sqrt(np.maximum(dg, fl[:, None]))
-        wv, V = np.linalg.eigh(Kr * sj[:, :, None] * sj[:, None, :])
-        ztol = ZERO_REL * np.maximum(np.abs(wv).max(axis=1), 1.0)
-        neg = wv < -ztol[:, None]
-        zero = np.abs(wv) <= ztol[:, None]
-        X = np.matmul(Nb, sj[:, :, None] * V)
-        X /= np.maximum(np.linalg.norm(X, axis=1), 1e-300)[:, None, :]
-        kmin = np.argmin(wv, axis=1)
-        xk = X[np.arange(len(grp)), :, kmin]
-        wmin = np.einsum("gi,gij,gj->g", xk, Kg, xk)
-        for j, i in enumerate(grp):
-            modes = []
-            for label, mask in (("unstable", neg[j]), ("neutral", zero[j])):
-                for k in np.nonzero(mask)[0][:6]:
-                    modes.append(f"{label}: {_describe(model, X[j, :, k] / d)}")
-                extra = int(mask.sum()) - 6
-                if extra > 0:
-                    modes.append(f"{label}: ... {extra} more")
-            klass = "unstable" if neg[j].any() else "neutral" if zero[j].any() else "stable"
-            out[sel_ok[i]] = StabilityInfo(klass, int(neg[j].sum()), int(zero[j].sum()),
-                                           "; ".join(modes), float(wmin[j]))
-    return out
