@@ -46,13 +46,46 @@ def test_poise_bench_cli(tmp_path):
     assert "FIM_S" in r.output and out.exists()
 
 
-def test_peer_skips_or_builds():
+def _peer_or_skip():
     from poise.benchmarks import peer
     ok, note = peer.exudyn_available()
     if not ok:
         pytest.skip(note)
     ns = {}
     exec(peer.SCRIPT, ns)
-    prob = peer.problem_pendulum(wp._reference_module())
+    return peer, ns
+
+
+@pytest.mark.parametrize("name", ["pendulum_multiturn", "fourbar_spring"])
+def test_peer_converges_to_reference(name):
+    """The Exudyn models of the small linkages (KinematicTree, loop closed by one GenericJoint)
+    converge with the peer's settings to the same closed-form reference as poise."""
+    peer, ns = _peer_or_skip()
+    ref = wp._reference_module()
+    prob = {"pendulum_multiturn": peer.problem_pendulum,
+            "fourbar_spring": peer.problem_fourbar}[name](ref)
     o = ns["solve"](prob["spec"])
-    assert o["converged"] and peer._peer_error(o, prob) < 1e-6
+    assert o["converged"], o["message"]
+    assert peer._peer_error(o, prob) <= 1e-6
+    assert o["iterations"] <= 25
+
+
+def test_peer_script_as_process_and_chain_row(tmp_path):
+    """The same script runs as a whole process (JSON out); a chain (known Exudyn failure,
+    reason in the caption) returns a result with its error at stop instead of raising."""
+    import json
+    import subprocess
+    import sys
+    peer, ns = _peer_or_skip()
+    ref = wp._reference_module()
+    prob = peer.problem_fourbar(ref)
+    (tmp_path / "spec.json").write_text(json.dumps(prob["spec"]))
+    (tmp_path / "peer.py").write_text(peer.SCRIPT)
+    out = subprocess.run([sys.executable, str(tmp_path / "peer.py"), str(tmp_path / "spec.json")],
+                         capture_output=True, text=True, check=True).stdout
+    o = json.loads(out.strip().splitlines()[-1])
+    assert o["converged"] and peer._peer_error(o, prob) <= 1e-6
+    chain = peer.problem_chain(ref, 10)
+    o = ns["solve"](chain["spec"])
+    assert len(o["cg"]) == 10 and peer._peer_error(o, chain) is not None
+    assert any("geometric stiffness" in ln for ln in peer.caption())

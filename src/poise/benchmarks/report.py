@@ -156,9 +156,7 @@ def wp_section(rows, procs, qs, decade, deck_docs) -> list[str]:
 def peer_section(rows) -> list[str]:
     from poise.benchmarks import peer
     L = ["## Peer: Exudyn static solver, same problems, same run", ""]
-    L += [ln.strip() for ln in peer.__doc__.split("\n\n")[1:3]]
-    L += ["", "Settings tried beyond the defaults when Exudyn failed (all failed as well, not "
-          "used in the table): `stabilizerODE2term` 1, 10, 100 and `numberOfLoadSteps` 10.", ""]
+    L += peer.caption()
     if not rows or not rows[0].get("peer_available"):
         L.append(f"**Peer skipped**: {rows[0]['peer'] if rows else 'no rows'}.")
         return L
@@ -171,13 +169,30 @@ def peer_section(rows) -> list[str]:
           "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         p, e = r["poise"], r.get("exudyn", {})
-        est = "converged" if e.get("converged") else f"FAILED ({e.get('message')})"
+        est = "converged" if e.get("converged") else "FAILED (reason below)"
         err = e.get("error") if e.get("converged") else e.get("error_unconverged")
         L.append(f"| {r['problem']} | {p['status']} / {p['iterations']} | {_mmm(p['solve_s'])} | "
                  f"{_e(p['error'])} | {est} / {e.get('iterations')} | {_mmm(e.get('solve_s'))} | "
                  f"{_e(err)}{'' if e.get('converged') else ' (at stop)'} | "
                  f"{_s(r.get('solve_ratio'))} | {_mmm(p['process_s'])} | "
                  f"{_mmm(e.get('process_s'))} | {_s(r.get('process_ratio'))} |")
+    L += ["", "Ratios are given only where Exudyn converged. Exudyn model per problem "
+          "(coordinates = ODE2 unknowns; AE = algebraic (Lagrange multiplier) unknowns) and the "
+          "result:", "",
+          "| problem | Exudyn model | coordinates / AE | static solver settings | result |",
+          "|---|---|---|---|---|"]
+    for r in rows:
+        e = r.get("exudyn", {})
+        if not e:
+            continue
+        if e["converged"]:
+            res = f"converged, {e['iterations']} Newton iterations"
+        else:
+            res = (f"FAILED ({e.get('message')}; last converged load factor "
+                   f"{_s(e.get('load_factor'))}, {e['iterations']} Newton iterations): "
+                   f"{e.get('reason') or 'see the caption'}")
+        L.append(f"| {r['problem']} | {e['model']} | {e['n_coordinates']} / "
+                 f"{e['n_constraints']} | {peer.settings_text(e['settings'])} | {res} |")
     return L + floor_section(rows)
 
 
