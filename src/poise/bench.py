@@ -296,40 +296,53 @@ def targets(results: list[dict]) -> list[tuple[str, str, str, bool | None]]:
 PROFILE_NOTES = """\
 ## Where the time goes
 
-Profiled with cProfile on the 1000- and 10 000-link chains (numbers below from this 2-core
+Profiled with cProfile on the 1000- to 100 000-link chains (numbers below from this 2-core
 machine while other jobs were running; the tables above are re-measured by every `make bench`).
 
-**Parse** (`deck/parser.py`, `deck/validate.py`, 10 000 links: 10.1 s → about 3 s). lxml's
-`iterparse` was never the cost; Python work per attribute was. Now: attribute and tag local
-names are lower-cased once per distinct spelling, the schema `Attr` is cached per (tag, name),
-defaults are a per-tag tuple, plain numbers take a `float()` fast path (the Fortran `D`
-exponent still goes through the regular expression), real values are typed inline. Validation
-skips values that cannot fail (finite unbounded floats, booleans), caches required and
-reference attributes per tag, and checks every marker's direction cosines in one batched
-`A^T A − I` / `det` instead of one small numpy call per marker. Messages, order and line numbers
-are unchanged.
+**Parse** (`deck/parser.py`, `deck/validate.py`; 10 000 links: 3.3–4.1 s → ≈ 1.0 s, 100 000
+links: 59 s → ≈ 13 s). Python work per attribute was the cost (a schema lookup, a number parse
+and a dictionary store for each of the 600 000 attributes, then a second pass per attribute in
+validation). Now lxml runs with a parser *target* (same secure options; no tree is built) and
+element lines come from one vectorised byte scan (`<` outside comments, CDATA and processing
+instructions; the `>` closing each start tag, which is the line libxml2 reports, and beyond its
+16-bit limit the `<` line as before). Anything unusual (malformed XML, a DOCTYPE, UTF-16, a
+non-ASCII-compatible encoding, a count mismatch) takes the tree walk, which reports exactly as
+before. Elements are typed in batches grouped by *shape* (tag and attribute names as written):
+each shape is analysed once (schema, canonical names, unknown/duplicate-attribute warnings,
+defaults) and values are typed column by column (`float`/`int` mapped over a column after a
+one-pass character check). Validation screens each shape column-wise (types, finiteness,
+bounds, enums, references, required attributes; direction cosines and inertia eigenvalues in
+batches) and runs the element-by-element checks only on elements that may have a problem, in
+document order, so messages, their order and FILE:LINE are unchanged
+(`tests/test_deck_fast_path.py` compares both paths). Cyclic garbage collection is paused while
+parsing.
+What remains at 10 000 links: lxml itself ≈ 0.35 s and `float()` of 600 000 17-digit numbers
+≈ 0.2 s.
 
-**Compile** (`model/compile.py`, 10 000 links: 7.3 s → about 2.7 s). One SVD per marker
-(`orthonormalize`) was half of it; all markers are now orthonormalised in one batched SVD.
-What remains: the sparsity pattern (`np.unique` of ≈ 5.8 M (row, col) keys, ≈ 1.3 s), per-body
-inertia transforms, per-row `row_info` dictionaries and `DeckSpec.elements()` scans.
+**Compile** (`model/compile*.py`; 10 000 links: 1.7–2.5 s → 0.4–0.65 s, 100 000 links: 31 s →
+≈ 8 s). `DeckSpec.elements()` scanned the whole deck once per call (28 calls); the compiler now
+reads a tag index built once (`DeckSpec.indexed()`). Marker poses (`rm_id` chains composed level
+by level), bodies (inertia transforms) and marker arrays are batched numpy; joints are compiled
+from per-type row templates; couplers, gears and user elements found joints and markers by
+scanning the deck per element (quadratic) and now use dictionaries; the assembler's pattern uses
+a stable (run-merging) sort instead of `np.unique`. `tests/test_scaling.py` guards linear
+scaling with call counts (200 vs 2000 links; 287 Python-level calls per link, was 1750).
 
 **Solve.** One static analysis factorises 8 times: the Gram matrix for redundancy detection,
 the least-squares initial multipliers, one per Newton iteration (5) and the minimum-norm
-reactions; it evaluates residual + KKT Jacobian about 12 times (Newton, one line-search trial per
-iteration that becomes the next iterate, set-up and outputs). At N = 10 000 one SuperLU
-factorisation (COLAMD) takes ≈ 135–165 ms and one evaluation ≈ 130 ms, split as: family
-kernels `local_residual_tangent` (dense batched `Bᵀ G B` on (n, 12, 6) × (n, 6, 6) ×
-(n, 6, 12) plus the connection term) ≈ 40 ms, `slot_kinematics` (zero-filled B and skews)
-≈ 30 ms, assembly (`np.bincount` of ≈ 5.8 M values into ≈ 2.3 M non-zeros) ≈ 25 ms,
-constraint kernels ≈ 13 ms, marker kinematics ≈ 8 ms; the linear solve with iterative
-refinement, merit and retraction add ≈ 20 ms per iteration. So a Newton iteration costs
-about evaluation + LU ≈ 2× one LU: the per-iteration target sits right at the limit at
-N = 10 000 and is met at N = 1000 (evaluation ≈ 17 ms vs LU ≈ 16–20 ms). Remaining levers, in
-order: exploit the block structure of `B` (identity/skew blocks, no zero fill) in
-`families/base.py`; register `Φ_q` once and scatter its transpose by index instead of
-concatenating it twice; reuse the COLAMD ordering (`splu` recomputes it each time); skip the
-second Jacobian evaluation in `frame_datasets` for redundant models.
+reactions; it assembles the KKT Jacobian 8 times. The family tangents were dense
+`(n, 6K, 6K)` arrays (`B^T G B` by batched 3×3 products) gathered down to their structural
+entries. `families/base.py: tangent_compact` now builds only the non-zero 3×3 blocks,
+component-major (each operation over all instances, the skew products as cross products, slots
+without a reaction skipped), and the model registers the entries in that order (no gather, no
+transpose); the assembler reuses its value buffer. One Jacobian at 10 000 links: 75–80 ms →
+22 ms (one SuperLU factorisation 120 ms: 0.6 → 0.18 of an LU); at 100 000 links ≈ 0.3 s
+alone and 0.3–0.6 s inside a run (LU ≈ 1.5–1.8 s; fresh large arrays page-fault, about a third
+of that run is system time). Newton reuses the step-limit retraction as the first line-search
+trial. What is left of “other” at 30 000–100 000 links is mostly outside Newton: the stability
+classification of the converged state and the Gram factorisations of redundancy detection
+(neither goes through `Factor`, so neither counts as *factorise*), then the linear solves with
+iterative refinement.
 
 **BLAS threads.** numpy's OpenBLAS defaulted to 2 threads; on vectors and 3×3 blocks they
 only busy-wait, and with another process on the machine a 1000-link solve took 1.8× longer

@@ -17,12 +17,13 @@ report every problem of the deck at once.
 """
 from __future__ import annotations
 
+import gc
 import hashlib
 import io
 import re
-from dataclasses import replace
 from typing import Any
 
+import numpy as np
 from lxml import etree
 
 from poise.deck.schema import ENUM_ALIASES, Attr, element_schema
@@ -181,60 +182,190 @@ def _schema_attr(sch, n: str) -> Attr | None:
 
 
 # --------------------------------------------------------------------------- element building
-class _Builder:
-    """Builds :class:`Element` objects and collects warnings."""
+# Deck elements are typed in batches (_Builder.flush): the records of one batch are grouped by
+# *shape* (tag as written + attribute names as written, in order) and each shape is analysed
+# once (_Shape: schema, canonical names, duplicate/unknown attribute warnings, defaults), so the
+# per-element Python work is a few C-level calls; attribute values are typed column by column
+# (plain numbers through one float()/int() map per column).
+_PLAIN_BYTES = b"0123456789.+-eE"
+_SHAPES: dict[tuple, "_Shape"] = {}
+_SHAPES_MAX = 4096
 
-    def __init__(self, path: str):
-        self.path = path
-        self.warnings: list[Problem] = []
 
-    def build(self, name: str, attrib: Any, text: str | None, line: int) -> Element:
-        sch = element_schema(name)
-        low = _LOWER_LOCAL
-        raw = {low.get(k) or _lower_local(k): v for k, v in attrib.items()}
-        ident = _parse_int(raw["id"]) if "id" in raw else None
-        tag = sch.tag if sch else name
-        loc = SourceLoc(self.path, line, tag, ident)
-        attrs: dict[str, Any] = {}
+def _reals(col: list) -> list:
+    """``parse_number`` of every value (the raw string where it is not a number)."""
+    try:
+        j = "".join(col)
+        # over these characters float() accepts exactly what parse_number accepts
+        if j.isascii() and not j.encode("ascii").translate(None, _PLAIN_BYTES):
+            return list(map(float, col))
+    except ValueError:
+        pass
+    out = []
+    for v in col:
+        x = parse_number(v)
+        out.append(v if x is None else x)
+    return out
+
+
+def _ints(col: list, keep_raw: bool = True) -> list:
+    """``_parse_int`` of every value (the raw string, or None without ``keep_raw``, where it is
+    not an integer). Plain digit strings of up to 15 digits (exact in a float) go through int()."""
+    j = "".join(col)
+    if j.isascii() and j.isdigit() and all(col) and max(map(len, col)) <= 15:
+        return list(map(int, col))
+    out = []
+    for v in col:
+        x = _parse_int(v)
+        out.append(v if x is None and keep_raw else x)
+    return out
+
+
+class _Shape:
+    """What every element with one tag and one list of attribute names (as written) becomes."""
+
+    __slots__ = ("tag", "kind", "names", "cols", "id_src", "warns", "defaults")
+
+    def __init__(self, wtag: Any, keys: tuple):
+        sch = element_schema(_local_tag(wtag))
+        self.tag = sch.tag if sch else _local_tag(wtag)
+        self.kind = sch.kind if sch else "model"
+        raw: dict[str, int] = {}                 # lower-case name -> index of its last value
+        for i, k in enumerate(keys):
+            raw[_lower_local(k)] = i
+        self.id_src = raw.get("id")
+        out: dict[str, tuple] = {}               # attribute -> (value index, Attr | tag)
+        warns: list[str] = []
         if sch is None:
-            attrs = dict(raw)
-            if ident is not None:
-                attrs["id"] = ident
+            for n, i in raw.items():
+                out[n] = (i, "id" if n == "id" else "raw")
         else:
             written: dict[str, str] = {}
-            for n, v in raw.items():
+            for n, i in raw.items():
                 a = _schema_attr(sch, n)
                 if a is None:
                     if sch.open_attrs:
-                        attrs[n] = _guess(v)
+                        out[n] = (i, "guess")
                     else:
-                        self.warnings.append(Problem(loc, f"unknown attribute '{n}' ignored"))
+                        warns.append(f"unknown attribute '{n}' ignored")
                     continue
                 if a.name in written:
-                    self.warnings.append(Problem(
-                        loc, f"attribute '{a.name}' given twice (as '{written[a.name]}' and '{n}'); "
-                        f"'{n}' is used"))
+                    warns.append(f"attribute '{a.name}' given twice (as '{written[a.name]}' and "
+                                 f"'{n}'); '{n}' is used")
                 written[a.name] = n
-                if a.kind == "real":   # the common case, inlined: same result as coerce()
-                    x = parse_number(v)
-                    attrs[a.name] = v if x is None else x
-                else:
-                    attrs[a.name] = coerce(a, v, loc)
-        txt = text.strip() if text and text.strip() else None
-        return Element(tag=tag, attrs=attrs, loc=loc, text=txt)
+                out[a.name] = (i, a)
+        self.names = tuple(out)
+        self.cols = tuple(out.values())
+        self.warns = tuple(warns)
+        present = set(out)
+        self.defaults = tuple((n, d) for n, d in _defaults(self.tag) if n not in present)
+
+
+def _shape(wtag: Any, keys: tuple) -> _Shape:
+    k = (wtag, keys)
+    s = _SHAPES.get(k)
+    if s is None:
+        if len(_SHAPES) >= _SHAPES_MAX:
+            _SHAPES.clear()
+        s = _SHAPES[k] = _Shape(wtag, keys)
+    return s
+
+
+class _Builder:
+    """Builds :class:`Element` objects from parse records, in batches, and collects warnings.
+
+    A record is ``[tag as written, attributes (dict), text, line, section, event]``; ``event``
+    orders the warnings as the document does (a nested-element warning at the nested element's
+    start, the element's own warnings at its end).
+    """
+
+    def __init__(self, path: str):
+        self.path = path
+        self.items: list[tuple] = []       # (Element, section, _Shape) in document order
+        self.warnings: list[tuple] = []    # (event, Problem)
+
+    def flush(self, recs: list) -> None:
+        if not recs:
+            return
+        groups: dict[tuple, list[int]] = {}
+        for k, r in enumerate(recs):
+            key = (r[0], tuple(r[1]))
+            g = groups.get(key)
+            if g is None:
+                groups[key] = [k]
+            else:
+                g.append(k)
+        built: list = [None] * len(recs)
+        for (wtag, keys), idx in groups.items():
+            shp = _shape(wtag, keys)
+            rs = [recs[k] for k in idx]
+            raw = list(zip(*[r[1].values() for r in rs]))    # one tuple per attribute
+            if shp.id_src is not None:
+                idents = _ints(list(raw[shp.id_src]), keep_raw=False)
+            else:
+                idents = [None] * len(rs)
+            path, tag = self.path, shp.tag
+            locs = [SourceLoc(path, r[3], tag, ident) for r, ident in zip(rs, idents)]
+            cols = [self._column(shp, name, src, conv, list(raw[src]), locs, idents)
+                    for name, (src, conv) in zip(shp.names, shp.cols)]
+            names = shp.names
+            rows = zip(*cols) if cols else ((),) * len(rs)
+            texts = [r[2] for r in rs]
+            if any(texts):
+                texts = [t.strip() if t and t.strip() else None for t in texts]
+            else:
+                texts = [None] * len(rs)
+            els = [Element(tag, dict(zip(names, row)), loc, txt)
+                   for row, loc, txt in zip(rows, locs, texts)]
+            for k, el, r in zip(idx, els, rs):
+                built[k] = (el, r[4], shp)
+            if shp.warns:
+                for r, loc in zip(rs, locs):
+                    for msg in shp.warns:
+                        self.warnings.append((r[5], Problem(loc, msg)))
+        self.items.extend(built)
+
+    @staticmethod
+    def _column(shp: _Shape, name: str, src: int, conv: Any, col: list, locs: list,
+                idents: list) -> list:
+        if conv == "raw":
+            return col
+        if conv == "id":                   # unknown element: the id typed when it is one
+            return [v if x is None else x for v, x in zip(col, idents)]
+        if conv == "guess":
+            return _reals(col)
+        k = conv.kind
+        if k == "real":
+            return _reals(col)
+        if k == "int":
+            return _ints(col)
+        if k == "str":
+            return col
+        if k in ("bool", "enum", "int_list", "real_list"):   # no location: one per value
+            memo = {v: coerce(conv, v, None) for v in set(col)}
+            return [memo[v] for v in col]
+        if k == "real_or_expr":
+            x = _reals(col)
+            if all(type(v) is float for v in x):
+                return x
+        return [coerce(conv, v, loc) for v, loc in zip(col, locs)]
 
 
 _DEFAULTS: dict[str, tuple] = {}   # canonical tag -> ((name, default), ...) in schema order
 
 
-def _apply_defaults(el: Element) -> None:
-    d = _DEFAULTS.get(el.tag)
+def _defaults(tag: str) -> tuple:
+    d = _DEFAULTS.get(tag)
     if d is None:
-        sch = element_schema(el.tag)
-        d = _DEFAULTS[el.tag] = () if sch is None else tuple(
+        sch = element_schema(tag)
+        d = _DEFAULTS[tag] = () if sch is None else tuple(
             (a.name, a.default) for a in sch.attrs.values() if a.default is not None)
+    return d
+
+
+def _apply_defaults(el: Element) -> None:
     attrs = el.attrs
-    for name, default in d:
+    for name, default in _defaults(el.tag):
         if name not in attrs:
             attrs[name] = default
 
@@ -263,6 +394,244 @@ def _refuse_entities(data: bytes, path: str) -> None:
                                             "entity declarations (<!ENTITY>) are not allowed in a deck"))
 
 
+# --------------------------------------------------------------------------- document walk
+_CONTAINERS = ("root", *_SECTIONS)
+_LOWER_TAG: dict[str, str] = {}      # element tag as written -> lower-case local name
+_FLUSH = 4096                         # records typed per batch (bounded memory)
+
+
+def _lower_tag(tag: str) -> str:
+    v = _LOWER_TAG.get(tag)
+    if v is None:
+        v = _LOWER_TAG[tag] = _local_tag(tag).lower()
+    return v
+
+
+def _role(stack: list, name: str) -> str:
+    """Role of a new element from its parent's role: "root", "model"/"command" (sections),
+    "deck" (a deck element) or "nested" (inside a deck element: ignored)."""
+    if not stack:
+        return name if name in _SECTIONS else "root"
+    parent = stack[-1]
+    if parent == "root" and name in _SECTIONS:
+        return name
+    if parent in _CONTAINERS:
+        return "deck"
+    return "nested"
+
+
+class _Target:
+    """lxml parser target (no tree is built): deck-element records with the line numbers of
+    the byte scan (:func:`_start_tag_scan`), flushed to the builder in batches."""
+
+    def __init__(self, path: str, lines: np.ndarray, b: _Builder):
+        self.path, self.lines, self.b = path, lines.tolist(), b
+        self.stack: list[str] = []
+        self.n = -1                  # start-tag ordinal
+        self.event = 0
+        self.cur: list | None = None
+        self.parts: list[str] | None = None   # text of the open deck element (before a child)
+        self.recs: list[list] = []
+        self.seen_model = False
+
+    def start(self, tag, attrib):
+        self.n += 1
+        self.event += 1
+        stack = self.stack
+        role = _role(stack, _lower_tag(tag))
+        if role == "deck":
+            self.cur = [tag, attrib if attrib else {}, None, self.lines[self.n], stack[-1], 0]
+            self.parts = []
+        elif role == "nested":
+            if self.parts:                  # the element's text is what precedes a child
+                self.cur[2] = "".join(self.parts)
+            self.parts = None
+            if stack[-1] == "deck":
+                name = _local(tag)
+                self.b.warnings.append((self.event, FileProblem(
+                    SourceLoc(self.path, self.lines[self.n], name),
+                    f"nested element <{name}> ignored")))
+        elif role == "model":
+            self.seen_model = True
+        stack.append(role)
+
+    def data(self, text):
+        if self.parts is not None:
+            self.parts.append(text)
+
+    def end(self, tag):
+        self.event += 1
+        if self.stack.pop() == "deck":
+            rec = self.cur
+            if self.parts:
+                rec[2] = "".join(self.parts)
+            rec[5] = self.event
+            self.recs.append(rec)
+            self.cur = self.parts = None
+            if len(self.recs) >= _FLUSH:
+                self.b.flush(self.recs)
+                self.recs = []
+
+    def close(self):
+        self.b.flush(self.recs)
+        self.recs = []
+
+
+_ENCODING = re.compile(rb"""^<\?xml[^>]*?encoding\s*=\s*["']([A-Za-z0-9._-]+)["']""")
+_ASCII_ENCODINGS = re.compile(r"(utf-?8|(us-)?ascii|iso[-_]?8859[-_]?\d+|latin-?1|"
+                              r"(windows|cp)-?125\d)", re.IGNORECASE)
+_SPECIAL = re.compile(rb"<!--|<!\[CDATA\[|<\?")
+_SPECIAL_END = {b"<!--": b"-->", b"<![CDATA[": b"]]>", b"<?": b"?>"}
+_TAG = re.compile(rb"""<[^>"']*(?:(?:"[^"]*"|'[^']*')[^>"']*)*>""")
+_CHUNK = 1 << 24
+_FEED = 1 << 16
+
+
+def _positions(a: np.ndarray, values: tuple) -> list:
+    """Offsets of each byte value in ``a`` (scanned in chunks: bounded temporaries)."""
+    out: list[list] = [[] for _ in values]
+    for i in range(0, a.size, _CHUNK):
+        c = a[i:i + _CHUNK]
+        for k, v in enumerate(values):
+            out[k].append(np.flatnonzero(c == v) + i)
+    return [np.concatenate(o) if o else np.zeros(0, np.intp) for o in out]
+
+
+def _start_tag_scan(data: bytes) -> np.ndarray | None:
+    """Line of every start tag in document order, as libxml2 numbers elements (the line of
+    the ``>`` closing the start tag), except beyond its 16-bit limit: there, as the reader has
+    always reported them, the line of the ``<``. None when the bytes cannot be scanned reliably
+    (UTF-16/32 or another non-ASCII-compatible encoding, a DOCTYPE): then the tree parser's
+    line numbers are used.
+
+    Outside comments, CDATA sections and processing instructions, ``<`` followed by anything
+    but ``/``, ``!`` or ``?`` opens a start tag; it ends at the first ``>`` that is not inside a
+    quoted attribute value (tags holding a ``'`` or an odd number of ``"`` before that ``>`` are
+    matched exactly with a regular expression).
+    """
+    head = data[3:] if data[:3] == b"\xef\xbb\xbf" else data
+    head = head.lstrip(b" \t\r\n")
+    if not head.startswith(b"<") or b"\x00" in data[:4] or b"<!DOCTYPE" in data:
+        return None
+    m = _ENCODING.match(head[:300])
+    if m and not _ASCII_ENCODINGS.fullmatch(m.group(1).decode("ascii")):
+        return None
+    a = np.frombuffer(data, np.uint8)
+    lt, gt, nl, dq, sq = _positions(a, (60, 62, 10, 34, 39))
+    # '<' inside comments, CDATA and processing instructions
+    spans = []
+    end = -1
+    for sm in _SPECIAL.finditer(data):
+        if sm.start() < end:
+            continue
+        e = data.find(_SPECIAL_END[sm.group()], sm.end())
+        end = len(data) if e < 0 else e + len(_SPECIAL_END[sm.group()])
+        spans.append((sm.start(), end))
+    if spans:
+        sp = np.array(spans, np.intp)
+        k = np.searchsorted(sp[:, 0], lt, side="right") - 1
+        inside = (k >= 0) & (lt < sp[np.maximum(k, 0), 1])
+        lt = lt[~inside]
+    nxt = a[np.minimum(lt + 1, a.size - 1)]
+    starts = lt[(nxt != 47) & (nxt != 33) & (nxt != 63) & (lt + 1 < a.size)]
+    g = np.searchsorted(gt, starts)
+    if (g >= gt.size).any():
+        return None                                    # unterminated tag: the parser reports it
+    ends = gt[g]
+    ndq = np.searchsorted(dq, ends) - np.searchsorted(dq, starts)
+    nsq = np.searchsorted(sq, ends) - np.searchsorted(sq, starts)
+    for k in np.flatnonzero((ndq % 2 == 1) | (nsq > 0)).tolist():
+        tm = _TAG.match(data, int(starts[k]))
+        if tm is None:
+            return None
+        ends[k] = tm.end() - 1
+    close_line = np.searchsorted(nl, ends) + 1
+    open_line = np.searchsorted(nl, starts) + 1
+    return np.where(close_line < _BIG_LINE, close_line, open_line)
+
+
+def _walk_fast(data: bytes, path: str) -> tuple[_Builder, bool] | None:
+    """Parse with an lxml target (no tree) and the byte-scan line numbers; None when the scan
+    does not apply or anything is unusual (the tree walk then reports exactly as before)."""
+    lines = _start_tag_scan(data)
+    if lines is None:
+        return None
+    b = _Builder(path)
+    t = _Target(path, lines, b)
+    parser = etree.XMLParser(target=t, resolve_entities=False, no_network=True, load_dtd=False,
+                             dtd_validation=False, huge_tree=False)
+    try:
+        view = memoryview(data)
+        for i in range(0, len(data), _FEED):      # in pieces, as iterparse reads (libxml2's
+            parser.feed(bytes(view[i:i + _FEED]))  # push buffer is limited without huge_tree)
+        parser.close()
+    except Exception:        # malformed XML etc.: the tree walk produces the same messages
+        return None
+    if t.n + 1 != len(lines) or t.n < 0:
+        return None
+    return b, t.seen_model
+
+
+def _walk_tree(data: bytes, path: str) -> tuple[_Builder, bool]:
+    """The general walk: lxml iterparse (secure options), lines from libxml2 (fixed up by the
+    byte scan beyond 65535, where libxml2 caps them once the tree is pruned)."""
+    b = _Builder(path)
+    recs: list[list] = []
+    big: dict[int, list] = {}   # ordinal -> record whose line libxml2 capped
+    seen_model = False
+    ctx = etree.iterparse(io.BytesIO(data), events=("start", "end"), resolve_entities=False,
+                          no_network=True, load_dtd=False, dtd_validation=False, huge_tree=False,
+                          remove_comments=True, remove_pis=True)
+    stack: list[str] = []
+    ordinal = -1
+    ord_stack: list[int] = []  # start-tag ordinal of each open element
+    first = True
+    event = 0
+    for ev, elem in ctx:
+        if not isinstance(elem.tag, str):
+            continue
+        event += 1
+        if ev == "start":
+            if first:
+                first = False
+                dtd = elem.getroottree().docinfo.internalDTD
+                if dtd is not None and any(True for _ in dtd.iterentities()):
+                    raise DeckError(FileProblem(SourceLoc(path, 1, "xml"),
+                                                "entity declarations are not allowed in a deck"))
+            ordinal += 1
+            role = _role(stack, _lower_tag(elem.tag))
+            if role == "nested" and stack[-1] == "deck":
+                b.warnings.append((event, FileProblem(
+                    SourceLoc(path, elem.sourceline or 0, _local(elem.tag)),
+                    f"nested element <{_local(elem.tag)}> ignored")))
+            seen_model = seen_model or role == "model"
+            stack.append(role)
+            ord_stack.append(ordinal)
+            continue
+        role = stack.pop()
+        own = ord_stack.pop()
+        if role == "deck":
+            rec = [elem.tag, dict(elem.attrib), elem.text, elem.sourceline or 0, stack[-1], event]
+            recs.append(rec)
+            if rec[3] >= _BIG_LINE:
+                big[own] = rec
+        if stack:  # keep memory bounded: drop processed elements
+            elem.clear()
+            parent_el = elem.getparent()
+            if parent_el is not None:
+                while elem.getprevious() is not None:
+                    del parent_el[0]
+    if big:
+        fixed = _start_tag_lines(data, set(big))
+        for k, rec in big.items():
+            if k in fixed:
+                rec[3] = fixed[k]
+    if not recs and not stack and first:
+        raise DeckError(FileProblem(SourceLoc(path, 1, "xml"), "empty deck"))
+    b.flush(recs)
+    return b, seen_model
+
+
 # --------------------------------------------------------------------------- main entry points
 def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
     """Parse deck bytes into a :class:`DeckSpec`.
@@ -286,96 +655,54 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
         Malformed XML, entity declarations, or (with ``check``) any validation problem; all
         validation problems of the deck are reported in one error.
     """
+    with _no_gc():     # millions of small acyclic objects: no cyclic collection meanwhile
+        return _parse(data, path, check)
+
+
+class _no_gc:
+    """Cyclic garbage collection off inside the block (restored on exit if it was on)."""
+
+    def __enter__(self):
+        self.on = gc.isenabled()
+        gc.disable()
+
+    def __exit__(self, *exc):
+        if self.on:
+            gc.enable()
+
+
+def _parse(data: bytes, path: str, check: bool) -> DeckSpec:
     spec = DeckSpec(path=path, sha256=hashlib.sha256(data).hexdigest())
     _refuse_entities(data, path)
-    b = _Builder(path)
-    items: list[tuple[Element, str]] = []  # (element, "model" | "command" | "root")
-    seen_model = False
-    try:
-        ctx = etree.iterparse(io.BytesIO(data), events=("start", "end"), resolve_entities=False,
-                              no_network=True, load_dtd=False, dtd_validation=False, huge_tree=False,
-                              remove_comments=True, remove_pis=True)
-        stack: list[str] = []
-        ordinal = -1
-        ord_stack: list[int] = []  # start-tag ordinal of each open element
-        big: dict[int, Element] = {}  # ordinal -> element whose line libxml2 capped
-        first = True
-        for event, elem in ctx:
-            if not isinstance(elem.tag, str):
-                continue
-            if event == "start":
-                if first:
-                    first = False
-                    dtd = elem.getroottree().docinfo.internalDTD
-                    if dtd is not None and any(True for _ in dtd.iterentities()):
-                        raise DeckError(FileProblem(SourceLoc(path, 1, "xml"),
-                                                    "entity declarations are not allowed in a deck"))
-                ordinal += 1
-                name = _local_tag(elem.tag).lower()
-                parent = stack[-1] if stack else None
-                if parent is None:
-                    role = name if name in _SECTIONS else "root"
-                elif parent == "root" and name in _SECTIONS:
-                    role = name
-                elif parent in ("root", *_SECTIONS):
-                    role = "deck"
-                else:
-                    role = "nested"
-                    if parent == "deck":
-                        b.warnings.append(FileProblem(
-                            SourceLoc(path, elem.sourceline or 0, _local(elem.tag)),
-                            f"nested element <{_local(elem.tag)}> ignored"))
-                seen_model = seen_model or role == "model"
-                stack.append(role)
-                ord_stack.append(ordinal)
-                continue
-            role = stack.pop()
-            own = ord_stack.pop()
-            if role == "deck":
-                el = b.build(_local_tag(elem.tag), elem.attrib, elem.text, elem.sourceline or 0)
-                items.append((el, stack[-1]))
-                if el.loc.line >= _BIG_LINE:
-                    big[own] = el
-            if stack:  # keep memory bounded: drop processed elements
-                elem.clear()
-                parent_el = elem.getparent()
-                if parent_el is not None:
-                    while elem.getprevious() is not None:
-                        del parent_el[0]
-    except DeckError:
-        raise
-    except etree.XMLSyntaxError as e:
-        line = e.lineno or (e.position[0] if e.position else 0) or 0
-        msg = (e.msg or str(e)).strip()
-        raise DeckError(FileProblem(SourceLoc(path, line, "xml"), f"malformed XML: {msg}")) from None
-    except Exception as e:  # any other lxml / decoding failure is still a deck problem
-        raise DeckError(FileProblem(SourceLoc(path, 0, "xml"),
-                                    f"cannot parse deck: {type(e).__name__}: {e}")) from None
-    if big:
-        fixed = _start_tag_lines(data, set(big))
-        moved: dict[int, SourceLoc] = {}
-        for k, el in big.items():
-            if k in fixed:
-                old_loc, el.loc = el.loc, replace(el.loc, line=fixed[k])
-                moved[id(old_loc)] = el.loc
-                for name, v in el.attrs.items():
-                    if isinstance(v, Expr):
-                        el.attrs[name] = replace(v, loc=el.loc)
-        b.warnings = [replace(w, loc=moved[id(w.loc)]) if id(w.loc) in moved else w
-                      for w in b.warnings]
-    if not items and not stack and first:
-        raise DeckError(FileProblem(SourceLoc(path, 1, "xml"), "empty deck"))
+    walked = _walk_fast(data, path)
+    if walked is None:
+        try:
+            walked = _walk_tree(data, path)
+        except DeckError:
+            raise
+        except etree.XMLSyntaxError as e:
+            line = e.lineno or (e.position[0] if e.position else 0) or 0
+            msg = (e.msg or str(e)).strip()
+            raise DeckError(FileProblem(SourceLoc(path, line, "xml"),
+                                        f"malformed XML: {msg}")) from None
+        except Exception as e:  # any other lxml / decoding failure is still a deck problem
+            raise DeckError(FileProblem(SourceLoc(path, 0, "xml"),
+                                        f"cannot parse deck: {type(e).__name__}: {e}")) from None
+    b, seen_model = walked
 
-    for el, where in items:
-        sch = element_schema(el.tag)
-        kind = sch.kind if sch else "model"
-        if kind == "command" or where == "command" or (where == "root" and seen_model and kind == "both"):
+    model, commands = spec.model, spec.commands
+    for el, where, shp in b.items:
+        kind = shp.kind
+        if kind == "command" or where == "command" or (where == "root" and seen_model
+                                                       and kind == "both"):
             el.is_command = True
-            spec.commands.append(el)
+            commands.append(el)
         else:
-            _apply_defaults(el)
-            spec.model.append(el)
-    spec.warnings.extend(b.warnings)
+            if shp.defaults:
+                el.attrs.update(shp.defaults)
+            model.append(el)
+    b.warnings.sort(key=lambda w: w[0])
+    spec.warnings.extend(w for _, w in b.warnings)
     if check:
         validate(spec)
     return spec

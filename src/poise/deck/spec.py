@@ -108,10 +108,43 @@ class DeckSpec:
 
     def elements(self, tag: str) -> list[Element]:
         """Model elements with canonical tag ``tag`` in document order."""
+        idx = self.__dict__.get("_tag_index")
+        if idx is not None:
+            return list(idx.get(tag, ()))
         return [e for e in self.model if e.tag == tag]
 
     def by_id(self, tag: str) -> dict[int, Element]:
-        return {e.id: e for e in self.model if e.tag == tag and e.id is not None}
+        return {e.id: e for e in self.elements(tag) if e.id is not None}
+
+    def indexed(self) -> "_Indexed":
+        """Context in which :meth:`elements` / :meth:`by_id` read a tag index built once
+        (one pass over ``model``) instead of scanning the whole model per call. ``model`` must
+        not change inside the block (the compiler uses it; nested use is fine)."""
+        return _Indexed(self)
+
+
+class _Indexed:
+    def __init__(self, spec: DeckSpec):
+        self.spec = spec
+        self.owner = False
+
+    def __enter__(self) -> DeckSpec:
+        d = self.spec.__dict__
+        if d.get("_tag_index") is None:
+            idx: dict[str, list[Element]] = {}
+            for e in self.spec.model:
+                lst = idx.get(e.tag)
+                if lst is None:
+                    idx[e.tag] = [e]
+                else:
+                    lst.append(e)
+            d["_tag_index"] = idx
+            self.owner = True
+        return self.spec
+
+    def __exit__(self, *exc) -> None:
+        if self.owner:
+            self.spec.__dict__.pop("_tag_index", None)
 
     def tags(self) -> set[str]:
         return {e.tag for e in self.model}

@@ -147,12 +147,17 @@ def _check_body(pc: ProblemCollector, el: Element, markers: dict[int, Element]) 
         return
     if el.tag != "Body_Rigid":
         return
-    tensor = _inertia(el)
-    if not np.any(tensor):
+    pre = _EIG.get(id(el))
+    if pre is None:
+        tensor = _inertia(el)
+        pre = (bool(np.any(tensor)), None)
+    if not pre[0]:
         if mass > 0:
             pc.warn(el.loc, "moving body has mass but no inertia; its rotations must be constrained")
         return
-    eig = np.linalg.eigvalsh(tensor)
+    eig = np.linalg.eigvalsh(tensor) if pre[1] is None else pre[1]
+    if len(pre) > 2 and pre[2]:       # positive definite (checked in one batch)
+        return
     if eig.min() <= 1e-12 * max(1.0, float(np.abs(eig).max())):
         pc.error(el.loc, "inertia tensor is not positive definite (products of inertia are "
                          "+integral(xy dm)); expected all eigenvalues > 0, got "
@@ -263,6 +268,244 @@ def _check_expression_syntax(pc: ProblemCollector, els: list[Element]) -> None:
                     pc.error(el.loc, e.message, f"{name} col {e.col}")
 
 
+_EIG: dict[int, tuple] = {}   # id(body) -> (tensor non-zero, eigenvalues or None)
+_NONE = type(None)
+_NO_NUMBER = frozenset({bool, tuple, Expr, _NONE})     # values _check_value never reports
+_SPECIFIC = frozenset({"Constraint_Joint", "Constraint_Jprim", "Force_SpringDamper",
+                       "Force_Scalar_TwoBody", "Simulate"})
+_SCHEMA: dict[str, Any] = {}
+_NS: dict[str, Any] = {}
+
+
+def _schema(tag: str):
+    try:
+        return _SCHEMA[tag]
+    except KeyError:
+        s = _SCHEMA[tag] = element_schema(tag)
+        return s
+
+
+def _ns(tag: str):
+    try:
+        return _NS[tag]
+    except KeyError:
+        s = _NS[tag] = namespace_of(tag)
+        return s
+
+
+def _column_ok(a: Attr, col: tuple, types: set) -> bool:
+    """True when :func:`_check_value` reports nothing for any value of the column."""
+    k = a.kind
+    if k == "enum":
+        return set(col) <= set(a.choices)
+    if k in ("str", "expr"):
+        return True
+    if types <= _NO_NUMBER:
+        return True
+    if types <= {float, Expr, _NONE}:
+        nums = col if types == {float} else [v for v in col if type(v) is float]
+        s = sum(nums)
+        if not s - s == 0.0:            # a NaN / inf (or an overflowing sum: checked one by one)
+            return False
+    elif types <= {int, _NONE}:
+        nums = col if types == {int} else [v for v in col if type(v) is int]
+    else:
+        return False
+    if not nums:
+        return True
+    if a.lo is not None:
+        m = min(nums)
+        if m < a.lo or (a.lo_open and m == a.lo):
+            return False
+    if a.hi is not None:
+        m = max(nums)
+        if m > a.hi or (a.hi_open and m == a.hi):
+            return False
+    return True
+
+
+class _Screen:
+    """Per-shape screening of all elements: elements with the same tag, section and attribute
+    names are checked column by column (C-level passes over the values), and only elements that
+    may have a problem go through the element-by-element checks — which then report exactly as
+    before, in document order.
+
+    Flags (per element of ``els``): ``values`` (:func:`_check_element` reports nothing),
+    ``marker`` (:func:`_check_marker` reports nothing), ``expr`` (holds an expression).
+    :meth:`refs` and :meth:`body_type` flag reference and body-type problems once the ids are
+    known.
+    """
+
+    def __init__(self, els: list[Element]):
+        n = len(els)
+        self.els = els
+        values = np.zeros(n, bool)
+        marker = np.zeros(n, bool)
+        self.expr = [False] * n
+        groups: dict[tuple, list[int]] = {}
+        for k, el in enumerate(els):
+            key = (el.tag, el.is_command, tuple(el.attrs))
+            g = groups.get(key)
+            if g is None:
+                groups[key] = [k]
+            else:
+                g.append(k)
+        self.groups = []
+        _DCM_CHECK.clear()
+        _EIG.clear()
+        for (tag, cmd, keys), idx in groups.items():
+            sch = _schema(tag)
+            if sch is None or not sch.supported:
+                continue
+            g = [els[k] for k in idx]
+            cols = list(zip(*[el.attrs.values() for el in g]))
+            types = [set(map(type, c)) for c in cols]
+            self.groups.append((tag, cmd, keys, idx, cols, types))
+            if any(issubclass(t, Expr) for ts in types for t in ts):
+                for k, el in zip(idx, g):
+                    self.expr[k] = any(isinstance(v, Expr) for v in el.attrs.values())
+            get = sch.attrs.get
+            ok = all(_column_ok(a, c, t) for name, c, t in zip(keys, cols, types)
+                     if (a := get(name)) is not None)
+            names = set(keys)
+            if cmd:
+                ok = ok and not ("id" in sch.attrs and "id" not in names)
+            else:
+                ok = ok and all(a.name in names for a in _required(sch))
+            if ok:
+                values[idx] = True
+            if tag == "Reference_Marker" and not cmd:
+                self._markers(marker, idx, g, keys, cols, types, names)
+            elif tag == "Body_Rigid" and not cmd:
+                self._inertias(g, keys, cols, types)
+        self.values = values.tolist()
+        self.marker = marker.tolist()
+
+    def _markers(self, marker, idx, g, keys, cols, types, names):
+        pos = {n: i for i, n in enumerate(keys)}
+        dcm = [pos.get(n) for n in _DCM]
+        full = all(i is not None and types[i] == {float} for i in dcm)
+        forms = sum(bool(x) for x in (
+            [n for n in _DCM if n in names], [n for n in ("psi", "theta", "phi") if n in names],
+            [n for n in ("yaw", "pitch", "roll") if n in names],
+            [n for n in ("e0", "e1", "e2", "e3") if n in names]))
+        given = any(i is not None for i in dcm)
+        quiet = forms <= 1 and not any(f"e{k}" in names for k in range(4)) and (full or not given)
+        if full:       # orthonormality and handedness of the whole group in one batch
+            rows = range(len(g))
+        elif all(i is not None for i in dcm):   # the elements with nine numeric cosines
+            rows = [j for j in range(len(g)) if all(type(cols[i][j]) is float for i in dcm)]
+        else:
+            rows = []
+        if rows:
+            A = np.array([[cols[i][j] for j in rows] for i in dcm]).T.reshape(-1, 3, 3)  # [c][r]
+            A = np.swapaxes(A, 1, 2)                                     # [r][c]
+            with np.errstate(invalid="ignore", over="ignore"):          # inf / nan: reported
+                err = np.abs(np.matmul(np.swapaxes(A, 1, 2), A) - np.eye(3)).max(axis=(1, 2))
+                det = np.linalg.det(A)
+                bad = (err > ORTHO_TOL) | (det < 0)
+            # the markers _check_marker will see read their batch results
+            for r in (np.flatnonzero(bad) if quiet else range(len(rows))):
+                _DCM_CHECK[id(g[rows[r]])] = (float(err[r]), float(det[r]))
+        if quiet:
+            marker[idx] = ~bad if full else True
+
+    def _inertias(self, g, keys, cols, types):
+        """Inertia tensors of moving rigid bodies with a mass, eigenvalues in one batch."""
+        sel, rows = [], []
+        for j, el in enumerate(g):
+            if el.get("isground") is True:
+                continue
+            mass = el.get("mass")
+            if not isinstance(mass, (int, float)) or isinstance(mass, bool) or mass == 0:
+                continue
+            sel.append(el)
+            rows.append(j)
+        if not sel:
+            return
+        pos = {n: i for i, n in enumerate(keys)}
+        comp = [pos.get(f"inertia_{c}") for c in ("xx", "yy", "zz", "xy", "yz", "xz")]
+        if all(i is None or types[i] == {float} for i in comp):    # as _inertia, by columns
+            z = np.zeros(len(g))
+            xx, yy, zz, xy, yz, xz = (z if i is None else np.array(cols[i]) for i in comp)
+            T = np.stack([xx, -xy, -xz, -xy, yy, -yz, -xz, -yz, zz], 1)[rows].reshape(-1, 3, 3)
+        else:
+            T = np.array([_inertia(el) for el in sel]).reshape(-1, 3, 3)
+        nz = np.any(T, axis=(1, 2))
+        eig = np.linalg.eigvalsh(T[nz]) if nz.any() else np.zeros((0, 3))
+        pd = (eig.min(axis=1) > 1e-12 * np.maximum(1.0, np.abs(eig).max(axis=1))).tolist()
+        it = zip(eig, pd)
+        for el, z in zip(sel, nz.tolist()):
+            _EIG[id(el)] = (True, *next(it)) if z else (False, None)
+
+    def refs(self, ids: dict) -> list[bool]:
+        """Per element: every id reference exists (the reference check reports nothing)."""
+        ok = [False] * len(self.els)
+        for tag, _cmd, keys, idx, cols, _types in self.groups:
+            refs = _refs(_schema(tag))
+            good = True
+            for name, c in zip(keys, cols):
+                a = refs.get(name)
+                if a is None:
+                    continue
+                d = ids[a.ref]
+                if not all(map(d.__contains__, c)) and not all(
+                        not isinstance(v, int) or isinstance(v, bool) or (v == 0 and a.zero_ok)
+                        or v in d or (a.lo is not None and v < a.lo) for v in c):
+                    good = False
+                    break
+            if good:
+                for k in idx:
+                    ok[k] = True
+        return ok
+
+    def body_type(self, bodies: dict) -> list[bool]:
+        """Per element: a marker whose body_type contradicts its body's kind (warned)."""
+        out = [False] * len(self.els)
+        for tag, cmd, keys, idx, cols, _types in self.groups:
+            if tag != "Reference_Marker" or cmd or "body_type" not in keys or "body_id" not in keys:
+                continue
+            bt_col = cols[keys.index("body_type")]
+            b_col = cols[keys.index("body_id")]
+            for k, bt, bid in zip(idx, bt_col, b_col):
+                if bt in ("RIGIDBODY", "POINTBODY"):
+                    body = bodies.get(bid)
+                    if body is not None:
+                        out[k] = bt != ("POINTBODY" if body.tag == "Body_Point" else "RIGIDBODY")
+        return out
+
+
+def _ids_fast(good: list[Element]):
+    """Id tables of the model elements when no id repeats within a tag or a namespace (else
+    None: :func:`validate` then walks the elements and reports each clash)."""
+    by_tag: dict[str, tuple[list, list]] = {}
+    for el in good:
+        if el.is_command:
+            continue
+        i = el.attrs.get("id")
+        if not isinstance(i, int):
+            continue
+        t = by_tag.get(el.tag)
+        if t is None:
+            by_tag[el.tag] = ([i], [el])
+        else:
+            t[0].append(i)
+            t[1].append(el)
+    per_tag: dict[str, dict[int, Element]] = {}
+    ids: dict[str, dict[int, Element]] = {ns: {} for ns in NAMESPACES}
+    for tag, (il, el_list) in by_tag.items():
+        d = per_tag[tag] = dict(zip(il, el_list))
+        if len(d) != len(il):
+            return None
+        ns = _ns(tag)
+        if ns is not None:
+            before = len(ids[ns])
+            ids[ns].update(d)
+            if len(ids[ns]) != before + len(d):
+                return None
+    return ids, per_tag
+
+
 def validate(spec: DeckSpec) -> None:
     """Validate a parsed deck; raise one :class:`~poise.errors.DeckError` listing every problem.
 
@@ -277,9 +520,12 @@ def validate(spec: DeckSpec) -> None:
         When at least one problem was found (all problems, sorted by line).
     """
     pc = ProblemCollector()
+    els = [*spec.model, *spec.commands]
+    scr = _Screen(els)
     good: list[Element] = []
-    for el in [*spec.model, *spec.commands]:
-        sch = element_schema(el.tag)
+    gidx: list[int] = []
+    for k, el in enumerate(els):
+        sch = _schema(el.tag)
         if sch is None:
             pc.error(el.loc, f"unknown element <{el.tag}>; expected a MotionSolve element name, "
                              f"got <{el.tag}>")
@@ -291,38 +537,45 @@ def validate(spec: DeckSpec) -> None:
             pc.error(el.loc, f"<{sch.tag}> is a model element; expected it inside <Model>, got it "
                              f"in the command section")
             continue
-        _check_element(pc, el, sch)
+        if not scr.values[k]:
+            _check_element(pc, el, sch)
         good.append(el)
+        gidx.append(k)
 
     # ids: unique within each element type, and within a shared namespace (bodies)
-    ids: dict[str, dict[int, Element]] = {ns: {} for ns in NAMESPACES}
-    per_tag: dict[str, dict[int, Element]] = {}
-    for el in good:
-        if el.is_command or not isinstance(el.id, int):
-            continue
-        seen = per_tag.setdefault(el.tag, {})
-        if el.id in seen:
-            pc.error(el.loc, f"duplicate id {el.id}; expected ids unique among <{el.tag}>, got "
-                             f"id {el.id} also at line {seen[el.id].loc.line}")
-            continue
-        seen[el.id] = el
-        ns = namespace_of(el.tag)
-        if ns is not None:
-            other = ids[ns].get(el.id)
-            if other is not None:
-                pc.error(el.loc, f"{ns} id {el.id} is also used by <{other.tag}> at line "
-                                 f"{other.loc.line}; expected unique {ns} ids, got a clash")
-            else:
-                ids[ns][el.id] = el
+    fast = _ids_fast(good)
+    if fast is not None:
+        ids, per_tag = fast
+    else:
+        ids = {ns: {} for ns in NAMESPACES}
+        per_tag = {}
+        for el in good:
+            if el.is_command or not isinstance(el.id, int):
+                continue
+            seen = per_tag.setdefault(el.tag, {})
+            if el.id in seen:
+                pc.error(el.loc, f"duplicate id {el.id}; expected ids unique among <{el.tag}>, "
+                                 f"got id {el.id} also at line {seen[el.id].loc.line}")
+                continue
+            seen[el.id] = el
+            ns = _ns(el.tag)
+            if ns is not None:
+                other = ids[ns].get(el.id)
+                if other is not None:
+                    pc.error(el.loc, f"{ns} id {el.id} is also used by <{other.tag}> at line "
+                                     f"{other.loc.line}; expected unique {ns} ids, got a clash")
+                else:
+                    ids[ns][el.id] = el
     for el in spec.commands:  # arrays may be defined in the command section
         if el.tag == "Reference_Array" and isinstance(el.id, int):
             ids["array"].setdefault(el.id, el)
     markers = ids["marker"]
+    refs_ok = scr.refs(ids)
+    bt_bad = scr.body_type(ids["body"])
 
-    _precompute_dcm(good)
-    for el in good:
-        sch = element_schema(el.tag)
-        refs = _refs(sch)
+    for k, el in zip(gidx, good):
+        sch = _schema(el.tag)
+        refs = _refs(sch) if not refs_ok[k] else None
         for name, v in (el.attrs.items() if refs else ()):
             a = refs.get(name)
             if a is None or not isinstance(v, int) or isinstance(v, bool):
@@ -336,23 +589,25 @@ def validate(spec: DeckSpec) -> None:
             if el.id not in per_tag.get(el.tag, {}):
                 pc.error(el.loc, f"command modifies a missing <{el.tag}>; expected the id of a model "
                                  f"<{el.tag}>, got {el.id}")
-        _check_specific(pc, el, markers)
+        if el.tag in _SPECIFIC:
+            _check_specific(pc, el, markers)
         if el.is_command:
             continue
         if el.tag in ("Body_Rigid", "Body_Point"):
             _check_body(pc, el, markers)
         elif el.tag == "Reference_Marker":
-            _check_marker(pc, el)
-            body = ids["body"].get(el.get("body_id"))
-            bt = el.get("body_type")
-            if body is not None and bt in ("RIGIDBODY", "POINTBODY"):
+            if not scr.marker[k]:
+                _check_marker(pc, el)
+            if bt_bad[k]:
+                bt = el.get("body_type")
+                body = ids["body"].get(el.get("body_id"))
                 want = "POINTBODY" if body.tag == "Body_Point" else "RIGIDBODY"
-                if bt != want:
-                    pc.warn(el.loc, f"body_type {bt} does not match <{body.tag}> {body.id}; using {want}")
+                pc.warn(el.loc, f"body_type {bt} does not match <{body.tag}> {body.id}; using {want}")
 
-    _check_expression_syntax(pc, good)
+    _check_expression_syntax(pc, [el for k, el in zip(gidx, good) if scr.expr[k]])
 
     _DCM_CHECK.clear()
+    _EIG.clear()
     grounds = [e for e in good if e.tag == "Body_Rigid" and not e.is_command and e.get("isground") is True]
     if not grounds:
         first = next((e for e in spec.model if e.tag in NAMESPACES["body"]), None)

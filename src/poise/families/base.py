@@ -159,7 +159,10 @@ class LocalPattern:
     structure declarations (:meth:`Family.g_blocks`, :meth:`Family.phi_y_mask`). ``kmask``
     (L, L) and ``pmask`` (m, L), L = 6K + U, mark the entries that can be non-zero; the model
     registers only those with the sparse assembler. ``kidx`` / ``pidx`` are their flat indices
-    (C order), None when the mask is full.
+    (C order), None when the mask is full. ``order`` is the order in which the model registers
+    and fills the tangent entries: block-wise for ``compact`` patterns (declared ``G`` structure,
+    no scalar columns; :func:`tangent_compact` fills them directly, entry-major: all instances
+    of one entry after the other), else ``kidx`` (instance-major).
     """
 
     def __init__(self, fam):
@@ -199,6 +202,20 @@ class LocalPattern:
         self.pt_all = (np.asarray(fam.slot_kind) == POINT).all(axis=0) if fam.n else pt_any
         self.kmask = km
         self.kidx = None if km.all() else np.flatnonzero(km)
+        # compact layout (declared families without scalar columns): the non-zero 3x3 blocks
+        # of the (2K x 2K) block grid, row-major; the tangent is computed straight into
+        # (nblocks, 3, 3, n) and registered with the assembler in that order (``order``)
+        self.compact = self.declared and not U
+        self.bpos = None
+        self.order = self.kidx
+        if self.declared:
+            bi, bj = np.nonzero(km[:6 * K:3, :6 * K:3])
+            self.bpos = np.full((2 * K, 2 * K), -1, np.intp)
+            self.bpos[bi, bj] = np.arange(bi.size)
+            if self.compact:
+                r = 3 * bi[:, None, None] + np.arange(3)[None, :, None]
+                c = 3 * bj[:, None, None] + np.arange(3)[None, None, :]
+                self.order = (r * L + c).ravel()
         self.pmask = None
         self.pidx = None
         if m:
@@ -235,59 +252,79 @@ def local_pattern(fam) -> LocalPattern:
 
 
 def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | None):
-    """``B^T G B + C`` (n, 6K, 6K) built block-wise.
+    """``B^T G B + C`` (n, 6K, 6K): :func:`tangent_compact` scattered into the dense layout."""
+    n = kin.pt.shape[0]
+    Kc = tangent_compact(kin, rho, G, K, pat).reshape(-1, 3, 3, n)
+    Km = np.zeros((n, 2 * K, 3, 2 * K, 3))
+    bi, bj = np.nonzero(pat.bpos >= 0)
+    Km[:, bi, :, bj, :] = Kc[pat.bpos[bi, bj]].transpose(0, 3, 1, 2)
+    return Km.reshape(n, 6 * K, 6 * K)
+
+
+def _cross_cols(v, M):
+    """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
+    ``M`` crossed with ``v`` from the left."""
+    return np.stack([v[1] * M[2] - v[2] * M[1], v[2] * M[0] - v[0] * M[2],
+                     v[0] * M[1] - v[1] * M[0]])
+
+
+def _cross_rows(M, u):
+    """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
+    return np.stack([M[:, 1] * u[2] - M[:, 2] * u[1], M[:, 2] * u[0] - M[:, 0] * u[2],
+                     M[:, 0] * u[1] - M[:, 1] * u[0]], axis=1)
+
+
+def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> np.ndarray:
+    """``B^T G B + C`` of a family with a compact pattern (``pat.compact``), as
+    ``(9 * nblocks, n)`` values (entry-major) in the order of ``pat.order``, built block-wise.
 
     Only the slot-pair blocks of G that the family declares (``pat.s_idx, pat.t_idx``) are
     used; every pair is ``Sk_s G_st (-Sk_t)`` on (rot k, rot l), ``G_st (-Sk_t)`` on
     (trans k, rot l) for point slots s, ``Sk_s G_st`` on (rot k, trans l) and ``G_st`` on
-    (trans k, trans l).
+    (trans k, trans l), with ``Sk = skew(v)`` applied as cross products. Blocks are built
+    component-major, ``(nblocks, 3, 3, n)``: every operation runs over all instances at once
+    (no per-instance 3x3 products) and the model registers the entries in this order (no
+    transpose). Slots without a reaction (``rho_s = 0``) add no connection term.
     """
     n, S = kin.pt.shape
     ml = kin.slot_ml
-    Km = np.zeros((n, 2 * K, 3, 2 * K, 3))
+    bpos = pat.bpos
+    Kb = np.zeros((int(bpos.max()) + 1 if bpos.size else 0, 3, 3, n))
+    V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))          # (S, 3, n)
+    W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))
     # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
-    rho3 = rho.reshape(n, S, 3)
-    V = kin.V
-    outer = V[:, :, :, None] * rho3[:, :, None, :]              # (n, S, 3, 3)
-    d = np.einsum("nsi,nsi->ns", V, rho3)
-    for i in range(3):
-        outer[:, :, i, i] -= d
     for s in range(S):
+        v, w = V[s], W[s]
+        if not w.any():
+            continue
         k = ml[s]
-        Km[:, 2 * k + 1, :, 2 * k + 1, :] += outer[:, s]
+        blk = Kb[bpos[2 * k + 1, 2 * k + 1]]
+        blk += v[:, None, :] * w[None, :, :]
+        d = v[0] * w[0] + v[1] * w[1] + v[2] * w[2]
+        for i in range(3):
+            blk[i, i] -= d
     if G is not None and len(pat.s_idx):
-        s_idx, t_idx = pat.s_idx, pat.t_idx
-        G5 = G.reshape(n, S, 3, S, 3)
-        Gp = G5[:, s_idx, :, t_idx, :]                         # (P, n, 3, 3)
-        Sk = kin.Sk
-        Sks = np.swapaxes(Sk[:, s_idx], 0, 1)                  # (P, n, 3, 3)
-        Skt = np.swapaxes(Sk[:, t_idx], 0, 1)
-        RT = np.matmul(Sks, Gp)
-        RR = np.matmul(RT, Skt)
-        ps_any = pat.pt_any[s_idx]
-        pt_any_t = pat.pt_any[t_idx]
-        TR = np.matmul(Gp, Skt) if ps_any.any() else None
         pt = kin.pt
-        for p in range(len(s_idx)):
-            s, t = s_idx[p], t_idx[p]
+        for s, t in zip(pat.s_idx.tolist(), pat.t_idx.tolist()):
             k, l = ml[s], ml[t]
-            Km[:, 2 * k + 1, :, 2 * l + 1, :] -= RR[p]
-            ws = None if pat.pt_all[s] else pt[:, s, None, None]
-            wt = None if pat.pt_all[t] else pt[:, t, None, None]
-            if ps_any[p]:
-                blk = TR[p] if ws is None else TR[p] * ws
-                Km[:, 2 * k, :, 2 * l + 1, :] -= blk
-            if pt_any_t[p]:
-                blk = RT[p] if wt is None else RT[p] * wt
-                Km[:, 2 * k + 1, :, 2 * l, :] += blk
-            if ps_any[p] and pt_any_t[p]:
-                blk = Gp[p]
+            Gp = np.ascontiguousarray(G[:, 3 * s:3 * s + 3, 3 * t:3 * t + 3].transpose(1, 2, 0))
+            RT = _cross_cols(V[s], Gp)                          # Sk_s G_st
+            Kb[bpos[2 * k + 1, 2 * l + 1]] -= _cross_rows(RT, V[t])
+            ws = None if pat.pt_all[s] else pt[:, s]
+            wt = None if pat.pt_all[t] else pt[:, t]
+            if pat.pt_any[s]:
+                blk = _cross_rows(Gp, V[t])                     # G_st Sk_t
+                Kb[bpos[2 * k, 2 * l + 1]] -= blk if ws is None else blk * ws
+            if pat.pt_any[t]:
+                Kb[bpos[2 * k + 1, 2 * l]] += RT if wt is None else RT * wt
+            if pat.pt_any[s] and pat.pt_any[t]:
+                blk = Gp
                 if ws is not None:
                     blk = blk * ws
                 if wt is not None:
                     blk = blk * wt
-                Km[:, 2 * k, :, 2 * l, :] += blk
-    return Km.reshape(n, 6 * K, 6 * K)
+                Kb[bpos[2 * k, 2 * l]] += blk
+    return Kb.reshape(-1, n)
 
 
 def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) -> np.ndarray:

@@ -39,15 +39,17 @@ class Assembler:
             v = (rows >= 0) & (cols >= 0)
             self.sizes.append(rows.size)
             valids.append(v)
-            keys.append(rows[v].astype(np.int64) * N + cols[v])
+            if v.all():
+                keys.append(rows.astype(np.int64, copy=False) * N + cols)
+            else:
+                keys.append(rows[v].astype(np.int64, copy=False) * N + cols[v])
         self.valid = np.concatenate(valids) if valids else np.zeros(0, bool)
         allkeys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
         if dense:
             slot = allkeys
             self.nnz = N * N
         else:
-            uniq, inv = np.unique(allkeys, return_inverse=True)
-            slot = inv.ravel()
+            uniq, slot = _unique_inverse(allkeys)
             self.nnz = uniq.size
             r = uniq // N
             self.indices = (uniq % N).astype(np.int32)
@@ -60,7 +62,10 @@ class Assembler:
 
     def assemble(self, values):
         """Assemble the matrix from a list of value arrays (same order/shapes as the blocks)."""
-        vals = np.concatenate([np.asarray(v, float).ravel() for v in values])
+        buf = getattr(self, "_values", None)    # reused: no fresh pages for every assembly
+        if buf is None:
+            buf = self._values = np.empty(self.slot_all.size)
+        vals = np.concatenate([np.asarray(v, float).ravel() for v in values], out=buf)
         data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
         if self.dense:
             return data.reshape(self.N, self.N)
@@ -106,6 +111,24 @@ class Assembler:
             rank[np.argsort(pc)] = np.arange(G)
             self._order = np.argsort(rank[grp], kind="stable")
         return self._order
+
+
+def _unique_inverse(keys: np.ndarray):
+    """``np.unique(keys, return_inverse=True)`` with a stable sort: the registered keys come in
+    long ascending runs (element blocks in instance order), which timsort merges in near-linear
+    time where the default introsort pays the full ``n log n``."""
+    n = keys.size
+    if n == 0:
+        return keys.copy(), np.zeros(0, np.intp)
+    perm = np.argsort(keys, kind="stable")
+    sk = keys[perm]
+    new = np.empty(n, bool)
+    new[0] = True
+    np.not_equal(sk[1:], sk[:-1], out=new[1:])
+    starts = np.flatnonzero(new)
+    inv = np.empty(n, np.intp)
+    inv[perm] = np.repeat(np.arange(starts.size), np.diff(np.append(starts, n)))
+    return sk[starts], inv
 
 
 def scatter_add(n: int, idx: np.ndarray, vals: np.ndarray) -> np.ndarray:

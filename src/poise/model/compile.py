@@ -5,6 +5,8 @@ gravity term in its loop); ``Model.active_effects`` lists what was compiled.
 """
 from __future__ import annotations
 
+from operator import itemgetter
+
 import numpy as np
 
 from poise.deck.spec import DeckSpec, Element, Expr
@@ -47,6 +49,29 @@ def unit_info(spec: DeckSpec):
     return f, desc
 
 
+_POS = ("pos_x", "pos_y", "pos_z")
+_DCM_ROWS = ("a00", "a01", "a02", "a10", "a11", "a12", "a20", "a21", "a22")   # row-major
+_DCM_ROWS_DEFAULT = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+
+
+def _values(attrs: list, names: tuple, defaults: tuple) -> list:
+    """``[(a.get(n0, d0), a.get(n1, d1), ...) for a in attrs]``; one C-level pass when every
+    element has all the names (the common case)."""
+    try:
+        return list(map(itemgetter(*names), attrs))
+    except KeyError:
+        pairs = tuple(zip(names, defaults))
+        return [tuple(a.get(n, d) for n, d in pairs) for a in attrs]
+
+
+def _row_of(index: dict, key, default=None):
+    """``index.get(key, default)``; ``default`` for an unhashable key."""
+    try:
+        return index.get(key, default)
+    except TypeError:
+        return default
+
+
 def _orientation(el: Element) -> np.ndarray | None:
     a = el.attrs
     if any(k in a for k in _DCM):
@@ -64,15 +89,112 @@ def _orientation(el: Element) -> np.ndarray | None:
     return None
 
 
+_INERTIA = ("inertia_xx", "inertia_yy", "inertia_zz", "inertia_xy", "inertia_yz", "inertia_xz")
+_BODY_TAGS = ("Body_Rigid", "Body_Point")
+
+
+class MarkerPoses:
+    """Marker id -> (origin (3,), axes (3, 3)) at the input configuration, global components
+    (a read-only mapping over the arrays of all markers, ``P[row[id]]``, ``R[row[id]]``)."""
+
+    def __init__(self, row: dict, P: np.ndarray, R: np.ndarray):
+        self.row, self.P, self.R = row, P, R
+
+    def __getitem__(self, mid):
+        k = self.row[mid]
+        return self.P[k], self.R[k]
+
+    def get(self, mid, default=None):
+        k = self.row.get(mid)
+        return default if k is None else (self.P[k], self.R[k])
+
+    def __contains__(self, mid) -> bool:
+        return mid in self.row
+
+    def __iter__(self):
+        return iter(self.row)
+
+    def __len__(self) -> int:
+        return len(self.row)
+
+    def keys(self):
+        return self.row.keys()
+
+    def items(self):
+        return ((mid, (self.P[k], self.R[k])) for mid, k in self.row.items())
+
+
 class _Builder:
     def __init__(self, spec: DeckSpec):
         self.spec = spec
         self.pc = ProblemCollector()
         self.effects: list[str] = []
+        self._by_id: dict = {}
+
+    def element(self, tag: str, eid):
+        """First model element ``tag`` with id ``eid`` (None if there is none); one dict per tag."""
+        d = self._by_id.get(tag)
+        if d is None:
+            d = self._by_id[tag] = {}
+            for e in self.spec.elements(tag):
+                d.setdefault(e.id, e)
+        try:
+            return d.get(eid)
+        except TypeError:          # unhashable id value
+            return None
 
     # ---------------------------------------------------------------- markers
     def markers(self):
-        els = [e for e in self.spec.model if e.tag == "Reference_Marker"]
+        """Global input poses of all markers (``marker_glob``), vectorised; ``rm_id`` chains are
+        composed level by level. A deck with a problem here (an expression position, a
+        circular or unknown ``rm_id``) goes through :meth:`_markers_checked`, which reports the
+        problems in the order of the marker-by-marker resolution."""
+        els = self.spec.elements("Reference_Marker")
+        self.marker_els = els
+        n = len(els)
+        attrs = [e.attrs for e in els]
+        row = {a.get("id"): k for k, a in enumerate(attrs)}   # last element of an id wins
+        try:
+            P = np.array(_values(attrs, _POS, (0.0, 0.0, 0.0)), float).reshape(n, 3)
+        except (TypeError, ValueError):
+            return self._markers_checked(els)
+        R = np.tile(np.eye(3), (n, 1, 1))
+        dcm = [k for k, a in enumerate(attrs) if not a.keys().isdisjoint(_DCM)]
+        if dcm:
+            Ms = np.array(_values([attrs[k] for k in dcm], _DCM_ROWS, _DCM_ROWS_DEFAULT),
+                          float).reshape(-1, 3, 3)
+            R[dcm] = orthonormalize(Ms)
+        has_r = np.zeros(n, bool)
+        has_r[dcm] = True
+        if len(dcm) < n:
+            for k in np.flatnonzero(~has_r).tolist():
+                Rk = _orientation(els[k])
+                if Rk is not None:
+                    R[k] = Rk
+                    has_r[k] = True
+        rms = [a.get("rm_id") for a in attrs]
+        if any(rms):
+            rmk = np.array([row.get(rm, -2) if rm else -1 for rm in rms], np.intp)
+            if (rmk == -2).any():
+                return self._markers_checked(els)
+            src = np.array([row[e.id] for e in els], np.intp)    # the element each id reads
+            P, R, has_r, rmk = P[src], R[src], has_r[src], rmk[src]
+            done = rmk < 0
+            while not done.all():
+                lvl = np.flatnonzero(~done & (rmk >= 0))
+                lvl = lvl[done[rmk[lvl]]]
+                if not lvl.size:                                 # a cycle
+                    return self._markers_checked(els)
+                Rr = R[rmk[lvl]]
+                P[lvl] = P[rmk[lvl]] + np.einsum("nij,nj->ni", Rr, P[lvl])
+                R[lvl] = np.where(has_r[lvl, None, None], np.matmul(Rr, R[lvl]), Rr)
+                has_r[lvl] = True
+                done[lvl] = True
+        self.marker_glob = MarkerPoses(row, P, R)
+
+    def _markers_checked(self, els):
+        """Marker-by-marker resolution (reports expression positions, circular or unknown
+        ``rm_id`` in resolution order)."""
         byid = {e.id: e for e in els}
         glob: dict[int, tuple] = {}
         # direction cosines of all markers orthonormalised in one batch (same as _orientation)
@@ -107,100 +229,130 @@ class _Builder:
 
         for e in els:
             resolve(e.id)
-        self.marker_els = els
-        self.marker_glob = glob
+        row = {mid: k for k, mid in enumerate(glob)}
+        P = np.array([v[0] for v in glob.values()], float).reshape(len(glob), 3)
+        R = np.array([v[1] for v in glob.values()], float).reshape(len(glob), 3, 3)
+        self.marker_glob = MarkerPoses(row, P, R)
 
     # ---------------------------------------------------------------- bodies
     def bodies(self, mfac):
+        """Moving bodies: one light pass over the elements (values and, in element order, the
+        problems), then the inertia transforms of all bodies in one batch."""
         spec = self.spec
-        rig = [e for e in spec.model if e.tag in ("Body_Rigid", "Body_Point")]
+        rig = [e for e in spec.model if e.tag in _BODY_TAGS]
         moving = [e for e in rig if not (e.tag == "Body_Rigid" and e.attrs.get("isground"))]
         ground_ids = {e.id for e in rig if e.tag == "Body_Rigid" and e.attrs.get("isground")}
         self.body_index = {e.id: i for i, e in enumerate(moving)}
         self.ground_ids = ground_ids
         nb = len(moving)
-        kind = np.array([0 if e.tag == "Body_Rigid" else 1 for e in moving], int)
-        pos = np.zeros((nb, 3))
-        rot = np.tile(np.eye(3), (nb, 1, 1))
+        rigid = [e.tag == "Body_Rigid" for e in moving]
+        kind = np.array([0 if r else 1 for r in rigid], int)
+        pc = self.pc
+        mrow = self.marker_glob.row
+        cgk = np.full(nb, -1, np.intp)        # marker row of the CG marker (-1: none)
+        imk = np.full(nb, -1, np.intp)        # marker row of the inertia marker (-1: the CG)
         mass = np.zeros(nb)
-        inertia = np.zeros((nb, 3, 3))
+        inert = np.zeros((nb, 6))
+        has_in = np.zeros(nb, bool)
         off = np.zeros(nb, int)
-        coord = []
+        coord: list[str] = []
+        names6 = (" Fx", " Fy", " Fz", " Tx", " Ty", " Tz")
         o = 0
         for i, e in enumerate(moving):
+            a = e.attrs
             off[i] = o
-            cg = e.attrs.get("cg_id")
-            if cg not in self.marker_glob:
-                self.pc.error(e.loc, f"cg_id {cg} is not a Reference_Marker; expected a marker id",
-                              "cg_id")
-                p, R = np.zeros(3), np.eye(3)
+            cg = a.get("cg_id")
+            k = _row_of(mrow, cg)
+            if k is None:
+                pc.error(e.loc, f"cg_id {cg} is not a Reference_Marker; expected a marker id",
+                         "cg_id")
             else:
-                p, R = self.marker_glob[cg]
-            pos[i] = p
-            if kind[i] == 0:
-                rot[i] = R
-            m = float(_num(e, "mass", 0.0, self.pc) or 0.0)
-            mass[i] = m * mfac
-            names = ["Fx", "Fy", "Fz"] + (["Tx", "Ty", "Tz"] if kind[i] == 0 else [])
-            for nm in names:
-                coord.append(f"{e.loc.prefix()[:-1]} {nm}")
-            o += 6 if kind[i] == 0 else 3
-            if kind[i] == 0:
-                inertia[i] = self._inertia(e, m, p, R) * mfac
+                cgk[i] = k
+            m = a.get("mass", 0.0)
+            if type(m) is not float:
+                m = float(_num(e, "mass", 0.0, pc) or 0.0)
+            mass[i] = m
+            pre = e.loc.prefix()[:-1]
+            coord += [pre + nm for nm in (names6 if rigid[i] else names6[:3])]
+            o += 6 if rigid[i] else 3
+            if rigid[i]:
+                if a.keys().isdisjoint(_INERTIA):
+                    pc.warn(e.loc, "no inertia given; using m*(0.1*L)^2 (only the stability "
+                            "regularisation and MKEAM use it)")
+                    self._needs_default_inertia = getattr(self, "_needs_default_inertia",
+                                                          []) + [e.id]
+                    continue
+                vals = [a.get(k, 0.0) for k in _INERTIA]
+                if not all(type(v) is float for v in vals):
+                    vals = [float(_num(e, k, 0.0, pc) or 0.0) for k in _INERTIA]
+                inert[i] = vals
+                has_in[i] = True
+                imk[i] = _row_of(mrow, a.get("im_id") or a.get("cg_id"), -1)
+        Pm, Rm = self.marker_glob.P, self.marker_glob.R
+        ok = cgk >= 0
+        pos = np.zeros((nb, 3))
+        rot = np.tile(np.eye(3), (nb, 1, 1))
+        pos[ok] = Pm[cgk[ok]]
+        R_cg = np.tile(np.eye(3), (nb, 1, 1))
+        R_cg[ok] = Rm[cgk[ok]]
+        rot[kind == 0] = R_cg[kind == 0]
+        inertia = np.zeros((nb, 3, 3))
+        sel = np.flatnonzero(has_in)
+        if sel.size:
+            xx, yy, zz, xy, yz, xz = inert[sel].T
+            Jl = np.stack([xx, -xy, -xz, -xy, yy, -yz, -xz, -yz, zz], 1).reshape(-1, 3, 3)
+            p_cg, Rc = pos[sel], R_cg[sel]
+            im = imk[sel]
+            own = im >= 0
+            p_im = np.where(own[:, None], Pm[np.maximum(im, 0)], p_cg)
+            R_im = np.where(own[:, None, None], Rm[np.maximum(im, 0)], Rc)
+            Jg = np.matmul(np.matmul(R_im, Jl), np.swapaxes(R_im, 1, 2))
+            d = p_cg - p_im
+            dd = np.einsum("ni,ni->n", d, d)
+            par = dd[:, None, None] * np.eye(3) - d[:, :, None] * d[:, None, :]
+            Jcg = Jg - mass[sel, None, None] * par
+            inertia[sel] = np.matmul(np.matmul(np.swapaxes(Rc, 1, 2), Jcg), Rc) * mfac
         self.moving = moving
         self.nq = o
         return dict(body_id=np.array([e.id for e in moving], int),
                     body_label=[str(e.attrs.get("label", "")) for e in moving],
-                    body_kind=kind, body_mass=mass, body_inertia=inertia, body_off=off,
+                    body_kind=kind, body_mass=mass * mfac, body_inertia=inertia, body_off=off,
                     init_pos=pos, init_rot=rot, coord_info=coord)
-
-    def _inertia(self, e, m, p_cg, R_cg):
-        a = e.attrs
-        keys = ("inertia_xx", "inertia_yy", "inertia_zz", "inertia_xy", "inertia_yz", "inertia_xz")
-        if not any(k in a for k in keys):
-            self.pc.warn(e.loc, "no inertia given; using m*(0.1*L)^2 (only the stability "
-                         "regularisation and MKEAM use it)")
-            self._needs_default_inertia = getattr(self, "_needs_default_inertia", []) + [e.id]
-            return np.zeros((3, 3))
-        xx, yy, zz, xy, yz, xz = (float(_num(e, k, 0.0, self.pc) or 0.0) for k in keys)
-        Jl = np.array([[xx, -xy, -xz], [-xy, yy, -yz], [-xz, -yz, zz]])
-        im = a.get("im_id") or a.get("cg_id")
-        p_im, R_im = self.marker_glob.get(im, (p_cg, R_cg))
-        Jg = R_im @ Jl @ R_im.T
-        d = p_cg - p_im
-        Jcg = Jg - m * (d @ d * np.eye(3) - np.outer(d, d))
-        return R_cg.T @ Jcg @ R_cg
 
     def marker_arrays(self, body_pos, body_rot):
         els = self.marker_els
         nb = len(self.moving)
-        ids = [0] + [e.id for e in els]
-        mb = [nb]
-        s0 = [np.zeros(3)]
-        A0 = [np.eye(3)]
+        ids = [0] + [e.attrs.get("id") for e in els]
         self.marker_index = {0: GLOBAL}
-        for k, e in enumerate(els):
-            self.marker_index[e.id] = k + 1
-            p, R = self.marker_glob[e.id]
-            bid = e.attrs.get("body_id")
-            if bid in self.body_index:
-                b = self.body_index[bid]
-                mb.append(b)
-                s0.append(body_rot[b].T @ (p - body_pos[b]))
-                A0.append(body_rot[b].T @ R)
-            else:
-                if bid not in self.ground_ids:
-                    self.pc.error(e.loc, f"body_id {bid} is not a body; expected the id of a "
-                                  "Body_Rigid or Body_Point", "body_id")
-                mb.append(nb)
-                s0.append(p)
-                A0.append(R)
-        P = np.array([self.marker_glob[e.id][0] for e in els]) if els else np.zeros((1, 3))
-        c = P.mean(axis=0)
-        L = float(np.max(np.linalg.norm(P - c, axis=1))) if len(P) else 1.0
+        self.marker_index.update((mid, k + 1) for k, mid in enumerate(ids[1:]))
+        glob = self.marker_glob
+        src = np.array([glob.row[mid] for mid in ids[1:]], np.intp)
+        P, R = glob.P[src], glob.R[src]
+        bidx = self.body_index
+        bids = [e.attrs.get("body_id") for e in els]
+        mb = np.array([_row_of(bidx, b, nb) for b in bids], int).reshape(len(els))
+        for k in np.flatnonzero(mb == nb).tolist():
+            if bids[k] not in self.ground_ids:
+                self.pc.error(els[k].loc, f"body_id {bids[k]} is not a body; expected the id "
+                              "of a Body_Rigid or Body_Point", "body_id")
+        self.marker_on_ground = mb == nb           # (marker_els,) not on a moving body
+        s0 = P.copy()
+        A0 = R.copy()
+        mv = np.flatnonzero(mb < nb)
+        if mv.size:
+            b = mb[mv]
+            RbT = np.swapaxes(body_rot[b], 1, 2)
+            s0[mv] = np.einsum("nij,nj->ni", RbT, P[mv] - body_pos[b])
+            A0[mv] = np.matmul(RbT, R[mv])
+        if len(els):
+            c = P.mean(axis=0)
+            L = float(np.max(np.linalg.norm(P - c, axis=1)))
+        else:
+            L = 0.0
         self.L = L if L > 0 else 1.0
-        return dict(marker_id=np.array(ids, int), marker_body=np.array(mb, int),
-                    marker_s0=np.array(s0), marker_A0=np.array(A0))
+        return dict(marker_id=np.array(ids, int), marker_body=np.concatenate([[nb], mb]),
+                    marker_s0=np.concatenate([np.zeros((1, 3)), s0]),
+                    marker_A0=np.concatenate([np.eye(3)[None], A0]))
 
     def mk(self, el, attr, required=True):
         mid = el.attrs.get(attr)
@@ -304,6 +456,11 @@ def compile_model(spec: DeckSpec) -> Model:
         For problems only visible at this stage (unsupported joint types, expressions where
         numbers are needed, ...), all collected.
     """
+    with spec.indexed():      # elements(tag) from one tag index, not one scan per call
+        return _compile(spec)
+
+
+def _compile(spec: DeckSpec) -> Model:
     b = _Builder(spec)
     mfac, udesc = unit_info(spec)
     b.markers()
@@ -321,7 +478,7 @@ def compile_model(spec: DeckSpec) -> Model:
 
     # ------------------------------------------------------------ gravity
     grav = np.zeros(3)
-    gels = [e for e in spec.model if e.tag == "Force_Gravity"]
+    gels = spec.elements("Force_Gravity")
     if gels:
         el = gels[-1]
         gpc = None if any(isinstance(el.attrs.get(k), Expr)   # expressions: compile_expr

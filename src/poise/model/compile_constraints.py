@@ -6,66 +6,94 @@ import numpy as np
 from poise.families import constraints as C
 
 
+_TEMPLATES: dict = {}    # joint type -> [(kind, equation tuple, row offset, row names, row kind)]
+
+
+def _template(jt):
+    t = _TEMPLATES.get(jt)
+    if t is None:
+        eqs = C.JOINT_EQUATIONS[jt]
+        names = C.equation_names(eqs)
+        t, ni = [], 0
+        for e in eqs:
+            if e[0] == "point":
+                t.append(("point", e, ni, tuple(names[ni:ni + 3]), ("trans",) * 3))
+                ni += 3
+            else:
+                t.append((e[0], e, ni, (names[ni],), ("rot" if e[0] == "perp" else "trans",)))
+                ni += 1
+        _TEMPLATES[jt] = t
+    return t
+
+
 def compile_joints(spec, ctx):
+    """Joints and joint primitives: rows in element order (each element's equations in the
+    order of ``JOINT_EQUATIONS``), one family per primitive kind with its instances in that
+    order. The per-element work is a few dictionary look-ups; arrays are built per kind."""
     b = ctx.b
     rows, fams, outputs = ctx.rows, ctx.families, ctx.outputs
+    mindex = b.marker_index
     for tag, group in (("Constraint_Joint", "joints"), ("Constraint_Jprim", "jprims")):
         els = spec.elements(tag)
         if not els:
             continue
-        acc = {"point": [], "perp": [], "plane": []}
+        acc = {"point": [], "perp": [], "plane": []}   # (I, J, owner, first row, eq)
         ids = []
+        seen = set()
         for el in els:
-            jt = str(el.attrs.get("type", "")).upper()
-            eqs = C.JOINT_EQUATIONS.get(jt)
-            if eqs is None:
+            a = el.attrs
+            jt = str(a.get("type", "")).upper()
+            if jt not in C.JOINT_EQUATIONS:
                 b.pc.error(el.loc, f"joint type {jt} is not supported yet; supported: "
                            + ", ".join(sorted(C.JOINT_EQUATIONS)), "type")
                 continue
-            I = b.mk(el, "i_marker_id")
-            J = b.mk(el, "j_marker_id")
+            I = mindex.get(a.get("i_marker_id"), -1) if "i_marker_id" in a else -1
+            if I < 0:
+                I = b.mk(el, "i_marker_id")
+            J = mindex.get(a.get("j_marker_id"), -1) if "j_marker_id" in a else -1
+            if J < 0:
+                J = b.mk(el, "j_marker_id")
+            owner = len(ids)
             ids.append(el.id)
-            names = C.equation_names(eqs)
-            ni = 0
-            for e in eqs:
-                if e[0] == "point":
-                    r0 = len(rows)
-                    for nm in names[ni:ni + 3]:
-                        ctx.add_row(el, nm, "trans", group, len(ids) - 1)
-                    acc["point"].append((I, J, len(ids) - 1, [r0, r0 + 1, r0 + 2]))
-                    ni += 3
-                else:
-                    r0 = len(rows)
-                    ctx.add_row(el, names[ni], "rot" if e[0] == "perp" else "trans", group,
-                                len(ids) - 1)
-                    acc[e[0]].append((I, J, len(ids) - 1, [r0], e))
-                    ni += 1
-            b.effects.append(f"{tag}:{jt}")
+            r0 = len(rows)
+            eid, line, file = el.id, el.loc.line, el.loc.file
+            for kind, e, off, names, rkinds in _template(jt):
+                acc[kind].append((I, J, owner, r0 + off, e))
+                for nm, rk in zip(names, rkinds):
+                    rows.append({"tag": tag, "id": eid, "equation": nm, "line": line,
+                                 "file": file, "kind": rk, "group": group, "owner": owner})
+            if jt not in seen:
+                seen.add(jt)
+                b.effects.append(f"{tag}:{jt}")
         outputs[group] = dict(tag=tag, ids=np.array(ids, int))
         if acc["point"]:
-            a = acc["point"]
-            f = C.Coincident.build(f"{group}:coincident", np.array([x[0] for x in a]),
-                                   np.array([x[1] for x in a]), [x[2] for x in a])
-            f.crow = np.array([x[3] for x in a], int)
+            I, J, own, r0 = _columns(acc["point"])
+            f = C.Coincident.build(f"{group}:coincident", I, J, own.tolist())
+            f.crow = r0[:, None] + np.arange(3)
             f.group = group
             fams.append(f)
         if acc["perp"]:
             a = acc["perp"]
+            I, J, own, r0 = _columns(a)
             e4 = [x[4] for x in a]
             f = C.Perpendicular.build(
-                f"{group}:perpendicular", np.array([x[0] for x in a]), np.array([x[1] for x in a]),
+                f"{group}:perpendicular", I, J,
                 [e[1] for e in e4], [e[2] for e in e4],
                 [e[3] if len(e) > 3 else 1 for e in e4], [e[4] if len(e) > 3 else 1 for e in e4],
-                [1.0 if len(e) > 3 else 0.0 for e in e4], [x[2] for x in a])
-            f.crow = np.array([x[3] for x in a], int)
+                [1.0 if len(e) > 3 else 0.0 for e in e4], own.tolist())
+            f.crow = r0[:, None]
             f.group = group
             fams.append(f)
         if acc["plane"]:
             a = acc["plane"]
-            f = C.InPlane.build(f"{group}:inplane", np.array([x[0] for x in a]),
-                                np.array([x[1] for x in a]), [x[4][1] for x in a],
-                                [x[2] for x in a])
-            f.crow = np.array([x[3] for x in a], int)
+            I, J, own, r0 = _columns(a)
+            f = C.InPlane.build(f"{group}:inplane", I, J, [x[4][1] for x in a], own.tolist())
+            f.crow = r0[:, None]
             f.group = group
             fams.append(f)
 
+
+def _columns(acc):
+    """(I, J, owner, first row) int arrays of accumulated primitive instances."""
+    arr = np.array([x[:4] for x in acc], int).reshape(len(acc), 4)
+    return arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3]

@@ -30,7 +30,7 @@ def joint_coordinate(b, pc, owner_el, jid, freedom, attr_j, attr_f):
     """Resolve one coupled joint: (I, J, rot, q0, jel) or None (problem reported).
 
     ``freedom`` may be None (derived from the joint type)."""
-    jel = next((e for e in b.spec.elements("Constraint_Joint") if e.id == jid), None)
+    jel = b.element("Constraint_Joint", jid)
     if jel is None:
         pc.error(owner_el.loc, f"joint {jid} does not exist; expected the id of a "
                  "Constraint_Joint", attr_j)

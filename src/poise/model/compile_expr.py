@@ -84,10 +84,20 @@ class ModelResolver:
         self.splines = {e.id: e for e in spec.elements("Reference_Spline")}
         self.arrays = {e.id: e for e in spec.elements("Reference_Array")}
         self._spline_cache: dict = {}
-        self._elements: dict = {}
-        for e in spec.model:
-            if e.id is not None:
-                self._elements.setdefault((e.tag, e.id), e)
+        self._elements_d: dict | None = None
+
+    @property
+    def _elements(self) -> dict:
+        """(tag, id) -> first model element; built on first use (expressions reading element
+        functions), not for every deck."""
+        if self._elements_d is None:
+            d: dict = {}
+            for e in self.spec.model:
+                eid = e.attrs.get("id")
+                if eid is not None:
+                    d.setdefault((e.tag, eid), e)
+            self._elements_d = d
+        return self._elements_d
 
     # ------------------------------------------------------------------ contract
     def marker_index(self, id: int) -> int:
@@ -493,7 +503,7 @@ def compile_expressions(spec, ctx):
         _reaction_feed(ctx, res, built, pc, ground)
 
     # ------------------------------------------------------------ gravity
-    gels = [e for e in spec.model if e.tag == "Force_Gravity"]
+    gels = spec.elements("Force_Gravity")
     if gels:
         el = gels[-1]
         comps = [el.attrs.get(k, 0.0) for k in ("grav_x", "grav_y", "grav_z")]
@@ -597,8 +607,4 @@ class GravityFunction:
 
 def _ground_markers(b):
     """(nm,) bool: compiled marker index on ground (index 0 = global frame)."""
-    out = np.zeros(len(b.marker_els) + 1, bool)
-    out[0] = True
-    for k, e in enumerate(b.marker_els):
-        out[k + 1] = e.attrs.get("body_id") not in b.body_index
-    return out
+    return np.concatenate([[True], b.marker_on_ground])

@@ -16,7 +16,7 @@ from poise.model.compile_couplers import (add_coupler_family, joint_coordinate, 
 
 
 def _marker_body(b, mid):
-    el = next((e for e in b.marker_els if e.id == mid), None)
+    el = b.element("Reference_Marker", mid)
     return None if el is None else el.attrs.get("body_id")
 
 
@@ -40,7 +40,7 @@ def compile_gears(spec, ctx):
         js = []
         for j in (1, 2):
             jid = el.attrs.get(f"joint{j}_id")
-            jel0 = next((e for e in spec.elements("Constraint_Joint") if e.id == jid), None)
+            jel0 = b.element("Constraint_Joint", jid)
             # a gear on a CYLINDRICAL joint turns with it (rotational freedom), as in Adams GEAR
             fr = "R" if (jel0 is not None and
                          str(jel0.attrs.get("type", "")).upper() == "CYLINDRICAL") else None

@@ -56,7 +56,7 @@ def _routine(el, ctx, P, A):
 
 def _moving(ctx, mid):
     b = ctx.b
-    e = next((m for m in b.marker_els if m.id == mid), None)
+    e = b.element("Reference_Marker", mid)
     return e is not None and e.attrs.get("body_id") in b.body_index
 
 

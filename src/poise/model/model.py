@@ -15,7 +15,7 @@ import numpy as np
 from poise import phases
 from poise.errors import EvaluationError
 from poise.families.base import (constraint_jacobian_local, local_pattern, local_residual_tangent,
-                                 slot_kinematics)
+                                 slot_kinematics, tangent_compact)
 from poise.model.assembly import Assembler, scatter_add
 from poise.model.rotation import expm_so3, se3_left_jacobian, wrap_angle
 
@@ -162,8 +162,13 @@ class Model:
             # only the entries that can be non-zero (family slot structure, see LocalPattern)
             g = fam.gcol
             pat = local_pattern(fam)
-            li, lj = np.nonzero(pat.kmask)
-            blocks.append((g[:, li], g[:, lj]))
+            L = g.shape[1]
+            li, lj = ((pat.order // L, pat.order % L) if pat.order is not None
+                      else np.nonzero(pat.kmask))
+            if pat.compact:            # entry-major, as tangent_compact fills them
+                blocks.append((g[:, li].T, g[:, lj].T))
+            else:
+                blocks.append((g[:, li], g[:, lj]))
             if fam.is_constraint:
                 rows = self.nq + fam.crow
                 pr, pc = np.nonzero(pat.pmask)
@@ -418,8 +423,11 @@ class Model:
         for fam, kin, rho, G, phy, ext in pend:
             pat = local_pattern(fam)
             U = fam.U
-            _, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, True, ext, U, pat)
-            Kl = _gather(Kl, pat.kidx)
+            if pat.compact:    # straight into the registered (entry-major block) order
+                Kl = tangent_compact(kin, rho, G, fam.K, pat)
+            else:
+                _, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, True, ext, U, pat)
+                Kl = _gather(Kl, pat.order)
             if fam.is_constraint:
                 Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
                 if U:

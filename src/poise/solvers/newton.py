@@ -236,6 +236,13 @@ def initial_multipliers(model, state, cnt: Counters):
 def _limit_step(model, state, dq, settings):
     """Uniform step factor so that no body moves (actual screw displacement of its CG) more than
     ``max_translation_step * L`` nor rotates more than ``max_rotation_step``."""
+    return _limit_step_trial(model, state, dq, settings)[0]
+
+
+def _limit_step_trial(model, state, dq, settings):
+    """:func:`_limit_step` and the configuration it accepted: ``(factor, retract(state,
+    factor * dq))``, or ``(factor, None)`` when the last retraction tried another factor. The
+    line search starts from that configuration instead of retracting again."""
     fac = 1.0
     if len(model.rot_idx):
         r = dq[model.rot_idx].reshape(-1, 3)
@@ -247,9 +254,9 @@ def _limit_step(model, state, dq, settings):
         trial = model.retract(state, fac * dq)
         disp = float(np.max(np.linalg.norm(trial.pos - state.pos, axis=1))) if model.nb else 0.0
         if disp <= lim * 1.0001:
-            break
+            return fac, trial
         fac *= 0.9 * lim / disp
-    return fac
+    return fac, None
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
@@ -308,12 +315,16 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
                                        MESSAGES[Status.SINGULAR_JACOBIAN])
         dq, dl = x[:model.nq], x[model.nq:]
-        alpha = _limit_step(model, state, dq, settings)
+        alpha, first = _limit_step_trial(model, state, dq, settings)
         m0 = merit(ev, sc)
         best = None
         eval_error = ""
         for _ in range(LINE_SEARCH_MAX + 1):
-            trial = model.retract(state, alpha * dq, alpha * dl)
+            if first is not None:      # the full (limited) step: already retracted
+                trial, first = first, None
+                trial.lam = trial.lam + alpha * dl
+            else:
+                trial = model.retract(state, alpha * dq, alpha * dl)
             try:
                 ev_t = ev_at(trial)
                 m1 = merit(ev_t, sc)
