@@ -142,7 +142,7 @@ def classify_dense_frames(model, J, active, ok=None) -> list[StabilityInfo]:
     else:
         vh = np.broadcast_to(np.eye(nq), (Fo, nq, nq))
         rank = np.zeros(Fo, int)
-    for rk in np.unique(rank):
+    for rk in sorted(set(rank.tolist())):        # (np.unique imports numpy.ma: ~15 ms)
         grp = np.nonzero(rank == rk)[0]
         Nb = np.swapaxes(vh[grp, rk:, :], 1, 2)                      # (g, nq, k) null spaces
         if Nb.shape[2] == 0:
