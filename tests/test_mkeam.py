@@ -164,3 +164,25 @@ def test_unstable_start_is_perturbed():
     c = st.pos[0]
     assert abs(math.hypot(c[0], c[1]) - 200.0) < 1e-6
     assert abs(abs(math.atan2(-c[0], c[1])) - phi) < 1e-6
+
+
+def test_tight_tolerances_are_reachable(tmp_path):
+    """max_dq_tol = 1e-10: the rotation change between restart points is measured with atan2
+    (arccos has a floor of ~1.5e-8 rad), so a tight tolerance converges instead of running to
+    max_num_iter at the exact answer."""
+    import re
+
+    from poise.api import run_deck
+    src = (Path(__file__).resolve().parents[1] / "decks" / "bench" / "pendulum_multiturn.xml")
+    xml = re.sub(r"<Param_Static[^>]*/>",
+                 '<Param_Static method="MKEAM" max_ke_tol="1.0E-10" max_dq_tol="1.0E-10" '
+                 'max_imbalance="1.0E-10" max_error="1.0E-10" max_num_iter="40"/>',
+                 src.read_text())
+    deck = tmp_path / "pm.xml"
+    deck.write_text(xml)
+    res = run_deck(str(deck))
+    a = res.analyses[0]
+    assert a.status == "converged"
+    assert int(a.datasets["frames/iterations"][0]) <= 5
+    fs = run_deck(str(src)).analyses[0]           # FIM_S on the same deck: the same pose
+    assert np.allclose(a.datasets["bodies/position"], fs.datasets["bodies/position"], atol=1e-6)

@@ -504,8 +504,12 @@ class MkeamAnalysis(StaticAnalysis):
         dr = 0.0
         if len(m.rot_body):
             Rr = np.matmul(s1.rot[m.rot_body], np.swapaxes(s0.rot[m.rot_body], 1, 2))
-            c = np.clip((np.einsum("nii->n", Rr) - 1.0) / 2.0, -1.0, 1.0)
-            dr = float(np.max(np.arccos(c)))
+            # angle = atan2(sin, cos): accurate near zero, where arccos(cos) has a floor of
+            # ~sqrt(eps) = 1.5e-8 rad (it kept tight max_dq_tol from ever being met)
+            c = (np.einsum("nii->n", Rr) - 1.0) / 2.0
+            sn = 0.5 * np.linalg.norm(np.stack([Rr[:, 2, 1] - Rr[:, 1, 2], Rr[:, 0, 2] - Rr[:, 2, 0],
+                                                Rr[:, 1, 0] - Rr[:, 0, 1]], axis=1), axis=1)
+            dr = float(np.max(np.arctan2(sn, c)))
         da = float(np.max(np.abs(s1.angle - s0.angle))) if len(s1.angle) else 0.0
         de = 0.0
         if m.n_extra:
