@@ -110,11 +110,6 @@ def _tile_family(fam, F, model, exact: bool):
     return t
 
 
-def _hook_ok(fam) -> bool:
-    """Families with a ``tile_frames`` hook are tiled unless they read reaction channels."""
-    return not getattr(fam, "reads_reactions", False)
-
-
 def _slice_kin(kin, a, b):
     return SlotKinematics(Y=kin.Y[a:b], V=kin.V[a:b], pt=kin.pt[a:b], slot_ml=kin.slot_ml,
                           K=kin.K)
@@ -287,7 +282,7 @@ def _tile_cache(model, F):
         tiles = []
         for fam in model.families:
             hook = getattr(fam, "tile_frames", None)          # None: not tileable
-            exact = type(fam) in exact_types or (hook is not None and _hook_ok(fam))
+            exact = type(fam) in exact_types or hook is not None   # readers: not batchable()
             t = _tile_family(fam, F, model, exact)
             if exact and hook is not None:
                 hook(t, F, model)

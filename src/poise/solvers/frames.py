@@ -85,35 +85,10 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
         return None
     finally:
         model.row_active[:] = saved
-    d = {"time": np.array([s.t for s in frames])}
-    d["bodies/id"] = model.body_id
-    d["bodies/position"] = np.stack([s.pos for s in frames])
-    d["bodies/orientation"] = np.stack([s.rot for s in frames])
-    for g, o in model.outputs.items():
-        n_out = len(o["ids"])
-        if g in loads:
-            Fg = np.concatenate([x[0] for x in loads[g]])
-            Tg = np.concatenate([x[1] for x in loads[g]])
-        else:
-            Fg = np.zeros((F, n_out, 3))
-            Tg = np.zeros((F, n_out, 3))
-        d[f"{g}/id"] = np.asarray(o["ids"])
-        if g == "forces":
-            d["forces/tag"] = np.asarray(o["tag"], dtype=str)
-        d[f"{g}/force"] = Fg
-        d[f"{g}/torque"] = Tg
-        if g in ("joints", "jprims"):
-            uniq = np.ones(n_out, bool)
-            for r in dep:
-                ri = model.row_info[r]
-                if ri["group"] == g:
-                    uniq[ri["owner"]] = False
-            d[f"{g}/unique"] = uniq
-    d["frames/converged"] = np.array([o.ok for o in outcomes])
-    d["frames/iterations"] = np.array([o.iterations for o in outcomes], dtype=np.int64)
-    d["frames/imbalance"] = np.array([o.imbalance for o in outcomes])
-    d["frames/error"] = np.array([o.error for o in outcomes])
-    d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
+    from poise.solvers.static import output_datasets
+    d = output_datasets(model, frames, {g: (np.concatenate([x[0] for x in parts]),
+                                            np.concatenate([x[1] for x in parts]))
+                                        for g, parts in loads.items()}, dep, outcomes)
     from poise.solvers.stability import stability_datasets
     d.update(stability_datasets(infos))
     return d

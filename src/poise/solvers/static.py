@@ -113,10 +113,6 @@ class StaticAnalysis:
         evaluation (all rows active) and the analysis' active-row mask before the outcomes are
         read (FIM_D computes its interpolated frames' measures from it: no second evaluation)."""
         model = self.model
-        d = {"time": np.array([state.t])}
-        d["bodies/id"] = model.body_id
-        d["bodies/position"] = state.pos[None].copy()
-        d["bodies/orientation"] = state.rot[None].copy()
         # one evaluation (all rows active, slot data kept) serves the minimum-norm reactions,
         # the element loads and the stability classification
         saved = model.row_active.copy()
@@ -139,25 +135,8 @@ class StaticAnalysis:
         except EvaluationError:
             loads = {}
         model.row_active[:] = saved
-        for g, o in model.outputs.items():
-            F, T = loads.get(g, (np.zeros((len(o["ids"]), 3)), np.zeros((len(o["ids"]), 3))))
-            d[f"{g}/id"] = np.asarray(o["ids"])
-            if g == "forces":
-                d["forces/tag"] = np.asarray(o["tag"], dtype=str)
-            d[f"{g}/force"] = F[None]
-            d[f"{g}/torque"] = T[None]
-            if g in ("joints", "jprims"):
-                uniq = np.ones(len(o["ids"]), bool)
-                for r in dep:
-                    ri = model.row_info[r]
-                    if ri["group"] == g:
-                        uniq[ri["owner"]] = False
-                d[f"{g}/unique"] = uniq
-        d["frames/converged"] = np.array([o.ok for o in outcomes])
-        d["frames/iterations"] = np.array([o.iterations for o in outcomes], dtype=np.int64)
-        d["frames/imbalance"] = np.array([o.imbalance for o in outcomes])
-        d["frames/error"] = np.array([o.error for o in outcomes])
-        d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
+        d = output_datasets(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
+                            dep, outcomes)
         d["frames/stability"] = np.array(["unknown"] * len(outcomes), dtype=str)
         if all(o.ok for o in outcomes) and J is not None:
             from poise.solvers.stability import classify, stability_datasets
@@ -174,6 +153,43 @@ class StaticAnalysis:
             "redundant/equation": np.array([r["equation"] for r in rows], dtype=str),
             "redundant/line": np.array([r["line"] for r in rows], dtype=np.int64),
         }
+
+
+def output_datasets(model, frames, loads, dep, outcomes) -> dict:
+    """Datasets of ``frames`` (one or many) common to every analysis: ``time``, ``bodies/*``,
+    per output group the ids, tags, element loads and (joints, jprims) reaction-uniqueness
+    flags, and ``frames/*`` of the ``outcomes``.
+
+    ``loads``: ``{group: (F, T)}`` with arrays (n_frames, n_group, 3); groups missing are
+    zero. ``dep``: constraint rows taking part in a dependency (not unique).
+    """
+    nf = len(frames)
+    d = {"time": np.array([s.t for s in frames])}
+    d["bodies/id"] = model.body_id
+    d["bodies/position"] = np.stack([s.pos for s in frames])
+    d["bodies/orientation"] = np.stack([s.rot for s in frames])
+    for g, o in model.outputs.items():
+        n_out = len(o["ids"])
+        zero = np.zeros((nf, n_out, 3))
+        F, T = loads.get(g, (zero, zero))
+        d[f"{g}/id"] = np.asarray(o["ids"])
+        if g == "forces":
+            d["forces/tag"] = np.asarray(o["tag"], dtype=str)
+        d[f"{g}/force"] = F
+        d[f"{g}/torque"] = T
+        if g in ("joints", "jprims"):
+            uniq = np.ones(n_out, bool)
+            for r in dep:
+                ri = model.row_info[r]
+                if ri["group"] == g:
+                    uniq[ri["owner"]] = False
+            d[f"{g}/unique"] = uniq
+    d["frames/converged"] = np.array([o.ok for o in outcomes])
+    d["frames/iterations"] = np.array([o.iterations for o in outcomes], dtype=np.int64)
+    d["frames/imbalance"] = np.array([o.imbalance for o in outcomes])
+    d["frames/error"] = np.array([o.error for o in outcomes])
+    d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
+    return d
 
 
 def frame_outputs(model, state) -> dict:
