@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.optimize import brentq
+from test_expr_measures import Rx, Rz
 
 from poise.errors import DeckError
 from poise.expr.measures import eval_measure
@@ -109,16 +110,6 @@ def test_motion_channels_match_motion_torque():
 
 
 # ---------------------------------------------------------------- Euler angles at lock
-def Rz(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-
-
-def Rx(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
-
-
 def _wrap(a):
     return (a + math.pi) % (2 * math.pi) - math.pi
 

@@ -1,7 +1,7 @@
 """Scale-aware tolerances and stiff/soft mixes."""
 import numpy as np
 
-from .deckgen import Deck, rot_x, rot_y, rot_z
+from .deckgen import Deck, rot_x, rot_y, rot_z, stiff_soft_deck
 
 G = 9.81
 
@@ -61,17 +61,7 @@ def test_stiff_soft_mix(runner):
     lateral stiffness: plain Newton meets a singular Jacobian and the fallback's stability
     term takes over). Closed form: each spring carries the weight below it."""
     m, k1, k2, kb = 1e-3, 1e9, 1.0, 1e9
-    d = Deck(units="m", static=dict(max_imbalance=1e-8, max_error=1e-12))
-    d.ground()
-    d.marker(101, 1, (0, 0, 0))
-    d.marker(102, 1, (300, 0, 0))
-    d.point(2, 20, (0, -10, 0), mass=m)
-    d.point(3, 30, (0, -510, 0), mass=m)
-    d.spring(1, 20, 101, k1 * 1e-3, 10.0)          # Deck takes N/mm
-    d.spring(2, 30, 20, k2 * 1e-3, 500.0)
-    d.body(4, 40, (300, 0, 0), mass=m, inertia=(1e-2, 1e-2, 1e-2))
-    d.bushing(1, 40, 102, (kb * 1e-3,) * 3, (1e12,) * 3)
-    a = runner.api(d)
+    a = runner.api(stiff_soft_deck(m, k1, k2, kb))
     assert a.converged, a.message
     d1, d2 = 2 * m * G / k1, m * G / k2
     ref = np.array([[0, -0.01 - d1, 0], [0, -0.51 - d1 - d2, 0], [0.3, -m * G / kb, 0]])

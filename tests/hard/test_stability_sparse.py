@@ -19,7 +19,7 @@ import poise.solvers.stability as stab
 from poise.api import run_deck
 from poise.gen.chain import build_chain_deck
 
-from .deckgen import Deck, rot_y, rot_z
+from .deckgen import Deck, rot_y, rot_z, stiff_soft_deck
 
 DECKS = Path(__file__).resolve().parents[2] / "decks"
 
@@ -116,18 +116,7 @@ def universal_inverted_pendulum():
 
 
 def stiff_soft():
-    m = 1e-3
-    d = Deck(units="m", static=dict(max_imbalance=1e-8, max_error=1e-12))
-    d.ground()
-    d.marker(101, 1, (0, 0, 0))
-    d.marker(102, 1, (300, 0, 0))
-    d.point(2, 20, (0, -10, 0), mass=m)
-    d.point(3, 30, (0, -510, 0), mass=m)
-    d.spring(1, 20, 101, 1e9 * 1e-3, 10.0)
-    d.spring(2, 30, 20, 1.0 * 1e-3, 500.0)
-    d.body(4, 40, (300, 0, 0), mass=m, inertia=(1e-2, 1e-2, 1e-2))
-    d.bushing(1, 40, 102, (1e9 * 1e-3,) * 3, (1e12,) * 3)
-    return d
+    return stiff_soft_deck()
 
 
 CASES = {
