@@ -121,6 +121,12 @@ def targets(wprows, qs, peers, chains, grids, fits, decade) -> list[tuple]:
                      f"{pend['floor_ratio']:.2f} × Exudyn (set up as poise "
                      f"{s(fl['as_poise']['median'])} s = {pend['floor_as_poise_ratio']:.2f} ×); "
                      f"poise above that floor {s(pend['poise_above_floor_s'])} s")
+            if pend.get("numpy_ratio") is not None:
+                floor += (f"; numpy alone {s(fl['numpy']['median'])} s = "
+                          f"{pend['numpy_ratio']:.2f} × Exudyn")
+            if pend.get("batch_ratio"):
+                floor += (f"; `poise batch` per deck {s(pend['batch']['j1']['median'])} s = "
+                          f"{pend['batch_ratio']['j1']:.2f} × Exudyn's process (one worker)")
         out.append(("whole process, small deck (pendulum_multiturn): poise / Exudyn", "≤ 0.8",
                     f"{v:.2f} ({s(pend['poise']['process_s']['median'])} s vs "
                     f"{s(pend['exudyn']['process_s']['median'])} s){floor}", v <= 0.8))

@@ -300,15 +300,49 @@ FLOOR_AS_POISE = ('import os; os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
                   f'{FLOOR_IMPORTS}; os._exit(0)')
 
 
-def import_floor(repeat: int) -> dict:
-    """Whole-process wall time of ``python -c FLOOR_IMPORTS`` (``normal``) and of
-    ``python -c FLOOR_AS_POISE`` (``as_poise``), measured like the poise and peer processes
-    (:func:`poise.bench._wall`)."""
+#: numpy alone, set up as a poise process: the one import both sides need (Exudyn imports numpy).
+NUMPY_AS_POISE = ('import os; os.environ.setdefault("OPENBLAS_NUM_THREADS", "1"); import numpy; '
+                  'os._exit(0)')
+#: The peer's own import floor: what its script imports before it builds anything.
+PEER_IMPORTS = "import json, math, exudyn, exudyn.utilities"
+
+
+def import_floor(repeat: int, peer: bool = False) -> dict:
+    """Whole-process wall time of ``python -c FLOOR_IMPORTS`` (``normal``), of
+    ``python -c FLOOR_AS_POISE`` (``as_poise``), of numpy alone set up as poise (``numpy``) and,
+    when ``peer``, of the peer script's imports (``peer``), all measured like the poise and peer
+    processes (:func:`poise.bench._wall`)."""
     from poise.bench import _wall
     out = {}
-    for key, code in (("normal", FLOOR_IMPORTS), ("as_poise", FLOOR_AS_POISE)):
+    codes = [("normal", FLOOR_IMPORTS), ("as_poise", FLOOR_AS_POISE), ("numpy", NUMPY_AS_POISE)]
+    if peer:
+        codes.append(("peer", PEER_IMPORTS))
+    for key, code in codes:
         out[key], _ = _wall([sys.executable, "-c", code], repeat)
-    return dict(command=f'python -c "{FLOOR_IMPORTS}"', command_as_poise=FLOOR_AS_POISE, **out)
+    return dict(command=f'python -c "{FLOOR_IMPORTS}"', command_as_poise=FLOOR_AS_POISE,
+                command_numpy=NUMPY_AS_POISE, command_peer=PEER_IMPORTS, **out)
+
+
+def batch_per_deck(deck: Path, tmp: Path, copies: int = 40, repeat: int = 3) -> dict:
+    """``poise batch`` over ``copies`` copies of ``deck``: wall time per deck with one worker
+    (``-j 1``: the whole CPU cost a CI job pays per deck when it hands poise the list) and with
+    one worker per CPU (``-j 0``), process start to every results file and summary written."""
+    from poise.bench import _poise_cmd, _wall
+    d = tmp / "batch-decks"
+    d.mkdir(exist_ok=True)
+    paths = []
+    for k in range(copies):
+        q = d / f"{deck.stem}_{k:03d}.xml"
+        q.write_bytes(deck.read_bytes())
+        paths.append(str(q))
+    out = dict(copies=copies)
+    for jobs in (1, 0):
+        cmd = _poise_cmd() + ["batch", *paths, "--out-dir", str(tmp / "batch-out"), "--force",
+                              "-q", "-j", str(jobs)]
+        st, rc = _wall(cmd, repeat)
+        out[f"j{jobs}"] = {k: (v / copies if k != "n" else v) for k, v in st.items()}
+        out[f"j{jobs}_rc"] = rc
+    return out
 
 
 def _poise_point(deck: Path, repeat: int):
@@ -336,9 +370,10 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
     ns: dict = {}
     if ok:
         exec(compile(SCRIPT, "<exudyn-peer>", "exec"), ns)
-    floor = import_floor(repeat)
+    floor = import_floor(repeat, peer=ok)
     log(f"import floor ({FLOOR_IMPORTS}): {floor['normal']['median']:.3g} s, set up as a poise "
-        f"process {floor['as_poise']['median']:.3g} s")
+        f"process {floor['as_poise']['median']:.3g} s, numpy alone "
+        f"{floor['numpy']['median']:.3g} s")
     with tempfile.TemporaryDirectory(prefix="poise-peer-") as td:
         tdp = Path(td)
         for prob in probs:
@@ -393,9 +428,14 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
                 row["import_floor"] = floor
                 fl, fp = floor["normal"]["median"], floor["as_poise"]["median"]
                 row["poise_above_floor_s"] = row["poise"]["process_s"]["median"] - fp
+                row["batch"] = batch_per_deck(deck, tdp, repeat=max(1, min(3, repeat)))
                 if ok:
                     pe = row["exudyn"]["process_s"]["median"]
                     row["floor_ratio"], row["floor_as_poise_ratio"] = fl / pe, fp / pe
+                    row["numpy_ratio"] = floor["numpy"]["median"] / pe
+                    row["peer_above_floor_s"] = pe - floor["peer"]["median"]
+                    row["batch_ratio"] = {j: row["batch"][j]["median"] / pe
+                                          for j in ("j1", "j0")}
             log(f"peer {prob['name']}: poise {row['poise']['solve_s']['median']:.3g} s err "
                 f"{row['poise']['error']:.1e}" + (
                     f"; exudyn {'ok' if row['exudyn']['converged'] else 'FAILED'} "

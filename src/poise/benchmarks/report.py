@@ -197,8 +197,9 @@ def peer_section(rows) -> list[str]:
 
 
 def floor_section(rows) -> list[str]:
-    """Whole process of the small decks next to the import floor of poise's mandated
-    dependencies (numpy, h5py, lxml), all measured the same way (``poise.bench._wall``)."""
+    """Whole process of the small decks next to the import floors (poise's mandated
+    dependencies; numpy alone; the peer script's imports) and next to ``poise batch``, all
+    measured the same way (``poise.bench._wall``)."""
     rows = [r for r in rows if r.get("import_floor") and r.get("exudyn", {}).get("process_s")]
     if not rows:
         return []
@@ -208,19 +209,41 @@ def floor_section(rows) -> list[str]:
          "interpreter and environment, one warm-up, median (min–max)). *Floor as poise* = the "
          f"same imports set up the way a poise process is: `python -c '{fl['command_as_poise']}'`"
          " (poise sets `OPENBLAS_NUM_THREADS=1` before importing numpy, and ends its process "
-         "with `os._exit` after the exit handlers). *poise above floor* = poise process − floor "
-         "as poise: poise's own imports (click, poise), parse, compile, solve and the HDF5 write."
-         " If the floor alone is above 0.8 × Exudyn, the target cannot be met with the "
-         "mandated dependencies.", "",
+         "with `os._exit` after the exit handlers). *numpy alone* = "
+         f"`python -c '{fl['command_numpy']}'`: numpy is imported by both sides (Exudyn imports "
+         "it too), so no Python solver built on numpy can go below it. *Exudyn above its imports* = "
+         f"Exudyn process − `python -c \"{fl['command_peer']}\"`: its build and solve. "
+         "*poise above floor* = poise process − floor as poise: poise's own imports (click, "
+         "poise), parse, compile, solve and the HDF5 write. If the floor alone is above "
+         "0.8 × Exudyn, the target cannot be met with the mandated dependencies.", "",
          "| problem | poise process [s] | Exudyn process [s] | poise / Exudyn | import floor [s] | "
-         "floor / Exudyn | floor as poise [s] | floor as poise / Exudyn | poise above floor [s] |",
-         "|---|---|---|---|---|---|---|---|---|"]
+         "floor / Exudyn | floor as poise [s] | floor as poise / Exudyn | numpy alone [s] | "
+         "numpy alone / Exudyn | poise above floor [s] | Exudyn above its imports [s] |",
+         "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         f = r["import_floor"]
         L.append(f"| {r['problem']} | {_mmm(r['poise']['process_s'])} | "
                  f"{_mmm(r['exudyn']['process_s'])} | {_s(r.get('process_ratio'))} | "
                  f"{_mmm(f['normal'])} | {_s(r.get('floor_ratio'))} | {_mmm(f['as_poise'])} | "
-                 f"{_s(r.get('floor_as_poise_ratio'))} | {_s(r.get('poise_above_floor_s'))} |")
+                 f"{_s(r.get('floor_as_poise_ratio'))} | {_mmm(f.get('numpy'))} | "
+                 f"{_s(r.get('numpy_ratio'))} | {_s(r.get('poise_above_floor_s'))} | "
+                 f"{_s(r.get('peer_above_floor_s'))} |")
+    b = [r for r in rows if r.get("batch")]
+    if b:
+        n = b[0]["batch"]["copies"]
+        L += ["", "### Many decks, one process: `poise batch`", "",
+              f"A CI job that solves many decks can hand them to one `poise batch` call, which "
+              f"pays the imports once. Per deck = wall time of `poise batch` over {n} copies of "
+              "the deck (process start to every results file and summary.csv/json written) / "
+              f"{n}; `-j 1` is one worker (the CPU cost per deck), `-j 0` one worker per CPU. "
+              "Ratios are to Exudyn's whole process per deck (one process per problem, as "
+              "above).", "",
+              "| problem | per deck, -j 1 [s] | / Exudyn process | per deck, -j 0 [s] | "
+              "/ Exudyn process |", "|---|---|---|---|---|"]
+        for r in b:
+            bt, br = r["batch"], r.get("batch_ratio") or {}
+            L.append(f"| {r['problem']} | {_mmm(bt['j1'])} | {_s(br.get('j1'))} | "
+                     f"{_mmm(bt['j0'])} | {_s(br.get('j0'))} |")
     return L
 
 
