@@ -287,3 +287,30 @@ def test_reserved_attr_clash(tmp_path):
     with pytest.raises(ValueError, match="clash"):
         write_results(r, str(tmp_path / "x.h5"))
     assert _leftovers(tmp_path) == []
+
+
+def test_low_level_datasets_equal_high_level_bytes(tmp_path):
+    """``_Datasets.create`` must write what ``create_dataset(..., track_times=False)`` writes,
+    byte for byte, for every kind of array a results file holds."""
+    import h5py
+    arrays = {
+        "scalar_f": np.float64(2.5), "scalar_i": np.int64(-3), "empty": np.zeros((0, 3)),
+        "vec": np.arange(5.0), "mat_f_order": np.asfortranarray(np.arange(12.0).reshape(3, 4)),
+        "ints": np.arange(7, dtype=np.int32), "flags": np.array([True, False, True]),
+        "strings": hdf5._to_array(np.array(["a", "bé", ""], dtype=object), "t"),
+        "scalar_str": hdf5._to_array(np.array("x"), "t"), "u8": np.arange(4, dtype=np.uint8),
+    }
+    lo, hi = tmp_path / "lo.h5", tmp_path / "hi.h5"
+    with h5py.File(lo, "w") as f:
+        for k in sorted(arrays):
+            hdf5._maker().create(f, k, np.asarray(arrays[k]))
+    with h5py.File(hi, "w") as f:
+        for k in sorted(arrays):
+            a = np.asarray(arrays[k])
+            f.create_dataset(k, data=a, dtype=a.dtype, track_times=False)
+    assert lo.read_bytes() == hi.read_bytes()
+    with h5py.File(lo) as f:
+        assert f["scalar_f"].shape == () and f["scalar_f"][()] == 2.5
+        assert f["empty"].shape == (0, 3)
+        np.testing.assert_array_equal(f["mat_f_order"][()], np.arange(12.0).reshape(3, 4))
+        assert [s.decode() for s in f["strings"][()]] == ["a", "bé", ""]

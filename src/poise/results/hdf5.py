@@ -98,7 +98,44 @@ def _check_relpath(key: str, where: str) -> list[str]:
     return parts
 
 
+class _Datasets:
+    """Creates contiguous datasets through h5py's low-level API.
+
+    The result equals ``group.create_dataset(name, data=arr, dtype=arr.dtype,
+    track_times=False)`` byte for byte (same dataset-creation property list: no chunks, no
+    filters, no timestamps, attribute creation order not tracked; same datatype and dataspace
+    calls; default link-creation list), but the property list is built once per process instead
+    of once per dataset: a small deck's results file has ~50 datasets, and the high-level call
+    cost ~0.25 ms each.
+    """
+
+    def __init__(self):
+        from h5py import h5p
+        self.dcpl = h5p.create(h5p.DATASET_CREATE)
+        self.dcpl.set_obj_track_times(False)
+        self.dcpl.set_attr_creation_order(0)
+
+    def create(self, parent: h5py.Group, name: str, arr: np.ndarray) -> None:
+        from h5py import h5d, h5s, h5t
+        if not arr.flags.c_contiguous:     # (np.ascontiguousarray would make 0-d arrays 1-d)
+            arr = arr.copy(order="C")
+        tid = h5t.py_create(arr.dtype, logical=1)
+        dsid = h5d.create(parent.id, name.encode("utf-8"), tid, h5s.create_simple(arr.shape),
+                          dcpl=self.dcpl)
+        dsid.write(h5s.ALL, h5s.ALL, arr)
+
+
+_MAKER: list[_Datasets] = []
+
+
+def _maker() -> _Datasets:
+    if not _MAKER:
+        _MAKER.append(_Datasets())
+    return _MAKER[0]
+
+
 def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str) -> None:
+    maker = _maker()
     groups: dict[tuple, h5py.Group] = {(): group}   # opened subgroups (one lookup per group)
     for key in sorted(datasets):
         parts = _check_relpath(key, where)
@@ -108,9 +145,8 @@ def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str) -> 
             parent = groups.get(path)
             if parent is None:
                 parent = groups[path] = groups[path[:-1]].require_group(parts[k - 1])
-        arr = _to_array(datasets[key], f"{where}/{key}")
         # contiguous layout, no filters, no timestamps: identical input -> identical bytes
-        parent.create_dataset(parts[-1], data=arr, dtype=arr.dtype, track_times=False)
+        maker.create(parent, parts[-1], _to_array(datasets[key], f"{where}/{key}"))
 
 
 def _write_file(result: RunResult, path: str) -> None:
@@ -145,8 +181,7 @@ def _write_file(result: RunResult, path: str) -> None:
         _set_attrs(counts, {k: int(v) for k, v in result.counts.items()}, "/counts")
 
         warnings = np.array([str(w) for w in result.warnings], dtype=object)
-        f.create_dataset("warnings", data=_to_array(warnings.astype(_STR), "/warnings"),
-                         dtype=_STR, track_times=False)
+        _maker().create(f, "warnings", _to_array(warnings.astype(_STR), "/warnings"))
 
         for a in sorted(result.analyses, key=lambda a: a.index):
             name = analysis_group_name(a.index)
