@@ -95,3 +95,36 @@ def test_batch_human_table(tmp_path):
     assert r.exit_code == 0
     assert r.stdout.splitlines()[0].split()[:3] == ["deck", "status", "iterations"]
     assert "\x1b[" not in r.output            # no colours when not a terminal
+
+
+def test_a_deck_that_kills_its_worker_takes_only_itself_down(tmp_path):
+    """A deck whose user routine SIGKILLs its process (as the OOM killer would): the other decks
+    still get their results files, the batch exits 4 with the summary written, and the dead
+    deck's row says what happened."""
+    import signal
+    src = (DECKS / "elem_user_forces.xml").read_text()
+    (tmp_path / "routines.py").write_text(
+        (DECKS / "elem_user_routines.py").read_text()
+        + "\n\ndef sfosub_die(id, time, par, q):\n    import os\n"
+        + f"    os.kill(os.getpid(), {int(signal.SIGKILL)})\n")
+    killer = tmp_path / "killer.xml"
+    killer.write_text(src.replace('usrsub_fnc_name="sfosub_spring"', 'usrsub_fnc_name="sfosub_die"')
+                      .replace("elem_user_routines.py", "routines.py"))
+    good = [tmp_path / f"good{k}.xml" for k in range(3)]
+    for g in good:
+        shutil.copy(GOOD, g)
+    out = tmp_path / "out"
+    for jobs in ("1", "2"):
+        r = _batch(good[0], killer, good[1], good[2], "-j", jobs, "--out-dir", out, "--force",
+                   "--json")
+        assert r.exit_code == 4, r.output
+        doc = json.loads(r.stdout)
+        rows = {Path(x["deck"]).name: x for x in doc["rows"]}
+        assert rows["killer.xml"]["status"] == "internal_error"
+        assert "worker process solving this deck died" in rows["killer.xml"]["message"]
+        assert rows["killer.xml"]["output"] is None and not (out / "killer.h5").exists()
+        for g in good:
+            row = rows[g.name]
+            assert row["status"] == "converged" and row["exit_code"] == 0, row
+            assert Path(row["output"]).exists()
+        assert (out / "summary.json").exists() and (out / "summary.csv").exists()

@@ -1,8 +1,15 @@
 """Batch runs: solve many decks in parallel local processes, one results file per deck.
 
-Used by ``poise batch``. Workers are started with the ``spawn`` method (safe with threads, the
-same on every platform); each solves one deck with :func:`poise.api.run_deck` and writes
-``OUT_DIR/<stem>.h5`` itself, returning only a small summary row.
+Used by ``poise batch``. Decks are always solved in worker processes (also with ``-j 1``),
+started with the ``spawn`` method (safe with threads, the same on every platform); a worker
+imports poise once and solves deck after deck with :func:`poise.api.run_deck`, writing
+``OUT_DIR/<stem>.h5`` itself and returning only a small summary row.
+
+A worker that dies (killed by a signal, e.g. out of memory, or a crash in native code or in a
+user routine) breaks its pool, which fails every deck it had not finished. Those decks are then
+solved again, each in a process of its own, so only the deck that kills its process is reported
+(``internal_error``, :data:`WORKER_DIED`) and the batch, its other decks and the summary files
+are unaffected.
 
 Up-to-date check (re-runs skip work): a results file is reused when its root attributes record
 the same ``deck_sha256`` (hash of the deck bytes now), the same ``poise_version`` and the same
@@ -170,27 +177,73 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
                 pass
         todo.append(k)
     jobs = jobs if jobs and jobs > 0 else (os.cpu_count() or 1)
-    if jobs == 1 or len(todo) <= 1:
-        for k in todo:
-            rows[k] = solve_one(decks[k], outs[k], overrides, command)
-            if on_row:
-                on_row(rows[k])
+    if not todo:
         return rows
+    # always in worker processes (also with -j 1): a deck that kills its process (out of memory,
+    # a crash in native code or in a user routine) must not take the batch and its summary down
+    broken = _solve_in_pool(todo, jobs, decks, outs, overrides, command, rows, on_row)
+    if broken:
+        _solve_isolated(broken, jobs, decks, outs, overrides, command, rows, on_row)
+    return rows
+
+
+#: Message of a deck whose own worker process died (see :func:`_solve_isolated`).
+WORKER_DIED = ("the worker process solving this deck died (killed by a signal, e.g. out of "
+               "memory, or a crash in native code); no results file")
+
+
+def _spawn_pool(workers: int):
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=ctx) as ex:
-        futs = {ex.submit(solve_one, decks[k], outs[k], overrides, command): k for k in todo}
+    from concurrent.futures import ProcessPoolExecutor
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+
+
+def _solve_in_pool(keys, jobs, decks, outs, overrides, command, rows, on_row) -> list[int]:
+    """Solve ``keys`` on one pool of ``jobs`` workers; returns the decks the pool could not
+    finish because a worker process died (the pool then fails every unfinished deck)."""
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
+    broken = []
+    with _spawn_pool(min(jobs, len(keys))) as ex:
+        futs = {ex.submit(solve_one, decks[k], outs[k], overrides, command): k for k in keys}
         for fut in as_completed(futs):
             k = futs[fut]
             try:
                 rows[k] = fut.result()
-            except Exception as e:  # noqa: BLE001 - a worker died
+            except BrokenProcessPool:
+                broken.append(k)
+                continue
+            except Exception as e:  # noqa: BLE001 - e.g. the deck's row could not be sent back
                 rows[k] = _row(decks[k], None, status="internal_error", exit_code=4,
                                message=f"worker failed: {type(e).__name__}: {e}")
             if on_row:
                 on_row(rows[k])
-    return rows
+    return sorted(broken)
+
+
+def _solve_isolated(keys, jobs, decks, outs, overrides, command, rows, on_row) -> None:
+    """Re-solve the decks a dead worker took down, each in a process of its own (``jobs`` at a
+    time), so that only the deck that kills its process is reported (:data:`WORKER_DIED`) and
+    every other deck gets its results."""
+    from concurrent.futures import ThreadPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    def one(k):
+        try:
+            with _spawn_pool(1) as ex:
+                return k, ex.submit(solve_one, decks[k], outs[k], overrides, command).result()
+        except BrokenProcessPool:
+            return k, _row(decks[k], None, status="internal_error", exit_code=4,
+                           message=WORKER_DIED)
+        except Exception as e:  # noqa: BLE001
+            return k, _row(decks[k], None, status="internal_error", exit_code=4,
+                           message=f"worker failed: {type(e).__name__}: {e}")
+
+    with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(keys)))) as tp:
+        for k, row in tp.map(one, keys):
+            rows[k] = row
+            if on_row:
+                on_row(row)
 
 
 def write_table(rows: list[dict], path_stem: str, keys=None, extra: dict | None = None) -> None:
