@@ -61,6 +61,13 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
                                      **info))
         ctx.exit(code)
 
+    try:  # before the solve: a path that cannot take the results fails now, not after it
+        from poise.atomic import output_target
+        output_target(out, (deck,))
+    except (Exception, KeyboardInterrupt) as exc:   # UsageError: exit 2
+        fail(exc)
+        return
+
     try:
         from poise.api import run_deck
         result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet)

@@ -232,14 +232,16 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
         title.set_text(f"analysis {a.index} ({a.method}): {labels[f]}  [{f + 1}/{len(pos)}]")
         return [cg, gr, title, *lines]
 
-    if low.endswith(".png"):
-        render(idx[0])
-        fig.savefig(out, dpi=dpi)
-    else:
-        from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
-        anim = FuncAnimation(fig, render, frames=idx, blit=False)
-        writer = PillowWriter(fps=fps) if low.endswith(".gif") else FFMpegWriter(fps=fps)
-        anim.save(out, writer=writer, dpi=dpi)
+    from poise.atomic import atomic_output
+    with atomic_output(out, (path,), keep_suffix=True) as tmp:
+        if low.endswith(".png"):
+            render(idx[0])
+            fig.savefig(tmp, dpi=dpi)
+        else:
+            from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
+            anim = FuncAnimation(fig, render, frames=idx, blit=False)
+            writer = PillowWriter(fps=fps) if low.endswith(".gif") else FFMpegWriter(fps=fps)
+            anim.save(tmp, writer=writer, dpi=dpi)
     w, h = (fig.get_size_inches() * dpi).round().astype(int).tolist()
     plt.close(fig)
     return {"output": out, "frames": len(idx), "width": w, "height": h,

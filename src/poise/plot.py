@@ -140,7 +140,9 @@ def plot_results(path: str, out: str, analysis: int | None = None, bodies=None, 
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, ncol=4)
     fig.tight_layout()
-    fig.savefig(out, dpi=dpi)
+    from poise.atomic import atomic_output
+    with atomic_output(out, (path,), keep_suffix=True) as tmp:
+        fig.savefig(tmp, dpi=dpi)
     w, h = fig.get_size_inches() * dpi
     plt.close(fig)
     return {"output": out, "panels": panels, "width": int(round(w)), "height": int(round(h))}

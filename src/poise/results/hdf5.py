@@ -21,7 +21,8 @@ attribute exists; wall-clock timings live only in ``/timings`` attributes.
 Atomicity: the file is written to ``.<name>.tmp-<pid>`` in the destination directory, flushed and
 fsync'ed, then renamed over the final name with :func:`os.replace`. Any exception removes the
 temp file. A process killed mid-write can leave only the hidden temp file, never a partial file
-under the final name.
+under the final name (:mod:`poise.atomic`, which also refuses outputs that are not regular files
+or that are the deck itself).
 """
 from __future__ import annotations
 
@@ -209,44 +210,18 @@ def analysis_group_name(index: int) -> str:
     return f"analysis_{int(index):03d}"
 
 
-def _fsync_path(path: str, directory: bool = False) -> None:
-    flags = os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0)
-    try:
-        fd = os.open(path, flags)
-    except OSError:
-        if directory:  # some platforms cannot open directories; best effort
-            return
-        raise
-    try:
-        os.fsync(fd)
-    except OSError:
-        if not directory:
-            raise
-    finally:
-        os.close(fd)
-
-
 def write_results(result: RunResult, path: str) -> None:
-    """Write ``result`` to ``path`` atomically.
+    """Write ``result`` to ``path`` atomically (:func:`poise.atomic.atomic_output`).
 
-    The data go to ``.<name>.tmp-<pid>`` next to ``path``; after a successful write and fsync
-    the temp file is renamed to ``path`` (replacing an existing file). On any exception the temp
-    file is removed and the exception propagates; ``path`` is then untouched.
+    The data go to ``.<name>.tmp-<pid>`` next to the target (``path``, or the file it links
+    to); after a successful write and fsync the temp file is renamed to the target (replacing
+    an existing file). On any exception the temp file is removed and the exception propagates;
+    the target is then untouched. Refused (:class:`poise.errors.UsageError`): a path that exists
+    and is not a regular file, and the deck itself (``result.deck``).
     """
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    tmp = os.path.join(directory, f".{os.path.basename(path)}.tmp-{os.getpid()}")
-    try:
+    from poise.atomic import atomic_output
+    with atomic_output(path, (getattr(result, "deck", None),)) as tmp:
         _write_file(result, tmp)
-        _fsync_path(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    _fsync_path(directory, directory=True)
 
 
 # --------------------------------------------------------------------------------------------
