@@ -409,3 +409,19 @@ def test_invalid_deck_all_problems_check_json(tmp_path):
 def test_python_dash_m(module):
     r = subprocess.run([sys.executable, "-m", module, "--version"], capture_output=True, text=True)
     assert r.returncode == 0 and r.stdout.strip() == f"poise {poise.__version__}"
+
+
+@pytest.mark.parametrize("opt,val", [("--max-imbalance", "nan"), ("--max-error", "inf"),
+                                     ("--stability", "nan"), ("--max-imbalance", "-1")])
+def test_non_finite_solver_options_are_usage_errors(tmp_path, opt, val):
+    r = CliRunner().invoke(cli, ["solve", str(ROOT / "decks" / "pendulum_multiturn.xml"), opt, val,
+                                 "-o", str(tmp_path / "o.h5")])
+    assert r.exit_code == 2 and opt in r.output
+    assert not (tmp_path / "o.h5").exists()
+
+
+def test_non_finite_api_override_is_a_usage_error():
+    from poise.api import run_deck
+    from poise.errors import UsageError
+    with pytest.raises(UsageError, match="max_error must be a finite number > 0, got nan"):
+        run_deck(str(ROOT / "decks" / "pendulum_multiturn.xml"), {"max_error": float("nan")})

@@ -21,6 +21,17 @@ quiet_option = click.option(
     help="Print nothing on stderr except errors (no summary lines, no warnings).")
 
 
+class _Finite(click.FloatRange):
+    """A float range that also refuses nan and inf (click's FloatRange lets nan through)."""
+
+    def convert(self, value, param, ctx):
+        import math
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return v
+
+
 def solver_options(f):
     """The ``Param_Static`` overrides of ``poise solve`` (applied in reverse for help order)."""
     opts = [
@@ -30,11 +41,11 @@ def solver_options(f):
                           "Default FIM_D."),
         click.option("--max-num-iter", type=click.IntRange(min=1), default=None,
                      help="Maximum Newton iterations per frame."),
-        click.option("--max-imbalance", type=click.FloatRange(min=0, min_open=True),
+        click.option("--max-imbalance", type=_Finite(min=0, min_open=True),
                      default=None, help="Convergence tolerance on the force imbalance."),
-        click.option("--max-error", type=click.FloatRange(min=0, min_open=True), default=None,
+        click.option("--max-error", type=_Finite(min=0, min_open=True), default=None,
                      help="Convergence tolerance on the (scaled) displacement step."),
-        click.option("--stability", type=click.FloatRange(min=0), default=None,
+        click.option("--stability", type=_Finite(min=0), default=None,
                      help="sqrt(stability) x mass matrix is added to the Jacobian only "
                           "(Param_Static stability)."),
         click.option("--no-fallback", "no_fallback", is_flag=True, default=False,

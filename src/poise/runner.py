@@ -74,6 +74,11 @@ class AnalysisRequest:
 def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     """The analyses of a deck in command order."""
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
+    try:      # an invalid override is the caller's error, not the deck's
+        StaticSettings().updated(overrides)
+    except (ValueError, TypeError) as e:
+        from poise.errors import UsageError
+        raise UsageError(f"invalid solver option: {e}") from None
     live = _static_settings([e for e in spec.model if e.tag == "Param_Static"])
     transient: dict = {}
     for e in spec.model:

@@ -6,6 +6,8 @@ compliance_delta 1e-3.
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import asdict, dataclass, fields, replace
 
 METHODS = ("MKEAM", "FIM_S", "FIM_D")
@@ -60,10 +62,11 @@ class StaticSettings:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
         for name in ("max_ke_tol", "max_dq_tol", "max_imbalance", "max_error"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
-        if self.stability < 0:
-            raise ValueError(f"stability must be >= 0, got {self.stability!r}")
+            v = getattr(self, name)
+            if not (v > 0 and math.isfinite(v)):
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+        if not (self.stability >= 0 and math.isfinite(self.stability)):
+            raise ValueError(f"stability must be a finite number >= 0, got {self.stability!r}")
         if int(self.max_num_iter) < 1:
             raise ValueError(f"max_num_iter must be >= 1, got {self.max_num_iter!r}")
 
