@@ -228,21 +228,6 @@ def compile_batch_located(exprs, resolver, pc):
 
 
 # ====================================================================================== channels
-def _resolve(v, A, rm):
-    return v if rm == GLOBAL else v @ A[rm]          # components along RM's axes
-
-
-def _pick(F, T, comp):
-    c = int(comp)
-    if c == 1:
-        return float(np.linalg.norm(F))
-    if c <= 4:
-        return float(F[c - 2])
-    if c == 5:
-        return float(np.linalg.norm(T))
-    return float(T[c - 6])
-
-
 def channel_values(model, state, channels, info, loads=None, P=None, A=None):
     """Values of reaction channels at ``state`` (exact, from ``state.lam``).
 
@@ -250,7 +235,8 @@ def channel_values(model, state, channels, info, loads=None, P=None, A=None):
     :func:`poise.solvers.outputs.element_loads` (force/torque on I at the I origin, global);
     ``jflag=1`` gives the equal and opposite action on J about the J origin; components are
     resolved in marker RM's axes (0 = global). ``loads``/``P``/``A`` given (inside
-    ``Model.evaluate``): used instead of evaluating the model at ``state``.
+    ``Model.evaluate``): used instead of evaluating the model at ``state``. Evaluated by the
+    :class:`ChannelPlan` of ``channels`` (built once, kept by ``info``).
     """
     if not channels:
         return np.zeros(0)
@@ -259,38 +245,128 @@ def channel_values(model, state, channels, info, loads=None, P=None, A=None):
         loads = element_loads(model, state)
     if P is None:
         P, A, _ = model.marker_kinematics(state)
-    out = np.zeros(len(channels))
-    owners = info.owner_maps(model)
-    for k, ch in enumerate(channels):
-        if ch[0] == "EL":
-            _, group, tag, id, jflag, comp, rm = ch
-            if group not in loads or (tag, id) not in owners.get(group, {}):
-                raise EvaluationError(f"no reaction output for <{tag} id={id}> "
-                                      f"(group {group!r} not compiled)")
-            o = owners[group][(tag, id)]
-            F, T = loads[group][0][o], loads[group][1][o]
-            if jflag:
-                mi, mj = info.markers[(tag, id)]
-                F, T = -F, -T - np.cross(P[mi] - P[mj], F)
-                T = T  # about the J origin
-            out[k] = _pick(_resolve(F, A, rm), _resolve(T, A, rm), comp)
-        else:
-            _, mi, mj, comp, rm, _ = ch
-            Fs, Ts = np.zeros(3), np.zeros(3)
-            for group, omap in owners.items():
-                if group not in loads:
+    return info.plan(model, channels).evaluate(loads, P, A)
+
+
+def _component_picks(comps):
+    """Split channel components 1..8 into picks of the stacked ``(F, T)`` 6-vector (2-4 Fx Fy Fz,
+    6-8 Tx Ty Tz) and magnitudes (1 |F|, 5 |T|). Returns ``(pick rows, pick index,
+    magnitude rows, magnitude (rows, 3) columns)``."""
+    c = np.asarray(comps, np.intp).reshape(-1)
+    mag = (c == 1) | (c == 5)
+    ck = np.nonzero(~mag)[0]
+    mk = np.nonzero(mag)[0]
+    crow = np.where(c[ck] <= 4, c[ck] - 2, c[ck] - 3)
+    mcols = np.where(c[mk] == 1, 0, 3)[:, None] + np.arange(3)
+    return ck, crow, mk, mcols
+
+
+class ChannelPlan:
+    """Reaction channels as index arrays (compile time, O(channels + contributions)): per
+    output group the ``(channel, owner row)`` contributions in the order of the per-channel sums
+    (an element-force function: its element; a resultant FX..TM: every element whose marker
+    pair matches) with the contributions taken on J (``-F`` and ``-T - (P_I - P_J) x F``: jflag 1,
+    or a resultant at the element's J marker), the RM markers and the component picks.
+    :meth:`evaluate` does O(groups) Python work."""
+
+    def __init__(self, model, channels, info):
+        owners = info.owner_maps(model)
+        self.channels = list(channels)
+        n = self.n = len(self.channels)
+        elems, by_mk = [], {}                         # every output element, group order
+        for group, omap in owners.items():
+            for key, o in omap.items():
+                ei, ej = info.markers[key]
+                by_mk.setdefault(ei, []).append(len(elems))
+                if ej != ei:
+                    by_mk.setdefault(ej, []).append(len(elems))
+                elems.append((group, o, ei, ej))
+        con = {g: [] for g in owners}                 # group -> [(k, o, flip, ei, ej)]
+        self.el_first = {}       # group -> first element-force channel reading it
+        self.missing = None      # first element-force channel without an output row
+        rm, comp = np.zeros(n, np.intp), np.zeros(n, np.intp)
+        for k, ch in enumerate(self.channels):
+            if ch[0] == "EL":
+                _, group, tag, id, jflag, comp[k], rm[k] = ch
+                o = owners.get(group, {}).get((tag, id))
+                if o is None:
+                    self.missing = k if self.missing is None else self.missing
                     continue
-                for (tag, id), o in omap.items():
-                    ei, ej = info.markers[(tag, id)]
-                    F, T = loads[group][0][o], loads[group][1][o]
+                self.el_first.setdefault(group, k)
+                ei, ej = info.markers[(tag, id)]
+                con[group].append((k, o, bool(jflag), ei, ej))
+            else:
+                _, mi, mj, comp[k], rm[k], _ = ch
+                for e in by_mk.get(mi, ()):
+                    group, o, ei, ej = elems[e]
                     if ei == mi and (mj < 0 or ej == mj):
-                        Fs += F
-                        Ts += T
+                        con[group].append((k, o, False, ei, ej))
                     elif ej == mi and (mj < 0 or ei == mj):
-                        Fs -= F
-                        Ts += -T - np.cross(P[ei] - P[ej], F)
-            out[k] = _pick(_resolve(Fs, A, rm), _resolve(Ts, A, rm), comp)
-    return out
+                        con[group].append((k, o, True, ei, ej))
+        self.groups = []
+        for group, lst in con.items():
+            if not lst:
+                continue
+            # a channel's contributions stay in element order: np.add.at sums them in the
+            # order of the former per-element loop
+            a = np.array(lst, np.intp)
+            fl = np.nonzero(a[:, 2])[0]
+            self.groups.append((group, a[:, 0], a[:, 1], fl, a[fl, 3], a[fl, 4]))
+        self.rk = np.nonzero(rm != GLOBAL)[0]
+        self.rm = rm[self.rk]
+        self.ck, self.crow, self.mk, self.mcols = _component_picks(comp)
+
+    def evaluate(self, loads, P, A):
+        """Channel values (n,) from ``element_loads``-style ``loads`` and marker ``P``, ``A``."""
+        return self.pick(self.vectors(loads, P, A))
+
+    def pick(self, D):
+        """Channel values (n,) from their :meth:`vectors` ``D``."""
+        out = np.empty(self.n)
+        out[self.ck] = D[self.ck, self.crow]
+        if len(self.mk):
+            out[self.mk] = np.linalg.norm(D[self.mk[:, None], self.mcols], axis=1)
+        return out
+
+    def vectors(self, loads, P, A):
+        """(n, 6): each channel's force and torque ``(F, T)`` in its RM's axes."""
+        bad = [k for g, k in self.el_first.items() if g not in loads]
+        if self.missing is not None:
+            bad.append(self.missing)
+        if bad:
+            _, group, tag, id = self.channels[min(bad)][:4]
+            raise EvaluationError(f"no reaction output for <{tag} id={id}> "
+                                  f"(group {group!r} not compiled)")
+        Fs = np.zeros((self.n, 3))
+        Ts = np.zeros((self.n, 3))
+        for group, k, o, fl, ei, ej in self.groups:
+            if group not in loads:
+                continue
+            F = loads[group][0][o]
+            T = loads[group][1][o]
+            if len(fl):
+                Ff = F[fl]
+                T[fl] = -T[fl] - np.cross(P[ei] - P[ej], Ff)
+                F[fl] = -Ff
+            np.add.at(Fs, k, F)
+            np.add.at(Ts, k, T)
+        if len(self.rk):                              # components along RM's axes
+            Ar = A[self.rm]
+            Fs[self.rk] = np.matmul(Fs[self.rk][:, None, :], Ar)[:, 0]
+            Ts[self.rk] = np.matmul(Ts[self.rk][:, None, :], Ar)[:, 0]
+        return np.concatenate([Fs, Ts], axis=1)
+
+
+class _CouplingGroup:
+    """The :class:`ReactionFeed` entries of one (reader family ``ri``, constraint family ``fi``)
+    pair as index arrays (E entries): reader pair ``p`` (instance, local column) of ``ri``,
+    constraint instance position ``pos`` among the read instances of ``fi``, its multiplier rows
+    ``crows`` (E, m), flipped entries ``fl`` with their element markers ``fei``/``fej``, entries
+    resolved in a moving/rotated RM (``rk``, markers ``rm``), the component picks and the
+    channels ``mch`` of the magnitude entries ``mk``."""
+
+    __slots__ = ("ri", "fi", "p", "pos", "crows", "fl", "fei", "fej", "rk", "rm", "ck", "crow",
+                 "mk", "mcols", "mch")
 
 
 class ReactionFeed:
@@ -300,145 +376,212 @@ class ReactionFeed:
     current multipliers, forces that read no reaction), then calls :meth:`values` with their
     kept ``(fam, kin, rho, phi_y)`` tuples and passes the result as ``EvalContext.reactions`` to
     the reader families. The values are exact at the current iterate (no lag).
+
+    Both :meth:`values` and :meth:`coupling` are vectorised over channels and entries: their
+    index arrays are built once (:class:`ChannelPlan`, :meth:`setup`), the per-evaluation Python
+    work is O(groups), not O(channels) or O(entries).
     """
 
     def __init__(self, channels, info, readers):
         self.channels = list(channels)
         self.info = info
         self.readers = list(readers)
+        self.plan = None
+        self.groups = []
+        self._last = None
 
     def values(self, model, items, P, A):
+        D = self._vectors(model, items, P, A)
+        self._last = (P, D)
+        return self.plan.pick(D)
+
+    def _vectors(self, model, items, P, A):
         from poise.solvers.outputs import loads_of
-        loads = loads_of(model, items)
-        return channel_values(model, None, self.channels, self.info, loads, P, A)
+        if self.plan is None:
+            self.plan = self.info.plan(model, self.channels)
+        return self.plan.vectors(loads_of(model, items), P, A)
 
     # ------------------------------------------------------------------ d / d lambda
     def setup(self, model):
         """Coupling pattern (called by ``Model.finalize``): per (reader instance, channel,
         constraint-family instance the channel reads) one ``(6K_r, m)`` block of the KKT
-        Jacobian (reader's coordinates x the constraint's multipliers). Returns the blocks."""
+        Jacobian (reader's coordinates x the constraint's multipliers), grouped per (reader
+        family, constraint family) into one ``(E, 6K_r, m)`` block. Returns the blocks.
+
+        :attr:`entries` (E, 9) lists them in reader order: ``(reader family, instance, local
+        column u, channel, constraint family, instance j, flip, I, J)``."""
         fams = model.families
         owners = self.info.owner_maps(model)
         inv = {g: {o: key for key, o in om.items()} for g, om in owners.items()}
-        cons = [(fi, f) for fi, f in enumerate(fams) if f.is_constraint
-                and getattr(f, "group", None) in inv]
-        contrib = []                                 # per channel: [(fi, j, flip, ei, ej)]
+        by_key, by_mk = {}, {}              # constraint instances with a reaction output
+        for fi, f in enumerate(fams):
+            if not f.is_constraint or getattr(f, "group", None) not in inv:
+                continue
+            for j, o in enumerate(np.asarray(f.owner).ravel().tolist()):
+                key = inv[f.group].get(o)
+                if key is None:
+                    continue
+                ei, ej = self.info.markers[key]
+                rec = (fi, j, ei, ej)
+                by_key.setdefault((f.group,) + key, []).append(rec)
+                by_mk.setdefault(ei, []).append(rec)
+                if ej != ei:
+                    by_mk.setdefault(ej, []).append(rec)
+        contrib = []                        # per channel: [(fi, j, flip, ei, ej)]
         for ch in self.channels:
+            if ch[0] == "EL":
+                contrib.append([(fi, j, int(bool(ch[4])), ei, ej)
+                                for fi, j, ei, ej in by_key.get(tuple(ch[1:4]), ())])
+                continue
+            mi, mj = ch[1], ch[2]
             lst = []
-            for fi, f in cons:
-                for j, o in enumerate(np.asarray(f.owner).ravel()):
-                    key = inv[f.group].get(int(o))
-                    if key is None:
-                        continue
-                    ei, ej = self.info.markers[key]
-                    if ch[0] == "EL":
-                        if (f.group, key[0], key[1]) == (ch[1], ch[2], ch[3]):
-                            lst.append((fi, j, bool(ch[4]), ei, ej))
-                    else:
-                        mi, mj = ch[1], ch[2]
-                        if ei == mi and (mj < 0 or ej == mj):
-                            lst.append((fi, j, False, ei, ej))
-                        elif ej == mi and (mj < 0 or ei == mj):
-                            lst.append((fi, j, True, ei, ej))
+            for fi, j, ei, ej in by_mk.get(mi, ()):
+                if ei == mi and (mj < 0 or ej == mj):
+                    lst.append((fi, j, 0, ei, ej))
+                elif ej == mi and (mj < 0 or ei == mj):
+                    lst.append((fi, j, 1, ei, ej))
             contrib.append(lst)
-        self.entries = []            # (reader fi, reader instance i, local col u, channel c, ...)
-        blocks = []
+        rows = []
         for ri, f in enumerate(fams):
             if not getattr(f, "reads_reactions", False):
                 continue
             _reader_layout(f)
-            K6 = 6 * f.K
-            for i in range(f.n):
-                for u, c in enumerate(f.rcols[i]):
-                    if c < 0:
-                        continue
-                    for fi, j, flip, ei, ej in contrib[int(c)]:
-                        g = fams[fi]
-                        rows = np.repeat(f.gcol[i, :K6][:, None], g.m, 1)
-                        cols = np.repeat((model.nq + g.crow[j])[None, :], K6, 0)
-                        self.entries.append((ri, i, u, int(c), fi, j, flip, ei, ej))
-                        blocks.append((rows, cols))
+            for i, cs in enumerate(f.rcols.tolist()):
+                for u, c in enumerate(cs):
+                    if c >= 0:
+                        rows += [(ri, i, u, c) + t for t in contrib[c]]
+        E = np.array(rows, np.intp).reshape(-1, 9)
+        self.entries = E
+        # stable: same-(row, col) entries keep their order (identical assembly sums)
+        E = E[np.lexsort((E[:, 4], E[:, 0]))]
+        rm = np.array([ch[6] if ch[0] == "EL" else ch[4] for ch in self.channels], np.intp)
+        comp = np.array([ch[5] if ch[0] == "EL" else ch[3] for ch in self.channels], np.intp)
+        self._pairs = {}                    # reader family -> (instances, local columns) read
+        self._inst = {}                     # constraint family -> instances read
+        for ri in np.unique(E[:, 0]).tolist():
+            pr = np.unique(E[E[:, 0] == ri][:, 1:3], axis=0)
+            self._pairs[ri] = (pr[:, 0], pr[:, 1])
+        for fi in np.unique(E[:, 4]).tolist():
+            self._inst[fi] = np.unique(E[E[:, 4] == fi, 5])
+        self.groups = []
+        blocks = []
+        key = E[:, 0] * len(fams) + E[:, 4]
+        for s in np.split(np.arange(len(E)), np.nonzero(np.diff(key))[0] + 1):
+            if not len(s):
+                continue
+            e = E[s]
+            ri, fi = int(e[0, 0]), int(e[0, 4])
+            f, g = fams[ri], fams[fi]
+            gp = _CouplingGroup()
+            gp.ri, gp.fi = ri, fi
+            pi, pu = self._pairs[ri]
+            gp.p = _pair_index(pi, pu, f.rcols.shape[1], e[:, 1], e[:, 2])
+            gp.pos = np.searchsorted(self._inst[fi], e[:, 5])
+            gp.crows = g.crow[e[:, 5]]
+            gp.fl = np.nonzero(e[:, 6])[0]
+            gp.fei, gp.fej = e[gp.fl, 7], e[gp.fl, 8]
+            r = rm[e[:, 3]]
+            gp.rk = np.nonzero(r != GLOBAL)[0]
+            gp.rm = r[gp.rk]
+            gp.ck, gp.crow, gp.mk, gp.mcols = _component_picks(comp[e[:, 3]])
+            gp.mch = e[gp.mk, 3]
+            self.groups.append(gp)
+            K6, m = 6 * f.K, g.m
+            shape = (len(e), K6, m)
+            blocks.append((np.broadcast_to(f.gcol[e[:, 1], :K6][:, :, None], shape),
+                           np.broadcast_to((model.nq + gp.crows)[:, None, :], shape)))
         return blocks
 
     def coupling(self, model, kept, P, A, lam, row_active):
         """Values of the :meth:`setup` blocks: ``d r_reader / d lambda`` (exact: every channel is
-        linear in its element's multipliers at fixed coordinates)."""
-        from poise.families.base import local_residual_tangent
-        from poise.families.expr_forces import apply_two_body_w
+        linear in its element's multipliers at fixed coordinates; ``|F|``, ``|T|`` through the
+        chain rule with the unit vector of the channel's whole F or T, which sums every
+        contributing instance: the constraint families of one joint, the elements of a
+        resultant). One batched kernel per reader family, constraint family and group (``lam``
+        is not needed: the channel vectors come from :meth:`values` at the same iterate)."""
+        fams = model.families
+        D = self._last[1] if self._last is not None and self._last[0] is P else \
+            self._vectors(model, kept.values(), P, A)          # channel (F, T) at this iterate
+        rl = {ri: _reader_dreaction(fams[ri], kept[ri][1], pi, pu)
+              for ri, (pi, pu) in self._pairs.items()}
+        base = {fi: _constraint_dlam(fams[fi], kept[fi][1], kept[fi][3], js)
+                for fi, js in self._inst.items()}
         out = []
-        cache = {}
-        for ri, i, u, c, fi, j, flip, ei, ej in self.entries:
-            f = model.families[ri]
-            if (ri, u) not in cache:
-                kin = kept[ri][1]
-                dFs, dTs = f.scalar_chain(kin.Y, f._rgrads)
-                drho = apply_two_body_w(kin.Y, dFs[:, :, u], dTs[:, :, u], None, None,
-                                        f.action_only, False)[0]
-                cache[(ri, u)] = local_residual_tangent(kin, drho, None, f.slot_ml, f.K,
-                                                        False, None, 0)[0]
-            rl = cache[(ri, u)][i]                                   # (6K,)
-            g, kin_g, _, phy = kept[fi]
-            dch = _channel_dlam(g, kin_g, phy, j, self.channels[c], flip, ei, ej, P, A,
-                                lam[g.crow[j]])
-            dch = dch * row_active[g.crow[j]]
-            out.append(rl[:, None] * dch[None, :])
+        for gp in self.groups:
+            bF, bT = base[gp.fi]
+            dF, dT = bF[gp.pos], bT[gp.pos]                              # (E, 3, m)
+            if len(gp.fl):                       # on J about its origin: -F, -T - d x F
+                F0 = dF[gp.fl]
+                d = (P[gp.fei] - P[gp.fej])[:, :, None]
+                dT[gp.fl] = -dT[gp.fl] - np.cross(d, F0, axis=1)
+                dF[gp.fl] = -F0
+            if len(gp.rk):                       # components along RM's axes
+                At = np.swapaxes(A[gp.rm], 1, 2)
+                dF[gp.rk] = np.matmul(At, dF[gp.rk])
+                dT[gp.rk] = np.matmul(At, dT[gp.rk])
+            G = np.concatenate([dF, dT], axis=1)                         # (E, 6, m)
+            dch = np.empty((G.shape[0], G.shape[2]))
+            dch[gp.ck] = G[gp.ck, gp.crow]
+            if len(gp.mk):                       # d|V| = (V / |V|)^T dV, V the whole F or T
+                M = G[gp.mk[:, None], gp.mcols]                          # (Em, 3, m)
+                v = D[gp.mch[:, None], gp.mcols]                         # (Em, 3)
+                nv = np.linalg.norm(v, axis=1)[:, None]
+                w = np.divide(v, nv, out=np.zeros_like(v), where=nv > 0)
+                dch[gp.mk] = np.matmul(w[:, None, :], M)[:, 0]
+            dch = dch * row_active[gp.crows]
+            out.append(rl[gp.ri][gp.p][:, :, None] * dch[:, None, :])
         return out
+
+
+def _pair_index(pi, pu, C, i, u):
+    """Positions of the (instance, column) pairs ``(i, u)`` in the sorted unique ``(pi, pu)``."""
+    return np.searchsorted(pi * C + pu, np.asarray(i) * C + np.asarray(u))
+
+
+def _reader_dreaction(f, kin, pi, pu):
+    """(P, 6K) local residual of reader family ``f``'s instance ``pi[p]`` per unit change of the
+    reaction channel in its local column ``pu[p]`` (the force law is linear in (F, T) at fixed
+    slots: rho(dF/dc, dT/dc))."""
+    from poise.families.base import SlotKinematics, local_residual_tangent
+    from poise.families.expr_forces import apply_two_body_w
+    dFs, dTs = f.scalar_chain(kin.Y, f._rgrads)                     # (n, 3, C) each
+    sub = SlotKinematics(kin.Y[pi], kin.V[pi], kin.pt[pi], kin.slot_ml, kin.K)
+    drho = apply_two_body_w(sub.Y, dFs[pi, :, pu], dTs[pi, :, pu], None, None,
+                            f.action_only[pi], False)[0]
+    return local_residual_tangent(sub, drho, None, f.slot_ml, f.K, False, None, 0)[0]
+
+
+def _constraint_dlam(g, kin, phy, js):
+    """``d F / d lambda``, ``d T / d lambda`` (len(js), 3, m) of constraint family ``g``'s
+    instances ``js``: the action on I (at the I origin) is linear in the multipliers,
+    F = -sum phi_y^T lam over I's point slots, T = -sum y x (phi_y^T lam) over I's axis slots."""
+    Y = kin.Y[js]
+    ph = phy[js]
+    n, m = len(js), phy.shape[1]
+    dF = np.zeros((n, 3, m))
+    dT = np.zeros((n, 3, m))
+    for s in range(len(g.slot_ml)):
+        if g.slot_ml[s] != 0:
+            continue
+        blk = np.swapaxes(ph[:, :, 3 * s:3 * s + 3], 1, 2)              # (n, 3, m)
+        pt = g.slot_kind[js, s] == 0
+        if pt.any():
+            dF[pt] -= blk[pt]
+        ax = ~pt
+        if ax.any():
+            dT[ax] -= np.cross(Y[ax, s][:, :, None], blk[ax], axis=1)
+    return dF, dT
 
 
 def _reader_layout(fam):
     """``fam.rcols`` (n, Cr): reaction channels each instance reads; per batch the map
-    (rows, batch_col, local_col) used to gather ``d_reaction``."""
-    n = fam.n
-    cols = [dict() for _ in range(n)]
-    maps = []
-    for b in fam.batches:
-        rows, bc, fc = [], [], []
-        for i in range(n):
-            for k, c in enumerate(b.reaction_index[i] if b.C else ()):
-                c = int(c)
-                if c < 0:
-                    continue
-                cols[i].setdefault(c, len(cols[i]))
-                rows.append(i)
-                bc.append(k)
-                fc.append(cols[i][c])
-        maps.append((np.array(rows, np.intp), np.array(bc, np.intp), np.array(fc, np.intp)))
-    C = max((len(c) for c in cols), default=0)
-    fam.rcols = np.full((n, C), -1, int)
-    for i, c in enumerate(cols):
-        for ch, k in c.items():
-            fam.rcols[i, k] = ch
-    fam.reaction_maps = maps
-
-
-def _channel_dlam(g, kin, phy, j, ch, flip, ei, ej, P, A, lam):
-    """d channel / d lambda (m,) of constraint family ``g``'s instance ``j`` (value linear in
-    lambda: F = -sum phi_y^T lam over I's point slots, T = -sum y x (phi_y^T lam) over I's axes)."""
-    S = len(g.slot_ml)
-    m = phy.shape[1]
-    dF = np.zeros((3, m))
-    dT = np.zeros((3, m))
-    Y = kin.Y[j]
-    for s in range(S):
-        if g.slot_ml[s] != 0:
-            continue
-        blk = phy[j, :, 3 * s:3 * s + 3].T                          # (3, m)
-        if int(g.slot_kind[j, s]) == 0:
-            dF -= blk
-        else:
-            dT -= np.cross(Y[s][:, None], blk, axis=0)
-    if flip:
-        dF, dT = -dF, -dT - np.cross((P[ei] - P[ej])[:, None], dF, axis=0)
-    rm = ch[-1] if ch[0] == "EL" else ch[4]
-    if rm != GLOBAL:
-        dF, dT = A[rm].T @ dF, A[rm].T @ dT
-    comp = int(ch[5] if ch[0] == "EL" else ch[3])
-    if comp in (1, 5):
-        M = dF if comp == 1 else dT
-        v = M @ lam
-        nv = float(np.linalg.norm(v))
-        return (v / nv) @ M if nv > 0 else np.zeros(m)
-    return dF[comp - 2] if comp <= 4 else dT[comp - 6]
+    (rows, batch_col, local_col) used to gather ``d_reaction`` (compile time)."""
+    from poise.families.base import column_map, columns_array
+    cols = [dict() for _ in range(fam.n)]
+    empty = (np.zeros(0, np.intp),) * 3
+    fam.reaction_maps = [column_map(b.reaction_index, cols) if b.C else empty
+                         for b in fam.batches]
+    fam.rcols = columns_array(cols)
 
 
 class ExprInfo:
@@ -449,6 +592,14 @@ class ExprInfo:
         self._outputs = outputs
         self._res = resolver
         self._owners = None
+        self._plans = {}
+
+    def plan(self, model, channels) -> ChannelPlan:
+        """The :class:`ChannelPlan` of ``channels`` (built on first use, then kept)."""
+        key = tuple(channels)
+        if key not in self._plans:
+            self._plans[key] = ChannelPlan(model, key, self)
+        return self._plans[key]
 
     def owner_maps(self, model):
         if self._owners is None:
