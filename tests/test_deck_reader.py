@@ -41,7 +41,8 @@ CASES = [
     ("several_errors.xml", 13, "'body_id' refers to a missing Body_Rigid"),
     ("several_errors.xml", 14, "unknown value for 'type'"),
     ("several_errors.xml", 15, "unknown element <Force_Magic>"),
-    ("expr_syntax.xml", 15, "val_expression col 24: expected ')'"),
+    # the element's line (its start tag opens on 14), not the attribute's (15)
+    ("expr_syntax.xml", 14, "val_expression col 24: expected ')'"),
 ]
 
 
@@ -310,24 +311,30 @@ def test_missing_file_is_a_deck_error(tmp_path):
 
 
 def test_large_deck_line_numbers():
-    """libxml2 caps element lines at 65535 once the tree is pruned; the reader fixes them up."""
+    """Every element is located at the line of the ``<`` opening its start tag, below and beyond
+    line 65 535 (where libxml2's own 16-bit line numbers give out)."""
     n = 25_000
     markers = "\n".join(f'<Reference_Marker id="{1000 + k}" body_id="1" pos_x="{k}."/>\n'
                         f'<!-- pad <Fake_Tag/> -->\n' for k in range(n))
+    head = '<Force_Vector_TwoBody\n    id="3"\n    bogus="1"/>\n'    # multi-line, below 65535
     tail = ('<![CDATA[ <Not_A_Tag> ]]>\n<Force_Gravity\n   grav_x="TIME*2"\n   bogus="1"/>\n'
             "<?pi <x?>\n<Force_Magic/>")
-    data = deck(f"<Model>{model()}\n{markers}\n{tail}</Model>")
+    data = deck(f"<Model>{model()}\n{head}{markers}\n{tail}</Model>")
     text = data.decode()
+    fline = text.count("\n", 0, text.index("<Force_Vector_TwoBody")) + 1
+    gline = text.count("\n", 0, text.index("<Force_Gravity\n")) + 1
+    mline = text.count("\n", 0, text.index("<Force_Magic")) + 1
+    assert fline < 65_535 < gline < mline
     with pytest.raises(DeckError) as ei:
         parse_deck_bytes(data, "big.xml")
-    (p,) = ei.value.problems
-    assert p.loc.line == text.count("\n", 0, text.index("<Force_Magic")) + 1
-    assert p.loc.line > 70_000
+    # the vector force misses three required attributes; Force_Magic is unknown
+    assert [(p.loc.tag, p.loc.line) for p in ei.value.problems] == (
+        [("Force_Vector_TwoBody", fline)] * 3 + [("Force_Magic", mline)])
     spec = parse_deck_bytes(data.replace(b"<Force_Magic/>", b""), "big.xml", check=False)
     g = spec.elements("Force_Gravity")[-1]
-    gline = text.count("\n", 0, text.index("<Force_Gravity\n")) + 1
     assert g.loc.line == gline and g.get("grav_x").loc.line == gline
-    assert [w.loc.line for w in spec.warnings] == [gline]
+    assert spec.by_id("Force_Vector_TwoBody")[3].loc.line == fline
+    assert [w.loc.line for w in spec.warnings] == [fline, gline]
 
 
 def test_schema_table_and_markdown():

@@ -303,19 +303,18 @@ machine while other jobs were running; the tables above are re-measured by every
 links: 59 s → ≈ 13 s). Python work per attribute was the cost (a schema lookup, a number parse
 and a dictionary store for each of the 600 000 attributes, then a second pass per attribute in
 validation). Now lxml runs with a parser *target* (same secure options; no tree is built) and
-element lines come from one vectorised byte scan (`<` outside comments, CDATA and processing
-instructions; the `>` closing each start tag, which is the line libxml2 reports, and beyond its
-16-bit limit the `<` line as before). Anything unusual (malformed XML, a DOCTYPE, UTF-16, a
-non-ASCII-compatible encoding, a count mismatch) takes the tree walk, which reports exactly as
-before. Elements are typed in batches grouped by *shape* (tag and attribute names as written):
-each shape is analysed once (schema, canonical names, unknown/duplicate-attribute warnings,
-defaults) and values are typed column by column (`float`/`int` mapped over a column after a
-one-pass character check). Validation screens each shape column-wise (types, finiteness,
-bounds, enums, references, required attributes; direction cosines and inertia eigenvalues in
-batches) and runs the element-by-element checks only on elements that may have a problem, in
-document order, so messages, their order and FILE:LINE are unchanged
-(`tests/test_deck_fast_path.py` compares both paths). Cyclic garbage collection is paused while
-parsing.
+element lines come from one vectorised byte scan (the `<` opening each start tag, outside
+comments, CDATA, processing instructions and the DOCTYPE), which the tree walk uses too.
+Anything unusual (malformed XML, UTF-16, a non-ASCII-compatible encoding, a count mismatch)
+takes the tree walk, which reports the same messages. Elements are typed in batches grouped by
+*shape* (tag and attribute names as written): each shape is analysed once (schema, canonical
+names, unknown/duplicate-attribute warnings, defaults) and values are typed column by column
+(`float`/`int` mapped over a column after a one-pass character check). Validation screens each
+shape column-wise (types, finiteness, bounds, enums, references, required attributes; direction
+cosines and inertia eigenvalues in batches) and runs the element-by-element checks only on
+elements that may have a problem, in document order, so messages, their order and FILE:LINE are
+unchanged (`tests/test_deck_fast_path.py` compares both paths). Cyclic garbage collection is
+paused while parsing.
 What remains at 10 000 links: lxml itself ≈ 0.35 s and `float()` of 600 000 17-digit numbers
 ≈ 0.2 s.
 

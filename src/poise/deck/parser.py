@@ -14,6 +14,9 @@ Typing follows ``poise.deck.spec``. A value that cannot be typed (``mass="abc"``
 raw string; :func:`poise.deck.validate.validate` reports it. Unknown elements are kept under their
 written name and unknown attributes are dropped with one warning each, so that validation can
 report every problem of the deck at once.
+
+Locations: an element's line is the line of the ``<`` that opens its start tag (see "element
+lines" below for the encodings that keep libxml2's numbers).
 """
 from __future__ import annotations
 
@@ -36,33 +39,6 @@ _TRUE = {"TRUE", "YES", "1", "T", "ON"}
 _FALSE = {"FALSE", "NO", "0", "F", "OFF"}
 _ENTITY = re.compile(rb"<!ENTITY", re.IGNORECASE)
 _SECTIONS = ("model", "command")
-_TAG_SCAN = re.compile(rb"<!--.*?-->|<!\[CDATA\[.*?\]\]>|<\?.*?\?>|<[A-Za-z_:]", re.S)
-_BIG_LINE = 65535  # libxml2 stores element line numbers in 16 bits
-
-
-def _start_tag_lines(data: bytes, wanted: set[int]) -> dict[int, int]:
-    """Line numbers of the start tags with the given 0-based ordinals (document order).
-
-    libxml2 reports 65535 for every element beyond that line once the tree has been pruned, so
-    big decks are fixed up by scanning the raw bytes: outside comments, CDATA and processing
-    instructions, ``<`` followed by a name character always opens a start tag.
-    """
-    out: dict[int, int] = {}
-    if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in data[:4]:
-        return out  # UTF-16/32 decks: keep libxml2's numbers
-    k, line, pos = 0, 1, 0
-    last = max(wanted) if wanted else -1
-    for m in _TAG_SCAN.finditer(data):
-        if m.end() - m.start() != 2:
-            continue
-        if k in wanted:
-            line += data.count(b"\n", pos, m.start())
-            pos = m.start()
-            out[k] = line
-        k += 1
-        if k > last:
-            break
-    return out
 
 
 # --------------------------------------------------------------------------- value typing
@@ -477,12 +453,27 @@ class _Target:
         self.recs = []
 
 
+# --------------------------------------------------------------------------- element lines
+# One convention for every located message (FILE:LINE): an element's line is the line of the
+# '<' that opens its start tag -- the line an editor shows for ``<Force_Vector_TwoBody`` however
+# many lines its attributes take. Its expression attributes (:class:`Expr`) carry the same
+# location: the reader does not track attribute lines; messages name the attribute and the column
+# in its value. Lines are counted at LF: CRLF is one line end, a lone CR (classic Mac OS) is not
+# one, as libxml2 does not count it either (its syntax-error lines stay comparable).
+# Both walks take these lines from one vectorised byte scan (:func:`_start_tag_scan`). Decks the
+# scan does not read -- UTF-16/32, or a declared encoding outside _ASCII_ENCODINGS -- keep
+# libxml2's numbers: the line of the '>' that ends the start tag, unreliable beyond line 65535
+# (libxml2 stores element lines in 16 bits; lxml then reports 65535 or a nearby text's line).
 _ENCODING = re.compile(rb"""^<\?xml[^>]*?encoding\s*=\s*["']([A-Za-z0-9._-]+)["']""")
 _ASCII_ENCODINGS = re.compile(r"(utf-?8|(us-)?ascii|iso[-_]?8859[-_]?\d+|latin-?1|"
                               r"(windows|cp)-?125\d)", re.IGNORECASE)
-_SPECIAL = re.compile(rb"<!--|<!\[CDATA\[|<\?")
+_SPECIAL = re.compile(rb"<!--|<!\[CDATA\[|<\?|<!DOCTYPE")
 _SPECIAL_END = {b"<!--": b"-->", b"<![CDATA[": b"]]>", b"<?": b"?>"}
-_TAG = re.compile(rb"""<[^>"']*(?:(?:"[^"]*"|'[^']*')[^>"']*)*>""")
+# the document type declaration with its internal subset, whose quoted literals, comments and
+# processing instructions may hold '<', '>', '[' or ']'
+_DOCTYPE = re.compile(rb"""<!DOCTYPE(?:[^"'\[>]++|"[^"]*+"|'[^']*+')*+"""
+                      rb"""(?:\[(?:[^"'<\]]++|"[^"]*+"|'[^']*+'|<!--.*?-->|<\?.*?\?>|<)*+"""
+                      rb"""\]\s*+)?>""", re.S)
 _CHUNK = 1 << 24
 _FEED = 1 << 16
 
@@ -498,34 +489,39 @@ def _positions(a: np.ndarray, values: tuple) -> list:
 
 
 def _start_tag_scan(data: bytes) -> np.ndarray | None:
-    """Line of every start tag in document order, as libxml2 numbers elements (the line of
-    the ``>`` closing the start tag), except beyond its 16-bit limit: there, as the reader has
-    always reported them, the line of the ``<``. None when the bytes cannot be scanned reliably
-    (UTF-16/32 or another non-ASCII-compatible encoding, a DOCTYPE): then the tree parser's
-    line numbers are used.
+    """Line of the ``<`` opening every start tag, in document order (the convention above).
 
-    Outside comments, CDATA sections and processing instructions, ``<`` followed by anything
-    but ``/``, ``!`` or ``?`` opens a start tag; it ends at the first ``>`` that is not inside a
-    quoted attribute value (tags holding a ``'`` or an odd number of ``"`` before that ``>`` are
-    matched exactly with a regular expression).
+    None when the bytes cannot be scanned reliably: UTF-16/32 or a declared encoding outside
+    ``_ASCII_ENCODINGS``, a document that does not start with ``<``, a document type declaration
+    that does not end; then libxml2's numbers are used. Outside comments, CDATA sections,
+    processing instructions and the document type declaration, ``<`` followed by anything but
+    ``/``, ``!`` or ``?`` opens a start tag (well-formed XML has no raw ``<`` in text or attribute
+    values; the walks check that the count matches the elements parsed).
     """
     head = data[3:] if data[:3] == b"\xef\xbb\xbf" else data
     head = head.lstrip(b" \t\r\n")
-    if not head.startswith(b"<") or b"\x00" in data[:4] or b"<!DOCTYPE" in data:
+    if not head.startswith(b"<") or b"\x00" in data[:4]:
         return None
     m = _ENCODING.match(head[:300])
     if m and not _ASCII_ENCODINGS.fullmatch(m.group(1).decode("ascii")):
         return None
     a = np.frombuffer(data, np.uint8)
-    lt, gt, nl, dq, sq = _positions(a, (60, 62, 10, 34, 39))
-    # '<' inside comments, CDATA and processing instructions
+    lt, nl = _positions(a, (60, 10))
+    # '<' inside comments, CDATA, processing instructions and the DOCTYPE
     spans = []
     end = -1
     for sm in _SPECIAL.finditer(data):
         if sm.start() < end:
             continue
-        e = data.find(_SPECIAL_END[sm.group()], sm.end())
-        end = len(data) if e < 0 else e + len(_SPECIAL_END[sm.group()])
+        tok = sm.group()
+        if tok == b"<!DOCTYPE":
+            dm = _DOCTYPE.match(data, sm.start())
+            if dm is None:
+                return None
+            end = dm.end()
+        else:
+            e = data.find(_SPECIAL_END[tok], sm.end())
+            end = len(data) if e < 0 else e + len(_SPECIAL_END[tok])
         spans.append((sm.start(), end))
     if spans:
         sp = np.array(spans, np.intp)
@@ -534,26 +530,18 @@ def _start_tag_scan(data: bytes) -> np.ndarray | None:
         lt = lt[~inside]
     nxt = a[np.minimum(lt + 1, a.size - 1)]
     starts = lt[(nxt != 47) & (nxt != 33) & (nxt != 63) & (lt + 1 < a.size)]
-    g = np.searchsorted(gt, starts)
-    if (g >= gt.size).any():
-        return None                                    # unterminated tag: the parser reports it
-    ends = gt[g]
-    ndq = np.searchsorted(dq, ends) - np.searchsorted(dq, starts)
-    nsq = np.searchsorted(sq, ends) - np.searchsorted(sq, starts)
-    for k in np.flatnonzero((ndq % 2 == 1) | (nsq > 0)).tolist():
-        tm = _TAG.match(data, int(starts[k]))
-        if tm is None:
-            return None
-        ends[k] = tm.end() - 1
-    close_line = np.searchsorted(nl, ends) + 1
-    open_line = np.searchsorted(nl, starts) + 1
-    return np.where(close_line < _BIG_LINE, close_line, open_line)
+    return np.searchsorted(nl, starts) + 1           # newlines before the '<', plus one
 
 
-def _walk_fast(data: bytes, path: str) -> tuple[_Builder, bool] | None:
-    """Parse with an lxml target (no tree) and the byte-scan line numbers; None when the scan
-    does not apply or anything is unusual (the tree walk then reports exactly as before)."""
-    lines = _start_tag_scan(data)
+_SCAN = object()   # "scan the bytes" (the default of the walks' ``lines``)
+
+
+def _walk_fast(data: bytes, path: str, lines: Any = _SCAN) -> tuple[_Builder, bool] | None:
+    """Parse with an lxml target (no tree) and the byte-scan line numbers (``lines``: the scan
+    of ``data`` when already done); None when the scan does not apply or anything is unusual
+    (the tree walk then reports)."""
+    if lines is _SCAN:
+        lines = _start_tag_scan(data)
     if lines is None:
         return None
     b = _Builder(path)
@@ -572,12 +560,16 @@ def _walk_fast(data: bytes, path: str) -> tuple[_Builder, bool] | None:
     return b, t.seen_model
 
 
-def _walk_tree(data: bytes, path: str) -> tuple[_Builder, bool]:
-    """The general walk: lxml iterparse (secure options), lines from libxml2 (fixed up by the
-    byte scan beyond 65535, where libxml2 caps them once the tree is pruned)."""
+def _walk_tree(data: bytes, path: str, lines: Any = _SCAN) -> tuple[_Builder, bool]:
+    """The general walk: lxml iterparse (secure options). Lines from the byte scan (``lines``:
+    the scan of ``data`` when already done) when it applies and counts as many start tags as
+    the parser found elements, else libxml2's (the module's convention comment)."""
+    if lines is _SCAN:
+        lines = _start_tag_scan(data)
     b = _Builder(path)
     recs: list[list] = []
-    big: dict[int, list] = {}   # ordinal -> record whose line libxml2 capped
+    ords: list[int] = []        # start-tag ordinal of each record
+    nested: list[tuple] = []    # (event, ordinal, libxml2 line, name) of nested elements
     seen_model = False
     ctx = etree.iterparse(io.BytesIO(data), events=("start", "end"), resolve_entities=False,
                           no_network=True, load_dtd=False, dtd_validation=False, huge_tree=False,
@@ -601,9 +593,7 @@ def _walk_tree(data: bytes, path: str) -> tuple[_Builder, bool]:
             ordinal += 1
             role = _role(stack, _lower_tag(elem.tag))
             if role == "nested" and stack[-1] == "deck":
-                b.warnings.append((event, FileProblem(
-                    SourceLoc(path, elem.sourceline or 0, _local(elem.tag)),
-                    f"nested element <{_local(elem.tag)}> ignored")))
+                nested.append((event, ordinal, elem.sourceline or 0, _local(elem.tag)))
             seen_model = seen_model or role == "model"
             stack.append(role)
             ord_stack.append(ordinal)
@@ -611,23 +601,25 @@ def _walk_tree(data: bytes, path: str) -> tuple[_Builder, bool]:
         role = stack.pop()
         own = ord_stack.pop()
         if role == "deck":
-            rec = [elem.tag, dict(elem.attrib), elem.text, elem.sourceline or 0, stack[-1], event]
-            recs.append(rec)
-            if rec[3] >= _BIG_LINE:
-                big[own] = rec
+            recs.append([elem.tag, dict(elem.attrib), elem.text, elem.sourceline or 0, stack[-1],
+                         event])
+            ords.append(own)
         if stack:  # keep memory bounded: drop processed elements
             elem.clear()
             parent_el = elem.getparent()
             if parent_el is not None:
                 while elem.getprevious() is not None:
                     del parent_el[0]
-    if big:
-        fixed = _start_tag_lines(data, set(big))
-        for k, rec in big.items():
-            if k in fixed:
-                rec[3] = fixed[k]
     if not recs and not stack and first:
         raise DeckError(FileProblem(SourceLoc(path, 1, "xml"), "empty deck"))
+    scanned = lines is not None and len(lines) == ordinal + 1
+    if scanned:
+        at = lines.tolist()
+        for rec, k in zip(recs, ords):
+            rec[3] = at[k]
+    for ev, k, line, name in nested:
+        b.warnings.append((ev, FileProblem(SourceLoc(path, at[k] if scanned else line, name),
+                                           f"nested element <{name}> ignored")))
     b.flush(recs)
     return b, seen_model
 
@@ -674,10 +666,11 @@ class _no_gc:
 def _parse(data: bytes, path: str, check: bool) -> DeckSpec:
     spec = DeckSpec(path=path, sha256=hashlib.sha256(data).hexdigest())
     _refuse_entities(data, path)
-    walked = _walk_fast(data, path)
+    lines = _start_tag_scan(data)
+    walked = _walk_fast(data, path, lines)
     if walked is None:
         try:
-            walked = _walk_tree(data, path)
+            walked = _walk_tree(data, path, lines)
         except DeckError:
             raise
         except etree.XMLSyntaxError as e:

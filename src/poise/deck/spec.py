@@ -35,7 +35,8 @@ class Expr:
     text : str
         The expression exactly as written in the deck (without surrounding quotes).
     loc : SourceLoc
-        Location of the owning element.
+        Location of the owning element (its start tag's line, not the attribute's own line,
+        which the reader does not track); messages add ``attr`` and the column.
     attr : str
         Attribute name (lower case), for error messages (``fx_expression col 14: ...``).
     """
