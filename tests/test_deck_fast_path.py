@@ -7,7 +7,7 @@
   DOCTYPE, nested elements, CRLF line ends, a BOM, Latin-1 and more than 65 535 lines. Both
   walks take lines from the byte scan (``parser._start_tag_scan``): the line of the ``<`` that
   opens each start tag, checked against an independent parser (expat) on the same documents.
-  UTF-16/32 decks are not scanned and keep libxml2's numbers (the ``>`` ending the start tag).
+  UTF-16/32 decks and encodings the scan cannot read are re-encoded as UTF-8 first (same lines).
 * Validation: the per-shape screen (``validate._Screen``) against a screen that sends every
   element through the element-by-element checks — same problems in the same order, same
   warnings — on randomly broken decks.
@@ -167,21 +167,54 @@ def test_multi_line_start_tags_below_and_beyond_65535():
             f"big.xml:{line_of('<Nested/>')}: nested element <Nested> ignored"]
 
 
-def test_utf16_decks_keep_libxml2_lines():
-    """UTF-16/32 decks are not scanned: the tree walk keeps libxml2's numbers, the line of the
-    ``>`` that ends each start tag (beyond line 65 535 libxml2's guess, not pinned here)."""
-    data = TRICKY.decode().replace('encoding="UTF-8"', 'encoding="UTF-16"').encode("utf-16")
-    assert P._start_tag_scan(data) is None and P._walk_fast(data, "u.xml") is None
-    b, _ = P._walk_tree(data, "u.xml")
-    lines = [(el.tag, el.loc.line) for el, _, _ in b.items]
-    assert lines == [("Body_Rigid", 7), ("Reference_Marker", 10), ("Reference_Spline", 12),
-                     ("Force_Gravity", 15), ("Param_Static", 16), ("Unknown_Thing", 17),
-                     ("Simulate", 19), ("Stop", 19)]
-    # the same deck in UTF-8: the '<' lines
-    b8, _ = P._walk_fast(TRICKY, "u.xml")
-    assert [(el.tag, el.loc.line) for el, _, _ in b8.items] == [
-        ("Body_Rigid", 5), ("Reference_Marker", 8), ("Reference_Spline", 12), ("Force_Gravity", 14),
-        ("Param_Static", 16), ("Unknown_Thing", 17), ("Simulate", 19), ("Stop", 19)]
+def _encoded(text: str, enc: str, bom: bool = True) -> bytes:
+    text = text.replace('encoding="UTF-8"', f'encoding="{enc.upper().removesuffix("-SIG")}"')
+    data = text.encode(enc)
+    if not bom:
+        for mark in (b"\xff\xfe\x00\x00", b"\x00\x00\xfe\xff", b"\xff\xfe", b"\xfe\xff"):
+            if data.startswith(mark):
+                return data[len(mark):]
+    return data
+
+
+@pytest.mark.parametrize("enc,bom", [("utf-16", True), ("utf-16-le", False), ("utf-16-be", False),
+                                     ("utf-32", True), ("utf-32-be", False), ("shift_jis", True),
+                                     ("iso-2022-jp", True)])
+def test_other_encodings_follow_the_same_line_convention(enc, bom):
+    """Decks in UTF-16/32 (with or without byte-order mark) or an encoding the byte scan cannot
+    read are re-encoded as UTF-8 before parsing: the same elements, values and '<' lines as the
+    UTF-8 deck, also beyond line 65 535 (where libxml2's own numbers are unreliable)."""
+    text = TRICKY.decode()
+    want = P.parse_deck_bytes(TRICKY, "u.xml", check=False)
+    got = P.parse_deck_bytes(_encoded(text, enc, bom), "u.xml", check=False)
+    key = [(e.tag, e.loc.line, sorted(map(str, e.attrs.items()))) for e in want.model + want.commands]
+    assert [(e.tag, e.loc.line, sorted(map(str, e.attrs.items())))
+            for e in got.model + got.commands] == key
+    assert [str(w) for w in got.warnings] == [str(w) for w in want.warnings]
+    assert got.sha256 != want.sha256            # the hash is of the bytes as given
+
+
+def test_utf16_big_deck_lines():
+    data = _big()
+    text = data.decode()
+    u16 = _encoded(text, "utf-16")
+    spec = P.parse_deck_bytes(u16, "big16.xml", check=False)
+    ref = P.parse_deck_bytes(data, "big.xml", check=False)
+    lines = [e.loc.line for e in spec.model]
+    assert lines == [e.loc.line for e in ref.model] and max(lines) > 65_535
+
+
+def test_binary_and_endless_inputs_are_refused_early(tmp_path):
+    z = tmp_path / "zeros.xml"
+    z.write_bytes(bytes(1 << 17))
+    with pytest.raises(DeckError, match="only NUL bytes and whitespace in the first 65536"):
+        P.load_deck(str(z))
+    r = tmp_path / "bin.xml"
+    r.write_bytes(b"\x89PNG\r\n" + bytes(100))
+    with pytest.raises(DeckError, match="expected '<' at the start of the file, found byte 0x89"):
+        P.load_deck(str(r))
+    with pytest.raises(DeckError, match="only NUL bytes"):
+        P.load_deck("/dev/zero")                 # endless: refused after its first 64 KiB
 
 
 @pytest.mark.parametrize("data", [

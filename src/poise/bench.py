@@ -305,8 +305,8 @@ and a dictionary store for each of the 600 000 attributes, then a second pass pe
 validation). Now lxml runs with a parser *target* (same secure options; no tree is built) and
 element lines come from one vectorised byte scan (the `<` opening each start tag, outside
 comments, CDATA, processing instructions and the DOCTYPE), which the tree walk uses too.
-Anything unusual (malformed XML, UTF-16, a non-ASCII-compatible encoding, a count mismatch)
-takes the tree walk, which reports the same messages. Elements are typed in batches grouped by
+Decks in UTF-16/32 or another encoding the scan cannot read are re-encoded as UTF-8 first.
+Anything unusual (malformed XML, a count mismatch) takes the tree walk, which reports the same messages. Elements are typed in batches grouped by
 *shape* (tag and attribute names as written): each shape is analysed once (schema, canonical
 names, unknown/duplicate-attribute warnings, defaults) and values are typed column by column
 (`float`/`int` mapped over a column after a one-pass character check). Validation screens each

@@ -18,9 +18,8 @@ class SourceLoc:
     file : str
         Deck path as given by the user.
     line : int
-        1-based line of the ``<`` that opens the element's start tag (0 if unknown); decks
-        the reader's byte scan does not read (UTF-16/32, ...) keep libxml2's line of the ``>``
-        ending it (``poise.deck.parser``).
+        1-based line of the ``<`` that opens the element's start tag (0 if unknown), in any
+        encoding (``poise.deck.parser``).
     tag : str
         Canonical element name (e.g. ``"Force_SpringDamper"``).
     id : int or None

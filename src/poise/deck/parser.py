@@ -16,7 +16,7 @@ written name and unknown attributes are dropped with one warning each, so that v
 report every problem of the deck at once.
 
 Locations: an element's line is the line of the ``<`` that opens its start tag (see "element
-lines" below for the encodings that keep libxml2's numbers).
+lines" below; decks in other encodings are re-encoded as UTF-8 first).
 """
 from __future__ import annotations
 
@@ -461,9 +461,10 @@ class _Target:
 # in its value. Lines are counted at LF: CRLF is one line end, a lone CR (classic Mac OS) is not
 # one, as libxml2 does not count it either (its syntax-error lines stay comparable).
 # Both walks take these lines from one vectorised byte scan (:func:`_start_tag_scan`). Decks the
-# scan does not read -- UTF-16/32, or a declared encoding outside _ASCII_ENCODINGS -- keep
-# libxml2's numbers: the line of the '>' that ends the start tag, unreliable beyond line 65535
-# (libxml2 stores element lines in 16 bits; lxml then reports 65535 or a nearby text's line).
+# scan cannot read -- UTF-16/32, or a declared encoding outside _ASCII_ENCODINGS -- are first
+# re-encoded as UTF-8 (:func:`_as_utf8`: same characters, same line ends). Only bytes that do not
+# decode keep libxml2's numbers (the line of the '>' that ends the start tag, unreliable beyond
+# line 65535: libxml2 stores element lines in 16 bits); libxml2 then reports the encoding error.
 _ENCODING = re.compile(rb"""^<\?xml[^>]*?encoding\s*=\s*["']([A-Za-z0-9._-]+)["']""")
 _ASCII_ENCODINGS = re.compile(r"(utf-?8|(us-)?ascii|iso[-_]?8859[-_]?\d+|latin-?1|"
                               r"(windows|cp)-?125\d)", re.IGNORECASE)
@@ -492,8 +493,9 @@ def _start_tag_scan(data: bytes) -> np.ndarray | None:
     """Line of the ``<`` opening every start tag, in document order (the convention above).
 
     None when the bytes cannot be scanned reliably: UTF-16/32 or a declared encoding outside
-    ``_ASCII_ENCODINGS``, a document that does not start with ``<``, a document type declaration
-    that does not end; then libxml2's numbers are used. Outside comments, CDATA sections,
+    ``_ASCII_ENCODINGS`` (:func:`_parse` re-encodes those as UTF-8 first; only undecodable bytes
+    arrive here), a document that does not start with ``<``, a document type declaration that
+    does not end; then libxml2's numbers are used. Outside comments, CDATA sections,
     processing instructions and the document type declaration, ``<`` followed by anything but
     ``/``, ``!`` or ``?`` opens a start tag (well-formed XML has no raw ``<`` in text or attribute
     values; the walks check that the count matches the elements parsed).
@@ -663,9 +665,43 @@ class _no_gc:
             gc.enable()
 
 
+_BOMS = ((b"\x00\x00\xfe\xff", "utf-32-be"), (b"\xff\xfe\x00\x00", "utf-32-le"),
+         (b"\xfe\xff", "utf-16-be"), (b"\xff\xfe", "utf-16-le"))
+_NO_BOM = ((b"\x00\x00\x00<", "utf-32-be"), (b"<\x00\x00\x00", "utf-32-le"),
+           (b"\x00<\x00?", "utf-16-be"), (b"<\x00?\x00", "utf-16-le"))
+_DECL_ENCODING = re.compile(r"""^(\s*<\?xml[^>]*?encoding\s*=\s*)(["'])[^"']*\2""")
+
+
+def _as_utf8(data: bytes) -> bytes:
+    """The deck re-encoded as UTF-8 when the line scan cannot read its encoding.
+
+    UTF-16/32 (by byte-order mark or by the first characters, XML 1.0 appendix F) and declared
+    encodings outside ``_ASCII_ENCODINGS`` (e.g. Shift_JIS) are decoded and re-encoded as UTF-8
+    with the declaration rewritten to ``encoding="UTF-8"``: the same characters and line ends,
+    so every element gets the one line convention (its ``<`` line) at any deck size. Bytes that
+    do not decode are returned unchanged (libxml2 then reports the located encoding error).
+    """
+    enc = next((e for bom, e in _BOMS if data.startswith(bom)), None)
+    if enc is None:
+        enc = next((e for pat, e in _NO_BOM if data.startswith(pat)), None)
+    if enc is None:
+        head = data[3:] if data[:3] == b"\xef\xbb\xbf" else data
+        m = _ENCODING.match(head.lstrip(b" \t\r\n")[:300])
+        if m is None or _ASCII_ENCODINGS.fullmatch(m.group(1).decode("ascii")):
+            return data
+        enc = m.group(1).decode("ascii")
+    try:
+        text = data.decode(enc)
+    except (LookupError, UnicodeDecodeError):
+        return data
+    text = _DECL_ENCODING.sub(r'\1"UTF-8"', text.lstrip("\ufeff"), count=1)
+    return text.encode("utf-8")
+
+
 def _parse(data: bytes, path: str, check: bool) -> DeckSpec:
     spec = DeckSpec(path=path, sha256=hashlib.sha256(data).hexdigest())
     _refuse_entities(data, path)
+    data = _as_utf8(data)
     lines = _start_tag_scan(data)
     walked = _walk_fast(data, path, lines)
     if walked is None:
@@ -722,9 +758,42 @@ def load_deck(path, *, check: bool = True) -> DeckSpec:
     """
     path = str(path)          # os.PathLike accepted; messages and locations carry text
     try:
-        with open(path, "rb") as f:
-            data = f.read()
+        data = _read_deck(path)
     except OSError as e:
         raise DeckError(FileProblem(SourceLoc(path, 0, "xml"),
                                     f"cannot read deck: {e.strerror or e}")) from None
     return parse_deck_bytes(data, path, check=check)
+
+
+#: Largest deck read (bytes). A 100 000-link chain deck is ~130 MB and needs ~3 GiB to solve;
+#: the limit only stops endless inputs (``/dev/zero``, a stuck pipe) from exhausting memory.
+MAX_DECK_BYTES = 1 << 32
+_HEAD = 1 << 16
+
+
+def _read_deck(path: str) -> bytes:
+    """The deck's bytes; a stream that cannot be XML (``/dev/zero``, binary data) is refused
+    after its first 64 KiB, and any input beyond :data:`MAX_DECK_BYTES` is refused."""
+    def refuse(msg):
+        raise DeckError(FileProblem(SourceLoc(path, 0, "xml"), msg))
+
+    with open(path, "rb") as f:
+        head = f.read(_HEAD)
+        # after byte-order marks, whitespace (and the NULs of UTF-16/32) a deck starts with '<'
+        start = head.lstrip(b"\xef\xbb\xbf\xfe\xff\x00 \t\r\n")[:1]
+        if start and start != b"<":
+            refuse(f"not an XML deck: expected '<' at the start of the file, found byte "
+                   f"0x{start[0]:02x}")
+        if not start and len(head) == _HEAD:
+            refuse(f"not an XML deck: only NUL bytes and whitespace in the first {_HEAD} bytes")
+        chunks, n = [head], len(head)
+        while True:
+            b = f.read(1 << 24)
+            if not b:
+                break
+            n += len(b)
+            if n > MAX_DECK_BYTES:
+                refuse(f"deck larger than {MAX_DECK_BYTES >> 30} GiB (poise.deck.parser."
+                       "MAX_DECK_BYTES); is it the right file?")
+            chunks.append(b)
+    return b"".join(chunks)
