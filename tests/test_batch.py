@@ -110,13 +110,13 @@ def test_a_deck_that_kills_its_worker_takes_only_itself_down(tmp_path):
     killer = tmp_path / "killer.xml"
     killer.write_text(src.replace('usrsub_fnc_name="sfosub_spring"', 'usrsub_fnc_name="sfosub_die"')
                       .replace("elem_user_routines.py", "routines.py"))
-    good = [tmp_path / f"good{k}.xml" for k in range(3)]
+    good = [tmp_path / f"good{k}.xml" for k in range(9)]
     for g in good:
         shutil.copy(GOOD, g)
     out = tmp_path / "out"
     for jobs in ("1", "2"):
-        r = _batch(good[0], killer, good[1], good[2], "-j", jobs, "--out-dir", out, "--force",
-                   "--json")
+        r = _batch(good[0], killer, *good[1:], "-j", jobs, "--out-dir", out, "--force",
+                   "--json")       # more decks than the suspects re-solved one process each
         assert r.exit_code == 4, r.output
         doc = json.loads(r.stdout)
         rows = {Path(x["deck"]).name: x for x in doc["rows"]}

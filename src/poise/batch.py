@@ -6,10 +6,11 @@ imports poise once and solves deck after deck with :func:`poise.api.run_deck`, w
 ``OUT_DIR/<stem>.h5`` itself and returning only a small summary row.
 
 A worker that dies (killed by a signal, e.g. out of memory, or a crash in native code or in a
-user routine) breaks its pool, which fails every deck it had not finished. Those decks are then
-solved again, each in a process of its own, so only the deck that kills its process is reported
-(``internal_error``, :data:`WORKER_DIED`) and the batch, its other decks and the summary files
-are unaffected.
+user routine) breaks its pool, which fails every deck it had not finished. The first of those
+(the pool dispatches decks in order, so the culprit is among them) are then solved again each in
+a process of its own, the others in a fresh pool, until every deck is done: only the deck that
+kills its process is reported (``internal_error``, :data:`WORKER_DIED`) and the batch, its other
+decks and the summary files are unaffected.
 
 Up-to-date check (re-runs skip work): a results file is reused when its root attributes record
 the same ``deck_sha256`` (hash of the deck bytes now), the same ``poise_version`` and the same
@@ -181,9 +182,16 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
         return rows
     # always in worker processes (also with -j 1): a deck that kills its process (out of memory,
     # a crash in native code or in a user routine) must not take the batch and its summary down
-    broken = _solve_in_pool(todo, jobs, decks, outs, overrides, command, rows, on_row)
-    if broken:
-        _solve_isolated(broken, jobs, decks, outs, overrides, command, rows, on_row)
+    pending = todo
+    while pending:
+        broken = _solve_in_pool(pending, jobs, decks, outs, overrides, command, rows, on_row)
+        # The pool hands decks to its workers in order (at most jobs + 1 at a time), so the
+        # deck that killed a worker is among the first unfinished ones: those are re-solved
+        # one process each, the rest in a fresh pool (every round finishes at least one deck).
+        suspects = broken[:2 * (jobs + 1)]
+        if suspects:
+            _solve_isolated(suspects, jobs, decks, outs, overrides, command, rows, on_row)
+        pending = broken[len(suspects):]
     return rows
 
 
