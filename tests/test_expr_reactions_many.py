@@ -1,8 +1,9 @@
 """Expression forces reading constraint reactions at scale: the vectorised ``ReactionFeed``
-(d r_reader / d lambda blocks and channel values) on a generated deck with hundreds of readers
-and channels (every component 1..8, jflag 0/1, global / rotated-ground / moving RM markers,
-joints, jprims, a motion and resultants), against central differences; and a closed-form
-equilibrium of a force equal to k * (a joint reaction magnitude / component)."""
+(d r_reader / d lambda and d r_reader / d q blocks and channel values) on a generated deck with
+hundreds of readers and channels (every component 1..8, jflag 0/1, global / rotated-ground /
+moving RM markers, joints, jprims, a motion, force elements and resultants): the full KKT
+Jacobian against central differences; and a closed-form equilibrium of a force equal to
+k * (a joint reaction magnitude / component)."""
 from __future__ import annotations
 
 import math
@@ -24,13 +25,19 @@ def _x(text, attr, tag, id):
     return Expr(text, SourceLoc("<built>", 1, tag, id), attr)
 
 
-def many_reader_deck(nb=60, nr=200, per=5, seed=0):
+def many_reader_deck(nb=60, nr=200, per=5, seed=0, forces=0):
     """``nb`` bodies, each tied by one joint (every 7th a jprim) to ground or to an earlier
     body, one REVOLUTE with a Motion_Joint; ``nr`` expression forces (vector two-body / one-body
     and scalar, cycling) each reading ``per`` reaction channels of random joints with random
     component 1..8, jflag and RM (global, a rotated ground marker 11, a moving marker), plus
-    resultants FX/FM/TY of joint markers. Returns the DeckBuilder."""
+    resultants FX/FM/TY of joint markers. ``forces`` > 0 adds that many force elements
+    (translational/rotational springs, bushings, constant vector and scalar forces) on the
+    joints' I markers or other body markers, and about 30 % of the terms read one of them
+    (SPDP/BUSH/VFORCE/VTORQ/GFORCE/SFORCE, any component, jflag, RM); resultants at joint
+    markers then include them too (a separate random stream: ``forces=0`` is the original
+    deck). Returns the DeckBuilder."""
     rng = np.random.default_rng(seed)
+    rf = np.random.default_rng(seed + 1000)
     d = DeckBuilder().ground()
     d.marker(11, 1, rng.normal(size=3), random_rotation(rng))
     joints = []                                  # (tag kind, id, I marker, J marker)
@@ -52,9 +59,47 @@ def many_reader_deck(nb=60, nr=200, per=5, seed=0):
     d.add("Motion_Joint", id=1, joint_id=3, joint_type="R", val_type="D",
           expr=_x("0.1", "expr", "Motion_Joint", 1))
     nbody = np.arange(2, nb + 2)
+    felems = []                                  # (function, id)
+    for k in range(forces):
+        fid = 5000 + k
+        b, o = (int(v) for v in rf.choice(nbody, 2, replace=False))
+        mi = 100 * b + int(rf.integers(1, 3))
+        mj = 100 * o + int(rf.integers(1, 3)) if rf.random() < 0.7 else 11
+        kind = k % 5
+        if kind == 0:
+            d.add("Force_SpringDamper", id=fid, type="TRANSLATIONAL", i_marker_id=mi,
+                  j_marker_id=mj, stiffness=float(rf.uniform(10, 50)), damping=0.0,
+                  length=float(rf.uniform(0.1, 1.0)), preload=float(rf.uniform(-1, 1)))
+            felems.append(("SPDP", fid))
+        elif kind == 1:
+            d.add("Force_SpringDamper", id=fid, type="ROTATIONAL", i_marker_id=mi,
+                  j_marker_id=mj, stiffness=float(rf.uniform(10, 50)), damping=0.0,
+                  length=float(rf.uniform(-0.5, 0.5)), preload=0.0)
+            felems.append(("SPDP", fid))
+        elif kind == 2:
+            kw = {a: float(rf.uniform(5, 20)) for a in ("kx", "ky", "kz", "ktx", "kty", "ktz")}
+            kw.update({a: float(rf.uniform(-1, 1)) for a in ("preload_x", "preload_tz")})
+            d.add("Force_Bushing", id=fid, i_marker_id=mi, j_marker_id=mj, **kw)
+            felems.append(("BUSH", fid))
+        elif kind == 3:
+            kw = {f"{a}_expression": float(rf.uniform(-2, 2))
+                  for a in ("fx", "fy", "fz", "tx", "ty", "tz")}
+            d.add("Force_Vector_TwoBody", id=fid, type="FORCEANDTORQUE", i_marker_id=mi,
+                  j_floating_marker_id=mj, ref_marker_id=100 * o + 2, **kw)
+            felems.append((("VFORCE", "VTORQ", "GFORCE")[k % 3], fid))
+        else:
+            d.add("Force_Scalar_TwoBody", id=fid, type=("FORCE", "TORQUE")[k % 2],
+                  i_marker_id=mi, j_marker_id=mj, val=float(rf.uniform(-3, 3)))
+            felems.append(("SFORCE", fid))
     for k in range(nr):
         terms = []
         for _ in range(per):
+            if felems and rf.random() < 0.3:
+                fn, eid = felems[int(rf.integers(len(felems)))]
+                rm = (0, 11, 100 * int(rf.choice(nbody)) + 2)[int(rf.integers(3))]
+                terms.append(f"{rf.uniform(-0.05, 0.05):.4f}*{fn}({eid},{int(rf.integers(2))},"
+                             f"{int(rf.integers(1, 9))},{rm})")
+                continue
             r = rng.random()
             rm = (0, 11, 100 * int(rng.choice(nbody)) + 2)[int(rng.integers(3))]
             comp = int(rng.integers(1, 9))
@@ -277,50 +322,88 @@ def test_many_readers_grouped_and_equal_to_per_entry_reference(many):
     assert 0 in rms and ground_rm in rms and len(rms) > 10
     assert len(E) > 2000
     n_pairs = sum(getattr(f, "reads_reactions", False) for f in m.families) * \
-        sum(f.is_constraint for f in m.families)
+        sum(getattr(f, "group", None) is not None for f in m.families)
     assert len(feed.groups) <= n_pairs
 
-    ev, (_, kept, P, A, lam, row_active) = _captured(m, st)
+    ev, args = _captured(m, st)
+    _, kept, P, A, lam, row_active = args[:6]
     loads = loads_of(m, kept.values())
     vals = feed.values(m, kept.values(), P, A)
     ref_v, vecs = _reference_values(m, chans, feed.info, loads, P, A)
     np.testing.assert_allclose(vals, ref_v, rtol=0, atol=1e-13 * np.abs(ref_v).max())
 
-    new = feed.coupling(m, kept, P, A, lam, row_active)
-    assert len(new) == len(feed.groups)
+    new = feed.coupling(*args)
     blocks = feed.setup(m)                      # same pattern again (idempotent)
+    assert len(new) == len(blocks)
     got = _dense_blocks(m.N, blocks, new)
     ref = _reference_coupling(m, kept, P, A, vecs, row_active)
     scale = np.abs(ref).max()
     assert scale > 1e-3
-    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13 * scale)
+    # the multiplier columns (the coordinate columns: central differences below)
+    np.testing.assert_allclose(got[:, m.nq:], ref[:, m.nq:], rtol=0, atol=1e-13 * scale)
 
 
-def test_many_readers_lambda_columns_match_central_differences(many):
-    """Every multiplier column of the KKT Jacobian (constraint transpose + reader coupling,
-    |F|/|T| included) against central differences of the residual."""
-    m, st = many
-    J = _dense(m.evaluate(st).J)[:, m.nq:]
-    h = 1e-6
-    fd = np.zeros_like(J)
-    for k in range(m.nc):
+def _central_differences(m, st, h=1e-6):
+    """(N, N) central differences of ``[r; phi]`` along every coordinate (``retract``) and
+    multiplier."""
+    fd = np.zeros((m.N, m.N))
+    for k in range(m.N):
         out = []
         for sgn in (1.0, -1.0):
-            s = st.copy()
-            s.lam[k] += sgn * h
-            ev = m.evaluate(s, need_jac=False)
+            dq, dl = np.zeros(m.nq), np.zeros(m.nc)
+            if k < m.nq:
+                dq[k] = sgn * h
+            else:
+                dl[k - m.nq] = sgn * h
+            ev = m.evaluate(m.retract(st, dq, dl), need_jac=False)
             out.append(np.r_[ev.r, ev.phi])
         fd[:, k] = (out[0] - out[1]) / (2 * h)
-    scale = np.abs(J).max()
-    err = np.abs(J - fd).max() / scale
-    assert err < 1e-7, err
-    # the readers' rows carry a real coupling (not only the constraint transpose)
+    return fd
+
+
+def _reader_rows(m):
     rd = np.zeros(m.N, bool)
     for f in m.families:
         if getattr(f, "reads_reactions", False):
             g = f.gcol[:, :6 * f.K]
             rd[g[g >= 0]] = True
-    assert np.abs(J[rd]).max() > 1e-2
+    return rd
+
+
+def check_full_jacobian(m, st, tol=1e-7):
+    """The whole KKT Jacobian (coordinate and multiplier columns) against central differences;
+    returns the relative errors (coordinate columns, multiplier columns)."""
+    J = _dense(m.evaluate(st).J)
+    fd = _central_differences(m, st)
+    scale = np.abs(J).max()
+    err_q = np.abs(J[:, :m.nq] - fd[:, :m.nq]).max() / scale
+    err_l = np.abs(J[:, m.nq:] - fd[:, m.nq:]).max() / scale
+    assert err_q < tol and err_l < tol, (err_q, err_l)
+    # the readers' rows carry a real coupling through the channels: without it (the readers'
+    # own kinematics and the constraint transpose only) the coordinate columns would be off
+    rd = _reader_rows(m)
+    assert np.abs(J[rd, m.nq:]).max() > 1e-2
+    return err_q, err_l
+
+
+def test_many_readers_full_jacobian_matches_central_differences(many):
+    """Every column of the KKT Jacobian (coordinates and multipliers; the channels' d/dq at
+    fixed multipliers: torque levers, jflag=1 transfer, moving RM, moving J, resultants, |F|,
+    |T|) against central differences of the residual."""
+    m, st = many
+    check_full_jacobian(m, st)
+
+
+def test_many_readers_with_force_elements_full_jacobian():
+    """Channels of force elements (springs, rotational springs, bushings, vector and scalar
+    forces; SPDP/BUSH/VFORCE/VTORQ/GFORCE/SFORCE and resultants including them) derive from
+    the force families' own d rho / d y: the whole Jacobian against central differences."""
+    m = compile_model(many_reader_deck(nb=20, nr=80, per=5, seed=3, forces=25).spec)
+    feed = m.reaction_feed
+    contrib = {m.families[g.fi].name for g in feed.groups}
+    assert {"forces:LineForce", "forces:AxisTorque", "forces:Bushing",
+            "forces:VectorForce"} <= contrib
+    check_full_jacobian(m, _state(m, 2))
 
 
 # ------------------------------------------------------------------ closed form
