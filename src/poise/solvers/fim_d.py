@@ -30,13 +30,61 @@ added to the coordinate block as in FIM_S), analytic, handed to IDA through ``ja
   with the dense solver (the residual evaluations dominate below that). There is no size
   limit: the former FIM_S fallback above 1500 unknowns is gone.
 
-Consistent initial derivative: ``y' = -F_y^{-1} F_t`` with ``F_t`` by central differences in t
-(``h = 1e-6 * max(1, |t|, interval)``) at fixed configuration.
+Start of every IDA run (the first one, after each rebase, after a FIM_S fallback):
+:meth:`_Chart.start`, one Jacobian factorisation and 5-7 residuals:
+
+* consistent ``y0``: the start state is polished by chord-Newton on ``F(y, t0) = 0`` (a rebase
+  restarts from IDA's last corrector, converged only to IDA's test in the old chart's weights;
+  left unpolished that remainder is the first step's local error: 0.03-1.2 tolerance units
+  over the 6 rebases of ``decks/qs_slider_crank_rev.xml``, 4.5 with a 0.1 corrector
+  coefficient, where IDA then failed at ``h_min`` and fell back to FIM_S);
+* consistent ``y0' = -F_y^{-1} F_t`` (``F_t`` by central differences in t,
+  ``h = 1e-6 * max(1, |t|, interval)``, at fixed configuration);
+* first step from the path's curvature: ``y'' = -F_y^{-1} d2F/ds2`` along ``(y0', 1)``
+  (second central difference), ``h0 = 1 / sqrt(||y''||)`` in IDA's weighted RMS norm, so the
+  order-1 local error ``h0^2 |y''| / 2`` is about half a tolerance unit. IDA's own choice,
+  ``0.5 / ||y0'||`` (the step that moves y by half a tolerance unit), is a slope criterion:
+  on the 8-link chain it gave 4.5e-7 where 3.7e-4 is accurate, and IDA then doubled the step
+  for 14 steps before reaching the path's step size, at every start (2 of them: 28 of 157
+  steps). ``h0`` is capped by the smallest print interval (a flat start must not step over
+  what the requested output resolves: a path with zero curvature at t0 would otherwise start
+  with one step to the end). When ``h0_max`` is given, the first run starts with it as before
+  (a deck's ``Param_Transient`` brings the schema default 1e-8, which IDA raises to ``h_min``;
+  the curvature is then not computed); restarts are internal re-initialisations and use the
+  estimate.
+
+Corrector: ``IDASetNonlinConvCoef(NONLIN_CONV_COEF = 0.03)`` (IDA's default 0.33). With every
+equation algebraic the corrector *is* the equilibrium solve, and its leftover error enters the
+BDF history as noise, which IDA's order selection reads as a rough path (the (k+2)-th
+differences it uses to raise the order amplify noise ~2^(k+1)): on the 8-link chain the accepted
+correctors were 0.04 (median) / 0.2 (90th percentile) tolerance units off the exact equilibrium
+at 0.33, IDA ran mostly at order 3, and tightening the coefficient (0.33 / 0.1 / 0.03 / 0.01)
+took the run from 157 to 139 / 122 / 100 steps. 0.03 adds Newton iterations roughly in
+proportion to the steps saved (residual evaluations about equal), with fewer Jacobians and
+5-10 % less solve time than 0.33 on the chains; set through ctypes on the validated ``IDAMem``
+pointer (:meth:`IdaStats.set_nonlin_conv_coef`), IDA's default stays when the pointer is not
+usable (the message says so).
+
+Why a chain needs more steps than the slider-crank bench at the same tolerance: its path
+is rough in pseudo-time, not badly scaled. The 8-link chain under a load ramped to 2.5 times
+its weight swings links by more than a radian, most of it in the first quarter second; from
+2001 FIM_S frames the weighted derivatives reach ``||y^(5)|| = 1e11`` (slider crank: 1e5), and
+the error test alone then needs ~67 steps at order 3 / ~46 at order 4 (slider crank: ~6).
+Scaling one group of ``atol`` (translations, rotations or multipliers) by 10 or 0.1 changes the
+8-link chain's 157 steps by -12 % to +45 % (order-selection noise included), all three 10x
+looser gives 105 steps for 7x the error; excluding every component from the error test (IDA's
+``suppressalg``: all are algebraic) gives 20 steps and output errors of 1.7e-2 instead of
+1.2e-6. Measured before/after (2 shared cores, fastest solve of 15): 8-link chain 157 -> 104
+steps, 0.33 -> 0.26 s; 20-link 109 -> 75, 0.30 -> 0.24 s; ``decks/bench/slider_crank_qs_1000.xml``
+27 -> 27 steps, 0.49 s both (its ``h0_max`` keeps the first step). Over 7 decks x dae tolerances
+1e-4..1e-8 the error against FIM_S per unit tolerance went from median 0.90 / max 4.2 to
+0.53 / 2.0, still decreasing with the tolerance on every deck.
 
 Tolerances (``Param_Transient``; defaults in brackets): ``tol = min(integr_tol [1e-3],
 dae_constr_tol [1e-6])`` is IDA's ``rtol``; ``atol`` = ``tol * L`` (translations), ``tol``
-(rotations), ``tol * max(1, |lam0|)`` per multiplier kind. ``h_max`` [unbounded] (max_step),
-``h_min`` [0] (min_step), ``h0_max`` [IDA's estimate] (first_step), ``max_order`` [5],
+(rotations), ``tol * max(1, |lam0|)`` per multiplier kind (defaults of a deck without
+``Param_Transient``; with one, the schema's h_min 1e-6 and h0_max 1e-8 apply). ``h_max`` [unbounded] (max_step),
+``h_min`` [0] (min_step), ``h0_max`` [none] (caps the first step, see above), ``max_order`` [5],
 ``dae_corrector_maxit`` [4] (max_nonlin_iters). ``dae_interpolation`` [TRUE]: output frames are
 IDA's interpolants at the print times (steps are not limited by the print interval); FALSE:
 IDA stops exactly at every print time (``tstop``) and the frame is a converged corrector.
@@ -79,6 +127,9 @@ from poise.solvers.status import Status
 REBASE_ANGLE = 1.0        # rad
 SPARSE_MIN = 200          # unknowns: above this IDA uses the sparse (SuperLU_MT) linear solver
 DEFAULT_DAE_CONSTR_TOL = 1e-6
+NONLIN_CONV_COEF = 0.03   # IDA's corrector convergence coefficient (IDA's default 0.33)
+START_NEWTON = 3          # chord-Newton corrections of a (re)start point, at most
+START_POLISH = 1e-3       # ... until the correction is below this (weighted RMS norm)
 
 
 def transient_settings(tr: dict, model) -> dict:
@@ -255,6 +306,17 @@ class IdaStats:
                 if self.read()["NumSteps"] != 0:
                     self.ok, self.reason = False, "IDA memory pointer not validated"
 
+    def set_nonlin_conv_coef(self, epcon):
+        """``IDASetNonlinConvCoef``: the corrector stops when its estimated remaining error is
+        below ``epcon`` (weighted RMS norm). Returns False (IDA keeps its default 0.33) when the
+        reader is disabled."""
+        if not self.ok:
+            return False
+        import ctypes
+        f = self.lib.IDASetNonlinConvCoef
+        f.argtypes, f.restype = [ctypes.c_void_p, ctypes.c_double], ctypes.c_int
+        return f(self.mem, float(epcon)) == 0
+
     def read(self):
         import ctypes
         out = {}
@@ -288,13 +350,15 @@ class IdaStats:
 class _Chart:
     """The map y -> State around a reference state, its Jacobian factor, and IDA callbacks."""
 
-    def __init__(self, model, ref, eps, counters, sparse=None):
+    def __init__(self, model, ref, eps, counters, sparse=None, tol=1e-6):
         self.model = model
+        self.tol = tol
         self.ref = ref.copy()
         self.eps = eps
         self.cnt = counters
         self.sparse = sparse            # SparseJacobian, or None: dense
         self.stats = None               # IdaStats of the current IDA instance (set by _ida)
+        self.conv_coef_set = False      # NONLIN_CONV_COEF applied to that instance (by _ida)
         self.nres = 0
         self.njac = 0
         self.trial_times = set()
@@ -366,28 +430,76 @@ class _Chart:
         except EvaluationError:
             JJ[:] = self.sparse.identity()
 
-    def tangent(self, y, t, dt_scale):
-        """Consistent y' = -F_y^{-1} F_t (F_t by central differences in t)."""
-        h = 1e-6 * max(1.0, abs(t), dt_scale)
-        Fp = self.F(self.state(y, t + h))
-        Fm = self.F(self.state(y, t - h))
-        Ft = (Fp - Fm) / (2 * h)
+    def _factor(self, y, t):
+        """Solver for ``dF/dy`` at (y, t): a callable b -> F_y^{-1} b."""
+        J = self.jac(y, t)
+        self.cnt.factorizations += 1
+        if self.sparse is not None:
+            import scipy.sparse.linalg as spla
+            return spla.splu(self.sparse.matrix(J), permc_spec="COLAMD").solve
+        import scipy.linalg as sla
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", sla.LinAlgWarning)   # singular: LinAlgError below
+            try:
+                lu = sla.lu_factor(J)
+            except sla.LinAlgWarning as e:
+                raise np.linalg.LinAlgError(str(e)) from None
+        return lambda b: sla.lu_solve(lu, b)
+
+    def start(self, y, t, dt_scale, weight, span, want_h0=True):
+        """Consistent start of an IDA run at (y, t): ``(y0, y0', h0)``.
+
+        * ``y0``: ``y`` polished by chord-Newton on ``F(y, t) = 0`` (at most ``START_NEWTON``
+          corrections, until the correction is below ``START_POLISH`` in the weighted RMS norm
+          ``weight`` = IDA's error weights). A rebase restarts from IDA's last corrector, which
+          met IDA's convergence test in the old chart's weights only; left as it is, that
+          remainder is the first step's local error (see the module notes).
+        * ``y0' = -F_y^{-1} F_t`` (``F_t`` by central differences in t).
+        * ``h0``: first step from the path's curvature, ``y'' = -F_y^{-1} d2F/ds2`` along
+          ``(y0', 1)`` (second central difference), ``h0 = 1 / sqrt(||y''||)`` in the same
+          weighted norm: the order-1 local error ``h^2 |y''| / 2`` is then about half a tolerance
+          unit. 0 when the estimate is not usable (IDA then uses its own) or not wanted.
+        Cost: one Jacobian and 5-7 residuals (3 fewer without ``h0``). Any linear-algebra
+        failure gives ``(y, 0, 0)``.
+        """
+        n = len(y)
         try:
-            J = self.jac(y, t)
-            self.cnt.factorizations += 1
-            if self.sparse is not None:
-                import scipy.sparse.linalg as spla
-                yp = spla.splu(self.sparse.matrix(J), permc_spec="COLAMD").solve(-Ft)
-            else:
-                yp = np.linalg.solve(J, -Ft)
+            solve = self._factor(y, t)
+            y = np.array(y, float)
+            for _ in range(START_NEWTON):
+                dy = solve(-self.F(self.state(y, t)))
+                if not np.all(np.isfinite(dy)):
+                    raise np.linalg.LinAlgError
+                y = y + dy
+                if np.sqrt(np.mean((dy * weight) ** 2)) <= START_POLISH:
+                    break
+            h = 1e-6 * max(1.0, abs(t), dt_scale)
+            Ft = (self.F(self.state(y, t + h)) - self.F(self.state(y, t - h))) / (2 * h)
+            yp = solve(-Ft)
             if not np.all(np.isfinite(yp)):
                 raise np.linalg.LinAlgError
-        except (np.linalg.LinAlgError, RuntimeError):
-            yp = np.zeros(len(y))
-        return yp
+        except (np.linalg.LinAlgError, RuntimeError, ValueError, EvaluationError):
+            return np.asarray(y, float), np.zeros(n), 0.0
+        h0 = 0.0
+        if not want_h0:
+            return y, yp, h0
+        try:
+            # path parameter step: a 1e-3 part of the span, and at most 1e-3 of the model's
+            # scales per coordinate (y' / weight, in tolerance units, times the tolerance)
+            rate = float(np.max(np.abs(yp) * weight)) * self.tol
+            d = min(1e-3 * span, 1e-3 / rate) if rate > 0 else 1e-3 * span
+            g = (self.F(self.state(y + d * yp, t + d)) - 2.0 * self.F(self.state(y, t))
+                 + self.F(self.state(y - d * yp, t - d))) / (d * d)
+            ypp = solve(-g)
+            c = float(np.sqrt(np.mean((ypp * weight) ** 2)))
+            if np.isfinite(c) and c > 0:
+                h0 = 1.0 / np.sqrt(c)
+        except (np.linalg.LinAlgError, RuntimeError, ValueError, EvaluationError):
+            pass
+        return y, yp, h0
 
 
-def _ida(chart, ts_settings, atol, t0, y0, yp0, interval):
+def _ida(chart, ts_settings, atol, t0, y0, yp0, first_step):
     from sksundae.ida import IDA
     n = len(y0)
     opts = dict(algebraic_idx=list(range(n)), rtol=ts_settings["tol"], atol=atol,
@@ -399,8 +511,8 @@ def _ida(chart, ts_settings, atol, t0, y0, yp0, interval):
     opts["max_step"] = ts_settings["h_max"] if ts_settings["h_max"] > 0 else ts_settings["span"]
     if ts_settings["h_min"] > 0:
         opts["min_step"] = ts_settings["h_min"]
-    if ts_settings["h0"] > 0:
-        opts["first_step"] = min(ts_settings["h0"], interval)
+    if first_step > 0:
+        opts["first_step"] = first_step
     with warnings.catch_warnings():
         # sparsity + jacfn: scikit-sundae notes that its finite-difference sparse Jacobian is
         # not used (the analytic one is), which is the intent
@@ -410,6 +522,7 @@ def _ida(chart, ts_settings, atol, t0, y0, yp0, interval):
     if not r.success:
         raise RuntimeError(r.message)
     chart.stats = IdaStats(solver)
+    chart.conv_coef_set = chart.stats.set_nonlin_conv_coef(NONLIN_CONV_COEF)
     return solver
 
 
@@ -447,6 +560,7 @@ def run_fim_d(qs, state, index, notes):
                  error_test_failures=[], convergence_failures=[], jacobian_evaluations=[],
                  rebase=[])
     stats_off = []               # why IDA's own counters could not be read (order -1)
+    conv_coef_off = []           # why IDA's corrector coefficient could not be set
     fallbacks = []
     measured = {}                # frame index -> history row of an interpolated IDA frame
     prog = Progress(len(ts), "FIM_D", enabled=qs.progress_enabled)
@@ -461,14 +575,20 @@ def run_fim_d(qs, state, index, notes):
                 a[model.nq:][sel] = tol * max(1.0, float(lam[sel].max()) if sel.any() else 1.0)
         return a
 
-    def start(ref):
-        chart = _Chart(model, ref, eps, qs.counters, sparse)
+    def start(ref, first):
+        chart = _Chart(model, ref, eps, qs.counters, sparse, tol)
         y0 = np.concatenate([np.zeros(model.nq), ref.lam])
-        yp0 = chart.tangent(y0, ref.t, interval)
-        solver = _ida(chart, tsd, atol_for(ref), ref.t, y0, yp0, interval)
-        return chart, solver
+        atol = atol_for(ref)
+        capped = first and tsd["h0"] > 0       # the user's (or the deck schema's) h0_max
+        y0, yp0, h0 = chart.start(y0, ref.t, interval, 1.0 / (tol * np.abs(y0) + atol),
+                                  T_end - ref.t, want_h0=not capped)
+        # no first step beyond the output resolution
+        h0 = min(tsd["h0"], interval) if capped else min(h0, interval)
+        solver = _ida(chart, tsd, atol, ref.t, y0, yp0, h0)
+        return chart, solver, y0
 
     k_out = 1
+    n_starts = 0
     ref = state
     rebased = 1
     chart = solver = None
@@ -476,8 +596,11 @@ def run_fim_d(qs, state, index, notes):
     while k_out < len(ts):
         if solver is None:
             try:
-                chart, solver = start(ref)
-                t_last, y_last = ref.t, np.concatenate([np.zeros(model.nq), ref.lam])
+                chart, solver, y_last = start(ref, n_starts == 0)
+                n_starts += 1
+                if not chart.conv_coef_set and not conv_coef_off:
+                    conv_coef_off.append(chart.stats.reason)
+                t_last = ref.t
             except (RuntimeError, ValueError) as e:
                 solver = None
                 reason = f"IDA could not start at t={ref.t:.9g}: {e}"
@@ -581,6 +704,9 @@ def run_fim_d(qs, state, index, notes):
                  + (f", sparse linear solver (SuperLU_MT, N = {model.N})" if sparse else ""))
     if stats_off:
         notes.append("IDA step order not available: " + "; ".join(stats_off))
+    if conv_coef_off:
+        notes.append(f"IDA corrector coefficient left at IDA's default 0.33 (not "
+                     f"{NONLIN_CONV_COEF:g}): " + "; ".join(conv_coef_off))
     extra = {f"steps/{k}": np.asarray(v, dtype=float if k in ("time", "step_size") else np.int64)
              for k, v in steps.items()}
     st, ar = qs.finish(frames, outcomes, index, "FIM_D", notes, moved, time_indep, extra=extra,
