@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import json
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -307,20 +308,43 @@ NUMPY_AS_POISE = ('import os; os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 PEER_IMPORTS = "import json, math, exudyn, exudyn.utilities"
 
 
-def import_floor(repeat: int, peer: bool = False) -> dict:
-    """Whole-process wall time of ``python -c FLOOR_IMPORTS`` (``normal``), of
-    ``python -c FLOOR_AS_POISE`` (``as_poise``), of numpy alone set up as poise (``numpy``) and,
-    when ``peer``, of the peer script's imports (``peer``), all measured like the poise and peer
-    processes (:func:`poise.bench._wall`)."""
-    from poise.bench import _wall
-    out = {}
-    codes = [("normal", FLOOR_IMPORTS), ("as_poise", FLOOR_AS_POISE), ("numpy", NUMPY_AS_POISE)]
+#: The least any ``poise solve`` process must do with the mandated stack, set up as poise: the
+#: imports above plus click (the CLI), reading the deck with lxml, and writing an HDF5 file
+#: (one dataset) with fsync; formatted with ``deck`` and ``out``.
+MANDATED = ('import os; os.environ.setdefault("OPENBLAS_NUM_THREADS", "1"); '
+            'import numpy, h5py, lxml.etree, click; lxml.etree.parse({deck!r}); '
+            'f = h5py.File({out!r}, "w"); f["x"] = numpy.zeros(3); f.close(); '
+            'fd = os.open({out!r}, os.O_RDONLY); os.fsync(fd); os._exit(0)')
+
+
+def floor_commands(deck: Path, out: Path, peer: bool) -> dict:
+    """``python -c`` commands of the floors: ``normal`` (:data:`FLOOR_IMPORTS`), ``as_poise``
+    (:data:`FLOOR_AS_POISE`), ``numpy`` (:data:`NUMPY_AS_POISE`), ``mandated``
+    (:data:`MANDATED`) and, when ``peer``, the peer script's imports (``peer``)."""
+    codes = {"normal": FLOOR_IMPORTS, "as_poise": FLOOR_AS_POISE, "numpy": NUMPY_AS_POISE,
+             "mandated": MANDATED.format(deck=str(deck), out=str(out))}
     if peer:
-        codes.append(("peer", PEER_IMPORTS))
-    for key, code in codes:
-        out[key], _ = _wall([sys.executable, "-c", code], repeat)
-    return dict(command=f'python -c "{FLOOR_IMPORTS}"', command_as_poise=FLOOR_AS_POISE,
-                command_numpy=NUMPY_AS_POISE, command_peer=PEER_IMPORTS, **out)
+        codes["peer"] = PEER_IMPORTS
+    return {k: [sys.executable, "-c", c] for k, c in codes.items()}
+
+
+def walls_interleaved(cmds: dict, repeat: int) -> dict:
+    """Wall time of each command, run round-robin ``repeat`` times after one warm-up each, so
+    that machine drift hits every command alike (the ratios between them are what matters).
+    Returns ``{key: (stats, worst return code)}``."""
+    from poise.bench import _user_env
+    env = _user_env()
+    for c in cmds.values():
+        subprocess.run(c, capture_output=True, env=env)
+    times = {k: [] for k in cmds}
+    rc = dict.fromkeys(cmds, 0)
+    for _ in range(repeat):
+        for k, c in cmds.items():
+            t0 = time.perf_counter()
+            r = subprocess.run(c, capture_output=True, env=env)
+            times[k].append(time.perf_counter() - t0)
+            rc[k] = max(rc[k], r.returncode)
+    return {k: (_stats(v), rc[k]) for k, v in times.items()}
 
 
 def batch_per_deck(deck: Path, tmp: Path, copies: int = 40, repeat: int = 3) -> dict:
@@ -370,10 +394,6 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
     ns: dict = {}
     if ok:
         exec(compile(SCRIPT, "<exudyn-peer>", "exec"), ns)
-    floor = import_floor(repeat, peer=ok)
-    log(f"import floor ({FLOOR_IMPORTS}): {floor['normal']['median']:.3g} s, set up as a poise "
-        f"process {floor['as_poise']['median']:.3g} s, numpy alone "
-        f"{floor['numpy']['median']:.3g} s")
     with tempfile.TemporaryDirectory(prefix="poise-peer-") as td:
         tdp = Path(td)
         for prob in probs:
@@ -393,9 +413,12 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
             row["poise"] = dict(status=an.status, solve_s=st, total_s=tot,
                                 iterations=int(np.sum(an.datasets["frames/iterations"])),
                                 error=deck_error(res, ref_fn, ref), counts=dict(res.counts))
-            pw, rc = _wall(_poise_cmd() + ["solve", str(deck), "-o", str(tdp / "o.h5")], rep)
-            row["poise"]["process_s"] = pw
-            row["poise"]["process_rc"] = rc
+            small = not prob.get("n")
+            poise_cmd = _poise_cmd() + ["solve", str(deck), "-o", str(tdp / "o.h5")]
+            if not small:
+                pw, rc = _wall(poise_cmd, rep)
+                row["poise"]["process_s"] = pw
+                row["poise"]["process_rc"] = rc
             # ---- peer
             if ok:
                 specf = tdp / "spec.json"
@@ -416,16 +439,31 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
                                      error_unconverged=_peer_error(o, prob))
                 script = tdp / "peer_script.py"
                 script.write_text(SCRIPT)
-                pw, rc = _wall([sys.executable, str(script), str(specf)], rep)
-                row["exudyn"]["process_s"] = pw
-                row["exudyn"]["process_rc"] = rc
+                peer_cmd = [sys.executable, str(script), str(specf)]
+                if not small:
+                    pw, rc = _wall(peer_cmd, rep)
+                    row["exudyn"]["process_s"] = pw
+                    row["exudyn"]["process_rc"] = rc
+            if small:   # whole processes of both sides and the floors, interleaved
+                cmds = {"poise": poise_cmd, **({"exudyn": peer_cmd} if ok else {}),
+                        **floor_commands(deck, tdp / "floor.h5", ok)}
+                w = walls_interleaved(cmds, max(rep, 11))
+                row["poise"]["process_s"], row["poise"]["process_rc"] = w.pop("poise")
+                if ok:
+                    row["exudyn"]["process_s"], row["exudyn"]["process_rc"] = w.pop("exudyn")
+                row["import_floor"] = dict(
+                    command=f'python -c "{FLOOR_IMPORTS}"', command_as_poise=FLOOR_AS_POISE,
+                    command_numpy=NUMPY_AS_POISE, command_peer=PEER_IMPORTS,
+                    command_mandated=MANDATED.format(deck=prob["deck"], out="out.h5"),
+                    **{k: v[0] for k, v in w.items()})
+            if ok:
                 ps, es = row["poise"]["solve_s"]["median"], row["exudyn"]["solve_s"]["median"]
                 # ratios only where both sides reached the answer (a time to failure is no match)
                 row["solve_ratio"] = ps / es if conv and es > 0 else None
                 row["process_ratio"] = (row["poise"]["process_s"]["median"] /
                                         row["exudyn"]["process_s"]["median"]) if conv else None
-            if not prob.get("n"):       # small decks: the floor next to the whole-process ratio
-                row["import_floor"] = floor
+            if small:                   # small decks: the floors next to the whole-process ratio
+                floor = row["import_floor"]
                 fl, fp = floor["normal"]["median"], floor["as_poise"]["median"]
                 row["poise_above_floor_s"] = row["poise"]["process_s"]["median"] - fp
                 row["batch"] = batch_per_deck(deck, tdp, repeat=max(1, min(3, repeat)))
@@ -433,6 +471,7 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
                     pe = row["exudyn"]["process_s"]["median"]
                     row["floor_ratio"], row["floor_as_poise_ratio"] = fl / pe, fp / pe
                     row["numpy_ratio"] = floor["numpy"]["median"] / pe
+                    row["mandated_ratio"] = floor["mandated"]["median"] / pe
                     row["peer_above_floor_s"] = pe - floor["peer"]["median"]
                     row["batch_ratio"] = {j: row["batch"][j]["median"] / pe
                                           for j in ("j1", "j0")}
