@@ -442,7 +442,7 @@ el("Param_Transient", "both", True, "DAE integrator settings (FIM_D quasi-static
     E("integrator_type", "DSTIFF CSTIFF VSTIFF MSTIFF ABAM GSTIFF HSTIFF", "integrator", default="DSTIFF"),
     R("integr_tol", "local error tolerance", default=1e-3, lo=0, lo_open=True),
     R("h_max", "largest step", lo=0, lo_open=True), R("h_min", "smallest step", default=1e-6, lo=0, lo_open=True),
-    R("h0_max", "largest initial step", default=1e-8, lo=0, lo_open=True),
+    R("h0_max", "largest initial step (no default: FIM_D sizes its first step from the path)", lo=0, lo_open=True),
     R("vel_tol_factor", "velocity tolerance factor", lo=0), A("max_order", "int", "largest BDF order", lo=1, hi=6),
     R("dae_alg_tol_factor", "algebraic tolerance factor", lo=0), A("dae_index", "int", "DAE formulation index", lo=0),
     R("dae_constr_tol", "constraint tolerance of the DAE corrector", lo=0, lo_open=True),

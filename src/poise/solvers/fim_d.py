@@ -48,10 +48,11 @@ Start of every IDA run (the first one, after each rebase, after a FIM_S fallback
   for 14 steps before reaching the path's step size, at every start (2 of them: 28 of 157
   steps). ``h0`` is capped by the smallest print interval (a flat start must not step over
   what the requested output resolves: a path with zero curvature at t0 would otherwise start
-  with one step to the end). When ``h0_max`` is given, the first run starts with it as before
-  (a deck's ``Param_Transient`` brings the schema default 1e-8, which IDA raises to ``h_min``;
-  the curvature is then not computed); restarts are internal re-initialisations and use the
-  estimate.
+  with one step to the end). When the deck writes ``h0_max`` (the schema has no default for
+  it: the reference's 1e-8 is marked unsure, and as a default it cost the 1001-frame
+  slider-crank 10 of its 27 IDA steps), the first run starts with it (IDA raises it to
+  ``h_min``; the curvature is then not computed); restarts are internal re-initialisations
+  and use the estimate.
 
 Corrector: ``IDASetNonlinConvCoef(NONLIN_CONV_COEF = 0.03)`` (IDA's default 0.33). With every
 equation algebraic the corrector *is* the equilibrium solve, and its leftover error enters the
@@ -76,15 +77,16 @@ looser gives 105 steps for 7x the error; excluding every component from the erro
 ``suppressalg``: all are algebraic) gives 20 steps and output errors of 1.7e-2 instead of
 1.2e-6. Measured before/after (2 shared cores, fastest solve of 15): 8-link chain 157 -> 104
 steps, 0.33 -> 0.26 s; 20-link 109 -> 75, 0.30 -> 0.24 s; ``decks/bench/slider_crank_qs_1000.xml``
-27 -> 27 steps, 0.49 s both (its ``h0_max`` keeps the first step). Over 7 decks x dae tolerances
+27 -> 27 steps, 0.49 s both (then still capped by the former h0_max default 1e-8; without it
+27 -> 17 steps). Over 7 decks x dae tolerances
 1e-4..1e-8 the error against FIM_S per unit tolerance went from median 0.90 / max 4.2 to
 0.53 / 2.0, still decreasing with the tolerance on every deck.
 
 Tolerances (``Param_Transient``; defaults in brackets): ``tol = min(integr_tol [1e-3],
 dae_constr_tol [1e-6])`` is IDA's ``rtol``; ``atol`` = ``tol * L`` (translations), ``tol``
 (rotations), ``tol * max(1, |lam0|)`` per multiplier kind (defaults of a deck without
-``Param_Transient``; with one, the schema's h_min 1e-6 and h0_max 1e-8 apply). ``h_max`` [unbounded] (max_step),
-``h_min`` [0] (min_step), ``h0_max`` [none] (caps the first step, see above), ``max_order`` [5],
+``Param_Transient``; with one, the schema's h_min 1e-6 applies). ``h_max`` [unbounded] (max_step),
+``h_min`` [0] (min_step), ``h0_max`` [none] (the first step when written, see above), ``max_order`` [5],
 ``dae_corrector_maxit`` [4] (max_nonlin_iters). ``dae_interpolation`` [TRUE]: output frames are
 IDA's interpolants at the print times (steps are not limited by the print interval); FALSE:
 IDA stops exactly at every print time (``tstop``) and the frame is a converged corrector.
