@@ -290,7 +290,7 @@ def test_reserved_attr_clash(tmp_path):
 
 
 def test_low_level_datasets_equal_high_level_bytes(tmp_path):
-    """``_Datasets.create`` must write what ``create_dataset(..., track_times=False)`` writes,
+    """``_create_dataset`` must write what ``create_dataset(..., track_times=False)`` writes,
     byte for byte, for every kind of array a results file holds."""
     import h5py
     arrays = {
@@ -303,7 +303,7 @@ def test_low_level_datasets_equal_high_level_bytes(tmp_path):
     lo, hi = tmp_path / "lo.h5", tmp_path / "hi.h5"
     with h5py.File(lo, "w") as f:
         for k in sorted(arrays):
-            hdf5._maker().create(f, k, np.asarray(arrays[k]))
+            hdf5._create_dataset(f, k, np.asarray(arrays[k]))
     with h5py.File(hi, "w") as f:
         for k in sorted(arrays):
             a = np.asarray(arrays[k])
