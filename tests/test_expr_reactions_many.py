@@ -25,6 +25,13 @@ def _x(text, attr, tag, id):
     return Expr(text, SourceLoc("<built>", 1, tag, id), attr)
 
 
+def _vector_attrs(tag, fid, texts, default):
+    """The six ``{fx..tz}_expression`` attributes: expressions ``texts`` (component -> text),
+    the constant ``default`` for the others."""
+    return {f"{a}_expression": _x(texts[a], f"{a}_expression", tag, fid) if a in texts
+            else default for a in ("fx", "fy", "fz", "tx", "ty", "tz")}
+
+
 def many_reader_deck(nb=60, nr=200, per=5, seed=0, forces=0):
     """``nb`` bodies, each tied by one joint (every 7th a jprim) to ground or to an earlier
     body, one REVOLUTE with a Motion_Joint; ``nr`` expression forces (vector two-body / one-body
@@ -118,18 +125,12 @@ def many_reader_deck(nb=60, nr=200, per=5, seed=0, forces=0):
         fid = 100 + k
         if k % 3 == 0:
             tag = "Force_Vector_TwoBody"
-            comps = {f"{a}_expression": (_x(expr, f"{a}_expression", tag, fid) if a == "fy" else
-                                         _x(f"0.5*({expr})", f"{a}_expression", tag, fid)
-                                         if a == "tz" else 0.1)
-                     for a in ("fx", "fy", "fz", "tx", "ty", "tz")}
+            comps = _vector_attrs(tag, fid, {"fy": expr, "tz": f"0.5*({expr})"}, 0.1)
             d.add(tag, id=fid, type="FORCEANDTORQUE", i_marker_id=100 * b + 3,
                   j_floating_marker_id=100 * o + 3, ref_marker_id=100 * o + 2, **comps)
         elif k % 3 == 1:
             tag = "Force_Vector_OneBody"
-            comps = {f"{a}_expression": (_x(expr, f"{a}_expression", tag, fid) if a == "tx" else
-                                         _x(f"-({expr})", f"{a}_expression", tag, fid)
-                                         if a == "fx" else 0.0)
-                     for a in ("fx", "fy", "fz", "tx", "ty", "tz")}
+            comps = _vector_attrs(tag, fid, {"tx": expr, "fx": f"-({expr})"}, 0.0)
             d.add(tag, id=fid, type="FORCEANDTORQUE", marker_id=100 * b + 3, ref_marker_id=11,
                   **comps)
         else:

@@ -263,6 +263,16 @@ def _component_picks(comps):
     return ck, crow, mk, mcols
 
 
+def _resultant_side(mi, mj, ei, ej):
+    """Whether the element with markers ``(ei, ej)`` is in the resultant FX..TM at marker ``mi``
+    (towards ``mj``, < 0: any): 0 taken on its I, 1 on its J (flipped), None if not in it."""
+    if ei == mi and (mj < 0 or ej == mj):
+        return 0
+    if ej == mi and (mj < 0 or ei == mj):
+        return 1
+    return None
+
+
 class ChannelPlan:
     """Reaction channels as index arrays (compile time, O(channels + contributions)): per
     output group the ``(channel, owner row)`` contributions in the order of the per-channel sums
@@ -301,10 +311,9 @@ class ChannelPlan:
                 _, mi, mj, comp[k], rm[k], _ = ch
                 for e in by_mk.get(mi, ()):
                     group, o, ei, ej = elems[e]
-                    if ei == mi and (mj < 0 or ej == mj):
-                        con[group].append((k, o, False, ei, ej))
-                    elif ej == mi and (mj < 0 or ei == mj):
-                        con[group].append((k, o, True, ei, ej))
+                    side = _resultant_side(mi, mj, ei, ej)
+                    if side is not None:
+                        con[group].append((k, o, side, ei, ej))
         self.groups = []
         for group, lst in con.items():
             if not lst:
@@ -506,13 +515,9 @@ class ReactionFeed:
                                 for fi, j, ei, ej in by_key.get(tuple(ch[1:4]), ())])
                 continue
             mi, mj = ch[1], ch[2]
-            lst = []
-            for fi, j, ei, ej in by_mk.get(mi, ()):
-                if ei == mi and (mj < 0 or ej == mj):
-                    lst.append((fi, j, 0, ei, ej))
-                elif ej == mi and (mj < 0 or ei == mj):
-                    lst.append((fi, j, 1, ei, ej))
-            contrib.append(lst)
+            sides = [(r, _resultant_side(mi, mj, r[2], r[3])) for r in by_mk.get(mi, ())]
+            contrib.append([(fi, j, side, ei, ej) for (fi, j, ei, ej), side in sides
+                            if side is not None])
         rows = []
         for ri, f in enumerate(fams):
             if not getattr(f, "reads_reactions", False):
