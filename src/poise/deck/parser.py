@@ -339,13 +339,6 @@ def _defaults(tag: str) -> tuple:
     return d
 
 
-def _apply_defaults(el: Element) -> None:
-    attrs = el.attrs
-    for name, default in _defaults(el.tag):
-        if name not in attrs:
-            attrs[name] = default
-
-
 # --------------------------------------------------------------------------- security pre-scan
 def _line_of(data: bytes, offset: int) -> int:
     return data.count(b"\n", 0, offset) + 1

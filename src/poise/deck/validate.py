@@ -7,6 +7,7 @@ Warnings (moving body without mass, unknown attributes from the parser, ...) go 
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -201,22 +202,6 @@ def _check_marker(pc: ProblemCollector, el: Element) -> None:
 _DCM_CHECK: dict[int, tuple[float, float]] = {}   # id(marker) -> (max |A^T A - I|, det A)
 
 
-def _precompute_dcm(els: list[Element]) -> None:
-    """Orthonormality errors and determinants of every complete numeric DCM, in one batch
-    (the per-marker checks then only look them up)."""
-    _DCM_CHECK.clear()
-    sel = [el for el in els if el.tag == "Reference_Marker" and not el.is_command
-           and all(type(el.attrs.get(n)) is float for n in _DCM)]
-    if not sel:
-        return
-    A = np.array([[el.attrs[n] for n in _DCM] for el in sel]).reshape(-1, 3, 3)  # [c][r]
-    A = np.swapaxes(A, 1, 2)                                                     # [r][c]
-    err = np.abs(np.matmul(np.swapaxes(A, 1, 2), A) - np.eye(3)).max(axis=(1, 2))
-    det = np.linalg.det(A)
-    for el, e, d in zip(sel, err.tolist(), det.tolist()):
-        _DCM_CHECK[id(el)] = (e, d)
-
-
 def _check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Element]) -> None:
     t = el.tag
     if t == "Constraint_Joint":
@@ -273,24 +258,8 @@ _NONE = type(None)
 _NO_NUMBER = frozenset({bool, tuple, Expr, _NONE})     # values _check_value never reports
 _SPECIFIC = frozenset({"Constraint_Joint", "Constraint_Jprim", "Force_SpringDamper",
                        "Force_Scalar_TwoBody", "Simulate"})
-_SCHEMA: dict[str, Any] = {}
-_NS: dict[str, Any] = {}
-
-
-def _schema(tag: str):
-    try:
-        return _SCHEMA[tag]
-    except KeyError:
-        s = _SCHEMA[tag] = element_schema(tag)
-        return s
-
-
-def _ns(tag: str):
-    try:
-        return _NS[tag]
-    except KeyError:
-        s = _NS[tag] = namespace_of(tag)
-        return s
+_schema = functools.cache(element_schema)   # per-tag memos (called per element)
+_ns = functools.cache(namespace_of)
 
 
 def _column_ok(a: Attr, col: tuple, types: set) -> bool:

@@ -56,12 +56,10 @@ def compile_joints(spec, ctx):
             owner = len(ids)
             ids.append(el.id)
             r0 = len(rows)
-            eid, line, file = el.id, el.loc.line, el.loc.file
             for kind, e, off, names, rkinds in _template(jt):
                 acc[kind].append((I, J, owner, r0 + off, e))
                 for nm, rk in zip(names, rkinds):
-                    rows.append({"tag": tag, "id": eid, "equation": nm, "line": line,
-                                 "file": file, "kind": rk, "group": group, "owner": owner})
+                    ctx.add_row(el, nm, rk, group, owner)
             if jt not in seen:
                 seen.add(jt)
                 b.effects.append(f"{tag}:{jt}")
