@@ -133,6 +133,11 @@ def skipped_row(deck: str, output: str) -> dict:
     return _row(deck, output, skipped=True, **st)
 
 
+def _error_row(deck: str, message: str) -> dict:
+    """The row of a deck that produced no results file because of an internal error."""
+    return _row(deck, None, status="internal_error", exit_code=4, message=message)
+
+
 def solve_one(deck: str, output: str, overrides: dict | None, command: str) -> dict:
     """Solve one deck and write its results file (runs in a worker process)."""
     from poise.errors import DeckError
@@ -144,15 +149,13 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str) -> d
         return _row(deck, None, status="invalid_deck", exit_code=3,
                     message="; ".join(problems), problems=problems)
     except Exception as e:  # noqa: BLE001 - reported as a row, never kills the batch
-        return _row(deck, None, status="internal_error", exit_code=4,
-                    message=f"{type(e).__name__}: {' '.join(str(e).split())}")
+        return _error_row(deck, f"{type(e).__name__}: {' '.join(str(e).split())}")
     try:
         from poise.results.hdf5 import write_results
         res.attrs["run_overrides"] = overrides_json(overrides)
         write_results(res, output)
     except Exception as e:  # noqa: BLE001
-        return _row(deck, None, status="internal_error", exit_code=4,
-                    message=f"writing {output}: {type(e).__name__}: {e}")
+        return _error_row(deck, f"writing {output}: {type(e).__name__}: {e}")
     return _row(deck, output, **result_stats(res))
 
 
@@ -222,8 +225,7 @@ def _solve_in_pool(keys, jobs, decks, outs, overrides, command, rows, on_row) ->
                 broken.append(k)
                 continue
             except Exception as e:  # noqa: BLE001 - e.g. the deck's row could not be sent back
-                rows[k] = _row(decks[k], None, status="internal_error", exit_code=4,
-                               message=f"worker failed: {type(e).__name__}: {e}")
+                rows[k] = _error_row(decks[k], f"worker failed: {type(e).__name__}: {e}")
             if on_row:
                 on_row(rows[k])
     return sorted(broken)
@@ -241,11 +243,9 @@ def _solve_isolated(keys, jobs, decks, outs, overrides, command, rows, on_row) -
             with _spawn_pool(1) as ex:
                 return k, ex.submit(solve_one, decks[k], outs[k], overrides, command).result()
         except BrokenProcessPool:
-            return k, _row(decks[k], None, status="internal_error", exit_code=4,
-                           message=WORKER_DIED)
+            return k, _error_row(decks[k], WORKER_DIED)
         except Exception as e:  # noqa: BLE001
-            return k, _row(decks[k], None, status="internal_error", exit_code=4,
-                           message=f"worker failed: {type(e).__name__}: {e}")
+            return k, _error_row(decks[k], f"worker failed: {type(e).__name__}: {e}")
 
     with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(keys)))) as tp:
         for k, row in tp.map(one, keys):

@@ -204,18 +204,28 @@ def _user_env() -> dict:
     return env
 
 
-def _wall(cmd, repeat, cwd=None) -> tuple[dict, int]:
-    """Median/min/max wall time of ``cmd`` over ``repeat`` runs after one warm-up run (which
-    writes the bytecode caches, as any second run of an installed program finds them)."""
+def _walls(cmds: dict, repeat: int, cwd=None) -> dict:
+    """Median/min/max wall time of each command over ``repeat`` runs after one warm-up run each
+    (which writes the bytecode caches, as any second run of an installed program finds them).
+    Several commands run round-robin, so that machine drift hits them alike. Returns
+    ``{key: (stats, worst return code)}``."""
     env = _user_env()
-    subprocess.run(cmd, capture_output=True, cwd=cwd, env=env)
-    times, rc = [], 0
+    for c in cmds.values():
+        subprocess.run(c, capture_output=True, cwd=cwd, env=env)
+    times = {k: [] for k in cmds}
+    rc = dict.fromkeys(cmds, 0)
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        r = subprocess.run(cmd, capture_output=True, cwd=cwd, env=env)
-        times.append(time.perf_counter() - t0)
-        rc = max(rc, r.returncode)
-    return _stats(times), rc
+        for k, c in cmds.items():
+            t0 = time.perf_counter()
+            r = subprocess.run(c, capture_output=True, cwd=cwd, env=env)
+            times[k].append(time.perf_counter() - t0)
+            rc[k] = max(rc[k], r.returncode)
+    return {k: (_stats(v), rc[k]) for k, v in times.items()}
+
+
+def _wall(cmd, repeat, cwd=None) -> tuple[dict, int]:
+    """:func:`_walls` of one command."""
+    return _walls({0: cmd}, repeat, cwd)[0]
 
 
 def bench_cli(repeat: int, tmp: Path, root: Path) -> list[dict]:

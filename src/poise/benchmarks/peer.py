@@ -62,7 +62,6 @@ from __future__ import annotations
 
 import json
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -328,25 +327,6 @@ def floor_commands(deck: Path, out: Path, peer: bool) -> dict:
     return {k: [sys.executable, "-c", c] for k, c in codes.items()}
 
 
-def walls_interleaved(cmds: dict, repeat: int) -> dict:
-    """Wall time of each command, run round-robin ``repeat`` times after one warm-up each, so
-    that machine drift hits every command alike (the ratios between them are what matters).
-    Returns ``{key: (stats, worst return code)}``."""
-    from poise.bench import _user_env
-    env = _user_env()
-    for c in cmds.values():
-        subprocess.run(c, capture_output=True, env=env)
-    times = {k: [] for k in cmds}
-    rc = dict.fromkeys(cmds, 0)
-    for _ in range(repeat):
-        for k, c in cmds.items():
-            t0 = time.perf_counter()
-            r = subprocess.run(c, capture_output=True, env=env)
-            times[k].append(time.perf_counter() - t0)
-            rc[k] = max(rc[k], r.returncode)
-    return {k: (_stats(v), rc[k]) for k, v in times.items()}
-
-
 def batch_per_deck(deck: Path, tmp: Path, copies: int = 40, repeat: int = 3) -> dict:
     """``poise batch`` over ``copies`` copies of ``deck``: wall time per deck with one worker
     (``-j 1``: the whole CPU cost a CI job pays per deck when it hands poise the list) and with
@@ -387,7 +367,7 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
     ref = _ref()
     sizes = (10, 100) if quick else (10, 100, 1000)
     probs = [problem_pendulum(ref), problem_fourbar(ref)] + [problem_chain(ref, n) for n in sizes]
-    from poise.bench import _poise_cmd, _wall
+    from poise.bench import _poise_cmd, _wall, _walls
     from poise.benchmarks.wp import DECKS, deck_error
     from poise.gen.chain import build_chain_deck
     rows = []
@@ -447,7 +427,7 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
             if small:   # whole processes of both sides and the floors, interleaved
                 cmds = {"poise": poise_cmd, **({"exudyn": peer_cmd} if ok else {}),
                         **floor_commands(deck, tdp / "floor.h5", ok)}
-                w = walls_interleaved(cmds, max(rep, 11))
+                w = _walls(cmds, max(rep, 11))
                 row["poise"]["process_s"], row["poise"]["process_rc"] = w.pop("poise")
                 if ok:
                     row["exudyn"]["process_s"], row["exudyn"]["process_rc"] = w.pop("exudyn")
