@@ -183,9 +183,9 @@ def _evaluate_frames(model, states, need_jac):
         n = fam.n
         kin = slot_kinematics(t.markers, fam.slot_ml, t.slot_kind, Pf, Af, mbf, posf)
         U = fam.U
+        lt = lamf[t.crow] if fam.is_constraint else None
         if exact:
             if fam.is_constraint:
-                lt = lamf[t.crow]
                 out = t.constraints(kin, lt, ctx_t)
             else:
                 out = t.forces(kin, ctx_t, need_jac)
@@ -207,7 +207,6 @@ def _evaluate_frames(model, states, need_jac):
             if ext is not None:
                 out.append(ext)
         if fam.is_constraint:
-            lt = lamf[t.crow]
             ph, phy, G = out[:3]
             ext = out[3] if len(out) > 3 else None
             rho = np.einsum("nmy,nm->ny", phy, lt)

@@ -637,29 +637,21 @@ def run_fim_d(qs, state, index, notes):
             # no step taken: ONE_STEP after an interpolated output returns IDA's pending
             # solution at t_n first (nothing to record)
             pass
-        elif d is not None:
-            steps["time"].append(r.t)
-            steps["step_size"].append(d["LastStep"])
-            steps["order"].append(d["LastOrder"])
-            steps["nonlinear_iterations"].append(d["NumNonlinSolvIters"])
-            steps["error_test_failures"].append(d["NumErrTestFails"])
-            steps["convergence_failures"].append(d["NumNonlinSolvConvFails"])
-            steps["jacobian_evaluations"].append(d["NumJacEvals"])
-            steps["rebase"].append(rebased)
-            rebased = 0
         else:
-            # IDA's counters unreadable: order -1; iterations = residual evaluations (one
-            # per Newton iteration); retries = extra trial times (both failure kinds)
-            if chart.stats is not None and chart.stats.reason not in stats_off:
-                stats_off.append(chart.stats.reason)
-            steps["time"].append(r.t)
-            steps["step_size"].append(r.t - t_last)
-            steps["order"].append(-1)
-            steps["nonlinear_iterations"].append(chart.nres - n0r)
-            steps["error_test_failures"].append(max(len(chart.trial_times) - 1, 0))
-            steps["convergence_failures"].append(-1)
-            steps["jacobian_evaluations"].append(chart.njac - nj0)
-            steps["rebase"].append(rebased)
+            if d is not None:
+                row = (d["LastStep"], d["LastOrder"], d["NumNonlinSolvIters"],
+                       d["NumErrTestFails"], d["NumNonlinSolvConvFails"], d["NumJacEvals"])
+            else:
+                # IDA's counters unreadable: order -1; iterations = residual evaluations (one
+                # per Newton iteration); retries = extra trial times (both failure kinds)
+                if chart.stats is not None and chart.stats.reason not in stats_off:
+                    stats_off.append(chart.stats.reason)
+                row = (r.t - t_last, -1, chart.nres - n0r, max(len(chart.trial_times) - 1, 0),
+                       -1, chart.njac - nj0)
+            for k, v in zip(("time", "step_size", "order", "nonlinear_iterations",
+                             "error_test_failures", "convergence_failures",
+                             "jacobian_evaluations", "rebase"), (r.t, *row, rebased)):
+                steps[k].append(v)
             rebased = 0
         t_last, y_last = float(r.t), np.array(r.y, float)
         tol_t = 1e-12 * max(1.0, abs(T_end))

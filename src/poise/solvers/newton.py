@@ -233,16 +233,12 @@ def initial_multipliers(model, state, cnt: Counters):
     return st
 
 
-def _limit_step(model, state, dq, settings):
-    """Uniform step factor so that no body moves (actual screw displacement of its CG) more than
-    ``max_translation_step * L`` nor rotates more than ``max_rotation_step``."""
-    return _limit_step_trial(model, state, dq, settings)[0]
-
-
 def _limit_step_trial(model, state, dq, settings):
-    """:func:`_limit_step` and the configuration it accepted: ``(factor, retract(state,
-    factor * dq))``, or ``(factor, None)`` when the last retraction tried another factor. The
-    line search starts from that configuration instead of retracting again."""
+    """Uniform step factor so that no body moves (actual screw displacement of its CG) more than
+    ``max_translation_step * L`` nor rotates more than ``max_rotation_step``, and the
+    configuration it accepted: ``(factor, retract(state, factor * dq))``, or ``(factor, None)``
+    when the last retraction tried another factor. The line search starts from that
+    configuration instead of retracting again."""
     fac = 1.0
     if len(model.rot_idx):
         r = dq[model.rot_idx].reshape(-1, 3)
