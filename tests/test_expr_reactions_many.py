@@ -154,7 +154,7 @@ def _dense(J):
 
 def _captured(m, st):
     """Evaluate with the Jacobian; returns the evaluation and the arguments ``Model.evaluate``
-    passed to ``ReactionFeed.coupling`` ``(model, kept, P, A, lam, row_active)``."""
+    passed to ``ReactionFeed.coupling`` ``(model, kept, P, A, row_active, tangents)``."""
     feed = m.reaction_feed
     cap = {}
     orig = feed.coupling
@@ -327,7 +327,7 @@ def test_many_readers_grouped_and_equal_to_per_entry_reference(many):
     assert len(feed.groups) <= n_pairs
 
     ev, args = _captured(m, st)
-    _, kept, P, A, lam, row_active = args[:6]
+    _, kept, P, A, row_active = args[:5]
     loads = loads_of(m, kept.values())
     vals = feed.values(m, kept.values(), P, A)
     ref_v, vecs = _reference_values(m, chans, feed.info, loads, P, A)

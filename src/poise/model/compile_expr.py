@@ -609,7 +609,7 @@ class ReactionFeed:
                            np.broadcast_to(mcols[rb.rm, 3:][:, None, :], shape)))
         return blocks
 
-    def coupling(self, model, kept, P, A, lam, row_active, tangents):
+    def coupling(self, model, kept, P, A, row_active, tangents):
         """Values of the :meth:`setup` blocks, exact: ``d r_reader / d (lambda, q)`` through
         the channels. A channel sums, per contributing instance, its action on I (``F = -sum
         rho_s`` over I's point slots, ``T = -sum y_s x rho_s`` over I's axis slots; ``rho =

@@ -405,8 +405,7 @@ class Model:
         ev = Evaluation(r=r, phi=phi, J=None)
         if need_jac:
             if feed is not None:       # d r_reader / d (lambda, q) through the channels
-                ev._coupling = feed.coupling(self, done, P, A, state.lam, self.row_active,
-                                             pend)
+                ev._coupling = feed.coupling(self, done, P, A, self.row_active, pend)
             pend = [p for p in pend if p is not None]     # assembly order: self.families
             ev._pending = (state, pend, eps_mass, self.row_active.copy())
         phases.add("evaluate", phases.now() - t_start)
