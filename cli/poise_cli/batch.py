@@ -11,10 +11,22 @@ from poise_cli.options import collect_overrides, json_option, quiet_option, solv
 from poise_cli.summary import fmt_num, print_json, styled_status
 
 
+def _equilibrium(row: dict) -> str:
+    """`` to an UNSTABLE equilibrium (2 negative modes)`` for a converged deck whose worst frame
+    is unstable (neutral likewise); the modes are in the row's ``stability_modes``."""
+    c = row.get("stability_class")
+    if row.get("status") != "converged" or c not in ("unstable", "neutral"):
+        return ""
+    n = row.get("n_negative") if c == "unstable" else row.get("n_zero")
+    word = "negative" if c == "unstable" else "zero"
+    return (f" to {'an UNSTABLE' if c == 'unstable' else 'a NEUTRAL'} equilibrium "
+            f"({n} {word} mode{'s' if n != 1 else ''}: {row.get('stability_modes', '')})")
+
+
 def _line(row: dict) -> str:
     it = row.get("iterations")
     t = row.get("time")
-    parts = [f"{row['deck']}: {styled_status(row['status'])}"]
+    parts = [f"{row['deck']}: {styled_status(row['status'])}{_equilibrium(row)}"]
     if it is not None:
         parts.append(f"{it} iterations")
     if row.get("imbalance") is not None:
@@ -47,8 +59,9 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
     \b
     Writes OUT_DIR/<deck stem>.h5 per deck (equal stems: <stem>-2.h5, ...) and the summary
     table OUT_DIR/summary.csv and OUT_DIR/summary.json (deck, output, status, exit_code,
-    iterations, time, imbalance, skipped, message). Decks whose results file records the same
-    deck hash, solver options and poise version are skipped unless --force. Exit code: the
+    iterations, time, the worst imbalance and stability class with their frames and modes,
+    skipped, message). Decks whose results file records the same deck hash, solver options
+    and poise version are skipped unless --force. Exit code: the
     worst deck's (0 converged, 1 not converged, 3 invalid deck, 4 internal error).
     """
     from poise.batch import BATCH_KEYS, BATCH_VERSION, run_batch, sanitize, worst_exit_code, \
@@ -89,13 +102,24 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
 
 
 def _print_table(rows):
-    heads = ("deck", "status", "iterations", "time [s]", "message")
+    heads = ("deck", "status", "iterations", "time [s]", "stability", "message")
     data = [(r["deck"], "skipped" if r["skipped"] else r["status"],
              "" if r["iterations"] is None else str(r["iterations"]),
              "" if r["time"] is None else f"{r['time']:.3g}",
+             _stability_cell(r),
              ("skipped (up to date)" if r["skipped"] else (r["message"] or ""))[:100])
             for r in rows]
     w = [max(len(h), *(len(d[i]) for d in data)) for i, h in enumerate(heads)]
     click.echo("  ".join(h.ljust(w[i]) for i, h in enumerate(heads)).rstrip())
     for d in data:
         click.echo("  ".join(x.ljust(w[i]) for i, x in enumerate(d)).rstrip())
+
+
+def _stability_cell(r: dict) -> str:
+    """``unstable (2 negative)`` / ``neutral (1 zero)`` / ``stable`` / ``""``."""
+    c = r.get("stability_class")
+    if c == "unstable":
+        return f"unstable ({r.get('n_negative')} negative)"
+    if c == "neutral":
+        return f"neutral ({r.get('n_zero')} zero)"
+    return c or ""

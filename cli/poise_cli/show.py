@@ -24,6 +24,14 @@ def _stability_lines(stab: list[str] | None) -> list[str]:
     return out
 
 
+def _at(a: dict, what: str) -> str:
+    """`` at frame 412 (t=0.41)`` for the worst frame of ``what`` when there are several."""
+    k, t = a.get(f"{what}_frame"), a.get(f"{what}_time")
+    if a.get("frames", 0) <= 1 or k is None:
+        return ""
+    return f" at frame {k}" + ("" if t is None else f" (t={t:.6g})")
+
+
 def format_summary(s: dict) -> list[str]:
     lines = [
         f"file: {s['file']} ({s['format']} v{s['format_version']}, poise {s['poise_version']})",
@@ -36,19 +44,20 @@ def format_summary(s: dict) -> list[str]:
     if s.get("command"):
         lines.append(f"command: {s['command']}")
     for a in s["analyses"]:
-        lines.append(analysis_line(a["index"], a["analysis_type"], a["method"], a["status"],
-                                   a["iterations"], a["imbalance"], a["frames"],
-                                   analysis_time(s["timings"], a["index"]), ""))
+        lines.append(analysis_line({**a, "message": ""}, analysis_time(s["timings"], a["index"])))
         if a.get("message"):
             lines.append(f"  message: {' '.join(str(a['message']).split())}")
-        lines.append(f"  frames: {a['frames']}, final imbalance {fmt_num(a['imbalance'])}, "
-                     f"final error {fmt_num(a['error'])}")
+        lines.append(f"  frames: {a['frames']}, worst imbalance {fmt_num(a['imbalance'])}"
+                     f"{_at(a, 'imbalance')}, worst error {fmt_num(a['error'])}{_at(a, 'error')}")
         if a.get("reactions_unique") is not None:
             lines.append(f"  reactions unique: {'yes' if a['reactions_unique'] else 'no'}")
         red = a["datasets"].get("redundant/id")
         if red is not None:
             lines.append(f"  redundant equations: {red[0] if red else 0}")
         lines += _stability_lines(a.get("stability"))
+        if a.get("stability_class") in ("unstable", "neutral") and a.get("stability_modes"):
+            lines.append(f"  {a['stability_class']} modes{_at(a, 'stability')}: "
+                         f"{a['stability_modes']}")
     if s["timings"]:
         lines.append(timings_line(s["timings"]))
     if s["counts"]:

@@ -93,10 +93,8 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
     if not quiet:
         if not reported:  # the runner did not report per analysis: print our own lines
             for a in result.analyses:
-                s = analysis_summary(a)
-                click.echo(analysis_line(a.index, a.analysis_type, a.method, a.status,
-                                         s["iterations"], s["imbalance"], s["frames"],
-                                         analysis_time(timings, a.index), a.message), err=True)
+                click.echo(analysis_line(analysis_summary(a), analysis_time(timings, a.index)),
+                           err=True)
         n_failed = sum(not a.converged for a in result.analyses)
         if n_failed:
             click.echo(f"poise: {n_failed} of {len(result.analyses)} analyses did not converge",

@@ -37,30 +37,6 @@ def finite_or_none(x: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _dataset(a, key):
-    return a.datasets.get(key) if hasattr(a, "datasets") else None
-
-
-def analysis_iterations(a) -> int | None:
-    """Total Newton iterations of an AnalysisResult (sum over frames)."""
-    it = _dataset(a, "frames/iterations")
-    if it is not None and len(it):
-        return int(sum(int(x) for x in it))
-    it = _dataset(a, "iterations/iteration")
-    if it is not None:
-        return int(len(it))
-    v = a.attrs.get("iterations") if hasattr(a, "attrs") else None
-    return int(v) if v is not None else None
-
-
-def analysis_imbalance(a) -> float | None:
-    """Imbalance at the last frame."""
-    imb = _dataset(a, "frames/imbalance")
-    if imb is not None and len(imb):
-        return finite_or_none(imb[-1])
-    return finite_or_none(a.attrs.get("imbalance")) if hasattr(a, "attrs") else None
-
-
 def analysis_time(timings: dict, index: int) -> float | None:
     """Wall time of one analysis if the runner recorded it in RunResult.timings."""
     for key in (f"analysis_{index:03d}", f"analysis_{index}", f"solve_{index:03d}"):
@@ -73,37 +49,18 @@ def fmt_num(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.3g}"
 
 
-def analysis_line(index: int, analysis_type: str, method: str, status: str,
-                  iterations: int | None, imbalance: float | None, frames: int,
-                  seconds: float | None, message: str = "") -> str:
-    """``analysis 0: static FIM_S converged in 5 iterations, imbalance 3.2e-09, 0.012 s``."""
-    verb = "in" if status == "converged" else "after"
-    parts = [f"analysis {index}: {analysis_type} {method} {styled_status(status)}"]
-    if iterations is not None:
-        parts[0] += f" {verb} {iterations} iteration{'s' if iterations != 1 else ''}"
-    if frames != 1:
-        parts[0] += f" ({frames} frames)"
-    parts.append(f"imbalance {fmt_num(imbalance)}")
-    if seconds is not None:
-        parts.append(f"{seconds:.3g} s")
-    line = ", ".join(parts)
-    if status != "converged" and message:
-        line += f": {' '.join(message.split())}"
-    return line
+def analysis_line(summary: dict, seconds: float | None = None) -> str:
+    """The one-line summary (:func:`poise.results.summary.summary_line`) of an analysis summary
+    dict (:func:`analysis_summary` or ``read_summary``), the status word coloured on a TTY."""
+    from poise.results.summary import AnalysisSummary, summary_line
+    return summary_line(AnalysisSummary.from_dict(summary), seconds=seconds, style=styled_status)
 
 
 def analysis_summary(a) -> dict:
-    """The per-analysis entry of the ``--json`` summary."""
-    return {
-        "index": int(a.index),
-        "analysis_type": a.analysis_type,
-        "method": a.method,
-        "status": a.status,
-        "message": a.message,
-        "frames": a.n_frames,
-        "iterations": analysis_iterations(a),
-        "imbalance": analysis_imbalance(a),
-    }
+    """The per-analysis entry of the ``--json`` summary: the fields of
+    :class:`poise.results.summary.AnalysisSummary` (the same as ``poise show --json``)."""
+    from poise.results.summary import summarize
+    return summarize(a).as_dict()
 
 
 def solve_summary(deck: str, output: str | None, status: str, exit_code: int,

@@ -44,8 +44,9 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs
 
     \b
     Each case writes OUT_DIR/case_NNNNN.h5; OUT_DIR/index.csv and index.json hold one row per
-    case: case, the parameter values, file, status, exit_code, iterations, wall_time,
-    imbalance, resumed, message and the --output columns. Cases whose file is complete and was
+    case: case, the parameter values, file, status, exit_code, iterations, wall_time, the
+    worst imbalance and stability class with their frames and modes, resumed, message and the
+    --output columns. Cases whose file is complete and was
     made with the same values are not run again (resume after an interruption).
     Exit code: the worst case's (0, 1, 3, 4); 2 for a bad --set/--output; 3 invalid deck.
     """

@@ -21,9 +21,14 @@ Summary rows (``BATCH_KEYS``, stable; ``batch_version`` 1):
 ``deck`` path as given, ``output`` results file (``null`` when none was written), ``status``
 (``converged``, ``failed``, ``invalid_deck``, ``internal_error``), ``exit_code`` (0, 1, 3, 4),
 ``iterations`` (total over analyses), ``time`` (parse + compile + solve wall time, seconds, of
-the run that produced the file), ``imbalance`` (last frame of the last analysis), ``skipped``
-(true when the file was up to date), ``message`` (failed analyses' messages, the located deck
-problems joined by ``"; "``, or ``skipped (up to date)``).
+the run that produced the file), ``imbalance`` (the largest over every analysis and frame, at
+``imbalance_analysis`` / ``imbalance_frame``), ``stability_class`` (the worst over every analysis
+and frame: ``stable < neutral < unknown < unstable``, at ``stability_analysis`` /
+``stability_frame``, with that frame's ``n_negative``, ``n_zero``, ``stability_modes`` text and
+``modes``: the numeric modes, a JSON list in the CSV), ``skipped`` (true when the file was up to
+date), ``message`` (failed analyses' messages, the located deck problems joined by ``"; "``, or
+``skipped (up to date)``). One definition with ``poise solve`` / ``poise show``:
+:mod:`poise.results.summary`.
 """
 from __future__ import annotations
 
@@ -36,6 +41,8 @@ from typing import Any
 
 BATCH_VERSION = 1
 BATCH_KEYS = ("deck", "output", "status", "exit_code", "iterations", "time", "imbalance",
+              "imbalance_analysis", "imbalance_frame", "stability_class", "stability_analysis",
+              "stability_frame", "n_negative", "n_zero", "stability_modes", "modes",
               "skipped", "message")
 
 #: severity order of exit codes (worst last)
@@ -57,33 +64,14 @@ def file_sha256(path: str) -> str:
         return hashlib.sha256(f.read()).hexdigest()
 
 
-def _finite(x) -> float | None:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
-
-
 def result_stats(res) -> dict:
-    """``status``, ``exit_code``, ``iterations``, ``time``, ``imbalance``, ``message`` of a
-    :class:`~poise.results.data.RunResult` (fresh or read back from a file)."""
-    import numpy as np
-    it = 0
-    for a in res.analyses:
-        fi = a.datasets.get("frames/iterations")
-        if fi is not None:
-            it += int(np.sum(fi))
-    imb = None
-    if res.analyses:
-        fimb = res.analyses[-1].datasets.get("frames/imbalance")
-        if fimb is not None and len(fimb):
-            imb = _finite(fimb[-1])
+    """The row fields of a :class:`~poise.results.data.RunResult` (fresh or read back from a
+    file): ``status``, ``exit_code``, ``time`` and the run summary
+    (:func:`poise.results.summary.summarize_run`: iterations summed, the worst imbalance and
+    stability over the analyses and frames, the failed analyses' messages)."""
+    from poise.results.summary import summarize_run
     t = sum(float(res.timings.get(k, 0.0)) for k in ("parse", "compile", "solve"))
-    msgs = [f"analysis {a.index}: {' '.join(str(a.message).split())}"
-            for a in res.analyses if not a.converged and a.message]
-    return dict(status=res.status, exit_code=res.exit_code, iterations=it, time=t,
-                imbalance=imb, message="; ".join(msgs))
+    return dict(summarize_run(res).row(), exit_code=res.exit_code, time=t)
 
 
 def output_paths(decks: list[str], out_dir: str) -> list[str]:
@@ -263,7 +251,7 @@ def write_table(rows: list[dict], path_stem: str, keys=None, extra: dict | None 
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
         for r in rows:
-            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in keys})
+            w.writerow({k: _cell(r.get(k)) for k in keys})
     os.replace(tmp, f"{path_stem}.csv")
     tmp = f"{path_stem}.json.tmp-{os.getpid()}"
     with open(tmp, "w") as f:
@@ -271,6 +259,15 @@ def write_table(rows: list[dict], path_stem: str, keys=None, extra: dict | None 
                   sort_keys=False)
         f.write("\n")
     os.replace(tmp, f"{path_stem}.json")
+
+
+def _cell(v):
+    """A CSV cell: empty for None, JSON for lists and dicts (e.g. the numeric ``modes``)."""
+    if v is None:
+        return ""
+    if isinstance(v, (list, tuple, dict)):
+        return json.dumps(sanitize(v), separators=(",", ":"))
+    return v
 
 
 def sanitize(obj):

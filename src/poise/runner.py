@@ -14,7 +14,7 @@ import numpy as np
 from poise import __version__
 from poise.deck.spec import DeckSpec, Element
 from poise.errors import DeckError, EvaluationError, Problem
-from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult, RunResult
+from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
 from poise.settings import StaticSettings
 
 
@@ -177,7 +177,7 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
             counts[key] = counts.get(key, 0) + v
         res.analyses.append(ar)
         if progress:
-            progress(summary_line(ar))
+            progress(summary_line(ar, res.timings[f"analysis_{k:03d}"]))
     t3 = time.perf_counter()
     # solve = its phases (poise.phases: evaluate, assemble, factorise) + the rest
     res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2,
@@ -286,13 +286,11 @@ def _noloc(path):
     return SourceLoc(path, 0, "MotionSolve", None)
 
 
-def summary_line(ar: AnalysisResult) -> str:
-    it = int(np.sum(ar.datasets.get("frames/iterations", [0])))
-    imb = ar.datasets.get("frames/imbalance", np.array([np.nan]))
-    imb = float(np.max(imb)) if len(imb) else float("nan")
-    st = ar.status if ar.status == STATUS_CONVERGED else f"FAILED ({ar.message})"
-    return (f"analysis {ar.index}: {ar.analysis_type} {ar.method} {st} in {it} iterations, "
-            f"imbalance {imb:.3g}")
+def summary_line(ar: AnalysisResult, seconds: float | None = None) -> str:
+    """The one-line summary of an analysis (:func:`poise.results.summary.summary_line`)."""
+    from poise.results.summary import summarize
+    from poise.results.summary import summary_line as line
+    return line(summarize(ar), seconds=seconds)
 
 
 def model_datasets(model) -> dict:

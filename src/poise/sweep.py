@@ -25,7 +25,11 @@ run again; its row is read back from the file (``resumed = true``).
 Index row keys (``INDEX_KEYS``, then one column per parameter, then the ``--output`` columns):
 ``case``, ``file``, ``status`` (``converged``/``failed``/``invalid_deck``/``internal_error``),
 ``exit_code``, ``iterations`` (all analyses), ``wall_time`` (parse + compile + solve, s),
-``imbalance`` (last frame of the last analysis), ``resumed``, ``message``. Outputs
+``imbalance`` (the worst frame of every analysis) and the other run-summary fields of
+:func:`poise.batch.result_stats` (``imbalance_analysis``, ``imbalance_frame``,
+``stability_class`` — the worst over the analyses and frames — ``stability_analysis``,
+``stability_frame``, ``n_negative``, ``n_zero``, ``stability_modes``, ``modes``), ``resumed``,
+``message``. Outputs
 ``group[id].dataset`` (``bodies[2].position``, ``joints[1].force``, ``requests[1].values``, …)
 give the last frame of the last analysis, flattened: ``bodies[2].position[0]`` … ``[2]``.
 """
@@ -46,6 +50,8 @@ from poise.errors import UsageError
 
 INDEX_VERSION = 1
 INDEX_KEYS = ("case", "file", "status", "exit_code", "iterations", "wall_time", "imbalance",
+              "imbalance_analysis", "imbalance_frame", "stability_class", "stability_analysis",
+              "stability_frame", "n_negative", "n_zero", "stability_modes", "modes",
               "resumed", "message")
 
 _SPEC = re.compile(r"^\s*([A-Za-z][A-Za-z0-9_]*)\s*(?:\[\s*(-?\d+)\s*\])?\s*\.\s*"
@@ -353,9 +359,7 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
     from poise.results.hdf5 import write_results
     write_results(res, out_file)
     st = result_stats(res)
-    row.update(file=out_file, status=st["status"], exit_code=st["exit_code"],
-               iterations=st["iterations"], wall_time=st["time"], imbalance=st["imbalance"],
-               message=st["message"])
+    row.update(file=out_file, wall_time=st.pop("time"), **st)
     row.update(output_columns(res, outputs))
     return row
 
@@ -381,8 +385,7 @@ def resumed_row(out_file: str, index: int, values: dict, outputs) -> dict:
     res = read_results(out_file)
     st = result_stats(res)
     row = {"case": index, "file": out_file, **values}
-    row.update(status=st["status"], exit_code=st["exit_code"], iterations=st["iterations"],
-               wall_time=st["time"], imbalance=st["imbalance"], message=st["message"])
+    row.update(wall_time=st.pop("time"), **st)
     row.update(output_columns(res, outputs))
     return row
 

@@ -36,6 +36,7 @@ import h5py
 import numpy as np
 
 from poise.results.data import AnalysisResult, RunResult
+from poise.results.summary import summarize
 
 FORMAT = "poise-results"
 FORMAT_VERSION = 1
@@ -320,12 +321,6 @@ def read_results(path: str) -> RunResult:
         )
 
 
-def _last(g: h5py.Group, key: str) -> Any:
-    if key in g and isinstance(g[key], h5py.Dataset) and g[key].shape and g[key].shape[0]:
-        return _py(g[key][-1])
-    return None
-
-
 def read_summary(path: str) -> dict:
     """Summary of a results file for ``poise show`` (plain JSON-serialisable dict).
 
@@ -333,8 +328,10 @@ def read_summary(path: str) -> dict:
     ``deck_sha256``, ``status``, ``units``, ``active_effects``, ``command``, ``warnings``,
     ``timings``, ``counts``, ``model`` (dataset path -> shape) and ``analyses``: one dict per
     analysis with ``index``, ``group``, ``analysis_type``, ``method``, ``status``, ``message``,
-    ``settings`` (dict), ``frames``, ``iterations`` (sum of ``frames/iterations``),
-    ``imbalance`` / ``error`` (last frame), ``stability`` (list per frame or ``None``),
+    ``settings`` (dict), ``stability`` (class per frame, or ``None``), the fields of
+    :class:`poise.results.summary.AnalysisSummary` (``frames``, ``iterations`` summed over the
+    frames, ``imbalance`` / ``error`` the worst frame's with ``*_frame`` / ``*_time``,
+    ``stability_class`` the worst over the frames with its counts and ``modes``, ...),
     ``reactions_unique`` (or ``None``), ``attrs`` (other attributes) and ``datasets``
     (path -> shape).
 
@@ -365,27 +362,24 @@ def read_summary(path: str) -> dict:
                 settings = json.loads(ga.get("settings") or "{}")
             except ValueError:
                 settings = {"_raw": ga.get("settings")}
-            frames = int(g["time"].shape[0]) if "time" in g else 0
-            iterations = None
-            if "frames/iterations" in g:
-                iterations = int(np.sum(g["frames/iterations"][()]))
-            elif "iterations/iteration" in g:
-                iterations = int(g["iterations/iteration"].shape[0])
             stability = None
             if "frames/stability" in g:
                 stability = [_py(x) for x in _read_strings(g["frames/stability"]).tolist()]
+            # the one summary (poise.results.summary), from the per-frame datasets only
+            ds = {"time": g["time"][()]} if "time" in g else {}
+            if "iterations/iteration" in g and "frames/iterations" not in g:
+                ds["iterations/iteration"] = g["iterations/iteration"][()]
+            if "frames" in g:
+                ds.update({f"frames/{k}": _read_dataset(v) for k, v in g["frames"].items()
+                           if isinstance(v, h5py.Dataset)})
+            summ = summarize(AnalysisResult(
+                index=index, analysis_type=ga.get("analysis_type", ""),
+                method=ga.get("method", ""), status=ga.get("status", ""),
+                message=ga.get("message", ""), datasets=ds)).as_dict()
             analyses.append({
-                "index": index,
+                **summ,
                 "group": g.name,
-                "analysis_type": ga.get("analysis_type"),
-                "method": ga.get("method"),
-                "status": ga.get("status"),
-                "message": ga.get("message", ""),
                 "settings": settings,
-                "frames": frames,
-                "iterations": iterations,
-                "imbalance": _last(g, "frames/imbalance"),
-                "error": _last(g, "frames/error"),
                 "stability": stability,
                 "reactions_unique": ga.get("reactions_unique"),
                 "attrs": {k: v for k, v in ga.items()

@@ -36,8 +36,8 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
     from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
     from poise.solvers.outputs import loads_of
     from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
-    from poise.solvers.stability import (DENSE_LIMIT, StabilityInfo, classify,
-                                         classify_dense_frames)
+    from poise.solvers.stability import (DENSE_LIMIT, classify, classify_dense_frames,
+                                         unknown_info)
 
     model = sa.model
     if not frames or not batchable(model):
@@ -78,7 +78,7 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
                 infos += classify_dense_frames(model, ev.J, saved, ok)
             else:                                     # sparse inertia, frame by frame
                 infos += [classify(model, None, J=ev.J[j]) if ok[j] else
-                          StabilityInfo("unknown", -1, -1, "", np.nan)
+                          unknown_info()
                           for j in range(len(chunk))]
             model.row_active[:] = True
     except EvaluationError:

@@ -86,6 +86,48 @@ WEAK_DIAG = 1e-3       # scaled augmented diagonal below this: eliminated after 
 TINY_PIVOT = 1e-3      # pivots below this fraction of the zero threshold: sign not reliable
 
 
+#: numeric modes stored per frame (``frames/mode_*``): up to N_MODES unstable then N_MODES neutral
+MAX_MODES = 2 * N_MODES
+#: direction components within this of the largest magnitude count as tied for the sign rule
+SIGN_TIE = 1e-6
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One described unstable or neutral mode, as numbers (``frames/mode_*``).
+
+    ``body`` is the id of the body with the largest participation (-1 for a model without
+    bodies, where ``coordinate`` is the index of the dominant scalar unknown); ``kind`` is
+    ``rotation`` (about ``direction``), ``translation`` (along ``direction``) or
+    ``coordinate``; ``direction`` a unit vector in global axes, sign-normalised by
+    :func:`sign_normalised` (NaN for ``coordinate``); ``eigenvalue`` the mode's Rayleigh
+    quotient of the stiffness in length coordinates [force/length] (negative for unstable,
+    ~0 for neutral). The sign of an eigenvector is arbitrary (it depends on the LAPACK/BLAS
+    kernel), hence the normalisation.
+    """
+    klass: str                 # unstable | neutral
+    body: int
+    kind: str                  # rotation | translation | coordinate
+    direction: tuple           # (3,) floats
+    eigenvalue: float
+    coordinate: int = -1
+    label: str = ""            # coordinate name (kind coordinate)
+
+    def text(self, short: bool = False) -> str:
+        """``body 3 rotation about (0.00,0.00,1.00)``, built from the numbers (rounded to two
+        decimals, no negative zero). ``short``: a direction within 1e-3 of a global axis is
+        named by it (``body 3 rotation about z``)."""
+        if self.kind == "coordinate":
+            return self.label or f"coordinate {self.coordinate}"
+        a = np.asarray(self.direction, float)
+        prep = "about" if self.kind == "rotation" else "along"
+        axis = next((n for n, e in zip("xyz", np.eye(3)) if abs(a @ e) > 1.0 - 1e-3), None)
+        if short and axis is not None:
+            return f"body {self.body} {self.kind} {prep} {axis}"
+        r = np.round(a, 2) + 0.0
+        return f"body {self.body} {self.kind} {prep} ({r[0]:.2f},{r[1]:.2f},{r[2]:.2f})"
+
+
 @dataclass
 class StabilityInfo:
     klass: str                 # stable | neutral | unstable | unknown
@@ -93,6 +135,40 @@ class StabilityInfo:
     n_zero: int
     modes: str                 # human-readable description of negative and zero modes
     min_eigenvalue: float      # smallest eigenvalue of the reduced stiffness [force/length]
+    mode_list: tuple = ()      # the described modes as numbers (Mode), unstable first
+
+
+def sign_normalised(a) -> np.ndarray:
+    """Unit vector ``a / |a|`` with the sign fixed: its largest-magnitude component is positive
+    (components within SIGN_TIE of the largest are tied: the first of them, in x, y, z order),
+    and no component is a negative zero."""
+    a = np.asarray(a, float)
+    n = float(np.linalg.norm(a))
+    if not np.isfinite(n) or n == 0.0:
+        return np.full(a.shape, np.nan)
+    a = a / n
+    m = np.abs(a)
+    i = int(np.argmax(m >= m.max() - SIGN_TIE))
+    if a[i] < 0.0:
+        a = -a
+    return a + 0.0
+
+
+def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo:
+    """StabilityInfo of a classified frame: ``unstable`` / ``neutral`` lists of ``(q, w)`` (mode
+    in model coordinates, its Rayleigh quotient [force/length]), up to N_MODES described each;
+    the text is built from the numeric modes."""
+    modes, texts = [], []
+    for label, found, count in (("unstable", unstable, n_neg), ("neutral", neutral, n_zero)):
+        for q, w in found[:N_MODES]:
+            mo = _describe(model, q, label, w)
+            modes.append(mo)
+            texts.append(f"{label}: {mo.text()}")
+        extra = count - min(len(found), N_MODES)
+        if extra > 0:
+            texts.append(f"{label}: ... {extra} more")
+    return StabilityInfo(klass, int(n_neg), int(n_zero), "; ".join(texts), float(wmin),
+                         tuple(modes))
 
 
 def classify(model, state, J=None) -> StabilityInfo:
@@ -169,28 +245,27 @@ def classify_dense_frames(model, J, active, ok=None) -> list[StabilityInfo]:
         xk = X[np.arange(len(grp)), :, kmin]
         wmin = np.einsum("gi,gij,gj->g", xk, Kg, xk)                 # Rayleigh [force/length]
         for j, i in enumerate(grp):
-            modes = []
-            for label, mask in (("unstable", neg[j]), ("neutral", zero[j])):
-                for k in np.nonzero(mask)[0][:N_MODES]:
-                    modes.append(f"{label}: {_describe(model, X[j, :, k] / d)}")
-                extra = int(mask.sum()) - N_MODES
-                if extra > 0:
-                    modes.append(f"{label}: ... {extra} more")
+            found = []
+            for mask in (neg[j], zero[j]):
+                ks = np.nonzero(mask)[0][:N_MODES]
+                xs = X[j][:, ks]                                     # unit, length coordinates
+                wk = np.einsum("ik,ij,jk->k", xs, Kg[j], xs)        # Rayleigh [force/length]
+                found.append([(xs[:, c] / d, float(wk[c])) for c in range(len(ks))])
             klass = "unstable" if neg[j].any() else "neutral" if zero[j].any() else "stable"
-            out[sel[i]] = StabilityInfo(klass, int(neg[j].sum()), int(zero[j].sum()),
-                                        "; ".join(modes), float(wmin[j]))
+            out[sel[i]] = _info(model, klass, int(neg[j].sum()), int(zero[j].sum()),
+                                found[0], found[1], wmin[j])
     return out
 
 
-def _describe(model, q):
-    """Body with the largest participation in mode ``q`` and its dominant motion (vectorised
-    over the bodies: cheap for 10 000 bodies)."""
+def _describe(model, q, klass="", eigenvalue=np.nan) -> Mode:
+    """Body with the largest participation in mode ``q`` and its dominant motion, as a
+    :class:`Mode` (vectorised over the bodies: cheap for 10 000 bodies)."""
     q = np.asarray(q, float)
     nb = model.nb
     if nb == 0:
         k = int(np.argmax(np.abs(q)))
         name = model.coord_info[k] if k < len(model.coord_info) else f"coordinate {k}"
-        return f"{name}"
+        return Mode(klass, -1, "coordinate", (np.nan,) * 3, float(eigenvalue), k, str(name))
     off = np.asarray(model.body_off)
     rigid = np.asarray(model.body_kind) == 0
     t = q[off[:, None] + np.arange(3)]
@@ -202,22 +277,52 @@ def _describe(model, q):
     bid = int(model.body_id[b])
     nr, nt = np.linalg.norm(r), np.linalg.norm(t)
     if nr >= (1.0 - 1e-9) * nt:       # a tie (hinge at the body's farthest marker): rotation
-        a = r / max(nr, 1e-300)
-        return f"body {bid} rotation about ({a[0]:.2f},{a[1]:.2f},{a[2]:.2f})"
-    a = t / nt
-    return f"body {bid} translation along ({a[0]:.2f},{a[1]:.2f},{a[2]:.2f})"
+        kind, a = "rotation", r
+    else:
+        kind, a = "translation", t
+    return Mode(klass, bid, kind, tuple(float(x) for x in sign_normalised(a)), float(eigenvalue))
 
 
 def stability_datasets(infos: list[StabilityInfo]) -> dict:
-    """Per-frame datasets ``frames/stability``, ``frames/n_negative``, ``frames/n_zero``,
-    ``frames/stability_modes``, ``frames/min_stiffness_eigenvalue``."""
+    """Per-frame datasets (F frames): ``frames/stability``, ``frames/n_negative``,
+    ``frames/n_zero``, ``frames/stability_modes`` (text), ``frames/min_stiffness_eigenvalue``
+    and the described modes as numbers, padded to ``MAX_MODES`` per frame (a fixed width, so
+    runs concatenate along the frame axis): ``frames/n_modes`` (F,), ``frames/mode_class``,
+    ``frames/mode_kind`` (F, MAX_MODES) strings ("" padding), ``frames/mode_body`` (F,
+    MAX_MODES) ids (-1 padding), ``frames/mode_direction`` (F, MAX_MODES, 3) unit vectors and
+    ``frames/mode_eigenvalue`` (F, MAX_MODES) (NaN padding). Mode ``k < n_modes[f]`` of frame
+    ``f`` is :class:`Mode` ``infos[f].mode_list[k]``."""
+    F, M = len(infos), MAX_MODES
+    cls = np.full((F, M), "", dtype="<U11")
+    kind = np.full((F, M), "", dtype="<U11")
+    body = np.full((F, M), -1, dtype=np.int64)
+    dirn = np.full((F, M, 3), np.nan)
+    eig = np.full((F, M), np.nan)
+    n = np.zeros(F, dtype=np.int64)
+    for f, info in enumerate(infos):
+        ml = info.mode_list[:M]
+        n[f] = len(ml)
+        for k, mo in enumerate(ml):
+            cls[f, k], kind[f, k], body[f, k] = mo.klass, mo.kind, mo.body
+            dirn[f, k], eig[f, k] = mo.direction, mo.eigenvalue
     return {
         "frames/stability": np.array([i.klass for i in infos], dtype=str),
         "frames/n_negative": np.array([i.n_negative for i in infos], dtype=np.int64),
         "frames/n_zero": np.array([i.n_zero for i in infos], dtype=np.int64),
         "frames/stability_modes": np.array([i.modes for i in infos], dtype=str),
         "frames/min_stiffness_eigenvalue": np.array([i.min_eigenvalue for i in infos]),
+        "frames/n_modes": n,
+        "frames/mode_class": cls,
+        "frames/mode_kind": kind,
+        "frames/mode_body": body,
+        "frames/mode_direction": dirn,
+        "frames/mode_eigenvalue": eig,
     }
+
+
+def unknown_info(why: str = "") -> StabilityInfo:
+    """A frame that was not classified (not converged, or no trustworthy inertia)."""
+    return StabilityInfo("unknown", -1, -1, why, np.nan)
 
 
 # =============================================================================== sparse path
@@ -264,21 +369,13 @@ def _classify_pencil(model, P) -> StabilityInfo:
     n_zero = below - n_neg
     unstable = _negative_modes(P, dn, -eps, n_neg) if n_neg else []
     neutral = _zero_modes(P, dn, -eps, n_zero) if n_zero else []
-    modes = []
-    for label, found, count in (("unstable", unstable, n_neg), ("neutral", neutral, n_zero)):
-        for q, _ in found[:N_MODES]:
-            modes.append(f"{label}: {_describe(model, q)}")
-        extra = count - min(len(found), N_MODES)
-        if extra > 0:
-            modes.append(f"{label}: ... {extra} more")
     ws = [w for _, w in unstable + neutral]
     klass = "unstable" if n_neg else "neutral"
-    return StabilityInfo(klass, int(n_neg), int(n_zero), "; ".join(modes),
-                         float(min(ws)) if ws else np.nan)
+    return _info(model, klass, n_neg, n_zero, unstable, neutral, min(ws) if ws else np.nan)
 
 
 def _unknown(why: str) -> StabilityInfo:
-    return StabilityInfo("unknown", -1, -1, f"not classified: {why}", np.nan)
+    return unknown_info(f"not classified: {why}")
 
 
 class SymmetricLDL:
