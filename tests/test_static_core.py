@@ -100,7 +100,11 @@ def test_inverted_pendulum_fim_s_stays_and_says_unstable(tmp_path):
     assert abs(angle_of(res) - np.pi / 2) < 1e-9
     assert a.datasets["frames/stability"][0] == "unstable"
     assert a.datasets["frames/n_negative"][0] == 1
-    assert "body 2 rotation about (0.00,0.00," in a.datasets["frames/stability_modes"][0]
+    d = a.datasets
+    assert (d["frames/n_modes"][0], d["frames/mode_body"][0, 0], d["frames/mode_kind"][0, 0]) \
+        == (1, 2, "rotation")
+    # about the hinge axis (global Z), sign-normalised: largest component positive
+    np.testing.assert_allclose(d["frames/mode_direction"][0, 0], [0.0, 0.0, 1.0], atol=1e-9)
 
 
 def test_hanging_pendulum_is_stable(tmp_path):

@@ -28,7 +28,10 @@ def _check_ball(a, n_zero):
     assert a.datasets["frames/stability"][0] == "neutral"
     assert a.datasets["frames/n_negative"][0] == 0
     assert a.datasets["frames/n_zero"][0] == n_zero
-    assert "neutral: body 2" in a.datasets["frames/stability_modes"][0]
+    n = int(a.datasets["frames/n_modes"][0])
+    assert n == n_zero
+    assert set(a.datasets["frames/mode_body"][0, :n].tolist()) == {2}
+    assert set(a.datasets["frames/mode_class"][0, :n].tolist()) == {"neutral"}
     assert a.datasets["frames/imbalance"][0] < 1e-8
 
 

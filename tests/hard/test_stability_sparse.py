@@ -76,9 +76,13 @@ def _both(monkeypatch, run):
     for a in (dense, sparse):
         assert a.converged, a.message
         d = a.datasets
+        n = int(d["frames/n_modes"][0])
         out.append((str(d["frames/stability"][0]), int(d["frames/n_negative"][0]),
                     int(d["frames/n_zero"][0]), str(d["frames/stability_modes"][0]),
-                    float(d["frames/min_stiffness_eigenvalue"][0])))
+                    float(d["frames/min_stiffness_eigenvalue"][0]),
+                    [(str(d["frames/mode_class"][0, k]), int(d["frames/mode_body"][0, k]),
+                      str(d["frames/mode_kind"][0, k]), d["frames/mode_direction"][0, k])
+                     for k in range(n)]))
     return out
 
 
@@ -142,10 +146,11 @@ def test_sparse_path_matches_dense_on_decks(name, monkeypatch):
     if name == "neutral_spherical_chain":
         assert sparse[3].count("neutral: body") == 6 and "neutral: ... 4 more" in sparse[3]
     if name == "inverted_pendulum_fim_s":
-        # one degree of freedom: the same mode, the same value [N/mm]
-        # (the sign of an eigenvector is arbitrary)
-        assert sparse[3].replace("-", "") == dense[3].replace("-", "") == \
-            "unstable: body 2 rotation about (0.00,0.00,1.00)"
+        # one degree of freedom: the same mode (the fall about the hinge axis, global Z,
+        # sign-normalised), the same value [N/mm]
+        for modes in (dense[5], sparse[5]):
+            assert [m[:3] for m in modes] == [("unstable", 2, "rotation")]
+            np.testing.assert_allclose(modes[0][3], [0.0, 0.0, 1.0], atol=1e-6)
         np.testing.assert_allclose(sparse[4], dense[4], rtol=1e-6)
 
 
@@ -227,8 +232,7 @@ def test_describe_vectorised_matches_per_body_loop():
         model = compile_model(load_deck(str(DECKS / name)))
         for _ in range(50):
             q = rng.normal(size=model.nq) * rng.choice([1e-3, 1.0, 1e3], size=model.nq)
-            s = stab._describe(model, q)
-            assert s.startswith(f"body {loop(model, q)} ")
+            assert stab._describe(model, q).body == loop(model, q)
 
 
 # ------------------------------------------------------------------ real large models
@@ -261,14 +265,16 @@ def test_large_spherical_chain_is_neutral_with_each_spin_named(tmp_path):
         ("neutral", 0, 600)
     modes = str(d["frames/stability_modes"][0]).split("; ")
     assert len(modes) == 7 and modes[-1] == "neutral: ... 594 more"
+    assert d["frames/n_modes"][0] == 6
     ids = list(d["bodies/id"])
-    for m in modes[:6]:
-        # "neutral: body K rotation about (ax,ay,az)": the spin of link K about its own axis
-        head, axis = m.split(" rotation about ")
-        body = int(head.split()[-1])
-        ax = np.array([float(v) for v in axis.strip("()").split(",")])
-        x_link = d["bodies/orientation"][0, ids.index(body)][:, 0]
-        assert abs(abs(ax @ x_link) - 1.0) < 0.02, (m, x_link)
+    for k in range(6):
+        # the spin of link K about its own axis (a unit vector along the link's x axis)
+        assert (d["frames/mode_class"][0, k], d["frames/mode_kind"][0, k]) == \
+            ("neutral", "rotation")
+        ax = d["frames/mode_direction"][0, k]
+        x_link = d["bodies/orientation"][0, ids.index(int(d["frames/mode_body"][0, k]))][:, 0]
+        assert abs(np.linalg.norm(ax) - 1.0) < 1e-12
+        assert abs(abs(ax @ x_link) - 1.0) < 1e-3, (ax, x_link)
     assert abs(d["frames/min_stiffness_eigenvalue"][0]) < 1e-10
 
 
@@ -281,7 +287,11 @@ def test_large_chain_upside_down_is_unstable(tmp_path):
         ("unstable", 598, 0)
     modes = str(d["frames/stability_modes"][0]).split("; ")
     assert len(modes) == 7 and modes[-1] == "unstable: ... 592 more"
-    for m in modes[:6]:
-        assert m.startswith("unstable: body ") and " rotation about (" in m
-        assert m.endswith(",1.00)") or m.endswith(",-1.00)")     # in-plane: about Z
+    assert d["frames/n_modes"][0] == 6
+    for k in range(6):
+        assert (d["frames/mode_class"][0, k], d["frames/mode_kind"][0, k]) == \
+            ("unstable", "rotation")
+        # in-plane: about Z (sign-normalised: +Z)
+        assert d["frames/mode_direction"][0, k][2] > 0.995
+        assert d["frames/mode_eigenvalue"][0, k] < 0
     assert d["frames/min_stiffness_eigenvalue"][0] < 0
