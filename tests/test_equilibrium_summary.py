@@ -1,6 +1,6 @@
 """Unstable and neutral equilibria are said where the user looks, from one summary.
 
-* stability modes are stored as numbers (``frames/mode_*``): the unit direction of a known mode
+* stability modes are stored as numbers (``modes/*``): the unit direction of a known mode
   (closed form) within tolerance, sign-normalised (largest component positive, no -0);
 * ``poise solve`` (stderr line and ``--json``), ``poise show`` (text and ``--json``) and the
   ``batch`` / ``sweep`` rows report the same summary (``poise.results.summary``): the worst frame
@@ -112,18 +112,15 @@ def test_inverted_pendulum_mode_is_the_hinge_axis(tmp_path):
     assert (d["frames/stability"][0], d["frames/n_negative"][0], d["frames/n_zero"][0]) == \
         ("unstable", 1, 0)
     assert d["frames/n_modes"][0] == 1
-    assert (d["frames/mode_class"][0, 0], d["frames/mode_body"][0, 0],
-            d["frames/mode_kind"][0, 0]) == ("unstable", 2, "rotation")
-    u = d["frames/mode_direction"][0, 0]
+    assert (d["modes/class"].tolist(), d["modes/body"].tolist(), d["modes/kind"].tolist()) == \
+        (["unstable"], [2], ["rotation"])
+    u = d["modes/direction"][0]
     np.testing.assert_allclose(u, expected_direction(AXIS), atol=1e-8)      # (0.6, 0, 0.8)
     assert not np.any(np.signbit(u) & (u == 0.0))                            # no -0.0
     # one degree of freedom: the mode's Rayleigh quotient is the smallest eigenvalue (< 0)
-    assert d["frames/mode_eigenvalue"][0, 0] < 0
-    np.testing.assert_allclose(d["frames/mode_eigenvalue"][0, 0],
-                               d["frames/min_stiffness_eigenvalue"][0], rtol=1e-9)
-    # padding
-    assert np.all(d["frames/mode_body"][0, 1:] == -1)
-    assert np.all(np.isnan(d["frames/mode_direction"][0, 1:]))
+    assert d["modes/eigenvalue"][0] < 0
+    np.testing.assert_allclose(d["modes/eigenvalue"][0], d["frames/min_stiffness_eigenvalue"][0],
+                               rtol=1e-9)
 
 
 def test_sign_normalisation_rules():
@@ -154,9 +151,15 @@ def test_quasistatic_summary_names_the_worst_frame(tmp_path):
     off = np.abs(k) > 1e-6
     np.testing.assert_allclose(d["frames/min_stiffness_eigenvalue"][off], k[off], rtol=1e-8)
     uns = np.flatnonzero(k < -1e-6)
-    np.testing.assert_allclose(d["frames/mode_eigenvalue"][uns, 0], k[uns], rtol=1e-8)
-    np.testing.assert_allclose(d["frames/mode_direction"][uns, 0], [[1, 0, 0]] * len(uns),
-                               atol=1e-12)
+    neu = np.flatnonzero(np.abs(k) <= 1e-6)
+    # one mode per unstable or neutral frame, flat in frame order
+    n = d["frames/n_modes"]
+    assert n.tolist() == [1 if abs(x) <= 1e-6 or x < 0 else 0 for x in k]
+    frame = np.repeat(np.arange(len(t)), n)
+    assert frame.tolist() == sorted(neu.tolist() + uns.tolist())
+    assert d["modes/class"].tolist() == ["neutral"] * len(neu) + ["unstable"] * len(uns)
+    np.testing.assert_allclose(d["modes/eigenvalue"][frame > neu[0]], k[uns], rtol=1e-8)
+    np.testing.assert_allclose(d["modes/direction"], [[1, 0, 0]] * len(frame), atol=1e-12)
 
     s = summarize(a)
     first_unstable = int(uns[0])                  # all have one negative mode: the first

@@ -101,10 +101,9 @@ def test_inverted_pendulum_fim_s_stays_and_says_unstable(tmp_path):
     assert a.datasets["frames/stability"][0] == "unstable"
     assert a.datasets["frames/n_negative"][0] == 1
     d = a.datasets
-    assert (d["frames/n_modes"][0], d["frames/mode_body"][0, 0], d["frames/mode_kind"][0, 0]) \
-        == (1, 2, "rotation")
+    assert (d["frames/n_modes"][0], d["modes/body"][0], d["modes/kind"][0]) == (1, 2, "rotation")
     # about the hinge axis (global Z), sign-normalised: largest component positive
-    np.testing.assert_allclose(d["frames/mode_direction"][0, 0], [0.0, 0.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(d["modes/direction"][0], [0.0, 0.0, 1.0], atol=1e-9)
 
 
 def test_hanging_pendulum_is_stable(tmp_path):

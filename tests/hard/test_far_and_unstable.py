@@ -24,11 +24,13 @@ def pendulum(th0, k=0.0, ref=0.0, m=2.0, l=400.0, joint="REVOLUTE", method="FIM_
 
 
 def numeric_modes(a, frame=0):
-    """The described modes of a frame as (class, body, kind, direction) from frames/mode_*."""
+    """The described modes of a frame as (class, body, kind, direction) from ``modes/*`` (flat
+    in frame order, ``frames/n_modes`` per frame)."""
     d = a.datasets
-    return [(str(d["frames/mode_class"][frame, k]), int(d["frames/mode_body"][frame, k]),
-             str(d["frames/mode_kind"][frame, k]), np.asarray(d["frames/mode_direction"][frame, k]))
-            for k in range(int(d["frames/n_modes"][frame]))]
+    n = d["frames/n_modes"]
+    start = int(np.sum(n[:frame]))
+    return [(str(d["modes/class"][j]), int(d["modes/body"][j]), str(d["modes/kind"][j]),
+             np.asarray(d["modes/direction"][j])) for j in range(start, start + int(n[frame]))]
 
 
 def angle(a):

@@ -80,9 +80,8 @@ def _both(monkeypatch, run):
         out.append((str(d["frames/stability"][0]), int(d["frames/n_negative"][0]),
                     int(d["frames/n_zero"][0]), str(d["frames/stability_modes"][0]),
                     float(d["frames/min_stiffness_eigenvalue"][0]),
-                    [(str(d["frames/mode_class"][0, k]), int(d["frames/mode_body"][0, k]),
-                      str(d["frames/mode_kind"][0, k]), d["frames/mode_direction"][0, k])
-                     for k in range(n)]))
+                    [(str(d["modes/class"][k]), int(d["modes/body"][k]),
+                      str(d["modes/kind"][k]), d["modes/direction"][k]) for k in range(n)]))
     return out
 
 
@@ -269,10 +268,9 @@ def test_large_spherical_chain_is_neutral_with_each_spin_named(tmp_path):
     ids = list(d["bodies/id"])
     for k in range(6):
         # the spin of link K about its own axis (a unit vector along the link's x axis)
-        assert (d["frames/mode_class"][0, k], d["frames/mode_kind"][0, k]) == \
-            ("neutral", "rotation")
-        ax = d["frames/mode_direction"][0, k]
-        x_link = d["bodies/orientation"][0, ids.index(int(d["frames/mode_body"][0, k]))][:, 0]
+        assert (d["modes/class"][k], d["modes/kind"][k]) == ("neutral", "rotation")
+        ax = d["modes/direction"][k]
+        x_link = d["bodies/orientation"][0, ids.index(int(d["modes/body"][k]))][:, 0]
         assert abs(np.linalg.norm(ax) - 1.0) < 1e-12
         assert abs(abs(ax @ x_link) - 1.0) < 1e-3, (ax, x_link)
     assert abs(d["frames/min_stiffness_eigenvalue"][0]) < 1e-10
@@ -289,9 +287,8 @@ def test_large_chain_upside_down_is_unstable(tmp_path):
     assert len(modes) == 7 and modes[-1] == "unstable: ... 592 more"
     assert d["frames/n_modes"][0] == 6
     for k in range(6):
-        assert (d["frames/mode_class"][0, k], d["frames/mode_kind"][0, k]) == \
-            ("unstable", "rotation")
+        assert (d["modes/class"][k], d["modes/kind"][k]) == ("unstable", "rotation")
         # in-plane: about Z (sign-normalised: +Z)
-        assert d["frames/mode_direction"][0, k][2] > 0.995
-        assert d["frames/mode_eigenvalue"][0, k] < 0
+        assert d["modes/direction"][k][2] > 0.995
+        assert d["modes/eigenvalue"][k] < 0
     assert d["frames/min_stiffness_eigenvalue"][0] < 0

@@ -369,9 +369,10 @@ def read_summary(path: str) -> dict:
             ds = {"time": g["time"][()]} if "time" in g else {}
             if "iterations/iteration" in g and "frames/iterations" not in g:
                 ds["iterations/iteration"] = g["iterations/iteration"][()]
-            if "frames" in g:
-                ds.update({f"frames/{k}": _read_dataset(v) for k, v in g["frames"].items()
-                           if isinstance(v, h5py.Dataset)})
+            for grp in ("frames", "modes"):
+                if grp in g:
+                    ds.update({f"{grp}/{k}": _read_dataset(v) for k, v in g[grp].items()
+                               if isinstance(v, h5py.Dataset)})
             summ = summarize(AnalysisResult(
                 index=index, analysis_type=ga.get("analysis_type", ""),
                 method=ga.get("method", ""), status=ga.get("status", ""),

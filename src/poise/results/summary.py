@@ -11,7 +11,7 @@ back from a results file): the *worst frame* of each measure, with the frame nam
 * ``stability_class``: the worst class over the frames, ``stable < neutral < unknown < unstable``
   (``unknown``: not classified, so the run proved neither), at the frame with the most negative
   (unstable) or zero (neutral) modes among those of that class (the first on ties), with that
-  frame's counts, mode text and numeric modes (``frames/mode_*``).
+  frame's counts, mode text and numeric modes (``modes/*``).
 
 A run (``batch`` / ``sweep`` rows) takes the same worst over its analyses.
 """
@@ -229,15 +229,18 @@ def summarize(a) -> AnalysisSummary:
 
 
 def _modes(ds, k) -> tuple:
+    """Frame ``k``'s numeric modes (``modes/*``, flat in frame order, ``frames/n_modes``)."""
     n = _get(ds, "frames/n_modes")
-    if n is None or k >= len(n):
+    if n is None or k >= len(n) or _get(ds, "modes/body") is None:
         return ()
-    cls, kind = _get(ds, "frames/mode_class"), _get(ds, "frames/mode_kind")
-    body, dirn = _get(ds, "frames/mode_body"), _get(ds, "frames/mode_direction")
-    eig = _get(ds, "frames/mode_eigenvalue")
-    return tuple(ModeRecord(str(cls[k, j]), int(body[k, j]), str(kind[k, j]),
-                            tuple(float(x) for x in dirn[k, j]), _finite(eig[k, j]))
-                 for j in range(int(n[k])))
+    a = int(np.sum(n[:k]))
+    b = a + int(n[k])
+    cls, kind = _get(ds, "modes/class"), _get(ds, "modes/kind")
+    body, dirn = _get(ds, "modes/body"), _get(ds, "modes/direction")
+    eig = _get(ds, "modes/eigenvalue")
+    return tuple(ModeRecord(str(cls[j]), int(body[j]), str(kind[j]),
+                            tuple(float(x) for x in dirn[j]), _finite(eig[j]))
+                 for j in range(a, b))
 
 
 def summarize_run(res) -> RunSummary:

@@ -86,15 +86,13 @@ WEAK_DIAG = 1e-3       # scaled augmented diagonal below this: eliminated after 
 TINY_PIVOT = 1e-3      # pivots below this fraction of the zero threshold: sign not reliable
 
 
-#: numeric modes stored per frame (``frames/mode_*``): up to N_MODES unstable then N_MODES neutral
-MAX_MODES = 2 * N_MODES
 #: direction components within this of the largest magnitude count as tied for the sign rule
 SIGN_TIE = 1e-6
 
 
 @dataclass(frozen=True)
 class Mode:
-    """One described unstable or neutral mode, as numbers (``frames/mode_*``).
+    """One described unstable or neutral mode, as numbers (``modes/*`` datasets).
 
     ``body`` is the id of the body with the largest participation (-1 for a model without
     bodies, where ``coordinate`` is the index of the dominant scalar unknown); ``kind`` is
@@ -285,38 +283,25 @@ def _describe(model, q, klass="", eigenvalue=np.nan) -> Mode:
 
 def stability_datasets(infos: list[StabilityInfo]) -> dict:
     """Per-frame datasets (F frames): ``frames/stability``, ``frames/n_negative``,
-    ``frames/n_zero``, ``frames/stability_modes`` (text), ``frames/min_stiffness_eigenvalue``
-    and the described modes as numbers, padded to ``MAX_MODES`` per frame (a fixed width, so
-    runs concatenate along the frame axis): ``frames/n_modes`` (F,), ``frames/mode_class``,
-    ``frames/mode_kind`` (F, MAX_MODES) strings ("" padding), ``frames/mode_body`` (F,
-    MAX_MODES) ids (-1 padding), ``frames/mode_direction`` (F, MAX_MODES, 3) unit vectors and
-    ``frames/mode_eigenvalue`` (F, MAX_MODES) (NaN padding). Mode ``k < n_modes[f]`` of frame
-    ``f`` is :class:`Mode` ``infos[f].mode_list[k]``."""
-    F, M = len(infos), MAX_MODES
-    cls = np.full((F, M), "", dtype="<U11")
-    kind = np.full((F, M), "", dtype="<U11")
-    body = np.full((F, M), -1, dtype=np.int64)
-    dirn = np.full((F, M, 3), np.nan)
-    eig = np.full((F, M), np.nan)
-    n = np.zeros(F, dtype=np.int64)
-    for f, info in enumerate(infos):
-        ml = info.mode_list[:M]
-        n[f] = len(ml)
-        for k, mo in enumerate(ml):
-            cls[f, k], kind[f, k], body[f, k] = mo.klass, mo.kind, mo.body
-            dirn[f, k], eig[f, k] = mo.direction, mo.eigenvalue
+    ``frames/n_zero``, ``frames/stability_modes`` (text), ``frames/min_stiffness_eigenvalue``,
+    ``frames/n_modes``; and the described modes as numbers, flat in frame order (K = the sum of
+    ``n_modes``; the frame of mode ``j`` is ``np.repeat(np.arange(F), n_modes)[j]``, so frames
+    and runs concatenate along their axes): ``modes/class``, ``modes/kind`` (K,) strings,
+    ``modes/body`` (K,) ids, ``modes/direction`` (K, 3) unit vectors, ``modes/eigenvalue``
+    (K,). Frame ``f``'s modes are the :class:`Mode` records ``infos[f].mode_list``."""
+    ml = [mo for info in infos for mo in info.mode_list]
     return {
         "frames/stability": np.array([i.klass for i in infos], dtype=str),
         "frames/n_negative": np.array([i.n_negative for i in infos], dtype=np.int64),
         "frames/n_zero": np.array([i.n_zero for i in infos], dtype=np.int64),
         "frames/stability_modes": np.array([i.modes for i in infos], dtype=str),
         "frames/min_stiffness_eigenvalue": np.array([i.min_eigenvalue for i in infos]),
-        "frames/n_modes": n,
-        "frames/mode_class": cls,
-        "frames/mode_kind": kind,
-        "frames/mode_body": body,
-        "frames/mode_direction": dirn,
-        "frames/mode_eigenvalue": eig,
+        "frames/n_modes": np.array([len(i.mode_list) for i in infos], dtype=np.int64),
+        "modes/class": np.array([mo.klass for mo in ml], dtype=str),
+        "modes/kind": np.array([mo.kind for mo in ml], dtype=str),
+        "modes/body": np.array([mo.body for mo in ml], dtype=np.int64),
+        "modes/direction": np.array([mo.direction for mo in ml], float).reshape(len(ml), 3),
+        "modes/eigenvalue": np.array([mo.eigenvalue for mo in ml], float),
     }
 
 
