@@ -25,11 +25,9 @@ def _stability_lines(stab: list[str] | None) -> list[str]:
 
 
 def _at(a: dict, what: str) -> str:
-    """`` at frame 412 (t=0.41)`` for the worst frame of ``what`` when there are several."""
-    k, t = a.get(f"{what}_frame"), a.get(f"{what}_time")
-    if a.get("frames", 0) <= 1 or k is None:
-        return ""
-    return f" at frame {k}" + ("" if t is None else f" (t={t:.6g})")
+    """`` at frame 412 (t=0.41)``: the worst frame of ``what`` when there are several."""
+    from poise.results.summary import frame_at
+    return frame_at(a.get("frames", 0), a.get(f"{what}_frame"), a.get(f"{what}_time"))
 
 
 def format_summary(s: dict) -> list[str]:

@@ -158,6 +158,10 @@ def _time(t, k):
     return None if t is None or k is None or k >= len(t) else _finite(t[k])
 
 
+def _item(v, k, conv):
+    return None if v is None or k >= len(v) else conv(v[k])
+
+
 def _worst_value(v):
     """(max, its first frame) over the finite-or-inf entries of ``v`` (NaN ignored)."""
     if v is None or not len(v):
@@ -215,9 +219,8 @@ def summarize(a) -> AnalysisSummary:
             k = int(worst[np.argmax(np.asarray(key)[worst])])
         stab = dict(stability_class=str(cls[k]) if cls[k] in STABILITY_RANK else "unknown",
                     stability_frame=k, stability_time=_time(t, k),
-                    n_negative=None if nneg is None else int(nneg[k]),
-                    n_zero=None if nzero is None else int(nzero[k]),
-                    stability_modes="" if text is None else str(text[k]),
+                    n_negative=_item(nneg, k, int), n_zero=_item(nzero, k, int),
+                    stability_modes=_item(text, k, str) or "",
                     modes=_modes(ds, k))
     return AnalysisSummary(
         index=int(a.index), analysis_type=str(a.analysis_type), method=str(a.method),
@@ -271,8 +274,9 @@ def _num(x) -> str:
     return "n/a" if x is None else f"{x:.3g}"
 
 
-def _at(s: AnalysisSummary, frame, time) -> str:
-    if s.frames <= 1 or frame is None:
+def frame_at(frames: int, frame, time) -> str:
+    """`` at frame 412 (t=0.41)`` naming a worst frame when there are several, else ``""``."""
+    if frames <= 1 or frame is None:
         return ""
     return f" at frame {frame}" + ("" if time is None else f" (t={time:.6g})")
 
@@ -314,7 +318,8 @@ def summary_line(s: AnalysisSummary, seconds: float | None = None, style=None) -
         head += f" {verb} {s.iterations} iteration{'s' if s.iterations != 1 else ''}"
     if s.frames != 1:
         head += f" ({s.frames} frames)"
-    parts = [head, f"imbalance {_num(s.imbalance)}{_at(s, s.imbalance_frame, s.imbalance_time)}"]
+    parts = [head, f"imbalance {_num(s.imbalance)}"
+             f"{frame_at(s.frames, s.imbalance_frame, s.imbalance_time)}"]
     if seconds is not None:
         parts.append(f"{seconds:.3g} s")
     line = ", ".join(parts)
