@@ -301,7 +301,7 @@ def model_datasets(model) -> dict:
         "bodies/label": np.asarray(model.body_label, dtype=str) if len(model.body_label) else np.zeros(0, str),
         "bodies/kind": np.asarray(["rigid" if k == 0 else "point" for k in model.body_kind], dtype=str)
         if len(model.body_kind) else np.zeros(0, str),
-        "bodies/mass": model.body_mass,
+        "bodies/mass": model.deck_mass(),
         "length_scale": np.array(model.L),
         "n_coordinates": np.array(model.nq),
         "n_equations": np.array(model.nc),
@@ -318,10 +318,11 @@ def check(path: str):
     spec = _load(path)
     model = compile_model(spec)
     rep = CheckReport(deck=path)
+    mass = model.deck_mass()
     for i, bid in enumerate(model.body_id):
         rep.bodies.append(dict(id=int(bid), label=model.body_label[i],
                                kind="rigid" if model.body_kind[i] == 0 else "point",
-                               mass=float(model.body_mass[i])))
+                               mass=float(mass[i])))
     seen = {}
     for ri in model.row_info:
         key = (ri["tag"], ri["id"])
