@@ -91,6 +91,10 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
         from poise.solvers.quasistatic import print_arrays
         arrays = print_arrays(spec)
     t_now = 0.0
+    from poise.model import commands as model_commands
+    bad = model_commands.check(spec.commands)
+    if bad:
+        raise DeckError(bad)
     for el in spec.commands:
         if el.tag == "Param_Static":
             live = live.updated(el.attrs)
@@ -164,12 +168,15 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     res.model_datasets = model_datasets(model)
     res.model_datasets.update(joint_marker_datasets(spec, model))
     res.model_datasets.update(graphics_datasets(spec, model))
+    models = _analysis_models(spec, model, analyses)
+    for m in models[1:]:
+        res.active_effects += [e for e in m.active_effects if e not in res.active_effects]
     state = model.initial_state()
     counts = {}
     redundancy = None
     for k, (req, cls) in enumerate(zip(analyses, drivers)):
         ta = time.perf_counter()
-        drv = cls(model, req, redundancy=redundancy)
+        drv = cls(models[k], req, redundancy=redundancy)
         state, ar = drv.run(state, index=k)
         redundancy = drv.redundancy
         res.timings[f"analysis_{k:03d}"] = time.perf_counter() - ta
@@ -185,6 +192,19 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
                        **res.timings)
     res.counts = counts
     return res
+
+
+def _analysis_models(spec: DeckSpec, model, analyses) -> list:
+    """The model of each analysis: command versions of model elements met before a Simulate
+    (``AnalysisRequest.commands``) apply to it and every later one (poise.model.commands).
+    All are compiled before anything is solved, so a rejected command costs no solve."""
+    from poise.model import commands as model_commands
+    out, cur_spec, cur = [], spec, model
+    for req in analyses:
+        if model_commands.model_commands(req.commands):
+            cur_spec, cur = model_commands.recompile(model, cur_spec, req.commands)
+        out.append(cur)
+    return out
 
 
 def run_spec(spec: DeckSpec, overrides=None, command: str = "", progress=None) -> RunResult:
