@@ -105,3 +105,22 @@ def test_degenerate_axes_cli_exit_3(tmp_path):
     r = subprocess.run([sys.executable, "-m", "poise_cli", "solve", str(p), "-o",
                         str(tmp_path / "o.h5")], capture_output=True, text=True, timeout=60)
     assert r.returncode == 3 and "CONSTANT_VELOCITY" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_bent_same_way_axes_are_an_error(tmp_path):
+    """z axes the same way on bent shafts (0.4 rad): the row would make the output shaft turn
+    backwards (-0.7 rad for +0.7 rad in); rejected like the coaxial case."""
+    ex, ey, ez = np.eye(3)
+    b = 0.4
+    Rz = np.array([[np.cos(b), -np.sin(b), 0], [np.sin(b), np.cos(b), 0], [0, 0, 1]])
+    RJ = _cols(ey, ez, ex)
+    lines = _deck(b, 0.7).splitlines()
+    for i, s in enumerate(lines):
+        if s.startswith('<Reference_Marker id="22"'):
+            lines[i] = _mk(22, 2, [0, 0, 0], RJ)
+        if s.startswith('<Reference_Marker id="32"'):
+            lines[i] = _mk(32, 3, [0, 0, 0], Rz @ RJ)
+    p = tmp_path / "bent.xml"
+    p.write_text("\n".join(lines))
+    with pytest.raises(DeckError, match="z_I.z_J = 0.921"):
+        run(str(p))

@@ -97,8 +97,8 @@ def _check_cv_axes(b, el):
     """CONSTANT_VELOCITY: each marker's z axis runs down its own shaft away from the joint
     centre (MotionSolve/Adams convention; coaxial shafts have opposite z axes). With z axes
     pointing the same way the twist row ``x_I.y_J + y_I.x_J`` vanishes identically for coaxial
-    shafts (and is the wrong relation when bent): the output shaft would not follow the input,
-    so such a set-up is an error."""
+    shafts (the output shaft stays still) and makes bent shafts counter-rotate, so such a set-up
+    (a bend beyond 90 degrees in the convention) is an error."""
     gi = b.marker_glob.get(el.attrs.get("i_marker_id"))
     gj = b.marker_glob.get(el.attrs.get("j_marker_id"))
     if gi is None or gj is None:
