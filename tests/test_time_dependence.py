@@ -136,3 +136,20 @@ def test_request_of_time_does_not_make_the_solution_time_dependent(tmp_path):
                                 'id="1" type="EXPRESSION" expr1="TIME" expr2="DY(20)"/>'))
     model = compile_model(load_deck(str(deck)))
     assert not model.depends_on_time()
+
+
+def test_curve_of_time_is_a_located_error(tmp_path):
+    """Curve geometry is evaluated without a time: TIME there read 0 at every frame (the point
+    stayed on the t = 0 curve); now a located error."""
+    from pathlib import Path
+
+    from poise.errors import DeckError
+    src = Path(__file__).resolve().parents[1] / "decks" / "elem_ptcv_parabola.xml"
+    text = src.read_text().replace('y_expression="0.5*U**2"', 'y_expression="0.5*U**2 + TIME"')
+    p = tmp_path / "ptcv_time.xml"
+    p.write_text(text)
+    line = next(k for k, s in enumerate(text.splitlines(), 1) if "<Reference_ParamCurve" in s)
+    with pytest.raises(DeckError) as e:
+        run(str(p))
+    assert f"{p}:{line}: <Reference_ParamCurve id=1> y_expression" in str(e.value)
+    assert "TIME" in str(e.value)
