@@ -126,3 +126,27 @@ def test_cli_exit_3_for_unsupported_command(tmp_path):
                         str(tmp_path / "o.h5")], capture_output=True, text=True, timeout=60)
     assert r.returncode == 3, r.stderr
     assert "Reference_Marker" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_gravity_command_without_model_gravity_adds_it(tmp_path):
+    text = DECK.format(commands='<Force_Gravity grav_y="-5.0"/>').replace(
+        '<Force_Gravity grav_x="0" grav_y="-9.81" grav_z="0"/>', '')
+    p = tmp_path / "nog.xml"
+    p.write_text(text)
+    a, b = run(str(p)).analyses
+    assert _y(a) == pytest.approx(-1.0, abs=1e-10)
+    assert _y(b) == pytest.approx(-1 - M * 5.0 / 200, abs=1e-10)
+
+
+def test_motion_expression_command(tmp_path):
+    text = DECK.format(commands='<Motion_Joint id="1" expr="-0.3"/>').replace(
+        '</Model>', '<Motion_Joint id="1" joint_id="1" joint_type="T" val_type="D" expr="-0.1"/>'
+        '\n</Model>')
+    p = tmp_path / "mot.xml"
+    p.write_text(text)
+    a, b = run(str(p)).analyses
+    assert _y(a) == pytest.approx(-1.1, abs=1e-10)
+    assert _y(b) == pytest.approx(-1.3, abs=1e-10)
+    p.write_text(text.replace('val_type="D" expr="-0.1"', 'val_type="V" ic_disp="0" expr="-0.1"'))
+    with pytest.raises(DeckError, match="velocity/acceleration motion"):
+        run(str(p))

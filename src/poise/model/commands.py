@@ -85,7 +85,15 @@ def apply(spec, commands):
                                         f"the id of a model <{c.tag}>, got {c.id}"))
             model.append(dataclasses.replace(c, attrs=dict(new), is_command=False))
             continue
-        model[k] = dataclasses.replace(model[k], attrs={**model[k].attrs, **new})
+        merged = {**model[k].attrs, **new}
+        if c.tag.startswith("Motion_") and str(merged.get("val_type", "D")).upper() != "D":
+            # the displacement target integrates the expression from the start time: a new
+            # velocity/acceleration expression would rewrite the past, not continue from now
+            raise DeckError(Problem(c.loc, "a command cannot change the expression of a "
+                                    f"velocity/acceleration motion (val_type "
+                                    f"{merged.get('val_type')}); expected a val_type D motion",
+                                    "expr"))
+        model[k] = dataclasses.replace(model[k], attrs=merged)
     new_spec = dataclasses.replace(spec, model=model)
     new_spec.__dict__.pop("_tag_index", None)
     return new_spec
