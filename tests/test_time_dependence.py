@@ -67,6 +67,9 @@ SOURCES = {
                        '<Motion_Joint id="1" joint_id="1" joint_type="T" val_type="D" '
                        'expr="VARVAL(5)"/>',
                        lambda t: -1 - 0.1 * t),
+    "velocity_motion_constant": ('<Motion_Joint id="1" joint_id="1" joint_type="T" val_type="V" '
+                                 'ic_disp="0" expr="-0.1"/>',
+                                 lambda t: -1 - 0.1 * t),
     "control_diff_state": ('<Control_Diff id="7" ic="0" expr="DIF(7) + 20*TIME"/>\n'
                            + FY.format(e="DIF(7)"),
                            lambda t: -1 - 20 * t / K),
