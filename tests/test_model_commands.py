@@ -150,3 +150,9 @@ def test_motion_expression_command(tmp_path):
     p.write_text(text.replace('val_type="D" expr="-0.1"', 'val_type="V" ic_disp="0" expr="-0.1"'))
     with pytest.raises(DeckError, match="velocity/acceleration motion"):
         run(str(p))
+
+
+def test_command_with_misspelt_attribute_is_an_error(tmp_path):
+    p = _deck(tmp_path, '<Force_SpringDamper id="1" stifness="400."/>')
+    with pytest.raises(DeckError, match="unknown attribute 'stifness'"):
+        run(str(p))

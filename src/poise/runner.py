@@ -92,7 +92,7 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
         arrays = print_arrays(spec)
     t_now = 0.0
     from poise.model import commands as model_commands
-    bad = model_commands.check(spec.commands)
+    bad = model_commands.check(spec.commands, spec.warnings)
     if bad:
         raise DeckError(bad)
     for el in spec.commands:

@@ -50,9 +50,20 @@ def model_commands(commands) -> list:
     return [c for c in commands if c.tag not in SETTINGS]
 
 
-def check(commands) -> list[Problem]:
-    """Located problems of model-changing commands poise cannot apply."""
+def check(commands, warnings=()) -> list[Problem]:
+    """Located problems of model-changing commands poise cannot apply. ``warnings``: the deck's
+    parser warnings; an attribute the schema does not know is dropped from the element with a
+    warning, which for a command would leave it silently without effect, so it is an error."""
     probs = []
+    where = {(c.loc.file, c.loc.line, c.tag): c for c in model_commands(commands)}
+    for w in warnings:
+        loc = getattr(w, "loc", None)
+        c = where.get((loc.file, loc.line, loc.tag)) if loc is not None else None
+        if c is not None and str(w.message).startswith("unknown attribute"):
+            name = str(w.message).split("'")[1] if "'" in str(w.message) else "?"
+            probs.append(Problem(c.loc, f"a command cannot change unknown attribute '{name}' of "
+                                 f"<{c.tag}>; expected one of "
+                                 + ", ".join(CHANGEABLE.get(c.tag, ()))))
     for c in model_commands(commands):
         allowed = CHANGEABLE.get(c.tag)
         if allowed is None:
