@@ -168,7 +168,7 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     res.model_datasets = model_datasets(model)
     res.model_datasets.update(joint_marker_datasets(spec, model))
     res.model_datasets.update(graphics_datasets(spec, model))
-    models = _analysis_models(spec, model, analyses)
+    models = _analysis_models(spec, model, analyses, compile_model)
     for m in models[1:]:
         res.active_effects += [e for e in m.active_effects if e not in res.active_effects]
     state = model.initial_state()
@@ -194,15 +194,16 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     return res
 
 
-def _analysis_models(spec: DeckSpec, model, analyses) -> list:
+def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
     """The model of each analysis: command versions of model elements met before a Simulate
-    (``AnalysisRequest.commands``) apply to it and every later one (poise.model.commands).
-    All are compiled before anything is solved, so a rejected command costs no solve."""
+    (``AnalysisRequest.commands``) apply to it and every later one (poise.model.commands),
+    compiled with ``compile_fn`` (the same call that compiled ``model``). All are compiled
+    before anything is solved, so a rejected command costs no solve."""
     from poise.model import commands as model_commands
     out, cur_spec, cur = [], spec, model
     for req in analyses:
         if model_commands.model_commands(req.commands):
-            cur_spec, cur = model_commands.recompile(model, cur_spec, req.commands)
+            cur_spec, cur = model_commands.recompile(model, cur_spec, req.commands, compile_fn)
         out.append(cur)
     return out
 

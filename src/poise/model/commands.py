@@ -118,13 +118,15 @@ def _structure(m):
             tuple(np.asarray(m.angle_axis).tolist()))
 
 
-def recompile(base, spec, commands):
+def recompile(base, spec, commands, compile_fn=None):
     """The model of the analyses after ``commands``: ``spec`` with the commands applied,
-    compiled; raises a located DeckError when the change would alter the model's structure
-    (the solver state could not be carried over). Returns (new spec, model)."""
-    from poise.model.compile import compile_model
+    compiled by ``compile_fn`` (default ``compile_model``); raises a located DeckError when the
+    change would alter the model's structure (the solver state could not be carried over).
+    Returns (new spec, model)."""
+    if compile_fn is None:
+        from poise.model.compile import compile_model as compile_fn
     new_spec = apply(spec, commands)
-    model = compile_model(new_spec)
+    model = compile_fn(new_spec)
     if _structure(model) != _structure(base):
         mc = model_commands(commands)
         raise DeckError(Problem(mc[0].loc, "these commands change the model's structure "
