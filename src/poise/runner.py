@@ -1,7 +1,8 @@
 """Run every analysis of a deck: parse -> compile -> solve -> RunResult.
 
 This is the one place that sequences analyses: each ``Simulate`` starts from the state the
-previous one left; command versions of ``Param_Static`` between them change the live settings;
+previous one left; command versions of ``Param_Static`` between them change the live settings,
+command versions of model elements the model of the analyses after them (poise.model.commands);
 CLI overrides win over the deck (defaults < deck < CLI).
 """
 from __future__ import annotations
