@@ -68,8 +68,21 @@ def test_joint_jacobian(jtype, tag):
     d = _two_body_deck(rng)
     d.add(tag, id=1, type=jtype, i_marker_id=21, j_marker_id=31)
     d.add(tag, id=2, type=jtype, i_marker_id=22, j_marker_id=11)   # J on ground
+    if jtype == "CONSTANT_VELOCITY":    # z axes down the shafts: opposite ways (else an error)
+        _cv_convention(d, [(21, 31), (22, 11)])
     m = compile_model(d.spec)
     _fd_check(m, _perturbed_state(m, rng))
+
+
+def _cv_convention(d, pairs):
+    """Turn each J marker by pi about its x axis when its z axis points the I marker's way."""
+    mk = {e.attrs["id"]: e.attrs for e in d.spec.model if e.tag == "Reference_Marker"}
+    R = {k: np.array([[mk[k][f"a{i}{j}"] for j in range(3)] for i in range(3)])
+         for k in {m for p in pairs for m in p}}
+    for i, j in pairs:
+        if R[i][:, 2] @ R[j][:, 2] > 0:
+            Rj = R[j] @ np.diag([1.0, -1.0, -1.0])
+            mk[j].update({f"a{r}{c}": float(Rj[r, c]) for r in range(3) for c in range(3)})
 
 
 def _force_decks():

@@ -1,7 +1,8 @@
 """Run every analysis of a deck: parse -> compile -> solve -> RunResult.
 
 This is the one place that sequences analyses: each ``Simulate`` starts from the state the
-previous one left; command versions of ``Param_Static`` between them change the live settings;
+previous one left; command versions of ``Param_Static`` between them change the live settings,
+command versions of model elements the model of the analyses after them (poise.model.commands);
 CLI overrides win over the deck (defaults < deck < CLI).
 """
 from __future__ import annotations
@@ -91,6 +92,10 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
         from poise.solvers.quasistatic import print_arrays
         arrays = print_arrays(spec)
     t_now = 0.0
+    from poise.model import commands as model_commands
+    bad = model_commands.check(spec.commands, spec.warnings)
+    if bad:
+        raise DeckError(bad)
     for el in spec.commands:
         if el.tag == "Param_Static":
             live = live.updated(el.attrs)
@@ -164,12 +169,15 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     res.model_datasets = model_datasets(model)
     res.model_datasets.update(joint_marker_datasets(spec, model))
     res.model_datasets.update(graphics_datasets(spec, model))
+    models = _analysis_models(spec, model, analyses, compile_model)
+    for m in models[1:]:
+        res.active_effects += [e for e in m.active_effects if e not in res.active_effects]
     state = model.initial_state()
     counts = {}
     redundancy = None
     for k, (req, cls) in enumerate(zip(analyses, drivers)):
         ta = time.perf_counter()
-        drv = cls(model, req, redundancy=redundancy)
+        drv = cls(models[k], req, redundancy=redundancy)
         state, ar = drv.run(state, index=k)
         redundancy = drv.redundancy
         res.timings[f"analysis_{k:03d}"] = time.perf_counter() - ta
@@ -185,6 +193,20 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
                        **res.timings)
     res.counts = counts
     return res
+
+
+def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
+    """The model of each analysis: command versions of model elements met before a Simulate
+    (``AnalysisRequest.commands``) apply to it and every later one (poise.model.commands),
+    compiled with ``compile_fn`` (the same call that compiled ``model``). All are compiled
+    before anything is solved, so a rejected command costs no solve."""
+    from poise.model import commands as model_commands
+    out, cur_spec, cur = [], spec, model
+    for req in analyses:
+        if model_commands.model_commands(req.commands):
+            cur_spec, cur = model_commands.recompile(model, cur_spec, req.commands, compile_fn)
+        out.append(cur)
+    return out
 
 
 def run_spec(spec: DeckSpec, overrides=None, command: str = "", progress=None) -> RunResult:
@@ -299,7 +321,7 @@ def model_datasets(model) -> dict:
         "bodies/label": np.asarray(model.body_label, dtype=str) if len(model.body_label) else np.zeros(0, str),
         "bodies/kind": np.asarray(["rigid" if k == 0 else "point" for k in model.body_kind], dtype=str)
         if len(model.body_kind) else np.zeros(0, str),
-        "bodies/mass": model.body_mass,
+        "bodies/mass": model.deck_mass(),
         "length_scale": np.array(model.L),
         "n_coordinates": np.array(model.nq),
         "n_equations": np.array(model.nc),
@@ -316,10 +338,11 @@ def check(path: str):
     spec = _load(path)
     model = compile_model(spec)
     rep = CheckReport(deck=path)
+    mass = model.deck_mass()
     for i, bid in enumerate(model.body_id):
         rep.bodies.append(dict(id=int(bid), label=model.body_label[i],
                                kind="rigid" if model.body_kind[i] == 0 else "point",
-                               mass=float(model.body_mass[i])))
+                               mass=float(mass[i])))
     seen = {}
     for ri in model.row_info:
         key = (ri["tag"], ri["id"])

@@ -1,6 +1,8 @@
 """Batch compiler: many expressions -> grouped vectorised programs (see CONTRACT.md)."""
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import gc
 from dataclasses import dataclass
 
@@ -12,7 +14,21 @@ from .functions import DomainError
 from .lower import Lowering, extract
 from .program import GroupEnv, build
 
-__all__ = ["compile_batch", "Batch", "EvalContext", "EvalResult"]
+__all__ = ["compile_batch", "Batch", "EvalContext", "EvalResult", "record_batches"]
+
+_SINK = contextvars.ContextVar("poise_compiled_batches", default=None)
+
+
+@contextlib.contextmanager
+def record_batches(sink):
+    """Append every :class:`Batch` compiled inside the block to the list ``sink`` (None: stop
+    recording, e.g. for output-only expressions). The model compiler uses it to know whether
+    anything it compiled reads TIME (``Model.depends_on_time``)."""
+    tok = _SINK.set(sink)
+    try:
+        yield sink
+    finally:
+        _SINK.reset(tok)
 
 
 @dataclass
@@ -157,10 +173,14 @@ def compile_batch(exprs, resolver) -> "Batch":
     gc_was_enabled = gc.isenabled()
     gc.disable()              # many small objects: the cyclic GC would dominate compile time
     try:
-        return _compile(exprs, resolver)
+        batch = _compile(exprs, resolver)
     finally:
         if gc_was_enabled:
             gc.enable()
+    sink = _SINK.get()
+    if sink is not None:
+        sink.append(batch)
+    return batch
 
 
 def _compile(exprs, resolver):

@@ -5,7 +5,9 @@ Every joint and joint primitive of the deck is decomposed into rows of three pri
 
 * :class:`Coincident` — ``d = 0`` (3 rows, global components);
 * :class:`Perpendicular` — ``a_I . b_J (+ a2_I . b2_J) = 0`` (1 row; the optional second term
-  gives the constant-velocity joint row ``x_I.y_J + y_I.x_J = 0``);
+  gives the constant-velocity joint row ``x_I.y_J + y_I.x_J = 0``; its z axes run down the two
+  shafts away from the joint centre, MotionSolve/Adams convention, checked at compile time:
+  with z axes the same way the row vanishes identically for coaxial shafts);
 * :class:`InPlane` — ``d . b_J = 0`` (1 row).
 
 Reactions (``lam``) of Coincident rows are forces; of Perpendicular rows torques; of InPlane

@@ -386,6 +386,13 @@ class CompileContext:
         self.expr_forces: list = []      # (owner, el) of expression forces (compile_expr)
         self.frame_hooks: list = []      # per-frame output hooks (requests, ...)
         self.gravity_fn = None           # callable t -> (3,) for TIME-dependent gravity
+        self.time_sources: list[str] = []   # what reads TIME besides compiled expressions
+        self.batches: list = []          # every expression batch compiled (record_batches)
+
+    def reads_time(self, what: str) -> None:
+        """Record that the solution depends on the analysis time through ``what`` (compiled
+        expressions are found on their own; this is for opaque code such as user routines)."""
+        self.time_sources.append(what)
 
     def angle(self, I: int, J: int, axis: int) -> int:
         """Register a continuous angle of marker I about marker J's axis (0 x, 1 y, 2 z)."""
@@ -471,8 +478,10 @@ def _compile(spec: DeckSpec) -> Model:
         bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * b.L) ** 2 * np.eye(3)
 
     ctx = CompileContext(b)
-    for compiler in element_compilers():
-        compiler(spec, ctx)
+    from poise.expr.batch import record_batches
+    with record_batches(ctx.batches):
+        for compiler in element_compilers():
+            compiler(spec, ctx)
     rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
     pc = b.pc
 
@@ -521,12 +530,29 @@ def _compile(spec: DeckSpec) -> Model:
         gravity_on=bool(gels) and (np.any(grav != 0) or ctx.gravity_fn is not None),
         active_effects=effects, outputs=outputs, units=udesc, gravity_fn=ctx.gravity_fn,
         n_extra=ne, extra0=np.array(ctx.extra0, float), extra_names=list(ctx.extra_names),
+        mass_factor=float(mfac),
     )
+    model.time_sources = _time_sources(ctx)
     model.frame_hooks.extend(ctx.frame_hooks)
     model.reaction_feed = getattr(ctx, "reaction_feed", None)
     model.spec_warnings = list(pc.warnings)
     model.finalize()
     return model
+
+
+def _time_sources(ctx) -> list[str]:
+    """What makes the solution depend on the analysis time: every compiled expression that reads
+    TIME (directly or through variables, splines, ...; gravity, forces, motions, states, ...)
+    and the opaque sources the element compilers registered (user routines)."""
+    out = list(ctx.time_sources)
+    for batch in ctx.batches:
+        if batch.depends_on_time:
+            k = int(np.argmax(batch.time_mask))
+            e = batch.exprs[k]
+            loc = getattr(e, "loc", None)
+            out.append(loc.prefix(getattr(e, "attr", None)).rstrip(":")
+                       if loc is not None else "an expression of TIME")
+    return list(dict.fromkeys(out))
 
 
 def _row(el: Element, equation: str, kind: str, group: str, owner: int) -> dict:

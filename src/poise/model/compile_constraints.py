@@ -53,6 +53,8 @@ def compile_joints(spec, ctx):
             J = mindex.get(a.get("j_marker_id"), -1) if "j_marker_id" in a else -1
             if J < 0:
                 J = b.mk(el, "j_marker_id")
+            if jt == "CONSTANT_VELOCITY":
+                _check_cv_axes(b, el)
             owner = len(ids)
             ids.append(el.id)
             r0 = len(rows)
@@ -89,6 +91,25 @@ def compile_joints(spec, ctx):
             f.crow = r0[:, None]
             f.group = group
             fams.append(f)
+
+
+def _check_cv_axes(b, el):
+    """CONSTANT_VELOCITY: each marker's z axis runs down its own shaft away from the joint
+    centre (MotionSolve/Adams convention; coaxial shafts have opposite z axes). With z axes
+    pointing the same way the twist row ``x_I.y_J + y_I.x_J`` vanishes identically for coaxial
+    shafts (the output shaft stays still) and makes bent shafts counter-rotate, so such a set-up
+    (a bend beyond 90 degrees in the convention) is an error."""
+    gi = b.marker_glob.get(el.attrs.get("i_marker_id"))
+    gj = b.marker_glob.get(el.attrs.get("j_marker_id"))
+    if gi is None or gj is None:
+        return
+    c = float(gi[1][:, 2] @ gj[1][:, 2])
+    if c > 0.0:
+        b.pc.error(el.loc, f"CONSTANT_VELOCITY joint whose I and J marker z axes point the same "
+                   f"way (z_I.z_J = {c:.3g}): its twist equation degenerates and the output "
+                   "shaft would not turn with the input; expected the MotionSolve/Adams "
+                   "convention, each marker's z axis along its own shaft pointing away from the "
+                   "joint centre (opposite z axes for coaxial shafts)", "i_marker_id")
 
 
 def _columns(acc):

@@ -76,6 +76,13 @@ def _geometry(spec, ctx, tag):
                 else:
                     obj = CD.AnalyticCurve(el, ex, u0, u1, closed)
                     obj.derivs(np.array([u0]), 0)        # compile now: located syntax errors
+                if any(bt.depends_on_time for bt in obj._batches.values()):
+                    # geometry is evaluated without a time: TIME would silently read 0
+                    pc.error(el.loc, "curve/surface expressions may only use U, V and "
+                             "constants; expected no TIME (a moving curve is not supported)",
+                             next((f"{c}_expression" for c, e in zip("xyz", ex)
+                                   if isinstance(e, Expr) and "TIME" in e.text.upper()), None))
+                    continue
             elif surf:
                 nu, nv = a.get("num_u"), a.get("num_v")
                 if not nu or not nv:

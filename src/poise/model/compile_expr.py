@@ -914,7 +914,9 @@ def compile_expressions(spec, ctx):
         from poise.model.requests import build_request_hook
         res.allow_reactions = True
         res.where = "requests"
-        hook = build_request_hook(reqs, ctx, res)
+        from poise.expr.batch import record_batches
+        with record_batches(None):     # outputs only: never make the solution time-dependent
+            hook = build_request_hook(reqs, ctx, res)
         if hook is not None:
             ctx.frame_hooks = getattr(ctx, "frame_hooks", []) + [hook]
 

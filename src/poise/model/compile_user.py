@@ -41,6 +41,7 @@ def _routine(el, ctx, P, A):
         ctx.pc.problems.extend(e.problems)
         return None
     r = UserRoutine(el, fn, path, par, ctx.b.marker_index, ctx.b.L)
+    ctx.reads_time(el.loc.prefix()[:-1])   # opaque code: may read its time argument anywhere
     try:
         r.probe(0.0, P, A)
     except EvaluationError as e:

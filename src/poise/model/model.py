@@ -91,6 +91,7 @@ class Model:
     body_kind : (nb,) 0 rigid, 1 point
     body_mass : (nb,) effective mass (deck mass x units factor) [force*time^2/length]
     body_inertia : (nb, 3, 3) inertia about the CG in the body (CG marker) frame, effective
+    mass_factor : the units factor; shown/written masses are ``body_mass / mass_factor``
     body_off : (nb,) first tangent coordinate of each body
     marker_id : (nm,); marker_body : (nm,) moving-body index or nb for ground
     marker_s0 : (nm, 3) origin in the body frame (ground: global)
@@ -136,6 +137,8 @@ class Model:
     extra_names: list = field(default_factory=list)
     gravity_fn: object = None        # TIME-dependent gravity: callable t -> (3,), else None
     reaction_feed: object = None     # ReactionFeed: reaction channels read by forces, else None
+    time_sources: list = field(default_factory=list)   # what reads TIME (compile._time_sources)
+    mass_factor: float = 1.0         # body_mass = deck mass x mass_factor (poise.model.units)
 
     # ------------------------------------------------------------------ setup
     def finalize(self):
@@ -310,10 +313,18 @@ class Model:
         return dq
 
     def depends_on_time(self) -> bool:
-        """True if any element family of the scene depends on the analysis time."""
-        return any(f.depends_on_time() for f in self.families)
+        """True if the solution may change with the analysis time: anything compiled reads TIME
+        (``time_sources``: expressions anywhere, gravity, user routines) or a family's own rule
+        does (velocity / acceleration motions integrate over time)."""
+        return bool(self.time_sources) or any(f.depends_on_time() for f in self.families)
 
     # ------------------------------------------------------------------ mass
+    def deck_mass(self) -> np.ndarray:
+        """Body masses (nb,) in the deck's mass unit (``body_mass`` is scaled by the units
+        factor so that F = m a holds in deck units; never show or write it as a mass)."""
+        f = self.mass_factor
+        return self.body_mass / f if f else np.zeros_like(self.body_mass)
+
     def mass_blocks(self, state):
         """Translational (nb,3,3) and rotational (nr,3,3) mass blocks in global axes."""
         mt = self.body_mass[:, None, None] * np.eye(3)

@@ -84,7 +84,7 @@ class _Dyn:
         if np.any(model.body_mass <= 0):
             i = int(np.argmin(model.body_mass))
             raise ValueError(f"MKEAM needs a positive mass for every moving body; body id "
-                             f"{model.body_id[i]} has mass {model.body_mass[i]:g}")
+                             f"{model.body_id[i]} has mass {model.deck_mass()[i]:g}")
         self.phi_tol = np.where(model.row_kind == 1, 1.0, model.L) * CONSTRAINT_TOL
         self.cfams = [f for f in model.families if f.is_constraint]
         rb = model.body_off[model.rot_body][:, None] + 3 + np.arange(3)       # (nr, 3)
