@@ -20,7 +20,9 @@ equal lengths), ``random`` (``n`` cases; ranges of real attributes are sampled u
 
 Resuming: a case whose file exists, has a ``status`` root attribute and records the same
 ``sweep_case_hash`` (SHA-256 of deck hash, case values, overrides and poise version) is not
-run again; its row is read back from the file (``resumed = true``).
+run again, unless a user script it read changed (root attribute ``input_files``); its row is
+read back from the file (``resumed = true``). Decks naming Python user routines need
+``allow_user_code`` (``--allow-user-code``), passed on to the workers.
 
 Index row keys (``INDEX_KEYS``, then one column per parameter, then the ``--output`` columns):
 ``case``, ``file``, ``status`` (``converged``/``failed``/``invalid_deck``/``internal_error``),

@@ -49,6 +49,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -96,12 +97,10 @@ class _UserStdout:
     """User code's ``print`` goes to stderr: stdout is poise's (strict JSON under ``--json``)."""
 
     def __enter__(self):
-        import sys
         self._old = sys.stdout
         sys.stdout = sys.stderr
 
     def __exit__(self, *exc):
-        import sys
         sys.stdout = self._old
         return False
 
