@@ -362,9 +362,12 @@ def test_sweep_passes_the_opt_in_to_the_workers(tmp_path):
                      workers=1, outputs=["bodies[2].position"], progress=False)
     assert [r["status"] for r in rows] == ["invalid_deck", "invalid_deck"]
     assert all("allow_user_code=True" in r["message"] for r in rows)
-    rows = run_sweep(str(deck), {"Body_Point[2].mass": [1.0, 3.0]}, out_dir=str(tmp_path / "s"),
-                     workers=1, outputs=["bodies[2].position"], progress=False,
-                     allow_user_code=True)
+    r = _poise("sweep", deck, "--set", "Body_Point[2].mass=1.0,3.0", "--workers", "1",
+               "--out-dir", tmp_path / "s", "--output", "bodies[2].position",
+               "--allow-user-code", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["counts"] == {"converged": 2}     # cases rerun: now allowed
+    rows = json.loads((tmp_path / "s" / "index.json").read_text())["rows"]
     assert [r["status"] for r in rows] == ["converged", "converged"]
     for r, m in zip(rows, (1.0, 3.0)):
         assert r["bodies[2].position[1]"] == pytest.approx(_y_expected(m=m), abs=1e-9)
