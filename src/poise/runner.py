@@ -349,7 +349,7 @@ def check(path: str):
     rep.n_equations = model.nc
     rep.n_redundant = len(red)
     rep.dof = model.nq - (model.nc - len(red))
-    rep.user_routines = list(getattr(model, "user_routines", []))
+    rep.user_routines = sorted(getattr(model, "user_routines", []), key=lambda u: u["line"])
     from poise.model.compile_user import USER_CONSTRAINT_TAGS
     n_user_c = sum(u["tag"] in USER_CONSTRAINT_TAGS for u in rep.user_routines)
     if n_user_c:      # their equation count is known only by calling them: not here
