@@ -105,7 +105,8 @@ class _UserStdout:
         return False
 
 
-def _import(path: Path, digest: str):
+def _import(path: Path, data: bytes, digest: str):
+    """The module of the script bytes ``data`` (the bytes hashed are the bytes run)."""
     key = (str(path), digest)
     if key in _MODULES:
         return _MODULES[key]
@@ -113,7 +114,7 @@ def _import(path: Path, digest: str):
     spec = importlib.util.spec_from_file_location(name, str(path))
     mod = importlib.util.module_from_spec(spec)
     with _UserStdout():
-        spec.loader.exec_module(mod)
+        exec(compile(data, str(path), "exec"), mod.__dict__)  # noqa: S102 - allowed user code
     _MODULES[key] = mod
     return mod
 
@@ -203,7 +204,7 @@ def load(el, mode: str = REFUSE):
                                 "script_name")) from None
     digest = hashlib.sha256(data).hexdigest()
     try:
-        mod = _import(path, digest)
+        mod = _import(path, data, digest)
     except BaseException as e:  # noqa: BLE001 - SystemExit/KeyboardInterrupt too: never exit 0
         raise DeckError(Problem(el.loc, f"importing user script {path} (for routine "
                                 f"{fname!r}) failed: {_raised(e)}", "script_name")) from None
