@@ -402,3 +402,21 @@ def test_reliability_user_decks_with_the_flag(tmp_path, name, what):
     lines = [ln for ln in r.stderr.splitlines() if not ln.startswith("poise:")]
     assert len(lines) == 1 and lines[0].startswith(f"{deck}:20:") and what in lines[0], r.stderr
     assert "ARBITRARY CODE RAN" not in r.stderr
+
+
+# ------------------------------------------------------------------------- bench
+def test_bench_needs_the_flag_too(tmp_path):
+    marker = tmp_path / "RAN"
+    _script(tmp_path / "routine.py", marker)
+    deck = _deck(tmp_path)
+    r = _poise("bench", deck, "--repeat", "1", "--tolerances", "1e-8")
+    assert r.returncode == 3, r.stderr
+    (line,) = _located(r.stderr, deck)                 # located in the user's deck
+    assert "--allow-user-code" in line and not marker.exists()
+    out = tmp_path / "b.jsonl"
+    r = _poise("bench", deck, "--repeat", "1", "--tolerances", "1e-8", "--out", out,
+               "--allow-user-code")
+    assert r.returncode == 0, r.stderr
+    (row,) = [json.loads(x) for x in out.read_text().splitlines()]
+    assert row["status"] == "converged" and row["imbalance"] <= 1e-8
+    assert marker.exists()
