@@ -88,9 +88,10 @@ def fake_run(monkeypatch):
     calls = []
 
     def install(result=None, exc=None, progress_lines=()):
-        def run_deck(path, overrides=None, command="", progress=None, quiet=False):
+        def run_deck(path, overrides=None, command="", progress=None, quiet=False,
+                     allow_user_code=False):
             calls.append({"path": path, "overrides": overrides, "command": command,
-                          "quiet": quiet})
+                          "quiet": quiet, "allow_user_code": allow_user_code})
             for line in progress_lines:
                 progress(line)
             if exc is not None:

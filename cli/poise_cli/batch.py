@@ -7,7 +7,8 @@ import sys
 
 import click
 
-from poise_cli.options import collect_overrides, json_option, quiet_option, solver_options
+from poise_cli.options import collect_overrides, json_option, quiet_option, solver_options, \
+    user_code_option
 from poise_cli.summary import fmt_num, print_json, styled_status
 
 
@@ -50,18 +51,20 @@ def _line(row: dict) -> str:
               show_default=True, help="Directory for <stem>.h5 files and summary.csv/.json.")
 @click.option("--force", is_flag=True, help="Solve every deck even if its results are up to date.")
 @solver_options
+@user_code_option
 @quiet_option
 @json_option
 def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_error,
-          stability, no_fallback, quiet, as_json):
+          stability, no_fallback, allow_user_code, quiet, as_json):
     """Solve every DECK in parallel local processes.
 
     \b
     Writes OUT_DIR/<deck stem>.h5 per deck (equal stems: <stem>-2.h5, ...) and the summary
     table OUT_DIR/summary.csv and OUT_DIR/summary.json (deck, output, status, exit_code,
     iterations, time, the worst imbalance and stability class with their frames and modes,
-    skipped, message). Decks whose results file records the same deck hash, solver options
-    and poise version are skipped unless --force. Exit code: the
+    skipped, message). Decks whose results file records the same deck hash, solver options,
+    poise version and user scripts are skipped unless --force.
+    A deck that fails (whatever its user code does) is its own row. Exit code: the
     worst deck's (0 converged, 1 not converged, 3 invalid deck, 4 internal error).
     """
     from poise.batch import BATCH_KEYS, BATCH_VERSION, run_batch, sanitize, worst_exit_code, \
@@ -77,7 +80,7 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
 
     try:
         rows = run_batch(list(decks), out_dir, jobs=jobs, overrides=overrides, force=force,
-                         command=command, on_row=on_row)
+                         command=command, on_row=on_row, allow_user_code=allow_user_code)
     except KeyboardInterrupt:
         click.echo("poise: interrupted", err=True)
         sys.exit(130)

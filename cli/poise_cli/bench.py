@@ -13,6 +13,33 @@ from pathlib import Path
 
 import click
 
+from poise_cli.options import user_code_option
+
+
+def _user_scripts(deck: str, dest: Path, allow: bool) -> None:
+    """The variant decks live in ``dest``: copy the user scripts DECK names there (same
+    relative paths) when ``allow``, else refuse such a deck, located in DECK itself. The
+    references are checked (inside the deck's directory); nothing is imported here."""
+    import shutil
+
+    from poise.deck.parser import load_deck
+    from poise.errors import DeckError
+    from poise.user_routines import REFUSE, SKIP, load, script_path, uses_user_routine
+    problems = []
+    for el in load_deck(deck).model:
+        if not uses_user_routine(el):
+            continue
+        try:
+            load(el, SKIP if allow else REFUSE)
+        except DeckError as e:
+            problems += e.problems
+            continue
+        to = dest / str(el.attrs["script_name"])
+        to.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(script_path(el), to)
+    if problems:
+        raise DeckError(problems)
+
 
 def _cg(res):
     import numpy as np
@@ -30,8 +57,11 @@ def _cg(res):
 @click.option("--reference-method", default=None,
               help="Method whose rung-1e-12 solution is the error reference (e.g. MKEAM).")
 @click.option("--out", type=click.Path(dir_okay=False), default=None, help="JSON lines file.")
-def bench(deck, methods, tolerances, repeat, reference_method, out):
-    """Time DECK over a tolerance ladder for each method and print the table."""
+@user_code_option
+def bench(deck, methods, tolerances, repeat, reference_method, out, allow_user_code):
+    """Time DECK over a tolerance ladder for each method and print the table.
+
+    A deck naming Python user routines needs --allow-user-code (exit 3 otherwise)."""
     import numpy as np
 
     from poise.api import run_deck
@@ -42,22 +72,28 @@ def bench(deck, methods, tolerances, repeat, reference_method, out):
     ref = None
     rows = []
     with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
+        try:
+            _user_scripts(deck, Path(td), allow_user_code)
+        except Exception as exc:  # noqa: BLE001 - DeckError: located, exit 3
+            from poise_cli.errors import report_exception
+            click.get_current_context().exit(report_exception(exc)[0])
         if reference_method:
             st, tr = method_settings(reference_method.upper(), 1e-12)
             p = Path(td) / "ref.xml"
             p.write_bytes(with_settings(xml, st, tr))
-            ref = _cg(run_deck(str(p)))
+            ref = _cg(run_deck(str(p), allow_user_code=allow_user_code))
         click.echo(f"{'method':6} {'rung':>7} {'status':9} {'iter':>5} {'res/jac/fac':>13} "
                    f"{'solve s (min-max)':>24} {'imbalance':>10} {'error/L':>9}")
         for m in [x.strip().upper() for x in methods.split(",") if x.strip()]:
             for tol in [float(x) for x in tolerances.split(",") if x.strip()]:
                 st, tr = method_settings(m, tol)
-                r = run_point(xml, st, tr, repeat, Path(td))
+                r = run_point(xml, st, tr, repeat, Path(td), allow_user_code=allow_user_code)
                 err = None
                 if ref is not None:
                     from poise.api import run_deck as rd
                     p = Path(td) / "variant.xml"
-                    x, L = _cg(rd(str(p), overrides={"fallback": False}))
+                    x, L = _cg(rd(str(p), overrides={"fallback": False},
+                                  allow_user_code=allow_user_code))
                     if x.shape == ref[0].shape:
                         err = float(np.max(np.abs(x - ref[0]))) / L
                 r.update(method=m, tol=tol, error=err, deck=deck)

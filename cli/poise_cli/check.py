@@ -45,7 +45,19 @@ def format_report(rep) -> list[str]:
     lines += _table([["tag", "id", "equation", "line"]] + [
         [_s(r.get("tag")), _s(r.get("id")), _s(r.get("equation")), _s(r.get("line"))]
         for r in rep.redundant]) if rep.redundant else []
-    lines.append(f"degrees of freedom: {rep.dof}")
+    users = list(getattr(rep, "user_routines", None) or [])
+    if users:
+        lines.append(f"user routines: {len(users)} (not run: poise check never executes deck "
+                     "code; poise solve needs --allow-user-code)")
+        lines += _table([["tag", "id", "script", "function", "line"]] + [
+            [_s(u.get("tag")), _s(u.get("id")), _s(u.get("script")), _s(u.get("function")),
+             _s(u.get("line"))] for u in users])
+    if rep.dof is None:
+        lines.append("degrees of freedom: unknown (the equations of user constraints are known "
+                     "only by running their routines); without the user constraints: "
+                     f"{_s(getattr(rep, 'dof_without_user_constraints', None))}")
+    else:
+        lines.append(f"degrees of freedom: {rep.dof}")
     lines.append("active effects: " + (", ".join(rep.active_effects) or "(none)"))
     return lines
 
@@ -57,6 +69,9 @@ def format_report(rep) -> list[str]:
 def check(deck, as_json, debug):
     """Parse and compile DECK; print bodies, constraints, degrees of freedom, redundant
     equations and active effects without solving.
+
+    Never runs deck code: Python user routines are listed (their scripts must lie inside the
+    deck's directory) but not imported, and the elements they define are left out.
 
     Exit code 0 for a valid deck, 3 for an invalid one (every problem printed on stderr).
     """

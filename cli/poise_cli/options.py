@@ -16,6 +16,12 @@ debug_option = click.option(
     "--debug", is_flag=True,
     help="Show full tracebacks for internal errors.")
 
+user_code_option = click.option(
+    "--allow-user-code", "allow_user_code", is_flag=True, default=False,
+    help="Run the Python user routines (script_name) the deck names. Without it such a deck "
+         "is refused (exit 3): decks may come from anywhere. Scripts must lie inside the "
+         "deck's directory either way.")
+
 quiet_option = click.option(
     "-q", "--quiet", is_flag=True,
     help="Print nothing on stderr except errors (no summary lines, no warnings).")

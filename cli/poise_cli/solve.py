@@ -11,7 +11,7 @@ import click
 
 from poise_cli.errors import report_exception
 from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
-    solver_options
+    solver_options, user_code_option
 from poise_cli.summary import analysis_line, analysis_summary, analysis_time, print_json, \
     sanitize, solve_summary
 
@@ -26,11 +26,12 @@ def default_output(deck: str) -> str:
 @click.option("-o", "--output", type=click.Path(dir_okay=False, writable=True), default=None,
               help="Results file (HDF5). Default: <deck stem>.h5 in the current directory.")
 @solver_options
+@user_code_option
 @quiet_option
 @json_option
 @debug_option
 def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stability,
-          no_fallback, quiet, as_json, debug):
+          no_fallback, allow_user_code, quiet, as_json, debug):
     """Solve every analysis of DECK and write the results to an HDF5 file.
 
     The file is written even when an analysis fails (exit code 1). Options given here override
@@ -70,7 +71,8 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
 
     try:
         from poise.api import run_deck
-        result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet)
+        result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet,
+                          allow_user_code=allow_user_code)
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return

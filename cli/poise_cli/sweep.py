@@ -8,7 +8,7 @@ import click
 
 from poise_cli.errors import report_exception
 from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
-    solver_options
+    solver_options, user_code_option
 from poise_cli.summary import print_json
 
 
@@ -34,12 +34,13 @@ from poise_cli.summary import print_json
                    "joints[1].force, requests[1].values. Repeat.")
 @click.option("--force", is_flag=True, help="Rerun cases whose results file is complete.")
 @solver_options
+@user_code_option
 @quiet_option
 @json_option
 @debug_option
 def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs, force,
-          method, max_num_iter, max_imbalance, max_error, stability, no_fallback, quiet,
-          as_json, debug):
+          method, max_num_iter, max_imbalance, max_error, stability, no_fallback,
+          allow_user_code, quiet, as_json, debug):
     """Solve DECK once per combination of --set values on Dask distributed.
 
     \b
@@ -67,7 +68,7 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs
         rows = run_sweep(deck, list(sets), mode=mode, out_dir=out_dir, scheduler=scheduler,
                          outputs=list(outputs), n=n_random, seed=seed, workers=workers,
                          overrides=overrides, force=force, progress=None if not quiet else False,
-                         on_row=on_row)
+                         on_row=on_row, allow_user_code=allow_user_code)
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:

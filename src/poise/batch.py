@@ -14,7 +14,14 @@ decks and the summary files are unaffected.
 
 Up-to-date check (re-runs skip work): a results file is reused when its root attributes record
 the same ``deck_sha256`` (hash of the deck bytes now), the same ``poise_version`` and the same
-``run_overrides`` (JSON of the solver options given to ``poise batch``), and it has a ``status``.
+``run_overrides`` (JSON of the solver options given to ``poise batch``), it has a ``status``,
+and every other file the run read (``input_files``: the Python user scripts, path -> SHA-256)
+still has the recorded hash; a file whose run read scripts is stale without
+``allow_user_code`` (the deck would now be refused).
+
+User code: decks naming Python user routines are solved only with ``allow_user_code=True``
+(``--allow-user-code``), otherwise they are ``invalid_deck`` rows. Whatever a deck's code does
+(raise, ``SystemExit``), it is that deck's row; the other decks and the summary carry on.
 
 Summary rows (``BATCH_KEYS``, stable; ``batch_version`` 1):
 
@@ -89,8 +96,34 @@ def output_paths(decks: list[str], out_dir: str) -> list[str]:
     return out
 
 
-def up_to_date(deck: str, output: str, overrides: dict | None) -> bool:
-    """Whether ``output`` holds the results of ``deck`` with these overrides (see module doc)."""
+def inputs_fresh(attrs, allow_user_code: bool = False) -> bool:
+    """Whether the files besides the deck that a run read (root attribute ``input_files``, JSON
+    ``{path: sha256}``) still hold the same bytes, and may still be run (``allow_user_code``)."""
+    text = attrs.get("input_files")
+    if text is None:
+        return True
+    text = text.decode() if isinstance(text, bytes) else str(text)
+    try:
+        files = json.loads(text)
+    except ValueError:
+        return False
+    if not isinstance(files, dict):
+        return False
+    if files and not allow_user_code:
+        return False
+    for path, digest in files.items():
+        try:
+            if file_sha256(path) != digest:
+                return False
+        except OSError:
+            return False
+    return True
+
+
+def up_to_date(deck: str, output: str, overrides: dict | None,
+               allow_user_code: bool = False) -> bool:
+    """Whether ``output`` holds the results of ``deck`` with these overrides and the same
+    scripts (see module doc)."""
     if not os.path.isfile(output):
         return False
     try:
@@ -102,7 +135,8 @@ def up_to_date(deck: str, output: str, overrides: dict | None) -> bool:
         return (a.get("format") == "poise-results" and "status" in a
                 and a.get("poise_version") == poise.__version__
                 and a.get("deck_sha256") == file_sha256(deck)
-                and a.get("run_overrides") == overrides_json(overrides))
+                and a.get("run_overrides") == overrides_json(overrides)
+                and inputs_fresh(a, allow_user_code))
     except (OSError, ValueError, KeyError):
         return False
 
@@ -126,17 +160,18 @@ def _error_row(deck: str, message: str) -> dict:
     return _row(deck, None, status="internal_error", exit_code=4, message=message)
 
 
-def solve_one(deck: str, output: str, overrides: dict | None, command: str) -> dict:
+def solve_one(deck: str, output: str, overrides: dict | None, command: str,
+              allow_user_code: bool = False) -> dict:
     """Solve one deck and write its results file (runs in a worker process)."""
     from poise.errors import DeckError
     try:
         from poise.api import run_deck
-        res = run_deck(deck, overrides, command=command)
+        res = run_deck(deck, overrides, command=command, allow_user_code=allow_user_code)
     except DeckError as e:
         problems = [str(p) for p in e.problems] or [str(e)]
         return _row(deck, None, status="invalid_deck", exit_code=3,
                     message="; ".join(problems), problems=problems)
-    except Exception as e:  # noqa: BLE001 - reported as a row, never kills the batch
+    except (Exception, SystemExit) as e:  # noqa: BLE001 - a row, never kills the batch
         return _error_row(deck, f"{type(e).__name__}: {' '.join(str(e).split())}")
     try:
         from poise.results.hdf5 import write_results
@@ -149,17 +184,20 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str) -> d
 
 def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | None = None,
               force: bool = False, command: str = "poise batch",
-              on_row=None) -> list[dict]:
+              on_row=None, allow_user_code: bool = False) -> list[dict]:
     """Solve ``decks`` (in parallel), return one row per deck in the order given.
 
     ``jobs`` ≤ 0 means ``os.cpu_count()``. ``on_row(row)`` is called as each deck finishes.
+    ``allow_user_code``: run the Python user routines decks name (else ``invalid_deck``).
     """
+    import functools
+    job = functools.partial(solve_one, allow_user_code=bool(allow_user_code))   # picklable
     os.makedirs(out_dir, exist_ok=True)
     outs = output_paths(decks, out_dir)
     rows: list[Any] = [None] * len(decks)
     todo = []
     for k, (d, o) in enumerate(zip(decks, outs)):
-        if not force and up_to_date(d, o, overrides):
+        if not force and up_to_date(d, o, overrides, allow_user_code):
             try:
                 rows[k] = skipped_row(d, o)
                 if on_row:
@@ -175,13 +213,14 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
     # a crash in native code or in a user routine) must not take the batch and its summary down
     pending = todo
     while pending:
-        broken = _solve_in_pool(pending, jobs, decks, outs, overrides, command, rows, on_row)
+        broken = _solve_in_pool(pending, jobs, decks, outs, overrides, command, rows, on_row,
+                                job)
         # The pool hands decks to its workers in order (at most jobs + 1 at a time), so the
         # deck that killed a worker is among the first unfinished ones: those are re-solved
         # one process each, the rest in a fresh pool (every round finishes at least one deck).
         suspects = broken[:2 * (jobs + 1)]
         if suspects:
-            _solve_isolated(suspects, jobs, decks, outs, overrides, command, rows, on_row)
+            _solve_isolated(suspects, jobs, decks, outs, overrides, command, rows, on_row, job)
         pending = broken[len(suspects):]
     return rows
 
@@ -197,14 +236,15 @@ def _spawn_pool(workers: int):
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
 
 
-def _solve_in_pool(keys, jobs, decks, outs, overrides, command, rows, on_row) -> list[int]:
+def _solve_in_pool(keys, jobs, decks, outs, overrides, command, rows, on_row,
+                   job=solve_one) -> list[int]:
     """Solve ``keys`` on one pool of ``jobs`` workers; returns the decks the pool could not
     finish because a worker process died (the pool then fails every unfinished deck)."""
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
     broken = []
     with _spawn_pool(min(jobs, len(keys))) as ex:
-        futs = {ex.submit(solve_one, decks[k], outs[k], overrides, command): k for k in keys}
+        futs = {ex.submit(job, decks[k], outs[k], overrides, command): k for k in keys}
         for fut in as_completed(futs):
             k = futs[fut]
             try:
@@ -212,14 +252,15 @@ def _solve_in_pool(keys, jobs, decks, outs, overrides, command, rows, on_row) ->
             except BrokenProcessPool:
                 broken.append(k)
                 continue
-            except Exception as e:  # noqa: BLE001 - e.g. the deck's row could not be sent back
+            except (Exception, SystemExit) as e:  # noqa: BLE001 - e.g. row not sent back
                 rows[k] = _error_row(decks[k], f"worker failed: {type(e).__name__}: {e}")
             if on_row:
                 on_row(rows[k])
     return sorted(broken)
 
 
-def _solve_isolated(keys, jobs, decks, outs, overrides, command, rows, on_row) -> None:
+def _solve_isolated(keys, jobs, decks, outs, overrides, command, rows, on_row,
+                    job=solve_one) -> None:
     """Re-solve the decks a dead worker took down, each in a process of its own (``jobs`` at a
     time), so that only the deck that kills its process is reported (:data:`WORKER_DIED`) and
     every other deck gets its results."""
@@ -229,10 +270,10 @@ def _solve_isolated(keys, jobs, decks, outs, overrides, command, rows, on_row) -
     def one(k):
         try:
             with _spawn_pool(1) as ex:
-                return k, ex.submit(solve_one, decks[k], outs[k], overrides, command).result()
+                return k, ex.submit(job, decks[k], outs[k], overrides, command).result()
         except BrokenProcessPool:
             return k, _error_row(decks[k], WORKER_DIED)
-        except Exception as e:  # noqa: BLE001
+        except (Exception, SystemExit) as e:  # noqa: BLE001
             return k, _error_row(decks[k], f"worker failed: {type(e).__name__}: {e}")
 
     with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(keys)))) as tp:

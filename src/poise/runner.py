@@ -138,7 +138,10 @@ def analysis_class(req: AnalysisRequest):
     return None, f"analysis_type {req.kind.upper()} is not supported; expected Static"
 
 
-def run(path: str, overrides=None, command: str = "", progress=None) -> RunResult:
+def run(path: str, overrides=None, command: str = "", progress=None,
+        allow_user_code: bool = False) -> RunResult:
+    """``allow_user_code``: run the Python user routines the deck names (otherwise such a deck
+    is a located deck error saying how to allow them)."""
     from poise import phases
     phases.reset()
     t0 = time.perf_counter()
@@ -146,7 +149,8 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     path = spec.path
     t1 = time.perf_counter()
     from poise.model.compile import compile_model
-    model = compile_model(spec)
+    user_code = "run" if allow_user_code else "refuse"
+    model = compile_model(spec, user_code=user_code)
     t2 = time.perf_counter()
     analyses = plan(spec, overrides)
     problems = []
@@ -166,10 +170,15 @@ def run(path: str, overrides=None, command: str = "", progress=None) -> RunResul
     res = RunResult(deck=path, deck_sha256=spec.sha256, units=model.units,
                     active_effects=list(model.active_effects), command=command)
     res.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
+    inputs = getattr(model, "input_files", None)
+    if inputs:           # files read besides the deck (scripts): batch freshness covers them
+        import json
+        res.attrs["input_files"] = json.dumps(inputs, sort_keys=True)
     res.model_datasets = model_datasets(model)
     res.model_datasets.update(joint_marker_datasets(spec, model))
     res.model_datasets.update(graphics_datasets(spec, model))
-    models = _analysis_models(spec, model, analyses, compile_model)
+    models = _analysis_models(spec, model, analyses,
+                              lambda sp: compile_model(sp, user_code=user_code))
     for m in models[1:]:
         res.active_effects += [e for e in m.active_effects if e not in res.active_effects]
     state = model.initial_state()
@@ -209,9 +218,11 @@ def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
     return out
 
 
-def run_spec(spec: DeckSpec, overrides=None, command: str = "", progress=None) -> RunResult:
+def run_spec(spec: DeckSpec, overrides=None, command: str = "", progress=None,
+             allow_user_code: bool = False) -> RunResult:
     """Run an already-parsed (possibly modified) :class:`DeckSpec`; same as :func:`run`."""
-    return run(spec, overrides=overrides, command=command, progress=progress)
+    return run(spec, overrides=overrides, command=command, progress=progress,
+               allow_user_code=allow_user_code)
 
 
 def joint_marker_datasets(spec: DeckSpec, model) -> dict:
@@ -336,7 +347,7 @@ def check(path: str):
     from poise.model.compile import compile_model
     from poise.solvers.static import detect_redundancy
     spec = _load(path)
-    model = compile_model(spec)
+    model = compile_model(spec, user_code="skip")      # check never runs deck code
     rep = CheckReport(deck=path)
     mass = model.deck_mass()
     for i, bid in enumerate(model.body_id):
@@ -361,6 +372,12 @@ def check(path: str):
     rep.n_equations = model.nc
     rep.n_redundant = len(red)
     rep.dof = model.nq - (model.nc - len(red))
+    rep.user_routines = sorted(getattr(model, "user_routines", []), key=lambda u: u["line"])
+    from poise.model.compile_user import USER_CONSTRAINT_TAGS
+    n_user_c = sum(u["tag"] in USER_CONSTRAINT_TAGS for u in rep.user_routines)
+    if n_user_c:      # their equation count is known only by calling them: not here
+        rep.dof_without_user_constraints = rep.dof
+        rep.dof = None
     rep.redundant = [dict(tag=model.row_info[r]["tag"], id=model.row_info[r]["id"],
                           equation=model.row_info[r]["equation"], line=model.row_info[r]["line"])
                      for r in red]

@@ -20,7 +20,9 @@ equal lengths), ``random`` (``n`` cases; ranges of real attributes are sampled u
 
 Resuming: a case whose file exists, has a ``status`` root attribute and records the same
 ``sweep_case_hash`` (SHA-256 of deck hash, case values, overrides and poise version) is not
-run again; its row is read back from the file (``resumed = true``).
+run again, unless a user script it read changed (root attribute ``input_files``); its row is
+read back from the file (``resumed = true``). Decks naming Python user routines need
+``allow_user_code`` (``--allow-user-code``), passed on to the workers.
 
 Index row keys (``INDEX_KEYS``, then one column per parameter, then the ``--output`` columns):
 ``case``, ``file``, ``status`` (``converged``/``failed``/``invalid_deck``/``internal_error``),
@@ -329,8 +331,10 @@ def _spec_from_bytes(data: bytes, path: str):
 
 
 def run_case(data: bytes, path: str, params: list[Param], index: int, values: dict,
-             overrides: dict | None, out_file: str, chash: str, outputs) -> dict:
-    """Solve one case and write its results file; return its index row (a Dask task)."""
+             overrides: dict | None, out_file: str, chash: str, outputs,
+             allow_user_code: bool = False) -> dict:
+    """Solve one case and write its results file; return its index row (a Dask task).
+    ``allow_user_code``: run the deck's Python user routines (in the worker)."""
     from poise.batch import result_stats
     from poise.deck.validate import validate
     from poise.errors import DeckError
@@ -342,7 +346,8 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
         spec.warnings = list(base.warnings)
         from poise.runner import run_spec
         res = run_spec(spec, {**(overrides or {}), **extra},
-                       command=f"poise sweep case {index}: {json.dumps(values, default=str)}")
+                       command=f"poise sweep case {index}: {json.dumps(values, default=str)}",
+                       allow_user_code=allow_user_code)
     except DeckError as e:
         problems = [str(p) for p in e.problems] or [str(e)]
         row.update(status="invalid_deck", exit_code=3, message="; ".join(problems))
@@ -364,17 +369,20 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
     return row
 
 
-def resumable(out_file: str, chash: str) -> bool:
-    """The case file exists, is complete (``status`` root attribute) and has this case hash."""
+def resumable(out_file: str, chash: str, allow_user_code: bool = False) -> bool:
+    """The case file exists, is complete (``status`` root attribute), has this case hash and
+    the scripts it read are unchanged (and still allowed to run)."""
     if not os.path.isfile(out_file):
         return False
     try:
         import h5py
+
+        from poise.batch import inputs_fresh
         with h5py.File(out_file, "r") as f:
             a = f.attrs
             h = a.get("sweep_case_hash")
             h = h.decode() if isinstance(h, bytes) else h
-            return "status" in a and h == chash
+            return "status" in a and h == chash and inputs_fresh(a, allow_user_code)
     except (OSError, ValueError):
         return False
 
@@ -418,7 +426,8 @@ class _Progress:
 
 def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=None,
               outputs=(), n=None, seed=0, workers=None, overrides=None, force=False,
-              progress: bool | None = None, on_row=None, client=None) -> list[dict]:
+              progress: bool | None = None, on_row=None, client=None,
+              allow_user_code: bool = False) -> list[dict]:
     """Run a sweep; return the index rows (sorted by case) and write ``index.csv``/``.json``.
 
     Parameters
@@ -442,6 +451,9 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
         Rerun cases whose file is complete and up to date.
     client : dask.distributed.Client, optional
         Use this client (library use); ``scheduler`` and ``workers`` are then ignored.
+    allow_user_code : bool
+        Run the Python user routines the deck names, in the workers (default False: such a
+        deck gives ``invalid_deck`` rows saying how to allow them).
 
     Raises
     ------
@@ -477,7 +489,7 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     bar = _Progress(len(cases), progress)
     todo = []
     for i, c in enumerate(cases):
-        if not force and resumable(files[i], hashes[i]):
+        if not force and resumable(files[i], hashes[i], allow_user_code):
             try:
                 rows[i] = {**resumed_row(files[i], i, c, outs), "resumed": True}
                 bar.step()
@@ -508,7 +520,7 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     try:
         if todo:
             _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
-                      scheduler, workers, client, bar, on_row)
+                      scheduler, workers, client, bar, on_row, allow_user_code)
     finally:
         bar.close()
         result = finish()
@@ -516,7 +528,7 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
 
 
 def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
-              scheduler, workers, client, bar, on_row):
+              scheduler, workers, client, bar, on_row, allow_user_code=False):
     import logging
 
     from dask.distributed import Client, LocalCluster, as_completed
@@ -539,8 +551,8 @@ def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, o
         futs = {}
         for i in todo:
             f = client.submit(run_case, data, deck_abs, params, i, cases[i], overrides,
-                              files[i], hashes[i], outs, key=f"poise-case-{i}-{hashes[i][:16]}",
-                              pure=False)
+                              files[i], hashes[i], outs, bool(allow_user_code),
+                              key=f"poise-case-{i}-{hashes[i][:16]}", pure=False)
             futs[f] = i
         for fut in as_completed(list(futs)):
             i = futs[fut]

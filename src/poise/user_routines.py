@@ -6,6 +6,13 @@ deck's directory), ``usrsub_fnc_name`` (default ``ucosub`` / ``sfosub`` / ``gfos
 ``PYTHON`` when given. The file is imported once per compile with ``importlib`` under a unique
 module name (``poise_user_<hash of the path>``); ``sys.path`` is not changed.
 
+Decks come from anywhere (CI runs decks nobody read), so deck code runs only when the caller
+allows it (:data:`RUN`: ``--allow-user-code`` / ``allow_user_code=True``); otherwise a deck that
+names a script is a located deck error (:data:`REFUSE`) and ``poise check`` validates the
+reference without importing anything (:data:`SKIP`). Whatever the mode, ``script_name`` must
+stay inside the deck's directory tree: absolute paths, ``..`` components and symlinks that
+resolve outside are refused. The user code's stdout goes to stderr (``--json`` stays strict).
+
 Calling convention (all elements)::
 
     def fn(id, time, par, q):
@@ -31,16 +38,18 @@ Calling convention (all elements)::
   / ``1e-4`` when the gradient itself comes from finite differences, else ``1e-6``).
 * The set of marker vectors a function reads is recorded at a first call at the input
   configuration; it must not change later (a read of a new vector fails the solve).
-* A user function that raises or returns NaN/Inf fails the solve (exit 1, results written) with
-  a message naming the element, the function and the file. A missing file or function, an
-  import error, ``interpreter`` other than PYTHON and DLL routines (``usrsub_dll_name`` without a
-  Python script) are located deck errors (exit 3).
+* A user function that raises (anything, also ``SystemExit`` / ``KeyboardInterrupt``) or returns
+  NaN/Inf fails the solve (exit 1, results written) with a message naming the element, the
+  function and the file. A missing file or function, an import error (again anything raised,
+  ``SystemExit(0)`` included), ``interpreter`` other than PYTHON and DLL routines
+  (``usrsub_dll_name`` without a Python script) are located deck errors (exit 3).
 """
 from __future__ import annotations
 
 import hashlib
 import importlib.util
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -75,23 +84,93 @@ def parse_par(text) -> tuple:
     return tuple(float(t.replace("D", "E").replace("d", "e")) for t in re.split(r"[\s,]+", s) if t)
 
 
+#: user-code modes of :func:`load` (``compile_model(spec, user_code=...)``)
+RUN, REFUSE, SKIP = "run", "refuse", "skip"
+
+ALLOW_HINT = ("poise runs code named by a deck only when allowed: pass --allow-user-code "
+              "(allow_user_code=True in the Python API)")
+
 _MODULES: dict = {}
 
 
-def _import(path: Path):
-    key = (str(path), path.stat().st_mtime_ns)
+class _UserStdout:
+    """User code's ``print`` goes to stderr: stdout is poise's (strict JSON under ``--json``)."""
+
+    def __enter__(self):
+        self._old = sys.stdout
+        sys.stdout = sys.stderr
+
+    def __exit__(self, *exc):
+        sys.stdout = self._old
+        return False
+
+
+def _import(path: Path, data: bytes, digest: str):
+    """The module of the script bytes ``data`` (the bytes hashed are the bytes run)."""
+    key = (str(path), digest)
     if key in _MODULES:
         return _MODULES[key]
     name = "poise_user_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
     spec = importlib.util.spec_from_file_location(name, str(path))
     mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    with _UserStdout():
+        exec(compile(data, str(path), "exec"), mod.__dict__)  # noqa: S102 - allowed user code
     _MODULES[key] = mod
     return mod
 
 
-def load(el):
-    """(function, path, par) of an element's Python user routine; DeckError when unusable."""
+def deck_dir(el) -> Path:
+    """The directory a deck's scripts are resolved in (the current one for in-memory decks)."""
+    f = el.loc.file
+    return Path(f).resolve().parent if f and f[0] != "<" else Path.cwd().resolve()
+
+
+def script_path(el) -> Path:
+    """``script_name`` resolved inside the deck's directory tree; DeckError when it is absolute,
+    has a ``..`` component, resolves (through symlinks) outside that tree or is not a file.
+    Nothing is read or executed."""
+    script = str(el.attrs.get("script_name"))
+    base = deck_dir(el)
+    rel = Path(script)
+    if rel.is_absolute() or script.startswith(("/", "\\")) \
+            or ".." in Path(script.replace("\\", "/")).parts:
+        raise DeckError(Problem(el.loc, f"{script!r} leaves the deck's directory (an absolute "
+                                "path or '..'; refused, also with --allow-user-code); expected "
+                                f"a script inside the deck's directory tree {base}",
+                                "script_name"))
+    try:
+        path = (base / rel).resolve()
+    except (OSError, ValueError, RuntimeError) as e:     # NUL byte, symlink loop, ...
+        raise DeckError(Problem(el.loc, f"{script!r} is not a usable path ({e}); "
+                                "expected a .py file inside the deck's directory",
+                                "script_name")) from None
+    if not path.is_relative_to(base):
+        raise DeckError(Problem(el.loc, f"{script!r} resolves to {path}, outside the deck's "
+                                "directory tree (through a symlink; refused, also with "
+                                f"--allow-user-code); expected a script inside {base}",
+                                "script_name"))
+    if not path.is_file():
+        raise DeckError(Problem(el.loc, f"user script {path} not found (script_name is "
+                                "relative to the deck's directory)", "script_name"))
+    return path
+
+
+def function_name(el) -> str:
+    return str(el.attrs.get("usrsub_fnc_name") or DEFAULT_NAMES.get(el.tag, "usrsub"))
+
+
+def describe(el) -> dict:
+    """What ``poise check`` reports of a user-routine element (nothing is imported)."""
+    return dict(tag=el.tag, id=el.id, script=str(el.attrs.get("script_name")),
+                function=function_name(el), line=el.loc.line)
+
+
+def load(el, mode: str = REFUSE):
+    """(function, path, par, sha256 of the script) of an element's Python user routine.
+
+    ``mode``: :data:`RUN` imports the script; :data:`REFUSE` raises a located DeckError saying
+    how to allow it; :data:`SKIP` checks the reference and returns ``None`` (nothing runs).
+    DeckError when unusable (see the module doc)."""
     a = el.attrs
     script, dll = a.get("script_name"), a.get("usrsub_dll_name")
     interp = a.get("interpreter")
@@ -106,28 +185,42 @@ def load(el):
     if interp is not None and str(interp).strip().upper() != "PYTHON":
         raise DeckError(Problem(el.loc, f"interpreter {interp!r} is not supported; expected "
                                 "PYTHON", "interpreter"))
-    base = Path(el.loc.file).resolve().parent if el.loc.file and el.loc.file[0] != "<" \
-        else Path.cwd()
-    path = (base / str(script)).resolve()
-    if not path.is_file():
-        raise DeckError(Problem(el.loc, f"user script {path} not found (script_name is "
-                                "relative to the deck's directory)", "script_name"))
-    try:
-        mod = _import(path)
-    except Exception as e:  # noqa: BLE001 - any error in user code is a located deck error
-        raise DeckError(Problem(el.loc, f"importing user script {path} failed: "
-                                f"{type(e).__name__}: {e}", "script_name")) from None
-    fname = str(a.get("usrsub_fnc_name") or DEFAULT_NAMES.get(el.tag, "usrsub"))
-    fn = getattr(mod, fname, None)
-    if not callable(fn):
-        raise DeckError(Problem(el.loc, f"user script {path} has no function {fname!r}",
-                                "usrsub_fnc_name"))
+    path = script_path(el)
+    fname = function_name(el)
     try:
         par = parse_par(a.get("usrsub_param_string"))
     except ValueError:
         raise DeckError(Problem(el.loc, "usrsub_param_string: expected USER(number, ...)",
                                 "usrsub_param_string")) from None
-    return fn, path, par
+    if mode == SKIP:
+        return None
+    if mode != RUN:
+        raise DeckError(Problem(el.loc, f"names the Python user routine {fname!r} in {path}; "
+                                f"{ALLOW_HINT}", "script_name"))
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise DeckError(Problem(el.loc, f"cannot read user script {path}: {e.strerror or e}",
+                                "script_name")) from None
+    digest = hashlib.sha256(data).hexdigest()
+    try:
+        mod = _import(path, data, digest)
+    except BaseException as e:  # noqa: BLE001 - SystemExit/KeyboardInterrupt too: never exit 0
+        raise DeckError(Problem(el.loc, f"importing user script {path} (for routine "
+                                f"{fname!r}) failed: {_raised(e)}", "script_name")) from None
+    fn = getattr(mod, fname, None)
+    if not callable(fn):
+        raise DeckError(Problem(el.loc, f"user script {path} has no function {fname!r}",
+                                "usrsub_fnc_name"))
+    return fn, path, par, digest
+
+
+def _raised(e: BaseException) -> str:
+    """One line naming what user code raised (``SystemExit(0)`` included)."""
+    if isinstance(e, SystemExit):
+        return f"it raised SystemExit({e.code!r})"
+    text = " ".join(str(e).split())
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
 class _NewSlot(Exception):
@@ -224,14 +317,16 @@ class UserRoutine:
     def _call(self, t, vec, record=None):
         q = MarkerAccess(t, vec, self.mi, record)
         try:
-            out = self.fn(self.el.id, float(t), self.par, q)
+            with _UserStdout():
+                out = self.fn(self.el.id, float(t), self.par, q)
         except _NewSlot as e:
             mid, kind = e.args[0]
             raise EvaluationError(f"{self._where()} read {KIND_NAMES[kind]} of marker {mid}, "
                                   "which it did not read at the first call (the marker vectors "
                                   "a user routine reads must not change)", self.el.loc) from None
-        except Exception as e:  # noqa: BLE001 - any error in user code fails the solve cleanly
-            raise EvaluationError(f"{self._where()} raised {type(e).__name__}: {e}",
+        except BaseException as e:  # noqa: BLE001 - anything user code raises (SystemExit,
+            # KeyboardInterrupt too) fails the solve cleanly, never exits the process
+            raise EvaluationError(f"{self._where()} raised {_raised(e).removeprefix('it raised ')}",
                                   self.el.loc) from None
         der = None
         if isinstance(out, tuple) and len(out) == 2 and isinstance(out[1], dict):

@@ -140,9 +140,14 @@ def _stats(xs):
 
 
 def run_point(xml_text: str, static: dict, transient: dict | None, repeat: int, tmpdir: Path,
-              ref_fn=None, ref_mod=None, warmup: bool = True) -> dict:
-    """Solve one deck variant ``repeat`` times in this process (after one warm-up run)."""
+              ref_fn=None, ref_mod=None, warmup: bool = True,
+              allow_user_code: bool = False) -> dict:
+    """Solve one deck variant ``repeat`` times in this process (after one warm-up run);
+    ``allow_user_code``: run its Python user routines (scripts next to ``tmpdir/variant.xml``)."""
+    from functools import partial
+
     from poise.api import run_deck
+    run_deck = partial(run_deck, allow_user_code=allow_user_code)
     p = tmpdir / "variant.xml"
     p.write_bytes(with_settings(xml_text, static, transient))
     ov = {"fallback": False}

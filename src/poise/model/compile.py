@@ -130,6 +130,9 @@ class _Builder:
         self.pc = ProblemCollector()
         self.effects: list[str] = []
         self._by_id: dict = {}
+        self.user_code = "refuse"          # see compile_model
+        self.user_routines: list[dict] = []
+        self.input_files: dict[str, str] = {}
 
     def element(self, tag: str, eid):
         """First model element ``tag`` with id ``eid`` (None if there is none); one dict per tag."""
@@ -454,8 +457,15 @@ def _compile_expressions(spec, ctx):
     compile_expressions(spec, ctx)
 
 
-def compile_model(spec: DeckSpec) -> Model:
+def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
     """Compile a validated :class:`DeckSpec` into a :class:`Model`.
+
+    ``user_code`` says what to do with Python user routines the deck names
+    (``poise.user_routines``): ``"run"`` imports and probes them (the caller's
+    ``allow_user_code``), ``"refuse"`` (default) makes each a located deck error saying how to
+    allow it, ``"skip"`` (``poise check``) validates the reference and leaves the element out of
+    the model, running nothing. ``Model.user_routines`` lists them; ``Model.input_files`` maps
+    each script read to its SHA-256 (freshness of batch results).
 
     Raises
     ------
@@ -464,11 +474,12 @@ def compile_model(spec: DeckSpec) -> Model:
         numbers are needed, ...), all collected.
     """
     with spec.indexed():      # elements(tag) from one tag index, not one scan per call
-        return _compile(spec)
+        return _compile(spec, user_code)
 
 
-def _compile(spec: DeckSpec) -> Model:
+def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     b = _Builder(spec)
+    b.user_code = user_code
     mfac, udesc = unit_info(spec)
     b.markers()
     bodies = b.bodies(mfac)
@@ -536,6 +547,8 @@ def _compile(spec: DeckSpec) -> Model:
     model.frame_hooks.extend(ctx.frame_hooks)
     model.reaction_feed = getattr(ctx, "reaction_feed", None)
     model.spec_warnings = list(pc.warnings)
+    model.user_routines = list(b.user_routines)
+    model.input_files = dict(b.input_files)
     model.finalize()
     return model
 

@@ -34,12 +34,20 @@ def _initial_kinematics(ctx):
 
 
 def _routine(el, ctx, P, A):
-    from poise.user_routines import UserRoutine, load
+    """The element's probed :class:`UserRoutine`, or None (problem collected, or user code not
+    run: ``ctx.b.user_code`` is ``"refuse"`` or ``"skip"``, see ``poise.user_routines.load``)."""
+    from poise.user_routines import UserRoutine, describe, load
+    b = ctx.b
     try:
-        fn, path, par = load(el)
+        got = load(el, b.user_code)
     except DeckError as e:
         ctx.pc.problems.extend(e.problems)
         return None
+    b.user_routines.append(describe(el))
+    if got is None:                      # poise check: the reference is valid, nothing ran
+        return None
+    fn, path, par, digest = got
+    b.input_files[str(path)] = digest
     r = UserRoutine(el, fn, path, par, ctx.b.marker_index, ctx.b.L)
     ctx.reads_time(el.loc.prefix()[:-1])   # opaque code: may read its time argument anywhere
     try:
