@@ -423,5 +423,5 @@ def test_non_finite_solver_options_are_usage_errors(tmp_path, opt, val):
 def test_non_finite_api_override_is_a_usage_error():
     from poise.api import run_deck
     from poise.errors import UsageError
-    with pytest.raises(UsageError, match="max_error must be a finite number > 0, got nan"):
+    with pytest.raises(UsageError, match="max_error must be a finite number >= 1e-100, got nan"):
         run_deck(str(ROOT / "decks" / "pendulum_multiturn.xml"), {"max_error": float("nan")})
