@@ -46,7 +46,8 @@ def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict
         return EXIT_INVALID_DECK, {"status": "invalid_deck", "problems": problems}
     if isinstance(exc, UsageError):
         click.echo(f"poise: error: {_one_line(exc)}", err=True)
-        return EXIT_USAGE, {"status": "usage_error", "error": _one_line(exc)}
+        return EXIT_USAGE, {"status": getattr(exc, "status", "usage_error"),
+                            "error": _one_line(exc)}
     if isinstance(exc, KeyboardInterrupt):
         click.echo("poise: interrupted", err=True)
         return EXIT_INTERRUPTED, {"status": "interrupted", "error": "interrupted"}

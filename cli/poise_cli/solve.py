@@ -68,13 +68,16 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
         fail(exc)
         return
 
+    from poise_cli.streams import collected_warnings, guarded_stdout
     try:
-        from poise.api import run_deck
-        result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet)
+        with guarded_stdout(quiet), collected_warnings() as numeric:
+            from poise.api import run_deck
+            result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet)
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return
 
+    result.warnings = list(result.warnings) + numeric   # recorded in the file and the JSON
     warnings = [str(w) for w in result.warnings]
     if not quiet:
         for w in warnings:
@@ -82,8 +85,9 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
 
     t0 = time.perf_counter()
     try:
-        from poise.results.hdf5 import write_results
-        write_results(result, out)
+        with guarded_stdout(quiet), collected_warnings():
+            from poise.results.hdf5 import write_results
+            write_results(result, out)
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return

@@ -137,10 +137,12 @@ class StaticAnalysis:
         model.row_active[:] = saved
         d = output_datasets(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
                             dep, outcomes)
-        d["frames/stability"] = np.array(["unknown"] * len(outcomes), dtype=str)
+        from poise.solvers.stability import StabilityInfo, classify, stability_datasets
         if all(o.ok for o in outcomes) and J is not None:
-            from poise.solvers.stability import classify, stability_datasets
             d.update(stability_datasets([classify(model, state, J=J)]))
+        else:   # the same datasets either way: frames of a sequence are concatenated by key
+            d.update(stability_datasets([StabilityInfo("unknown", -1, -1, "", np.nan)]
+                                        * len(outcomes)))
         return d
 
 
