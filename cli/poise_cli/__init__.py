@@ -5,7 +5,7 @@ Every module here imports only ``click`` and the standard library at import time
 """
 
 import os as _os
-import signal as _signal
+import _signal  # the C module: ``signal`` imports enum, a window for an import traceback
 import sys as _sys
 
 

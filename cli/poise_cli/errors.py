@@ -27,6 +27,18 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """``exc`` is, or was caused by, a KeyboardInterrupt (Ctrl-C/SIGTERM landing inside code
+    that wraps exceptions, e.g. ``RuntimeError: Error calling __set_name__`` at import)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict]:
     """Print ``exc`` on stderr the way the CLI reports it and return ``(exit_code, info)``.
 
@@ -48,7 +60,7 @@ def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict
         click.echo(f"poise: error: {_one_line(exc)}", err=True)
         return EXIT_USAGE, {"status": getattr(exc, "status", "usage_error"),
                             "error": _one_line(exc)}
-    if isinstance(exc, KeyboardInterrupt):
+    if _interrupted(exc):
         click.echo("poise: interrupted", err=True)
         return EXIT_INTERRUPTED, {"status": "interrupted", "error": "interrupted"}
     msg = f"{type(exc).__name__}: {_one_line(exc)}" if str(exc) else type(exc).__name__

@@ -42,6 +42,9 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
     if not os.path.isdir(out_dir):
         raise click.BadParameter(f"directory {out_dir!r} does not exist",
                                  param_hint="'-o' / '--output'")
+    if not os.access(out_dir, os.W_OK | os.X_OK):     # refused now, not after the solve
+        raise click.BadParameter(f"directory {out_dir!r} is not writable",
+                                 param_hint="'-o' / '--output'")
     overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
                                   max_imbalance=max_imbalance, max_error=max_error,
                                   stability=stability,

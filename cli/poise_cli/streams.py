@@ -58,7 +58,7 @@ def collected_warnings():
     """Record Python warnings raised inside the block; yields the list of unique messages.
 
     Each message reads ``RuntimeWarning: overflow encountered in matmul (newton.py:89)``; a
-    message repeated (same category, text and place) is kept once.
+    message repeated (same category and text) is kept once, with its first place.
     """
     import warnings
     seen: list[str] = []
@@ -67,8 +67,9 @@ def collected_warnings():
         try:
             yield seen
         finally:
+            keys = set()
             for w in caught:
-                text = (f"{w.category.__name__}: {' '.join(str(w.message).split())} "
-                        f"({os.path.basename(str(w.filename))}:{w.lineno})")
-                if text not in seen:
-                    seen.append(text)
+                key = f"{w.category.__name__}: {' '.join(str(w.message).split())}"
+                if key not in keys:
+                    keys.add(key)
+                    seen.append(f"{key} ({os.path.basename(str(w.filename))}:{w.lineno})")

@@ -147,9 +147,11 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str) -> d
         with warnings.catch_warnings(record=True) as caught:   # numpy warnings: run warnings
             warnings.simplefilter("default")
             res = run_deck(deck, overrides, command=command)
-        res.warnings = list(res.warnings) + list(dict.fromkeys(
-            f"{w.category.__name__}: {' '.join(str(w.message).split())} "
-            f"({os.path.basename(str(w.filename))}:{w.lineno})" for w in caught))
+        numeric: dict = {}
+        for w in caught:        # once per category and text, with the first place
+            numeric.setdefault(f"{w.category.__name__}: {' '.join(str(w.message).split())}",
+                               f" ({os.path.basename(str(w.filename))}:{w.lineno})")
+        res.warnings = list(res.warnings) + [k + v for k, v in numeric.items()]
     except DeckError as e:
         problems = [str(p) for p in e.problems] or [str(e)]
         return _row(deck, None, status="invalid_deck", exit_code=3,
