@@ -74,3 +74,31 @@ def test_absurd_tolerance_override_is_a_usage_error():
     from poise.api import run_deck
     with pytest.raises(UsageError, match="max_imbalance must be a finite number >= 1e-100"):
         run_deck(str(DECK), {"max_imbalance": 1e-300})
+
+
+def test_huge_marker_coordinate_is_a_located_problem():
+    # a marker at x = -3.3e299 made the multiplier solve singular (LinAlgError, exit 4)
+    text = DECK.read_text()
+    new, n = re.subn(r'(<Reference_Marker id="\d+"[^>]*?) pos_x="[^"]*"', r'\1 pos_x="-3.3e299"',
+                     text, count=1)
+    assert n == 1
+    with pytest.raises(DeckError) as e:
+        parse_deck_bytes(new.encode(), "d.xml")
+    (p,) = e.value.problems
+    assert "<Reference_Marker id=" in str(p) and "'pos_x' out of range" in str(p)
+    assert "<= 1e+100" in str(p)
+
+
+def test_problem_lines_escape_newlines_and_control_characters():
+    from poise.errors import Problem, SourceLoc
+    p = Problem(SourceLoc("d.xml", 7, "Body_Rigid", 2), "got 'a\nb\x00c'", "label")
+    assert str(p) == "d.xml:7: <Body_Rigid id=2> label: got 'a\\nb\\x00c'"
+
+
+def test_malformed_xml_message_is_one_located_line():
+    # lxml's message for a NUL byte spans two lines ("...range\n, line 8, column 170")
+    text = DECK.read_text().replace('id="2"', 'id="2\x00"', 1)
+    with pytest.raises(DeckError) as e:
+        parse_deck_bytes(text.encode(), "d.xml")
+    (p,) = e.value.problems
+    assert "\n" not in str(p) and re.match(r"^d\.xml:\d+: malformed XML: ", str(p))

@@ -45,10 +45,10 @@ def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict
     ``info`` is merged into the ``--json`` summary: ``status`` plus ``problems`` (invalid deck)
     or ``error`` (other errors).
     """
-    from poise.errors import DeckError, UsageError  # light module (dataclasses only)
+    from poise.errors import DeckError, UsageError, one_line  # light module (dataclasses only)
 
     if isinstance(exc, DeckError):
-        problems = [str(p) for p in exc.problems] or [str(exc)]
+        problems = [one_line(p) for p in exc.problems] or [one_line(exc)]
         if debug:
             traceback.print_exception(exc, file=sys.stderr)
         for line in problems:

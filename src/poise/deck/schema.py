@@ -137,6 +137,10 @@ def A(name, kind, doc="", **kw) -> Attr:
     return Attr(name, kind, doc, **kw)
 
 
+#: Largest marker coordinate magnitude: squared distances of larger ones overflow a float (1e154)
+#: and a model spanning more is not a model; refused as a located deck error.
+COORD_MAX = 1e100
+
 #: Smallest convergence tolerance accepted (deck and CLI): below it the solvers' scaled squares
 #: (1/tol**2) overflow, so a tighter tolerance can only end in a meaningless failure.
 TOL_MIN = 1e-100
@@ -233,7 +237,7 @@ el("Reference_Marker", "both", True,
        E("body_type", "RIGIDBODY FLEXBODY POINTBODY", "kind of owning body (derived when absent)"),
        M("rm_id", "marker the position/orientation are relative to (0/absent: global)", zero_ok=True),
        A("node_id", "int", "flexible-body node (flexible bodies only)"),
-       xyz("pos_", "", "origin coordinate", default=0.0),
+       xyz("pos_", "", "origin coordinate", default=0.0, lo=-COORD_MAX, hi=COORD_MAX),
        [R(f"a{r}{c}", f"direction cosine, row {r} column {c} (columns = unit x, y, z axes)")
         for c in range(3) for r in range(3)],
        R("psi", "body-fixed 3-1-3 Euler angle 1 (rad)"), R("theta", "3-1-3 Euler angle 2 (rad)"),

@@ -15,7 +15,7 @@ import numpy as np
 
 from poise.deck.schema import NAMESPACES, Attr, ElementSchema, element_schema, namespace_of
 from poise.deck.spec import DeckSpec, Element, Expr
-from poise.errors import Problem, ProblemCollector, SourceLoc
+from poise.errors import Problem, ProblemCollector, SourceLoc, one_line
 
 ORTHO_TOL = 1e-6
 _KIND_TEXT = {"real": "a real number", "int": "an integer", "bool": "TRUE or FALSE",
@@ -29,7 +29,7 @@ class FileProblem(Problem):
     """A problem of the whole file: ``FILE:LINE: message`` (no element prefix)."""
 
     def __str__(self) -> str:
-        return f"{self.loc.file}:{self.loc.line}: {self.message}"
+        return one_line(f"{self.loc.file}:{self.loc.line}: {self.message}")
 
 
 def _ns_text(ns: str) -> str:
