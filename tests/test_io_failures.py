@@ -243,3 +243,22 @@ def test_interrupted_solve_is_one_line_exit_130(tmp_path, chain_deck, sig, delay
     assert p.returncode == 130, stderr
     assert stderr.strip() == "poise: interrupted" and stdout == ""
     assert [n for n in _files(tmp_path) if n != "o.h5"] == []
+
+
+def test_ctrl_c_on_a_batch_is_one_line(tmp_path, chain_deck):
+    # Ctrl-C in a terminal signals the whole process group: the batch and its workers
+    out = tmp_path / "b"
+    p = subprocess.Popen([str(POISE), "batch", str(chain_deck), str(ROOT / "decks" / "chain_10.xml"),
+                          "--out-dir", str(out), "-j", "2", "--json"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(1.0)
+    os.killpg(p.pid, signal.SIGINT)
+    stdout, stderr = p.communicate(timeout=60)
+    assert "Traceback" not in stderr, stderr
+    if p.returncode == 0:          # finished before the signal
+        return
+    assert p.returncode == 130, stderr
+    assert stderr.count("poise: interrupted") == 1, stderr
+    assert json.loads(stdout)["exit_code"] == 130

@@ -12,7 +12,9 @@ import sys as _sys
 def _early_interrupt(signum, frame):  # pragma: no cover - timing dependent
     """Ctrl-C/SIGTERM while the command line interface is still starting (imports): one line,
     exit 130 (a KeyboardInterrupt here would print an import traceback)."""
-    _os.write(2, b"poise: interrupted\n")
+    mp = _sys.modules.get("multiprocessing")
+    if mp is None or mp.parent_process() is None:   # a batch worker leaves it to the parent
+        _os.write(2, b"poise: interrupted\n")
     _os._exit(130)
 
 

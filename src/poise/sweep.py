@@ -364,9 +364,17 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
         spec, extra = apply_case(base, params, values)
         validate(spec)
         spec.warnings = list(base.warnings)
+        import warnings
         from poise.runner import run_spec
-        res = run_spec(spec, {**(overrides or {}), **extra},
-                       command=f"poise sweep case {index}: {json.dumps(values, default=str)}")
+        with warnings.catch_warnings(record=True) as caught:   # numpy warnings: run warnings
+            warnings.simplefilter("default")
+            res = run_spec(spec, {**(overrides or {}), **extra},
+                           command=f"poise sweep case {index}: {json.dumps(values, default=str)}")
+        numeric: dict = {}
+        for w in caught:        # once per category and text, with the first place
+            numeric.setdefault(f"{w.category.__name__}: {' '.join(str(w.message).split())}",
+                               f" ({os.path.basename(str(w.filename))}:{w.lineno})")
+        res.warnings = list(res.warnings) + [k + v for k, v in numeric.items()]
     except DeckError as e:
         problems = [str(p) for p in e.problems] or [str(e)]
         row.update(status="invalid_deck", exit_code=3, message="; ".join(problems))
@@ -380,8 +388,14 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
     res.attrs.update(sweep_case=int(index), sweep_case_hash=chash,
                      sweep_values=json.dumps(values, sort_keys=True, default=str),
                      run_overrides=json.dumps(overrides or {}, sort_keys=True, default=str))
+    from poise.atomic import OutputError
     from poise.results.hdf5 import write_results
-    write_results(res, out_file)
+    try:
+        write_results(res, out_file)
+    except OutputError as e:         # disk full: an I/O error row, the sweep goes on
+        row.update(status="io_error", exit_code=2, message=" ".join(str(e).split()))
+        row.update(output_columns(None, outputs))
+        return row
     st = result_stats(res)
     row.update(file=out_file, status=st["status"], exit_code=st["exit_code"],
                iterations=st["iterations"], wall_time=st["time"], imbalance=st["imbalance"],
