@@ -102,3 +102,21 @@ def test_malformed_xml_message_is_one_located_line():
         parse_deck_bytes(text.encode(), "d.xml")
     (p,) = e.value.problems
     assert "\n" not in str(p) and re.match(r"^d\.xml:\d+: malformed XML: ", str(p))
+
+
+@pytest.mark.parametrize("old,new,what", [
+    ('print_interval="0.05"', 'print_interval="1e-320"', "inf output frames"),
+    ('end_time="1.0"', 'end_time="1e300"', "output frames"),
+    ('print_interval="0.05"', 'num_steps="1000000000000"', "num_steps asks for 1e+12"),
+])
+def test_absurd_frame_counts_are_located_problems(tmp_path, old, new, what):
+    # (end - start) / print_interval overflowing int() was exit 4; 1e300 frames a MemoryError
+    deck = tmp_path / "d.xml"
+    text = (ROOT / "decks" / "qs_spring_ramp.xml").read_text()
+    assert old in text
+    deck.write_text(text.replace(old, new, 1))
+    r = CliRunner().invoke(cli, ["solve", str(deck), "-o", str(tmp_path / "o.h5"), "-q"])
+    assert r.exit_code == 3, r.output
+    (line,) = [ln for ln in r.stderr.splitlines() if not ln.startswith("poise:")]
+    assert line.startswith(f"{deck}:") and "<Simulate>" in line and what in line
+    assert "at most 1000000" in line
