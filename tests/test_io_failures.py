@@ -262,3 +262,33 @@ def test_ctrl_c_on_a_batch_is_one_line(tmp_path, chain_deck):
     assert p.returncode == 130, stderr
     assert stderr.count("poise: interrupted") == 1, stderr
     assert json.loads(stdout)["exit_code"] == 130
+
+
+@pytest.fixture
+def read_only_dir(tmp_path):
+    """A read-only tmpfs (root only): a directory nobody, not even root, can write."""
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    mnt = tmp_path / "ro"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(mnt)],
+                      capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
+
+
+def test_read_only_out_dirs_are_exit_2(read_only_dir):
+    r = CliRunner().invoke(cli, ["solve", str(DECK), "-o", str(read_only_dir / "o.h5")])
+    assert r.exit_code == 2 and "not writable" in r.output
+    p = subprocess.run([str(POISE), "batch", str(DECK), "--out-dir", str(read_only_dir)],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and str(read_only_dir) in p.stderr and "not writable" in p.stderr
+    assert "Traceback" not in p.stderr
+    r = CliRunner().invoke(cli, ["sweep", str(ROOT / "decks" / "fourbar_spring.xml"), "--set",
+                                 "Force_SpringDamper[1].stiffness=1,2", "--out-dir",
+                                 str(read_only_dir / "sub")])
+    assert r.exit_code == 2 and "cannot create the directory" in r.stderr
+    assert os.listdir(read_only_dir) == []
