@@ -14,8 +14,9 @@ itself) or that is one of the inputs (the deck) is refused with
 Failures are clean: a write that fails for lack of space or permission (``OSError``, HDF5's
 ``errno = N`` errors, errors HDF5 can only report as "ignored" while closing) removes the
 temporary file and raises :class:`OutputError` (a usage error, exit 2) naming the path.
-SIGINT/SIGTERM during the write are held until the writer returns, then raised as
-``KeyboardInterrupt`` (the temporary file removed, the target untouched). Temporary names are
+SIGINT/SIGTERM during a short write (``hold_interrupts``: results files) are held until the
+writer returns, then raised as ``KeyboardInterrupt`` (the temporary file removed, the target
+untouched). Temporary names are
 ``.<name>.tmp-<pid>@<host>``: one left by a killed process (SIGKILL) is removed by the next
 write into that directory once its process is gone.
 """
@@ -176,11 +177,11 @@ def _io_reason(exc: BaseException | None, unraisable: list) -> str | None:
 
 
 @contextlib.contextmanager
-def _held_interrupts():
+def _held_interrupts(hold: bool = True):
     """Hold SIGINT/SIGTERM inside the block (main thread only); yields the list of signals
     received, which the caller turns into ``KeyboardInterrupt`` at a safe point."""
     got: list = []
-    if threading.current_thread() is not threading.main_thread():
+    if not hold or threading.current_thread() is not threading.main_thread():
         yield got
         return
     old = {}
@@ -216,19 +217,21 @@ def _collect_unraisable():
 
 
 @contextlib.contextmanager
-def atomic_output(path, inputs=(), keep_suffix: bool = False):
+def atomic_output(path, inputs=(), keep_suffix: bool = False, hold_interrupts: bool = False):
     """Context manager yielding the temporary path to write instead of ``path``.
 
     On a clean exit the temporary file is fsync'ed and renamed over the target
     (:func:`output_target`); on any exception (also KeyboardInterrupt) it is removed.
     ``keep_suffix`` appends the target's extension to the temporary name, for writers that
-    choose the format by extension (matplotlib, ffmpeg).
+    choose the format by extension (matplotlib, ffmpeg). ``hold_interrupts`` holds SIGINT and
+    SIGTERM until the writer returns (for short writes through native code that an interrupt
+    would leave in a broken state: HDF5); long writers (animations) stay interruptible.
     """
     target = output_target(path, inputs)
     directory = os.path.dirname(target)
     remove_stale_temps(directory, os.path.basename(target))
     tmp = temp_name(target, keep_suffix)
-    with _held_interrupts() as signals, _collect_unraisable() as unraisable:
+    with _held_interrupts(hold_interrupts) as signals, _collect_unraisable() as unraisable:
         try:
             yield tmp
             if signals:

@@ -222,7 +222,7 @@ def write_results(result: RunResult, path: str) -> None:
     and is not a regular file, and the deck itself (``result.deck``).
     """
     from poise.atomic import atomic_output
-    with atomic_output(path, (getattr(result, "deck", None),)) as tmp:
+    with atomic_output(path, (getattr(result, "deck", None),), hold_interrupts=True) as tmp:
         _write_file(result, tmp)
 
 
