@@ -53,7 +53,7 @@ class LazyGroup(click.Group):
             formatter.write_dl(rows)
 
     def invoke(self, ctx):
-        # Ctrl-C (and SIGTERM, see cli()) anywhere in a command: one line, exit 130, never a
+        # Ctrl-C (and SIGTERM, _install_sigterm) in a command: one line, exit 130, never a
         # traceback or click's "Aborted!" (exit 1)
         _install_sigterm()
         try:
