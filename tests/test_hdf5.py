@@ -266,7 +266,7 @@ def test_sigkill_mid_write_leaves_no_final_file(tmp_path):
     try:
         assert proc.stdout.readline().strip() == "mid-write"
         tmps = [p for p in tmp_path.iterdir() if p.name.startswith(".killed.h5.tmp-")]
-        assert len(tmps) == 1 and tmps[0].stat().st_size > 0
+        assert len(tmps) == 1        # claimed first; the image is built in memory, written last
         proc.send_signal(signal.SIGKILL)
     finally:
         proc.wait(timeout=30)

@@ -78,12 +78,22 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
         if not quiet:
             click.echo(_line(row), err=True)
 
+    from poise_cli.errors import report_exception
+    from poise_cli.streams import guarded_stdout
+
+    def fail(exc):
+        code, info = report_exception(exc)
+        if as_json:
+            print_json({"batch_version": BATCH_VERSION, "out_dir": out_dir, "exit_code": code,
+                        **info})
+        sys.exit(code)
+
     try:
-        rows = run_batch(list(decks), out_dir, jobs=jobs, overrides=overrides, force=force,
-                         command=command, on_row=on_row, allow_user_code=allow_user_code)
-    except KeyboardInterrupt:
-        click.echo("poise: interrupted", err=True)
-        sys.exit(130)
+        with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout
+            rows = run_batch(list(decks), out_dir, jobs=jobs, overrides=overrides, force=force,
+                             command=command, on_row=on_row, allow_user_code=allow_user_code)
+    except (Exception, KeyboardInterrupt) as exc:   # out-dir not writable: exit 2
+        fail(exc)
     code = worst_exit_code(r["exit_code"] for r in rows)
     counts = {}
     for r in rows:
@@ -91,7 +101,10 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
     n_skipped = sum(bool(r["skipped"]) for r in rows)
     summary = {"batch_version": BATCH_VERSION, "out_dir": out_dir, "exit_code": code,
                "counts": counts, "skipped": n_skipped}
-    write_table(rows, os.path.join(out_dir, "summary"), keys=BATCH_KEYS, extra=summary)
+    try:
+        write_table(rows, os.path.join(out_dir, "summary"), keys=BATCH_KEYS, extra=summary)
+    except (Exception, KeyboardInterrupt) as exc:   # disk full: exit 2
+        fail(exc)
     if as_json:
         print_json(sanitize({**summary, "rows": rows}))
     else:

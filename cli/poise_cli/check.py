@@ -76,16 +76,18 @@ def check(deck, as_json, debug):
     Exit code 0 for a valid deck, 3 for an invalid one (every problem printed on stderr).
     """
     ctx = click.get_current_context()
+    from poise_cli.streams import collected_warnings, guarded_stdout
     try:
-        from poise.api import check_deck
-        rep = check_deck(deck)
+        with guarded_stdout(), collected_warnings() as numeric:
+            from poise.api import check_deck
+            rep = check_deck(deck)
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:
             print_json({"deck": deck, "exit_code": code, **info})
         ctx.exit(code)
         return
-    warnings = [str(w) for w in rep.warnings]
+    warnings = [str(w) for w in rep.warnings] + numeric
     for w in warnings:
         click.echo(f"warning: {w}", err=True)
     if as_json:

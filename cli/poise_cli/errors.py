@@ -27,16 +27,28 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """``exc`` is, or was caused by, a KeyboardInterrupt (Ctrl-C/SIGTERM landing inside code
+    that wraps exceptions, e.g. ``RuntimeError: Error calling __set_name__`` at import)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict]:
     """Print ``exc`` on stderr the way the CLI reports it and return ``(exit_code, info)``.
 
     ``info`` is merged into the ``--json`` summary: ``status`` plus ``problems`` (invalid deck)
     or ``error`` (other errors).
     """
-    from poise.errors import DeckError, UsageError  # light module (dataclasses only)
+    from poise.errors import DeckError, UsageError, one_line  # light module (dataclasses only)
 
     if isinstance(exc, DeckError):
-        problems = [str(p) for p in exc.problems] or [str(exc)]
+        problems = [one_line(p) for p in exc.problems] or [one_line(exc)]
         if debug:
             traceback.print_exception(exc, file=sys.stderr)
         for line in problems:
@@ -46,8 +58,9 @@ def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict
         return EXIT_INVALID_DECK, {"status": "invalid_deck", "problems": problems}
     if isinstance(exc, UsageError):
         click.echo(f"poise: error: {_one_line(exc)}", err=True)
-        return EXIT_USAGE, {"status": "usage_error", "error": _one_line(exc)}
-    if isinstance(exc, KeyboardInterrupt):
+        return EXIT_USAGE, {"status": getattr(exc, "status", "usage_error"),
+                            "error": _one_line(exc)}
+    if _interrupted(exc):
         click.echo("poise: interrupted", err=True)
         return EXIT_INTERRUPTED, {"status": "interrupted", "error": "interrupted"}
     msg = f"{type(exc).__name__}: {_one_line(exc)}" if str(exc) else type(exc).__name__

@@ -52,6 +52,15 @@ class LazyGroup(click.Group):
         with formatter.section("Commands"):
             formatter.write_dl(rows)
 
+    def invoke(self, ctx):
+        # Ctrl-C (and SIGTERM, _install_sigterm) in a command: one line, exit 130, never a
+        # traceback or click's "Aborted!" (exit 1)
+        _install_sigterm()
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:
+            interrupted()
+
     def __call__(self, *args, **kwargs):
         # The console script, ``python -m poise_cli`` and ``python -c`` call ``cli()`` from
         # ``__main__``: end the process fast there. Anywhere else (tests, CliRunner, a library
@@ -60,10 +69,53 @@ class LazyGroup(click.Group):
                 or sys._getframe(1).f_globals.get("__name__") != "__main__"):
             return self.main(*args, **kwargs)
         try:
-            self.main(*args, **kwargs)
-        except SystemExit as e:
-            end_process(e.code)
-        end_process(0)
+            try:
+                self.main(*args, **kwargs)
+            except SystemExit as e:
+                end_process(e.code)
+            end_process(0)
+        except KeyboardInterrupt:       # between the command and the end of the process
+            _quiet_exit(EXIT_INTERRUPTED)
+
+
+EXIT_INTERRUPTED = 130
+
+
+def interrupted():
+    """Report an interrupt (Ctrl-C, SIGTERM) in one line and exit 130."""
+    try:
+        click.echo("poise: interrupted", err=True)
+    except KeyboardInterrupt:
+        pass
+    raise click.exceptions.Exit(EXIT_INTERRUPTED)
+
+
+def _quiet_exit(code: int) -> None:
+    try:
+        sys.stderr.write("poise: interrupted\n")
+        sys.stderr.flush()
+    except BaseException:  # noqa: BLE001 - nothing more can be reported
+        pass
+    os._exit(code)
+
+
+def _terminate(signum, frame):
+    """SIGTERM is handled like Ctrl-C: unwinds (temporary files removed), exit 130."""
+    raise KeyboardInterrupt
+
+
+def _install_sigterm() -> None:
+    import signal
+    import threading
+    from poise_cli import _early_interrupt
+    if threading.current_thread() is threading.main_thread():
+        try:
+            if signal.getsignal(signal.SIGINT) is _early_interrupt:
+                signal.signal(signal.SIGINT, signal.default_int_handler)
+            if signal.getsignal(signal.SIGTERM) in (signal.SIG_DFL, _early_interrupt):
+                signal.signal(signal.SIGTERM, _terminate)
+        except (ValueError, OSError):
+            pass
 
 
 def end_process(code) -> None:
@@ -109,6 +161,7 @@ def cli() -> None:
       2  usage error
       3  invalid deck (located problems on stderr)
       4  internal error (rerun with --debug for the traceback)
+    130  interrupted (Ctrl-C or SIGTERM)
     """
 
 

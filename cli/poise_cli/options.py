@@ -8,6 +8,10 @@ OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stabil
 
 METHODS = ("FIM_D", "FIM_S", "MKEAM")
 
+#: smallest --max-imbalance / --max-error (poise.deck.schema.TOL_MIN; not imported: that module
+#: is heavier than the CLI's start-up budget allows)
+TOL_MIN = 1e-100
+
 json_option = click.option(
     "--json", "as_json", is_flag=True,
     help="Print a machine-readable JSON summary on stdout.")
@@ -47,9 +51,9 @@ def solver_options(f):
                           "Default FIM_D."),
         click.option("--max-num-iter", type=click.IntRange(min=1), default=None,
                      help="Maximum Newton iterations per frame."),
-        click.option("--max-imbalance", type=_Finite(min=0, min_open=True),
+        click.option("--max-imbalance", type=_Finite(min=TOL_MIN),
                      default=None, help="Convergence tolerance on the force imbalance."),
-        click.option("--max-error", type=_Finite(min=0, min_open=True), default=None,
+        click.option("--max-error", type=_Finite(min=TOL_MIN), default=None,
                      help="Convergence tolerance on the (scaled) displacement step."),
         click.option("--stability", type=_Finite(min=0), default=None,
                      help="sqrt(stability) x mass matrix is added to the Jacobian only "

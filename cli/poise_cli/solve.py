@@ -43,6 +43,9 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
     if not os.path.isdir(out_dir):
         raise click.BadParameter(f"directory {out_dir!r} does not exist",
                                  param_hint="'-o' / '--output'")
+    if not os.access(out_dir, os.W_OK | os.X_OK):     # refused now, not after the solve
+        raise click.BadParameter(f"directory {out_dir!r} is not writable",
+                                 param_hint="'-o' / '--output'")
     overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
                                   max_imbalance=max_imbalance, max_error=max_error,
                                   stability=stability,
@@ -69,14 +72,17 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
         fail(exc)
         return
 
+    from poise_cli.streams import collected_warnings, guarded_stdout
     try:
-        from poise.api import run_deck
-        result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet,
-                          allow_user_code=allow_user_code)
+        with guarded_stdout(quiet), collected_warnings() as numeric:
+            from poise.api import run_deck
+            result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet,
+                              allow_user_code=allow_user_code)
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return
 
+    result.warnings = list(result.warnings) + numeric   # recorded in the file and the JSON
     warnings = [str(w) for w in result.warnings]
     if not quiet:
         for w in warnings:
@@ -84,8 +90,9 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
 
     t0 = time.perf_counter()
     try:
-        from poise.results.hdf5 import write_results
-        write_results(result, out)
+        with guarded_stdout(quiet), collected_warnings():
+            from poise.results.hdf5 import write_results
+            write_results(result, out)
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return

@@ -81,7 +81,7 @@ def solve_summary(deck: str, output: str | None, status: str, exit_code: int,
 
 
 def print_json(data: Any) -> None:
-    click.echo(json.dumps(data, indent=2, default=_json_default, allow_nan=False))
+    click.echo(json.dumps(sanitize(data), indent=2, default=_json_default, allow_nan=False))
 
 
 def _json_default(o: Any) -> Any:

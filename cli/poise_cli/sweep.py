@@ -33,13 +33,15 @@ from poise_cli.summary import print_json
               help="Index column(s) from the last frame, e.g. bodies[2].position, "
                    "joints[1].force, requests[1].values. Repeat.")
 @click.option("--force", is_flag=True, help="Rerun cases whose results file is complete.")
+@click.option("--max-cases", type=click.IntRange(min=1), default=100_000, show_default=True,
+              help="Refuse sweeps with more cases than this (counted before any case is made).")
 @solver_options
 @user_code_option
 @quiet_option
 @json_option
 @debug_option
 def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs, force,
-          method, max_num_iter, max_imbalance, max_error, stability, no_fallback,
+          max_cases, method, max_num_iter, max_imbalance, max_error, stability, no_fallback,
           allow_user_code, quiet, as_json, debug):
     """Solve DECK once per combination of --set values on Dask distributed.
 
@@ -62,13 +64,15 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs
         if not quiet and (row.get("exit_code") or 0) not in (0, 1):
             click.echo(f"case {row['case']}: {row['status']}: {row.get('message', '')}", err=True)
 
+    from poise_cli.streams import guarded_stdout
     try:
         from poise.batch import worst_exit_code
         from poise.sweep import INDEX_VERSION, run_sweep
-        rows = run_sweep(deck, list(sets), mode=mode, out_dir=out_dir, scheduler=scheduler,
-                         outputs=list(outputs), n=n_random, seed=seed, workers=workers,
-                         overrides=overrides, force=force, progress=None if not quiet else False,
-                         on_row=on_row, allow_user_code=allow_user_code)
+        with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout
+            rows = run_sweep(deck, list(sets), mode=mode, out_dir=out_dir, scheduler=scheduler,
+                             outputs=list(outputs), n=n_random, seed=seed, workers=workers,
+                             overrides=overrides, force=force, progress=None if not quiet else False,
+                             on_row=on_row, max_cases=max_cases, allow_user_code=allow_user_code)
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:

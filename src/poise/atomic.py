@@ -10,12 +10,33 @@ points to is replaced, not the link), and a path that exists but is not a regula
 directory, a device such as ``/dev/null``, a FIFO: the rename would replace the device node
 itself) or that is one of the inputs (the deck) is refused with
 :class:`poise.errors.UsageError` (CLI exit code 2).
+
+Failures are clean: a write that fails for lack of space or permission (``OSError``, HDF5's
+``errno = N`` errors, errors HDF5 can only report as "ignored" while closing) removes the
+temporary file and raises :class:`OutputError` (a usage error, exit 2) naming the path.
+SIGINT/SIGTERM during a short write (``hold_interrupts``: results files) are held until the
+writer returns, then raised as ``KeyboardInterrupt`` (the temporary file removed, the target
+untouched). Temporary names are
+``.<name>.tmp-<pid>@<host>``: one left by a killed process (SIGKILL) is removed by the next
+write into that directory once its process is gone.
 """
 from __future__ import annotations
 
 import contextlib
 import os
+import re
+import signal
 import stat
+import sys
+import threading
+
+from poise.errors import UsageError
+
+
+class OutputError(UsageError):
+    """An output file could not be written (disk full, no permission, ...): exit 2."""
+
+    status = "io_error"
 
 
 def output_target(path, inputs=()) -> str:
@@ -33,7 +54,6 @@ def output_target(path, inputs=()) -> str:
     str
         ``os.path.realpath(path)``.
     """
-    from poise.errors import UsageError
     path = os.fspath(path)
     real = os.path.realpath(path)
     try:
@@ -74,26 +94,162 @@ def fsync_path(path: str, directory: bool = False) -> None:
         os.close(fd)
 
 
+_HOST = re.sub(r"[^A-Za-z0-9-]", "-", os.uname().nodename if hasattr(os, "uname") else "")[:40]
+#: ``.<name>.tmp-<pid>[@<host>][.<ext>]`` (without ``@host``: written by poise <= 0.1)
+_TMP = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)(?:@(?P<host>[A-Za-z0-9-]*))?"
+                  r"(?:\.[A-Za-z0-9]+)?$")
+_SCANNED: set = set()
+
+
+def temp_name(target: str, keep_suffix: bool = False) -> str:
+    """The temporary path of ``target`` for this process."""
+    directory, name = os.path.split(target)
+    return os.path.join(directory, f".{name}.tmp-{os.getpid()}@{_HOST}"
+                        + (os.path.splitext(name)[1] if keep_suffix else ""))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:          # EPERM: someone else's live process
+        return True
+    return True
+
+
+def remove_stale_temps(directory: str, name: str | None = None) -> list[str]:
+    """Remove the temporary files a killed poise process left in ``directory``; return them.
+
+    A temp file is stale when its process (pid in the name) no longer exists on this host.
+    Files tagged with another host (a shared filesystem) are left alone; untagged (old) ones
+    only for ``name``. Each directory is scanned once per process (``name`` given) so that
+    writing many files into one directory stays linear.
+    """
+    key = os.path.realpath(directory)
+    if name is not None:
+        if key in _SCANNED:
+            return []
+        _SCANNED.add(key)
+    removed = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return removed
+    me = os.getpid()
+    for e in entries:
+        m = _TMP.match(e.name)
+        if m is None:
+            continue
+        host = m.group("host")
+        if host is None and (name is None or m.group("name") != name):
+            continue
+        if host is not None and host != _HOST:
+            continue
+        pid = int(m.group("pid"))
+        if pid == me or _pid_alive(pid):
+            continue
+        with contextlib.suppress(OSError):
+            if e.is_file(follow_symlinks=False):
+                os.unlink(e.path)
+                removed.append(e.path)
+    return removed
+
+
+_ERRNO = re.compile(r"errno = (\d+)")
+
+
+def _io_reason(exc: BaseException | None, unraisable: list) -> str | None:
+    """Why a write failed when it is an I/O failure (a reason text), else None."""
+    for e in ([exc] if exc is not None else []) + [u.exc_value for u in unraisable]:
+        if e is None:
+            continue
+        if isinstance(e, OSError):
+            no = e.errno
+            if no is None:
+                m = _ERRNO.search(str(e))
+                no = int(m.group(1)) if m else None
+            return os.strerror(no) if no else " ".join(str(e).split())[:200]
+        m = _ERRNO.search(str(e))
+        if m:          # HDF5 reports failed writes as RuntimeError "... errno = 28 ..."
+            return os.strerror(int(m.group(1)))
+    return None
+
+
 @contextlib.contextmanager
-def atomic_output(path, inputs=(), keep_suffix: bool = False):
+def _held_interrupts(hold: bool = True):
+    """Hold SIGINT/SIGTERM inside the block (main thread only); yields the list of signals
+    received, which the caller turns into ``KeyboardInterrupt`` at a safe point."""
+    got: list = []
+    if not hold or threading.current_thread() is not threading.main_thread():
+        yield got
+        return
+    old = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            old[sig] = signal.signal(sig, lambda n, f: got.append(n))
+        except (ValueError, OSError):
+            pass
+    try:
+        yield got
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+@contextlib.contextmanager
+def _collect_unraisable():
+    """Errors raised where Python can only ignore them (HDF5 closing a file whose last write
+    failed): recorded instead of printed as a traceback."""
+    seen: list = []
+    old = sys.unraisablehook
+
+    def hook(u):
+        if isinstance(u.exc_value, OSError) or _ERRNO.search(str(u.exc_value)):
+            seen.append(u)
+        else:
+            old(u)
+    sys.unraisablehook = hook
+    try:
+        yield seen
+    finally:
+        sys.unraisablehook = old
+
+
+@contextlib.contextmanager
+def atomic_output(path, inputs=(), keep_suffix: bool = False, hold_interrupts: bool = False):
     """Context manager yielding the temporary path to write instead of ``path``.
 
     On a clean exit the temporary file is fsync'ed and renamed over the target
     (:func:`output_target`); on any exception (also KeyboardInterrupt) it is removed.
     ``keep_suffix`` appends the target's extension to the temporary name, for writers that
-    choose the format by extension (matplotlib, ffmpeg).
+    choose the format by extension (matplotlib, ffmpeg). ``hold_interrupts`` holds SIGINT and
+    SIGTERM until the writer returns (for short writes through native code that an interrupt
+    would leave in a broken state: HDF5); long writers (animations) stay interruptible.
     """
     target = output_target(path, inputs)
     directory = os.path.dirname(target)
-    name = os.path.basename(target)
-    tmp = os.path.join(directory, f".{name}.tmp-{os.getpid()}"
-                       + (os.path.splitext(name)[1] if keep_suffix else ""))
-    try:
-        yield tmp
-        fsync_path(tmp)
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    remove_stale_temps(directory, os.path.basename(target))
+    tmp = temp_name(target, keep_suffix)
+    with _held_interrupts(hold_interrupts) as signals, _collect_unraisable() as unraisable:
+        try:
+            yield tmp
+            if signals:
+                raise KeyboardInterrupt
+            if unraisable:
+                raise OutputError(f"cannot write {os.fspath(path)!r}: "
+                                  f"{_io_reason(None, unraisable)}")
+            fsync_path(tmp)
+            os.replace(tmp, target)
+        except BaseException as exc:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            if isinstance(exc, (KeyboardInterrupt, UsageError)):
+                raise
+            reason = _io_reason(exc, unraisable)
+            if reason is None:
+                raise
+            raise OutputError(f"cannot write {os.fspath(path)!r}: {reason}") from exc
     fsync_path(directory, directory=True)
+    if signals:     # arrived after the last check: the file is complete, the run interrupted
+        raise KeyboardInterrupt

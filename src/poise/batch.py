@@ -53,12 +53,12 @@ BATCH_KEYS = ("deck", "output", "status", "exit_code", "iterations", "time", "im
               "skipped", "message")
 
 #: severity order of exit codes (worst last)
-_RANK = {0: 0, 1: 1, 3: 2, 4: 3}
+_RANK = {0: 0, 1: 1, 3: 2, 2: 3, 4: 4}     # 2: a results file could not be written
 
 
 def worst_exit_code(codes) -> int:
     codes = list(codes)
-    return max(codes, key=lambda c: _RANK.get(c, 3)) if codes else 0
+    return max(codes, key=lambda c: _RANK.get(c, 4)) if codes else 0
 
 
 def overrides_json(overrides: dict | None) -> str:
@@ -164,19 +164,30 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str,
               allow_user_code: bool = False) -> dict:
     """Solve one deck and write its results file (runs in a worker process)."""
     from poise.errors import DeckError
+    import warnings
     try:
         from poise.api import run_deck
-        res = run_deck(deck, overrides, command=command, allow_user_code=allow_user_code)
+        with warnings.catch_warnings(record=True) as caught:   # numpy warnings: run warnings
+            warnings.simplefilter("default")
+            res = run_deck(deck, overrides, command=command, allow_user_code=allow_user_code)
+        numeric: dict = {}
+        for w in caught:        # once per category and text, with the first place
+            numeric.setdefault(f"{w.category.__name__}: {' '.join(str(w.message).split())}",
+                               f" ({os.path.basename(str(w.filename))}:{w.lineno})")
+        res.warnings = list(res.warnings) + [k + v for k, v in numeric.items()]
     except DeckError as e:
         problems = [str(p) for p in e.problems] or [str(e)]
         return _row(deck, None, status="invalid_deck", exit_code=3,
                     message="; ".join(problems), problems=problems)
     except (Exception, SystemExit) as e:  # noqa: BLE001 - a row, never kills the batch
         return _error_row(deck, f"{type(e).__name__}: {' '.join(str(e).split())}")
+    from poise.atomic import OutputError
     try:
         from poise.results.hdf5 import write_results
         res.attrs["run_overrides"] = overrides_json(overrides)
         write_results(res, output)
+    except OutputError as e:         # disk full, no permission: an I/O error, not a bug
+        return _row(deck, None, status="io_error", exit_code=2, message=" ".join(str(e).split()))
     except Exception as e:  # noqa: BLE001
         return _error_row(deck, f"writing {output}: {type(e).__name__}: {e}")
     return _row(deck, output, **result_stats(res))
@@ -192,7 +203,7 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
     """
     import functools
     job = functools.partial(solve_one, allow_user_code=bool(allow_user_code))   # picklable
-    os.makedirs(out_dir, exist_ok=True)
+    ensure_out_dir(out_dir)
     outs = output_paths(decks, out_dir)
     rows: list[Any] = [None] * len(decks)
     todo = []
@@ -283,23 +294,35 @@ def _solve_isolated(keys, jobs, decks, outs, overrides, command, rows, on_row,
                 on_row(row)
 
 
+def ensure_out_dir(out_dir: str) -> None:
+    """Create ``out_dir`` (and parents); an output directory that cannot be created or written
+    is an I/O error naming it (:class:`poise.atomic.OutputError`, exit 2), before any work."""
+    from poise.atomic import OutputError
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"--out-dir {out_dir!r}: cannot create the directory: "
+                          f"{e.strerror or e}") from None
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise OutputError(f"--out-dir {out_dir!r}: the directory is not writable")
+
+
 def write_table(rows: list[dict], path_stem: str, keys=None, extra: dict | None = None) -> None:
-    """``<path_stem>.csv`` and ``<path_stem>.json`` (``{"rows": [...], **extra}``), atomically."""
+    """``<path_stem>.csv`` and ``<path_stem>.json`` (``{"rows": [...], **extra}``), atomically
+    (:func:`poise.atomic.atomic_output`: a failed write is an ``OutputError``, exit 2)."""
     import csv
+
+    from poise.atomic import atomic_output
     keys = list(keys) if keys else list(dict.fromkeys(k for r in rows for k in r))
-    tmp = f"{path_stem}.csv.tmp-{os.getpid()}"
-    with open(tmp, "w", newline="") as f:
+    with atomic_output(f"{path_stem}.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
         for r in rows:
             w.writerow({k: _cell(r.get(k)) for k in keys})
-    os.replace(tmp, f"{path_stem}.csv")
-    tmp = f"{path_stem}.json.tmp-{os.getpid()}"
-    with open(tmp, "w") as f:
+    with atomic_output(f"{path_stem}.json") as tmp, open(tmp, "w") as f:
         json.dump({**(extra or {}), "rows": [sanitize(r) for r in rows]}, f, indent=1,
                   sort_keys=False)
         f.write("\n")
-    os.replace(tmp, f"{path_stem}.json")
 
 
 def _cell(v):

@@ -40,6 +40,16 @@ class SourceLoc:
         return s + ":"
 
 
+_CONTROL = {c: f"\\x{c:02x}" for c in [*range(0x20), 0x7f]}
+_CONTROL.update({ord("\n"): "\\n", ord("\r"): "\\r", ord("\t"): "\\t"})
+
+
+def one_line(text: str) -> str:
+    """``text`` with newlines and other control characters escaped (``\\n``, ``\\x00``): a
+    problem is one line that starts with ``FILE:LINE:``, whatever values it echoes."""
+    return str(text).translate(_CONTROL)
+
+
 @dataclass(frozen=True)
 class Problem:
     """One located problem in a deck."""
@@ -49,7 +59,7 @@ class Problem:
     attr: str | None = None
 
     def __str__(self) -> str:
-        return f"{self.loc.prefix(self.attr)} {self.message}"
+        return one_line(f"{self.loc.prefix(self.attr)} {self.message}")
 
 
 class PoiseError(Exception):

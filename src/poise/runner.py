@@ -355,10 +355,15 @@ def check(path: str):
                                kind="rigid" if model.body_kind[i] == 0 else "point",
                                mass=float(mass[i])))
     seen = {}
+    tags = {ri["tag"] for ri in model.row_info}
+    by_key = {}       # (tag, id) -> first element: one pass, not one scan per row
+    for e in spec.model:
+        if e.tag in tags:
+            by_key.setdefault((e.tag, e.id), e)
     for ri in model.row_info:
         key = (ri["tag"], ri["id"])
         if key not in seen:
-            el = next(e for e in spec.model if e.tag == ri["tag"] and e.id == ri["id"])
+            el = by_key[key]
             seen[key] = dict(tag=ri["tag"], id=ri["id"], type=str(el.attrs.get("type", "")),
                              n_equations=0, line=ri["line"])
         seen[key]["n_equations"] += 1

@@ -11,6 +11,7 @@ import math
 from dataclasses import asdict, dataclass, fields, replace
 
 METHODS = ("MKEAM", "FIM_S", "FIM_D")
+TOL_MIN = 1e-100     # smallest tolerance (poise.deck.schema.TOL_MIN)
 
 
 @dataclass(frozen=True)
@@ -63,8 +64,8 @@ class StaticSettings:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
         for name in ("max_ke_tol", "max_dq_tol", "max_imbalance", "max_error"):
             v = getattr(self, name)
-            if not (v > 0 and math.isfinite(v)):
-                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+            if not (v >= TOL_MIN and math.isfinite(v)):
+                raise ValueError(f"{name} must be a finite number >= {TOL_MIN:g}, got {v!r}")
         if not (self.stability >= 0 and math.isfinite(self.stability)):
             raise ValueError(f"stability must be a finite number >= 0, got {self.stability!r}")
         if int(self.max_num_iter) < 1:

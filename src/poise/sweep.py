@@ -151,11 +151,13 @@ def parse_values(attr, text, where: str) -> tuple[list, tuple | None]:
             raise UsageError(f"{where}: range must be a:b:step, got {text!r}")
         kind = "int" if attr.kind == "int" else "real"
         a, b, step = (_num(p.strip(), kind, where) for p in parts)
-        if step == 0 or (b - a) * step < 0:
+        span = (float(b) - float(a)) / float(step) if step != 0 else math.nan
+        if step == 0 or span < 0:
             raise UsageError(f"{where}: step {step!r} does not go from {a!r} to {b!r}")
-        n = int(math.floor((b - a) / step + 1e-9)) + 1
-        if n > 1_000_000:
-            raise UsageError(f"{where}: range has {n} values (at most 1000000)")
+        if not span < 1_000_000:            # also inf/nan: b - a overflows a float
+            raise UsageError(f"{where}: range {text!r} has more than 1000000 values "
+                             "(or overflows)")
+        n = int(math.floor(span + 1e-9)) + 1
         raw = [a + i * step for i in range(n)]
         vals = [_check_value(attr, v if kind == "int" else _clean(v), where) for v in raw]
         return vals, (a, b)
@@ -213,9 +215,37 @@ def parse_set(text: str) -> tuple[str, str]:
     return k.strip(), v.strip()
 
 
+#: Default cap on the number of cases of one sweep (``--max-cases``).
+MAX_CASES = 100_000
+
+
+def count_cases(params: list[Param], mode: str = "grid", n: int | None = None) -> int:
+    """The number of cases :func:`make_cases` would make, without making them."""
+    if mode == "grid":
+        return math.prod(len(p.values) for p in params)
+    if mode == "zip":
+        return max((len(p.values) for p in params), default=0)
+    if mode == "random":
+        return int(n or 0)
+    raise UsageError(f"unknown sweep mode {mode!r}; expected grid, zip or random")
+
+
+def check_case_count(params: list[Param], mode: str = "grid", n: int | None = None,
+                     max_cases: int | None = MAX_CASES) -> int:
+    """:func:`count_cases`, refused (``UsageError``) above ``max_cases`` (None: no cap)."""
+    total = count_cases(params, mode, n)
+    if max_cases is not None and total > max_cases:
+        what = "--random N" if mode == "random" else \
+            " x ".join(str(len(p.values)) for p in params) + " values"
+        raise UsageError(f"the sweep has {total} cases ({what}), more than --max-cases "
+                         f"{max_cases}; raise --max-cases to run it")
+    return total
+
+
 def make_cases(params: list[Param], mode: str = "grid", n: int | None = None,
                seed: int | None = 0) -> list[dict]:
-    """Case values: list of {param key: value} in case order."""
+    """Case values: list of {param key: value} in case order (check the count first:
+    :func:`check_case_count`)."""
     keys = [p.key for p in params]
     if mode == "grid":
         return [dict(zip(keys, combo)) for combo in itertools.product(*[p.values for p in params])]
@@ -344,10 +374,18 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
         spec, extra = apply_case(base, params, values)
         validate(spec)
         spec.warnings = list(base.warnings)
+        import warnings
         from poise.runner import run_spec
-        res = run_spec(spec, {**(overrides or {}), **extra},
-                       command=f"poise sweep case {index}: {json.dumps(values, default=str)}",
-                       allow_user_code=allow_user_code)
+        with warnings.catch_warnings(record=True) as caught:   # numpy warnings: run warnings
+            warnings.simplefilter("default")
+            res = run_spec(spec, {**(overrides or {}), **extra},
+                           command=f"poise sweep case {index}: {json.dumps(values, default=str)}",
+                           allow_user_code=allow_user_code)
+        numeric: dict = {}
+        for w in caught:        # once per category and text, with the first place
+            numeric.setdefault(f"{w.category.__name__}: {' '.join(str(w.message).split())}",
+                               f" ({os.path.basename(str(w.filename))}:{w.lineno})")
+        res.warnings = list(res.warnings) + [k + v for k, v in numeric.items()]
     except DeckError as e:
         problems = [str(p) for p in e.problems] or [str(e)]
         row.update(status="invalid_deck", exit_code=3, message="; ".join(problems))
@@ -361,8 +399,14 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
     res.attrs.update(sweep_case=int(index), sweep_case_hash=chash,
                      sweep_values=json.dumps(values, sort_keys=True, default=str),
                      run_overrides=json.dumps(overrides or {}, sort_keys=True, default=str))
+    from poise.atomic import OutputError
     from poise.results.hdf5 import write_results
-    write_results(res, out_file)
+    try:
+        write_results(res, out_file)
+    except OutputError as e:         # disk full: an I/O error row, the sweep goes on
+        row.update(status="io_error", exit_code=2, message=" ".join(str(e).split()))
+        row.update(output_columns(None, outputs))
+        return row
     st = result_stats(res)
     row.update(file=out_file, wall_time=st.pop("time"), **st)
     row.update(output_columns(res, outputs))
@@ -427,7 +471,7 @@ class _Progress:
 def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=None,
               outputs=(), n=None, seed=0, workers=None, overrides=None, force=False,
               progress: bool | None = None, on_row=None, client=None,
-              allow_user_code: bool = False) -> list[dict]:
+              allow_user_code: bool = False, max_cases: int | None = MAX_CASES) -> list[dict]:
     """Run a sweep; return the index rows (sorted by case) and write ``index.csv``/``.json``.
 
     Parameters
@@ -454,6 +498,8 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     allow_user_code : bool
         Run the Python user routines the deck names, in the workers (default False: such a
         deck gives ``invalid_deck`` rows saying how to allow them).
+    max_cases : int or None
+        Refuse sweeps with more cases (counted before any is made); None: no cap.
 
     Raises
     ------
@@ -478,9 +524,13 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     if len({p.key for p in params}) != len(params):
         raise UsageError("the same attribute is given twice in --set")
     outs = parse_outputs(spec, outputs)
+    check_case_count(params, mode, n=n, max_cases=max_cases)
+    if scheduler and client is None:
+        check_scheduler(scheduler)
     cases = make_cases(params, mode, n=n, seed=seed)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    os.makedirs(out_dir, exist_ok=True)
+    from poise.batch import ensure_out_dir
+    ensure_out_dir(out_dir)
     width = max(5, len(str(len(cases) - 1)))
     files = [os.path.join(os.path.abspath(out_dir), f"case_{i:0{width}d}.h5")
              for i in range(len(cases))]
@@ -527,6 +577,22 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     return result
 
 
+def check_scheduler(address: str) -> None:
+    """A Dask scheduler address (``tcp://host:8786``, ``host:8786``) or a ``UsageError``."""
+    where = f"--scheduler {address!r}"
+    text = str(address).strip()
+    try:
+        from distributed.comm.addressing import parse_address, parse_host_port
+        scheme, loc = parse_address(text if "://" in text else f"tcp://{text}", strict=False)
+        if scheme in ("tcp", "tls"):
+            host, port = parse_host_port(loc, default_port=8786)
+            if not host or not 0 < int(port) < 65536:
+                raise ValueError("no host or bad port")
+    except Exception as e:  # noqa: BLE001 - whatever the parser says, the address is unusable
+        raise UsageError(f"{where}: not a scheduler address (expected e.g. "
+                         f"tcp://host:8786): {' '.join(str(e).split())}") from None
+
+
 def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
               scheduler, workers, client, bar, on_row, allow_user_code=False):
     import logging
@@ -538,7 +604,7 @@ def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, o
         if scheduler:
             try:
                 client = Client(scheduler, timeout="20s")
-            except (OSError, TimeoutError) as e:
+            except (OSError, TimeoutError, ValueError, TypeError) as e:
                 raise UsageError(f"--scheduler {scheduler!r}: cannot connect: {e}") from None
         else:
             nw = workers or os.cpu_count() or 1

@@ -704,7 +704,7 @@ def _parse(data: bytes, path: str, check: bool) -> DeckSpec:
             raise
         except etree.XMLSyntaxError as e:
             line = e.lineno or (e.position[0] if e.position else 0) or 0
-            msg = (e.msg or str(e)).strip()
+            msg = " ".join((e.msg or str(e)).replace("\n,", ",").split())   # one line
             raise DeckError(FileProblem(SourceLoc(path, line, "xml"),
                                         f"malformed XML: {msg}")) from None
         except Exception as e:  # any other lxml / decoding failure is still a deck problem

@@ -137,6 +137,15 @@ def A(name, kind, doc="", **kw) -> Attr:
     return Attr(name, kind, doc, **kw)
 
 
+#: Largest marker coordinate magnitude: squared distances of larger ones overflow a float (1e154)
+#: and a model spanning more is not a model; refused as a located deck error.
+COORD_MAX = 1e100
+
+#: Smallest convergence tolerance accepted (deck and CLI): below it the solvers' scaled squares
+#: (1/tol**2) overflow, so a tighter tolerance can only end in a meaningless failure.
+TOL_MIN = 1e-100
+
+
 def R(name, doc="", default=None, **kw) -> Attr:
     return Attr(name, "real", doc, default=default, **kw)
 
@@ -228,7 +237,7 @@ el("Reference_Marker", "both", True,
        E("body_type", "RIGIDBODY FLEXBODY POINTBODY", "kind of owning body (derived when absent)"),
        M("rm_id", "marker the position/orientation are relative to (0/absent: global)", zero_ok=True),
        A("node_id", "int", "flexible-body node (flexible bodies only)"),
-       xyz("pos_", "", "origin coordinate", default=0.0),
+       xyz("pos_", "", "origin coordinate", default=0.0, lo=-COORD_MAX, hi=COORD_MAX),
        [R(f"a{r}{c}", f"direction cosine, row {r} column {c} (columns = unit x, y, z axes)")
         for c in range(3) for r in range(3)],
        R("psi", "body-fixed 3-1-3 Euler angle 1 (rad)"), R("theta", "3-1-3 Euler angle 2 (rad)"),
@@ -430,11 +439,11 @@ el("Post_Request", "model", True, "Output request.", [
 # --------------------------------------------------------------------------- parameters and commands
 el("Param_Static", "both", True, "Static / quasi-static solver settings.", [
     E("method", "MKEAM FIM_S FIM_D", "equilibrium method", default="FIM_D"),
-    R("max_ke_tol", "MKEAM: residual kinetic energy at equilibrium", default=1e-5, lo=0, lo_open=True),
-    R("max_dq_tol", "MKEAM: largest relative state change", default=1e-3, lo=0, lo_open=True),
+    R("max_ke_tol", "MKEAM: residual kinetic energy at equilibrium", default=1e-5, lo=TOL_MIN),
+    R("max_dq_tol", "MKEAM: largest relative state change", default=1e-3, lo=TOL_MIN),
     A("max_num_iter", "int", "iteration cap (failure when reached)", default=100, lo=1),
-    R("max_imbalance", "FIM: largest force imbalance", default=1e-4, lo=0, lo_open=True),
-    R("max_error", "FIM: bound on residual change (alias max_residual)", default=1e-4, lo=0, lo_open=True,
+    R("max_imbalance", "FIM: largest force imbalance", default=1e-4, lo=TOL_MIN),
+    R("max_error", "FIM: bound on residual change (alias max_residual)", default=1e-4, lo=TOL_MIN,
       aliases=("max_residual",)),
     R("stability", "FIM: sqrt(stability) x mass matrix added to the Jacobian", default=1e-10, lo=0),
     R("compliance_delta", "FIM: perturbation for the compliance matrix", default=1e-3, lo=0, lo_open=True)])

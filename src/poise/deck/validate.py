@@ -15,7 +15,7 @@ import numpy as np
 
 from poise.deck.schema import NAMESPACES, Attr, ElementSchema, element_schema, namespace_of
 from poise.deck.spec import DeckSpec, Element, Expr
-from poise.errors import Problem, ProblemCollector, SourceLoc
+from poise.errors import Problem, ProblemCollector, SourceLoc, one_line
 
 ORTHO_TOL = 1e-6
 _KIND_TEXT = {"real": "a real number", "int": "an integer", "bool": "TRUE or FALSE",
@@ -29,7 +29,7 @@ class FileProblem(Problem):
     """A problem of the whole file: ``FILE:LINE: message`` (no element prefix)."""
 
     def __str__(self) -> str:
-        return f"{self.loc.file}:{self.loc.line}: {self.message}"
+        return one_line(f"{self.loc.file}:{self.loc.line}: {self.message}")
 
 
 def _ns_text(ns: str) -> str:
@@ -50,12 +50,15 @@ def _check_value(pc: ProblemCollector, el: Element, a: Attr, v: Any) -> None:
     if isinstance(v, str):
         what = "empty value" if not v.strip() else "invalid value"
         if k in ("real", "int"):
-            what = "not a number" if not _looks_numeric(v) else "not an integer"
+            x = _looks_numeric(v)
+            what = ("not a number" if x is None else "not a finite number" if not np.isfinite(x)
+                    else "not an integer")
         pc.error(el.loc, f"attribute '{a.name}' is {what}; expected {_KIND_TEXT[k]}, got '{v}'")
         return
     if isinstance(v, (int, float)) and not isinstance(v, bool):
         if not np.isfinite(v):
-            pc.error(el.loc, f"attribute '{a.name}' is not finite; expected {_KIND_TEXT[k]}, got {v}")
+            pc.error(el.loc, f"attribute '{a.name}' is not a finite number; expected "
+                             f"{_KIND_TEXT[k]}, got {v}")
             return
         bad = ((a.lo is not None and (v < a.lo or (a.lo_open and v == a.lo)))
                or (a.hi is not None and (v > a.hi or (a.hi_open and v == a.hi))))
@@ -64,12 +67,12 @@ def _check_value(pc: ProblemCollector, el: Element, a: Attr, v: Any) -> None:
                              f"got {v:g}")
 
 
-def _looks_numeric(v: str) -> bool:
+def _looks_numeric(v: str) -> float | None:
+    """``float()`` of a number-like string (``inf``, ``nan`` and ``1.5D0`` included) or None."""
     try:
-        float(v.strip().replace("d", "e").replace("D", "e"))
-        return True
+        return float(v.strip().replace("d", "e").replace("D", "e"))
     except ValueError:
-        return False
+        return None
 
 
 _REQUIRED: dict[str, tuple] = {}   # tag -> required attributes (schema order)
@@ -148,6 +151,8 @@ def _check_body(pc: ProblemCollector, el: Element, markers: dict[int, Element]) 
         return
     if el.tag != "Body_Rigid":
         return
+    if not _finite_attrs(el, ("mass", *_INERTIA)):   # reported once, by the attribute check
+        return
     pre = _EIG.get(id(el))
     if pre is None:
         tensor = _inertia(el)
@@ -156,13 +161,38 @@ def _check_body(pc: ProblemCollector, el: Element, markers: dict[int, Element]) 
         if mass > 0:
             pc.warn(el.loc, "moving body has mass but no inertia; its rotations must be constrained")
         return
-    eig = np.linalg.eigvalsh(tensor) if pre[1] is None else pre[1]
+    eig = _eigvalsh(tensor[None])[0] if pre[1] is None else pre[1]
     if len(pre) > 2 and pre[2]:       # positive definite (checked in one batch)
         return
     if eig.min() <= 1e-12 * max(1.0, float(np.abs(eig).max())):
-        pc.error(el.loc, "inertia tensor is not positive definite (products of inertia are "
+        what = ("not positive definite" if eig.min() <= 0 else
+                "numerically singular (smallest/largest eigenvalue < 1e-12)")
+        pc.error(el.loc, f"inertia tensor is {what} (products of inertia are "
                          "+integral(xy dm)); expected all eigenvalues > 0, got "
                          f"[{', '.join(f'{x:.6g}' for x in eig)}]")
+
+
+_INERTIA = tuple(f"inertia_{c}" for c in ("xx", "yy", "zz", "xy", "yz", "xz"))
+
+
+def _finite_attrs(el: Element, names) -> bool:
+    """Every one of ``names`` that is given is a finite number (not a string, inf or nan)."""
+    for n in names:
+        if n in el.attrs:
+            v = el.attrs[n]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v - v == 0.0:
+                return False
+    return True
+
+
+def _eigvalsh(T: np.ndarray) -> np.ndarray:
+    """Eigenvalues of finite symmetric 3x3 tensors ``T[k]``, each scaled by its largest entry
+    first (no overflow in LAPACK for entries near the float limit)."""
+    if not len(T):
+        return np.zeros((0, 3))
+    s = np.abs(T).max(axis=(1, 2))
+    s = np.where(s > 0, s, 1.0)
+    return np.linalg.eigvalsh(T / s[:, None, None]) * s[:, None]
 
 
 def _check_marker(pc: ProblemCollector, el: Element) -> None:
@@ -400,8 +430,8 @@ class _Screen:
             T = np.stack([xx, -xy, -xz, -xy, yy, -yz, -xz, -yz, zz], 1)[rows].reshape(-1, 3, 3)
         else:
             T = np.array([_inertia(el) for el in sel]).reshape(-1, 3, 3)
-        nz = np.any(T, axis=(1, 2))
-        eig = np.linalg.eigvalsh(T[nz]) if nz.any() else np.zeros((0, 3))
+        nz = np.any(T, axis=(1, 2)) & np.isfinite(T).all(axis=(1, 2))  # non-finite: _check_body
+        eig = _eigvalsh(T[nz])
         pd = (eig.min(axis=1) > 1e-12 * np.maximum(1.0, np.abs(eig).max(axis=1))).tolist()
         it = zip(eig, pd)
         for el, z in zip(sel, nz.tolist()):

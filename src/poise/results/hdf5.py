@@ -18,8 +18,8 @@ link/attribute creation order is not tracked (HDF5 iterates by name), and the fi
 default ``libver="earliest"`` object-header format, which stores no timestamps. No ``created``
 attribute exists; wall-clock timings live only in ``/timings`` attributes.
 
-Atomicity: the file is written to ``.<name>.tmp-<pid>`` in the destination directory, flushed and
-fsync'ed, then renamed over the final name with :func:`os.replace`. Any exception removes the
+Atomicity: the file is built in memory, written to ``.<name>.tmp-<pid>@<host>`` in the destination
+directory, fsync'ed, then renamed over the final name with :func:`os.replace`. Any exception removes the
 temp file. A process killed mid-write can leave only the hidden temp file, never a partial file
 under the final name (:mod:`poise.atomic`, which also refuses outputs that are not regular files
 or that are the deck itself).
@@ -145,10 +145,19 @@ def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str) -> 
 
 
 def _write_file(result: RunResult, path: str) -> None:
+    """Build the file in memory (HDF5 core driver, no backing store), then write its image to
+    ``path`` with plain Python I/O: a full disk or a failing device is one clean ``OSError``
+    (HDF5 cannot report a failed write while closing a file, and crashes on the half-written
+    file afterwards)."""
+    with open(path, "wb") as out:          # the name is claimed and writability checked first
+        out.write(_file_image(result, path))
+
+
+def _file_image(result: RunResult, name: str) -> bytes:
     import poise
 
     t_start = time.perf_counter()
-    with h5py.File(path, "w") as f:
+    with h5py.File(name, "w", driver="core", backing_store=False) as f:
         root_attrs = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -196,6 +205,8 @@ def _write_file(result: RunResult, path: str) -> None:
         tim = {k: float(v) for k, v in result.timings.items() if k != "write"}
         tim["write"] = time.perf_counter() - t_start
         _set_attrs(timings, tim, "/timings")
+        f.flush()
+        return f.id.get_file_image()
 
 
 def analysis_group_name(index: int) -> str:
@@ -205,14 +216,14 @@ def analysis_group_name(index: int) -> str:
 def write_results(result: RunResult, path: str) -> None:
     """Write ``result`` to ``path`` atomically (:func:`poise.atomic.atomic_output`).
 
-    The data go to ``.<name>.tmp-<pid>`` next to the target (``path``, or the file it links
+    The data go to ``.<name>.tmp-<pid>@<host>`` next to the target (``path``, or the file it links
     to); after a successful write and fsync the temp file is renamed to the target (replacing
     an existing file). On any exception the temp file is removed and the exception propagates;
     the target is then untouched. Refused (:class:`poise.errors.UsageError`): a path that exists
     and is not a regular file, and the deck itself (``result.deck``).
     """
     from poise.atomic import atomic_output
-    with atomic_output(path, (getattr(result, "deck", None),)) as tmp:
+    with atomic_output(path, (getattr(result, "deck", None),), hold_interrupts=True) as tmp:
         _write_file(result, tmp)
 
 

@@ -38,6 +38,18 @@ MIN_SUBSTEP_FRACTION = 2.0 ** -10
 
 
 # ---------------------------------------------------------------------- output times
+#: Most output frames one quasi-static Simulate may ask for (a located deck error beyond).
+MAX_FRAMES = 1_000_000
+
+
+def _check_frames(sim, n: float, what: str) -> None:
+    if not n <= MAX_FRAMES:          # also inf/nan: times that overflow
+        from poise.errors import DeckError, Problem
+        raise DeckError(Problem(sim.loc, f"{what} asks for {n:.3g} output frames; expected at "
+                                         f"most {MAX_FRAMES} (a larger print_interval or a "
+                                         "shorter run)"))
+
+
 def output_times(sim, t_now: float, arrays: dict | None = None) -> np.ndarray:
     """Output times of a quasi-static ``Simulate`` starting at ``t_now`` (start included)."""
     a = sim.attrs
@@ -56,9 +68,12 @@ def output_times(sim, t_now: float, arrays: dict | None = None) -> np.ndarray:
         return ts
     ns = a.get("num_steps", a.get("num_step"))
     if ns is not None:
+        _check_frames(sim, float(ns), "num_steps")
         return np.linspace(t0, t1, int(ns) + 1)
     dt = float(a.get("print_interval") or DEFAULT_PRINT_INTERVAL)
-    n = (t1 - t0) / dt
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        n = (t1 - t0) / dt
+    _check_frames(sim, n, "(end_time - start) / print_interval")
     k = int(np.floor(n + 1e-9))
     ts = t0 + dt * np.arange(k + 1)
     if t1 - ts[-1] > 1e-9 * dt:

@@ -140,7 +140,7 @@ class StaticAnalysis:
         from poise.solvers.stability import classify, stability_datasets, unknown_info
         if all(o.ok for o in outcomes) and J is not None:
             d.update(stability_datasets([classify(model, state, J=J)]))
-        else:
+        else:   # the same datasets either way: frames of a sequence are concatenated by key
             d.update(stability_datasets([unknown_info()] * len(outcomes)))
         return d
 
