@@ -16,11 +16,12 @@ import numpy as np
 from poise.solvers.status import Status
 
 
-def certify(model, settings, outcome, r, phi, sc=None) -> None:
+def certify(model, settings, outcome, r, phi, sc=None) -> tuple:
     """Measure ``outcome``'s frame from its residual ``r`` (nq,) and constraint values ``phi``
     (nc,, inactive rows zeroed) and apply the rule above, in place: ``imbalance`` becomes the
     measured infinity norm of ``r``; ``error`` the larger of the measured constraint error and
-    the method's own estimate (if finite)."""
+    the method's own estimate (if finite). Returns the measures ``(imbalance, constraint
+    error, worst equation)``."""
     from poise.model.model import Evaluation
     from poise.solvers.newton import Scales, measures
     sc = sc if sc is not None else Scales(model, settings)
@@ -28,8 +29,9 @@ def certify(model, settings, outcome, r, phi, sc=None) -> None:
     own = outcome.error
     outcome.imbalance = imb
     outcome.error = max(cerr, float(own)) if np.isfinite(own) else cerr
+    measured = (imb, cerr, worst)
     if not outcome.ok:
-        return
+        return measured
     zr = np.abs(r) / sc.r_tol if len(r) else np.zeros(1)
     k = int(np.argmax(zr))
     if not (np.all(np.isfinite(zr)) and zr[k] <= 1.0):
@@ -43,7 +45,8 @@ def certify(model, settings, outcome, r, phi, sc=None) -> None:
     elif not outcome.error <= settings.max_error:
         what = f"error {outcome.error:.3g} > max_error {settings.max_error:g}"
     else:
-        return
+        return measured
     outcome.status = Status.TOLERANCE_NOT_MET
     outcome.message = (f"not converged: {what} at the reported state"
                        + (f"; worst equation: {worst}" if worst else ""))
+    return measured

@@ -30,10 +30,9 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
     frames : list of State
     outcomes : list of FrameOutcome (one per frame)
     measure : callable or None
-        ``measure(k, r, phi)`` for every frame ``k``: ``r`` (nq,) residual and ``phi`` (nc,)
-        constraint values with the analysis' inactive (redundant) rows zeroed.
-
-    Every outcome is certified on its frame's evaluation (:func:`poise.solvers.certify.certify`).
+        ``measure(k, imbalance, constraint_error, worst_equation)`` for every frame ``k``, as
+        measured on its evaluation (inactive, redundant rows excluded) by
+        :func:`poise.solvers.certify.certify`, which also certifies every outcome.
     """
     from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
     from poise.solvers.outputs import loads_of
@@ -62,10 +61,10 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
             chunk = frames[a:a + C]
             ev = evaluate_frames(model, chunk, need_jac=True)
             for j in range(len(chunk)):
-                phi_j = np.where(saved, ev.phi[j], 0.0)
+                got = certify(model, sa.settings, outcomes[a + j], ev.r[j],
+                              np.where(saved, ev.phi[j], 0.0), sc)
                 if measure is not None:
-                    measure(a + j, ev.r[j], phi_j)
-                certify(model, sa.settings, outcomes[a + j], ev.r[j], phi_j, sc)
+                    measure(a + j, *got)
             lam = np.stack([s.lam for s in chunk]) if nc else np.zeros((len(chunk), 0))
             if len(red) and nc:
                 lam = lam.copy()

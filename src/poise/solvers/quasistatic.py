@@ -305,17 +305,18 @@ class QuasiStaticAnalysis:
         measured = measured or {}
         sc = Scales(model, s) if measured else None
 
-        def measure_row(k, r, phi):
+        def measure_row(k, imb, cerr, worst):
             if k not in measured:
                 return
-            imb, cerr, _, worst = measures(model, Evaluation(r=r, phi=phi, J=None), sc)
             row = list(self.history.rows[measured[k]])
             row[2], row[3], row[6] = imb, cerr, worst
             self.history.rows[measured[k]] = tuple(row)
 
         def measure(k):
             def on_eval(ev, active):
-                measure_row(k, ev.r, np.where(active, ev.phi, 0.0))
+                ms = measures(model, Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0),
+                                                J=None), sc)
+                measure_row(k, ms[0], ms[1], ms[3])
             return on_eval
 
         # all frames at once where the model allows it (same datasets, array work per frame)
