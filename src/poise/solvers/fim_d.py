@@ -90,10 +90,17 @@ dae_constr_tol [1e-6])`` is IDA's ``rtol``; ``atol`` = ``tol * L`` (translations
 ``dae_corrector_maxit`` [4] (max_nonlin_iters). ``dae_interpolation`` [TRUE]: output frames are
 IDA's interpolants at the print times (steps are not limited by the print interval); FALSE:
 IDA stops exactly at every print time (``tstop``) and the frame is a converged corrector.
-An interpolated frame's imbalance, constraint error and worst equation (``frames/*`` and its
-``iterations`` row, event ``ida``) are computed in ``QuasiStaticAnalysis.finish`` from the
-frame's output evaluation (the one that feeds reactions, loads and stability): one residual +
-Jacobian evaluation per output frame, not two.
+Either way the point meets IDA's error test, not ``Param_Static``'s tolerances (up to 0.013 N
+against ``max_imbalance`` 1e-8 on ``decks/bench/slider_crank_qs_1000.xml``): every such output
+point is corrected onto the equilibrium by :class:`Corrector` (the points of one IDA step
+together: one batched residual + Jacobian evaluation, stacked solves, one batched residual per
+further correction; full Newton for a frame that does not get there), and a frame is converged
+only if it meets ``max_imbalance`` / ``max_error`` (``frames/iterations`` = its corrections;
+the correction's cost is in the analysis attributes ``correction_*``). An output frame's imbalance, constraint error and worst equation
+(``frames/*`` and its ``iterations`` row, event ``ida``) are computed in
+``QuasiStaticAnalysis.finish`` from the frame's output evaluation (the one that feeds
+reactions, loads and stability), where every frame is certified
+(:func:`poise.solvers.certify.certify`).
 
 FIM_S is used for the first frame (assembly + Newton), the last frame (Newton polish of IDA's
 end state) and whenever IDA fails (the next output frame is solved with FIM_S from the last

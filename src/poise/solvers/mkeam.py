@@ -30,20 +30,32 @@ Integrator: RATTLE (constrained velocity Verlet) on the configuration manifold.
   (``0.1 L`` translation, ``0.1 rad`` rotation, from velocity and acceleration), (c) an
   energy-error control: the step is rejected and halved when the change of kinetic energy differs
   from the trapezoidal work of the applied forces by more than ``1e-3`` of the iteration's energy
-  scale. The step grows by at most 2x per step.
+  scale, or by more than the energy the integration cannot resolve (the work of the applied
+  forces over the position-constraint tolerance, :meth:`MkeamAnalysis._energy_noise`: halving
+  the step does not reduce that error). The step grows by at most 2x per step.
 * KE peak: the step where ``P`` changes sign is re-taken with a shorter step found by regula falsi
   (Illinois) on ``P`` until the bracket is below ``1e-3`` of the step.
+* Budget: an iteration whose energies stay at that noise level for ``REST_STEPS`` steps is at
+  rest; one still accelerating after ``MAX_STEPS_PER_ITER`` steps restarts where it stands (the
+  potential has only decreased); a run stops after ``MAX_TOTAL_STEPS`` steps, at a non-finite
+  state, when a body runs ``MAX_TRAVEL * L`` away, or when L itself is not finite — each with a
+  status, never an endless integration.
 
 Convergence (``Param_Static``): peak KE of an iteration ``<= max_ke_tol`` and the largest change
 of the state between consecutive restart points ``<= max_dq_tol`` (translations relative to the
 model size L, rotations in radians); ``max_num_iter`` iterations without that = failure.
 
-Afterwards a Newton polish (FIM_S Newton) refines the MKEAM point to the FIM tolerances; the
-polished point is reported only if it stays within ``POLISH_MAX_DQ`` of the MKEAM point and the
-tangent stiffness projected on the constraint null space is positive semi-definite there (a stable
-equilibrium); otherwise the MKEAM point itself is reported. An MKEAM point that is an *unstable*
-equilibrium (e.g. a start exactly at an inverted pendulum's upright pose, where no force acts) is
-perturbed along the most negative stiffness direction and the iterations continue.
+Afterwards a Newton polish (FIM_S Newton; if that fails, once more without the stability term
+and line search, with an equilibrated factorisation: a mode decades softer than the others is out
+of the integration's reach, see :meth:`MkeamAnalysis._polish`) refines the MKEAM point to the
+FIM tolerances. The polished point is reported if the tangent stiffness projected on the
+constraint null space is positive semi-definite there (a stable equilibrium) and it either stays
+within ``POLISH_MAX_DQ`` of the MKEAM point or is reached downhill (potential energy
+non-increasing along the path); otherwise the MKEAM point itself is reported. Either way the
+result is converged only if it meets ``max_imbalance`` / ``max_error``
+(:func:`poise.solvers.certify.certify`). An MKEAM point that is an *unstable* equilibrium (e.g.
+a start exactly at an inverted pendulum's upright pose, where no force acts) is perturbed along
+the most negative stiffness direction and the iterations continue.
 """
 from __future__ import annotations
 
@@ -69,8 +81,8 @@ MAX_ROT_STEP = 0.1           # rad per integration step
 ENERGY_TOL = 1e-3            # relative energy error per step
 MAX_STEPS_PER_ITER = 1000    # an iteration still accelerating after this many steps restarts
 MAX_TOTAL_STEPS = 5000       # integration budget of one MKEAM run (all iterations)
-REST_STEPS = 50              # an iteration with only noise-level energies after this many steps: at rest
-NOISE_FACTOR = 10.0          # energy resolution = NOISE_FACTOR x work over the constraint tolerance
+REST_STEPS = 50              # steps with only noise-level energies: the iteration is at rest
+NOISE_FACTOR = 10.0          # energy resolution: x work over the constraint tolerance
 MAX_TRAVEL = 1e4             # x L: an iterate farther than this from the start is divergence
 PEAK_TOL = 1e-3              # bracket of the peak relative to the step
 POLISH_MAX_DQ = 0.05         # polished point must stay this close (x L / rad)
