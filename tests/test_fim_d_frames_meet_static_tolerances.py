@@ -90,3 +90,20 @@ def test_slider_crank_1000_frames_all_meet_tolerances():
         cg = R.slider_crank(dict(R.SLIDER_CRANK_PARAMS, fx=-60.0 * float(d["time"][k])))["cg"]
         for b, name in ((2, "crank"), (3, "rod"), (4, "slider")):
             assert np.abs(d["bodies/position"][k, ids.index(b)] - cg[name]).max() < 1e-6 * L
+
+
+def test_frames_the_correction_cannot_finish_get_a_full_newton(tmp_path, monkeypatch):
+    """No correction allowed (CORRECT_MAX_ITER = 0): every IDA point off the tolerances goes
+    through a full Newton (event ``ida_newton``), and the frames still meet 1e-9 at the closed
+    form."""
+    from poise.solvers import fim_d
+    monkeypatch.setattr(fim_d, "CORRECT_MAX_ITER", 0)
+    res = run_deck(str(_pendulum_deck(tmp_path)), overrides=dict(method="FIM_D"))
+    a = res.analyses[0]
+    assert a.status == "converged", a.message
+    d = a.datasets
+    assert int(a.attrs["correction_newton"]) > 50
+    assert np.sum(d["iterations/event"] == "ida_newton") > 50
+    assert np.all(d["frames/converged"]) and np.all(d["frames/imbalance"] <= 1e-9)
+    theta = np.arctan2(20.0 * d["time"], 9.81)
+    assert np.abs(d["bodies/position"][:, 0, 0] - np.sin(theta)).max() < 1e-8
