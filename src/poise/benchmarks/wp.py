@@ -175,6 +175,16 @@ def run_point(xml_text: str, static: dict, transient: dict | None, repeat: int, 
     steps = [int(a.attrs["ida_steps"]) for a in an if "ida_steps" in a.attrs]
     if steps:
         out["ida_steps"] = sum(steps)
+    # FIM_D: cost of bringing the output frames onto the equilibrium (fim_d.Corrector), from
+    # the last repetition: frames, corrections, residual evaluations, factorisations, full
+    # Newton fallbacks, seconds
+    corr = {}
+    for a in an:
+        for k, v in a.attrs.items():
+            if k.startswith("correction_"):
+                corr[k[len("correction_"):]] = corr.get(k[len("correction_"):], 0) + v
+    if corr:
+        out["correction"] = corr
     if ref_fn is not None:
         out["error"] = deck_error(res, ref_fn, ref_mod)
     return out
@@ -223,8 +233,11 @@ def fim_d_vs_fim_s(quick: bool = False, log=print) -> list[dict]:
                 r = run_point(xml, st, tr, 1, Path(td), _ref_slider_qs, ref_mod, warmup=False)
                 r.update(bench="qs_target", deck=Path(file).stem, file=f"decks/bench/{file}",
                          method=method, tol=tol, settings=dict(static=st, transient=tr))
+                c = r.get("correction")
                 log(f"qs target {method} tol={tol:.0e}: {r['status']}, {r['frames']} frames, "
-                    f"solve {r['solve_s']['median']:.3g} s, err {r['error']:.2e}")
+                    f"solve {r['solve_s']['median']:.3g} s, err {r['error']:.2e}"
+                    + (f", output-frame correction {c['seconds']:.3g} s ({c['corrections']} "
+                       f"corrections, {c['newton']} full Newton)" if c else ""))
                 rows.append(r)
     return rows
 

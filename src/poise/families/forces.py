@@ -261,3 +261,19 @@ class VectorForce(TwoBodyForce):
                 dF[:, :, sl(s)] = self.fc[:, k][:, None, None] * _I3
                 dT[:, :, sl(s)] = self.tc[:, k][:, None, None] * _I3
         return F, T, dF, dT
+
+    potential_needs_ground = True
+
+    def potential_energy(self, kin, ctx, on_ground=None):
+        """``-F . P_I`` per instance when the force is constant in space: reference marker R
+        and the reaction side (J, or action-only) on ground and no torque; None otherwise.
+        ``on_ground`` (n, 3) bool: which of the slots' markers I, J, R are fixed."""
+        if on_ground is None or np.any(self.tc != 0):
+            return None
+        fixed_j = self.action_only | on_ground[:, 1]
+        if not np.all(on_ground[:, 2] & fixed_j):
+            return None
+        Y = kin.Y
+        AR = np.stack([Y[:, S_XR], Y[:, S_YR], Y[:, S_ZR]], axis=2)
+        F = np.einsum("nik,nk->ni", AR, self.fc)
+        return -np.sum(F * Y[:, S_PI], axis=1)

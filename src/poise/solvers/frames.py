@@ -30,8 +30,9 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
     frames : list of State
     outcomes : list of FrameOutcome (one per frame)
     measure : callable or None
-        ``measure(k, r, phi)`` for every frame ``k``: ``r`` (nq,) residual and ``phi`` (nc,)
-        constraint values with the analysis' inactive (redundant) rows zeroed.
+        ``measure(k, imbalance, constraint_error, worst_equation)`` for every frame ``k``, as
+        measured on its evaluation (inactive, redundant rows excluded) by
+        :func:`poise.solvers.certify.certify`, which also certifies every outcome.
     """
     from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
     from poise.solvers.outputs import loads_of
@@ -42,6 +43,9 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
     model = sa.model
     if not frames or not batchable(model):
         return None
+    from poise.solvers.certify import certify
+    from poise.solvers.newton import Scales
+    sc = Scales(model, sa.settings)
     F = len(frames)
     nq, nc = model.nq, model.nc
     saved = model.row_active.copy()
@@ -56,9 +60,11 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
         for a in range(0, F, C):
             chunk = frames[a:a + C]
             ev = evaluate_frames(model, chunk, need_jac=True)
-            if measure is not None:
-                for j in range(len(chunk)):
-                    measure(a + j, ev.r[j], np.where(saved, ev.phi[j], 0.0))
+            for j in range(len(chunk)):
+                got = certify(model, sa.settings, outcomes[a + j], ev.r[j],
+                              np.where(saved, ev.phi[j], 0.0), sc)
+                if measure is not None:
+                    measure(a + j, *got)
             lam = np.stack([s.lam for s in chunk]) if nc else np.zeros((len(chunk), 0))
             if len(red) and nc:
                 lam = lam.copy()

@@ -18,15 +18,52 @@ class SingularMatrix(Exception):
         self.row = row
 
 
+def _pow2(x):
+    """Nearest powers of two of ``1 / x`` (1 where x is 0 or not finite): exact scalings."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.where((x > 0) & np.isfinite(x), -np.round(np.log2(np.where(x > 0, x, 1.0))), 0.0)
+    return np.exp2(e)
+
+
+def equilibration(J):
+    """Row and column scalings ``(r, c)`` (powers of two) with ``diag(r) J diag(c)`` of unit
+    largest entry per row, then per column: the singularity test then sees the matrix's rank,
+    not its units (a 1e-9 N/mm spring next to a 1e12 one is a regular system)."""
+    if hasattr(J, "tocsr"):
+        A = abs(J.tocsr())
+        r = _pow2(np.asarray(A.max(axis=1).todense()).ravel())
+        c = _pow2(np.asarray((A.multiply(r[:, None])).max(axis=0).todense()).ravel())
+    else:
+        A = np.abs(np.asarray(J))
+        r = _pow2(A.max(axis=1))
+        c = _pow2((A * r[:, None]).max(axis=0))
+    return r, c
+
+
 class Factor:
-    """Factorisation of a dense or CSR matrix; ``solve(b)``. Counts in ``Factor.count``."""
+    """Factorisation of a dense or CSR matrix; ``solve(b)``. Counts in ``Factor.count``.
+
+    ``equilibrate=True`` factorises ``diag(r) J diag(c)`` (:func:`equilibration`) and maps the
+    solution back: for badly scaled but regular systems (stiffnesses 1e21 apart)."""
 
     count = 0
 
-    def __init__(self, J):
+    def __init__(self, J, equilibrate: bool = False):
         from poise import phases
         t0 = phases.now()
+        self.scale = None
         try:
+            if equilibrate:
+                r, c = equilibration(J)
+                if hasattr(J, "tocsr"):
+                    import scipy.sparse as sp
+                    order = getattr(J, "poise_column_order", None)
+                    J = (sp.diags(r) @ J @ sp.diags(c)).tocsr()
+                    if order is not None:
+                        J.poise_column_order = order
+                else:
+                    J = np.asarray(J) * r[:, None] * c[None, :]
+                self.scale = (r, c)
             self._factor(J)
         finally:
             phases.add("factorise", phases.now() - t0)
@@ -90,6 +127,12 @@ class Factor:
 
     def solve(self, b, refine: int = 2, rtol: float = 1e-8):
         """Solve with iterative refinement; raise SingularMatrix if the residual stays large."""
+        if self.scale is not None:
+            r, c = self.scale
+            return c * self._solve_refined(r * np.asarray(b, float), refine, rtol)
+        return self._solve_refined(b, refine, rtol)
+
+    def _solve_refined(self, b, refine, rtol):
         x = self._solve(b)
         nb = np.linalg.norm(b)
         if nb == 0:

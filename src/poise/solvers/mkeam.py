@@ -30,20 +30,32 @@ Integrator: RATTLE (constrained velocity Verlet) on the configuration manifold.
   (``0.1 L`` translation, ``0.1 rad`` rotation, from velocity and acceleration), (c) an
   energy-error control: the step is rejected and halved when the change of kinetic energy differs
   from the trapezoidal work of the applied forces by more than ``1e-3`` of the iteration's energy
-  scale. The step grows by at most 2x per step.
+  scale, or by more than the energy the integration cannot resolve (the work of the applied
+  forces over the position-constraint tolerance, :meth:`MkeamAnalysis._energy_noise`: halving
+  the step does not reduce that error). The step grows by at most 2x per step.
 * KE peak: the step where ``P`` changes sign is re-taken with a shorter step found by regula falsi
   (Illinois) on ``P`` until the bracket is below ``1e-3`` of the step.
+* Budget: an iteration whose energies stay at that noise level for ``REST_STEPS`` steps is at
+  rest; one still accelerating after ``MAX_STEPS_PER_ITER`` steps restarts where it stands (the
+  potential has only decreased); a run stops after ``MAX_TOTAL_STEPS`` steps, at a non-finite
+  state, when a body runs ``MAX_TRAVEL * L`` away, or when L itself is not finite — each with a
+  status, never an endless integration.
 
 Convergence (``Param_Static``): peak KE of an iteration ``<= max_ke_tol`` and the largest change
 of the state between consecutive restart points ``<= max_dq_tol`` (translations relative to the
 model size L, rotations in radians); ``max_num_iter`` iterations without that = failure.
 
-Afterwards a Newton polish (FIM_S Newton) refines the MKEAM point to the FIM tolerances; the
-polished point is reported only if it stays within ``POLISH_MAX_DQ`` of the MKEAM point and the
-tangent stiffness projected on the constraint null space is positive semi-definite there (a stable
-equilibrium); otherwise the MKEAM point itself is reported. An MKEAM point that is an *unstable*
-equilibrium (e.g. a start exactly at an inverted pendulum's upright pose, where no force acts) is
-perturbed along the most negative stiffness direction and the iterations continue.
+Afterwards a Newton polish (FIM_S Newton; if that fails, once more without the stability term
+and line search, with an equilibrated factorisation: a mode decades softer than the others is out
+of the integration's reach, see :meth:`MkeamAnalysis._polish`) refines the MKEAM point to the
+FIM tolerances. The polished point is reported if the tangent stiffness projected on the
+constraint null space is positive semi-definite there (a stable equilibrium) and it either stays
+within ``POLISH_MAX_DQ`` of the MKEAM point or is reached downhill (potential energy
+non-increasing along the path); otherwise the MKEAM point itself is reported. Either way the
+result is converged only if it meets ``max_imbalance`` / ``max_error``
+(:func:`poise.solvers.certify.certify`). An MKEAM point that is an *unstable* equilibrium (e.g.
+a start exactly at an inverted pendulum's upright pose, where no force acts) is perturbed along
+the most negative stiffness direction and the iterations continue.
 """
 from __future__ import annotations
 
@@ -67,7 +79,11 @@ STEPS_PER_PERIOD = 20.0
 MAX_TRANS_STEP = 0.1         # x L per integration step
 MAX_ROT_STEP = 0.1           # rad per integration step
 ENERGY_TOL = 1e-3            # relative energy error per step
-MAX_STEPS_PER_ITER = 20000
+MAX_STEPS_PER_ITER = 1000    # an iteration still accelerating after this many steps restarts
+MAX_TOTAL_STEPS = 5000       # integration budget of one MKEAM run (all iterations)
+REST_STEPS = 50              # steps with only noise-level energies: the iteration is at rest
+NOISE_FACTOR = 10.0          # energy resolution: x work over the constraint tolerance
+MAX_TRAVEL = 1e4             # x L: an iterate farther than this from the start is divergence
 PEAK_TOL = 1e-3              # bracket of the peak relative to the step
 POLISH_MAX_DQ = 0.05         # polished point must stay this close (x L / rad)
 PERTURB = 1e-3               # size of the kick off an unstable MKEAM point (x L / rad)
@@ -320,15 +336,19 @@ class MkeamAnalysis(StaticAnalysis):
             ha = np.where(np.abs(acc) > 0, np.sqrt(2 * lim / np.abs(acc)), np.inf)
         return float(min(h, hv.min(initial=np.inf), ha.min(initial=np.inf)))
 
-    def _iteration(self, dyn, state, h0):
-        """Integrate from rest until the first KE peak. Returns (peak point, steps, h, msg)."""
+    def _iteration(self, dyn, state, h0, budget=MAX_STEPS_PER_ITER):
+        """Integrate from rest until the first KE peak, or for at most ``budget`` steps (then
+        the iteration restarts where it stands, still descending: a mode so soft that its
+        peak is out of reach is left to the Newton polish). Returns (point, steps, h, msg);
+        ``msg`` non-empty: the integration failed."""
         a = _Point(dyn, state, np.zeros(self.model.nq), 0.0)
         h = min(h0, self._h_limit(a)) if np.isfinite(h0) else self._h_limit(a)
         if not np.isfinite(h):
             return a, 0, h, "no force acts (already at rest in equilibrium)"
         steps = 0
         escale = 0.0
-        while steps < MAX_STEPS_PER_ITER:
+        noise = self._energy_noise(a)
+        while steps < budget:
             hl = self._h_limit(a)
             h = min(2.0 * h, hl) if np.isfinite(hl) else 2.0 * h
             while True:
@@ -338,18 +358,48 @@ class MkeamAnalysis(StaticAnalysis):
                     work = 0.5 * h * (a.power + b.power)
                     err = abs(b.ke - a.ke - work)
                     escale = max(escale, a.ke, b.ke, abs(work))
-                    if err <= ENERGY_TOL * escale or h < 1e-14 * max(1.0, a.t):
+                    noise = max(noise, self._energy_noise(b))
+                    if err <= max(ENERGY_TOL * escale, noise) or h < 1e-14 * max(1.0, a.t):
                         break
                 h *= 0.5
-                if h < 1e-300 or steps >= MAX_STEPS_PER_ITER:
+                if h < 1e-300:
                     return a, steps, h, "integration step became too small"
+                if steps >= budget:
+                    return a, steps, h, ""
+            bad = self._absurd(b)
+            if bad:
+                return b, steps, h, bad
+            if steps >= REST_STEPS and escale <= noise:
+                return b, steps, h, ""            # at rest within the integrator's resolution
             if b.power <= 0.0:
                 if a.power <= 0.0:                 # never accelerated: at rest already
                     return (a if a.ke >= b.ke else b), steps, h, ""
                 peak, n = self._locate_peak(dyn, a, b, h)
                 return peak, steps + n, h, ""
             a = b
-        return a, steps, h, f"no kinetic-energy peak within {MAX_STEPS_PER_ITER} integration steps"
+        return a, steps, h, ""
+
+    def _energy_noise(self, a):
+        """Energy the integrator cannot resolve at ``a``: the work of the applied forces over the
+        position-constraint tolerance of a step (``CONSTRAINT_TOL`` x L per translation, x 1 rad
+        per rotation), times ``NOISE_FACTOR``. Energy errors below it are accepted (halving the
+        step does not reduce them), and an iteration whose energies all stay below it is at
+        rest as far as the integration can tell."""
+        m = self.model
+        ql = np.where(m.q_kind == 0, m.L, 1.0)
+        return NOISE_FACTOR * CONSTRAINT_TOL * float(np.sum(np.abs(a.Q) * ql))
+
+    def _absurd(self, b):
+        """Why the integrated point ``b`` cannot be a step towards an equilibrium ("" if it can):
+        non-finite energy or pose, or a body farther than ``MAX_TRAVEL * L`` from the start."""
+        m = self.model
+        if not (np.isfinite(b.ke) and np.all(np.isfinite(b.state.pos))
+                and np.all(np.isfinite(b.state.rot))):
+            return "the integration produced a non-finite state (NaN/Inf)"
+        if m.nb and float(np.max(np.abs(b.state.pos - self.iterates[0][0]))) > MAX_TRAVEL * m.L:
+            return (f"a body moved more than {MAX_TRAVEL:g} L = {MAX_TRAVEL * m.L:.3g} from the "
+                    "input configuration (nothing holds it: no equilibrium within reach)")
+        return ""
 
     def _locate_peak(self, dyn, a, b, h):
         lo, hi = 0.0, h
@@ -398,7 +448,10 @@ class MkeamAnalysis(StaticAnalysis):
             if fn is None:
                 return np.nan
             kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, m.marker_body, pos)
-            e = fn(kin, ctx)
+            if getattr(fam, "potential_needs_ground", False):
+                e = fn(kin, ctx, on_ground=m.marker_body[fam.markers] == m.nb)
+            else:
+                e = fn(kin, ctx)
             if e is None:
                 return np.nan
             V += float(np.sum(e))
@@ -448,6 +501,38 @@ class MkeamAnalysis(StaticAnalysis):
         model, s = self.model, self.settings
         t_start = time.perf_counter()
         notes = []
+        self.moved = False
+        self.pe_start = np.nan
+        try:
+            out, state, mk_state = self._solve(state, notes)
+        except EvaluationError as e:     # e.g. a force expression that cannot be evaluated
+            if self.redundancy is None:
+                self.redundancy = np.zeros(0, int)
+            out, mk_state = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)), state
+        ar = AnalysisResult(index=index, analysis_type="static", method="MKEAM",
+                            settings=dict(s.as_dict(), method_requested=s.method))
+        ar.attrs["reactions_unique"] = bool(len(self.redundancy) == 0)
+        ar.attrs["assembled"] = bool(self.moved)
+        ar.attrs["mkeam_wall_time"] = time.perf_counter() - t_start
+        ar.datasets.update(self.frame_datasets(state, [out]))       # certifies ``out``
+        ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
+        ar.message = "; ".join([m for m in [out.message] + notes if m])
+        ar.datasets.update(stack_frames([frame_outputs(model, state)]))
+        ar.datasets.update(self.history.datasets())
+        ar.attrs.update(self.history.attrs())
+        ar.datasets.update(self.mkeam_datasets(mk_state))
+        ar.datasets.update(self.redundancy_datasets())
+        return state, ar
+
+    def _solve(self, state, notes):
+        """Redundancy, assembly, MKEAM iterations, Newton polish. Returns ``(outcome, reported
+        state, MKEAM point)``; the outcome is certified by the caller at the reported state."""
+        model, s = self.model, self.settings
+        if not np.isfinite(model.L):
+            self.redundancy = np.zeros(0, int) if self.redundancy is None else self.redundancy
+            return FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan,
+                                "the model size L is not finite (a marker or body lies too far "
+                                "out): MKEAM's step and tolerance scales are undefined"), state, state
         if self.redundancy is None:
             self.redundancy = detect_redundancy(model, state)
         else:
@@ -455,48 +540,26 @@ class MkeamAnalysis(StaticAnalysis):
             model.row_active[self.redundancy] = False
         if len(self.redundancy):
             notes.append(f"{len(self.redundancy)} redundant constraint equations removed")
-        state, moved, ast = assemble(model, state, s, self.history, 0, self.counters)
-        if moved:
+        state, self.moved, ast = assemble(model, state, s, self.history, 0, self.counters)
+        if self.moved:
             notes.append("initial configuration assembled onto the constraints")
-        out = None
-        mk_state = state
         if not ast.ok:
-            out = FrameOutcome(Status.ASSEMBLY_FAILED, 0, np.nan, np.nan, "could not bring the "
-                               "input configuration onto the constraints")
-        else:
-            try:
-                self.dyn = _Dyn(model, self.counters)
-            except ValueError as e:
-                out = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
-        if out is None:
-            state = initial_multipliers(model, state, self.counters)
-            try:
-                mk_state, ok, msg, n_it = self._mkeam(state)
-            except EvaluationError as e:
-                mk_state, ok, msg, n_it = state, False, str(e), len(self.iterates)
-            if ok:
-                state, polish_note = self._polish(mk_state)
-                notes.append(polish_note)
-                ev = model.evaluate(state, need_jac=False)
-                imb = float(np.max(np.abs(ev.r))) if ev.r.size else 0.0
-                out = FrameOutcome(Status.CONVERGED, n_it, imb, self.last_dq, "converged")
-            else:
-                state = mk_state
-                out = FrameOutcome(Status.MAX_ITERATIONS, n_it, np.nan, np.nan, msg)
-        ar = AnalysisResult(index=index, analysis_type="static", method="MKEAM",
-                            settings=dict(s.as_dict(), method_requested=s.method))
-        ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
-        ar.message = "; ".join([m for m in [out.message] + notes if m])
-        ar.attrs["reactions_unique"] = bool(len(self.redundancy) == 0)
-        ar.attrs["assembled"] = bool(moved)
-        ar.attrs["mkeam_wall_time"] = time.perf_counter() - t_start
-        ar.datasets.update(self.frame_datasets(state, [out]))
-        ar.datasets.update(stack_frames([frame_outputs(model, state)]))
-        ar.datasets.update(self.history.datasets())
-        ar.attrs.update(self.history.attrs())
-        ar.datasets.update(self.mkeam_datasets(mk_state))
-        ar.datasets.update(self.redundancy_datasets())
-        return state, ar
+            return FrameOutcome(Status.ASSEMBLY_FAILED, 0, np.nan, np.nan, "could not bring the "
+                                "input configuration onto the constraints"), state, state
+        try:
+            self.dyn = _Dyn(model, self.counters)
+        except ValueError as e:
+            return FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)), state, state
+        state = initial_multipliers(model, state, self.counters)
+        try:
+            mk_state, status, msg, n_it = self._mkeam(state)
+        except EvaluationError as e:
+            mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(self.iterates)
+        if not status.ok:
+            return FrameOutcome(status, n_it, np.nan, np.nan, msg), mk_state, mk_state
+        state, out, note = self._polish(mk_state, n_it)
+        notes.append(note)
+        return out, state, mk_state
 
     def _dq(self, s0, s1):
         m = self.model
@@ -549,6 +612,11 @@ class MkeamAnalysis(StaticAnalysis):
         return st
 
     def _mkeam(self, state):
+        """MKEAM iterations from ``state``. Returns ``(state, status, message, iterations)``:
+        the last restart point and ``Status.CONVERGED`` when ``max_ke_tol`` / ``max_dq_tol``
+        were met; otherwise why not (``max_num_iter`` or the ``MAX_TOTAL_STEPS`` integration
+        budget: ``MAX_ITERATIONS``; a non-finite state: ``NONFINITE``; a body running away:
+        ``DIVERGED``)."""
         m, s = self.model, self.settings
         dyn = self.dyn
         state = state.copy()
@@ -560,11 +628,20 @@ class MkeamAnalysis(StaticAnalysis):
         perturbs = 0
         self.last_dq = np.nan
         t_total = 0.0
+        used = 0
         for it in range(1, s.max_num_iter + 1):
-            peak, steps, h, msg = self._iteration(dyn, state, h)
+            if used >= MAX_TOTAL_STEPS:
+                return state, Status.MAX_ITERATIONS, (
+                    f"MKEAM used its integration budget ({MAX_TOTAL_STEPS} steps) in {it - 1} "
+                    "iterations without meeting max_ke_tol / max_dq_tol"), it - 1
+            peak, steps, h, msg = self._iteration(dyn, state, h,
+                                                  min(MAX_STEPS_PER_ITER, MAX_TOTAL_STEPS - used))
+            used += steps
             if msg and "already at rest" not in msg:
                 self._row(it, np.nan, np.nan, msg, peak, steps, np.nan, "mkeam")
-                return state, False, f"MKEAM iteration {it}: {msg}", it
+                status = (Status.NONFINITE if "non-finite" in msg else
+                          Status.DIVERGED if "moved more than" in msg else Status.MAX_ITERATIONS)
+                return state, status, f"MKEAM iteration {it}: {msg}", it
             new = self._resolve_extras(peak.state.copy())
             dq = self._dq(state, new)
             t_total += peak.t
@@ -585,10 +662,11 @@ class MkeamAnalysis(StaticAnalysis):
                     st2, _, _ = assemble(m, state, s, self.history, 0, self.counters)
                     state = st2
                     continue
-                return state, True, "", it
+                return state, Status.CONVERGED, "", it
             h = h if np.isfinite(h) else np.inf
-        return state, False, ("MKEAM did not converge within max_num_iter iterations (raise "
-                              "max_num_iter or loosen max_ke_tol / max_dq_tol)"), s.max_num_iter
+        return state, Status.MAX_ITERATIONS, (
+            "MKEAM did not converge within max_num_iter iterations (raise max_num_iter or loosen "
+            "max_ke_tol / max_dq_tol)"), s.max_num_iter
 
     def _row(self, it, ke, dq, worst, peak, steps, pe, event):
         self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event)
@@ -596,21 +674,96 @@ class MkeamAnalysis(StaticAnalysis):
                                                       max_dq=dq, potential_energy=pe,
                                                       integrator_steps=steps)))
 
-    def _polish(self, mk_state):
+    def _polish(self, mk_state, n_it):
+        """Newton polish of the MKEAM point. Returns ``(state, outcome, note)``.
+
+        Newton with the deck's settings first. If it fails, once more without the ``stability``
+        term, without line search and with an equilibrated factorisation: a mode many decades
+        softer than the others (1e-9 N/mm next to 1e12) is invisible to the integration's step
+        and kinetic-energy scales, its stiffness drowns under ``sqrt(stability) M`` (Newton
+        crawls) and the unequilibrated matrix looks singular. The polished point is reported if
+        it is a stable equilibrium (projected stiffness positive semi-definite) and either stays
+        within ``POLISH_MAX_DQ`` of the MKEAM point or is reached downhill (potential energy
+        non-increasing along the path, :meth:`_downhill`: MKEAM's own guarantee); its outcome is
+        Newton's. Otherwise the MKEAM point is reported (outcome certified at output)."""
+        from dataclasses import replace
         m, s = self.model, self.settings
         st = initial_multipliers(m, mk_state, self.counters)
         self.mk_point = st
+        mk_out = FrameOutcome(Status.CONVERGED, n_it, np.nan, np.nan, "converged")
         trial, out = newton(m, st, s, self.history, 0, self.counters, event="polish")
-        if not out.ok:
-            return st, f"Newton polish did not converge ({out.message}); MKEAM point reported"
+        if not out.ok and out.status not in (Status.NONFINITE, Status.INCONSISTENT_CONSTRAINTS):
+            s0 = replace(s, stability=0.0, line_search=False)
+            t2, o2 = newton(m, st, s0, self.history, 0, self.counters, event="polish-soft",
+                            equilibrate=True)
+            if o2.ok or (o2.status is not Status.NONFINITE and self._lower(t2, trial)):
+                trial, out = t2, o2
+        if out.status is Status.INCONSISTENT_CONSTRAINTS:
+            return trial, replace(out, iterations=n_it), "Newton polish of the MKEAM point"
+        if out.status is Status.NONFINITE:
+            return st, mk_out, f"Newton polish failed ({out.message}); MKEAM point reported"
+        if not out.ok and not self._lower(trial, st):
+            return st, mk_out, (f"Newton polish did not converge ({out.message}); MKEAM point "
+                                "reported")
         d = self._dq(st, trial)
-        if d > POLISH_MAX_DQ and not (self.extras_free or self.dyn.extras_free):
-            return st, f"Newton polish moved {d:.3g} (> {POLISH_MAX_DQ}); MKEAM point reported"
+        far = d > POLISH_MAX_DQ and not (self.extras_free or self.dyn.extras_free)
+        if far:
+            why = self._downhill(st, trial)
+            if why:
+                return st, mk_out, (f"Newton polish moved {d:.3g} (> {POLISH_MAX_DQ}) {why}; "
+                                    "MKEAM point reported")
         wmin, _ = self.projected_stiffness_min(trial)
         if wmin is not None and wmin < -1e-6:
-            return st, "Newton polish reached an unstable point; MKEAM point reported"
+            return st, mk_out, "Newton polish reached an unstable point; MKEAM point reported"
         self.polished = True
-        return trial, "Newton-polished MKEAM point reported"
+        note = "Newton-polished MKEAM point reported"
+        if far:
+            note += (f" (the polish moved {d:.3g} downhill from the MKEAM point: a mode too soft "
+                     "for the integration)")
+        if out.ok:
+            return trial, FrameOutcome(Status.CONVERGED, n_it, out.imbalance, out.error,
+                                       "converged"), note
+        worst = out.message.partition("; worst equation: ")[2]
+        return trial, FrameOutcome(out.status, n_it, out.imbalance, out.error, (
+            f"the Newton polish of the MKEAM point stopped ({out.status.value}, "
+            f"{out.iterations} iterations) at imbalance {out.imbalance:.3g}, error "
+            f"{out.error:.3g} (max_imbalance {s.max_imbalance:g}, max_error {s.max_error:g})"
+            + (f"; worst equation: {worst}" if worst else ""))), note
+
+    def _lower(self, a, b):
+        """Is state ``a`` closer to equilibrium than ``b``: lower potential energy when the model
+        has one, else a smaller tolerance-scaled residual."""
+        pa, pb = self.potential_energy(a), self.potential_energy(b)
+        if np.isfinite(pa) and np.isfinite(pb):
+            return pa < pb
+        from poise.solvers.newton import Scales, merit
+        sc = Scales(self.model, self.settings)
+        ma = merit(self.model.evaluate(a, need_jac=False), sc)
+        mb = merit(self.model.evaluate(b, need_jac=False), sc)
+        return ma < mb
+
+    def _downhill(self, a, b, n=16):
+        """"" if the potential energy does not increase along the path from ``a`` to ``b`` (the
+        tangent line at ``a``, ``n`` samples, each assembled onto the constraints), else why."""
+        from poise.solvers.history import History
+        m, s = self.model, self.settings
+        dq = m.local_difference(a, b)
+        pes = [self.potential_energy(a)]
+        scratch = History()
+        for k in range(1, n):
+            x = m.retract(a, (k / n) * dq)
+            x, _, ast = assemble(m, x, s, scratch, 0, self.counters)
+            if not ast.ok:
+                return "along a path that leaves the constraints"
+            pes.append(self.potential_energy(x))
+        pes.append(self.potential_energy(b))
+        pes = np.asarray(pes)
+        if not np.all(np.isfinite(pes)):
+            return "and the model has no potential energy to check that the path is downhill"
+        tol = 1e-10 * float(np.max(np.abs(pes)))
+        if np.any(np.diff(pes) > tol):
+            return "over a potential-energy barrier"
+        return ""
 
     def mkeam_datasets(self, mk_state):
         n = len(self.history)
@@ -642,6 +795,8 @@ def relax(model, state, settings, history, frame, cnt):
     an.history = history
     an.counters = cnt
     an.dyn = _Dyn(model, cnt)
+    if not np.isfinite(model.L):
+        return state, False
     st = initial_multipliers(model, state, cnt)
-    st, ok, _msg, _n = an._mkeam(st)
-    return st, ok
+    st, status, _msg, _n = an._mkeam(st)
+    return st, status.ok

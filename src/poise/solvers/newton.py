@@ -123,9 +123,9 @@ def _jacobian(model, ev, cnt):
     return ev.J
 
 
-def _factor(J, cnt):
+def _factor(J, cnt, equilibrate=False):
     cnt.factorizations += 1
-    return Factor(J)
+    return Factor(J, equilibrate=equilibrate)
 
 
 def singular_message(model, row):
@@ -256,8 +256,9 @@ def _limit_step_trial(model, state, dq, settings):
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
-           max_iter: int | None = None, event: str = "newton"):
-    """Newton iterations from ``state``. Returns ``(state, FrameOutcome)``."""
+           max_iter: int | None = None, event: str = "newton", equilibrate: bool = False):
+    """Newton iterations from ``state``. Returns ``(state, FrameOutcome)``. ``equilibrate``:
+    factorise the row/column-equilibrated Jacobian (:class:`~poise.solvers.linalg.Factor`)."""
     sc = Scales(model, settings)
     eps = float(np.sqrt(settings.stability))
     max_iter = settings.max_num_iter if max_iter is None else max_iter
@@ -291,7 +292,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             return state, FrameOutcome(Status.MAX_ITERATIONS, it, imb, err,
                                        MESSAGES[Status.MAX_ITERATIONS] + f"; worst equation: {worst}")
         try:
-            f = _factor(_jacobian(model, ev, cnt), cnt)
+            f = _factor(_jacobian(model, ev, cnt), cnt, equilibrate)
         except SingularMatrix as e:
             history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
                         pos=state.pos, rot=state.rot)

@@ -305,20 +305,13 @@ class QuasiStaticAnalysis:
     # ------------------------------------------------------------------ results
     def finish(self, frames, outcomes, index, method, notes, moved, time_indep, extra=None,
                measured=None):
-        """Results of the run. ``measured``: ``{frame index: history row}`` of frames whose
-        imbalance / constraint error are taken from their output evaluation (FIM_D's
-        interpolated frames); the outcome and the history row are filled in here."""
+        """Results of the run. Every frame's outcome is certified on its output evaluation
+        (:func:`~poise.solvers.certify.certify`). ``measured``: ``{frame index: history row}``
+        of frames whose history row takes its imbalance / constraint error / worst equation
+        from that evaluation (FIM_D's interpolated frames)."""
         model, s = self.model, self.settings
-        ok = all(o.ok for o in outcomes) and len(frames) == len(self.times_cache(frames))
         ar = AnalysisResult(index=index, analysis_type="quasistatic", method=method,
                             settings=dict(s.as_dict(), method_requested=s.method))
-        ar.status = STATUS_CONVERGED if ok else STATUS_FAILED
-        failed = next((o for o in outcomes if not o.ok), None)
-        first = failed.message if failed is not None else "converged"
-        if failed is not None:
-            k = outcomes.index(failed)
-            first = f"frame {k} (t={frames[k].t:.9g}) failed: {failed.message}"
-        ar.message = "; ".join([first] + notes)
         ar.attrs["reactions_unique"] = bool(len(self.redundancy) == 0)
         ar.attrs["assembled"] = bool(moved)
         ar.attrs["time_independent"] = bool(time_indep)
@@ -327,18 +320,18 @@ class QuasiStaticAnalysis:
         measured = measured or {}
         sc = Scales(model, s) if measured else None
 
-        def measure_row(k, r, phi):
+        def measure_row(k, imb, cerr, worst):
             if k not in measured:
                 return
-            imb, cerr, _, worst = measures(model, Evaluation(r=r, phi=phi, J=None), sc)
-            outcomes[k].imbalance, outcomes[k].error = imb, cerr
             row = list(self.history.rows[measured[k]])
             row[2], row[3], row[6] = imb, cerr, worst
             self.history.rows[measured[k]] = tuple(row)
 
         def measure(k):
             def on_eval(ev, active):
-                measure_row(k, ev.r, np.where(active, ev.phi, 0.0))
+                ms = measures(model, Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0),
+                                                J=None), sc)
+                measure_row(k, ms[0], ms[1], ms[3])
             return on_eval
 
         # all frames at once where the model allows it (same datasets, array work per frame)
@@ -355,6 +348,14 @@ class QuasiStaticAnalysis:
                 else:
                     d[key] = np.concatenate([np.asarray(p[key]) for p in per])
         ar.datasets.update(d)
+        ok = all(o.ok for o in outcomes) and len(frames) == len(self.times_cache(frames))
+        ar.status = STATUS_CONVERGED if ok else STATUS_FAILED
+        failed = next((o for o in outcomes if not o.ok), None)
+        first = failed.message if failed is not None else "converged"
+        if failed is not None:
+            k = outcomes.index(failed)
+            first = f"frame {k} (t={frames[k].t:.9g}) failed: {failed.message}"
+        ar.message = "; ".join([first] + notes)
         ar.datasets.update(stack_frames([frame_outputs(model, st) for st in frames]))
         ar.datasets.update(self.history.datasets())
         ar.datasets.update(sa.redundancy_datasets())

@@ -96,11 +96,11 @@ class StaticAnalysis:
             out = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
         ar = AnalysisResult(index=index, analysis_type="static", method=method,
                             settings=dict(s.as_dict(), method_requested=s.method))
-        ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
-        ar.message = "; ".join([out.message] + notes)
         ar.attrs["reactions_unique"] = bool(len(red) == 0)
         ar.attrs["assembled"] = bool(moved)
-        ar.datasets.update(self.frame_datasets(state, [out]))
+        ar.datasets.update(self.frame_datasets(state, [out]))     # certifies ``out``
+        ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
+        ar.message = "; ".join([out.message] + notes)
         ar.datasets.update(stack_frames([frame_outputs(model, state)]))
         ar.datasets.update(self.history.datasets())
         ar.attrs.update(self.history.attrs())
@@ -111,7 +111,9 @@ class StaticAnalysis:
     def frame_datasets(self, state, outcomes, on_eval=None):
         """Datasets of one frame. ``on_eval(ev, active)``, if given, is called with the output
         evaluation (all rows active) and the analysis' active-row mask before the outcomes are
-        read (FIM_D computes its interpolated frames' measures from it: no second evaluation)."""
+        read (FIM_D records its interpolated frames' measures from it: no second evaluation).
+        The outcomes are certified on that evaluation (:func:`~poise.solvers.certify.certify`:
+        measured imbalance / error; demoted if the tolerances are not met)."""
         model = self.model
         # one evaluation (all rows active, slot data kept) serves the minimum-norm reactions,
         # the element loads and the stability classification
@@ -124,6 +126,9 @@ class StaticAnalysis:
             J = ev.J
             if on_eval is not None:
                 on_eval(ev, saved)
+            from poise.solvers.certify import certify
+            for o in outcomes:
+                certify(model, self.settings, o, ev.r, np.where(saved, ev.phi, 0.0))
             lam = state.lam
             if len(self.redundancy) and model.nc:
                 Pfull = J[model.nq:, :model.nq]

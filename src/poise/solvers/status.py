@@ -13,6 +13,7 @@ class Status(str, Enum):
     ASSEMBLY_FAILED = "assembly_failed"
     STEP_TOO_SMALL = "step_too_small"
     INCONSISTENT_CONSTRAINTS = "inconsistent_constraints"
+    TOLERANCE_NOT_MET = "tolerance_not_met"
 
     @property
     def ok(self) -> bool:
@@ -32,4 +33,5 @@ MESSAGES = {
     Status.INCONSISTENT_CONSTRAINTS: "redundant constraint equations contradict the others (the "
                                      "joints cannot all be satisfied: align their markers or "
                                      "remove the redundant joint)",
+    Status.TOLERANCE_NOT_MET: "the result does not meet the Param_Static tolerances",
 }
