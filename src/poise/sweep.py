@@ -479,6 +479,8 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
         raise UsageError("the same attribute is given twice in --set")
     outs = parse_outputs(spec, outputs)
     cases = make_cases(params, mode, n=n, seed=seed)
+    from poise.settings import check_override_names
+    check_override_names(overrides)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
     os.makedirs(out_dir, exist_ok=True)
     width = max(5, len(str(len(cases) - 1)))
