@@ -36,6 +36,8 @@ class State:
     t : float analysis time
     extra : (ne,) scalar unknowns (Control_Diff states, implicit variables, curve and surface
         parameters, ...), the last ``ne`` tangent coordinates
+    rotvec : (nb, 3) rotation of each body from its input orientation as a continuous rotation
+        vector (``rot = expm(rotvec) init_rot``, full turns counted; Model.track_rotation)
     """
 
     pos: np.ndarray
@@ -44,10 +46,12 @@ class State:
     angle: np.ndarray
     t: float = 0.0
     extra: np.ndarray = None
+    rotvec: np.ndarray = None
 
     def copy(self) -> "State":
         return State(self.pos.copy(), self.rot.copy(), self.lam.copy(), self.angle.copy(), self.t,
-                     None if self.extra is None else self.extra.copy())
+                     None if self.extra is None else self.extra.copy(),
+                     None if self.rotvec is None else self.rotvec.copy())
 
 
 @dataclass
@@ -224,7 +228,8 @@ class Model:
     # ------------------------------------------------------------------ state
     def initial_state(self, t: float = 0.0) -> State:
         st = State(self.init_pos.copy(), self.init_rot.copy(), np.zeros(self.nc),
-                   np.zeros(len(self.angle_I)), t, np.array(self.extra0, float).copy())
+                   np.zeros(len(self.angle_I)), t, np.array(self.extra0, float).copy(),
+                   np.zeros((self.nb, 3)))
         if len(self.angle_I):
             st.angle = self._principal_angles(st)
         return st
@@ -285,7 +290,21 @@ class Model:
             new.extra = new.extra + dq[self.extra_idx]
         if dlam is not None:
             new.lam = new.lam + dlam
+        self.track_rotation(new, state, dr)
         return new
+
+    def track_rotation(self, new: State, old: State, w: np.ndarray) -> None:
+        """Set ``new.rotvec``: the rotation vector of ``new.rot[b] init_rot[b]^T`` nearest
+        ``old.rotvec + w`` (``w``: the spatial rotation increment of the rigid bodies from
+        ``old`` to ``new``), so that full turns are counted along the solution path."""
+        rb = self.rot_body
+        if old.rotvec is None or not len(rb):
+            return
+        from poise.model.rotation import lift_rotation_vector, rotation_vector
+        v = rotation_vector(np.matmul(new.rot[rb], np.swapaxes(self.init_rot[rb], 1, 2)))
+        rv = old.rotvec.copy()
+        rv[rb] = lift_rotation_vector(v, old.rotvec[rb] + w)
+        new.rotvec = rv
 
     def local_difference(self, a: State, b: State) -> np.ndarray:
         """Tangent increment ``dq`` at ``a`` with ``retract(a, dq) == b`` (the log map).

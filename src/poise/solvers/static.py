@@ -169,6 +169,7 @@ def output_datasets(model, frames, loads, dep, outcomes) -> dict:
     d["bodies/id"] = model.body_id
     d["bodies/position"] = np.stack([s.pos for s in frames])
     d["bodies/orientation"] = np.stack([s.rot for s in frames])
+    d.update(orientation_datasets(model, frames, d["bodies/orientation"]))
     for g, o in model.outputs.items():
         n_out = len(o["ids"])
         zero = np.zeros((nf, n_out, 3))
@@ -191,6 +192,18 @@ def output_datasets(model, frames, loads, dep, outcomes) -> dict:
     d["frames/error"] = np.array([o.error for o in outcomes])
     d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
     return d
+
+
+def orientation_datasets(model, frames, rot) -> dict:
+    """``bodies/euler_parameters`` (F,B,4), ``bodies/euler_313`` (F,B,3) of the orientations
+    ``rot`` (F,B,3,3) and ``bodies/rotation_from_input`` (F,B,3): each state's continuous
+    rotation vector (State.rotvec, turns counted), or the principal one (|v| <= pi) when a
+    state does not carry it. docs/results-format.md defines them."""
+    from poise.model.rotation import euler_313, euler_parameters, rotation_vector
+    rv = [s.rotvec if getattr(s, "rotvec", None) is not None else
+          rotation_vector(np.matmul(s.rot, np.swapaxes(model.init_rot, 1, 2))) for s in frames]
+    return {"bodies/euler_parameters": euler_parameters(rot), "bodies/euler_313": euler_313(rot),
+            "bodies/rotation_from_input": np.stack(rv)}
 
 
 def frame_outputs(model, state) -> dict:
