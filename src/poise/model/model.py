@@ -47,11 +47,12 @@ class State:
     t: float = 0.0
     extra: np.ndarray = None
     rotvec: np.ndarray = None
+    rotvec_drift: float = 0.0      # rotation [rad] applied since rotvec was last made exact
 
     def copy(self) -> "State":
         return State(self.pos.copy(), self.rot.copy(), self.lam.copy(), self.angle.copy(), self.t,
                      None if self.extra is None else self.extra.copy(),
-                     None if self.rotvec is None else self.rotvec.copy())
+                     None if self.rotvec is None else self.rotvec.copy(), self.rotvec_drift)
 
 
 @dataclass
@@ -294,17 +295,28 @@ class Model:
         return new
 
     def track_rotation(self, new: State, old: State, w: np.ndarray) -> None:
-        """Set ``new.rotvec``: the rotation vector of ``new.rot[b] init_rot[b]^T`` nearest
-        ``old.rotvec + w`` (``w``: the spatial rotation increment of the rigid bodies from
-        ``old`` to ``new``), so that full turns are counted along the solution path."""
+        """Carry ``rotvec`` from ``old`` to ``new`` (``w``: the spatial rotation increments of
+        the rigid bodies between them): ``old.rotvec + w`` (one addition per update), made exact
+        (:meth:`rotation_from_input`) once the increments since the last exact value exceed
+        pi/8 rad, so the prediction that picks the turn count never drifts far."""
         rb = self.rot_body
         if old.rotvec is None or not len(rb):
             return
-        from poise.model.rotation import lift_rotation_vector, rotation_vector
-        v = rotation_vector(np.matmul(new.rot[rb], np.swapaxes(self.init_rot[rb], 1, 2)))
         rv = old.rotvec.copy()
-        rv[rb] = lift_rotation_vector(v, old.rotvec[rb] + w)
+        rv[rb] += w
         new.rotvec = rv
+        new.rotvec_drift = old.rotvec_drift + (float(np.sqrt((w * w).sum(1).max()))
+                                               if len(w) else 0.0)
+        if new.rotvec_drift > np.pi / 8:
+            new.rotvec = self.rotation_from_input(new)
+            new.rotvec_drift = 0.0
+
+    def rotation_from_input(self, state: State) -> np.ndarray:
+        """(nb, 3) rotation vectors ``v`` with ``state.rot = expm(v) init_rot``, the turn count
+        taken from ``state.rotvec`` (the nearest equivalent vector; principal if None)."""
+        from poise.model.rotation import lift_rotation_vector, rotation_vector
+        v = rotation_vector(np.matmul(state.rot, np.swapaxes(self.init_rot, 1, 2)))
+        return v if state.rotvec is None else lift_rotation_vector(v, state.rotvec)
 
     def local_difference(self, a: State, b: State) -> np.ndarray:
         """Tangent increment ``dq`` at ``a`` with ``retract(a, dq) == b`` (the log map).

@@ -120,21 +120,18 @@ def euler_parameters(R: np.ndarray) -> np.ndarray:
     """
     R = np.asarray(R, float)
     d0, d1, d2 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    t = np.stack([1 + d0 + d1 + d2, 1 + d0 - d1 - d2, 1 - d0 + d1 - d2, 1 - d0 - d1 + d2], -1)
-    k = np.argmax(t, axis=-1)
-    a = 0.5 * np.sqrt(np.maximum(np.take_along_axis(t, k[..., None], -1)[..., 0], 1e-300))
-    f = 0.25 / a
     s21, s02, s10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
     p01, p02, p12 = R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]
-    q = np.stack([
-        np.select([k == 0, k == 1, k == 2], [a, s21 * f, s02 * f], s10 * f),
-        np.select([k == 0, k == 1, k == 2], [s21 * f, a, p01 * f], p02 * f),
-        np.select([k == 0, k == 1, k == 2], [s02 * f, p01 * f, a], p12 * f),
-        np.select([k == 0, k == 1, k == 2], [s10 * f, p02 * f, p12 * f], a)], -1)
+    # M = 4 q q^T: its row with the largest diagonal is q times the largest |q_k|
+    M = np.stack([1 + d0 + d1 + d2, s21, s02, s10,
+                  s21, 1 + d0 - d1 - d2, p01, p02,
+                  s02, p01, 1 - d0 + d1 - d2, p12,
+                  s10, p02, p12, 1 - d0 - d1 + d2], -1).reshape(R.shape[:-2] + (4, 4))
+    k = np.argmax(np.diagonal(M, axis1=-2, axis2=-1), axis=-1)
+    q = np.take_along_axis(M, k[..., None, None], -2)[..., 0, :]
     # sign: e0 > 0, else the first non-zero vector component > 0 (deterministic at 180 deg)
-    lead = np.where(q[..., 0] != 0, q[..., 0],
-                    np.where(q[..., 1] != 0, q[..., 1], np.where(q[..., 2] != 0, q[..., 2],
-                                                                   q[..., 3])))
+    nz = q != 0
+    lead = np.take_along_axis(q, np.argmax(nz, axis=-1)[..., None], -1)[..., 0]
     q = np.where((lead < 0)[..., None], -q, q)
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
@@ -177,7 +174,7 @@ def rotation_vector(R: np.ndarray) -> np.ndarray:
 
 def lift_rotation_vector(v: np.ndarray, guess: np.ndarray) -> np.ndarray:
     """The rotation vector equivalent to ``v`` (same rotation: ``n (|v| + 2 pi k)``, k any
-    integer, n = v/|v|) nearest ``guess``; (..., 3). Unwraps rotation vectors along a path
+    integer, n = v/|v|) whose signed length along n is nearest ``guess``'s; (..., 3). Unwraps rotation vectors along a path
     (turns counted) given a prediction closer than pi to the answer."""
     v = np.asarray(v, float)
     g = np.asarray(guess, float)
@@ -186,6 +183,8 @@ def lift_rotation_vector(v: np.ndarray, guess: np.ndarray) -> np.ndarray:
     small = a < 1e-300
     n = np.where(small[..., None], g / np.where(gn > 0, gn, 1.0)[..., None],
                  v / np.where(small, 1.0, a)[..., None])
-    p = np.einsum("...i,...i->...", g, n)
+    # signed length of the guess: the angle |v| moves by n.w to first order for any increment
+    # w, so this stays right when the axis tilts (a projection g.n would shrink)
+    p = np.where(np.einsum("...i,...i->...", g, n) < 0, -gn, gn)
     k = np.round((p - a) / (2.0 * np.pi))
     return (a + 2.0 * np.pi * k)[..., None] * n

@@ -197,11 +197,10 @@ def output_datasets(model, frames, loads, dep, outcomes) -> dict:
 def orientation_datasets(model, frames, rot) -> dict:
     """``bodies/euler_parameters`` (F,B,4), ``bodies/euler_313`` (F,B,3) of the orientations
     ``rot`` (F,B,3,3) and ``bodies/rotation_from_input`` (F,B,3): each state's continuous
-    rotation vector (State.rotvec, turns counted), or the principal one (|v| <= pi) when a
-    state does not carry it. docs/results-format.md defines them."""
-    from poise.model.rotation import euler_313, euler_parameters, rotation_vector
-    rv = [s.rotvec if getattr(s, "rotvec", None) is not None else
-          rotation_vector(np.matmul(s.rot, np.swapaxes(model.init_rot, 1, 2))) for s in frames]
+    rotation vector (turns counted by State.rotvec; principal, |v| <= pi, for a state without
+    it). docs/results-format.md defines them."""
+    from poise.model.rotation import euler_313, euler_parameters
+    rv = [model.rotation_from_input(s) for s in frames]
     return {"bodies/euler_parameters": euler_parameters(rot), "bodies/euler_313": euler_313(rot),
             "bodies/rotation_from_input": np.stack(rv)}
 
