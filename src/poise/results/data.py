@@ -81,9 +81,12 @@ class AnalysisResult:
         d = self.datasets.get(key)
         if d is None:             # a file written before the dataset existed: derive it
             from poise.model import rotation as rot
-            R = self.datasets["bodies/orientation"]
-            d = {"bodies/euler_parameters": rot.euler_parameters,
-                 "bodies/euler_313": rot.euler_313}[key](R)
+            derive = {"bodies/euler_parameters": rot.euler_parameters,
+                      "bodies/euler_313": rot.euler_313}.get(key)
+            if derive is None or "bodies/orientation" not in self.datasets:
+                raise KeyError(f"{key} is not in analysis {self.index} (a results file "
+                               f"written by an older poise?)")
+            d = derive(self.datasets["bodies/orientation"])
         v = np.asarray(d)[:, self._row("bodies", body)]
         return v if frame is None else v[frame]
 
