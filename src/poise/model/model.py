@@ -298,7 +298,8 @@ class Model:
         """Carry ``rotvec`` from ``old`` to ``new`` (``w``: the spatial rotation increments of
         the rigid bodies between them): ``old.rotvec + w`` (one addition per update), made exact
         (:meth:`rotation_from_input`) once the increments since the last exact value exceed
-        pi/8 rad, so the prediction that picks the turn count never drifts far."""
+        pi/2 rad: the signed length of ``old.rotvec + w`` follows the rotation angle to first
+        order for any increment, so the turn count it picks (2 pi apart) stays right."""
         rb = self.rot_body
         if old.rotvec is None or not len(rb):
             return
@@ -307,16 +308,20 @@ class Model:
         new.rotvec = rv
         new.rotvec_drift = old.rotvec_drift + (float(np.sqrt((w * w).sum(1).max()))
                                                if len(w) else 0.0)
-        if new.rotvec_drift > np.pi / 8:
+        if new.rotvec_drift > np.pi / 2:
             new.rotvec = self.rotation_from_input(new)
             new.rotvec_drift = 0.0
 
-    def rotation_from_input(self, state: State) -> np.ndarray:
+    def rotation_from_input(self, state: State, rot=None, rotvec=None) -> np.ndarray:
         """(nb, 3) rotation vectors ``v`` with ``state.rot = expm(v) init_rot``, the turn count
-        taken from ``state.rotvec`` (the nearest equivalent vector; principal if None)."""
+        taken from ``state.rotvec`` (the nearest equivalent vector; principal if None).
+        ``rot`` (..., nb, 3, 3) and ``rotvec`` (..., nb, 3) instead of ``state``: many frames
+        at once."""
         from poise.model.rotation import lift_rotation_vector, rotation_vector
-        v = rotation_vector(np.matmul(state.rot, np.swapaxes(self.init_rot, 1, 2)))
-        return v if state.rotvec is None else lift_rotation_vector(v, state.rotvec)
+        rot = state.rot if rot is None else rot
+        rotvec = state.rotvec if rotvec is None and state is not None else rotvec
+        v = rotation_vector(np.matmul(rot, np.swapaxes(self.init_rot, 1, 2)))
+        return v if rotvec is None else lift_rotation_vector(v, rotvec)
 
     def local_difference(self, a: State, b: State) -> np.ndarray:
         """Tangent increment ``dq`` at ``a`` with ``retract(a, dq) == b`` (the log map).

@@ -200,9 +200,12 @@ def orientation_datasets(model, frames, rot) -> dict:
     rotation vector (turns counted by State.rotvec; principal, |v| <= pi, for a state without
     it). docs/results-format.md defines them."""
     from poise.model.rotation import euler_313, euler_parameters
-    rv = [model.rotation_from_input(s) for s in frames]
+    if all(s.rotvec is not None for s in frames):       # every frame at once
+        rv = model.rotation_from_input(None, rot, np.stack([s.rotvec for s in frames]))
+    else:
+        rv = np.stack([model.rotation_from_input(s) for s in frames])
     return {"bodies/euler_parameters": euler_parameters(rot), "bodies/euler_313": euler_313(rot),
-            "bodies/rotation_from_input": np.stack(rv)}
+            "bodies/rotation_from_input": rv}
 
 
 def frame_outputs(model, state) -> dict:
