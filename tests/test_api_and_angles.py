@@ -62,6 +62,8 @@ def test_unknown_keywords_raise_with_suggestion():
     assert "'metod' (did you mean 'method'?)" in msg
     assert "'max_imbalanse' (did you mean 'max_imbalance'?)" in msg
     assert "valid names: method," in msg
+    with pytest.raises(UnknownOptionError, match="did you mean 'allow_user_code'"):
+        poise.solve(MULTITURN, allow_usercode=True)
 
 
 def test_unknown_override_names_every_entry(tmp_path):

@@ -130,7 +130,7 @@ def solve(deck_or_path, allow_user_code: bool = False, **overrides) -> RunResult
     DeckSpec is validated again exactly as its file would be (edits included).
     """
     from poise.settings import check_override_names
-    check_override_names(overrides)
+    check_override_names(overrides, "keyword argument", also=("allow_user_code",))
     from poise.deck.spec import DeckSpec
     if isinstance(deck_or_path, DeckSpec):
         from poise.runner import run_spec

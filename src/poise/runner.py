@@ -368,7 +368,7 @@ def check(path: str):
     from poise.solvers.static import detect_redundancy
     spec = _load(path)
     model = compile_model(spec, user_code="skip")      # check never runs deck code
-    rep = CheckReport(deck=path)
+    rep = CheckReport(deck=spec.path)
     mass = model.deck_mass()
     for i, bid in enumerate(model.body_id):
         rep.bodies.append(dict(id=int(bid), label=model.body_label[i],
