@@ -248,7 +248,7 @@ def test_quasistatic_multiturn_angle_grows_continuously(tmp_path):
     a = res.analyses[0]
     t = a.datasets["time"]
     assert len(t) == 21
-    want = [brentq(lambda x: -k * x - mgl * math.cos(x) + c * ti, -10.0, 30.0, xtol=1e-15)
+    want = [brentq(lambda x, ti=ti: -k * x - mgl * math.cos(x) + c * ti, -10.0, 30.0, xtol=1e-15)
             for ti in t]
     got = res.rotation_angle(2, frame=None)
     assert got == pytest.approx(want, abs=1e-6)
