@@ -14,7 +14,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "solve", "sweep", "load_deck"]
+__all__ = ["__version__", "solve", "sweep", "load_deck", "run_deck", "check_deck",
+           "read_results"]
 
 
 def __getattr__(name):  # lazy public API
@@ -24,6 +25,12 @@ def __getattr__(name):  # lazy public API
     if name == "sweep":
         from poise.api import sweep
         return sweep
+    if name in ("run_deck", "check_deck"):
+        from poise import api
+        return getattr(api, name)
+    if name == "read_results":
+        from poise.results.hdf5 import read_results
+        return read_results
     if name == "load_deck":
         from poise.deck.parser import load_deck
         return load_deck

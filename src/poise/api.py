@@ -103,6 +103,8 @@ def run_deck(
     poise.errors.DeckError
         Invalid deck (exit code 3).
     """
+    from poise.settings import check_override_names
+    check_override_names(overrides)          # before parsing: a typo is the caller's error
     from poise.runner import run
     from poise.solvers.quasistatic import progress_bar
     with progress_bar(False if quiet else None):
@@ -123,8 +125,12 @@ def solve(deck_or_path, allow_user_code: bool = False, **overrides) -> RunResult
     ``deck_or_path`` is a deck path (str or path-like) or an already parsed (possibly modified)
     :class:`poise.deck.spec.DeckSpec` from ``poise.load_deck``. Keyword arguments are
     ``Param_Static`` overrides (``method``, ``max_num_iter``, ``max_imbalance``, ...), except
-    ``allow_user_code`` (see :func:`run_deck`).
+    ``allow_user_code`` (see :func:`run_deck`). An unknown keyword raises
+    :class:`poise.errors.UnknownOptionError` (a ``TypeError``) naming the closest valid one; a
+    DeckSpec is validated again exactly as its file would be (edits included).
     """
+    from poise.settings import check_override_names
+    check_override_names(overrides, "keyword argument", also=("allow_user_code",))
     from poise.deck.spec import DeckSpec
     if isinstance(deck_or_path, DeckSpec):
         from poise.runner import run_spec
@@ -143,6 +149,8 @@ def sweep(deck, sets: dict, mode: str = "grid", out_dir: str = "sweep", schedule
     (``"10:100:10"``, ``"FIM_S,MKEAM"``); ``mode`` is ``grid``, ``zip`` or ``random`` (``n``
     cases, ``seed``). See :func:`poise.sweep.run_sweep` for everything else.
     """
+    from poise.settings import check_override_names
+    check_override_names(overrides)
     from poise.sweep import run_sweep
     return run_sweep(deck, sets, mode=mode, out_dir=out_dir, scheduler=scheduler,
                      outputs=outputs, n=n, seed=seed, workers=workers, overrides=overrides,

@@ -202,6 +202,8 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
     ``allow_user_code``: run the Python user routines decks name (else ``invalid_deck``).
     """
     import functools
+    from poise.settings import check_override_names
+    check_override_names(overrides)
     job = functools.partial(solve_one, allow_user_code=bool(allow_user_code))   # picklable
     ensure_out_dir(out_dir)
     outs = output_paths(decks, out_dir)

@@ -106,6 +106,14 @@ class UsageError(PoiseError):
     exit_code = 2
 
 
+class UnknownOptionError(UsageError, TypeError):
+    """An unknown keyword / override name given to a public API function (exit code 2).
+
+    Also a ``TypeError``, as Python raises for an unexpected keyword argument; the message
+    lists the valid names and suggests the closest one.
+    """
+
+
 @dataclass
 class ProblemCollector:
     """Collects problems during a validation pass and raises them together."""

@@ -21,9 +21,27 @@ from poise.settings import StaticSettings
 
 def _load(path):
     if isinstance(path, DeckSpec):  # already parsed (run_spec: sweeps, poise.solve(spec))
-        return path
+        return revalidated(path)
     from poise.deck.parser import load_deck
     return load_deck(path)
+
+
+def revalidated(spec: DeckSpec) -> DeckSpec:
+    """``spec`` validated again exactly as the parser validates a file (same located
+    :class:`DeckError`): a DeckSpec may have been edited in memory since it was loaded.
+
+    Always run (no dirty tracking): validation costs ~40 ms on a 1000-link chain deck, less
+    than fingerprinting its attributes. Returns ``spec``, or a copy with the validation
+    warnings not already in ``spec.warnings`` appended (the caller's spec is not modified).
+    """
+    from dataclasses import replace
+
+    from poise.deck.validate import validate
+    tmp = replace(spec, warnings=[])
+    validate(tmp)
+    known = {str(w) for w in spec.warnings}
+    new = [w for w in tmp.warnings if str(w) not in known]
+    return replace(spec, warnings=[*spec.warnings, *new]) if new else spec
 
 
 def _static_settings(el_list) -> StaticSettings:
@@ -74,6 +92,8 @@ class AnalysisRequest:
 
 def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     """The analyses of a deck in command order."""
+    from poise.settings import check_override_names
+    check_override_names(overrides)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
     try:      # an invalid override is the caller's error, not the deck's
         StaticSettings().updated(overrides)
@@ -348,7 +368,7 @@ def check(path: str):
     from poise.solvers.static import detect_redundancy
     spec = _load(path)
     model = compile_model(spec, user_code="skip")      # check never runs deck code
-    rep = CheckReport(deck=path)
+    rep = CheckReport(deck=spec.path)
     mass = model.deck_mass()
     for i, bid in enumerate(model.body_id):
         rep.bodies.append(dict(id=int(bid), label=model.body_label[i],

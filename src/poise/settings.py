@@ -89,3 +89,36 @@ class StaticSettings:
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+
+#: Override names accepted besides the field names (deck attribute aliases).
+OVERRIDE_ALIASES = {"max_residual": "max_error"}
+
+
+def check_override_names(overrides, where: str = "solver option", also=()) -> None:
+    """Raise :class:`poise.errors.UnknownOptionError` if a key of ``overrides`` is not a
+    :class:`StaticSettings` field (case-insensitive, aliases allowed).
+
+    The one check of override names behind every public entry (``solve``, ``run_deck``,
+    ``batch``, ``sweep``): :meth:`StaticSettings.updated` ignores unknown keys, so a typo
+    (``max_imbalanse``) would otherwise run at the deck's tolerances without a word. ``also``:
+    the caller's other keyword names, offered as suggestions and listed.
+    """
+    if not overrides:
+        return
+    names = [f.name for f in fields(StaticSettings)]
+    valid = set(names) | set(OVERRIDE_ALIASES)
+    bad = [k for k in overrides if not (isinstance(k, str) and k.lower() in valid)]
+    if not bad:
+        return
+    import difflib
+    parts = []
+    for k in bad:
+        close = difflib.get_close_matches(str(k).lower(), sorted(valid | set(also)), n=1,
+                                          cutoff=0.6)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        parts.append(f"{k!r}{hint}")
+    from poise.errors import UnknownOptionError
+    s = "s" if len(bad) > 1 else ""
+    raise UnknownOptionError(f"unknown {where}{s} {', '.join(parts)}; valid names: "
+                             f"{', '.join([*names, *also])}")

@@ -528,6 +528,8 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     if scheduler and client is None:
         check_scheduler(scheduler)
     cases = make_cases(params, mode, n=n, seed=seed)
+    from poise.settings import check_override_names
+    check_override_names(overrides)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
     from poise.batch import ensure_out_dir
     ensure_out_dir(out_dir)

@@ -36,6 +36,8 @@ class State:
     t : float analysis time
     extra : (ne,) scalar unknowns (Control_Diff states, implicit variables, curve and surface
         parameters, ...), the last ``ne`` tangent coordinates
+    rotvec : (nb, 3) rotation of each body from its input orientation as a continuous rotation
+        vector (``rot = expm(rotvec) init_rot``, full turns counted; Model.track_rotation)
     """
 
     pos: np.ndarray
@@ -44,10 +46,13 @@ class State:
     angle: np.ndarray
     t: float = 0.0
     extra: np.ndarray = None
+    rotvec: np.ndarray = None
+    rotvec_drift: float = 0.0      # rotation [rad] applied since rotvec was last made exact
 
     def copy(self) -> "State":
         return State(self.pos.copy(), self.rot.copy(), self.lam.copy(), self.angle.copy(), self.t,
-                     None if self.extra is None else self.extra.copy())
+                     None if self.extra is None else self.extra.copy(),
+                     None if self.rotvec is None else self.rotvec.copy(), self.rotvec_drift)
 
 
 @dataclass
@@ -224,7 +229,8 @@ class Model:
     # ------------------------------------------------------------------ state
     def initial_state(self, t: float = 0.0) -> State:
         st = State(self.init_pos.copy(), self.init_rot.copy(), np.zeros(self.nc),
-                   np.zeros(len(self.angle_I)), t, np.array(self.extra0, float).copy())
+                   np.zeros(len(self.angle_I)), t, np.array(self.extra0, float).copy(),
+                   np.zeros((self.nb, 3)))
         if len(self.angle_I):
             st.angle = self._principal_angles(st)
         return st
@@ -285,7 +291,37 @@ class Model:
             new.extra = new.extra + dq[self.extra_idx]
         if dlam is not None:
             new.lam = new.lam + dlam
+        self.track_rotation(new, state, dr)
         return new
+
+    def track_rotation(self, new: State, old: State, w: np.ndarray) -> None:
+        """Carry ``rotvec`` from ``old`` to ``new`` (``w``: the spatial rotation increments of
+        the rigid bodies between them): ``old.rotvec + w`` (one addition per update), made exact
+        (:meth:`rotation_from_input`) once the increments since the last exact value exceed
+        pi/2 rad: the signed length of ``old.rotvec + w`` follows the rotation angle to first
+        order for any increment, so the turn count it picks (2 pi apart) stays right."""
+        rb = self.rot_body
+        if old.rotvec is None or not len(rb):
+            return
+        rv = old.rotvec.copy()
+        rv[rb] += w
+        new.rotvec = rv
+        new.rotvec_drift = old.rotvec_drift + (float(np.sqrt((w * w).sum(1).max()))
+                                               if len(w) else 0.0)
+        if new.rotvec_drift > np.pi / 2:
+            new.rotvec = self.rotation_from_input(new)
+            new.rotvec_drift = 0.0
+
+    def rotation_from_input(self, state: State, rot=None, rotvec=None) -> np.ndarray:
+        """(nb, 3) rotation vectors ``v`` with ``state.rot = expm(v) init_rot``, the turn count
+        taken from ``state.rotvec`` (the nearest equivalent vector; principal if None).
+        ``rot`` (..., nb, 3, 3) and ``rotvec`` (..., nb, 3) instead of ``state``: many frames
+        at once."""
+        from poise.model.rotation import lift_rotation_vector, rotation_vector
+        rot = state.rot if rot is None else rot
+        rotvec = state.rotvec if rotvec is None and state is not None else rotvec
+        v = rotation_vector(np.matmul(rot, np.swapaxes(self.init_rot, 1, 2)))
+        return v if rotvec is None else lift_rotation_vector(v, rotvec)
 
     def local_difference(self, a: State, b: State) -> np.ndarray:
         """Tangent increment ``dq`` at ``a`` with ``retract(a, dq) == b`` (the log map).

@@ -109,3 +109,82 @@ def from_ypr(yaw, pitch, roll) -> np.ndarray:
 def wrap_angle(a: np.ndarray) -> np.ndarray:
     """Wrap to (-pi, pi]."""
     return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+
+
+def euler_parameters(R: np.ndarray) -> np.ndarray:
+    """Euler parameters (unit quaternion ``e0, e1, e2, e3``) of rotation matrices (..., 3, 3).
+
+    Inverse of :func:`from_euler_parameters` (Shepperd's method: the largest of the four
+    squares is taken from the diagonal, so it is accurate at every angle). Sign convention:
+    ``e0 >= 0``; at exactly 180 deg (``e0 == 0``) the first non-zero of ``e1, e2, e3`` is > 0.
+    """
+    R = np.asarray(R, float)
+    d0, d1, d2 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    s21, s02, s10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
+    p01, p02, p12 = R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]
+    # M = 4 q q^T: its row with the largest diagonal is q times the largest |q_k|
+    M = np.stack([1 + d0 + d1 + d2, s21, s02, s10,
+                  s21, 1 + d0 - d1 - d2, p01, p02,
+                  s02, p01, 1 - d0 + d1 - d2, p12,
+                  s10, p02, p12, 1 - d0 - d1 + d2], -1).reshape(R.shape[:-2] + (4, 4))
+    k = np.argmax(np.diagonal(M, axis1=-2, axis2=-1), axis=-1)
+    q = np.take_along_axis(M, k[..., None, None], -2)[..., 0, :]
+    # sign: e0 > 0, else the first non-zero vector component > 0 (deterministic at 180 deg)
+    nz = q != 0
+    lead = np.take_along_axis(q, np.argmax(nz, axis=-1)[..., None], -1)[..., 0]
+    q = np.where((lead < 0)[..., None], -q, q)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def euler_313(R: np.ndarray, singular_tol: float = 1e-14) -> np.ndarray:
+    """Body-fixed 3-1-3 angles ``(psi, theta, phi)`` [rad] of rotation matrices (..., 3, 3).
+
+    ``R = Rz(psi) Rx(theta) Rz(phi)`` (:func:`from_313`, the MotionSolve convention),
+    ``theta`` in [0, pi], ``psi`` and ``phi`` in (-pi, pi]. ``psi + phi`` (for theta <= pi/2)
+    or ``psi - phi`` (theta > pi/2) is taken from the well-conditioned 2x2 block, so the angles
+    reconstruct ``R`` to rounding at any tilt. Gimbal lock (``sin(theta) <= singular_tol``):
+    only ``psi +- phi`` is defined; then ``phi = 0`` and ``psi`` carries the whole turn.
+    """
+    R = np.asarray(R, float)
+    st = np.hypot(R[..., 0, 2], R[..., 1, 2])
+    theta = np.arctan2(st, R[..., 2, 2])
+    psi_d = np.arctan2(R[..., 0, 2], -R[..., 1, 2])
+    phi_d = np.arctan2(R[..., 2, 0], R[..., 2, 1])
+    up = R[..., 2, 2] >= 0
+    sig = np.arctan2(R[..., 1, 0] - R[..., 0, 1], R[..., 0, 0] + R[..., 1, 1])   # psi + phi
+    dif = np.arctan2(R[..., 1, 0] + R[..., 0, 1], R[..., 0, 0] - R[..., 1, 1])   # psi - phi
+    sing = st <= singular_tol
+    psi_d = np.where(sing, 0.0, psi_d)
+    phi_d = np.where(sing, 0.0, phi_d)
+    c = np.where(up, wrap_angle(sig - (psi_d + phi_d)), wrap_angle(dif - (psi_d - phi_d)))
+    psi = np.where(sing, np.where(up, sig, dif), psi_d + 0.5 * c)
+    phi = np.where(sing, 0.0, phi_d + np.where(up, 0.5, -0.5) * c)
+    return np.stack([wrap_angle(psi), theta, wrap_angle(phi)], -1)
+
+
+def rotation_vector(R: np.ndarray) -> np.ndarray:
+    """Principal rotation vectors (..., 3) of rotation matrices, ``|v|`` in [0, pi]
+    (``expm_so3(v) == R``), from the Euler parameters (accurate at every angle)."""
+    q = euler_parameters(R)
+    s = np.linalg.norm(q[..., 1:], axis=-1)
+    th = 2.0 * np.arctan2(s, q[..., 0])
+    f = np.where(s > 0, th / np.where(s > 0, s, 1.0), 2.0)
+    return f[..., None] * q[..., 1:]
+
+
+def lift_rotation_vector(v: np.ndarray, guess: np.ndarray) -> np.ndarray:
+    """The rotation vector equivalent to ``v`` (same rotation: ``n (|v| + 2 pi k)``, k any
+    integer, n = v/|v|) whose signed length along n is nearest ``guess``'s; (..., 3). Unwraps rotation vectors along a path
+    (turns counted) given a prediction closer than pi to the answer."""
+    v = np.asarray(v, float)
+    g = np.asarray(guess, float)
+    a = np.linalg.norm(v, axis=-1)
+    gn = np.linalg.norm(g, axis=-1)
+    small = a < 1e-300
+    n = np.where(small[..., None], g / np.where(gn > 0, gn, 1.0)[..., None],
+                 v / np.where(small, 1.0, a)[..., None])
+    # signed length of the guess: the angle |v| moves by n.w to first order for any increment
+    # w, so this stays right when the axis tilts (a projection g.n would shrink)
+    p = np.where(np.einsum("...i,...i->...", g, n) < 0, -gn, gn)
+    k = np.round((p - a) / (2.0 * np.pi))
+    return (a + 2.0 * np.pi * k)[..., None] * n

@@ -66,6 +66,96 @@ class AnalysisResult:
     def settings_json(self) -> str:
         return json.dumps(self.settings, sort_keys=True, default=str)
 
+    # ------------------------------------------------------------------ accessors
+    # Thin reads of the datasets by element id. ``frame``: an index (default -1, the last
+    # frame) or None for every frame (leading axis F).
+    def _row(self, group: str, ident: int) -> int:
+        ids = np.asarray(self.datasets.get(f"{group}/id", np.zeros(0, int)))
+        hit = np.nonzero(ids == int(ident))[0]
+        if not len(hit):
+            raise KeyError(f"no {group[:-1]} with id {ident} in analysis {self.index}; ids: "
+                           f"{', '.join(str(int(i)) for i in ids) or 'none'}")
+        return int(hit[0])
+
+    def _body(self, key: str, body: int, frame):
+        d = self.datasets.get(key)
+        if d is None:             # a file written before the dataset existed: derive it
+            from poise.model import rotation as rot
+            derive = {"bodies/euler_parameters": rot.euler_parameters,
+                      "bodies/euler_313": rot.euler_313}.get(key)
+            if derive is None or "bodies/orientation" not in self.datasets:
+                raise KeyError(f"{key} is not in analysis {self.index} (a results file "
+                               f"written by an older poise?)")
+            d = derive(self.datasets["bodies/orientation"])
+        v = np.asarray(d)[:, self._row("bodies", body)]
+        return v if frame is None else v[frame]
+
+    def position(self, body: int, frame=-1) -> np.ndarray:
+        """CG marker origin (3,) of body ``body`` (id), global axes [length]."""
+        return self._body("bodies/position", body, frame)
+
+    def orientation(self, body: int, frame=-1) -> np.ndarray:
+        """Rotation matrix (3, 3), the CG marker axes as columns in global components."""
+        return self._body("bodies/orientation", body, frame)
+
+    def euler_parameters(self, body: int, frame=-1) -> np.ndarray:
+        """Euler parameters ``(e0, e1, e2, e3)``, e0 >= 0, of the orientation."""
+        return self._body("bodies/euler_parameters", body, frame)
+
+    def euler_313(self, body: int, frame=-1) -> np.ndarray:
+        """Body-fixed 3-1-3 angles ``(psi, theta, phi)`` [rad] of the orientation."""
+        return self._body("bodies/euler_313", body, frame)
+
+    def rotation_from_input(self, body: int, frame=-1) -> np.ndarray:
+        """Continuous rotation vector (3,) from the input orientation [rad], turns counted."""
+        return self._body("bodies/rotation_from_input", body, frame)
+
+    def rotation_angle(self, body: int, frame=-1, axis=None):
+        """Continuous rotation angle [rad] from the input orientation about ``axis`` ("x",
+        "y", "z" or a 3-vector, global): the component of :meth:`rotation_from_input` along
+        it. ``axis=None``: the global axis with the largest component over the frames read
+        (for a body turning about a fixed global axis, its signed accumulated angle)."""
+        v = np.asarray(self.rotation_from_input(body, frame))
+        if axis is None:
+            k = int(np.argmax(np.abs(v.reshape(-1, 3)).max(axis=0)))
+            return v[..., k]
+        if isinstance(axis, str):
+            u = np.eye(3)["xyz".index(axis.lower())]
+        else:
+            u = np.asarray(axis, float) / np.linalg.norm(axis)
+        return v @ u
+
+    def reaction(self, joint: int, frame=-1, group: str = "joints"):
+        """``(force, torque)`` of constraint element ``joint`` (id) of ``group`` (``joints``,
+        ``jprims``, ``motions``, ...): on the I body at the I marker, global axes."""
+        k = self._row(group, joint)
+        F = np.asarray(self.datasets[f"{group}/force"])[:, k]
+        T = np.asarray(self.datasets[f"{group}/torque"])[:, k]
+        return (F, T) if frame is None else (F[frame], T[frame])
+
+    def request(self, request: int, channel, frame=-1):
+        """Channel of ``Post_Request`` ``request`` (id): 1..8, or its name (``DM DX DY DZ``
+        ``YAW PITCH ROLL`` for displacement requests, ``FM FX FY FZ TM TX TY TZ`` for force
+        requests, ``f1``..``f8`` / ``expr1``..``expr8``; case-insensitive)."""
+        c = _channel_index(channel)
+        v = np.asarray(self.datasets["requests/values"])[:, self._row("requests", request), c]
+        return v if frame is None else v[frame]
+
+
+_CHANNELS = {**{n: i for i, n in enumerate(("dm", "dx", "dy", "dz", "", "yaw", "pitch", "roll"))
+                if n},
+             **{n: i for i, n in enumerate(("fm", "fx", "fy", "fz", "tm", "tx", "ty", "tz"))},
+             **{f"{p}{i + 1}": i for p in ("f", "expr") for i in range(8)}}
+
+
+def _channel_index(channel) -> int:
+    if isinstance(channel, str) and channel.strip().lower() in _CHANNELS:
+        return _CHANNELS[channel.strip().lower()]
+    if not isinstance(channel, str) and int(channel) == channel and 1 <= int(channel) <= 8:
+        return int(channel) - 1
+    raise KeyError(f"request channel {channel!r}; expected 1..8 or one of "
+                   f"{', '.join(n.upper() for n in _CHANNELS)}")
+
 
 @dataclass
 class RunResult:
@@ -118,3 +208,42 @@ class RunResult:
     @property
     def exit_code(self) -> int:
         return 0 if self.status == STATUS_CONVERGED else 1
+
+    # ------------------------------------------------------------------ accessors
+    # Same reads as AnalysisResult's, on analysis ``analysis`` (default the last); bodies by id
+    # or label (``/model/bodies/label``).
+    def body_id(self, body) -> int:
+        """The id of body ``body`` (an id, or a label)."""
+        if isinstance(body, str):
+            labels = [str(x) for x in np.asarray(self.model_datasets.get("bodies/label", []))]
+            ids = np.asarray(self.model_datasets.get("bodies/id", []))
+            hit = [int(i) for i, l in zip(ids, labels) if l == body]
+            if len(hit) != 1:
+                raise KeyError(f"{'no' if not hit else 'more than one'} body labelled {body!r}; "
+                               f"labels: {', '.join(map(repr, labels)) or 'none'}")
+            return hit[0]
+        return int(body)
+
+    def position(self, body, frame=-1, analysis: int = -1):
+        return self.analyses[analysis].position(self.body_id(body), frame)
+
+    def orientation(self, body, frame=-1, analysis: int = -1):
+        return self.analyses[analysis].orientation(self.body_id(body), frame)
+
+    def euler_parameters(self, body, frame=-1, analysis: int = -1):
+        return self.analyses[analysis].euler_parameters(self.body_id(body), frame)
+
+    def euler_313(self, body, frame=-1, analysis: int = -1):
+        return self.analyses[analysis].euler_313(self.body_id(body), frame)
+
+    def rotation_from_input(self, body, frame=-1, analysis: int = -1):
+        return self.analyses[analysis].rotation_from_input(self.body_id(body), frame)
+
+    def rotation_angle(self, body, frame=-1, axis=None, analysis: int = -1):
+        return self.analyses[analysis].rotation_angle(self.body_id(body), frame, axis)
+
+    def reaction(self, joint: int, frame=-1, group: str = "joints", analysis: int = -1):
+        return self.analyses[analysis].reaction(joint, frame, group)
+
+    def request(self, request: int, channel, frame=-1, analysis: int = -1):
+        return self.analyses[analysis].request(request, channel, frame)

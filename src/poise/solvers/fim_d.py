@@ -384,6 +384,7 @@ class _Chart:
         if len(m.rot_idx):
             w = y[m.rot_idx].reshape(-1, 3)
             st.rot[m.rot_body] = np.matmul(expm_so3(w), ref.rot[m.rot_body])
+            m.track_rotation(st, ref, w)
         st.lam = np.array(y[m.nq:], float)
         if m.n_extra:                   # scalar unknowns: algebraic, y = extra - ref.extra
             st.extra = ref.extra + y[m.extra_idx]

@@ -236,6 +236,7 @@ def retract_flat(model, state, dq):
     if len(rb):
         E = expm_so3(dq[model.rot_idx].reshape(-1, 3))
         new.rot[rb] = np.matmul(E, state.rot[rb])
+        model.track_rotation(new, state, dq[model.rot_idx].reshape(-1, 3))
     if len(model.angle_I):
         p = model._principal_angles(new)
         new.angle = state.angle + wrap_angle(p - state.angle)

@@ -174,6 +174,7 @@ def output_datasets(model, frames, loads, dep, outcomes) -> dict:
     d["bodies/id"] = model.body_id
     d["bodies/position"] = np.stack([s.pos for s in frames])
     d["bodies/orientation"] = np.stack([s.rot for s in frames])
+    d.update(orientation_datasets(model, frames, d["bodies/orientation"]))
     for g, o in model.outputs.items():
         n_out = len(o["ids"])
         zero = np.zeros((nf, n_out, 3))
@@ -196,6 +197,20 @@ def output_datasets(model, frames, loads, dep, outcomes) -> dict:
     d["frames/error"] = np.array([o.error for o in outcomes])
     d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
     return d
+
+
+def orientation_datasets(model, frames, rot) -> dict:
+    """``bodies/euler_parameters`` (F,B,4), ``bodies/euler_313`` (F,B,3) of the orientations
+    ``rot`` (F,B,3,3) and ``bodies/rotation_from_input`` (F,B,3): each state's continuous
+    rotation vector (turns counted by State.rotvec; principal, |v| <= pi, for a state without
+    it). docs/results-format.md defines them."""
+    from poise.model.rotation import euler_313, euler_parameters
+    if all(s.rotvec is not None for s in frames):       # every frame at once
+        rv = model.rotation_from_input(None, rot, np.stack([s.rotvec for s in frames]))
+    else:
+        rv = np.stack([model.rotation_from_input(s) for s in frames])
+    return {"bodies/euler_parameters": euler_parameters(rot), "bodies/euler_313": euler_313(rot),
+            "bodies/rotation_from_input": rv}
 
 
 def frame_outputs(model, state) -> dict:
