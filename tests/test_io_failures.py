@@ -226,6 +226,22 @@ def chain_deck(tmp_path_factory):
     return d
 
 
+def _wait_started(p, limit=30.0):
+    """Wait until poise's own code runs in ``p`` (its start-up handler catches SIGTERM): an
+    interrupt inside the interpreter's start-up, before any poise code, is Python's, not ours,
+    and on a loaded machine a fixed delay can land there."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < limit and p.poll() is None:
+        try:
+            with open(f"/proc/{p.pid}/status") as f:
+                caught = next(int(line.split()[1], 16) for line in f if line.startswith("SigCgt"))
+        except (OSError, StopIteration):
+            return
+        if caught & (1 << (signal.SIGTERM - 1)):
+            return
+        time.sleep(0.005)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 @pytest.mark.parametrize("delay", [0.1, 0.6, 1.5])
 def test_interrupted_solve_is_one_line_exit_130(tmp_path, chain_deck, sig, delay):
@@ -233,6 +249,7 @@ def test_interrupted_solve_is_one_line_exit_130(tmp_path, chain_deck, sig, delay
     p = subprocess.Popen([str(POISE), "solve", str(chain_deck), "-o", str(out), "-q"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    _wait_started(p)
     time.sleep(delay)
     p.send_signal(sig)
     stdout, stderr = p.communicate(timeout=60)
@@ -253,6 +270,7 @@ def test_ctrl_c_on_a_batch_is_one_line(tmp_path, chain_deck):
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          start_new_session=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    _wait_started(p)
     time.sleep(1.0)
     os.killpg(p.pid, signal.SIGINT)
     stdout, stderr = p.communicate(timeout=60)

@@ -39,6 +39,35 @@ def _interrupted(exc: BaseException) -> bool:
     return False
 
 
+_said_interrupted = False
+
+
+def say_interrupted() -> None:
+    """Print ``poise: interrupted`` once per process and ignore further Ctrl-C/SIGTERM (a
+    second interrupt while the first unwinds, e.g. as a batch's workers die, says nothing more)."""
+    global _said_interrupted
+    if _said_interrupted:
+        return
+    import os
+    if os.path.basename(sys.argv[0] if sys.argv else "") in ("poise", "__main__.py"):
+        _said_interrupted = True       # the process ends now (not a test or library caller)
+        _ignore_interrupts()
+    try:
+        sys.stderr.write("poise: interrupted\n")
+        sys.stderr.flush()
+    except BaseException:  # noqa: BLE001 - nothing more can be reported
+        pass
+
+
+def _ignore_interrupts() -> None:
+    try:
+        import signal
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    except (ValueError, OSError):      # not the main thread
+        pass
+
+
 def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict]:
     """Print ``exc`` on stderr the way the CLI reports it and return ``(exit_code, info)``.
 
@@ -61,7 +90,7 @@ def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict
         return EXIT_USAGE, {"status": getattr(exc, "status", "usage_error"),
                             "error": _one_line(exc)}
     if _interrupted(exc):
-        click.echo("poise: interrupted", err=True)
+        say_interrupted()
         return EXIT_INTERRUPTED, {"status": "interrupted", "error": "interrupted"}
     msg = f"{type(exc).__name__}: {_one_line(exc)}" if str(exc) else type(exc).__name__
     if debug:

@@ -83,17 +83,15 @@ EXIT_INTERRUPTED = 130
 
 def interrupted():
     """Report an interrupt (Ctrl-C, SIGTERM) in one line and exit 130."""
-    try:
-        click.echo("poise: interrupted", err=True)
-    except KeyboardInterrupt:
-        pass
+    from poise_cli.errors import say_interrupted
+    say_interrupted()
     raise click.exceptions.Exit(EXIT_INTERRUPTED)
 
 
 def _quiet_exit(code: int) -> None:
     try:
-        sys.stderr.write("poise: interrupted\n")
-        sys.stderr.flush()
+        from poise_cli.errors import say_interrupted
+        say_interrupted()
     except BaseException:  # noqa: BLE001 - nothing more can be reported
         pass
     os._exit(code)
