@@ -13,6 +13,7 @@ class Status(str, Enum):
     ASSEMBLY_FAILED = "assembly_failed"
     STEP_TOO_SMALL = "step_too_small"
     INCONSISTENT_CONSTRAINTS = "inconsistent_constraints"
+    NO_EQUILIBRIUM = "no_equilibrium"
 
     @property
     def ok(self) -> bool:
@@ -32,4 +33,6 @@ MESSAGES = {
     Status.INCONSISTENT_CONSTRAINTS: "redundant constraint equations contradict the others (the "
                                      "joints cannot all be satisfied: align their markers or "
                                      "remove the redundant joint)",
+    Status.NO_EQUILIBRIUM: "no equilibrium exists (a direction without stiffness carries a "
+                           "load); the fallback chain was not tried",
 }
