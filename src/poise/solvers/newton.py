@@ -412,6 +412,16 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             return state, FrameOutcome(Status.NONFINITE, it, imb, err,
                                        MESSAGES[Status.NONFINITE] + "; every trial step failed: "
                                        + eval_error)
+        if res_ok and not best[0] < m0:
+            # every equation within tolerance and no step along Newton's direction improves
+            # them: the residual is at its round-off floor, the step is noise
+            bad = inconsistent_redundant(model, state, sc)
+            history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
+                        pos=state.pos, rot=state.rot)
+            if bad:
+                return state, FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, imb, err,
+                                           MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
+            return state, FrameOutcome(Status.CONVERGED, it, imb, err, "converged")
         prev = state                      # the row's pose: the iterate the row measured
         m1, alpha, state, ev = best
         last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0

@@ -352,7 +352,8 @@ class QuasiStaticAnalysis:
             per = [sa.frame_datasets(st, [o], on_eval=measure(k) if k in measured else None)
                    for k, (st, o) in enumerate(zip(frames, outcomes))]
             d = {}
-            for key in per[0]:
+            # keys every frame has (a failed frame has no stability classification)
+            for key in [k for k in per[0] if all(k in p for p in per[1:])]:
                 if key.endswith("/id") or key.endswith("/tag") or key.endswith("/unique") \
                         or key.endswith("/label"):
                     d[key] = per[0][key]
