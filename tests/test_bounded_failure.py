@@ -73,12 +73,15 @@ def test_missing_joint_stops_before_the_chain(tmp_path):
     np.testing.assert_allclose(cg2[:2], ref, atol=1e-5)
 
 
-def test_continuation_caps_mu_and_reports_divergence(tmp_path):
-    """A spring-loaded slider driven by a softening force that grows without bound: PTC's
-    relaxation ``mu <- mu sqrt(m_new / m_old)`` blows up; it must end as a status, not raise."""
+def test_continuation_caps_mu_and_reports_divergence(tmp_path, monkeypatch):
+    """A slider pushed by a force that only grows along its travel (``1 + 1e4 x^2``: no
+    equilibrium): continuation ends within its step budget with a status. Then a residual that
+    grows by 1e60 per step (as the reliability decks' did): ``mu <- mu sqrt(m_new / m_old)``
+    overflowed and ``stability = mu**2 = inf`` raised ValueError; now it ends as ``diverged``."""
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
     from poise.runner import plan
+    import poise.solvers.fallback as fb
     d = Deck(units="m", grav=None)
     d.ground()
     d.marker(101, 1, (0, 0, 0), rot_y(np.pi / 2))      # joint z axis along global X
@@ -86,16 +89,27 @@ def test_continuation_caps_mu_and_reports_divergence(tmp_path):
     d.marker(21, 2, (0, 0, 0), rot_y(np.pi / 2))
     d.joint(1, "TRANSLATIONAL", 21, 101)
     d.add('<Force_Vector_OneBody id="1" type="FORCEONLY" marker_id="20" ref_marker_id="0" '
-          'fx_expression="1e3*EXP(DX(20)*1e3)" fy_expression="0" fz_expression="0"/>')
+          'fx_expression="1 + 1e4*DX(20)**2" fy_expression="0" fz_expression="0"/>')
     spec = load_deck(d.write(tmp_path / "runaway.xml"))
     model = compile_model(spec)
     s = plan(spec, {})[0].settings
     st = model.initial_state()
-    cnt = Counters()
-    st2, out = continuation(model, st, s, History(), 0, cnt, max_steps=50)
+    st2, out = continuation(model, st, s, History(), 0, Counters(), max_steps=50)
     assert not out.ok
-    assert out.status.value in ("diverged", "nonfinite", "max_iterations", "singular_jacobian")
-    assert out.iterations <= 50
+    assert out.status.value == "max_iterations" and out.iterations == 50
+    assert float(st2.pos[0, 0]) > 0.0                   # it followed the push, found nothing
+
+    calls = [0]
+
+    def growing(ev, sc):
+        calls[0] += 1
+        return 10.0 ** (60 * calls[0])
+
+    monkeypatch.setattr(fb, "merit", growing)
+    st3, out = continuation(model, model.initial_state(), s, History(), 0, Counters(),
+                            max_steps=50)
+    assert out.status.value == "diverged", out.message
+    assert 1 <= out.iterations < 50
 
 
 def exploding_qs_deck(expr, dae=None):

@@ -93,7 +93,8 @@ def measures(model, ev, sc: Scales):
 
 def merit(ev, sc):
     z = np.concatenate([ev.r / sc.r_tol, ev.phi / sc.phi_tol])
-    return 0.5 * float(z @ z)
+    with np.errstate(over="ignore", invalid="ignore"):     # inf: a residual beyond any scale
+        return 0.5 * float(z @ z)
 
 
 def _weighted_kkt(model, ev, W):
