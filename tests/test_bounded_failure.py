@@ -189,3 +189,28 @@ def test_reliability_deck_ends_cleanly(tmp_path, name):
             assert js["analyses"][0]["message"]
             it = g["frames/iterations"][()]
             assert np.all(it <= settings["max_num_iter"] * 400)
+
+
+@pytest.mark.skipif(not REL.is_dir(), reason="reliability decks not available")
+def test_user_routine_k200_matches_the_builtin_model(tmp_path):
+    """The k = 200 user-routine deck (plain Newton fails, the chain converges) against the same
+    model written with built-in elements (decks/elem_user_forces_builtin.xml, k 100 -> 200),
+    which plain Newton solves."""
+    out = tmp_path / "u.h5"
+    r, js = solve_cli(REL / "user_routine_k200_internal_error.xml", out, *_allow_user_code())
+    assert r.returncode == 0, r.stderr
+    builtin = Path(__file__).resolve().parent.parent / "decks" / "elem_user_forces_builtin.xml"
+    text = builtin.read_text().replace('stiffness="100."', 'stiffness="200."')
+    assert 'stiffness="200."' in text
+    p = tmp_path / "builtin_k200.xml"
+    p.write_text(text)
+    ref = run_deck(str(p)).analyses[0]
+    assert ref.converged and ref.datasets["frames/strategy"][0] == "plain"
+    with h5py.File(out, "r") as f:
+        g = f["analysis_000"]
+        np.testing.assert_allclose(g["bodies/position"][()], ref.datasets["bodies/position"],
+                                   atol=1e-9)
+        np.testing.assert_allclose(g["bodies/orientation"][()],
+                                   ref.datasets["bodies/orientation"], atol=1e-9)
+        assert g["frames/strategy"][()][0] in (b"continuation", "continuation", b"stability",
+                                               "stability", b"mkeam", "mkeam")
