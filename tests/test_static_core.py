@@ -217,9 +217,11 @@ def test_smooth_decks_converge_within_six_iterations(deck):
 
 def test_fallback_chain_recorded_and_switchable(tmp_path):
     deck = str(DECKS / "pendulum_multiturn.xml")
-    res = run_deck(deck, overrides={"max_num_iter": 2})
+    # the chain's budget defaults to max_num_iter (2 here: not enough); it is granted explicitly
+    res = run_deck(deck, overrides={"max_num_iter": 2, "fallback_max_num_iter": 50})
     a = res.analyses[0]
     assert a.converged
+    assert a.datasets["frames/iterations"][0] <= 2 + 50
     assert "fallback strategy" in a.message
     events = set(a.datasets["iterations/event"])
     assert any(e.startswith("fallback: stability") for e in events)

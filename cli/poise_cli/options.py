@@ -4,7 +4,11 @@ from __future__ import annotations
 import click
 
 #: CLI option name -> ``Param_Static`` attribute name used as override key by poise.api.run_deck
-OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability", "fallback")
+OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability", "fallback",
+                 "fallback_max_num_iter")
+
+#: ``ctx.meta`` key of ``--fallback-budget`` (kept out of the commands' signatures)
+_FALLBACK_BUDGET = "poise.fallback_max_num_iter"
 
 METHODS = ("FIM_D", "FIM_S", "MKEAM")
 
@@ -42,6 +46,12 @@ class _Finite(click.FloatRange):
         return v
 
 
+def _store_fallback_budget(ctx, param, value):
+    if value is not None:
+        ctx.meta[_FALLBACK_BUDGET] = value
+    return value
+
+
 def solver_options(f):
     """The ``Param_Static`` overrides of ``poise solve`` (applied in reverse for help order)."""
     opts = [
@@ -61,6 +71,11 @@ def solver_options(f):
         click.option("--no-fallback", "no_fallback", is_flag=True, default=False,
                      help="Do not run the fallback chain (larger stability, continuation, "
                           "MKEAM) when FIM_S fails."),
+        click.option("--fallback-budget", type=click.IntRange(min=0), default=None,
+                     expose_value=False, callback=_store_fallback_budget, metavar="N",
+                     help="Iterations (Newton, continuation, MKEAM together) the fallback chain "
+                          "may spend on one frame after plain Newton failed. Default: "
+                          "max_num_iter."),
     ]
     for opt in reversed(opts):
         f = opt(f)
@@ -69,4 +84,7 @@ def solver_options(f):
 
 def collect_overrides(**values) -> dict:
     """Only the options the user actually gave, keyed by Param_Static attribute name."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is not None and values.get("fallback_max_num_iter") is None:
+        values["fallback_max_num_iter"] = ctx.meta.get(_FALLBACK_BUDGET)
     return {k: values[k] for k in OVERRIDE_KEYS if values.get(k) is not None}

@@ -44,6 +44,10 @@ class StaticSettings:
         Backtracking line search on the scaled residual norm.
     fallback : bool
         Run the fallback chain (solvers/fallback.py) when FIM_S fails (``--no-fallback``).
+    fallback_max_num_iter : int or None
+        Iterations (Newton, continuation and MKEAM iterations together) the fallback chain may
+        spend on one frame after plain Newton used its ``max_num_iter``; None: ``max_num_iter``
+        (``--fallback-budget``). A frame costs at most ``max_num_iter + fallback_max_num_iter``.
     """
 
     method: str = "FIM_D"
@@ -58,6 +62,7 @@ class StaticSettings:
     max_rotation_step: float = 6.283185307179586 * 4
     line_search: bool = True
     fallback: bool = True
+    fallback_max_num_iter: int | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -70,6 +75,15 @@ class StaticSettings:
             raise ValueError(f"stability must be a finite number >= 0, got {self.stability!r}")
         if int(self.max_num_iter) < 1:
             raise ValueError(f"max_num_iter must be >= 1, got {self.max_num_iter!r}")
+        if self.fallback_max_num_iter is not None and int(self.fallback_max_num_iter) < 0:
+            raise ValueError(f"fallback_max_num_iter must be >= 0, got "
+                             f"{self.fallback_max_num_iter!r}")
+
+    @property
+    def fallback_budget(self) -> int:
+        """Iterations the fallback chain may spend on one frame."""
+        b = self.fallback_max_num_iter
+        return int(self.max_num_iter if b is None else b)
 
     def updated(self, values: dict) -> "StaticSettings":
         """A copy with ``values`` (Param_Static attribute names) applied; unknown keys ignored."""
@@ -82,7 +96,7 @@ class StaticSettings:
             if k in names and val is not None:
                 if k == "method":
                     val = str(val).upper()
-                elif k == "max_num_iter":
+                elif k in ("max_num_iter", "fallback_max_num_iter"):
                     val = int(val)
                 v[k] = val
         return replace(self, **v)

@@ -1,8 +1,11 @@
-"""The documented fallback chain for FIM_S static solves that fail.
+"""Solve one frame with recovery: plain Newton, then the documented fallback chain.
 
-When plain Newton (with step limits and line search) does not converge, these strategies are
-tried in order, each starting from the *input* configuration of the frame; every switch is
-recorded in the iteration history (``iterations/event`` = ``fallback: <strategy>: <reason>``):
+:func:`solve_frame` is the one entry point every analysis uses for a frame (static solves,
+quasi-static FIM_S frames, FIM_D's first frame, final polish and per-frame fallbacks). Plain
+Newton gets ``max_num_iter`` iterations. When it fails (and the failure is one a strategy can
+fix), these strategies are tried in order, each starting from the *input* configuration of the
+frame; every switch is recorded in the iteration history (``iterations/event`` =
+``fallback: <strategy>: <reason>``, ``iterations/strategy`` = the stage of every row):
 
 1. ``stability``: Newton again with ``stability`` raised to ``FALLBACK_STABILITY`` (a larger mass
    fraction in the Jacobian only: it never changes the equilibrium, it steadies the steps near
@@ -11,6 +14,15 @@ recorded in the iteration history (``iterations/event`` = ``fallback: <strategy>
    Jacobian, ``mu`` relaxed by switched evolution relaxation (see :func:`continuation`): a damped
    pseudo-time flow far from equilibrium that turns into plain Newton near it.
 3. ``mkeam``: kinetic-energy attrition (only stable equilibria) followed by a Newton polish.
+
+Budget: the chain as a whole may spend ``fallback_max_num_iter`` iterations on a frame (default
+``max_num_iter``; CLI ``--fallback-budget``), counting every Newton iteration, continuation step
+and MKEAM iteration; a strategy that stops early leaves the rest to the next. The frame's
+``iterations`` is the total of plain Newton and every strategy; ``FrameOutcome.counts`` splits it.
+
+Not tried (stopped at once, the message says why): non-finite residuals, contradicting redundant
+constraints, and a coordinate that nothing restrains but a constant load pushes (a missing joint:
+:func:`unrestrained_load`), which no strategy can fix.
 
 ``--no-fallback`` (``fallback=False`` in the overrides) turns the chain off.
 """
@@ -21,81 +33,237 @@ from dataclasses import replace
 import numpy as np
 
 from poise.errors import EvaluationError
-from poise.solvers.newton import FrameOutcome, _evaluate, newton
-from poise.solvers.status import Status
+from poise.solvers.newton import FrameOutcome, Scales, _evaluate, merit, newton
+from poise.solvers.status import MESSAGES, Status
 
 FALLBACK_STABILITY = 1e-2
 PTC_MAX_ITER = 200
 PTC_MU_MIN = 1e-12
+PTC_MU_GROWTH = 1e8       # mu above this multiple of its start: the pseudo-time flow diverges
+NO_RECOVERY = (Status.NONFINITE, Status.INCONSISTENT_CONSTRAINTS, Status.NO_EQUILIBRIUM)
+OVERFLOW = 1e150          # a force imbalance above this (any units) cannot be computed with
+ZERO_ROW = 1e-13          # a Jacobian row below this fraction of the largest entry is empty
 
 
-def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome):
-    """Try the fallback strategies after ``first`` failed. Returns ``(state, outcome, used)``."""
+def solve_frame(model, state, settings, history, frame, cnt, event="newton"):
+    """Newton from ``state`` and, if it fails, the fallback chain. Returns ``(state, outcome)``.
+
+    The outcome's ``iterations`` counts every iteration of the frame, ``counts`` splits them by
+    strategy, ``strategy`` names the one that converged (``plain``: no recovery needed).
+    """
+    start = state.copy()
+    st, out = newton(model, state, settings, history, frame, cnt, event=event)
+    out.counts = {"plain": out.iterations}
+    if out.ok:
+        return st, out
+    return recover(model, start, st, out, settings, history, frame, cnt)
+
+
+def recover(model, start, st, out, settings, history, frame, cnt):
+    """The fallback chain from ``start`` after plain Newton failed with ``out`` at ``st``
+    (``out.counts["plain"]``, if set, is all the plain work of the frame so far). Returns
+    ``(state, outcome)`` with the frame's total iterations; the failed plain result when the
+    chain does not converge or is not to be tried."""
+    plain = int(out.counts.get("plain", out.iterations)) if out.counts else int(out.iterations)
+    out.counts = {"plain": plain}
+    out.iterations = plain
+    if out.ok or not settings.fallback or out.status in NO_RECOVERY:
+        return st, out
+    if not out.imbalance <= OVERFLOW:
+        return st, FrameOutcome(Status.NONFINITE, plain, out.imbalance, out.error,
+                                f"{out.message}; the force imbalance ({out.imbalance:.3g}) is "
+                                "beyond any physical scale (floating-point overflow): check the "
+                                "loads; the fallback chain was not tried", out.counts)
+    why = unrestrained_load(model, settings, (start, st), cnt)
+    if why:
+        return st, FrameOutcome(Status.NO_EQUILIBRIUM, plain, out.imbalance, out.error,
+                                MESSAGES[Status.NO_EQUILIBRIUM] + "; " + why, out.counts)
+    budget = settings.fallback_budget
+    if budget <= 0:
+        out.message += "; fallback chain not run (fallback budget 0)"
+        return st, out
+    st2, out2, used, counts = run_chain(model, start, settings, history, frame, cnt, out, budget)
+    counts["plain"] = plain
+    total = int(sum(counts.values()))
+    if out2.ok:
+        out2.iterations, out2.counts, out2.strategy = total, counts, used
+        out2.message = (f"converged; plain Newton failed ({out.status.value}): converged with "
+                        f"the fallback strategy '{used}'")
+        return st2, out2
+    out.iterations, out.counts = total, counts
+    out.message += (f"; fallback chain (stability, continuation, mkeam) did not converge "
+                    f"({total - plain} of its {budget} iterations used, raise --fallback-budget; last: "
+                    f"{out2.message})")
+    return st, out
+
+
+def unrestrained_load(model, settings, states, cnt) -> str:
+    """A coordinate nothing restrains (its row of the unregularised Jacobian is empty: no
+    element, constraint or reaction depends on any unknown through it) that carries the same
+    non-zero load at every state of ``states`` and at a probe moved one model size (or one
+    radian) along the load: no equilibrium exists along it, and no strategy can find one (e.g.
+    a body whose joint is missing, under gravity). Returns a message naming it, or ""."""
+    if model.nq == 0:
+        return ""
+    sc = Scales(model, settings)
+    cand = None
+    ref = None
+    pts = list(states)
+    k = 0
+    while k < len(pts):
+        try:
+            ev = _evaluate(model, pts[k], cnt, need_jac=True)
+        except EvaluationError:
+            return ""
+        J = ev.J
+        if hasattr(J, "tocsr"):
+            A = abs(J.tocsr()[:model.nq])
+            rowmax = np.asarray(A.max(axis=1).todense()).ravel()
+            big = float(abs(J).max()) if J.nnz else 0.0
+        else:
+            A = np.abs(np.asarray(J)[:model.nq])
+            rowmax = A.max(axis=1) if A.shape[1] else np.zeros(model.nq)
+            big = float(np.abs(J).max()) if J.size else 0.0
+        c = (rowmax <= ZERO_ROW * big) & (np.abs(ev.r) > sc.r_tol)
+        if ref is None:
+            ref = ev.r.copy()
+            cand = c
+        else:
+            cand = cand & c & (np.abs(ev.r - ref) <= 1e-9 * np.abs(ref))
+        if not cand.any():
+            return ""
+        if k == len(pts) - 1 and len(pts) == len(states):
+            dq = np.zeros(model.nq)
+            dq[cand] = -np.sign(ref[cand]) * sc.q_len[cand]
+            pts.append(model.retract(pts[k], dq))
+        k += 1
+    j = int(np.nonzero(cand)[0][0])
+    return (f"nothing restrains {model.coord_info[j]} (no element or constraint acts on it) "
+            f"and a constant load of {-ref[j]:.6g} pushes it: add the missing joint or force")
+
+
+def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome, budget: int):
+    """Try the fallback strategies after ``first`` failed, within ``budget`` iterations in
+    total. Returns ``(state, outcome, used, counts)``; ``counts``: iterations per strategy."""
+    counts = {"stability": 0, "continuation": 0, "mkeam": 0, "polish": 0}
+    left = int(budget)
     reason = first.status.value
-    # 1. larger stability
-    s1 = replace(settings, stability=max(settings.stability, FALLBACK_STABILITY))
-    history.add(frame, 0, np.nan, np.nan, event=f"fallback: stability={s1.stability:g}: {reason}")
-    st, out = newton(model, start.copy(), s1, history, frame, cnt, event="fallback-stability")
-    if out.ok:
-        return st, out, "stability"
-    reason = out.status.value
-    # 2. pseudo-transient continuation
-    history.add(frame, 0, np.nan, np.nan, event=f"fallback: continuation: {reason}")
-    st, out = continuation(model, start.copy(), settings, history, frame, cnt)
-    if out.ok:
-        return st, out, "continuation"
-    reason = out.status.value
-    # 3. MKEAM (imported only when the chain gets this far)
-    history.add(frame, 0, np.nan, np.nan, event=f"fallback: mkeam: {reason}")
+    st, out = start, first
     try:
-        from poise.solvers.mkeam import relax
-        st2, ok = relax(model, start.copy(), settings, history, frame, cnt)
-    except Exception as e:   # noqa: BLE001 - any MKEAM failure just ends the chain
-        history.add(frame, 0, np.nan, np.nan, event=f"fallback: mkeam failed: {e}")
-        return st, out, ""
-    if ok:
-        st3, out3 = newton(model, st2, settings, history, frame, cnt, event="fallback-polish")
-        if out3.ok:
-            return st3, out3, "mkeam"
-        return st3, out3, ""
-    return st, out, ""
+        # 1. larger stability: at most max_num_iter, and a quarter of the budget
+        n = min(int(settings.max_num_iter), max(1, left // 4), left)
+        s1 = replace(settings, stability=max(settings.stability, FALLBACK_STABILITY))
+        history.strategy = "stability"
+        history.add(frame, 0, np.nan, np.nan,
+                    event=f"fallback: stability={s1.stability:g}: {reason}")
+        st, out = newton(model, start.copy(), s1, history, frame, cnt, max_iter=n,
+                         event="fallback-stability")
+        counts["stability"] = out.iterations
+        left -= out.iterations
+        if out.ok:
+            return st, out, "stability", counts
+        reason = out.status.value
+        if out.status in NO_RECOVERY[:2] or left <= 0:
+            return st, out, "", counts
+        # 2. pseudo-transient continuation: two thirds of what is left
+        n = min(PTC_MAX_ITER, max(1, (2 * left) // 3))
+        history.strategy = "continuation"
+        history.add(frame, 0, np.nan, np.nan, event=f"fallback: continuation: {reason}")
+        st, out = continuation(model, start.copy(), settings, history, frame, cnt, max_steps=n)
+        counts["continuation"] = out.iterations
+        left -= out.iterations
+        if out.ok:
+            return st, out, "continuation", counts
+        reason = out.status.value
+        if out.status in NO_RECOVERY[:2] or left <= 0:
+            return st, out, "", counts
+        # 3. MKEAM (imported only when the chain gets this far), a quarter kept for the polish
+        polish = min(int(settings.max_num_iter), max(1, left // 4))
+        n_mk = max(1, left - polish)
+        history.strategy = "mkeam"
+        history.add(frame, 0, np.nan, np.nan, event=f"fallback: mkeam: {reason}")
+        n0 = len(history)
+        try:
+            from poise.solvers.mkeam import relax
+            st2, ok = relax(model, start.copy(), replace(settings, max_num_iter=n_mk), history,
+                            frame, cnt)
+        except Exception as e:   # noqa: BLE001 - any MKEAM failure just ends the chain
+            counts["mkeam"] = sum(1 for r in history.rows[n0:] if r[7] == "mkeam")
+            history.add(frame, 0, np.nan, np.nan, event=f"fallback: mkeam failed: {e}")
+            return st, replace(out, message=f"MKEAM failed: {e}"), "", counts
+        counts["mkeam"] = sum(1 for r in history.rows[n0:] if r[7] == "mkeam")
+        left -= counts["mkeam"]
+        if not ok:
+            return st, replace(out, message="MKEAM did not converge within its share of the "
+                                            "fallback budget"), "", counts
+        if left <= 0:
+            return st2, FrameOutcome(Status.MAX_ITERATIONS, 0, np.nan, np.nan,
+                                     "no budget left for the Newton polish of the MKEAM point"
+                                     ), "", counts
+        history.strategy = "polish"
+        st3, out3 = newton(model, st2, settings, history, frame, cnt, max_iter=left,
+                           event="fallback-polish")
+        counts["polish"] = out3.iterations
+        return st3, out3, ("mkeam" if out3.ok else ""), counts
+    finally:
+        history.strategy = "plain"
 
 
-def continuation(model, state, settings, history, frame, cnt):
+def continuation(model, state, settings, history, frame, cnt, max_steps=PTC_MAX_ITER):
     """Pseudo-transient continuation (PTC): Newton steps on ``(K + mu M) dx = -F``.
 
-    ``mu`` (units 1/time^2) starts comparable to the largest stiffness/mass ratio, so the first
-    steps follow a damped pseudo-time flow ``M dx/dtau = -F`` towards a *stable* equilibrium, and
-    is relaxed by switched evolution relaxation ``mu <- mu * |F_new| / |F_old|`` so the last
-    iterations are plain Newton (quadratic). Only the Jacobian changes; the residual, and hence
-    the equilibrium found, does not.
+    ``mu`` (units 1/time^2) starts comparable to the largest stiffness/mass ratio (over the
+    coordinates that have mass), so the first steps follow a damped pseudo-time flow
+    ``M dx/dtau = -F`` towards a *stable* equilibrium, and is relaxed by switched evolution
+    relaxation ``mu <- mu * |F_new| / |F_old|`` so the last iterations are plain Newton
+    (quadratic). Only the Jacobian changes; the residual, and hence the equilibrium found, does
+    not. At most ``max_steps`` steps; a residual that keeps growing (``mu`` beyond
+    ``PTC_MU_GROWTH`` times its start) or turns non-finite ends it as ``diverged``.
     """
-    from poise.solvers.newton import Scales, merit
     sc = Scales(model, settings)
     try:
         ev = _evaluate(model, state, cnt, need_jac=True)
     except EvaluationError as e:
         return state, FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
     kd = np.abs(np.asarray(ev.J.diagonal()).ravel()[:model.nq])     # dense or CSR, never densified
-    md = np.maximum(model.mass_diagonal(state), 1e-300)
-    mu = float(np.max(kd / md)) if model.nq else 0.0
+    md = model.mass_diagonal(state)
+    has = (md > 0) & np.isfinite(kd)
+    mu0 = float(np.max(kd[has] / md[has])) if has.any() else 0.0
+    if not (np.isfinite(mu0) and mu0 > 0):
+        mu0 = 1.0
+    mu = mu0
+    mu_max = min(mu0 * PTC_MU_GROWTH, 1e150)       # mu**2 stays a finite stability
     m_old = merit(ev, sc)
     total = 0
-    for _ in range(PTC_MAX_ITER):
+    last = None
+    for _ in range(int(max_steps)):
         s_mu = replace(settings, stability=mu * mu, fallback=False, line_search=False)
         st, o = newton(model, state, s_mu, history, frame, cnt, max_iter=1,
                        event=f"continuation mu={mu:.3g}")
         total += o.iterations
+        last = o
         if o.ok:
             return st, FrameOutcome(Status.CONVERGED, total, o.imbalance, o.error, "converged")
-        if o.status in (Status.NONFINITE,):
+        if o.status is Status.NONFINITE:
+            o.iterations = total
             return st, o
+        if o.iterations == 0:          # singular even with mu M: the flow cannot move
+            return st, FrameOutcome(o.status, total, o.imbalance, o.error, o.message)
         state = st
-        ev = _evaluate(model, state, cnt, need_jac=False)
+        try:
+            ev = _evaluate(model, state, cnt, need_jac=False)
+        except EvaluationError as e:
+            return state, FrameOutcome(Status.NONFINITE, total, np.nan, np.nan, str(e))
         m_new = merit(ev, sc)
-        mu = mu * np.sqrt(m_new / max(m_old, 1e-300))
-        if mu < PTC_MU_MIN * max(float(np.max(kd / md)), 1e-300):
+        mu = mu * np.sqrt(m_new / max(m_old, 1e-300)) if np.isfinite(m_new) else np.inf
+        if not (np.isfinite(mu) and mu <= mu_max):
+            return state, FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,
+                                       "pseudo-transient continuation diverged (the residual "
+                                       "kept growing)")
+        if mu < PTC_MU_MIN * mu0:
             mu = 0.0
         m_old = m_new
-    return state, FrameOutcome(Status.MAX_ITERATIONS, total, np.nan, np.nan,
-                               f"pseudo-transient continuation did not converge in {PTC_MAX_ITER} steps")
+    imb = last.imbalance if last is not None else np.nan
+    return state, FrameOutcome(Status.MAX_ITERATIONS, total, imb, np.nan,
+                               f"pseudo-transient continuation did not converge in {total} "
+                               "steps")

@@ -86,7 +86,7 @@ Tolerances (``Param_Transient``; defaults in brackets): ``tol = min(integr_tol [
 dae_constr_tol [1e-6])`` is IDA's ``rtol``; ``atol`` = ``tol * L`` (translations), ``tol``
 (rotations), ``tol * max(1, |lam0|)`` per multiplier kind (defaults of a deck without
 ``Param_Transient``; with one, the schema's h_min 1e-6 applies). ``h_max`` [unbounded] (max_step),
-``h_min`` [0] (min_step), ``h0_max`` [none] (the first step when written, see above), ``max_order`` [5],
+``h_min`` [``H_FLOOR`` x span] (min_step), ``h0_max`` [none] (the first step when written, see above), ``max_order`` [5],
 ``dae_corrector_maxit`` [4] (max_nonlin_iters). ``dae_interpolation`` [TRUE]: output frames are
 IDA's interpolants at the print times (steps are not limited by the print interval); FALSE:
 IDA stops exactly at every print time (``tstop``) and the frame is a converged corrector.
@@ -102,7 +102,13 @@ the correction's cost is in the analysis attributes ``correction_*``). An output
 reactions, loads and stability), where every frame is certified
 (:func:`poise.solvers.certify.certify`).
 
-FIM_S is used for the first frame (assembly + Newton), the last frame (Newton polish of IDA's
+Budgets (deterministic, no wall clock): at most ``IDA_MAX_STEPS + IDA_STEPS_PER_FRAME`` x
+frames accepted IDA steps per run, a step-size floor ``H_FLOOR`` x span, and a body more than
+``ESCAPE`` model sizes from its chart's reference ends the run (an unbounded load): the frame
+fails (``max_iterations`` / ``diverged``) with the reason, results written.
+
+FIM_S (with the recovery of a static solve, :func:`~poise.solvers.fallback.solve_frame`) is
+used for the first frame (assembly + Newton), the last frame (Newton polish of IDA's
 end state) and whenever IDA fails (the next output frame is solved with FIM_S from the last
 accepted state, then IDA restarts); each fallback is recorded in ``iterations/event``
 (``fallback_fim_s``) with its reason, and listed in the message.
@@ -130,7 +136,8 @@ import numpy as np
 from poise.errors import EvaluationError
 from poise.model.model import State
 from poise.model.rotation import expm_so3, se3_left_jacobian, wrap_angle
-from poise.solvers.newton import FrameOutcome, newton
+from poise.solvers.fallback import solve_frame
+from poise.solvers.newton import FrameOutcome
 from poise.solvers.quasistatic import MIN_SUBSTEP_FRACTION, Progress, first_frame, fims_step
 from poise.solvers.status import Status
 
@@ -142,6 +149,11 @@ START_NEWTON = 3          # chord-Newton corrections of a (re)start point, at mo
 START_POLISH = 1e-3       # ... until the correction is below this (weighted RMS norm)
 CORRECT_MAX_ITER = 4      # simplified-Newton corrections of an output frame, at most
 CORRECT_RATE = 0.25       # contraction slower than this: refactorise at the frame (once a frame)
+# deterministic budgets (a run whose load explodes must end, not integrate forever)
+IDA_MAX_STEPS = 2000      # accepted IDA steps per run, plus IDA_STEPS_PER_FRAME per output frame
+IDA_STEPS_PER_FRAME = 20
+H_FLOOR = 1e-12           # IDA's step-size floor (min_step) as a fraction of the span (or h_min)
+ESCAPE = 1e6              # a body this many model sizes from its chart's reference: no bounded path
 
 
 def transient_settings(tr: dict, model) -> dict:
@@ -723,8 +735,7 @@ def _ida(chart, ts_settings, atol, t0, y0, yp0, first_step):
         opts.update(jacfn=chart.jacfn_sparse, linsolver="sparse",
                     sparsity=chart.sparse.pattern(), nthreads=1)
     opts["max_step"] = ts_settings["h_max"] if ts_settings["h_max"] > 0 else ts_settings["span"]
-    if ts_settings["h_min"] > 0:
-        opts["min_step"] = ts_settings["h_min"]
+    opts["min_step"] = max(ts_settings["h_min"], H_FLOOR * ts_settings["span"])
     if first_step > 0:
         opts["first_step"] = first_step
     with warnings.catch_warnings():
@@ -804,6 +815,7 @@ def run_fim_d(qs, state, index, notes):
 
     k_out = 1
     n_starts = 0
+    max_steps = IDA_MAX_STEPS + IDA_STEPS_PER_FRAME * len(ts)
     ref = state
     rebased = 1
     chart = solver = None
@@ -867,6 +879,13 @@ def run_fim_d(qs, state, index, notes):
                 steps[k].append(v)
             rebased = 0
         t_last, y_last = float(r.t), np.array(r.y, float)
+        over = _over_budget(len(steps["time"]), max_steps, y_last, model, t_last)
+        if over is not None:
+            frames.append(chart.state(y_last, t_last))
+            outcomes.append(over)
+            qs.history.add(k_out, 0, np.nan, np.nan, np.nan, np.nan, over.message, "ida")
+            k_out += 1
+            break
         tol_t = 1e-12 * max(1.0, abs(T_end))
         # output frames passed by this step (interpolated), except the last one
         pend = []
@@ -903,7 +922,8 @@ def run_fim_d(qs, state, index, notes):
         if k_out == len(ts) - 1 and t_last >= T_end - tol_t:
             # last frame: FIM_S polish of IDA's end state
             st = chart.state(y_last, T_end)
-            st, o = newton(model, st, s, qs.history, k_out, qs.counters, event="final_fim_s")
+            st, o = solve_frame(model, st, s, qs.history, k_out, qs.counters,
+                                event="final_fim_s")
             if not o.ok:
                 reason = f"Newton polish of the last frame failed ({o.status.value})"
                 ok = _fallback(qs, frames, outcomes, ts, k_out, reason, fallbacks,
@@ -941,6 +961,21 @@ def run_fim_d(qs, state, index, notes):
     ar.attrs["dae_tol"] = tol
     ar.attrs["ida_linear_solver"] = "sparse" if sparse is not None else "dense"
     return st, ar
+
+
+def _over_budget(n_steps, max_steps, y, model, t):
+    """A failed outcome when the run exceeded its IDA step budget or a body left every scale
+    of the model (``ESCAPE`` model sizes from its chart's reference); else None."""
+    if n_steps > max_steps:
+        return FrameOutcome(Status.MAX_ITERATIONS, 0, np.nan, np.nan,
+                            f"IDA step budget exhausted ({max_steps} steps) at t={t:.9g}")
+    d = float(np.max(np.abs(y[model.trans_idx]))) if model.nb else 0.0
+    if not d <= ESCAPE * model.L:
+        return FrameOutcome(Status.DIVERGED, 0, np.nan, np.nan,
+                            f"the equilibrium path left every scale of the model at t={t:.9g} "
+                            f"(a body moved {d / model.L:.3g} model sizes, more than {ESCAPE:g}: is a load "
+                            "unbounded?)")
+    return None
 
 
 def _fallback(qs, frames, outcomes, ts, k_out, reason, fallbacks, last_state):

@@ -13,7 +13,11 @@ from __future__ import annotations
 import numpy as np
 
 COLUMNS = ("frame", "iteration", "imbalance", "error", "step_norm", "step_length",
-           "worst_equation", "event")
+           "worst_equation", "event", "strategy")
+
+#: ``iterations/strategy`` values: the recovery stage a row belongs to (``plain``: the method as
+#: requested, no recovery; the others are the fallback chain's strategies, solvers/fallback.py)
+STRATEGIES = ("plain", "stability", "continuation", "mkeam", "polish")
 
 
 class History:
@@ -27,11 +31,13 @@ class History:
         self._last_pose: tuple | None = None   # (row, pos, rot) of the newest pose, always kept
         self._n_posed = 0                      # pose-bearing rows seen
         self.pose_stride = 1
+        self.strategy = "plain"                # recorded with every row (set by the recovery)
 
     def add(self, frame, iteration, imbalance, error, step_norm=np.nan, step_length=np.nan,
             worst_equation="", event="newton", pos=None, rot=None):
         self.rows.append((int(frame), int(iteration), float(imbalance), float(error),
-                          float(step_norm), float(step_length), str(worst_equation), str(event)))
+                          float(step_norm), float(step_length), str(worst_equation), str(event),
+                          self.strategy))
         if pos is not None and rot is not None:
             self._add_pose(len(self.rows) - 1, pos, rot)
 
@@ -88,7 +94,7 @@ class History:
         for name, col in zip(COLUMNS, cols):
             if name in ("frame", "iteration"):
                 out[prefix + name] = np.asarray(col, dtype=np.int64)
-            elif name in ("worst_equation", "event"):
+            elif name in ("worst_equation", "event", "strategy"):
                 out[prefix + name] = np.asarray(col, dtype=str) if len(col) else np.zeros(0, dtype=str)
             else:
                 out[prefix + name] = np.asarray(col, dtype=float)

@@ -15,7 +15,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,16 +27,23 @@ from poise.solvers.status import MESSAGES, Status
 ASSEMBLY_MAX_ITER = 50
 ASSEMBLY_TOL = 1e-10          # relative constraint violation after assembly
 LINE_SEARCH_MAX = 8
+NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
+TAIL_SHARE = 1e-6             # eps M dx above this share of the residual: filter the step
 ARMIJO = 1e-4
 
 
 @dataclass
 class FrameOutcome:
+    """One frame's solve. ``iterations`` counts all the work of the frame (every strategy);
+    ``counts``: iterations per strategy (history.STRATEGIES) when the recovery ran;
+    ``strategy``: the one that produced the frame (``plain``: no recovery needed)."""
     status: Status
     iterations: int
     imbalance: float
     error: float
     message: str = ""
+    counts: dict = field(default_factory=dict)
+    strategy: str = "plain"
 
     @property
     def ok(self):
@@ -86,7 +93,8 @@ def measures(model, ev, sc: Scales):
 
 def merit(ev, sc):
     z = np.concatenate([ev.r / sc.r_tol, ev.phi / sc.phi_tol])
-    return 0.5 * float(z @ z)
+    with np.errstate(over="ignore", invalid="ignore"):     # inf: a residual beyond any scale
+        return 0.5 * float(z @ z)
 
 
 def _weighted_kkt(model, ev, W):
@@ -255,6 +263,57 @@ def _limit_step_trial(model, state, dq, settings):
     return fac, None
 
 
+def _mass_times(model, state, v):
+    """``M v`` for a tangent vector ``v`` (nq,): body masses on translations, world inertia on
+    rotations, zero on scalar unknowns."""
+    out = np.zeros(model.nq)
+    out[model.trans_idx] = np.repeat(model.body_mass, 3) * v[model.trans_idx]
+    if len(model.rot_idx):
+        _, Jg = model.mass_blocks(state)
+        out[model.rot_idx] = np.einsum("nij,nj->ni", Jg,
+                                       v[model.rot_idx].reshape(-1, 3)).ravel()
+    return out
+
+
+def _neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
+    """The Newton step ``x = A^-1 (-F)`` (``A = K + eps M``) with near-neutral directions filtered
+    out, or None when the regularisation does not dominate it.
+
+    Along a direction of zero stiffness (the spin of a slender rod about its axis) a residual
+    that is consistent only to second order still has a component ``O(e^2)`` there, which ``A``
+    divides by ``eps`` times that direction's (possibly tiny) inertia: a huge spurious step that
+    the step limits then cut down to nothing, so Newton stalls. With ``S = eps A^-1 M``
+    (eigenvalues ``eps / (lambda + eps)`` for the generalised stiffness ``lambda``), the step
+    ``(I - S)(I + 2 S) x`` scales each direction by ``lambda (lambda + 3 eps) / (lambda + eps)^3``:
+    zero along neutral directions (the minimum-norm step) and ``1/lambda (1 - 3 (eps/lambda)^2)``
+    along stiff ones (Newton's step, quadratic convergence for ``eps << lambda``). Two extra
+    solves with the same factorisation, only when ``eps M x`` carries more than ``TAIL_SHARE``
+    of the residual (then the regularisation would slow Newton down to a linear rate
+    ``eps/lambda``), or when the step limits cut ``x`` (``limited``) and ``S x`` is more than
+    ``NEUTRAL_SHARE`` of ``x`` (scaled).
+    """
+    if not eps > 0 or model.nq == 0:
+        return None
+    nq = model.nq
+    reg = eps * _mass_times(model, state, x[:nq])
+    share = float(np.max(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
+    if not (limited or share > TAIL_SHARE):
+        return None
+    pad = np.zeros(len(x) - nq)
+    try:
+        Sx = f.solve(np.concatenate([reg, pad]))
+        size = np.max(np.abs(x[:nq]) / sc.q_len)
+        if share <= TAIL_SHARE and \
+                not float(np.max(np.abs(Sx[:nq]) / sc.q_len)) > NEUTRAL_SHARE * size:
+            return None
+        z = x + 2.0 * Sx
+        Sz = f.solve(np.concatenate([eps * _mass_times(model, state, z[:nq]), pad]))
+    except SingularMatrix:
+        return None
+    xf = z - Sz
+    return xf if np.all(np.isfinite(xf)) else None
+
+
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
            max_iter: int | None = None, event: str = "newton", equilibrate: bool = False):
     """Newton iterations from ``state``. Returns ``(state, FrameOutcome)``. ``equilibrate``:
@@ -312,11 +371,27 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
                                        MESSAGES[Status.SINGULAR_JACOBIAN])
         dq, dl = x[:model.nq], x[model.nq:]
-        alpha, first = _limit_step_trial(model, state, dq, settings)
         m0 = merit(ev, sc)
         best = None
         eval_error = ""
-        for _ in range(LINE_SEARCH_MAX + 1):
+        alpha, first = _limit_step_trial(model, state, dq, settings)
+        xf = _neutral_filtered(model, state, f, x, eps, sc, zinf, alpha < 1.0)
+        if xf is not None:
+            # the regularisation dominates the step (near-neutral directions): try the step with
+            # those directions filtered out first, keep it if it decreases the merit
+            af, tf = _limit_step_trial(model, state, xf[:model.nq], settings)
+            if tf is None:
+                tf = model.retract(state, af * xf[:model.nq])
+            tf.lam = tf.lam + af * xf[model.nq:]
+            try:
+                ev_f = ev_at(tf)
+                mf = merit(ev_f, sc)
+                if mf <= (1.0 - ARMIJO * af) * m0:
+                    best = (mf, af, tf, ev_f)
+                    dq = xf[:model.nq]
+            except EvaluationError:
+                pass
+        for _ in range(LINE_SEARCH_MAX + 1 if best is None else 0):
             if first is not None:      # the full (limited) step: already retracted
                 trial, first = first, None
                 trial.lam = trial.lam + alpha * dl
@@ -339,6 +414,16 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             return state, FrameOutcome(Status.NONFINITE, it, imb, err,
                                        MESSAGES[Status.NONFINITE] + "; every trial step failed: "
                                        + eval_error)
+        if res_ok and not best[0] < m0:
+            # every equation within tolerance and no step along Newton's direction improves
+            # them: the residual is at its round-off floor, the step is noise
+            bad = inconsistent_redundant(model, state, sc)
+            history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
+                        pos=state.pos, rot=state.rot)
+            if bad:
+                return state, FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, imb, err,
+                                           MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
+            return state, FrameOutcome(Status.CONVERGED, it, imb, err, "converged")
         prev = state                      # the row's pose: the iterate the row measured
         m1, alpha, state, ev = best
         last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0

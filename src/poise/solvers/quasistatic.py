@@ -28,9 +28,11 @@ import numpy as np
 from poise.model.model import Evaluation
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.history import History
+from poise.solvers.fallback import NO_RECOVERY, recover, solve_frame
 from poise.solvers.newton import (Counters, FrameOutcome, Scales, assemble, initial_multipliers,
                                   measures, newton)
-from poise.solvers.static import StaticAnalysis, detect_redundancy, frame_outputs, stack_frames
+from poise.solvers.static import (StaticAnalysis, detect_redundancy, frame_outputs, stack_frames,
+                                  strategy_attrs)
 from poise.solvers.status import MESSAGES, Status
 
 DEFAULT_PRINT_INTERVAL = 0.01
@@ -192,14 +194,20 @@ def first_frame(model, state, settings, history, counters, redundancy):
         return state, FrameOutcome(Status.ASSEMBLY_FAILED, 0, np.nan, np.nan,
                                    MESSAGES[Status.ASSEMBLY_FAILED]), redundancy, notes, moved
     state = initial_multipliers(model, state, counters)
-    state, out = newton(model, state, settings, history, 0, counters)
+    state, out = solve_frame(model, state, settings, history, 0, counters)
+    if out.strategy != "plain":
+        notes.append(f"frame 0: plain Newton failed; converged with the fallback strategy "
+                     f"'{out.strategy}'")
     return state, out, redundancy, notes, moved
 
 
 def fims_step(model, frames, t_target, settings, history, counters, frame, min_dt):
-    """FIM_S from ``frames[-1]`` to ``t_target`` with automatic sub-stepping.
+    """FIM_S from ``frames[-1]`` to ``t_target`` with automatic sub-stepping; when halving
+    reaches ``min_dt`` the fallback chain of a static solve (:func:`~poise.solvers.fallback.
+    recover`) solves the frame at ``t_target`` from its predictor.
 
-    Returns ``(state, outcome, n_substeps)``; ``frames`` is not modified.
+    Returns ``(state, outcome, n_substeps)``; ``frames`` is not modified. The outcome's
+    iterations count every sub-step and strategy.
     """
     hist = list(frames[-3:])
     t_prev = hist[-1].t
@@ -228,6 +236,14 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
                     "substep_retry")
         if dt < min_dt:
             out.iterations = total_it
+            out.counts = {"plain": total_it}
+            if not settings.fallback or out.status in NO_RECOVERY:
+                return st, out, n_sub
+            history.add(frame, 0, out.imbalance, out.error, np.nan, np.nan,
+                        f"step to t={t_target:.9g} failed after {n_sub} halvings; fallback "
+                        "chain from the frame's predictor", "substep_retry")
+            st, out = recover(model, predictor(model, hist, t_target), st, out, settings,
+                              history, frame, counters)
             return st, out, n_sub
 
 
@@ -294,6 +310,9 @@ class QuasiStaticAnalysis:
                                         self.counters, k, min_dt)
                 if nsub:
                     notes.append(f"frame {k}: {nsub} sub-step halvings")
+                if o.strategy != "plain":
+                    notes.append(f"frame {k}: converged with the fallback strategy "
+                                 f"'{o.strategy}'")
                 frames.append(st)
                 outcomes.append(o)
                 prog.update(k + 1)
@@ -341,7 +360,8 @@ class QuasiStaticAnalysis:
             per = [sa.frame_datasets(st, [o], on_eval=measure(k) if k in measured else None)
                    for k, (st, o) in enumerate(zip(frames, outcomes))]
             d = {}
-            for key in per[0]:
+            # keys every frame has (a failed frame has no stability classification)
+            for key in [k for k in per[0] if all(k in p for p in per[1:])]:
                 if key.endswith("/id") or key.endswith("/tag") or key.endswith("/unique") \
                         or key.endswith("/label"):
                     d[key] = per[0][key]
@@ -358,6 +378,7 @@ class QuasiStaticAnalysis:
         ar.message = "; ".join([first] + notes)
         ar.datasets.update(stack_frames([frame_outputs(model, st) for st in frames]))
         ar.datasets.update(self.history.datasets())
+        ar.attrs.update(strategy_attrs(ar.datasets))
         ar.datasets.update(sa.redundancy_datasets())
         if extra:
             ar.datasets.update(extra)

@@ -9,8 +9,9 @@ import numpy as np
 
 from poise.errors import EvaluationError
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
+from poise.solvers.fallback import solve_frame
 from poise.solvers.history import History
-from poise.solvers.newton import Counters, FrameOutcome, assemble, initial_multipliers, newton
+from poise.solvers.newton import Counters, FrameOutcome, assemble, initial_multipliers
 from poise.solvers.outputs import element_loads
 from poise.solvers.redundancy import (dependent_rows, left_null_basis, min_norm_multipliers,
                                       redundant_rows)
@@ -74,21 +75,7 @@ class StaticAnalysis:
                                    MESSAGES[Status.ASSEMBLY_FAILED])
             else:
                 state = initial_multipliers(model, state, self.counters)
-                start = state.copy()
-                state, out = newton(model, state, s, self.history, 0, self.counters)
-                if not out.ok and s.fallback and out.status not in (
-                        Status.NONFINITE, Status.INCONSISTENT_CONSTRAINTS):
-                    from poise.solvers.fallback import run_chain
-                    state2, out2, used = run_chain(model, start, s, self.history, 0,
-                                                   self.counters, out)
-                    if out2.ok:
-                        notes.append(f"plain Newton failed ({out.status.value}); converged with "
-                                     f"the fallback strategy '{used}'")
-                        state, out = state2, out2
-                        self.fallback_used = used
-                    else:
-                        notes.append("fallback chain (stability, continuation, mkeam) did not "
-                                     "converge")
+                state, out = solve_frame(model, state, s, self.history, 0, self.counters)
         except EvaluationError as e:
             if self.redundancy is None:
                 self.redundancy = np.zeros(0, int)
@@ -104,6 +91,7 @@ class StaticAnalysis:
         ar.datasets.update(stack_frames([frame_outputs(model, state)]))
         ar.datasets.update(self.history.datasets())
         ar.attrs.update(self.history.attrs())
+        ar.attrs.update(strategy_attrs(ar.datasets))
         ar.datasets.update(self.redundancy_datasets())
         return state, ar
 
@@ -196,6 +184,7 @@ def output_datasets(model, frames, loads, dep, outcomes) -> dict:
     d["frames/imbalance"] = np.array([o.imbalance for o in outcomes])
     d["frames/error"] = np.array([o.error for o in outcomes])
     d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
+    d.update(strategy_datasets(outcomes))
     return d
 
 
@@ -211,6 +200,33 @@ def orientation_datasets(model, frames, rot) -> dict:
         rv = np.stack([model.rotation_from_input(s) for s in frames])
     return {"bodies/euler_parameters": euler_parameters(rot), "bodies/euler_313": euler_313(rot),
             "bodies/rotation_from_input": rv}
+
+
+def strategy_datasets(outcomes) -> dict:
+    """``frames/strategy`` (the recovery stage that produced each frame, ``plain`` without
+    recovery) and ``frames/strategy_iterations`` (F, len(STRATEGIES)): each frame's iterations
+    split by stage (columns in :data:`~poise.solvers.history.STRATEGIES` order; they sum to
+    ``frames/iterations``)."""
+    from poise.solvers.history import STRATEGIES
+    it = np.zeros((len(outcomes), len(STRATEGIES)), np.int64)
+    for k, o in enumerate(outcomes):
+        c = o.counts or {"plain": o.iterations}
+        for j, name in enumerate(STRATEGIES):
+            it[k, j] = int(c.get(name, 0))
+        it[k, 0] += int(o.iterations) - int(it[k].sum())   # work not split: plain
+    return {"frames/strategy": np.array([o.strategy for o in outcomes], dtype=str),
+            "frames/strategy_iterations": it}
+
+
+def strategy_attrs(datasets) -> dict:
+    """Analysis attributes ``iterations_<strategy>``: totals over the frames, and
+    ``iterations_total``."""
+    from poise.solvers.history import STRATEGIES
+    it = np.asarray(datasets.get("frames/strategy_iterations", np.zeros((0, len(STRATEGIES)))))
+    tot = it.sum(axis=0) if it.size else np.zeros(len(STRATEGIES), np.int64)
+    out = {f"iterations_{n}": int(v) for n, v in zip(STRATEGIES, tot)}
+    out["iterations_total"] = int(tot.sum())
+    return out
 
 
 def frame_outputs(model, state) -> dict:
