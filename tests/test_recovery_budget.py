@@ -29,7 +29,8 @@ def pendulum_theta():
     reference 19.84955592153876 rad, g = 9810 mm/s^2 along -Y, so m g = 19.62 N in N-kg-mm-s):
     k (ref - th) = m g l cos(th)."""
     m, g, l, k, ref = 2.0, 9.81, 200.0, 20000.0, 19.84955592153876
-    f = lambda th: k * (ref - th) - m * g * l * np.cos(th)
+    def f(th):
+        return k * (ref - th) - m * g * l * np.cos(th)
     return brentq(f, ref - 0.5, ref + 0.5)
 
 

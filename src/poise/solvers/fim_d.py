@@ -912,8 +912,8 @@ def run_fim_d(qs, state, index, notes):
                                                  "ida")
                 else:
                     correct.stats["newton"] += 1
-                    st, o = newton(model, chart.state(yk, tk), s, qs.history, k, qs.counters,
-                                   event="ida_newton")
+                    st, o = solve_frame(model, chart.state(yk, tk), s, qs.history, k,
+                                        qs.counters, event="ida_newton")
                     o.iterations += int(n_c[j])
                 frames.append(st)
                 outcomes.append(o)
