@@ -292,6 +292,8 @@ class Batch:
                     v, grad = g.evaluate(ctx, P_ext, A_ext)
                 except DomainError as e:
                     self._fail(g, e.message, e.mask)
+                except ArithmeticError as e:       # overflow in a float conversion, ...
+                    self._fail(g, f"{type(e).__name__}: {e}", np.ones(g.m, dtype=bool))
                 bad = ~np.isfinite(v)
                 if bad.any():
                     self._fail(g, "non-finite value", bad)
