@@ -259,7 +259,9 @@ class Batch:
         e = self.exprs[i]
         loc, attr = (e.loc, e.attr) if hasattr(e, "loc") else (None, None)
         text = f" in '{e.text}'" if hasattr(e, "text") else ""
-        raise EvaluationError(f"{message}{text}", loc, attr)
+        err = EvaluationError(f"{message}{text}", loc, attr)
+        err.instance = i              # failing instance (callers may name its inputs)
+        raise err
 
     def evaluate(self, ctx: EvalContext) -> EvalResult:
         """Evaluate all instances with first derivatives.

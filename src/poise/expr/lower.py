@@ -164,6 +164,12 @@ class Lowering:
                 return ("time",)
             if node.name in CONSTANTS:
                 return ("c", CONSTANTS[node.name])
+            symbol = getattr(self.resolver, "symbol", None)       # optional (CONTRACT.md)
+            if symbol is not None:
+                try:
+                    return ("sc", int(symbol(node.name)))
+                except KeyError:
+                    pass
             self.error(node.col, f"unknown name {node.name!r}")
         return None
 
