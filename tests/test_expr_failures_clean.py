@@ -164,3 +164,28 @@ def test_huge_constant_in_control_diff(tmp_path, fallback):
                 'expr="1e308 + 0.1*TIME - DX(20,10)"')
     r, _ = _solve(d, *([] if fallback else ["--no-fallback"]))
     assert r.returncode == 1, r.stderr
+
+
+# ----------------------------------------------------------------------------- in process
+def test_curve_evaluation_error_names_the_parameter():
+    """A curve evaluated where it is undefined (as Newton may do during a solve) raises the
+    located EvaluationError that every solver turns into exit 1 — with the deck text and U —
+    never ZeroDivisionError / OverflowError; finite points keep exact derivatives."""
+    import numpy as np
+
+    from poise.deck.spec import Expr
+    from poise.errors import EvaluationError, SourceLoc
+    from poise.model.curve_data import AnalyticCurve
+    loc = SourceLoc("c.xml", 14, "Reference_ParamCurve", 1)
+    c = AnalyticCurve(None, [Expr("U", loc, "x_expression"), Expr("1/(U-3)", loc, "y_expression"),
+                             0.0], -2.0, 2.0, False)
+    d = c.derivs(np.array([1.0, 2.0]), 1)
+    np.testing.assert_allclose(d[0][:, 1], [-0.5, -1.0], rtol=1e-15)
+    np.testing.assert_allclose(d[1][:, 1], [-0.25, -1.0], rtol=1e-15)     # -1/(u-3)^2 exact
+    with pytest.raises(EvaluationError) as ei:
+        c.derivs(np.array([0.0, 3.0]), 2)
+    msg = str(ei.value)
+    assert msg.startswith("c.xml:14: <Reference_ParamCurve id=1> y_expression:"), msg
+    assert "division by zero in '1/(U-3)' at U = 3" in msg, msg
+    big = AnalyticCurve(None, [Expr("U", loc, "x_expression"), 0.0, 0.0], 0.0, 1.68e300, False)
+    assert np.all(np.isfinite(big.derivs(np.array([1.0]), 3)[:2]))     # no OverflowError
