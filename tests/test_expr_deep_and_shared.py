@@ -163,3 +163,12 @@ def _find(f, leaf):
     out = []
     f.visit(lambda n: out.append(n) if n.endswith("bodies/" + leaf) else None)
     return out
+
+
+def test_long_expression_failure_message_is_bounded():
+    """A failing 1000-term expression is quoted by its ends, not in full (one readable line)."""
+    from poise.errors import EvaluationError
+    b = compile_batch([mkexpr("+".join(["1/VARVAL(1)"] * 1000))], FakeResolver())
+    with pytest.raises(EvaluationError, match="division by zero in '1/VARVAL") as ei:
+        b.evaluate(make_ctx())
+    assert len(str(ei.value)) < 300 and " ... " in str(ei.value)

@@ -258,7 +258,10 @@ class Batch:
         i = int(g.rows_idx[j])
         e = self.exprs[i]
         loc, attr = (e.loc, e.attr) if hasattr(e, "loc") else (None, None)
-        text = f" in '{e.text}'" if hasattr(e, "text") else ""
+        text = ""
+        if hasattr(e, "text"):        # a 1000-term expression is quoted by its ends
+            t = e.text if len(e.text) <= 160 else f"{e.text[:100]} ... {e.text[-40:]}"
+            text = f" in '{t}'"
         err = EvaluationError(f"{message}{text}", loc, attr)
         err.instance = i              # failing instance (callers may name its inputs)
         raise err
