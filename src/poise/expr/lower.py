@@ -159,6 +159,12 @@ class Lowering:
             return ("c", self.nums[node.index])
         if t is Num:
             return ("c", node.value)
+        if t is Unary:
+            a = node.arg.__class__
+            if a is Num or a is Param:
+                v = node.arg.value if a is Num else self.nums[node.arg.index]
+                return ("c", -v if node.op == "-" else v)
+            return None
         if t is Name:
             if node.name == "TIME":
                 return ("time",)
@@ -173,6 +179,10 @@ class Lowering:
             self.error(node.col, f"unknown name {node.name!r}")
         return None
 
+    def _sub(self, node):
+        """Generator lowering a non-leaf node (a call directly, without a ``lower`` level)."""
+        return self.call(node) if node.__class__ is Call else self.lower(node)
+
     def lower(self, node):
         leaf = self._leaf(node)
         if leaf is not None:
@@ -180,10 +190,10 @@ class Lowering:
         if isinstance(node, BinOp):
             a = self._leaf(node.left)
             if a is None:
-                a = yield self.lower(node.left)
+                a = yield self._sub(node.left)
             b = self._leaf(node.right)
             if b is None:
-                b = yield self.lower(node.right)
+                b = yield self._sub(node.right)
             op = _BINOPS[node.op]
             if a[0] == "c" and b[0] == "c":
                 v, why = fold_bin(op, a[1], b[1])
@@ -194,7 +204,7 @@ class Lowering:
         if isinstance(node, Unary):
             a = self._leaf(node.arg)
             if a is None:
-                a = yield self.lower(node.arg)
+                a = yield self._sub(node.arg)
             if node.op == "+":
                 return a
             return ("c", -a[1]) if a[0] == "c" else ("neg", a)
@@ -212,20 +222,37 @@ class Lowering:
         """Integer constant argument ``i`` of a call (``default`` when omitted)."""
         if i >= len(node.args):
             return default
-        ir = yield self.lower(node.args[i])
+        ir = self._leaf(node.args[i])
+        if ir is None:
+            ir = yield self.lower(node.args[i])
+        return self._int_value(node, i, ir)
+
+    def _int_value(self, node, i, ir):
         if ir[0] != "c" or ir[1] != math.trunc(ir[1]):
             self.error(node.args[i].col, f"{node.name} argument {i + 1} must be an integer "
                        "constant")
         return int(ir[1])
 
-    def marker(self, node, i):
-        mid = yield self.int_arg(node, i)
+    def _int_fast(self, node, i, default=0):
+        """``int_arg`` without a sub-generator when the argument is a leaf; else None."""
+        if i >= len(node.args):
+            return default
+        ir = self._leaf(node.args[i])
+        return None if ir is None else self._int_value(node, i, ir)
+
+    def _marker_index(self, node, i, mid):
         try:
             return int(self.resolver.marker_index(mid))
         except KeyError:
             if mid == 0:          # global frame (contract: maps to -1)
                 return -1
             self.error(node.args[i].col, f"unknown marker id {mid}")
+
+    def marker(self, node, i):
+        mid = self._int_fast(node, i)
+        if mid is None:
+            mid = yield self.int_arg(node, i)
+        return self._marker_index(node, i, mid)
 
     def call(self, node):
         name = node.name
@@ -234,7 +261,7 @@ class Lowering:
             args = []
             for a in node.args:
                 ir = self._leaf(a)
-                args.append(ir if ir is not None else (yield self.lower(a)))
+                args.append(ir if ir is not None else (yield self._sub(a)))
             if name in ("MAX", "MIN") and len(args) > 2:
                 acc = args[0]
                 for b in args[1:]:
@@ -245,7 +272,10 @@ class Lowering:
             self._arity(node, *MEASURE_ARITY[name])
             ids = []
             for i in range(3):
-                ids.append((yield self.marker(node, i)))
+                mid = self._int_fast(node, i)
+                if mid is None:
+                    mid = yield self.int_arg(node, i)
+                ids.append(self._marker_index(node, i, mid))
             slots = tuple((ids[w], kind) for w, kind in MEASURE_SLOTS[name])
             key = None
             if name in CONTINUOUS:
@@ -262,7 +292,10 @@ class Lowering:
             return (yield self.spline(node))
         if name in ("VARVAL", "DIF", "DIF1"):
             self._arity(node, 1, 1)
-            return (yield self.state(node, (yield self.int_arg(node, 0))))
+            vid = self._int_fast(node, 0)
+            if vid is None:
+                vid = yield self.int_arg(node, 0)
+            return (yield self.state(node, vid))
         if name == "ARYVAL":
             self._arity(node, 2, 2)
             aid, k = (yield self.int_arg(node, 0)), (yield self.int_arg(node, 1))
@@ -390,6 +423,9 @@ class Instance:
         self.splines: list = []
 
 
+_MERGED = frozenset(("time", "meas", "sc", "rx"))     # equal leaves: one instruction
+
+
 def _children(n):
     tag = n[0]
     if tag == "bin":
@@ -406,9 +442,10 @@ def _children(n):
 def extract(ir):
     """Split concrete IR into a structural key (a tape) and per-instance data.
 
-    The DAG is walked iteratively, each node object once (a variable used many times is
-    evaluated once); structurally equal instructions (same operation on the same operands) are
-    also merged. Instructions refer to earlier ones by position; the last one is the result.
+    The DAG is walked once per node object (a variable used many times is evaluated once;
+    recursion near the root, a heap stack below any depth); equal state leaves (the same
+    measure of the same slots, TIME, a scalar, a channel) are also merged. Instructions refer
+    to earlier ones by position; the last one is the result.
 
     Returns
     -------
@@ -432,23 +469,15 @@ def extract(ir):
             lst.append(v)
         return mapping[v]
 
-    stack = [ir]
-    while stack:
-        n = stack[-1]
-        if id(n) in memo:
-            stack.pop()
-            continue
-        kids = _children(n)
-        pending = [c for c in kids if id(c) not in memo]
-        if pending:
-            stack.extend(reversed(pending))
-            continue
-        stack.pop()
+    def emit(n):
+        """Tape position of node ``n`` whose operands are all in ``memo``."""
         tag = n[0]
-        if tag == "c":
+        if tag == "c":                            # always a new instruction
             inst.params.append(n[1])
-            op = ("c", len(inst.params) - 1)
-        elif tag == "time":
+            k = memo[id(n)] = len(ops)
+            ops.append(("c", len(inst.params) - 1))
+            return k
+        if tag == "time":
             op = n
         elif tag == "neg":
             op = ("neg", memo[id(n[1])])
@@ -478,10 +507,58 @@ def extract(ir):
             op = ("spl", n[1], n[2], memo[id(n[3])], memo[id(n[4])], len(inst.splines) - 1)
         else:
             raise ValueError(tag)  # pragma: no cover
-        k = cse.get(op)
-        if k is None:
-            k = cse[op] = len(ops)
+        if tag in _MERGED:
+            k = cse.get(op)
+            if k is None:
+                k = cse[op] = len(ops)
+                ops.append(op)
+        else:
+            k = len(ops)
             ops.append(op)
         memo[id(n)] = k
+        return k
+
+    def walk(n, depth):
+        """Post-order, left to right: plain recursion near the root, a heap stack below."""
+        if depth > 200:
+            return walk_heap(n)
+        tag = n[0]
+        if tag == "c":
+            inst.params.append(n[1])
+            k = memo[id(n)] = len(ops)
+            ops.append(("c", len(inst.params) - 1))
+            return k
+        if tag == "bin":                          # the common case, inline
+            a, b = n[2], n[3]
+            ia = memo.get(id(a))
+            if ia is None:
+                ia = walk(a, depth + 1)
+            ib = memo.get(id(b))
+            if ib is None:
+                ib = walk(b, depth + 1)
+            k = memo[id(n)] = len(ops)
+            ops.append(("bin", n[1], ia, ib))
+            return k
+        for c in _children(n):
+            if id(c) not in memo:
+                walk(c, depth + 1)
+        return emit(n)
+
+    def walk_heap(root):
+        stack = [root]
+        while stack:
+            n = stack[-1]
+            if id(n) in memo:
+                stack.pop()
+                continue
+            pending = [c for c in _children(n) if id(c) not in memo]
+            if pending:
+                stack.extend(reversed(pending))
+                continue
+            stack.pop()
+            emit(n)
+        return memo[id(root)]
+
+    walk(ir, 0)
     assert memo[id(ir)] == len(ops) - 1
     return tuple(ops), inst
