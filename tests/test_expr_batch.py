@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import Akima1DInterpolator, CubicSpline
 
-from poise.errors import EvaluationError
+from poise.errors import DeckError, EvaluationError
 from poise.expr import EvalContext, compile_batch
 from test_expr_support import FakeResolver, fd_check_scalars, make_ctx, mkexpr, scalar_grad
 
@@ -61,12 +61,11 @@ def test_shared_slots_deduplicated():
 
 def test_constant_folding():
     b = compile_batch([mkexpr("SIN(PI/4)*2 + 3**2 - ARYVAL(1,3)")], FakeResolver())
-    assert b.groups[0].key == ("c", 0)
+    assert b.groups[0].key == (("c", 0),)
     assert b.evaluate(make_ctx()).value[0] == pytest.approx(math.sqrt(2) + 9 - 30)
-    # a failing constant sub-expression is not folded: it fails at evaluation, located
-    b = compile_batch([mkexpr("TIME + 1/0")], FakeResolver())
-    with pytest.raises(EvaluationError, match="division by zero"):
-        b.evaluate(make_ctx())
+    # a failing constant sub-expression would fail at every evaluation: a located deck error
+    with pytest.raises(DeckError, match=r"expr col 9: division by zero"):
+        compile_batch([mkexpr("TIME + 1/0")], FakeResolver())
 
 
 def test_variables_and_states():

@@ -98,6 +98,7 @@ class EvaluationError(PoiseError):
     def __init__(self, message: str, loc: SourceLoc | None = None, attr: str | None = None):
         self.loc = loc
         self.attr = attr
+        self.detail = message              # without the location prefix
         text = f"{loc.prefix(attr)} {message}" if loc is not None else message
         super().__init__(text)
 

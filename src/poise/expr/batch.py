@@ -278,8 +278,13 @@ class Batch:
         i = int(g.rows_idx[j])
         e = self.exprs[i]
         loc, attr = (e.loc, e.attr) if hasattr(e, "loc") else (None, None)
-        text = f" in '{e.text}'" if hasattr(e, "text") else ""
-        raise EvaluationError(f"{message}{text}", loc, attr)
+        text = ""
+        if hasattr(e, "text"):        # a 1000-term expression is quoted by its ends
+            t = e.text if len(e.text) <= 160 else f"{e.text[:100]} ... {e.text[-40:]}"
+            text = f" in '{t}'"
+        err = EvaluationError(f"{message}{text}", loc, attr)
+        err.instance = i              # failing instance (callers may name its inputs)
+        raise err
 
     def evaluate(self, ctx: EvalContext) -> EvalResult:
         """Evaluate all instances with first derivatives.
@@ -312,6 +317,8 @@ class Batch:
                     v, grad = g.evaluate(ctx, P_ext, A_ext)
                 except DomainError as e:
                     self._fail(g, e.message, e.mask)
+                except ArithmeticError as e:       # overflow in a float conversion, ...
+                    self._fail(g, f"{type(e).__name__}: {e}", np.ones(g.m, dtype=bool))
                 bad = ~np.isfinite(v)
                 if bad.any():
                     self._fail(g, "non-finite value", bad)

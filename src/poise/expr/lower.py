@@ -1,6 +1,7 @@
 """Semantic lowering: AST -> structural IR + per-instance data.
 
-The IR is a tree of tuples. Before :func:`extract` it carries concrete data:
+The IR is a DAG of tuples (an explicit ``Reference_Variable`` is lowered once and every
+``VARVAL`` of it refers to the same object). Before :func:`extract` it carries concrete data:
 
 * ``("c", value)`` constant, ``("time",)``
 * ``("neg", a)``, ``("bin", op, a, b)`` with op in ``+ - * / ^``
@@ -10,8 +11,12 @@ The IR is a tree of tuples. Before :func:`extract` it carries concrete data:
 * ``("spl", KIND, order, x, z, spline_table_index)``
 
 :func:`extract` replaces the concrete data by local numbers (constants -> parameter numbers,
-slots/scalars/reactions deduplicated per expression) giving a hashable *structural key*; equal
-keys are evaluated together as one vectorised group. Constant subtrees are folded.
+slots/scalars/reactions deduplicated per expression) and flattens the DAG into a *tape* of
+instructions in evaluation order (shared nodes once): the hashable *structural key*; equal keys
+are evaluated together as one vectorised group. Constant subtrees are folded; a constant
+subtree that cannot be folded (division by zero, overflow, a domain error) is a located problem,
+since it would fail at every evaluation. Lowering runs on :func:`poise.expr.trampoline.run`, so
+neither deep nesting nor long variable chains recurse in Python.
 """
 from __future__ import annotations
 
@@ -27,6 +32,7 @@ from .measures import CONTINUOUS, MEASURE_ARITY, MEASURE_SLOTS, VELOCITY_MEASURE
 from .parser import parse
 from .splines import SPLINE_KINDS, PreparedSpline
 from .tokens import ExprSyntaxError, make_template
+from .trampoline import run
 
 __all__ = ["Lowering", "extract", "Instance"]
 
@@ -42,8 +48,11 @@ class _Fail(Exception):
     """Internal: a located problem was recorded; abandon the current subtree."""
 
 
+_OVERFLOW = "constant sub-expression is not a finite number (overflow)"
+
+
 def fold_bin(op, a, b):
-    """Fold a binary operation on two floats; None when not foldable (error or non-finite)."""
+    """Fold a binary operation on two floats: ``(value, None)`` or ``(None, why)``."""
     with np.errstate(all="ignore"):
         if op == "+":
             v = a + b
@@ -53,29 +62,33 @@ def fold_bin(op, a, b):
             v = a * b
         elif op == "/":
             if b == 0:
-                return None
+                return None, "division by zero in a constant sub-expression"
             v = a / b
         else:
-            if a < 0 and b != int(b):
-                return None
+            if a < 0 and b != math.trunc(b):
+                return None, "negative number raised to a non-integer power"
             if a == 0 and b < 0:
-                return None
+                return None, "division by zero (0 raised to a negative power)"
             v = float(np.power(a, b))
-    return v if math.isfinite(v) else None
+    return (v, None) if math.isfinite(v) else (None, _OVERFLOW)
 
 
 def _fold_fn(name, vals):
+    """Fold a pure function of constants: ``(value, None)`` or ``(None, why)``."""
     try:
         with np.errstate(all="ignore"):
             v, _ = FUNCTIONS[name]([np.array([x]) for x in vals], [False] * len(vals))
-    except DomainError:
-        return None
+    except DomainError as e:
+        return None, f"{e.message} (constant arguments)"
     v = float(v[0])
-    return v if math.isfinite(v) else None
+    return (v, None) if math.isfinite(v) else (None, _OVERFLOW)
 
 
 class Lowering:
     """Lowers expressions of one batch (shared caches for variables and splines).
+
+    Every node method is a generator: a sub-lowering is ``(yield self.lower(node))`` and
+    :func:`~poise.expr.trampoline.run` drives the chain (no Python recursion).
 
     Parameters
     ----------
@@ -105,23 +118,25 @@ class Lowering:
         """Lower one ``Expr`` (or float) to concrete IR; None if a problem was recorded."""
         if not hasattr(expr, "text"):
             return ("c", float(expr))
-        return self._lower_text(expr.text, expr.loc, expr.attr)
+        return run(self._lower_text(expr.text, expr.loc, expr.attr))
 
     def _lower_text(self, text, loc, attr):
         saved = self._ctx, self.nums, self.problems
         self._ctx = (loc, attr)
         try:
-            tmpl, self.nums = make_template(text)
-            try:
-                node = parse(tmpl, True) if "#" not in text else None
-            except ExprSyntaxError:
-                node = None
+            node = None
+            if "#" not in text:
+                try:
+                    tmpl, self.nums = make_template(text)
+                    node = parse(tmpl, True)
+                except ExprSyntaxError:
+                    node = None
             if node is not None:
                 # fast path: cached template parse; on any problem redo it from the original
                 # text so that reported columns are exact
                 self.problems = []
                 try:
-                    return self.lower(node)
+                    return (yield self.lower(node))
                 except _Fail:
                     pass
                 finally:
@@ -130,40 +145,71 @@ class Lowering:
                 node = parse(text)
             except ExprSyntaxError as e:
                 self.error(e.col, e.message)
-            return self.lower(node)
+            return (yield self.lower(node))
         except _Fail:
             return None
         finally:
             self._ctx, self.nums = saved[0], saved[1]
 
     # -- nodes -----------------------------------------------------------------------------
-    def lower(self, node):
-        if isinstance(node, Param):
+    def _leaf(self, node):
+        """IR of a leaf node (number, parameter, name) without a sub-generator; else None."""
+        t = node.__class__
+        if t is Param:
             return ("c", self.nums[node.index])
-        if isinstance(node, Num):
+        if t is Num:
             return ("c", node.value)
-        if isinstance(node, BinOp):
-            a = self.lower(node.left)
-            b = self.lower(node.right)
-            op = _BINOPS[node.op]
-            if a[0] == "c" and b[0] == "c":
-                v = fold_bin(op, a[1], b[1])
-                if v is not None:
-                    return ("c", v)
-            return ("bin", op, a, b)
-        if isinstance(node, Unary):
-            a = self.lower(node.arg)
-            if node.op == "+":
-                return a
-            return ("c", -a[1]) if a[0] == "c" else ("neg", a)
-        if isinstance(node, Name):
+        if t is Unary:
+            a = node.arg.__class__
+            if a is Num or a is Param:
+                v = node.arg.value if a is Num else self.nums[node.arg.index]
+                return ("c", -v if node.op == "-" else v)
+            return None
+        if t is Name:
             if node.name == "TIME":
                 return ("time",)
             if node.name in CONSTANTS:
                 return ("c", CONSTANTS[node.name])
+            symbol = getattr(self.resolver, "symbol", None)       # optional (CONTRACT.md)
+            if symbol is not None:
+                try:
+                    return ("sc", int(symbol(node.name)))
+                except KeyError:
+                    pass
             self.error(node.col, f"unknown name {node.name!r}")
+        return None
+
+    def _sub(self, node):
+        """Generator lowering a non-leaf node (a call directly, without a ``lower`` level)."""
+        return self.call(node) if node.__class__ is Call else self.lower(node)
+
+    def lower(self, node):
+        leaf = self._leaf(node)
+        if leaf is not None:
+            return leaf
+        if isinstance(node, BinOp):
+            a = self._leaf(node.left)
+            if a is None:
+                a = yield self._sub(node.left)
+            b = self._leaf(node.right)
+            if b is None:
+                b = yield self._sub(node.right)
+            op = _BINOPS[node.op]
+            if a[0] == "c" and b[0] == "c":
+                v, why = fold_bin(op, a[1], b[1])
+                if why is not None:
+                    self.error(node.col, why)
+                return ("c", v)
+            return ("bin", op, a, b)
+        if isinstance(node, Unary):
+            a = self._leaf(node.arg)
+            if a is None:
+                a = yield self._sub(node.arg)
+            if node.op == "+":
+                return a
+            return ("c", -a[1]) if a[0] == "c" else ("neg", a)
         if isinstance(node, Call):
-            return self.call(node)
+            return (yield self.call(node))
         raise TypeError(node)  # pragma: no cover
 
     def _arity(self, node, lo, hi):
@@ -176,14 +222,25 @@ class Lowering:
         """Integer constant argument ``i`` of a call (``default`` when omitted)."""
         if i >= len(node.args):
             return default
-        ir = self.lower(node.args[i])
-        if ir[0] != "c" or ir[1] != int(ir[1]):
+        ir = self._leaf(node.args[i])
+        if ir is None:
+            ir = yield self.lower(node.args[i])
+        return self._int_value(node, i, ir)
+
+    def _int_value(self, node, i, ir):
+        if ir[0] != "c" or ir[1] != math.trunc(ir[1]):
             self.error(node.args[i].col, f"{node.name} argument {i + 1} must be an integer "
                        "constant")
         return int(ir[1])
 
-    def marker(self, node, i):
-        mid = self.int_arg(node, i)
+    def _int_fast(self, node, i, default=0):
+        """``int_arg`` without a sub-generator when the argument is a leaf; else None."""
+        if i >= len(node.args):
+            return default
+        ir = self._leaf(node.args[i])
+        return None if ir is None else self._int_value(node, i, ir)
+
+    def _marker_index(self, node, i, mid):
         try:
             return int(self.resolver.marker_index(mid))
         except KeyError:
@@ -191,20 +248,34 @@ class Lowering:
                 return -1
             self.error(node.args[i].col, f"unknown marker id {mid}")
 
+    def marker(self, node, i):
+        mid = self._int_fast(node, i)
+        if mid is None:
+            mid = yield self.int_arg(node, i)
+        return self._marker_index(node, i, mid)
+
     def call(self, node):
         name = node.name
         if name in ARITY:
             self._arity(node, *ARITY[name])
-            args = [self.lower(a) for a in node.args]
+            args = []
+            for a in node.args:
+                ir = self._leaf(a)
+                args.append(ir if ir is not None else (yield self._sub(a)))
             if name in ("MAX", "MIN") and len(args) > 2:
                 acc = args[0]
                 for b in args[1:]:
-                    acc = self._fn(name, [acc, b])
+                    acc = self._fn(node, [acc, b])
                 return acc
-            return self._fn(name, args)
+            return self._fn(node, args)
         if name in MEASURE_SLOTS:
             self._arity(node, *MEASURE_ARITY[name])
-            ids = [self.marker(node, i) for i in range(3)]
+            ids = []
+            for i in range(3):
+                mid = self._int_fast(node, i)
+                if mid is None:
+                    mid = yield self.int_arg(node, i)
+                ids.append(self._marker_index(node, i, mid))
             slots = tuple((ids[w], kind) for w, kind in MEASURE_SLOTS[name])
             key = None
             if name in CONTINUOUS:
@@ -213,46 +284,59 @@ class Lowering:
         if name in VELOCITY_MEASURES:
             self._arity(node, *VELOCITY_MEASURES[name])
             for i in range(len(node.args)):
-                self.marker(node, i)
+                yield self.marker(node, i)
             return ("c", 0.0)
         if name in REACTION_FUNCS or name in RESULTANT_FUNCS or name == "FRICTION":
-            return self.reaction(node)
+            return (yield self.reaction(node))
         if name in SPLINE_KINDS:
-            return self.spline(node)
+            return (yield self.spline(node))
         if name in ("VARVAL", "DIF", "DIF1"):
             self._arity(node, 1, 1)
-            return self.state(node, self.int_arg(node, 0))
+            vid = self._int_fast(node, 0)
+            if vid is None:
+                vid = yield self.int_arg(node, 0)
+            return (yield self.state(node, vid))
         if name == "ARYVAL":
             self._arity(node, 2, 2)
-            aid, k = self.int_arg(node, 0), self.int_arg(node, 1)
+            aid, k = (yield self.int_arg(node, 0)), (yield self.int_arg(node, 1))
             try:
                 vals = np.asarray(self.resolver.array(aid), dtype=float).ravel()
             except KeyError:
                 self.error(node.args[0].col, f"unknown Reference_Array id {aid}")
             if not 1 <= k <= len(vals):
                 self.error(node.args[1].col, f"ARYVAL index {k} outside 1..{len(vals)}")
-            return ("c", float(vals[k - 1]))
+            v = float(vals[k - 1])
+            if not math.isfinite(v):
+                self.error(node.col, f"Reference_Array id {aid} value {k} is not finite")
+            return ("c", v)
         self.error(node.col, f"unknown function {name!r}")
 
-    def _fn(self, name, args):
+    def _fn(self, node, args):
+        name = node.name
         if name not in _IMPURE and all(a[0] == "c" for a in args):
-            v = _fold_fn(name, [a[1] for a in args])
-            if v is not None:
-                return ("c", v)
+            v, why = _fold_fn(name, [a[1] for a in args])
+            if why is not None:
+                self.error(node.col, f"{name}: {why}")
+            return ("c", v)
         return ("fn", name, tuple(args))
 
     def reaction(self, node):
         name = node.name
         if name in RESULTANT_FUNCS:
             self._arity(node, 1, 3)
-            i, j, k = (self.int_arg(node, n) for n in range(3))
+            i = yield self.int_arg(node, 0)
+            j = yield self.int_arg(node, 1)
+            k = yield self.int_arg(node, 2)
             call = (name, i, j, RESULTANT_FUNCS[name], k)
         elif name == "FRICTION":
             self._arity(node, 2, 3)
-            call = (name, self.int_arg(node, 0), 0, self.int_arg(node, 1), self.int_arg(node, 2))
+            call = (name, (yield self.int_arg(node, 0)), 0, (yield self.int_arg(node, 1)),
+                    (yield self.int_arg(node, 2)))
         else:
             self._arity(node, 3, 4)
-            call = (name,) + tuple(self.int_arg(node, n) for n in range(4))
+            call = (name,)
+            for n in range(4):
+                call += ((yield self.int_arg(node, n)),)
         try:
             ch = self.resolver.reaction(*call)
         except NotImplementedError as e:
@@ -263,10 +347,10 @@ class Lowering:
 
     def spline(self, node):
         self._arity(node, 3, 4)
-        x = self.lower(node.args[0])
-        z = self.lower(node.args[1])
-        sid = self.int_arg(node, 2)
-        order = self.int_arg(node, 3)
+        x = yield self.lower(node.args[0])
+        z = yield self.lower(node.args[1])
+        sid = yield self.int_arg(node, 2)
+        order = yield self.int_arg(node, 3)
         if not 0 <= order <= 2:
             self.error(node.args[3].col, f"{node.name} derivative order must be 0, 1 or 2")
         key = (node.name, sid)
@@ -290,7 +374,10 @@ class Lowering:
             if name == "DIF":
                 k = r.diff_state(vid)
                 if isinstance(k, tuple):           # ("const", value): statically held state
-                    return ("c", float(k[1]))
+                    v = float(k[1])
+                    if not math.isfinite(v):
+                        self.error(node.col, f"Control_Diff id {vid} value is not finite")
+                    return ("c", v)
                 return ("sc", int(k))
             if name == "DIF1":
                 k = r.diff_derivative(vid)
@@ -306,12 +393,13 @@ class Lowering:
             self.error(node.col, f"recursive VARVAL: {chain}")
         if vid not in self.var_cache:
             if not hasattr(val, "text"):
-                self.var_cache[vid] = ("c", float(val))
+                v = float(val)
+                self.var_cache[vid] = ("c", v) if math.isfinite(v) else None
             else:
                 self.var_stack.append(vid)
                 outer, self.problems = self.problems, self.var_problems
                 try:
-                    self.var_cache[vid] = self._lower_text(val.text, val.loc, val.attr)
+                    self.var_cache[vid] = yield self._lower_text(val.text, val.loc, val.attr)
                 finally:
                     self.var_stack.pop()
                     self.problems = outer
@@ -335,19 +423,45 @@ class Instance:
         self.splines: list = []
 
 
+_MERGED = frozenset(("time", "meas", "sc", "rx"))     # equal leaves: one instruction
+
+
+def _children(n):
+    tag = n[0]
+    if tag == "bin":
+        return (n[2], n[3])
+    if tag == "neg":
+        return (n[1],)
+    if tag == "fn":
+        return n[2]
+    if tag == "spl":
+        return (n[3], n[4])
+    return ()
+
+
 def extract(ir):
-    """Split concrete IR into a structural key and per-instance data.
+    """Split concrete IR into a structural key (a tape) and per-instance data.
+
+    The DAG is walked once per node object (a variable used many times is evaluated once;
+    recursion near the root, a heap stack below any depth); equal state leaves (the same
+    measure of the same slots, TIME, a scalar, a channel) are also merged. Instructions refer
+    to earlier ones by position; the last one is the result.
 
     Returns
     -------
-    key : tuple
-        Hashable IR with constants/slots/... replaced by local numbers.
+    key : tuple of tuple
+        Hashable tape: ``("c", p)``, ``("time",)``, ``("neg", i)``, ``("bin", op, i, j)``,
+        ``("fn", NAME, (i, ...))``, ``("meas", NAME, (slot, ...), angle)``, ``("sc", k)``,
+        ``("rx", k)``, ``("spl", KIND, order, i, j, s)`` with local numbers.
     inst : Instance
         Parameter values, slot ``(marker, kind)`` pairs, scalar/reaction indices, angle keys and
         spline table indices, in the order the key refers to them.
     """
     inst = Instance()
     slot_map, sc_map, rx_map = {}, {}, {}
+    ops: list = []
+    cse: dict = {}
+    memo: dict = {}           # id(IR node) -> tape position
 
     def local(mapping, lst, v):
         if v not in mapping:
@@ -355,20 +469,23 @@ def extract(ir):
             lst.append(v)
         return mapping[v]
 
-    def walk(n):
+    def emit(n):
+        """Tape position of node ``n`` whose operands are all in ``memo``."""
         tag = n[0]
-        if tag == "c":
+        if tag == "c":                            # always a new instruction
             inst.params.append(n[1])
-            return ("c", len(inst.params) - 1)
+            k = memo[id(n)] = len(ops)
+            ops.append(("c", len(inst.params) - 1))
+            return k
         if tag == "time":
-            return n
-        if tag == "neg":
-            return ("neg", walk(n[1]))
-        if tag == "bin":
-            return ("bin", n[1], walk(n[2]), walk(n[3]))
-        if tag == "fn":
-            return ("fn", n[1], tuple(walk(a) for a in n[2]))
-        if tag == "meas":
+            op = n
+        elif tag == "neg":
+            op = ("neg", memo[id(n[1])])
+        elif tag == "bin":
+            op = ("bin", n[1], memo[id(n[2])], memo[id(n[3])])
+        elif tag == "fn":
+            op = ("fn", n[1], tuple(memo[id(a)] for a in n[2]))
+        elif tag == "meas":
             loc = []
             for s in n[2]:
                 if s[0] < 0:                      # global frame: never shared
@@ -380,14 +497,68 @@ def extract(ir):
             if n[3] is not None:
                 inst.angles.append(n[3])
                 a = len(inst.angles) - 1
-            return ("meas", n[1], tuple(loc), a)
-        if tag == "sc":
-            return ("sc", local(sc_map, inst.scalars, n[1]))
-        if tag == "rx":
-            return ("rx", local(rx_map, inst.reactions, n[1]))
-        if tag == "spl":
+            op = ("meas", n[1], tuple(loc), a)
+        elif tag == "sc":
+            op = ("sc", local(sc_map, inst.scalars, n[1]))
+        elif tag == "rx":
+            op = ("rx", local(rx_map, inst.reactions, n[1]))
+        elif tag == "spl":
             inst.splines.append(n[5])
-            return ("spl", n[1], n[2], walk(n[3]), walk(n[4]), len(inst.splines) - 1)
-        raise ValueError(tag)  # pragma: no cover
+            op = ("spl", n[1], n[2], memo[id(n[3])], memo[id(n[4])], len(inst.splines) - 1)
+        else:
+            raise ValueError(tag)  # pragma: no cover
+        if tag in _MERGED:
+            k = cse.get(op)
+            if k is None:
+                k = cse[op] = len(ops)
+                ops.append(op)
+        else:
+            k = len(ops)
+            ops.append(op)
+        memo[id(n)] = k
+        return k
 
-    return walk(ir), inst
+    def walk(n, depth):
+        """Post-order, left to right: plain recursion near the root, a heap stack below."""
+        if depth > 200:
+            return walk_heap(n)
+        tag = n[0]
+        if tag == "c":
+            inst.params.append(n[1])
+            k = memo[id(n)] = len(ops)
+            ops.append(("c", len(inst.params) - 1))
+            return k
+        if tag == "bin":                          # the common case, inline
+            a, b = n[2], n[3]
+            ia = memo.get(id(a))
+            if ia is None:
+                ia = walk(a, depth + 1)
+            ib = memo.get(id(b))
+            if ib is None:
+                ib = walk(b, depth + 1)
+            k = memo[id(n)] = len(ops)
+            ops.append(("bin", n[1], ia, ib))
+            return k
+        for c in _children(n):
+            if id(c) not in memo:
+                walk(c, depth + 1)
+        return emit(n)
+
+    def walk_heap(root):
+        stack = [root]
+        while stack:
+            n = stack[-1]
+            if id(n) in memo:
+                stack.pop()
+                continue
+            pending = [c for c in _children(n) if id(c) not in memo]
+            if pending:
+                stack.extend(reversed(pending))
+                continue
+            stack.pop()
+            emit(n)
+        return memo[id(root)]
+
+    walk(ir, 0)
+    assert memo[id(ir)] == len(ops) - 1
+    return tuple(ops), inst

@@ -8,6 +8,10 @@ Grammar (lowest to highest precedence)::
     power   := primary ('**' unary)?          # right associative; -2**2 == -4
     primary := NUM | NAME | NAME '(' args ')' | '(' expr ')'
     args    := expr (',' expr)*               # IF(e1: e2, e3, e4) uses a colon after e1
+
+Recursive calls are yielded to :func:`poise.expr.trampoline.run`, so any nesting depth
+(parentheses, ``**`` chains, signs) parses without hitting the recursion limit; long ``+``/``*``
+chains are loops.
 """
 from __future__ import annotations
 
@@ -15,6 +19,7 @@ from functools import lru_cache
 
 from .ast import BinOp, Call, Name, Node, Num, Param, Unary
 from .tokens import ExprSyntaxError, Token, tokenize
+from .trampoline import run
 
 __all__ = ["parse", "ExprSyntaxError"]
 
@@ -40,81 +45,85 @@ class _Parser:
         self.i += 1
         return t
 
-    def expr(self) -> Node:
-        left = self.term()
+    def expr(self):
+        """expr and term in one loop (generator; yields sub-parses)."""
+        toks = self.toks
+        total = None
+        pend = None                   # pending '+'/'-' token
+        term = yield self.unary()
         while True:
-            t = self.toks[self.i]
-            if t.kind == "op" and (t.text == "+" or t.text == "-"):
-                self.i += 1
-                left = BinOp(t.text, left, self.term(), t.col)
-            else:
-                return left
+            t = toks[self.i]
+            if t.kind == "op":
+                op = t.text
+                if op == "*" or op == "/":
+                    self.i += 1
+                    term = BinOp(op, term, (yield self.unary()), t.col)
+                    continue
+                total = term if pend is None else BinOp(pend.text, total, term, pend.col)
+                if op == "+" or op == "-":
+                    self.i += 1
+                    pend = t
+                    term = yield self.unary()
+                    continue
+                return total
+            return term if pend is None else BinOp(pend.text, total, term, pend.col)
 
-    def term(self) -> Node:
-        left = self.unary()
-        while True:
-            t = self.toks[self.i]
-            if t.kind == "op" and (t.text == "*" or t.text == "/"):
-                self.i += 1
-                left = BinOp(t.text, left, self.unary(), t.col)
-            else:
-                return left
-
-    def unary(self) -> Node:
-        t = self.toks[self.i]
-        if t.kind == "op" and (t.text == "-" or t.text == "+"):
+    def unary(self):
+        """Signs, then power := primary ('**' unary)?."""
+        toks = self.toks
+        signs = []
+        t = toks[self.i]
+        while t.kind == "op" and (t.text == "-" or t.text == "+"):
+            signs.append(t)
             self.i += 1
-            return Unary(t.text, self.unary(), t.col)
-        return self.power()
-
-    def power(self) -> Node:
-        base = self.primary()
-        t = self.toks[self.i]
-        if t.kind == "op" and t.text == "**":
+            t = toks[self.i]
+        kind = t.kind
+        if kind == "num":
             self.i += 1
-            return BinOp("**", base, self.unary(), t.col)
-        return base
-
-    def primary(self) -> Node:
-        t = self.toks[self.i]
-        if t.kind == "num":
+            base = Num(t.value, t.col)
+        elif kind == "param":
             self.i += 1
-            return Num(t.value, t.col)
-        if t.kind == "param":
+            base = Param(int(t.value), t.col)
+        elif kind == "ident":
             self.i += 1
-            return Param(int(t.value), t.col)
-        if t.kind == "ident":
-            self.i += 1
-            nxt = self.toks[self.i]
+            nxt = toks[self.i]
             if nxt.kind == "op" and nxt.text == "(":
                 self.i += 1
-                return Call(t.text, self.args(t.text == "IF"), t.col)
-            return Name(t.text, t.col)
-        if t.kind == "op" and t.text == "(":
+                base = Call(t.text, (yield self.args(t.text == "IF")), t.col)
+            else:
+                base = Name(t.text, t.col)
+        elif kind == "op" and t.text == "(":
             self.i += 1
-            e = self.expr()
+            base = yield self.expr()
             self.expect(")")
-            return e
-        raise ExprSyntaxError(f"expected an operand, found {_describe(t)}", t.col)
+        else:
+            raise ExprSyntaxError(f"expected an operand, found {_describe(t)}", t.col)
+        t = toks[self.i]
+        if t.kind == "op" and t.text == "**":
+            self.i += 1
+            base = BinOp("**", base, (yield self.unary()), t.col)
+        for s in reversed(signs):
+            base = Unary(s.text, base, s.col)
+        return base
 
-    def args(self, is_if: bool) -> tuple:
+    def args(self, is_if: bool):
         t = self.toks[self.i]
         if t.kind == "op" and t.text == ")":
             self.i += 1
             return ()
-        out = [self.expr()]
+        out = [(yield self.expr())]
         if is_if:
             t = self.toks[self.i]
             if t.kind == "op" and t.text in (":", ","):
                 self.i += 1
-                out.append(self.expr())
+                out.append((yield self.expr()))
             else:
                 raise ExprSyntaxError("expected ':'", t.col)
         while True:
             t = self.toks[self.i]
             if t.kind == "op" and t.text == ",":
                 self.i += 1
-                out.append(self.expr())
+                out.append((yield self.expr()))
             elif t.kind == "op" and t.text == ")":
                 self.i += 1
                 return tuple(out)
@@ -148,7 +157,7 @@ def parse(text: str, template: bool = False) -> Node:
     if toks[0].kind == "eof":
         raise ExprSyntaxError("empty expression", 1)
     p = _Parser(toks)
-    node = p.expr()
+    node = run(p.expr())
     t = p.peek()
     if t.kind != "eof":
         if t.kind == "op" and t.text == ")":

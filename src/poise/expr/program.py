@@ -1,6 +1,6 @@
 """Vectorised forward-mode programs for one group of structurally identical expressions.
 
-:func:`build` turns a structural key (see :mod:`poise.expr.lower`) into a closure
+:func:`build` turns a structural key (a tape, see :mod:`poise.expr.lower`) into a closure
 ``f(env) -> (value, grad)`` where ``value`` is ``(m,)`` and ``grad`` is a dict mapping a
 variable to its derivative array:
 
@@ -83,63 +83,96 @@ def _add(ga, gb, sign=1.0):
 
 
 def build(key):
-    """Compile a structural key into a closure ``env -> (value (m,), grad dict)``."""
-    tag = key[0]
-    if tag == "c":
-        i = key[1]
-        return lambda env: (env.params[i], {})
-    if tag == "time":
-        return lambda env: (env.t, {"t": env.ones})
-    if tag == "sc":
-        k = key[1]
-        gk = ("u", k)
-        return lambda env: (env.sc[:, k], {gk: env.ones})
-    if tag == "rx":
-        k = key[1]
-        gk = ("r", k)
-        return lambda env: (env.rx[:, k], {gk: env.ones})
-    if tag == "neg":
-        fa = build(key[1])
+    """Compile a structural key (tape, see :func:`poise.expr.lower.extract`) into a closure
+    ``env -> (value (m,), grad dict)``.
 
-        def neg(env):
-            v, g = fa(env)
-            return -v, _scale(g, -1.0)
-        return neg
+    The tape is run in order, each instruction once (shared sub-expressions and variables are
+    evaluated once per call, their values and gradients reused); an intermediate is dropped
+    after its last use, so memory stays proportional to the live set, not to the tape length.
+    """
+    steps = [_build_op(op) for op in key]
+    n = len(steps)
+    last = list(range(n))
+    for k, op in enumerate(key):
+        for j in _operands(op):
+            last[j] = k
+    frees = [[] for _ in range(n)]
+    for j in range(n - 1):
+        frees[last[j]].append(j)
+    plan = tuple((f, tuple(fr)) for f, fr in zip(steps, frees))
+
+    def program(env):
+        V = [None] * n
+        G = [None] * n
+        for k, (f, fr) in enumerate(plan):
+            V[k], G[k] = f(env, V, G)
+            for j in fr:
+                V[j] = G[j] = None
+        return V[-1], G[-1]
+    return program
+
+
+def _operands(op):
+    tag = op[0]
     if tag == "bin":
-        return _build_bin(key[1], build(key[2]), build(key[3]))
+        return (op[2], op[3])
+    if tag == "neg":
+        return (op[1],)
     if tag == "fn":
-        return _build_fn(key[1], [build(a) for a in key[2]])
-    if tag == "meas":
-        return _build_meas(key[1], key[2], key[3])
+        return op[2]
     if tag == "spl":
-        return _build_spl(key[2], build(key[3]), build(key[4]), key[5])
+        return (op[3], op[4])
+    return ()
+
+
+def _build_op(op):
+    """One instruction: ``f(env, V, G) -> (value, grad)`` reading operands from V/G."""
+    tag = op[0]
+    if tag == "c":
+        i = op[1]
+        return lambda env, V, G: (env.params[i], {})
+    if tag == "time":
+        return lambda env, V, G: (env.t, {"t": env.ones})
+    if tag == "sc":
+        k = op[1]
+        gk = ("u", k)
+        return lambda env, V, G: (env.sc[:, k], {gk: env.ones})
+    if tag == "rx":
+        k = op[1]
+        gk = ("r", k)
+        return lambda env, V, G: (env.rx[:, k], {gk: env.ones})
+    if tag == "neg":
+        a = op[1]
+        return lambda env, V, G: (-V[a], _scale(G[a], -1.0))
+    if tag == "bin":
+        return _build_bin(op[1], op[2], op[3])
+    if tag == "fn":
+        return _build_fn(op[1], op[2])
+    if tag == "meas":
+        return _build_meas(op[1], op[2], op[3])
+    if tag == "spl":
+        return _build_spl(op[2], op[3], op[4], op[5])
     raise ValueError(tag)  # pragma: no cover
 
 
-def _build_bin(op, fa, fb):
+def _build_bin(op, a, b):
     if op == "+":
-        def f(env):
-            va, ga = fa(env)
-            vb, gb = fb(env)
-            return va + vb, _add(ga, gb)
+        def f(env, V, G):
+            return V[a] + V[b], _add(G[a], G[b])
     elif op == "-":
-        def f(env):
-            va, ga = fa(env)
-            vb, gb = fb(env)
-            return va - vb, _add(ga, gb, -1.0)
+        def f(env, V, G):
+            return V[a] - V[b], _add(G[a], G[b], -1.0)
     elif op == "*":
-        def f(env):
-            va, ga = fa(env)
-            vb, gb = fb(env)
+        def f(env, V, G):
+            va, ga, vb, gb = V[a], G[a], V[b], G[b]
             if not gb:
                 return va * vb, _scale(ga, vb)
             if not ga:
                 return va * vb, _scale(gb, va)
             return va * vb, _accum(_scale(ga, vb), gb, va)
     elif op == "/":
-        def f(env):
-            va, ga = fa(env)
-            vb, gb = fb(env)
+        def f(env, V, G):
+            va, ga, vb, gb = V[a], G[a], V[b], G[b]
             zero = vb == 0
             if zero.any():
                 raise DomainError("division by zero", zero)
@@ -150,9 +183,8 @@ def _build_bin(op, fa, fb):
                 out = _accum(dict(out), gb, -v * inv)
             return v, out
     else:  # power
-        def f(env):
-            va, ga = fa(env)
-            vb, gb = fb(env)
+        def f(env, V, G):
+            va, ga, vb, gb = V[a], G[a], V[b], G[b]
             bad = (va < 0) & (vb != np.trunc(vb))
             if bad.any():
                 raise DomainError("negative number raised to a non-integer power", bad)
@@ -175,42 +207,33 @@ def _build_bin(op, fa, fb):
     return f
 
 
-def _build_fn(name, fargs):
-    n = len(fargs)
+def _build_fn(name, idx):
+    n = len(idx)
     if name in ("IMPACT", "BISTOP"):
         impl = impact if name == "IMPACT" else bistop
 
-        def f(env):
-            vals, grads = _eval_args(fargs, env)
+        def f(env, V, G):
+            vals, grads = [V[i] for i in idx], [G[i] for i in idx]
             v, parts = impl(vals, [bool(g) for g in grads], env.static)
             return v, _chain(parts, grads)
         return f
     impl = FUNCTIONS[name]
     if n == 1:
-        fa = fargs[0]
+        a = idx[0]
 
-        def f1(env):
-            va, ga = fa(env)
+        def f1(env, V, G):
+            va, ga = V[a], G[a]
             v, parts = impl([va], [bool(ga)])
             if not ga or parts[0] is None:
                 return v, {}
             return v, _scale(ga, parts[0])
         return f1
 
-    def f(env):
-        vals, grads = _eval_args(fargs, env)
+    def f(env, V, G):
+        vals, grads = [V[i] for i in idx], [G[i] for i in idx]
         v, parts = impl(vals, [bool(g) for g in grads])
         return v, _chain(parts, grads)
     return f
-
-
-def _eval_args(fargs, env):
-    vals, grads = [], []
-    for fa in fargs:
-        v, g = fa(env)
-        vals.append(v)
-        grads.append(g)
-    return vals, grads
 
 
 def _chain(parts, grads):
@@ -225,7 +248,7 @@ def _build_meas(name, slots, ang):
     slots = tuple(slots)
     assert len(slots) == len(MEASURE_SLOTS[name])
 
-    def f(env):
+    def f(env, V, G):
         vecs = [env.vecs[s] for s in slots]
         ref = env.ang[:, ang] if (ang >= 0 and env.ang is not None) else None
         v, gl = eval_measure(name, vecs, ref)
@@ -236,10 +259,9 @@ def _build_meas(name, slots, ang):
     return f
 
 
-def _build_spl(order, fx, fz, si):
-    def f(env):
-        vx, gx = fx(env)
-        vz, gz = fz(env)
+def _build_spl(order, ix, iz, si):
+    def f(env, V, G):
+        vx, gx, vz, gz = V[ix], G[ix], V[iz], G[iz]
         m = vx.shape[0]
         parts = env.spl[si]
         if len(parts) == 1 and isinstance(parts[0][1], slice):

@@ -64,6 +64,10 @@ _TOKEN_RE = re.compile(
 _DEG = math.pi / 180.0
 
 
+def _range_message(num: str) -> str:
+    return f"number {num} is out of range (the largest finite double is about 1.8e308)"
+
+
 def tokenize(text: str, template: bool = False) -> list[Token]:
     """Split ``text`` into tokens (whitespace dropped) ending with an ``eof`` token.
 
@@ -73,7 +77,7 @@ def tokenize(text: str, template: bool = False) -> list[Token]:
     Raises
     ------
     ExprSyntaxError
-        On a character that cannot start a token.
+        On a character that cannot start a token, or a number that overflows a double.
     """
     toks: list[Token] = []
     append = toks.append
@@ -102,6 +106,8 @@ def tokenize(text: str, template: bool = False) -> list[Token]:
                     value *= _DEG
                     end += 1
                     skip = end
+            if not math.isfinite(value):
+                raise ExprSyntaxError(_range_message(text[pos:end]), pos + 1)
             append(Token("num", text[pos:end], value, pos + 1))
         elif kind == "param" and template:
             append(Token("param", "#", float(n_param), pos + 1))
@@ -121,6 +127,7 @@ def make_template(text: str) -> tuple[str, list[float]]:
 
     Structurally identical texts then share one cached parse. Columns in a template differ
     from the original text, so errors are always reported from a parse of the original.
+    A number that overflows a double raises :class:`ExprSyntaxError` (as :func:`tokenize`).
 
     Returns
     -------
@@ -134,7 +141,10 @@ def make_template(text: str) -> tuple[str, list[float]]:
     def rep(m):
         s = m.group(1)
         v = float(s.replace("D", "E").replace("d", "e")) if ("D" in s or "d" in s) else float(s)
-        add(v * _DEG if m.group(2) else v)
+        v = v * _DEG if m.group(2) else v
+        if not math.isfinite(v):
+            raise ExprSyntaxError(_range_message(s), m.start() + 1)
+        add(v)
         return "#"
 
     return _NUM_RE.sub(rep, text), vals

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
+from poise.errors import EvaluationError
 from poise.families import curves as F
 from poise.model import curve_data as CD
 
@@ -50,6 +51,12 @@ def _points(el, pc, per):
     return pts
 
 
+def _eval_problem(pc, el, e: EvaluationError, when: str):
+    """A curve/surface expression that fails where the compiler samples it: located deck error
+    (the geometry must be defined on its whole parameter range)."""
+    pc.error(e.loc or el.loc, f"{e.detail} ({when})", e.attr if e.loc else None)
+
+
 def _geometry(spec, ctx, tag):
     """id -> curve/surface object for the elements of ``tag`` (errors collected)."""
     pc = ctx.pc
@@ -66,6 +73,12 @@ def _geometry(spec, ctx, tag):
         ex = [a.get(f"{c}_expression") for c in "xyz"]
         u0, u1 = _f(el, "u_start", 0.0), _f(el, "u_end", 1.0)
         closed = bool(a.get("is_u_closed"))
+        rng = [u0, u1] + ([_f(el, "v_start", 0.0), _f(el, "v_end", 1.0)] if surf else [])
+        if not (np.all(np.isfinite(rng)) and np.isfinite(u1 - u0)
+                and np.isfinite(rng[-1] - rng[-2])):
+            pc.error(el.loc, "the parameter range (u_start, u_end" + (", v_start, v_end" if surf
+                     else "") + ") must be finite numbers with a finite length")
+            continue
         try:
             if any(e is not None for e in ex):
                 ex = [0.0 if e is None else (e if isinstance(e, Expr) else float(e)) for e in ex]
@@ -105,6 +118,9 @@ def _geometry(spec, ctx, tag):
                 obj = CD.SplineCurve(pts, u0, u1, closed)
         except ValueError as e:
             pc.error(el.loc, str(e))
+            continue
+        except EvaluationError as e:
+            _eval_problem(pc, el, e, "evaluating the geometry at its start")
             continue
         obj.id = el.id
         out[el.id] = obj
@@ -170,7 +186,12 @@ def compile_curves(spec, ctx):
         if kind == "CVCV" and el.attrs.get("is_no_slip"):
             pc.warn(el.loc, "is_no_slip is not modelled (statics: the rolling constraint is a "
                     "velocity constraint); the contact is treated as sliding")
-        seeds = _seed(kind, el, geo, P0[I], A0[I], P0[J], A0[J])
+        try:
+            seeds = _seed(kind, el, geo, P0[I], A0[I], P0[J], A0[J])
+        except EvaluationError as e:
+            _eval_problem(pc, el, e, f"sampling the geometry to seed <{tag} id={el.id}>; it must "
+                          "be defined on its whole parameter range")
+            continue
         owner = len(ids)
         ids.append(el.id)
         tags.append(tag)
@@ -196,7 +217,11 @@ def compile_curves(spec, ctx):
         fam.group = "curves"
         fam.element_locs = [x[6].loc for x in lst]
         if kind == "CVCV":
-            fam.plane = np.array([_plane_basis(x[5][1], x[6].loc, pc) for x in lst])
+            try:
+                fam.plane = np.array([_plane_basis(x[5][1], x[6].loc, pc) for x in lst])
+            except EvaluationError as e:
+                _eval_problem(pc, lst[0][6], e, "sampling curve J of a Constraint_CVCV")
+                continue
         ctx.families.append(fam)
         fams.append(fam)
     pc.raise_if_any()

@@ -2,7 +2,7 @@
 time-dependent gravity and ``Post_Request`` outputs.
 
 * :class:`ModelResolver` maps deck ids to compiled indices: marker id -> compiled marker index
-  (id 0 -> index 0, the model's global frame), explicit ``Reference_Variable`` -> inlined
+  (id 0 -> index 0, the model's global frame), explicit ``Reference_Variable`` -> shared (DAG)
   expression, ``Reference_Spline`` / ``Reference_Array`` -> data parsed from the element text,
   ``AX/AY/AZ`` -> the model's continuous-angle table (``CompileContext.angle``), element-force
   functions (JOINT, JPRIM, MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH, SPDP) and resultants

@@ -5,8 +5,9 @@ Two forms (docs/DESIGN.md "Curves and surfaces"):
 * **analytic** (poise extension of the CURSUB form): ``x_expression``, ``y_expression``,
   ``z_expression`` written in the deck expression language as functions of the parameter ``U``
   (surfaces: ``U`` and ``V``), with ``u_start``/``u_end`` (``v_start``/``v_end``). Each
-  expression is compiled by :mod:`poise.expr` with ``U``/``V`` bound to scalar unknowns, which
-  gives the value and the **exact first derivatives**. Second and third derivatives are central
+  expression is compiled by :mod:`poise.expr` with ``U``/``V`` bound to scalar unknowns
+  (``Resolver.symbol``; messages quote the deck text), which gives the value and the **exact
+  first derivatives**; an evaluation failure names the parameter values. Second and third derivatives are central
   differences of the exact first derivatives (step ``h = 1e-4 * max(1, u_end - u_start)``;
   truncation error ``O(h^2)``), used only in Jacobian/Hessian terms and in the tangency rows'
   parameter derivatives.
@@ -26,24 +27,26 @@ parameter values; ``surface.derivs(u, v, order)`` a dict ``{(i, j): (k, 3)}`` of
 """
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
-from poise.deck.spec import Expr
-
-_SENT = 2_000_000_000          # VARVAL ids standing for the parameters (resolver below)
+from poise.errors import EvaluationError
 
 
 class _ParamResolver:
-    """Expression resolver that only knows the curve/surface parameters."""
+    """Expression resolver that only knows the curve/surface parameters (scalars 0, 1)."""
+
+    def __init__(self, npar):
+        self.names = ("U", "V")[:npar]
+
+    def symbol(self, name):
+        if name in self.names:
+            return self.names.index(name)
+        raise KeyError(name)
 
     def marker_index(self, i):
         raise KeyError(i)
 
     def variable(self, vid):
-        if vid >= _SENT:
-            return ("implicit", vid - _SENT)
         raise KeyError(vid)
 
     def diff_state(self, i):
@@ -65,13 +68,6 @@ class _ParamResolver:
         raise NotImplementedError("curve/surface expressions may only use U, V and constants")
 
 
-def _subst(text: str, k: int, npar: int) -> str:
-    t = re.sub(r"\bU\b", f"VARVAL({_SENT + npar * k})", text, flags=re.I)
-    if npar == 2:
-        t = re.sub(r"\bV\b", f"VARVAL({_SENT + npar * k + 1})", t, flags=re.I)
-    return t
-
-
 class _AnalyticBase:
     npar = 1
 
@@ -81,15 +77,15 @@ class _AnalyticBase:
         self._batches = {}
 
     def _batch(self, k):
+        """The three expressions compiled once, repeated for k parameter points."""
         b = self._batches.get(k)
         if b is None:
-            from poise.expr import compile_batch
-            items = []
-            for i in range(k):
-                for e in self.exprs:
-                    items.append(Expr(_subst(e.text, i, self.npar), e.loc, e.attr)
-                                 if isinstance(e, Expr) else float(e))
-            b = self._batches[k] = compile_batch(items, _ParamResolver())
+            base = self._batches.get(1)
+            if base is None:
+                from poise.expr import compile_batch
+                base = self._batches[1] = compile_batch(list(self.exprs),
+                                                        _ParamResolver(self.npar))
+            b = self._batches[k] = base.tiled(k, 0, 0, self.npar)
         return b
 
     def _eval(self, params):
@@ -97,7 +93,14 @@ class _AnalyticBase:
         from poise.expr import EvalContext
         k = params.shape[0]
         b = self._batch(k)
-        out = b.evaluate(EvalContext(scalars=np.asarray(params, float).ravel()))
+        try:
+            out = b.evaluate(EvalContext(scalars=np.asarray(params, float).ravel()))
+        except EvaluationError as e:
+            i = getattr(e, "instance", None)
+            if i is None:
+                raise
+            at = ", ".join(f"{n} = {x:.9g}" for n, x in zip("UV", params[i // 3]))
+            raise EvaluationError(f"{e.detail} at {at}", e.loc, e.attr) from None
         val = out.value.reshape(k, 3)
         d = np.zeros((k * 3, self.npar))
         si = out.scalar_index
@@ -122,7 +125,7 @@ class AnalyticCurve(_AnalyticBase):
         v, d = self._eval(P)
         v = v.reshape(3, k, 3)
         d = d[..., 0].reshape(3, k, 3)
-        out = [v[0], d[0], (d[1] - d[2]) / (2 * h), (d[1] - 2 * d[0] + d[2]) / h ** 2]
+        out = [v[0], d[0], (d[1] - d[2]) / (2 * h), (d[1] - 2 * d[0] + d[2]) / h / h]
         return np.array(out[:order + 1])
 
 
@@ -151,10 +154,10 @@ class AnalyticSurface(_AnalyticBase):
             o[(0, 2)] = (dv[3] - dv[4]) / (2 * h)
             o[(1, 1)] = 0.5 * ((du[3] - du[4]) + (dv[1] - dv[2])) / (2 * h)
         if order >= 3:
-            o[(3, 0)] = (du[1] - 2 * du[0] + du[2]) / h ** 2
-            o[(2, 1)] = (dv[1] - 2 * dv[0] + dv[2]) / h ** 2
-            o[(1, 2)] = (du[3] - 2 * du[0] + du[4]) / h ** 2
-            o[(0, 3)] = (dv[3] - 2 * dv[0] + dv[4]) / h ** 2
+            o[(3, 0)] = (du[1] - 2 * du[0] + du[2]) / h / h
+            o[(2, 1)] = (dv[1] - 2 * dv[0] + dv[2]) / h / h
+            o[(1, 2)] = (du[3] - 2 * du[0] + du[4]) / h / h
+            o[(0, 3)] = (dv[3] - 2 * dv[0] + dv[4]) / h / h
         return o
 
 

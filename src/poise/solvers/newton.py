@@ -139,6 +139,8 @@ def _factor(J, cnt, equilibrate=False):
 def singular_message(model, row):
     if row is None:
         return ""
+    if model.extra_off <= row < model.nq:      # a scalar unknown (curve parameter, state, ...)
+        return f"; nothing determines {model.coord_info[row]}"
     if row < model.nq:
         b = int(np.searchsorted(model.body_off, row, side="right") - 1)
         comp = row - model.body_off[b]

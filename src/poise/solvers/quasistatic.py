@@ -176,6 +176,24 @@ def predictor(model, frames, t):
     return st
 
 
+def _evaluation_error_fails_frame(fn):
+    """An expression or element that cannot be evaluated anywhere in frame 0 (redundancy
+    detection, assembly, Newton) ends it as a NONFINITE outcome (exit 1), not an exception."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(model, state, settings, history, counters, redundancy):
+        from poise.errors import EvaluationError
+        try:
+            return fn(model, state, settings, history, counters, redundancy)
+        except EvaluationError as e:
+            red = np.zeros(0, int) if redundancy is None else redundancy
+            return (state, FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)), red, [],
+                    False)
+    return wrapper
+
+
+@_evaluation_error_fails_frame
 def first_frame(model, state, settings, history, counters, redundancy):
     """Frame 0 of a quasi-static run: like StaticAnalysis (redundancy, assembly, multipliers,
     Newton). Returns ``(state, outcome, redundancy, notes, moved)``."""
