@@ -179,16 +179,15 @@ def test_inverted_pendulum_held_by_a_doubled_spring_stays_upright_in_bounded_tim
 
 
 def test_hopeless_inputs_fail_cleanly(tmp_path):
-    """A gravity component 1/0: FIM_S reports it as a failed analysis, and so does MKEAM
-    (exit 1 with results written, the reason in the message)."""
+    """A gravity component 1/0 is a constant that cannot be evaluated: a located deck error
+    (exit 3) before any method runs (state-dependent divisions by zero under MKEAM end as
+    exit 1: tests/test_expr_failures_clean.py)."""
     deck = tmp_path / "bad.xml"
     deck.write_text(INVERTED.format(K=2000.0).replace('grav_y="-9810."', 'grav_y="1/0"'))
-    out = tmp_path / "bad.h5"
-    r, js = _cli(deck, out, timeout=60)
-    assert r.returncode == 1, (r.stdout, r.stderr)
-    assert "division by zero" in js["analyses"][0]["message"]
-    with h5py.File(out, "r") as f:
-        assert not bool(f["analysis_000/frames/converged"][0])
+    r, js = _cli(deck, tmp_path / "bad.h5", timeout=60)
+    assert r.returncode == 3, (r.stdout, r.stderr)
+    assert any("division by zero" in p and "<Force_Gravity>" in p and p.startswith(str(deck))
+               for p in js["problems"]), js
 
 
 def test_a_marker_too_far_out_is_a_located_deck_error(tmp_path):

@@ -114,7 +114,7 @@ def _worker(deck: str, n: int) -> dict:
     static_mod.detect_redundancy = timed("redundancy", static_mod.detect_redundancy)
     static_mod.assemble = timed("assembly", static_mod.assemble)
     static_mod.initial_multipliers = timed("multipliers", static_mod.initial_multipliers)
-    static_mod.newton = timed("newton", static_mod.newton)
+    static_mod.solve_frame = timed("newton", static_mod.solve_frame)   # Newton (+ recovery)
     static_mod.min_norm_multipliers = timed("min_norm_reactions", static_mod.min_norm_multipliers)
     # imported by the static driver at call time: the stability classification of the frame
     stability_mod.classify = timed("stability", stability_mod.classify)

@@ -418,7 +418,10 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
                                        + eval_error)
         if res_ok and not best[0] < m0:
             # every equation within tolerance and no step along Newton's direction improves
-            # them: the residual is at its round-off floor, the step is noise
+            # them: the residual is at its round-off floor, the step is noise. The error is the
+            # step not taken (the distance Newton still sees), not the last one taken
+            nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
+            err = max(cerr, nxt)
             bad = inconsistent_redundant(model, state, sc)
             history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
                         pos=state.pos, rot=state.rot)
