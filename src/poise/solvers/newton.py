@@ -330,6 +330,16 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
         # assembles its Jacobian when it is factorised (never at the converged point)
         return _evaluate(model, st, cnt, need_jac="defer", eps=eps)
 
+    def converged(it, imb, err, worst):
+        # within tolerance: unless a removed redundant equation contradicts the others
+        bad = inconsistent_redundant(model, state, sc)
+        history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
+                    pos=state.pos, rot=state.rot)
+        if bad:
+            return FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, imb, err,
+                                MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
+        return FrameOutcome(Status.CONVERGED, it, imb, err, "converged")
+
     try:
         ev = ev_at(state)
     except EvaluationError as e:
@@ -340,13 +350,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
         res_ok = zinf <= 1.0
         step_ok = (not np.isfinite(last_step)) or last_step <= settings.max_error
         if res_ok and step_ok:
-            bad = inconsistent_redundant(model, state, sc)
-            history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
-                        pos=state.pos, rot=state.rot)
-            if bad:
-                return state, FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, imb, err,
-                                           MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
-            return state, FrameOutcome(Status.CONVERGED, it, imb, err, "converged")
+            return state, converged(it, imb, err, worst)
         if it >= max_iter:
             history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
                         pos=state.pos, rot=state.rot)
@@ -421,14 +425,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             # them: the residual is at its round-off floor, the step is noise. The error is the
             # step not taken (the distance Newton still sees), not the last one taken
             nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
-            err = max(cerr, nxt)
-            bad = inconsistent_redundant(model, state, sc)
-            history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
-                        pos=state.pos, rot=state.rot)
-            if bad:
-                return state, FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, imb, err,
-                                           MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
-            return state, FrameOutcome(Status.CONVERGED, it, imb, err, "converged")
+            return state, converged(it, imb, max(cerr, nxt), worst)
         prev = state                      # the row's pose: the iterate the row measured
         m1, alpha, state, ev = best
         last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0
