@@ -29,8 +29,16 @@ def _load(path):
 def _static_settings(el_list) -> StaticSettings:
     s = StaticSettings()
     for el in el_list:
-        s = s.updated(el.attrs)
+        s = _updated(s, el)
     return s
+
+
+def _updated(s: StaticSettings, el) -> StaticSettings:
+    """``s`` with a Param_Static element's attributes; a bad value is the deck's error."""
+    try:
+        return s.updated(el.attrs)
+    except (ValueError, TypeError) as e:
+        raise DeckError(Problem(el.loc, f"invalid solver settings: {e}")) from None
 
 
 def _analysis_kind(el, t_now) -> tuple[str, float | None]:
@@ -98,7 +106,7 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
         raise DeckError(bad)
     for el in spec.commands:
         if el.tag == "Param_Static":
-            live = live.updated(el.attrs)
+            live = _updated(live, el)
         elif el.tag == "Param_Transient":
             transient.update(el.attrs)
         elif el.tag == "Simulate":
@@ -106,6 +114,7 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
                 s = live.updated(overrides)
             except (ValueError, TypeError) as e:
                 raise DeckError(Problem(el.loc, f"invalid solver settings: {e}")) from None
+            _check_compliance_markers(spec, s, el)
             kind, end = _analysis_kind(el, t_now)
             out.append(AnalysisRequest(el, kind, s, dict(transient), pending, arrays))
             if kind == "quasistatic" and end is not None:
@@ -116,6 +125,19 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
         else:
             pending.append(el)
     return out
+
+
+def _check_compliance_markers(spec, s, el) -> None:
+    """Marker ids named by ``compliance_markers`` must exist (checked before any solve)."""
+    if s.compliance_markers in ("auto", "all", "none"):
+        return
+    have = {e.attrs.get("id") for e in spec.model if e.tag == "Reference_Marker"}
+    bad = [m for m in s.compliance_markers.split() if int(m) not in have and int(m) != 0]
+    if bad:
+        src = next((e for e in spec.model if e.tag == "Param_Static"
+                    and e.attrs.get("compliance_markers") is not None), el)
+        raise DeckError(Problem(src.loc, f"compliance_markers: marker id {bad[0]} is not a "
+                                         "Reference_Marker of the deck"))
 
 
 def analysis_class(req: AnalysisRequest):

@@ -1,0 +1,295 @@
+"""Compliance matrix of an equilibrium (MotionSolve GTCMAT; ``Param_Static compliance_delta``).
+
+For markers ``1..M`` the compliance ``C`` (6M x 6M) holds in block ``(i, j)`` the generalised
+displacement of marker ``i`` (3 translations, 3 small rotations, global axes) per unit force
+(columns 0-2) or torque (columns 3-5, global axes) applied at marker ``j``. It is the
+compliance of the *constrained* system: with ``K`` the tangent stiffness (coordinate block of
+the KKT Jacobian at the converged multipliers, no ``stability`` term) and ``P`` the active
+(non-redundant) constraint rows, a load ``f = G_j^T e`` gives ``[K P^T; P 0] [dq; dl] = [f; 0]``
+and ``u_i = G_i dq``, where ``G_i = [[I, -[r_i]x], [0, I]]`` maps a body's tangent increment
+(CG translation, spatial rotation) to the displacement of marker ``i`` (``r_i`` its lever from
+the CG). Equivalently ``C = G N (N^T K N)^-1 N^T G^T`` with ``N`` a null-space basis of ``P``.
+
+* ``exact`` (default): one factorisation of the KKT matrix, all 6M load columns in one solve.
+  When it is singular (a free mechanism direction, or a ``neutral`` frame) the reduced
+  stiffness ``N^T K N`` is pseudo-inverted densely and the entries whose row moves in, or
+  whose column loads, a zero-stiffness direction are NaN (flag ``singular``).
+* ``fd``: for every column a load ``compliance_delta`` (force units; torques
+  ``compliance_delta * L``, L the model length scale) is added at the marker as a constant
+  generalised force and the equilibrium re-solved by Newton from the converged state; the
+  marker's displacement (translation difference, rotation vector of ``A1 A0^T``) / load is
+  the column. Forward difference: agrees with ``exact`` to O(delta); a column whose re-solve
+  does not converge is NaN (flag ``fd_failed``).
+
+Per frame ``frames/compliance_flag``: ``ok``, ``unstable`` (tangent not positive definite on
+the manifold: the KKT solve is written as it is), ``singular``, ``fd_failed``, ``not_converged``
+(NaN). By default (``compliance_markers="auto"``) the CG marker of every body while the model
+has at most :data:`AUTO_MAX_BODIES` bodies; otherwise the matrix is skipped and the analysis
+attribute ``compliance_note`` says so.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+AUTO_MAX_BODIES = 100
+UNITS = ("block rows (translation, rotation) x columns (force, torque): "
+         "translation/force [length/force], translation/torque [1/force], "
+         "rotation/force [rad/force], rotation/torque [rad/(force*length)]; global axes")
+ZERO_REL = 1e-9            # singular values of the reduced stiffness below this x largest: zero
+NULL_REL = 1e-10           # constraint-Jacobian singular values below this x largest: null space
+MOVES_TOL = 1e-6           # |G N z| above this: the marker component moves in a free mode
+
+
+def parse_markers(value) -> str:
+    """Normalised ``compliance_markers``: ``auto``, ``all``, ``none`` or space-separated marker
+    ids (accepts ``"10,20"``, ``"10 20"``, a sequence of ints). Raises ValueError."""
+    if value is None:
+        return "auto"
+    if isinstance(value, (list, tuple, np.ndarray)):
+        items = [str(v) for v in value]
+    else:
+        s = str(value).strip()
+        if s.lower() in ("auto", "all", "none"):
+            return s.lower()
+        items = s.replace(",", " ").split()
+    if not items:
+        raise ValueError("compliance_markers is empty; expected marker ids, 'all', 'auto' "
+                         "or 'none'")
+    ids = []
+    for it in items:
+        try:
+            v = int(it)
+        except ValueError:
+            raise ValueError(f"compliance_markers: {it!r} is not a marker id; expected "
+                             "integers, 'all', 'auto' or 'none'") from None
+        if v < 0:
+            raise ValueError(f"compliance_markers: marker id {v} is negative")
+        ids.append(v)
+    return " ".join(str(v) for v in ids)
+
+
+def _cg_marker_rows(model) -> np.ndarray:
+    """Marker row of each body's CG marker (the body's marker closest to its CG)."""
+    nb = model.nb
+    mb = model.marker_body
+    d = np.linalg.norm(model.marker_s0, axis=1)
+    rows = np.full(nb, -1, np.intp)
+    order = np.lexsort((d, mb))                  # by body, then by distance from the CG
+    bodies = mb[order]
+    first = np.ones(order.size, bool)
+    first[1:] = bodies[1:] != bodies[:-1]
+    for k in order[first]:
+        if mb[k] < nb:
+            rows[mb[k]] = k
+    return rows
+
+
+def select(model, settings):
+    """``(marker rows, note)``: the markers to report, or ``(None, note)`` when skipped."""
+    spec = getattr(settings, "compliance_markers", "auto")
+    if spec == "none":
+        return None, "compliance matrix not requested (compliance_markers none)"
+    if spec in ("auto", "all"):
+        if spec == "auto" and model.nb > AUTO_MAX_BODIES:
+            return None, (f"compliance matrix skipped: {model.nb} bodies > {AUTO_MAX_BODIES}; "
+                          "ask for it with --compliance-markers all (or marker ids), or "
+                          "Param_Static compliance_markers=\"all\"")
+        rows = _cg_marker_rows(model)
+        return rows[rows >= 0], ""
+    index = {int(m): k for k, m in enumerate(model.marker_id)}
+    rows = []
+    for m in spec.split():
+        if int(m) not in index:
+            from poise.errors import UsageError
+            raise UsageError(f"compliance_markers: marker id {m} is not a Reference_Marker of "
+                             "the deck")
+        rows.append(index[int(m)])
+    return np.array(rows, np.intp), ""
+
+
+def marker_map(model, state, rows) -> np.ndarray:
+    """``G`` (6M, nq): tangent increment -> (translation, rotation) of each marker, global."""
+    M = len(rows)
+    G = np.zeros((6 * M, model.nq))
+    if not M:
+        return G
+    P, _, _ = model.marker_kinematics(state)
+    nb = model.nb
+    for a, k in enumerate(rows):
+        b = int(model.marker_body[k])
+        if b >= nb:
+            continue                               # ground marker: never moves
+        o = int(model.body_off[b])
+        G[6 * a:6 * a + 3, o:o + 3] = np.eye(3)
+        if model.body_kind[b] == 0:
+            r = P[k] - state.pos[b]
+            G[6 * a:6 * a + 3, o + 3:o + 6] = np.array([[0.0, r[2], -r[1]],
+                                                       [-r[2], 0.0, r[0]],
+                                                       [r[1], -r[0], 0.0]])   # -[r]x
+            G[6 * a + 3:6 * a + 6, o + 3:o + 6] = np.eye(3)
+    return G
+
+
+def _exact(model, state, active, G, singular_hint=False):
+    """``(C, flag)`` from the KKT Jacobian at ``state`` (one factorisation, all columns)."""
+    from poise.solvers.linalg import Factor, SingularMatrix
+    nq = model.nq
+    saved = model.row_active.copy()
+    model.row_active[:] = active
+    try:
+        J = model.evaluate(state, need_jac=True, eps_mass=0.0).J
+    finally:
+        model.row_active[:] = saved
+    if not singular_hint:
+        rhs = np.zeros((model.N, G.shape[0]))
+        rhs[:nq] = G.T
+        try:
+            X = Factor(J).solve(rhs)
+            if np.all(np.isfinite(X)):
+                return G @ X[:nq], "ok"
+        except SingularMatrix:
+            pass
+    return _reduced(model, J, active, G)
+
+
+def _reduced(model, J, active, G):
+    """Dense pseudo-inverse of the reduced stiffness; NaN where a free direction enters."""
+    nq = model.nq
+    J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
+    d = model.q_scale
+    Gs = G / d[None, :]
+    K = J[:nq, :nq] / d[:, None] / d[None, :]
+    Pq = J[nq:, :nq][np.asarray(active, bool)] / d[None, :]
+    if Pq.shape[0]:
+        _, s, vh = np.linalg.svd(Pq, full_matrices=True)
+        rk = int(np.sum(s > NULL_REL * s.max())) if s.size and s.max() > 0 else 0
+        N = vh[rk:].T
+    else:
+        N = np.eye(nq)
+    GN = Gs @ N
+    if N.shape[1] == 0:
+        return np.zeros((G.shape[0], G.shape[0])), "ok"
+    Kr = N.T @ K @ N
+    U, s, Vt = np.linalg.svd(Kr)
+    smax = s.max() if s.size else 0.0
+    nz = s > ZERO_REL * smax if smax > 0 else np.zeros(s.size, bool)
+    C = (GN @ Vt[nz].T) @ ((U[:, nz].T @ GN.T) / s[nz][:, None])
+    if nz.all():
+        return C, "ok"
+    moves = np.abs(GN @ Vt[~nz].T).max(axis=1) > MOVES_TOL      # rows: displaced freely
+    loads = np.abs(GN @ U[:, ~nz]).max(axis=1) > MOVES_TOL      # columns: load a free mode
+    C[moves, :] = np.nan
+    C[:, loads] = np.nan
+    return C, "singular"
+
+
+class _Loaded:
+    """The model with a constant generalised force ``f`` added to the applied loads."""
+
+    def __init__(self, model, f):
+        self._model = model
+        self._f = f
+
+    def __getattr__(self, name):
+        return getattr(self._model, name)
+
+    def evaluate(self, state, *args, **kwargs):
+        ev = self._model.evaluate(state, *args, **kwargs)
+        ev.r = ev.r - self._f
+        return ev
+
+
+def _fd(model, state, active, G, rows, settings):
+    """``(C, flag)`` by re-solving the equilibrium under a load ``delta`` per column."""
+    from dataclasses import replace
+
+    from poise.model.model import _log_so3
+    from poise.solvers.history import History
+    from poise.solvers.newton import Counters, newton
+    delta = float(settings.compliance_delta)
+    ncol = G.shape[0]
+    C = np.full((ncol, ncol), np.nan)
+    P0, A0, _ = model.marker_kinematics(state)
+    P0, A0 = P0[rows], A0[rows]
+    tight = replace(settings, max_imbalance=min(settings.max_imbalance, 1e-6 * delta),
+                    max_error=min(settings.max_error, 1e-9))
+    saved = model.row_active.copy()
+    model.row_active[:] = active
+    failed = False
+    try:
+        for c in range(ncol):
+            h = delta if c % 6 < 3 else delta * model.L
+            lm = _Loaded(model, G[c] * h)
+            st = None
+            for s in (tight, settings):
+                st, out = newton(lm, state.copy(), s, History(), 0, Counters(), max_iter=50)
+                if out.ok:
+                    break
+            if not out.ok:
+                failed = True
+                continue
+            P1, A1, _ = model.marker_kinematics(st)
+            u = np.empty((len(rows), 6))
+            u[:, :3] = P1[rows] - P0
+            u[:, 3:] = _log_so3(np.matmul(A1[rows], np.swapaxes(A0, 1, 2)))
+            C[:, c] = u.ravel() / h
+    finally:
+        model.row_active[:] = saved
+    return C, ("fd_failed" if failed else "ok")
+
+
+def frame_compliance(model, state, active, rows, settings, stability=""):
+    """``(C (6M, 6M), flag)`` of one converged frame."""
+    from poise.errors import EvaluationError
+    G = marker_map(model, state, rows)
+    if model.nq == 0:
+        return np.zeros((G.shape[0], G.shape[0])), "ok"
+    try:
+        if getattr(settings, "compliance_method", "exact") == "fd":
+            C, flag = _fd(model, state, active, G, rows, settings)
+        else:
+            C, flag = _exact(model, state, active, G, singular_hint=(stability == "neutral"))
+    except EvaluationError:
+        return np.full((G.shape[0], G.shape[0]), np.nan), "not_converged"
+    if flag == "ok" and stability == "unstable":
+        flag = "unstable"
+    return C, flag
+
+
+def attach(ar, model, frames, outcomes, redundancy, settings):
+    """Add the compliance datasets/attributes of ``frames`` to the AnalysisResult ``ar``."""
+    rows, note = select(model, settings)
+    if rows is None:
+        ar.attrs["compliance_note"] = note
+        return
+    method = getattr(settings, "compliance_method", "exact")
+    active = np.ones(model.nc, bool)
+    active[np.asarray(redundancy, int)] = False
+    stab = ar.datasets.get("frames/stability")
+    n = 6 * len(rows)
+    Cs, flags = [], []
+    cache = {}
+    t_dep = model.depends_on_time()
+    for k, (st, o) in enumerate(zip(frames, outcomes)):
+        if not o.ok:
+            Cs.append(np.full((n, n), np.nan))
+            flags.append("not_converged")
+            continue
+        key = (st.pos.tobytes(), st.rot.tobytes(), st.lam.tobytes(),
+               None if st.extra is None else st.extra.tobytes(), st.t if t_dep else None)
+        if key not in cache:
+            cls = str(stab[k]) if stab is not None and k < len(stab) else ""
+            cache[key] = frame_compliance(model, st, active, rows, settings, cls)
+        C, flag = cache[key]
+        Cs.append(C)
+        flags.append(flag)
+    ar.datasets["frames/compliance"] = np.stack(Cs) if Cs else np.zeros((0, n, n))
+    ar.datasets["frames/compliance_flag"] = np.array(flags, dtype=str)
+    ar.datasets["compliance/marker_id"] = np.asarray(model.marker_id)[rows].astype(np.int64)
+    ar.datasets["compliance/method"] = np.array(method, dtype=str)
+    ar.attrs["compliance_method"] = method
+    ar.attrs["compliance_units"] = UNITS
+    if method == "fd":
+        ar.attrs["compliance_delta"] = float(settings.compliance_delta)
+    if note:
+        ar.attrs["compliance_note"] = note
