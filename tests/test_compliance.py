@@ -196,6 +196,29 @@ def test_quasistatic_every_frame(tmp_path):
     np.testing.assert_allclose(C[:, 2, 2], 1.0 / K_SPRING, rtol=1e-9)
 
 
+@pytest.mark.parametrize("method", ["FIM_S", "FIM_D"])
+def test_quasistatic_pendulum_frames_geometric_stiffness(tmp_path, method):
+    """Batched frames (stacked Jacobians) give the 1-DOF closed form at every frame."""
+    text = deck(pendulum(), 'compliance_markers="20"',
+                sim='analysis_type="Static" end_time="1.0" print_interval="0.5"')
+    a = solve_text(tmp_path, text, method=method)
+    C = a.datasets["frames/compliance"]
+    assert C.shape == (3, 6, 6)
+    for k in range(3):
+        np.testing.assert_allclose(C[k], pendulum_expected(), rtol=1e-7, atol=1e-10)
+
+
+def test_deck_attributes_select_fd(tmp_path):
+    a = solve_text(tmp_path, deck(spring_mass(), 'compliance_method="FD" compliance_delta="1e-4" '
+                                                  'compliance_markers="20, 11"'))
+    assert str(a.datasets["compliance/method"]) == "fd"
+    assert a.attrs["compliance_delta"] == pytest.approx(1e-4)
+    assert list(a.datasets["compliance/marker_id"]) == [20, 11]
+    C = a.datasets["frames/compliance"][0]
+    assert C[2, 2] == pytest.approx(1.0 / K_SPRING, rel=1e-6)
+    np.testing.assert_allclose(C[6:], 0.0, atol=1e-12)
+
+
 def test_none_and_bad_marker(tmp_path):
     a = solve_text(tmp_path, deck(spring_mass()), compliance_markers="none")
     assert "frames/compliance" not in a.datasets

@@ -256,6 +256,45 @@ def frame_compliance(model, state, active, rows, settings, stability=""):
     return C, flag
 
 
+def _exact_frames(model, frames, active, rows, classes):
+    """``exact`` compliance of many converged frames at once (batched evaluation and stacked
+    dense solves), or None where batching does not apply. Frames whose stacked solve is not
+    trustworthy (neutral, or a large residual) go through :func:`_exact` one by one."""
+    from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
+    if len(frames) < 2 or not batchable(model):
+        return None
+    nq = model.nq
+    off = nq + np.flatnonzero(~np.asarray(active, bool))
+    out = []
+    Cn = chunk_size(model)
+    for a in range(0, len(frames), Cn):
+        chunk = frames[a:a + Cn]
+        J = np.array(evaluate_frames(model, chunk, need_jac=True).J)     # all rows active
+        J[:, off, :] = 0.0                                 # redundant rows: dl = 0, as the
+        J[:, :, off] = 0.0                                 # analysis' own Jacobian has them
+        J[:, off, off] = 1.0
+        G = np.stack([marker_map(model, st, rows) for st in chunk])      # (f, 6M, nq)
+        rhs = np.zeros((len(chunk), model.N, G.shape[1]))
+        rhs[:, :nq] = np.swapaxes(G, 1, 2)
+        with np.errstate(all="ignore"):
+            try:
+                X = np.linalg.solve(J, rhs)
+            except np.linalg.LinAlgError:
+                X = np.full_like(rhs, np.nan)
+            res = np.linalg.norm(np.matmul(J, X) - rhs, axis=(1, 2))
+        for j, st in enumerate(chunk):
+            cls = classes[a + j]
+            if cls == "neutral" or not (res[j] <= 1e-8 * np.linalg.norm(rhs[j])) \
+                    or not np.all(np.isfinite(X[j])):
+                C, flag = _reduced(model, J[j], active, G[j])
+            else:
+                C, flag = G[j] @ X[j, :nq], "ok"
+            if flag == "ok" and cls == "unstable":
+                flag = "unstable"
+            out.append((C, flag))
+    return out
+
+
 def attach(ar, model, frames, outcomes, redundancy, settings):
     """Add the compliance datasets/attributes of ``frames`` to the AnalysisResult ``ar``."""
     rows, note = select(model, settings)
@@ -270,6 +309,21 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
     Cs, flags = [], []
     cache = {}
     t_dep = model.depends_on_time()
+    classes = [str(stab[k]) if stab is not None and k < len(stab) else ""
+               for k in range(len(frames))]
+    if method == "exact" and model.nq and len(frames) > 1:
+        from poise.errors import EvaluationError
+        ok = [k for k, o in enumerate(outcomes) if o.ok]
+        try:
+            got = _exact_frames(model, [frames[k] for k in ok], active, rows,
+                                [classes[k] for k in ok])
+        except EvaluationError:
+            got = None
+        if got is not None:
+            byk = dict(zip(ok, got))
+            Cs = [byk[k][0] if k in byk else np.full((n, n), np.nan) for k in range(len(frames))]
+            flags = [byk[k][1] if k in byk else "not_converged" for k in range(len(frames))]
+            frames = []                                   # done: skip the loop below
     for k, (st, o) in enumerate(zip(frames, outcomes)):
         if not o.ok:
             Cs.append(np.full((n, n), np.nan))
@@ -278,8 +332,7 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
         key = (st.pos.tobytes(), st.rot.tobytes(), st.lam.tobytes(),
                None if st.extra is None else st.extra.tobytes(), st.t if t_dep else None)
         if key not in cache:
-            cls = str(stab[k]) if stab is not None and k < len(stab) else ""
-            cache[key] = frame_compliance(model, st, active, rows, settings, cls)
+            cache[key] = frame_compliance(model, st, active, rows, settings, classes[k])
         C, flag = cache[key]
         Cs.append(C)
         flags.append(flag)
