@@ -282,7 +282,7 @@ def _exact_frames(model, frames, active, rows, classes):
             except np.linalg.LinAlgError:
                 X = np.full_like(rhs, np.nan)
             res = np.linalg.norm(np.matmul(J, X) - rhs, axis=(1, 2))
-        for j, st in enumerate(chunk):
+        for j in range(len(chunk)):
             cls = classes[a + j]
             if cls == "neutral" or not (res[j] <= 1e-8 * np.linalg.norm(rhs[j])) \
                     or not np.all(np.isfinite(X[j])):
