@@ -251,6 +251,18 @@ def test_more_than_100_bodies_skipped_with_note(tmp_path):
     np.testing.assert_allclose(C, 0.0, atol=1e-12)                  # welded to ground
 
 
+def test_auto_skips_above_entry_budget(tmp_path, monkeypatch):
+    from poise.solvers import compliance
+    monkeypatch.setattr(compliance, "AUTO_MAX_ENTRIES", 100)     # 5 frames x 36 > 100
+    text = deck(spring_mass(), sim='analysis_type="Static" end_time="1.0" print_interval="0.25"')
+    a = solve_text(tmp_path, text)
+    assert "frames/compliance" not in a.datasets
+    assert "skipped" in a.attrs["compliance_note"]
+    b = solve_text(tmp_path, text, compliance_markers="20")           # explicit: written
+    np.testing.assert_allclose(b.datasets["frames/compliance"][:, 2, 2], 1.0 / K_SPRING,
+                               rtol=1e-9)
+
+
 def test_cli_option_writes_datasets(tmp_path):
     h5py = pytest.importorskip("h5py")
     p = tmp_path / "pend.xml"

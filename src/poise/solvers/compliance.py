@@ -24,14 +24,17 @@ the CG). Equivalently ``C = G N (N^T K N)^-1 N^T G^T`` with ``N`` a null-space b
 Per frame ``frames/compliance_flag``: ``ok``, ``unstable`` (tangent not positive definite on
 the manifold: the KKT solve is written as it is), ``singular``, ``fd_failed``, ``not_converged``
 (NaN). By default (``compliance_markers="auto"``) the CG marker of every body while the model
-has at most :data:`AUTO_MAX_BODIES` bodies; otherwise the matrix is skipped and the analysis
-attribute ``compliance_note`` says so.
+has at most :data:`AUTO_MAX_BODIES` bodies and the run's matrices hold at most
+:data:`AUTO_MAX_ENTRIES` entries; otherwise the matrix is skipped and the analysis attribute
+``compliance_note`` says so (an explicit ``all`` or id list is always written).
 """
 from __future__ import annotations
 
 import numpy as np
 
 AUTO_MAX_BODIES = 100
+AUTO_MAX_ENTRIES = 4_000_000   # auto: F x (6M)^2 above this (32 MB) is skipped with a note
+REDUCED_MAX_NQ = 3000          # singular frames: dense reduced stiffness up to this size
 UNITS = ("block rows (translation, rotation) x columns (force, torque): "
          "translation/force [length/force], translation/torque [1/force], "
          "rotation/force [rad/force], rotation/torque [rad/(force*length)]; global axes")
@@ -155,6 +158,8 @@ def _exact(model, state, active, G, singular_hint=False):
 def _reduced(model, J, active, G):
     """Dense pseudo-inverse of the reduced stiffness; NaN where a free direction enters."""
     nq = model.nq
+    if nq > REDUCED_MAX_NQ:                 # too large for a dense null space: say so
+        return np.full((G.shape[0], G.shape[0]), np.nan), "singular"
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
     d = model.q_scale
     Gs = G / d[None, :]
@@ -298,6 +303,13 @@ def _exact_frames(model, frames, active, rows, classes):
 def attach(ar, model, frames, outcomes, redundancy, settings):
     """Add the compliance datasets/attributes of ``frames`` to the AnalysisResult ``ar``."""
     rows, note = select(model, settings)
+    n = 6 * (len(rows) if rows is not None else 0)
+    if rows is not None and getattr(settings, "compliance_markers", "auto") == "auto" \
+            and len(frames) * n * n > AUTO_MAX_ENTRIES:
+        rows, note = None, (f"compliance matrix skipped: {len(frames)} frames x ({n} x {n}) "
+                            f"entries > {AUTO_MAX_ENTRIES}; ask for it with "
+                            "--compliance-markers all (or marker ids), or Param_Static "
+                            "compliance_markers=\"all\"")
     if rows is None:
         ar.attrs["compliance_note"] = note
         return
@@ -305,7 +317,6 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
     active = np.ones(model.nc, bool)
     active[np.asarray(redundancy, int)] = False
     stab = ar.datasets.get("frames/stability")
-    n = 6 * len(rows)
     Cs, flags = [], []
     cache = {}
     t_dep = model.depends_on_time()
