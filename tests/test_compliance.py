@@ -225,8 +225,16 @@ def test_none_and_bad_marker(tmp_path):
     p = tmp_path / "bad.xml"
     p.write_text(deck(spring_mass(), 'compliance_markers="999"'))
     from poise.errors import DeckError
-    with pytest.raises(DeckError, match="marker id 999"):
+    with pytest.raises(DeckError, match="marker id 999") as e:
         poise.solve(str(p))
+    assert "bad.xml:4:" in str(e.value)                       # located at the Param_Static
+    p.write_text(deck(spring_mass(), 'compliance_markers="ten"'))
+    with pytest.raises(DeckError, match="'ten' is not a marker id") as e:
+        poise.solve(str(p))
+    assert "bad.xml:4:" in str(e.value)
+    from poise.errors import UsageError
+    with pytest.raises(UsageError, match="marker id 998"):
+        poise.solve(str(tmp_path / "d.xml"), compliance_markers=[20, 998])
 
 
 def many_bodies(n) -> str:
@@ -282,6 +290,14 @@ def test_cli_option_writes_datasets(tmp_path):
         np.testing.assert_allclose(C[0, :6, :6], pendulum_expected(), rtol=2e-3, atol=1e-4)
         np.testing.assert_allclose(C[0, 6:, :], 0.0, atol=1e-12)   # ground marker: no motion
         assert "length/force" in g.attrs["compliance_units"]
-    bad = subprocess.run(cmd[:-4] + ["--compliance-markers", "x"], capture_output=True,
-                         text=True, env=env, timeout=60)
-    assert bad.returncode == 2
+    for arg, code in (("x", 2), ("999", 2)):
+        bad = subprocess.run(cmd[:-4] + ["--compliance-markers", arg], capture_output=True,
+                             text=True, env=env, timeout=60)
+        assert bad.returncode == code, bad.stderr
+        assert "Traceback" not in bad.stderr
+    q = tmp_path / "bad.xml"
+    q.write_text(deck(pendulum(), 'compliance_markers="20 777" compliance_method="FD"'))
+    bad = subprocess.run([sys.executable, "-m", "poise_cli", "solve", str(q), "-o",
+                          str(tmp_path / "b.h5"), "-q"], capture_output=True, text=True,
+                         env=env, timeout=60)
+    assert bad.returncode == 3 and f"{q}:4:" in bad.stderr and "777" in bad.stderr
