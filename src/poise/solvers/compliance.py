@@ -355,5 +355,11 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
     ar.attrs["compliance_units"] = UNITS
     if method == "fd":
         ar.attrs["compliance_delta"] = float(settings.compliance_delta)
-    if note:
-        ar.attrs["compliance_note"] = note
+    said = {"singular": "free mechanism direction: NaN where it enters",
+            "unstable": "unstable equilibrium: written as the KKT solve gives it",
+            "fd_failed": "fd re-solve did not converge: NaN columns",
+            "not_converged": "frame not converged: NaN"}
+    parts = [f"{sum(f == k for f in flags)} frame(s) {k} ({v})" for k, v in said.items()
+             if k in flags]
+    if note or parts:
+        ar.attrs["compliance_note"] = "; ".join([note] * bool(note) + parts)
