@@ -122,9 +122,8 @@ def solve(deck_or_path, allow_user_code: bool = False, **overrides) -> RunResult
 
     ``deck_or_path`` is a deck path (str or path-like) or an already parsed (possibly modified)
     :class:`poise.deck.spec.DeckSpec` from ``poise.load_deck``. Keyword arguments are
-    ``Param_Static`` overrides (``method``, ``max_num_iter``, ``max_imbalance``, ...,
-    ``compliance_markers="10 20"`` / ``[10, 20]`` / ``"all"`` / ``"none"``,
-    ``compliance_method="exact"|"fd"``), except ``allow_user_code`` (see :func:`run_deck`).
+    ``Param_Static`` overrides (``method``, ``max_num_iter``, ``max_imbalance``, ...), except
+    ``allow_user_code`` (see :func:`run_deck`).
     """
     from poise.deck.spec import DeckSpec
     if isinstance(deck_or_path, DeckSpec):

@@ -11,7 +11,6 @@ import math
 from dataclasses import asdict, dataclass, fields, replace
 
 METHODS = ("MKEAM", "FIM_S", "FIM_D")
-COMPLIANCE_METHODS = ("exact", "fd")
 
 
 @dataclass(frozen=True)
@@ -78,11 +77,11 @@ class StaticSettings:
         if not (self.compliance_delta > 0 and math.isfinite(self.compliance_delta)):
             raise ValueError(f"compliance_delta must be a finite number > 0, got "
                              f"{self.compliance_delta!r}")
-        from poise.solvers.compliance import parse_markers
+        from poise.solvers.compliance import METHODS as CM, parse_markers
         object.__setattr__(self, "compliance_markers", parse_markers(self.compliance_markers))
         cm = str(self.compliance_method).lower()
-        if cm not in COMPLIANCE_METHODS:
-            raise ValueError(f"compliance_method must be one of {', '.join(COMPLIANCE_METHODS)}, "
+        if cm not in CM:
+            raise ValueError(f"compliance_method must be one of {', '.join(CM)}, "
                              f"got {self.compliance_method!r}")
         object.__setattr__(self, "compliance_method", cm)
         if int(self.max_num_iter) < 1:

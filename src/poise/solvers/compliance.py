@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+METHODS = ("exact", "fd")
 AUTO_MAX_BODIES = 100
 AUTO_MAX_ENTRIES = 4_000_000   # auto: F x (6M)^2 above this (32 MB) is skipped with a note
 REDUCED_MAX_NQ = 3000          # singular frames: dense reduced stiffness up to this size

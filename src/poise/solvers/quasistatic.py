@@ -340,9 +340,9 @@ class QuasiStaticAnalysis:
                 else:
                     d[key] = np.concatenate([np.asarray(p[key]) for p in per])
         ar.datasets.update(d)
-        from poise.solvers.compliance import attach
-        attach(ar, model, frames, outcomes, self.redundancy, s)
         ar.datasets.update(stack_frames([frame_outputs(model, st) for st in frames]))
+        from poise.solvers.compliance import attach     # after the frame datasets (stability)
+        attach(ar, model, frames, outcomes, self.redundancy, s)
         ar.datasets.update(self.history.datasets())
         ar.datasets.update(sa.redundancy_datasets())
         if extra:

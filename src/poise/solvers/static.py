@@ -101,9 +101,9 @@ class StaticAnalysis:
         ar.attrs["reactions_unique"] = bool(len(red) == 0)
         ar.attrs["assembled"] = bool(moved)
         ar.datasets.update(self.frame_datasets(state, [out]))
-        from poise.solvers.compliance import attach
-        attach(ar, model, [state], [out], self.redundancy, s)
         ar.datasets.update(stack_frames([frame_outputs(model, state)]))
+        from poise.solvers.compliance import attach     # after frame_datasets (stability)
+        attach(ar, model, [state], [out], self.redundancy, s)
         ar.datasets.update(self.history.datasets())
         ar.attrs.update(self.history.attrs())
         ar.datasets.update(self.redundancy_datasets())
