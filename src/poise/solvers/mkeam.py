@@ -492,11 +492,11 @@ class MkeamAnalysis(StaticAnalysis):
         ar.attrs["mkeam_wall_time"] = time.perf_counter() - t_start
         ar.datasets.update(self.frame_datasets(state, [out]))
         ar.datasets.update(stack_frames([frame_outputs(model, state)]))
-        from poise.solvers.compliance import attach     # after frame_datasets (stability)
-        attach(ar, model, [state], [out], self.redundancy, s)
         ar.datasets.update(self.history.datasets())
         ar.attrs.update(self.history.attrs())
         ar.datasets.update(self.mkeam_datasets(mk_state))
+        from poise.solvers.compliance import attach     # after frame_datasets (stability)
+        attach(ar, model, [state], [out], self.redundancy, s)
         ar.datasets.update(self.redundancy_datasets())
         return state, ar
 
