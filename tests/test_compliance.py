@@ -128,6 +128,26 @@ def test_pendulum_lateral_compliance_geometric_stiffness(tmp_path):
     np.testing.assert_allclose(C, pendulum_expected(), rtol=1e-8, atol=1e-10)
 
 
+def test_pendulum_marker_off_the_cg_lever_arms(tmp_path):
+    """Marker 23 at 2l below the hinge on the bob's body (lever l from its CG): a hinge
+    rotation theta moves it by 2 l theta and a force there has moment 2 l F."""
+    body = pendulum() + marker(23, 2, 0, -2 * ELL, 0)
+    a = solve_text(tmp_path, deck(body, 'compliance_markers="20 23"'))
+    C = a.datasets["frames/compliance"][0]
+    k = M_BOB * GRAV * ELL                         # hinge stiffness
+    arm = np.array([ELL, 2 * ELL])                 # x = arm theta, Mz = arm Fx
+    for i in range(2):
+        for j in range(2):
+            blk = C[6 * i:6 * i + 6, 6 * j:6 * j + 6]
+            assert blk[0, 0] == pytest.approx(arm[i] * arm[j] / k, rel=1e-8)
+            assert blk[0, 5] == pytest.approx(arm[i] / k, rel=1e-8)      # x_i per Tz_j
+            assert blk[5, 0] == pytest.approx(arm[j] / k, rel=1e-8)      # theta per Fx_j
+            assert blk[5, 5] == pytest.approx(1.0 / k, rel=1e-8)
+            assert np.abs(blk[1:5, 1:5]).max() < 1e-12
+    fd = solve_text(tmp_path, deck(body, 'compliance_markers="20 23" compliance_method="FD"'))
+    assert np.max(np.abs(fd.datasets["frames/compliance"][0] - C)) <= 1e-3 * np.abs(C).max()
+
+
 def test_pendulum_redundant_hinge_same_compliance(tmp_path):
     a = solve_text(tmp_path, deck(pendulum(redundant=True)))
     assert len(a.datasets["redundant/id"]) > 0

@@ -113,24 +113,36 @@ def select(model, settings):
 
 def marker_map(model, state, rows) -> np.ndarray:
     """``G`` (6M, nq): tangent increment -> (translation, rotation) of each marker, global."""
-    M = len(rows)
-    G = np.zeros((6 * M, model.nq))
-    if not M:
+    return marker_maps(model, [state], rows)[0]
+
+
+def marker_maps(model, states, rows) -> np.ndarray:
+    """:func:`marker_map` of many frames at once, (F, 6M, nq) (vectorised over frames and
+    markers): rows ``[I, -[r]x]`` and ``[0, I]`` at the marker's body, zero for ground."""
+    rows = np.asarray(rows, np.intp)
+    F, M, nb = len(states), len(rows), model.nb
+    G = np.zeros((F, 6 * M, model.nq))
+    mb = model.marker_body[rows]
+    mv = np.flatnonzero(mb < nb)                     # markers on moving bodies
+    if not (F and mv.size):
         return G
-    P, _, _ = model.marker_kinematics(state)
-    nb = model.nb
-    for a, k in enumerate(rows):
-        b = int(model.marker_body[k])
-        if b >= nb:
-            continue                               # ground marker: never moves
-        o = int(model.body_off[b])
-        G[6 * a:6 * a + 3, o:o + 3] = np.eye(3)
-        if model.body_kind[b] == 0:
-            r = P[k] - state.pos[b]
-            G[6 * a:6 * a + 3, o + 3:o + 6] = np.array([[0.0, r[2], -r[1]],
-                                                       [-r[2], 0.0, r[0]],
-                                                       [r[1], -r[0], 0.0]])   # -[r]x
-            G[6 * a + 3:6 * a + 6, o + 3:o + 6] = np.eye(3)
+    b = mb[mv]
+    rot = np.stack([st.rot for st in states])[:, b]                     # (F, m, 3, 3)
+    r = np.einsum("fmij,mj->fmi", rot, model.marker_s0[rows[mv]])       # lever from the CG
+    o = model.body_off[b]
+    eye = np.arange(3)
+    tr = 6 * mv[:, None] + eye                                          # (m, 3) rows
+    G[:, tr, o[:, None] + eye] = 1.0
+    rig = model.body_kind[b] == 0
+    if rig.any():
+        zero = np.zeros(r.shape[:2])
+        x, y, z = r[..., 0], r[..., 1], r[..., 2]
+        S = np.stack([np.stack([zero, z, -y], -1), np.stack([-z, zero, x], -1),
+                      np.stack([y, -x, zero], -1)], -2)                 # -[r]x  (F, m, 3, 3)
+        k = np.flatnonzero(rig)
+        ro = o[k][:, None] + 3 + eye                                    # (k, 3) rotation cols
+        G[:, tr[k][:, :, None], ro[:, None, :]] = S[:, k]
+        G[:, (tr[k] + 3)[:, :, None], ro[:, None, :]] = np.eye(3)
     return G
 
 
@@ -279,7 +291,7 @@ def _exact_frames(model, frames, active, rows, classes):
         J[:, off, :] = 0.0                                 # redundant rows: dl = 0, as the
         J[:, :, off] = 0.0                                 # analysis' own Jacobian has them
         J[:, off, off] = 1.0
-        G = np.stack([marker_map(model, st, rows) for st in chunk])      # (f, 6M, nq)
+        G = marker_maps(model, chunk, rows)                              # (f, 6M, nq)
         rhs = np.zeros((len(chunk), model.N, G.shape[1]))
         rhs[:, :nq] = np.swapaxes(G, 1, 2)
         with np.errstate(all="ignore"):
