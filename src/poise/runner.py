@@ -47,8 +47,16 @@ def revalidated(spec: DeckSpec) -> DeckSpec:
 def _static_settings(el_list) -> StaticSettings:
     s = StaticSettings()
     for el in el_list:
-        s = s.updated(el.attrs)
+        s = _updated(s, el)
     return s
+
+
+def _updated(s: StaticSettings, el) -> StaticSettings:
+    """``s`` with a Param_Static element's attributes; a bad value is the deck's error."""
+    try:
+        return s.updated(el.attrs)
+    except (ValueError, TypeError) as e:
+        raise DeckError(Problem(el.loc, f"invalid solver settings: {e}")) from None
 
 
 def _analysis_kind(el, t_now) -> tuple[str, float | None]:
@@ -118,7 +126,7 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
         raise DeckError(bad)
     for el in spec.commands:
         if el.tag == "Param_Static":
-            live = live.updated(el.attrs)
+            live = _updated(live, el)
         elif el.tag == "Param_Transient":
             transient.update(el.attrs)
         elif el.tag == "Simulate":
@@ -126,6 +134,7 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
                 s = live.updated(overrides)
             except (ValueError, TypeError) as e:
                 raise DeckError(Problem(el.loc, f"invalid solver settings: {e}")) from None
+            _check_compliance_markers(spec, s, el, "compliance_markers" in overrides)
             kind, end = _analysis_kind(el, t_now)
             out.append(AnalysisRequest(el, kind, s, dict(transient), pending, arrays))
             if kind == "quasistatic" and end is not None:
@@ -136,6 +145,24 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
         else:
             pending.append(el)
     return out
+
+
+def _check_compliance_markers(spec, s, el, from_cli: bool) -> None:
+    """Marker ids named by ``compliance_markers`` must exist (checked before any solve): a
+    usage error when the ids come from the command line / API, else the deck's."""
+    if s.compliance_markers in ("auto", "all", "none"):
+        return
+    have = {e.attrs.get("id") for e in spec.model if e.tag == "Reference_Marker"}
+    bad = [m for m in s.compliance_markers.split() if int(m) not in have and int(m) != 0]
+    if not bad:
+        return
+    msg = f"compliance_markers: marker id {bad[0]} is not a Reference_Marker of the deck"
+    if from_cli:
+        from poise.errors import UsageError
+        raise UsageError(msg)
+    src = next((e for e in reversed([*spec.model, *spec.commands]) if e.tag == "Param_Static"
+                and e.attrs.get("compliance_markers") is not None), el)
+    raise DeckError(Problem(src.loc, msg))
 
 
 def analysis_class(req: AnalysisRequest):

@@ -35,7 +35,12 @@ class StaticSettings:
     stability : float
         ``sqrt(stability) * M`` is added to the Jacobian only.
     compliance_delta : float
-        Perturbation for compliance computations.
+        Load perturbation of the ``fd`` compliance method [force units; torques x L].
+    compliance_markers : str
+        Markers of the compliance matrix (poise.solvers.compliance): ``auto`` (every body's CG
+        marker up to 100 bodies), ``all``, ``none`` or marker ids (``"10 20"``).
+    compliance_method : str
+        ``exact`` (analytic KKT tangent) or ``fd`` (re-solve under ``compliance_delta``).
     max_translation_step : float
         Largest translation per Newton iteration as a multiple of the model size L [-].
     max_rotation_step : float
@@ -58,6 +63,8 @@ class StaticSettings:
     max_error: float = 1e-4
     stability: float = 1e-10
     compliance_delta: float = 1e-3
+    compliance_markers: str = "auto"
+    compliance_method: str = "exact"
     max_translation_step: float = 1.0
     max_rotation_step: float = 6.283185307179586 * 4
     line_search: bool = True
@@ -73,6 +80,16 @@ class StaticSettings:
                 raise ValueError(f"{name} must be a finite number >= {TOL_MIN:g}, got {v!r}")
         if not (self.stability >= 0 and math.isfinite(self.stability)):
             raise ValueError(f"stability must be a finite number >= 0, got {self.stability!r}")
+        if not (self.compliance_delta > 0 and math.isfinite(self.compliance_delta)):
+            raise ValueError(f"compliance_delta must be a finite number > 0, got "
+                             f"{self.compliance_delta!r}")
+        from poise.solvers.compliance import METHODS as CM, parse_markers
+        object.__setattr__(self, "compliance_markers", parse_markers(self.compliance_markers))
+        cm = str(self.compliance_method).lower()
+        if cm not in CM:
+            raise ValueError(f"compliance_method must be one of {', '.join(CM)}, "
+                             f"got {self.compliance_method!r}")
+        object.__setattr__(self, "compliance_method", cm)
         if int(self.max_num_iter) < 1:
             raise ValueError(f"max_num_iter must be >= 1, got {self.max_num_iter!r}")
         if self.fallback_max_num_iter is not None and int(self.fallback_max_num_iter) < 0:

@@ -522,6 +522,8 @@ class MkeamAnalysis(StaticAnalysis):
         ar.datasets.update(self.history.datasets())
         ar.attrs.update(self.history.attrs())
         ar.datasets.update(self.mkeam_datasets(mk_state))
+        from poise.solvers.compliance import attach     # after frame_datasets (stability)
+        attach(ar, model, [state], [out], self.redundancy, s)
         ar.datasets.update(self.redundancy_datasets())
         return state, ar
 

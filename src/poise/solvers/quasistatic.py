@@ -395,6 +395,8 @@ class QuasiStaticAnalysis:
             first = f"frame {k} (t={frames[k].t:.9g}) failed: {failed.message}"
         ar.message = "; ".join([first] + notes)
         ar.datasets.update(stack_frames([frame_outputs(model, st) for st in frames]))
+        from poise.solvers.compliance import attach     # after the frame datasets (stability)
+        attach(ar, model, frames, outcomes, self.redundancy, s)
         ar.datasets.update(self.history.datasets())
         ar.attrs.update(strategy_attrs(ar.datasets))
         ar.datasets.update(sa.redundancy_datasets())

@@ -89,6 +89,8 @@ class StaticAnalysis:
         ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
         ar.message = "; ".join([out.message] + notes)
         ar.datasets.update(stack_frames([frame_outputs(model, state)]))
+        from poise.solvers.compliance import attach     # after frame_datasets (stability)
+        attach(ar, model, [state], [out], self.redundancy, s)
         ar.datasets.update(self.history.datasets())
         ar.attrs.update(self.history.attrs())
         ar.attrs.update(strategy_attrs(ar.datasets))
