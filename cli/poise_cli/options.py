@@ -4,7 +4,8 @@ from __future__ import annotations
 import click
 
 #: CLI option name -> ``Param_Static`` attribute name used as override key by poise.api.run_deck
-OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability", "fallback")
+OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability", "fallback",
+                 "require_stable", "allow_neutral")
 
 METHODS = ("FIM_D", "FIM_S", "MKEAM")
 
@@ -61,6 +62,13 @@ def solver_options(f):
         click.option("--no-fallback", "no_fallback", is_flag=True, default=False,
                      help="Do not run the fallback chain (larger stability, continuation, "
                           "MKEAM) when FIM_S fails."),
+        click.option("--require-stable", "require_stable", is_flag=True, default=None,
+                     help="Static analyses succeed only at a stable equilibrium: FIM_S leaves "
+                          "an unstable equilibrium along its negative modes and continues "
+                          "downhill; otherwise exit 1 with status 'unstable'."),
+        click.option("--allow-neutral/--no-allow-neutral", "allow_neutral", default=None,
+                     help="With --require-stable: a neutral equilibrium (free spins) counts as "
+                          "stable (default: allowed)."),
     ]
     for opt in reversed(opts):
         f = opt(f)

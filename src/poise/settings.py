@@ -44,6 +44,13 @@ class StaticSettings:
         Backtracking line search on the scaled residual norm.
     fallback : bool
         Run the fallback chain (solvers/fallback.py) when FIM_S fails (``--no-fallback``).
+    require_stable : bool
+        A static analysis succeeds only at a stable equilibrium (``--require-stable``): FIM_S
+        leaves an unstable equilibrium along its negative modes and continues downhill
+        (solvers/stable.py); an unstable end point is a failure (status ``unstable``).
+    allow_neutral : bool
+        With ``require_stable``: a neutral equilibrium (zero stiffness modes: free spins) counts
+        as stable enough (``--allow-neutral`` / ``--no-allow-neutral``; default allowed).
     """
 
     method: str = "FIM_D"
@@ -58,6 +65,8 @@ class StaticSettings:
     max_rotation_step: float = 6.283185307179586 * 4
     line_search: bool = True
     fallback: bool = True
+    require_stable: bool = False
+    allow_neutral: bool = True
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -68,6 +77,10 @@ class StaticSettings:
                 raise ValueError(f"{name} must be a finite number >= {TOL_MIN:g}, got {v!r}")
         if not (self.stability >= 0 and math.isfinite(self.stability)):
             raise ValueError(f"stability must be a finite number >= 0, got {self.stability!r}")
+        for name in ("require_stable", "allow_neutral", "line_search", "fallback"):
+            if not isinstance(getattr(self, name), (bool, int)) or isinstance(
+                    getattr(self, name), float):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if int(self.max_num_iter) < 1:
             raise ValueError(f"max_num_iter must be >= 1, got {self.max_num_iter!r}")
 
@@ -84,6 +97,11 @@ class StaticSettings:
                     val = str(val).upper()
                 elif k == "max_num_iter":
                     val = int(val)
+                elif k in ("require_stable", "allow_neutral") and isinstance(val, str):
+                    low = val.strip().lower()
+                    if low not in ("true", "false", "yes", "no", "1", "0"):
+                        raise ValueError(f"{k} must be true or false, got {val!r}")
+                    val = low in ("true", "yes", "1")
                 v[k] = val
         return replace(self, **v)
 

@@ -69,7 +69,7 @@ down (9998 unstable modes) ~1 s; the spherical chain (10 000 neutral spins) ~0.9
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -134,6 +134,9 @@ class StabilityInfo:
     modes: str                 # human-readable description of negative and zero modes
     min_eigenvalue: float      # smallest eigenvalue of the reduced stiffness [force/length]
     mode_list: tuple = ()      # the described modes as numbers (Mode), unstable first
+    # the described unstable modes as vectors in model tangent coordinates (solvers/stable.py
+    # leaves an unstable equilibrium along them); not part of the outputs
+    vectors: tuple = field(default=(), compare=False, repr=False)
 
 
 def sign_normalised(a) -> np.ndarray:
@@ -166,7 +169,7 @@ def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo
         if extra > 0:
             texts.append(f"{label}: ... {extra} more")
     return StabilityInfo(klass, int(n_neg), int(n_zero), "; ".join(texts), float(wmin),
-                         tuple(modes))
+                         tuple(modes), tuple(np.asarray(q, float) for q, _ in unstable[:N_MODES]))
 
 
 def classify(model, state, J=None) -> StabilityInfo:

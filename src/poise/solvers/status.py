@@ -14,6 +14,7 @@ class Status(str, Enum):
     STEP_TOO_SMALL = "step_too_small"
     INCONSISTENT_CONSTRAINTS = "inconsistent_constraints"
     TOLERANCE_NOT_MET = "tolerance_not_met"
+    UNSTABLE = "unstable"
 
     @property
     def ok(self) -> bool:
@@ -34,4 +35,5 @@ MESSAGES = {
                                      "joints cannot all be satisfied: align their markers or "
                                      "remove the redundant joint)",
     Status.TOLERANCE_NOT_MET: "the result does not meet the Param_Static tolerances",
+    Status.UNSTABLE: "no stable equilibrium reached (--require-stable)",
 }
