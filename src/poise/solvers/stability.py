@@ -449,6 +449,7 @@ class _SparsePencil:
         Ks = _prune_noise(((Ku + Ku.T) * 0.5).tocsr())
         G = (J[nq:, :nq][np.nonzero(model.row_active)[0]] @ Di).tocsr()
         self.G_active = G                 # active rows, length-scaled (dependent-row check)
+        self.rows = np.nonzero(model.row_active)[0]     # constraint rows of Gt (model indices)
         if G.shape[0]:
             # a numerically empty row does not constrain anything (the dense SVD's rcond);
             # ``drop``: active rows found dependent at this configuration
@@ -456,11 +457,12 @@ class _SparsePencil:
             keep = rn > 1e-10 * rn.max()
             keep[np.asarray(drop, np.int64)] = False
             G = G[keep]
+            self.rows = self.rows[keep]
         dq, dl = _equilibrate(Ks, G)
         self.Kt = (sp.diags(dq) @ Ks @ sp.diags(dq)).tocsr()
         self.Gt = (sp.diags(dl) @ G @ sp.diags(dq)).tocsr()
         self.GtG = (self.Gt.T @ self.Gt).tocsr()
-        self.Ks, self.d, self.dq = Ks, d, dq
+        self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
         self.nq, self.m = nq, self.Gt.shape[0]
         self.order = _kkt_order(model, self.Kt, self.Gt, self.GtG)
         # zero threshold: ZERO_REL of the spectral radius of Kt (an upper bound of the reduced

@@ -40,9 +40,8 @@ ESCAPE_TRANS = 0.05       # x L: largest translation of the first escape trial
 ESCAPE_SHRINK = (1.0, 0.3, 0.1, 0.03, 0.01)
 MAX_ESCAPES = 20
 STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton steps in all
-MU_UP, MU_DOWN = 4.0, 0.5
-STEP_TRANS = 0.05         # x L: largest translation of one descent step (Newton step limit)
-STEP_ROT = 0.3            # rad: largest rotation of one descent step
+STEP_TRANS = 0.2          # x L: largest translation of one descent step
+STEP_ROT = 0.5            # rad: largest rotation of one descent step
 
 
 def acceptable(info, settings) -> bool:
@@ -162,52 +161,9 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
         _, state, pe = moved
         from poise.solvers.newton import initial_multipliers
         state = initial_multipliers(model, state, cnt)
-        mu0 = _mu_start(model, state, info, d)
-        mu = mu0
-        out = None
-        # plain Newton from the escaped point first: kept only if it ends at an equilibrium of
-        # lower potential energy than the one left (then it cannot be that one again)
-        pe_left = pe
-        try:
-            st, o = newton(model, state, replace(settings, fallback=False), history, frame, cnt,
-                           event="stable-newton")
-            used += o.iterations
-            if o.ok:
-                dv, pe_n = _energy_drop(model, state, st, cnt, pe)
-                if pe + dv < pe_left:
-                    state, out, pe = st, o, pe + dv
-        except EvaluationError:
-            pass
-        while out is None and used < budget:
-            s_mu = replace(settings, stability=mu * mu, fallback=False, line_search=False,
-                           max_translation_step=min(settings.max_translation_step, STEP_TRANS),
-                           max_rotation_step=min(settings.max_rotation_step, STEP_ROT))
-            try:
-                st, o = newton(model, state, s_mu, history, frame, cnt, max_iter=1,
-                               event=f"stable-descent mu={mu:.3g}")
-            except EvaluationError:
-                o = None
-            used += 1
-            if o is not None and o.ok:
-                state, out = st, o
-                break
-            if o is None or o.status is Status.NONFINITE or o.iterations == 0:
-                mu = max(mu * MU_UP, mu0 * 1e-3)
-                continue
-            try:
-                dv, pe_new = _energy_drop(model, state, st, cnt, pe)
-            except EvaluationError:
-                dv = np.inf
-            scale = 1e-12 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
-            if dv <= scale:
-                state, pe = st, pe_new
-                # a step cut by the step limit: the model is not yet quadratic at this scale
-                # (trust region), so mu is not relaxed
-                mu *= 1.0 if o.error >= 0.98 * STEP_TRANS else MU_DOWN
-                if mu < 1e-10 * mu0:
-                    mu = 0.0
-            else:
-                mu = max(mu * MU_UP, mu0 * 1e-3)
+        state, out, pe, n = descend(model, state, settings, history, frame, cnt,
+                                    budget - used, pe)
+        used += n
         if out is None:
             return state, _fail(used, f"the descent did not reach an equilibrium within its "
                                 f"budget ({budget} = {STEPS_PER_ITER} x max_num_iter steps)"), \
@@ -215,15 +171,115 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
         info = classify_at(state)
 
 
-def _mu_start(model, state, info, d):
-    """A ``mu`` [1/s^2] twice the magnitude of the most negative eigenvalue per unit mass: the
-    eigenvalue [force/length] over the mass of the escape direction ``d`` (Rayleigh quotient
-    of the mass diagonal, both in length coordinates)."""
-    u = d * model.q_scale
-    md = model.mass_diagonal(state) / model.q_scale ** 2
-    m_eff = float(u @ (md * u)) / max(float(u @ u), 1e-300)
-    w = abs(info.min_eigenvalue) if np.isfinite(info.min_eigenvalue) else 1.0
-    return 2.0 * w / max(m_eff, 1e-300)
+def _ic_step(model, state, cnt, sigma):
+    """One inertia-controlled Newton direction at ``state``: ``(K_s + sigma D) dq + G^T y = -r``,
+    ``G dq = -phi`` in the equilibrated length coordinates of
+    :class:`poise.solvers.stability._SparsePencil` (``D`` its diagonal metric), with the
+    smallest ``sigma`` (0, else grown by 8) whose KKT inertia is ``(nq, m, 0)``: the reduced
+    matrix is positive definite and ``dq`` a descent direction of the potential energy.
+    Returns ``(dq, sigma, ev)`` (``dq`` None when no valid factorisation was found)."""
+    from poise.solvers.stability import AUG_RHO, SymmetricLDL, _SparsePencil
+    cnt.residuals += 1
+    cnt.jacobians += 1
+    ev = model.evaluate(state, need_jac=True)
+    P = _SparsePencil(model, ev.J)
+    nq, m = P.nq, P.m
+    r = np.asarray(ev.r, float)[:nq]
+    f = -(P.dq / P.d) * r
+    g = -P.dl * np.asarray(ev.phi, float)[P.rows] if m else np.zeros(0)
+    scale = P.eps / 1e-8                      # spectral radius estimate of Kt
+    sig = 0.0                                 # plain Newton whenever the inertia allows
+    for k in range(40):
+        for rho in AUG_RHO:
+            cnt.factorizations += 1
+            F = SymmetricLDL(P.kkt(-sig, rho), P.order)
+            if F.ok and np.all(np.abs(F.pivots) > 1e-14 * scale):
+                break
+        if F.ok and F.n_negative == m and np.all(np.abs(F.pivots) > 1e-14 * scale):
+            b = np.concatenate([f + rho * (P.Gt.T @ g), g]) if m else f
+            x = F.solve(b)[:nq]
+            if np.all(np.isfinite(x)):
+                return x * P.dq / P.d, sig, ev
+        sig = max(sigma / 4.0, 1e-6 * scale) if k == 0 else 8.0 * sig
+    return None, sig, ev
+
+
+def descend(model, state, settings, history, frame, cnt, budget, pe=None):
+    """Inertia-controlled Newton from ``state`` down to an equilibrium (:func:`_ic_step`
+    directions, an Armijo backtracking on the potential energy of the trial assembled onto the
+    constraints, the Newton polish once a full step with ``sigma = 0`` was taken). The
+    potential energy never increases. Returns ``(state, outcome or None, pe, steps)``."""
+    from poise.solvers.newton import Scales, initial_multipliers, measures
+    sc = Scales(model, settings)
+    if pe is None:
+        pe = potential_energy(model, state)
+    sigma = 0.0
+    steps = 0
+    polish_fail = 0
+    while steps < budget:
+        try:
+            dq, sigma, ev = _ic_step(model, state, cnt, sigma)
+        except EvaluationError:
+            return state, None, pe, steps
+        steps += 1
+        imb, cerr, zinf, worst = measures(model, ev, sc)
+        if dq is None:
+            history.add(frame, steps, imb, cerr, np.nan, np.nan, worst,
+                        "stable-descent: no valid factorisation", pos=state.pos, rot=state.rot)
+            return state, None, pe, steps
+        # step limits (a trust region on the linearisation of the constraints)
+        rot = model.q_kind == 1
+        big = max(float(np.max(np.abs(dq[rot]), initial=0.0)) / STEP_ROT,
+                  float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L), 1.0)
+        dq = dq / big
+        slope = float(np.asarray(ev.r, float)[:model.nq] @ dq)
+        alpha = 1.0
+        accepted = None
+        for _ in range(12):
+            try:
+                x = model.retract(state, alpha * dq)
+                x, _, ast = assemble(model, x, settings, _Quiet(), frame, cnt)
+                if ast.ok:
+                    dv, pe_x = _energy_drop(model, state, x, cnt, pe)
+                    tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
+                    if dv <= 1e-4 * alpha * min(slope, 0.0) + tol:
+                        accepted = (x, pe_x if np.isfinite(pe_x) else pe + dv)
+                        break
+            except EvaluationError:
+                pass
+            alpha *= 0.5
+        history.add(frame, steps, imb, cerr, float(np.max(np.abs(alpha * dq) / sc.q_len)),
+                    alpha if accepted else np.nan, worst,
+                    f"stable-descent sigma={sigma:.3g}", pos=state.pos, rot=state.rot)
+        if zinf <= 1.0 and accepted is None:
+            break                      # at an equilibrium already: the polish certifies it
+        if accepted is None:
+            sigma = max(8.0 * sigma, 1.0) if sigma > 0 else 0.0
+            if sigma == 0.0:
+                return state, None, pe, steps
+            continue
+        state, pe = accepted
+        state = initial_multipliers(model, state, cnt)
+        if sigma == 0.0 and alpha == 1.0 and big == 1.0 and polish_fail < 3:
+            st, o = newton(model, state, replace(settings, fallback=False), history, frame,
+                           cnt, max_iter=min(settings.max_num_iter, 20), event="stable-polish")
+            steps += o.iterations
+            if o.ok:
+                dv, _ = _energy_drop(model, state, st, cnt, pe)
+                if dv <= 1e-9 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0):
+                    return st, o, pe + dv, steps
+            polish_fail += 1
+    st, o = newton(model, state, replace(settings, fallback=False), history, frame, cnt,
+                   max_iter=min(settings.max_num_iter, 20), event="stable-polish")
+    steps += o.iterations
+    return (st, o, pe, steps) if o.ok else (state, None, pe, steps)
+
+
+class _Quiet:
+    """A history that records nothing (assembly of line-search trials)."""
+
+    def add(self, *a, **k):
+        pass
 
 
 def _fail(used, why):
