@@ -197,11 +197,13 @@ def _ic_step(model, state, cnt, sigma):
                 break
         if F.ok and F.n_negative == m and np.all(np.abs(F.pivots) > 1e-14 * scale):
             b = np.concatenate([f + rho * (P.Gt.T @ g), g]) if m else f
-            x = F.solve(b)[:nq]
-            if np.all(np.isfinite(x)):
-                return x * P.dq / P.d, sig, ev
+            sol = F.solve(b)
+            if np.all(np.isfinite(sol)):
+                dlam = np.zeros(model.nc)
+                dlam[P.rows] = P.dl * sol[nq:]
+                return sol[:nq] * P.dq / P.d, sig, ev, dlam
         sig = max(sigma / 4.0, 1e-6 * scale) if k == 0 else 8.0 * sig
-    return None, sig, ev
+    return None, sig, ev, None
 
 
 def descend(model, state, settings, history, frame, cnt, budget, pe=None):
@@ -218,7 +220,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     polish_fail = 0
     while steps < budget:
         try:
-            dq, sigma, ev = _ic_step(model, state, cnt, sigma)
+            dq, sigma, ev, dlam = _ic_step(model, state, cnt, sigma)
         except EvaluationError:
             return state, None, pe, steps
         steps += 1
@@ -259,7 +261,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
                 return state, None, pe, steps
             continue
         state, pe = accepted
-        state = initial_multipliers(model, state, cnt)
+        state.lam = state.lam + alpha * dlam     # the KKT step's multiplier update
         if sigma == 0.0 and alpha == 1.0 and big == 1.0 and polish_fail < 3:
             st, o = newton(model, state, replace(settings, fallback=False), history, frame,
                            cnt, max_iter=min(settings.max_num_iter, 20), event="stable-polish")
