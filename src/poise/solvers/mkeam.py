@@ -88,7 +88,9 @@ PEAK_TOL = 1e-3              # bracket of the peak relative to the step
 POLISH_MAX_DQ = 0.05         # polished point must stay this close (x L / rad)
 PERTURB = 1e-3               # size of the kick off an unstable MKEAM point (x L / rad)
 MAX_PERTURB = 3
-HANDOVER_ITER = 2            # KE iterations before the hand-over to the Newton descent
+HANDOVER_ITER = 1            # KE iterations before the hand-over to the Newton descent
+HANDOVER_NQ = 300            # models with more coordinates cut their first iterations ...
+HANDOVER_CAP = 100           # ... at this many integrator steps before the hand-over
 HANDOVER_STEPS = 2           # its budget: this many x max_num_iter Newton steps
 CONSTRAINT_TOL = 1e-11       # relative position-constraint tolerance in the RATTLE solve
 
@@ -637,8 +639,11 @@ class MkeamAnalysis(StaticAnalysis):
                 return state, Status.MAX_ITERATIONS, (
                     f"MKEAM used its integration budget ({MAX_TOTAL_STEPS} steps) in {it - 1} "
                     "iterations without meeting max_ke_tol / max_dq_tol"), it - 1
+            cap = MAX_STEPS_PER_ITER
+            if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
+                cap = HANDOVER_CAP       # a large model: restart early, then hand over
             peak, steps, h, msg = self._iteration(dyn, state, h,
-                                                  min(MAX_STEPS_PER_ITER, MAX_TOTAL_STEPS - used))
+                                                  min(cap, MAX_TOTAL_STEPS - used))
             used += steps
             if msg and "already at rest" not in msg:
                 self._row(it, np.nan, np.nan, msg, peak, steps, np.nan, "mkeam")
