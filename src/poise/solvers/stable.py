@@ -6,23 +6,28 @@ unstable one, :func:`seek_stable` leaves it and continues by a stability-preserv
 
 1. Escape: the unstable modes of the classification (``StabilityInfo.vectors``, up to six,
    computed by :mod:`poise.solvers.stability`) are combined into one direction; the state moves
-   along it (both signs, amplitudes from ``ESCAPE_ROT`` rad / ``ESCAPE_TRANS`` x L down, each
-   trial assembled onto the constraints) to the first trial that lowers the potential energy.
-2. Descent: Newton steps on ``(K + mu M) dx = -F`` (the ``stability`` term of :func:`newton`,
-   so the residual and hence the equilibrium are unchanged). ``mu`` starts above the magnitude
-   of the most negative eigenvalue (``K + mu M`` positive definite on the constraint manifold:
-   every step is a descent direction), is halved after every step that lowers the potential
-   energy and multiplied by 4 (step rejected) after one that raises it; near the minimum it
-   reaches 0 and the last steps are plain Newton (quadratic). The potential energy therefore
-   never increases, so the walk cannot return to the equilibrium it left.
-3. The equilibrium reached is classified again; still unstable (more negative modes than were
-   described) -> back to 1.
+   along it (both signs, the largest rotation ``ESCAPE_ROT`` rad / translation ``ESCAPE_TRANS``
+   x L, shrunk by ``ESCAPE_SHRINK``; each trial assembled onto the constraints) to the trial of
+   lowest potential energy below the equilibrium's.
+2. Descent (:func:`descend`): inertia-controlled Newton. The KKT matrix of the symmetric
+   tangent stiffness, shifted by ``sigma`` times the diagonal metric of
+   :class:`~poise.solvers.stability._SparsePencil`, is factorised by a sparse ``L D L^T``
+   whose pivot signs give its inertia; ``sigma`` is 0 when the reduced stiffness is positive
+   definite, else grown (x8) until it is. The step is then a descent direction of the
+   potential energy; it is limited (``STEP_ROT`` rad, ``STEP_TRANS`` x L) and backtracked
+   (Armijo) on the potential energy of the trial assembled onto the constraints. Once a full
+   step with ``sigma = 0`` was taken, plain Newton (the deck's settings) polishes; its point is
+   kept only if its energy is not higher. The potential energy never increases, so the walk
+   cannot return to the equilibrium it left.
+3. The equilibrium reached is classified again; still unstable -> back to 1.
 
-Models without a potential energy (non-conservative loads) use the work of the applied
-forces along each step (trapezoidal) as the energy change. Every escape and descent step is a
-row of the iteration history (events ``stable: escape ...``, ``stable-descent mu=...``). The
-budget is ``STEPS_PER_ITER x max_num_iter`` descent steps and ``MAX_ESCAPES`` escapes; past it
-the analysis fails with status ``unstable`` and the last state is written.
+Models without a potential energy (non-conservative loads) use the trapezoidal work of the
+applied forces along each step as the energy change. Every escape and descent step is a row
+of the iteration history (events ``stable: escape k: ...``, ``stable-descent sigma=...``,
+``stable-polish``). The budget is ``STEPS_PER_ITER x max_num_iter`` descent steps and
+``MAX_ESCAPES`` escapes; past it the analysis fails with status ``unstable`` (exit 1) and the
+last state is written. MKEAM uses :func:`descend` as its fast continuation
+(:meth:`poise.solvers.mkeam.MkeamAnalysis._handover`).
 """
 from __future__ import annotations
 
@@ -211,7 +216,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     directions, an Armijo backtracking on the potential energy of the trial assembled onto the
     constraints, the Newton polish once a full step with ``sigma = 0`` was taken). The
     potential energy never increases. Returns ``(state, outcome or None, pe, steps)``."""
-    from poise.solvers.newton import Scales, initial_multipliers, measures
+    from poise.solvers.newton import Scales, measures
     sc = Scales(model, settings)
     if pe is None:
         pe = potential_energy(model, state)
