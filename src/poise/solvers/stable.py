@@ -45,8 +45,9 @@ ESCAPE_TRANS = 0.05       # x L: largest translation of the first escape trial
 ESCAPE_SHRINK = (1.0, 0.3, 0.1, 0.03, 0.01)
 MAX_ESCAPES = 20
 STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton steps in all
-STEP_TRANS = 0.2          # x L: largest translation of one descent step
-STEP_ROT = 0.5            # rad: largest rotation of one descent step
+STEP_TRANS = 0.4          # x L: largest translation of one descent step
+PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial
+STEP_ROT = 1.0            # rad: largest rotation of one descent step
 
 
 def acceptable(info, settings) -> bool:
@@ -245,8 +246,11 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
         for _ in range(12):
             try:
                 x = model.retract(state, alpha * dq)
-                x, _, ast = assemble(model, x, settings, _Quiet(), frame, cnt)
-                if ast.ok:
+                x, ok = _project(model, x, cnt)
+                if not ok:
+                    x, _, ast = assemble(model, x, settings, _Quiet(), frame, cnt)
+                    ok = ast.ok
+                if ok:
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                     tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
                     if dv <= 1e-4 * alpha * min(slope, 0.0) + tol:
@@ -280,6 +284,30 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
                    max_iter=min(settings.max_num_iter, 20), event="stable-polish")
     steps += o.iterations
     return (st, o, pe, steps) if o.ok else (state, None, pe, steps)
+
+
+def _project(model, x, cnt, max_iter=8):
+    """Gauss-Newton projection of a line-search trial onto the constraints to ``PROJECT_TOL``
+    (relative): looser than the assembly's, the end point is polished by Newton to the deck's
+    tolerances. Returns ``(state, ok)``."""
+    from poise.solvers.linalg import SingularMatrix
+    from poise.solvers.newton import _coord_weights, _evaluate, _factor, _jacobian, _weighted_kkt
+    if model.nc == 0:
+        return x, True
+    W = _coord_weights(model)
+    for _ in range(max_iter + 1):
+        ev = _evaluate(model, x, cnt, need_jac="defer")
+        phi = np.where(model.row_active, ev.phi, 0.0)
+        if float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L))) <= PROJECT_TOL:
+            return x, True
+        _jacobian(model, ev, cnt)
+        try:
+            sol = _factor(_weighted_kkt(model, ev, W), cnt).solve(
+                np.concatenate([np.zeros(model.nq), -ev.phi]))
+        except SingularMatrix:
+            return x, False
+        x = model.retract(x, sol[:model.nq])
+    return x, False
 
 
 class _Quiet:
