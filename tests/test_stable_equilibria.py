@@ -168,3 +168,64 @@ def test_settings_validation():
         StaticSettings().updated({"require_stable": "maybe"})
     with pytest.raises(ValueError):
         StaticSettings(require_stable=0.5)
+
+
+# --------------------------------------------------------------------------- four-bar
+def _fourbar_deck(tmp_path, phi):
+    """decks/fourbar_spring.xml with the linkage placed at crank angle ``phi`` (exact loop
+    closure from the closed-form positions of tests/reference.py)."""
+    import re
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import reference as R
+    st = R.fourbar_state(phi)
+    P, cg, O = st["points"], st["cg"], st["orientation"]
+    place = {200: (cg["crank"], O["crank"]), 201: (P["A"], O["crank"]), 202: (P["B"], O["crank"]),
+             300: (cg["coupler"], O["coupler"]), 301: (P["B"], O["coupler"]),
+             302: (P["C"], O["coupler"]),
+             400: (cg["rocker"], O["rocker"]), 401: (P["C"], O["rocker"]),
+             402: (P["D"], O["rocker"])}
+    text = (ROOT / "decks" / "fourbar_spring.xml").read_text()
+
+    def sub(m):
+        mid = int(m.group(1))
+        if mid not in place:
+            return m.group(0)
+        x, R3 = place[mid]
+        attrs = {"pos_x": x[0], "pos_y": x[1], "pos_z": x[2]}
+        attrs.update({f"a{i}{j}": R3[i, j] for i in range(3) for j in range(3)})
+        out = m.group(0)
+        for k, v in attrs.items():
+            out = re.sub(rf'\b{k}="[^"]*"', f'{k}="{float(v)!r}"', out)
+        return out
+
+    text = re.sub(r'<Reference_Marker id="(\d+)"[^>]*/>', sub, text, flags=re.S)
+    p = tmp_path / "fourbar_start.xml"
+    p.write_text(text)
+    return p, R
+
+
+def test_fourbar_from_60_deg_require_stable_and_mkeam(tmp_path):
+    """decks/fourbar_spring.xml started at crank angle 60 deg (from 90 deg Newton happens to
+    reach the minimum on this linkage): Newton lands on the nearer equilibrium, the potential's
+    maximum at 0.533 rad (unstable); --require-stable and MKEAM reach its only minimum. Both found here by a
+    1-DOF scan of dV/dphi (reference.py, complex-step derivative, brentq)."""
+    import math
+    deck, R = _fourbar_deck(tmp_path, math.radians(60.0))
+    mins = R._minima_on_circle(R.fourbar_dV)
+    assert len(mins) == 1
+    ref = R.fourbar_state(mins[0])
+
+    def crank_angle(ar):
+        ids = list(np.asarray(ar.datasets["bodies/id"]))
+        Rc = np.asarray(ar.datasets["bodies/orientation"])[0][ids.index(2)]
+        return math.atan2(Rc[1, 0], Rc[0, 0])
+
+    plain = _solve(deck, method="FIM_S")
+    assert plain.status == "converged"
+    assert str(plain.datasets["frames/stability"][0]) == "unstable"
+    for over in (dict(method="FIM_S", require_stable=True), dict(method="MKEAM")):
+        ar = _solve(deck, **over)
+        assert ar.status == "converged", (over, ar.message)
+        assert str(ar.datasets["frames/stability"][0]) == "stable"
+        d = (crank_angle(ar) - ref["phi"] + math.pi) % (2 * math.pi) - math.pi
+        assert abs(d) <= 1e-6, over
