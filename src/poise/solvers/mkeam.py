@@ -45,6 +45,20 @@ Convergence (``Param_Static``): peak KE of an iteration ``<= max_ke_tol`` and th
 of the state between consecutive restart points ``<= max_dq_tol`` (translations relative to the
 model size L, rotations in radians); ``max_num_iter`` iterations without that = failure.
 
+Hand-over (:meth:`MkeamAnalysis._handover`): the explicit integration's step is set by the
+fastest mode, so its cost explodes with model size. After ``HANDOVER_ITER`` KE iterations (on
+models above ``HANDOVER_NQ`` coordinates the first is cut at ``HANDOVER_CAP`` integrator steps:
+a restart before the peak still only lowers the potential) the descent continues by the
+inertia-controlled Newton of :func:`poise.solvers.stable.descend`: Newton steps on the tangent
+stiffness shifted until its reduction to the constraints is positive definite (inertia of a
+sparse ``L D L^T``), backtracked on the potential energy, so, like the dynamics, it never goes
+uphill; an unstable end point is left along its unstable modes. The point it reaches replaces
+the MKEAM iterations only if it is classified stable (or neutral), its potential energy is not
+above the restart point's, and one KE-attrition iteration from it (history event
+``mkeam-verify``) meets ``max_ke_tol`` and ``max_dq_tol``; otherwise the iterations go on as
+if nothing happened. Either way MKEAM reports only stable equilibria reached downhill from the
+input, and the tolerances keep their meaning. The equilibrium does not depend on the path.
+
 Afterwards a Newton polish (FIM_S Newton; if that fails, once more without the stability term
 and line search, with an equilibrated factorisation: a mode decades softer than the others is out
 of the integration's reach, see :meth:`MkeamAnalysis._polish`) refines the MKEAM point to the
@@ -90,7 +104,7 @@ PERTURB = 1e-3               # size of the kick off an unstable MKEAM point (x L
 MAX_PERTURB = 3
 HANDOVER_ITER = 1            # KE iterations before the hand-over to the Newton descent
 HANDOVER_NQ = 300            # models with more coordinates cut their first iterations ...
-HANDOVER_CAP = 100           # ... at this many integrator steps before the hand-over
+HANDOVER_CAP = 20            # ... at this many integrator steps before the hand-over
 HANDOVER_STEPS = 2           # its budget: this many x max_num_iter Newton steps
 CONSTRAINT_TOL = 1e-11       # relative position-constraint tolerance in the RATTLE solve
 
