@@ -448,7 +448,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-wp", action="store_true",
                     help="skip the issue-7 suites (work-precision, peer, scaling)")
     ap.add_argument("--no-stable", action="store_true",
-                    help="skip the stable-equilibria table (MKEAM, --require-stable)")
+                    help="skip the stable-equilibria table (MKEAM, --require-stable; also "
+                         "skipped with --no-wp)")
     ap.add_argument("--stable-only", action="store_true",
                     help="run only the stable-equilibria table")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
@@ -491,7 +492,8 @@ def main(argv=None) -> int:
             wp_md += md7
             wp_targets += t7
         st_rows = []
-        if not args.no_stable:  # stable equilibria: MKEAM and --require-stable vs FIM_S
+        if args.stable_only or not (args.no_stable or args.no_wp):
+            # stable equilibria: MKEAM and --require-stable vs FIM_S (a long suite, like wp)
             from poise.benchmarks import stable as bench_stable
             st_rows, st_md, st_t = bench_stable.run(
                 tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
