@@ -2,13 +2,15 @@
 """Generate a hanging-chain deck: N identical rigid links pinned to ground at both ends.
 
     python decks/gen_chain.py N --joint revolute|spherical [--span S] [--link-length A]
-                             [--mass M] [-o FILE]
+                             [--mass M] [--start arc|v] [-o FILE]
 
 Units N-kg-mm-s, gravity -9810 mm/s^2 along global -Y. Pins at (0,0,0) and (S,0,0); default span
 S = 0.8 * N * A. The input configuration puts the N+1 pin points on a circular arc with N equal
 chords A (centre above the span): every joint equation holds exactly in the input configuration
 (to printing precision, 17 significant digits), so no assembly is needed. It is *not* the
-equilibrium (the discrete catenary), so the solver has work to do.
+equilibrium (the discrete catenary), so the solver has work to do. ``--start v`` puts the pins on
+a V instead (two straight legs of N//2 and N - N//2 links): Newton from there tends to an
+unstable equilibrium (kinked links), the test case of ``--require-stable`` and MKEAM.
 
 Each link k (1..N) is body k+1 (ground is body 1), a uniform bar of mass M with its CG at
 mid-length. Its markers (CG 10k+1, start pin 10k+2, end pin 10k+3) all have x along the link

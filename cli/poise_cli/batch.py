@@ -55,7 +55,7 @@ def _line(row: dict) -> str:
 @quiet_option
 @json_option
 def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_error,
-          stability, no_fallback, allow_user_code, quiet, as_json):
+          stability, no_fallback, require_stable, allow_neutral, allow_user_code, quiet, as_json):
     """Solve every DECK in parallel local processes.
 
     \b
@@ -71,7 +71,9 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
         write_table
     overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
                                   max_imbalance=max_imbalance, max_error=max_error,
-                                  stability=stability, fallback=False if no_fallback else None)
+                                  stability=stability, fallback=False if no_fallback else None,
+                                  require_stable=True if require_stable else None,
+                                  allow_neutral=allow_neutral)
     command = shlex.join(["poise", *sys.argv[1:]])
 
     def on_row(row):

@@ -5,7 +5,7 @@ import click
 
 #: CLI option name -> ``Param_Static`` attribute name used as override key by poise.api.run_deck
 OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability", "fallback",
-                 "fallback_max_num_iter")
+                 "fallback_max_num_iter", "require_stable", "allow_neutral")
 
 #: ``ctx.meta`` key of ``--fallback-budget`` (kept out of the commands' signatures)
 _FALLBACK_BUDGET = "poise.fallback_max_num_iter"
@@ -76,6 +76,13 @@ def solver_options(f):
                      help="Iterations (Newton, continuation, MKEAM together) the fallback chain "
                           "may spend on one frame after plain Newton failed. Default: "
                           "max_num_iter."),
+        click.option("--require-stable", "require_stable", is_flag=True, default=None,
+                     help="Static analyses succeed only at a stable equilibrium: FIM_S leaves "
+                          "an unstable equilibrium along its negative modes and continues "
+                          "downhill; otherwise exit 1 with status 'unstable'."),
+        click.option("--allow-neutral/--no-allow-neutral", "allow_neutral", default=None,
+                     help="With --require-stable: a neutral equilibrium (free spins) counts as "
+                          "stable (default: allowed)."),
     ]
     for opt in reversed(opts):
         f = opt(f)

@@ -39,8 +39,8 @@ def default_output(deck: str) -> str:
 @json_option
 @debug_option
 def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stability,
-          no_fallback, compliance_markers, compliance_method, allow_user_code, quiet, as_json,
-          debug):
+          no_fallback, require_stable, allow_neutral, compliance_markers, compliance_method,
+          allow_user_code, quiet, as_json, debug):
     """Solve every analysis of DECK and write the results to an HDF5 file.
 
     The file is written even when an analysis fails (exit code 1). Options given here override
@@ -58,7 +58,9 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
     overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
                                   max_imbalance=max_imbalance, max_error=max_error,
                                   stability=stability,
-                                  fallback=False if no_fallback else None)
+                                  fallback=False if no_fallback else None,
+                                  require_stable=True if require_stable else None,
+                                  allow_neutral=allow_neutral)
     if compliance_markers is not None:
         try:
             from poise.solvers.compliance import parse_markers

@@ -42,7 +42,7 @@ from poise_cli.summary import print_json
 @debug_option
 def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs, force,
           max_cases, method, max_num_iter, max_imbalance, max_error, stability, no_fallback,
-          allow_user_code, quiet, as_json, debug):
+          require_stable, allow_neutral, allow_user_code, quiet, as_json, debug):
     """Solve DECK once per combination of --set values on Dask distributed.
 
     \b
@@ -56,7 +56,9 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs
     ctx = click.get_current_context()
     overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
                                   max_imbalance=max_imbalance, max_error=max_error,
-                                  stability=stability, fallback=False if no_fallback else None)
+                                  stability=stability, fallback=False if no_fallback else None,
+                                  require_stable=True if require_stable else None,
+                                  allow_neutral=allow_neutral)
     if n_random is not None:
         mode = "random"
 

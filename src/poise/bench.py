@@ -447,6 +447,11 @@ def main(argv=None) -> int:
                     help="skip the expression benchmark (issue 3)")
     ap.add_argument("--no-wp", action="store_true",
                     help="skip the issue-7 suites (work-precision, peer, scaling)")
+    ap.add_argument("--no-stable", action="store_true",
+                    help="skip the stable-equilibria table (MKEAM, --require-stable; also "
+                         "skipped with --no-wp)")
+    ap.add_argument("--stable-only", action="store_true",
+                    help="run only the stable-equilibria table")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -456,6 +461,8 @@ def main(argv=None) -> int:
     root = Path(__file__).resolve().parents[2]
     machine = machine_info()
     results = []
+    if args.stable_only:
+        args.sizes, args.no_cli, args.no_expr, args.no_wp = "", True, True, True
     with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
         tmp = Path(td)
         for n in [int(x) for x in args.sizes.split(",") if x.strip()]:
@@ -484,12 +491,22 @@ def main(argv=None) -> int:
                                           quick=args.quick)
             wp_md += md7
             wp_targets += t7
+        st_rows = []
+        if args.stable_only or not (args.no_stable or args.no_wp):
+            # stable equilibria: MKEAM and --require-stable vs FIM_S (a long suite, like wp)
+            from poise.benchmarks import stable as bench_stable
+            st_rows, st_md, st_t = bench_stable.run(
+                tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
+            wp_md += st_md
+            wp_targets += st_t
     if args.out:
         p = Path(args.out)
         p.parent.mkdir(parents=True, exist_ok=True)
         with p.open("w") as f:
             for r in results:
                 f.write(json.dumps(dict(r, machine=machine), sort_keys=True) + "\n")
+            for r in st_rows:
+                f.write(json.dumps(dict(r, machine=machine), sort_keys=True, default=float) + "\n")
             for r in wp_rows if not args.no_wp else []:
                 f.write(json.dumps(dict(r, machine=machine), sort_keys=True, default=float) + "\n")
     if args.markdown:

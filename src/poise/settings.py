@@ -53,6 +53,13 @@ class StaticSettings:
         Iterations (Newton, continuation and MKEAM iterations together) the fallback chain may
         spend on one frame after plain Newton used its ``max_num_iter``; None: ``max_num_iter``
         (``--fallback-budget``). A frame costs at most ``max_num_iter + fallback_max_num_iter``.
+    require_stable : bool
+        A static analysis succeeds only at a stable equilibrium (``--require-stable``): FIM_S
+        leaves an unstable equilibrium along its negative modes and continues downhill
+        (solvers/stable.py); an unstable end point is a failure (status ``unstable``).
+    allow_neutral : bool
+        With ``require_stable``: a neutral equilibrium (zero stiffness modes: free spins) counts
+        as stable enough (``--allow-neutral`` / ``--no-allow-neutral``; default allowed).
     """
 
     method: str = "FIM_D"
@@ -70,6 +77,8 @@ class StaticSettings:
     line_search: bool = True
     fallback: bool = True
     fallback_max_num_iter: int | None = None
+    require_stable: bool = False
+    allow_neutral: bool = True
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -90,6 +99,10 @@ class StaticSettings:
             raise ValueError(f"compliance_method must be one of {', '.join(CM)}, "
                              f"got {self.compliance_method!r}")
         object.__setattr__(self, "compliance_method", cm)
+        for name in ("require_stable", "allow_neutral", "line_search", "fallback"):
+            if not isinstance(getattr(self, name), (bool, int)) or isinstance(
+                    getattr(self, name), float):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if int(self.max_num_iter) < 1:
             raise ValueError(f"max_num_iter must be >= 1, got {self.max_num_iter!r}")
         if self.fallback_max_num_iter is not None and int(self.fallback_max_num_iter) < 0:
@@ -115,6 +128,11 @@ class StaticSettings:
                     val = str(val).upper()
                 elif k in ("max_num_iter", "fallback_max_num_iter"):
                     val = int(val)
+                elif k in ("require_stable", "allow_neutral") and isinstance(val, str):
+                    low = val.strip().lower()
+                    if low not in ("true", "false", "yes", "no", "1", "0"):
+                        raise ValueError(f"{k} must be true or false, got {val!r}")
+                    val = low in ("true", "yes", "1")
                 v[k] = val
         return replace(self, **v)
 

@@ -45,6 +45,20 @@ Convergence (``Param_Static``): peak KE of an iteration ``<= max_ke_tol`` and th
 of the state between consecutive restart points ``<= max_dq_tol`` (translations relative to the
 model size L, rotations in radians); ``max_num_iter`` iterations without that = failure.
 
+Hand-over (:meth:`MkeamAnalysis._handover`): the explicit integration's step is set by the
+fastest mode, so its cost explodes with model size. After ``HANDOVER_ITER`` KE iterations (on
+models above ``HANDOVER_NQ`` coordinates the first is cut at ``HANDOVER_CAP`` integrator steps:
+a restart before the peak still only lowers the potential) the descent continues by the
+inertia-controlled Newton of :func:`poise.solvers.stable.descend`: Newton steps on the tangent
+stiffness shifted until its reduction to the constraints is positive definite (inertia of a
+sparse ``L D L^T``), backtracked on the potential energy, so, like the dynamics, it never goes
+uphill; an unstable end point is left along its unstable modes. The point it reaches replaces
+the MKEAM iterations only if it is classified stable (or neutral), its potential energy is not
+above the restart point's, and one KE-attrition iteration from it (history event
+``mkeam-verify``) meets ``max_ke_tol`` and ``max_dq_tol``; otherwise the iterations go on as
+if nothing happened. Either way MKEAM reports only stable equilibria reached downhill from the
+input, and the tolerances keep their meaning. The equilibrium does not depend on the path.
+
 Afterwards a Newton polish (FIM_S Newton; if that fails, once more without the stability term
 and line search, with an equilibrated factorisation: a mode decades softer than the others is out
 of the integration's reach, see :meth:`MkeamAnalysis._polish`) refines the MKEAM point to the
@@ -88,6 +102,10 @@ PEAK_TOL = 1e-3              # bracket of the peak relative to the step
 POLISH_MAX_DQ = 0.05         # polished point must stay this close (x L / rad)
 PERTURB = 1e-3               # size of the kick off an unstable MKEAM point (x L / rad)
 MAX_PERTURB = 3
+HANDOVER_ITER = 1            # KE iterations before the hand-over to the Newton descent
+HANDOVER_NQ = 300            # models with more coordinates cut their first iterations ...
+HANDOVER_CAP = 20            # ... at this many integrator steps before the hand-over
+HANDOVER_STEPS = 2           # its budget: this many x max_num_iter Newton steps
 CONSTRAINT_TOL = 1e-11       # relative position-constraint tolerance in the RATTLE solve
 
 
@@ -270,6 +288,7 @@ class MkeamAnalysis(StaticAnalysis):
         self.rows = []          # per-history-row MKEAM extras (row index, dict)
         self.extras_free = False  # scalar unknowns MKEAM cannot determine (see _resolve_extras)
         self.iterates = []      # restart points (pos, rot)
+        self.handover_tried = False
 
     # ------------------------------------------------------------------ integrator
     def _step(self, dyn, a: _Point, h):
@@ -637,8 +656,11 @@ class MkeamAnalysis(StaticAnalysis):
                 return state, Status.MAX_ITERATIONS, (
                     f"MKEAM used its integration budget ({MAX_TOTAL_STEPS} steps) in {it - 1} "
                     "iterations without meeting max_ke_tol / max_dq_tol"), it - 1
+            cap = MAX_STEPS_PER_ITER
+            if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
+                cap = HANDOVER_CAP       # a large model: restart early, then hand over
             peak, steps, h, msg = self._iteration(dyn, state, h,
-                                                  min(MAX_STEPS_PER_ITER, MAX_TOTAL_STEPS - used))
+                                                  min(cap, MAX_TOTAL_STEPS - used))
             used += steps
             if msg and "already at rest" not in msg:
                 self._row(it, np.nan, np.nan, msg, peak, steps, np.nan, "mkeam")
@@ -654,6 +676,12 @@ class MkeamAnalysis(StaticAnalysis):
             self._row(it, ke, dq, "", peak, steps, pe, "mkeam")
             self.iterates.append((new.pos.copy(), new.rot.copy()))
             state = new
+            if (it >= HANDOVER_ITER and not (ke <= s.max_ke_tol and dq <= s.max_dq_tol)
+                    and not self.handover_tried and not m.n_extra):
+                self.handover_tried = True
+                fast = self._handover(state, h)
+                if fast is not None:
+                    return fast, Status.CONVERGED, "", it
             if ke <= s.max_ke_tol and dq <= s.max_dq_tol:
                 lam_state = initial_multipliers(m, state, self.counters)
                 wmin, vec = self.projected_stiffness_min(lam_state)
@@ -670,6 +698,50 @@ class MkeamAnalysis(StaticAnalysis):
         return state, Status.MAX_ITERATIONS, (
             "MKEAM did not converge within max_num_iter iterations (raise max_num_iter or loosen "
             "max_ke_tol / max_dq_tol)"), s.max_num_iter
+
+    def _handover(self, state, h):
+        """Newton-speed continuation of the descent from the restart point ``state``: the
+        inertia-controlled Newton of :func:`poise.solvers.stable.descend` (potential energy
+        non-increasing, steps on a positive-definite reduced stiffness), unstable end points left
+        along their negative modes (:func:`~poise.solvers.stable.seek_stable`). The point is
+        taken only if it is stable (neutral allowed) by the classification, its potential energy
+        is not above ``state``'s, and one KE-attrition iteration from it (event
+        ``mkeam-verify``) meets ``max_ke_tol`` and ``max_dq_tol``. Returns it or None (MKEAM
+        iterations continue from ``state`` as if nothing happened)."""
+        from dataclasses import replace as _replace
+
+        from poise.solvers.stability import classify
+        from poise.solvers.stable import descend, seek_stable
+        m, s = self.model, self.settings
+        s_any = _replace(s, allow_neutral=True)
+        pe0 = self.potential_energy(state)
+        try:
+            st = initial_multipliers(m, state, self.counters)
+            self.history.add(0, 0, np.nan, np.nan, event="mkeam: handover to the "
+                             "inertia-controlled Newton descent")
+            st, out, _, _ = descend(m, st, s_any, self.history, 0, self.counters,
+                                    HANDOVER_STEPS * s.max_num_iter)
+            if out is None:
+                return None
+            info = classify(m, st)
+            if info.klass == "unstable":
+                st, out, info, _ = seek_stable(m, st, s_any, self.history, 0, self.counters,
+                                               info, lambda x: classify(m, x))
+            if not out.ok or info.klass not in ("stable", "neutral"):
+                return None
+            pe1 = self.potential_energy(st)
+            if np.isfinite(pe0) and np.isfinite(pe1) and pe1 > pe0 + 1e-9 * max(abs(pe0), 1.0):
+                return None
+            peak, steps, _, msg = self._iteration(self.dyn, st, h, MAX_STEPS_PER_ITER)
+            ke, dq = peak.ke, self._dq(st, peak.state)
+            self.history.add(0, 0, np.nan, dq, dq, np.nan, msg, "mkeam-verify")
+            if msg and "already at rest" not in msg:
+                return None
+            if not (ke <= s.max_ke_tol and dq <= s.max_dq_tol):
+                return None
+            return st
+        except (EvaluationError, SingularMatrix, ValueError, ArithmeticError):
+            return None
 
     def _row(self, it, ke, dq, worst, peak, steps, pe, event):
         self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event)

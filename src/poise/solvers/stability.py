@@ -69,7 +69,7 @@ down (9998 unstable modes) ~1 s; the spherical chain (10 000 neutral spins) ~0.9
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -134,6 +134,9 @@ class StabilityInfo:
     modes: str                 # human-readable description of negative and zero modes
     min_eigenvalue: float      # smallest eigenvalue of the reduced stiffness [force/length]
     mode_list: tuple = ()      # the described modes as numbers (Mode), unstable first
+    # the described unstable modes as vectors in model tangent coordinates (solvers/stable.py
+    # leaves an unstable equilibrium along them); not part of the outputs
+    vectors: tuple = field(default=(), compare=False, repr=False)
 
 
 def sign_normalised(a) -> np.ndarray:
@@ -166,7 +169,7 @@ def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo
         if extra > 0:
             texts.append(f"{label}: ... {extra} more")
     return StabilityInfo(klass, int(n_neg), int(n_zero), "; ".join(texts), float(wmin),
-                         tuple(modes))
+                         tuple(modes), tuple(np.asarray(q, float) for q, _ in unstable[:N_MODES]))
 
 
 def classify(model, state, J=None) -> StabilityInfo:
@@ -446,6 +449,7 @@ class _SparsePencil:
         Ks = _prune_noise(((Ku + Ku.T) * 0.5).tocsr())
         G = (J[nq:, :nq][np.nonzero(model.row_active)[0]] @ Di).tocsr()
         self.G_active = G                 # active rows, length-scaled (dependent-row check)
+        self.rows = np.nonzero(model.row_active)[0]     # constraint rows of Gt (model indices)
         if G.shape[0]:
             # a numerically empty row does not constrain anything (the dense SVD's rcond);
             # ``drop``: active rows found dependent at this configuration
@@ -453,11 +457,12 @@ class _SparsePencil:
             keep = rn > 1e-10 * rn.max()
             keep[np.asarray(drop, np.int64)] = False
             G = G[keep]
+            self.rows = self.rows[keep]
         dq, dl = _equilibrate(Ks, G)
         self.Kt = (sp.diags(dq) @ Ks @ sp.diags(dq)).tocsr()
         self.Gt = (sp.diags(dl) @ G @ sp.diags(dq)).tocsr()
         self.GtG = (self.Gt.T @ self.Gt).tocsr()
-        self.Ks, self.d, self.dq = Ks, d, dq
+        self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
         self.nq, self.m = nq, self.Gt.shape[0]
         self.order = _kkt_order(model, self.Kt, self.Gt, self.GtG)
         # zero threshold: ZERO_REL of the spectral radius of Kt (an upper bound of the reduced

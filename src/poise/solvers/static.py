@@ -5,6 +5,8 @@ as the specification says.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from poise.errors import EvaluationError
@@ -76,6 +78,8 @@ class StaticAnalysis:
             else:
                 state = initial_multipliers(model, state, self.counters)
                 state, out = solve_frame(model, state, s, self.history, 0, self.counters)
+                if out.ok and s.require_stable:
+                    state, out = self._require_stable(state, out, notes)
         except EvaluationError as e:
             if self.redundancy is None:
                 self.redundancy = np.zeros(0, int)
@@ -88,6 +92,8 @@ class StaticAnalysis:
         ar.datasets.update(self.frame_datasets(state, [out]))     # certifies ``out``
         ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
         ar.message = "; ".join([out.message] + notes)
+        from poise.solvers.stable import require_stable_check
+        require_stable_check(ar, out, s)
         ar.datasets.update(stack_frames([frame_outputs(model, state)]))
         from poise.solvers.compliance import attach     # after frame_datasets (stability)
         attach(ar, model, [state], [out], self.redundancy, s)
@@ -96,6 +102,21 @@ class StaticAnalysis:
         ar.attrs.update(strategy_attrs(ar.datasets))
         ar.datasets.update(self.redundancy_datasets())
         return state, ar
+
+    def _require_stable(self, state, out, notes):
+        """``require_stable``: classify the converged point; unstable -> continue downhill to a
+        stable equilibrium (:func:`poise.solvers.stable.seek_stable`)."""
+        from poise.solvers.stability import classify
+        from poise.solvers.stable import acceptable, seek_stable
+        model, s = self.model, self.settings
+        info = classify(model, state)
+        if acceptable(info, s) or info.klass != "unstable":
+            return state, out        # judged on the output classification
+        st, o, _, note = seek_stable(model, state, s, self.history, 0, self.counters, info,
+                                     lambda x: classify(model, x))
+        if note:
+            notes.append(note)
+        return st, replace(o, iterations=out.iterations + o.iterations)
 
     # ------------------------------------------------------------------ outputs
     def frame_datasets(self, state, outcomes, on_eval=None):

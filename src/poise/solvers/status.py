@@ -15,6 +15,7 @@ class Status(str, Enum):
     INCONSISTENT_CONSTRAINTS = "inconsistent_constraints"
     TOLERANCE_NOT_MET = "tolerance_not_met"
     NO_EQUILIBRIUM = "no_equilibrium"
+    UNSTABLE = "unstable"
 
     @property
     def ok(self) -> bool:
@@ -37,4 +38,5 @@ MESSAGES = {
     Status.TOLERANCE_NOT_MET: "the result does not meet the Param_Static tolerances",
     Status.NO_EQUILIBRIUM: "no equilibrium exists (a direction without stiffness carries a "
                            "load); the fallback chain was not tried",
+    Status.UNSTABLE: "no stable equilibrium reached (--require-stable)",
 }

@@ -1,0 +1,322 @@
+"""``--require-stable``: from an unstable equilibrium, continue downhill to a stable one.
+
+Newton (FIM_S) converges to whichever equilibrium is near, stable or not. When the static
+analysis is asked for a stable equilibrium (``require_stable``) and Newton stopped at an
+unstable one, :func:`seek_stable` leaves it and continues by a stability-preserving Newton:
+
+1. Escape: the unstable modes of the classification (``StabilityInfo.vectors``, up to six,
+   computed by :mod:`poise.solvers.stability`) are combined into one direction; the state moves
+   along it (both signs, the largest rotation ``ESCAPE_ROT`` rad / translation ``ESCAPE_TRANS``
+   x L, shrunk by ``ESCAPE_SHRINK``; each trial assembled onto the constraints) to the trial of
+   lowest potential energy below the equilibrium's.
+2. Descent (:func:`descend`): inertia-controlled Newton. The KKT matrix of the symmetric
+   tangent stiffness, shifted by ``sigma`` times the diagonal metric of
+   :class:`~poise.solvers.stability._SparsePencil`, is factorised by a sparse ``L D L^T``
+   whose pivot signs give its inertia; ``sigma`` is 0 when the reduced stiffness is positive
+   definite, else grown (x8) until it is. The step is then a descent direction of the
+   potential energy; it is limited (``STEP_ROT`` rad, ``STEP_TRANS`` x L) and backtracked
+   (Armijo) on the potential energy of the trial assembled onto the constraints. Once a full
+   step with ``sigma = 0`` was taken, plain Newton (the deck's settings) polishes; its point is
+   kept only if its energy is not higher. The potential energy never increases, so the walk
+   cannot return to the equilibrium it left.
+3. The equilibrium reached is classified again; still unstable -> back to 1.
+
+Models without a potential energy (non-conservative loads) use the trapezoidal work of the
+applied forces along each step as the energy change. Every escape and descent step is a row
+of the iteration history (events ``stable: escape k: ...``, ``stable-descent sigma=...``,
+``stable-polish``). The budget is ``STEPS_PER_ITER x max_num_iter`` descent steps and
+``MAX_ESCAPES`` escapes; past it the analysis fails with status ``unstable`` (exit 1) and the
+last state is written. MKEAM uses :func:`descend` as its fast continuation
+(:meth:`poise.solvers.mkeam.MkeamAnalysis._handover`).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+
+from poise.errors import EvaluationError
+from poise.solvers.newton import FrameOutcome, assemble, newton
+from poise.solvers.status import Status
+
+ESCAPE_ROT = 0.3          # rad: largest rotation of the first escape trial
+ESCAPE_TRANS = 0.05       # x L: largest translation of the first escape trial
+ESCAPE_SHRINK = (1.0, 0.3, 0.1, 0.03, 0.01)
+MAX_ESCAPES = 20
+STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton steps in all
+STEP_TRANS = 0.4          # x L: largest translation of one descent step
+PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial
+STEP_ROT = 1.0            # rad: largest rotation of one descent step
+
+
+def acceptable(info, settings) -> bool:
+    """Is the classification good enough for ``require_stable``: ``stable``, or ``neutral``
+    when ``allow_neutral``."""
+    return info.klass == "stable" or (info.klass == "neutral" and settings.allow_neutral)
+
+
+def require_stable_check(ar, out, settings):
+    """After a static analysis' datasets are written: with ``require_stable``, a converged
+    frame whose classification is not :func:`acceptable` fails (status ``unstable``, exit 1;
+    the results are written as they are)."""
+    if not settings.require_stable or not out.ok:
+        return
+    klass = str(ar.datasets["frames/stability"][0])
+    if klass == "stable" or (klass == "neutral" and settings.allow_neutral):
+        return
+    why = f"the equilibrium found is {klass}"
+    if klass == "neutral":
+        why += " and --no-allow-neutral was given"
+    elif klass == "unknown":
+        why += " (its stability could not be established)"
+    out.status = Status.UNSTABLE
+    ar.datasets["frames/converged"] = np.array([False])
+    ar.datasets["frames/status"] = np.array([Status.UNSTABLE.value], dtype=str)
+    ar.status = "failed"
+    ar.message = "no stable equilibrium reached (--require-stable): " + why + "; " + ar.message
+
+
+def potential_energy(model, state) -> float:
+    """Potential energy of gravity and conservative elements (NaN if one is not conservative)."""
+    from poise.solvers.mkeam import MkeamAnalysis
+    return MkeamAnalysis.potential_energy(SimpleNamespace(model=model), state)
+
+
+def _energy_drop(model, a, b, cnt, pa=None):
+    """``V(b) - V(a)`` (potential energy, or minus the trapezoidal work of the applied forces
+    along the tangent difference when the model has no potential). Returns (dV, V(b))."""
+    pb = potential_energy(model, b)
+    if pa is None:
+        pa = potential_energy(model, a)
+    if np.isfinite(pa) and np.isfinite(pb):
+        return pb - pa, pb
+    dq = model.local_difference(a, b)
+    # residual r = -Q + G^T lam: its projection on a constraint-respecting step is -Q . dq
+    ra = np.asarray(model.evaluate(a, need_jac=False).r).ravel()[:model.nq]
+    rb = np.asarray(model.evaluate(b, need_jac=False).r).ravel()[:model.nq]
+    cnt.residuals += 2
+    return 0.5 * float((ra + rb) @ dq), np.nan
+
+
+def _escape_direction(model, info):
+    vs = [np.asarray(v, float) for v in info.vectors if np.all(np.isfinite(v))]
+    if not vs:
+        return None
+    d = np.zeros(model.nq)
+    for v in vs:
+        n = float(np.max(np.abs(v * model.q_scale)))
+        if n > 0:
+            d += v / n
+    # unit: the largest rotation 1 rad / translation 1 L
+    rot = model.q_kind == 1
+    sr = float(np.max(np.abs(d[rot]))) if np.any(rot) else 0.0
+    st = float(np.max(np.abs(d[~rot]))) / model.L if np.any(~rot) else 0.0
+    s = max(sr / ESCAPE_ROT, st / ESCAPE_TRANS)
+    return d / s if s > 0 else None
+
+
+def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
+    """Continue from the unstable equilibrium ``state`` (classification ``info``) to a stable
+    one. ``classify_at(state) -> StabilityInfo``. Returns ``(state, outcome, info, note)``;
+    ``outcome.ok`` only at an equilibrium whose classification is :func:`acceptable`."""
+    budget = STEPS_PER_ITER * settings.max_num_iter
+    used = 0
+    escapes = 0
+    pe = potential_energy(model, state)
+    while True:
+        if acceptable(info, settings):
+            note = (f"--require-stable: left {escapes} unstable equilibri"
+                    f"{'um' if escapes == 1 else 'a'} downhill ({used} descent steps) to a "
+                    f"{info.klass} one")
+            return state, FrameOutcome(Status.CONVERGED, used, np.nan, np.nan, "converged"), info, note
+        if info.klass != "unstable":
+            why = (f"the equilibrium reached is {info.klass}" +
+                   (" and --no-allow-neutral was given" if info.klass == "neutral" else "") +
+                   (f" ({info.modes})" if info.modes else ""))
+            return state, _fail(used, why), info, ""
+        if escapes >= MAX_ESCAPES or used >= budget:
+            return state, _fail(used, f"still unstable ({info.n_negative} negative modes) after "
+                                f"{escapes} escapes and {used} descent steps (budget "
+                                f"{budget} = {STEPS_PER_ITER} x max_num_iter)"), info, ""
+        d = _escape_direction(model, info)
+        if d is None:
+            return state, _fail(used, "unstable, and no unstable mode vector to leave it along"), \
+                info, ""
+        escapes += 1
+        history.add(frame, 0, np.nan, np.nan, event=f"stable: escape {escapes}: unstable "
+                    f"({info.n_negative} negative modes)")
+        moved = None
+        for f in ESCAPE_SHRINK:
+            for sgn in (1.0, -1.0):
+                try:
+                    x = model.retract(state, sgn * f * d)
+                    x, _, ast = assemble(model, x, settings, history, frame, cnt)
+                    if not ast.ok:
+                        continue
+                    dv, pe_x = _energy_drop(model, state, x, cnt, pe)
+                except EvaluationError:
+                    continue
+                if dv < 0 and (moved is None or dv < moved[0]):
+                    moved = (dv, x, pe_x)
+            if moved is not None:
+                break
+        if moved is None:
+            return state, _fail(used, "unstable, and no move along its unstable modes lowers "
+                                "the potential energy"), info, ""
+        _, state, pe = moved
+        from poise.solvers.newton import initial_multipliers
+        state = initial_multipliers(model, state, cnt)
+        state, out, pe, n = descend(model, state, settings, history, frame, cnt,
+                                    budget - used, pe)
+        used += n
+        if out is None:
+            return state, _fail(used, f"the descent did not reach an equilibrium within its "
+                                f"budget ({budget} = {STEPS_PER_ITER} x max_num_iter steps)"), \
+                info, ""
+        info = classify_at(state)
+
+
+def _ic_step(model, state, cnt, sigma):
+    """One inertia-controlled Newton direction at ``state``: ``(K_s + sigma D) dq + G^T y = -r``,
+    ``G dq = -phi`` in the equilibrated length coordinates of
+    :class:`poise.solvers.stability._SparsePencil` (``D`` its diagonal metric), with the
+    smallest ``sigma`` (0, else grown by 8) whose KKT inertia is ``(nq, m, 0)``: the reduced
+    matrix is positive definite and ``dq`` a descent direction of the potential energy.
+    Returns ``(dq, sigma, ev)`` (``dq`` None when no valid factorisation was found)."""
+    from poise.solvers.stability import AUG_RHO, SymmetricLDL, _SparsePencil
+    cnt.residuals += 1
+    cnt.jacobians += 1
+    ev = model.evaluate(state, need_jac=True)
+    P = _SparsePencil(model, ev.J)
+    nq, m = P.nq, P.m
+    r = np.asarray(ev.r, float)[:nq]
+    f = -(P.dq / P.d) * r
+    g = -P.dl * np.asarray(ev.phi, float)[P.rows] if m else np.zeros(0)
+    scale = P.eps / 1e-8                      # spectral radius estimate of Kt
+    sig = 0.0                                 # plain Newton whenever the inertia allows
+    for k in range(40):
+        for rho in AUG_RHO:
+            cnt.factorizations += 1
+            F = SymmetricLDL(P.kkt(-sig, rho), P.order)
+            if F.ok and np.all(np.abs(F.pivots) > 1e-14 * scale):
+                break
+        if F.ok and F.n_negative == m and np.all(np.abs(F.pivots) > 1e-14 * scale):
+            b = np.concatenate([f + rho * (P.Gt.T @ g), g]) if m else f
+            sol = F.solve(b)
+            if np.all(np.isfinite(sol)):
+                dlam = np.zeros(model.nc)
+                dlam[P.rows] = P.dl * sol[nq:]
+                return sol[:nq] * P.dq / P.d, sig, ev, dlam
+        sig = max(sigma / 4.0, 1e-6 * scale) if k == 0 else 8.0 * sig
+    return None, sig, ev, None
+
+
+def descend(model, state, settings, history, frame, cnt, budget, pe=None):
+    """Inertia-controlled Newton from ``state`` down to an equilibrium (:func:`_ic_step`
+    directions, an Armijo backtracking on the potential energy of the trial assembled onto the
+    constraints, the Newton polish once a full step with ``sigma = 0`` was taken). The
+    potential energy never increases. Returns ``(state, outcome or None, pe, steps)``."""
+    from poise.solvers.newton import Scales, measures
+    sc = Scales(model, settings)
+    if pe is None:
+        pe = potential_energy(model, state)
+    sigma = 0.0
+    steps = 0
+    polish_fail = 0
+    while steps < budget:
+        try:
+            dq, sigma, ev, dlam = _ic_step(model, state, cnt, sigma)
+        except EvaluationError:
+            return state, None, pe, steps
+        steps += 1
+        imb, cerr, zinf, worst = measures(model, ev, sc)
+        if dq is None:
+            history.add(frame, steps, imb, cerr, np.nan, np.nan, worst,
+                        "stable-descent: no valid factorisation", pos=state.pos, rot=state.rot)
+            return state, None, pe, steps
+        # step limits (a trust region on the linearisation of the constraints)
+        rot = model.q_kind == 1
+        big = max(float(np.max(np.abs(dq[rot]), initial=0.0)) / STEP_ROT,
+                  float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L), 1.0)
+        dq = dq / big
+        slope = float(np.asarray(ev.r, float)[:model.nq] @ dq)
+        alpha = 1.0
+        accepted = None
+        for _ in range(12):
+            try:
+                x = model.retract(state, alpha * dq)
+                x, ok = _project(model, x, cnt)
+                if not ok:
+                    x, _, ast = assemble(model, x, settings, _Quiet(), frame, cnt)
+                    ok = ast.ok
+                if ok:
+                    dv, pe_x = _energy_drop(model, state, x, cnt, pe)
+                    tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
+                    if dv <= 1e-4 * alpha * min(slope, 0.0) + tol:
+                        accepted = (x, pe_x if np.isfinite(pe_x) else pe + dv)
+                        break
+            except EvaluationError:
+                pass
+            alpha *= 0.5
+        history.add(frame, steps, imb, cerr, float(np.max(np.abs(alpha * dq) / sc.q_len)),
+                    alpha if accepted else np.nan, worst,
+                    f"stable-descent sigma={sigma:.3g}", pos=state.pos, rot=state.rot)
+        if zinf <= 1.0 and accepted is None:
+            break                      # at an equilibrium already: the polish certifies it
+        if accepted is None:
+            sigma = max(8.0 * sigma, 1.0) if sigma > 0 else 0.0
+            if sigma == 0.0:
+                return state, None, pe, steps
+            continue
+        state, pe = accepted
+        state.lam = state.lam + alpha * dlam     # the KKT step's multiplier update
+        if sigma == 0.0 and alpha == 1.0 and big == 1.0 and polish_fail < 3:
+            st, o = newton(model, state, replace(settings, fallback=False), history, frame,
+                           cnt, max_iter=min(settings.max_num_iter, 20), event="stable-polish")
+            steps += o.iterations
+            if o.ok:
+                dv, _ = _energy_drop(model, state, st, cnt, pe)
+                if dv <= 1e-9 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0):
+                    return st, o, pe + dv, steps
+            polish_fail += 1
+    st, o = newton(model, state, replace(settings, fallback=False), history, frame, cnt,
+                   max_iter=min(settings.max_num_iter, 20), event="stable-polish")
+    steps += o.iterations
+    return (st, o, pe, steps) if o.ok else (state, None, pe, steps)
+
+
+def _project(model, x, cnt, max_iter=8):
+    """Gauss-Newton projection of a line-search trial onto the constraints to ``PROJECT_TOL``
+    (relative): looser than the assembly's, the end point is polished by Newton to the deck's
+    tolerances. Returns ``(state, ok)``."""
+    from poise.solvers.linalg import SingularMatrix
+    from poise.solvers.newton import _coord_weights, _evaluate, _factor, _jacobian, _weighted_kkt
+    if model.nc == 0:
+        return x, True
+    W = _coord_weights(model)
+    for _ in range(max_iter + 1):
+        ev = _evaluate(model, x, cnt, need_jac="defer")
+        phi = np.where(model.row_active, ev.phi, 0.0)
+        if float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L))) <= PROJECT_TOL:
+            return x, True
+        _jacobian(model, ev, cnt)
+        try:
+            sol = _factor(_weighted_kkt(model, ev, W), cnt).solve(
+                np.concatenate([np.zeros(model.nq), -ev.phi]))
+        except SingularMatrix:
+            return x, False
+        x = model.retract(x, sol[:model.nq])
+    return x, False
+
+
+class _Quiet:
+    """A history that records nothing (assembly of line-search trials)."""
+
+    def add(self, *a, **k):
+        pass
+
+
+def _fail(used, why):
+    return FrameOutcome(Status.UNSTABLE, used, np.nan, np.nan,
+                        "no stable equilibrium reached (--require-stable): " + why)
