@@ -49,9 +49,10 @@ def test_plot_png_sizes(results, tmp_path):
     r = _inv("plot", results["qs_slider_crank_rev"], "--out", png, "--json", "--bodies", "2,3",
              "--joints", "1")
     info = json.loads(r.stdout)
-    assert info["panels"] == ["convergence", "bodies/position", "joints/force"]
+    # quasi-static: per-frame convergence + a short iterations-per-frame panel (0.55 height)
+    assert info["panels"] == ["convergence", "iterations", "bodies/position", "joints/force"]
     with Image.open(png) as im:
-        assert im.size == (800, 960)
+        assert im.size == (800, 1136)
     # usage errors: unknown id, not a results file
     assert _inv("plot", results["qs_slider_crank_rev"], "--out", png, "--bodies", "99").exit_code == 2
     bad = tmp_path / "x.h5"

@@ -63,14 +63,16 @@ def results_or_usage(path: str) -> None:
 @json_option
 @debug_option
 def plot(results, out, analysis, bodies, joints, requests, quiet, as_json, debug):
-    """Plot the convergence history of RESULTS (imbalance and error per iteration, log scale,
-    frame starts marked; MKEAM kinetic energy per iteration) and, for quasi-static runs, time
-    histories of body positions, joint forces and request channels."""
+    """Plot the convergence of RESULTS (static: imbalance and error per iteration, log scale;
+    quasi-static: the final imbalance/error of each frame against time with the tolerance lines,
+    and iterations per frame; MKEAM kinetic energy per iteration) and, for quasi-static runs,
+    time histories of body positions, joint forces and request channels. Axes carry the deck's
+    units; legends name bodies by their deck label."""
     ctx = click.get_current_context()
     out = out or str(Path(results).with_suffix(".png"))
     def make():
-        from poise.plot import plot_results
-        return plot_results(results, out, analysis=analysis, bodies=bodies, joints=joints,
+        from poise.plot import write_plot
+        return write_plot(results, out, analysis=analysis, bodies=bodies, joints=joints,
                             requests=requests)
 
     run_picture(ctx, results, make, as_json, debug, quiet,
