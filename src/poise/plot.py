@@ -176,7 +176,7 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
                         label="frame not converged")
         _tolerances(ax, a)
         ax.set_xlabel(tlab)
-        ax.set_ylabel("scaled residual (dimensionless)")
+        ax.set_ylabel(f"imbalance [{U['force']}, {U['torque']}], error [1]")
         ax.set_title(title, fontsize=9)
         ax.legend(fontsize=8, loc="best")
         ax2 = axes[1]
@@ -199,7 +199,7 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
         _tolerances(ax, a)
         ax.set_xlabel("iteration")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.set_ylabel("scaled residual (dimensionless)")
+        ax.set_ylabel(f"imbalance [{U['force']}, {U['torque']}], error [1]")
         ax.set_title(title, fontsize=9)
         if len(imb) or len(err):
             ax.legend(fontsize=8)
