@@ -14,6 +14,8 @@ import contextlib
 import os
 import sys
 
+from poise.run_warnings import collected_warnings  # noqa: F401 - the commands' one recorder
+
 
 def _flush_all() -> None:
     """Flush Python's stdout and every C stdio stream (text a native library buffered)."""
@@ -51,25 +53,3 @@ def guarded_stdout(quiet: bool = False):
         _flush_all()
         os.dup2(saved, 1)
         os.close(saved)
-
-
-@contextlib.contextmanager
-def collected_warnings():
-    """Record Python warnings raised inside the block; yields the list of unique messages.
-
-    Each message reads ``RuntimeWarning: overflow encountered in matmul (newton.py:89)``; a
-    message repeated (same category and text) is kept once, with its first place.
-    """
-    import warnings
-    seen: list[str] = []
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("default")
-        try:
-            yield seen
-        finally:
-            keys = set()
-            for w in caught:
-                key = f"{w.category.__name__}: {' '.join(str(w.message).split())}"
-                if key not in keys:
-                    keys.add(key)
-                    seen.append(f"{key} ({os.path.basename(str(w.filename))}:{w.lineno})")

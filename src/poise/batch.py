@@ -164,17 +164,12 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str,
               allow_user_code: bool = False) -> dict:
     """Solve one deck and write its results file (runs in a worker process)."""
     from poise.errors import DeckError
-    import warnings
+    from poise.run_warnings import collected_warnings
     try:
         from poise.api import run_deck
-        with warnings.catch_warnings(record=True) as caught:   # numpy warnings: run warnings
-            warnings.simplefilter("default")
+        with collected_warnings() as numeric:          # numpy warnings: run warnings
             res = run_deck(deck, overrides, command=command, allow_user_code=allow_user_code)
-        numeric: dict = {}
-        for w in caught:        # once per category and text, with the first place
-            numeric.setdefault(f"{w.category.__name__}: {' '.join(str(w.message).split())}",
-                               f" ({os.path.basename(str(w.filename))}:{w.lineno})")
-        res.warnings = list(res.warnings) + [k + v for k, v in numeric.items()]
+        res.warnings = list(res.warnings) + numeric
     except DeckError as e:
         problems = [str(p) for p in e.problems] or [str(e)]
         return _row(deck, None, status="invalid_deck", exit_code=3,

@@ -374,18 +374,13 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
         spec, extra = apply_case(base, params, values)
         validate(spec)
         spec.warnings = list(base.warnings)
-        import warnings
+        from poise.run_warnings import collected_warnings
         from poise.runner import run_spec
-        with warnings.catch_warnings(record=True) as caught:   # numpy warnings: run warnings
-            warnings.simplefilter("default")
+        with collected_warnings() as numeric:          # numpy warnings: run warnings
             res = run_spec(spec, {**(overrides or {}), **extra},
                            command=f"poise sweep case {index}: {json.dumps(values, default=str)}",
                            allow_user_code=allow_user_code)
-        numeric: dict = {}
-        for w in caught:        # once per category and text, with the first place
-            numeric.setdefault(f"{w.category.__name__}: {' '.join(str(w.message).split())}",
-                               f" ({os.path.basename(str(w.filename))}:{w.lineno})")
-        res.warnings = list(res.warnings) + [k + v for k, v in numeric.items()]
+        res.warnings = list(res.warnings) + numeric
     except DeckError as e:
         problems = [str(p) for p in e.problems] or [str(e)]
         row.update(status="invalid_deck", exit_code=3, message="; ".join(problems))
