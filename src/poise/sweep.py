@@ -366,14 +366,12 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
     """Solve one case and write its results file; return its index row (a Dask task).
     ``allow_user_code``: run the deck's Python user routines (in the worker)."""
     from poise.batch import result_stats
-    from poise.deck.validate import validate
     from poise.errors import DeckError
     row = {"case": index, "file": None, **values}
     try:
         base = _spec_from_bytes(data, path)
         spec, extra = apply_case(base, params, values)
-        validate(spec)
-        spec.warnings = list(base.warnings)
+        spec.warnings = list(base.warnings)     # run_spec validates the case (once)
         from poise.run_warnings import collected_warnings
         from poise.runner import run_spec
         with collected_warnings() as numeric:          # numpy warnings: run warnings
