@@ -237,7 +237,7 @@ def _fd_jacobian(chart, t, y):
         J[:, j] = (rp - rm) / (2 * h)
     # removed (redundant) constraint rows: their multipliers are held at 0 (the KKT Jacobian's
     # row and column of such a multiplier are the unit vector; Model.jacobian)
-    off = m.nq + np.nonzero(~m.row_active)[0]
+    off = m.nq + np.nonzero(~chart.cnt.mask(m))[0]
     assert np.all(y[off] == 0.0)
     J[:, off] = 0.0
     J[off, off] = 1.0

@@ -200,7 +200,6 @@ def test_dependent_active_rows_are_dropped(name):
     classifies as the dense path (SVD null space) does."""
     model, state, drv = _solved(DECKS / name)
     assert len(drv.redundancy) == 3
-    model.row_active[:] = True
     J = model.evaluate(state, need_jac=True).J
     dense = stab.classify(model, state, J=J)
     P = stab._SparsePencil(model, J)

@@ -150,12 +150,7 @@ def _exact(model, state, active, G, singular_hint=False):
     """``(C, flag)`` from the KKT Jacobian at ``state`` (one factorisation, all columns)."""
     from poise.solvers.linalg import Factor, SingularMatrix
     nq = model.nq
-    saved = model.row_active.copy()
-    model.row_active[:] = active
-    try:
-        J = model.evaluate(state, need_jac=True, eps_mass=0.0).J
-    finally:
-        model.row_active[:] = saved
+    J = model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J
     if not singular_hint:
         rhs = np.zeros((model.N, G.shape[0]))
         rhs[:nq] = G.T
@@ -222,8 +217,9 @@ def _fd(model, state, active, G, rows, settings):
     from dataclasses import replace
 
     from poise.model.model import _log_so3
+    from poise.solvers.data import SolveData
     from poise.solvers.history import History
-    from poise.solvers.newton import Counters, newton
+    from poise.solvers.newton import newton
     delta = float(settings.compliance_delta)
     ncol = G.shape[0]
     C = np.full((ncol, ncol), np.nan)
@@ -231,28 +227,23 @@ def _fd(model, state, active, G, rows, settings):
     P0, A0 = P0[rows], A0[rows]
     tight = replace(settings, max_imbalance=min(settings.max_imbalance, 1e-6 * delta),
                     max_error=min(settings.max_error, 1e-9))
-    saved = model.row_active.copy()
-    model.row_active[:] = active
     failed = False
-    try:
-        for c in range(ncol):
-            h = delta if c % 6 < 3 else delta * model.L
-            lm = _Loaded(model, G[c] * h)
-            st = None
-            for s in (tight, settings):
-                st, out = newton(lm, state.copy(), s, History(), 0, Counters(), max_iter=50)
-                if out.ok:
-                    break
-            if not out.ok:
-                failed = True
-                continue
-            P1, A1, _ = model.marker_kinematics(st)
-            u = np.empty((len(rows), 6))
-            u[:, :3] = P1[rows] - P0
-            u[:, 3:] = _log_so3(np.matmul(A1[rows], np.swapaxes(A0, 1, 2)))
-            C[:, c] = u.ravel() / h
-    finally:
-        model.row_active[:] = saved
+    for c in range(ncol):
+        h = delta if c % 6 < 3 else delta * model.L
+        lm = _Loaded(model, G[c] * h)
+        st = None
+        for s in (tight, settings):
+            st, out = newton(lm, state.copy(), s, History(), 0, SolveData(active), max_iter=50)
+            if out.ok:
+                break
+        if not out.ok:
+            failed = True
+            continue
+        P1, A1, _ = model.marker_kinematics(st)
+        u = np.empty((len(rows), 6))
+        u[:, :3] = P1[rows] - P0
+        u[:, 3:] = _log_so3(np.matmul(A1[rows], np.swapaxes(A0, 1, 2)))
+        C[:, c] = u.ravel() / h
     return C, ("fd_failed" if failed else "ok")
 
 

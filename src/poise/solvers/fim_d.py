@@ -444,7 +444,7 @@ class _Chart:
         return float(np.max(np.linalg.norm(y[m.rot_idx].reshape(-1, 3), axis=1)))
 
     def F(self, st):
-        ev = self.model.evaluate(st, need_jac=False)
+        ev = self.model.evaluate(st, need_jac=False, active=self.cnt.active)
         self.cnt.residuals += 1
         return np.concatenate([ev.r, ev.phi])
 
@@ -452,7 +452,7 @@ class _Chart:
         """``dF/dy``: dense ndarray, or the CSC data on ``self.sparse``'s pattern."""
         m = self.model
         st = self.state(y, t)
-        ev = m.evaluate(st, need_jac=True, eps_mass=self.eps)
+        ev = m.evaluate(st, need_jac=True, eps_mass=self.eps, active=self.cnt.active)
         self.cnt.jacobians += 1
         if self.sparse is not None:
             return self.sparse.values(ev.J, y[m.rot_idx].reshape(-1, 3))
@@ -579,9 +579,10 @@ class Corrector:
     factorisations, full-Newton fallbacks and the wall time spent here.
     """
 
-    def __init__(self, model, settings):
+    def __init__(self, model, settings, active):
         from poise.solvers.newton import Scales
         self.model = model
+        self.active = np.asarray(active, bool)      # the solve's active constraint rows
         self.sc = Scales(model, settings)
         self.max_error = settings.max_error
         self.chart = None
@@ -619,10 +620,9 @@ class Corrector:
         st["frames"] += F_
         done = False
         if batchable(m):
-            saved = m.row_active.copy()
+            saved = self.active
             inact = np.nonzero(~saved)[0] + m.nq
             try:
-                m.row_active[:] = True
                 ev = evaluate_frames(m, chart.states(Y, T), need_jac=True)
                 st["residuals"] += F_
                 Fv = np.concatenate([ev.r, np.where(saved, ev.phi, 0.0)], axis=1)
@@ -647,8 +647,6 @@ class Corrector:
                 done = True
             except (np.linalg.LinAlgError, EvaluationError, ValueError):
                 pass
-            finally:
-                m.row_active[:] = saved
         if not done:
             ok[:], its[:] = False, 0
         st["seconds"] += _t.perf_counter() - t0
@@ -788,7 +786,7 @@ def run_fim_d(qs, state, index, notes):
     conv_coef_off = []           # why IDA's corrector coefficient could not be set
     fallbacks = []
     measured = {}                # frame index -> history row of an interpolated IDA frame
-    correct = Corrector(model, s)
+    correct = Corrector(model, s, qs.counters.mask(model))
     prog = Progress(len(ts), "FIM_D", enabled=qs.progress_enabled)
 
     def atol_for(st):

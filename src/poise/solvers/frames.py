@@ -48,14 +48,13 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
     sc = Scales(model, sa.settings)
     F = len(frames)
     nq, nc = model.nq, model.nc
-    saved = model.row_active.copy()
+    saved = sa.counters.mask(model)
     red = np.asarray(sa.redundancy, int)
     dep = red
     w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
     loads = {}
     infos = []
     C = chunk_size(model)
-    model.row_active[:] = True
     try:
         for a in range(0, F, C):
             chunk = frames[a:a + C]
@@ -79,18 +78,14 @@ def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:
                 loads.setdefault(g, []).append((Fg.reshape(-1, n_out, 3),
                                                 Tg.reshape(-1, n_out, 3)))
             ok = np.array([o.ok for o in outcomes[a:a + C]])
-            model.row_active[:] = saved
             if model.nq <= DENSE_LIMIT:
                 infos += classify_dense_frames(model, ev.J, saved, ok)
             else:                                     # sparse inertia, frame by frame
-                infos += [classify(model, None, J=ev.J[j]) if ok[j] else
+                infos += [classify(model, None, J=ev.J[j], active=saved) if ok[j] else
                           unknown_info()
                           for j in range(len(chunk))]
-            model.row_active[:] = True
     except EvaluationError:
         return None
-    finally:
-        model.row_active[:] = saved
     from poise.solvers.static import output_datasets
     d = output_datasets(model, frames, {g: (np.concatenate([x[0] for x in parts]),
                                             np.concatenate([x[1] for x in parts]))

@@ -161,7 +161,7 @@ class _Dyn:
         equilibria (and the potential) unchanged; it only shapes the relaxation path."""
         if self.x_mass is None:
             m = self.m
-            ev = m.evaluate(state, need_jac=True)
+            ev = m.evaluate(state, need_jac=True, active=self.cnt.active)
             G = ev.J[m.nq:, :m.nq]
             G = G.toarray() if sp.issparse(G) else np.asarray(G)
             col = np.sum(G[:, self.x_idx] ** 2, axis=0)
@@ -191,7 +191,7 @@ class _Dyn:
                 return ev
             ds = np.linalg.solve(Jss, -ev.r[ix])
             state.extra[ix - m.extra_off] += ds
-            ev = m.evaluate(state, need_jac=True)
+            ev = m.evaluate(state, need_jac=True, active=self.cnt.active)
             self.cnt.residuals += 1
             self.cnt.jacobians += 1
             if np.all(np.abs(ds) <= 1e-12 * (1.0 + np.abs(state.extra[ix - m.extra_off]))):
@@ -203,7 +203,7 @@ class _Dyn:
         m = self.m
         self.cnt.residuals += 1
         self.cnt.jacobians += 1
-        ev = m.evaluate(state, need_jac=True)
+        ev = m.evaluate(state, need_jac=True, active=self.cnt.active)
         if m.n_extra:
             ev = self.solve_algebraic(state, ev)
         J = ev.J
@@ -215,7 +215,7 @@ class _Dyn:
     def schur(self, G, Minv):
         m = self.m
         S = G @ Minv @ G.T
-        inact = (~m.row_active).astype(float)
+        inact = (~self.cnt.mask(m)).astype(float)
         if sp.issparse(S):
             S = (S + sp.diags(inact)).tocsr()
         else:
@@ -236,7 +236,7 @@ class _Dyn:
             phi[fam.crow.ravel()] = ph.ravel()
         if not np.all(np.isfinite(phi)):
             raise EvaluationError("a constraint equation is not finite (NaN/Inf) during MKEAM")
-        return np.where(m.row_active, phi, 0.0)
+        return np.where(self.cnt.mask(m), phi, 0.0)
 
 
 def retract_flat(model, state, dq):
@@ -314,7 +314,7 @@ class MkeamAnalysis(StaticAnalysis):
             p_half = p_half - 0.5 * h * (GT @ lam)
         else:
             state1 = retract_flat(m, a.state, h * (a.Minv @ p_half))
-        state1.lam = np.where(m.row_active, a.state.lam, 0.0)
+        state1.lam = np.where(self.counters.mask(m), a.state.lam, 0.0)
         b = _Point(dyn, state1, p_half, a.t + h)     # forces at q1 (lam for stiffness only)
         p1 = p_half + 0.5 * h * b.Q
         if m.nc:
@@ -324,7 +324,7 @@ class MkeamAnalysis(StaticAnalysis):
                 return None
             p1 = p1 - b.G.T @ mu
             # reaction estimate for the geometric stiffness of the next step
-            b.state.lam = np.where(m.row_active, (2.0 / h) * mu, 0.0)
+            b.state.lam = np.where(self.counters.mask(m), (2.0 / h) * mu, 0.0)
         b.lam = lam
         b.p = p1
         b.v = b.Minv @ p1
@@ -483,11 +483,11 @@ class MkeamAnalysis(StaticAnalysis):
         m = self.model
         if m.nq > 3000:
             return None, None
-        ev = m.evaluate(state, need_jac=True)
+        ev = m.evaluate(state, need_jac=True, active=self.counters.active)
         J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
         D = np.diag(1.0 / m.q_scale)             # dq = D dz, dz in length units
         K = D @ J[:m.nq, :m.nq] @ D
-        G = J[m.nq:, :m.nq][m.row_active] @ D
+        G = J[m.nq:, :m.nq][self.counters.mask(m)] @ D
         keep = np.arange(m.nq)
         if m.n_extra:
             # massless scalar unknowns (see _Dyn.solve_algebraic) are eliminated: reduced
@@ -557,9 +557,7 @@ class MkeamAnalysis(StaticAnalysis):
                                 "out): MKEAM's step and tolerance scales are undefined"), state, state
         if self.redundancy is None:
             self.redundancy = detect_redundancy(model, state)
-        else:
-            model.row_active[:] = True
-            model.row_active[self.redundancy] = False
+        self.counters.set_redundancy(self.redundancy)
         if len(self.redundancy):
             notes.append(f"{len(self.redundancy)} redundant constraint equations removed")
         state, self.moved, ast = assemble(model, state, s, self.history, 0, self.counters)
@@ -616,7 +614,7 @@ class MkeamAnalysis(StaticAnalysis):
             return state
         st = state
         for _ in range(20):
-            ev = m.evaluate(st, need_jac=True)
+            ev = m.evaluate(st, need_jac=True, active=self.counters.active)
             self.counters.residuals += 1
             self.counters.jacobians += 1
             J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
@@ -642,7 +640,7 @@ class MkeamAnalysis(StaticAnalysis):
         m, s = self.model, self.settings
         dyn = self.dyn
         state = state.copy()
-        state.lam = np.where(m.row_active, state.lam, 0.0)
+        state.lam = np.where(self.counters.mask(m), state.lam, 0.0)
         self.iterates = [(state.pos.copy(), state.rot.copy())]
         pe0 = self.potential_energy(state)
         self.pe_start = pe0
@@ -723,10 +721,11 @@ class MkeamAnalysis(StaticAnalysis):
                                     HANDOVER_STEPS * s.max_num_iter)
             if out is None:
                 return None
-            info = classify(m, st)
+            info = classify(m, st, active=self.counters.active)
             if info.klass == "unstable":
+                act = self.counters.active
                 st, out, info, _ = seek_stable(m, st, s_any, self.history, 0, self.counters,
-                                               info, lambda x: classify(m, x))
+                                               info, lambda x: classify(m, x, active=act))
             if not out.ok or info.klass not in ("stable", "neutral"):
                 return None
             pe1 = self.potential_energy(st)
@@ -813,8 +812,9 @@ class MkeamAnalysis(StaticAnalysis):
             return pa < pb
         from poise.solvers.newton import Scales, merit
         sc = Scales(self.model, self.settings)
-        ma = merit(self.model.evaluate(a, need_jac=False), sc)
-        mb = merit(self.model.evaluate(b, need_jac=False), sc)
+        act = self.counters.active
+        ma = merit(self.model.evaluate(a, need_jac=False, active=act), sc)
+        mb = merit(self.model.evaluate(b, need_jac=False, active=act), sc)
         return ma < mb
 
     def _downhill(self, a, b, n=16):
@@ -866,7 +866,7 @@ def relax(model, state, settings, history, frame, cnt):
     """
     from types import SimpleNamespace
     an = MkeamAnalysis(model, SimpleNamespace(settings=settings),
-                       redundancy=np.nonzero(~model.row_active)[0])
+                       redundancy=np.nonzero(~cnt.mask(model))[0])
     an.history = history
     an.counters = cnt
     an.dyn = _Dyn(model, cnt)

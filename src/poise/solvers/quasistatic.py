@@ -29,7 +29,8 @@ from poise.model.model import Evaluation
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.history import History
 from poise.solvers.fallback import NO_RECOVERY, recover, solve_frame
-from poise.solvers.newton import (Counters, FrameOutcome, Scales, assemble, initial_multipliers,
+from poise.solvers.data import SolveData
+from poise.solvers.newton import (FrameOutcome, Scales, assemble, initial_multipliers,
                                   measures, newton)
 from poise.solvers.static import (StaticAnalysis, detect_redundancy, frame_outputs, stack_frames,
                                   strategy_attrs)
@@ -200,9 +201,7 @@ def first_frame(model, state, settings, history, counters, redundancy):
     notes = []
     if redundancy is None:
         redundancy = detect_redundancy(model, state)
-    else:
-        model.row_active[:] = True
-        model.row_active[redundancy] = False
+    counters.set_redundancy(redundancy)
     if len(redundancy):
         notes.append(f"{len(redundancy)} redundant constraint equations removed")
     state, moved, ast = assemble(model, state, settings, history, 0, counters)
@@ -277,7 +276,7 @@ class QuasiStaticAnalysis:
         self.request = request
         self.settings = request.settings
         self.redundancy = redundancy
-        self.counters = Counters()
+        self.counters = SolveData.for_model(model, () if redundancy is None else redundancy)
         self.history = History()
         self.spec = spec if spec is not None else getattr(request, "spec", None)
         self.progress_enabled = PROGRESS.get()

@@ -187,8 +187,8 @@ def _ic_step(model, state, cnt, sigma):
     from poise.solvers.stability import AUG_RHO, SymmetricLDL, _SparsePencil
     cnt.residuals += 1
     cnt.jacobians += 1
-    ev = model.evaluate(state, need_jac=True)
-    P = _SparsePencil(model, ev.J)
+    ev = model.evaluate(state, need_jac=True, active=cnt.active)
+    P = _SparsePencil(model, ev.J, active=cnt.active)
     nq, m = P.nq, P.m
     r = np.asarray(ev.r, float)[:nq]
     f = -(P.dq / P.d) * r
@@ -297,7 +297,7 @@ def _project(model, x, cnt, max_iter=8):
     W = _coord_weights(model)
     for _ in range(max_iter + 1):
         ev = _evaluate(model, x, cnt, need_jac="defer")
-        phi = np.where(model.row_active, ev.phi, 0.0)
+        phi = ev.phi                       # inactive rows read 0
         if float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L))) <= PROJECT_TOL:
             return x, True
         _jacobian(model, ev, cnt)

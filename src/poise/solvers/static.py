@@ -13,7 +13,8 @@ from poise.errors import EvaluationError
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.fallback import solve_frame
 from poise.solvers.history import History
-from poise.solvers.newton import Counters, FrameOutcome, assemble, initial_multipliers
+from poise.solvers.data import SolveData
+from poise.solvers.newton import FrameOutcome, assemble, initial_multipliers
 from poise.solvers.outputs import element_loads
 from poise.solvers.redundancy import (dependent_rows, left_null_basis, min_norm_multipliers,
                                       redundant_rows)
@@ -21,17 +22,14 @@ from poise.solvers.status import MESSAGES, Status
 
 
 def detect_redundancy(model, state) -> np.ndarray:
-    """Redundant constraint rows at ``state`` (sets ``model.row_active``)."""
-    model.row_active[:] = True
+    """Redundant constraint rows at ``state`` (all rows evaluated)."""
     if model.nc == 0:
         return np.zeros(0, int)
     ev = model.evaluate(state, need_jac=True)
     J = ev.J
     Pq = J[model.nq:, :model.nq]
     col = np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
-    red = redundant_rows(Pq, col)
-    model.row_active[red] = False
-    return red
+    return redundant_rows(Pq, col)
 
 
 class StaticAnalysis:
@@ -50,7 +48,7 @@ class StaticAnalysis:
         self.request = request
         self.settings = request.settings
         self.redundancy = redundancy
-        self.counters = Counters()
+        self.counters = SolveData.for_model(model, () if redundancy is None else redundancy)
         self.history = History()
 
     def run(self, state, index: int = 0):
@@ -63,9 +61,7 @@ class StaticAnalysis:
         try:
             if self.redundancy is None:
                 self.redundancy = detect_redundancy(model, state)
-            else:
-                model.row_active[:] = True
-                model.row_active[self.redundancy] = False
+            self.counters.set_redundancy(self.redundancy)
             red = self.redundancy
             if len(red):
                 notes.append(f"{len(red)} redundant constraint equations removed")
@@ -109,11 +105,12 @@ class StaticAnalysis:
         from poise.solvers.stability import classify
         from poise.solvers.stable import acceptable, seek_stable
         model, s = self.model, self.settings
-        info = classify(model, state)
+        active = self.counters.active
+        info = classify(model, state, active=active)
         if acceptable(info, s) or info.klass != "unstable":
             return state, out        # judged on the output classification
         st, o, _, note = seek_stable(model, state, s, self.history, 0, self.counters, info,
-                                     lambda x: classify(model, x))
+                                     lambda x: classify(model, x, active=active))
         if note:
             notes.append(note)
         return st, replace(o, iterations=out.iterations + o.iterations)
@@ -128,8 +125,7 @@ class StaticAnalysis:
         model = self.model
         # one evaluation (all rows active, slot data kept) serves the minimum-norm reactions,
         # the element loads and the stability classification
-        saved = model.row_active.copy()
-        model.row_active[:] = True
+        saved = self.counters.mask(model)
         J = None
         dep = np.asarray(self.redundancy, int)
         try:
@@ -147,15 +143,14 @@ class StaticAnalysis:
                 w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
                 lam = min_norm_multipliers(Pfull, state.lam, saved, w, Y=Y)
                 dep = dependent_rows(Pfull, saved, Y=Y)
-            loads = element_loads(model, state, lam=lam, reuse=True)
+            loads = element_loads(model, state, lam=lam, ev=ev)
         except EvaluationError:
             loads = {}
-        model.row_active[:] = saved
         d = output_datasets(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
                             dep, outcomes)
         from poise.solvers.stability import classify, stability_datasets, unknown_info
         if all(o.ok for o in outcomes) and J is not None:
-            d.update(stability_datasets([classify(model, state, J=J)]))
+            d.update(stability_datasets([classify(model, state, J=J, active=saved)]))
         else:   # the same datasets either way: frames of a sequence are concatenated by key
             d.update(stability_datasets([unknown_info()] * len(outcomes)))
         return d
