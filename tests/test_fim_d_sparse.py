@@ -156,7 +156,7 @@ def test_every_ida_start_is_consistent(monkeypatch):
     real = fd._ida
 
     def ida(chart, tsd, atol, t0, y0, yp0, first_step):
-        starts.append((chart, t0, np.array(y0), np.array(atol), tsd["tol"], first_step))
+        starts.append((chart, t0, np.array(y0), np.array(atol), tsd.tol, first_step))
         return real(chart, tsd, atol, t0, y0, yp0, first_step)
 
     monkeypatch.setattr(fd, "_ida", ida)

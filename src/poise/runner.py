@@ -165,26 +165,6 @@ def _check_compliance_markers(spec, s, el, from_cli: bool) -> None:
     raise DeckError(Problem(src.loc, msg))
 
 
-def analysis_class(req: AnalysisRequest):
-    """The analysis driver for a request, or a message saying why it is not available.
-
-    Returns ``(cls, None)`` or ``(None, message)``. Drivers take
-    ``cls(model, request, redundancy=...)`` and provide ``run(state, index) -> (state,
-    AnalysisResult)``, ``counters`` and ``redundancy``.
-    """
-    from poise.solvers.static import StaticAnalysis
-    m = req.settings.method
-    if req.kind == "static":
-        if m == "MKEAM":
-            from poise.solvers.mkeam import MkeamAnalysis
-            return MkeamAnalysis, None
-        return StaticAnalysis, None
-    if req.kind == "quasistatic":
-        from poise.solvers.quasistatic import QuasiStaticAnalysis
-        return QuasiStaticAnalysis, None
-    return None, f"analysis_type {req.kind.upper()} is not supported; expected Static"
-
-
 def run(path: str, overrides=None, command: str = "", progress=None,
         allow_user_code: bool = False) -> RunResult:
     """``allow_user_code``: run the Python user routines the deck names (otherwise such a deck
@@ -200,13 +180,12 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     model = compile_model(spec, user_code=user_code)
     t2 = time.perf_counter()
     analyses = plan(spec, overrides)
+    from poise.solvers.driver import Driver, strategy_for
     problems = []
-    drivers = []
     for req in analyses:
-        cls, msg = analysis_class(req)
+        cls, msg = strategy_for(req)
         if cls is None:
             problems.append(Problem(req.simulate.loc, msg))
-        drivers.append(cls)
     if problems:
         raise DeckError(problems)
     if not analyses:
@@ -231,13 +210,13 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     state = model.initial_state()
     counts = {}
     redundancy = None
-    for k, (req, cls) in enumerate(zip(analyses, drivers)):
+    for k, req in enumerate(analyses):
         ta = time.perf_counter()
-        drv = cls(models[k], req, redundancy=redundancy)
+        drv = Driver(models[k], req, redundancy=redundancy)
         state, ar = drv.run(state, index=k)
         redundancy = drv.redundancy
         res.timings[f"analysis_{k:03d}"] = time.perf_counter() - ta
-        for key, v in drv.counters.as_dict().items():
+        for key, v in drv.data.as_dict().items():
             counts[key] = counts.get(key, 0) + v
         res.analyses.append(ar)
         if progress:
@@ -392,7 +371,7 @@ def model_datasets(model) -> dict:
 def check(path: str):
     from poise.api import CheckReport
     from poise.model.compile import compile_model
-    from poise.solvers.static import detect_redundancy
+    from poise.solvers.redundancy import detect_redundancy
     spec = _load(path)
     model = compile_model(spec, user_code="skip")      # check never runs deck code
     rep = CheckReport(deck=spec.path)

@@ -183,11 +183,12 @@ def test_unreliable_factorisation_gives_unknown_with_reason(monkeypatch):
 def _solved(path):
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
-    from poise.runner import analysis_class, plan
+    from poise.runner import plan
+    from poise.solvers.driver import Driver
     spec = load_deck(str(path))
     model = compile_model(spec)
     req = plan(spec, None)[0]
-    drv = analysis_class(req)[0](model, req, redundancy=None)
+    drv = Driver(model, req, redundancy=None)
     state, ar = drv.run(model.initial_state(), index=0)
     assert ar.status == "converged"
     return model, state, drv

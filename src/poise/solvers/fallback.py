@@ -177,14 +177,15 @@ def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome, 
         reason = out.status.value
         if out.status in NO_RECOVERY[:2] or left <= 0:
             return st, out, "", counts
-        # 3. MKEAM (imported only when the chain gets this far), a quarter kept for the polish
+        # 3. MKEAM, a quarter kept for the polish
         polish = min(int(settings.max_num_iter), max(1, left // 4))
         n_mk = max(1, left - polish)
         history.strategy = "mkeam"
         history.add(frame, 0, np.nan, np.nan, event=f"fallback: mkeam: {reason}")
         n0 = len(history)
         try:
-            from poise.solvers.mkeam import relax
+            # imported here: MKEAM needs scipy, which the small-deck path never loads
+            from poise.solvers.relaxation import relax
             st2, ok = relax(model, start.copy(), replace(settings, max_num_iter=n_mk), history,
                             frame, cnt)
         except Exception as e:   # noqa: BLE001 - any MKEAM failure just ends the chain

@@ -1,11 +1,11 @@
-"""Quasi-static analysis: output times, FIM_S (a static solve per output time), dispatch to FIM_D.
+"""FIM_S per frame (static: one frame; quasi-static: every output time) and the output times.
 
 * Output times (:func:`output_times`): ``print_array_id`` (a ``Reference_Array`` of type PRINT,
   times inside [start, end]), else ``num_steps`` (equal intervals of (end - start)/num_steps),
   else ``print_interval`` (default 0.01). The start time is always the first frame
   (conventions.md) and the end time the last one.
-* FIM_S: frame 0 = redundancy detection + assembly + least-squares multipliers + Newton, exactly
-  like :class:`~poise.solvers.static.StaticAnalysis`; every later frame starts from a predictor
+* FIM_S (:class:`NewtonFrames`): frame 0 = the prologue (redundancy detection, assembly,
+  least-squares multipliers) + Newton with the fallback chain; every later frame starts from a predictor
   extrapolated in the tangent space of the previous frame (``Model.local_difference`` /
   ``Model.retract``; linear from 2 frames, quadratic from 3) and runs Newton. A failed step is
   retried with sub-steps (interval halved, down to ``MIN_SUBSTEP_FRACTION`` of the output
@@ -25,16 +25,13 @@ import time as _time
 
 import numpy as np
 
-from poise.model.model import Evaluation
-from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
-from poise.solvers.history import History
+from dataclasses import replace
+
+from poise.solvers.context import Strategy, prologue, replicate
 from poise.solvers.fallback import NO_RECOVERY, recover, solve_frame
-from poise.solvers.data import SolveData
-from poise.solvers.newton import (FrameOutcome, Scales, assemble, initial_multipliers,
-                                  measures, newton)
-from poise.solvers.static import (StaticAnalysis, detect_redundancy, frame_outputs, stack_frames,
-                                  strategy_attrs)
-from poise.solvers.status import MESSAGES, Status
+from poise.solvers.newton import newton
+from poise.solvers.stability import classify
+from poise.solvers.stable import acceptable, seek_stable
 
 DEFAULT_PRINT_INTERVAL = 0.01
 MIN_SUBSTEP_FRACTION = 2.0 ** -10
@@ -150,6 +147,23 @@ class Progress:
             sys.stderr.flush()
 
 
+def progress_callback():
+    """A ``progress(label, done, total)`` drawing a :class:`Progress` bar per label (enabled
+    as the :data:`PROGRESS` context says when this is called); ``done`` None closes it."""
+    enabled = PROGRESS.get()
+    bars = {}
+
+    def progress(label, done, total):
+        bar = bars.get(label)
+        if bar is None:
+            bar = bars[label] = Progress(total, label, enabled=enabled)
+        if done is None:
+            bars.pop(label).close()
+        else:
+            bar.update(done)
+    return progress
+
+
 # ---------------------------------------------------------------------- helpers
 def predictor(model, frames, t):
     """State extrapolated to ``t`` from the last (up to 3) ``frames`` (quadratic in the tangent
@@ -177,45 +191,17 @@ def predictor(model, frames, t):
     return st
 
 
-def _evaluation_error_fails_frame(fn):
-    """An expression or element that cannot be evaluated anywhere in frame 0 (redundancy
-    detection, assembly, Newton) ends it as a NONFINITE outcome (exit 1), not an exception."""
-    import functools
-
-    @functools.wraps(fn)
-    def wrapper(model, state, settings, history, counters, redundancy):
-        from poise.errors import EvaluationError
-        try:
-            return fn(model, state, settings, history, counters, redundancy)
-        except EvaluationError as e:
-            red = np.zeros(0, int) if redundancy is None else redundancy
-            return (state, FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)), red, [],
-                    False)
-    return wrapper
-
-
-@_evaluation_error_fails_frame
-def first_frame(model, state, settings, history, counters, redundancy):
-    """Frame 0 of a quasi-static run: like StaticAnalysis (redundancy, assembly, multipliers,
-    Newton). Returns ``(state, outcome, redundancy, notes, moved)``."""
-    notes = []
-    if redundancy is None:
-        redundancy = detect_redundancy(model, state)
-    counters.set_redundancy(redundancy)
-    if len(redundancy):
-        notes.append(f"{len(redundancy)} redundant constraint equations removed")
-    state, moved, ast = assemble(model, state, settings, history, 0, counters)
-    if moved:
-        notes.append("initial configuration assembled onto the constraints")
-    if not ast.ok:
-        return state, FrameOutcome(Status.ASSEMBLY_FAILED, 0, np.nan, np.nan,
-                                   MESSAGES[Status.ASSEMBLY_FAILED]), redundancy, notes, moved
-    state = initial_multipliers(model, state, counters)
-    state, out = solve_frame(model, state, settings, history, 0, counters)
-    if out.strategy != "plain":
-        notes.append(f"frame 0: plain Newton failed; converged with the fallback strategy "
-                     f"'{out.strategy}'")
-    return state, out, redundancy, notes, moved
+def first_frame(ctx, state):
+    """Frame 0 of every Newton-started analysis: the prologue (redundancy, assembly,
+    multipliers), then Newton with the fallback chain. Returns ``(state, outcome)``."""
+    state, out = prologue(ctx, state)
+    if out is not None:
+        return state, out
+    state, out = solve_frame(ctx.model, state, ctx.settings, ctx.history, 0, ctx.data)
+    if out.strategy != "plain" and ctx.kind == "quasistatic":
+        ctx.notes.append(f"frame 0: plain Newton failed; converged with the fallback strategy "
+                         f"'{out.strategy}'")
+    return state, out
 
 
 def fims_step(model, frames, t_target, settings, history, counters, frame, min_dt):
@@ -264,146 +250,54 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
             return st, out, n_sub
 
 
-# ---------------------------------------------------------------------- driver
-class QuasiStaticAnalysis:
-    """Quasi-static run (FIM_S or FIM_D) of one ``Simulate`` command.
+# ---------------------------------------------------------------------- strategy
+class NewtonFrames(Strategy):
+    """FIM_S: Newton with the fallback chain at every output frame (a static analysis is the
+    one-frame case); later frames start from a predictor and sub-step on failure
+    (:func:`fims_step`)."""
 
-    ``cls(model, request, redundancy=...)``; ``run(state, index) -> (state, AnalysisResult)``.
-    """
+    name = "FIM_S"
 
-    def __init__(self, model, request, redundancy=None, spec=None):
-        self.model = model
-        self.request = request
-        self.settings = request.settings
-        self.redundancy = redundancy
-        self.counters = SolveData.for_model(model, () if redundancy is None else redundancy)
-        self.history = History()
-        self.spec = spec if spec is not None else getattr(request, "spec", None)
-        self.progress_enabled = PROGRESS.get()
+    def init(self, ctx, state):
+        s = ctx.settings
+        if ctx.kind == "static" and s.method == "FIM_D":
+            ctx.notes.append("FIM_D falls back to FIM_S for a pure static analysis")
+        if ctx.kind == "quasistatic" and s.method == "MKEAM":
+            ctx.notes.append("warning: MKEAM does not apply to quasi-static runs; FIM_S used")
+        st, out = first_frame(ctx, state)
+        if out.ok and s.require_stable and ctx.kind == "static":
+            st, out = require_stable(ctx, st, out)
+        ctx.frames, ctx.outcomes = [st], [out]
+        self.k = 1
+        if out.ok and ctx.time_independent and len(ctx.times) > 1:
+            replicate(ctx)
 
-    def times(self, state):
-        arrays = getattr(self.request, "arrays", None)
-        if arrays is None:
-            arrays = print_arrays(self.spec)
-        return output_times(self.request.simulate, state.t, arrays)
+    def terminate(self, ctx):
+        return (len(ctx.frames) == len(ctx.times) or not ctx.outcomes[-1].ok)
 
-    def run(self, state, index: int = 0):
-        s = self.settings
-        notes = []
-        method = s.method
-        if method == "MKEAM":
-            notes.append("warning: MKEAM does not apply to quasi-static runs; FIM_S used")
-            method = "FIM_S"
-        if method == "FIM_D":
-            from poise.solvers.fim_d import run_fim_d
-            return run_fim_d(self, state, index, notes)
-        return self.run_fim_s(state, index, notes)
+    def step(self, ctx):
+        k, ts = len(ctx.frames), ctx.times
+        min_dt = MIN_SUBSTEP_FRACTION * (ts[k] - ts[k - 1])
+        st, o, nsub = fims_step(ctx.model, ctx.frames, float(ts[k]), ctx.settings, ctx.history,
+                                ctx.data, k, min_dt)
+        if nsub:
+            ctx.notes.append(f"frame {k}: {nsub} sub-step halvings")
+        if o.strategy != "plain":
+            ctx.notes.append(f"frame {k}: converged with the fallback strategy '{o.strategy}'")
+        ctx.frames.append(st)
+        ctx.outcomes.append(o)
+        ctx.report("FIM_S", k + 1, len(ts))
 
-    # ------------------------------------------------------------------ FIM_S
-    def run_fim_s(self, state, index, notes):
-        model, s = self.model, self.settings
-        ts = self.times(state)
-        self._times = ts
-        state = state.copy()
-        state.t = float(ts[0])
-        state, out, self.redundancy, n0, moved = first_frame(
-            model, state, s, self.history, self.counters, self.redundancy)
-        notes += n0
-        frames, outcomes = [state], [out]
-        time_indep = not model.depends_on_time()
-        prog = Progress(len(ts), "FIM_S", enabled=self.progress_enabled)
-        if out.ok and time_indep and len(ts) > 1:
-            notes.append("nothing in the scene depends on time: solved once, frame replicated")
-            for t in ts[1:]:
-                st = state.copy()
-                st.t = float(t)
-                frames.append(st)
-                outcomes.append(FrameOutcome(out.status, 0, out.imbalance, out.error,
-                                             "replicated"))
-        elif out.ok:
-            for k in range(1, len(ts)):
-                min_dt = MIN_SUBSTEP_FRACTION * (ts[k] - ts[k - 1])
-                st, o, nsub = fims_step(model, frames, float(ts[k]), s, self.history,
-                                        self.counters, k, min_dt)
-                if nsub:
-                    notes.append(f"frame {k}: {nsub} sub-step halvings")
-                if o.strategy != "plain":
-                    notes.append(f"frame {k}: converged with the fallback strategy "
-                                 f"'{o.strategy}'")
-                frames.append(st)
-                outcomes.append(o)
-                prog.update(k + 1)
-                if not o.ok:
-                    break
-        prog.close()
-        return self.finish(frames, outcomes, index, "FIM_S", notes, moved, time_indep)
 
-    # ------------------------------------------------------------------ results
-    def finish(self, frames, outcomes, index, method, notes, moved, time_indep, extra=None,
-               measured=None):
-        """Results of the run. Every frame's outcome is certified on its output evaluation
-        (:func:`~poise.solvers.certify.certify`). ``measured``: ``{frame index: history row}``
-        of frames whose history row takes its imbalance / constraint error / worst equation
-        from that evaluation (FIM_D's interpolated frames)."""
-        model, s = self.model, self.settings
-        ar = AnalysisResult(index=index, analysis_type="quasistatic", method=method,
-                            settings=dict(s.as_dict(), method_requested=s.method))
-        ar.attrs["reactions_unique"] = bool(len(self.redundancy) == 0)
-        ar.attrs["assembled"] = bool(moved)
-        ar.attrs["time_independent"] = bool(time_indep)
-        ar.attrs["n_frames"] = len(frames)
-        sa = StaticAnalysis(model, self.request, redundancy=self.redundancy)
-        measured = measured or {}
-        sc = Scales(model, s) if measured else None
-
-        def measure_row(k, imb, cerr, worst):
-            if k not in measured:
-                return
-            row = list(self.history.rows[measured[k]])
-            row[2], row[3], row[6] = imb, cerr, worst
-            self.history.rows[measured[k]] = tuple(row)
-
-        def measure(k):
-            def on_eval(ev, active):
-                ms = measures(model, Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0),
-                                                J=None), sc)
-                measure_row(k, ms[0], ms[1], ms[3])
-            return on_eval
-
-        # all frames at once where the model allows it (same datasets, array work per frame)
-        from poise.solvers.frames import frames_datasets
-        d = frames_datasets(sa, frames, outcomes, measure_row if measured else None)
-        if d is None:
-            per = [sa.frame_datasets(st, [o], on_eval=measure(k) if k in measured else None)
-                   for k, (st, o) in enumerate(zip(frames, outcomes))]
-            d = {}
-            # keys every frame has (a failed frame has no stability classification)
-            for key in [k for k in per[0] if all(k in p for p in per[1:])]:
-                if key.endswith("/id") or key.endswith("/tag") or key.endswith("/unique") \
-                        or key.endswith("/label"):
-                    d[key] = per[0][key]
-                else:
-                    d[key] = np.concatenate([np.asarray(p[key]) for p in per])
-        ar.datasets.update(d)
-        ok = all(o.ok for o in outcomes) and len(frames) == len(self.times_cache(frames))
-        ar.status = STATUS_CONVERGED if ok else STATUS_FAILED
-        failed = next((o for o in outcomes if not o.ok), None)
-        first = failed.message if failed is not None else "converged"
-        if failed is not None:
-            k = outcomes.index(failed)
-            first = f"frame {k} (t={frames[k].t:.9g}) failed: {failed.message}"
-        ar.message = "; ".join([first] + notes)
-        ar.datasets.update(stack_frames([frame_outputs(model, st) for st in frames]))
-        from poise.solvers.compliance import attach     # after the frame datasets (stability)
-        attach(ar, model, frames, outcomes, self.redundancy, s)
-        ar.datasets.update(self.history.datasets())
-        ar.attrs.update(strategy_attrs(ar.datasets))
-        ar.datasets.update(sa.redundancy_datasets())
-        if extra:
-            ar.datasets.update(extra)
-        return frames[-1], ar
-
-    def times_cache(self, frames):
-        if not hasattr(self, "_times"):
-            self._times = self.times(frames[0])
-        return self._times
+def require_stable(ctx, state, out):
+    """``require_stable``: classify the converged point; unstable -> continue downhill to a
+    stable equilibrium (:func:`poise.solvers.stable.seek_stable`)."""
+    model, s, active = ctx.model, ctx.settings, ctx.data.active
+    info = classify(model, state, active=active)
+    if acceptable(info, s) or info.klass != "unstable":
+        return state, out        # judged on the output classification
+    st, o, _, note = seek_stable(model, state, s, ctx.history, 0, ctx.data, info,
+                                 lambda x: classify(model, x, active=active))
+    if note:
+        ctx.notes.append(note)
+    return st, replace(o, iterations=out.iterations + o.iterations)

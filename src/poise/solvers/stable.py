@@ -27,16 +27,16 @@ of the iteration history (events ``stable: escape k: ...``, ``stable-descent sig
 ``stable-polish``). The budget is ``STEPS_PER_ITER x max_num_iter`` descent steps and
 ``MAX_ESCAPES`` escapes; past it the analysis fails with status ``unstable`` (exit 1) and the
 last state is written. MKEAM uses :func:`descend` as its fast continuation
-(:meth:`poise.solvers.mkeam.MkeamAnalysis._handover`).
+(:meth:`poise.solvers.relaxation.Relaxation._handover`).
 """
 from __future__ import annotations
 
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 
 from poise.errors import EvaluationError
+from poise.solvers.energy import potential_energy
 from poise.solvers.newton import FrameOutcome, assemble, newton
 from poise.solvers.status import Status
 
@@ -75,12 +75,6 @@ def require_stable_check(ar, out, settings):
     ar.datasets["frames/status"] = np.array([Status.UNSTABLE.value], dtype=str)
     ar.status = "failed"
     ar.message = "no stable equilibrium reached (--require-stable): " + why + "; " + ar.message
-
-
-def potential_energy(model, state) -> float:
-    """Potential energy of gravity and conservative elements (NaN if one is not conservative)."""
-    from poise.solvers.mkeam import MkeamAnalysis
-    return MkeamAnalysis.potential_energy(SimpleNamespace(model=model), state)
 
 
 def _energy_drop(model, a, b, cnt, pa=None):
