@@ -39,10 +39,10 @@ $(BENCH_STAMP): pyproject.toml $(STAMP)
 
 # chain bench + issue 7 (work-precision ladders, Exudyn peer, scaling); <= 20 min on 2 cores
 bench: install $(BENCH_STAMP)
-	$(PY) -m poise.bench --out bench/results.jsonl --markdown docs/performance.md
+	$(PY) -m benchmarks --out bench/results.jsonl --markdown docs/performance.md
 
 bench-quick: install $(BENCH_STAMP)
-	$(PY) -m poise.bench --quick --sizes 10,100,1000 --repeat 1 --cli-repeat 3 \
+	$(PY) -m benchmarks --quick --sizes 10,100,1000 --repeat 1 --cli-repeat 3 \
 	    --out bench/results-quick.jsonl --markdown bench/performance-quick.md
 
 lint: install

@@ -85,7 +85,7 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
         ctx.exit(code)
 
     try:  # before the solve: a path that cannot take the results fails now, not after it
-        from poise.atomic import output_target
+        from poise.core.atomic import output_target
         output_target(out, (deck,))
     except (Exception, KeyboardInterrupt) as exc:   # UsageError: exit 2
         fail(exc)
@@ -94,7 +94,7 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
     from poise_cli.streams import collected_warnings, guarded_stdout
     try:
         with guarded_stdout(quiet), collected_warnings() as numeric:
-            from poise.api import run_deck
+            from poise.app.api import run_deck
             result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet,
                               allow_user_code=allow_user_code)
     except (Exception, KeyboardInterrupt) as exc:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.errors import UsageError
+from poise.core.errors import UsageError
 
 _ABBREV = {
     # length
@@ -240,7 +240,7 @@ def write_plot(path: str, out: str, analysis: int | None = None, bodies=None, jo
     """Write the PNG of :func:`plot_results` atomically. Returns ``{"output", "panels", "width",
     "height"}``."""
     fig = plot_results(path, analysis=analysis, bodies=bodies, joints=joints, requests=requests)
-    from poise.atomic import atomic_output
+    from poise.core.atomic import atomic_output
     with atomic_output(out, (path,), keep_suffix=True) as tmp:
         fig.savefig(tmp, dpi=dpi)
     w, h = fig.get_size_inches() * dpi

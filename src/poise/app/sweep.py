@@ -28,7 +28,7 @@ Index row keys (``INDEX_KEYS``, then one column per parameter, then the ``--outp
 ``case``, ``file``, ``status`` (``converged``/``failed``/``invalid_deck``/``internal_error``),
 ``exit_code``, ``iterations`` (all analyses), ``wall_time`` (parse + compile + solve, s),
 ``imbalance`` (the worst frame of every analysis) and the other run-summary fields of
-:func:`poise.batch.result_stats` (``imbalance_analysis``, ``imbalance_frame``,
+:func:`poise.app.batch.result_stats` (``imbalance_analysis``, ``imbalance_frame``,
 ``stability_class`` — the worst over the analyses and frames — ``stability_analysis``,
 ``stability_frame``, ``n_negative``, ``n_zero``, ``stability_modes``, ``modes``), ``resumed``,
 ``message``. Outputs
@@ -44,11 +44,11 @@ import math
 import os
 import re
 import sys
-import types
 from dataclasses import dataclass, replace
 from typing import Any
 
-from poise.errors import UsageError
+from poise.core.errors import UsageError
+from poise.core.version import __version__
 
 INDEX_VERSION = 1
 INDEX_KEYS = ("case", "file", "status", "exit_code", "iterations", "wall_time", "imbalance",
@@ -274,9 +274,8 @@ def make_cases(params: list[Param], mode: str = "grid", n: int | None = None,
 
 
 def case_hash(deck_sha256: str, values: dict, overrides: dict | None) -> str:
-    import poise
     blob = json.dumps({"deck_sha256": deck_sha256, "values": values,
-                       "overrides": overrides or {}, "poise_version": poise.__version__},
+                       "overrides": overrides or {}, "poise_version": __version__},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
 
@@ -365,15 +364,15 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
              allow_user_code: bool = False) -> dict:
     """Solve one case and write its results file; return its index row (a Dask task).
     ``allow_user_code``: run the deck's Python user routines (in the worker)."""
-    from poise.batch import result_stats
-    from poise.errors import DeckError
+    from poise.app.batch import result_stats
+    from poise.core.errors import DeckError
     row = {"case": index, "file": None, **values}
     try:
         base = _spec_from_bytes(data, path)
         spec, extra = apply_case(base, params, values)
         spec.warnings = list(base.warnings)     # run_spec validates the case (once)
-        from poise.run_warnings import collected_warnings
-        from poise.runner import run_spec
+        from poise.app.run_warnings import collected_warnings
+        from poise.app.runner import run_spec
         with collected_warnings() as numeric:          # numpy warnings: run warnings
             res = run_spec(spec, {**(overrides or {}), **extra},
                            command=f"poise sweep case {index}: {json.dumps(values, default=str)}",
@@ -392,7 +391,7 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
     res.attrs.update(sweep_case=int(index), sweep_case_hash=chash,
                      sweep_values=json.dumps(values, sort_keys=True, default=str),
                      run_overrides=json.dumps(overrides or {}, sort_keys=True, default=str))
-    from poise.atomic import OutputError
+    from poise.core.atomic import OutputError
     from poise.results.hdf5 import write_results
     try:
         write_results(res, out_file)
@@ -414,7 +413,7 @@ def resumable(out_file: str, chash: str, allow_user_code: bool = False) -> bool:
     try:
         import h5py
 
-        from poise.batch import inputs_fresh
+        from poise.app.batch import inputs_fresh
         with h5py.File(out_file, "r") as f:
             a = f.attrs
             h = a.get("sweep_case_hash")
@@ -425,7 +424,7 @@ def resumable(out_file: str, chash: str, allow_user_code: bool = False) -> bool:
 
 
 def resumed_row(out_file: str, index: int, values: dict, outputs) -> dict:
-    from poise.batch import result_stats
+    from poise.app.batch import result_stats
     from poise.results.hdf5 import read_results
     res = read_results(out_file)
     st = result_stats(res)
@@ -496,12 +495,12 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
 
     Raises
     ------
-    poise.errors.UsageError
+    poise.core.errors.UsageError
         Bad ``sets``/``outputs``/mode (exit 2 in the CLI).
-    poise.errors.DeckError
+    poise.core.errors.DeckError
         The base deck is invalid (exit 3).
     """
-    from poise.batch import sanitize, write_table
+    from poise.app.batch import sanitize, write_table
     from poise.deck.parser import parse_deck_bytes
     deck = os.fspath(deck)
     try:
@@ -521,10 +520,10 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     if scheduler and client is None:
         check_scheduler(scheduler)
     cases = make_cases(params, mode, n=n, seed=seed)
-    from poise.settings import check_override_names
+    from poise.solvers.settings import check_override_names
     check_override_names(overrides)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    from poise.batch import ensure_out_dir
+    from poise.app.batch import ensure_out_dir
     ensure_out_dir(out_dir)
     width = max(5, len(str(len(cases) - 1)))
     files = [os.path.join(os.path.abspath(out_dir), f"case_{i:0{width}d}.h5")
@@ -632,12 +631,3 @@ def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, o
             if cluster is not None:
                 cluster.close()
 
-
-class _CallableModule(types.ModuleType):
-    """``poise.sweep(...)`` works whether ``poise.sweep`` is this module or the API function."""
-
-    def __call__(self, *args, **kwargs):
-        return run_sweep(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule

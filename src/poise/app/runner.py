@@ -9,14 +9,15 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
-from poise import __version__
+from poise.core.version import __version__
 from poise.deck.spec import DeckSpec, Element
-from poise.errors import DeckError, EvaluationError, Problem
+from poise.core.errors import DeckError, EvaluationError, Problem
 from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
-from poise.settings import StaticSettings
+from poise.solvers.settings import StaticSettings, check_override_names
 
 
 def _load(path):
@@ -100,13 +101,12 @@ class AnalysisRequest:
 
 def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     """The analyses of a deck in command order."""
-    from poise.settings import check_override_names
     check_override_names(overrides)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
     try:      # an invalid override is the caller's error, not the deck's
         StaticSettings().updated(overrides)
     except (ValueError, TypeError) as e:
-        from poise.errors import UsageError
+        from poise.core.errors import UsageError
         raise UsageError(f"invalid solver option: {e}") from None
     live = _static_settings([e for e in spec.model if e.tag == "Param_Static"])
     transient: dict = {}
@@ -158,7 +158,7 @@ def _check_compliance_markers(spec, s, el, from_cli: bool) -> None:
         return
     msg = f"compliance_markers: marker id {bad[0]} is not a Reference_Marker of the deck"
     if from_cli:
-        from poise.errors import UsageError
+        from poise.core.errors import UsageError
         raise UsageError(msg)
     src = next((e for e in reversed([*spec.model, *spec.commands]) if e.tag == "Param_Static"
                 and e.attrs.get("compliance_markers") is not None), el)
@@ -189,7 +189,7 @@ def run(path: str, overrides=None, command: str = "", progress=None,
         allow_user_code: bool = False) -> RunResult:
     """``allow_user_code``: run the Python user routines the deck names (otherwise such a deck
     is a located deck error saying how to allow them)."""
-    from poise import phases
+    from poise.core import phases
     phases.reset()
     t0 = time.perf_counter()
     spec = _load(path)
@@ -243,12 +243,59 @@ def run(path: str, overrides=None, command: str = "", progress=None,
         if progress:
             progress(summary_line(ar, res.timings[f"analysis_{k:03d}"]))
     t3 = time.perf_counter()
-    # solve = its phases (poise.phases: evaluate, assemble, factorise) + the rest
+    # solve = its phases (poise.core.phases: evaluate, assemble, factorise) + the rest
     res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2,
                        **{f"solve_{k}": v for k, v in phases.snapshot().items()},
                        **res.timings)
     res.counts = counts
     return res
+
+
+def run_deck(
+    path: str,
+    overrides: dict[str, Any] | None = None,
+    command: str = "",
+    progress: Callable[[str], None] | None = None,
+    quiet: bool = False,
+    allow_user_code: bool = False,
+) -> RunResult:
+    """Parse, compile and run every analysis of a deck.
+
+    Parameters
+    ----------
+    path : str
+        Deck file.
+    overrides : dict, optional
+        ``Param_Static`` (and later ``Param_Transient``) attribute overrides from the CLI, e.g.
+        ``{"method": "FIM_S", "max_num_iter": 50, "max_imbalance": 1e-6, "stability": 1e-3}``.
+        CLI values win over deck values, which win over defaults.
+    command : str
+        The command line, recorded in the results.
+    progress : callable, optional
+        Called with one summary line per finished analysis.
+    quiet : bool
+        No progress bar on stderr for long quasi-static runs (otherwise shown only when stderr
+        is a terminal, outside CI and with ``POISE_QUIET`` unset).
+    allow_user_code : bool
+        Run the Python user routines the deck names (``script_name``). Default False: decks
+        come from anywhere, so such a deck is an invalid deck (a located problem per element
+        saying how to allow it). Scripts must lie inside the deck's directory tree either way.
+
+    Returns
+    -------
+    RunResult
+        Always returned for a valid deck, converged or not.
+
+    Raises
+    ------
+    poise.core.errors.DeckError
+        Invalid deck (exit code 3).
+    """
+    from poise.solvers.quasistatic import progress_bar
+    check_override_names(overrides)          # before parsing: a typo is the caller's error
+    with progress_bar(False if quiet else None):
+        return run(path, overrides=overrides, command=command, progress=progress,
+                   allow_user_code=allow_user_code)
 
 
 def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
@@ -362,7 +409,7 @@ def graphics_datasets(spec: DeckSpec, model) -> dict:
 
 
 def _noloc(path):
-    from poise.errors import SourceLoc
+    from poise.core.errors import SourceLoc
     return SourceLoc(path, 0, "MotionSolve", None)
 
 
@@ -389,58 +436,4 @@ def model_datasets(model) -> dict:
     return d
 
 
-def check(path: str):
-    from poise.api import CheckReport
-    from poise.model.compile import compile_model
-    from poise.solvers.static import detect_redundancy
-    spec = _load(path)
-    model = compile_model(spec, user_code="skip")      # check never runs deck code
-    rep = CheckReport(deck=spec.path)
-    mass = model.deck_mass()
-    for i, bid in enumerate(model.body_id):
-        rep.bodies.append(dict(id=int(bid), label=model.body_label[i],
-                               kind="rigid" if model.body_kind[i] == 0 else "point",
-                               mass=float(mass[i])))
-    seen = {}
-    tags = {ri["tag"] for ri in model.row_info}
-    by_key = {}       # (tag, id) -> first element: one pass, not one scan per row
-    for e in spec.model:
-        if e.tag in tags:
-            by_key.setdefault((e.tag, e.id), e)
-    for ri in model.row_info:
-        key = (ri["tag"], ri["id"])
-        if key not in seen:
-            el = by_key[key]
-            seen[key] = dict(tag=ri["tag"], id=ri["id"], type=str(el.attrs.get("type", "")),
-                             n_equations=0, line=ri["line"])
-        seen[key]["n_equations"] += 1
-    rep.constraints = list(seen.values())
-    for el in spec.model:
-        if el.tag.startswith("Force_") and el.tag != "Force_Gravity":
-            rep.forces.append(dict(tag=el.tag, id=el.id, type=str(el.attrs.get("type", "")),
-                                   line=el.loc.line))
-    red = detect_redundancy(model, model.initial_state())
-    rep.n_coordinates = model.nq
-    rep.n_equations = model.nc
-    rep.n_redundant = len(red)
-    rep.dof = model.nq - (model.nc - len(red))
-    rep.user_routines = sorted(getattr(model, "user_routines", []), key=lambda u: u["line"])
-    from poise.model.compile_user import USER_CONSTRAINT_TAGS
-    n_user_c = sum(u["tag"] in USER_CONSTRAINT_TAGS for u in rep.user_routines)
-    if n_user_c:      # their equation count is known only by calling them: not here
-        rep.dof_without_user_constraints = rep.dof
-        rep.dof = None
-    rep.redundant = [dict(tag=model.row_info[r]["tag"], id=model.row_info[r]["id"],
-                          equation=model.row_info[r]["equation"], line=model.row_info[r]["line"])
-                     for r in red]
-    rep.active_effects = list(model.active_effects)
-    rep.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
-    for req in plan(spec, None):
-        method = req.settings.method
-        if req.kind == "static" and method == "FIM_D":
-            method = "FIM_S"
-        rep.analyses.append(dict(analysis_type=req.kind, method=method))
-    return rep
-
-
-__all__ = ["run", "check", "plan", "STATUS_FAILED", "EvaluationError", "__version__"]
+__all__ = ["run", "run_deck", "run_spec", "plan", "STATUS_FAILED", "EvaluationError", "__version__"]

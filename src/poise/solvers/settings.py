@@ -145,7 +145,7 @@ OVERRIDE_ALIASES = {"max_residual": "max_error"}
 
 
 def check_override_names(overrides, where: str = "solver option", also=()) -> None:
-    """Raise :class:`poise.errors.UnknownOptionError` if a key of ``overrides`` is not a
+    """Raise :class:`poise.core.errors.UnknownOptionError` if a key of ``overrides`` is not a
     :class:`StaticSettings` field (case-insensitive, aliases allowed).
 
     The one check of override names behind every public entry (``solve``, ``run_deck``,
@@ -167,7 +167,7 @@ def check_override_names(overrides, where: str = "solver option", also=()) -> No
                                           cutoff=0.6)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         parts.append(f"{k!r}{hint}")
-    from poise.errors import UnknownOptionError
+    from poise.core.errors import UnknownOptionError
     s = "s" if len(bad) > 1 else ""
     raise UnknownOptionError(f"unknown {where}{s} {', '.join(parts)}; valid names: "
                              f"{', '.join([*names, *also])}")
