@@ -22,6 +22,7 @@ def _user_scripts(deck: str, dest: Path, allow: bool) -> None:
     references are checked (inside the deck's directory); nothing is imported here."""
     import shutil
 
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.deck.parser import load_deck
     from poise.core.errors import DeckError
     from poise.core.user_routines import REFUSE, SKIP, load, script_path, uses_user_routine
@@ -64,6 +65,7 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, allow_user_c
     A deck naming Python user routines needs --allow-user-code (exit 3 otherwise)."""
     import numpy as np
 
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.app.api import run_deck
     from poise.app.ladder import method_settings, run_point, with_settings
 
@@ -89,9 +91,8 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, allow_user_c
                 r, _ = run_point(xml, st, tr, repeat, Path(td), allow_user_code=allow_user_code)
                 err = None
                 if ref is not None:
-                    from poise.app.api import run_deck as rd
                     p = Path(td) / "variant.xml"
-                    x, L = _cg(rd(str(p), overrides={"fallback": False},
+                    x, L = _cg(run_deck(str(p), overrides={"fallback": False},
                                   allow_user_code=allow_user_code))
                     if x.shape == ref[0].shape:
                         err = float(np.max(np.abs(x - ref[0]))) / L

@@ -74,6 +74,7 @@ def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict
     ``info`` is merged into the ``--json`` summary: ``status`` plus ``problems`` (invalid deck)
     or ``error`` (other errors).
     """
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.core.errors import DeckError, UsageError, one_line  # light module (dataclasses only)
 
     if isinstance(exc, DeckError):

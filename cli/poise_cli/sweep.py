@@ -68,6 +68,7 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs
 
     from poise_cli.streams import guarded_stdout
     try:
+        # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
         from poise.app.batch import worst_exit_code
         from poise.app.sweep import INDEX_VERSION, run_sweep
         with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout

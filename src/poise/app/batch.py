@@ -45,7 +45,14 @@ import math
 import os
 from pathlib import Path
 
+from poise.app.run_warnings import collected_warnings
+from poise.app.runner import run_deck
+from poise.core.atomic import atomic_output, OutputError
+from poise.core.errors import DeckError
 from poise.core.version import __version__
+from poise.results.hdf5 import read_results, write_results
+from poise.results.summary import summarize_run
+from poise.solvers.settings import check_override_names
 from typing import Any
 
 BATCH_VERSION = 1
@@ -78,7 +85,6 @@ def result_stats(res) -> dict:
     file): ``status``, ``exit_code``, ``time`` and the run summary
     (:func:`poise.results.summary.summarize_run`: iterations summed, the worst imbalance and
     stability over the analyses and frames, the failed analyses' messages)."""
-    from poise.results.summary import summarize_run
     t = sum(float(res.timings.get(k, 0.0)) for k in ("parse", "compile", "solve"))
     return dict(summarize_run(res).row(), exit_code=res.exit_code, time=t)
 
@@ -150,7 +156,6 @@ def _row(deck, output, **kw) -> dict:
 
 
 def skipped_row(deck: str, output: str) -> dict:
-    from poise.results.hdf5 import read_results
     st = result_stats(read_results(output))
     st["message"] = "skipped (up to date)"
     return _row(deck, output, skipped=True, **st)
@@ -164,10 +169,7 @@ def _error_row(deck: str, message: str) -> dict:
 def solve_one(deck: str, output: str, overrides: dict | None, command: str,
               allow_user_code: bool = False) -> dict:
     """Solve one deck and write its results file (runs in a worker process)."""
-    from poise.core.errors import DeckError
-    from poise.app.run_warnings import collected_warnings
     try:
-        from poise.app.runner import run_deck
         with collected_warnings() as numeric:          # numpy warnings: run warnings
             res = run_deck(deck, overrides, command=command, allow_user_code=allow_user_code)
         res.warnings = list(res.warnings) + numeric
@@ -177,9 +179,7 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str,
                     message="; ".join(problems), problems=problems)
     except (Exception, SystemExit) as e:  # noqa: BLE001 - a row, never kills the batch
         return _error_row(deck, f"{type(e).__name__}: {' '.join(str(e).split())}")
-    from poise.core.atomic import OutputError
     try:
-        from poise.results.hdf5 import write_results
         res.attrs["run_overrides"] = overrides_json(overrides)
         write_results(res, output)
     except OutputError as e:         # disk full, no permission: an I/O error, not a bug
@@ -198,7 +198,6 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
     ``allow_user_code``: run the Python user routines decks name (else ``invalid_deck``).
     """
     import functools
-    from poise.solvers.settings import check_override_names
     check_override_names(overrides)
     job = functools.partial(solve_one, allow_user_code=bool(allow_user_code))   # picklable
     ensure_out_dir(out_dir)
@@ -295,7 +294,6 @@ def _solve_isolated(keys, jobs, decks, outs, overrides, command, rows, on_row,
 def ensure_out_dir(out_dir: str) -> None:
     """Create ``out_dir`` (and parents); an output directory that cannot be created or written
     is an I/O error naming it (:class:`poise.core.atomic.OutputError`, exit 2), before any work."""
-    from poise.core.atomic import OutputError
     try:
         os.makedirs(out_dir, exist_ok=True)
     except OSError as e:
@@ -310,7 +308,6 @@ def write_table(rows: list[dict], path_stem: str, keys=None, extra: dict | None 
     (:func:`poise.core.atomic.atomic_output`: a failed write is an ``OutputError``, exit 2)."""
     import csv
 
-    from poise.core.atomic import atomic_output
     keys = list(keys) if keys else list(dict.fromkeys(k for r in rows for k in r))
     with atomic_output(f"{path_stem}.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")

@@ -8,6 +8,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from poise.app.runner import _load, plan
+from poise.model.compile import compile_model
+from poise.model.compile_user import USER_CONSTRAINT_TAGS
+from poise.solvers.static import detect_redundancy
 
 
 @dataclass
@@ -64,8 +67,6 @@ class CheckReport:
 
 
 def check(path: str):
-    from poise.model.compile import compile_model
-    from poise.solvers.static import detect_redundancy
     spec = _load(path)
     model = compile_model(spec, user_code="skip")      # check never runs deck code
     rep = CheckReport(deck=spec.path)
@@ -98,7 +99,6 @@ def check(path: str):
     rep.n_redundant = len(red)
     rep.dof = model.nq - (model.nc - len(red))
     rep.user_routines = sorted(getattr(model, "user_routines", []), key=lambda u: u["line"])
-    from poise.model.compile_user import USER_CONSTRAINT_TAGS
     n_user_c = sum(u["tag"] in USER_CONSTRAINT_TAGS for u in rep.user_routines)
     if n_user_c:      # their equation count is known only by calling them: not here
         rep.dof_without_user_constraints = rep.dof

@@ -13,17 +13,26 @@ from typing import Any, Callable
 
 import numpy as np
 
+from poise.core import phases
+from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
 from poise.core.version import __version__
+from poise.deck.parser import load_deck
 from poise.deck.spec import DeckSpec, Element
-from poise.core.errors import DeckError, EvaluationError, Problem
+from poise.deck.validate import validate
+from poise.model import commands as model_commands
+from poise.model.compile import compile_model
+from poise.model.compile_contact import _get
 from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
+from poise.results.summary import summarize
+from poise.results.summary import summary_line as _summary_line
+from poise.solvers.quasistatic import print_arrays, progress_bar, QuasiStaticAnalysis
 from poise.solvers.settings import StaticSettings, check_override_names
+from poise.solvers.static import StaticAnalysis
 
 
 def _load(path):
     if isinstance(path, DeckSpec):  # already parsed (run_spec: sweeps, poise.solve(spec))
         return revalidated(path)
-    from poise.deck.parser import load_deck
     return load_deck(path)
 
 
@@ -37,7 +46,6 @@ def revalidated(spec: DeckSpec) -> DeckSpec:
     """
     from dataclasses import replace
 
-    from poise.deck.validate import validate
     tmp = replace(spec, warnings=[])
     validate(tmp)
     known = {str(w) for w in spec.warnings}
@@ -106,7 +114,6 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     try:      # an invalid override is the caller's error, not the deck's
         StaticSettings().updated(overrides)
     except (ValueError, TypeError) as e:
-        from poise.core.errors import UsageError
         raise UsageError(f"invalid solver option: {e}") from None
     live = _static_settings([e for e in spec.model if e.tag == "Param_Static"])
     transient: dict = {}
@@ -117,10 +124,8 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     pending = []
     arrays = {}
     if any(e.tag == "Reference_Array" for e in spec.model):
-        from poise.solvers.quasistatic import print_arrays
         arrays = print_arrays(spec)
     t_now = 0.0
-    from poise.model import commands as model_commands
     bad = model_commands.check(spec.commands, spec.warnings)
     if bad:
         raise DeckError(bad)
@@ -158,7 +163,6 @@ def _check_compliance_markers(spec, s, el, from_cli: bool) -> None:
         return
     msg = f"compliance_markers: marker id {bad[0]} is not a Reference_Marker of the deck"
     if from_cli:
-        from poise.core.errors import UsageError
         raise UsageError(msg)
     src = next((e for e in reversed([*spec.model, *spec.commands]) if e.tag == "Param_Static"
                 and e.attrs.get("compliance_markers") is not None), el)
@@ -172,15 +176,13 @@ def analysis_class(req: AnalysisRequest):
     ``cls(model, request, redundancy=...)`` and provide ``run(state, index) -> (state,
     AnalysisResult)``, ``counters`` and ``redundancy``.
     """
-    from poise.solvers.static import StaticAnalysis
     m = req.settings.method
     if req.kind == "static":
         if m == "MKEAM":
-            from poise.solvers.mkeam import MkeamAnalysis
+            from poise.solvers.mkeam import MkeamAnalysis   # lazy: scipy, MKEAM runs only
             return MkeamAnalysis, None
         return StaticAnalysis, None
     if req.kind == "quasistatic":
-        from poise.solvers.quasistatic import QuasiStaticAnalysis
         return QuasiStaticAnalysis, None
     return None, f"analysis_type {req.kind.upper()} is not supported; expected Static"
 
@@ -189,13 +191,11 @@ def run(path: str, overrides=None, command: str = "", progress=None,
         allow_user_code: bool = False) -> RunResult:
     """``allow_user_code``: run the Python user routines the deck names (otherwise such a deck
     is a located deck error saying how to allow them)."""
-    from poise.core import phases
     phases.reset()
     t0 = time.perf_counter()
     spec = _load(path)
     path = spec.path
     t1 = time.perf_counter()
-    from poise.model.compile import compile_model
     user_code = "run" if allow_user_code else "refuse"
     model = compile_model(spec, user_code=user_code)
     t2 = time.perf_counter()
@@ -291,7 +291,6 @@ def run_deck(
     poise.core.errors.DeckError
         Invalid deck (exit code 3).
     """
-    from poise.solvers.quasistatic import progress_bar
     check_override_names(overrides)          # before parsing: a typo is the caller's error
     with progress_bar(False if quiet else None):
         return run(path, overrides=overrides, command=command, progress=progress,
@@ -303,7 +302,6 @@ def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
     (``AnalysisRequest.commands``) apply to it and every later one (poise.model.commands),
     compiled with ``compile_fn`` (the same call that compiled ``model``). All are compiled
     before anything is solved, so a rejected command costs no solve."""
-    from poise.model import commands as model_commands
     out, cur_spec, cur = [], spec, model
     for req in analyses:
         if model_commands.model_commands(req.commands):
@@ -354,7 +352,6 @@ def graphics_datasets(spec: DeckSpec, model) -> dict:
     are the marker's axes as columns (a plane's normal is the third column). Elements of other
     types or with unreadable attributes are skipped (the contact compiler reports those it uses).
     """
-    from poise.model.compile_contact import _get
     els = list(spec.elements("Post_Graphic"))
     if not els:
         return {}
@@ -409,15 +406,12 @@ def graphics_datasets(spec: DeckSpec, model) -> dict:
 
 
 def _noloc(path):
-    from poise.core.errors import SourceLoc
     return SourceLoc(path, 0, "MotionSolve", None)
 
 
 def summary_line(ar: AnalysisResult, seconds: float | None = None) -> str:
     """The one-line summary of an analysis (:func:`poise.results.summary.summary_line`)."""
-    from poise.results.summary import summarize
-    from poise.results.summary import summary_line as line
-    return line(summarize(ar), seconds=seconds)
+    return _summary_line(summarize(ar), seconds=seconds)
 
 
 def model_datasets(model) -> dict:
