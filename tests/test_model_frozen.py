@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import poise.model.compile as compile_mod
-from poise.api import run_deck
+from poise.app.api import run_deck
 
 DECKS = Path(__file__).resolve().parents[1] / "decks"
 

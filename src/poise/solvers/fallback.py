@@ -32,7 +32,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.solvers.newton import FrameOutcome, Scales, _evaluate, merit, newton
 from poise.solvers.status import MESSAGES, Status
 
@@ -191,7 +191,7 @@ class MkeamStage:
         n_mk = max(1, left - polish)
         n0 = len(history)
         try:
-            # imported here: MKEAM needs scipy, which the small-deck path never loads
+            # lazy: MKEAM needs scipy, which the small-deck path never loads
             from poise.solvers.relaxation import relax
             st2, ok = relax(model, start.copy(), replace(settings, max_num_iter=n_mk), history,
                             frame, cnt)

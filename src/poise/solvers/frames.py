@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
 from poise.model.rotation import euler_313, euler_parameters
 from poise.solvers.certify import certify

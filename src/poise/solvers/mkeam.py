@@ -19,7 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.solvers.context import Strategy, prologue
 from poise.solvers.history import History
 from poise.solvers.newton import FrameOutcome, Scales, assemble, initial_multipliers, merit, newton

@@ -35,7 +35,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.solvers.energy import potential_energy
 from poise.solvers.newton import FrameOutcome, assemble, newton
 from poise.solvers.status import Status
