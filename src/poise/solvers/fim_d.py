@@ -135,12 +135,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.model.frame_batch import batchable, evaluate_frames
 from poise.model.model import State
 from poise.model.rotation import expm_so3, se3_left_jacobian, wrap_angle
 from poise.solvers.context import Strategy, replicate
 from poise.solvers.fallback import solve_frame
-from poise.solvers.newton import FrameOutcome
-from poise.solvers.quasistatic import MIN_SUBSTEP_FRACTION, first_frame, fims_step
+from poise.solvers.newton import FrameOutcome, Scales
+from poise.solvers.quasistatic import MIN_SUBSTEP_FRACTION, fims_step, first_frame
 from poise.solvers.status import Status
 
 REBASE_ANGLE = 1.0        # rad
@@ -602,7 +603,6 @@ class Corrector:
     """
 
     def __init__(self, model, settings, active):
-        from poise.solvers.newton import Scales
         self.model = model
         self.active = np.asarray(active, bool)      # the solve's active constraint rows
         self.sc = Scales(model, settings)
@@ -628,7 +628,6 @@ class Corrector:
         """Correct the output points ``Y`` (F, N) at times ``T`` (F,). Returns ``(Y, iterations
         (F,), error estimates (F,), ok (F,))``."""
         import time as _t
-        from poise.model.frame_batch import batchable, evaluate_frames
         m = self.model
         Y = np.array(Y, float)
         F_ = len(Y)
