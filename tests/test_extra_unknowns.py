@@ -7,7 +7,7 @@ import numpy as np
 
 import poise.model.compile as C
 from builders import DeckBuilder, random_rotation
-from poise.families.base import ConstraintFamily
+from poise.elements.base import ConstraintFamily
 from poise.model.compile import compile_model
 from test_jacobians import _fd_check
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from builders import DeckBuilder, random_rotation, stable_seed
-from poise.families.constraints import JOINT_EQUATIONS
+from poise.elements.constraints import JOINT_EQUATIONS
 from poise.model.compile import compile_model
 
 

@@ -281,12 +281,12 @@ el("Constraint_Joint", "both", True,
 el("Constraint_Jprim", "both", True, "Joint primitive.", [
     ID(), LABEL(), E("type", JPRIM_TYPES, "primitive type", required=True), *_IJ,
     B("is_virtual", "virtual joint flag")])
-el("Constraint_Coupler", "model", True, "Coupler between 2 or 3 joints (poise.families.couplers).", [
+el("Constraint_Coupler", "model", True, "Coupler between 2 or 3 joints (poise.elements.couplers).", [
     ID(), LABEL(), A("joint1_id", "int", "first joint", ref="joint"), E("freedom_1", "T R", "freedom of joint 1"),
     A("joint2_id", "int", "second joint", ref="joint"), E("freedom_2", "T R", "freedom of joint 2"),
     A("joint3_id", "int", "third joint", ref="joint"), E("freedom_3", "T R", "freedom of joint 3"),
     A("coefficients", "real_list", "scale factors c1, c2[, c3]"), B("is_virtual", "virtual flag"), *USR()])
-el("Constraint_Gear", "model", True, "Gear between two joints (poise.families.gears).", [
+el("Constraint_Gear", "model", True, "Gear between two joints (poise.elements.gears).", [
     ID(), LABEL(), A("joint1_id", "int", "first joint", ref="joint"), A("joint2_id", "int", "second joint", ref="joint"),
     M("cv_marker_id", "contact-point marker (origin) and common-velocity direction (z), on the carrier", required=True, lo=1),
     B("is_virtual", "virtual flag"), *USR()])
@@ -357,7 +357,7 @@ el("Force_Scalar_TwoBody", "both", True, "Scalar force along J->I or torque abou
     ID(), LABEL(), *_IJ, E("type", "FORCE TORQUE", "force or torque", required=True),
     B("is_action_only", "TRUE: no reaction (one-body scalar force)"),
     R("val", "constant magnitude"), A("val_expression", "real_or_expr", "magnitude expression"), *USR()])
-# Force_Field / Force_Beam: poise.families.field_beam (docs/DESIGN.md "Fields and beams")
+# Force_Field / Force_Beam: poise.elements.field_beam (docs/DESIGN.md "Fields and beams")
 el("Force_Field", "model", True, "Linear 6x6 field: [F;T]_J = -K (X - length) + preload, X = [DX..AZ](I,J) in J.", [
     ID(), LABEL(), *_IJ, [R(f"k{i}{j}", f"stiffness K{i}{j} (row {i}, column {j})", default=0.0)
                           for i in range(1, 7) for j in range(1, 7)],

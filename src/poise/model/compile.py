@@ -13,7 +13,7 @@ from poise.deck.spec import DeckSpec, Element, Expr
 from poise.errors import ProblemCollector
 from poise.model import units as U
 from poise.model.model import Model
-from poise.model.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
+from poise.elements.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
 
 _DCM = ("a00", "a10", "a20", "a01", "a11", "a21", "a02", "a12", "a22")
 GLOBAL = 0  # compiled marker index of the global frame (marker id 0)

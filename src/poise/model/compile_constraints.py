@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families import constraints as C
+from poise.elements import constraints as C
 
 
 _TEMPLATES: dict = {}    # joint type -> [(kind, equation tuple, row offset, row names, row kind)]

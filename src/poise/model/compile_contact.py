@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families import contact as C
+from poise.elements import contact as C
 from poise.model.compile import GLOBAL
 
 
@@ -180,7 +180,7 @@ def _key(g, _unused, *names):
 
 def contact_frame_hook(model, state):
     """Per-frame contact outputs (one row per contact instance)."""
-    from poise.families.base import slot_kinematics
+    from poise.elements.base import slot_kinematics
     from poise.model.model import EvalContext
     fam = next(f for f in model.families if isinstance(f, C.ContactForce))
     P, A, pos = model.marker_kinematics(state)

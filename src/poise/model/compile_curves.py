@@ -1,6 +1,6 @@
 """Compile ``Reference_ParamCurve``/``Reference_ParamSurface`` and the higher-pair constraints
 ``Constraint_PTCV``, ``Constraint_CVCV``, ``Constraint_PTSF``, ``Constraint_CVSF``,
-``Constraint_SFSF`` (equations: :mod:`poise.families.curves`; geometry:
+``Constraint_SFSF`` (equations: :mod:`poise.elements.curves`; geometry:
 :mod:`poise.model.curve_data`).
 
 Parameters become scalar unknowns (``CompileContext.add_extra``) named
@@ -17,7 +17,7 @@ import numpy as np
 
 from poise.deck.spec import Expr
 from poise.errors import EvaluationError
-from poise.families import curves as F
+from poise.elements import curves as F
 from poise.model import curve_data as CD
 
 TAGS = ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
@@ -274,7 +274,7 @@ def _seed(kind, el, geo, PI, AI, PJ, AJ):
 
 def curves_frame_hook(model, state):
     """Per-frame contact outputs, one row per higher-pair constraint (deck order of groups)."""
-    from poise.families.base import slot_kinematics
+    from poise.elements.base import slot_kinematics
     o = model.outputs["curves"]
     n = len(o["ids"])
     par = np.full((n, 4), np.nan)

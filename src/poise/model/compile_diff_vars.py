@@ -75,7 +75,7 @@ def compile_diff_vars(spec, ctx):
              if e.attrs.get("is_implicit") or is_user(e)]
     if not diffs and not vars_:
         return
-    from poise.families.diff_vars import build_scalar_equations
+    from poise.elements.diff_vars import build_scalar_equations
     from poise.model.compile_expr import ModelResolver, _ground_markers, compile_batch_located
     pc = ctx.pc
     res = getattr(ctx, "expr_resolver", None) or ModelResolver(spec, ctx)

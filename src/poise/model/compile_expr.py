@@ -27,9 +27,9 @@ import numpy as np
 
 from poise.deck.spec import Expr
 from poise.errors import DeckError, EvaluationError, Problem
-from poise.families.base import _cross
+from poise.elements.base import _cross
 from poise.model.compile import GLOBAL
-from poise.model.rotation import skew
+from poise.elements.rotation import skew
 
 #: element-force function -> (output group, deck tags or None for "any tag of the group")
 REACTION_KINDS = {
@@ -728,8 +728,8 @@ def _reader_dreaction(f, kin, pi, pu):
     """(P, 12) local residual (I and J rows, :data:`_READER_ROWS`) of reader family ``f``'s
     instance ``pi[p]`` per unit change of the reaction channel in its local column ``pu[p]``
     (the force law is linear in (F, T) at fixed slots: rho(dF/dc, dT/dc))."""
-    from poise.families.base import SlotKinematics, local_residual_tangent
-    from poise.families.expr_forces import apply_two_body_w
+    from poise.elements.base import SlotKinematics, local_residual_tangent
+    from poise.elements.expr_forces import apply_two_body_w
     dFs, dTs = f.scalar_chain(kin.Y, f._rgrads)                     # (n, 3, C) each
     sub = SlotKinematics(kin.Y[pi], kin.V[pi], kin.pt[pi], kin.slot_ml, kin.K)
     drho = apply_two_body_w(sub.Y, dFs[pi, :, pu], dTs[pi, :, pu], None, None,
@@ -749,7 +749,7 @@ def _action_derivatives(g, kin, rho, phy, G, ext, js, qc, need_f):
     ``d rho = G dy + G_ys ds`` (``G`` the family's ``d rho / d y``: for constraints the
     multiplier-weighted Hessian) and ``dy = B dx`` (the slot map): ``dF = -(G B)_s``,
     ``dT = rho_s x (B_s dx) - y_s x (G B)_s``."""
-    from poise.families.base import SlotKinematics
+    from poise.elements.base import SlotKinematics
     n, S = len(js), len(g.slot_ml)
     ml = np.asarray(g.slot_ml)
     on_i = np.nonzero(ml == 0)[0]
@@ -815,7 +815,7 @@ def _constraint_dlam(g, kin, phy, js):
 def _reader_layout(fam):
     """``fam.rcols`` (n, Cr): reaction channels each instance reads; per batch the map
     (rows, batch_col, local_col) used to gather ``d_reaction`` (compile time)."""
-    from poise.families.base import column_map, columns_array
+    from poise.elements.base import column_map, columns_array
     cols = [dict() for _ in range(fam.n)]
     empty = (np.zeros(0, np.intp),) * 3
     fam.reaction_maps = [column_map(b.reaction_index, cols) if b.C else empty
@@ -865,7 +865,7 @@ def _is_null(v):
 
 def compile_expressions(spec, ctx):
     """Element compiler: expression forces, gravity expressions, Post_Request hooks."""
-    from poise.families import expr_forces as XF
+    from poise.elements import expr_forces as XF
     pc = ctx.pc
     res = ModelResolver(spec, ctx)
     ctx.expr_resolver = res

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.families import forces as Fo
+from poise.elements import forces as Fo
 from poise.model.compile import GLOBAL, _num
 
 

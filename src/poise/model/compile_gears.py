@@ -1,4 +1,4 @@
-"""Compile ``Constraint_Gear`` into one coupler row per gear (see :mod:`poise.families.gears`).
+"""Compile ``Constraint_Gear`` into one coupler row per gear (see :mod:`poise.elements.gears`).
 
 The levers ``s_k`` are computed from the input configuration: contact point and common-velocity
 direction from ``cv_marker_id`` (origin, z axis), joint axes from the joints' J markers. The
@@ -10,7 +10,7 @@ to gear 1.
 """
 from __future__ import annotations
 
-from poise.families import gears as Ge
+from poise.elements import gears as Ge
 from poise.model.compile_couplers import (add_coupler_family, joint_coordinate, marker_pose,
                                           user_routine_error)
 

@@ -5,7 +5,7 @@
   the joint's markers. Without ``joint_type``/``motion_type`` a revolute is driven in R and a
   translational in T.
 * ``Motion_Marker`` ``direction`` X/Y/Z: ``DX/DY/DZ(I,J,J) - f``; B1/B2/B3: body-fixed 1-2-3
-  angles of I relative to J (see :mod:`poise.families.motions`).
+  angles of I relative to J (see :mod:`poise.elements.motions`).
 
 Targets (:class:`MotionTargets`): ``val_type`` D: ``f(t)``; V: ``ic_disp + int_{t0}^t f``;
 A: ``ic_disp + ic_vel (t - t0) + int int f``, integrated numerically (8-point Gauss-Legendre on
@@ -20,7 +20,7 @@ import numpy as np
 
 from poise.deck.spec import Expr
 from poise.errors import DeckError, Problem
-from poise.families import motions as Mo
+from poise.elements import motions as Mo
 
 INTEGRATION_PANEL = 1e-2
 _GAUSS: list = []     # 8-point Gauss-Legendre nodes and weights, computed on first use

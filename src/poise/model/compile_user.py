@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.errors import DeckError, EvaluationError
-from poise.families.base import POINT
+from poise.elements.base import POINT
 from poise.model.compile import GLOBAL
 
 USER_CONSTRAINT_TAGS = ("Constraint_UserConstr", "Constraint_Usrconstr")
@@ -102,7 +102,7 @@ def compile_user(spec, ctx):
     uf = list(getattr(ctx, "user_forces", []))
     if not els and not uf:
         return
-    from poise.families.user import UserConstraint
+    from poise.elements.user import UserConstraint
     P, A = _initial_kinematics(ctx)
     ids = []
     for el in els:
@@ -135,8 +135,8 @@ def compile_user(spec, ctx):
 
 
 def _user_force(el, owner, ctx, P, A):
-    from poise.families import expr_forces as XF
-    from poise.families.user import UserScalarForce, UserVectorForce
+    from poise.elements import expr_forces as XF
+    from poise.elements.user import UserScalarForce, UserVectorForce
     from poise.model.compile_expr import _ground_markers
     r = _routine(el, ctx, P, A)
     if r is None:
@@ -187,7 +187,7 @@ def _user_force(el, owner, ctx, P, A):
 
 def compile_user_variables(spec, ctx, items):
     """``Reference_Variable type="USERSUB"``: residual ``v - varsub(...)`` per variable."""
-    from poise.families.user import UserScalarEquation
+    from poise.elements.user import UserScalarEquation
     P, A = _initial_kinematics(ctx)
     for el, k in items:
         r = _routine(el, ctx, P, A)

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from poise.errors import EvaluationError
-from poise.families.base import (SlotKinematics, constraint_jacobian_local, local_pattern,
+from poise.elements.base import (SlotKinematics, constraint_jacobian_local, local_pattern,
                                  local_residual_tangent, slot_kinematics)
 
 MAX_N = 400                 # KKT size up to which frames are batched (dense (F, N, N) blocks)
@@ -40,10 +40,10 @@ CHUNK_ENTRIES = 4_000_000   # dense Jacobian entries per chunk of frames (32 MB)
 
 
 def _tileable():
-    from poise.families.constraints import Coincident, InPlane, Perpendicular
-    from poise.families.contact import ContactForce
-    from poise.families.field_beam import FieldForce
-    from poise.families.forces import AxisForce, AxisTorque, Bushing, LineForce, VectorForce
+    from poise.elements.constraints import Coincident, InPlane, Perpendicular
+    from poise.elements.contact import ContactForce
+    from poise.elements.field_beam import FieldForce
+    from poise.elements.forces import AxisForce, AxisTorque, Bushing, LineForce, VectorForce
     return (Coincident, Perpendicular, InPlane, LineForce, AxisForce, AxisTorque, Bushing,
             VectorForce, ContactForce, FieldForce)
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import _cross
+from poise.elements.base import _cross
 
 
 def element_loads(model, state, lam=None, reuse: bool = False):

@@ -2,7 +2,7 @@
 friction).
 
 One instance = one potential contact point between a geometry on the body of marker I and one on
-the body of marker J (two-body slot layout of :mod:`poise.families.forces`). Each geometry is a
+the body of marker J (two-body slot layout of :mod:`poise.elements.forces`). Each geometry is a
 marker plus an offset ``o`` in the marker's axes (centre ``c = P + A o``). Pair kinds:
 
 * ``SPHERE_PLANE`` (0): sphere (radius ``rI``) on I, plane = J's x-y plane, outward normal +z_J,
@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_YI, S_YJ, S_ZI, S_ZJ, \
+from poise.elements.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_YI, S_YJ, S_ZI, S_ZJ, \
     TwoBodyForce
 
 SPHERE_PLANE, SPHERE_SPHERE, SPHERE_BOX, CORNER_PLANE = 0, 1, 2, 3

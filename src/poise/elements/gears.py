@@ -18,14 +18,14 @@ velocity equation integrates exactly to
 
     s_1 (q_1 - q_1,0) - s_2 (q_2 - q_2,0) = 0,
 
-a :class:`poise.families.couplers.Coupler` with coefficients ``(s_1, -s_2)`` (one row, a length
+a :class:`poise.elements.couplers.Coupler` with coefficients ``(s_1, -s_2)`` (one row, a length
 equation). The multiplier is the tangential contact force along ``w`` (up to sign).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from poise.families.couplers import Coupler
+from poise.elements.couplers import Coupler
 
 
 def signed_lever(rot: bool, sigma: float, zJ, pJ, c, w) -> float:

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from poise.model.rotation import skew
+from poise.elements.rotation import skew
 
 POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3
 

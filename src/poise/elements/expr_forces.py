@@ -27,9 +27,9 @@ from __future__ import annotations
 import numpy as np
 
 from poise.errors import EvaluationError
-from poise.families.base import ForceFamily, column_map, columns_array
-from poise.families.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
-from poise.families.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
+from poise.elements.base import ForceFamily, column_map, columns_array
+from poise.elements.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
+from poise.elements.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
 
 _I3 = np.eye(3)
 VEC_ATTRS = ("fx", "fy", "fz", "tx", "ty", "tz")

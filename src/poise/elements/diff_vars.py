@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import ForceFamily, column_map, columns_array
+from poise.elements.base import ForceFamily, column_map, columns_array
 
 
 class ScalarEquation(ForceFamily):

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import ConstraintFamily
+from poise.elements.base import ConstraintFamily
 
 
 class Jet:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import ConstraintFamily
+from poise.elements.base import ConstraintFamily
 
 S_PI, S_XI, S_YI, S_ZI, S_PJ, S_XJ, S_YJ, S_ZJ = range(8)
 N_SLOTS = 8
