@@ -307,7 +307,7 @@ def graphics_datasets(spec: DeckSpec, model) -> dict:
     are the marker's axes as columns (a plane's normal is the third column). Elements of other
     types or with unreadable attributes are skipped (the contact compiler reports those it uses).
     """
-    from poise.model.compile_contact import _get
+    from poise.elements.compile_contact import _get
     els = list(spec.elements("Post_Graphic"))
     if not els:
         return {}
@@ -425,7 +425,7 @@ def check(path: str):
     rep.n_redundant = len(red)
     rep.dof = model.nq - (model.nc - len(red))
     rep.user_routines = sorted(getattr(model, "user_routines", []), key=lambda u: u["line"])
-    from poise.model.compile_user import USER_CONSTRAINT_TAGS
+    from poise.elements.compile_user import USER_CONSTRAINT_TAGS
     n_user_c = sum(u["tag"] in USER_CONSTRAINT_TAGS for u in rep.user_routines)
     if n_user_c:      # their equation count is known only by calling them: not here
         rep.dof_without_user_constraints = rep.dof

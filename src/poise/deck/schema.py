@@ -292,7 +292,7 @@ el("Constraint_Gear", "model", True, "Gear between two joints (poise.elements.ge
     B("is_virtual", "virtual flag"), *USR()])
 el("Constraint_UserConstr", "both", True, "User-defined constraint (UCOSUB).", [ID(), LABEL(), *USR()],
    open_attrs=True, aliases=("Constraint_Usrconstr",))
-# higher pairs (poise.model.compile_curves; docs/DESIGN.md "Curves and surfaces")
+# higher pairs (poise.elements.compile_curves; docs/DESIGN.md "Curves and surfaces")
 _CV = A("curve_id", "int", "Reference_ParamCurve id", ref="curve", lo=1)
 _SF = A("surface_id", "int", "Reference_ParamSurface id", ref="surface", lo=1)
 el("Constraint_PTCV", "model", True, "Point (I origin) on a curve fixed in J (3 rows, u unknown).", [

@@ -37,6 +37,19 @@ POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3
 _I3 = np.eye(3)
 
 
+@dataclass
+class EvalContext:
+    """What element kernels may read besides slot vectors."""
+
+    t: float
+    angle: np.ndarray
+    static: bool = True
+    extra: np.ndarray | None = None  # (ne,) scalar unknowns
+    P: np.ndarray | None = None      # (nm, 3) marker origins (expression families)
+    A: np.ndarray | None = None      # (nm, 3, 3) marker axes as columns
+    reactions: np.ndarray | None = None  # reaction channels read by expression forces
+
+
 class SlotKinematics:
     """Slot vectors and their maps to local body coordinates for n instances.
 

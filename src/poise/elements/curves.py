@@ -6,7 +6,7 @@ derivatives, so each family writes its rows once with second-order **jets**
 (:class:`Jet`: value, gradient and Hessian with respect to the ``3S + U`` local variables). That
 gives ``phi``, ``phi_y``, ``phi_s`` and the multiplier-weighted Hessian blocks ``G``, ``G_ys``,
 ``G_ss`` exactly (given the parameter derivatives of the geometry, see
-:mod:`poise.model.curve_data`).
+:mod:`poise.elements.curve_data`).
 
 Notation: ``A_K c = c_1 x_K + c_2 y_K + c_3 z_K`` for a marker K with axes ``x_K, y_K, z_K``;
 curve on body of marker K: ``r(u) = P_K + A_K c(u)``, tangent ``t = A_K c'(u)``; surface:

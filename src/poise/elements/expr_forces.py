@@ -249,7 +249,7 @@ def _build(cls, name, I, J, R, owner, action_only, batches, ground, locs):
 
 def build_vector_family(items, ctx, res, ground):
     """Family for expression ``Force_Vector_OneBody/TwoBody`` elements ``[(owner, el), ...]``."""
-    from poise.model.compile_expr import compile_batch_located
+    from poise.elements.compile_expr import compile_batch_located
     b = ctx.b
     I, J, R, ao, comps = [], [], [], [], []
     for _, el in items:
@@ -275,7 +275,7 @@ def build_vector_family(items, ctx, res, ground):
 
 def build_scalar_family(items, ctx, res, ground):
     """Family for ``Force_Scalar_TwoBody`` elements with ``val_expression``."""
-    from poise.model.compile_expr import compile_batch_located
+    from poise.elements.compile_expr import compile_batch_located
     b = ctx.b
     I, J, ao, st, vals = [], [], [], [], []
     for _, el in items:

@@ -74,7 +74,7 @@ class FrameEvaluation:
     J : (F, N, N) dense KKT Jacobians (``None`` without ``need_jac``)
     items : list of ``(family, kin, rho, phi_y)`` over the stacked instances (frame-major:
         instance ``f * n + i``), the ``family`` a tiled copy whose ``owner`` / ``crow`` are
-        shifted per frame (output group size / ``nc``) for :func:`poise.solvers.outputs.loads_of`
+        shifted per frame (output group size / ``nc``) for :func:`poise.elements.loads.loads_of`
     """
 
     r: np.ndarray

@@ -14,8 +14,8 @@ import numpy as np
 
 from poise import phases
 from poise.errors import EvaluationError
-from poise.elements.base import (constraint_jacobian_local, local_pattern, local_residual_tangent,
-                                 slot_kinematics, tangent_compact)
+from poise.elements.base import (EvalContext, constraint_jacobian_local, local_pattern,
+                                 local_residual_tangent, slot_kinematics, tangent_compact)
 from poise.model.assembly import Assembler, scatter_add
 from poise.elements.rotation import expm_so3, se3_left_jacobian, wrap_angle
 
@@ -71,19 +71,6 @@ class Evaluation:
     J: object = None
     _pending: object = field(default=None, repr=False)   # deferred Jacobian (Model.jacobian)
     _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
-
-
-@dataclass
-class EvalContext:
-    """What element kernels may read besides slot vectors."""
-
-    t: float
-    angle: np.ndarray
-    static: bool = True
-    extra: np.ndarray | None = None  # (ne,) scalar unknowns
-    P: np.ndarray | None = None      # (nm, 3) marker origins (expression families)
-    A: np.ndarray | None = None      # (nm, 3, 3) marker axes as columns
-    reactions: np.ndarray | None = None  # reaction channels read by expression forces
 
 
 @dataclass

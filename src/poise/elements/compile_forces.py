@@ -5,7 +5,7 @@ import numpy as np
 
 from poise.deck.spec import Expr
 from poise.elements import forces as Fo
-from poise.model.compile import GLOBAL, _num
+from poise.elements.context import GLOBAL, num as _num
 
 
 def compile_forces(spec, ctx):

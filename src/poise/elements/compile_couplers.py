@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.elements.couplers import N_JOINTS, Coupler
-from poise.model.compile import GLOBAL
+from poise.elements.context import GLOBAL
 
 _FREEDOMS = {"REVOLUTE": ("R",), "TRANSLATIONAL": ("T",), "CYLINDRICAL": ("R", "T")}
 

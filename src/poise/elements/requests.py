@@ -2,7 +2,7 @@
 
 Every request type is reduced to eight expressions of the expression language (compiled once,
 one batch per channel over all requests) plus reaction channels read exactly from the converged
-multipliers (:func:`poise.model.compile_expr.channel_values`):
+multipliers (:func:`poise.elements.compile_expr.channel_values`):
 
 ================== ===========================================================================
 type               channels 1..8

@@ -15,7 +15,7 @@ import numpy as np
 
 from poise.errors import DeckError, EvaluationError
 from poise.elements.base import POINT
-from poise.model.compile import GLOBAL
+from poise.elements.context import GLOBAL
 
 USER_CONSTRAINT_TAGS = ("Constraint_UserConstr", "Constraint_Usrconstr")
 
@@ -137,7 +137,7 @@ def compile_user(spec, ctx):
 def _user_force(el, owner, ctx, P, A):
     from poise.elements import expr_forces as XF
     from poise.elements.user import UserScalarForce, UserVectorForce
-    from poise.model.compile_expr import _ground_markers
+    from poise.elements.compile_expr import _ground_markers
     r = _routine(el, ctx, P, A)
     if r is None:
         return

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.elements import contact as C
-from poise.model.compile import GLOBAL
+from poise.elements.context import GLOBAL
 
 
 def _get(el, *names, default=None):
@@ -181,7 +181,7 @@ def _key(g, _unused, *names):
 def contact_frame_hook(model, state):
     """Per-frame contact outputs (one row per contact instance)."""
     from poise.elements.base import slot_kinematics
-    from poise.model.model import EvalContext
+    from poise.elements.base import EvalContext
     fam = next(f for f in model.families if isinstance(f, C.ContactForce))
     P, A, pos = model.marker_kinematics(state)
     kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, model.marker_body, pos)

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from poise.elements.field_beam import FieldForce, beam_stiffness
-from poise.model.compile import GLOBAL, _num
-from poise.model.compile_couplers import user_routine_error
+from poise.elements.context import GLOBAL, num as _num
+from poise.elements.compile_couplers import user_routine_error
 
 _C6 = ("x", "y", "z", "tx", "ty", "tz")
 

@@ -28,7 +28,7 @@ import numpy as np
 from poise.deck.spec import Expr
 from poise.errors import DeckError, EvaluationError, Problem
 from poise.elements.base import _cross
-from poise.model.compile import GLOBAL
+from poise.elements.context import GLOBAL
 from poise.elements.rotation import skew
 
 #: element-force function -> (output group, deck tags or None for "any tag of the group")
@@ -110,18 +110,18 @@ class ModelResolver:
         if el.attrs.get("is_implicit") or \
                 str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
             # scalar unknown (model/compile_diff_vars.py); held: the constant ic
-            from poise.model.compile_diff_vars import scalar_unknown
+            from poise.elements.compile_diff_vars import scalar_unknown
             k = scalar_unknown(self.ctx, "var", int(id))
             return ("explicit", k[1]) if isinstance(k, tuple) else ("implicit", k)
         return ("explicit", el.attrs.get("expr", 0.0))
 
     def diff_state(self, id: int):
         """Scalar index of Control_Diff ``id`` or ``("const", ic)`` when statically held."""
-        from poise.model.compile_diff_vars import scalar_unknown
+        from poise.elements.compile_diff_vars import scalar_unknown
         return scalar_unknown(self.ctx, "diff", int(id))
 
     def diff_derivative(self, id: int):
-        from poise.model.compile_diff_vars import _els
+        from poise.elements.compile_diff_vars import _els
         _els(self.ctx, "Control_Diff")[int(id)]     # KeyError for unknown ids
         return None                                  # DIF1 = 0 in statics
 
@@ -234,7 +234,7 @@ def channel_values(model, state, channels, info, loads=None, P=None, A=None):
     """Values of reaction channels at ``state`` (exact, from ``state.lam``).
 
     ``info`` is the :class:`ExprInfo` holding element marker indices. Loads come from
-    :func:`poise.solvers.outputs.element_loads` (force/torque on I at the I origin, global);
+    :func:`poise.elements.loads.element_loads` (force/torque on I at the I origin, global);
     ``jflag=1`` gives the equal and opposite action on J about the J origin; components are
     resolved in marker RM's axes (0 = global). ``loads``/``P``/``A`` given (inside
     ``Model.evaluate``): used instead of evaluating the model at ``state``. Evaluated by the
@@ -243,7 +243,7 @@ def channel_values(model, state, channels, info, loads=None, P=None, A=None):
     if not channels:
         return np.zeros(0)
     if loads is None:
-        from poise.solvers.outputs import element_loads
+        from poise.elements.loads import element_loads
         loads = element_loads(model, state)
     if P is None:
         P, A, _ = model.marker_kinematics(state)
@@ -471,7 +471,7 @@ class ReactionFeed:
         return self.plan.pick(D)
 
     def _vectors(self, model, items, P, A):
-        from poise.solvers.outputs import loads_of
+        from poise.elements.loads import loads_of
         if self.plan is None:
             self.plan = self.info.plan(model, self.channels)
         return self.plan.vectors(loads_of(model, items), P, A, glob=True)
@@ -911,7 +911,7 @@ def compile_expressions(spec, ctx):
     # ------------------------------------------------------------ requests
     reqs = spec.elements("Post_Request")
     if reqs:
-        from poise.model.requests import build_request_hook
+        from poise.elements.requests import build_request_hook
         res.allow_reactions = True
         res.where = "requests"
         from poise.expr.batch import record_batches

@@ -1,7 +1,7 @@
 """Compile ``Reference_ParamCurve``/``Reference_ParamSurface`` and the higher-pair constraints
 ``Constraint_PTCV``, ``Constraint_CVCV``, ``Constraint_PTSF``, ``Constraint_CVSF``,
 ``Constraint_SFSF`` (equations: :mod:`poise.elements.curves`; geometry:
-:mod:`poise.model.curve_data`).
+:mod:`poise.elements.curve_data`).
 
 Parameters become scalar unknowns (``CompileContext.add_extra``) named
 ``<Constraint_PTCV id=3> u`` etc. Seeds: the ``*disp_*0`` guess projected onto the curve/surface
@@ -18,7 +18,7 @@ import numpy as np
 from poise.deck.spec import Expr
 from poise.errors import EvaluationError
 from poise.elements import curves as F
-from poise.model import curve_data as CD
+from poise.elements import curve_data as CD
 
 TAGS = ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
         "Constraint_SFSF")

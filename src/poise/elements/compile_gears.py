@@ -11,7 +11,7 @@ to gear 1.
 from __future__ import annotations
 
 from poise.elements import gears as Ge
-from poise.model.compile_couplers import (add_coupler_family, joint_coordinate, marker_pose,
+from poise.elements.compile_couplers import (add_coupler_family, joint_coordinate, marker_pose,
                                           user_routine_error)
 
 

@@ -76,7 +76,7 @@ def compile_diff_vars(spec, ctx):
     if not diffs and not vars_:
         return
     from poise.elements.diff_vars import build_scalar_equations
-    from poise.model.compile_expr import ModelResolver, _ground_markers, compile_batch_located
+    from poise.elements.compile_expr import ModelResolver, _ground_markers, compile_batch_located
     pc = ctx.pc
     res = getattr(ctx, "expr_resolver", None) or ModelResolver(spec, ctx)
     res.allow_reactions = False
@@ -121,7 +121,7 @@ def compile_diff_vars(spec, ctx):
                                          np.arange(len(items)), [it[0].loc for it in items])
             ctx.families.append(fam)
     if user_items:
-        from poise.model.compile_user import compile_user_variables
+        from poise.elements.compile_user import compile_user_variables
         compile_user_variables(spec, ctx, user_items)
     ctx.frame_hooks.append(_output_hook(ctx, diffs, spec.elements("Reference_Variable")))
 
