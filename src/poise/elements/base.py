@@ -33,6 +33,7 @@ import numpy as np
 from poise.elements.rotation import skew
 
 POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3
+GLOBAL = 0  # compiled marker index of the global frame (marker id 0)
 
 _I3 = np.eye(3)
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from poise.elements import contact as C
 from poise.elements.context import GLOBAL
+from poise.elements.registry import ElementType
 
 
 def _get(el, *names, default=None):
@@ -189,3 +190,11 @@ def contact_frame_hook(model, state):
     return {"contacts/id": fam.contact_ids,
             "contacts/kind": np.array([C.KIND_NAMES[k] for k in fam.kind], dtype=str),
             "contacts/force": F, "contacts/penetration": fam.last_delta.copy()}
+
+
+ELEMENTS = (ElementType(
+    "contacts", ("Force_Contact",), compile_contacts,
+    after=("expressions",),     # contact families after the expression forces (model layout)
+    kernels=lambda: (C.ContactForce,), tileable=lambda: (C.ContactForce,),
+    potential_energy=True, outputs={"contacts": ("Force_Contact",)},
+    datasets=("id", "kind", "force", "penetration"), fd_tests="tests/test_contact.py"),)

@@ -14,6 +14,7 @@ import numpy as np
 
 from poise.elements.couplers import N_JOINTS, Coupler
 from poise.elements.context import GLOBAL
+from poise.elements.registry import ElementType
 
 _FREEDOMS = {"REVOLUTE": ("R",), "TRANSLATIONAL": ("T",), "CYLINDRICAL": ("R", "T")}
 
@@ -132,3 +133,10 @@ def compile_couplers(spec, ctx):
         b.effects.append("Constraint_Coupler")
     pc.raise_if_any()
     add_coupler_family(ctx, "couplers", "Constraint_Coupler", items)
+
+
+ELEMENTS = (ElementType(
+    "couplers", ("Constraint_Coupler",), compile_couplers,
+    after=("motions",),         # coupler rows after the motion rows (model layout)
+    kernels=lambda: (Coupler,), outputs={"couplers": ("Constraint_Coupler",)},
+    datasets=("id", "force", "torque"), fd_tests="tests/test_elements_8a.py"),)

@@ -19,6 +19,7 @@ from poise.deck.spec import Expr
 from poise.errors import EvaluationError
 from poise.elements import curves as F
 from poise.elements import curve_data as CD
+from poise.elements.registry import ElementType
 
 TAGS = ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
         "Constraint_SFSF")
@@ -289,3 +290,11 @@ def curves_frame_hook(model, state):
         pt[fam.owner] = fam.contact(kin, state.extra)
     return {"curves/id": np.asarray(o["ids"]), "curves/tag": np.asarray(o["tag"]),
             "curves/parameters": par, "curves/point": pt}
+
+
+ELEMENTS = (ElementType(
+    "curves", TAGS, compile_curves,
+    after=("user",),            # curve rows and parameters after the user constraints
+    kernels=lambda: (F.PointOnCurve, F.PointOnSurface, F.CurveOnCurve, F.CurveOnSurface,
+                     F.SurfaceOnSurface), outputs={"curves": TAGS},
+    datasets=("id", "tag", "parameters", "point"), fd_tests="tests/test_curves.py"),)

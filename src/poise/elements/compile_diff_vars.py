@@ -26,46 +26,10 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-
-
-def _reg(ctx):
-    r = getattr(ctx, "scalar_registry", None)
-    if r is None:
-        r = ctx.scalar_registry = {}
-    return r
-
-
-def _els(ctx, tag):
-    cache = getattr(ctx, "_dv_els", None)
-    if cache is None:
-        cache = ctx._dv_els = {}
-    if tag not in cache:
-        cache[tag] = {e.id: e for e in ctx.b.spec.elements(tag)}
-    return cache[tag]
-
-
-def is_user(el) -> bool:
-    return str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB"
-
-
-def held(el) -> bool:
-    return bool(el.attrs.get("is_static_hold" if el.tag == "Control_Diff" else "static_hold"))
-
-
-def scalar_unknown(ctx, kind: str, id: int):
-    """Index into ``State.extra`` of the unknown of ``Control_Diff`` (kind ``"diff"``) or
-    ``Reference_Variable`` (kind ``"var"``) ``id``, or ``("const", value)`` for held states.
-    Raises KeyError for unknown ids."""
-    tag = "Control_Diff" if kind == "diff" else "Reference_Variable"
-    el = _els(ctx, tag)[int(id)]
-    ic = float(el.attrs.get("ic", 0.0) or 0.0)
-    if held(el):
-        return ("const", ic)
-    reg = _reg(ctx)
-    key = (kind, int(id))
-    if key not in reg:
-        reg[key] = ctx.add_extra(f"{el.loc.prefix()[:-1]} {'y' if kind == 'diff' else 'v'}", ic)
-    return reg[key]
+from poise.elements.diff_vars import ScalarEquation, build_scalar_equations
+from poise.elements.registry import ElementType
+from poise.elements.resolver import (compile_batch_located, ground_markers, held, is_user,
+                                     scalar_unknown)
 
 
 def compile_diff_vars(spec, ctx):
@@ -75,13 +39,11 @@ def compile_diff_vars(spec, ctx):
              if e.attrs.get("is_implicit") or is_user(e)]
     if not diffs and not vars_:
         return
-    from poise.elements.diff_vars import build_scalar_equations
-    from poise.elements.compile_expr import ModelResolver, _ground_markers, compile_batch_located
     pc = ctx.pc
-    res = getattr(ctx, "expr_resolver", None) or ModelResolver(spec, ctx)
+    res = ctx.resolver()
     res.allow_reactions = False
     res.where = "Control_Diff / Reference_Variable expressions"
-    ground = _ground_markers(ctx.b)
+    ground = ground_markers(ctx.b)
     items = []             # (el, unknown, expression) with expression equations
     user_items = []
     for el in diffs:
@@ -154,3 +116,11 @@ def _output_hook(ctx, diffs, all_vars):
         return out
 
     return hook
+
+
+ELEMENTS = (ElementType(
+    "diff_vars", ("Control_Diff", "Reference_Variable"), compile_diff_vars,
+    after=("expressions", "contacts"),  # scalar unknowns the expressions registered come first
+    kernels=lambda: (ScalarEquation,),
+    outputs={"diffs": ("Control_Diff",), "variables": ("Reference_Variable",)},
+    datasets=("id", "value"), fd_tests="tests/test_extra_unknowns.py"),)

@@ -14,6 +14,7 @@ import numpy as np
 from poise.elements.field_beam import FieldForce, beam_stiffness
 from poise.elements.context import GLOBAL, num as _num
 from poise.elements.compile_couplers import user_routine_error
+from poise.elements.registry import ElementType
 
 _C6 = ("x", "y", "z", "tx", "ty", "tz")
 
@@ -75,3 +76,11 @@ def compile_field_beam(spec, ctx):
     f.element_locs = [it[0].loc for it in items]
     f.group = "forces"
     ctx.families.append(f)
+
+
+ELEMENTS = (ElementType(
+    "field_beam", ("Force_Field", "Force_Beam"), compile_field_beam,
+    after=("forces", "gears"),  # extends the "forces" output group after compile_forces
+    kernels=lambda: (FieldForce,), tileable=lambda: (FieldForce,), potential_energy=True,
+    outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
+    fd_tests="tests/test_elements_8b.py"),)

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from poise.elements import gears as Ge
 from poise.elements.compile_couplers import (add_coupler_family, joint_coordinate, marker_pose,
-                                          user_routine_error)
+                                             user_routine_error)
+from poise.elements.registry import ElementType
 
 
 def _marker_body(b, mid):
@@ -75,3 +76,10 @@ def compile_gears(spec, ctx):
     if not items:
         return
     add_coupler_family(ctx, "gears", "Constraint_Gear", items, cls=Ge.Gear)
+
+
+ELEMENTS = (ElementType(
+    "gears", ("Constraint_Gear",), compile_gears,
+    after=("couplers",),        # gear rows after the coupler rows (model layout)
+    kernels=lambda: (Ge.Gear,), outputs={"gears": ("Constraint_Gear",)},
+    datasets=("id", "force", "torque"), fd_tests="tests/test_elements_8a.py"),)

@@ -21,6 +21,7 @@ import numpy as np
 from poise.deck.spec import Expr
 from poise.errors import DeckError, Problem
 from poise.elements import motions as Mo
+from poise.elements.registry import ElementType
 
 INTEGRATION_PANEL = 1e-2
 _GAUSS: list = []     # 8-point Gauss-Legendre nodes and weights, computed on first use
@@ -259,3 +260,13 @@ def compile_motions(spec, ctx):
     ctx.outputs[group] = dict(tag=np.array([it[0].tag for it in items]),
                               ids=np.array([it[0].id for it in items], int))
     ctx.motion_targets = targets
+
+
+ELEMENTS = (ElementType(
+    "motions", ("Motion_Joint", "Motion_Marker"), compile_motions,
+    after=("forces",),          # motion rows after the joint rows, families after forces
+    kernels=lambda: (Mo.MotionConstraint,), time_dependent=True,
+    outputs={"motions": ("Motion_Joint", "Motion_Marker")}, datasets=("id", "force", "torque"),
+    reactions={"MOTION": ("motions", ("Motion_Joint", "Motion_Marker"))},
+    reaction_aliases={"MOTION_JOINT": "MOTION"},
+    fd_tests="tests/test_motions.py"),)

@@ -9,9 +9,12 @@ constraint rows, families, output groups and continuous angles to a :class:`Comp
 from __future__ import annotations
 
 from poise.deck.spec import Element, Expr
+from poise.elements.base import GLOBAL
+from poise.elements.resolver import ModelResolver
 from poise.errors import ProblemCollector
 
-GLOBAL = 0  # compiled marker index of the global frame (marker id 0)
+__all__ = ["GLOBAL", "CompileContext", "num"]
+
 
 
 def num(el: Element, name: str, default=None, pc: ProblemCollector | None = None):
@@ -27,8 +30,8 @@ def num(el: Element, name: str, default=None, pc: ProblemCollector | None = None
 class CompileContext:
     """What element compilers add to: constraint rows, families, output groups, angles.
 
-    Element compilers are functions ``compiler(spec, ctx)`` listed in :func:`element_compilers`;
-    each handles one group of deck elements and only runs work for elements present in the deck.
+    Element compilers are the ``compile(spec, ctx)`` of the registered element types, run in
+    dependency order; each only runs work for elements present in the deck.
     """
 
     def __init__(self, builder):
@@ -45,6 +48,14 @@ class CompileContext:
         self.gravity_fn = None           # callable t -> (3,) for TIME-dependent gravity
         self.time_sources: list[str] = []   # what reads TIME besides compiled expressions
         self.batches: list = []          # every expression batch compiled (record_batches)
+        self._resolver = None
+
+    def resolver(self) -> ModelResolver:
+        """The expression resolver of this model (``poise/expr/CONTRACT.md``), one for all
+        element compilers so scalar unknowns and reaction channels are registered once."""
+        if self._resolver is None:
+            self._resolver = ModelResolver(self.b.spec, self)
+        return self._resolver
 
     def reads_time(self, what: str) -> None:
         """Record that the solution depends on the analysis time through ``what`` (compiled

@@ -30,6 +30,7 @@ from poise.errors import EvaluationError
 from poise.elements.base import ForceFamily, column_map, columns_array
 from poise.elements.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
 from poise.elements.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
+from poise.elements.resolver import compile_batch_located
 
 _I3 = np.eye(3)
 VEC_ATTRS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -249,7 +250,6 @@ def _build(cls, name, I, J, R, owner, action_only, batches, ground, locs):
 
 def build_vector_family(items, ctx, res, ground):
     """Family for expression ``Force_Vector_OneBody/TwoBody`` elements ``[(owner, el), ...]``."""
-    from poise.elements.compile_expr import compile_batch_located
     b = ctx.b
     I, J, R, ao, comps = [], [], [], [], []
     for _, el in items:
@@ -275,7 +275,6 @@ def build_vector_family(items, ctx, res, ground):
 
 def build_scalar_family(items, ctx, res, ground):
     """Family for ``Force_Scalar_TwoBody`` elements with ``val_expression``."""
-    from poise.elements.compile_expr import compile_batch_located
     b = ctx.b
     I, J, ao, st, vals = [], [], [], [], []
     for _, el in items:

@@ -2,7 +2,7 @@
 
 Every request type is reduced to eight expressions of the expression language (compiled once,
 one batch per channel over all requests) plus reaction channels read exactly from the converged
-multipliers (:func:`poise.elements.compile_expr.channel_values`):
+multipliers (:func:`poise.elements.channels.channel_values`):
 
 ================== ===========================================================================
 type               channels 1..8
@@ -32,7 +32,9 @@ import numpy as np
 from poise.deck.spec import Expr
 from poise.errors import EvaluationError
 
-from .compile_expr import ELEM_TYPES, ExprInfo, channel_values, compile_batch_located
+from poise.elements.channels import ExprInfo, channel_values
+from poise.elements.registry import reaction_aliases
+from poise.elements.resolver import compile_batch_located
 
 
 def _channels(el, pc):
@@ -67,7 +69,7 @@ def _channels(el, pc):
     if t == "MARKER_FORCE":
         return [X(f"{f}({i},{j},{rm})") for f in ("FM", "FX", "FY", "FZ", "TM", "TX", "TY", "TZ")]
     if t == "ELEMENTAL_FORCE":
-        kind = ELEM_TYPES.get(str(a.get("elem_type", "")).upper().replace(" ", "_"))
+        kind = reaction_aliases().get(str(a.get("elem_type", "")).upper().replace(" ", "_"))
         if kind is None or a.get("elem_id") is None:
             pc.error(el.loc, f"elem_type {a.get('elem_type')!r} / elem_id not usable; expected "
                      "elem_type JOINT, JPRIM, MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH or "

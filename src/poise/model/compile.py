@@ -1,5 +1,8 @@
 """DeckSpec -> Model: resolve references to indices, lay out coordinates, build families.
 
+Markers and bodies are resolved here; element families come from the ``compile(spec, ctx)``
+of every registered element type (:mod:`poise.elements.registry`), in dependency order.
+
 Only element families present in the deck are compiled (a deck without ``Force_Gravity`` has no
 gravity term in its loop); ``Model.active_effects`` lists what was compiled.
 """
@@ -12,6 +15,7 @@ import numpy as np
 from poise.deck.spec import DeckSpec, Element, Expr
 from poise.errors import ProblemCollector
 from poise.elements.context import GLOBAL, CompileContext, num as _num
+from poise.elements.registry import element_types
 from poise.model import units as U
 from poise.model.model import Model
 from poise.elements.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
@@ -360,42 +364,6 @@ class _Builder:
         return self.marker_index[mid]
 
 
-def element_compilers():
-    """The ordered list of element compilers (add new element groups here)."""
-    from poise.elements import compile_constraints, compile_forces, compile_motions
-    from poise.elements import compile_couplers, compile_field_beam, compile_gears
-    return [compile_constraints.compile_joints, compile_forces.compile_forces,
-            compile_motions.compile_motions, compile_couplers.compile_couplers,
-            compile_gears.compile_gears, compile_field_beam.compile_field_beam,
-            _compile_expressions, _compile_contacts, _compile_diff_vars, _compile_user,
-            _compile_curves]
-
-
-def _compile_curves(spec, ctx):
-    from poise.elements.compile_curves import compile_curves
-    compile_curves(spec, ctx)
-
-
-def _compile_diff_vars(spec, ctx):
-    from poise.elements.compile_diff_vars import compile_diff_vars
-    compile_diff_vars(spec, ctx)
-
-
-def _compile_user(spec, ctx):
-    from poise.elements.compile_user import compile_user
-    compile_user(spec, ctx)
-
-
-def _compile_contacts(spec, ctx):
-    from poise.elements.compile_contact import compile_contacts
-    compile_contacts(spec, ctx)
-
-
-def _compile_expressions(spec, ctx):
-    from poise.elements.compile_expr import compile_expressions
-    compile_expressions(spec, ctx)
-
-
 def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
     """Compile a validated :class:`DeckSpec` into a :class:`Model`.
 
@@ -430,8 +398,8 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     ctx = CompileContext(b)
     from poise.expr.batch import record_batches
     with record_batches(ctx.batches):
-        for compiler in element_compilers():
-            compiler(spec, ctx)
+        for et in element_types():        # dependency order (poise.elements.registry)
+            et.compile(spec, ctx)
     rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
     pc = b.pc
 

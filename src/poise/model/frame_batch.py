@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from poise.elements.registry import tileable_kernels
 from poise.errors import EvaluationError
 from poise.elements.base import (SlotKinematics, constraint_jacobian_local, local_pattern,
                                  local_residual_tangent, slot_kinematics)
@@ -40,12 +41,8 @@ CHUNK_ENTRIES = 4_000_000   # dense Jacobian entries per chunk of frames (32 MB)
 
 
 def _tileable():
-    from poise.elements.constraints import Coincident, InPlane, Perpendicular
-    from poise.elements.contact import ContactForce
-    from poise.elements.field_beam import FieldForce
-    from poise.elements.forces import AxisForce, AxisTorque, Bushing, LineForce, VectorForce
-    return (Coincident, Perpendicular, InPlane, LineForce, AxisForce, AxisTorque, Bushing,
-            VectorForce, ContactForce, FieldForce)
+    """Kernels declared tileable by their element types (:mod:`poise.elements.registry`)."""
+    return tileable_kernels()
 
 
 #: per-instance index arrays of tileable families shifted per frame: attribute -> table
