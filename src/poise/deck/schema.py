@@ -275,7 +275,8 @@ _IJ = [M("i_marker_id", "I marker (first body)", required=True, lo=1),
 el("Constraint_Joint", "both", True,
    "Ideal joint between the bodies of its I and J markers (primitive names accepted as types).", [
        ID(), LABEL(), E("type", JOINT_TYPES, "joint type", required=True), *_IJ,
-       R("pitch", "SCREW: translation per full revolution"),
+       R("pitch", "SCREW: translation of I along z_J per full turn of I about z_J "
+         "(d.z_J = pitch*AZ(I,J)/(2 pi); > 0 right-handed; pair it with a CYLINDRICAL joint)"),
        R("pitch_diameter", "RACK_PINION: pinion pitch diameter", lo=0, lo_open=True),
        B("is_virtual", "virtual joint flag (treated as a normal joint)")])
 el("Constraint_Jprim", "both", True, "Joint primitive.", [
