@@ -24,6 +24,7 @@ import numpy as np
 from poise.elements import contact as C
 from poise.elements.context import GLOBAL
 from poise.elements.registry import ElementType
+from poise.elements.base import EvalContext, slot_kinematics
 
 
 def _get(el, *names, default=None):
@@ -181,8 +182,6 @@ def _key(g, _unused, *names):
 
 def contact_frame_hook(model, state):
     """Per-frame contact outputs (one row per contact instance)."""
-    from poise.elements.base import slot_kinematics
-    from poise.elements.base import EvalContext
     fam = next(f for f in model.families if isinstance(f, C.ContactForce))
     P, A, pos = model.marker_kinematics(state)
     kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, model.marker_body, pos)

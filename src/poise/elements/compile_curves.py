@@ -20,6 +20,7 @@ from poise.errors import EvaluationError
 from poise.elements import curves as F
 from poise.elements import curve_data as CD
 from poise.elements.registry import ElementType
+from poise.elements.base import slot_kinematics
 
 TAGS = ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
         "Constraint_SFSF")
@@ -275,7 +276,6 @@ def _seed(kind, el, geo, PI, AI, PJ, AJ):
 
 def curves_frame_hook(model, state):
     """Per-frame contact outputs, one row per higher-pair constraint (deck order of groups)."""
-    from poise.elements.base import slot_kinematics
     o = model.outputs["curves"]
     n = len(o["ids"])
     par = np.full((n, 4), np.nan)

@@ -30,6 +30,7 @@ from poise.elements.diff_vars import ScalarEquation, build_scalar_equations
 from poise.elements.registry import ElementType
 from poise.elements.resolver import (compile_batch_located, ground_markers, held, is_user,
                                      scalar_unknown)
+from poise.elements.compile_user import compile_user_variables
 
 
 def compile_diff_vars(spec, ctx):
@@ -83,7 +84,6 @@ def compile_diff_vars(spec, ctx):
                                          np.arange(len(items)), [it[0].loc for it in items])
             ctx.families.append(fam)
     if user_items:
-        from poise.elements.compile_user import compile_user_variables
         compile_user_variables(spec, ctx, user_items)
     ctx.frame_hooks.append(_output_hook(ctx, diffs, spec.elements("Reference_Variable")))
 

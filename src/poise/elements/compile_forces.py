@@ -7,6 +7,7 @@ from poise.deck.spec import Expr
 from poise.elements import forces as Fo
 from poise.elements.context import GLOBAL, num as _num
 from poise.elements.registry import ElementType, FDCase
+from poise.user_routines import uses_user_routine
 
 
 def compile_forces(spec, ctx):
@@ -37,7 +38,6 @@ def compile_forces(spec, ctx):
             add("LineForce", el, I=I, J=J, R=GLOBAL, k=k, length=_num(el, "length", 0.0, pc),
                 preload=pre, ax=False)
         b.effects.append(f"Force_SpringDamper:{t}")
-    from poise.user_routines import uses_user_routine
     for el in spec.elements("Force_Scalar_TwoBody"):
         t = str(el.attrs.get("type", "FORCE")).upper()
         if uses_user_routine(el):          # Python SFOSUB: compiled by compile_user

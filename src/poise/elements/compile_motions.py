@@ -22,6 +22,7 @@ from poise.deck.spec import Expr
 from poise.errors import DeckError, Problem
 from poise.elements import motions as Mo
 from poise.elements.registry import ElementType
+from poise.expr import EvalContext, compile_batch
 
 INTEGRATION_PANEL = 1e-2
 _GAUSS: list = []     # 8-point Gauss-Legendre nodes and weights, computed on first use
@@ -118,7 +119,6 @@ class MotionTargets:
         """Expression values and d/dTIME, (n,) each."""
         if self.batch is None:
             return self.consts.copy(), np.zeros(self.n)
-        from poise.expr import EvalContext
         out = self.batch.evaluate(EvalContext(time=float(t)))
         return out.value, out.d_time
 
@@ -227,7 +227,6 @@ def compile_motions(spec, ctx):
     pc.raise_if_any()
     batch = None
     if any(isinstance(e, Expr) for e in exprs):
-        from poise.expr import compile_batch
         try:
             batch = compile_batch(exprs, _Resolver(spec, b))
         except DeckError as err:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.errors import EvaluationError
+from poise.expr import EvalContext, compile_batch
 
 
 class _ParamResolver:
@@ -82,7 +83,6 @@ class _AnalyticBase:
         if b is None:
             base = self._batches.get(1)
             if base is None:
-                from poise.expr import compile_batch
                 base = self._batches[1] = compile_batch(list(self.exprs),
                                                         _ParamResolver(self.npar))
             b = self._batches[k] = base.tiled(k, 0, 0, self.npar)
@@ -90,7 +90,6 @@ class _AnalyticBase:
 
     def _eval(self, params):
         """params (k, npar) -> value (k, 3), d (k, 3, npar)."""
-        from poise.expr import EvalContext
         k = params.shape[0]
         b = self._batch(k)
         try:

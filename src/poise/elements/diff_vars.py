@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.elements.base import ForceFamily, column_map, columns_array
+from poise.expr import EvalContext as XC
 
 
 class ScalarEquation(ForceFamily):
@@ -35,7 +36,6 @@ class ScalarEquation(ForceFamily):
         return bool(self.batch.depends_on_time)
 
     def forces(self, kin, ctx, need_jac=True):
-        from poise.expr import EvalContext as XC
         n, S, U = self.n, len(self.slot_ml), self.U
         xc = XC(time=float(ctx.t), P=ctx.P, A=ctx.A, angle_ref=ctx.angle,
                 scalars=ctx.extra, static=True)

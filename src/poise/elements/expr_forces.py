@@ -31,6 +31,7 @@ from poise.elements.base import ForceFamily, column_map, columns_array
 from poise.elements.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
 from poise.elements.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
 from poise.elements.resolver import compile_batch_located
+from poise.expr import EvalContext as XC
 
 _I3 = np.eye(3)
 VEC_ATTRS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -56,7 +57,6 @@ class ExprForce(ForceFamily):
 
     def _expr_values(self, ctx, need_jac):
         """Values (n, nb) and slot gradients (n, nb, 3S) of all batches."""
-        from poise.expr import EvalContext as XC
         t = ctx.t
         # one time per frame (frames evaluated together, model/frame_batch): one per instance
         t = np.repeat(np.asarray(t, float), self.n // len(t)) if np.ndim(t) else float(t)

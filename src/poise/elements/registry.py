@@ -15,6 +15,7 @@ import pkgutil
 from dataclasses import dataclass, field
 from functools import cache
 from typing import Callable
+import poise.elements as pkg
 
 
 @dataclass(frozen=True)
@@ -64,7 +65,6 @@ class ElementType:
 @cache
 def element_types() -> tuple[ElementType, ...]:
     """All registered element types in compile order (dependencies first)."""
-    import poise.elements as pkg
     found: dict[str, ElementType] = {}
     for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
         mod = importlib.import_module(f"{pkg.__name__}.{info.name}")

@@ -35,6 +35,7 @@ from poise.errors import EvaluationError
 from poise.elements.channels import ExprInfo, channel_values
 from poise.elements.registry import reaction_aliases
 from poise.elements.resolver import compile_batch_located
+from poise.expr import EvalContext as XC
 
 
 def _channels(el, pc):
@@ -97,7 +98,6 @@ def build_request_hook(reqs, ctx, res):
     channels = res.channels
 
     def hook(model, state):
-        from poise.expr import EvalContext as XC
         vals = np.full((R, 8), np.nan)
         msgs = []
         rx = None

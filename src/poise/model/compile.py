@@ -19,6 +19,7 @@ from poise.elements.registry import element_types
 from poise.model import units as U
 from poise.model.model import Model
 from poise.elements.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
+from poise.expr.batch import record_batches
 
 _DCM = ("a00", "a10", "a20", "a01", "a11", "a21", "a02", "a12", "a22")
 
@@ -396,7 +397,6 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
         bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * b.L) ** 2 * np.eye(3)
 
     ctx = CompileContext(b)
-    from poise.expr.batch import record_batches
     with record_batches(ctx.batches):
         for et in element_types():        # dependency order (poise.elements.registry)
             et.compile(spec, ctx)

@@ -35,6 +35,8 @@ from poise.elements.registry import tileable_kernels
 from poise.errors import EvaluationError
 from poise.elements.base import (SlotKinematics, constraint_jacobian_local, local_pattern,
                                  local_residual_tangent, slot_kinematics)
+from poise import phases
+from poise.model.model import EvalContext, _constraint_ext
 
 MAX_N = 400                 # KKT size up to which frames are batched (dense (F, N, N) blocks)
 CHUNK_ENTRIES = 4_000_000   # dense Jacobian entries per chunk of frames (32 MB)
@@ -134,7 +136,6 @@ def evaluate_frames(model, states, need_jac: bool = True) -> FrameEvaluation:
         A kernel produced NaN/Inf in some frame (callers fall back to frame-by-frame outputs,
         which name the element).
     """
-    from poise import phases
     t_start = phases.now()
     try:
         return _evaluate_frames(model, states, need_jac)
@@ -143,7 +144,6 @@ def evaluate_frames(model, states, need_jac: bool = True) -> FrameEvaluation:
 
 
 def _evaluate_frames(model, states, need_jac):
-    from poise.model.model import EvalContext, _constraint_ext
 
     F = len(states)
     nb, nq, nc, N = model.nb, model.nq, model.nc, model.N

@@ -17,7 +17,8 @@ from poise.errors import EvaluationError
 from poise.elements.base import (EvalContext, constraint_jacobian_local, local_pattern,
                                  local_residual_tangent, slot_kinematics, tangent_compact)
 from poise.model.assembly import Assembler, scatter_add
-from poise.elements.rotation import expm_so3, se3_left_jacobian, wrap_angle
+from poise.elements.rotation import (expm_so3, lift_rotation_vector, rotation_vector,
+                                     se3_left_jacobian, wrap_angle)
 
 MAX_SUBSTEP_ROTATION = np.pi / 4   # rad; larger rotation updates are applied in sub-steps
 DENSE_MAX = 600                    # KKT size up to which dense LU is used
@@ -304,7 +305,6 @@ class Model:
         taken from ``state.rotvec`` (the nearest equivalent vector; principal if None).
         ``rot`` (..., nb, 3, 3) and ``rotvec`` (..., nb, 3) instead of ``state``: many frames
         at once."""
-        from poise.elements.rotation import lift_rotation_vector, rotation_vector
         rot = state.rot if rot is None else rot
         rotvec = state.rotvec if rotvec is None and state is not None else rotvec
         v = rotation_vector(np.matmul(rot, np.swapaxes(self.init_rot, 1, 2)))
