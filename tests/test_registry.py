@@ -4,7 +4,7 @@ from pathlib import Path
 from poise.deck.parser import parse_deck_bytes
 from poise.elements.registry import (element_types, output_groups, reaction_aliases,
                                      reaction_kinds, tileable_kernels)
-from poise.sweep import parse_outputs
+from poise.app.sweep import parse_outputs
 
 DECKS = Path(__file__).resolve().parents[1] / "decks"
 

@@ -8,7 +8,7 @@ the whole axial load: its reaction on the body is -F along z and F p / (2 pi) ab
 import numpy as np
 import pytest
 
-from poise.api import run_deck
+from poise.app.api import run_deck
 
 DECK = """<?xml version="1.0" encoding="UTF-8"?>
 <MotionSolve>

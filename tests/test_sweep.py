@@ -12,8 +12,8 @@ import pytest
 from click.testing import CliRunner
 
 import poise
-from poise.errors import UsageError
-from poise.sweep import apply_case, make_cases, resolve_param, run_case
+from poise.core.errors import UsageError
+from poise.app.sweep import apply_case, make_cases, resolve_param, run_case
 from poise_cli.main import cli
 
 DECK = Path(__file__).resolve().parents[1] / "decks" / "pendulum_multiturn.xml"

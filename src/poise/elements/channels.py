@@ -12,7 +12,7 @@ import numpy as np
 
 from poise.elements.base import GLOBAL
 from poise.elements.loads import element_loads
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 
 def channel_values(model, state, channels, info, loads=None, P=None, A=None):
     """Values of reaction channels at ``state`` (exact, from ``state.lam``).

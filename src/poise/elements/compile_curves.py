@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.elements import curves as F
 from poise.elements import curve_data as CD
 from poise.elements.registry import ElementType

@@ -7,7 +7,7 @@ from poise.deck.spec import Expr
 from poise.elements import forces as Fo
 from poise.elements.context import GLOBAL, num as _num
 from poise.elements.registry import ElementType, FDCase
-from poise.user_routines import uses_user_routine
+from poise.core.user_routines import uses_user_routine
 
 
 def compile_forces(spec, ctx):

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.errors import DeckError, Problem
+from poise.core.errors import DeckError, Problem
 from poise.elements import motions as Mo
 from poise.elements.registry import ElementType
 from poise.expr import EvalContext, compile_batch

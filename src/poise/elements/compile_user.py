@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.errors import DeckError, EvaluationError
+from poise.core.errors import DeckError, EvaluationError
 from poise.elements.base import POINT
 from poise.elements import expr_forces as XF
 from poise.elements.context import GLOBAL
 from poise.elements.registry import ElementType
 from poise.elements.resolver import ground_markers
 from poise.elements.user import UserConstraint, UserScalarEquation, UserScalarForce, UserVectorForce
-from poise.user_routines import UserRoutine, describe, load
+from poise.core.user_routines import UserRoutine, describe, load
 
 USER_CONSTRAINT_TAGS = ("Constraint_UserConstr", "Constraint_Usrconstr")
 
@@ -40,7 +40,7 @@ def _initial_kinematics(ctx):
 
 def _routine(el, ctx, P, A):
     """The element's probed :class:`UserRoutine`, or None (problem collected, or user code not
-    run: ``ctx.b.user_code`` is ``"refuse"`` or ``"skip"``, see ``poise.user_routines.load``)."""
+    run: ``ctx.b.user_code`` is ``"refuse"`` or ``"skip"``, see ``poise.core.user_routines.load``)."""
     b = ctx.b
     try:
         got = load(el, b.user_code)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from poise.deck.spec import Element, Expr
 from poise.elements.base import GLOBAL
 from poise.elements.resolver import ModelResolver
-from poise.errors import ProblemCollector
+from poise.core.errors import ProblemCollector
 
 __all__ = ["GLOBAL", "CompileContext", "num"]
 

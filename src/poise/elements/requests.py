@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 
 from poise.elements.channels import ExprInfo, channel_values
 from poise.elements.registry import reaction_aliases

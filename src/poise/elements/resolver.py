@@ -15,7 +15,7 @@ import re
 
 import numpy as np
 
-from poise.errors import DeckError, Problem
+from poise.core.errors import DeckError, Problem
 from poise.elements.base import GLOBAL
 from poise.elements.registry import reaction_kinds
 from poise.expr import compile_batch

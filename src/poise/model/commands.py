@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 
-from poise.errors import DeckError, Problem
+from poise.core.errors import DeckError, Problem
 from poise.model.compile import compile_model
 
 _SIX = ("x", "y", "z", "tx", "ty", "tz")

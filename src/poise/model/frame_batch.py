@@ -32,10 +32,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from poise.elements.registry import tileable_kernels
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.elements.base import (SlotKinematics, constraint_jacobian_local, local_pattern,
                                  local_residual_tangent, slot_kinematics)
-from poise import phases
+from poise.core import phases
 from poise.model.model import EvalContext, _constraint_ext
 
 MAX_N = 400                 # KKT size up to which frames are batched (dense (F, N, N) blocks)

@@ -1,8 +1,4 @@
-"""Per-frame outputs: body poses, reactions of constraints, element forces."""
+"""Per-frame element loads for the solvers (they live in :mod:`poise.elements.loads`)."""
 from __future__ import annotations
 
-import numpy as np
-
 from poise.elements.loads import element_loads, loads_of  # noqa: F401  (re-exported)
-
-
