@@ -24,7 +24,8 @@ import numpy as np
 from poise.elements import contact as C
 from poise.elements.context import GLOBAL
 from poise.elements.registry import ElementType
-from poise.elements.base import EvalContext, slot_kinematics
+from poise.elements.base import EvalContext
+from poise.elements.kernel import slot_kinematics
 
 
 def _get(el, *names, default=None):

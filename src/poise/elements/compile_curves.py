@@ -20,7 +20,7 @@ from poise.core.errors import EvaluationError
 from poise.elements import curves as F
 from poise.elements import curve_data as CD
 from poise.elements.registry import ElementType
-from poise.elements.base import slot_kinematics
+from poise.elements.kernel import slot_kinematics
 
 TAGS = ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
         "Constraint_SFSF")

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.elements.base import (GLOBAL, SlotKinematics, _cross, column_map, columns_array,
-                                 local_residual_tangent)
+from poise.elements.base import GLOBAL, column_map, columns_array
+from poise.elements.kernel import SlotKinematics, _cross, local_residual_tangent
 from poise.elements.channels import _resultant_side
 from poise.elements.expr_forces import apply_two_body_w
 from poise.elements.loads import loads_of

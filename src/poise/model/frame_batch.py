@@ -33,8 +33,8 @@ import numpy as np
 
 from poise.elements.registry import tileable_kernels
 from poise.core.errors import EvaluationError
-from poise.elements.base import (SlotKinematics, constraint_jacobian_local, local_pattern,
-                                 local_residual_tangent, slot_kinematics)
+from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, local_pattern,
+                                   local_residual_tangent, slot_kinematics)
 from poise.core import phases
 from poise.model.model import EvalContext, _constraint_ext
 

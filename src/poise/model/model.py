@@ -14,8 +14,9 @@ import numpy as np
 
 from poise.core import phases
 from poise.core.errors import EvaluationError
-from poise.elements.base import (EvalContext, constraint_jacobian_local, local_pattern,
-                                 local_residual_tangent, slot_kinematics, tangent_compact)
+from poise.elements.base import EvalContext
+from poise.elements.kernel import (constraint_jacobian_local, local_pattern, local_residual_tangent,
+                                   slot_kinematics, tangent_compact)
 from poise.model.assembly import Assembler, scatter_add
 from poise.elements.rotation import (expm_so3, lift_rotation_vector, rotation_vector,
                                      se3_left_jacobian, wrap_angle)

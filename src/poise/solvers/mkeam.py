@@ -80,7 +80,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from poise.core.errors import EvaluationError
-from poise.elements.base import slot_kinematics
+from poise.elements.kernel import slot_kinematics
 from poise.model.model import EvalContext
 from poise.elements.rotation import expm_so3, wrap_angle
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
