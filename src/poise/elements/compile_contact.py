@@ -1,21 +1,9 @@
 """Compile ``Force_Contact`` (IMPACT law) between ``Post_Graphic`` analytic primitives.
 
-``Post_Graphic`` forms read (attribute names case-insensitive):
-
-* sphere: ``type="Sphere"`` with ``center_marker_id`` (also ``cm_id``, ``marker_id``) and
-  ``radius``;
-* box: ``type="BoxDefinedFromCenter"`` (``center_marker_id``) or ``type="BoxDefinedFromCorner"``
-  (``corner_marker_id``: the box spans +x/+y/+z of that marker) with ``length_x/y/z`` (full
-  lengths); ``type="Box"`` is read as the centre form;
-* plane: ``type="Plane"`` with ``ref_marker_id`` (also ``rm_id``, ``marker_id``,
-  ``center_marker_id``): the marker's x-y plane, outward normal +z, material on the -z side
-  (unbounded: ``x_min``... extents are ignored).
-
-Pairs: sphere-plane, sphere-sphere, sphere-box, box-plane (8 corner contacts); other pairs are a
-deck error. ``cnf_type`` must be ``IMPACT``; ``stiffness``, ``exponent`` (default 1.5), ``dmax``
-(smoothing length for exponent <= 1); damping and friction act only on velocities, so they vanish
-in statics. Per-frame outputs ``contacts/id``, ``contacts/kind``, ``contacts/force`` (force on the
-I geometry's body, global), ``contacts/penetration`` (negative = gap) come from a frame hook.
+Supported ``Post_Graphic`` forms: sphere, box (centre or corner form), plane; supported pairs:
+sphere-plane, sphere-sphere, sphere-box, box-plane (8 corner contacts), any other a deck error.
+Statics: only the IMPACT normal law acts (damping and friction act on velocities). The forms and
+attributes read: :func:`compile_contacts`; per-frame outputs ``contacts/*``: a frame hook.
 """
 from __future__ import annotations
 
@@ -70,6 +58,23 @@ def _real(el, names, default, pc, what=None):
 
 
 def compile_contacts(spec, ctx):
+    """``Post_Graphic`` forms read (attribute names case-insensitive):
+
+    * sphere: ``type="Sphere"`` with ``center_marker_id`` (also ``cm_id``, ``marker_id``) and
+      ``radius``;
+    * box: ``type="BoxDefinedFromCenter"`` (``center_marker_id``) or ``type="BoxDefinedFromCorner"``
+      (``corner_marker_id``: the box spans +x/+y/+z of that marker) with ``length_x/y/z`` (full
+      lengths); ``type="Box"`` is read as the centre form;
+    * plane: ``type="Plane"`` with ``ref_marker_id`` (also ``rm_id``, ``marker_id``,
+      ``center_marker_id``): the marker's x-y plane, outward normal +z, material on the -z side
+      (unbounded: ``x_min``... extents are ignored).
+
+    Pairs: sphere-plane, sphere-sphere, sphere-box, box-plane (8 corner contacts); other pairs are a
+    deck error. ``cnf_type`` must be ``IMPACT``; ``stiffness``, ``exponent`` (default 1.5), ``dmax``
+    (smoothing length for exponent <= 1); damping and friction act only on velocities, so they vanish
+    in statics. Per-frame outputs ``contacts/id``, ``contacts/kind``, ``contacts/force`` (force on the
+    I geometry's body, global), ``contacts/penetration`` (negative = gap) come from a frame hook.
+    """
     els = list(spec.elements("Force_Contact"))
     if not els:
         return

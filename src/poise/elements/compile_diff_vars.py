@@ -5,21 +5,7 @@ resolver when an expression reads ``DIF(id)`` / ``VARVAL(id)`` or by :func:`comp
 (run after the expression compiler) for every remaining state, so expression forces compiled
 earlier already know their scalar columns.
 
-Statics (deck_format 6.5, 6.1):
-
-* ``Control_Diff`` (``type="EXPRESSION"``): unknown ``y`` seeded from ``ic``; equation
-  ``expr(y, q, t) = 0`` (explicit ``y' = expr`` with ``y' = 0``) or ``expr(y, DIF1 = 0, q, t) = 0``
-  (implicit). ``is_static_hold="TRUE"``: no unknown; ``DIF(id)`` is the constant ``ic`` (poise
-  has no transient phase that could move a held state away from its initial value).
-  ``DIF1(id)`` is 0 in statics.
-* implicit ``Reference_Variable``: unknown ``v`` seeded from ``ic`` (0), equation
-  ``expr(v, q, t) = 0``; ``static_hold="TRUE"``: ``VARVAL(id)`` is the constant ``ic``.
-* ``Reference_Variable type="USERSUB"`` (Python VARSUB): unknown ``v`` with the equation
-  ``v - varsub(...) = 0`` (families/user.py); ``static_hold``: constant ``ic``.
-
-Outputs: frame hook ``diffs/id`` (D,), ``diffs/value`` (F, D), ``variables/id`` (V,),
-``variables/value`` (F, V) for every Control_Diff and every implicit / user variable (held ones
-report their constant).
+The static equations of each kind (deck_format 6.5, 6.1) and the outputs: :func:`compile_diff_vars`.
 """
 from __future__ import annotations
 
@@ -34,7 +20,24 @@ from poise.elements.compile_user import compile_user_variables
 
 
 def compile_diff_vars(spec, ctx):
-    """Element compiler (after the expression compiler): equations of the scalar unknowns."""
+    """Element compiler (after the expression compiler): equations of the scalar unknowns.
+
+    Statics (deck_format 6.5, 6.1):
+
+    * ``Control_Diff`` (``type="EXPRESSION"``): unknown ``y`` seeded from ``ic``; equation
+      ``expr(y, q, t) = 0`` (explicit ``y' = expr`` with ``y' = 0``) or ``expr(y, DIF1 = 0, q, t) = 0``
+      (implicit). ``is_static_hold="TRUE"``: no unknown; ``DIF(id)`` is the constant ``ic`` (poise
+      has no transient phase that could move a held state away from its initial value).
+      ``DIF1(id)`` is 0 in statics.
+    * implicit ``Reference_Variable``: unknown ``v`` seeded from ``ic`` (0), equation
+      ``expr(v, q, t) = 0``; ``static_hold="TRUE"``: ``VARVAL(id)`` is the constant ``ic``.
+    * ``Reference_Variable type="USERSUB"`` (Python VARSUB): unknown ``v`` with the equation
+      ``v - varsub(...) = 0`` (families/user.py); ``static_hold``: constant ``ic``.
+
+    Outputs: frame hook ``diffs/id`` (D,), ``diffs/value`` (F, D), ``variables/id`` (V,),
+    ``variables/value`` (F, V) for every Control_Diff and every implicit / user variable (held ones
+    report their constant).
+    """
     diffs = spec.elements("Control_Diff")
     vars_ = [e for e in spec.elements("Reference_Variable")
              if e.attrs.get("is_implicit") or is_user(e)]

@@ -1,23 +1,12 @@
-"""Expressions in the model: the resolver of ``poise.expr`` (CONTRACT.md), expression forces,
-time-dependent gravity and ``Post_Request`` outputs.
+"""Expressions in the model: expression forces, time-dependent gravity and ``Post_Request`` outputs.
 
-* :class:`ModelResolver` maps deck ids to compiled indices: marker id -> compiled marker index
-  (id 0 -> index 0, the model's global frame), explicit ``Reference_Variable`` -> shared (DAG)
-  expression, ``Reference_Spline`` / ``Reference_Array`` -> data parsed from the element text,
-  ``AX/AY/AZ`` -> the model's continuous-angle table (``CompileContext.angle``), element-force
-  functions (JOINT, JPRIM, MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH, SPDP) and resultants
-  (FM, FX, ..., TZ) -> *reaction channels* evaluated by :func:`channel_values`.
-* Reaction channels in ``Post_Request`` expressions are evaluated after convergence, exactly,
-  from the converged multipliers. Inside expression forces they are evaluated at every
-  ``Model.evaluate`` from the constraint families (current ``phi_y`` and multipliers) and the
-  force families that do not read reactions, all evaluated first (:class:`ReactionFeed`); the
-  Newton Jacobian carries their exact derivatives w.r.t. the multipliers and w.r.t. the
-  coordinates at fixed multipliers (docs/DESIGN.md, "Reactions inside forces"), so Newton
-  converges quadratically. A force reading an expression force that itself reads reactions
-  (order-dependent / cyclic) is a located DeckError; gravity and Control_Diff expressions
-  still reject reaction functions.
-* Implicit and user ``Reference_Variable`` and ``Control_Diff`` states are scalar unknowns
-  (``model/compile_diff_vars.py``): ``VARVAL``/``DIF`` read them, ``DIF1`` is 0 in statics.
+Expressions are compiled with the resolver on the compile context
+(:class:`poise.elements.resolver.ModelResolver`). Reaction channels (element forces JOINT, BUSH,
+... and resultants FX..TZ) are read exactly: in ``Post_Request`` from the converged multipliers,
+inside expression forces at every ``Model.evaluate`` (:class:`poise.elements.reaction_feed.
+ReactionFeed`, with exact Jacobian terms, docs/DESIGN.md "Reactions inside forces"). A force that
+reads an expression force which itself reads reactions is a located DeckError; gravity and
+Control_Diff expressions reject reaction functions.
 """
 from __future__ import annotations
 

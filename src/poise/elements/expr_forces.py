@@ -1,26 +1,9 @@
 """Force families whose magnitudes/components are deck expressions (exact derivatives).
 
-Marker layout per instance: ``[I, J, R, E_1, ..., E_X]`` where ``E_*`` are the further moving
-markers the instance's expressions read. Slots: the 11 two-body slots of ``forces.py``
-(``P_I x_I y_I z_I P_J x_J y_J z_J x_R y_R z_R``) followed by 4 slots (``P x y z``) per extra
-marker. A slot the expressions read on I or J reuses the standard slot; slots of ground markers
-(and of the global frame) are dropped because they carry no coordinates. Padding markers are the
-global frame (index 0).
-
-Each expression attribute is one :class:`poise.expr.Batch` over all instances of the family; its
-``d_slot (n, S_e, 3)`` is scattered into the family's slot gradient ``(n, 3S)`` through a map
-fixed at compile time, then chained through the force law:
-
-* vector forces (``Force_Vector_OneBody/TwoBody`` with any ``*_expression`` not a number):
-  ``F = A_R c_F``, ``T = A_R c_T`` (components along R's axes), applied at I; TwoBody reaction on
-  the floating marker's body (``-F`` at ``P_J`` plus ``-T - (P_I - P_J) x F``), OneBody
-  action-only;
-* scalar forces (``Force_Scalar_TwoBody val_expression``): FORCE two-body ``F = f u`` with ``u``
-  the unit vector J->I (positive repels); FORCE action-only ``F = f z_J``; TORQUE ``T = tau z_J``
-  (action-only when ``is_action_only``).
-
 Expressions are evaluated at ``EvalContext.t`` (so quasi-static time drives them) and read the
 marker kinematics ``EvalContext.P/A`` and continuous angles ``EvalContext.angle``.
+
+Marker and slot layout, and the force laws of vector and scalar forces: :class:`ExprForce`.
 """
 from __future__ import annotations
 
@@ -47,7 +30,27 @@ apply_two_body_w = apply_two_body
 
 
 class ExprForce(ForceFamily):
-    """Common part: expression batches, slot maps, evaluation of values and slot gradients."""
+    """Common part: expression batches, slot maps, evaluation of values and slot gradients.
+
+    Marker layout per instance: ``[I, J, R, E_1, ..., E_X]`` where ``E_*`` are the further moving
+    markers the instance's expressions read. Slots: the 11 two-body slots of ``forces.py``
+    (``P_I x_I y_I z_I P_J x_J y_J z_J x_R y_R z_R``) followed by 4 slots (``P x y z``) per extra
+    marker. A slot the expressions read on I or J reuses the standard slot; slots of ground markers
+    (and of the global frame) are dropped because they carry no coordinates. Padding markers are the
+    global frame (index 0).
+
+    Each expression attribute is one :class:`poise.expr.Batch` over all instances of the family; its
+    ``d_slot (n, S_e, 3)`` is scattered into the family's slot gradient ``(n, 3S)`` through a map
+    fixed at compile time, then chained through the force law:
+
+    * vector forces (``Force_Vector_OneBody/TwoBody`` with any ``*_expression`` not a number):
+      ``F = A_R c_F``, ``T = A_R c_T`` (components along R's axes), applied at I; TwoBody reaction on
+      the floating marker's body (``-F`` at ``P_J`` plus ``-T - (P_I - P_J) x F``), OneBody
+      action-only;
+    * scalar forces (``Force_Scalar_TwoBody val_expression``): FORCE two-body ``F = f u`` with ``u``
+      the unit vector J->I (positive repels); FORCE action-only ``F = f z_J``; TORQUE ``T = tau z_J``
+      (action-only when ``is_action_only``).
+    """
 
     batches: list
     slot_maps: list          # per batch: (rows, batch_slot, family_slot) index arrays

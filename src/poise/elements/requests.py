@@ -4,26 +4,12 @@ Every request type is reduced to eight expressions of the expression language (c
 one batch per channel over all requests) plus reaction channels read exactly from the converged
 multipliers (:func:`poise.elements.channels.channel_values`):
 
-================== ===========================================================================
-type               channels 1..8
-================== ===========================================================================
-EXPRESSION         ``expr1`` ... ``expr8``; ``"NULL"`` or absent -> NaN
-MARKER_DISPLACEMENT DM(I,J), DX(I,J,RM), DY(I,J,RM), DZ(I,J,RM), NaN, YAW(I,J), PITCH(I,J),
-                   ROLL(I,J)  (J, RM absent: global frame; angles in radians; yaw-pitch-roll
-                   rather than 3-1-3 because 3-1-3 is singular at zero tilt, the planar case)
-MARKER_FORCE       FM, FX, FY, FZ, TM, TX, TY, TZ (I, J, RM): resultant of every joint, jprim,
-                   motion and force element acting between I and J (all elements at I when J is
-                   absent), on I's body at the I origin, components in RM axes
-ELEMENTAL_FORCE    KIND(elem_id, jflag, 1..8, RM) with KIND from ``elem_type`` (JOINT, JPRIM,
-                   MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH, SPDP or the element tag)
-MARKER_VELOCITY,   0 (static and quasi-static analyses have no velocities)
-MARKER_ACCELERATION
-================== ===========================================================================
-
 The hook writes ``requests/id`` (R,), ``requests/values`` (R, 8) and ``requests/message`` (a
 string, empty when every channel evaluated) per frame. A channel whose evaluation fails (e.g.
 division by zero at the converged state, or a frame that failed before) is NaN and the reason is
 in ``requests/message``.
+
+The channels of each request type: :func:`build_request_hook`.
 """
 from __future__ import annotations
 
@@ -82,7 +68,24 @@ def _channels(el, pc):
 
 
 def build_request_hook(reqs, ctx, res):
-    """Compile all requests; returns the frame hook ``hook(model, state) -> {path: array}``."""
+    """Compile all requests; returns the frame hook ``hook(model, state) -> {path: array}``.
+
+    ================== ===========================================================================
+    type               channels 1..8
+    ================== ===========================================================================
+    EXPRESSION         ``expr1`` ... ``expr8``; ``"NULL"`` or absent -> NaN
+    MARKER_DISPLACEMENT DM(I,J), DX(I,J,RM), DY(I,J,RM), DZ(I,J,RM), NaN, YAW(I,J), PITCH(I,J),
+                       ROLL(I,J)  (J, RM absent: global frame; angles in radians; yaw-pitch-roll
+                       rather than 3-1-3 because 3-1-3 is singular at zero tilt, the planar case)
+    MARKER_FORCE       FM, FX, FY, FZ, TM, TX, TY, TZ (I, J, RM): resultant of every joint, jprim,
+                       motion and force element acting between I and J (all elements at I when J is
+                       absent), on I's body at the I origin, components in RM axes
+    ELEMENTAL_FORCE    KIND(elem_id, jflag, 1..8, RM) with KIND from ``elem_type`` (JOINT, JPRIM,
+                       MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH, SPDP or the element tag)
+    MARKER_VELOCITY,   0 (static and quasi-static analyses have no velocities)
+    MARKER_ACCELERATION
+    ================== ===========================================================================
+    """
     pc = ctx.pc
     chans = [_channels(el, pc) for el in reqs]
     R = len(reqs)

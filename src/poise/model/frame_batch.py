@@ -1,28 +1,15 @@
 """Evaluate many frames of one model at once (quasi-static outputs).
 
 A quasi-static run writes per output frame the reactions, element loads, stability class and
-(FIM_D's interpolated frames) the imbalance — each needs the residual and the KKT Jacobian at the
-frame. Evaluating frame by frame costs one Python pass over every family per frame, which on
-small models is far more than the numerical work (a 3-body slider-crank: about 5 ms per frame,
-several times IDA's own cost per frame). Here all ``F`` frames are evaluated together:
-
-* marker kinematics for all frames in one array operation, ``(F, nm, 3)`` and ``(F, nm, 3, 3)``;
-* the joint primitives and marker-pair force laws (:func:`_tileable`: no
-  time, marker-table or scalar-unknown reads) are *tiled*: a shallow copy whose per-instance
-  arrays are repeated ``F`` times (marker indices shifted by ``nm`` per frame, continuous-angle
-  indices by ``na``), so one kernel call covers every frame;
-* any other family (motions and expression forces read the analysis time, curves the scalar
-  unknowns, ...) is called once per frame with that frame's context — exactly what
-  :meth:`Model.evaluate` does — and its outputs are stacked in the same frame-major order;
-* local residuals and tangents of the stacked instances go through the same slot kernel
-  (:func:`local_residual_tangent`) with the family's :class:`LocalPattern`; the residual
-  ``(F, nq)``, constraints ``(F, nc)`` and dense per-frame KKT Jacobians ``(F, N, N)`` are
-  scattered with one ``bincount`` each.
-
-The result equals ``F`` calls of ``Model.evaluate(state, need_jac=True, keep=True)`` with all
-rows active (tests compare every deck's frames, entry by entry). Models whose forces read
-constraint reactions (``reaction_feed``) or with ``N > MAX_N`` unknowns are not batched
-(:func:`batchable`); callers then evaluate frame by frame.
+(FIM_D's interpolated frames) the imbalance, each needing the residual and the KKT Jacobian at
+the frame; one Python pass over every family per frame costs far more than the numerical work
+on small models. Here all ``F`` frames are evaluated together: the families whose element type
+declares them tileable (:func:`poise.elements.registry.tileable_kernels`) are tiled across frames
+and called once, any other once per frame, and everything is scattered with one ``bincount``
+(how: :func:`evaluate_frames`). The result equals ``F`` calls of ``Model.evaluate(state,
+need_jac=True, keep=True)`` with all rows active (tests compare every deck's frames); models whose
+forces read constraint reactions or with ``N > MAX_N`` unknowns are not batched
+(:func:`batchable`).
 """
 from __future__ import annotations
 
@@ -135,6 +122,21 @@ def evaluate_frames(model, states, need_jac: bool = True) -> FrameEvaluation:
     EvaluationError
         A kernel produced NaN/Inf in some frame (callers fall back to frame-by-frame outputs,
         which name the element).
+
+    All ``F`` frames are evaluated together:
+
+    * marker kinematics for all frames in one array operation, ``(F, nm, 3)`` and ``(F, nm, 3, 3)``;
+    * the joint primitives and marker-pair force laws (:func:`_tileable`: no
+      time, marker-table or scalar-unknown reads) are *tiled*: a shallow copy whose per-instance
+      arrays are repeated ``F`` times (marker indices shifted by ``nm`` per frame, continuous-angle
+      indices by ``na``), so one kernel call covers every frame;
+    * any other family (motions and expression forces read the analysis time, curves the scalar
+      unknowns, ...) is called once per frame with that frame's context — exactly what
+      :meth:`Model.evaluate` does — and its outputs are stacked in the same frame-major order;
+    * local residuals and tangents of the stacked instances go through the same slot kernel
+      (:func:`local_residual_tangent`) with the family's :class:`LocalPattern`; the residual
+      ``(F, nq)``, constraints ``(F, nc)`` and dense per-frame KKT Jacobians ``(F, N, N)`` are
+      scattered with one ``bincount`` each.
     """
     t_start = phases.now()
     try:
