@@ -16,6 +16,7 @@ from poise import __version__
 from poise.deck.spec import DeckSpec, Element
 from poise.errors import DeckError, EvaluationError, Problem
 from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
+from poise.results.labels import Labeller
 from poise.settings import StaticSettings
 
 
@@ -224,6 +225,8 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     res.model_datasets = model_datasets(model)
     res.model_datasets.update(joint_marker_datasets(spec, model))
     res.model_datasets.update(graphics_datasets(spec, model))
+    labeller = Labeller(spec, model.units)            # <group>/label, request channels
+    res.model_datasets.update(labeller.datasets(res.model_datasets, model))
     models = _analysis_models(spec, model, analyses,
                               lambda sp: compile_model(sp, user_code=user_code))
     for m in models[1:]:
@@ -239,6 +242,7 @@ def run(path: str, overrides=None, command: str = "", progress=None,
         res.timings[f"analysis_{k:03d}"] = time.perf_counter() - ta
         for key, v in drv.counters.as_dict().items():
             counts[key] = counts.get(key, 0) + v
+        ar.datasets.update(labeller.datasets(ar.datasets, models[k]))
         res.analyses.append(ar)
         if progress:
             progress(summary_line(ar, res.timings[f"analysis_{k:03d}"]))
