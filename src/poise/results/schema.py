@@ -160,10 +160,14 @@ _ABBREV = {
 _BASE = ("length", "force", "mass", "time")
 
 
-@functools.lru_cache(maxsize=64)
 def unit_symbols(units: str) -> dict:
     """``{"length", "force", "mass", "time", "torque", "energy", "angle"}`` unit names of the
     deck's unit system (the results file's ``units`` attribute, ``force=NEWTON ...``)."""
+    return dict(_symbols(str(units or "")))
+
+
+@functools.lru_cache(maxsize=64)
+def _symbols(units: str) -> dict:
     u = dict(p.split("=", 1) for p in str(units or "").split() if "=" in p)
     out = {k: _ABBREV.get(str(u.get(k, "")).upper(), str(u.get(k, "")).lower() or f"{k} unit")
            for k in _BASE}
@@ -176,7 +180,7 @@ def unit_symbols(units: str) -> dict:
 def unit_string(expr: str, units: str) -> str:
     """The unit expression ``expr`` (``"force*length"``, ``"length/force"``, ``"1"``, ...) in
     the deck's unit names: ``"N*mm"``, ``"mm/N"``, ``"1"``."""
-    sym = unit_symbols(units)
+    sym = _symbols(str(units or ""))
     return re.sub(r"\b(length|force|mass|time|angle)\b", lambda m: sym[m.group(1)], expr)
 
 
