@@ -49,6 +49,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from poise.errors import UsageError
+from poise.results.schema import GROUP_TAGS, element_outputs
 
 INDEX_VERSION = 1
 INDEX_KEYS = ("case", "file", "status", "exit_code", "iterations", "wall_time", "imbalance",
@@ -61,16 +62,9 @@ _SPEC = re.compile(r"^\s*([A-Za-z][A-Za-z0-9_]*)\s*(?:\[\s*(-?\d+)\s*\])?\s*\.\s
 _OUT = re.compile(r"^\s*([a-z_]+)\s*\[\s*(-?\d+)\s*\]\s*\.\s*([A-Za-z_][A-Za-z0-9_]*)\s*$")
 _SWEEPABLE = ("real", "int", "real_or_expr", "enum", "bool")
 
-#: output group -> deck tags whose ids it holds (for checking ``--output`` ids)
-OUTPUT_GROUPS = {
-    "bodies": ("Body_Rigid", "Body_Point"),
-    "joints": ("Constraint_Joint",),
-    "jprims": ("Constraint_Jprim",),
-    "motions": ("Motion_Joint", "Motion_Marker"),
-    "requests": ("Post_Request",),
-    "forces": None,
-    "contacts": ("Force_Contact",),
-}
+#: output group -> deck tags whose ids it holds (for checking ``--output`` ids; None: any tag),
+#: for every group whose per-element datasets the results schema declares
+OUTPUT_GROUPS = {g: GROUP_TAGS[g] for g in element_outputs()}
 
 
 @dataclass
@@ -311,6 +305,13 @@ def parse_outputs(spec, outputs) -> list[tuple[str, str, int, str]]:
             raise UsageError(f"--output {text!r}: expected group[id].dataset with group one of "
                              f"{', '.join(OUTPUT_GROUPS)}, e.g. bodies[2].position")
         g, i, ds = m.group(1), int(m.group(2)), m.group(3)
+        known = element_outputs()[g]
+        if ds not in known:
+            import difflib
+            near = difflib.get_close_matches(ds, known, n=1)
+            raise UsageError(f"--output {text!r}: {g} has no dataset {ds!r}"
+                             + (f"; did you mean {g}[{i}].{near[0]}?" if near else "")
+                             + f" ({g} datasets: {', '.join(known)})")
         tags = OUTPUT_GROUPS[g]
         if tags and not any(e.tag in tags and e.id == i for e in spec.model):
             raise UsageError(f"--output {text!r}: the deck has no {'/'.join(tags)} id={i}")

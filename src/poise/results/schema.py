@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 #: element groups of an analysis (and of ``/model``) -> the deck tags whose ids they hold
-#: (``None``: several tags, the group's ``tag`` dataset names each row's)
+#: (``None``: any force tag; ``forces/tag`` names each row's)
 GROUP_TAGS = {
     "bodies": ("Body_Rigid", "Body_Point"),
     "joints": ("Constraint_Joint",),
@@ -31,7 +31,8 @@ GROUP_TAGS = {
     "couplers": ("Constraint_Coupler",),
     "gears": ("Constraint_Gear",),
     "userconstrs": ("Constraint_UserConstr",),
-    "curves": None,
+    "curves": ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
+               "Constraint_SFSF"),
     "contacts": ("Force_Contact",),
     "requests": ("Post_Request",),
     "diffs": ("Control_Diff",),
@@ -201,6 +202,7 @@ REQUEST_CHANNELS = {
 
 
 # -------------------------------------------------------------------------- sweep outputs
+@functools.cache
 def element_outputs() -> dict[str, tuple[str, ...]]:
     """``{group: (dataset, ...)}``: the numeric per-element datasets of an analysis (shape
     ``(F, n_group, ...)``) a ``poise sweep --output group[id].dataset`` can read."""
