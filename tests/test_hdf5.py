@@ -220,11 +220,11 @@ def test_atomic_on_exception(tmp_path, monkeypatch):
     calls = {"n": 0}
     real = hdf5._write_datasets
 
-    def boom(group, datasets, where, *args):
+    def boom(group, datasets, where):
         calls["n"] += 1
         if where.startswith("/analysis_001"):
             raise RuntimeError("disk on fire")
-        return real(group, datasets, where, *args)
+        return real(group, datasets, where)
 
     monkeypatch.setattr(hdf5, "_write_datasets", boom)
     with pytest.raises(RuntimeError, match="disk on fire"):
@@ -253,8 +253,8 @@ def test_sigkill_mid_write_leaves_no_final_file(tmp_path):
         from test_hdf5 import make_result
         from poise.results import hdf5
         real = hdf5._write_datasets
-        def slow(group, datasets, where, *args):
-            real(group, datasets, where, *args)
+        def slow(group, datasets, where):
+            real(group, datasets, where)
             if where.startswith("/analysis_000"):
                 group.file.flush()
                 print("mid-write", flush=True)

@@ -145,10 +145,18 @@ def _create_dataset(parent: h5py.Group, name: str, arr: np.ndarray, units: str |
         h5a.create(dsid, b"units", tid, space).write(np.array(units, dtype=_STR))
 
 
-def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str, scope: str,
-                    units: str) -> None:
+def _scope(where: str) -> str:
+    """The schema scope of the group at ``where`` ("", "/model", "/analysis_NNN")."""
+    return "model" if where == "/model" else "analysis" if where.startswith("/analysis_") \
+        else "root"
+
+
+def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str) -> None:
     """Every dataset of ``datasets`` (declared in :mod:`poise.results.schema`, else
-    :class:`~poise.results.schema.UndeclaredError`) with its ``units`` attribute."""
+    :class:`~poise.results.schema.UndeclaredError`) with its ``units`` attribute, in the
+    units of the file's root ``units`` attribute (written first)."""
+    scope = _scope(where)
+    units = group.file.attrs.get("units", "")
     groups: dict[tuple, h5py.Group] = {(): group}   # opened subgroups (one lookup per group)
     for key in sorted(datasets):
         parts = _check_relpath(key, where)
@@ -195,17 +203,16 @@ def _file_image(result: RunResult, name: str) -> bytes:
         if clash:
             raise ValueError(f"/: attrs {sorted(clash)} clash with reserved root attributes")
         _set_attrs(f, {**extra, **root_attrs}, "/", "root")
-        units = str(result.units)
 
         model = f.create_group("model")
-        _write_datasets(model, result.model_datasets, "/model", "model", units)
+        _write_datasets(model, result.model_datasets, "/model")
 
         timings = f.create_group("timings")       # attributes set last (with the write time)
         counts = f.create_group("counts")
         _set_attrs(counts, {k: int(v) for k, v in result.counts.items()}, "/counts", "counts")
 
         warnings = np.array([str(w) for w in result.warnings], dtype=object)
-        _write_datasets(f, {"warnings": warnings.astype(_STR)}, "", "root", units)
+        _write_datasets(f, {"warnings": warnings.astype(_STR)}, "")
 
         for a in sorted(result.analyses, key=lambda a: a.index):
             name = analysis_group_name(a.index)
@@ -221,7 +228,7 @@ def _file_image(result: RunResult, name: str) -> bytes:
             if clash:
                 raise ValueError(f"/{name}: attrs {sorted(clash)} clash with reserved attributes")
             _set_attrs(g, {**a.attrs, **base}, f"/{name}", "analysis")
-            _write_datasets(g, a.datasets, f"/{name}", "analysis", units)
+            _write_datasets(g, a.datasets, f"/{name}")
 
         # the write time covers everything but closing, fsync and rename of this file
         tim = {k: float(v) for k, v in result.timings.items() if k != "write"}
