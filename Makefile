@@ -11,7 +11,7 @@ help:
 	@echo "make test    - run the test suite (creates .venv if needed)"
 	@echo "make bench   - run the benchmarks, write bench/results.jsonl and docs/performance.md"
 	@echo "make bench-quick - reduced ladder and sizes (~2-3 min), same outputs"
-	@echo "make lint    - ruff"
+	@echo "make lint    - ruff and lint-imports (the import contracts in pyproject.toml)"
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -37,16 +37,18 @@ $(BENCH_STAMP): pyproject.toml $(STAMP)
 	$(PY) -m pip install --quiet -e '.[dev,bench]'
 	@touch $(BENCH_STAMP)
 
-# chain bench + issue 7 (work-precision ladders, Exudyn peer, scaling); <= 20 min on 2 cores
+# benchmarks/ (not installed): chain bench + issue 7 (work-precision ladders, Exudyn peer,
+# scaling); <= 20 min on 2 cores
 bench: install $(BENCH_STAMP)
-	$(PY) -m poise.bench --out bench/results.jsonl --markdown docs/performance.md
+	$(PY) -m benchmarks --out bench/results.jsonl --markdown docs/performance.md
 
 bench-quick: install $(BENCH_STAMP)
-	$(PY) -m poise.bench --quick --sizes 10,100,1000 --repeat 1 --cli-repeat 3 \
+	$(PY) -m benchmarks --quick --sizes 10,100,1000 --repeat 1 --cli-repeat 3 \
 	    --out bench/results-quick.jsonl --markdown bench/performance-quick.md
 
 lint: install
-	$(VENV)/bin/ruff check src cli tests
+	$(VENV)/bin/ruff check src cli tests benchmarks
+	$(VENV)/bin/lint-imports --no-cache
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info src/*.egg-info demo_results.h5

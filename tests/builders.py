@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import DeckSpec, Element
-from poise.errors import SourceLoc
+from poise.core.errors import SourceLoc
 
 
 class DeckBuilder:

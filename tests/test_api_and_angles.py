@@ -16,7 +16,7 @@ from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 import poise
-from poise.errors import DeckError, UnknownOptionError, UsageError
+from poise.core.errors import DeckError, UnknownOptionError, UsageError
 
 DECKS = Path(__file__).resolve().parent.parent / "decks"
 MULTITURN = DECKS / "pendulum_multiturn.xml"
@@ -67,8 +67,8 @@ def test_unknown_keywords_raise_with_suggestion():
 
 
 def test_unknown_override_names_every_entry(tmp_path):
-    from poise.api import run_deck
-    from poise.batch import run_batch
+    from poise.app.api import run_deck
+    from poise.app.batch import run_batch
     for call in (lambda: run_deck(str(MULTITURN), overrides={"max_num_itr": 5}),
                  lambda: run_batch([str(MULTITURN)], str(tmp_path / "b"),
                                    overrides={"max_num_itr": 5}),

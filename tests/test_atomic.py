@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from poise.atomic import atomic_output, output_target
-from poise.errors import UsageError
+from poise.core.atomic import atomic_output, output_target
+from poise.core.errors import UsageError
 from poise_cli.main import cli
 
 DECK = Path(__file__).resolve().parents[1] / "decks" / "pendulum_multiturn.xml"

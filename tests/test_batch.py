@@ -8,7 +8,7 @@ from pathlib import Path
 
 from click.testing import CliRunner
 
-from poise.batch import BATCH_KEYS, output_paths, worst_exit_code
+from poise.app.batch import BATCH_KEYS, output_paths, worst_exit_code
 from poise_cli.main import cli
 
 DECKS = Path(__file__).resolve().parents[1] / "decks"

@@ -4,14 +4,17 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_bench_smoke(tmp_path):
     out = tmp_path / "results.jsonl"
     md = tmp_path / "performance.md"
-    r = subprocess.run([sys.executable, "-m", "poise.bench", "--no-wp", "--sizes", "10", "--repeat", "1",
+    r = subprocess.run([sys.executable, "-m", "benchmarks", "--no-wp", "--sizes", "10", "--repeat", "1",
                         "--cli-repeat", "1", "--out", str(out), "--markdown", str(md)],
-                       capture_output=True, text=True, timeout=300)
+                       capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert r.returncode == 0, r.stderr
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     chain = [x for x in rows if x["bench"] == "chain"]

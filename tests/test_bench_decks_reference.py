@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from poise.api import run_deck
-from poise.benchmarks import wp
-from poise.benchmarks.decks import BENCH_DIR
+from poise.app.api import run_deck
+from benchmarks import wp
+from benchmarks.decks import BENCH_DIR
 
 CASES = [pytest.param(name, spec[0], spec[3], id=name) for name, spec in wp.DECKS.items()]
 CASES.append(pytest.param("slider_crank_qs_1000", "slider_crank_qs_1000.xml", wp._ref_slider_qs,

@@ -4,8 +4,8 @@ from __future__ import annotations
 import pytest
 from click.testing import CliRunner
 
-from poise.benchmarks import wp
-from poise.benchmarks.decks import BENCH_DIR, build_grid_deck, with_settings
+from benchmarks import wp
+from benchmarks.decks import BENCH_DIR, build_grid_deck, with_settings
 
 
 def test_bench_decks_exist():
@@ -29,7 +29,7 @@ def test_with_settings_transient():
 
 
 def test_grid_deck_solves(tmp_path):
-    from poise.api import run_deck
+    from poise.app.api import run_deck
     p = tmp_path / "g.xml"
     p.write_text(build_grid_deck(3))
     res = run_deck(str(p))
@@ -47,7 +47,7 @@ def test_poise_bench_cli(tmp_path):
 
 
 def _peer_or_skip():
-    from poise.benchmarks import peer
+    from benchmarks import peer
     ok, note = peer.exudyn_available()
     if not ok:
         pytest.skip(note)

@@ -18,7 +18,7 @@ import h5py
 import numpy as np
 import pytest
 
-from poise.api import run_deck
+from poise.app.api import run_deck
 from poise.solvers.fallback import continuation
 from poise.solvers.history import History
 from poise.solvers.newton import Counters
@@ -80,7 +80,7 @@ def test_continuation_caps_mu_and_reports_divergence(tmp_path, monkeypatch):
     overflowed and ``stability = mu**2 = inf`` raised ValueError; now it ends as ``diverged``."""
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
-    from poise.runner import plan
+    from poise.app.runner import plan
     import poise.solvers.fallback as fb
     d = Deck(units="m", grav=None)
     d.ground()

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from poise.deck.parser import parse_deck_bytes
-from poise.errors import DeckError, UsageError
+from poise.core.errors import DeckError, UsageError
 from poise_cli.main import cli
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +71,7 @@ def test_absurd_tolerance_option_is_a_usage_error(tmp_path, opt):
 
 
 def test_absurd_tolerance_override_is_a_usage_error():
-    from poise.api import run_deck
+    from poise.app.api import run_deck
     with pytest.raises(UsageError, match="max_imbalance must be a finite number >= 1e-100"):
         run_deck(str(DECK), {"max_imbalance": 1e-300})
 
@@ -90,7 +90,7 @@ def test_huge_marker_coordinate_is_a_located_problem():
 
 
 def test_problem_lines_escape_newlines_and_control_characters():
-    from poise.errors import Problem, SourceLoc
+    from poise.core.errors import Problem, SourceLoc
     p = Problem(SourceLoc("d.xml", 7, "Body_Rigid", 2), "got 'a\nb\x00c'", "label")
     assert str(p) == "d.xml:7: <Body_Rigid id=2> label: got 'a\\nb\\x00c'"
 

@@ -1,6 +1,6 @@
 """CLI tests: every command, every exit code, --json, atomic writes, light imports.
 
-Most tests monkeypatch ``poise.api.run_deck`` / ``check_deck`` with hand-built results so the CLI
+Most tests monkeypatch ``poise.app.api.run_deck`` / ``check_deck`` with hand-built results so the CLI
 is tested independently of the numerical core; ``test_invalid_decks_subprocess`` runs the real
 CLI on every ``decks/invalid/*.xml``.
 """
@@ -19,9 +19,9 @@ import pytest
 from click.testing import CliRunner
 
 import poise
-import poise.api
-from poise.api import CheckReport
-from poise.errors import DeckError, Problem, SourceLoc
+import poise.app.api
+from poise.app.api import CheckReport
+from poise.core.errors import DeckError, Problem, SourceLoc
 from poise.results import hdf5
 from poise.results.data import AnalysisResult, RunResult
 from poise_cli.main import cli
@@ -97,7 +97,7 @@ def fake_run(monkeypatch):
             if exc is not None:
                 raise exc
             return result
-        monkeypatch.setattr(poise.api, "run_deck", run_deck)
+        monkeypatch.setattr(poise.app.api, "run_deck", run_deck)
         return calls
     return install
 
@@ -299,7 +299,7 @@ def make_report(deck):
 
 
 def test_check(deck, monkeypatch):
-    monkeypatch.setattr(poise.api, "check_deck", lambda path: make_report(path))
+    monkeypatch.setattr(poise.app.api, "check_deck", lambda path: make_report(path))
     r = invoke("check", str(deck))
     assert r.exit_code == 0, r.output
     out = r.stdout
@@ -317,7 +317,7 @@ def test_check(deck, monkeypatch):
 def test_check_invalid_deck(deck, monkeypatch):
     def bad(path):
         raise deck_error()
-    monkeypatch.setattr(poise.api, "check_deck", bad)
+    monkeypatch.setattr(poise.app.api, "check_deck", bad)
     r = invoke("check", str(deck))
     assert r.exit_code == 3
     assert "d.xml:12: <Part id=3> mass: mass must be > 0" in r.stderr
@@ -327,7 +327,7 @@ def test_check_invalid_deck(deck, monkeypatch):
 def test_check_internal_error(deck, monkeypatch):
     def bad(path):
         raise KeyError("oops")
-    monkeypatch.setattr(poise.api, "check_deck", bad)
+    monkeypatch.setattr(poise.app.api, "check_deck", bad)
     r = invoke("check", str(deck))
     assert r.exit_code == 4
     assert "rerun with --debug" in r.stderr and "Traceback" not in r.stderr
@@ -378,13 +378,13 @@ def test_show_not_results(tmp_path):
 # ---- the real CLI on invalid decks ------------------------------------------------------------
 
 INVALID_DECKS = sorted((ROOT / "decks" / "invalid").glob("*.xml"))
-HAVE_RUNNER = find_spec("poise.runner") is not None
+HAVE_RUNNER = find_spec("poise.app.runner") is not None
 HAVE_PARSER = find_spec("poise.deck.parser") is not None
 
-# Until poise.runner exists, run the real CLI in a subprocess with run_deck/check_deck replaced by
+# Until poise.app.runner exists, run the real CLI in a subprocess with run_deck/check_deck replaced by
 # the real deck parser (which raises the DeckError); once the runner exists, nothing is replaced.
 _SHIM = """
-import poise.api as api
+import poise.app.api as api
 from poise.deck.parser import load_deck
 def _parse_only(path, *args, **kwargs):
     load_deck(path)
@@ -442,7 +442,7 @@ def test_non_finite_solver_options_are_usage_errors(tmp_path, opt, val):
 
 
 def test_non_finite_api_override_is_a_usage_error():
-    from poise.api import run_deck
-    from poise.errors import UsageError
+    from poise.app.api import run_deck
+    from poise.core.errors import UsageError
     with pytest.raises(UsageError, match="max_error must be a finite number >= 1e-100, got nan"):
         run_deck(str(ROOT / "decks" / "pendulum_multiturn.xml"), {"max_error": float("nan")})

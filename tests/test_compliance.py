@@ -245,7 +245,7 @@ def test_none_and_bad_marker(tmp_path):
     assert "frames/compliance" not in a.datasets
     p = tmp_path / "bad.xml"
     p.write_text(deck(spring_mass(), 'compliance_markers="999"'))
-    from poise.errors import DeckError
+    from poise.core.errors import DeckError
     with pytest.raises(DeckError, match="marker id 999") as e:
         poise.solve(str(p))
     assert "bad.xml:4:" in str(e.value)                       # located at the Param_Static
@@ -253,7 +253,7 @@ def test_none_and_bad_marker(tmp_path):
     with pytest.raises(DeckError, match="'ten' is not a marker id") as e:
         poise.solve(str(p))
     assert "bad.xml:4:" in str(e.value)
-    from poise.errors import UsageError
+    from poise.core.errors import UsageError
     with pytest.raises(UsageError, match="marker id 998"):
         poise.solve(str(tmp_path / "d.xml"), compliance_markers=[20, 998])
 

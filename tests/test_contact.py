@@ -14,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from builders import DeckBuilder, random_rotation, stable_seed  # noqa: E402
 from test_jacobians import _fd_check  # noqa: E402
 
-from poise import runner  # noqa: E402
+from poise.app import runner  # noqa: E402
 from poise.model.compile import compile_model  # noqa: E402
 
 DECKS = Path(__file__).resolve().parents[1] / "decks"

@@ -8,7 +8,7 @@ import pytest
 
 from builders import DeckBuilder, random_rotation, stable_seed
 from poise.deck.spec import Expr
-from poise.errors import SourceLoc
+from poise.core.errors import SourceLoc
 from poise.model.compile import compile_model
 from test_jacobians import _fd_check
 
@@ -79,7 +79,7 @@ DECKS = __import__("pathlib").Path(__file__).resolve().parents[1] / "decks"
 
 
 def _run(name, **over):
-    from poise import runner
+    from poise.app import runner
     res = runner.run(str(DECKS / name), overrides=over or None)
     return res.analyses[0]
 

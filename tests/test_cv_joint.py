@@ -12,8 +12,8 @@ import sys
 import numpy as np
 import pytest
 
-from poise.errors import DeckError
-from poise.runner import run
+from poise.core.errors import DeckError
+from poise.app.runner import run
 
 
 def _mk(id, body, p, R):

@@ -26,7 +26,7 @@ import pytest
 from poise.deck import parser as P
 from poise.deck import validate as V
 from poise.deck.spec import Expr
-from poise.errors import DeckError
+from poise.core.errors import DeckError
 
 ROOT = Path(__file__).resolve().parents[1]
 DECKS = sorted((ROOT / "decks").glob("*.xml"))

@@ -10,7 +10,7 @@ import pytest
 from poise.deck.parser import load_deck, parse_deck_bytes, parse_number
 from poise.deck.schema import SCHEMAS, element_schema, render_markdown
 from poise.deck.spec import Expr
-from poise.errors import DeckError
+from poise.core.errors import DeckError
 
 ROOT = Path(__file__).resolve().parents[1]
 INVALID = ROOT / "decks" / "invalid"

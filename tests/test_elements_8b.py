@@ -15,9 +15,9 @@ import pytest
 
 from builders import stable_seed
 from poise.deck.spec import Expr
-from poise.errors import SourceLoc
+from poise.core.errors import SourceLoc
 from poise.model.compile import compile_model
-from poise.runner import run
+from poise.app.runner import run
 from test_jacobians import _fd_check, _perturbed_state, _two_body_deck
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -209,7 +209,7 @@ def test_user_routine_deck_errors_exit_3(tmp_path, edit, what):
 
 
 def test_user_param_string():
-    from poise.user_routines import parse_par
+    from poise.core.user_routines import parse_par
     assert parse_par("USER(1, 2.5,-3e-1)") == (1.0, 2.5, -0.3)
     assert parse_par("user( 4 5 )") == (4.0, 5.0)
     assert parse_par(None) == ()

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from poise.api import run_deck
+from poise.app.api import run_deck
 from poise.results.data import AnalysisResult, RunResult
 from poise.results.summary import summarize, summarize_run
 
@@ -283,7 +283,7 @@ def test_cli_neutral_and_quasistatic(tmp_path):
 
 
 def test_sweep_row_carries_the_summary(tmp_path):
-    from poise.sweep import run_case
+    from poise.app.sweep import run_case
     deck = tilted_inverted_pendulum().write(tmp_path / "up.xml")
     data = Path(deck).read_bytes()
     row = run_case(data, deck, [], 0, {}, None, str(tmp_path / "case_00000.h5"), "h", [])

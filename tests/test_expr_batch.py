@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import Akima1DInterpolator, CubicSpline
 
-from poise.errors import DeckError, EvaluationError
+from poise.core.errors import DeckError, EvaluationError
 from poise.expr import EvalContext, compile_batch
 from test_expr_support import FakeResolver, fd_check_scalars, make_ctx, mkexpr, scalar_grad
 

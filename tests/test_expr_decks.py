@@ -15,7 +15,7 @@ from scipy.interpolate import Akima1DInterpolator
 from scipy.optimize import brentq
 
 from poise.model.compile import compile_model
-from poise.runner import run
+from poise.app.runner import run
 
 ROOT = Path(__file__).resolve().parents[1]
 DECKS = ROOT / "decks"

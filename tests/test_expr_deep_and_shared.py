@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from poise.expr import compile_batch, parse
-from poise.runner import run
+from poise.app.runner import run
 from test_expr_support import FakeResolver, fd_check_scalars, make_ctx, mkexpr, scalar_grad
 
 POISE = str(Path(sys.executable).parent / "poise")
@@ -167,7 +167,7 @@ def _find(f, leaf):
 
 def test_long_expression_failure_message_is_bounded():
     """A failing 1000-term expression is quoted by its ends, not in full (one readable line)."""
-    from poise.errors import EvaluationError
+    from poise.core.errors import EvaluationError
     b = compile_batch([mkexpr("+".join(["1/VARVAL(1)"] * 1000))], FakeResolver())
     with pytest.raises(EvaluationError, match="division by zero in '1/VARVAL") as ei:
         b.evaluate(make_ctx())

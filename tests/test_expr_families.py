@@ -5,7 +5,7 @@ import pytest
 
 from builders import DeckBuilder
 from poise.deck.spec import Expr
-from poise.errors import DeckError, SourceLoc
+from poise.core.errors import DeckError, SourceLoc
 from poise.model.compile import compile_model
 from test_jacobians import _fd_check, _perturbed_state, _two_body_deck
 

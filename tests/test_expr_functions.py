@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from test_expr_support import ev, fd_check_scalars, make_ctx
 
 V = [f"VARVAL({k})" for k in range(1, 21)]

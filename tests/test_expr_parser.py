@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from poise.errors import DeckError
+from poise.core.errors import DeckError
 from poise.expr import ExprSyntaxError, compile_batch, parse
 from poise.expr.tokens import make_template, tokenize
 from test_expr_support import FakeResolver, ev, mkexpr

@@ -10,7 +10,7 @@ import math
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.expr import EvalContext, compile_batch
 from test_expr_support import FakeResolver, mkexpr
 

@@ -11,9 +11,9 @@ import pytest
 from scipy.optimize import brentq
 from test_expr_measures import Rx, Rz
 
-from poise.errors import DeckError
+from poise.core.errors import DeckError
 from poise.expr.measures import eval_measure
-from poise.runner import run
+from poise.app.runner import run
 
 ROOT = Path(__file__).resolve().parents[1]
 DECKS = ROOT / "decks"

@@ -16,7 +16,7 @@ from test_expr_reactions_many import check_full_jacobian
 
 from poise.deck.parser import load_deck
 from poise.model.compile import compile_model
-from poise.runner import run
+from poise.app.runner import run
 
 ROOT = Path(__file__).resolve().parents[1]
 DECKS = ROOT / "decks"

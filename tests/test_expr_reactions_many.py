@@ -14,7 +14,7 @@ from scipy.optimize import brentq
 
 from builders import DeckBuilder, random_rotation
 from poise.deck.spec import Expr
-from poise.errors import SourceLoc
+from poise.core.errors import SourceLoc
 from poise.model.compile import compile_model
 
 JOINT_TYPES = ("SPHERICAL", "REVOLUTE", "CYLINDRICAL", "TRANSLATIONAL", "UNIVERSAL", "FIXED",
@@ -450,7 +450,7 @@ def test_force_equal_to_k_times_joint_reaction_closed_form(tmp_path, c, k):
     so R = (-fx, W - fy), fy = -K fx and fx = C sqrt(fx^2 + (W + K fx)^2), whose positive root
     is  fx = C W (C K + sqrt(1 - C^2)) / (1 - C^2 (1 + K^2)).  The angle solves the moment
     balance about the hinge  -k_t th + l cos(th) fy - l sin(th) fx - a W cos(th) = 0."""
-    from poise.runner import run
+    from poise.app.runner import run
     W, kt, ell, a = 3.0 * 9.81, 4000.0, 200.0, 100.0
     fx = c * W * (c * k + math.sqrt(1.0 - c * c)) / (1.0 - c * c * (1.0 + k * k))
     fy = -k * fx

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.errors import SourceLoc
+from poise.core.errors import SourceLoc
 from poise.expr import EvalContext, compile_batch
 
 N_MARKERS = 6

@@ -70,8 +70,8 @@ def test_scalar_unknown_solve(monkeypatch):
     # marker slides to where the spring to a ground anchor balances gravity along the line.
     orig = C.element_compilers
     monkeypatch.setattr(C, "element_compilers", lambda: orig() + [_compiler])
-    from poise.runner import AnalysisRequest
-    from poise.settings import StaticSettings
+    from poise.app.runner import AnalysisRequest
+    from poise.solvers.settings import StaticSettings
     from poise.solvers.static import StaticAnalysis
     d = DeckBuilder().ground()
     d.body(2, 200, (0.3, 0.0, 0.0), None, mass=1.0, point=True)

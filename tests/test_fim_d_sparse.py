@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import poise.solvers.fim_d as fd
-from poise.api import run_deck
+from poise.app.api import run_deck
 from poise.deck.schema import element_schema
 from poise.gen.chain import build_chain_deck
 

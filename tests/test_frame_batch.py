@@ -9,7 +9,7 @@ import pytest
 
 from poise.deck.parser import load_deck
 from poise.model.compile import compile_model
-from poise.runner import plan
+from poise.app.runner import plan
 from poise.solvers.frames import frames_datasets
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.static import StaticAnalysis

@@ -29,7 +29,7 @@ from hypothesis import strategies as st
 from lxml import etree
 
 from poise.deck.parser import parse_deck_bytes
-from poise.errors import DeckError
+from poise.core.errors import DeckError
 from poise.model.compile import compile_model
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-import poise.api
-from poise.atomic import OutputError, atomic_output, remove_stale_temps, temp_name
+import poise.app.api
+from poise.core.atomic import OutputError, atomic_output, remove_stale_temps, temp_name
 from poise.results import hdf5
 from poise_cli.main import cli
 
@@ -66,7 +66,7 @@ def test_hdf5_errno_error_is_an_output_error(tmp_path, monkeypatch):
 
 
 def test_solve_on_full_disk_is_exit_2(tmp_path, monkeypatch):
-    monkeypatch.setattr(poise.api, "run_deck", lambda *a, **k: make_result())
+    monkeypatch.setattr(poise.app.api, "run_deck", lambda *a, **k: make_result())
 
     def full(result, path):
         Path(path).write_bytes(b"partial")

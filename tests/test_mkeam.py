@@ -24,7 +24,7 @@ from scipy import optimize
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import reference as R  # noqa: E402
 
-from poise import runner  # noqa: E402
+from poise.app import runner  # noqa: E402
 
 DECKS = Path(__file__).resolve().parents[1] / "decks"
 W = 2.0 * 9.81          # N, weight of the 2 kg pendulum
@@ -152,7 +152,7 @@ def test_unstable_start_is_perturbed():
     d.add("Force_SpringDamper", id=1, type="ROTATIONAL", i_marker_id=201, j_marker_id=101,
           stiffness=2000.0, damping=0.0, length=0.0, preload=0.0)
     from poise.model.compile import compile_model
-    from poise.settings import StaticSettings
+    from poise.solvers.settings import StaticSettings
     from poise.solvers.mkeam import MkeamAnalysis
     from types import SimpleNamespace
     m = compile_model(d.spec)
@@ -172,7 +172,7 @@ def test_tight_tolerances_are_reachable(tmp_path):
     max_num_iter at the exact answer."""
     import re
 
-    from poise.api import run_deck
+    from poise.app.api import run_deck
     src = (Path(__file__).resolve().parents[1] / "decks" / "bench" / "pendulum_multiturn.xml")
     xml = re.sub(r"<Param_Static[^>]*/>",
                  '<Param_Static method="MKEAM" max_ke_tol="1.0E-10" max_dq_tol="1.0E-10" '

@@ -24,7 +24,7 @@ import h5py
 import numpy as np
 import pytest
 
-from poise.api import run_deck
+from poise.app.api import run_deck
 
 POISE = str(Path(sys.executable).parent / "poise")
 

@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from poise.errors import DeckError
-from poise.runner import run
+from poise.core.errors import DeckError
+from poise.app.runner import run
 
 DECK = '''<?xml version="1.0" encoding="UTF-8"?>
 <MotionSolve>

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from poise.deck.spec import Expr
-from poise.errors import DeckError, SourceLoc
+from poise.core.errors import DeckError, SourceLoc
 from poise.model.compile import compile_model
 from builders import stable_seed
 from test_jacobians import _fd_check, _perturbed_state, _two_body_deck

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import poise.api
+import poise.app.api
 from poise_cli.main import cli
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -54,7 +54,7 @@ def _warning_run(*a, **k):
 
 
 def test_numpy_warnings_are_run_warnings(tmp_path, monkeypatch):
-    monkeypatch.setattr(poise.api, "run_deck", _warning_run)
+    monkeypatch.setattr(poise.app.api, "run_deck", _warning_run)
     r = CliRunner().invoke(cli, ["solve", str(DECK), "-o", str(tmp_path / "o.h5"), "--json"])
     assert r.exit_code == 1, r.output         # make_result(): one failed analysis
     lines = [ln for ln in r.stderr.splitlines() if "RuntimeWarning" in ln]
@@ -68,7 +68,7 @@ def test_numpy_warnings_are_run_warnings(tmp_path, monkeypatch):
 
 
 def test_numpy_warnings_are_silent_under_quiet(tmp_path, monkeypatch):
-    monkeypatch.setattr(poise.api, "run_deck", _warning_run)
+    monkeypatch.setattr(poise.app.api, "run_deck", _warning_run)
     r = CliRunner().invoke(cli, ["solve", str(DECK), "-o", str(tmp_path / "o.h5"), "-q"])
     assert r.exit_code == 1
     assert r.stderr == ""
@@ -78,7 +78,7 @@ def test_json_stdout_is_strict_even_with_nan_values(tmp_path, monkeypatch):
     res = make_result()
     res.analyses[0].datasets["frames/imbalance"] = np.array([np.nan])
     res.timings["parse"] = float("inf")
-    monkeypatch.setattr(poise.api, "run_deck", lambda *a, **k: res)
+    monkeypatch.setattr(poise.app.api, "run_deck", lambda *a, **k: res)
     r = CliRunner().invoke(cli, ["solve", str(DECK), "-o", str(tmp_path / "o.h5"), "--json"])
 
     def bad(token):

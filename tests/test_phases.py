@@ -4,7 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from poise.api import run_deck
+from poise.app.api import run_deck
 
 ROOT = Path(__file__).resolve().parents[1]
 POISE = str(Path(sys.executable).parent / "poise")

@@ -9,8 +9,8 @@ matplotlib.use("Agg", force=True)
 
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from poise.api import run_deck  # noqa: E402
-from poise.plot import plot_results, units_of  # noqa: E402
+from poise.app.api import run_deck  # noqa: E402
+from poise.viz.plot import plot_results, units_of  # noqa: E402
 
 DECKS = Path(__file__).resolve().parents[1] / "decks"
 

@@ -134,7 +134,7 @@ def test_history_pose_rows_and_memory_bound():
 
 
 def test_contact_deck_draws_post_graphics(results, tmp_path):
-    from poise.animate import animate_results
+    from poise.viz.animate import animate_results
     p = results["contact_sphere_plane"]
     with h5py.File(p, "r") as f:
         g = f["model/graphics"]

@@ -5,7 +5,7 @@ import os
 import numpy as np
 import pytest
 
-from poise.api import run_deck
+from poise.app.api import run_deck
 from poise.deck.schema import element_schema
 
 # decks with TIME expressions in forces / Post_Request need the expression-force work (issue 3)

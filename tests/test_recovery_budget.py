@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from poise.api import run_deck
+from poise.app.api import run_deck
 from poise.solvers.history import STRATEGIES
 
 DECKS = Path(__file__).resolve().parent.parent / "decks"

@@ -15,7 +15,7 @@ import pytest
 
 from poise.results import schema
 from poise.results.hdf5 import write_results
-from poise.runner import run
+from poise.app.runner import run
 
 ROOT = Path(__file__).resolve().parents[1]
 DECKS = sorted(p.name for p in (ROOT / "decks").glob("*.xml"))
@@ -95,14 +95,14 @@ def test_request_channel_by_name(written):
 def test_docs_results_format_is_generated():
     """docs/results-format.md is the generator's output (regenerate with
     ``python -m poise.results.schema --markdown docs/results-format.md``)."""
-    from poise.results.schema_doc import markdown
+    from poise.results.schema import markdown
     committed = (ROOT / "docs" / "results-format.md").read_text(encoding="utf-8")
     assert committed == markdown(), \
         "stale: python -m poise.results.schema --markdown docs/results-format.md"
 
 
 def test_docs_name_every_declared_object():
-    from poise.results.schema_doc import markdown
+    from poise.results.schema import markdown
     text = markdown()
     for it in schema.items():
         assert f"`{it.name}`" in text, it.path

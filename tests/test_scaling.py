@@ -18,7 +18,7 @@ import pstats
 
 import pytest
 
-from poise import runner
+from poise.app import runner
 from poise.deck.parser import parse_deck_bytes
 from poise.gen.chain import build_chain_deck
 

@@ -24,7 +24,7 @@ import pytest
 from scipy.optimize import brentq
 
 from poise.gen.chain import build_chain_deck
-from poise.settings import StaticSettings
+from poise.solvers.settings import StaticSettings
 
 A = 100.0           # link length [mm] (build_chain_deck default)
 ROOT = Path(__file__).resolve().parents[1]

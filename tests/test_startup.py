@@ -64,7 +64,7 @@ def test_help_imports_no_command_and_no_numpy(tmp_path):
     rc, mods = _modules_after("from poise_cli.main import cli\n"
                               "rc = cli.main(['--help'], standalone_mode=False)", tmp_path)
     assert rc == 0
-    assert _loaded(mods, ("numpy", "h5py", "lxml", "poise.api", "poise_cli.solve",
+    assert _loaded(mods, ("numpy", "h5py", "lxml", "poise.app.api", "poise_cli.solve",
                           *OTHER_COMMANDS)) == []
 
 

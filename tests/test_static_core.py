@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from poise.api import check_deck, run_deck
+from poise.app.api import check_deck, run_deck
 
 ROOT = Path(__file__).resolve().parents[1]
 DECKS = ROOT / "decks"

@@ -12,8 +12,8 @@ import pytest
 from click.testing import CliRunner
 
 import poise
-from poise.errors import UsageError
-from poise.sweep import apply_case, make_cases, resolve_param, run_case
+from poise.core.errors import UsageError
+from poise.app.sweep import apply_case, make_cases, resolve_param, run_case
 from poise_cli.main import cli
 
 DECK = Path(__file__).resolve().parents[1] / "decks" / "pendulum_multiturn.xml"
@@ -175,5 +175,5 @@ def test_output_dataset_names_checked_against_the_schema(tmp_path):
     assert r.exit_code == 2, r.output
     assert "did you mean bodies[2].position?" in r.stderr
     assert not (tmp_path / "index.csv").exists()
-    from poise.sweep import OUTPUT_GROUPS
+    from poise.app.sweep import OUTPUT_GROUPS
     assert {"gears", "couplers", "curves", "contacts", "requests"} <= set(OUTPUT_GROUPS)

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from poise.errors import UsageError
-from poise.sweep import MAX_CASES, check_case_count, count_cases, run_sweep
+from poise.core.errors import UsageError
+from poise.app.sweep import MAX_CASES, check_case_count, count_cases, run_sweep
 from poise_cli.main import cli
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -10,7 +10,7 @@ import inspect
 import numpy as np
 import pytest
 
-from poise.runner import run
+from poise.app.runner import run
 
 M, K = 2.0, 200.0
 
@@ -146,7 +146,7 @@ def test_curve_of_time_is_a_located_error(tmp_path):
     stayed on the t = 0 curve); now a located error."""
     from pathlib import Path
 
-    from poise.errors import DeckError
+    from poise.core.errors import DeckError
     src = Path(__file__).resolve().parents[1] / "decks" / "elem_ptcv_parabola.xml"
     text = src.read_text().replace('y_expression="0.5*U**2"', 'y_expression="0.5*U**2 + TIME"')
     p = tmp_path / "ptcv_time.xml"

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from poise.runner import check, run
+from poise.app.runner import check, run
 
 DECK = '''<?xml version="1.0" encoding="UTF-8"?>
 <MotionSolve>

@@ -138,9 +138,9 @@ def test_solve_with_the_flag_runs_the_routine(tmp_path):
 
 def test_python_api_opt_in(tmp_path):
     import poise
-    from poise.api import run_deck
-    from poise.errors import DeckError
-    from poise.runner import run_spec
+    from poise.app.api import run_deck
+    from poise.core.errors import DeckError
+    from poise.app.runner import run_spec
     marker = tmp_path / "RAN"
     _script(tmp_path / "routine.py", marker)
     deck = _deck(tmp_path)
@@ -340,7 +340,7 @@ def test_batch_results_go_stale_when_a_script_changes(tmp_path):
 
 
 def test_inputs_fresh_rules(tmp_path):
-    from poise.batch import inputs_fresh
+    from poise.app.batch import inputs_fresh
     f = tmp_path / "s.py"
     f.write_text("x = 1\n")
     rec = json.dumps({str(f): hashlib.sha256(b"x = 1\n").hexdigest()})
@@ -355,7 +355,7 @@ def test_inputs_fresh_rules(tmp_path):
 
 # ------------------------------------------------------------------------- sweep (Dask)
 def test_sweep_passes_the_opt_in_to_the_workers(tmp_path):
-    from poise.sweep import run_sweep
+    from poise.app.sweep import run_sweep
     _script(tmp_path / "routine.py")
     deck = _deck(tmp_path)
     rows = run_sweep(str(deck), {"Body_Point[2].mass": [1.0, 3.0]}, out_dir=str(tmp_path / "s"),

@@ -28,7 +28,8 @@ def animate(results, out, analysis, frame, fps, no_graphics, quiet, as_json, deb
     output time)."""
     ctx = click.get_current_context()
     def make():
-        from poise.animate import animate_results
+        # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+        from poise.viz.animate import animate_results
         return animate_results(results, out, analysis=analysis, frame=frame, fps=fps,
                                graphics=not no_graphics)
 

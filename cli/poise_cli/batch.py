@@ -67,7 +67,8 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
     A deck that fails (whatever its user code does) is its own row. Exit code: the
     worst deck's (0 converged, 1 not converged, 3 invalid deck, 4 internal error).
     """
-    from poise.batch import BATCH_KEYS, BATCH_VERSION, run_batch, sanitize, worst_exit_code, \
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+    from poise.app.batch import BATCH_KEYS, BATCH_VERSION, run_batch, sanitize, worst_exit_code, \
         write_table
     overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
                                   max_imbalance=max_imbalance, max_error=max_error,

@@ -22,9 +22,10 @@ def _user_scripts(deck: str, dest: Path, allow: bool) -> None:
     references are checked (inside the deck's directory); nothing is imported here."""
     import shutil
 
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.deck.parser import load_deck
-    from poise.errors import DeckError
-    from poise.user_routines import REFUSE, SKIP, load, script_path, uses_user_routine
+    from poise.core.errors import DeckError
+    from poise.core.user_routines import REFUSE, SKIP, load, script_path, uses_user_routine
     problems = []
     for el in load_deck(deck).model:
         if not uses_user_routine(el):
@@ -64,9 +65,9 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, allow_user_c
     A deck naming Python user routines needs --allow-user-code (exit 3 otherwise)."""
     import numpy as np
 
-    from poise.api import run_deck
-    from poise.benchmarks.decks import with_settings
-    from poise.benchmarks.wp import method_settings, run_point
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+    from poise.app.api import run_deck
+    from poise.app.ladder import method_settings, run_point, with_settings
 
     xml = Path(deck).read_text()
     ref = None
@@ -87,12 +88,11 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, allow_user_c
         for m in [x.strip().upper() for x in methods.split(",") if x.strip()]:
             for tol in [float(x) for x in tolerances.split(",") if x.strip()]:
                 st, tr = method_settings(m, tol)
-                r = run_point(xml, st, tr, repeat, Path(td), allow_user_code=allow_user_code)
+                r, _ = run_point(xml, st, tr, repeat, Path(td), allow_user_code=allow_user_code)
                 err = None
                 if ref is not None:
-                    from poise.api import run_deck as rd
                     p = Path(td) / "variant.xml"
-                    x, L = _cg(rd(str(p), overrides={"fallback": False},
+                    x, L = _cg(run_deck(str(p), overrides={"fallback": False},
                                   allow_user_code=allow_user_code))
                     if x.shape == ref[0].shape:
                         err = float(np.max(np.abs(x - ref[0]))) / L

@@ -79,7 +79,8 @@ def check(deck, as_json, debug):
     from poise_cli.streams import collected_warnings, guarded_stdout
     try:
         with guarded_stdout(), collected_warnings() as numeric:
-            from poise.api import check_deck
+            # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+            from poise.app.api import check_deck
             rep = check_deck(deck)
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)

@@ -5,7 +5,7 @@ Exit codes
 0  every analysis converged
 1  an analysis did not converge (the results file was written)
 2  usage error (bad option, missing file, unreadable results file)
-3  invalid deck (``poise.errors.DeckError``): every located problem printed on stderr
+3  invalid deck (``poise.core.errors.DeckError``): every located problem printed on stderr
 4  internal error: one line on stderr, traceback only with ``--debug``
 """
 from __future__ import annotations
@@ -74,7 +74,8 @@ def report_exception(exc: BaseException, debug: bool = False) -> tuple[int, dict
     ``info`` is merged into the ``--json`` summary: ``status`` plus ``problems`` (invalid deck)
     or ``error`` (other errors).
     """
-    from poise.errors import DeckError, UsageError, one_line  # light module (dataclasses only)
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+    from poise.core.errors import DeckError, UsageError, one_line  # light module (dataclasses only)
 
     if isinstance(exc, DeckError):
         problems = [one_line(p) for p in exc.problems] or [one_line(exc)]

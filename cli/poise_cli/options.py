@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-#: CLI option name -> ``Param_Static`` attribute name used as override key by poise.api.run_deck
+#: CLI option name -> ``Param_Static`` attribute name used as override key by poise.app.api.run_deck
 OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability", "fallback",
                  "fallback_max_num_iter", "require_stable", "allow_neutral")
 

@@ -40,7 +40,8 @@ def run_picture(ctx, results, make, as_json, debug, quiet, message) -> None:
 
 def results_or_usage(path: str) -> None:
     """Exit 2 when PATH is not a poise results file."""
-    from poise.errors import UsageError
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+    from poise.core.errors import UsageError
     from poise.results.hdf5 import ResultsFormatError, _open_checked
     try:
         _open_checked(path).close()
@@ -71,7 +72,8 @@ def plot(results, out, analysis, bodies, joints, requests, quiet, as_json, debug
     ctx = click.get_current_context()
     out = out or str(Path(results).with_suffix(".png"))
     def make():
-        from poise.plot import write_plot
+        # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+        from poise.viz.plot import write_plot
         return write_plot(results, out, analysis=analysis, bodies=bodies, joints=joints,
                             requests=requests)
 

@@ -26,6 +26,7 @@ def _stability_lines(stab: list[str] | None) -> list[str]:
 
 def _at(a: dict, what: str) -> str:
     """`` at frame 412 (t=0.41)``: the worst frame of ``what`` when there are several."""
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.results.summary import frame_at
     return frame_at(a.get("frames", 0), a.get(f"{what}_frame"), a.get(f"{what}_time"))
 
@@ -79,6 +80,7 @@ def show(results, as_json, debug):
     """
     ctx = click.get_current_context()
     try:
+        # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
         from poise.results.hdf5 import ResultsFormatError, read_summary
         try:
             summary = read_summary(results)

@@ -63,6 +63,7 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
                                   allow_neutral=allow_neutral)
     if compliance_markers is not None:
         try:
+            # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
             from poise.solvers.compliance import parse_markers
             overrides["compliance_markers"] = parse_markers(compliance_markers)
         except ValueError as e:
@@ -85,7 +86,8 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
         ctx.exit(code)
 
     try:  # before the solve: a path that cannot take the results fails now, not after it
-        from poise.atomic import output_target
+        # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+        from poise.core.atomic import output_target
         output_target(out, (deck,))
     except (Exception, KeyboardInterrupt) as exc:   # UsageError: exit 2
         fail(exc)
@@ -94,7 +96,8 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
     from poise_cli.streams import collected_warnings, guarded_stdout
     try:
         with guarded_stdout(quiet), collected_warnings() as numeric:
-            from poise.api import run_deck
+            # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+            from poise.app.api import run_deck
             result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet,
                               allow_user_code=allow_user_code)
     except (Exception, KeyboardInterrupt) as exc:
@@ -110,6 +113,7 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
     t0 = time.perf_counter()
     try:
         with guarded_stdout(quiet), collected_warnings():
+            # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
             from poise.results.hdf5 import write_results
             write_results(result, out)
     except (Exception, KeyboardInterrupt) as exc:

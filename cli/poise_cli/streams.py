@@ -14,7 +14,7 @@ import contextlib
 import os
 import sys
 
-from poise.run_warnings import collected_warnings  # noqa: F401 - the commands' one recorder
+from poise.app.run_warnings import collected_warnings  # noqa: F401 - the commands' one recorder
 
 
 def _flush_all() -> None:

@@ -52,6 +52,7 @@ def fmt_num(x: float | None) -> str:
 def analysis_line(summary: dict, seconds: float | None = None) -> str:
     """The one-line summary (:func:`poise.results.summary.summary_line`) of an analysis summary
     dict (:func:`analysis_summary` or ``read_summary``), the status word coloured on a TTY."""
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.results.summary import AnalysisSummary, summary_line
     return summary_line(AnalysisSummary.from_dict(summary), seconds=seconds, style=styled_status)
 
@@ -59,6 +60,7 @@ def analysis_line(summary: dict, seconds: float | None = None) -> str:
 def analysis_summary(a) -> dict:
     """The per-analysis entry of the ``--json`` summary: the fields of
     :class:`poise.results.summary.AnalysisSummary` (the same as ``poise show --json``)."""
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.results.summary import summarize
     return summarize(a).as_dict()
 

@@ -68,8 +68,9 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs
 
     from poise_cli.streams import guarded_stdout
     try:
-        from poise.batch import worst_exit_code
-        from poise.sweep import INDEX_VERSION, run_sweep
+        # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+        from poise.app.batch import worst_exit_code
+        from poise.app.sweep import INDEX_VERSION, run_sweep
         with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout
             rows = run_sweep(deck, list(sets), mode=mode, out_dir=out_dir, scheduler=scheduler,
                              outputs=list(outputs), n=n_random, seed=seed, workers=workers,

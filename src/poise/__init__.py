@@ -12,26 +12,19 @@ import os
 # explicit setting in the environment wins.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-__version__ = "0.1.0"
+from poise.core.version import __version__
 
 __all__ = ["__version__", "solve", "sweep", "load_deck", "run_deck", "check_deck",
-           "read_results"]
+           "read_results", "plot_results"]
+
+# lazy public API: name -> module holding it (imported on first use, keeps `import poise` light)
+_LAZY = {"solve": "poise.app.api", "sweep": "poise.app.api", "run_deck": "poise.app.api",
+         "check_deck": "poise.app.api", "read_results": "poise.results.hdf5",
+         "load_deck": "poise.deck.parser", "plot_results": "poise.viz.plot"}
 
 
-def __getattr__(name):  # lazy public API
-    if name == "solve":
-        from poise.api import solve
-        return solve
-    if name == "sweep":
-        from poise.api import sweep
-        return sweep
-    if name in ("run_deck", "check_deck"):
-        from poise import api
-        return getattr(api, name)
-    if name == "read_results":
-        from poise.results.hdf5 import read_results
-        return read_results
-    if name == "load_deck":
-        from poise.deck.parser import load_deck
-        return load_deck
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+        return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'poise' has no attribute {name!r}")

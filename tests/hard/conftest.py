@@ -7,7 +7,7 @@ from pathlib import Path
 import h5py
 import pytest
 
-from poise.api import run_deck
+from poise.app.api import run_deck
 
 POISE = str(Path(sys.executable).parent / "poise")
 

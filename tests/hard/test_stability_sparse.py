@@ -16,7 +16,7 @@ import pytest
 import scipy.sparse as sp
 
 import poise.solvers.stability as stab
-from poise.api import run_deck
+from poise.app.api import run_deck
 from poise.gen.chain import build_chain_deck
 
 from .deckgen import Deck, rot_y, rot_z, stiff_soft_deck
@@ -183,7 +183,7 @@ def test_unreliable_factorisation_gives_unknown_with_reason(monkeypatch):
 def _solved(path):
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
-    from poise.runner import analysis_class, plan
+    from poise.app.runner import analysis_class, plan
     spec = load_deck(str(path))
     model = compile_model(spec)
     req = plan(spec, None)[0]

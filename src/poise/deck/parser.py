@@ -8,7 +8,7 @@ are commands wherever they appear. Element and attribute names are case-insensit
 Security: lxml runs with ``resolve_entities=False, no_network=True, load_dtd=False,
 dtd_validation=False, huge_tree=False``; a document that declares entities (``<!ENTITY``: expansion
 bombs, external entities) is refused before parsing. Every failure is a located
-:class:`~poise.errors.DeckError` (never a raw lxml exception).
+:class:`~poise.core.errors.DeckError` (never a raw lxml exception).
 
 Typing follows ``poise.deck.spec``. A value that cannot be typed (``mass="abc"``) is stored as the
 raw string; :func:`poise.deck.validate.validate` reports it. Unknown elements are kept under their
@@ -32,7 +32,7 @@ from lxml import etree
 from poise.deck.schema import ENUM_ALIASES, Attr, element_schema
 from poise.deck.spec import DeckSpec, Element, Expr
 from poise.deck.validate import FileProblem, validate
-from poise.errors import DeckError, Problem, SourceLoc
+from poise.core.errors import DeckError, Problem, SourceLoc
 
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eEdD][+-]?\d+)?$")
 _TRUE = {"TRUE", "YES", "1", "T", "ON"}

@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from poise.errors import SourceLoc
+from poise.core.errors import SourceLoc
 
 
 @dataclass(frozen=True)
@@ -98,7 +98,7 @@ class DeckSpec:
         Command elements in document order (``Simulate``, ``Stop``, command versions of
         ``Param_Static`` etc.).
     warnings : list
-        :class:`poise.errors.Problem` warnings (unknown attributes, ...), already located.
+        :class:`poise.core.errors.Problem` warnings (unknown attributes, ...), already located.
     """
 
     path: str

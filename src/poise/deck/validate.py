@@ -3,7 +3,7 @@
 Messages read ``FILE:LINE: <Tag id=N>: problem; expected ..., got ...``. Problems that belong to
 the whole file rather than one element (malformed XML, no ground body) read ``FILE:LINE: problem``.
 Warnings (moving body without mass, unknown attributes from the parser, ...) go to
-``DeckSpec.warnings``; errors are raised together as one :class:`~poise.errors.DeckError`.
+``DeckSpec.warnings``; errors are raised together as one :class:`~poise.core.errors.DeckError`.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import numpy as np
 
 from poise.deck.schema import NAMESPACES, Attr, ElementSchema, element_schema, namespace_of
 from poise.deck.spec import DeckSpec, Element, Expr
-from poise.errors import Problem, ProblemCollector, SourceLoc, one_line
+from poise.core.errors import Problem, ProblemCollector, SourceLoc, one_line
 
 ORTHO_TOL = 1e-6
 _KIND_TEXT = {"real": "a real number", "int": "an integer", "bool": "TRUE or FALSE",
@@ -506,7 +506,7 @@ def _ids_fast(good: list[Element]):
 
 
 def validate(spec: DeckSpec) -> None:
-    """Validate a parsed deck; raise one :class:`~poise.errors.DeckError` listing every problem.
+    """Validate a parsed deck; raise one :class:`~poise.core.errors.DeckError` listing every problem.
 
     Parameters
     ----------

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from poise.errors import DeckError, EvaluationError
+from poise.core.errors import DeckError, EvaluationError
 
 from .functions import DomainError
 from .lower import Lowering, extract
@@ -166,7 +166,7 @@ def compile_batch(exprs, resolver) -> "Batch":
 
     Raises
     ------
-    poise.errors.DeckError
+    poise.core.errors.DeckError
         All syntax / name / argument problems of the batch, located
         (``FILE:LINE: <Tag id=N> attr col C: message``).
     """
@@ -291,7 +291,7 @@ class Batch:
 
         Raises
         ------
-        poise.errors.EvaluationError
+        poise.core.errors.EvaluationError
             Division by zero, SQRT of a negative, LOG of <= 0, ASIN/ACOS out of range, NaN/Inf
             value or derivative; names the first failing instance's element and attribute.
         """

@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from poise.errors import Problem
+from poise.core.errors import Problem
 
 from .ast import BinOp, Call, Name, Num, Param, Unary
 from .functions import ARITY, FUNCTIONS, DomainError

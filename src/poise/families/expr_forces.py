@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.families.base import ForceFamily, column_map, columns_array
 from poise.families.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
 from poise.families.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML

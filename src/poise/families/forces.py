@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.families.base import ForceFamily, _cross, add_force_at_point, add_torque_via_axes
 from poise.model.rotation import skew
 

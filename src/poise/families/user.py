@@ -1,4 +1,4 @@
-"""Families driven by Python user routines (``poise.user_routines``), one instance each.
+"""Families driven by Python user routines (``poise.core.user_routines``), one instance each.
 
 * :class:`UserConstraint` (``Constraint_UserConstr``, UCOSUB style): ``phi`` = the function's
   values, ``phi_y`` its derivatives w.r.t. the marker vectors it reads (user-given or central

@@ -1,1 +1,1 @@
-"""Deck generators (standard library only): used by ``decks/gen_chain.py`` and ``poise.bench``."""
+"""Deck generators (standard library only): used by ``decks/gen_chain.py`` and ``benchmarks.chain``."""

@@ -24,7 +24,7 @@ marker 3.
   Newton matrix stays non-singular (stability never changes the converged answer).
 
 Only the standard library is used, so the script runs anywhere. ``decks/gen_chain.py`` is the
-command-line front end (its output is byte-identical); ``poise.bench`` generates its chains here.
+command-line front end (its output is byte-identical); ``benchmarks.chain`` generates its chains here.
 """
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 
-from poise.errors import DeckError, Problem
+from poise.core.errors import DeckError, Problem
 
 _SIX = ("x", "y", "z", "tx", "ty", "tz")
 _VEC = tuple(f"{c}_expression" for c in ("fx", "fy", "fz", "tx", "ty", "tz"))

@@ -10,7 +10,7 @@ from operator import itemgetter
 import numpy as np
 
 from poise.deck.spec import DeckSpec, Element, Expr
-from poise.errors import ProblemCollector
+from poise.core.errors import ProblemCollector
 from poise.model import units as U
 from poise.model.model import Model
 from poise.model.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
@@ -461,7 +461,7 @@ def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
     """Compile a validated :class:`DeckSpec` into a :class:`Model`.
 
     ``user_code`` says what to do with Python user routines the deck names
-    (``poise.user_routines``): ``"run"`` imports and probes them (the caller's
+    (``poise.core.user_routines``): ``"run"`` imports and probes them (the caller's
     ``allow_user_code``), ``"refuse"`` (default) makes each a located deck error saying how to
     allow it, ``"skip"`` (``poise check``) validates the reference and leaves the element out of
     the model, running nothing. ``Model.user_routines`` lists them; ``Model.input_files`` maps
@@ -469,7 +469,7 @@ def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
 
     Raises
     ------
-    poise.errors.DeckError
+    poise.core.errors.DeckError
         For problems only visible at this stage (unsupported joint types, expressions where
         numbers are needed, ...), all collected.
     """

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.families import curves as F
 from poise.model import curve_data as CD
 

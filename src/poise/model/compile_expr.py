@@ -26,7 +26,7 @@ import re
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.errors import DeckError, EvaluationError, Problem
+from poise.core.errors import DeckError, EvaluationError, Problem
 from poise.families.base import _cross
 from poise.model.compile import GLOBAL
 from poise.model.rotation import skew

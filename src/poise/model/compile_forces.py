@@ -36,7 +36,7 @@ def compile_forces(spec, ctx):
             add("LineForce", el, I=I, J=J, R=GLOBAL, k=k, length=_num(el, "length", 0.0, pc),
                 preload=pre, ax=False)
         b.effects.append(f"Force_SpringDamper:{t}")
-    from poise.user_routines import uses_user_routine
+    from poise.core.user_routines import uses_user_routine
     for el in spec.elements("Force_Scalar_TwoBody"):
         t = str(el.attrs.get("type", "FORCE")).upper()
         if uses_user_routine(el):          # Python SFOSUB: compiled by compile_user

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.errors import DeckError, Problem
+from poise.core.errors import DeckError, Problem
 from poise.families import motions as Mo
 
 INTEGRATION_PANEL = 1e-2

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.errors import DeckError, EvaluationError
+from poise.core.errors import DeckError, EvaluationError
 from poise.families.base import POINT
 from poise.model.compile import GLOBAL
 
@@ -35,8 +35,8 @@ def _initial_kinematics(ctx):
 
 def _routine(el, ctx, P, A):
     """The element's probed :class:`UserRoutine`, or None (problem collected, or user code not
-    run: ``ctx.b.user_code`` is ``"refuse"`` or ``"skip"``, see ``poise.user_routines.load``)."""
-    from poise.user_routines import UserRoutine, describe, load
+    run: ``ctx.b.user_code`` is ``"refuse"`` or ``"skip"``, see ``poise.core.user_routines.load``)."""
+    from poise.core.user_routines import UserRoutine, describe, load
     b = ctx.b
     try:
         got = load(el, b.user_code)

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 
 
 class _ParamResolver:

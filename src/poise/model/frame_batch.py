@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.families.base import (SlotKinematics, constraint_jacobian_local, local_pattern,
                                  local_residual_tangent, slot_kinematics)
 
@@ -137,7 +137,7 @@ def evaluate_frames(model, states, need_jac: bool = True) -> FrameEvaluation:
         A kernel produced NaN/Inf in some frame (callers fall back to frame-by-frame outputs,
         which name the element).
     """
-    from poise import phases
+    from poise.core import phases
     t_start = phases.now()
     try:
         return _evaluate_frames(model, states, need_jac)

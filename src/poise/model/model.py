@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from poise import phases
-from poise.errors import EvaluationError
+from poise.core import phases
+from poise.core.errors import EvaluationError
 from poise.families.base import (constraint_jacobian_local, local_pattern, local_residual_tangent,
                                  slot_kinematics, tangent_compact)
 from poise.model.assembly import Assembler, scatter_add

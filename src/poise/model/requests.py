@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 
 from .compile_expr import ELEM_TYPES, ExprInfo, channel_values, compile_batch_located
 

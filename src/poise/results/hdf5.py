@@ -21,7 +21,7 @@ attribute exists; wall-clock timings live only in ``/timings`` attributes.
 Atomicity: the file is built in memory, written to ``.<name>.tmp-<pid>@<host>`` in the destination
 directory, fsync'ed, then renamed over the final name with :func:`os.replace`. Any exception removes the
 temp file. A process killed mid-write can leave only the hidden temp file, never a partial file
-under the final name (:mod:`poise.atomic`, which also refuses outputs that are not regular files
+under the final name (:mod:`poise.core.atomic`, which also refuses outputs that are not regular files
 or that are the deck itself).
 """
 from __future__ import annotations
@@ -35,6 +35,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from poise.core.version import __version__
 from poise.results import schema
 from poise.results.data import AnalysisResult, RunResult
 from poise.results.summary import summarize
@@ -183,14 +184,12 @@ def _write_file(result: RunResult, path: str) -> None:
 
 
 def _file_image(result: RunResult, name: str) -> bytes:
-    import poise
-
     t_start = time.perf_counter()
     with h5py.File(name, "w", driver="core", backing_store=False) as f:
         root_attrs = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
-            "poise_version": poise.__version__,
+            "poise_version": __version__,
             "deck": str(result.deck),
             "deck_sha256": str(result.deck_sha256),
             "status": result.status,
@@ -243,15 +242,15 @@ def analysis_group_name(index: int) -> str:
 
 
 def write_results(result: RunResult, path: str) -> None:
-    """Write ``result`` to ``path`` atomically (:func:`poise.atomic.atomic_output`).
+    """Write ``result`` to ``path`` atomically (:func:`poise.core.atomic.atomic_output`).
 
     The data go to ``.<name>.tmp-<pid>@<host>`` next to the target (``path``, or the file it links
     to); after a successful write and fsync the temp file is renamed to the target (replacing
     an existing file). On any exception the temp file is removed and the exception propagates;
-    the target is then untouched. Refused (:class:`poise.errors.UsageError`): a path that exists
+    the target is then untouched. Refused (:class:`poise.core.errors.UsageError`): a path that exists
     and is not a regular file, and the deck itself (``result.deck``).
     """
-    from poise.atomic import atomic_output
+    from poise.core.atomic import atomic_output
     with atomic_output(path, (getattr(result, "deck", None),), hold_interrupts=True) as tmp:
         _write_file(result, tmp)
 

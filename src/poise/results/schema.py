@@ -9,16 +9,18 @@ meaning. The writer (:mod:`poise.results.hdf5`) refuses any object not declared 
 writes every dataset's ``units`` attribute from its unit expression and the deck's unit names
 (:func:`unit_string`). ``docs/results-format.md`` is generated from these declarations and
 the prose of ``results_format.md`` next to this module
-(``python -m poise.results.schema --markdown docs/results-format.md``).
+(``python -m poise.results.schema --markdown docs/results-format.md``; :func:`markdown`).
 The declarations themselves are long tables (:mod:`poise.results.schema_items`).
 """
 from __future__ import annotations
 
 import functools
 import re
-from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+
+from poise.results.schema_items import Item, declared
 
 #: element groups of an analysis (and of ``/model``) -> the deck tags whose ids they hold
 #: (``None``: any force tag; ``forces/tag`` names each row's)
@@ -48,33 +50,8 @@ class UndeclaredError(AssertionError):
     capability must declare its datasets in :mod:`poise.results.schema_items`)."""
 
 
-@dataclass(frozen=True)
-class Item:
-    """One declared dataset (``kind="dataset"``) or attribute (``kind="attr"``)."""
-
-    scope: str
-    name: str               # dataset path relative to the scope, or attribute name
-    kind: str               # "dataset" | "attr"
-    dtype: str              # float | int | bool | str | json (a JSON text attribute)
-    shape: tuple = ()       # symbols / ints; () scalar
-    unit: str = ""          # unit expression ("" text, "1" dimensionless, "mixed")
-    meaning: str = ""
-    optional: bool = False  # written only when the model / method / run has it
-    section: str = ""       # documentation table it belongs to
-
-    @property
-    def path(self) -> str:
-        sep = "@" if self.kind == "attr" else "/"
-        return f"{self.scope}{sep}{self.name}"
-
-    @property
-    def pattern(self) -> bool:
-        return "<" in self.name
-
-
 @functools.cache
 def items() -> tuple[Item, ...]:
-    from poise.results.schema_items import declared
     out = tuple(declared())
     seen = set()
     for it in out:
@@ -315,10 +292,67 @@ def conformance(path) -> list[str]:
     return problems
 
 
+# ------------------------------------------------------------------- the format document
+# docs/results-format.md: the prose of results_format.md (next to this module) with each
+# ``{{datasets:SECTION}}`` / ``{{attrs:SECTION}}`` line replaced by the table of that section's
+# declarations; a test compares the committed document with :func:`markdown`.
+TEMPLATE = Path(__file__).with_name("results_format.md")
+_MARK = re.compile(r"^\{\{(datasets|attrs):([a-z-]+)\}\}$", re.M)
+_UNIT_TEXT = {"": "–", "1": "1"}
+
+
+def _unit(it: Item) -> str:
+    if it.dtype in ("str", "json") and not it.unit:
+        return "–"
+    return _UNIT_TEXT.get(it.unit, it.unit.replace("*", "·"))
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def _name(it: Item) -> str:
+    return f"`{it.name}`"
+
+
+def table(kind: str, section: str) -> str:
+    rows = [it for it in items() if it.section == section
+            and it.kind == ("dataset" if kind == "datasets" else "attr")]
+    if not rows:
+        raise ValueError(f"{TEMPLATE.name}: no {kind} declared in section {section!r}")
+    if kind == "datasets":
+        out = ["| dataset | shape | dtype | units | meaning |", "|---|---|---|---|---|"]
+        for it in rows:
+            opt = "*(optional)* " if it.optional else ""
+            out.append(f"| {_name(it)} | {shape_text(it.shape)} | {it.dtype} | {_unit(it)} | "
+                       f"{opt}{_cell(it.meaning)} |")
+    else:
+        out = ["| attribute | type | units | meaning |", "|---|---|---|---|"]
+        for it in rows:
+            opt = "*(optional)* " if it.optional else ""
+            out.append(f"| {_name(it)} | {it.dtype} | {_unit(it)} | {opt}{_cell(it.meaning)} |")
+    return "\n".join(out)
+
+
+def markdown() -> str:
+    """The whole document: the template with every table filled in."""
+    text = TEMPLATE.read_text(encoding="utf-8")
+    used = set()
+
+    def fill(m):
+        used.add((m.group(1), m.group(2)))
+        return table(m.group(1), m.group(2))
+    out = _MARK.sub(fill, text)
+    missing = {(("datasets" if it.kind == "dataset" else "attrs"), it.section)
+               for it in items()} - used
+    if missing:
+        raise ValueError(f"{TEMPLATE.name}: sections without a table: {sorted(missing)}")
+    return out
+
+
 def main(argv=None) -> int:
     """``python -m poise.results.schema --markdown FILE``: (re)write the format document."""
     import argparse
-    from poise.results.schema_doc import markdown
     ap = argparse.ArgumentParser(prog="python -m poise.results.schema",
                                  description="write docs/results-format.md from the schema")
     ap.add_argument("--markdown", metavar="FILE", help="write the document here ('-': stdout)")

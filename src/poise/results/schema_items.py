@@ -1,15 +1,41 @@
 """The declarations of :mod:`poise.results.schema`: one row per dataset or attribute.
 
-Long by nature (a table of the whole file format, over 500 lines would be split by section).
-Shape symbols: F frames, B bodies, N iteration rows, and one symbol per element group (see
-the group tables); ``6M`` is six times M. Unit expressions: ``length force mass time`` and
+Long by nature (a table of the whole file format; split it by section past ~500 lines).
+Shape symbols: F frames, B bodies, N iteration rows, and one symbol per element group (listed
+in ``results_format.md``, *Conventions*); ``6Mc`` is six times Mc. Unit expressions: ``length force mass time`` and
 ``rad``; ``"1"`` dimensionless; ``""`` text; ``"mixed"`` components of different units (the
 meaning says which). Adding a capability: declare its datasets here, in a section of
-``results_format.md`` (or a new ``{{table:...}}`` there), then regenerate the document.
+``results_format.md`` (or a new ``{{datasets:SECTION}}`` line there), then regenerate the
+document.
 """
 from __future__ import annotations
 
-from poise.results.schema import Item
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Item:
+    """One declared dataset (``kind="dataset"``) or attribute (``kind="attr"``)."""
+
+    scope: str
+    name: str               # dataset path relative to the scope, or attribute name
+    kind: str               # "dataset" | "attr"
+    dtype: str              # float | int | bool | str | json (a JSON text attribute)
+    shape: tuple = ()       # symbols / ints; () scalar
+    unit: str = ""          # unit expression ("" text, "1" dimensionless, "mixed")
+    meaning: str = ""
+    optional: bool = False  # written only when the model / method / run has it
+    section: str = ""       # documentation table it belongs to
+
+    @property
+    def path(self) -> str:
+        sep = "@" if self.kind == "attr" else "/"
+        return f"{self.scope}{sep}{self.name}"
+
+    @property
+    def pattern(self) -> bool:
+        return "<" in self.name
+
 
 _ROWS: list[Item] = []
 

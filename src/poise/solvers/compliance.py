@@ -104,7 +104,7 @@ def select(model, settings):
     rows = []
     for m in spec.split():
         if int(m) not in index:
-            from poise.errors import UsageError
+            from poise.core.errors import UsageError
             raise UsageError(f"compliance_markers: marker id {m} is not a Reference_Marker of "
                              "the deck")
         rows.append(index[int(m)])
@@ -258,7 +258,7 @@ def _fd(model, state, active, G, rows, settings):
 
 def frame_compliance(model, state, active, rows, settings, stability=""):
     """``(C (6M, 6M), flag)`` of one converged frame."""
-    from poise.errors import EvaluationError
+    from poise.core.errors import EvaluationError
     G = marker_map(model, state, rows)
     if model.nq == 0:
         return np.zeros((G.shape[0], G.shape[0])), "ok"
@@ -336,7 +336,7 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
     classes = [str(stab[k]) if stab is not None and k < len(stab) else ""
                for k in range(len(frames))]
     if method == "exact" and model.nq and len(frames) > 1:
-        from poise.errors import EvaluationError
+        from poise.core.errors import EvaluationError
         ok = [k for k, o in enumerate(outcomes) if o.ok]
         try:
             got = _exact_frames(model, [frames[k] for k in ok], active, rows,

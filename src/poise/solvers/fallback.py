@@ -32,7 +32,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.solvers.newton import FrameOutcome, Scales, _evaluate, merit, newton
 from poise.solvers.status import MESSAGES, Status
 

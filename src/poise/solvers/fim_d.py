@@ -133,7 +133,7 @@ import warnings
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.model.model import State
 from poise.model.rotation import expm_so3, se3_left_jacobian, wrap_angle
 from poise.solvers.fallback import solve_frame

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 
 
 def frames_datasets(sa, frames, outcomes, measure=None) -> dict | None:

@@ -49,7 +49,7 @@ class Factor:
     count = 0
 
     def __init__(self, J, equilibrate: bool = False):
-        from poise import phases
+        from poise.core import phases
         t0 = phases.now()
         self.scale = None
         try:

@@ -79,7 +79,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.families.base import slot_kinematics
 from poise.model.model import EvalContext
 from poise.model.rotation import expm_so3, wrap_angle

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.solvers.history import History
 from poise.solvers.linalg import Factor, SingularMatrix
 from poise.solvers.status import MESSAGES, Status

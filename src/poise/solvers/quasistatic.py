@@ -46,7 +46,7 @@ MAX_FRAMES = 1_000_000
 
 def _check_frames(sim, n: float, what: str) -> None:
     if not n <= MAX_FRAMES:          # also inf/nan: times that overflow
-        from poise.errors import DeckError, Problem
+        from poise.core.errors import DeckError, Problem
         raise DeckError(Problem(sim.loc, f"{what} asks for {n:.3g} output frames; expected at "
                                          f"most {MAX_FRAMES} (a larger print_interval or a "
                                          "shorter run)"))
@@ -183,7 +183,7 @@ def _evaluation_error_fails_frame(fn):
 
     @functools.wraps(fn)
     def wrapper(model, state, settings, history, counters, redundancy):
-        from poise.errors import EvaluationError
+        from poise.core.errors import EvaluationError
         try:
             return fn(model, state, settings, history, counters, redundancy)
         except EvaluationError as e:

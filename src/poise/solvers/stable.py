@@ -36,7 +36,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.solvers.newton import FrameOutcome, assemble, newton
 from poise.solvers.status import Status
 

@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from poise.errors import EvaluationError
+from poise.core.errors import EvaluationError
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.fallback import solve_frame
 from poise.solvers.history import History

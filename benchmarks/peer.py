@@ -212,7 +212,7 @@ CHAIN_REASON = ("Exudyn's static Newton matrix omits the joints' geometric stiff
 
 # --------------------------------------------------------------------------- problems
 def _ref():
-    from poise.benchmarks.wp import _reference_module
+    from benchmarks.wp import _reference_module
     return _reference_module()
 
 
@@ -331,7 +331,7 @@ def batch_per_deck(deck: Path, tmp: Path, copies: int = 40, repeat: int = 3) -> 
     """``poise batch`` over ``copies`` copies of ``deck``: wall time per deck with one worker
     (``-j 1``: the whole CPU cost a CI job pays per deck when it hands poise the list) and with
     one worker per CPU (``-j 0``), process start to every results file and summary written."""
-    from poise.bench import _poise_cmd, _wall
+    from benchmarks.chain import _poise_cmd, _wall
     d = tmp / "batch-decks"
     d.mkdir(exist_ok=True)
     paths = []
@@ -351,7 +351,7 @@ def batch_per_deck(deck: Path, tmp: Path, copies: int = 40, repeat: int = 3) -> 
 
 def _poise_point(deck: Path, repeat: int):
     """poise in-process at deck settings (warm-up + repeat); returns stats and the result."""
-    from poise.api import run_deck
+    from poise.app.api import run_deck
     run_deck(str(deck))
     solves, walls, res = [], [], None
     for _ in range(repeat):
@@ -367,8 +367,8 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
     ref = _ref()
     sizes = (10, 100) if quick else (10, 100, 1000)
     probs = [problem_pendulum(ref), problem_fourbar(ref)] + [problem_chain(ref, n) for n in sizes]
-    from poise.bench import _poise_cmd, _wall, _walls
-    from poise.benchmarks.wp import DECKS, deck_error
+    from benchmarks.chain import _poise_cmd, _wall, _walls
+    from benchmarks.wp import DECKS, deck_error
     from poise.gen.chain import build_chain_deck
     rows = []
     ns: dict = {}
@@ -380,12 +380,12 @@ def run(quick: bool = False, repeat: int = 5, log=print) -> list[dict]:
             row = dict(bench="peer", problem=prob["name"], peer=note, peer_available=ok)
             # ---- poise
             if prob["deck"]:
-                deck = Path(__file__).resolve().parents[3] / prob["deck"]
+                deck = Path(__file__).resolve().parents[1] / prob["deck"]
                 ref_fn = DECKS[prob["name"]][3]
             else:
                 deck = tdp / f"{prob['name']}.xml"
                 deck.write_text(build_chain_deck(prob["n"], "revolute"))
-                from poise.benchmarks.wp import _ref_chain
+                from benchmarks.wp import _ref_chain
                 ref_fn = _ref_chain(prob["n"])
             rep = repeat if prob.get("n", 0) < 1000 else max(3, repeat // 2)
             st, tot, res = _poise_point(deck, rep)

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.errors import UsageError
+from poise.core.atomic import atomic_output
+from poise.core.errors import UsageError
+from poise.results.hdf5 import read_results
 from poise.results.schema import unit_symbols
 
 # the deck's unit names (one table, poise.results.schema): {"length": "mm", "force": "N", ...}
@@ -113,7 +115,6 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
     """
     from matplotlib.ticker import MaxNLocator
     if isinstance(result_or_path, (str, bytes)) or hasattr(result_or_path, "__fspath__"):
-        from poise.results.hdf5 import read_results
         res = read_results(str(result_or_path))
     else:
         res = result_or_path
@@ -247,7 +248,6 @@ def write_plot(path: str, out: str, analysis: int | None = None, bodies=None, jo
     """Write the PNG of :func:`plot_results` atomically. Returns ``{"output", "panels", "width",
     "height"}``."""
     fig = plot_results(path, analysis=analysis, bodies=bodies, joints=joints, requests=requests)
-    from poise.atomic import atomic_output
     with atomic_output(out, (path,), keep_suffix=True) as tmp:
         fig.savefig(tmp, dpi=dpi)
     w, h = fig.get_size_inches() * dpi

@@ -9,7 +9,7 @@ the final name; any exception removes the temporary file and leaves the target u
 points to is replaced, not the link), and a path that exists but is not a regular file (a
 directory, a device such as ``/dev/null``, a FIFO: the rename would replace the device node
 itself) or that is one of the inputs (the deck) is refused with
-:class:`poise.errors.UsageError` (CLI exit code 2).
+:class:`poise.core.errors.UsageError` (CLI exit code 2).
 
 Failures are clean: a write that fails for lack of space or permission (``OSError``, HDF5's
 ``errno = N`` errors, errors HDF5 can only report as "ignored" while closing) removes the
@@ -30,7 +30,7 @@ import stat
 import sys
 import threading
 
-from poise.errors import UsageError
+from poise.core.errors import UsageError
 
 
 class OutputError(UsageError):

@@ -28,7 +28,7 @@ Index row keys (``INDEX_KEYS``, then one column per parameter, then the ``--outp
 ``case``, ``file``, ``status`` (``converged``/``failed``/``invalid_deck``/``internal_error``),
 ``exit_code``, ``iterations`` (all analyses), ``wall_time`` (parse + compile + solve, s),
 ``imbalance`` (the worst frame of every analysis) and the other run-summary fields of
-:func:`poise.batch.result_stats` (``imbalance_analysis``, ``imbalance_frame``,
+:func:`poise.app.batch.result_stats` (``imbalance_analysis``, ``imbalance_frame``,
 ``stability_class`` — the worst over the analyses and frames — ``stability_analysis``,
 ``stability_frame``, ``n_negative``, ``n_zero``, ``stability_modes``, ``modes``), ``resumed``,
 ``message``. Outputs
@@ -44,12 +44,20 @@ import math
 import os
 import re
 import sys
-import types
 from dataclasses import dataclass, replace
 from typing import Any
 
-from poise.errors import UsageError
+from poise.app.batch import ensure_out_dir, inputs_fresh, result_stats, sanitize, write_table
+from poise.app.run_warnings import collected_warnings
+from poise.app.runner import run_spec
+from poise.core.atomic import OutputError
+from poise.core.errors import DeckError, UsageError
+from poise.core.version import __version__
+from poise.deck.parser import parse_deck_bytes, parse_number
+from poise.deck.schema import element_schema, ENUM_ALIASES
+from poise.results.hdf5 import read_results, write_results
 from poise.results.schema import GROUP_TAGS, element_outputs
+from poise.solvers.settings import check_override_names
 
 INDEX_VERSION = 1
 INDEX_KEYS = ("case", "file", "status", "exit_code", "iterations", "wall_time", "imbalance",
@@ -83,7 +91,6 @@ class Param:
 
 # ---------------------------------------------------------------------------- parameters
 def _num(text: str, kind: str, where: str):
-    from poise.deck.parser import parse_number
     v = parse_number(text)
     if v is None or not math.isfinite(v):
         raise UsageError(f"{where}: {text!r} is not a number")
@@ -101,7 +108,6 @@ def _clean(v: float) -> float:
 
 def _check_value(attr, v, where: str):
     if attr.kind == "enum":
-        from poise.deck.schema import ENUM_ALIASES
         u = " ".join(str(v).upper().split())
         u = ENUM_ALIASES.get(u, u)
         if attr.choices and u not in attr.choices:
@@ -163,7 +169,6 @@ def parse_values(attr, text, where: str) -> tuple[list, tuple | None]:
 
 def resolve_param(spec, key: str, values) -> Param:
     """Check ``Tag[id].attr`` against the deck and the schema; parse and check its values."""
-    from poise.deck.schema import element_schema
     where = f"--set {key!r}"
     m = _SPEC.match(key)
     if not m:
@@ -268,9 +273,8 @@ def make_cases(params: list[Param], mode: str = "grid", n: int | None = None,
 
 
 def case_hash(deck_sha256: str, values: dict, overrides: dict | None) -> str:
-    import poise
     blob = json.dumps({"deck_sha256": deck_sha256, "values": values,
-                       "overrides": overrides or {}, "poise_version": poise.__version__},
+                       "overrides": overrides or {}, "poise_version": __version__},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
 
@@ -353,7 +357,6 @@ def _spec_from_bytes(data: bytes, path: str):
     key = hashlib.sha256(data).hexdigest() + "\0" + path
     spec = _SPEC_CACHE.get(key)
     if spec is None:
-        from poise.deck.parser import parse_deck_bytes
         spec = parse_deck_bytes(data, path)
         if len(_SPEC_CACHE) > 8:
             _SPEC_CACHE.clear()
@@ -366,15 +369,11 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
              allow_user_code: bool = False) -> dict:
     """Solve one case and write its results file; return its index row (a Dask task).
     ``allow_user_code``: run the deck's Python user routines (in the worker)."""
-    from poise.batch import result_stats
-    from poise.errors import DeckError
     row = {"case": index, "file": None, **values}
     try:
         base = _spec_from_bytes(data, path)
         spec, extra = apply_case(base, params, values)
         spec.warnings = list(base.warnings)     # run_spec validates the case (once)
-        from poise.run_warnings import collected_warnings
-        from poise.runner import run_spec
         with collected_warnings() as numeric:          # numpy warnings: run warnings
             res = run_spec(spec, {**(overrides or {}), **extra},
                            command=f"poise sweep case {index}: {json.dumps(values, default=str)}",
@@ -393,8 +392,6 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
     res.attrs.update(sweep_case=int(index), sweep_case_hash=chash,
                      sweep_values=json.dumps(values, sort_keys=True, default=str),
                      run_overrides=json.dumps(overrides or {}, sort_keys=True, default=str))
-    from poise.atomic import OutputError
-    from poise.results.hdf5 import write_results
     try:
         write_results(res, out_file)
     except OutputError as e:         # disk full: an I/O error row, the sweep goes on
@@ -415,7 +412,6 @@ def resumable(out_file: str, chash: str, allow_user_code: bool = False) -> bool:
     try:
         import h5py
 
-        from poise.batch import inputs_fresh
         with h5py.File(out_file, "r") as f:
             a = f.attrs
             h = a.get("sweep_case_hash")
@@ -426,8 +422,6 @@ def resumable(out_file: str, chash: str, allow_user_code: bool = False) -> bool:
 
 
 def resumed_row(out_file: str, index: int, values: dict, outputs) -> dict:
-    from poise.batch import result_stats
-    from poise.results.hdf5 import read_results
     res = read_results(out_file)
     st = result_stats(res)
     row = {"case": index, "file": out_file, **values}
@@ -497,13 +491,11 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
 
     Raises
     ------
-    poise.errors.UsageError
+    poise.core.errors.UsageError
         Bad ``sets``/``outputs``/mode (exit 2 in the CLI).
-    poise.errors.DeckError
+    poise.core.errors.DeckError
         The base deck is invalid (exit 3).
     """
-    from poise.batch import sanitize, write_table
-    from poise.deck.parser import parse_deck_bytes
     deck = os.fspath(deck)
     try:
         with open(deck, "rb") as f:
@@ -522,10 +514,8 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     if scheduler and client is None:
         check_scheduler(scheduler)
     cases = make_cases(params, mode, n=n, seed=seed)
-    from poise.settings import check_override_names
     check_override_names(overrides)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    from poise.batch import ensure_out_dir
     ensure_out_dir(out_dir)
     width = max(5, len(str(len(cases) - 1)))
     files = [os.path.join(os.path.abspath(out_dir), f"case_{i:0{width}d}.h5")
@@ -633,12 +623,3 @@ def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, o
             if cluster is not None:
                 cluster.close()
 
-
-class _CallableModule(types.ModuleType):
-    """``poise.sweep(...)`` works whether ``poise.sweep`` is this module or the API function."""
-
-    def __call__(self, *args, **kwargs):
-        return run_sweep(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule

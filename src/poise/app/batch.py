@@ -2,7 +2,7 @@
 
 Used by ``poise batch``. Decks are always solved in worker processes (also with ``-j 1``),
 started with the ``spawn`` method (safe with threads, the same on every platform); a worker
-imports poise once and solves deck after deck with :func:`poise.api.run_deck`, writing
+imports poise once and solves deck after deck with :func:`poise.app.runner.run_deck`, writing
 ``OUT_DIR/<stem>.h5`` itself and returning only a small summary row.
 
 A worker that dies (killed by a signal, e.g. out of memory, or a crash in native code or in a
@@ -44,6 +44,15 @@ import json
 import math
 import os
 from pathlib import Path
+
+from poise.app.run_warnings import collected_warnings
+from poise.app.runner import run_deck
+from poise.core.atomic import atomic_output, OutputError
+from poise.core.errors import DeckError
+from poise.core.version import __version__
+from poise.results.hdf5 import read_results, write_results
+from poise.results.summary import summarize_run
+from poise.solvers.settings import check_override_names
 from typing import Any
 
 BATCH_VERSION = 1
@@ -76,7 +85,6 @@ def result_stats(res) -> dict:
     file): ``status``, ``exit_code``, ``time`` and the run summary
     (:func:`poise.results.summary.summarize_run`: iterations summed, the worst imbalance and
     stability over the analyses and frames, the failed analyses' messages)."""
-    from poise.results.summary import summarize_run
     t = sum(float(res.timings.get(k, 0.0)) for k in ("parse", "compile", "solve"))
     return dict(summarize_run(res).row(), exit_code=res.exit_code, time=t)
 
@@ -129,11 +137,10 @@ def up_to_date(deck: str, output: str, overrides: dict | None,
     try:
         import h5py
 
-        import poise
         with h5py.File(output, "r") as f:
             a = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
         return (a.get("format") == "poise-results" and "status" in a
-                and a.get("poise_version") == poise.__version__
+                and a.get("poise_version") == __version__
                 and a.get("deck_sha256") == file_sha256(deck)
                 and a.get("run_overrides") == overrides_json(overrides)
                 and inputs_fresh(a, allow_user_code))
@@ -149,7 +156,6 @@ def _row(deck, output, **kw) -> dict:
 
 
 def skipped_row(deck: str, output: str) -> dict:
-    from poise.results.hdf5 import read_results
     st = result_stats(read_results(output))
     st["message"] = "skipped (up to date)"
     return _row(deck, output, skipped=True, **st)
@@ -163,10 +169,7 @@ def _error_row(deck: str, message: str) -> dict:
 def solve_one(deck: str, output: str, overrides: dict | None, command: str,
               allow_user_code: bool = False) -> dict:
     """Solve one deck and write its results file (runs in a worker process)."""
-    from poise.errors import DeckError
-    from poise.run_warnings import collected_warnings
     try:
-        from poise.api import run_deck
         with collected_warnings() as numeric:          # numpy warnings: run warnings
             res = run_deck(deck, overrides, command=command, allow_user_code=allow_user_code)
         res.warnings = list(res.warnings) + numeric
@@ -176,9 +179,7 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str,
                     message="; ".join(problems), problems=problems)
     except (Exception, SystemExit) as e:  # noqa: BLE001 - a row, never kills the batch
         return _error_row(deck, f"{type(e).__name__}: {' '.join(str(e).split())}")
-    from poise.atomic import OutputError
     try:
-        from poise.results.hdf5 import write_results
         res.attrs["run_overrides"] = overrides_json(overrides)
         write_results(res, output)
     except OutputError as e:         # disk full, no permission: an I/O error, not a bug
@@ -197,7 +198,6 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
     ``allow_user_code``: run the Python user routines decks name (else ``invalid_deck``).
     """
     import functools
-    from poise.settings import check_override_names
     check_override_names(overrides)
     job = functools.partial(solve_one, allow_user_code=bool(allow_user_code))   # picklable
     ensure_out_dir(out_dir)
@@ -293,8 +293,7 @@ def _solve_isolated(keys, jobs, decks, outs, overrides, command, rows, on_row,
 
 def ensure_out_dir(out_dir: str) -> None:
     """Create ``out_dir`` (and parents); an output directory that cannot be created or written
-    is an I/O error naming it (:class:`poise.atomic.OutputError`, exit 2), before any work."""
-    from poise.atomic import OutputError
+    is an I/O error naming it (:class:`poise.core.atomic.OutputError`, exit 2), before any work."""
     try:
         os.makedirs(out_dir, exist_ok=True)
     except OSError as e:
@@ -306,10 +305,9 @@ def ensure_out_dir(out_dir: str) -> None:
 
 def write_table(rows: list[dict], path_stem: str, keys=None, extra: dict | None = None) -> None:
     """``<path_stem>.csv`` and ``<path_stem>.json`` (``{"rows": [...], **extra}``), atomically
-    (:func:`poise.atomic.atomic_output`: a failed write is an ``OutputError``, exit 2)."""
+    (:func:`poise.core.atomic.atomic_output`: a failed write is an ``OutputError``, exit 2)."""
     import csv
 
-    from poise.atomic import atomic_output
     keys = list(keys) if keys else list(dict.fromkeys(k for r in rows for k in r))
     with atomic_output(f"{path_stem}.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")

@@ -9,21 +9,31 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
-from poise import __version__
+from poise.core import phases
+from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
+from poise.core.version import __version__
+from poise.deck.parser import load_deck
 from poise.deck.spec import DeckSpec, Element
-from poise.errors import DeckError, EvaluationError, Problem
+from poise.deck.validate import validate
+from poise.model import commands as model_commands
+from poise.model.compile import compile_model
+from poise.model.compile_contact import _get
 from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
 from poise.results.labels import Labeller
-from poise.settings import StaticSettings
+from poise.results.summary import summarize
+from poise.results.summary import summary_line as _summary_line
+from poise.solvers.quasistatic import print_arrays, progress_bar, QuasiStaticAnalysis
+from poise.solvers.settings import StaticSettings, check_override_names
+from poise.solvers.static import StaticAnalysis
 
 
 def _load(path):
     if isinstance(path, DeckSpec):  # already parsed (run_spec: sweeps, poise.solve(spec))
         return revalidated(path)
-    from poise.deck.parser import load_deck
     return load_deck(path)
 
 
@@ -37,7 +47,6 @@ def revalidated(spec: DeckSpec) -> DeckSpec:
     """
     from dataclasses import replace
 
-    from poise.deck.validate import validate
     tmp = replace(spec, warnings=[])
     validate(tmp)
     known = {str(w) for w in spec.warnings}
@@ -101,13 +110,11 @@ class AnalysisRequest:
 
 def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     """The analyses of a deck in command order."""
-    from poise.settings import check_override_names
     check_override_names(overrides)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
     try:      # an invalid override is the caller's error, not the deck's
         StaticSettings().updated(overrides)
     except (ValueError, TypeError) as e:
-        from poise.errors import UsageError
         raise UsageError(f"invalid solver option: {e}") from None
     live = _static_settings([e for e in spec.model if e.tag == "Param_Static"])
     transient: dict = {}
@@ -118,10 +125,8 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     pending = []
     arrays = {}
     if any(e.tag == "Reference_Array" for e in spec.model):
-        from poise.solvers.quasistatic import print_arrays
         arrays = print_arrays(spec)
     t_now = 0.0
-    from poise.model import commands as model_commands
     bad = model_commands.check(spec.commands, spec.warnings)
     if bad:
         raise DeckError(bad)
@@ -159,7 +164,6 @@ def _check_compliance_markers(spec, s, el, from_cli: bool) -> None:
         return
     msg = f"compliance_markers: marker id {bad[0]} is not a Reference_Marker of the deck"
     if from_cli:
-        from poise.errors import UsageError
         raise UsageError(msg)
     src = next((e for e in reversed([*spec.model, *spec.commands]) if e.tag == "Param_Static"
                 and e.attrs.get("compliance_markers") is not None), el)
@@ -173,15 +177,13 @@ def analysis_class(req: AnalysisRequest):
     ``cls(model, request, redundancy=...)`` and provide ``run(state, index) -> (state,
     AnalysisResult)``, ``counters`` and ``redundancy``.
     """
-    from poise.solvers.static import StaticAnalysis
     m = req.settings.method
     if req.kind == "static":
         if m == "MKEAM":
-            from poise.solvers.mkeam import MkeamAnalysis
+            from poise.solvers.mkeam import MkeamAnalysis   # lazy: scipy, MKEAM runs only
             return MkeamAnalysis, None
         return StaticAnalysis, None
     if req.kind == "quasistatic":
-        from poise.solvers.quasistatic import QuasiStaticAnalysis
         return QuasiStaticAnalysis, None
     return None, f"analysis_type {req.kind.upper()} is not supported; expected Static"
 
@@ -190,13 +192,11 @@ def run(path: str, overrides=None, command: str = "", progress=None,
         allow_user_code: bool = False) -> RunResult:
     """``allow_user_code``: run the Python user routines the deck names (otherwise such a deck
     is a located deck error saying how to allow them)."""
-    from poise import phases
     phases.reset()
     t0 = time.perf_counter()
     spec = _load(path)
     path = spec.path
     t1 = time.perf_counter()
-    from poise.model.compile import compile_model
     user_code = "run" if allow_user_code else "refuse"
     model = compile_model(spec, user_code=user_code)
     t2 = time.perf_counter()
@@ -247,7 +247,7 @@ def run(path: str, overrides=None, command: str = "", progress=None,
         if progress:
             progress(summary_line(ar, res.timings[f"analysis_{k:03d}"]))
     t3 = time.perf_counter()
-    # solve = its phases (poise.phases: evaluate, assemble, factorise) + the rest
+    # solve = its phases (poise.core.phases: evaluate, assemble, factorise) + the rest
     res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2,
                        **{f"solve_{k}": v for k, v in phases.snapshot().items()},
                        **res.timings)
@@ -255,12 +255,57 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     return res
 
 
+def run_deck(
+    path: str,
+    overrides: dict[str, Any] | None = None,
+    command: str = "",
+    progress: Callable[[str], None] | None = None,
+    quiet: bool = False,
+    allow_user_code: bool = False,
+) -> RunResult:
+    """Parse, compile and run every analysis of a deck.
+
+    Parameters
+    ----------
+    path : str
+        Deck file.
+    overrides : dict, optional
+        ``Param_Static`` (and later ``Param_Transient``) attribute overrides from the CLI, e.g.
+        ``{"method": "FIM_S", "max_num_iter": 50, "max_imbalance": 1e-6, "stability": 1e-3}``.
+        CLI values win over deck values, which win over defaults.
+    command : str
+        The command line, recorded in the results.
+    progress : callable, optional
+        Called with one summary line per finished analysis.
+    quiet : bool
+        No progress bar on stderr for long quasi-static runs (otherwise shown only when stderr
+        is a terminal, outside CI and with ``POISE_QUIET`` unset).
+    allow_user_code : bool
+        Run the Python user routines the deck names (``script_name``). Default False: decks
+        come from anywhere, so such a deck is an invalid deck (a located problem per element
+        saying how to allow it). Scripts must lie inside the deck's directory tree either way.
+
+    Returns
+    -------
+    RunResult
+        Always returned for a valid deck, converged or not.
+
+    Raises
+    ------
+    poise.core.errors.DeckError
+        Invalid deck (exit code 3).
+    """
+    check_override_names(overrides)          # before parsing: a typo is the caller's error
+    with progress_bar(False if quiet else None):
+        return run(path, overrides=overrides, command=command, progress=progress,
+                   allow_user_code=allow_user_code)
+
+
 def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
     """The model of each analysis: command versions of model elements met before a Simulate
     (``AnalysisRequest.commands``) apply to it and every later one (poise.model.commands),
     compiled with ``compile_fn`` (the same call that compiled ``model``). All are compiled
     before anything is solved, so a rejected command costs no solve."""
-    from poise.model import commands as model_commands
     out, cur_spec, cur = [], spec, model
     for req in analyses:
         if model_commands.model_commands(req.commands):
@@ -311,7 +356,6 @@ def graphics_datasets(spec: DeckSpec, model) -> dict:
     are the marker's axes as columns (a plane's normal is the third column). Elements of other
     types or with unreadable attributes are skipped (the contact compiler reports those it uses).
     """
-    from poise.model.compile_contact import _get
     els = list(spec.elements("Post_Graphic"))
     if not els:
         return {}
@@ -366,15 +410,12 @@ def graphics_datasets(spec: DeckSpec, model) -> dict:
 
 
 def _noloc(path):
-    from poise.errors import SourceLoc
     return SourceLoc(path, 0, "MotionSolve", None)
 
 
 def summary_line(ar: AnalysisResult, seconds: float | None = None) -> str:
     """The one-line summary of an analysis (:func:`poise.results.summary.summary_line`)."""
-    from poise.results.summary import summarize
-    from poise.results.summary import summary_line as line
-    return line(summarize(ar), seconds=seconds)
+    return _summary_line(summarize(ar), seconds=seconds)
 
 
 def model_datasets(model) -> dict:
@@ -393,58 +434,4 @@ def model_datasets(model) -> dict:
     return d
 
 
-def check(path: str):
-    from poise.api import CheckReport
-    from poise.model.compile import compile_model
-    from poise.solvers.static import detect_redundancy
-    spec = _load(path)
-    model = compile_model(spec, user_code="skip")      # check never runs deck code
-    rep = CheckReport(deck=spec.path)
-    mass = model.deck_mass()
-    for i, bid in enumerate(model.body_id):
-        rep.bodies.append(dict(id=int(bid), label=model.body_label[i],
-                               kind="rigid" if model.body_kind[i] == 0 else "point",
-                               mass=float(mass[i])))
-    seen = {}
-    tags = {ri["tag"] for ri in model.row_info}
-    by_key = {}       # (tag, id) -> first element: one pass, not one scan per row
-    for e in spec.model:
-        if e.tag in tags:
-            by_key.setdefault((e.tag, e.id), e)
-    for ri in model.row_info:
-        key = (ri["tag"], ri["id"])
-        if key not in seen:
-            el = by_key[key]
-            seen[key] = dict(tag=ri["tag"], id=ri["id"], type=str(el.attrs.get("type", "")),
-                             n_equations=0, line=ri["line"])
-        seen[key]["n_equations"] += 1
-    rep.constraints = list(seen.values())
-    for el in spec.model:
-        if el.tag.startswith("Force_") and el.tag != "Force_Gravity":
-            rep.forces.append(dict(tag=el.tag, id=el.id, type=str(el.attrs.get("type", "")),
-                                   line=el.loc.line))
-    red = detect_redundancy(model, model.initial_state())
-    rep.n_coordinates = model.nq
-    rep.n_equations = model.nc
-    rep.n_redundant = len(red)
-    rep.dof = model.nq - (model.nc - len(red))
-    rep.user_routines = sorted(getattr(model, "user_routines", []), key=lambda u: u["line"])
-    from poise.model.compile_user import USER_CONSTRAINT_TAGS
-    n_user_c = sum(u["tag"] in USER_CONSTRAINT_TAGS for u in rep.user_routines)
-    if n_user_c:      # their equation count is known only by calling them: not here
-        rep.dof_without_user_constraints = rep.dof
-        rep.dof = None
-    rep.redundant = [dict(tag=model.row_info[r]["tag"], id=model.row_info[r]["id"],
-                          equation=model.row_info[r]["equation"], line=model.row_info[r]["line"])
-                     for r in red]
-    rep.active_effects = list(model.active_effects)
-    rep.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
-    for req in plan(spec, None):
-        method = req.settings.method
-        if req.kind == "static" and method == "FIM_D":
-            method = "FIM_S"
-        rep.analyses.append(dict(analysis_type=req.kind, method=method))
-    return rep
-
-
-__all__ = ["run", "check", "plan", "STATUS_FAILED", "EvaluationError", "__version__"]
+__all__ = ["run", "run_deck", "run_spec", "plan", "STATUS_FAILED", "EvaluationError", "__version__"]

@@ -1,5 +1,5 @@
 """Orchestration of the issue-7 suites: ladders, FIM_D target, whole-process, peer, scaling;
-targets with PASS/MISS; markdown sections and plots. Called by ``python -m poise.bench``."""
+targets with PASS/MISS; markdown sections and plots. Called by ``python -m benchmarks``."""
 from __future__ import annotations
 
 import os
@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from poise.benchmarks import report, scaling, wp
+from benchmarks import report, scaling, wp
 
 IMG = "docs/img"
 SMOOTH = ("pendulum_multiturn", "fourbar_spring", "slider_crank_static", "chain_20", "chain_1000")
@@ -30,7 +30,7 @@ def run(root: Path, tmp: Path, chain_rows: list[dict], peer_small: dict | None =
     qs = wp.fim_d_vs_fim_s(quick=quick, log=_log)
     procs = wp.whole_process(decks, repeat=3 if quick else 5, log=_log)
     _log(f"[issue 7] FIM_D target + whole process done in {time.perf_counter() - t0:.0f} s")
-    from poise.benchmarks import peer
+    from benchmarks import peer
     peers = peer.run(quick=quick, repeat=3 if quick else 5, log=_log)
     _log(f"[issue 7] peer done in {time.perf_counter() - t0:.0f} s")
     sc = scaling.run(chain_rows, tmp, quick=quick, log=_log, budget_s=120 if quick else 420)

@@ -1,6 +1,6 @@
 """Expression benchmark (issue 3): compile and evaluate 10 000 expression-based forces.
 
-Part of ``make bench`` (called by :mod:`poise.bench`). Each instance is the nonlinear spring law
+Part of ``make bench`` (called by :mod:`benchmarks.chain`). Each instance is the nonlinear spring law
 ``-1000*(DM(I,J)-50)+STEP(TIME,0,0,1,100)`` with its own marker pair and its own numbers, so the
 batch compiler groups all of them into one vectorised program. Measured: compile time (parse
 every text, group, build the program; median of ``repeat`` runs) and one evaluation of values
@@ -46,7 +46,7 @@ def _texts(n, rng):
 
 def bench_expressions(n: int = N_EXPR, repeat: int = 3) -> dict:
     from poise.deck.spec import Expr
-    from poise.errors import SourceLoc
+    from poise.core.errors import SourceLoc
     from poise.expr import EvalContext, compile_batch
     rng = np.random.default_rng(0)
     texts, k, L0, h = _texts(n, rng)

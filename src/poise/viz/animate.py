@@ -21,7 +21,10 @@ import shutil
 
 import numpy as np
 
-from poise.errors import UsageError
+from poise.core.atomic import atomic_output
+from poise.core.errors import UsageError
+from poise.results.hdf5 import read_results
+from poise.viz.plot import _agg, pick_analysis
 
 
 def _frames(a):
@@ -170,8 +173,6 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
         raise UsageError(f"--out {out!r}: expected a .gif, .mp4 or .png file")
     if low.endswith(".mp4") and shutil.which("ffmpeg") is None:
         raise UsageError("--out *.mp4 needs ffmpeg on PATH (not found); write a .gif instead")
-    from poise.plot import _agg, pick_analysis
-    from poise.results.hdf5 import read_results
     res = read_results(path)
     a = pick_analysis(res, analysis)
     pos, rot, labels = _frames(a)
@@ -232,7 +233,6 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
         title.set_text(f"analysis {a.index} ({a.method}): {labels[f]}  [{f + 1}/{len(pos)}]")
         return [cg, gr, title, *lines]
 
-    from poise.atomic import atomic_output
     with atomic_output(out, (path,), keep_suffix=True) as tmp:
         if low.endswith(".png"):
             render(idx[0])

@@ -100,7 +100,7 @@ def wp_section(rows, procs, qs, decade, deck_docs) -> list[str]:
          "max_dq_tol = t` and, because MKEAM ends with a Newton polish, `max_imbalance = "
          "max_error = t`; FIM_D: `dae_constr_tol = integr_tol = t` (IDA rtol) and `max_imbalance "
          "= max_error = t`. Fallback chain off (`fallback=False`), so each row is the method itself. "
-         "Times are in-process (`poise.api.run_deck`, one warm-up, then the median of the runs "
+         "Times are in-process (`poise.app.api.run_deck`, one warm-up, then the median of the runs "
          "with min–max; runs longer than 2 s are repeated 3 times instead of 5 — the *n* column); "
          "*solve* is `RunResult.timings['solve']`, *total* includes parse and compile. **Error** = "
          "max over frames and bodies of |CG − CG_ref| / L (L = the model's length scale), against "
@@ -160,7 +160,7 @@ def wp_section(rows, procs, qs, decade, deck_docs) -> list[str]:
 
 
 def peer_section(rows) -> list[str]:
-    from poise.benchmarks import peer
+    from benchmarks import peer
     L = ["## Peer: Exudyn static solver, same problems, same run", ""]
     L += peer.caption()
     if not rows or not rows[0].get("peer_available"):
@@ -205,7 +205,7 @@ def peer_section(rows) -> list[str]:
 def floor_section(rows) -> list[str]:
     """Whole process of the small decks next to the import floors (poise's mandated
     dependencies; numpy alone; the peer script's imports) and next to ``poise batch``, all
-    measured the same way (``poise.bench._wall``)."""
+    measured the same way (``benchmarks.chain._wall``)."""
     rows = [r for r in rows if r.get("import_floor") and r.get("exudyn", {}).get("process_s")]
     if not rows:
         return []
@@ -264,7 +264,7 @@ def scaling_section(chains, grids, skips, fits) -> list[str]:
     L = ["## Scaling (issue 7)", "",
          "Chains: `poise.gen.chain` (revolute); sizes from the chain benchmark above plus the "
          "larger ones, one fresh process per run. Grid: n×n rigid blocks joined to neighbours and "
-         "(edges) to ground by `Force_Bushing` (`poise.benchmarks.decks.build_grid_deck`, 6 N "
+         "(edges) to ground by `Force_Bushing` (`benchmarks.decks.build_grid_deck`, 6 N "
          "unknowns, no constraints). Exponents: least squares on log–log data; *large N* uses "
          "N ≥ 1000 (chains) / N ≥ 256 (grids).", "",
          "![scaling](img/scaling.png)", "",

@@ -1,6 +1,6 @@
 """Scaling: hanging chains (``poise.gen.chain``) and n x n grids of bushed rigid blocks
-(:func:`poise.benchmarks.decks.build_grid_deck`) vs N, each case in a fresh process through the
-chain benchmark's worker (``python -m poise.bench --worker``: parse, compile, the static analysis
+(:func:`benchmarks.decks.build_grid_deck`) vs N, each case in a fresh process through the
+chain benchmark's worker (``python -m benchmarks --worker``: parse, compile, the static analysis
 as ``poise solve`` runs it, one sparse LU (COLAMD) of the same KKT matrix at the solution, peak
 RSS). The chain sizes already measured by the chain benchmark are reused."""
 from __future__ import annotations
@@ -32,8 +32,8 @@ def run(chain_rows: list[dict], tmp: Path, quick: bool = False, log=print,
         budget_s: float = 420.0) -> list[dict]:
     """Extra chain sizes and the grid family. Stops adding sizes when the next one would not fit
     ``budget_s`` (the time is extrapolated from the previous size with exponent 1.3)."""
-    from poise.bench import _run_worker, bench_chain
-    from poise.benchmarks.decks import build_grid_deck
+    from benchmarks.chain import _run_worker, bench_chain
+    from benchmarks.decks import build_grid_deck
     rows = []
     t_start = time.perf_counter()
     chain_rows = [r for r in chain_rows if r.get("bench") == "chain"]
@@ -72,7 +72,7 @@ def run(chain_rows: list[dict], tmp: Path, quick: bool = False, log=print,
         t0 = time.perf_counter()
         reps = 3 if g <= 16 else 1
         runs = [_run_worker(deck, g * g) for _ in range(reps)]
-        from poise.bench import _stats
+        from benchmarks.chain import _stats
         out = dict(bench="grid", n=g * g, grid=g, repeat=reps, nq=runs[0]["nq"], nc=runs[0]["nc"],
                    nnz=runs[0]["nnz"], iterations=runs[0]["iterations"],
                    status=runs[0]["status"], counters=runs[0]["counters"],

@@ -12,14 +12,15 @@ from __future__ import annotations
 import importlib.util
 import math
 import os
-import statistics
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from poise.benchmarks.decks import BENCH_DIR, ROOT, with_settings
+from benchmarks.decks import BENCH_DIR, ROOT
+from poise.app import ladder as ladder_mod
+from poise.app.ladder import method_settings, with_settings  # noqa: F401 (re-exported)
 
 # --------------------------------------------------------------------------- ladders
 FULL_RUNGS = [10.0 ** -k for k in range(2, 11)]             # 1e-2 ... 1e-10, every decade
@@ -27,25 +28,6 @@ SPARSE_RUNGS = [10.0 ** -k for k in (2, 4, 6, 8, 10)]        # every second deca
 QUICK_RUNGS = [10.0 ** -k for k in (2, 6, 10)]
 
 
-def method_settings(method: str, tol: float) -> tuple[dict, dict | None]:
-    """(Param_Static, Param_Transient) attributes of one rung of the ladder.
-
-    * FIM_S: ``max_imbalance = max_error = tol``.
-    * MKEAM: ``max_ke_tol = max_dq_tol = tol`` and, since MKEAM ends with a Newton polish to the
-      FIM tolerances, ``max_imbalance = max_error = tol`` too.
-    * FIM_D: ``dae_constr_tol = integr_tol = tol`` (IDA rtol) and ``max_imbalance = max_error =
-      tol`` for the initial static solution.
-    """
-    t = f"{tol:.1E}"
-    if method == "FIM_S":
-        return dict(method="FIM_S", max_imbalance=t, max_error=t), None
-    if method == "MKEAM":
-        return dict(method="MKEAM", max_ke_tol=t, max_dq_tol=t, max_imbalance=t, max_error=t,
-                    max_num_iter="200"), None
-    if method == "FIM_D":
-        return (dict(method="FIM_D", max_imbalance=t, max_error=t),
-                dict(dae_constr_tol=t, integr_tol=t))
-    raise ValueError(method)
 
 
 # --------------------------------------------------------------------------- references
@@ -132,59 +114,14 @@ def deck_error(res, ref_fn, ref_mod) -> float:
     return err / L
 
 
-def _stats(xs):
-    xs = [x for x in xs if x is not None]
-    if not xs:
-        return None
-    return dict(median=statistics.median(xs), min=min(xs), max=max(xs), n=len(xs))
 
 
 def run_point(xml_text: str, static: dict, transient: dict | None, repeat: int, tmpdir: Path,
               ref_fn=None, ref_mod=None, warmup: bool = True,
               allow_user_code: bool = False) -> dict:
-    """Solve one deck variant ``repeat`` times in this process (after one warm-up run);
-    ``allow_user_code``: run its Python user routines (scripts next to ``tmpdir/variant.xml``)."""
-    from functools import partial
-
-    from poise.api import run_deck
-    run_deck = partial(run_deck, allow_user_code=allow_user_code)
-    p = tmpdir / "variant.xml"
-    p.write_bytes(with_settings(xml_text, static, transient))
-    ov = {"fallback": False}
-    if warmup:
-        tw = time.perf_counter()
-        run_deck(str(p), overrides=ov)
-        if time.perf_counter() - tw > 2.0:      # long runs: 3 repetitions instead of 5
-            repeat = min(repeat, 3)
-    walls, solves, res = [], [], None
-    for _ in range(max(1, repeat)):
-        t0 = time.perf_counter()
-        res = run_deck(str(p), overrides=ov)
-        walls.append(time.perf_counter() - t0)
-        solves.append(res.timings.get("solve"))
-    an = res.analyses
-    iters = int(sum(int(np.sum(a.datasets.get("frames/iterations", [0]))) for a in an))
-    imb = [float(np.max(a.datasets["frames/imbalance"])) for a in an
-           if len(a.datasets.get("frames/imbalance", []))]
-    out = dict(status="converged" if all(a.status == "converged" for a in an) else "failed",
-               message="; ".join(str(a.message) for a in an if a.status != "converged"),
-               iterations=iters, frames=int(sum(len(a.datasets.get("time", [0])) for a in an)),
-               counts=dict(res.counts), solve_s=_stats(solves), total_s=_stats(walls),
-               parse_s=res.timings.get("parse"), compile_s=res.timings.get("compile"),
-               imbalance=max(imb) if imb else None)
-    steps = [int(a.attrs["ida_steps"]) for a in an if "ida_steps" in a.attrs]
-    if steps:
-        out["ida_steps"] = sum(steps)
-    # FIM_D: cost of bringing the output frames onto the equilibrium (fim_d.Corrector), from
-    # the last repetition: frames, corrections, residual evaluations, factorisations, full
-    # Newton fallbacks, seconds
-    corr = {}
-    for a in an:
-        for k, v in a.attrs.items():
-            if k.startswith("correction_"):
-                corr[k[len("correction_"):]] = corr.get(k[len("correction_"):], 0) + v
-    if corr:
-        out["correction"] = corr
+    """:func:`poise.app.ladder.run_point` plus, with ``ref_fn``, the error against the reference."""
+    out, res = ladder_mod.run_point(xml_text, static, transient, repeat, tmpdir, warmup=warmup,
+                                    allow_user_code=allow_user_code)
     if ref_fn is not None:
         out["error"] = deck_error(res, ref_fn, ref_mod)
     return out
@@ -244,7 +181,7 @@ def fim_d_vs_fim_s(quick: bool = False, log=print) -> list[dict]:
 
 def whole_process(names, repeat: int = 5, log=print) -> list[dict]:
     """``poise solve decks/bench/X.xml -o tmp.h5`` wall time (process start → HDF5 written)."""
-    from poise.bench import _poise_cmd, _wall
+    from benchmarks.chain import _poise_cmd, _wall
     rows = []
     with tempfile.TemporaryDirectory(prefix="poise-wp-") as td:
         for name in names:

@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 
 from dataclasses import asdict, dataclass, fields, replace
+from poise.core.errors import UnknownOptionError
+from poise.solvers.compliance import METHODS as CM, parse_markers
 
 METHODS = ("MKEAM", "FIM_S", "FIM_D")
 TOL_MIN = 1e-100     # smallest tolerance (poise.deck.schema.TOL_MIN)
@@ -92,7 +94,6 @@ class StaticSettings:
         if not (self.compliance_delta > 0 and math.isfinite(self.compliance_delta)):
             raise ValueError(f"compliance_delta must be a finite number > 0, got "
                              f"{self.compliance_delta!r}")
-        from poise.solvers.compliance import METHODS as CM, parse_markers
         object.__setattr__(self, "compliance_markers", parse_markers(self.compliance_markers))
         cm = str(self.compliance_method).lower()
         if cm not in CM:
@@ -145,7 +146,7 @@ OVERRIDE_ALIASES = {"max_residual": "max_error"}
 
 
 def check_override_names(overrides, where: str = "solver option", also=()) -> None:
-    """Raise :class:`poise.errors.UnknownOptionError` if a key of ``overrides`` is not a
+    """Raise :class:`poise.core.errors.UnknownOptionError` if a key of ``overrides`` is not a
     :class:`StaticSettings` field (case-insensitive, aliases allowed).
 
     The one check of override names behind every public entry (``solve``, ``run_deck``,
@@ -167,7 +168,6 @@ def check_override_names(overrides, where: str = "solver option", also=()) -> No
                                           cutoff=0.6)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         parts.append(f"{k!r}{hint}")
-    from poise.errors import UnknownOptionError
     s = "s" if len(bad) > 1 else ""
     raise UnknownOptionError(f"unknown {where}{s} {', '.join(parts)}; valid names: "
                              f"{', '.join([*names, *also])}")

@@ -1,7 +1,7 @@
 """The "stable equilibria" table of ``make bench``: MKEAM and ``--require-stable`` against plain
 FIM_S on hanging chains (``poise.gen.chain``), each answer checked against the discrete
 catenary (closed form up to one scalar root, :func:`catenary_cgs`), every time a ratio to FIM_S
-in the same run. ``python -m poise.bench --stable-only`` runs this table alone.
+in the same run. ``python -m benchmarks --stable-only`` runs this table alone.
 
 Decks: ``arc`` = the generator's default start (a circular arc near the catenary, span
 0.8 N a); ``V`` = two straight legs (``start="v"``), span 0.6 N a (at 0.8 N a plain FIM_S from
@@ -125,7 +125,7 @@ def _case(tmp: Path, n, start, method, log, **over):
 
 def run(tmp: Path, log=print, quick=False):
     """Returns (rows, markdown lines, targets)."""
-    root = Path(__file__).resolve().parents[3]
+    root = Path(__file__).resolve().parents[1]
     rows = []
     fb = [_fourbar_case(tmp, root, "FIM_S", log), _fourbar_case(tmp, root, "FIM_S", log,
                                                                   require_stable=True),

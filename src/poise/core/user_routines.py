@@ -54,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-from poise.errors import DeckError, EvaluationError, Problem
+from poise.core.errors import DeckError, EvaluationError, Problem
 
 DEFAULT_NAMES = {"Constraint_UserConstr": "ucosub", "Force_Scalar_TwoBody": "sfosub",
                  "Force_Vector_OneBody": "gfosub", "Force_Vector_TwoBody": "gfosub",

@@ -1,0 +1,2 @@
+"""Pictures of results files: ``poise plot`` (plot) and ``poise animate`` (animate); matplotlib is
+imported only here."""
