@@ -137,7 +137,7 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.model.frame_batch import batchable, evaluate_frames
 from poise.model.model import State
-from poise.model.rotation import expm_so3, se3_left_jacobian, wrap_angle
+from poise.elements.rotation import expm_so3, se3_left_jacobian, wrap_angle
 from poise.solvers.context import Strategy, replicate
 from poise.solvers.fallback import solve_frame
 from poise.solvers.newton import FrameOutcome, Scales

@@ -16,7 +16,7 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
-from poise.model.rotation import euler_313, euler_parameters
+from poise.elements.rotation import euler_313, euler_parameters
 from poise.solvers.certify import certify
 from poise.solvers.history import STRATEGIES
 from poise.solvers.newton import Scales
