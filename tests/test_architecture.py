@@ -20,7 +20,6 @@ PACKAGES = (ROOT / "src" / "poise", ROOT / "cli" / "poise_cli")
 
 # module (path from the repository root) -> function-local poise imports without a `lazy` comment
 ALLOWED = {
-    "src/poise/deck/validate.py": 2,
     "src/poise/families/diff_vars.py": 1,
     "src/poise/families/expr_forces.py": 3,
     "src/poise/model/commands.py": 1,
