@@ -7,7 +7,7 @@ import zlib
 import numpy as np
 
 from poise.gen.deck import Deck
-from poise.model.rotation import from_euler_parameters
+from poise.elements.rotation import from_euler_parameters
 
 
 class DeckBuilder(Deck):

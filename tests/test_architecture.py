@@ -20,21 +20,6 @@ PACKAGES = (ROOT / "src" / "poise", ROOT / "cli" / "poise_cli")
 
 # module (path from the repository root) -> function-local poise imports without a `lazy` comment
 ALLOWED = {
-    "src/poise/families/diff_vars.py": 1,
-    "src/poise/families/expr_forces.py": 3,
-    "src/poise/model/commands.py": 1,
-    "src/poise/model/compile.py": 8,
-    "src/poise/model/compile_contact.py": 2,
-    "src/poise/model/compile_curves.py": 1,
-    "src/poise/model/compile_diff_vars.py": 3,
-    "src/poise/model/compile_expr.py": 14,
-    "src/poise/model/compile_forces.py": 1,
-    "src/poise/model/compile_motions.py": 2,
-    "src/poise/model/compile_user.py": 6,
-    "src/poise/model/curve_data.py": 2,
-    "src/poise/model/frame_batch.py": 6,
-    "src/poise/model/model.py": 1,
-    "src/poise/model/requests.py": 1,
     "src/poise/results/data.py": 1,
     "src/poise/results/hdf5.py": 1,
     "src/poise/results/summary.py": 1,
