@@ -175,5 +175,5 @@ def test_output_dataset_names_checked_against_the_schema(tmp_path):
     assert r.exit_code == 2, r.output
     assert "did you mean bodies[2].position?" in r.stderr
     assert not (tmp_path / "index.csv").exists()
-    from poise.app.sweep import OUTPUT_GROUPS
-    assert {"gears", "couplers", "curves", "contacts", "requests"} <= set(OUTPUT_GROUPS)
+    from poise.app.sweep import output_groups
+    assert {"gears", "couplers", "curves", "contacts", "requests"} <= set(output_groups())
