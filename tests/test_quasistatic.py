@@ -242,7 +242,7 @@ def test_fim_d_fallbacks_recorded(monkeypatch):
 def test_quiet_silences_progress_bar(monkeypatch, capsys, method):
     """``run_deck(quiet=True)`` (``poise solve --quiet``) turns the progress bar off even on a
     terminal; without it the bar follows the terminal / CI detection."""
-    import poise.solvers.quasistatic as qsm
+    import poise.app.progress as qsm
     seen = []
     orig = qsm.Progress.__init__
 
