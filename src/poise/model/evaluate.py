@@ -88,10 +88,10 @@ def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool =
     if what not in WHAT:
         raise ValueError(f"evaluate: what={what!r}, expected one of {WHAT}")
     single = hasattr(states, "pos")
-    if what == "energy":
+    if what == "energy":             # summed per frame: one frame at a time
         if single:
-            return _energy(model, states)
-        return np.array([_energy(model, s) for s in states])
+            return _energy(model, _Frames(model, [states], True))
+        return np.array([_energy(model, _Frames(model, [s], True)) for s in states])
     t_start = phases.now()
     try:
         fr = _Frames(model, [states] if single else list(states), single)
@@ -175,31 +175,49 @@ class _Frames:
         return t, kin, lam, out
 
 
+    def energy(self, fam):
+        """Potential energy per instance of a force family at one frame (None: not
+        conservative)."""
+        fn = getattr(fam, "potential_energy", None)
+        if fn is None:
+            return None
+        kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, self.P, self.A, self.mb,
+                              self.pos)
+        ctx = EvalContext(t=self.ctx.t, angle=self.ctx.angle)
+        if getattr(fam, "potential_needs_ground", False):
+            return fn(kin, ctx, on_ground=self.mb[fam.markers] == self.model.nb)
+        return fn(kin, ctx)
+
+
 def _kernel(fam, kin, lam, ctx, need_jac):
     if fam.is_constraint:
         return fam.constraints(kin, lam, ctx)
     return fam.forces(kin, ctx, need_jac)
 
 
-def _family_pass(model, fr, need_jac, constraints_only=False, done=None):
+def _family_pass(model, fr, need_jac, only=None, done=None):
     """The one loop over the element families (evaluation order: reaction readers last).
 
     Yields ``(fi, t, kin, rho, G, ph, phy, ext)`` per family (``ph``/``phy`` None for
-    forces; only ``ph`` with ``constraints_only``). ``done`` (a dict): the reaction feed's
-    record of the families evaluated so far; the channels are computed before the first
-    family that reads them."""
+    forces). ``only="phi"``: constraint families only, ``ph`` alone; ``only="energy"``: force
+    families only, their potential energy per instance in place of ``rho`` (None: the element
+    is not conservative). ``done`` (a dict): the reaction feed's record of the families
+    evaluated so far; the channels are computed before the first family that reads them."""
     for fi in model.eval_order:
         fam = model.families[fi]
-        if constraints_only and not fam.is_constraint:
+        if (only == "phi" and not fam.is_constraint) or (only == "energy" and fam.is_constraint):
             continue
         if done is not None and fr.ctx.reactions is None and \
                 getattr(fam, "reads_reactions", False):
             # reaction channels from every family evaluated so far (exact at this iterate)
             fr.ctx.reactions = model.reaction_feed.values(model, done.values(), fr.P, fr.A)
+        if only == "energy":
+            yield fi, fam, None, fr.energy(fam), None, None, None, None
+            continue
         t, kin, lam, out = fr.call(fi, need_jac)
         if fam.is_constraint:
             ph, phy, G = out[:3]
-            if constraints_only:
+            if only == "phi":
                 yield fi, t, kin, None, None, ph, None, None
                 continue
             ext = out[3] if len(out) > 3 else None
@@ -218,7 +236,7 @@ def _family_pass(model, fr, need_jac, constraints_only=False, done=None):
 def _phi(model, fr, active):
     """Constraint values of the frames (no force element is called)."""
     phi = np.zeros(fr.F * model.nc)
-    for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, False, constraints_only=True):
+    for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, False, only="phi"):
         phi[t.crow.ravel()] = ph.ravel()
     if not np.all(np.isfinite(phi)):
         raise EvaluationError(_nonfinite_message(model, np.zeros(0), phi[:model.nc])
@@ -364,27 +382,14 @@ def _many_frames(model, fr, need_jac):
     return FrameEvaluation(r=r, phi=phi, J=J, items=items)
 
 
-def _energy(model, state) -> float:
+def _energy(model, fr) -> float:
     """Potential energy of gravity and the force elements at one frame; NaN when a force
     element is not conservative (MKEAM's descent measure, ``--require-stable``)."""
-    m = model
     V = 0.0
-    if m.gravity_on:
-        V -= float(np.sum(m.body_mass[:, None] * state.pos * m.gravity[None, :]))
-    fams = [f for f in m.families if not f.is_constraint]
-    if not fams:
-        return V
-    P, A, pos = m.marker_kinematics(state)
-    ctx = EvalContext(t=state.t, angle=state.angle)
-    for fam in fams:
-        fn = getattr(fam, "potential_energy", None)
-        if fn is None:
-            return np.nan
-        kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, m.marker_body, pos)
-        if getattr(fam, "potential_needs_ground", False):
-            e = fn(kin, ctx, on_ground=m.marker_body[fam.markers] == m.nb)
-        else:
-            e = fn(kin, ctx)
+    if model.gravity_on:
+        pos = fr.states[0].pos
+        V -= float(np.sum(model.body_mass[:, None] * pos * model.gravity[None, :]))
+    for _, _, _, e, _, _, _, _ in _family_pass(model, fr, False, only="energy"):
         if e is None:
             return np.nan
         V += float(np.sum(e))
