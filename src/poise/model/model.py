@@ -5,6 +5,8 @@ origin, then a spatial rotation increment), each point body 3; ground has none. 
 configuration itself is stored on the rotation group (``State.rot``), so there is no singular
 parametrisation and any number of full turns is possible; continuous relative angles (AZ etc.)
 are tracked in ``State.angle`` by unwrapping along the solution path.
+Evaluation (residual, Jacobian, constraints, energy; one or many frames) is the engine of
+:mod:`poise.model.evaluate`.
 """
 from __future__ import annotations
 
