@@ -29,8 +29,8 @@ def loads_of(model, items, lam=None, frames: int = 1):
     """:func:`element_loads` from kept ``(fam, kin, rho, phi_y)`` tuples (``rho`` used as is
     when ``lam`` is None, else ``phi_y^T lam`` for constraint families).
 
-    ``frames > 1``: the items cover that many frames (:func:`poise.model.frame_batch.
-    evaluate_frames`; owners and rows shifted per frame, ``lam`` (frames * nc,)); the arrays
+    ``frames > 1``: the items cover that many frames (:func:`poise.model.evaluate.
+    evaluate` of a list of states; owners and rows shifted per frame, ``lam`` (frames * nc,)); the arrays
     returned are (frames * n_group, 3), frame-major."""
     out = {}
     for fam, kin, rho, phy in items:

@@ -5,9 +5,8 @@ origin, then a spatial rotation increment), each point body 3; ground has none. 
 configuration itself is stored on the rotation group (``State.rot``), so there is no singular
 parametrisation and any number of full turns is possible; continuous relative angles (AZ etc.)
 are tracked in ``State.angle`` by unwrapping along the solution path.
-
-Over 500 lines: ``Model.evaluate``/``jacobian`` stay next to the arrays they read until the one
-evaluation module of issue 15 (item 1, frames F >= 1, with ``frame_batch``) takes them.
+Evaluation (residual, Jacobian, constraints, energy; one or many frames) is the engine of
+:mod:`poise.model.evaluate`.
 """
 from __future__ import annotations
 
@@ -15,12 +14,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from poise.core import phases
-from poise.core.errors import EvaluationError
-from poise.elements.base import EvalContext
-from poise.elements.kernel import (constraint_jacobian_local, local_pattern, local_residual_tangent,
-                                   slot_kinematics, tangent_compact)
-from poise.model.assembly import Assembler, scatter_add
+from poise.elements.base import EvalContext  # noqa: F401  (re-exported: kernels' context)
+from poise.elements.kernel import local_pattern
+from poise.model.assembly import Assembler
+from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.rotation import (expm_so3, lift_rotation_vector, rotation_vector,
                                      se3_left_jacobian, wrap_angle)
 
@@ -58,25 +55,6 @@ class State:
         return State(self.pos.copy(), self.rot.copy(), self.lam.copy(), self.angle.copy(), self.t,
                      None if self.extra is None else self.extra.copy(),
                      None if self.rotvec is None else self.rotvec.copy(), self.rotvec_drift)
-
-
-@dataclass
-class Evaluation:
-    """Residual and Jacobian at a state.
-
-    Attributes
-    ----------
-    r : (nq,) generalised force imbalance ``Phi_q^T lam - Q`` (force rows then moment rows per body)
-    phi : (nc,) constraint values (inactive/redundant rows included, unscaled)
-    J : (N, N) KKT Jacobian (dense ndarray or CSR), N = nq + nc, or None
-    """
-
-    r: np.ndarray
-    phi: np.ndarray
-    J: object = None
-    _pending: object = field(default=None, repr=False)   # deferred Jacobian (Model.jacobian)
-    _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
-    items: list = field(default=None, repr=False)   # per-family slot data (evaluate(keep=True))
 
 
 @dataclass
@@ -389,133 +367,16 @@ class Model:
     # ------------------------------------------------------------------ evaluate
     def evaluate(self, state: State, need_jac=True, eps_mass: float = 0.0,
                  keep: bool = False, active: np.ndarray | None = None) -> Evaluation:
-        """Residual ``[Phi_q^T lam - Q; Phi]`` and (optionally) the KKT Jacobian.
-
-        Parameters
-        ----------
-        need_jac : bool or "defer"
-            ``"defer"``: compute the residual now and keep the element data, so that
-            :meth:`jacobian` can assemble the Jacobian later without re-evaluating the elements
-            (line-search trials: only the accepted point pays for the Jacobian).
-        eps_mass : float
-            Multiple of the mass matrix added to the coordinate block of the Jacobian only
-            (``sqrt(stability)``); the residual never includes it.
-        keep : bool
-            Keep per-family slot data (``ev.items``: tuples ``(family, kin, rho, phi_y)``,
-            ``phi_y`` None for force families) for reaction outputs.
-        active : (nc,) bool or None
-            Active constraint rows (the solver's data; None: all). Inactive (redundant) rows
-            read 0 in ``phi``, have no constraint Jacobian and 1 on their multiplier diagonal.
-        """
-        t_start = phases.now()
-        defer = isinstance(need_jac, str) and need_jac == "defer"
-        P, A, pos = self.marker_kinematics(state)
-        ctx = EvalContext(t=state.t, angle=state.angle, P=P, A=A, extra=state.extra)
-        r = np.zeros(self.nq)
-        phi = np.zeros(self.nc)
-        pend = [None] * len(self.families)
-        last = []
-        feed = self.reaction_feed
-        done = {} if feed is not None else None
-        for fi in self.eval_order:
-            fam = self.families[fi]
-            if done is not None and ctx.reactions is None and \
-                    getattr(fam, "reads_reactions", False):
-                # reaction channels from every family evaluated so far (exact at this iterate)
-                ctx.reactions = feed.values(self, done.values(), P, A)
-            kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A,
-                                  self.marker_body, pos)
-            U = fam.U
-            if fam.is_constraint:
-                lam = state.lam[fam.crow]
-                out = fam.constraints(kin, lam, ctx)
-                ph, phy, G = out[:3]
-                ext = out[3] if len(out) > 3 else None
-                rho = np.einsum("nmy,nm->ny", phy, lam)
-                if U:
-                    ext = _constraint_ext(ext, lam, fam.n, fam.m, U)
-                phi[fam.crow.ravel()] = ph.ravel()
-                if keep:
-                    last.append((fam, kin, rho, phy))
-            else:
-                out = fam.forces(kin, ctx, bool(need_jac))
-                rho, G = out[:2]
-                ext = out[2] if len(out) > 2 else None
-                phy = None
-                if keep:
-                    last.append((fam, kin, rho, None))
-            if done is not None:
-                done[fi] = (fam, kin, rho, phy)
-            rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, U)
-            if not np.isfinite(rl).all():
-                raise EvaluationError(_family_nonfinite(fam, rl))
-            r += scatter_add(self.nq, fam.gcol, rl)
-            if need_jac:
-                pend[fi] = (fam, kin, rho, G, phy, ext)
-        if self.gravity_on:
-            g = self.gravity if self.gravity_fn is None else self.gravity_fn(state.t)
-            r[self.trans_idx] -= (self.body_mass[:, None] * g[None, :]).ravel()
-        mask = np.ones(self.nc, bool) if active is None else np.asarray(active, bool)
-        if active is not None:
-            phi = np.where(mask, phi, 0.0)
-        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(phi))):
-            phases.add("evaluate", phases.now() - t_start)
-            raise EvaluationError(self._nonfinite_message(r, phi))
-        ev = Evaluation(r=r, phi=phi, J=None, items=last if keep else None)
-        if need_jac:
-            if feed is not None:       # d r_reader / d (lambda, q) through the channels
-                ev._coupling = feed.coupling(self, done, P, A, mask, pend)
-            pend = [p for p in pend if p is not None]     # assembly order: self.families
-            ev._pending = (state, pend, eps_mass, mask.copy())
-        phases.add("evaluate", phases.now() - t_start)
-        if need_jac and not defer:
-            self.jacobian(ev)
-        return ev
+        """Residual and (``need_jac``: True, False or ``"defer"``) the KKT Jacobian of one
+        frame: :func:`poise.model.evaluate.evaluate` (the evaluation engine), kept as a
+        method for the solvers' many one-frame calls."""
+        what = ("defer" if isinstance(need_jac, str) and need_jac == "defer"
+                else "jacobian" if need_jac else "residual")
+        return evaluate(self, state, what, active=active, keep=keep, eps_mass=eps_mass)
 
     def jacobian(self, ev: Evaluation):
         """The KKT Jacobian of an evaluation (assembled now if it was deferred); sets ``ev.J``."""
-        if ev.J is not None:
-            return ev.J
-        t_start = phases.now()
-        state, pend, eps_mass, row_active = ev._pending
-        vals = []
-        for fam, kin, rho, G, phy, ext in pend:
-            pat = local_pattern(fam)
-            U = fam.U
-            if pat.compact:    # straight into the registered (entry-major block) order
-                Kl = tangent_compact(kin, rho, G, fam.K, pat)
-            else:
-                _, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, True, ext, U, pat)
-                Kl = _gather(Kl, pat.order)
-            if fam.is_constraint:
-                Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
-                if U:
-                    Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
-                Pq = Pq * row_active[fam.crow][:, :, None]
-                Pq = Pq.reshape(fam.n, -1)
-                if pat.pidx is not None:
-                    Pq = Pq[:, pat.pidx]
-                vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
-            else:
-                vals.append(Kl)
-        _, Jg = self.mass_blocks(state)
-        vals += [eps_mass * np.repeat(self.body_mass, 3), eps_mass * Jg,
-                 (~row_active).astype(float)]
-        vals += ev._coupling
-        ev.J = self.assembler.assemble(vals)
-        ev._pending = None
-        phases.add("assemble", phases.now() - t_start)
-        return ev.J
-
-    def _nonfinite_message(self, r, phi):
-        bad = np.nonzero(~np.isfinite(phi))[0]
-        if len(bad):
-            ri = self.row_info[bad[0]]
-            return (f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}>: equation "
-                    f"{ri['equation']} is not finite (NaN/Inf)")
-        bad = np.nonzero(~np.isfinite(r))[0]
-        ci = self.coord_info[bad[0]]
-        return f"non-finite force on {ci} (NaN/Inf produced by an element acting on it)"
+        return jacobian(self, ev)
 
 
 def _log_so3(R):
@@ -538,34 +399,6 @@ def _log_so3(R):
             a = -a
         w[i] = th[i] * a
     return w
-
-
-def _gather(Kl, idx):
-    """Flattened local tangent restricted to the family's structural entries."""
-    Kl = Kl.reshape(Kl.shape[0], -1)
-    return Kl if idx is None else Kl[:, idx]
-
-
-def _constraint_ext(ext, lam, n, m, U):
-    """Scalar-column pieces of a constraint family: ``rho_s = phi_s^T lam`` etc."""
-    ext = dict(ext or {})
-    phi_s = ext.get("phi_s")
-    if phi_s is None:
-        phi_s = np.zeros((n, m, U))
-    ext["phi_s"] = phi_s
-    ext["rho_s"] = np.einsum("nmu,nm->nu", phi_s, lam)
-    if ext.get("G_ys") is not None and ext.get("G_sy") is None:
-        ext["G_sy"] = np.swapaxes(ext["G_ys"], 1, 2)
-    return ext
-
-
-def _family_nonfinite(fam, rl) -> str:
-    """Message naming the deck element whose kernel produced NaN/Inf."""
-    k = int(np.nonzero(~np.isfinite(rl).all(axis=1))[0][0])
-    locs = getattr(fam, "element_locs", None)
-    if locs:
-        return f"{locs[k].prefix()} produced a non-finite force (NaN/Inf)"
-    return f"element family {fam.name} (instance {k}) produced a non-finite value (NaN/Inf)"
 
 
 def principal_angles(A, I, J, axis):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.model.model import Evaluation
+from poise.model.evaluate import Evaluation
 from poise.solvers.newton import Scales, measures
 from poise.solvers.status import Status
 

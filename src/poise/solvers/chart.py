@@ -13,7 +13,8 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.elements.rotation import expm_so3, se3_left_jacobian, wrap_angle
-from poise.model.frame_batch import batchable, evaluate_frames
+from poise.model.evaluate import evaluate
+from poise.model.frame_batch import batchable
 from poise.model.model import State
 from poise.solvers.newton import Scales
 
@@ -219,7 +220,7 @@ class Corrector:
     are corrected together (:meth:`batch`): Newton corrections in the chart's coordinates,
     ``y <- y - F_y(y_0)^{-1} F(y, t)``, with each frame's Jacobian taken once at its
     interpolated point (one batched residual + Jacobian evaluation,
-    :func:`~poise.model.frame_batch.evaluate_frames`), then one batched residual and one
+    :func:`~poise.model.evaluate.evaluate`), then one batched residual and one
     stacked back-substitution per further correction. A frame is accepted when its residual
     meets the FIM_S scales (force rows ``max_imbalance``, moment rows ``max_imbalance * L``,
     constraint rows ``max_error`` (x L)) and the next correction — its error estimate — is
@@ -273,7 +274,7 @@ class Corrector:
             saved = self.active
             inact = np.nonzero(~saved)[0] + m.nq
             try:
-                ev = evaluate_frames(m, chart.states(Y, T), need_jac=True)
+                ev = evaluate(m, chart.states(Y, T), "jacobian")
                 st["residuals"] += F_
                 Fv = np.concatenate([ev.r, np.where(saved, ev.phi, 0.0)], axis=1)
                 J = self._chart_jacobian(ev.J, Y, inact)
@@ -291,7 +292,7 @@ class Corrector:
                         break
                     Y[live] += dy
                     st["corrections"] += live.size
-                    ev = evaluate_frames(m, chart.states(Y[live], T[live]), need_jac=False)
+                    ev = evaluate(m, chart.states(Y[live], T[live]), "residual")
                     st["residuals"] += live.size
                     Fv[live] = np.concatenate([ev.r, np.where(saved, ev.phi, 0.0)], axis=1)
                 done = True

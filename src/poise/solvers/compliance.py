@@ -33,7 +33,8 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError, UsageError
-from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
+from poise.model.evaluate import evaluate
+from poise.model.frame_batch import batchable, chunk_size
 from poise.model.model import _log_so3
 from poise.solvers.data import SolveData
 from poise.solvers.history import History
@@ -278,7 +279,7 @@ def _exact_frames(model, frames, active, rows, classes):
     Cn = chunk_size(model)
     for a in range(0, len(frames), Cn):
         chunk = frames[a:a + Cn]
-        J = np.array(evaluate_frames(model, chunk, need_jac=True).J)     # all rows active
+        J = np.array(evaluate(model, chunk, "jacobian").J)     # all rows active
         J[:, off, :] = 0.0                                 # redundant rows: dl = 0, as the
         J[:, :, off] = 0.0                                 # analysis' own Jacobian has them
         J[:, off, off] = 1.0

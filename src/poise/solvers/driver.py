@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.model.model import Evaluation
+from poise.model.evaluate import Evaluation
 from poise.solvers.compliance import attach
 from poise.solvers.context import Context
 from poise.solvers.data import SolveData

@@ -4,7 +4,7 @@
 reactions (minimum-norm where constraints are redundant), element loads, the stability class,
 and for FIM_D's interpolated frames the imbalance and constraint error; it certifies the
 frame's outcome on that evaluation. :func:`frames_datasets` produces the same datasets for a
-whole list of frames from :func:`poise.model.frame_batch.evaluate_frames` (chunks of frames,
+whole list of frames from :func:`poise.model.evaluate.evaluate` (chunks of frames,
 one kernel call per tileable family per chunk) and a batched stability classification, so the
 per-frame cost is array work; it returns ``None`` where batching does not apply or a frame does
 not evaluate to finite values (the caller then uses the frame-by-frame path, which names the
@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
+from poise.model.evaluate import evaluate
+from poise.model.frame_batch import batchable, chunk_size
 from poise.elements.rotation import euler_313, euler_parameters
 from poise.solvers.certify import certify
 from poise.solvers.history import STRATEGIES
@@ -213,7 +214,7 @@ def frames_datasets(ctx, frames, outcomes, measure=None) -> dict | None:
     try:
         for a in range(0, F, C):
             chunk = frames[a:a + C]
-            ev = evaluate_frames(model, chunk, need_jac=True)
+            ev = evaluate(model, chunk, "jacobian")
             for j in range(len(chunk)):
                 got = certify(model, ctx.settings, outcomes[a + j], ev.r[j],
                               np.where(saved, ev.phi[j], 0.0), sc)

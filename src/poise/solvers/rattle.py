@@ -9,10 +9,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from poise.core.errors import EvaluationError
-from poise.elements.kernel import slot_kinematics
 from poise.elements.rotation import expm_so3, wrap_angle
-from poise.model.model import EvalContext
+from poise.model.evaluate import evaluate
 from poise.solvers.linalg import Factor
 
 CONSTRAINT_TOL = 1e-11       # relative position-constraint tolerance in the RATTLE solve
@@ -29,7 +27,6 @@ class _Dyn:
             raise ValueError(f"MKEAM needs a positive mass for every moving body; body id "
                              f"{model.body_id[i]} has mass {model.deck_mass()[i]:g}")
         self.phi_tol = np.where(model.row_kind == 1, 1.0, model.L) * CONSTRAINT_TOL
-        self.cfams = [f for f in model.families if f.is_constraint]
         rb = model.body_off[model.rot_body][:, None] + 3 + np.arange(3)       # (nr, 3)
         self._mi_r = np.concatenate([model.trans_idx,
                                      np.repeat(rb[:, :, None], 3, 2).ravel()]).astype(int)
@@ -133,19 +130,9 @@ class _Dyn:
         return Factor(S)
 
     def phi(self, state):
-        """Constraint values only (no force element is evaluated)."""
-        m = self.m
+        """Constraint values only (no force element is evaluated; inactive rows read 0)."""
         self.cnt.residuals += 1
-        P, A, pos = m.marker_kinematics(state)
-        ctx = EvalContext(t=state.t, angle=state.angle, extra=state.extra, P=P, A=A)
-        phi = np.zeros(m.nc)
-        for fam in self.cfams:
-            kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, m.marker_body, pos)
-            ph = fam.constraints(kin, state.lam[fam.crow], ctx)[0]
-            phi[fam.crow.ravel()] = ph.ravel()
-        if not np.all(np.isfinite(phi)):
-            raise EvaluationError("a constraint equation is not finite (NaN/Inf) during MKEAM")
-        return np.where(self.cnt.mask(m), phi, 0.0)
+        return evaluate(self.m, state, "phi", active=self.cnt.mask(self.m))
 
 
 def retract_flat(model, state, dq):

@@ -1,0 +1,465 @@
+"""The evaluation engine: one pass over the element families for F >= 1 frames of a model.
+
+:func:`evaluate` computes, by its ``what`` option, the residual ``[Phi_q^T lam - Q; Phi]``
+(``"residual"``), with the KKT Jacobian (``"jacobian"``, or ``"defer"``: assembled later by
+:func:`jacobian`), the constraint values only (``"phi"``: no force element is called) or the
+potential energy (``"energy"``). One state is one frame (the Jacobian goes through the model's
+fixed-pattern assembler, sparse or dense); a list of states is ``F`` frames evaluated together
+(the tileable families tiled across frames by :mod:`poise.model.frame_batch` and called once,
+dense ``(F, N, N)`` Jacobians scattered with one ``bincount``). Every family goes through
+:func:`_family_pass`, the only loop over the families; what differs per option is how its
+outputs are reduced. Active rows come from the caller's solve data (``active``); element
+loads of the kept slot data: :mod:`poise.elements.loads`; forces reading constraint reactions:
+the model's ``reaction_feed`` (:mod:`poise.elements.reaction_feed`), single frames only.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from poise.core import phases
+from poise.core.errors import EvaluationError
+from poise.elements.base import EvalContext
+from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, local_pattern,
+                                   local_residual_tangent, slot_kinematics, tangent_compact)
+from poise.model.assembly import scatter_add
+from poise.model.frame_batch import tile_cache
+
+WHAT = ("residual", "jacobian", "defer", "phi", "energy")
+
+
+@dataclass
+class Evaluation:
+    """Residual and Jacobian at a state.
+
+    Attributes
+    ----------
+    r : (nq,) generalised force imbalance ``Phi_q^T lam - Q`` (force rows then moment rows per body)
+    phi : (nc,) constraint values (inactive/redundant rows included, unscaled)
+    J : (N, N) KKT Jacobian (dense ndarray or CSR), N = nq + nc, or None
+    """
+
+    r: np.ndarray
+    phi: np.ndarray
+    J: object = None
+    _pending: object = field(default=None, repr=False)   # deferred Jacobian (:func:`jacobian`)
+    _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
+    items: list = field(default=None, repr=False)   # per-family slot data (keep=True)
+
+
+@dataclass
+class FrameEvaluation:
+    """Residuals and Jacobians of ``F`` frames (all constraint rows active).
+
+    Attributes
+    ----------
+    r : (F, nq) generalised force imbalance per frame
+    phi : (F, nc) constraint values per frame
+    J : (F, N, N) dense KKT Jacobians (``None`` for ``what="residual"``)
+    items : list of ``(family, kin, rho, phi_y)`` over the stacked instances (frame-major:
+        instance ``f * n + i``), the ``family`` a tiled copy whose ``owner`` / ``crow`` are
+        shifted per frame (output group size / ``nc``) for :func:`poise.elements.loads.loads_of`
+    """
+
+    r: np.ndarray
+    phi: np.ndarray
+    J: np.ndarray | None
+    items: list = field(default_factory=list)
+
+
+def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool = False,
+             eps_mass: float = 0.0):
+    """Evaluate one frame (``states`` a State) or ``F`` frames (a sequence of States).
+
+    what : ``"residual"``, ``"jacobian"``, ``"defer"`` (residual now, element data kept so that
+        :func:`jacobian` assembles the Jacobian later without calling the kernels again:
+        line-search trials), ``"phi"`` or ``"energy"``.
+    active : (nc,) bool or None (all rows). Inactive (redundant) rows read 0 in ``phi``, have
+        no constraint Jacobian and 1 on their multiplier diagonal. Frames: all rows active.
+    keep : keep per-family slot data (``ev.items``: ``(family, kin, rho, phi_y)``, ``phi_y``
+        None for force families) for element loads (always kept for frames).
+    eps_mass : multiple of the mass matrix added to the coordinate block of the Jacobian only.
+
+    Returns an :class:`Evaluation` (one frame) or :class:`FrameEvaluation` (frames); ``"phi"``:
+    ``(nc,)`` or ``(F, nc)``; ``"energy"``: a float (NaN when a force element is not
+    conservative) or ``(F,)``.
+    """
+    if what not in WHAT:
+        raise ValueError(f"evaluate: what={what!r}, expected one of {WHAT}")
+    single = hasattr(states, "pos")
+    if what == "energy":             # summed per frame: one frame at a time
+        if single:
+            return _energy(model, _Frames(model, [states], True))
+        return np.array([_energy(model, _Frames(model, [s], True)) for s in states])
+    t_start = phases.now()
+    try:
+        fr = _Frames(model, [states] if single else list(states), single)
+        if what == "phi":
+            return _phi(model, fr, active)
+        if not single:
+            return _many_frames(model, fr, what == "jacobian")
+        ev = _one_frame(model, fr, what, active, keep, eps_mass)
+    finally:
+        phases.add("evaluate", phases.now() - t_start)
+    if what == "jacobian":
+        jacobian(model, ev)          # timed as "assemble"
+    return ev
+
+
+class _Frames:
+    """Marker kinematics of the frames and the kernel call of one family over all of them."""
+
+    def __init__(self, model, states, single):
+        self.model, self.states, self.single = model, states, single
+        self.F = F = len(states)
+        nb = model.nb
+        if single:
+            s = states[0]
+            self.P, self.A, self.pos = model.marker_kinematics(s)
+            self.mb = model.marker_body
+            self.ctx = EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra)
+            self.lam = s.lam
+            return
+        nm = len(model.marker_id)
+        mb = model.marker_body
+        posx = np.zeros((F, nb + 1, 3))
+        rotx = np.zeros((F, nb + 1, 3, 3))
+        posx[:, :nb] = np.stack([s.pos for s in states])
+        rotx[:, :nb] = np.stack([s.rot for s in states])
+        rotx[:, nb] = np.eye(3)
+        P = posx[:, mb] + np.einsum("fnij,nj->fni", rotx[:, mb], model.marker_s0)
+        A = np.matmul(rotx[:, mb], model.marker_A0)
+        self.Pfr, self.Afr = P, A
+        self.P = P.reshape(F * nm, 3)
+        self.A = A.reshape(F * nm, 3, 3)
+        self.pos = posx.reshape(F * (nb + 1), 3)
+        self.mb = (mb[None] + ((nb + 1) * np.arange(F))[:, None]).ravel()
+        self.lam2 = np.stack([s.lam for s in states]) if model.nc else np.zeros((F, 0))
+        self.lam = self.lam2.ravel()
+        ang = np.concatenate([s.angle for s in states]) if len(model.angle_I) else np.zeros(0)
+        ext = np.concatenate([s.extra for s in states]) if model.n_extra else None
+        # tiled families see every frame at once: one time per frame, stacked marker tables
+        self.ctx = EvalContext(t=np.array([s.t for s in states], float), angle=ang, P=self.P,
+                               A=self.A, extra=ext)
+        self.ctxs = None
+        self.tiles = tile_cache(model, F)
+
+    def call(self, fi, need_jac):
+        """``(t, kin, lam, out)`` of family ``fi``: ``t`` the family (tiled copy for frames),
+        ``lam`` its multipliers (constraints), ``out`` the kernel's output tuple."""
+        fam = self.model.families[fi]
+        if self.single:
+            t, exact = fam, True
+        else:
+            t, exact = self.tiles[fi]
+        kin = slot_kinematics(t.markers, fam.slot_ml, t.slot_kind, self.P, self.A, self.mb,
+                              self.pos)
+        lam = self.lam[t.crow] if fam.is_constraint else None
+        if exact:
+            return t, kin, lam, _kernel(t, kin, lam, self.ctx, need_jac)
+        # a family that is not tileable: once per frame with that frame's context
+        if self.ctxs is None:
+            self.ctxs = [EvalContext(t=s.t, angle=s.angle, P=self.Pfr[f], A=self.Afr[f],
+                                     extra=s.extra) for f, s in enumerate(self.states)]
+        n = fam.n
+        outs = [_kernel(fam, _slice_kin(kin, f * n, (f + 1) * n),
+                        self.lam2[f][fam.crow] if fam.is_constraint else None, self.ctxs[f],
+                        need_jac) for f in range(self.F)]
+        k = 3 if fam.is_constraint else 2
+        out = [None if outs[0][j] is None else np.concatenate([o[j] for o in outs])
+               for j in range(k)]
+        ext = _stack_ext(outs, k)
+        if ext is not None:
+            out.append(ext)
+        return t, kin, lam, out
+
+
+    def energy(self, fam):
+        """Potential energy per instance of a force family at one frame (None: not
+        conservative)."""
+        fn = getattr(fam, "potential_energy", None)
+        if fn is None:
+            return None
+        kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, self.P, self.A, self.mb,
+                              self.pos)
+        ctx = EvalContext(t=self.ctx.t, angle=self.ctx.angle)
+        if getattr(fam, "potential_needs_ground", False):
+            return fn(kin, ctx, on_ground=self.mb[fam.markers] == self.model.nb)
+        return fn(kin, ctx)
+
+
+def _kernel(fam, kin, lam, ctx, need_jac):
+    if fam.is_constraint:
+        return fam.constraints(kin, lam, ctx)
+    return fam.forces(kin, ctx, need_jac)
+
+
+def _family_pass(model, fr, need_jac, only=None, done=None):
+    """The one loop over the element families (evaluation order: reaction readers last).
+
+    Yields ``(fi, t, kin, rho, G, ph, phy, ext)`` per family (``ph``/``phy`` None for
+    forces). ``only="phi"``: constraint families only, ``ph`` alone; ``only="energy"``: force
+    families only, their potential energy per instance in place of ``rho`` (None: the element
+    is not conservative). ``done`` (a dict): the reaction feed's record of the families
+    evaluated so far; the channels are computed before the first family that reads them."""
+    for fi in model.eval_order:
+        fam = model.families[fi]
+        if (only == "phi" and not fam.is_constraint) or (only == "energy" and fam.is_constraint):
+            continue
+        if done is not None and fr.ctx.reactions is None and \
+                getattr(fam, "reads_reactions", False):
+            # reaction channels from every family evaluated so far (exact at this iterate)
+            fr.ctx.reactions = model.reaction_feed.values(model, done.values(), fr.P, fr.A)
+        if only == "energy":
+            yield fi, fam, None, fr.energy(fam), None, None, None, None
+            continue
+        t, kin, lam, out = fr.call(fi, need_jac)
+        if fam.is_constraint:
+            ph, phy, G = out[:3]
+            if only == "phi":
+                yield fi, t, kin, None, None, ph, None, None
+                continue
+            ext = out[3] if len(out) > 3 else None
+            rho = np.einsum("nmy,nm->ny", phy, lam)
+            if fam.U:
+                ext = _constraint_ext(ext, lam, len(lam), fam.m, fam.U)
+        else:
+            rho, G = out[:2]
+            ext = out[2] if len(out) > 2 else None
+            ph = phy = None
+        if done is not None:
+            done[fi] = (fam, kin, rho, phy)
+        yield fi, t, kin, rho, G, ph, phy, ext
+
+
+def _phi(model, fr, active):
+    """Constraint values of the frames (no force element is called)."""
+    phi = np.zeros(fr.F * model.nc)
+    for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, False, only="phi"):
+        phi[t.crow.ravel()] = ph.ravel()
+    if not np.all(np.isfinite(phi)):
+        raise EvaluationError(_nonfinite_message(model, np.zeros(0), phi[:model.nc])
+                              if fr.single else "a constraint equation is not finite (NaN/Inf)")
+    if fr.single:
+        return phi if active is None else np.where(np.asarray(active, bool), phi, 0.0)
+    return phi.reshape(fr.F, model.nc)
+
+
+def _one_frame(model, fr, what, active, keep, eps_mass):
+    """Residual (and Jacobian, now or deferred) of one frame: each family's residual is added
+    in evaluation order, the Jacobian goes through the model's fixed-pattern assembler."""
+    need_jac = what != "residual"
+    r = np.zeros(model.nq)
+    phi = np.zeros(model.nc)
+    pend = [None] * len(model.families)
+    last = []
+    feed = model.reaction_feed
+    done = {} if feed is not None else None
+    for fi, fam, kin, rho, G, ph, phy, ext in _family_pass(model, fr, need_jac, done=done):
+        if ph is not None:
+            phi[fam.crow.ravel()] = ph.ravel()
+        if keep:
+            last.append((fam, kin, rho, phy))
+        rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
+        if not np.isfinite(rl).all():
+            raise EvaluationError(_family_nonfinite(fam, rl))
+        r += scatter_add(model.nq, fam.gcol, rl)
+        if need_jac:
+            pend[fi] = (fam, kin, rho, G, phy, ext)
+    state = fr.states[0]
+    if model.gravity_on:
+        g = model.gravity if model.gravity_fn is None else model.gravity_fn(state.t)
+        r[model.trans_idx] -= (model.body_mass[:, None] * g[None, :]).ravel()
+    mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
+    if active is not None:
+        phi = np.where(mask, phi, 0.0)
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(phi))):
+        raise EvaluationError(_nonfinite_message(model, r, phi))
+    ev = Evaluation(r=r, phi=phi, J=None, items=last if keep else None)
+    if need_jac:
+        if feed is not None:       # d r_reader / d (lambda, q) through the channels
+            ev._coupling = feed.coupling(model, done, fr.P, fr.A, mask, pend)
+        pend = [p for p in pend if p is not None]     # assembly order: model.families
+        ev._pending = (state, pend, eps_mass, mask.copy())
+    return ev
+
+
+def jacobian(model, ev: Evaluation):
+    """The KKT Jacobian of a one-frame evaluation (assembled now if it was deferred);
+    sets ``ev.J``."""
+    if ev.J is not None:
+        return ev.J
+    t_start = phases.now()
+    state, pend, eps_mass, row_active = ev._pending
+    vals = []
+    for fam, kin, rho, G, phy, ext in pend:
+        pat = local_pattern(fam)
+        U = fam.U
+        if pat.compact:    # straight into the registered (entry-major block) order
+            Kl = tangent_compact(kin, rho, G, fam.K, pat)
+        else:
+            _, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, True, ext, U, pat)
+            Kl = _gather(Kl, pat.order)
+        if fam.is_constraint:
+            Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
+            if U:
+                Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
+            Pq = Pq * row_active[fam.crow][:, :, None]
+            Pq = Pq.reshape(fam.n, -1)
+            if pat.pidx is not None:
+                Pq = Pq[:, pat.pidx]
+            vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
+        else:
+            vals.append(Kl)
+    _, Jg = model.mass_blocks(state)
+    vals += [eps_mass * np.repeat(model.body_mass, 3), eps_mass * Jg,
+             (~row_active).astype(float)]
+    vals += ev._coupling
+    ev.J = model.assembler.assemble(vals)
+    ev._pending = None
+    phases.add("assemble", phases.now() - t_start)
+    return ev.J
+
+
+def _many_frames(model, fr, need_jac):
+    """Residuals (and dense Jacobians) of ``F`` frames, all rows active: each quantity
+    scattered once over every family and frame (``bincount``)."""
+    F, nq, nc, N = fr.F, model.nq, model.nc, model.N
+    fo = np.arange(F)
+    phi = np.zeros(F * nc)
+    items = []
+    ridx, rval, jidx, jval = [], [], [], []
+    for fi, t, kin, rho, G, ph, phy, ext in _family_pass(model, fr, need_jac):
+        fam = model.families[fi]
+        n = fam.n
+        if ph is not None:
+            phi[t.crow.ravel()] = ph.ravel()
+        items.append((t, kin, rho, phy))
+        pat = local_pattern(fam)
+        rl, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, need_jac, ext, fam.U,
+                                        pat)
+        if not np.isfinite(rl).all():
+            raise EvaluationError(f"element family {fam.name} produced a non-finite value")
+        g = fam.gcol                                                  # (n, L)
+        gv = g >= 0
+        ridx.append(((g + nq * fo[:, None, None]) * gv - (~gv)).reshape(F * n, -1))
+        rval.append(rl)
+        if need_jac:
+            L = g.shape[1]
+            li, lj = np.nonzero(pat.kmask)
+            _add_block(jidx, jval, g[:, li], g[:, lj], Kl.reshape(F * n, L * L)[:, li * L + lj],
+                       F, N)
+            if fam.is_constraint:
+                Pq = constraint_jacobian_local(kin, phy, fam.K)
+                if fam.U:
+                    Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
+                pr, pc = np.nonzero(pat.pmask)
+                rows = nq + fam.crow
+                vals = Pq[:, pr, pc]
+                _add_block(jidx, jval, rows[:, pr], g[:, pc], vals, F, N)
+                _add_block(jidx, jval, g[:, pc], rows[:, pr], vals, F, N)
+    r = np.zeros(F * nq)
+    if ridx:
+        idx = np.concatenate([i.ravel() for i in ridx])
+        val = np.concatenate([v.ravel() for v in rval])
+        ok = idx >= 0
+        r = np.bincount(idx[ok], weights=val[ok], minlength=F * nq)
+    r = r.reshape(F, nq)
+    phi = phi.reshape(F, nc)
+    if model.gravity_on:
+        mg = model.body_mass[:, None]
+        for f, s in enumerate(fr.states):
+            g = model.gravity if model.gravity_fn is None else model.gravity_fn(s.t)
+            r[f, model.trans_idx] -= (mg * g[None, :]).ravel()
+    if not (np.isfinite(r).all() and np.isfinite(phi).all()):
+        raise EvaluationError("non-finite residual in a batched frame evaluation")
+    J = None
+    if need_jac:
+        idx = np.concatenate(jidx) if jidx else np.zeros(0, np.int64)
+        val = np.concatenate(jval) if jval else np.zeros(0)
+        J = np.bincount(idx, weights=val, minlength=F * N * N).reshape(F, N, N)
+    return FrameEvaluation(r=r, phi=phi, J=J, items=items)
+
+
+def _energy(model, fr) -> float:
+    """Potential energy of gravity and the force elements at one frame; NaN when a force
+    element is not conservative (MKEAM's descent measure, ``--require-stable``)."""
+    V = 0.0
+    if model.gravity_on:
+        pos = fr.states[0].pos
+        V -= float(np.sum(model.body_mass[:, None] * pos * model.gravity[None, :]))
+    for _, _, _, e, _, _, _, _ in _family_pass(model, fr, False, only="energy"):
+        if e is None:
+            return np.nan
+        V += float(np.sum(e))
+    return V
+
+
+# ---------------------------------------------------------------------------- helpers
+def _slice_kin(kin, a, b):
+    return SlotKinematics(Y=kin.Y[a:b], V=kin.V[a:b], pt=kin.pt[a:b], slot_ml=kin.slot_ml,
+                          K=kin.K)
+
+
+def _stack_ext(outs, at):
+    """Stack the optional ``ext`` dicts (item ``at``) of per-frame kernel outputs."""
+    exts = [o[at] if len(o) > at else None for o in outs]
+    if all(e is None for e in exts):
+        return None
+    keys = set().union(*[e.keys() for e in exts if e])
+    res = {}
+    for k in keys:
+        vals = [None if e is None else e.get(k) for e in exts]
+        res[k] = None if any(v is None for v in vals) else np.concatenate(vals)
+    return res
+
+
+def _add_block(jidx, jval, rows, cols, vals, F, N):
+    """Register dense-Jacobian entries ``(rows, cols)`` (n, E) of every frame: flat index
+    ``f N^2 + row N + col``; entries with a negative row or column are dropped."""
+    ok = (rows >= 0) & (cols >= 0)                                  # (n, E)
+    base = (rows * N + cols)[ok]                                    # (k,)
+    flat = (base[None, :] + (N * N * np.arange(F))[:, None]).ravel()
+    v = vals.reshape(F, *rows.shape)[:, ok].ravel()
+    jidx.append(flat.astype(np.int64))
+    jval.append(v)
+
+
+def _gather(Kl, idx):
+    """Flattened local tangent restricted to the family's structural entries."""
+    Kl = Kl.reshape(Kl.shape[0], -1)
+    return Kl if idx is None else Kl[:, idx]
+
+
+def _constraint_ext(ext, lam, n, m, U):
+    """Scalar-column pieces of a constraint family: ``rho_s = phi_s^T lam`` etc."""
+    ext = dict(ext or {})
+    phi_s = ext.get("phi_s")
+    if phi_s is None:
+        phi_s = np.zeros((n, m, U))
+    ext["phi_s"] = phi_s
+    ext["rho_s"] = np.einsum("nmu,nm->nu", phi_s, lam)
+    if ext.get("G_ys") is not None and ext.get("G_sy") is None:
+        ext["G_sy"] = np.swapaxes(ext["G_ys"], 1, 2)
+    return ext
+
+
+def _family_nonfinite(fam, rl) -> str:
+    """Message naming the deck element whose kernel produced NaN/Inf."""
+    k = int(np.nonzero(~np.isfinite(rl).all(axis=1))[0][0])
+    locs = getattr(fam, "element_locs", None)
+    if locs:
+        return f"{locs[k].prefix()} produced a non-finite force (NaN/Inf)"
+    return f"element family {fam.name} (instance {k}) produced a non-finite value (NaN/Inf)"
+
+
+def _nonfinite_message(model, r, phi):
+    bad = np.nonzero(~np.isfinite(phi))[0]
+    if len(bad):
+        ri = model.row_info[bad[0]]
+        return (f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}>: equation "
+                f"{ri['equation']} is not finite (NaN/Inf)")
+    bad = np.nonzero(~np.isfinite(r))[0]
+    ci = model.coord_info[bad[0]]
+    return f"non-finite force on {ci} (NaN/Inf produced by an element acting on it)"
