@@ -13,9 +13,7 @@ Outside ``[x[0], x[-1]]``: with ``linear_extrap`` the curve continues as a strai
 end slope (orders 1 and 2 then give the slope and 0); otherwise the end polynomial piece is
 continued.
 
-2-D families ``y(x, z)`` (one curve per z value, ``y`` shaped ``(nz, nx)``; an ``(nx, nz)`` table
-is transposed) are interpolated **linearly in z** between the two neighbouring curves (and
-extrapolated linearly from the two end curves outside the z range).
+2-D families ``y(x, z)`` are interpolated linearly in z (see :class:`PreparedSpline`).
 """
 from __future__ import annotations
 
@@ -54,6 +52,10 @@ def _horner(c, t, order):
 
 class PreparedSpline:
     """A Reference_Spline prepared for one interpolation kind.
+
+    2-D families ``y(x, z)`` (one curve per z value, ``y`` shaped ``(nz, nx)``; an ``(nx, nz)`` table
+    is transposed) are interpolated **linearly in z** between the two neighbouring curves (and
+    extrapolated linearly from the two end curves outside the z range).
 
     Parameters
     ----------
