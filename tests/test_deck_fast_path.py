@@ -8,7 +8,7 @@
   walks take lines from the byte scan (``scan.start_tag_scan``): the line of the ``<`` that
   opens each start tag, checked against an independent parser (expat) on the same documents.
   UTF-16/32 decks and encodings the scan cannot read are re-encoded as UTF-8 first (same lines).
-* Validation: the per-shape screen (``validate._Screen``) against a screen that sends every
+* Validation: the per-shape screen (``screen.Screen``) against a screen that sends every
   element through the element-by-element checks — same problems in the same order, same
   warnings — on randomly broken decks.
 * Compile: vectorised marker poses (``rm_id`` chains composed level by level) against the
@@ -25,6 +25,7 @@ import pytest
 
 from poise.deck import parser as P
 from poise.deck import scan as S
+from poise.deck import screen
 from poise.deck import validate as V
 from poise.deck.spec import Expr
 from poise.core.errors import DeckError
@@ -229,7 +230,7 @@ def test_fast_walk_declines_unusual_documents(data):
     assert P._walk_fast(data, "x.xml") is None
 
 
-class _NoScreen(V._Screen):
+class _NoScreen(screen.Screen):
     """Every element through the element-by-element checks."""
 
     def __init__(self, els):
@@ -293,7 +294,7 @@ def test_validation_screen_matches_element_by_element(monkeypatch):
     cases = [rnd.choice(sources) for _ in range(150)]
     cases = [_mutate(d, rnd) for d in cases] + sources
     screened = [_report(d) for d in cases]
-    monkeypatch.setattr(V, "_Screen", _NoScreen)
+    monkeypatch.setattr(V, "Screen", _NoScreen)
     assert [_report(d) for d in cases] == screened
 
 
