@@ -12,7 +12,8 @@ from typing import Any
 
 from lxml import etree
 
-from poise.deck.schema import Attr, element_schema
+from poise.deck.schema import element_schema
+from poise.deck.schema_types import Attr
 from poise.deck.spec import Element
 from poise.deck.values import coerce, ints, reals
 from poise.core.errors import Problem, SourceLoc

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from poise.deck.schema import NAMESPACES, Attr, ElementSchema
+from poise.deck.schema_types import NAMESPACES, Attr, ElementSchema
 from poise.deck.spec import Element, Expr
 from poise.core.errors import ProblemCollector
 

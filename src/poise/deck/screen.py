@@ -13,7 +13,8 @@ import numpy as np
 
 from poise.deck.checks import (DCM, DCM_CHECK, EIG, ORTHO_TOL, eigvalsh, inertia, ref_attrs,
                                required_attrs)
-from poise.deck.schema import Attr, element_schema
+from poise.deck.schema import element_schema
+from poise.deck.schema_types import Attr
 from poise.deck.spec import Element, Expr
 
 schema_of = functools.cache(element_schema)   # per-tag memo (called per element)

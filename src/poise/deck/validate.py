@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 from poise.deck.checks import (DCM_CHECK, EIG, check_body, check_element, check_expression_syntax,
                                check_marker, check_specific, ns_text, ref_attrs)
-from poise.deck.schema import NAMESPACES, namespace_of
+from poise.deck.schema import namespace_of
+from poise.deck.schema_types import NAMESPACES
 from poise.deck.screen import Screen, schema_of
 from poise.deck.spec import DeckSpec, Element, Expr
 from poise.core.errors import Problem, ProblemCollector, SourceLoc, one_line

@@ -10,7 +10,8 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from poise.deck.schema import ENUM_ALIASES, Attr
+from poise.deck.schema import ENUM_ALIASES
+from poise.deck.schema_types import Attr
 from poise.deck.spec import Expr
 from poise.core.errors import SourceLoc
 
