@@ -1,9 +1,7 @@
 """Spline interpolation for AKISPL / CUBSPL / LINSPL (deck_format.md §6.2, §8.4).
 
-* ``AKISPL`` – Akima spline (local, scipy ``Akima1DInterpolator``).
-* ``CUBSPL`` – global cubic spline with **not-a-knot** end conditions (scipy ``CubicSpline``
-  default).
-* ``LINSPL`` – piecewise linear.
+``AKISPL``: Akima spline (local, scipy ``Akima1DInterpolator``); ``CUBSPL``: global cubic
+spline with **not-a-knot** end conditions (scipy ``CubicSpline`` default); ``LINSPL``: linear.
 
 Every curve is stored as piecewise cubic coefficients ``(4, nseg)`` (highest power first) and
 evaluated with Horner's rule, so the value, the requested derivative order (0..2) and its
