@@ -5,10 +5,10 @@
   sections and warnings — on every deck in ``decks/`` and on documents with multi-line tags,
   ``>`` and quotes in attribute values, ``<`` in comments / CDATA / processing instructions / a
   DOCTYPE, nested elements, CRLF line ends, a BOM, Latin-1 and more than 65 535 lines. Both
-  walks take lines from the byte scan (``parser._start_tag_scan``): the line of the ``<`` that
+  walks take lines from the byte scan (``scan.start_tag_scan``): the line of the ``<`` that
   opens each start tag, checked against an independent parser (expat) on the same documents.
   UTF-16/32 decks and encodings the scan cannot read are re-encoded as UTF-8 first (same lines).
-* Validation: the per-shape screen (``validate._Screen``) against a screen that sends every
+* Validation: the per-shape screen (``screen.Screen``) against a screen that sends every
   element through the element-by-element checks — same problems in the same order, same
   warnings — on randomly broken decks.
 * Compile: vectorised marker poses (``rm_id`` chains composed level by level) against the
@@ -24,6 +24,8 @@ import numpy as np
 import pytest
 
 from poise.deck import parser as P
+from poise.deck import scan as S
+from poise.deck import screen
 from poise.deck import validate as V
 from poise.deck.spec import Expr
 from poise.core.errors import DeckError
@@ -125,7 +127,7 @@ def _expat_starts(data: bytes) -> list[tuple]:
 @pytest.mark.parametrize("name,data", SAMPLES, ids=[s[0] for s in SAMPLES])
 def test_lines_are_those_of_the_opening_angle_bracket(name, data):
     starts = _expat_starts(data)
-    assert P._start_tag_scan(data).tolist() == [line for _, line, _ in starts]
+    assert S.start_tag_scan(data).tolist() == [line for _, line, _ in starts]
     deck = [line for _, line, role in starts if role == "deck"]
     nested = [(n, line) for n, line, role in starts if role == "nested"]
     for walk in (P._walk_fast, P._walk_tree):
@@ -228,7 +230,7 @@ def test_fast_walk_declines_unusual_documents(data):
     assert P._walk_fast(data, "x.xml") is None
 
 
-class _NoScreen(V._Screen):
+class _NoScreen(screen.Screen):
     """Every element through the element-by-element checks."""
 
     def __init__(self, els):
@@ -292,7 +294,7 @@ def test_validation_screen_matches_element_by_element(monkeypatch):
     cases = [rnd.choice(sources) for _ in range(150)]
     cases = [_mutate(d, rnd) for d in cases] + sources
     screened = [_report(d) for d in cases]
-    monkeypatch.setattr(V, "_Screen", _NoScreen)
+    monkeypatch.setattr(V, "Screen", _NoScreen)
     assert [_report(d) for d in cases] == screened
 
 

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from poise.deck.parser import load_deck, parse_deck_bytes, parse_number
+from poise.deck.parser import load_deck, parse_deck_bytes
+from poise.deck.values import parse_number
 from poise.deck.schema import SCHEMAS, element_schema, render_markdown
 from poise.deck.spec import Expr
 from poise.core.errors import DeckError

@@ -53,7 +53,8 @@ from poise.app.runner import run_spec
 from poise.core.atomic import OutputError
 from poise.core.errors import DeckError, UsageError
 from poise.core.version import __version__
-from poise.deck.parser import parse_deck_bytes, parse_number
+from poise.deck.parser import parse_deck_bytes
+from poise.deck.values import parse_number
 from poise.deck.schema import element_schema, ENUM_ALIASES
 from poise.elements.registry import output_groups as registry_output_groups
 from poise.results.hdf5 import read_results, write_results

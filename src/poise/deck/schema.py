@@ -1,140 +1,19 @@
 """The deck schema: one table that drives parsing, defaults, validation and documentation.
 
-Every element poise knows is described by an :class:`ElementSchema` (canonical tag, kind, whether it
-is supported, its attributes); every attribute by an :class:`Attr` (value kind, required, default,
-bounds, reference namespace, one line of documentation).
-
-Conventions fixed here (see also ``/work/shared/reference/conventions.md``):
-
-* **Products of inertia** ``inertia_xy``, ``inertia_yz``, ``inertia_xz`` are the integrals
-  ``∫xy dm``, ``∫yz dm``, ``∫xz dm`` about the ``im_id`` marker axes; the inertia tensor is
-  ``[[xx, -xy, -xz], [-xy, yy, -yz], [-xz, -yz, zz]]`` and must be positive definite for a moving
-  body.
-* Attribute **aliases** are stored under the canonical name: ``Param_Static max_residual`` ->
-  ``max_error``, ``Force_SpringDamper angle`` -> ``length``, ``Simulate num_step`` -> ``num_steps``.
-* Enum **value aliases** are stored canonical: ``Quasi-Static``/``Quasi_Static``/``QuasiStatic``
-  -> ``QUASISTATIC``; ``US Ton`` -> ``US_TON``.
-* **Defaults** are filled in for model elements only; command elements (``is_command=True``) carry
-  exactly the attributes written in the deck (they modify live settings).
-* Marker id ``0`` (the global frame) is accepted where :attr:`Attr.zero_ok` is set (``rm_id``,
-  ``ref_marker_id``).
+Every element poise knows is one ``el(...)`` entry (canonical tag, kind, whether it is
+supported, its :class:`~poise.deck.schema_types.Attr` list). Conventions fixed here (see also
+``/work/shared/reference/conventions.md``): products of inertia ``inertia_xy/yz/xz`` are the
+integrals ``∫xy dm`` ... about the ``im_id`` marker axes, the tensor is
+``[[xx, -xy, -xz], [-xy, yy, -yz], [-xz, -yz, zz]]`` and must be positive definite for a moving
+body; attribute aliases (``Param_Static max_residual`` -> ``max_error``) and enum value aliases
+(``Quasi-Static`` -> ``QUASISTATIC``) are stored canonical; defaults are filled in for model
+elements only (commands carry exactly what is written); marker id ``0`` (the global frame) is
+accepted where :attr:`Attr.zero_ok` is set.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
-
-KINDS = ("real", "int", "bool", "enum", "str", "real_or_expr", "expr", "int_list", "real_list")
-
-#: reference namespace -> element tags whose ids it contains
-NAMESPACES: dict[str, tuple[str, ...]] = {
-    "marker": ("Reference_Marker",),
-    "body": ("Body_Rigid", "Body_Point", "Body_Flexible"),
-    "joint": ("Constraint_Joint",),
-    "array": ("Reference_Array",),
-    "variable": ("Reference_Variable",),
-    "spline": ("Reference_Spline",),
-    "graphic": ("Post_Graphic",),
-    "curve": ("Reference_ParamCurve",),
-    "surface": ("Reference_ParamSurface",),
-}
-
-
-@dataclass(frozen=True)
-class Attr:
-    """One attribute of an element.
-
-    Attributes
-    ----------
-    name : str
-        Lower-case canonical name.
-    kind : str
-        One of :data:`KINDS`.
-    doc : str
-        One line of documentation.
-    required : bool
-        Must be present on a model element (command elements only need ``id``).
-    default : Any
-        Value filled in for model elements when absent (None: no default).
-    choices : tuple of str
-        Allowed upper-case values of an ``enum``.
-    lo, hi : float or None
-        Inclusive bounds; ``lo_open``/``hi_open`` make them exclusive.
-    ref : str or None
-        Reference namespace (key of :data:`NAMESPACES`) for id references.
-    zero_ok : bool
-        Id ``0`` (global frame) is a valid reference.
-    aliases : tuple of str
-        Other spellings of the attribute name (stored under ``name``).
-    """
-
-    name: str
-    kind: str
-    doc: str = ""
-    required: bool = False
-    default: Any = None
-    choices: tuple = ()
-    lo: float | None = None
-    hi: float | None = None
-    lo_open: bool = False
-    hi_open: bool = False
-    ref: str | None = None
-    zero_ok: bool = False
-    aliases: tuple = ()
-
-    def bounds_text(self) -> str:
-        """Human-readable bounds, e.g. ``'>= 0'`` or ``'> 0'`` (empty when unbounded)."""
-        parts = []
-        if self.lo is not None:
-            parts.append(f"{'>' if self.lo_open else '>='} {self.lo:g}")
-        if self.hi is not None:
-            parts.append(f"{'<' if self.hi_open else '<='} {self.hi:g}")
-        return " and ".join(parts)
-
-
-@dataclass(frozen=True)
-class ElementSchema:
-    """One element type.
-
-    Attributes
-    ----------
-    tag : str
-        Canonical spelling.
-    kind : str
-        ``model``, ``command`` or ``both``.
-    supported : bool
-        False: known, parsed, but rejected with "is not supported yet".
-    attrs : dict[str, Attr]
-        Attributes by canonical lower-case name.
-    doc : str
-    open_attrs : bool
-        Unknown attributes are kept as data (number -> float, else str) without warning.
-    aliases : tuple of str
-        Other spellings of the tag.
-    """
-
-    tag: str
-    kind: str
-    supported: bool
-    attrs: dict
-    doc: str = ""
-    open_attrs: bool = False
-    aliases: tuple = ()
-    alias_map: dict = field(default_factory=dict, compare=False, repr=False)
-
-    def attr(self, name: str) -> Attr | None:
-        """Attribute by (case-insensitive) name or alias."""
-        n = name.lower()
-        return self.attrs.get(n) or self.attrs.get(self.alias_map.get(n, ""))
-
-    def defaults(self) -> dict[str, Any]:
-        """Non-None defaults of all attributes."""
-        return {a.name: a.default for a in self.attrs.values() if a.default is not None}
-
-
-# --------------------------------------------------------------------------- table helpers
-def A(name, kind, doc="", **kw) -> Attr:
-    return Attr(name, kind, doc, **kw)
+from poise.deck.schema_types import (NAMESPACES, SIX, USR, A, Attr, B, E, ElementSchema, ID, LABEL,
+                                     M, R, xyz)
 
 
 #: Largest marker coordinate magnitude: squared distances of larger ones overflow a float (1e154)
@@ -144,49 +23,6 @@ COORD_MAX = 1e100
 #: Smallest convergence tolerance accepted (deck and CLI): below it the solvers' scaled squares
 #: (1/tol**2) overflow, so a tighter tolerance can only end in a meaningless failure.
 TOL_MIN = 1e-100
-
-
-def R(name, doc="", default=None, **kw) -> Attr:
-    return Attr(name, "real", doc, default=default, **kw)
-
-
-def B(name, doc="", default=False, **kw) -> Attr:
-    return Attr(name, "bool", doc, default=default, **kw)
-
-
-def E(name, choices, doc="", **kw) -> Attr:
-    return Attr(name, "enum", doc, choices=tuple(choices.split()), **kw)
-
-
-def M(name, doc="", **kw) -> Attr:
-    kw.setdefault("lo", 0)
-    return Attr(name, "int", doc, ref="marker", **kw)
-
-
-def ID() -> Attr:
-    return Attr("id", "int", "identifier, unique within the element type", required=True, lo=1)
-
-
-def LABEL() -> Attr:
-    return Attr("label", "str", "free-text name")
-
-
-def USR() -> list[Attr]:
-    # Python user routines (poise/user_routines.py) serve Constraint_UserConstr,
-    # Force_Scalar_TwoBody, Force_Vector_* and Reference_Variable; elsewhere they are rejected
-    return [A("usrsub_dll_name", "str", "user-subroutine library (DLLs are not supported)"),
-            A("usrsub_fnc_name", "str", "user function name (Python routines; see DESIGN section 12)"),
-            A("usrsub_param_string", "str", "user-routine parameters, USER(p1, p2, ...)"),
-            A("script_name", "str", "Python user script, relative to the deck's directory"),
-            A("interpreter", "str", "script interpreter; only PYTHON is supported")]
-
-
-def xyz(prefix, suffix, doc, kind="real", **kw) -> list[Attr]:
-    return [Attr(f"{prefix}{c}{suffix}", kind, f"{doc} ({c})", **kw) for c in ("x", "y", "z")]
-
-
-def SIX(fmt, doc, kind="real", **kw) -> list[Attr]:
-    return [Attr(fmt.format(c), kind, f"{doc} ({c})", **kw) for c in ("x", "y", "z", "tx", "ty", "tz")]
 
 
 _ENTRIES: list[ElementSchema] = []

@@ -3,17 +3,10 @@
 The parser (``poise.deck.parser``) turns XML into a :class:`DeckSpec`. Nothing here knows about
 numerics; the compiler (``poise.model.compile``) turns a DeckSpec into a compiled model.
 
-Attribute values are already typed by the schema (``poise.deck.schema``):
-
-* ``real``        -> float
-* ``int``         -> int
-* ``bool``        -> bool
-* ``enum``        -> str, upper-cased canonical value
-* ``str``         -> str
-* ``real_or_expr``-> float if the text is a plain number, else :class:`Expr`
-* ``expr``        -> :class:`Expr` (always)
-* ``int_list``    -> tuple[int, ...]
-* ``real_list``   -> tuple[float, ...]
+Attribute values are already typed by the schema (``poise.deck.schema``, :mod:`poise.deck.values`):
+``real`` -> float, ``int`` -> int, ``bool`` -> bool, ``enum`` -> str (upper-case canonical value),
+``str`` -> str, ``real_or_expr`` -> float if the text is a plain number else :class:`Expr`,
+``expr`` -> :class:`Expr`, ``int_list``/``real_list`` -> tuple of int/float.
 
 Attribute names are lower-cased; element tags are canonical (schema spelling, e.g.
 ``Force_SpringDamper``) whatever the case in the file.

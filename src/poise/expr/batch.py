@@ -11,7 +11,8 @@ import numpy as np
 from poise.core.errors import DeckError, EvaluationError
 
 from .functions import DomainError
-from .lower import Lowering, extract
+from .lower import Lowering
+from .tape import extract
 from .program import GroupEnv, build
 
 __all__ = ["compile_batch", "Batch", "EvalContext", "EvalResult", "record_batches"]

@@ -6,24 +6,8 @@ which vectors it reads (:data:`MEASURE_SLOTS`) and :func:`eval_measure` returns 
 ``d value / d vector`` for every declared vector.
 
 Marker index -1 is the global frame (origin 0, identity axes); derivatives w.r.t. its vectors
-are computed but discarded by the caller.
-
-Angles
-------
-* ``AX/AY/AZ(I, J)`` – ``AZ = atan2(xI.yJ, xI.xJ)``, ``AX = atan2(yI.zJ, yI.yJ)``,
-  ``AY = atan2(zI.xJ, zI.zJ)``; made continuous with a reference value (``ref + wrap(p - ref)``).
-* ``PSI/THETA/PHI(I, J)`` – body-fixed 3-1-3 Euler angles of ``R = A_J^T A_I``:
-  ``psi = atan2(R13, -R23)``, ``theta = atan2(hypot(R13, R23), R33)``, ``phi = atan2(R31, R32)``.
-  At gimbal lock (``sin(theta) = hypot(R13, R23)`` resp. ``hypot(R31, R32)`` at most
-  :data:`EULER_LOCK_TOL`: theta = 0 or pi, every planar rotation about a common z axis) the
-  split of the rotation between psi and phi is undefined; the convention is ``phi = 0``,
-  ``psi = atan2(R21, R11)`` (so ``R = Rz(psi) Rx(theta)``), with the derivative of that branch
-  (psi reads x_I as a fourth slot; phi's gradient is 0 there).
-* ``YAW/PITCH/ROLL(I, J)`` – ``R = Rz(yaw) Ry(-pitch) Rx(roll)``:
-  ``yaw = atan2(R21, R11)``, ``pitch = atan2(R31, hypot(R11, R21))``, ``roll = atan2(R32, R33)``.
-
-At singular points (zero distance for ``DM``, gimbal lock for THETA/YAW/PITCH/ROLL) the
-gradient is set to 0 instead of NaN.
+are computed but discarded by the caller. The angle conventions (AX/AY/AZ, PSI/THETA/PHI,
+YAW/PITCH/ROLL, gimbal lock) are documented at :func:`eval_measure`.
 """
 from __future__ import annotations
 
@@ -87,6 +71,23 @@ def wrap_to_ref(p, ref):
 
 def eval_measure(name: str, vecs: list, ref=None):
     """Evaluate one measure for m instances.
+
+    Angles
+    ------
+    * ``AX/AY/AZ(I, J)`` – ``AZ = atan2(xI.yJ, xI.xJ)``, ``AX = atan2(yI.zJ, yI.yJ)``,
+      ``AY = atan2(zI.xJ, zI.zJ)``; made continuous with a reference value (``ref + wrap(p - ref)``).
+    * ``PSI/THETA/PHI(I, J)`` – body-fixed 3-1-3 Euler angles of ``R = A_J^T A_I``:
+      ``psi = atan2(R13, -R23)``, ``theta = atan2(hypot(R13, R23), R33)``, ``phi = atan2(R31, R32)``.
+      At gimbal lock (``sin(theta) = hypot(R13, R23)`` resp. ``hypot(R31, R32)`` at most
+      :data:`EULER_LOCK_TOL`: theta = 0 or pi, every planar rotation about a common z axis) the
+      split of the rotation between psi and phi is undefined; the convention is ``phi = 0``,
+      ``psi = atan2(R21, R11)`` (so ``R = Rz(psi) Rx(theta)``), with the derivative of that branch
+      (psi reads x_I as a fourth slot; phi's gradient is 0 there).
+    * ``YAW/PITCH/ROLL(I, J)`` – ``R = Rz(yaw) Ry(-pitch) Rx(roll)``:
+      ``yaw = atan2(R21, R11)``, ``pitch = atan2(R31, hypot(R11, R21))``, ``roll = atan2(R32, R33)``.
+
+    At singular points (zero distance for ``DM``, gimbal lock for THETA/YAW/PITCH/ROLL) the
+    gradient is set to 0 instead of NaN.
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
 """Vectorised forward-mode programs for one group of structurally identical expressions.
 
-:func:`build` turns a structural key (a tape, see :mod:`poise.expr.lower`) into a closure
+:func:`build` turns a structural key (a tape, see :mod:`poise.expr.tape`) into a closure
 ``f(env) -> (value, grad)`` where ``value`` is ``(m,)`` and ``grad`` is a dict mapping a
 variable to its derivative array:
 
@@ -83,7 +83,7 @@ def _add(ga, gb, sign=1.0):
 
 
 def build(key):
-    """Compile a structural key (tape, see :func:`poise.expr.lower.extract`) into a closure
+    """Compile a structural key (tape, see :func:`poise.expr.tape.extract`) into a closure
     ``env -> (value (m,), grad dict)``.
 
     The tape is run in order, each instruction once (shared sub-expressions and variables are

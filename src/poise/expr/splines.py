@@ -1,9 +1,7 @@
 """Spline interpolation for AKISPL / CUBSPL / LINSPL (deck_format.md §6.2, §8.4).
 
-* ``AKISPL`` – Akima spline (local, scipy ``Akima1DInterpolator``).
-* ``CUBSPL`` – global cubic spline with **not-a-knot** end conditions (scipy ``CubicSpline``
-  default).
-* ``LINSPL`` – piecewise linear.
+``AKISPL``: Akima spline (local, scipy ``Akima1DInterpolator``); ``CUBSPL``: global cubic
+spline with **not-a-knot** end conditions (scipy ``CubicSpline`` default); ``LINSPL``: linear.
 
 Every curve is stored as piecewise cubic coefficients ``(4, nseg)`` (highest power first) and
 evaluated with Horner's rule, so the value, the requested derivative order (0..2) and its
@@ -13,9 +11,7 @@ Outside ``[x[0], x[-1]]``: with ``linear_extrap`` the curve continues as a strai
 end slope (orders 1 and 2 then give the slope and 0); otherwise the end polynomial piece is
 continued.
 
-2-D families ``y(x, z)`` (one curve per z value, ``y`` shaped ``(nz, nx)``; an ``(nx, nz)`` table
-is transposed) are interpolated **linearly in z** between the two neighbouring curves (and
-extrapolated linearly from the two end curves outside the z range).
+2-D families ``y(x, z)`` are interpolated linearly in z (see :class:`PreparedSpline`).
 """
 from __future__ import annotations
 
@@ -54,6 +50,10 @@ def _horner(c, t, order):
 
 class PreparedSpline:
     """A Reference_Spline prepared for one interpolation kind.
+
+    2-D families ``y(x, z)`` (one curve per z value, ``y`` shaped ``(nz, nx)``; an ``(nx, nz)`` table
+    is transposed) are interpolated **linearly in z** between the two neighbouring curves (and
+    extrapolated linearly from the two end curves outside the z range).
 
     Parameters
     ----------
