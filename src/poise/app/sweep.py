@@ -52,6 +52,7 @@ from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_spec
 from poise.core.atomic import OutputError
 from poise.core.errors import DeckError, UsageError
+from poise.core.extras import require
 from poise.core.version import __version__
 from poise.deck.parser import parse_deck_bytes, parse_number
 from poise.deck.schema import element_schema, ENUM_ALIASES
@@ -495,6 +496,8 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     poise.core.errors.DeckError
         The base deck is invalid (exit 3).
     """
+    if client is None:
+        require("sweep", "poise sweep")     # exit 2 with the pip command in a lean install
     deck = os.fspath(deck)
     try:
         with open(deck, "rb") as f:

@@ -23,6 +23,7 @@ import numpy as np
 
 from poise.core.atomic import atomic_output
 from poise.core.errors import UsageError
+from poise.core.extras import require
 from poise.results.hdf5 import read_results
 from poise.viz.plot import _agg, pick_analysis
 
@@ -168,6 +169,7 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
     Returns ``{"output", "frames", "width", "height", "plane", "graphics"}`` (``graphics``: the
     number of Post_Graphic artists drawn in the last rendered frame).
     """
+    require("plot")             # exit 2 with the pip command in a lean install
     low = out.lower()
     if not low.endswith((".gif", ".mp4", ".png")):
         raise UsageError(f"--out {out!r}: expected a .gif, .mp4 or .png file")
