@@ -94,7 +94,8 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
     try:
         with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout
             rows = run_batch(list(decks), out_dir, jobs=jobs, overrides=overrides, force=force,
-                             command=command, on_row=on_row, allow_user_code=allow_user_code)
+                             command=command, on_row=on_row, allow_user_code=allow_user_code,
+                             progress=False if quiet else None)
     except (Exception, KeyboardInterrupt) as exc:   # out-dir not writable: exit 2
         fail(exc)
     code = worst_exit_code(r["exit_code"] for r in rows)

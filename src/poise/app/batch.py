@@ -45,6 +45,7 @@ import math
 import os
 from pathlib import Path
 
+from poise.app.progress import Bar
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_deck
 from poise.core.atomic import atomic_output, OutputError
@@ -191,14 +192,32 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str,
 
 def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | None = None,
               force: bool = False, command: str = "poise batch",
-              on_row=None, allow_user_code: bool = False) -> list[dict]:
+              on_row=None, allow_user_code: bool = False,
+              progress: bool | None = None) -> list[dict]:
     """Solve ``decks`` (in parallel), return one row per deck in the order given.
 
     ``jobs`` ≤ 0 means ``os.cpu_count()``. ``on_row(row)`` is called as each deck finishes.
     ``allow_user_code``: run the Python user routines decks name (else ``invalid_deck``).
+    ``progress``: the decks-done bar (:class:`poise.app.progress.Bar`; False: none, None: auto).
     """
-    import functools
     check_override_names(overrides)
+    bar = Bar(len(decks), "batch", "decks", enabled=progress, delay=0.0)
+    user_on_row = on_row
+
+    def on_row(row):
+        if user_on_row:
+            bar.clear()
+            user_on_row(row)
+        bar.step()
+    try:
+        return _run_batch(decks, out_dir, jobs, overrides, force, command, on_row,
+                          allow_user_code)
+    finally:
+        bar.close()
+
+
+def _run_batch(decks, out_dir, jobs, overrides, force, command, on_row, allow_user_code):
+    import functools
     job = functools.partial(solve_one, allow_user_code=bool(allow_user_code))   # picklable
     ensure_out_dir(out_dir)
     outs = output_paths(decks, out_dir)

@@ -43,10 +43,10 @@ import json
 import math
 import os
 import re
-import sys
 from dataclasses import dataclass, replace
 from typing import Any
 
+from poise.app.progress import Bar
 from poise.app.batch import ensure_out_dir, inputs_fresh, result_stats, sanitize, write_table
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_spec
@@ -431,31 +431,6 @@ def resumed_row(out_file: str, index: int, values: dict, outputs) -> dict:
 
 
 # ---------------------------------------------------------------------------- driver
-class _Progress:
-    """A one-line progress bar on stderr, only on a terminal and outside CI."""
-
-    def __init__(self, total: int, enabled: bool | None = None):
-        if enabled is None:
-            try:
-                enabled = sys.stderr.isatty() and not os.environ.get("CI")
-            except (AttributeError, ValueError):
-                enabled = False
-        self.total, self.n, self.on = total, 0, bool(enabled) and total > 0
-
-    def step(self, k: int = 1):
-        self.n += k
-        if self.on:
-            w = 30
-            f = int(w * self.n / self.total)
-            sys.stderr.write(f"\r[{'#' * f}{'.' * (w - f)}] {self.n}/{self.total}")
-            sys.stderr.flush()
-
-    def close(self):
-        if self.on:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
-
-
 def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=None,
               outputs=(), n=None, seed=0, workers=None, overrides=None, force=False,
               progress: bool | None = None, on_row=None, client=None,
@@ -524,15 +499,16 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
              for i in range(len(cases))]
     hashes = [case_hash(spec.sha256, c, overrides) for c in cases]
     rows: list[Any] = [None] * len(cases)
-    bar = _Progress(len(cases), progress)
+    bar = Bar(len(cases), "sweep", "cases", enabled=progress, delay=0.0)
     todo = []
     for i, c in enumerate(cases):
         if not force and resumable(files[i], hashes[i], allow_user_code):
             try:
                 rows[i] = {**resumed_row(files[i], i, c, outs), "resumed": True}
-                bar.step()
                 if on_row:
+                    bar.clear()
                     on_row(rows[i])
+                bar.step()
                 continue
             except Exception:  # noqa: BLE001 - unreadable: run again
                 pass
@@ -616,9 +592,10 @@ def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, o
                 rows[i] = {"case": i, "file": None, **cases[i], "status": "internal_error",
                            "exit_code": 4, "message": f"{type(e).__name__}: {e}"}
             rows[i]["resumed"] = False
-            bar.step()
             if on_row:
+                bar.clear()
                 on_row(rows[i])
+            bar.step()
     finally:
         if own:
             client.close()

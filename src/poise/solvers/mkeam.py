@@ -80,6 +80,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from poise.core.errors import EvaluationError
+from poise.core.progress import report
 from poise.families.base import slot_kinematics
 from poise.model.model import EvalContext
 from poise.model.rotation import expm_so3, wrap_angle
@@ -574,7 +575,10 @@ class MkeamAnalysis(StaticAnalysis):
             return FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)), state, state
         state = initial_multipliers(model, state, self.counters)
         try:
-            mk_state, status, msg, n_it = self._mkeam(state)
+            try:
+                mk_state, status, msg, n_it = self._mkeam(state)
+            finally:
+                report("MKEAM", None, s.max_num_iter)
         except EvaluationError as e:
             mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(self.iterates)
         if not status.ok:
@@ -652,6 +656,7 @@ class MkeamAnalysis(StaticAnalysis):
         t_total = 0.0
         used = 0
         for it in range(1, s.max_num_iter + 1):
+            report("MKEAM", it - 1, s.max_num_iter)
             if used >= MAX_TOTAL_STEPS:
                 return state, Status.MAX_ITERATIONS, (
                     f"MKEAM used its integration budget ({MAX_TOTAL_STEPS} steps) in {it - 1} "

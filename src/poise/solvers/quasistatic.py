@@ -18,13 +18,13 @@
 from __future__ import annotations
 
 import contextlib
-import contextvars
 import os
 import sys
 import time as _time
 
 import numpy as np
 
+from poise.core.progress import PROGRESS
 from poise.model.model import Evaluation
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.history import History
@@ -103,7 +103,8 @@ def print_arrays(spec) -> dict:
 #: ``False`` silences the progress bar of quasi-static runs started in this context (``poise
 #: solve --quiet`` through ``run_deck(quiet=True)``); ``None``: automatic (stderr is a terminal,
 #: not in CI, ``POISE_QUIET`` unset).
-PROGRESS: contextvars.ContextVar = contextvars.ContextVar("poise_progress", default=None)
+#: (poise.core.progress.PROGRESS: a callable there is the orchestration's callback, to which
+#: :class:`Progress` reports instead of drawing)
 
 
 @contextlib.contextmanager
@@ -120,6 +121,11 @@ class Progress:
     """A one-line progress bar on stderr for runs longer than ~1 s (TTY only, not in CI)."""
 
     def __init__(self, total: int, label: str, enabled: bool | None = None):
+        # a callable ``enabled`` is the callback(label, done, total) of poise.core.progress:
+        # reports go there and this class draws nothing
+        self.report = enabled if callable(enabled) else None
+        if self.report is not None:
+            enabled = False
         if enabled is None:
             enabled = (sys.stderr.isatty() and not os.environ.get("CI")
                        and not os.environ.get("POISE_QUIET"))
@@ -131,6 +137,8 @@ class Progress:
         self.shown = False
 
     def update(self, done: int):
+        if self.report is not None:
+            self.report(self.label, done, self.total)
         if not self.enabled:
             return
         now = _time.perf_counter()
@@ -144,6 +152,8 @@ class Progress:
         self.shown = True
 
     def close(self):
+        if self.report is not None:
+            self.report(self.label, None, self.total)
         if self.shown:
             sys.stderr.write("\r" + " " * 70 + "\r")
             sys.stderr.flush()
