@@ -68,3 +68,14 @@ def test_lean_solve_in_a_subprocess(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     assert out.exists()
+
+
+def test_batch_without_dask_runs_on_a_local_process_pool(tmp_path, monkeypatch):
+    import json
+    _without(monkeypatch, NO_DASK)
+    r = CliRunner().invoke(cli, ["batch", str(DECKS / "pendulum_multiturn.xml"),
+                                 str(DECKS / "double_pendulum.xml"), "-j", "2", "--out-dir",
+                                 str(tmp_path), "--json"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["counts"] == {"converged": 2}
+    assert "dask" not in sys.modules or sys.modules["dask"] is None

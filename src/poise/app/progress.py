@@ -109,6 +109,8 @@ class Bar:
             self._bar.render_progress()
 
     def close(self) -> None:
+        if self.mode == "off":
+            return
         if self._bar is not None:
             self._erase()
             self.stream.write("\033[?25h")   # click hides the cursor while drawing
@@ -116,6 +118,7 @@ class Bar:
             self._bar = None
         elif self.mode == "plain" and self.lines and self._last_f < 1.0:
             self._line(time.monotonic(), final=True)
+        self.mode = "off"                    # closed: says nothing more
 
     def __enter__(self):
         return self
