@@ -13,7 +13,7 @@ from poise.deck.schema import element_schema
 from poise.gen.chain import build_chain_deck
 
 needs_expr = pytest.mark.skipif(
-    importlib.util.find_spec("poise.families.expr_forces") is None
+    importlib.util.find_spec("poise.elements.expr_forces") is None
     or not element_schema("Post_Request").supported,
     reason="expression-valued forces not available in this tree")
 

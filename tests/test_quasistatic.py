@@ -10,7 +10,7 @@ from poise.deck.schema import element_schema
 
 # decks with TIME expressions in forces / Post_Request need the expression-force work (issue 3)
 needs_expr = pytest.mark.skipif(
-    importlib.util.find_spec("poise.families.expr_forces") is None
+    importlib.util.find_spec("poise.elements.expr_forces") is None
     or not element_schema("Post_Request").supported,
     reason="expression-valued forces not available in this tree")
 

@@ -135,7 +135,7 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.model.model import State
-from poise.model.rotation import expm_so3, se3_left_jacobian, wrap_angle
+from poise.elements.rotation import expm_so3, se3_left_jacobian, wrap_angle
 from poise.solvers.fallback import solve_frame
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.quasistatic import MIN_SUBSTEP_FRACTION, Progress, first_frame, fims_step

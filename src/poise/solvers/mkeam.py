@@ -81,9 +81,9 @@ import scipy.sparse as sp
 
 from poise.core.errors import EvaluationError
 from poise.core.progress import report
-from poise.families.base import slot_kinematics
+from poise.elements.kernel import slot_kinematics
 from poise.model.model import EvalContext
-from poise.model.rotation import expm_so3, wrap_angle
+from poise.elements.rotation import expm_so3, wrap_angle
 from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.linalg import Factor, SingularMatrix
 from poise.solvers.newton import FrameOutcome, assemble, initial_multipliers, newton

@@ -216,7 +216,7 @@ def orientation_datasets(model, frames, rot) -> dict:
     ``rot`` (F,B,3,3) and ``bodies/rotation_from_input`` (F,B,3): each state's continuous
     rotation vector (turns counted by State.rotvec; principal, |v| <= pi, for a state without
     it). docs/results-format.md defines them."""
-    from poise.model.rotation import euler_313, euler_parameters
+    from poise.elements.rotation import euler_313, euler_parameters
     if all(s.rotvec is not None for s in frames):       # every frame at once
         rv = model.rotation_from_input(None, rot, np.stack([s.rotvec for s in frames]))
     else:

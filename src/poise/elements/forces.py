@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.families.base import ForceFamily, _cross, add_force_at_point, add_torque_via_axes
-from poise.model.rotation import skew
+from poise.elements.base import ForceFamily, _cross, add_force_at_point, add_torque_via_axes
+from poise.elements.rotation import skew
 
 S_PI, S_XI, S_YI, S_ZI, S_PJ, S_XJ, S_YJ, S_ZJ, S_XR, S_YR, S_ZR = range(11)
 N_SLOTS = 11

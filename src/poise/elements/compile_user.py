@@ -14,8 +14,13 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import DeckError, EvaluationError
-from poise.families.base import POINT
-from poise.model.compile import GLOBAL
+from poise.elements.base import POINT
+from poise.elements import expr_forces as XF
+from poise.elements.context import GLOBAL
+from poise.elements.registry import ElementType
+from poise.elements.resolver import ground_markers
+from poise.elements.user import UserConstraint, UserScalarEquation, UserScalarForce, UserVectorForce
+from poise.core.user_routines import UserRoutine, describe, load
 
 USER_CONSTRAINT_TAGS = ("Constraint_UserConstr", "Constraint_Usrconstr")
 
@@ -36,7 +41,6 @@ def _initial_kinematics(ctx):
 def _routine(el, ctx, P, A):
     """The element's probed :class:`UserRoutine`, or None (problem collected, or user code not
     run: ``ctx.b.user_code`` is ``"refuse"`` or ``"skip"``, see ``poise.core.user_routines.load``)."""
-    from poise.core.user_routines import UserRoutine, describe, load
     b = ctx.b
     try:
         got = load(el, b.user_code)
@@ -102,7 +106,6 @@ def compile_user(spec, ctx):
     uf = list(getattr(ctx, "user_forces", []))
     if not els and not uf:
         return
-    from poise.families.user import UserConstraint
     P, A = _initial_kinematics(ctx)
     ids = []
     for el in els:
@@ -135,14 +138,11 @@ def compile_user(spec, ctx):
 
 
 def _user_force(el, owner, ctx, P, A):
-    from poise.families import expr_forces as XF
-    from poise.families.user import UserScalarForce, UserVectorForce
-    from poise.model.compile_expr import _ground_markers
     r = _routine(el, ctx, P, A)
     if r is None:
         return
     b = ctx.b
-    ground = _ground_markers(b)
+    ground = ground_markers(b)
     if el.tag == "Force_Scalar_TwoBody":
         I, J, R = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id"), GLOBAL
         ao = bool(el.attrs.get("is_action_only", False))
@@ -187,7 +187,6 @@ def _user_force(el, owner, ctx, P, A):
 
 def compile_user_variables(spec, ctx, items):
     """``Reference_Variable type="USERSUB"``: residual ``v - varsub(...)`` per variable."""
-    from poise.families.user import UserScalarEquation
     P, A = _initial_kinematics(ctx)
     for el, k in items:
         r = _routine(el, ctx, P, A)
@@ -205,3 +204,11 @@ def compile_user_variables(spec, ctx, items):
         fam.const_vec = _const_vectors(r, ctx, P, A)
         fam.element_locs = [el.loc]
         ctx.families.append(fam)
+
+
+ELEMENTS = (ElementType(
+    "user", USER_CONSTRAINT_TAGS, compile_user,
+    after=("forces", "diff_vars"),    # compiles the user forces compile_forces routed here
+    kernels=lambda: (UserConstraint, UserScalarForce, UserVectorForce, UserScalarEquation),
+    time_dependent=True, outputs={"userconstrs": USER_CONSTRAINT_TAGS, "forces": None},
+    datasets=("id", "force", "torque"), fd_tests="tests/test_elements_8b.py"),)

@@ -1,7 +1,7 @@
-"""Compile ``Constraint_Coupler`` into :class:`poise.families.couplers.Coupler` rows.
+"""Compile ``Constraint_Coupler`` into :class:`poise.elements.couplers.Coupler` rows.
 
 Each coupler is one constraint row ``c1 (q1 - q1_0) + c2 (q2 - q2_0) [+ c3 (q3 - q3_0)] = 0``
-(see :mod:`poise.families.couplers`): q_k is AZ(I,J) (freedom R, continuous angle) or
+(see :mod:`poise.elements.couplers`): q_k is AZ(I,J) (freedom R, continuous angle) or
 DZ(I,J,J) (freedom T) of joint k's markers, q_k0 its value in the input configuration.
 Joints must be REVOLUTE (R), TRANSLATIONAL (T) or CYLINDRICAL (R or T, ``freedom_k`` required).
 User couplers (COUSUB via ``usrsub_*`` / ``script_name``) are rejected (exit 3).
@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.couplers import N_JOINTS, Coupler
-from poise.model.compile import GLOBAL
+from poise.elements.couplers import N_JOINTS, Coupler
+from poise.elements.context import GLOBAL
+from poise.elements.registry import ElementType
 
 _FREEDOMS = {"REVOLUTE": ("R",), "TRANSLATIONAL": ("T",), "CYLINDRICAL": ("R", "T")}
 
@@ -132,3 +133,10 @@ def compile_couplers(spec, ctx):
         b.effects.append("Constraint_Coupler")
     pc.raise_if_any()
     add_coupler_family(ctx, "couplers", "Constraint_Coupler", items)
+
+
+ELEMENTS = (ElementType(
+    "couplers", ("Constraint_Coupler",), compile_couplers,
+    after=("motions",),         # coupler rows after the motion rows (model layout)
+    kernels=lambda: (Coupler,), outputs={"couplers": ("Constraint_Coupler",)},
+    datasets=("id", "force", "torque"), fd_tests="tests/test_elements_8a.py"),)

@@ -6,26 +6,30 @@ residual row ``rho_s[:, 0] = e(s, other scalars, y, t)``; it applies no force to
 the kernel's B matrices) and ``G_ss = de/ds`` (own and other scalar columns). The *columns* of a
 scalar (its effect on forces) come from the families that read it (expression forces).
 
-* ``Control_Diff`` explicit ``y' = expr``: statics ``y' = 0`` so ``e = expr(y, q, t)``;
-  implicit ``0 = expr(y, y', q, t)``: ``e = expr`` with ``DIF1 = 0``.
-* implicit ``Reference_Variable``: ``e = expr(v, q, t)`` (deck_format 6.1: the expression is the
-  residual; ``VARVAL(id)`` returns ``v``).
-* ``ScalarEquation`` evaluates one expression :class:`poise.expr.Batch` over all instances;
-  :class:`UserScalarEquation` (families/user.py) evaluates a Python user function
-  ``e = v - varsub(...)``.
-
-Marker layout: ``[E_1, ..., E_X]``, the moving markers the expressions read (padding: the global
-frame, index 0, whose slots carry no coordinates); slots ``P x y z`` per marker.
+The equation of each kind and the marker layout: :class:`ScalarEquation`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import ForceFamily, column_map, columns_array
+from poise.elements.base import ForceFamily, column_map, columns_array
+from poise.expr import EvalContext as XC
 
 
 class ScalarEquation(ForceFamily):
-    """Residual rows of scalar unknowns from one expression batch (see module doc)."""
+    """Residual rows of scalar unknowns from one expression batch (see module doc).
+
+    * ``Control_Diff`` explicit ``y' = expr``: statics ``y' = 0`` so ``e = expr(y, q, t)``;
+      implicit ``0 = expr(y, y', q, t)``: ``e = expr`` with ``DIF1 = 0``.
+    * implicit ``Reference_Variable``: ``e = expr(v, q, t)`` (deck_format 6.1: the expression is the
+      residual; ``VARVAL(id)`` returns ``v``).
+    * ``ScalarEquation`` evaluates one expression :class:`poise.expr.Batch` over all instances;
+      :class:`UserScalarEquation` (families/user.py) evaluates a Python user function
+      ``e = v - varsub(...)``.
+
+    Marker layout: ``[E_1, ..., E_X]``, the moving markers the expressions read (padding: the global
+    frame, index 0, whose slots carry no coordinates); slots ``P x y z`` per marker.
+    """
 
     batch = None
     slot_map = None          # (rows, batch_slot, family_slot)
@@ -35,7 +39,6 @@ class ScalarEquation(ForceFamily):
         return bool(self.batch.depends_on_time)
 
     def forces(self, kin, ctx, need_jac=True):
-        from poise.expr import EvalContext as XC
         n, S, U = self.n, len(self.slot_ml), self.U
         xc = XC(time=float(ctx.t), P=ctx.P, A=ctx.A, angle_ref=ctx.angle,
                 scalars=ctx.extra, static=True)

@@ -1,28 +1,19 @@
 """Compile ``Force_Contact`` (IMPACT law) between ``Post_Graphic`` analytic primitives.
 
-``Post_Graphic`` forms read (attribute names case-insensitive):
-
-* sphere: ``type="Sphere"`` with ``center_marker_id`` (also ``cm_id``, ``marker_id``) and
-  ``radius``;
-* box: ``type="BoxDefinedFromCenter"`` (``center_marker_id``) or ``type="BoxDefinedFromCorner"``
-  (``corner_marker_id``: the box spans +x/+y/+z of that marker) with ``length_x/y/z`` (full
-  lengths); ``type="Box"`` is read as the centre form;
-* plane: ``type="Plane"`` with ``ref_marker_id`` (also ``rm_id``, ``marker_id``,
-  ``center_marker_id``): the marker's x-y plane, outward normal +z, material on the -z side
-  (unbounded: ``x_min``... extents are ignored).
-
-Pairs: sphere-plane, sphere-sphere, sphere-box, box-plane (8 corner contacts); other pairs are a
-deck error. ``cnf_type`` must be ``IMPACT``; ``stiffness``, ``exponent`` (default 1.5), ``dmax``
-(smoothing length for exponent <= 1); damping and friction act only on velocities, so they vanish
-in statics. Per-frame outputs ``contacts/id``, ``contacts/kind``, ``contacts/force`` (force on the
-I geometry's body, global), ``contacts/penetration`` (negative = gap) come from a frame hook.
+Supported ``Post_Graphic`` forms: sphere, box (centre or corner form), plane; supported pairs:
+sphere-plane, sphere-sphere, sphere-box, box-plane (8 corner contacts), any other a deck error.
+Statics: only the IMPACT normal law acts (damping and friction act on velocities). The forms and
+attributes read: :func:`compile_contacts`; per-frame outputs ``contacts/*``: a frame hook.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from poise.families import contact as C
-from poise.model.compile import GLOBAL
+from poise.elements import contact as C
+from poise.elements.context import GLOBAL
+from poise.elements.registry import ElementType
+from poise.elements.base import EvalContext
+from poise.elements.kernel import slot_kinematics
 
 
 def _get(el, *names, default=None):
@@ -67,6 +58,23 @@ def _real(el, names, default, pc, what=None):
 
 
 def compile_contacts(spec, ctx):
+    """``Post_Graphic`` forms read (attribute names case-insensitive):
+
+    * sphere: ``type="Sphere"`` with ``center_marker_id`` (also ``cm_id``, ``marker_id``) and
+      ``radius``;
+    * box: ``type="BoxDefinedFromCenter"`` (``center_marker_id``) or ``type="BoxDefinedFromCorner"``
+      (``corner_marker_id``: the box spans +x/+y/+z of that marker) with ``length_x/y/z`` (full
+      lengths); ``type="Box"`` is read as the centre form;
+    * plane: ``type="Plane"`` with ``ref_marker_id`` (also ``rm_id``, ``marker_id``,
+      ``center_marker_id``): the marker's x-y plane, outward normal +z, material on the -z side
+      (unbounded: ``x_min``... extents are ignored).
+
+    Pairs: sphere-plane, sphere-sphere, sphere-box, box-plane (8 corner contacts); other pairs are a
+    deck error. ``cnf_type`` must be ``IMPACT``; ``stiffness``, ``exponent`` (default 1.5), ``dmax``
+    (smoothing length for exponent <= 1); damping and friction act only on velocities, so they vanish
+    in statics. Per-frame outputs ``contacts/id``, ``contacts/kind``, ``contacts/force`` (force on the
+    I geometry's body, global), ``contacts/penetration`` (negative = gap) come from a frame hook.
+    """
     els = list(spec.elements("Force_Contact"))
     if not els:
         return
@@ -180,8 +188,6 @@ def _key(g, _unused, *names):
 
 def contact_frame_hook(model, state):
     """Per-frame contact outputs (one row per contact instance)."""
-    from poise.families.base import slot_kinematics
-    from poise.model.model import EvalContext
     fam = next(f for f in model.families if isinstance(f, C.ContactForce))
     P, A, pos = model.marker_kinematics(state)
     kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, model.marker_body, pos)
@@ -189,3 +195,11 @@ def contact_frame_hook(model, state):
     return {"contacts/id": fam.contact_ids,
             "contacts/kind": np.array([C.KIND_NAMES[k] for k in fam.kind], dtype=str),
             "contacts/force": F, "contacts/penetration": fam.last_delta.copy()}
+
+
+ELEMENTS = (ElementType(
+    "contacts", ("Force_Contact",), compile_contacts,
+    after=("expressions",),     # contact families after the expression forces (model layout)
+    kernels=lambda: (C.ContactForce,), tileable=lambda: (C.ContactForce,),
+    potential_energy=True, outputs={"contacts": ("Force_Contact",)},
+    datasets=("id", "kind", "force", "penetration"), fd_tests="tests/test_contact.py"),)

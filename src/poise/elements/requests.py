@@ -2,28 +2,14 @@
 
 Every request type is reduced to eight expressions of the expression language (compiled once,
 one batch per channel over all requests) plus reaction channels read exactly from the converged
-multipliers (:func:`poise.model.compile_expr.channel_values`):
-
-================== ===========================================================================
-type               channels 1..8
-================== ===========================================================================
-EXPRESSION         ``expr1`` ... ``expr8``; ``"NULL"`` or absent -> NaN
-MARKER_DISPLACEMENT DM(I,J), DX(I,J,RM), DY(I,J,RM), DZ(I,J,RM), NaN, YAW(I,J), PITCH(I,J),
-                   ROLL(I,J)  (J, RM absent: global frame; angles in radians; yaw-pitch-roll
-                   rather than 3-1-3 because 3-1-3 is singular at zero tilt, the planar case)
-MARKER_FORCE       FM, FX, FY, FZ, TM, TX, TY, TZ (I, J, RM): resultant of every joint, jprim,
-                   motion and force element acting between I and J (all elements at I when J is
-                   absent), on I's body at the I origin, components in RM axes
-ELEMENTAL_FORCE    KIND(elem_id, jflag, 1..8, RM) with KIND from ``elem_type`` (JOINT, JPRIM,
-                   MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH, SPDP or the element tag)
-MARKER_VELOCITY,   0 (static and quasi-static analyses have no velocities)
-MARKER_ACCELERATION
-================== ===========================================================================
+multipliers (:func:`poise.elements.channels.channel_values`):
 
 The hook writes ``requests/id`` (R,), ``requests/values`` (R, 8) and ``requests/message`` (a
 string, empty when every channel evaluated) per frame. A channel whose evaluation fails (e.g.
 division by zero at the converged state, or a frame that failed before) is NaN and the reason is
 in ``requests/message``.
+
+The channels of each request type: :func:`build_request_hook`.
 """
 from __future__ import annotations
 
@@ -32,7 +18,10 @@ import numpy as np
 from poise.deck.spec import Expr
 from poise.core.errors import EvaluationError
 
-from .compile_expr import ELEM_TYPES, ExprInfo, channel_values, compile_batch_located
+from poise.elements.channels import ExprInfo, channel_values
+from poise.elements.registry import reaction_aliases
+from poise.elements.resolver import compile_batch_located
+from poise.expr import EvalContext as XC
 
 
 def _channels(el, pc):
@@ -67,7 +56,7 @@ def _channels(el, pc):
     if t == "MARKER_FORCE":
         return [X(f"{f}({i},{j},{rm})") for f in ("FM", "FX", "FY", "FZ", "TM", "TX", "TY", "TZ")]
     if t == "ELEMENTAL_FORCE":
-        kind = ELEM_TYPES.get(str(a.get("elem_type", "")).upper().replace(" ", "_"))
+        kind = reaction_aliases().get(str(a.get("elem_type", "")).upper().replace(" ", "_"))
         if kind is None or a.get("elem_id") is None:
             pc.error(el.loc, f"elem_type {a.get('elem_type')!r} / elem_id not usable; expected "
                      "elem_type JOINT, JPRIM, MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH or "
@@ -79,7 +68,24 @@ def _channels(el, pc):
 
 
 def build_request_hook(reqs, ctx, res):
-    """Compile all requests; returns the frame hook ``hook(model, state) -> {path: array}``."""
+    """Compile all requests; returns the frame hook ``hook(model, state) -> {path: array}``.
+
+    ================== ===========================================================================
+    type               channels 1..8
+    ================== ===========================================================================
+    EXPRESSION         ``expr1`` ... ``expr8``; ``"NULL"`` or absent -> NaN
+    MARKER_DISPLACEMENT DM(I,J), DX(I,J,RM), DY(I,J,RM), DZ(I,J,RM), NaN, YAW(I,J), PITCH(I,J),
+                       ROLL(I,J)  (J, RM absent: global frame; angles in radians; yaw-pitch-roll
+                       rather than 3-1-3 because 3-1-3 is singular at zero tilt, the planar case)
+    MARKER_FORCE       FM, FX, FY, FZ, TM, TX, TY, TZ (I, J, RM): resultant of every joint, jprim,
+                       motion and force element acting between I and J (all elements at I when J is
+                       absent), on I's body at the I origin, components in RM axes
+    ELEMENTAL_FORCE    KIND(elem_id, jflag, 1..8, RM) with KIND from ``elem_type`` (JOINT, JPRIM,
+                       MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH, SPDP or the element tag)
+    MARKER_VELOCITY,   0 (static and quasi-static analyses have no velocities)
+    MARKER_ACCELERATION
+    ================== ===========================================================================
+    """
     pc = ctx.pc
     chans = [_channels(el, pc) for el in reqs]
     R = len(reqs)
@@ -95,7 +101,6 @@ def build_request_hook(reqs, ctx, res):
     channels = res.channels
 
     def hook(model, state):
-        from poise.expr import EvalContext as XC
         vals = np.full((R, 8), np.nan)
         msgs = []
         rx = None

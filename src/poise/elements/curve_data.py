@@ -1,35 +1,18 @@
 """Evaluation of ``Reference_ParamCurve`` / ``Reference_ParamSurface`` with parameter derivatives.
 
-Two forms (docs/DESIGN.md "Curves and surfaces"):
-
-* **analytic** (poise extension of the CURSUB form): ``x_expression``, ``y_expression``,
-  ``z_expression`` written in the deck expression language as functions of the parameter ``U``
-  (surfaces: ``U`` and ``V``), with ``u_start``/``u_end`` (``v_start``/``v_end``). Each
-  expression is compiled by :mod:`poise.expr` with ``U``/``V`` bound to scalar unknowns
-  (``Resolver.symbol``; messages quote the deck text), which gives the value and the **exact
-  first derivatives**; an evaluation failure names the parameter values. Second and third derivatives are central
-  differences of the exact first derivatives (step ``h = 1e-4 * max(1, u_end - u_start)``;
-  truncation error ``O(h^2)``), used only in Jacobian/Hessian terms and in the tangency rows'
-  parameter derivatives.
-* **spline data**: the element text holds ``num_pts`` points ``x y z`` (curves) or
-  ``num_u * num_v`` points (surfaces, u-major: the v index runs fastest). Curves: cubic spline
-  (``scipy.interpolate.CubicSpline``, not-a-knot; ``is_u_closed="TRUE"``: periodic, the first
-  point is appended when the data do not repeat it), parametrised by cumulative chord length
-  mapped to ``[u_start, u_end]`` (defaults 0 and 1); derivatives up to order 3 exact. Surfaces:
-  bicubic ``RectBivariateSpline`` on a uniform ``[u_start, u_end] x [v_start, v_end]`` grid.
-
-Closed curves: u is wrapped into the period before evaluation (the unknown itself may run on
-through any number of turns).
-
-``curve.derivs(u, order)`` returns an array ``(order + 1, k, 3)``: ``c, c', c'', ...`` at the k
-parameter values; ``surface.derivs(u, v, order)`` a dict ``{(i, j): (k, 3)}`` of
-``d^(i+j) s / du^i dv^j`` for ``i + j <= order``.
+Two forms (docs/DESIGN.md "Curves and surfaces"): **analytic** (``x/y/z_expression`` of the
+parameters ``U``, ``V`` in the deck expression language, exact first derivatives from
+:mod:`poise.expr`, higher ones central differences of those) and **spline data** (points in the
+element text; cubic / bicubic splines, derivatives exact). ``curve.derivs(u, order)`` returns
+``(order + 1, k, 3)``: ``c, c', c'', ...``; ``surface.derivs(u, v, order)`` a dict
+``{(i, j): (k, 3)}`` of ``d^(i+j) s / du^i dv^j``. Details: :class:`_AnalyticBase`.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.expr import EvalContext, compile_batch
 
 
 class _ParamResolver:
@@ -69,6 +52,31 @@ class _ParamResolver:
 
 
 class _AnalyticBase:
+    """Two forms (docs/DESIGN.md "Curves and surfaces"):
+
+    * **analytic** (poise extension of the CURSUB form): ``x_expression``, ``y_expression``,
+      ``z_expression`` written in the deck expression language as functions of the parameter ``U``
+      (surfaces: ``U`` and ``V``), with ``u_start``/``u_end`` (``v_start``/``v_end``). Each
+      expression is compiled by :mod:`poise.expr` with ``U``/``V`` bound to scalar unknowns
+      (``Resolver.symbol``; messages quote the deck text), which gives the value and the **exact
+      first derivatives**; an evaluation failure names the parameter values. Second and third derivatives are central
+      differences of the exact first derivatives (step ``h = 1e-4 * max(1, u_end - u_start)``;
+      truncation error ``O(h^2)``), used only in Jacobian/Hessian terms and in the tangency rows'
+      parameter derivatives.
+    * **spline data**: the element text holds ``num_pts`` points ``x y z`` (curves) or
+      ``num_u * num_v`` points (surfaces, u-major: the v index runs fastest). Curves: cubic spline
+      (``scipy.interpolate.CubicSpline``, not-a-knot; ``is_u_closed="TRUE"``: periodic, the first
+      point is appended when the data do not repeat it), parametrised by cumulative chord length
+      mapped to ``[u_start, u_end]`` (defaults 0 and 1); derivatives up to order 3 exact. Surfaces:
+      bicubic ``RectBivariateSpline`` on a uniform ``[u_start, u_end] x [v_start, v_end]`` grid.
+
+    Closed curves: u is wrapped into the period before evaluation (the unknown itself may run on
+    through any number of turns).
+
+    ``curve.derivs(u, order)`` returns an array ``(order + 1, k, 3)``: ``c, c', c'', ...`` at the k
+    parameter values; ``surface.derivs(u, v, order)`` a dict ``{(i, j): (k, 3)}`` of
+    ``d^(i+j) s / du^i dv^j`` for ``i + j <= order``.
+    """
     npar = 1
 
     def __init__(self, el, exprs):
@@ -82,7 +90,6 @@ class _AnalyticBase:
         if b is None:
             base = self._batches.get(1)
             if base is None:
-                from poise.expr import compile_batch
                 base = self._batches[1] = compile_batch(list(self.exprs),
                                                         _ParamResolver(self.npar))
             b = self._batches[k] = base.tiled(k, 0, 0, self.npar)
@@ -90,7 +97,6 @@ class _AnalyticBase:
 
     def _eval(self, params):
         """params (k, npar) -> value (k, 3), d (k, 3, npar)."""
-        from poise.expr import EvalContext
         k = params.shape[0]
         b = self._batch(k)
         try:

@@ -2,25 +2,16 @@
 
 Slot layout (markers I, J): ``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J]`` (slots 0..7).
 Every measure is built from *dot terms* ``a . b`` of two slot vectors, whose gradient and
-Hessian with respect to the slots are exact and cheap:
+Hessian with respect to the slots are exact and cheap.
 
-* ``X``, ``Y``, ``Z``: ``DX/DY/DZ(I,J,J) = (P_I - P_J) . a_J`` (a_J = x_J, y_J, z_J);
-* ``AZ``: continuous ``AZ(I,J)`` (angle table, turns counted); derivatives of
-  ``atan2(x_I . y_J, x_I . x_J)``;
-* ``B1, B2, B3``: the angles of a **body-fixed 1-2-3 sequence** of I relative to J,
-  ``R = A_J^T A_I = Rx(b1) Ry(b2) Rz(b3)``: ``b2 = asin(R_02)``,
-  ``b1 = atan2(-R_12, R_22)``, ``b3 = atan2(-R_01, R_00)`` with ``R_ij = a_J,i . a_I,j``
-  (principal values; b2 in [-pi/2, pi/2]).
-
-The multiplier-weighted Hessian ``G = lam d2 phi / dy2`` is exact (FD-checked in
-``tests/test_motions.py``). The time-dependent target is supplied by a :class:`MotionTargets`
-object (values and d/dt of all motions at a time).
+The measures X, Y, Z, AZ and B1..B3: :func:`measure`. The time-dependent target is supplied by
+a :class:`MotionTargets` object (values and d/dt of all motions at a time).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import ConstraintFamily
+from poise.elements.base import ConstraintFamily
 
 S_PI, S_XI, S_YI, S_ZI, S_PJ, S_XJ, S_YJ, S_ZJ = range(8)
 N_SLOTS = 8
@@ -89,7 +80,19 @@ def asin_term(u):
 
 
 def measure(Y, name, need_hess=True):
-    """Value (n,), gradient (n, W), Hessian (n, W, W) of a motion measure (principal angles)."""
+    """Value (n,), gradient (n, W), Hessian (n, W, W) of a motion measure (principal angles).
+
+    * ``X``, ``Y``, ``Z``: ``DX/DY/DZ(I,J,J) = (P_I - P_J) . a_J`` (a_J = x_J, y_J, z_J);
+    * ``AZ``: continuous ``AZ(I,J)`` (angle table, turns counted); derivatives of
+      ``atan2(x_I . y_J, x_I . x_J)``;
+    * ``B1, B2, B3``: the angles of a **body-fixed 1-2-3 sequence** of I relative to J,
+      ``R = A_J^T A_I = Rx(b1) Ry(b2) Rz(b3)``: ``b2 = asin(R_02)``,
+      ``b1 = atan2(-R_12, R_22)``, ``b3 = atan2(-R_01, R_00)`` with ``R_ij = a_J,i . a_I,j``
+      (principal values; b2 in [-pi/2, pi/2]).
+
+    The multiplier-weighted Hessian ``G = lam d2 phi / dy2`` is exact (FD-checked in
+    ``tests/test_motions.py``).
+    """
     if name in _AXJ:
         a = _AXJ[name]
         return _sum(dot_term(Y, S_PI, a, 1.0, need_hess), dot_term(Y, S_PJ, a, -1.0, need_hess))

@@ -6,34 +6,15 @@ derivatives, so each family writes its rows once with second-order **jets**
 (:class:`Jet`: value, gradient and Hessian with respect to the ``3S + U`` local variables). That
 gives ``phi``, ``phi_y``, ``phi_s`` and the multiplier-weighted Hessian blocks ``G``, ``G_ys``,
 ``G_ss`` exactly (given the parameter derivatives of the geometry, see
-:mod:`poise.model.curve_data`).
+:mod:`poise.elements.curve_data`).
 
-Notation: ``A_K c = c_1 x_K + c_2 y_K + c_3 z_K`` for a marker K with axes ``x_K, y_K, z_K``;
-curve on body of marker K: ``r(u) = P_K + A_K c(u)``, tangent ``t = A_K c'(u)``; surface:
-``r(u, v) = P_K + A_K s(u, v)``, tangents ``A_K s_u``, ``A_K s_v``.
-
-Equations (rows, unknowns, net freedoms removed):
-
-* PTCV ``P_I - P_J - A_J c(u) = 0`` (3 rows, u; removes 2).
-* CVCV (curves in parallel planes, msolve): with ``d = r_i(u_i) - r_j(u_j)`` and the in-plane
-  basis ``e1, e2`` / normal ``n`` of curve J's plane (constant in J, found at compile time):
-  ``d . e1 = 0``, ``d . e2 = 0``, ``(t_i x t_j) . n = 0`` (3 rows, u_i, u_j; removes 1). The
-  out-of-plane offset is free.
-* PTSF ``P_I - P_J - A_J s(u, v) = 0`` (3 rows, u, v; removes 1).
-* CVSF ``r_c(u) - r_s(s, t) = 0`` (3 rows) and ``t_c . (A_J (s_s x s_t)) = 0`` (curve tangent in
-  the surface's tangent plane) (4 rows, u, s, t; removes 1).
-* SFSF ``r_i(u_i, v_i) - r_j(u_j, v_j) = 0`` (3 rows) and the common normal
-  ``n_i . (A_J s_j,u) = 0``, ``n_i . (A_J s_j,v) = 0`` with ``n_i = A_I (s_i,u x s_i,v)``
-  (5 rows, u_i, v_i, u_j, v_j; removes 1).
-
-Frictionless: the reactions do no work along the parameters (the parameter rows of the residual
-are ``phi_s^T lam = 0``), added by the model.
+Notation, the equations of each kind and friction: :class:`CurveFamily`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import ConstraintFamily
+from poise.elements.base import ConstraintFamily
 
 
 class Jet:
@@ -139,6 +120,27 @@ class CurveFamily(ConstraintFamily):
     Subclasses set ``kind`` and implement ``rows(Y, s, N, ctx) -> list of scalar Jets``.
     Attributes set by the compiler: ``geo`` (per instance: tuple of curve/surface objects),
     ``plane`` (CVCV: (n, 3, 3) columns e1, e2, n in J axes), ``elem_ids``.
+
+    Notation: ``A_K c = c_1 x_K + c_2 y_K + c_3 z_K`` for a marker K with axes ``x_K, y_K, z_K``;
+    curve on body of marker K: ``r(u) = P_K + A_K c(u)``, tangent ``t = A_K c'(u)``; surface:
+    ``r(u, v) = P_K + A_K s(u, v)``, tangents ``A_K s_u``, ``A_K s_v``.
+
+    Equations (rows, unknowns, net freedoms removed):
+
+    * PTCV ``P_I - P_J - A_J c(u) = 0`` (3 rows, u; removes 2).
+    * CVCV (curves in parallel planes, msolve): with ``d = r_i(u_i) - r_j(u_j)`` and the in-plane
+      basis ``e1, e2`` / normal ``n`` of curve J's plane (constant in J, found at compile time):
+      ``d . e1 = 0``, ``d . e2 = 0``, ``(t_i x t_j) . n = 0`` (3 rows, u_i, u_j; removes 1). The
+      out-of-plane offset is free.
+    * PTSF ``P_I - P_J - A_J s(u, v) = 0`` (3 rows, u, v; removes 1).
+    * CVSF ``r_c(u) - r_s(s, t) = 0`` (3 rows) and ``t_c . (A_J (s_s x s_t)) = 0`` (curve tangent in
+      the surface's tangent plane) (4 rows, u, s, t; removes 1).
+    * SFSF ``r_i(u_i, v_i) - r_j(u_j, v_j) = 0`` (3 rows) and the common normal
+      ``n_i . (A_J s_j,u) = 0``, ``n_i . (A_J s_j,v) = 0`` with ``n_i = A_I (s_i,u x s_i,v)``
+      (5 rows, u_i, v_i, u_j, v_j; removes 1).
+
+    Frictionless: the reactions do no work along the parameters (the parameter rows of the residual
+    are ``phi_s^T lam = 0``), added by the model.
     """
 
     kind = ""

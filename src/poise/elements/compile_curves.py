@@ -1,7 +1,7 @@
 """Compile ``Reference_ParamCurve``/``Reference_ParamSurface`` and the higher-pair constraints
 ``Constraint_PTCV``, ``Constraint_CVCV``, ``Constraint_PTSF``, ``Constraint_CVSF``,
-``Constraint_SFSF`` (equations: :mod:`poise.families.curves`; geometry:
-:mod:`poise.model.curve_data`).
+``Constraint_SFSF`` (equations: :mod:`poise.elements.curves`; geometry:
+:mod:`poise.elements.curve_data`).
 
 Parameters become scalar unknowns (``CompileContext.add_extra``) named
 ``<Constraint_PTCV id=3> u`` etc. Seeds: the ``*disp_*0`` guess projected onto the curve/surface
@@ -17,8 +17,10 @@ import numpy as np
 
 from poise.deck.spec import Expr
 from poise.core.errors import EvaluationError
-from poise.families import curves as F
-from poise.model import curve_data as CD
+from poise.elements import curves as F
+from poise.elements import curve_data as CD
+from poise.elements.registry import ElementType
+from poise.elements.kernel import slot_kinematics
 
 TAGS = ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
         "Constraint_SFSF")
@@ -274,7 +276,6 @@ def _seed(kind, el, geo, PI, AI, PJ, AJ):
 
 def curves_frame_hook(model, state):
     """Per-frame contact outputs, one row per higher-pair constraint (deck order of groups)."""
-    from poise.families.base import slot_kinematics
     o = model.outputs["curves"]
     n = len(o["ids"])
     par = np.full((n, 4), np.nan)
@@ -289,3 +290,11 @@ def curves_frame_hook(model, state):
         pt[fam.owner] = fam.contact(kin, state.extra)
     return {"curves/id": np.asarray(o["ids"]), "curves/tag": np.asarray(o["tag"]),
             "curves/parameters": par, "curves/point": pt}
+
+
+ELEMENTS = (ElementType(
+    "curves", TAGS, compile_curves,
+    after=("user",),            # curve rows and parameters after the user constraints
+    kernels=lambda: (F.PointOnCurve, F.PointOnSurface, F.CurveOnCurve, F.CurveOnSurface,
+                     F.SurfaceOnSurface), outputs={"curves": TAGS},
+    datasets=("id", "tag", "parameters", "point"), fd_tests="tests/test_curves.py"),)

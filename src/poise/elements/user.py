@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import ConstraintFamily, ForceFamily
-from poise.families.expr_forces import ExprScalarForce, ExprVectorForce
+from poise.elements.base import ConstraintFamily, ForceFamily
+from poise.elements.expr_forces import ExprScalarForce, ExprVectorForce
 
 
 def _vectors_from_slots(routine, Y, slot_of):

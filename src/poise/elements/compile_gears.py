@@ -1,4 +1,4 @@
-"""Compile ``Constraint_Gear`` into one coupler row per gear (see :mod:`poise.families.gears`).
+"""Compile ``Constraint_Gear`` into one coupler row per gear (see :mod:`poise.elements.gears`).
 
 The levers ``s_k`` are computed from the input configuration: contact point and common-velocity
 direction from ``cv_marker_id`` (origin, z axis), joint axes from the joints' J markers. The
@@ -10,9 +10,10 @@ to gear 1.
 """
 from __future__ import annotations
 
-from poise.families import gears as Ge
-from poise.model.compile_couplers import (add_coupler_family, joint_coordinate, marker_pose,
-                                          user_routine_error)
+from poise.elements import gears as Ge
+from poise.elements.compile_couplers import (add_coupler_family, joint_coordinate, marker_pose,
+                                             user_routine_error)
+from poise.elements.registry import ElementType
 
 
 def _marker_body(b, mid):
@@ -75,3 +76,10 @@ def compile_gears(spec, ctx):
     if not items:
         return
     add_coupler_family(ctx, "gears", "Constraint_Gear", items, cls=Ge.Gear)
+
+
+ELEMENTS = (ElementType(
+    "gears", ("Constraint_Gear",), compile_gears,
+    after=("couplers",),        # gear rows after the coupler rows (model layout)
+    kernels=lambda: (Ge.Gear,), outputs={"gears": ("Constraint_Gear",)},
+    datasets=("id", "force", "torque"), fd_tests="tests/test_elements_8a.py"),)

@@ -5,83 +5,49 @@ resolver when an expression reads ``DIF(id)`` / ``VARVAL(id)`` or by :func:`comp
 (run after the expression compiler) for every remaining state, so expression forces compiled
 earlier already know their scalar columns.
 
-Statics (deck_format 6.5, 6.1):
-
-* ``Control_Diff`` (``type="EXPRESSION"``): unknown ``y`` seeded from ``ic``; equation
-  ``expr(y, q, t) = 0`` (explicit ``y' = expr`` with ``y' = 0``) or ``expr(y, DIF1 = 0, q, t) = 0``
-  (implicit). ``is_static_hold="TRUE"``: no unknown; ``DIF(id)`` is the constant ``ic`` (poise
-  has no transient phase that could move a held state away from its initial value).
-  ``DIF1(id)`` is 0 in statics.
-* implicit ``Reference_Variable``: unknown ``v`` seeded from ``ic`` (0), equation
-  ``expr(v, q, t) = 0``; ``static_hold="TRUE"``: ``VARVAL(id)`` is the constant ``ic``.
-* ``Reference_Variable type="USERSUB"`` (Python VARSUB): unknown ``v`` with the equation
-  ``v - varsub(...) = 0`` (families/user.py); ``static_hold``: constant ``ic``.
-
-Outputs: frame hook ``diffs/id`` (D,), ``diffs/value`` (F, D), ``variables/id`` (V,),
-``variables/value`` (F, V) for every Control_Diff and every implicit / user variable (held ones
-report their constant).
+The static equations of each kind (deck_format 6.5, 6.1) and the outputs: :func:`compile_diff_vars`.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from poise.deck.spec import Expr
-
-
-def _reg(ctx):
-    r = getattr(ctx, "scalar_registry", None)
-    if r is None:
-        r = ctx.scalar_registry = {}
-    return r
-
-
-def _els(ctx, tag):
-    cache = getattr(ctx, "_dv_els", None)
-    if cache is None:
-        cache = ctx._dv_els = {}
-    if tag not in cache:
-        cache[tag] = {e.id: e for e in ctx.b.spec.elements(tag)}
-    return cache[tag]
-
-
-def is_user(el) -> bool:
-    return str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB"
-
-
-def held(el) -> bool:
-    return bool(el.attrs.get("is_static_hold" if el.tag == "Control_Diff" else "static_hold"))
-
-
-def scalar_unknown(ctx, kind: str, id: int):
-    """Index into ``State.extra`` of the unknown of ``Control_Diff`` (kind ``"diff"``) or
-    ``Reference_Variable`` (kind ``"var"``) ``id``, or ``("const", value)`` for held states.
-    Raises KeyError for unknown ids."""
-    tag = "Control_Diff" if kind == "diff" else "Reference_Variable"
-    el = _els(ctx, tag)[int(id)]
-    ic = float(el.attrs.get("ic", 0.0) or 0.0)
-    if held(el):
-        return ("const", ic)
-    reg = _reg(ctx)
-    key = (kind, int(id))
-    if key not in reg:
-        reg[key] = ctx.add_extra(f"{el.loc.prefix()[:-1]} {'y' if kind == 'diff' else 'v'}", ic)
-    return reg[key]
+from poise.elements.diff_vars import ScalarEquation, build_scalar_equations
+from poise.elements.registry import ElementType
+from poise.elements.resolver import (compile_batch_located, ground_markers, held, is_user,
+                                     scalar_unknown)
+from poise.elements.compile_user import compile_user_variables
 
 
 def compile_diff_vars(spec, ctx):
-    """Element compiler (after the expression compiler): equations of the scalar unknowns."""
+    """Element compiler (after the expression compiler): equations of the scalar unknowns.
+
+    Statics (deck_format 6.5, 6.1):
+
+    * ``Control_Diff`` (``type="EXPRESSION"``): unknown ``y`` seeded from ``ic``; equation
+      ``expr(y, q, t) = 0`` (explicit ``y' = expr`` with ``y' = 0``) or ``expr(y, DIF1 = 0, q, t) = 0``
+      (implicit). ``is_static_hold="TRUE"``: no unknown; ``DIF(id)`` is the constant ``ic`` (poise
+      has no transient phase that could move a held state away from its initial value).
+      ``DIF1(id)`` is 0 in statics.
+    * implicit ``Reference_Variable``: unknown ``v`` seeded from ``ic`` (0), equation
+      ``expr(v, q, t) = 0``; ``static_hold="TRUE"``: ``VARVAL(id)`` is the constant ``ic``.
+    * ``Reference_Variable type="USERSUB"`` (Python VARSUB): unknown ``v`` with the equation
+      ``v - varsub(...) = 0`` (families/user.py); ``static_hold``: constant ``ic``.
+
+    Outputs: frame hook ``diffs/id`` (D,), ``diffs/value`` (F, D), ``variables/id`` (V,),
+    ``variables/value`` (F, V) for every Control_Diff and every implicit / user variable (held ones
+    report their constant).
+    """
     diffs = spec.elements("Control_Diff")
     vars_ = [e for e in spec.elements("Reference_Variable")
              if e.attrs.get("is_implicit") or is_user(e)]
     if not diffs and not vars_:
         return
-    from poise.families.diff_vars import build_scalar_equations
-    from poise.model.compile_expr import ModelResolver, _ground_markers, compile_batch_located
     pc = ctx.pc
-    res = getattr(ctx, "expr_resolver", None) or ModelResolver(spec, ctx)
+    res = ctx.resolver()
     res.allow_reactions = False
     res.where = "Control_Diff / Reference_Variable expressions"
-    ground = _ground_markers(ctx.b)
+    ground = ground_markers(ctx.b)
     items = []             # (el, unknown, expression) with expression equations
     user_items = []
     for el in diffs:
@@ -121,7 +87,6 @@ def compile_diff_vars(spec, ctx):
                                          np.arange(len(items)), [it[0].loc for it in items])
             ctx.families.append(fam)
     if user_items:
-        from poise.model.compile_user import compile_user_variables
         compile_user_variables(spec, ctx, user_items)
     ctx.frame_hooks.append(_output_hook(ctx, diffs, spec.elements("Reference_Variable")))
 
@@ -154,3 +119,11 @@ def _output_hook(ctx, diffs, all_vars):
         return out
 
     return hook
+
+
+ELEMENTS = (ElementType(
+    "diff_vars", ("Control_Diff", "Reference_Variable"), compile_diff_vars,
+    after=("expressions", "contacts"),  # scalar unknowns the expressions registered come first
+    kernels=lambda: (ScalarEquation,),
+    outputs={"diffs": ("Control_Diff",), "variables": ("Reference_Variable",)},
+    datasets=("id", "value"), fd_tests="tests/test_extra_unknowns.py"),)

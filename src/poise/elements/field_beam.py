@@ -7,7 +7,7 @@ Both are the law (deck_format.md §5.6, §5.7; statics: damping terms vanish)
 with the translations ``D = A_J^T (P_I - P_J)`` and the continuous angles AX, AY, AZ of the
 model's angle table (as in ``Force_Bushing``), applied at I on I's body; the equal and opposite
 force and torque plus the moment of the I-J offset act on J's body
-(:func:`poise.families.forces.apply_two_body`). ``K`` is dense (any 6x6 matrix).
+(:func:`poise.elements.forces.apply_two_body`). ``K`` is dense (any 6x6 matrix).
 
 ``Force_Beam`` builds K from the section data (:func:`beam_stiffness`), L = [length, 0, ...],
 F0 = the preloads. The Jacobian with respect to the slot vectors is exact (FD-checked in
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.forces import (N_SLOTS, S_PI, S_PJ, S_XJ, S_YJ, S_ZJ, TwoBodyForce,
+from poise.elements.forces import (N_SLOTS, S_PI, S_PJ, S_XJ, S_YJ, S_ZJ, TwoBodyForce,
                                    angle_gradient, sl)
 
 _I3 = np.eye(3)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import POINT, ConstraintFamily
+from poise.elements.base import POINT, ConstraintFamily
 
 _I3 = np.eye(3)
 

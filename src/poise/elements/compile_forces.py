@@ -4,8 +4,10 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.families import forces as Fo
-from poise.model.compile import GLOBAL, _num
+from poise.elements import forces as Fo
+from poise.elements.context import GLOBAL, num as _num
+from poise.elements.registry import ElementType, FDCase
+from poise.core.user_routines import uses_user_routine
 
 
 def compile_forces(spec, ctx):
@@ -36,7 +38,6 @@ def compile_forces(spec, ctx):
             add("LineForce", el, I=I, J=J, R=GLOBAL, k=k, length=_num(el, "length", 0.0, pc),
                 preload=pre, ax=False)
         b.effects.append(f"Force_SpringDamper:{t}")
-    from poise.core.user_routines import uses_user_routine
     for el in spec.elements("Force_Scalar_TwoBody"):
         t = str(el.attrs.get("type", "FORCE")).upper()
         if uses_user_routine(el):          # Python SFOSUB: compiled by compile_user
@@ -125,3 +126,42 @@ def compile_forces(spec, ctx):
         outputs["forces"] = dict(tag=np.array([e.tag for e in force_rows]),
                                  ids=np.array([e.id for e in force_rows], int))
 
+
+_VEC = ("Force_Vector_TwoBody", "Force_Vector_OneBody")
+
+
+def _fd_cases():
+    def case(name, tag, **attrs):
+        jm = "j_floating_marker_id" if tag == "Force_Vector_TwoBody" else "j_marker_id"
+        return FDCase(name, ((tag, attrs),), marker_attrs=("i_marker_id", jm))
+    return (
+        case("spring_translational", "Force_SpringDamper", type="TRANSLATIONAL",
+             stiffness=30.0, damping=1.0, length=0.7, preload=2.0),
+        case("spring_rotational", "Force_SpringDamper", type="ROTATIONAL", stiffness=30.0,
+             damping=1.0, length=7.0, preload=2.0),
+        case("bushing", "Force_Bushing", kx=10.0, ky=20.0, kz=30.0, ktx=4.0, kty=5.0,
+             ktz=6.0, preload_x=1.0, preload_tz=2.0),
+        case("scalar_force", "Force_Scalar_TwoBody", type="FORCE", val=3.0),
+        case("scalar_force_action_only", "Force_Scalar_TwoBody", type="FORCE", val=3.0,
+             is_action_only=True),
+        case("scalar_torque", "Force_Scalar_TwoBody", type="TORQUE", val=3.0),
+        case("vector_twobody", "Force_Vector_TwoBody", type="FORCEANDTORQUE", fx_expression=1.0,
+             fy_expression=2.0, fz_expression=-3.0, tx_expression=0.5, ty_expression=-1.0,
+             tz_expression=2.0, ref_marker_id=32))
+
+
+_KERNELS = lambda: (Fo.LineForce, Fo.AxisForce, Fo.AxisTorque, Fo.Bushing,  # noqa: E731
+                    Fo.VectorForce)
+ELEMENTS = (ElementType(
+    "forces", ("Force_SpringDamper", "Force_Scalar_TwoBody", "Force_Bushing") + _VEC,
+    compile_forces,
+    after=("joints",),          # force families after the joint families (model layout)
+    kernels=_KERNELS, tileable=_KERNELS, potential_energy=True,
+    outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
+    reactions={"SFORCE": ("forces", ("Force_Scalar_TwoBody",)), "VFORCE": ("forces", _VEC),
+               "VTORQ": ("forces", _VEC), "GFORCE": ("forces", _VEC),
+               "BUSH": ("forces", ("Force_Bushing",)), "SPDP": ("forces", ("Force_SpringDamper",))},
+    reaction_aliases={"FORCE_SCALAR_TWOBODY": "SFORCE", "FORCE_VECTOR_TWOBODY": "GFORCE",
+                      "FORCE_VECTOR_ONEBODY": "GFORCE", "FORCE_BUSHING": "BUSH",
+                      "BUSHING": "BUSH", "FORCE_SPRINGDAMPER": "SPDP", "SPRINGDAMPER": "SPDP"},
+    fd_cases=_fd_cases),)

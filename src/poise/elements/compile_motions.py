@@ -5,7 +5,7 @@
   the joint's markers. Without ``joint_type``/``motion_type`` a revolute is driven in R and a
   translational in T.
 * ``Motion_Marker`` ``direction`` X/Y/Z: ``DX/DY/DZ(I,J,J) - f``; B1/B2/B3: body-fixed 1-2-3
-  angles of I relative to J (see :mod:`poise.families.motions`).
+  angles of I relative to J (see :mod:`poise.elements.motions`).
 
 Targets (:class:`MotionTargets`): ``val_type`` D: ``f(t)``; V: ``ic_disp + int_{t0}^t f``;
 A: ``ic_disp + ic_vel (t - t0) + int int f``, integrated numerically (8-point Gauss-Legendre on
@@ -20,7 +20,9 @@ import numpy as np
 
 from poise.deck.spec import Expr
 from poise.core.errors import DeckError, Problem
-from poise.families import motions as Mo
+from poise.elements import motions as Mo
+from poise.elements.registry import ElementType
+from poise.expr import EvalContext, compile_batch
 
 INTEGRATION_PANEL = 1e-2
 _GAUSS: list = []     # 8-point Gauss-Legendre nodes and weights, computed on first use
@@ -117,7 +119,6 @@ class MotionTargets:
         """Expression values and d/dTIME, (n,) each."""
         if self.batch is None:
             return self.consts.copy(), np.zeros(self.n)
-        from poise.expr import EvalContext
         out = self.batch.evaluate(EvalContext(time=float(t)))
         return out.value, out.d_time
 
@@ -226,7 +227,6 @@ def compile_motions(spec, ctx):
     pc.raise_if_any()
     batch = None
     if any(isinstance(e, Expr) for e in exprs):
-        from poise.expr import compile_batch
         try:
             batch = compile_batch(exprs, _Resolver(spec, b))
         except DeckError as err:
@@ -259,3 +259,13 @@ def compile_motions(spec, ctx):
     ctx.outputs[group] = dict(tag=np.array([it[0].tag for it in items]),
                               ids=np.array([it[0].id for it in items], int))
     ctx.motion_targets = targets
+
+
+ELEMENTS = (ElementType(
+    "motions", ("Motion_Joint", "Motion_Marker"), compile_motions,
+    after=("forces",),          # motion rows after the joint rows, families after forces
+    kernels=lambda: (Mo.MotionConstraint,), time_dependent=True,
+    outputs={"motions": ("Motion_Joint", "Motion_Marker")}, datasets=("id", "force", "torque"),
+    reactions={"MOTION": ("motions", ("Motion_Joint", "Motion_Marker"))},
+    reaction_aliases={"MOTION_JOINT": "MOTION"},
+    fd_tests="tests/test_motions.py"),)

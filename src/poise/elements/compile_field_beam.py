@@ -1,19 +1,20 @@
 """Compile ``Force_Field`` (linear form) and ``Force_Beam`` into one
-:class:`poise.families.field_beam.FieldForce` family (output group ``forces``).
+:class:`poise.elements.field_beam.FieldForce` family (output group ``forces``).
 
 * ``Force_Field``: ``K11 … K66`` (row i, column j of K; absent entries 0), ``length_x … tz``
   (reference X), ``preload_x … tz`` (F0); damping (``C11…``/``cratio``) vanishes in statics.
   User fields (FIESUB via ``usrsub_*``/``script_name``) are rejected (exit 3).
-* ``Force_Beam``: K from :func:`poise.families.field_beam.beam_stiffness`, L = [length, 0 …],
+* ``Force_Beam``: K from :func:`poise.elements.field_beam.beam_stiffness`, L = [length, 0 …],
   F0 = ``preload_*``.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from poise.families.field_beam import FieldForce, beam_stiffness
-from poise.model.compile import GLOBAL, _num
-from poise.model.compile_couplers import user_routine_error
+from poise.elements.field_beam import FieldForce, beam_stiffness
+from poise.elements.context import GLOBAL, num as _num
+from poise.elements.compile_couplers import user_routine_error
+from poise.elements.registry import ElementType
 
 _C6 = ("x", "y", "z", "tx", "ty", "tz")
 
@@ -75,3 +76,11 @@ def compile_field_beam(spec, ctx):
     f.element_locs = [it[0].loc for it in items]
     f.group = "forces"
     ctx.families.append(f)
+
+
+ELEMENTS = (ElementType(
+    "field_beam", ("Force_Field", "Force_Beam"), compile_field_beam,
+    after=("forces", "gears"),  # extends the "forces" output group after compile_forces
+    kernels=lambda: (FieldForce,), tileable=lambda: (FieldForce,), potential_energy=True,
+    outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
+    fd_tests="tests/test_elements_8b.py"),)

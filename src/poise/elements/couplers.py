@@ -1,30 +1,20 @@
 """Coupler constraint between the free coordinates of up to three joints (also used by gears).
 
 ``Constraint_Coupler`` (deck_format.md §3.3) and ``Constraint_Gear`` (§3.4, position-level form,
-see :mod:`poise.families.gears`) are one scalar equation
+see :mod:`poise.elements.gears`) are one scalar equation
 
     sum_k c_k (q_k - q0_k) = 0,   k = 1..3
 
-where ``q_k`` is joint k's free coordinate measured between its I and J markers:
-
-* freedom ``R``: the continuous angle ``AZ(I_k, J_k)`` (angle table, full turns counted);
-* freedom ``T``: ``DZ(I_k, J_k, J_k) = (P_I - P_J) . z_J``;
-
-and ``q0_k`` its value in the input configuration (so the input configuration satisfies the
-coupler; see docs/DESIGN.md "Couplers and gears"). A two-joint coupler has ``c_3 = 0`` and a
-dummy third joint on the global frame (ground markers: no coordinates).
-
-Slot layout (markers ``[I1, J1, I2, J2, I3, J3]``): per joint k the 8 slots
-``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J]`` of :mod:`poise.families.motions` (24 slots, W = 72).
-Gradient and multiplier-weighted Hessian are the exact ones of the motion measures
-(:func:`poise.families.motions.measure`), placed in joint k's block.
+where ``q_k`` is joint k's free coordinate between its I and J markers (freedom ``R``: the
+continuous angle ``AZ(I_k, J_k)``; ``T``: ``DZ(I_k, J_k, J_k)``) and ``q0_k`` its value in the
+input configuration. The coordinates, the two-joint form and the slot layout: :class:`Coupler`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import ConstraintFamily
-from poise.families.motions import measure
+from poise.elements.base import ConstraintFamily
+from poise.elements.motions import measure
 
 N_JOINTS = 3
 N_SLOTS = 8 * N_JOINTS
@@ -42,6 +32,20 @@ class Coupler(ConstraintFamily):
     rot : (n, 3) bool, freedom R (True) or T (False) per joint
     q0 : (n, 3) values in the input configuration
     angle_index : (n, 3) int, continuous-angle table entry of R joints (-1 for T joints)
+
+    where ``q_k`` is joint k's free coordinate measured between its I and J markers:
+
+    * freedom ``R``: the continuous angle ``AZ(I_k, J_k)`` (angle table, full turns counted);
+    * freedom ``T``: ``DZ(I_k, J_k, J_k) = (P_I - P_J) . z_J``;
+
+    and ``q0_k`` its value in the input configuration (so the input configuration satisfies the
+    coupler; see docs/DESIGN.md "Couplers and gears"). A two-joint coupler has ``c_3 = 0`` and a
+    dummy third joint on the global frame (ground markers: no coordinates).
+
+    Slot layout (markers ``[I1, J1, I2, J2, I3, J3]``): per joint k the 8 slots
+    ``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J]`` of :mod:`poise.elements.motions` (24 slots, W = 72).
+    Gradient and multiplier-weighted Hessian are the exact ones of the motion measures
+    (:func:`poise.elements.motions.measure`), placed in joint k's block.
     """
 
     @classmethod

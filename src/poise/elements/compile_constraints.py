@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families import constraints as C
+from poise.elements import constraints as C
+from poise.elements.registry import ElementType, FDCase, claimed_types
 
 
 _TEMPLATES: dict = {}    # joint type -> [(kind, equation tuple, row offset, row names, row kind)]
@@ -38,14 +39,17 @@ def compile_joints(spec, ctx):
         if not els:
             continue
         acc = {"point": [], "perp": [], "plane": []}   # (I, J, owner, first row, eq)
+        claimed = claimed_types(tag)      # types compiled by their own element type (SCREW)
         ids = []
         seen = set()
         for el in els:
             a = el.attrs
             jt = str(a.get("type", "")).upper()
+            if jt in claimed:
+                continue
             if jt not in C.JOINT_EQUATIONS:
                 b.pc.error(el.loc, f"joint type {jt} is not supported yet; supported: "
-                           + ", ".join(sorted(C.JOINT_EQUATIONS)), "type")
+                           + ", ".join(sorted({*C.JOINT_EQUATIONS, *claimed})), "type")
                 continue
             I = mindex.get(a.get("i_marker_id"), -1) if "i_marker_id" in a else -1
             if I < 0:
@@ -116,3 +120,22 @@ def _columns(acc):
     """(I, J, owner, first row) int arrays of accumulated primitive instances."""
     arr = np.array([x[:4] for x in acc], int).reshape(len(acc), 4)
     return arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3]
+
+
+def _fd_cases():
+    for jt in sorted(t for t, e in C.JOINT_EQUATIONS.items() if e):
+        for tag in ("Constraint_Joint", "Constraint_Jprim"):
+            yield FDCase(f"{tag}:{jt}", ((tag, {"type": jt}),), pairs=((21, 31), (22, 11)),
+                         point_b=(False,), seed=(jt, tag), opposite_z=jt == "CONSTANT_VELOCITY")
+
+
+ELEMENTS = (ElementType(
+    "joints", ("Constraint_Joint", "Constraint_Jprim"), compile_joints,
+    kernels=lambda: (C.Coincident, C.Perpendicular, C.InPlane),
+    tileable=lambda: (C.Coincident, C.Perpendicular, C.InPlane),
+    outputs={"joints": ("Constraint_Joint",), "jprims": ("Constraint_Jprim",)},
+    datasets=("id", "force", "torque"),
+    reactions={"JOINT": ("joints", ("Constraint_Joint",)),
+               "JPRIM": ("jprims", ("Constraint_Jprim",))},
+    reaction_aliases={"CONSTRAINT_JOINT": "JOINT", "CONSTRAINT_JPRIM": "JPRIM"},
+    fd_cases=_fd_cases),)

@@ -2,33 +2,17 @@
 friction).
 
 One instance = one potential contact point between a geometry on the body of marker I and one on
-the body of marker J (two-body slot layout of :mod:`poise.families.forces`). Each geometry is a
-marker plus an offset ``o`` in the marker's axes (centre ``c = P + A o``). Pair kinds:
+the body of marker J (two-body slot layout of :mod:`poise.elements.forces`). Each geometry is a
+marker plus an offset ``o`` in the marker's axes (centre ``c = P + A o``).
 
-* ``SPHERE_PLANE`` (0): sphere (radius ``rI``) on I, plane = J's x-y plane, outward normal +z_J,
-  material on the -z side. ``delta = rI - (cI - P_J) . z_J``, ``F = f z_J`` through the centre.
-* ``SPHERE_SPHERE`` (1): ``delta = rI + rJ - |cI - cJ|``, ``F = f n`` along the centre line.
-* ``SPHERE_BOX`` (2): box on J (half lengths ``a``), ``e`` = sphere centre minus the closest box
-  point, ``delta = rI - |e|``, ``F = f e/|e|`` through the centre (a centre inside the box gives no
-  force: deep penetration is outside the analytic model).
-* ``CORNER_PLANE`` (3): one corner ``p = P_I + A_I oI`` of a box on I against J's plane:
-  ``delta = -(p - P_J) . z_J``, ``F = f z_J`` at the corner (a box-plane pair = 8 instances).
-
-Normal law (IMPACT, static part): ``f = k delta^e`` for ``delta > 0``, 0 otherwise. For ``e > 1``
-this is C1 at zero penetration. For ``e <= 1`` it is replaced below ``delta_s`` (the deck's ``dmax``,
-or 1e-3 L when dmax is absent) by ``k delta_s^e (a x^2 + b x^3)``, ``x = delta/delta_s``,
-``a = 3 - e``, ``b = e - 2`` (value and slope match at ``delta_s``, zero value and slope at 0), so
-Newton always sees a C1 force.
-
-Jacobian: complex-step differentiation of the force and torque with respect to the 33 slot
-components (``h = 1e-30``), exact to rounding (no truncation error); branch decisions use real
-parts. Only instances in contact are differentiated.
+Pair kinds SPHERE_PLANE, SPHERE_SPHERE, SPHERE_BOX and CORNER_PLANE, the smoothed IMPACT
+normal law and the complex-step Jacobian: :class:`ContactForce`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from poise.families.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_YI, S_YJ, S_ZI, S_ZJ, \
+from poise.elements.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_YI, S_YJ, S_ZI, S_ZJ, \
     TwoBodyForce
 
 SPHERE_PLANE, SPHERE_SPHERE, SPHERE_BOX, CORNER_PLANE = 0, 1, 2, 3
@@ -79,7 +63,27 @@ def law_energy(delta, k, e, ds):
 
 class ContactForce(TwoBodyForce):
     """Parameters (n,): ``kind``, ``rI``, ``rJ``, ``k``, ``e``, ``ds``; (n,3): ``oI``, ``oJ``,
-    ``half`` (box half lengths on J for SPHERE_BOX)."""
+    ``half`` (box half lengths on J for SPHERE_BOX).
+
+    * ``SPHERE_PLANE`` (0): sphere (radius ``rI``) on I, plane = J's x-y plane, outward normal +z_J,
+      material on the -z side. ``delta = rI - (cI - P_J) . z_J``, ``F = f z_J`` through the centre.
+    * ``SPHERE_SPHERE`` (1): ``delta = rI + rJ - |cI - cJ|``, ``F = f n`` along the centre line.
+    * ``SPHERE_BOX`` (2): box on J (half lengths ``a``), ``e`` = sphere centre minus the closest box
+      point, ``delta = rI - |e|``, ``F = f e/|e|`` through the centre (a centre inside the box gives no
+      force: deep penetration is outside the analytic model).
+    * ``CORNER_PLANE`` (3): one corner ``p = P_I + A_I oI`` of a box on I against J's plane:
+      ``delta = -(p - P_J) . z_J``, ``F = f z_J`` at the corner (a box-plane pair = 8 instances).
+
+    Normal law (IMPACT, static part): ``f = k delta^e`` for ``delta > 0``, 0 otherwise. For ``e > 1``
+    this is C1 at zero penetration. For ``e <= 1`` it is replaced below ``delta_s`` (the deck's ``dmax``,
+    or 1e-3 L when dmax is absent) by ``k delta_s^e (a x^2 + b x^3)``, ``x = delta/delta_s``,
+    ``a = 3 - e``, ``b = e - 2`` (value and slope match at ``delta_s``, zero value and slope at 0), so
+    Newton always sees a C1 force.
+
+    Jacobian: complex-step differentiation of the force and torque with respect to the 33 slot
+    components (``h = 1e-30``), exact to rounding (no truncation error); branch decisions use real
+    parts. Only instances in contact are differentiated.
+    """
 
     def geometry(self, Y, idx):
         """(delta (m,), direction n (m,3), application point (m,3)) for instances ``idx``.

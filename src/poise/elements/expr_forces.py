@@ -1,35 +1,20 @@
 """Force families whose magnitudes/components are deck expressions (exact derivatives).
 
-Marker layout per instance: ``[I, J, R, E_1, ..., E_X]`` where ``E_*`` are the further moving
-markers the instance's expressions read. Slots: the 11 two-body slots of ``forces.py``
-(``P_I x_I y_I z_I P_J x_J y_J z_J x_R y_R z_R``) followed by 4 slots (``P x y z``) per extra
-marker. A slot the expressions read on I or J reuses the standard slot; slots of ground markers
-(and of the global frame) are dropped because they carry no coordinates. Padding markers are the
-global frame (index 0).
-
-Each expression attribute is one :class:`poise.expr.Batch` over all instances of the family; its
-``d_slot (n, S_e, 3)`` is scattered into the family's slot gradient ``(n, 3S)`` through a map
-fixed at compile time, then chained through the force law:
-
-* vector forces (``Force_Vector_OneBody/TwoBody`` with any ``*_expression`` not a number):
-  ``F = A_R c_F``, ``T = A_R c_T`` (components along R's axes), applied at I; TwoBody reaction on
-  the floating marker's body (``-F`` at ``P_J`` plus ``-T - (P_I - P_J) x F``), OneBody
-  action-only;
-* scalar forces (``Force_Scalar_TwoBody val_expression``): FORCE two-body ``F = f u`` with ``u``
-  the unit vector J->I (positive repels); FORCE action-only ``F = f z_J``; TORQUE ``T = tau z_J``
-  (action-only when ``is_action_only``).
-
 Expressions are evaluated at ``EvalContext.t`` (so quasi-static time drives them) and read the
 marker kinematics ``EvalContext.P/A`` and continuous angles ``EvalContext.angle``.
+
+Marker and slot layout, and the force laws of vector and scalar forces: :class:`ExprForce`.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.families.base import ForceFamily, column_map, columns_array
-from poise.families.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
-from poise.families.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
+from poise.elements.base import ForceFamily, column_map, columns_array
+from poise.elements.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
+from poise.elements.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
+from poise.elements.resolver import compile_batch_located
+from poise.expr import EvalContext as XC
 
 _I3 = np.eye(3)
 VEC_ATTRS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -45,7 +30,27 @@ apply_two_body_w = apply_two_body
 
 
 class ExprForce(ForceFamily):
-    """Common part: expression batches, slot maps, evaluation of values and slot gradients."""
+    """Common part: expression batches, slot maps, evaluation of values and slot gradients.
+
+    Marker layout per instance: ``[I, J, R, E_1, ..., E_X]`` where ``E_*`` are the further moving
+    markers the instance's expressions read. Slots: the 11 two-body slots of ``forces.py``
+    (``P_I x_I y_I z_I P_J x_J y_J z_J x_R y_R z_R``) followed by 4 slots (``P x y z``) per extra
+    marker. A slot the expressions read on I or J reuses the standard slot; slots of ground markers
+    (and of the global frame) are dropped because they carry no coordinates. Padding markers are the
+    global frame (index 0).
+
+    Each expression attribute is one :class:`poise.expr.Batch` over all instances of the family; its
+    ``d_slot (n, S_e, 3)`` is scattered into the family's slot gradient ``(n, 3S)`` through a map
+    fixed at compile time, then chained through the force law:
+
+    * vector forces (``Force_Vector_OneBody/TwoBody`` with any ``*_expression`` not a number):
+      ``F = A_R c_F``, ``T = A_R c_T`` (components along R's axes), applied at I; TwoBody reaction on
+      the floating marker's body (``-F`` at ``P_J`` plus ``-T - (P_I - P_J) x F``), OneBody
+      action-only;
+    * scalar forces (``Force_Scalar_TwoBody val_expression``): FORCE two-body ``F = f u`` with ``u``
+      the unit vector J->I (positive repels); FORCE action-only ``F = f z_J``; TORQUE ``T = tau z_J``
+      (action-only when ``is_action_only``).
+    """
 
     batches: list
     slot_maps: list          # per batch: (rows, batch_slot, family_slot) index arrays
@@ -55,7 +60,6 @@ class ExprForce(ForceFamily):
 
     def _expr_values(self, ctx, need_jac):
         """Values (n, nb) and slot gradients (n, nb, 3S) of all batches."""
-        from poise.expr import EvalContext as XC
         t = ctx.t
         # one time per frame (frames evaluated together, model/frame_batch): one per instance
         t = np.repeat(np.asarray(t, float), self.n // len(t)) if np.ndim(t) else float(t)
@@ -249,7 +253,6 @@ def _build(cls, name, I, J, R, owner, action_only, batches, ground, locs):
 
 def build_vector_family(items, ctx, res, ground):
     """Family for expression ``Force_Vector_OneBody/TwoBody`` elements ``[(owner, el), ...]``."""
-    from poise.model.compile_expr import compile_batch_located
     b = ctx.b
     I, J, R, ao, comps = [], [], [], [], []
     for _, el in items:
@@ -275,7 +278,6 @@ def build_vector_family(items, ctx, res, ground):
 
 def build_scalar_family(items, ctx, res, ground):
     """Family for ``Force_Scalar_TwoBody`` elements with ``val_expression``."""
-    from poise.model.compile_expr import compile_batch_located
     b = ctx.b
     I, J, ao, st, vals = [], [], [], [], []
     for _, el in items:
