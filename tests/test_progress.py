@@ -1,4 +1,4 @@
-"""One way to show progress (issue 17 part 3): poise.app.progress.Bar on a terminal (click's
+"""One way to show progress (issue 17 part 3): poise.core.progress.Bar on a terminal (click's
 bar with ETA), plain lines off a terminal (CI: every 10 % / 10 s), nothing when quiet; the
 solvers report frames and MKEAM iterations through the poise.core.progress callback."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from poise.app import progress as P
+from poise.core import progress as P
 from poise.app.runner import run
 from poise.core.progress import reporting
 from poise_cli.main import cli

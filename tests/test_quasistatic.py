@@ -241,7 +241,7 @@ def test_fim_d_fallbacks_recorded(monkeypatch):
 @pytest.mark.parametrize("method", ["FIM_S", "FIM_D"])
 def test_quiet_silences_progress_bar(monkeypatch, capsys, method):
     """``run_deck(quiet=True)`` (``poise solve --quiet``) turns the progress bar off even on a
-    terminal; without it the solver reports to the callback of poise.app.progress (which
+    terminal; without it the solver reports to the callback of poise.core.progress (which
     follows the terminal / CI detection) and draws nothing itself."""
     import poise.solvers.quasistatic as qsm
     seen = []

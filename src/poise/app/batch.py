@@ -49,7 +49,7 @@ import os
 from pathlib import Path
 
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
-from poise.app.progress import Bar
+from poise.core.progress import Bar
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_deck
 from poise.core.atomic import atomic_output, OutputError
@@ -204,7 +204,7 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
 
     ``jobs`` ≤ 0 means ``os.cpu_count()``. ``on_row(row)`` is called as each deck finishes.
     ``allow_user_code``: run the Python user routines decks name (else ``invalid_deck``).
-    ``progress``: the decks-done bar (:class:`poise.app.progress.Bar`; False: none, None: auto;
+    ``progress``: the decks-done bar (:class:`poise.core.progress.Bar`; False: none, None: auto;
     False also silences Dask). ``scheduler``: an existing Dask scheduler's address (default: a
     local cluster of ``jobs`` workers; without Dask installed: a local process pool).
     ``worker_timeout``: seconds the cluster may have no worker before the batch gives up

@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from poise.app.progress import solver_progress
+from poise.core.progress import solver_progress
 from poise.core import phases
 from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
 from poise.core.version import __version__
@@ -277,7 +277,7 @@ def run_deck(
     quiet : bool
         No progress on stderr for long work (quasi-static frames, MKEAM iterations; otherwise
         a bar on a terminal, a plain line every 10 % or 10 s elsewhere, nothing with
-        ``POISE_QUIET``: poise.app.progress).
+        ``POISE_QUIET``: poise.core.progress).
     allow_user_code : bool
         Run the Python user routines the deck names (``script_name``). Default False: decks
         come from anywhere, so such a deck is an invalid deck (a located problem per element

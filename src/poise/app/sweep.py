@@ -47,7 +47,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
-from poise.app.progress import Bar
+from poise.core.progress import Bar
 from poise.app.batch import ensure_out_dir, inputs_fresh, result_stats, sanitize, write_table
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_spec
@@ -462,7 +462,7 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     max_cases : int or None
         Refuse sweeps with more cases (counted before any is made); None: no cap.
     progress : bool or None
-        The cases-done bar (poise.app.progress; None: automatic). False also silences Dask.
+        The cases-done bar (poise.core.progress; None: automatic). False also silences Dask.
     worker_timeout : float or None
         Seconds the cluster may have no worker before the sweep gives up
         (:class:`poise.app.engine.NoWorkers`, exit 2; the index keeps the finished cases).
