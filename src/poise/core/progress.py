@@ -166,7 +166,7 @@ class Bar:
 
     def _plain(self, now: float) -> None:
         f = self.done / self.total
-        if (f - self._last_f >= PLAIN_STEP or now - self._last_t >= PLAIN_EVERY_S
+        if (f - self._last_f >= PLAIN_STEP - 1e-9 or now - self._last_t >= PLAIN_EVERY_S
                 or (f >= 1.0 and self.lines)):
             self._line(now)
 
