@@ -24,6 +24,7 @@ from poise.model import commands as model_commands
 from poise.model.compile import compile_model
 from poise.elements.compile_contact import _get
 from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
+from poise.results.labels import Labeller
 from poise.results.summary import summarize
 from poise.results.summary import summary_line as _summary_line
 from poise.solvers.quasistatic import print_arrays, QuasiStaticAnalysis
@@ -225,6 +226,8 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     res.model_datasets = model_datasets(model)
     res.model_datasets.update(joint_marker_datasets(spec, model))
     res.model_datasets.update(graphics_datasets(spec, model))
+    labeller = Labeller(spec, model.units)            # <group>/label, request channels
+    res.model_datasets.update(labeller.datasets(res.model_datasets, model))
     models = _analysis_models(spec, model, analyses,
                               lambda sp: compile_model(sp, user_code=user_code))
     for m in models[1:]:
@@ -240,6 +243,7 @@ def run(path: str, overrides=None, command: str = "", progress=None,
         res.timings[f"analysis_{k:03d}"] = time.perf_counter() - ta
         for key, v in drv.counters.as_dict().items():
             counts[key] = counts.get(key, 0) + v
+        ar.datasets.update(labeller.datasets(ar.datasets, models[k]))
         res.analyses.append(ar)
         if progress:
             progress(summary_line(ar, res.timings[f"analysis_{k:03d}"]))

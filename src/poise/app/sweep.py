@@ -59,6 +59,7 @@ from poise.deck.parser import parse_deck_bytes, parse_number
 from poise.deck.schema import element_schema, ENUM_ALIASES
 from poise.elements.registry import output_groups as registry_output_groups
 from poise.results.hdf5 import read_results, write_results
+from poise.results.schema import element_outputs
 from poise.solvers.settings import check_override_names
 
 INDEX_VERSION = 1
@@ -73,9 +74,13 @@ _OUT = re.compile(r"^\s*([a-z_]+)\s*\[\s*(-?\d+)\s*\]\s*\.\s*([A-Za-z_][A-Za-z0-
 _SWEEPABLE = ("real", "int", "real_or_expr", "enum", "bool")
 
 def output_groups() -> dict:
-    """Output group -> deck tags whose ids it holds (for checking ``--output`` ids): the bodies
-    and every group an element type declares (:func:`poise.elements.registry.output_groups`)."""
-    return {"bodies": ("Body_Rigid", "Body_Point"), **registry_output_groups()}
+    """Output group -> deck tags whose ids it holds (for checking ``--output`` ids; None: any
+    tag): the bodies and every group an element type declares
+    (:func:`poise.elements.registry.output_groups`) whose per-element datasets the results
+    schema declares."""
+    declared = element_outputs()
+    groups = {"bodies": ("Body_Rigid", "Body_Point"), **registry_output_groups()}
+    return {g: tags for g, tags in groups.items() if g in declared}
 
 
 @dataclass
@@ -313,6 +318,13 @@ def parse_outputs(spec, outputs) -> list[tuple[str, str, int, str]]:
             raise UsageError(f"--output {text!r}: expected group[id].dataset with group one of "
                              f"{', '.join(groups)}, e.g. bodies[2].position")
         g, i, ds = m.group(1), int(m.group(2)), m.group(3)
+        known = element_outputs()[g]
+        if ds not in known:
+            import difflib
+            near = difflib.get_close_matches(ds, known, n=1)
+            raise UsageError(f"--output {text!r}: {g} has no dataset {ds!r}"
+                             + (f"; did you mean {g}[{i}].{near[0]}?" if near else "")
+                             + f" ({g} datasets: {', '.join(known)})")
         tags = groups[g]
         if tags and not any(e.tag in tags and e.id == i for e in spec.model):
             raise UsageError(f"--output {text!r}: the deck has no {'/'.join(tags)} id={i}")
