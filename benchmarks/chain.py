@@ -84,15 +84,17 @@ def _worker(deck: str, n: int) -> dict:
 
     t = time.perf_counter()
     import poise  # noqa: F401  (first, as in `poise solve`: it configures BLAS threads)
-    import poise.solvers.stability as stability_mod
-    import poise.solvers.static as static_mod
+    import poise.solvers.context as context_mod
+    import poise.solvers.frames as frames_mod
+    import poise.solvers.quasistatic as qs_mod
     import numpy as np
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
-    from poise.app.runner import analysis_class, model_datasets, plan
+    from poise.app.runner import model_datasets, plan
+    from poise.solvers.driver import Driver
     t_import = time.perf_counter() - t
 
     phases: dict[str, float] = {}
@@ -107,13 +109,13 @@ def _worker(deck: str, n: int) -> dict:
         return wrapper
 
     # phase timers around the static driver's steps (module globals, no source change)
-    static_mod.detect_redundancy = timed("redundancy", static_mod.detect_redundancy)
-    static_mod.assemble = timed("assembly", static_mod.assemble)
-    static_mod.initial_multipliers = timed("multipliers", static_mod.initial_multipliers)
-    static_mod.solve_frame = timed("newton", static_mod.solve_frame)   # Newton (+ recovery)
-    static_mod.min_norm_multipliers = timed("min_norm_reactions", static_mod.min_norm_multipliers)
-    # imported by the static driver at call time: the stability classification of the frame
-    stability_mod.classify = timed("stability", stability_mod.classify)
+    context_mod.detect_redundancy = timed("redundancy", context_mod.detect_redundancy)
+    context_mod.assemble = timed("assembly", context_mod.assemble)
+    context_mod.initial_multipliers = timed("multipliers", context_mod.initial_multipliers)
+    qs_mod.solve_frame = timed("newton", qs_mod.solve_frame)   # Newton (+ recovery)
+    frames_mod.min_norm_multipliers = timed("min_norm_reactions", frames_mod.min_norm_multipliers)
+    # the stability classification of the frame
+    frames_mod.classify = timed("stability", frames_mod.classify)
 
     t0 = time.perf_counter()
     spec = load_deck(deck)
@@ -124,8 +126,7 @@ def _worker(deck: str, n: int) -> dict:
     reqs = plan(spec, None)
     model_datasets(model)
     state = model.initial_state()
-    cls, msg = analysis_class(reqs[0])
-    drv = cls(model, reqs[0], redundancy=None)
+    drv = Driver(model, reqs[0], redundancy=None)
     state, ar = drv.run(state, index=0)
     t3 = time.perf_counter()
     iters = int(np.sum(ar.datasets["frames/iterations"]))
@@ -135,7 +136,7 @@ def _worker(deck: str, n: int) -> dict:
     ev_times = []
     for _ in range(3):
         te = time.perf_counter()
-        ev = model.evaluate(state, need_jac=True, eps_mass=eps)
+        ev = model.evaluate(state, need_jac=True, eps_mass=eps, active=drv.data.active)
         ev_times.append(time.perf_counter() - te)
     J = ev.J
     Jc = sp.csc_matrix(J) if not sp.issparse(J) else J.tocsc()
@@ -152,7 +153,7 @@ def _worker(deck: str, n: int) -> dict:
                 iterations=iters, newton_s=newton_s,
                 iteration_s=newton_s / iters if iters else None,
                 lu_s=statistics.median(lu_times), evaluate_s=statistics.median(ev_times),
-                phases=phases, counters=drv.counters.as_dict(),
+                phases=phases, counters=drv.data.as_dict(),
                 redundant=int(len(drv.redundancy)), status=ar.status,
                 peak_rss_bytes=int(peak))
 

@@ -20,21 +20,9 @@ PACKAGES = (ROOT / "src" / "poise", ROOT / "cli" / "poise_cli")
 
 # module (path from the repository root) -> function-local poise imports without a `lazy` comment
 ALLOWED = {
-    "src/poise/deck/validate.py": 2,
     "src/poise/results/data.py": 1,
     "src/poise/results/hdf5.py": 1,
     "src/poise/results/summary.py": 1,
-    "src/poise/solvers/certify.py": 2,
-    "src/poise/solvers/compliance.py": 8,
-    "src/poise/solvers/fallback.py": 1,
-    "src/poise/solvers/fim_d.py": 2,
-    "src/poise/solvers/frames.py": 8,
-    "src/poise/solvers/linalg.py": 1,
-    "src/poise/solvers/mkeam.py": 5,
-    "src/poise/solvers/quasistatic.py": 5,
-    "src/poise/solvers/stability.py": 1,
-    "src/poise/solvers/stable.py": 6,
-    "src/poise/solvers/static.py": 9,
 }
 
 

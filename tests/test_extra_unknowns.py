@@ -73,7 +73,7 @@ def test_scalar_unknown_solve(monkeypatch):
     monkeypatch.setattr(C, "element_types", lambda: orig() + (ElementType("test", (), _compiler),))
     from poise.app.runner import AnalysisRequest
     from poise.solvers.settings import StaticSettings
-    from poise.solvers.static import StaticAnalysis
+    from poise.solvers.driver import Driver
     d = DeckBuilder().ground()
     d.body(2, 200, (0.3, 0.0, 0.0), None, mass=1.0, point=True)
     d.marker(21, 2, (0.3, 0.0, 0.0))
@@ -85,7 +85,7 @@ def test_scalar_unknown_solve(monkeypatch):
     req = AnalysisRequest(simulate=None, kind="static",
                           settings=StaticSettings(method="FIM_S", max_imbalance=1e-10,
                                                   max_error=1e-10))
-    st, ar = StaticAnalysis(m, req).run(m.initial_state())
+    st, ar = Driver(m, req).run(m.initial_state())
     assert ar.converged
     # spring at rest: the point sits 0.5 from the anchor, u = 1.5
     assert abs(st.extra[0] - 1.5) < 1e-9

@@ -156,7 +156,7 @@ def test_every_ida_start_is_consistent(monkeypatch):
     real = fd._ida
 
     def ida(chart, tsd, atol, t0, y0, yp0, first_step):
-        starts.append((chart, t0, np.array(y0), np.array(atol), tsd["tol"], first_step))
+        starts.append((chart, t0, np.array(y0), np.array(atol), tsd.tol, first_step))
         return real(chart, tsd, atol, t0, y0, yp0, first_step)
 
     monkeypatch.setattr(fd, "_ida", ida)
@@ -237,7 +237,7 @@ def _fd_jacobian(chart, t, y):
         J[:, j] = (rp - rm) / (2 * h)
     # removed (redundant) constraint rows: their multipliers are held at 0 (the KKT Jacobian's
     # row and column of such a multiplier are the unit vector; Model.jacobian)
-    off = m.nq + np.nonzero(~m.row_active)[0]
+    off = m.nq + np.nonzero(~chart.cnt.mask(m))[0]
     assert np.all(y[off] == 0.0)
     J[:, off] = 0.0
     J[off, off] = 1.0

@@ -10,9 +10,9 @@ import pytest
 from poise.deck.parser import load_deck
 from poise.model.compile import compile_model
 from poise.app.runner import plan
-from poise.solvers.frames import frames_datasets
+from poise.solvers.driver import Driver
+from poise.solvers.frames import frame_datasets, frames_datasets
 from poise.solvers.newton import FrameOutcome
-from poise.solvers.static import StaticAnalysis
 from poise.solvers.status import Status
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,8 +25,9 @@ SKIP = {"expr_eval_error.xml"}                    # evaluation fails by design
 def _frames(path, n=4, seed=0):
     spec = load_deck(path)
     model = compile_model(spec, user_code="run")   # the decks are ours
-    sa = StaticAnalysis(model, plan(spec, None)[0])
-    st, _ = sa.run(model.initial_state())
+    drv = Driver(model, plan(spec, None)[0])
+    st, _ = drv.run(model.initial_state())
+    sa = drv.ctx                    # the solve context: model, settings, active rows
     # the frames below are off equilibrium on purpose; tolerances no frame misses keep them
     # labelled converged (certify), so the stability outputs are exercised too
     sa.settings = replace(sa.settings, max_imbalance=1e30, max_error=1e30)
@@ -44,7 +45,7 @@ def _frames(path, n=4, seed=0):
 
 
 def _per_frame(sa, frames, outs):
-    per = [sa.frame_datasets(s, [o]) for s, o in zip(frames, outs)]
+    per = [frame_datasets(sa, s, [o]) for s, o in zip(frames, outs)]
     d = {}
     for key in per[0]:
         if key.endswith(("/id", "/tag", "/unique", "/label")):

@@ -153,11 +153,11 @@ def test_unstable_start_is_perturbed():
           stiffness=2000.0, damping=0.0, length=0.0, preload=0.0)
     from poise.model.compile import compile_model
     from poise.solvers.settings import StaticSettings
-    from poise.solvers.mkeam import MkeamAnalysis
-    from types import SimpleNamespace
+    from poise.app.runner import AnalysisRequest
+    from poise.solvers.driver import Driver
     m = compile_model(d.spec)
     s = StaticSettings().updated(dict(method="MKEAM", max_imbalance=1e-8, max_error=1e-8))
-    an = MkeamAnalysis(m, SimpleNamespace(settings=s))
+    an = Driver(m, AnalysisRequest(simulate=None, kind="static", settings=s))
     st, ar = an.run(m.initial_state())
     assert ar.status == "converged", ar.message
     phi = optimize.brentq(lambda p: 2000.0 * p - WL * math.sin(p), 0.5, math.pi)

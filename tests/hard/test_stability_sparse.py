@@ -183,11 +183,12 @@ def test_unreliable_factorisation_gives_unknown_with_reason(monkeypatch):
 def _solved(path):
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
-    from poise.app.runner import analysis_class, plan
+    from poise.app.runner import plan
+    from poise.solvers.driver import Driver
     spec = load_deck(str(path))
     model = compile_model(spec)
     req = plan(spec, None)[0]
-    drv = analysis_class(req)[0](model, req, redundancy=None)
+    drv = Driver(model, req, redundancy=None)
     state, ar = drv.run(model.initial_state(), index=0)
     assert ar.status == "converged"
     return model, state, drv
@@ -200,7 +201,6 @@ def test_dependent_active_rows_are_dropped(name):
     classifies as the dense path (SVD null space) does."""
     model, state, drv = _solved(DECKS / name)
     assert len(drv.redundancy) == 3
-    model.row_active[:] = True
     J = model.evaluate(state, need_jac=True).J
     dense = stab.classify(model, state, J=J)
     P = stab._SparsePencil(model, J)

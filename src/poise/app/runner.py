@@ -13,8 +13,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from poise.core.progress import solver_progress
+from poise.app.times import output_times, print_arrays
 from poise.core import phases
+from poise.core.progress import installed, solver_progress
 from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
 from poise.core.version import __version__
 from poise.deck.parser import load_deck
@@ -27,9 +28,8 @@ from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
 from poise.results.labels import Labeller
 from poise.results.summary import summarize
 from poise.results.summary import summary_line as _summary_line
-from poise.solvers.quasistatic import print_arrays, QuasiStaticAnalysis
+from poise.solvers.driver import Driver, strategy_for
 from poise.solvers.settings import StaticSettings, check_override_names
-from poise.solvers.static import StaticAnalysis
 
 
 def _load(path):
@@ -108,6 +108,10 @@ class AnalysisRequest:
     commands: list = field(default_factory=list)
     arrays: dict = field(default_factory=dict)     # Reference_Array values by id (PRINT times)
 
+    def output_times(self, t_now: float):
+        """Output times of this (quasi-static) analysis starting at ``t_now``."""
+        return output_times(self.simulate, t_now, self.arrays)
+
 
 def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     """The analyses of a deck in command order."""
@@ -171,24 +175,6 @@ def _check_compliance_markers(spec, s, el, from_cli: bool) -> None:
     raise DeckError(Problem(src.loc, msg))
 
 
-def analysis_class(req: AnalysisRequest):
-    """The analysis driver for a request, or a message saying why it is not available.
-
-    Returns ``(cls, None)`` or ``(None, message)``. Drivers take
-    ``cls(model, request, redundancy=...)`` and provide ``run(state, index) -> (state,
-    AnalysisResult)``, ``counters`` and ``redundancy``.
-    """
-    m = req.settings.method
-    if req.kind == "static":
-        if m == "MKEAM":
-            from poise.solvers.mkeam import MkeamAnalysis   # lazy: scipy, MKEAM runs only
-            return MkeamAnalysis, None
-        return StaticAnalysis, None
-    if req.kind == "quasistatic":
-        return QuasiStaticAnalysis, None
-    return None, f"analysis_type {req.kind.upper()} is not supported; expected Static"
-
-
 def run(path: str, overrides=None, command: str = "", progress=None,
         allow_user_code: bool = False) -> RunResult:
     """``allow_user_code``: run the Python user routines the deck names (otherwise such a deck
@@ -203,12 +189,10 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     t2 = time.perf_counter()
     analyses = plan(spec, overrides)
     problems = []
-    drivers = []
     for req in analyses:
-        cls, msg = analysis_class(req)
+        cls, msg = strategy_for(req)
         if cls is None:
             problems.append(Problem(req.simulate.loc, msg))
-        drivers.append(cls)
     if problems:
         raise DeckError(problems)
     if not analyses:
@@ -235,13 +219,14 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     state = model.initial_state()
     counts = {}
     redundancy = None
-    for k, (req, cls) in enumerate(zip(analyses, drivers)):
+    for k, req in enumerate(analyses):
         ta = time.perf_counter()
-        drv = cls(models[k], req, redundancy=redundancy)
-        state, ar = drv.run(state, index=k)
+        drv = Driver(models[k], req, redundancy=redundancy, progress=installed())
+        state, rec = drv.run(state, index=k)
+        ar = AnalysisResult.of(rec)
         redundancy = drv.redundancy
         res.timings[f"analysis_{k:03d}"] = time.perf_counter() - ta
-        for key, v in drv.counters.as_dict().items():
+        for key, v in drv.data.as_dict().items():
             counts[key] = counts.get(key, 0) + v
         ar.datasets.update(labeller.datasets(ar.datasets, models[k]))
         res.analyses.append(ar)

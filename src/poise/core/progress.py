@@ -30,6 +30,12 @@ def report(label: str, done: int | None, total: int) -> None:
         cb(label, done, total)
 
 
+def installed():
+    """The installed callback, or None (for a solver driver's ``progress`` argument)."""
+    cb = PROGRESS.get()
+    return cb if callable(cb) else None
+
+
 @contextlib.contextmanager
 def reporting(callback):
     """Install ``callback`` (or ``False``: silence, ``None``: automatic) inside the block."""

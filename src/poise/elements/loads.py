@@ -11,18 +11,18 @@ import numpy as np
 from poise.elements.base import _cross
 
 
-def element_loads(model, state, lam=None, reuse: bool = False):
+def element_loads(model, state, lam=None, ev=None):
     """Force and torque each element applies to the body of its I marker (at I, global).
 
     Returns ``{group: (F (n_group, 3), T (n_group, 3))}`` for the output groups present in the
     model (``joints``, ``jprims``, ``motions``, ``forces``, ...). Constraint reactions use
-    ``lam`` (default ``state.lam``). With ``reuse=True`` the slot data kept by the last
-    ``model.evaluate(state, keep=True)`` are used instead of evaluating again.
+    ``lam`` (default ``state.lam``). ``ev``: an evaluation of ``state`` made with ``keep=True``
+    (its slot data are used instead of evaluating again).
     """
-    if not reuse:
-        model.evaluate(state, need_jac=False, keep=True)
+    if ev is None or ev.items is None:
+        ev = model.evaluate(state, need_jac=False, keep=True)
     lam = state.lam if lam is None else lam
-    return loads_of(model, model.last, lam)
+    return loads_of(model, ev.items, lam)
 
 
 def loads_of(model, items, lam=None, frames: int = 1):

@@ -73,6 +73,7 @@ class Evaluation:
     J: object = None
     _pending: object = field(default=None, repr=False)   # deferred Jacobian (Model.jacobian)
     _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
+    items: list = field(default=None, repr=False)   # per-family slot data (evaluate(keep=True))
 
 
 @dataclass
@@ -183,7 +184,6 @@ class Model:
         if self.reaction_feed is not None:
             blocks += self.reaction_feed.setup(self)
         self.assembler = Assembler(self.N, blocks, dense=self.dense, groups=self._order_groups())
-        self.row_active = np.ones(self.nc, bool)
         # per-body length scale: largest marker lever of the body (>= 1e-3 L); used to weight
         # rotations against translations in least-squares problems and rank tests
         lever = np.linalg.norm(self.marker_s0, axis=1)
@@ -199,6 +199,24 @@ class Model:
         # evaluation order: families reading reaction channels last (after every constraint)
         rd = [k for k, f in enumerate(self.families) if getattr(f, "reads_reactions", False)]
         self.eval_order = [k for k in range(len(self.families)) if k not in rd] + rd
+        self.freeze()
+
+    def freeze(self):
+        """Make the compiled model read-only (the MuJoCo model/data split): its public
+        attributes cannot be rebound and its arrays are not writeable. What a solve changes
+        (active constraint rows, counters, caches) lives in the solver's data
+        (:class:`poise.solvers.data.SolveData`). Private ``_name`` attributes stay settable:
+        lazily built caches derived from the model (``frame_batch``'s tiles)."""
+        for v in vars(self).values():
+            if isinstance(v, np.ndarray):
+                v.flags.writeable = False
+        object.__setattr__(self, "_frozen", True)
+
+    def __setattr__(self, name, value):
+        if not name.startswith("_") and self.__dict__.get("_frozen", False):
+            raise AttributeError(f"the compiled model is read-only (setting {name!r}); per-solve "
+                                 "data belongs in poise.solvers.data.SolveData")
+        object.__setattr__(self, name, value)
 
     def _order_groups(self) -> np.ndarray:
         """Group of each KKT unknown for the fill-reducing ordering: one group per body's
@@ -367,7 +385,7 @@ class Model:
 
     # ------------------------------------------------------------------ evaluate
     def evaluate(self, state: State, need_jac=True, eps_mass: float = 0.0,
-                 keep: bool = False) -> Evaluation:
+                 keep: bool = False, active: np.ndarray | None = None) -> Evaluation:
         """Residual ``[Phi_q^T lam - Q; Phi]`` and (optionally) the KKT Jacobian.
 
         Parameters
@@ -380,8 +398,11 @@ class Model:
             Multiple of the mass matrix added to the coordinate block of the Jacobian only
             (``sqrt(stability)``); the residual never includes it.
         keep : bool
-            Keep per-family slot data (``self.last``: tuples ``(family, kin, rho, phi_y)``,
+            Keep per-family slot data (``ev.items``: tuples ``(family, kin, rho, phi_y)``,
             ``phi_y`` None for force families) for reaction outputs.
+        active : (nc,) bool or None
+            Active constraint rows (the solver's data; None: all). Inactive (redundant) rows
+            read 0 in ``phi``, have no constraint Jacobian and 1 on their multiplier diagonal.
         """
         t_start = phases.now()
         defer = isinstance(need_jac, str) and need_jac == "defer"
@@ -431,18 +452,18 @@ class Model:
         if self.gravity_on:
             g = self.gravity if self.gravity_fn is None else self.gravity_fn(state.t)
             r[self.trans_idx] -= (self.body_mass[:, None] * g[None, :]).ravel()
-        phi = np.where(self.row_active, phi, 0.0)
-        if keep:
-            self.last = last
+        mask = np.ones(self.nc, bool) if active is None else np.asarray(active, bool)
+        if active is not None:
+            phi = np.where(mask, phi, 0.0)
         if not (np.all(np.isfinite(r)) and np.all(np.isfinite(phi))):
             phases.add("evaluate", phases.now() - t_start)
             raise EvaluationError(self._nonfinite_message(r, phi))
-        ev = Evaluation(r=r, phi=phi, J=None)
+        ev = Evaluation(r=r, phi=phi, J=None, items=last if keep else None)
         if need_jac:
             if feed is not None:       # d r_reader / d (lambda, q) through the channels
-                ev._coupling = feed.coupling(self, done, P, A, self.row_active, pend)
+                ev._coupling = feed.coupling(self, done, P, A, mask, pend)
             pend = [p for p in pend if p is not None]     # assembly order: self.families
-            ev._pending = (state, pend, eps_mass, self.row_active.copy())
+            ev._pending = (state, pend, eps_mass, mask.copy())
         phases.add("evaluate", phases.now() - t_start)
         if need_jac and not defer:
             self.jacobian(ev)

@@ -11,52 +11,29 @@ torques are in the deck's units; angles in radians.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
-STATUS_CONVERGED = "converged"
-STATUS_FAILED = "failed"
+from poise.results.schema import declared_item, unit_string
+from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord
 
 
 @dataclass
-class AnalysisResult:
-    """Result of one ``Simulate`` command.
-
-    Attributes
-    ----------
-    index : int
-        0-based position among the deck's analyses (group ``/analysis_{index:03d}``).
-    analysis_type : str
-        ``"static"`` or ``"quasistatic"``.
-    method : str
-        Method actually used (``"FIM_S"``, ``"FIM_D"``, ``"MKEAM"``).
-    status : str
-        ``"converged"`` or ``"failed"``.
-    message : str
-        Human-readable outcome (why it failed, fallbacks taken, ...).
-    settings : dict
-        Effective settings after defaults < deck < CLI (written as JSON).
-    datasets : dict[str, numpy.ndarray]
-        HDF5 path relative to the analysis group -> array. String arrays are numpy ``str_``
-        arrays; the writer stores them as variable-length UTF-8.
-    attrs : dict[str, Any]
-        Extra group attributes (scalars or strings).
+class AnalysisResult(AnalysisRecord):
+    """Result of one ``Simulate`` command: the solver's :class:`~poise.solvers.record.
+    AnalysisRecord` (index, analysis_type, method, status, message, settings, datasets, attrs)
+    with readers. String arrays in ``datasets`` are numpy ``str_`` arrays; the writer stores
+    them as variable-length UTF-8.
     """
 
-    index: int
-    analysis_type: str
-    method: str
-    status: str = STATUS_FAILED
-    message: str = ""
-    settings: dict = field(default_factory=dict)
-    datasets: dict[str, np.ndarray] = field(default_factory=dict)
-    attrs: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def converged(self) -> bool:
-        return self.status == STATUS_CONVERGED
+    @classmethod
+    def of(cls, record: AnalysisRecord) -> "AnalysisResult":
+        """The result of a solver's record (the same data, not copied)."""
+        if isinstance(record, cls):
+            return record
+        return cls(**{f.name: getattr(record, f.name) for f in fields(AnalysisRecord)})
 
     @property
     def n_frames(self) -> int:
@@ -260,3 +237,10 @@ class RunResult:
 
     def request(self, request: int, channel, frame=-1, analysis: int = -1):
         return self.analyses[analysis].request(request, channel, frame)
+
+    def unit(self, path: str) -> str:
+        """The unit of dataset ``path`` in this run's units, as its ``units`` attribute in
+        the file says (``"bodies/position"`` -> ``"mm"``; ``"model/bodies/mass"`` for
+        ``/model``): from the results schema, so results read from older files have it too."""
+        scope, name = ("model", path[6:]) if path.startswith("model/") else ("analysis", path)
+        return unit_string(declared_item(scope, "dataset", name, path).unit, self.units)

@@ -142,69 +142,108 @@ def unrestrained_load(model, settings, states, cnt) -> str:
             f"and a constant load of {-ref[j]:.6g} pushes it: add the missing joint or force")
 
 
-def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome, budget: int):
-    """Try the fallback strategies after ``first`` failed, within ``budget`` iterations in
-    total. Returns ``(state, outcome, used, counts)``; ``counts``: iterations per strategy."""
-    counts = {"stability": 0, "continuation": 0, "mkeam": 0, "polish": 0}
-    left = int(budget)
-    reason = first.status.value
-    st, out = start, first
-    try:
-        # 1. larger stability: at most max_num_iter, and a quarter of the budget
+class StabilityStage:
+    """Newton again with ``stability`` raised to ``FALLBACK_STABILITY``: at most
+    ``max_num_iter`` iterations and a quarter of the budget left."""
+
+    name = "stability"
+
+    def event(self, settings, reason):
+        return f"fallback: stability={max(settings.stability, FALLBACK_STABILITY):g}: {reason}"
+
+    def run(self, model, start, settings, history, frame, cnt, left, counts, prev):
         n = min(int(settings.max_num_iter), max(1, left // 4), left)
         s1 = replace(settings, stability=max(settings.stability, FALLBACK_STABILITY))
-        history.strategy = "stability"
-        history.add(frame, 0, np.nan, np.nan,
-                    event=f"fallback: stability={s1.stability:g}: {reason}")
         st, out = newton(model, start.copy(), s1, history, frame, cnt, max_iter=n,
                          event="fallback-stability")
-        counts["stability"] = out.iterations
-        left -= out.iterations
-        if out.ok:
-            return st, out, "stability", counts
-        reason = out.status.value
-        if out.status in NO_RECOVERY[:2] or left <= 0:
-            return st, out, "", counts
-        # 2. pseudo-transient continuation: two thirds of what is left
+        counts[self.name] = out.iterations
+        return st, out, False
+
+
+class ContinuationStage:
+    """Pseudo-transient continuation (:func:`continuation`): two thirds of the budget left."""
+
+    name = "continuation"
+
+    def event(self, settings, reason):
+        return f"fallback: continuation: {reason}"
+
+    def run(self, model, start, settings, history, frame, cnt, left, counts, prev):
         n = min(PTC_MAX_ITER, max(1, (2 * left) // 3))
-        history.strategy = "continuation"
-        history.add(frame, 0, np.nan, np.nan, event=f"fallback: continuation: {reason}")
         st, out = continuation(model, start.copy(), settings, history, frame, cnt, max_steps=n)
-        counts["continuation"] = out.iterations
-        left -= out.iterations
-        if out.ok:
-            return st, out, "continuation", counts
-        reason = out.status.value
-        if out.status in NO_RECOVERY[:2] or left <= 0:
-            return st, out, "", counts
-        # 3. MKEAM (imported only when the chain gets this far), a quarter kept for the polish
+        counts[self.name] = out.iterations
+        return st, out, False
+
+
+class MkeamStage:
+    """MKEAM relaxation (:func:`poise.solvers.relaxation.relax`, stable equilibria only), a
+    quarter of the budget left kept for the Newton polish of its point (stage ``polish``).
+    The last stage: its outcome is final."""
+
+    name = "mkeam"
+
+    def event(self, settings, reason):
+        return f"fallback: mkeam: {reason}"
+
+    def run(self, model, start, settings, history, frame, cnt, left, counts, prev):
+        st, out = prev
         polish = min(int(settings.max_num_iter), max(1, left // 4))
         n_mk = max(1, left - polish)
-        history.strategy = "mkeam"
-        history.add(frame, 0, np.nan, np.nan, event=f"fallback: mkeam: {reason}")
         n0 = len(history)
         try:
-            from poise.solvers.mkeam import relax
+            # lazy: MKEAM needs scipy, which the small-deck path never loads
+            from poise.solvers.relaxation import relax
             st2, ok = relax(model, start.copy(), replace(settings, max_num_iter=n_mk), history,
                             frame, cnt)
         except Exception as e:   # noqa: BLE001 - any MKEAM failure just ends the chain
             counts["mkeam"] = sum(1 for r in history.rows[n0:] if r[7] == "mkeam")
             history.add(frame, 0, np.nan, np.nan, event=f"fallback: mkeam failed: {e}")
-            return st, replace(out, message=f"MKEAM failed: {e}"), "", counts
+            return st, replace(out, message=f"MKEAM failed: {e}"), True
         counts["mkeam"] = sum(1 for r in history.rows[n0:] if r[7] == "mkeam")
         left -= counts["mkeam"]
         if not ok:
             return st, replace(out, message="MKEAM did not converge within its share of the "
-                                            "fallback budget"), "", counts
+                                            "fallback budget"), True
         if left <= 0:
             return st2, FrameOutcome(Status.MAX_ITERATIONS, 0, np.nan, np.nan,
                                      "no budget left for the Newton polish of the MKEAM point"
-                                     ), "", counts
+                                     ), True
         history.strategy = "polish"
         st3, out3 = newton(model, st2, settings, history, frame, cnt, max_iter=left,
                            event="fallback-polish")
         counts["polish"] = out3.iterations
-        return st3, out3, ("mkeam" if out3.ok else ""), counts
+        return st3, out3, True
+
+
+#: The fallback chain: tried in this order after plain Newton failed, each from the frame's
+#: input configuration, sharing the frame's fallback budget.
+CHAIN = (StabilityStage(), ContinuationStage(), MkeamStage())
+
+
+def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome, budget: int):
+    """Try the :data:`CHAIN` strategies after ``first`` failed, within ``budget`` iterations
+    in total. Returns ``(state, outcome, used, counts)``; ``counts``: iterations per
+    strategy."""
+    counts = {"stability": 0, "continuation": 0, "mkeam": 0, "polish": 0}
+    left = int(budget)
+    reason = first.status.value
+    st, out = start, first
+    try:
+        for stage in CHAIN:
+            history.strategy = stage.name
+            history.add(frame, 0, np.nan, np.nan, event=stage.event(settings, reason))
+            st2, out2, final = stage.run(model, start, settings, history, frame, cnt, left,
+                                         counts, (st, out))
+            if out2.ok:
+                return st2, out2, stage.name, counts
+            if final:
+                return st2, out2, "", counts
+            st, out = st2, out2
+            left -= counts[stage.name]
+            reason = out.status.value
+            if out.status in NO_RECOVERY[:2] or left <= 0:
+                return st, out, "", counts
+        return st, out, "", counts
     finally:
         history.strategy = "plain"
 

@@ -98,7 +98,7 @@ further correction; full Newton for a frame that does not get there), and a fram
 only if it meets ``max_imbalance`` / ``max_error`` (``frames/iterations`` = its corrections;
 the correction's cost is in the analysis attributes ``correction_*``). An output frame's imbalance, constraint error and worst equation
 (``frames/*`` and its ``iterations`` row, event ``ida``) are computed in
-``QuasiStaticAnalysis.finish`` from the frame's output evaluation (the one that feeds
+:func:`poise.solvers.driver.build_result` from the frame's output evaluation (the one that feeds
 reactions, loads and stability), where every frame is certified
 (:func:`poise.solvers.certify.certify`).
 
@@ -130,15 +130,18 @@ trial times (both failure kinds).
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.model.frame_batch import batchable, evaluate_frames
 from poise.model.model import State
 from poise.elements.rotation import expm_so3, se3_left_jacobian, wrap_angle
+from poise.solvers.context import Strategy, replicate
 from poise.solvers.fallback import solve_frame
-from poise.solvers.newton import FrameOutcome
-from poise.solvers.quasistatic import MIN_SUBSTEP_FRACTION, Progress, first_frame, fims_step
+from poise.solvers.newton import FrameOutcome, Scales
+from poise.solvers.quasistatic import MIN_SUBSTEP_FRACTION, fims_step, first_frame
 from poise.solvers.status import Status
 
 REBASE_ANGLE = 1.0        # rad
@@ -156,20 +159,40 @@ H_FLOOR = 1e-12           # IDA's step-size floor (min_step) as a fraction of th
 ESCAPE = 1e6              # a body this many model sizes from its chart's reference: no bounded path
 
 
-def transient_settings(tr: dict, model) -> dict:
-    def get(k, d=None):
-        v = tr.get(k)
-        return d if v is None else v
-    tol = min(float(get("integr_tol", 1e-3)), float(get("dae_constr_tol", DEFAULT_DAE_CONSTR_TOL)))
-    interp = get("dae_interpolation", True)
-    if isinstance(interp, str):
-        interp = interp.upper() not in ("FALSE", "NO", "0")
-    return dict(tol=tol, h_max=float(get("h_max", 0.0) or 0.0),
-                h_min=float(get("h_min", 0.0) or 0.0),
-                h0=float(get("h0_max", 0.0) or 0.0),
-                max_order=int(get("max_order", 5)),
-                maxit=int(get("dae_corrector_maxit", 4)),
-                interpolate=bool(interp))
+@dataclass(frozen=True)
+class TransientSettings:
+    """FIM_D's settings from ``Param_Transient`` (module notes; defaults of a deck without one).
+
+    ``tol`` = min(integr_tol, dae_constr_tol) (IDA's rtol); ``h_max`` / ``h_min`` / ``h0``
+    (h0_max) 0 = not set; ``max_order``; ``maxit`` (dae_corrector_maxit); ``interpolate``
+    (dae_interpolation); ``span``: end - start of the output times.
+    """
+
+    tol: float = min(1e-3, DEFAULT_DAE_CONSTR_TOL)
+    h_max: float = 0.0
+    h_min: float = 0.0
+    h0: float = 0.0
+    max_order: int = 5
+    maxit: int = 4
+    interpolate: bool = True
+    span: float = 1.0
+
+    @classmethod
+    def from_attrs(cls, tr: dict, span: float) -> "TransientSettings":
+        def get(k, d=None):
+            v = tr.get(k)
+            return d if v is None else v
+        tol = min(float(get("integr_tol", 1e-3)),
+                  float(get("dae_constr_tol", DEFAULT_DAE_CONSTR_TOL)))
+        interp = get("dae_interpolation", True)
+        if isinstance(interp, str):
+            interp = interp.upper() not in ("FALSE", "NO", "0")
+        return cls(tol=tol, h_max=float(get("h_max", 0.0) or 0.0),
+                   h_min=float(get("h_min", 0.0) or 0.0),
+                   h0=float(get("h0_max", 0.0) or 0.0),
+                   max_order=int(get("max_order", 5)),
+                   maxit=int(get("dae_corrector_maxit", 4)),
+                   interpolate=bool(interp), span=float(span))
 
 
 class SparseJacobian:
@@ -444,7 +467,7 @@ class _Chart:
         return float(np.max(np.linalg.norm(y[m.rot_idx].reshape(-1, 3), axis=1)))
 
     def F(self, st):
-        ev = self.model.evaluate(st, need_jac=False)
+        ev = self.model.evaluate(st, need_jac=False, active=self.cnt.active)
         self.cnt.residuals += 1
         return np.concatenate([ev.r, ev.phi])
 
@@ -452,7 +475,7 @@ class _Chart:
         """``dF/dy``: dense ndarray, or the CSC data on ``self.sparse``'s pattern."""
         m = self.model
         st = self.state(y, t)
-        ev = m.evaluate(st, need_jac=True, eps_mass=self.eps)
+        ev = m.evaluate(st, need_jac=True, eps_mass=self.eps, active=self.cnt.active)
         self.cnt.jacobians += 1
         if self.sparse is not None:
             return self.sparse.values(ev.J, y[m.rot_idx].reshape(-1, 3))
@@ -579,9 +602,9 @@ class Corrector:
     factorisations, full-Newton fallbacks and the wall time spent here.
     """
 
-    def __init__(self, model, settings):
-        from poise.solvers.newton import Scales
+    def __init__(self, model, settings, active):
         self.model = model
+        self.active = np.asarray(active, bool)      # the solve's active constraint rows
         self.sc = Scales(model, settings)
         self.max_error = settings.max_error
         self.chart = None
@@ -605,7 +628,6 @@ class Corrector:
         """Correct the output points ``Y`` (F, N) at times ``T`` (F,). Returns ``(Y, iterations
         (F,), error estimates (F,), ok (F,))``."""
         import time as _t
-        from poise.model.frame_batch import batchable, evaluate_frames
         m = self.model
         Y = np.array(Y, float)
         F_ = len(Y)
@@ -619,10 +641,9 @@ class Corrector:
         st["frames"] += F_
         done = False
         if batchable(m):
-            saved = m.row_active.copy()
+            saved = self.active
             inact = np.nonzero(~saved)[0] + m.nq
             try:
-                m.row_active[:] = True
                 ev = evaluate_frames(m, chart.states(Y, T), need_jac=True)
                 st["residuals"] += F_
                 Fv = np.concatenate([ev.r, np.where(saved, ev.phi, 0.0)], axis=1)
@@ -647,8 +668,6 @@ class Corrector:
                 done = True
             except (np.linalg.LinAlgError, EvaluationError, ValueError):
                 pass
-            finally:
-                m.row_active[:] = saved
         if not done:
             ok[:], its[:] = False, 0
         st["seconds"] += _t.perf_counter() - t0
@@ -728,14 +747,14 @@ class Corrector:
 def _ida(chart, ts_settings, atol, t0, y0, yp0, first_step):
     from sksundae.ida import IDA
     n = len(y0)
-    opts = dict(algebraic_idx=list(range(n)), rtol=ts_settings["tol"], atol=atol,
-                jacfn=chart.jacfn, linsolver="dense", max_order=ts_settings["max_order"],
-                max_nonlin_iters=ts_settings["maxit"], max_num_steps=100000)
+    opts = dict(algebraic_idx=list(range(n)), rtol=ts_settings.tol, atol=atol,
+                jacfn=chart.jacfn, linsolver="dense", max_order=ts_settings.max_order,
+                max_nonlin_iters=ts_settings.maxit, max_num_steps=100000)
     if chart.sparse is not None:
         opts.update(jacfn=chart.jacfn_sparse, linsolver="sparse",
                     sparsity=chart.sparse.pattern(), nthreads=1)
-    opts["max_step"] = ts_settings["h_max"] if ts_settings["h_max"] > 0 else ts_settings["span"]
-    opts["min_step"] = max(ts_settings["h_min"], H_FLOOR * ts_settings["span"])
+    opts["max_step"] = ts_settings.h_max if ts_settings.h_max > 0 else ts_settings.span
+    opts["min_step"] = max(ts_settings.h_min, H_FLOOR * ts_settings.span)
     if first_step > 0:
         opts["first_step"] = first_step
     with warnings.catch_warnings():
@@ -751,49 +770,53 @@ def _ida(chart, ts_settings, atol, t0, y0, yp0, first_step):
     return solver
 
 
-def run_fim_d(qs, state, index, notes):
-    """FIM_D quasi-static run for :class:`~poise.solvers.quasistatic.QuasiStaticAnalysis`."""
-    model, s = qs.model, qs.settings
-    ts = qs.times(state)
-    qs._times = ts
-    state = state.copy()
-    state.t = float(ts[0])
-    state, out, qs.redundancy, n0, moved = first_frame(model, state, s, qs.history,
-                                                       qs.counters, qs.redundancy)
-    notes += n0
-    frames, outcomes = [state], [out]
-    time_indep = not model.depends_on_time()
-    if not out.ok or len(ts) == 1:
-        return qs.finish(frames, outcomes, index, "FIM_D", notes, moved, time_indep)
-    if time_indep:
-        notes.append("nothing in the scene depends on time: solved once, frame replicated")
-        for t in ts[1:]:
-            st = state.copy()
-            st.t = float(t)
-            frames.append(st)
-            outcomes.append(FrameOutcome(out.status, 0, out.imbalance, out.error, "replicated"))
-        return qs.finish(frames, outcomes, index, "FIM_D", notes, moved, time_indep)
-    sparse = SparseJacobian(model) if model.N > SPARSE_MIN else None
-    tsd = transient_settings(qs.request.transient, model)
-    tsd["span"] = max(float(ts[-1] - ts[0]), 1e-300)
-    L = model.L
-    eps = float(np.sqrt(s.stability))
-    interval = float(np.min(np.diff(ts)))
-    T_end = float(ts[-1])
-    tol = tsd["tol"]
-    steps = dict(time=[], step_size=[], order=[], nonlinear_iterations=[],
-                 error_test_failures=[], convergence_failures=[], jacobian_evaluations=[],
-                 rebase=[])
-    stats_off = []               # why IDA's own counters could not be read (order -1)
-    conv_coef_off = []           # why IDA's corrector coefficient could not be set
-    fallbacks = []
-    measured = {}                # frame index -> history row of an interpolated IDA frame
-    correct = Corrector(model, s)
-    prog = Progress(len(ts), "FIM_D", enabled=qs.progress_enabled)
+class IdaContinuation(Strategy):
+    """FIM_D: the equilibrium path integrated by IDA between the output frames (module notes);
+    frame 0 and the last frame by FIM_S, FIM_S fallbacks where IDA fails. One ``step`` is one
+    IDA step (it may pass several output frames)."""
 
-    def atol_for(st):
+    name = "FIM_D"
+
+    def init(self, ctx, state):
+        model, s, ts = ctx.model, ctx.settings, ctx.times
+        st, out = first_frame(ctx, state)
+        ctx.frames, ctx.outcomes = [st], [out]
+        self.done = not out.ok or len(ts) == 1
+        if self.done:
+            return
+        if ctx.time_independent:
+            replicate(ctx)
+            self.done = True
+            return
+        self.sparse = SparseJacobian(model) if model.N > SPARSE_MIN else None
+        self.tsd = tsd = TransientSettings.from_attrs(ctx.request.transient,
+                                                      max(float(ts[-1] - ts[0]), 1e-300))
+        self.eps = float(np.sqrt(s.stability))
+        self.interval = float(np.min(np.diff(ts)))
+        self.T_end = float(ts[-1])
+        self.tol = tsd.tol
+        self.steps = dict(time=[], step_size=[], order=[], nonlinear_iterations=[],
+                          error_test_failures=[], convergence_failures=[],
+                          jacobian_evaluations=[], rebase=[])
+        self.stats_off = []          # why IDA's own counters could not be read (order -1)
+        self.conv_coef_off = []      # why IDA's corrector coefficient could not be set
+        self.fallbacks = []
+        self.correct = Corrector(model, s, ctx.data.mask(model))
+        self.k_out = 1
+        self.n_starts = 0
+        self.max_steps = IDA_MAX_STEPS + IDA_STEPS_PER_FRAME * len(ts)
+        self.ref = st
+        self.rebased = 1
+        self.chart = self.solver = None
+        self.t_last, self.y_last = st.t, None
+
+    def terminate(self, ctx):
+        return self.done or self.k_out >= len(ctx.times)
+
+    def _atol(self, model, st):
+        tol = self.tol
         a = np.empty(model.N)
-        a[:model.nq] = np.where(model.q_kind == 1, tol, tol * L)
+        a[:model.nq] = np.where(model.q_kind == 1, tol, tol * model.L)
         lam = np.abs(st.lam)
         for kind in (0, 1):
             sel = model.row_kind == kind
@@ -801,43 +824,47 @@ def run_fim_d(qs, state, index, notes):
                 a[model.nq:][sel] = tol * max(1.0, float(lam[sel].max()) if sel.any() else 1.0)
         return a
 
-    def start(ref, first):
-        chart = _Chart(model, ref, eps, qs.counters, sparse, tol)
+    def _start(self, ctx, ref, first):
+        model, tsd = ctx.model, self.tsd
+        chart = _Chart(model, ref, self.eps, ctx.data, self.sparse, self.tol)
         y0 = np.concatenate([np.zeros(model.nq), ref.lam])
-        atol = atol_for(ref)
-        capped = first and tsd["h0"] > 0       # the user's (or the deck schema's) h0_max
-        y0, yp0, h0 = chart.start(y0, ref.t, interval, 1.0 / (tol * np.abs(y0) + atol),
-                                  T_end - ref.t, want_h0=not capped)
+        atol = self._atol(model, ref)
+        capped = first and tsd.h0 > 0       # the user's (or the deck schema's) h0_max
+        y0, yp0, h0 = chart.start(y0, ref.t, self.interval,
+                                  1.0 / (self.tol * np.abs(y0) + atol), self.T_end - ref.t,
+                                  want_h0=not capped)
         # no first step beyond the output resolution
-        h0 = min(tsd["h0"], interval) if capped else min(h0, interval)
+        h0 = min(tsd.h0, self.interval) if capped else min(h0, self.interval)
         solver = _ida(chart, tsd, atol, ref.t, y0, yp0, h0)
         return chart, solver, y0
 
-    k_out = 1
-    n_starts = 0
-    max_steps = IDA_MAX_STEPS + IDA_STEPS_PER_FRAME * len(ts)
-    ref = state
-    rebased = 1
-    chart = solver = None
-    t_last, y_last = ref.t, None
-    while k_out < len(ts):
-        if solver is None:
+    def _fall_back(self, ctx, reason, last_state):
+        """FIM_S for output frame ``k_out`` from ``last_state``; ends the run if it fails."""
+        ok = _fallback(ctx, self.k_out, reason, self.fallbacks, last_state)
+        self.k_out += 1
+        if not ok:
+            self.done = True
+            return
+        self.ref = ctx.frames[-1]
+
+    def step(self, ctx):
+        model, s, ts, hist = ctx.model, ctx.settings, ctx.times, ctx.history
+        T_end = self.T_end
+        if self.solver is None:
             try:
-                chart, solver, y_last = start(ref, n_starts == 0)
-                n_starts += 1
-                if not chart.conv_coef_set and not conv_coef_off:
-                    conv_coef_off.append(chart.stats.reason)
-                t_last = ref.t
+                self.chart, self.solver, self.y_last = self._start(ctx, self.ref,
+                                                                   self.n_starts == 0)
+                self.n_starts += 1
+                if not self.chart.conv_coef_set and not self.conv_coef_off:
+                    self.conv_coef_off.append(self.chart.stats.reason)
+                self.t_last = self.ref.t
             except (RuntimeError, ValueError) as e:
-                solver = None
-                reason = f"IDA could not start at t={ref.t:.9g}: {e}"
-                ok = _fallback(qs, frames, outcomes, ts, k_out, reason, fallbacks, ref)
-                k_out += 1
-                if not ok:
-                    break
-                ref = frames[-1]
-                continue
-        stop = T_end if tsd["interpolate"] else float(ts[k_out])
+                self.solver = None
+                self._fall_back(ctx, f"IDA could not start at t={self.ref.t:.9g}: {e}",
+                                self.ref)
+                return
+        chart, solver = self.chart, self.solver
+        stop = T_end if self.tsd.interpolate else float(ts[self.k_out])
         n0r, nj0 = chart.nres, chart.njac
         chart.trial_times = set()
         try:
@@ -847,18 +874,15 @@ def run_fim_d(qs, state, index, notes):
         except (RuntimeError, ValueError) as e:
             ok_step, msg = False, str(e)
         if not ok_step:
-            reason = f"IDA failed after t={t_last:.9g}: {msg}"
-            last = chart.state(y_last, t_last) if y_last is not None else frames[-1]
-            solver = None
-            ok = _fallback(qs, frames, outcomes, ts, k_out, reason, fallbacks, last)
-            k_out += 1
-            if not ok:
-                break
-            ref = frames[-1]
-            rebased = 1
-            continue
+            reason = f"IDA failed after t={self.t_last:.9g}: {msg}"
+            last = (chart.state(self.y_last, self.t_last) if self.y_last is not None
+                    else ctx.frames[-1])
+            self.solver = None
+            self._fall_back(ctx, reason, last)
+            self.rebased = 1
+            return
         d = chart.stats.step(r) if chart.stats is not None else None
-        if (d["NumSteps"] == 0) if d is not None else (r.t == t_last and chart.nres == n0r):
+        if (d["NumSteps"] == 0) if d is not None else (r.t == self.t_last and chart.nres == n0r):
             # no step taken: ONE_STEP after an interpolated output returns IDA's pending
             # solution at t_n first (nothing to record)
             pass
@@ -869,98 +893,101 @@ def run_fim_d(qs, state, index, notes):
             else:
                 # IDA's counters unreadable: order -1; iterations = residual evaluations (one
                 # per Newton iteration); retries = extra trial times (both failure kinds)
-                if chart.stats is not None and chart.stats.reason not in stats_off:
-                    stats_off.append(chart.stats.reason)
-                row = (r.t - t_last, -1, chart.nres - n0r, max(len(chart.trial_times) - 1, 0),
-                       -1, chart.njac - nj0)
+                if chart.stats is not None and chart.stats.reason not in self.stats_off:
+                    self.stats_off.append(chart.stats.reason)
+                row = (r.t - self.t_last, -1, chart.nres - n0r,
+                       max(len(chart.trial_times) - 1, 0), -1, chart.njac - nj0)
             for k, v in zip(("time", "step_size", "order", "nonlinear_iterations",
                              "error_test_failures", "convergence_failures",
-                             "jacobian_evaluations", "rebase"), (r.t, *row, rebased)):
-                steps[k].append(v)
-            rebased = 0
-        t_last, y_last = float(r.t), np.array(r.y, float)
-        over = _over_budget(len(steps["time"]), max_steps, y_last, model, t_last)
+                             "jacobian_evaluations", "rebase"), (r.t, *row, self.rebased)):
+                self.steps[k].append(v)
+            self.rebased = 0
+        self.t_last, self.y_last = float(r.t), np.array(r.y, float)
+        t_last, y_last = self.t_last, self.y_last
+        over = _over_budget(len(self.steps["time"]), self.max_steps, y_last, model, t_last)
         if over is not None:
-            frames.append(chart.state(y_last, t_last))
-            outcomes.append(over)
-            qs.history.add(k_out, 0, np.nan, np.nan, np.nan, np.nan, over.message, "ida")
-            k_out += 1
-            break
+            ctx.frames.append(chart.state(y_last, t_last))
+            ctx.outcomes.append(over)
+            hist.add(self.k_out, 0, np.nan, np.nan, np.nan, np.nan, over.message, "ida")
+            self.k_out += 1
+            self.done = True
+            return
         tol_t = 1e-12 * max(1.0, abs(T_end))
         # output frames passed by this step (interpolated), except the last one
         pend = []
-        while k_out < len(ts) - 1 and ts[k_out] <= t_last + tol_t:
-            tk = float(ts[k_out])
+        while self.k_out < len(ts) - 1 and ts[self.k_out] <= t_last + tol_t:
+            tk = float(ts[self.k_out])
             if abs(tk - t_last) <= tol_t:
                 yk = y_last
             else:
                 yk = np.array(solver.step(tk).y, float)
-            pend.append((k_out, tk, yk))
-            k_out += 1
+            pend.append((self.k_out, tk, yk))
+            self.k_out += 1
         # onto the equilibrium to the Param_Static tolerances (Corrector, all the output points
         # of this step at once); imbalance / constraint error / worst equation of each "ida"
-        # row: from the frame's output evaluation in finish() (the same state)
+        # row: from the frame's output evaluation at the result (the same state)
         if pend:
             Tp = np.array([p[1] for p in pend])
-            Yc, n_c, errs, ok_c = correct.batch(chart, np.array([p[2] for p in pend]), Tp)
+            Yc, n_c, errs, ok_c = self.correct.batch(chart, np.array([p[2] for p in pend]), Tp)
             sts = chart.states(Yc, Tp)
             for j, (k, tk, yk) in enumerate(pend):
-                measured[len(frames)] = len(qs.history.rows)
-                qs.history.add(k, n_c[j], np.nan, np.nan, errs[j], np.nan, "", "ida")
+                ctx.measured[len(ctx.frames)] = len(hist.rows)
+                hist.add(k, n_c[j], np.nan, np.nan, errs[j], np.nan, "", "ida")
                 if ok_c[j]:
                     st, o = sts[j], FrameOutcome(Status.CONVERGED, int(n_c[j]), np.nan, errs[j],
                                                  "ida")
                 else:
-                    correct.stats["newton"] += 1
-                    st, o = solve_frame(model, chart.state(yk, tk), s, qs.history, k,
-                                        qs.counters, event="ida_newton")
+                    self.correct.stats["newton"] += 1
+                    st, o = solve_frame(model, chart.state(yk, tk), s, hist, k, ctx.data,
+                                        event="ida_newton")
                     o.iterations += int(n_c[j])
-                frames.append(st)
-                outcomes.append(o)
-                prog.update(k + 1)
-            pend = []
-        if k_out == len(ts) - 1 and t_last >= T_end - tol_t:
+                ctx.frames.append(st)
+                ctx.outcomes.append(o)
+                ctx.report("FIM_D", k + 1, len(ts))
+        if self.k_out == len(ts) - 1 and t_last >= T_end - tol_t:
             # last frame: FIM_S polish of IDA's end state
             st = chart.state(y_last, T_end)
-            st, o = solve_frame(model, st, s, qs.history, k_out, qs.counters,
-                                event="final_fim_s")
+            st, o = solve_frame(model, st, s, hist, self.k_out, ctx.data, event="final_fim_s")
             if not o.ok:
                 reason = f"Newton polish of the last frame failed ({o.status.value})"
-                ok = _fallback(qs, frames, outcomes, ts, k_out, reason, fallbacks,
-                               chart.state(y_last, t_last))
-                k_out += 1
-                break
-            frames.append(st)
-            outcomes.append(o)
-            k_out += 1
-            break
+                _fallback(ctx, self.k_out, reason, self.fallbacks, chart.state(y_last, t_last))
+            else:
+                ctx.frames.append(st)
+                ctx.outcomes.append(o)
+            self.k_out += 1
+            self.done = True
+            return
         if chart.max_rotation(y_last) > REBASE_ANGLE:
-            ref = chart.state(y_last, t_last)
-            solver = None
-            rebased = 1
-    prog.close()
-    if fallbacks:
-        notes.append(f"{len(fallbacks)} FIM_S fallbacks: " + "; ".join(fallbacks[:3])
-                     + (" ..." if len(fallbacks) > 3 else ""))
-    nsteps = len(steps["time"])
-    notes.append(f"IDA: {nsteps} steps, tol {tol:g}"
-                 + (f", sparse linear solver (SuperLU_MT, N = {model.N})" if sparse else ""))
-    if stats_off:
-        notes.append("IDA step order not available: " + "; ".join(stats_off))
-    if conv_coef_off:
-        notes.append(f"IDA corrector coefficient left at IDA's default 0.33 (not "
-                     f"{NONLIN_CONV_COEF:g}): " + "; ".join(conv_coef_off))
-    extra = {f"steps/{k}": np.asarray(v, dtype=float if k in ("time", "step_size") else np.int64)
-             for k, v in steps.items()}
-    st, ar = qs.finish(frames, outcomes, index, "FIM_D", notes, moved, time_indep, extra=extra,
-                       measured=measured)
-    ar.attrs["ida_steps"] = nsteps
-    for k, v in correct.stats.items():
-        ar.attrs[f"correction_{k}"] = v
-    ar.attrs["fim_s_fallbacks"] = len(fallbacks)
-    ar.attrs["dae_tol"] = tol
-    ar.attrs["ida_linear_solver"] = "sparse" if sparse is not None else "dense"
-    return st, ar
+            self.ref = chart.state(y_last, t_last)
+            self.solver = None
+            self.rebased = 1
+
+    def postprocess(self, ctx):
+        if not hasattr(self, "steps"):        # frame 0 failed or nothing to integrate
+            return {}, {}
+        model, notes, fallbacks = ctx.model, ctx.notes, self.fallbacks
+        if fallbacks:
+            notes.append(f"{len(fallbacks)} FIM_S fallbacks: " + "; ".join(fallbacks[:3])
+                         + (" ..." if len(fallbacks) > 3 else ""))
+        nsteps = len(self.steps["time"])
+        notes.append(f"IDA: {nsteps} steps, tol {self.tol:g}"
+                     + (f", sparse linear solver (SuperLU_MT, N = {model.N})"
+                        if self.sparse else ""))
+        if self.stats_off:
+            notes.append("IDA step order not available: " + "; ".join(self.stats_off))
+        if self.conv_coef_off:
+            notes.append(f"IDA corrector coefficient left at IDA's default 0.33 (not "
+                         f"{NONLIN_CONV_COEF:g}): " + "; ".join(self.conv_coef_off))
+        datasets = {f"steps/{k}": np.asarray(v, dtype=float if k in ("time", "step_size")
+                                             else np.int64)
+                    for k, v in self.steps.items()}
+        attrs = {"ida_steps": nsteps}
+        for k, v in self.correct.stats.items():
+            attrs[f"correction_{k}"] = v
+        attrs["fim_s_fallbacks"] = len(fallbacks)
+        attrs["dae_tol"] = self.tol
+        attrs["ida_linear_solver"] = "sparse" if self.sparse is not None else "dense"
+        return datasets, attrs
 
 
 def _over_budget(n_steps, max_steps, y, model, t):
@@ -978,16 +1005,17 @@ def _over_budget(n_steps, max_steps, y, model, t):
     return None
 
 
-def _fallback(qs, frames, outcomes, ts, k_out, reason, fallbacks, last_state):
+def _fallback(ctx, k_out, reason, fallbacks, last_state):
     """Solve output frame ``k_out`` with FIM_S from ``last_state``; record the reason."""
-    model, s = qs.model, qs.settings
     fallbacks.append(reason)
-    qs.history.add(k_out, 0, np.nan, np.nan, np.nan, np.nan, reason, "fallback_fim_s")
+    ctx.history.add(k_out, 0, np.nan, np.nan, np.nan, np.nan, reason, "fallback_fim_s")
+    frames, ts = ctx.frames, ctx.times
     hist = list(frames[-2:])
     if last_state.t > hist[-1].t:
         hist.append(last_state)
     min_dt = MIN_SUBSTEP_FRACTION * (ts[k_out] - ts[k_out - 1])
-    st, o, _ = fims_step(model, hist, float(ts[k_out]), s, qs.history, qs.counters, k_out, min_dt)
+    st, o, _ = fims_step(ctx.model, hist, float(ts[k_out]), ctx.settings, ctx.history, ctx.data,
+                         k_out, min_dt)
     frames.append(st)
-    outcomes.append(o)
+    ctx.outcomes.append(o)
     return o.ok

@@ -1,67 +1,8 @@
-"""MKEAM: maximum kinetic energy attrition.
-
-The model is made conservative (no damping) and its constrained dynamics
-
-    M(q) dv/dt = Q(q) - Phi_q^T lam,    Phi(q) = 0
-
-is integrated from rest. At each peak of the kinetic energy (the power ``P = v^T Q`` crosses from
-positive to negative; constraint forces do no work because ``Phi_q v = 0``) the integration stops,
-every velocity is set to zero and it restarts: one peak = one iteration. In a conservative system a
-KE peak is a minimum of the potential along the path, so the iterates descend the potential and can
-only settle in a *stable* equilibrium.
-
-Integrator: RATTLE (constrained velocity Verlet) on the configuration manifold.
-
-* Coordinates: the tangent coordinates of :class:`Model` (CG translation, spatial rotation
-  increment); momenta ``p`` = (m v, pi) with ``pi = J_g omega`` the spatial angular momentum about
-  the CG, ``J_g = R J R^T``. Free rotation conserves ``pi`` exactly, so the gyroscopic term is
-  implicit in ``omega = J_g(R)^-1 pi``.
-* Positions move on R^3 x SO(3) (:func:`retract_flat`: CG on a straight line, rotation about the
-  CG by the exponential map, continuous angles unwrapped). The SE(3) screw update of
-  ``Model.retract`` is *not* used inside the integrator: it bends the path of a hinged body by
-  itself, so the constraint impulse no longer turns the momentum and the velocity projection loses
-  kinetic energy at first order in h (measured: 1 % of the energy after 0.2 s with h = 1e-4 s on
-  the multi-turn pendulum). ``Model.retract`` is still used for the perturbation and assembly.
-* Position constraints ``Phi(q1) = 0`` are solved by a simplified Newton on the multipliers
-  (matrix ``S = Phi_q M^-1 Phi_q^T`` factorised once per step); velocities are projected onto
-  ``Phi_q v = 0`` (second RATTLE multiplier). Redundant rows (found once per model) are inactive.
-* Step size: the smallest of (a) 1/20 of the shortest period estimated from the tangent stiffness
-  (Gershgorin bound of the mass-scaled tangent stiffness ``M^-1/2 K M^-1/2``), (b) a motion limit per step
-  (``0.1 L`` translation, ``0.1 rad`` rotation, from velocity and acceleration), (c) an
-  energy-error control: the step is rejected and halved when the change of kinetic energy differs
-  from the trapezoidal work of the applied forces by more than ``1e-3`` of the iteration's energy
-  scale, or by more than the energy the integration cannot resolve (the work of the applied
-  forces over the position-constraint tolerance, :meth:`MkeamAnalysis._energy_noise`: halving
-  the step does not reduce that error). The step grows by at most 2x per step.
-* KE peak: the step where ``P`` changes sign is re-taken with a shorter step found by regula falsi
-  (Illinois) on ``P`` until the bracket is below ``1e-3`` of the step.
-* Budget: an iteration whose energies stay at that noise level for ``REST_STEPS`` steps is at
-  rest; one still accelerating after ``MAX_STEPS_PER_ITER`` steps restarts where it stands (the
-  potential has only decreased); a run stops after ``MAX_TOTAL_STEPS`` steps, at a non-finite
-  state, when a body runs ``MAX_TRAVEL * L`` away, or when L itself is not finite — each with a
-  status, never an endless integration.
-
-Convergence (``Param_Static``): peak KE of an iteration ``<= max_ke_tol`` and the largest change
-of the state between consecutive restart points ``<= max_dq_tol`` (translations relative to the
-model size L, rotations in radians); ``max_num_iter`` iterations without that = failure.
-
-Hand-over (:meth:`MkeamAnalysis._handover`): the explicit integration's step is set by the
-fastest mode, so its cost explodes with model size. After ``HANDOVER_ITER`` KE iterations (on
-models above ``HANDOVER_NQ`` coordinates the first is cut at ``HANDOVER_CAP`` integrator steps:
-a restart before the peak still only lowers the potential) the descent continues by the
-inertia-controlled Newton of :func:`poise.solvers.stable.descend`: Newton steps on the tangent
-stiffness shifted until its reduction to the constraints is positive definite (inertia of a
-sparse ``L D L^T``), backtracked on the potential energy, so, like the dynamics, it never goes
-uphill; an unstable end point is left along its unstable modes. The point it reaches replaces
-the MKEAM iterations only if it is classified stable (or neutral), its potential energy is not
-above the restart point's, and one KE-attrition iteration from it (history event
-``mkeam-verify``) meets ``max_ke_tol`` and ``max_dq_tol``; otherwise the iterations go on as
-if nothing happened. Either way MKEAM reports only stable equilibria reached downhill from the
-input, and the tolerances keep their meaning. The equilibrium does not depend on the path.
+"""MKEAM as an analysis method: relaxation (solvers/relaxation.py), then a Newton polish.
 
 Afterwards a Newton polish (FIM_S Newton; if that fails, once more without the stability term
 and line search, with an equilibrated factorisation: a mode decades softer than the others is out
-of the integration's reach, see :meth:`MkeamAnalysis._polish`) refines the MKEAM point to the
+of the integration's reach, see :meth:`MkeamMethod._polish`) refines the MKEAM point to the
 FIM tolerances. The polished point is reported if the tangent stiffness projected on the
 constraint null space is positive semi-definite there (a stable equilibrium) and it either stays
 within ``POLISH_MAX_DQ`` of the MKEAM point or is reached downhill (potential energy
@@ -74,685 +15,70 @@ the most negative stiffness direction and the iterations continue.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
 
 from poise.core.errors import EvaluationError
-from poise.core.progress import report
-from poise.elements.kernel import slot_kinematics
-from poise.model.model import EvalContext
-from poise.elements.rotation import expm_so3, wrap_angle
-from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
-from poise.solvers.linalg import Factor, SingularMatrix
-from poise.solvers.newton import FrameOutcome, assemble, initial_multipliers, newton
-from poise.solvers.static import StaticAnalysis, detect_redundancy, frame_outputs, stack_frames
+from poise.solvers.context import Strategy, prologue
+from poise.solvers.history import History
+from poise.solvers.newton import FrameOutcome, Scales, assemble, initial_multipliers, merit, newton
+from poise.solvers.relaxation import Relaxation, relaxation_datasets
 from poise.solvers.status import Status
 
-STEPS_PER_PERIOD = 20.0
-MAX_TRANS_STEP = 0.1         # x L per integration step
-MAX_ROT_STEP = 0.1           # rad per integration step
-ENERGY_TOL = 1e-3            # relative energy error per step
-MAX_STEPS_PER_ITER = 1000    # an iteration still accelerating after this many steps restarts
-MAX_TOTAL_STEPS = 5000       # integration budget of one MKEAM run (all iterations)
-REST_STEPS = 50              # steps with only noise-level energies: the iteration is at rest
-NOISE_FACTOR = 10.0          # energy resolution: x work over the constraint tolerance
-MAX_TRAVEL = 1e4             # x L: an iterate farther than this from the start is divergence
-PEAK_TOL = 1e-3              # bracket of the peak relative to the step
 POLISH_MAX_DQ = 0.05         # polished point must stay this close (x L / rad)
-PERTURB = 1e-3               # size of the kick off an unstable MKEAM point (x L / rad)
-MAX_PERTURB = 3
-HANDOVER_ITER = 1            # KE iterations before the hand-over to the Newton descent
-HANDOVER_NQ = 300            # models with more coordinates cut their first iterations ...
-HANDOVER_CAP = 20            # ... at this many integrator steps before the hand-over
-HANDOVER_STEPS = 2           # its budget: this many x max_num_iter Newton steps
-CONSTRAINT_TOL = 1e-11       # relative position-constraint tolerance in the RATTLE solve
 
 
-class _Dyn:
-    """Mass matrix, forces and constraint Jacobian of a model at a state."""
+class MkeamMethod(Strategy):
+    """A static analysis by MKEAM: one frame, relaxed downhill then polished by Newton."""
 
-    def __init__(self, model, cnt):
-        self.m = model
-        self.cnt = cnt
-        if np.any(model.body_mass <= 0):
-            i = int(np.argmin(model.body_mass))
-            raise ValueError(f"MKEAM needs a positive mass for every moving body; body id "
-                             f"{model.body_id[i]} has mass {model.deck_mass()[i]:g}")
-        self.phi_tol = np.where(model.row_kind == 1, 1.0, model.L) * CONSTRAINT_TOL
-        self.cfams = [f for f in model.families if f.is_constraint]
-        rb = model.body_off[model.rot_body][:, None] + 3 + np.arange(3)       # (nr, 3)
-        self._mi_r = np.concatenate([model.trans_idx,
-                                     np.repeat(rb[:, :, None], 3, 2).ravel()]).astype(int)
-        self._mi_c = np.concatenate([model.trans_idx,
-                                     np.repeat(rb[:, None, :], 3, 1).ravel()]).astype(int)
-        # curve/surface parameters (families with ``inertial_extras``) move with a fictitious
-        # mass so RATTLE carries them with the bodies (see extra_mass); other scalar unknowns
-        # stay massless (held per iteration, MkeamAnalysis._resolve_extras)
-        xi = [model.extra_off + fam.scols[fam.scols >= 0] for fam in model.families
-              if getattr(fam, "inertial_extras", False)]
-        self.x_idx = np.unique(np.concatenate(xi)).astype(int) if xi else np.zeros(0, int)
-        self.x_mass = None
+    name = "MKEAM"
+    strategy_attrs = False
 
-    def minv(self, state):
-        """Inverse mass as a (nq, nq) dense or sparse block-diagonal matrix."""
-        m = self.m
-        _, Jg = m.mass_blocks(state)
-        vals = [np.repeat(1.0 / m.body_mass, 3)]
-        if len(m.rot_body):
-            vals.append(np.linalg.inv(Jg).ravel())
-        r, c = self._mi_r, self._mi_c
-        if len(self.x_idx):
-            vals.append(1.0 / self.extra_mass(state))
-            r = np.concatenate([r, self.x_idx])
-            c = np.concatenate([c, self.x_idx])
-        v = np.concatenate(vals)
-        if m.dense:
-            Mi = np.zeros((m.nq, m.nq))
-            Mi[r, c] = v
-            return Mi
-        return sp.csr_matrix((v, (r, c)), shape=(m.nq, m.nq))
+    def init(self, ctx, state):
+        self.t_start = time.perf_counter()
+        self.model, self.settings = ctx.model, ctx.settings
+        self.history, self.counters = ctx.history, ctx.data
+        self.rx = None
+        self.mk_state = state
+        out, st, self.mk_state = self._solve(ctx, state)
+        ctx.frames, ctx.outcomes = [st], [out]
 
-    def extra_mass(self, state):
-        """Fictitious masses of the curve/surface parameters, fixed at the first call:
-        ``m_min * |d Phi / d s|^2`` (the smallest body mass times the squared length of the
-        parameter's constraint-Jacobian column: the mass of the lightest body sliding along the
-        curve at the start), floored at ``m_min * (1e-3 L)^2``. Any positive value leaves the
-        equilibria (and the potential) unchanged; it only shapes the relaxation path."""
-        if self.x_mass is None:
-            m = self.m
-            ev = m.evaluate(state, need_jac=True)
-            G = ev.J[m.nq:, :m.nq]
-            G = G.toarray() if sp.issparse(G) else np.asarray(G)
-            col = np.sum(G[:, self.x_idx] ** 2, axis=0)
-            mmin = float(np.min(m.body_mass))
-            self.x_mass = mmin * np.maximum(col, (1e-3 * m.L) ** 2)
-        return self.x_mass
+    def postprocess(self, ctx):
+        attrs = {"mkeam_wall_time": time.perf_counter() - self.t_start}
+        if self.rx is not None:
+            return self.rx.datasets(self.mk_state), attrs
+        return relaxation_datasets(len(ctx.history), [], [], self.mk_state, np.nan), attrs
 
-    extras_free = False
-
-    def solve_algebraic(self, state, ev):
-        """Massless scalar unknowns (Control_Diff states, implicit / user variables) are
-        algebraic unknowns of the integration: at every force evaluation they are solved from
-        their own equations at the current body configuration (Newton on ``d e / d s``,
-        ``state.extra`` updated in place), so the bodies move under the forces of the reduced
-        system. Where ``d e / d s`` is singular (an integrator state whose equation does not
-        contain it) they are held and left to the final Newton polish (``extras_free``)."""
-        m = self.m
-        ix = np.setdiff1d(m.extra_idx, self.x_idx)
-        if not len(ix):
-            return ev
-        for _ in range(20):
-            J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
-            Jss = J[np.ix_(ix, ix)]
-            sv = np.linalg.svd(Jss, compute_uv=False)
-            if sv.min() <= 1e-10 * max(sv.max(), 1e-300):
-                self.extras_free = True
-                return ev
-            ds = np.linalg.solve(Jss, -ev.r[ix])
-            state.extra[ix - m.extra_off] += ds
-            ev = m.evaluate(state, need_jac=True)
-            self.cnt.residuals += 1
-            self.cnt.jacobians += 1
-            if np.all(np.abs(ds) <= 1e-12 * (1.0 + np.abs(state.extra[ix - m.extra_off]))):
-                break
-        return ev
-
-    def at(self, state):
-        """(Q, G, K, Minv) at ``state`` (uses ``state.lam`` for the geometric stiffness)."""
-        m = self.m
-        self.cnt.residuals += 1
-        self.cnt.jacobians += 1
-        ev = m.evaluate(state, need_jac=True)
-        if m.n_extra:
-            ev = self.solve_algebraic(state, ev)
-        J = ev.J
-        G = J[m.nq:, :m.nq]
-        K = J[:m.nq, :m.nq]
-        Q = G.T @ state.lam - ev.r
-        return np.asarray(Q).ravel(), G, K, self.minv(state)
-
-    def schur(self, G, Minv):
-        m = self.m
-        S = G @ Minv @ G.T
-        inact = (~m.row_active).astype(float)
-        if sp.issparse(S):
-            S = (S + sp.diags(inact)).tocsr()
-        else:
-            S = np.asarray(S) + np.diag(inact)
-        self.cnt.factorizations += 1
-        return Factor(S)
-
-    def phi(self, state):
-        """Constraint values only (no force element is evaluated)."""
-        m = self.m
-        self.cnt.residuals += 1
-        P, A, pos = m.marker_kinematics(state)
-        ctx = EvalContext(t=state.t, angle=state.angle, extra=state.extra, P=P, A=A)
-        phi = np.zeros(m.nc)
-        for fam in self.cfams:
-            kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, m.marker_body, pos)
-            ph = fam.constraints(kin, state.lam[fam.crow], ctx)[0]
-            phi[fam.crow.ravel()] = ph.ravel()
-        if not np.all(np.isfinite(phi)):
-            raise EvaluationError("a constraint equation is not finite (NaN/Inf) during MKEAM")
-        return np.where(m.row_active, phi, 0.0)
-
-
-def retract_flat(model, state, dq):
-    """``state (+) dq`` on R^3 x SO(3): each CG moves on a straight line, each body rotates about
-    its CG (``R <- expm(skew(dtheta)) R``); continuous angles are unwrapped (steps are small).
-
-    This, not the screw motion of :meth:`Model.retract`, is the configuration update for which
-    RATTLE is symplectic: with the screw update a hinged body's momentum is not turned by the
-    constraint impulse and the velocity projection bleeds kinetic energy at first order in h.
-    """
-    new = state.copy()
-    dq = np.asarray(dq, float)
-    new.pos = state.pos + dq[model.trans_idx].reshape(-1, 3)
-    rb = model.rot_body
-    if len(rb):
-        E = expm_so3(dq[model.rot_idx].reshape(-1, 3))
-        new.rot[rb] = np.matmul(E, state.rot[rb])
-        model.track_rotation(new, state, dq[model.rot_idx].reshape(-1, 3))
-    if len(model.angle_I):
-        p = model._principal_angles(new)
-        new.angle = state.angle + wrap_angle(p - state.angle)
-    if model.n_extra:
-        new.extra = state.extra + dq[model.extra_idx]
-    return new
-
-
-class _Point:
-    """Integrator state: configuration, momenta and cached quantities at the configuration."""
-
-    __slots__ = ("state", "p", "Q", "G", "K", "Minv", "S", "v", "ke", "power", "t", "lam")
-
-    def __init__(self, dyn, state, p, t):
-        self.state = state
-        self.p = p
-        self.t = t
-        self.Q, self.G, self.K, self.Minv = dyn.at(state)
-        self.S = dyn.schur(self.G, self.Minv) if dyn.m.nc else None
-        self.v = self.Minv @ p
-        self.ke = 0.5 * float(p @ self.v)
-        self.power = float(self.v @ self.Q)
-        self.lam = None
-
-
-class MkeamAnalysis(StaticAnalysis):
-    """One static analysis by MKEAM (same interface as :class:`StaticAnalysis`)."""
-
-    def __init__(self, model, request, redundancy=None):
-        super().__init__(model, request, redundancy)
-        self.rows = []          # per-history-row MKEAM extras (row index, dict)
-        self.extras_free = False  # scalar unknowns MKEAM cannot determine (see _resolve_extras)
-        self.iterates = []      # restart points (pos, rot)
-        self.handover_tried = False
-
-    # ------------------------------------------------------------------ integrator
-    def _step(self, dyn, a: _Point, h):
-        """One RATTLE step of size h from ``a``; returns the new _Point or None (no convergence)."""
-        m = self.model
-        p_half = a.p + 0.5 * h * a.Q
-        lam = a.lam.copy() if a.lam is not None else np.zeros(m.nc)
-        state1 = None
-        if m.nc:
-            GT = a.G.T
-            for _ in range(30):
-                dq = h * (a.Minv @ (p_half - 0.5 * h * (GT @ lam)))
-                state1 = retract_flat(m, a.state, dq)
-                phi = dyn.phi(state1)
-                if np.all(np.abs(phi) <= self.dyn.phi_tol):
-                    break
-                try:
-                    lam = lam + (2.0 / (h * h)) * a.S.solve(phi)
-                except SingularMatrix:
-                    return None
-            else:
-                return None
-            p_half = p_half - 0.5 * h * (GT @ lam)
-        else:
-            state1 = retract_flat(m, a.state, h * (a.Minv @ p_half))
-        state1.lam = np.where(m.row_active, a.state.lam, 0.0)
-        b = _Point(dyn, state1, p_half, a.t + h)     # forces at q1 (lam for stiffness only)
-        p1 = p_half + 0.5 * h * b.Q
-        if m.nc:
-            try:
-                mu = b.S.solve(b.G @ (b.Minv @ p1))
-            except SingularMatrix:
-                return None
-            p1 = p1 - b.G.T @ mu
-            # reaction estimate for the geometric stiffness of the next step
-            b.state.lam = np.where(m.row_active, (2.0 / h) * mu, 0.0)
-        b.lam = lam
-        b.p = p1
-        b.v = b.Minv @ p1
-        b.ke = 0.5 * float(p1 @ b.v)
-        b.power = float(b.v @ b.Q)
-        return b
-
-    def _h_limit(self, a: _Point):
-        m = self.model
-        # Gershgorin bound of the largest eigenvalue of M^-1/2 K M^-1/2 (mass-scaled rows)
-        md = m.mass_diagonal(a.state)
-        if len(self.dyn.x_idx):
-            md[self.dyn.x_idx] = self.dyn.extra_mass(a.state)
-        d = np.where(md > 0, 1.0 / np.sqrt(np.where(md > 0, md, 1.0)), 0.0)   # scalars: no mass
-        K = a.K
-        if sp.issparse(K):
-            rs = np.asarray(abs(K) @ d).ravel() * d
-        else:
-            rs = (np.abs(K) @ d) * d
-        w2 = float(np.max(rs)) if m.nq else 0.0
-        h = np.inf
-        if w2 > 0:
-            h = 2 * np.pi / np.sqrt(w2) / STEPS_PER_PERIOD
-        acc = a.Minv @ a.Q
-        lim = np.where(m.q_kind == 1, MAX_ROT_STEP, MAX_TRANS_STEP * m.L)
-        vel = np.abs(a.v)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            hv = np.where(vel > 0, lim / vel, np.inf)
-            ha = np.where(np.abs(acc) > 0, np.sqrt(2 * lim / np.abs(acc)), np.inf)
-        return float(min(h, hv.min(initial=np.inf), ha.min(initial=np.inf)))
-
-    def _iteration(self, dyn, state, h0, budget=MAX_STEPS_PER_ITER):
-        """Integrate from rest until the first KE peak, or for at most ``budget`` steps (then
-        the iteration restarts where it stands, still descending: a mode so soft that its
-        peak is out of reach is left to the Newton polish). Returns (point, steps, h, msg);
-        ``msg`` non-empty: the integration failed."""
-        a = _Point(dyn, state, np.zeros(self.model.nq), 0.0)
-        h = min(h0, self._h_limit(a)) if np.isfinite(h0) else self._h_limit(a)
-        if not np.isfinite(h):
-            return a, 0, h, "no force acts (already at rest in equilibrium)"
-        steps = 0
-        escale = 0.0
-        noise = self._energy_noise(a)
-        while steps < budget:
-            hl = self._h_limit(a)
-            h = min(2.0 * h, hl) if np.isfinite(hl) else 2.0 * h
-            while True:
-                b = self._step(dyn, a, h)
-                steps += 1
-                if b is not None:
-                    work = 0.5 * h * (a.power + b.power)
-                    err = abs(b.ke - a.ke - work)
-                    escale = max(escale, a.ke, b.ke, abs(work))
-                    noise = max(noise, self._energy_noise(b))
-                    if err <= max(ENERGY_TOL * escale, noise) or h < 1e-14 * max(1.0, a.t):
-                        break
-                h *= 0.5
-                if h < 1e-300:
-                    return a, steps, h, "integration step became too small"
-                if steps >= budget:
-                    return a, steps, h, ""
-            bad = self._absurd(b)
-            if bad:
-                return b, steps, h, bad
-            if steps >= REST_STEPS and escale <= noise:
-                return b, steps, h, ""            # at rest within the integrator's resolution
-            if b.power <= 0.0:
-                if a.power <= 0.0:                 # never accelerated: at rest already
-                    return (a if a.ke >= b.ke else b), steps, h, ""
-                peak, n = self._locate_peak(dyn, a, b, h)
-                return peak, steps + n, h, ""
-            a = b
-        return a, steps, h, ""
-
-    def _energy_noise(self, a):
-        """Energy the integrator cannot resolve at ``a``: the work of the applied forces over the
-        position-constraint tolerance of a step (``CONSTRAINT_TOL`` x L per translation, x 1 rad
-        per rotation), times ``NOISE_FACTOR``. Energy errors below it are accepted (halving the
-        step does not reduce them), and an iteration whose energies all stay below it is at
-        rest as far as the integration can tell."""
-        m = self.model
-        ql = np.where(m.q_kind == 0, m.L, 1.0)
-        return NOISE_FACTOR * CONSTRAINT_TOL * float(np.sum(np.abs(a.Q) * ql))
-
-    def _absurd(self, b):
-        """Why the integrated point ``b`` cannot be a step towards an equilibrium ("" if it can):
-        non-finite energy or pose, or a body farther than ``MAX_TRAVEL * L`` from the start."""
-        m = self.model
-        if not (np.isfinite(b.ke) and np.all(np.isfinite(b.state.pos))
-                and np.all(np.isfinite(b.state.rot))):
-            return "the integration produced a non-finite state (NaN/Inf)"
-        if m.nb and float(np.max(np.abs(b.state.pos - self.iterates[0][0]))) > MAX_TRAVEL * m.L:
-            return (f"a body moved more than {MAX_TRAVEL:g} L = {MAX_TRAVEL * m.L:.3g} from the "
-                    "input configuration (nothing holds it: no equilibrium within reach)")
-        return ""
-
-    def _locate_peak(self, dyn, a, b, h):
-        lo, hi = 0.0, h
-        plo, phi_ = a.power, b.power
-        best = b
-        n = 0
-        side = 0
-        while hi - lo > PEAK_TOL * h and n < 12:
-            tau = (lo * phi_ - hi * plo) / (phi_ - plo)
-            if not (lo < tau < hi):
-                tau = 0.5 * (lo + hi)
-            c = self._step(dyn, a, tau)
-            n += 1
-            if c is None:
-                break
-            best = c if c.ke >= best.ke or c.power > 0 else best
-            if c.power > 0:
-                lo, plo = tau, c.power
-                if side == 1:
-                    phi_ *= 0.5
-                side = 1
-            else:
-                hi, phi_ = tau, c.power
-                if side == -1:
-                    plo *= 0.5
-                side = -1
-            if abs(c.power) <= 1e-12 * max(abs(a.power), abs(b.power)):
-                best = c
-                break
-        return best, n
-
-    # ------------------------------------------------------------------ energy, stability
-    def potential_energy(self, state):
-        """Total potential energy, NaN when a force element is not conservative."""
-        m = self.model
-        V = 0.0
-        if m.gravity_on:
-            V -= float(np.sum(m.body_mass[:, None] * state.pos * m.gravity[None, :]))
-        fams = [f for f in m.families if not f.is_constraint]
-        if not fams:
-            return V
-        P, A, pos = m.marker_kinematics(state)
-        ctx = EvalContext(t=state.t, angle=state.angle)
-        for fam in fams:
-            fn = getattr(fam, "potential_energy", None)
-            if fn is None:
-                return np.nan
-            kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, m.marker_body, pos)
-            if getattr(fam, "potential_needs_ground", False):
-                e = fn(kin, ctx, on_ground=m.marker_body[fam.markers] == m.nb)
-            else:
-                e = fn(kin, ctx)
-            if e is None:
-                return np.nan
-            V += float(np.sum(e))
-        return V
-
-    def projected_stiffness_min(self, state):
-        """(smallest eigenvalue, eigenvector in tangent coords) of the tangent stiffness projected
-        on the constraint null space, coordinates scaled by ``q_scale`` (None if too large)."""
-        m = self.model
-        if m.nq > 3000:
-            return None, None
-        ev = m.evaluate(state, need_jac=True)
-        J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
-        D = np.diag(1.0 / m.q_scale)             # dq = D dz, dz in length units
-        K = D @ J[:m.nq, :m.nq] @ D
-        G = J[m.nq:, :m.nq][m.row_active] @ D
-        keep = np.arange(m.nq)
-        if m.n_extra:
-            # massless scalar unknowns (see _Dyn.solve_algebraic) are eliminated: reduced
-            # stiffness K_cc - K_ca K_aa^-1 K_ac when K_aa is regular, else they are held
-            a = np.setdiff1d(m.extra_idx, getattr(getattr(self, "dyn", None), "x_idx", []))
-            keep = np.setdiff1d(keep, a)
-            if len(a):
-                Kaa = K[np.ix_(a, a)]
-                sv = np.linalg.svd(Kaa, compute_uv=False)
-                Kc = K[np.ix_(keep, keep)]
-                Gc = G[:, keep]
-                if sv.min() > 1e-10 * max(sv.max(), 1e-300):
-                    X = np.linalg.solve(Kaa, K[np.ix_(a, keep)])
-                    Kc = Kc - K[np.ix_(keep, a)] @ X
-                    Gc = Gc - G[:, a] @ X
-                K, G = Kc, Gc
-            D = D[np.ix_(keep, keep)]
-        N = sla.null_space(G) if G.shape[0] else np.eye(K.shape[0])
-        if N.shape[1] == 0:
-            return np.inf, None
-        Kr = N.T @ (0.5 * (K + K.T)) @ N
-        w, V = np.linalg.eigh(Kr)
-        k = int(np.argmin(w))
-        scale = max(float(np.max(np.abs(w))), 1e-300)
-        vec = np.zeros(m.nq)
-        vec[keep] = D @ (N @ V[:, k])
-        return w[k] / scale, vec
-
-    # ------------------------------------------------------------------ driver
-    def run(self, state, index: int = 0):
-        model, s = self.model, self.settings
-        t_start = time.perf_counter()
-        notes = []
-        self.moved = False
-        self.pe_start = np.nan
-        try:
-            out, state, mk_state = self._solve(state, notes)
-        except EvaluationError as e:     # e.g. a force expression that cannot be evaluated
-            if self.redundancy is None:
-                self.redundancy = np.zeros(0, int)
-            out, mk_state = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)), state
-        ar = AnalysisResult(index=index, analysis_type="static", method="MKEAM",
-                            settings=dict(s.as_dict(), method_requested=s.method))
-        ar.attrs["reactions_unique"] = bool(len(self.redundancy) == 0)
-        ar.attrs["assembled"] = bool(self.moved)
-        ar.attrs["mkeam_wall_time"] = time.perf_counter() - t_start
-        ar.datasets.update(self.frame_datasets(state, [out]))       # certifies ``out``
-        ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
-        ar.message = "; ".join([m for m in [out.message] + notes if m])
-        ar.datasets.update(stack_frames([frame_outputs(model, state)]))
-        ar.datasets.update(self.history.datasets())
-        ar.attrs.update(self.history.attrs())
-        ar.datasets.update(self.mkeam_datasets(mk_state))
-        from poise.solvers.compliance import attach     # after frame_datasets (stability)
-        attach(ar, model, [state], [out], self.redundancy, s)
-        ar.datasets.update(self.redundancy_datasets())
-        return state, ar
-
-    def _solve(self, state, notes):
+    def _solve(self, ctx, state):
         """Redundancy, assembly, MKEAM iterations, Newton polish. Returns ``(outcome, reported
-        state, MKEAM point)``; the outcome is certified by the caller at the reported state."""
-        model, s = self.model, self.settings
+        state, MKEAM point)``; the outcome is certified at output, at the reported state."""
+        model = self.model
         if not np.isfinite(model.L):
-            self.redundancy = np.zeros(0, int) if self.redundancy is None else self.redundancy
+            ctx.redundancy = np.zeros(0, int) if ctx.redundancy is None else ctx.redundancy
             return FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan,
                                 "the model size L is not finite (a marker or body lies too far "
                                 "out): MKEAM's step and tolerance scales are undefined"), state, state
-        if self.redundancy is None:
-            self.redundancy = detect_redundancy(model, state)
-        else:
-            model.row_active[:] = True
-            model.row_active[self.redundancy] = False
-        if len(self.redundancy):
-            notes.append(f"{len(self.redundancy)} redundant constraint equations removed")
-        state, self.moved, ast = assemble(model, state, s, self.history, 0, self.counters)
-        if self.moved:
-            notes.append("initial configuration assembled onto the constraints")
-        if not ast.ok:
-            return FrameOutcome(Status.ASSEMBLY_FAILED, 0, np.nan, np.nan, "could not bring the "
-                                "input configuration onto the constraints"), state, state
+        state, failed = prologue(ctx, state, multipliers=False)
+        if failed is not None:
+            return failed, state, state
         try:
-            self.dyn = _Dyn(model, self.counters)
+            self.rx = Relaxation(model, self.settings, self.history, self.counters)
         except ValueError as e:
             return FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)), state, state
         state = initial_multipliers(model, state, self.counters)
+        self.rx.report = ctx.report
         try:
-            try:
-                mk_state, status, msg, n_it = self._mkeam(state)
-            finally:
-                report("MKEAM", None, s.max_num_iter)
+            mk_state, status, msg, n_it = self.rx.iterate(state)
         except EvaluationError as e:
-            mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(self.iterates)
+            mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(self.rx.iterates)
+        finally:
+            ctx.report("MKEAM", None, self.settings.max_num_iter)
         if not status.ok:
             return FrameOutcome(status, n_it, np.nan, np.nan, msg), mk_state, mk_state
         state, out, note = self._polish(mk_state, n_it)
-        notes.append(note)
+        ctx.notes.append(note)
         return out, state, mk_state
-
-    def _dq(self, s0, s1):
-        m = self.model
-        dt = float(np.max(np.linalg.norm(s1.pos - s0.pos, axis=1))) / m.L if m.nb else 0.0
-        dr = 0.0
-        if len(m.rot_body):
-            Rr = np.matmul(s1.rot[m.rot_body], np.swapaxes(s0.rot[m.rot_body], 1, 2))
-            # angle = atan2(sin, cos): accurate near zero, where arccos(cos) has a floor of
-            # ~sqrt(eps) = 1.5e-8 rad (it kept tight max_dq_tol from ever being met)
-            c = (np.einsum("nii->n", Rr) - 1.0) / 2.0
-            sn = 0.5 * np.linalg.norm(np.stack([Rr[:, 2, 1] - Rr[:, 1, 2], Rr[:, 0, 2] - Rr[:, 2, 0],
-                                                Rr[:, 1, 0] - Rr[:, 0, 1]], axis=1), axis=1)
-            dr = float(np.max(np.arctan2(sn, c)))
-        da = float(np.max(np.abs(s1.angle - s0.angle))) if len(s1.angle) else 0.0
-        de = 0.0
-        if m.n_extra:
-            de = float(np.max(np.abs(s1.extra - s0.extra) / np.maximum(1.0, np.abs(s0.extra))))
-        return max(dt, dr, da, de)
-
-    def _resolve_extras(self, state):
-        """Scalar unknowns (Control_Diff states, implicit variables, ...) have no mass: MKEAM
-        holds them during each KE-attrition iteration and re-solves them at each restart by
-        Newton on their own equations with the bodies fixed. When those equations do not
-        determine them (``d e / d s`` singular, e.g. an integrator state ``y' = target - DX``
-        whose equation does not contain y) they stay held and are found by the final Newton
-        polish (``self.extras_free``)."""
-        m = self.model
-        if not m.n_extra:
-            return state
-        ix = np.setdiff1d(m.extra_idx, self.dyn.x_idx)    # curve parameters move with RATTLE
-        if not len(ix):
-            return state
-        st = state
-        for _ in range(20):
-            ev = m.evaluate(st, need_jac=True)
-            self.counters.residuals += 1
-            self.counters.jacobians += 1
-            J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
-            Jss = J[np.ix_(ix, ix)]
-            rs = ev.r[ix]
-            sv = np.linalg.svd(Jss, compute_uv=False)
-            if sv.min() <= 1e-10 * max(sv.max(), 1e-300):
-                self.extras_free = True
-                return state
-            if np.max(np.abs(rs)) <= self.settings.max_imbalance:
-                return st
-            dq = np.zeros(m.nq)
-            dq[ix] = np.linalg.solve(Jss, -rs)
-            st = m.retract(st, dq)
-        return st
-
-    def _mkeam(self, state):
-        """MKEAM iterations from ``state``. Returns ``(state, status, message, iterations)``:
-        the last restart point and ``Status.CONVERGED`` when ``max_ke_tol`` / ``max_dq_tol``
-        were met; otherwise why not (``max_num_iter`` or the ``MAX_TOTAL_STEPS`` integration
-        budget: ``MAX_ITERATIONS``; a non-finite state: ``NONFINITE``; a body running away:
-        ``DIVERGED``)."""
-        m, s = self.model, self.settings
-        dyn = self.dyn
-        state = state.copy()
-        state.lam = np.where(m.row_active, state.lam, 0.0)
-        self.iterates = [(state.pos.copy(), state.rot.copy())]
-        pe0 = self.potential_energy(state)
-        self.pe_start = pe0
-        h = np.inf
-        perturbs = 0
-        self.last_dq = np.nan
-        t_total = 0.0
-        used = 0
-        for it in range(1, s.max_num_iter + 1):
-            report("MKEAM", it - 1, s.max_num_iter)
-            if used >= MAX_TOTAL_STEPS:
-                return state, Status.MAX_ITERATIONS, (
-                    f"MKEAM used its integration budget ({MAX_TOTAL_STEPS} steps) in {it - 1} "
-                    "iterations without meeting max_ke_tol / max_dq_tol"), it - 1
-            cap = MAX_STEPS_PER_ITER
-            if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
-                cap = HANDOVER_CAP       # a large model: restart early, then hand over
-            peak, steps, h, msg = self._iteration(dyn, state, h,
-                                                  min(cap, MAX_TOTAL_STEPS - used))
-            used += steps
-            if msg and "already at rest" not in msg:
-                self._row(it, np.nan, np.nan, msg, peak, steps, np.nan, "mkeam")
-                status = (Status.NONFINITE if "non-finite" in msg else
-                          Status.DIVERGED if "moved more than" in msg else Status.MAX_ITERATIONS)
-                return state, status, f"MKEAM iteration {it}: {msg}", it
-            new = self._resolve_extras(peak.state.copy())
-            dq = self._dq(state, new)
-            t_total += peak.t
-            pe = self.potential_energy(new)
-            ke = peak.ke
-            self.last_dq = dq
-            self._row(it, ke, dq, "", peak, steps, pe, "mkeam")
-            self.iterates.append((new.pos.copy(), new.rot.copy()))
-            state = new
-            if (it >= HANDOVER_ITER and not (ke <= s.max_ke_tol and dq <= s.max_dq_tol)
-                    and not self.handover_tried and not m.n_extra):
-                self.handover_tried = True
-                fast = self._handover(state, h)
-                if fast is not None:
-                    return fast, Status.CONVERGED, "", it
-            if ke <= s.max_ke_tol and dq <= s.max_dq_tol:
-                lam_state = initial_multipliers(m, state, self.counters)
-                wmin, vec = self.projected_stiffness_min(lam_state)
-                if wmin is not None and vec is not None and wmin < -1e-6 and perturbs < MAX_PERTURB:
-                    perturbs += 1
-                    vs = vec * m.q_scale
-                    kick = PERTURB * m.L / max(float(np.max(np.abs(vs))), 1e-300)
-                    state = m.retract(state, kick * vec)
-                    st2, _, _ = assemble(m, state, s, self.history, 0, self.counters)
-                    state = st2
-                    continue
-                return state, Status.CONVERGED, "", it
-            h = h if np.isfinite(h) else np.inf
-        return state, Status.MAX_ITERATIONS, (
-            "MKEAM did not converge within max_num_iter iterations (raise max_num_iter or loosen "
-            "max_ke_tol / max_dq_tol)"), s.max_num_iter
-
-    def _handover(self, state, h):
-        """Newton-speed continuation of the descent from the restart point ``state``: the
-        inertia-controlled Newton of :func:`poise.solvers.stable.descend` (potential energy
-        non-increasing, steps on a positive-definite reduced stiffness), unstable end points left
-        along their negative modes (:func:`~poise.solvers.stable.seek_stable`). The point is
-        taken only if it is stable (neutral allowed) by the classification, its potential energy
-        is not above ``state``'s, and one KE-attrition iteration from it (event
-        ``mkeam-verify``) meets ``max_ke_tol`` and ``max_dq_tol``. Returns it or None (MKEAM
-        iterations continue from ``state`` as if nothing happened)."""
-        from dataclasses import replace as _replace
-
-        from poise.solvers.stability import classify
-        from poise.solvers.stable import descend, seek_stable
-        m, s = self.model, self.settings
-        s_any = _replace(s, allow_neutral=True)
-        pe0 = self.potential_energy(state)
-        try:
-            st = initial_multipliers(m, state, self.counters)
-            self.history.add(0, 0, np.nan, np.nan, event="mkeam: handover to the "
-                             "inertia-controlled Newton descent")
-            st, out, _, _ = descend(m, st, s_any, self.history, 0, self.counters,
-                                    HANDOVER_STEPS * s.max_num_iter)
-            if out is None:
-                return None
-            info = classify(m, st)
-            if info.klass == "unstable":
-                st, out, info, _ = seek_stable(m, st, s_any, self.history, 0, self.counters,
-                                               info, lambda x: classify(m, x))
-            if not out.ok or info.klass not in ("stable", "neutral"):
-                return None
-            pe1 = self.potential_energy(st)
-            if np.isfinite(pe0) and np.isfinite(pe1) and pe1 > pe0 + 1e-9 * max(abs(pe0), 1.0):
-                return None
-            peak, steps, _, msg = self._iteration(self.dyn, st, h, MAX_STEPS_PER_ITER)
-            ke, dq = peak.ke, self._dq(st, peak.state)
-            self.history.add(0, 0, np.nan, dq, dq, np.nan, msg, "mkeam-verify")
-            if msg and "already at rest" not in msg:
-                return None
-            if not (ke <= s.max_ke_tol and dq <= s.max_dq_tol):
-                return None
-            return st
-        except (EvaluationError, SingularMatrix, ValueError, ArithmeticError):
-            return None
-
-    def _row(self, it, ke, dq, worst, peak, steps, pe, event):
-        self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event)
-        self.rows.append((len(self.history) - 1, dict(kinetic_energy=ke, peak_time=peak.t,
-                                                      max_dq=dq, potential_energy=pe,
-                                                      integrator_steps=steps)))
 
     def _polish(self, mk_state, n_it):
         """Newton polish of the MKEAM point. Returns ``(state, outcome, note)``.
@@ -766,7 +92,6 @@ class MkeamAnalysis(StaticAnalysis):
         within ``POLISH_MAX_DQ`` of the MKEAM point or is reached downhill (potential energy
         non-increasing along the path, :meth:`_downhill`: MKEAM's own guarantee); its outcome is
         Newton's. Otherwise the MKEAM point is reported (outcome certified at output)."""
-        from dataclasses import replace
         m, s = self.model, self.settings
         st = initial_multipliers(m, mk_state, self.counters)
         self.mk_point = st
@@ -785,14 +110,14 @@ class MkeamAnalysis(StaticAnalysis):
         if not out.ok and not self._lower(trial, st):
             return st, mk_out, (f"Newton polish did not converge ({out.message}); MKEAM point "
                                 "reported")
-        d = self._dq(st, trial)
-        far = d > POLISH_MAX_DQ and not (self.extras_free or self.dyn.extras_free)
+        d = self.rx._dq(st, trial)
+        far = d > POLISH_MAX_DQ and not (self.rx.extras_free or self.rx.dyn.extras_free)
         if far:
             why = self._downhill(st, trial)
             if why:
                 return st, mk_out, (f"Newton polish moved {d:.3g} (> {POLISH_MAX_DQ}) {why}; "
                                     "MKEAM point reported")
-        wmin, _ = self.projected_stiffness_min(trial)
+        wmin, _ = self.rx.projected_stiffness_min(trial)
         if wmin is not None and wmin < -1e-6:
             return st, mk_out, "Newton polish reached an unstable point; MKEAM point reported"
         self.polished = True
@@ -813,30 +138,29 @@ class MkeamAnalysis(StaticAnalysis):
     def _lower(self, a, b):
         """Is state ``a`` closer to equilibrium than ``b``: lower potential energy when the model
         has one, else a smaller tolerance-scaled residual."""
-        pa, pb = self.potential_energy(a), self.potential_energy(b)
+        pa, pb = self.rx.potential_energy(a), self.rx.potential_energy(b)
         if np.isfinite(pa) and np.isfinite(pb):
             return pa < pb
-        from poise.solvers.newton import Scales, merit
         sc = Scales(self.model, self.settings)
-        ma = merit(self.model.evaluate(a, need_jac=False), sc)
-        mb = merit(self.model.evaluate(b, need_jac=False), sc)
+        act = self.counters.active
+        ma = merit(self.model.evaluate(a, need_jac=False, active=act), sc)
+        mb = merit(self.model.evaluate(b, need_jac=False, active=act), sc)
         return ma < mb
 
     def _downhill(self, a, b, n=16):
         """"" if the potential energy does not increase along the path from ``a`` to ``b`` (the
         tangent line at ``a``, ``n`` samples, each assembled onto the constraints), else why."""
-        from poise.solvers.history import History
         m, s = self.model, self.settings
         dq = m.local_difference(a, b)
-        pes = [self.potential_energy(a)]
+        pes = [self.rx.potential_energy(a)]
         scratch = History()
         for k in range(1, n):
             x = m.retract(a, (k / n) * dq)
             x, _, ast = assemble(m, x, s, scratch, 0, self.counters)
             if not ast.ok:
                 return "along a path that leaves the constraints"
-            pes.append(self.potential_energy(x))
-        pes.append(self.potential_energy(b))
+            pes.append(self.rx.potential_energy(x))
+        pes.append(self.rx.potential_energy(b))
         pes = np.asarray(pes)
         if not np.all(np.isfinite(pes)):
             return "and the model has no potential energy to check that the path is downhill"
@@ -844,39 +168,3 @@ class MkeamAnalysis(StaticAnalysis):
         if np.any(np.diff(pes) > tol):
             return "over a potential-energy barrier"
         return ""
-
-    def mkeam_datasets(self, mk_state):
-        n = len(self.history)
-        keys = ("kinetic_energy", "peak_time", "max_dq", "potential_energy")
-        d = {f"iterations/{k}": np.full(n, np.nan) for k in keys}
-        d["iterations/integrator_steps"] = np.full(n, -1, dtype=np.int64)
-        for row, vals in self.rows:
-            for k in keys:
-                d[f"iterations/{k}"][row] = vals[k]
-            d["iterations/integrator_steps"][row] = vals["integrator_steps"]
-        if self.iterates:
-            d["mkeam/iterate_position"] = np.stack([p for p, _ in self.iterates])
-            d["mkeam/iterate_orientation"] = np.stack([r for _, r in self.iterates])
-        d["mkeam/position"] = mk_state.pos[None].copy()
-        d["mkeam/orientation"] = mk_state.rot[None].copy()
-        d["mkeam/initial_potential_energy"] = np.array(getattr(self, "pe_start", np.nan))
-        return d
-
-
-def relax(model, state, settings, history, frame, cnt):
-    """MKEAM iterations from ``state`` for other drivers (FIM_S fallback chain).
-
-    Returns ``(state, ok)``; ``ok`` when the MKEAM tolerances were met. Rows are added to
-    ``history`` (event ``mkeam``); counters to ``cnt``.
-    """
-    from types import SimpleNamespace
-    an = MkeamAnalysis(model, SimpleNamespace(settings=settings),
-                       redundancy=np.nonzero(~model.row_active)[0])
-    an.history = history
-    an.counters = cnt
-    an.dyn = _Dyn(model, cnt)
-    if not np.isfinite(model.L):
-        return state, False
-    st = initial_multipliers(model, state, cnt)
-    st, status, _msg, _n = an._mkeam(st)
-    return st, status.ok

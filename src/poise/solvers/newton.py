@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.solvers.data import SolveData
 from poise.solvers.history import History
 from poise.solvers.linalg import Factor, SingularMatrix
 from poise.solvers.status import MESSAGES, Status
@@ -50,15 +51,8 @@ class FrameOutcome:
         return self.status.ok
 
 
-class Counters:
-    def __init__(self):
-        self.residuals = 0
-        self.jacobians = 0
-        self.factorizations = 0
-
-    def as_dict(self):
-        return dict(residuals=self.residuals, jacobians=self.jacobians,
-                    factorizations=self.factorizations)
+#: The per-solve data doubles as the counters every solver function receives (``cnt``).
+Counters = SolveData
 
 
 class Scales:
@@ -120,7 +114,7 @@ def _evaluate(model, state, cnt, need_jac=True, eps=0.0):
     cnt.residuals += 1
     if need_jac is True:
         cnt.jacobians += 1
-    return model.evaluate(state, need_jac=need_jac, eps_mass=eps)
+    return model.evaluate(state, need_jac=need_jac, eps_mass=eps, active=cnt.active)
 
 
 def _jacobian(model, ev, cnt):
@@ -155,24 +149,22 @@ def singular_message(model, row):
             f"{ri['equation']}")
 
 
-def inconsistent_redundant(model, state, sc: Scales) -> str:
+def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
     """Removed (redundant) constraint rows violated at ``state`` beyond their tolerance.
 
-    Redundant rows are pinned inactive, so Newton never sees them; when the joints contradict
-    each other (e.g. two hinges of one door on parallel but offset axes) the active rows can be
-    met while a removed one is not. Returns a message naming the worst such row, or "".
+    Redundant rows are pinned inactive (``data.active``), so Newton never sees them; when the
+    joints contradict each other (e.g. two hinges of one door on parallel but offset axes) the
+    active rows can be met while a removed one is not. Returns a message naming the worst such
+    row, or "".
     """
-    if model.nc == 0 or model.row_active.all():
+    active = data.active
+    if model.nc == 0 or active is None or active.all():
         return ""
-    saved = model.row_active.copy()
-    model.row_active[:] = True
     try:
-        phi = model.evaluate(state, need_jac=False).phi
+        phi = model.evaluate(state, need_jac=False).phi      # every row
     except EvaluationError:
         return ""
-    finally:
-        model.row_active[:] = saved
-    z = np.where(saved, 0.0, np.abs(phi) / sc.phi_tol)
+    z = np.where(active, 0.0, np.abs(phi) / sc.phi_tol)
     k = int(np.argmax(z))
     if not z[k] > 1.0:
         return ""
@@ -239,7 +231,7 @@ def initial_multipliers(model, state, cnt: Counters):
         x = f.solve(np.concatenate([Q, np.zeros(model.nc)]))
     except SingularMatrix:
         return state
-    st.lam = np.where(model.row_active, x[model.nq:], 0.0)
+    st.lam = np.where(cnt.mask(model), x[model.nq:], 0.0)
     return st
 
 
@@ -332,7 +324,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
 
     def converged(it, imb, err, worst):
         # within tolerance: unless a removed redundant equation contradicts the others
-        bad = inconsistent_redundant(model, state, sc)
+        bad = inconsistent_redundant(model, state, sc, cnt)
         history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
                     pos=state.pos, rot=state.rot)
         if bad:

@@ -210,3 +210,13 @@ def left_null_basis(Phi_q, active):
         Y[k, c] = 1.0
         Y[ind, c] = -coef
     return Y
+
+
+def detect_redundancy(model, state) -> np.ndarray:
+    """Redundant constraint rows of ``model`` at ``state`` (all rows evaluated)."""
+    if model.nc == 0:
+        return np.zeros(0, int)
+    J = model.evaluate(state, need_jac=True).J
+    Pq = J[model.nq:, :model.nq]
+    col = np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
+    return redundant_rows(Pq, col)

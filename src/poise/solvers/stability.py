@@ -73,6 +73,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from poise.solvers.redundancy import redundant_rows
+
 DENSE_LIMIT = 300       # coordinates; dense cost grows as nq^3 (3000: 30 s, sparse 0.05 s)
 ZERO_REL = 1e-8
 DIAG_FLOOR = 1e-24     # relative floor of the diagonal in the Jacobi equilibration
@@ -172,21 +174,24 @@ def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo
                          tuple(modes), tuple(np.asarray(q, float) for q, _ in unstable[:N_MODES]))
 
 
-def classify(model, state, J=None) -> StabilityInfo:
-    """Classify the equilibrium ``state`` of ``model`` (uses ``model.row_active``).
+def classify(model, state, J=None, active=None) -> StabilityInfo:
+    """Classify the equilibrium ``state`` of ``model``; ``active``: the solve's active
+    constraint rows (None: all).
 
-    ``J`` may be a KKT Jacobian already evaluated at ``state`` without regularisation (any
-    state of ``row_active``: inactive rows are dropped here).
+    ``J`` may be a KKT Jacobian already evaluated at ``state`` without regularisation (with
+    any active rows: inactive rows are dropped here).
     """
     nq = model.nq
     if nq == 0:
         return StabilityInfo("stable", 0, 0, "", np.nan)
     if J is None:
-        J = model.evaluate(state, need_jac=True, eps_mass=0.0).J
+        J = model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J
+    if active is None:
+        active = np.ones(model.nc, bool)
     if nq > DENSE_LIMIT:
-        return _classify_sparse(model, J)
+        return _classify_sparse(model, J, active)
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
-    return classify_dense_frames(model, J[None], model.row_active)[0]
+    return classify_dense_frames(model, J[None], active)[0]
 
 
 def classify_dense_frames(model, J, active, ok=None) -> list[StabilityInfo]:
@@ -314,19 +319,18 @@ def unknown_info(why: str = "") -> StabilityInfo:
 
 
 # =============================================================================== sparse path
-def _classify_sparse(model, J) -> StabilityInfo:
+def _classify_sparse(model, J, active=None) -> StabilityInfo:
     """Inertia by spectrum slicing with sparse LDL^T factorisations of the equilibrated KKT
     matrix (module docstring, "Large models"). Active constraint rows that have become
     dependent at this configuration (a tiny pivot at a constraint row) are found by the
     redundancy test of the static driver and dropped (the null space is unchanged), once."""
     try:
-        P = _SparsePencil(model, J)
+        P = _SparsePencil(model, J, active=active)
         info = _classify_pencil(model, P)
         if info.klass == "unknown" and P.singular:
-            from poise.solvers.redundancy import redundant_rows
             red = redundant_rows(P.G_active, np.ones(model.nq))
             if len(red):
-                info = _classify_pencil(model, _SparsePencil(model, J, drop=red))
+                info = _classify_pencil(model, _SparsePencil(model, J, drop=red, active=active))
         return info
     except (RuntimeError, ValueError, ArithmeticError, MemoryError,
             np.linalg.LinAlgError) as e:
@@ -439,7 +443,7 @@ class _SparsePencil:
     symmetric stiffness ``Kt`` and active constraint Jacobian ``Gt`` after a symmetric
     equilibration of the KKT matrix, the KKT elimination order, and factorisations at shifts."""
 
-    def __init__(self, model, J, drop=()):
+    def __init__(self, model, J, drop=(), active=None):
         import scipy.sparse as sp
         nq = model.nq
         J = sp.csr_matrix(J)
@@ -447,9 +451,10 @@ class _SparsePencil:
         Di = sp.diags(1.0 / d)
         Ku = Di @ J[:nq, :nq] @ Di
         Ks = _prune_noise(((Ku + Ku.T) * 0.5).tocsr())
-        G = (J[nq:, :nq][np.nonzero(model.row_active)[0]] @ Di).tocsr()
+        rows = np.arange(model.nc) if active is None else np.nonzero(active)[0]
+        G = (J[nq:, :nq][rows] @ Di).tocsr()
         self.G_active = G                 # active rows, length-scaled (dependent-row check)
-        self.rows = np.nonzero(model.row_active)[0]     # constraint rows of Gt (model indices)
+        self.rows = rows                  # constraint rows of Gt (model indices)
         if G.shape[0]:
             # a numerically empty row does not constrain anything (the dense SVD's rcond);
             # ``drop``: active rows found dependent at this configuration

@@ -27,17 +27,31 @@ of the iteration history (events ``stable: escape k: ...``, ``stable-descent sig
 ``stable-polish``). The budget is ``STEPS_PER_ITER x max_num_iter`` descent steps and
 ``MAX_ESCAPES`` escapes; past it the analysis fails with status ``unstable`` (exit 1) and the
 last state is written. MKEAM uses :func:`descend` as its fast continuation
-(:meth:`poise.solvers.mkeam.MkeamAnalysis._handover`).
+(:meth:`poise.solvers.relaxation.Relaxation._handover`).
 """
 from __future__ import annotations
 
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.solvers.newton import FrameOutcome, assemble, newton
+from poise.solvers.energy import potential_energy
+from poise.solvers.linalg import SingularMatrix
+from poise.solvers.newton import (
+    FrameOutcome,
+    Scales,
+    _coord_weights,
+    _evaluate,
+    _factor,
+    _jacobian,
+    _weighted_kkt,
+    assemble,
+    initial_multipliers,
+    measures,
+    newton,
+)
+from poise.solvers.stability import AUG_RHO, SymmetricLDL, _SparsePencil
 from poise.solvers.status import Status
 
 ESCAPE_ROT = 0.3          # rad: largest rotation of the first escape trial
@@ -75,12 +89,6 @@ def require_stable_check(ar, out, settings):
     ar.datasets["frames/status"] = np.array([Status.UNSTABLE.value], dtype=str)
     ar.status = "failed"
     ar.message = "no stable equilibrium reached (--require-stable): " + why + "; " + ar.message
-
-
-def potential_energy(model, state) -> float:
-    """Potential energy of gravity and conservative elements (NaN if one is not conservative)."""
-    from poise.solvers.mkeam import MkeamAnalysis
-    return MkeamAnalysis.potential_energy(SimpleNamespace(model=model), state)
 
 
 def _energy_drop(model, a, b, cnt, pa=None):
@@ -165,7 +173,6 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
             return state, _fail(used, "unstable, and no move along its unstable modes lowers "
                                 "the potential energy"), info, ""
         _, state, pe = moved
-        from poise.solvers.newton import initial_multipliers
         state = initial_multipliers(model, state, cnt)
         state, out, pe, n = descend(model, state, settings, history, frame, cnt,
                                     budget - used, pe)
@@ -184,11 +191,10 @@ def _ic_step(model, state, cnt, sigma):
     smallest ``sigma`` (0, else grown by 8) whose KKT inertia is ``(nq, m, 0)``: the reduced
     matrix is positive definite and ``dq`` a descent direction of the potential energy.
     Returns ``(dq, sigma, ev)`` (``dq`` None when no valid factorisation was found)."""
-    from poise.solvers.stability import AUG_RHO, SymmetricLDL, _SparsePencil
     cnt.residuals += 1
     cnt.jacobians += 1
-    ev = model.evaluate(state, need_jac=True)
-    P = _SparsePencil(model, ev.J)
+    ev = model.evaluate(state, need_jac=True, active=cnt.active)
+    P = _SparsePencil(model, ev.J, active=cnt.active)
     nq, m = P.nq, P.m
     r = np.asarray(ev.r, float)[:nq]
     f = -(P.dq / P.d) * r
@@ -217,7 +223,6 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     directions, an Armijo backtracking on the potential energy of the trial assembled onto the
     constraints, the Newton polish once a full step with ``sigma = 0`` was taken). The
     potential energy never increases. Returns ``(state, outcome or None, pe, steps)``."""
-    from poise.solvers.newton import Scales, measures
     sc = Scales(model, settings)
     if pe is None:
         pe = potential_energy(model, state)
@@ -290,14 +295,12 @@ def _project(model, x, cnt, max_iter=8):
     """Gauss-Newton projection of a line-search trial onto the constraints to ``PROJECT_TOL``
     (relative): looser than the assembly's, the end point is polished by Newton to the deck's
     tolerances. Returns ``(state, ok)``."""
-    from poise.solvers.linalg import SingularMatrix
-    from poise.solvers.newton import _coord_weights, _evaluate, _factor, _jacobian, _weighted_kkt
     if model.nc == 0:
         return x, True
     W = _coord_weights(model)
     for _ in range(max_iter + 1):
         ev = _evaluate(model, x, cnt, need_jac="defer")
-        phi = np.where(model.row_active, ev.phi, 0.0)
+        phi = ev.phi                       # inactive rows read 0
         if float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L))) <= PROJECT_TOL:
             return x, True
         _jacobian(model, ev, cnt)

@@ -1,0 +1,203 @@
+"""One solver driver for every analysis: context, strategy loop, one result construction.
+
+A static analysis is a quasi-static one with one frame. :class:`Driver` builds the
+:class:`~poise.solvers.context.Context` (model, per-solve data, settings, history, counters),
+runs the strategy :data:`METHODS` maps the request to (``init``, ``step`` until
+``terminate``, ``postprocess``: :class:`~poise.solvers.context.Strategy`) and builds the one
+result (:func:`build_result`). Every frame a strategy solves by Newton gets the fallback chain
+(:func:`poise.solvers.fallback.solve_frame`). An element that cannot be evaluated ends the
+analysis as a ``nonfinite`` frame, never an exception.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.core.errors import EvaluationError
+from poise.model.model import Evaluation
+from poise.solvers.compliance import attach
+from poise.solvers.context import Context
+from poise.solvers.data import SolveData
+from poise.solvers.frames import (
+    frame_datasets,
+    frame_outputs,
+    frames_datasets,
+    redundancy_datasets,
+    stack_frames,
+    strategy_attrs,
+)
+from poise.solvers.newton import FrameOutcome, Scales, measures
+from poise.solvers.quasistatic import NewtonFrames
+from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord
+from poise.solvers.stable import require_stable_check
+from poise.solvers.status import Status
+
+#: (analysis kind, Param_Static method) -> strategy (``module:Class`` for the ones imported
+#: only when used: MKEAM and FIM_D need scipy / SUNDIALS, which the small-deck FIM_S path never
+#: loads). FIM_D of a static analysis and MKEAM of a quasi-static one run FIM_S (the message
+#: says so); ``require_stable`` is part of FIM_S's static frame
+#: (:func:`poise.solvers.quasistatic.require_stable`).
+METHODS = {
+    ("static", "FIM_S"): NewtonFrames,
+    ("static", "FIM_D"): NewtonFrames,
+    ("static", "MKEAM"): "poise.solvers.mkeam:MkeamMethod",
+    ("quasistatic", "FIM_S"): NewtonFrames,
+    ("quasistatic", "FIM_D"): "poise.solvers.fim_d:IdaContinuation",
+    ("quasistatic", "MKEAM"): NewtonFrames,
+}
+
+
+def strategy_for(request):
+    """The strategy class of ``request``, or None and why (an unsupported analysis type)."""
+    cls = METHODS.get((request.kind, request.settings.method))
+    if cls is None:
+        return None, f"analysis_type {request.kind.upper()} is not supported; expected Static"
+    if isinstance(cls, str):
+        import importlib
+        mod, name = cls.split(":")
+        cls = getattr(importlib.import_module(mod), name)
+    return cls, None
+
+
+class Driver:
+    """One analysis: ``Driver(model, request, redundancy=None, progress=None).run(state,
+    index) -> (state, AnalysisRecord)``; afterwards ``data`` (counters) and ``redundancy``
+    (handed to the next analysis: detection runs once per model). ``request``: ``kind``,
+    ``settings``, ``transient`` and, quasi-static, ``output_times(t_start)``.
+
+    ``progress``: ``progress(label, done, total)`` for the frames of a quasi-static run
+    (``done`` None when finished), or None.
+    """
+
+    def __init__(self, model, request, redundancy=None, progress=None):
+        self.model = model
+        self.request = request
+        self.strategy_cls, why = strategy_for(request)
+        if self.strategy_cls is None:
+            raise ValueError(why)
+        self.ctx = Context(model=model, request=request, settings=request.settings,
+                           data=SolveData.for_model(model, () if redundancy is None
+                                                    else redundancy),
+                           redundancy=redundancy, progress=progress)
+
+    @property
+    def data(self) -> SolveData:
+        return self.ctx.data
+
+    @property
+    def redundancy(self):
+        return self.ctx.redundancy
+
+    def run(self, state, index: int = 0):
+        ctx = self.ctx
+        strategy = self.strategy_cls()
+        state = state.copy()
+        if ctx.kind == "quasistatic":
+            ctx.times = np.asarray(self.request.output_times(state.t), float)
+            state.t = float(ctx.times[0])
+            ctx.time_independent = not self.model.depends_on_time()
+        else:
+            ctx.times = np.array([state.t])
+        label = strategy.name
+        try:
+            strategy.init(ctx, state)
+            while not strategy.terminate(ctx):
+                strategy.step(ctx)
+        except EvaluationError as e:      # an element or expression that cannot be evaluated
+            if ctx.redundancy is None:
+                ctx.redundancy = np.zeros(0, int)
+            if not ctx.frames:
+                ctx.frames, ctx.outcomes = [state], []
+            if len(ctx.outcomes) < len(ctx.frames):
+                ctx.outcomes.append(FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)))
+            else:
+                ctx.frames.append(ctx.frames[-1])
+                ctx.outcomes.append(FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)))
+        finally:
+            if ctx.kind == "quasistatic":
+                ctx.report(label, None, len(ctx.times))
+        extra, attrs = strategy.postprocess(ctx)
+        ar = build_result(ctx, strategy, index, extra)
+        ar.attrs.update(attrs)
+        return ctx.frames[-1], ar
+
+
+def build_result(ctx, strategy, index, extra=None) -> AnalysisRecord:
+    """The result of an analysis: every frame's outcome is certified on its output evaluation
+    (:func:`~poise.solvers.certify.certify`); ``ctx.measured`` frames take their history row's
+    imbalance / constraint error / worst equation from it (FIM_D's interpolated frames)."""
+    model, s = ctx.model, ctx.settings
+    frames, outcomes = ctx.frames, ctx.outcomes
+    static = ctx.kind == "static"
+    ar = AnalysisRecord(index=index, analysis_type=ctx.kind, method=strategy.name,
+                        settings=dict(s.as_dict(), method_requested=s.method))
+    ar.attrs["reactions_unique"] = bool(len(ctx.redundancy) == 0)
+    ar.attrs["assembled"] = bool(ctx.moved)
+    if not static:
+        ar.attrs["time_independent"] = bool(ctx.time_independent)
+        ar.attrs["n_frames"] = len(frames)
+    ar.datasets.update(_frame_set_datasets(ctx, static))
+    if static:
+        out = outcomes[0]
+        ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
+        ar.message = "; ".join([m for m in [out.message] + ctx.notes if m])
+        if strategy.name == "FIM_S":
+            require_stable_check(ar, out, s)
+    else:
+        ok = all(o.ok for o in outcomes) and len(frames) == len(ctx.times)
+        ar.status = STATUS_CONVERGED if ok else STATUS_FAILED
+        failed = next((o for o in outcomes if not o.ok), None)
+        first = "converged"
+        if failed is not None:
+            k = outcomes.index(failed)
+            first = f"frame {k} (t={frames[k].t:.9g}) failed: {failed.message}"
+        ar.message = "; ".join([first] + ctx.notes)
+    ar.datasets.update(stack_frames([frame_outputs(model, st) for st in frames]))
+    attach(ar, model, frames, outcomes, ctx.redundancy, s)    # after the stability datasets
+    ar.datasets.update(ctx.history.datasets())
+    if static:
+        ar.attrs.update(ctx.history.attrs())
+    if strategy.strategy_attrs:
+        ar.attrs.update(strategy_attrs(ar.datasets))
+    ar.datasets.update(redundancy_datasets(model, ctx.redundancy))
+    if extra:
+        ar.datasets.update(extra)
+    return ar
+
+
+def _frame_set_datasets(ctx, static: bool) -> dict:
+    """Output datasets of every frame: all at once where the model allows it (quasi-static),
+    else frame by frame."""
+    model, measured = ctx.model, ctx.measured
+    sc = Scales(model, ctx.settings) if measured else None
+
+    def measure_row(k, imb, cerr, worst):
+        if k not in measured:
+            return
+        row = list(ctx.history.rows[measured[k]])
+        row[2], row[3], row[6] = imb, cerr, worst
+        ctx.history.rows[measured[k]] = tuple(row)
+
+    def measure(k):
+        def on_eval(ev, active):
+            ms = measures(model, Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0),
+                                            J=None), sc)
+            measure_row(k, ms[0], ms[1], ms[3])
+        return on_eval
+
+    if static:
+        return frame_datasets(ctx, ctx.frames[0], ctx.outcomes)
+    d = frames_datasets(ctx, ctx.frames, ctx.outcomes, measure_row if measured else None)
+    if d is not None:
+        return d
+    per = [frame_datasets(ctx, st, [o], on_eval=measure(k) if k in measured else None)
+           for k, (st, o) in enumerate(zip(ctx.frames, ctx.outcomes))]
+    d = {}
+    # keys every frame has (a failed frame has no stability classification)
+    for key in [k for k in per[0] if all(k in p for p in per[1:])]:
+        if key.endswith(("/id", "/tag", "/unique", "/label")):
+            d[key] = per[0][key]
+        else:
+            d[key] = np.concatenate([np.asarray(p[key]) for p in per])
+    return d
+
+
