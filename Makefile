@@ -16,7 +16,7 @@ help:
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	$(PY) -m pip install --quiet -e '.[dev,all]'
 	@touch $(STAMP)
 
 install: $(STAMP)
@@ -34,7 +34,7 @@ test-all: install
 
 BENCH_STAMP := $(VENV)/.bench-installed
 $(BENCH_STAMP): pyproject.toml $(STAMP)
-	$(PY) -m pip install --quiet -e '.[dev,bench]'
+	$(PY) -m pip install --quiet -e '.[dev,all,bench]'
 	@touch $(BENCH_STAMP)
 
 # benchmarks/ (not installed): chain bench + issue 7 (work-precision ladders, Exudyn peer,

@@ -1,4 +1,4 @@
-"""``poise batch``: solve many decks in parallel local processes."""
+"""``poise batch``: solve many decks in parallel (Dask, like ``poise sweep``)."""
 from __future__ import annotations
 
 import os
@@ -8,8 +8,8 @@ import sys
 import click
 
 from poise_cli.options import collect_overrides, json_option, quiet_option, solver_options, \
-    user_code_option
-from poise_cli.summary import fmt_num, print_json, styled_status
+    user_code_option, worker_timeout_option
+from poise_cli.summary import fmt_num, print_json, styled_status, table_json
 
 
 def _equilibrium(row: dict) -> str:
@@ -50,13 +50,18 @@ def _line(row: dict) -> str:
 @click.option("--out-dir", type=click.Path(file_okay=False), default="poise_batch",
               show_default=True, help="Directory for <stem>.h5 files and summary.csv/.json.")
 @click.option("--force", is_flag=True, help="Solve every deck even if its results are up to date.")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Existing Dask scheduler, e.g. tcp://host:8786 (default: a local cluster of "
+                   "-j workers). OUT_DIR must be on a filesystem the workers share.")
+@worker_timeout_option
 @solver_options
 @user_code_option
 @quiet_option
 @json_option
-def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_error,
+def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_num_iter, max_imbalance, max_error,
           stability, no_fallback, require_stable, allow_neutral, allow_user_code, quiet, as_json):
-    """Solve every DECK in parallel local processes.
+    """Solve every DECK in parallel on Dask (the engine of poise sweep: a local cluster by
+    default, --scheduler for a real one; a local process pool without Dask installed).
 
     \b
     Writes OUT_DIR/<deck stem>.h5 per deck (equal stems: <stem>-2.h5, ...) and the summary
@@ -64,11 +69,13 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
     iterations, time, the worst imbalance and stability class with their frames and modes,
     skipped, message). Decks whose results file records the same deck hash, solver options,
     poise version and user scripts are skipped unless --force.
-    A deck that fails (whatever its user code does) is its own row. Exit code: the
-    worst deck's (0 converged, 1 not converged, 3 invalid deck, 4 internal error).
+    A deck that fails (whatever its user code does, even killing its worker) is its own row.
+    Exit code: the worst deck's (0 converged, 1 not converged, 3 invalid deck, 4 internal
+    error); 2 when the cluster had no worker for --worker-timeout seconds (the summary keeps
+    the decks that finished).
     """
     # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
-    from poise.app.batch import BATCH_KEYS, BATCH_VERSION, run_batch, sanitize, worst_exit_code, \
+    from poise.app.batch import BATCH_KEYS, BATCH_VERSION, run_batch, worst_exit_code, \
         write_table
     overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
                                   max_imbalance=max_imbalance, max_error=max_error,
@@ -84,32 +91,44 @@ def batch(decks, jobs, out_dir, force, method, max_num_iter, max_imbalance, max_
     from poise_cli.errors import report_exception
     from poise_cli.streams import guarded_stdout
 
+    table = os.path.join(out_dir, "summary.csv")
+
     def fail(exc):
         code, info = report_exception(exc)
         if as_json:
-            print_json({"batch_version": BATCH_VERSION, "out_dir": out_dir, "exit_code": code,
-                        **info})
+            done = getattr(exc, "rows", None) or []
+            print_json(table_json("batch", out_dir, code, done,
+                                  sum(bool(r["skipped"]) for r in done), table,
+                                  batch_version=BATCH_VERSION, **info))
         sys.exit(code)
 
     try:
         with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout
             rows = run_batch(list(decks), out_dir, jobs=jobs, overrides=overrides, force=force,
-                             command=command, on_row=on_row, allow_user_code=allow_user_code)
-    except (Exception, KeyboardInterrupt) as exc:   # out-dir not writable: exit 2
+                             command=command, on_row=on_row, allow_user_code=allow_user_code,
+                             progress=False if quiet else None, scheduler=scheduler,
+                             worker_timeout=worker_timeout)
+    except (Exception, KeyboardInterrupt) as exc:   # out-dir not writable, no workers: exit 2
+        if getattr(exc, "rows", None) is not None:  # no workers: keep what finished
+            try:
+                write_table(exc.rows, os.path.join(out_dir, "summary"), keys=BATCH_KEYS,
+                            extra={"batch_version": BATCH_VERSION, "out_dir": out_dir,
+                                   "exit_code": 2, "incomplete": True})
+            except Exception:  # noqa: BLE001 - the first error is the one to report
+                pass
         fail(exc)
     code = worst_exit_code(r["exit_code"] for r in rows)
-    counts = {}
-    for r in rows:
-        counts[r["status"]] = counts.get(r["status"], 0) + 1
     n_skipped = sum(bool(r["skipped"]) for r in rows)
-    summary = {"batch_version": BATCH_VERSION, "out_dir": out_dir, "exit_code": code,
-               "counts": counts, "skipped": n_skipped}
+    doc = table_json("batch", out_dir, code, rows, n_skipped, table,
+                     batch_version=BATCH_VERSION, skipped=n_skipped)
+    counts = doc["counts"]
+    summary = {k: doc[k] for k in ("batch_version", "out_dir", "exit_code", "counts", "skipped")}
     try:
         write_table(rows, os.path.join(out_dir, "summary"), keys=BATCH_KEYS, extra=summary)
     except (Exception, KeyboardInterrupt) as exc:   # disk full: exit 2
         fail(exc)
     if as_json:
-        print_json(sanitize({**summary, "rows": rows}))
+        print_json(doc)
     else:
         _print_table(rows)
     if not quiet:

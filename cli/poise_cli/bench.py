@@ -2,8 +2,10 @@
 
 Runs the deck over a tolerance ladder for the chosen methods (in-process, one warm-up, median of
 ``--repeat`` runs) and prints a table: rung, status, iterations, counts, solve time, final
-imbalance and — with ``--reference-method`` — the CG-position error against a tight solution
-(rung 1e-12) of another method. ``--out`` writes the rows as JSON lines.
+imbalance and the CG-position error (over L, the model's length scale) against a reference: the
+tightest rung (1e-12, or tighter when the ladder is) of FIM_S, or of ``--reference-method``.
+``--out`` writes the rows as JSON lines; ``--plot FILE.png`` the work-precision diagram
+(:mod:`poise.viz.workprec`).
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from pathlib import Path
 
 import click
 
-from poise_cli.options import user_code_option
+from poise_cli.options import quiet_option, user_code_option
 
 
 def _user_scripts(deck: str, dest: Path, allow: bool) -> None:
@@ -55,19 +57,53 @@ def _cg(res):
 @click.option("--tolerances", default="1e-2,1e-4,1e-6,1e-8,1e-10", show_default=True,
               help="Comma-separated ladder rungs.")
 @click.option("--repeat", type=int, default=5, show_default=True, help="Timed runs per rung.")
-@click.option("--reference-method", default=None,
-              help="Method whose rung-1e-12 solution is the error reference (e.g. MKEAM).")
+@click.option("--reference-method", default="FIM_S", show_default=True,
+              type=click.Choice(["FIM_S", "MKEAM", "FIM_D"], case_sensitive=False),
+              help="Method whose tightest rung (1e-12, or the ladder's tightest if tighter) is "
+                   "the error reference.")
 @click.option("--out", type=click.Path(dir_okay=False), default=None, help="JSON lines file.")
+@click.option("--plot", "plot_out", type=click.Path(dir_okay=False), default=None,
+              metavar="FILE.png",
+              help="Draw the work-precision diagram (error against solve time, one line per "
+                   "method, log-log) to this PNG (needs poise[plot]).")
 @user_code_option
-def bench(deck, methods, tolerances, repeat, reference_method, out, allow_user_code):
+@quiet_option
+def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, allow_user_code,
+          quiet):
     """Time DECK over a tolerance ladder for each method and print the table.
 
-    A deck naming Python user routines needs --allow-user-code (exit 3 otherwise)."""
+    \b
+    The error column is the largest CG position difference from the reference solution over L
+    (the model's length scale); the reference is the tightest FIM_S rung unless
+    --reference-method says otherwise. A deck naming Python user routines needs
+    --allow-user-code (exit 3 otherwise)."""
     import numpy as np
+    from poise_cli.errors import report_exception   # lazy: poise CMD --help stays light
+
+    ctx = click.get_current_context()
+    try:
+        meths = [x.strip().upper() for x in methods.split(",") if x.strip()]
+        tols = [float(x) for x in tolerances.split(",") if x.strip()]
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated numbers, got {tolerances!r}",
+                                 param_hint="'--tolerances'") from None
+    bad = [m for m in meths if m not in ("FIM_S", "MKEAM", "FIM_D")]
+    if bad or not meths or not tols:
+        raise click.BadParameter(f"expected FIM_S, MKEAM and/or FIM_D, got {methods!r}",
+                                 param_hint="'--methods'")
+    if plot_out:
+        try:
+            # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+            from poise.core.extras import require
+            require("plot", "poise bench --plot")
+        except Exception as exc:  # noqa: BLE001 - MissingExtra: exit 2 with the pip command
+            ctx.exit(report_exception(exc)[0])
+            return
 
     # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.app.api import run_deck
     from poise.app.ladder import method_settings, run_point, with_settings
+    from poise.core.progress import Bar
 
     xml = Path(deck).read_text()
     ref = None
@@ -76,34 +112,58 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, allow_user_c
         try:
             _user_scripts(deck, Path(td), allow_user_code)
         except Exception as exc:  # noqa: BLE001 - DeckError: located, exit 3
-            from poise_cli.errors import report_exception
-            click.get_current_context().exit(report_exception(exc)[0])
-        if reference_method:
-            st, tr = method_settings(reference_method.upper(), 1e-12)
-            p = Path(td) / "ref.xml"
-            p.write_bytes(with_settings(xml, st, tr))
-            ref = _cg(run_deck(str(p), allow_user_code=allow_user_code))
+            ctx.exit(report_exception(exc)[0])
+            return
+        ref_method = reference_method.upper()
+        ref_tol = min([1e-12, *tols])
+        st, tr = method_settings(ref_method, ref_tol)
+        p = Path(td) / "ref.xml"
+        p.write_bytes(with_settings(xml, st, tr))
+        ref_res = run_deck(str(p), allow_user_code=allow_user_code, quiet=True)
+        ref = _cg(ref_res)
+        if any(a.status != "converged" for a in ref_res.analyses) and not quiet:
+            click.echo(f"poise bench: warning: the reference ({ref_method} at {ref_tol:.0e}) did "
+                       "not converge; the errors are against its last state", err=True)
         click.echo(f"{'method':6} {'rung':>7} {'status':9} {'iter':>5} {'res/jac/fac':>13} "
                    f"{'solve s (min-max)':>24} {'imbalance':>10} {'error/L':>9}")
-        for m in [x.strip().upper() for x in methods.split(",") if x.strip()]:
-            for tol in [float(x) for x in tolerances.split(",") if x.strip()]:
+        bar = Bar(len(meths) * len(tols), "bench", "rungs", enabled=False if quiet else None,
+                  delay=0.0)
+        for m in meths:
+            for tol in tols:
                 st, tr = method_settings(m, tol)
                 r, _ = run_point(xml, st, tr, repeat, Path(td), allow_user_code=allow_user_code)
-                err = None
-                if ref is not None:
-                    p = Path(td) / "variant.xml"
-                    x, L = _cg(run_deck(str(p), overrides={"fallback": False},
-                                  allow_user_code=allow_user_code))
-                    if x.shape == ref[0].shape:
-                        err = float(np.max(np.abs(x - ref[0]))) / L
-                r.update(method=m, tol=tol, error=err, deck=deck)
+                err = err_abs = None
+                p = Path(td) / "variant.xml"
+                x, L = _cg(run_deck(str(p), overrides={"fallback": False}, quiet=True,
+                                    allow_user_code=allow_user_code))
+                if x.shape == ref[0].shape:
+                    err_abs = float(np.max(np.abs(x - ref[0])))
+                    err = err_abs / L
+                r.update(method=m, tol=tol, error=err, error_abs=err_abs, deck=deck,
+                         reference=f"{ref_method} {ref_tol:.0e}")
                 rows.append(r)
+                bar.clear()
                 c, s = r["counts"], r["solve_s"]
                 cnt = f"{c.get('residuals', 0)}/{c.get('jacobians', 0)}/{c.get('factorizations', 0)}"
                 click.echo(f"{m:6} {tol:7.0e} {r['status']:9} {r['iterations']:5d} {cnt:>13} "
                            f"{s['median']:9.4g} ({s['min']:.3g}-{s['max']:.3g}) "
                            f"{r['imbalance'] if r['imbalance'] is not None else float('nan'):10.2e} "
                            f"{'—' if err is None else f'{err:9.1e}':>9}")
+                bar.step()
+        bar.close()
+    if plot_out:
+        try:
+            # lazy: matplotlib (poise[plot]) only when --plot is given
+            from poise.viz.plot import units_of
+            from poise.viz.workprec import write_work_precision
+            write_work_precision(rows, plot_out, units_of(ref_res.units)["length"],
+                                 title=Path(deck).name,
+                                 reference=f"{ref_method} at {ref_tol:.0e}")
+        except Exception as exc:  # noqa: BLE001 - not writable: exit 2
+            ctx.exit(report_exception(exc)[0])
+            return
+        if not quiet:
+            click.echo(f"wrote {plot_out}", err=True)
     if out:
         with open(out, "w") as f:
             for r in rows:

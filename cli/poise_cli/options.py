@@ -95,3 +95,14 @@ def collect_overrides(**values) -> dict:
     if ctx is not None and values.get("fallback_max_num_iter") is None:
         values["fallback_max_num_iter"] = ctx.meta.get(_FALLBACK_BUDGET)
     return {k: values[k] for k in OVERRIDE_KEYS if values.get(k) is not None}
+
+
+#: ``--worker-timeout`` of poise batch / sweep (poise.app.engine.WORKER_TIMEOUT, not imported:
+#: that module is heavier than the CLI's start-up budget allows)
+WORKER_TIMEOUT = 120.0
+
+worker_timeout_option = click.option(
+    "--worker-timeout", type=_Finite(min=0, min_open=True), default=WORKER_TIMEOUT,
+    show_default=True, metavar="SECONDS",
+    help="Give up (exit 2, keeping what finished) when the Dask cluster has had no worker for "
+         "this long (a scheduler nobody joined, or whose workers all died).")

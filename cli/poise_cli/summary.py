@@ -108,3 +108,17 @@ def sanitize(obj: Any) -> Any:
     if hasattr(obj, "tolist"):
         return sanitize(obj.tolist())
     return obj
+
+
+def table_json(command: str, out_dir: str, exit_code: int, rows: list, reused: int,
+               table: str, **extra) -> dict:
+    """The ``--json`` document of ``poise batch`` and ``poise sweep`` (one shape): ``command``,
+    ``out_dir``, ``exit_code``, ``n`` rows, ``counts`` per status, ``reused`` (rows read back
+    from up-to-date files: batch's skipped, sweep's resumed), ``table`` (the CSV path), the
+    ``rows`` themselves, then the command's own keys (``extra``)."""
+    counts: dict = {}
+    for r in rows:
+        counts[r["status"]] = counts.get(r["status"], 0) + 1
+    return {"command": command, "out_dir": out_dir, "exit_code": exit_code, "n": len(rows),
+            "counts": counts, "reused": reused, "table": table, **extra,
+            "rows": sanitize(list(rows))}

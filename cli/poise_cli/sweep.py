@@ -8,8 +8,8 @@ import click
 
 from poise_cli.errors import report_exception
 from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
-    solver_options, user_code_option
-from poise_cli.summary import print_json
+    solver_options, user_code_option, worker_timeout_option
+from poise_cli.summary import print_json, table_json
 
 
 @click.command(short_help="Parameter sweep of a deck on Dask (local cluster or scheduler).")
@@ -27,6 +27,7 @@ from poise_cli.summary import print_json
               help="Existing Dask scheduler, e.g. tcp://host:8786 (default: a local cluster).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Worker processes of the local cluster (default: number of CPUs).")
+@worker_timeout_option
 @click.option("--out-dir", type=click.Path(file_okay=False), default="poise_sweep",
               show_default=True, help="Directory for case_NNNNN.h5 and index.csv/index.json.")
 @click.option("--output", "outputs", multiple=True, metavar="GROUP[ID].DATASET",
@@ -41,7 +42,7 @@ from poise_cli.summary import print_json
 @quiet_option
 @json_option
 @debug_option
-def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs, force,
+def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, out_dir, outputs, force,
           max_cases, method, max_num_iter, max_imbalance, max_error, stability, no_fallback,
           require_stable, allow_neutral, allow_user_code, quiet, as_json, debug):
     """Solve DECK once per combination of --set values on Dask distributed.
@@ -52,7 +53,9 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs
     worst imbalance and stability class with their frames and modes, resumed, message and the
     --output columns. Cases whose file is complete and was
     made with the same values are not run again (resume after an interruption).
-    Exit code: the worst case's (0, 1, 3, 4); 2 for a bad --set/--output; 3 invalid deck.
+    Exit code: the worst case's (0, 1, 3, 4); 2 for a bad --set/--output, or when the cluster
+    had no worker for --worker-timeout seconds (the index keeps the finished cases); 3 invalid
+    deck.
     """
     ctx = click.get_current_context()
     overrides = collect_overrides(method=method, max_num_iter=max_num_iter,
@@ -62,6 +65,7 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs
                                   allow_neutral=allow_neutral)
     if n_random is not None:
         mode = "random"
+    index = os.path.join(out_dir, "index.csv")
 
     def on_row(row):
         if not quiet and (row.get("exit_code") or 0) not in (0, 1):
@@ -76,23 +80,25 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, out_dir, outputs
             rows = run_sweep(deck, list(sets), mode=mode, out_dir=out_dir, scheduler=scheduler,
                              outputs=list(outputs), n=n_random, seed=seed, workers=workers,
                              overrides=overrides, force=force, progress=None if not quiet else False,
-                             on_row=on_row, max_cases=max_cases, allow_user_code=allow_user_code)
+                             on_row=on_row, max_cases=max_cases, allow_user_code=allow_user_code,
+                             worker_timeout=worker_timeout)
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:
-            print_json({"index_version": 1, "deck": deck, "out_dir": out_dir,
-                        "exit_code": code, **info})
+            done = getattr(exc, "rows", None) or []
+            print_json(table_json("sweep", out_dir, code, done,
+                                  sum(bool(r.get("resumed")) for r in done), index,
+                                  index_version=1, deck=deck, **info))
         ctx.exit(code)
         return
     code = worst_exit_code(r["exit_code"] for r in rows)
-    counts: dict = {}
-    for r in rows:
-        counts[r["status"]] = counts.get(r["status"], 0) + 1
     n_resumed = sum(bool(r.get("resumed")) for r in rows)
+    doc = table_json("sweep", out_dir, code, rows, n_resumed, index,
+                     index_version=INDEX_VERSION, deck=deck, n_cases=len(rows),
+                     resumed=n_resumed, index=index)
+    counts = doc["counts"]
     if as_json:
-        print_json({"index_version": INDEX_VERSION, "deck": deck, "out_dir": out_dir,
-                    "exit_code": code, "n_cases": len(rows), "counts": counts,
-                    "resumed": n_resumed, "index": os.path.join(out_dir, "index.csv")})
+        print_json(doc)
     if not quiet:
         click.echo(f"poise sweep: {len(rows)} cases: "
                    + ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))

@@ -5,6 +5,7 @@ The CLI (``cli/poise_cli``) is a thin adapter over these functions.
 from __future__ import annotations
 
 from poise.app.check import CheckReport, check
+from poise.app.engine import WORKER_TIMEOUT
 from poise.app.runner import run_deck, run_spec
 from poise.deck.spec import DeckSpec
 from poise.results.data import RunResult
@@ -39,15 +40,18 @@ def solve(deck_or_path, allow_user_code: bool = False, **overrides) -> RunResult
 
 def sweep(deck, sets: dict, mode: str = "grid", out_dir: str = "sweep", scheduler=None,
           outputs=(), n=None, seed=0, workers=None, overrides=None, force=False,
-          allow_user_code: bool = False) -> list[dict]:
+          allow_user_code: bool = False,
+          worker_timeout: float | None = WORKER_TIMEOUT) -> list[dict]:
     """Parameter sweep on Dask distributed; returns the index rows (one dict per case).
 
     ``sets`` maps ``"Tag[id].attr"`` / ``"Tag.attr"`` to a list of values or a range string
     (``"10:100:10"``, ``"FIM_S,MKEAM"``); ``mode`` is ``grid``, ``zip`` or ``random`` (``n``
-    cases, ``seed``). See :func:`poise.app.sweep.run_sweep` for everything else.
+    cases, ``seed``). ``worker_timeout``: seconds without a Dask worker before giving up
+    (:class:`poise.app.engine.NoWorkers`). See :func:`poise.app.sweep.run_sweep` for the rest.
     """
     check_override_names(overrides)
     from poise.app.sweep import run_sweep   # lazy: keeps `poise solve` start-up light
     return run_sweep(deck, sets, mode=mode, out_dir=out_dir, scheduler=scheduler,
                      outputs=outputs, n=n, seed=seed, workers=workers, overrides=overrides,
-                     force=force, allow_user_code=allow_user_code)
+                     force=force, allow_user_code=allow_user_code,
+                     worker_timeout=worker_timeout)

@@ -1,16 +1,19 @@
-"""Batch runs: solve many decks in parallel local processes, one results file per deck.
+"""Batch runs: solve many decks in parallel, one results file per deck.
 
-Used by ``poise batch``. Decks are always solved in worker processes (also with ``-j 1``),
-started with the ``spawn`` method (safe with threads, the same on every platform); a worker
-imports poise once and solves deck after deck with :func:`poise.app.runner.run_deck`, writing
-``OUT_DIR/<stem>.h5`` itself and returning only a small summary row.
+Used by ``poise batch``. Decks run on the engine of ``poise sweep`` (:mod:`poise.app.engine`,
+Dask: a local cluster of ``jobs`` worker processes by default, an existing cluster with
+``scheduler``); a worker solves a deck with :func:`poise.app.runner.run_deck`, writes
+``OUT_DIR/<stem>.h5`` itself and returns only a small summary row. A cluster without a worker
+for ``worker_timeout`` seconds ends the batch (``NoWorkers``, exit 2) keeping the finished rows.
+Without Dask installed (``pip install poise`` without ``[sweep]``) the decks run in a local
+``spawn`` process pool instead; ``scheduler`` then needs the extra.
 
 A worker that dies (killed by a signal, e.g. out of memory, or a crash in native code or in a
-user routine) breaks its pool, which fails every deck it had not finished. The first of those
-(the pool dispatches decks in order, so the culprit is among them) are then solved again each in
-a process of its own, the others in a fresh pool, until every deck is done: only the deck that
-kills its process is reported (``internal_error``, :data:`WORKER_DIED`) and the batch, its other
-decks and the summary files are unaffected.
+user routine) takes the decks it was running down with it. On Dask those are solved again one
+at a time, alone on the cluster; in the process pool (which a dead worker breaks) the first
+unfinished decks are solved again each in a process of its own, the others in a fresh pool.
+Either way only the deck that kills its process is reported (``internal_error``,
+:data:`WORKER_DIED`) and the batch, its other decks and the summary files are unaffected.
 
 Up-to-date check (re-runs skip work): a results file is reused when its root attributes record
 the same ``deck_sha256`` (hash of the deck bytes now), the same ``poise_version`` and the same
@@ -45,10 +48,13 @@ import math
 import os
 from pathlib import Path
 
+from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
+from poise.core.progress import Bar
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_deck
 from poise.core.atomic import atomic_output, OutputError
 from poise.core.errors import DeckError
+from poise.core.extras import available, require
 from poise.core.version import __version__
 from poise.results.hdf5 import read_results, write_results
 from poise.results.summary import summarize_run
@@ -191,18 +197,47 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str,
 
 def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | None = None,
               force: bool = False, command: str = "poise batch",
-              on_row=None, allow_user_code: bool = False) -> list[dict]:
+              on_row=None, allow_user_code: bool = False,
+              progress: bool | None = None, scheduler: str | None = None,
+              worker_timeout: float | None = WORKER_TIMEOUT) -> list[dict]:
     """Solve ``decks`` (in parallel), return one row per deck in the order given.
 
     ``jobs`` ≤ 0 means ``os.cpu_count()``. ``on_row(row)`` is called as each deck finishes.
     ``allow_user_code``: run the Python user routines decks name (else ``invalid_deck``).
+    ``progress``: the decks-done bar (:class:`poise.core.progress.Bar`; False: none, None: auto;
+    False also silences Dask). ``scheduler``: an existing Dask scheduler's address (default: a
+    local cluster of ``jobs`` workers; without Dask installed: a local process pool).
+    ``worker_timeout``: seconds the cluster may have no worker before the batch gives up
+    (:class:`poise.app.engine.NoWorkers`, exit 2, its ``rows`` the finished decks).
     """
-    import functools
     check_override_names(overrides)
+    bar = Bar(len(decks), "batch", "decks", enabled=progress, delay=0.0)
+    user_on_row = on_row
+
+    def on_row(row):
+        if user_on_row:
+            bar.clear()
+            user_on_row(row)
+        bar.step()
+    rows: list[Any] = [None] * len(decks)
+    try:
+        return _run_batch(decks, out_dir, jobs, overrides, force, command, on_row,
+                          allow_user_code, rows, scheduler, progress is False, worker_timeout)
+    except NoWorkers as e:
+        e.rows = [r for r in rows if r is not None]
+        raise
+    finally:
+        bar.close()
+
+
+def _run_batch(decks, out_dir, jobs, overrides, force, command, on_row, allow_user_code, rows,
+               scheduler=None, quiet=False, worker_timeout=WORKER_TIMEOUT):
+    if scheduler:
+        require("sweep", "poise batch --scheduler")
+    import functools
     job = functools.partial(solve_one, allow_user_code=bool(allow_user_code))   # picklable
     ensure_out_dir(out_dir)
     outs = output_paths(decks, out_dir)
-    rows: list[Any] = [None] * len(decks)
     todo = []
     for k, (d, o) in enumerate(zip(decks, outs)):
         if not force and up_to_date(d, o, overrides, allow_user_code):
@@ -217,6 +252,11 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
     jobs = jobs if jobs and jobs > 0 else (os.cpu_count() or 1)
     if not todo:
         return rows
+    if scheduler or available("sweep"):
+        _solve_on_dask(todo, jobs, decks, outs, overrides, command, rows, on_row, job,
+                       scheduler, quiet, worker_timeout)
+        return rows
+    # lean install (no Dask): a local process pool,
     # always in worker processes (also with -j 1): a deck that kills its process (out of memory,
     # a crash in native code or in a user routine) must not take the batch and its summary down
     pending = todo
@@ -236,6 +276,37 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
 #: Message of a deck whose own worker process died (see :func:`_solve_isolated`).
 WORKER_DIED = ("the worker process solving this deck died (killed by a signal, e.g. out of "
                "memory, or a crash in native code); no results file")
+
+
+def _solve_on_dask(todo, jobs, decks, outs, overrides, command, rows, on_row, job, scheduler,
+                   quiet, worker_timeout) -> None:
+    """Solve ``todo`` on Dask (:mod:`poise.app.engine`). A task whose worker died
+    (``KilledWorker``: on the local cluster at the first death) is a suspect; each suspect is
+    then solved again alone on the cluster, so only the deck that kills its worker is
+    reported (:data:`WORKER_DIED`)."""
+    from distributed.scheduler import KilledWorker
+    suspects: list[int] = []
+
+    def done(k, row, exc, alone=False):
+        if isinstance(exc, KilledWorker):
+            if not alone:
+                suspects.append(k)
+                return
+            row = _error_row(decks[k], WORKER_DIED)
+        elif exc is not None:
+            row = _error_row(decks[k], f"worker failed: {type(exc).__name__}: {exc}")
+        rows[k] = row
+        if on_row:
+            on_row(row)
+
+    with dask_client(scheduler, jobs, len(todo), quiet=quiet, feature="poise batch",
+                     allowed_failures=0) as client:
+        run_tasks(client, {k: (job, decks[k], outs[k], overrides, command) for k in todo},
+                  done, worker_timeout=worker_timeout, what="decks")
+        for k in sorted(suspects):      # one at a time, nothing else on the cluster
+            run_tasks(client, {k: (job, decks[k], outs[k], overrides, command)},
+                      lambda k, row, exc: done(k, row, exc, alone=True),
+                      worker_timeout=worker_timeout, what="decks")
 
 
 def _spawn_pool(workers: int):

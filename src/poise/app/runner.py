@@ -13,9 +13,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from poise.app.progress import progress_bar, progress_callback
 from poise.app.times import output_times, print_arrays
 from poise.core import phases
+from poise.core.progress import installed, solver_progress
 from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
 from poise.core.version import __version__
 from poise.deck.parser import load_deck
@@ -221,7 +221,7 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     redundancy = None
     for k, req in enumerate(analyses):
         ta = time.perf_counter()
-        drv = Driver(models[k], req, redundancy=redundancy, progress=progress_callback())
+        drv = Driver(models[k], req, redundancy=redundancy, progress=installed())
         state, rec = drv.run(state, index=k)
         ar = AnalysisResult.of(rec)
         redundancy = drv.redundancy
@@ -264,8 +264,9 @@ def run_deck(
     progress : callable, optional
         Called with one summary line per finished analysis.
     quiet : bool
-        No progress bar on stderr for long quasi-static runs (otherwise shown only when stderr
-        is a terminal, outside CI and with ``POISE_QUIET`` unset).
+        No progress on stderr for long work (quasi-static frames, MKEAM iterations; otherwise
+        a bar on a terminal, a plain line every 10 % or 10 s elsewhere, nothing with
+        ``POISE_QUIET``: poise.core.progress).
     allow_user_code : bool
         Run the Python user routines the deck names (``script_name``). Default False: decks
         come from anywhere, so such a deck is an invalid deck (a located problem per element
@@ -282,7 +283,7 @@ def run_deck(
         Invalid deck (exit code 3).
     """
     check_override_names(overrides)          # before parsing: a typo is the caller's error
-    with progress_bar(False if quiet else None):
+    with solver_progress(False if quiet else None):
         return run(path, overrides=overrides, command=command, progress=progress,
                    allow_user_code=allow_user_code)
 
@@ -303,8 +304,9 @@ def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
 def run_spec(spec: DeckSpec, overrides=None, command: str = "", progress=None,
              allow_user_code: bool = False) -> RunResult:
     """Run an already-parsed (possibly modified) :class:`DeckSpec`; same as :func:`run`."""
-    return run(spec, overrides=overrides, command=command, progress=progress,
-               allow_user_code=allow_user_code)
+    with solver_progress(None):
+        return run(spec, overrides=overrides, command=command, progress=progress,
+                   allow_user_code=allow_user_code)
 
 
 def joint_marker_datasets(spec: DeckSpec, model) -> dict:

@@ -43,15 +43,17 @@ import json
 import math
 import os
 import re
-import sys
 from dataclasses import dataclass, replace
 from typing import Any
 
+from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
+from poise.core.progress import Bar
 from poise.app.batch import ensure_out_dir, inputs_fresh, result_stats, sanitize, write_table
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_spec
 from poise.core.atomic import OutputError
 from poise.core.errors import DeckError, UsageError
+from poise.core.extras import require
 from poise.core.version import __version__
 from poise.deck.parser import parse_deck_bytes
 from poise.deck.values import parse_number
@@ -439,35 +441,11 @@ def resumed_row(out_file: str, index: int, values: dict, outputs) -> dict:
 
 
 # ---------------------------------------------------------------------------- driver
-class _Progress:
-    """A one-line progress bar on stderr, only on a terminal and outside CI."""
-
-    def __init__(self, total: int, enabled: bool | None = None):
-        if enabled is None:
-            try:
-                enabled = sys.stderr.isatty() and not os.environ.get("CI")
-            except (AttributeError, ValueError):
-                enabled = False
-        self.total, self.n, self.on = total, 0, bool(enabled) and total > 0
-
-    def step(self, k: int = 1):
-        self.n += k
-        if self.on:
-            w = 30
-            f = int(w * self.n / self.total)
-            sys.stderr.write(f"\r[{'#' * f}{'.' * (w - f)}] {self.n}/{self.total}")
-            sys.stderr.flush()
-
-    def close(self):
-        if self.on:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
-
-
 def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=None,
               outputs=(), n=None, seed=0, workers=None, overrides=None, force=False,
               progress: bool | None = None, on_row=None, client=None,
-              allow_user_code: bool = False, max_cases: int | None = MAX_CASES) -> list[dict]:
+              allow_user_code: bool = False, max_cases: int | None = MAX_CASES,
+              worker_timeout: float | None = WORKER_TIMEOUT) -> list[dict]:
     """Run a sweep; return the index rows (sorted by case) and write ``index.csv``/``.json``.
 
     Parameters
@@ -496,6 +474,11 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
         deck gives ``invalid_deck`` rows saying how to allow them).
     max_cases : int or None
         Refuse sweeps with more cases (counted before any is made); None: no cap.
+    progress : bool or None
+        The cases-done bar (poise.core.progress; None: automatic). False also silences Dask.
+    worker_timeout : float or None
+        Seconds the cluster may have no worker before the sweep gives up
+        (:class:`poise.app.engine.NoWorkers`, exit 2; the index keeps the finished cases).
 
     Raises
     ------
@@ -504,6 +487,8 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     poise.core.errors.DeckError
         The base deck is invalid (exit 3).
     """
+    if client is None:
+        require("sweep", "poise sweep")     # exit 2 with the pip command in a lean install
     deck = os.fspath(deck)
     try:
         with open(deck, "rb") as f:
@@ -530,15 +515,16 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
              for i in range(len(cases))]
     hashes = [case_hash(spec.sha256, c, overrides) for c in cases]
     rows: list[Any] = [None] * len(cases)
-    bar = _Progress(len(cases), progress)
+    bar = Bar(len(cases), "sweep", "cases", enabled=progress, delay=0.0)
     todo = []
     for i, c in enumerate(cases):
         if not force and resumable(files[i], hashes[i], allow_user_code):
             try:
                 rows[i] = {**resumed_row(files[i], i, c, outs), "resumed": True}
-                bar.step()
                 if on_row:
+                    bar.clear()
                     on_row(rows[i])
+                bar.step()
                 continue
             except Exception:  # noqa: BLE001 - unreadable: run again
                 pass
@@ -564,11 +550,15 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     try:
         if todo:
             _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
-                      scheduler, workers, client, bar, on_row, allow_user_code)
+                      scheduler, workers, client, bar, on_row, allow_user_code,
+                      quiet=progress is False, worker_timeout=worker_timeout)
+    except NoWorkers as e:              # the index keeps the finished cases
+        bar.close()
+        e.rows = finish()
+        raise
     finally:
         bar.close()
-        result = finish()
-    return result
+    return finish()
 
 
 def check_scheduler(address: str) -> None:
@@ -588,46 +578,21 @@ def check_scheduler(address: str) -> None:
 
 
 def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
-              scheduler, workers, client, bar, on_row, allow_user_code=False):
-    import logging
+              scheduler, workers, client, bar, on_row, allow_user_code=False, quiet=False,
+              worker_timeout=WORKER_TIMEOUT):
+    tasks = {i: (run_case, data, deck, params, i, cases[i], overrides, files[i], hashes[i], outs,
+                 bool(allow_user_code)) for i in todo}
 
-    from dask.distributed import Client, LocalCluster, as_completed
-    cluster = None
-    own = client is None
-    if own:
-        if scheduler:
-            try:
-                client = Client(scheduler, timeout="20s")
-            except (OSError, TimeoutError, ValueError, TypeError) as e:
-                raise UsageError(f"--scheduler {scheduler!r}: cannot connect: {e}") from None
-        else:
-            nw = workers or os.cpu_count() or 1
-            cluster = LocalCluster(n_workers=min(nw, max(1, len(todo))), threads_per_worker=1,
-                                   processes=True, dashboard_address=None,
-                                   silence_logs=logging.ERROR)
-            client = Client(cluster)
-    try:
-        deck_abs = deck
-        futs = {}
-        for i in todo:
-            f = client.submit(run_case, data, deck_abs, params, i, cases[i], overrides,
-                              files[i], hashes[i], outs, bool(allow_user_code),
-                              key=f"poise-case-{i}-{hashes[i][:16]}", pure=False)
-            futs[f] = i
-        for fut in as_completed(list(futs)):
-            i = futs[fut]
-            try:
-                rows[i] = fut.result()
-            except Exception as e:  # noqa: BLE001 - lost worker, serialisation ...
-                rows[i] = {"case": i, "file": None, **cases[i], "status": "internal_error",
-                           "exit_code": 4, "message": f"{type(e).__name__}: {e}"}
-            rows[i]["resumed"] = False
-            bar.step()
-            if on_row:
-                on_row(rows[i])
-    finally:
-        if own:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+    def done(i, row, exc):
+        if exc is not None:          # lost worker, serialisation ...
+            row = {"case": i, "file": None, **cases[i], "status": "internal_error",
+                   "exit_code": 4, "message": f"{type(exc).__name__}: {exc}"}
+        rows[i] = row
+        rows[i]["resumed"] = False
+        if on_row:
+            bar.clear()
+            on_row(rows[i])
+        bar.step()
 
+    with dask_client(scheduler, workers, len(todo), client, quiet=quiet) as cl:
+        run_tasks(cl, tasks, done, worker_timeout=worker_timeout, what="cases")

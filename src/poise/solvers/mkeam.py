@@ -60,10 +60,13 @@ class MkeamMethod(Strategy):
         except ValueError as e:
             return FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)), state, state
         state = initial_multipliers(model, state, self.counters)
+        self.rx.report = ctx.report
         try:
             mk_state, status, msg, n_it = self.rx.iterate(state)
         except EvaluationError as e:
             mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(self.rx.iterates)
+        finally:
+            ctx.report("MKEAM", None, self.settings.max_num_iter)
         if not status.ok:
             return FrameOutcome(status, n_it, np.nan, np.nan, msg), mk_state, mk_state
         state, out, note = self._polish(mk_state, n_it)

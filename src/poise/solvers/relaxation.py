@@ -60,6 +60,7 @@ class Relaxation:
         self.extras_free = False  # scalar unknowns MKEAM cannot determine (see _resolve_extras)
         self.iterates = []        # restart points (pos, rot)
         self.handover_tried = False
+        self.report = None        # progress(label, done, total) of the iterations, or None
         self.pe_start = np.nan
         self.last_dq = np.nan
         self.dyn = _Dyn(model, data)
@@ -336,6 +337,8 @@ class Relaxation:
         t_total = 0.0
         used = 0
         for it in range(1, s.max_num_iter + 1):
+            if self.report is not None:
+                self.report("MKEAM", it - 1, s.max_num_iter)
             if used >= MAX_TOTAL_STEPS:
                 return state, Status.MAX_ITERATIONS, (
                     f"MKEAM used its integration budget ({MAX_TOTAL_STEPS} steps) in {it - 1} "

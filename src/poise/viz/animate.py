@@ -1,8 +1,8 @@
 """Stick-figure animation of a results file (``poise animate``).
 
-Each moving body is drawn as its CG (dot) joined by lines to the joint points on it (the origins
-of the joints' I and J markers, from ``/model/markers/*`` and ``/model/joints/*_marker``);
-ground joint points are triangles. Bodies with ``Post_Graphic`` geometry (``/model/graphics/*``)
+Each moving body is drawn as its CG (dot) joined by lines to every marker on it (joint points,
+force points, a pendulum's tip: ``/model/markers/*``); ground joint points (``/model/joints/
+*_marker``) are triangles. Axes are labelled with the deck's length unit. Bodies with ``Post_Graphic`` geometry (``/model/graphics/*``)
 are drawn as that geometry instead of sticks: spheres as circles, boxes as the convex hull of
 their 8 projected corners, planes as a line (their trace in the drawing plane); ground graphics
 are drawn fixed. The drawing plane is the pair of global axes along which the figure
@@ -23,8 +23,10 @@ import numpy as np
 
 from poise.core.atomic import atomic_output
 from poise.core.errors import UsageError
+from poise.core.extras import require
+from poise.core.progress import Bar
 from poise.results.hdf5 import read_results
-from poise.viz.plot import _agg, pick_analysis
+from poise.viz.plot import _agg, pick_analysis, units_of
 
 
 def _frames(a):
@@ -139,10 +141,13 @@ def _stick_segments(res, pos, rot, skip=()):
     jm = [int(x) for x in np.asarray(md.get("joints/i_marker", []))] + \
         [int(x) for x in np.asarray(md.get("joints/j_marker", []))]
     links = []   # (body column or -1, marker index)
-    for m in jm:
-        if m in mk:
-            b = mbody[mk[m]]
-            links.append((col.get(b, -1), mk[m]))
+    for m in jm:                       # ground: joint points only
+        if m in mk and col.get(mbody[mk[m]], -1) < 0:
+            links.append((-1, mk[m]))
+    for k, b in enumerate(mbody):      # moving bodies: every marker on them
+        c = col.get(b, -1)
+        if c >= 0 and np.linalg.norm(moff[k]) > 0:
+            links.append((c, k))
     links = [lk for lk in dict.fromkeys(links) if lk[0] < 0 or lk[0] not in skip]
 
     def frame(f):
@@ -159,15 +164,35 @@ def _stick_segments(res, pos, rot, skip=()):
     return frame
 
 
+def pick_frames(n: int, every: int = 1, max_frames: int | None = None) -> list[int]:
+    """Every ``every``-th of ``n`` frames, then at most ``max_frames`` of those spread evenly;
+    the last frame (the equilibrium) is always kept."""
+    if every < 1 or (max_frames is not None and max_frames < 1):
+        raise UsageError("--every and --max-frames must be at least 1")
+    idx = list(range(0, n, every))
+    if idx and idx[-1] != n - 1:
+        idx.append(n - 1)
+    if max_frames is not None and len(idx) > max_frames:
+        keep = np.unique(np.round(np.linspace(0, len(idx) - 1, max_frames)).astype(int))
+        idx = [idx[k] for k in keep]
+    return idx
+
+
 def animate_results(path: str, out: str, analysis: int | None = None, frame: int | None = None,
-                    fps: int = 4, dpi: int = 80, graphics: bool = True) -> dict:
+                    fps: int = 4, dpi: int = 80, graphics: bool = True, every: int = 1,
+                    max_frames: int | None = None, progress: bool | None = None,
+                    keep_figure: bool = False) -> dict:
     """Write the animation (``.gif`` via Pillow, ``.mp4`` via ffmpeg) or, with ``.png``, one
-    frame. ``frame`` selects a single frame (negative counts from the end). ``graphics=False``
-    ignores ``/model/graphics`` (stick figure only).
+    frame. ``frame`` selects a single frame (negative counts from the end); ``every`` /
+    ``max_frames`` thin the frames (:func:`pick_frames`). ``graphics=False`` ignores
+    ``/model/graphics`` (stick figure only). ``progress``: the frames bar
+    (:mod:`poise.core.progress`; False: none).
 
     Returns ``{"output", "frames", "width", "height", "plane", "graphics"}`` (``graphics``: the
-    number of Post_Graphic artists drawn in the last rendered frame).
+    number of Post_Graphic artists drawn in the last rendered frame); with ``keep_figure`` also
+    ``"figure"``: the matplotlib Figure as last drawn (the caller closes it).
     """
+    require("plot")             # exit 2 with the pip command in a lean install
     low = out.lower()
     if not low.endswith((".gif", ".mp4", ".png")):
         raise UsageError(f"--out {out!r}: expected a .gif, .mp4 or .png file")
@@ -179,7 +204,9 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
     if pos.ndim != 3 or not len(pos) or not pos.shape[1]:
         raise UsageError(f"{path}: analysis {a.index} has no body positions to draw")
     idx = list(range(len(pos)))
-    if frame is not None:
+    if frame is None:
+        idx = pick_frames(len(pos), every, max_frames)
+    else:
         if not -len(idx) <= frame < len(idx):
             raise UsageError(f"--frame {frame}: the animation has {len(idx)} frames "
                              f"(0..{len(idx) - 1})")
@@ -206,8 +233,9 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal")
-    ax.set_xlabel(f"global {names[ax2[0]]}")
-    ax.set_ylabel(f"global {names[ax2[1]]}")
+    unit = units_of(res.units)["length"]
+    ax.set_xlabel(f"global {names[ax2[0]]} [{unit}]")
+    ax.set_ylabel(f"global {names[ax2[1]]} [{unit}]")
     ax.grid(True, lw=0.3)
     lines = []
     drawn = [0]
@@ -215,7 +243,13 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
     gr, = ax.plot([], [], "^", color="k", ms=8, zorder=2)
     title = ax.set_title("")
 
+    bar = Bar(len(idx), "animate", "frames", enabled=progress)
+    rendered = set()
+
     def render(f):
+        if f not in rendered:          # matplotlib draws the first frame twice
+            rendered.add(f)
+            bar.step()
         for ln in lines:
             ln.remove()
         lines.clear()
@@ -233,16 +267,20 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
         title.set_text(f"analysis {a.index} ({a.method}): {labels[f]}  [{f + 1}/{len(pos)}]")
         return [cg, gr, title, *lines]
 
-    with atomic_output(out, (path,), keep_suffix=True) as tmp:
+    with bar, atomic_output(out, (path,), keep_suffix=True) as tmp:
         if low.endswith(".png"):
             render(idx[0])
             fig.savefig(tmp, dpi=dpi)
         else:
             from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
-            anim = FuncAnimation(fig, render, frames=idx, blit=False)
+            anim = FuncAnimation(fig, render, frames=idx, blit=False, cache_frame_data=False)
             writer = PillowWriter(fps=fps) if low.endswith(".gif") else FFMpegWriter(fps=fps)
             anim.save(tmp, writer=writer, dpi=dpi)
     w, h = (fig.get_size_inches() * dpi).round().astype(int).tolist()
-    plt.close(fig)
-    return {"output": out, "frames": len(idx), "width": w, "height": h,
+    info = {"output": out, "frames": len(idx), "width": w, "height": h,
             "plane": names[ax2[0]] + names[ax2[1]], "graphics": drawn[0]}
+    if keep_figure:
+        info["figure"] = fig
+    else:
+        plt.close(fig)
+    return info

@@ -10,6 +10,7 @@ import numpy as np
 
 from poise.core.atomic import atomic_output
 from poise.core.errors import UsageError
+from poise.core.extras import require
 from poise.results.hdf5 import read_results
 from poise.results.schema import unit_symbols
 
@@ -18,6 +19,7 @@ units_of = unit_symbols
 
 
 def _agg():
+    require("plot")             # exit 2 with the pip command in a lean install
     import matplotlib
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
@@ -113,6 +115,7 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
     ``bodies``/``joints``/``requests``: lists of ids (None: up to 4 of each for quasi-static
     runs). ``fig.poise_panels`` names the panels.
     """
+    plt = _agg()
     from matplotlib.ticker import MaxNLocator
     if isinstance(result_or_path, (str, bytes)) or hasattr(result_or_path, "__fspath__"):
         res = read_results(str(result_or_path))
@@ -121,7 +124,6 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
     a = pick_analysis(res, analysis)
     d = a.datasets
     U = units_of(res.units)
-    plt = _agg()
     qs = a.analysis_type == "quasistatic" and a.n_frames > 1
     panels = ["convergence"] + (["iterations"] if qs else [])
     has_ke = "iterations/kinetic_energy" in d and np.isfinite(

@@ -1,0 +1,138 @@
+"""The one engine of ``poise batch`` and ``poise sweep``: Dask distributed.
+
+:func:`dask_client` gives a client: a ``LocalCluster`` of worker processes (one thread each, no
+dashboard) by default, or an existing cluster by its scheduler address. :func:`run_tasks` runs
+independent tasks on it and hands each result (or the exception it raised) back as it comes.
+A cluster without a worker for ``worker_timeout`` seconds (a scheduler nobody joined, or whose
+workers all died) ends the run with :class:`NoWorkers` (exit 2) after cancelling what had not
+run; the caller keeps what finished. Under ``quiet`` no Dask log line or warning reaches stderr.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import time
+import warnings
+
+from poise.core.errors import UsageError
+from poise.core.extras import require
+
+#: default ``--worker-timeout``: seconds without any worker before a run gives up
+WORKER_TIMEOUT = 120.0
+
+
+class NoWorkers(UsageError):
+    """No Dask worker for ``worker_timeout`` seconds (exit 2); ``rows``: what finished."""
+
+    status = "no_workers"
+
+    def __init__(self, message: str, rows=None):
+        super().__init__(message)
+        self.rows = rows
+
+
+@contextlib.contextmanager
+def quiet_dask(quiet: bool):
+    """Inside the block, under ``quiet``: Dask's loggers say nothing and warnings are dropped."""
+    if not quiet:
+        yield
+        return
+    loggers = [logging.getLogger(n) for n in ("distributed", "dask", "tornado", "asyncio")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        for lg, lv in zip(loggers, levels):
+            lg.setLevel(lv)
+
+
+@contextlib.contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None, n_tasks: int = 1,
+                client=None, quiet: bool = False, feature: str = "poise sweep",
+                allowed_failures: int | None = None):
+    """A Dask client for the block (closed after it unless ``client`` was given).
+
+    ``scheduler``: address of an existing scheduler; else a LocalCluster of ``workers``
+    processes (default: CPUs, at most ``n_tasks``). ``allowed_failures``: how often a task may
+    be on a worker that dies before it fails with ``KilledWorker`` (local cluster only).
+    """
+    if client is not None:
+        with quiet_dask(quiet):
+            yield client
+        return
+    require("sweep", feature)
+    import dask
+    from dask.distributed import Client, LocalCluster
+    cluster = None
+    with quiet_dask(quiet):
+        if scheduler:
+            try:
+                client = Client(scheduler, timeout="20s")
+            except (OSError, TimeoutError, ValueError, TypeError) as e:
+                raise UsageError(f"--scheduler {scheduler!r}: cannot connect: {e}") from None
+        else:
+            cfg = {} if allowed_failures is None else \
+                {"distributed.scheduler.allowed-failures": int(allowed_failures)}
+            nw = workers or os.cpu_count() or 1
+            with dask.config.set(cfg):
+                cluster = LocalCluster(n_workers=min(nw, max(1, n_tasks)), threads_per_worker=1,
+                                       processes=True, dashboard_address=None,
+                                       silence_logs=logging.CRITICAL if quiet else logging.ERROR)
+            client = Client(cluster)
+        try:
+            yield client
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+def _n_workers(client) -> int:
+    try:
+        return len(client.nthreads())
+    except Exception:  # noqa: BLE001 - scheduler gone: no workers
+        return 0
+
+
+def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKER_TIMEOUT,
+              what: str = "tasks", poll: float = 1.0) -> None:
+    """Run ``tasks`` (``{key: (fn, *args)}``) on ``client``; ``on_done(key, value, exc)`` as each
+    ends (``exc``: the exception it raised, e.g. ``KilledWorker``). Raises :class:`NoWorkers`
+    when the cluster has no worker for ``worker_timeout`` seconds (None: wait forever)."""
+    from dask.distributed import wait
+    futs = {}
+    for key, (fn, *args) in tasks.items():
+        futs[client.submit(fn, *args, key=f"poise-{what}-{key}-{time.monotonic_ns()}",
+                           pure=False)] = key
+    pending = set(futs)
+    seen = time.monotonic()
+    try:
+        while pending:
+            try:
+                done, pending = wait(pending, timeout=poll, return_when="FIRST_COMPLETED")
+            except TimeoutError:            # nothing finished within ``poll``
+                done = set()
+            for f in done:
+                try:
+                    value, exc = f.result(), None
+                except Exception as e:  # noqa: BLE001 - the task's or the cluster's error
+                    value, exc = None, e
+                on_done(futs[f], value, exc)
+            now = time.monotonic()
+            if done or _n_workers(client):
+                seen = now
+            elif worker_timeout is not None and now - seen > worker_timeout:
+                n = len(pending)
+                where = getattr(client.scheduler, "address", None) or "the scheduler"
+                raise NoWorkers(
+                    f"no Dask worker at {where} for {worker_timeout:g} s (none joined, or all "
+                    f"died): gave up with {n} of {len(futs)} {what} not run; what finished is "
+                    f"kept (run again to do the rest; --worker-timeout to wait longer)")
+    finally:
+        if pending:
+            client.cancel(list(pending))
