@@ -33,6 +33,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.solvers.iterate import Iterative, iterate
 from poise.solvers.newton import FrameOutcome, Scales, _evaluate, merit, newton
 from poise.solvers.status import MESSAGES, Status
 
@@ -220,30 +221,58 @@ class MkeamStage:
 CHAIN = (StabilityStage(), ContinuationStage(), MkeamStage())
 
 
+class Chain(Iterative):
+    """The :data:`CHAIN` stages as an :class:`~poise.solvers.iterate.Iterative` strategy:
+    ``step`` runs the next stage from the frame's input configuration (its switch row, then
+    the stage); the budget is the fallback budget, each stage spending its iterations."""
+
+    def __init__(self, model, start, settings, history, frame, cnt, stages=None):
+        self.model, self.start, self.settings = model, start, settings
+        self.history, self.frame, self.cnt = history, frame, cnt
+        self.stages = CHAIN if stages is None else stages
+
+    def init(self, first):
+        return {"counts": {"stability": 0, "continuation": 0, "mkeam": 0, "polish": 0},
+                "reason": first.status.value, "st": self.start, "out": first, "next": 0,
+                "result": None}
+
+    def terminate(self, s, used):
+        if s["result"] is None and s["next"] == len(self.stages):
+            s["result"] = (s["st"], s["out"], "")
+        return s["result"] is not None
+
+    def exhausted(self, s, used):
+        s["result"] = (s["st"], s["out"], "")
+
+    def step(self, s, used, left):
+        stage = self.stages[s["next"]]
+        s["next"] += 1
+        h = self.history
+        h.strategy = stage.name
+        h.add(self.frame, 0, np.nan, np.nan, event=stage.event(self.settings, s["reason"]))
+        st2, out2, final = stage.run(self.model, self.start, self.settings, h, self.frame,
+                                     self.cnt, left, s["counts"], (s["st"], s["out"]))
+        if out2.ok:
+            s["result"] = (st2, out2, stage.name)
+        elif final:
+            s["result"] = (st2, out2, "")
+        else:
+            s["st"], s["out"], s["reason"] = st2, out2, out2.status.value
+            if out2.status in NO_RECOVERY[:2]:
+                s["result"] = (st2, out2, "")
+        return s["counts"][stage.name]
+
+    def postprocess(self, s, used):
+        st, out, name = s["result"]
+        return st, out, name, s["counts"]
+
+
 def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome, budget: int):
     """Try the :data:`CHAIN` strategies after ``first`` failed, within ``budget`` iterations
-    in total. Returns ``(state, outcome, used, counts)``; ``counts``: iterations per
-    strategy."""
-    counts = {"stability": 0, "continuation": 0, "mkeam": 0, "polish": 0}
-    left = int(budget)
-    reason = first.status.value
-    st, out = start, first
+    in total (:class:`Chain` run by :func:`~poise.solvers.iterate.iterate`). Returns
+    ``(state, outcome, used, counts)``; ``counts``: iterations per strategy."""
     try:
-        for stage in CHAIN:
-            history.strategy = stage.name
-            history.add(frame, 0, np.nan, np.nan, event=stage.event(settings, reason))
-            st2, out2, final = stage.run(model, start, settings, history, frame, cnt, left,
-                                         counts, (st, out))
-            if out2.ok:
-                return st2, out2, stage.name, counts
-            if final:
-                return st2, out2, "", counts
-            st, out = st2, out2
-            left -= counts[stage.name]
-            reason = out.status.value
-            if out.status in NO_RECOVERY[:2] or left <= 0:
-                return st, out, "", counts
-        return st, out, "", counts
+        return iterate(Chain(model, start, settings, history, frame, cnt), int(budget), first)
     finally:
         history.strategy = "plain"
 
@@ -259,50 +288,82 @@ def continuation(model, state, settings, history, frame, cnt, max_steps=PTC_MAX_
     not. At most ``max_steps`` steps; a residual that keeps growing (``mu`` beyond
     ``PTC_MU_GROWTH`` times its start) or turns non-finite ends it as ``diverged``.
     """
-    sc = Scales(model, settings)
-    try:
-        ev = _evaluate(model, state, cnt, need_jac=True)
-    except EvaluationError as e:
-        return state, FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
-    kd = np.abs(np.asarray(ev.J.diagonal()).ravel()[:model.nq])     # dense or CSR, never densified
-    md = model.mass_diagonal(state)
-    has = (md > 0) & np.isfinite(kd)
-    mu0 = float(np.max(kd[has] / md[has])) if has.any() else 0.0
-    if not (np.isfinite(mu0) and mu0 > 0):
-        mu0 = 1.0
-    mu = mu0
-    mu_max = min(mu0 * PTC_MU_GROWTH, 1e150)       # mu**2 stays a finite stability
-    m_old = merit(ev, sc)
-    total = 0
-    last = None
-    for _ in range(int(max_steps)):
-        s_mu = replace(settings, stability=mu * mu, fallback=False, line_search=False)
-        st, o = newton(model, state, s_mu, history, frame, cnt, max_iter=1,
-                       event=f"continuation mu={mu:.3g}")
-        total += o.iterations
-        last = o
+    return iterate(Continuation(model, settings, history, frame, cnt), int(max_steps), state)
+
+
+class Continuation(Iterative):
+    """:func:`continuation` as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step``
+    is one Newton step on ``(K + mu M) dx = -F`` (its rows written by that Newton) and the
+    ``mu`` update; the budget counts steps, the outcome the Newton iterations."""
+
+    def __init__(self, model, settings, history, frame, cnt):
+        self.model, self.settings, self.history, self.frame, self.cnt = (
+            model, settings, history, frame, cnt)
+        self.sc = Scales(model, settings)
+
+    def init(self, state):
+        model = self.model
+        s = {"state": state, "outcome": None, "total": 0, "last": None}
+        try:
+            ev = _evaluate(model, state, self.cnt, need_jac=True)
+        except EvaluationError as e:
+            s["outcome"] = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
+            return s
+        kd = np.abs(np.asarray(ev.J.diagonal()).ravel()[:model.nq])  # dense or CSR, never densified
+        md = model.mass_diagonal(state)
+        has = (md > 0) & np.isfinite(kd)
+        mu0 = float(np.max(kd[has] / md[has])) if has.any() else 0.0
+        if not (np.isfinite(mu0) and mu0 > 0):
+            mu0 = 1.0
+        s.update(mu0=mu0, mu=mu0, mu_max=min(mu0 * PTC_MU_GROWTH, 1e150),  # mu**2 stays finite
+                 m_old=merit(ev, self.sc))
+        return s
+
+    def terminate(self, s, used):
+        return s["outcome"] is not None
+
+    def exhausted(self, s, used):
+        total, last = s["total"], s["last"]
+        imb = last.imbalance if last is not None else np.nan
+        s["outcome"] = FrameOutcome(Status.MAX_ITERATIONS, total, imb, np.nan,
+                                    f"pseudo-transient continuation did not converge in {total} "
+                                    "steps")
+
+    def postprocess(self, s, used):
+        return s["state"], s["outcome"]
+
+    def step(self, s, used, left):
+        mu = s["mu"]
+        s_mu = replace(self.settings, stability=mu * mu, fallback=False, line_search=False)
+        st, o = newton(self.model, s["state"], s_mu, self.history, self.frame, self.cnt,
+                       max_iter=1, event=f"continuation mu={mu:.3g}")
+        s["total"] += o.iterations
+        s["last"] = o
+        s["state"] = st
+        total = s["total"]
         if o.ok:
-            return st, FrameOutcome(Status.CONVERGED, total, o.imbalance, o.error, "converged")
+            s["outcome"] = FrameOutcome(Status.CONVERGED, total, o.imbalance, o.error, "converged")
+            return 1
         if o.status is Status.NONFINITE:
             o.iterations = total
-            return st, o
+            s["outcome"] = o
+            return 1
         if o.iterations == 0:          # singular even with mu M: the flow cannot move
-            return st, FrameOutcome(o.status, total, o.imbalance, o.error, o.message)
-        state = st
+            s["outcome"] = FrameOutcome(o.status, total, o.imbalance, o.error, o.message)
+            return 1
         try:
-            ev = _evaluate(model, state, cnt, need_jac=False)
+            ev = _evaluate(self.model, st, self.cnt, need_jac=False)
         except EvaluationError as e:
-            return state, FrameOutcome(Status.NONFINITE, total, np.nan, np.nan, str(e))
-        m_new = merit(ev, sc)
-        mu = mu * np.sqrt(m_new / max(m_old, 1e-300)) if np.isfinite(m_new) else np.inf
-        if not (np.isfinite(mu) and mu <= mu_max):
-            return state, FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,
-                                       "pseudo-transient continuation diverged (the residual "
-                                       "kept growing)")
-        if mu < PTC_MU_MIN * mu0:
+            s["outcome"] = FrameOutcome(Status.NONFINITE, total, np.nan, np.nan, str(e))
+            return 1
+        m_new = merit(ev, self.sc)
+        mu = mu * np.sqrt(m_new / max(s["m_old"], 1e-300)) if np.isfinite(m_new) else np.inf
+        if not (np.isfinite(mu) and mu <= s["mu_max"]):
+            s["outcome"] = FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,
+                                        "pseudo-transient continuation diverged (the residual "
+                                        "kept growing)")
+            return 1
+        if mu < PTC_MU_MIN * s["mu0"]:
             mu = 0.0
-        m_old = m_new
-    imb = last.imbalance if last is not None else np.nan
-    return state, FrameOutcome(Status.MAX_ITERATIONS, total, imb, np.nan,
-                               f"pseudo-transient continuation did not converge in {total} "
-                               "steps")
+        s["mu"], s["m_old"] = mu, m_new
+        return 1

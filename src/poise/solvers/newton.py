@@ -22,6 +22,7 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.solvers.data import SolveData
 from poise.solvers.history import History
+from poise.solvers.iterate import Iterative, iterate
 from poise.solvers.linalg import Factor, SingularMatrix
 from poise.solvers.status import MESSAGES, Status
 
@@ -308,72 +309,89 @@ def _neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
     return xf if np.all(np.isfinite(xf)) else None
 
 
-def newton(model, state, settings, history: History, frame: int, cnt: Counters,
-           max_iter: int | None = None, event: str = "newton", equilibrate: bool = False):
-    """Newton iterations from ``state``. Returns ``(state, FrameOutcome)``. ``equilibrate``:
-    factorise the row/column-equilibrated Jacobian (:class:`~poise.solvers.linalg.Factor`)."""
-    sc = Scales(model, settings)
-    eps = float(np.sqrt(settings.stability))
-    max_iter = settings.max_num_iter if max_iter is None else max_iter
-    last_step = np.inf
-    it = 0
-    def ev_at(st):
+class NewtonIteration(Iterative):
+    """Frame-level Newton as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step``
+    is one Newton iteration (factorise, solve, limit, line search) and its history row;
+    ``terminate`` checks convergence (writing the final row). ``equilibrate``: factorise the
+    row/column-equilibrated Jacobian (:class:`~poise.solvers.linalg.Factor`)."""
+
+    def __init__(self, model, settings, history: History, frame: int, cnt: Counters,
+                 event: str = "newton", equilibrate: bool = False):
+        self.model, self.settings, self.history = model, settings, history
+        self.frame, self.cnt, self.event, self.equilibrate = frame, cnt, event, equilibrate
+        self.sc = Scales(model, settings)
+        self.eps = float(np.sqrt(settings.stability))
+
+    def _ev_at(self, st):
         # Jacobian deferred: line-search trials pay for the residual only, the accepted point
         # assembles its Jacobian when it is factorised (never at the converged point)
-        return _evaluate(model, st, cnt, need_jac="defer", eps=eps)
+        return _evaluate(self.model, st, self.cnt, need_jac="defer", eps=self.eps)
 
-    def converged(it, imb, err, worst):
+    def _row(self, s, it, step=np.nan, alpha=np.nan, worst=None, pose=None):
+        pose = s.state if pose is None else pose
+        self.history.add(self.frame, it, s.imb, s.err, step, alpha,
+                         s.worst if worst is None else worst, self.event,
+                         pos=pose.pos, rot=pose.rot)
+
+    def _converged(self, s, it, err):
         # within tolerance: unless a removed redundant equation contradicts the others
-        bad = inconsistent_redundant(model, state, sc, cnt)
-        history.add(frame, it, imb, err, np.nan, np.nan, bad or worst, event,
-                    pos=state.pos, rot=state.rot)
+        bad = inconsistent_redundant(self.model, s.state, self.sc, self.cnt)
+        s.err = err
+        self._row(s, it, worst=bad or s.worst)
         if bad:
-            return FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, imb, err,
+            return FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, s.imb, err,
                                 MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
-        return FrameOutcome(Status.CONVERGED, it, imb, err, "converged")
+        return FrameOutcome(Status.CONVERGED, it, s.imb, err, "converged")
 
-    try:
-        ev = ev_at(state)
-    except EvaluationError as e:
-        return state, FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
-    while True:
-        imb, cerr, zinf, worst = measures(model, ev, sc)
-        err = max(cerr, last_step if np.isfinite(last_step) else 0.0)
-        res_ok = zinf <= 1.0
-        step_ok = (not np.isfinite(last_step)) or last_step <= settings.max_error
-        if res_ok and step_ok:
-            return state, converged(it, imb, err, worst)
-        if it >= max_iter:
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
-                        pos=state.pos, rot=state.rot)
-            return state, FrameOutcome(Status.MAX_ITERATIONS, it, imb, err,
-                                       MESSAGES[Status.MAX_ITERATIONS] + f"; worst equation: {worst}")
+    def _fail(self, s, it, status, message):
+        self._row(s, it)
+        s.outcome = FrameOutcome(status, it, s.imb, s.err, message)
+        return 0
+
+    def init(self, state):
+        s = _NewtonState(state)
         try:
-            f = _factor(_jacobian(model, ev, cnt), cnt, equilibrate)
-        except SingularMatrix as e:
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
-                        pos=state.pos, rot=state.rot)
-            return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
-                                       MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
-        rhs = -np.concatenate([ev.r, ev.phi])
+            s.ev = self._ev_at(state)
+        except EvaluationError as e:
+            s.outcome = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
+        return s
+
+    def terminate(self, s, used):
+        if s.outcome is not None:
+            return True
+        s.imb, s.cerr, s.zinf, s.worst = measures(self.model, s.ev, self.sc)
+        s.err = max(s.cerr, s.last_step if np.isfinite(s.last_step) else 0.0)
+        s.res_ok = s.zinf <= 1.0
+        step_ok = (not np.isfinite(s.last_step)) or s.last_step <= self.settings.max_error
+        if s.res_ok and step_ok:
+            s.outcome = self._converged(s, used, s.err)
+            return True
+        return False
+
+    def exhausted(self, s, used):
+        self._fail(s, used, Status.MAX_ITERATIONS,
+                   MESSAGES[Status.MAX_ITERATIONS] + f"; worst equation: {s.worst}")
+
+    def postprocess(self, s, used):
+        return s.state, s.outcome
+
+    def step(self, s, it, left):
+        model, settings, sc, eps, state, ev = (self.model, self.settings, self.sc, self.eps,
+                                               s.state, s.ev)
         try:
-            x = f.solve(rhs)
+            f = _factor(_jacobian(model, ev, self.cnt), self.cnt, self.equilibrate)
+            x = f.solve(-np.concatenate([ev.r, ev.phi]))
         except SingularMatrix as e:
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
-                        pos=state.pos, rot=state.rot)
-            return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
-                                       MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
+            return self._fail(s, it, Status.SINGULAR_JACOBIAN,
+                              MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
         if not np.all(np.isfinite(x)):
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
-                        pos=state.pos, rot=state.rot)
-            return state, FrameOutcome(Status.SINGULAR_JACOBIAN, it, imb, err,
-                                       MESSAGES[Status.SINGULAR_JACOBIAN])
+            return self._fail(s, it, Status.SINGULAR_JACOBIAN, MESSAGES[Status.SINGULAR_JACOBIAN])
         dq, dl = x[:model.nq], x[model.nq:]
         m0 = merit(ev, sc)
         best = None
         eval_error = ""
         alpha, first = _limit_step_trial(model, state, dq, settings)
-        xf = _neutral_filtered(model, state, f, x, eps, sc, zinf, alpha < 1.0)
+        xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, alpha < 1.0)
         if xf is not None:
             # the regularisation dominates the step (near-neutral directions): try the step with
             # those directions filtered out first, keep it if it decreases the merit
@@ -382,7 +400,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
                 tf = model.retract(state, af * xf[:model.nq])
             tf.lam = tf.lam + af * xf[model.nq:]
             try:
-                ev_f = ev_at(tf)
+                ev_f = self._ev_at(tf)
                 mf = merit(ev_f, sc)
                 if mf <= (1.0 - ARMIJO * af) * m0:
                     best = (mf, af, tf, ev_f)
@@ -396,7 +414,7 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
             else:
                 trial = model.retract(state, alpha * dq, alpha * dl)
             try:
-                ev_t = ev_at(trial)
+                ev_t = self._ev_at(trial)
                 m1 = merit(ev_t, sc)
             except EvaluationError as e:
                 ev_t, m1 = None, np.inf
@@ -407,20 +425,39 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
                 break
             alpha *= 0.5
         if best is None:
-            history.add(frame, it, imb, err, np.nan, np.nan, worst, event,
-                        pos=state.pos, rot=state.rot)
-            return state, FrameOutcome(Status.NONFINITE, it, imb, err,
-                                       MESSAGES[Status.NONFINITE] + "; every trial step failed: "
-                                       + eval_error)
-        if res_ok and not best[0] < m0:
+            return self._fail(s, it, Status.NONFINITE, MESSAGES[Status.NONFINITE]
+                              + "; every trial step failed: " + eval_error)
+        if s.res_ok and not best[0] < m0:
             # every equation within tolerance and no step along Newton's direction improves
             # them: the residual is at its round-off floor, the step is noise. The error is the
             # step not taken (the distance Newton still sees), not the last one taken
             nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
-            return state, converged(it, imb, max(cerr, nxt), worst)
-        prev = state                      # the row's pose: the iterate the row measured
-        m1, alpha, state, ev = best
-        last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0
-        history.add(frame, it, imb, err, last_step, alpha, worst, event,
-                    pos=prev.pos, rot=prev.rot)
-        it += 1
+            s.outcome = self._converged(s, it, max(s.cerr, nxt))
+            return 0
+        m1, alpha, s.state, s.ev = best
+        s.last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0
+        self._row(s, it, s.last_step, alpha, pose=state)   # the iterate the row measured
+        return 1
+
+
+class _NewtonState:
+    """Newton's iteration state: the iterate, its evaluation and measures, the last step."""
+
+    def __init__(self, state):
+        self.state = state
+        self.ev = None
+        self.outcome = None
+        self.last_step = np.inf
+        self.imb = self.cerr = self.zinf = self.err = np.nan
+        self.worst = ""
+        self.res_ok = False
+
+
+def newton(model, state, settings, history: History, frame: int, cnt: Counters,
+           max_iter: int | None = None, event: str = "newton", equilibrate: bool = False):
+    """Newton iterations from ``state`` (:class:`NewtonIteration` run by
+    :func:`~poise.solvers.iterate.iterate`, ``max_iter`` default ``max_num_iter``). Returns
+    ``(state, FrameOutcome)``."""
+    max_iter = settings.max_num_iter if max_iter is None else max_iter
+    return iterate(NewtonIteration(model, settings, history, frame, cnt, event, equilibrate),
+                   max_iter, state)
