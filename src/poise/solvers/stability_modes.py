@@ -1,0 +1,171 @@
+"""Stability results: the classes, the mode description and the datasets they are written to.
+
+:class:`StabilityInfo` (class, inertia counts, described :class:`Mode` s) is what both
+classification paths (:mod:`poise.solvers.stability` dense, :mod:`poise.solvers.stability_sparse`)
+return; :func:`_describe` names a mode by the body that moves most. Kept apart from the
+eigen-solves so the results side needs neither. Method: docs/stability.md.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+DENSE_LIMIT = 300       # coordinates; dense cost grows as nq^3 (3000: 30 s, sparse 0.05 s)
+ZERO_REL = 1e-8
+DIAG_FLOOR = 1e-24     # relative floor of the diagonal in the Jacobi equilibration
+# sparse path (nq > DENSE_LIMIT)
+N_MODES = 6            # modes described per class (as the dense path)
+AUG_RHO = (1.0, 16.0, 1.0 / 16.0)   # augmented-Lagrangian weights tried in turn (inertia-neutral)
+BERR_MAX = 1e-2        # LDL^T backward-error estimate allowed, as a fraction of the zero threshold
+SMALL_OP = 64          # mode operators up to this size are decomposed densely
+NOISE_REL = 1e-14      # stiffness entries below this fraction of both their rows' largest: round-off
+WEAK_DIAG = 1e-3       # scaled augmented diagonal below this: eliminated after its neighbours
+TINY_PIVOT = 1e-3      # pivots below this fraction of the zero threshold: sign not reliable
+
+
+#: direction components within this of the largest magnitude count as tied for the sign rule
+SIGN_TIE = 1e-6
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One described unstable or neutral mode, as numbers (``modes/*`` datasets).
+
+    ``body`` is the id of the body with the largest participation (-1 for a model without
+    bodies, where ``coordinate`` is the index of the dominant scalar unknown); ``kind`` is
+    ``rotation`` (about ``direction``), ``translation`` (along ``direction``) or
+    ``coordinate``; ``direction`` a unit vector in global axes, sign-normalised by
+    :func:`sign_normalised` (NaN for ``coordinate``); ``eigenvalue`` the mode's Rayleigh
+    quotient of the stiffness in length coordinates [force/length] (negative for unstable,
+    ~0 for neutral). The sign of an eigenvector is arbitrary (it depends on the LAPACK/BLAS
+    kernel), hence the normalisation.
+    """
+    klass: str                 # unstable | neutral
+    body: int
+    kind: str                  # rotation | translation | coordinate
+    direction: tuple           # (3,) floats
+    eigenvalue: float
+    coordinate: int = -1
+    label: str = ""            # coordinate name (kind coordinate)
+
+    def text(self, short: bool = False) -> str:
+        """``body 3 rotation about (0.00,0.00,1.00)``, built from the numbers (rounded to two
+        decimals, no negative zero). ``short``: a direction within 1e-3 of a global axis is
+        named by it (``body 3 rotation about z``)."""
+        if self.kind == "coordinate":
+            return self.label or f"coordinate {self.coordinate}"
+        a = np.asarray(self.direction, float)
+        prep = "about" if self.kind == "rotation" else "along"
+        axis = next((n for n, e in zip("xyz", np.eye(3)) if abs(a @ e) > 1.0 - 1e-3), None)
+        if short and axis is not None:
+            return f"body {self.body} {self.kind} {prep} {axis}"
+        r = np.round(a, 2) + 0.0
+        return f"body {self.body} {self.kind} {prep} ({r[0]:.2f},{r[1]:.2f},{r[2]:.2f})"
+
+
+@dataclass
+class StabilityInfo:
+    klass: str                 # stable | neutral | unstable | unknown
+    n_negative: int
+    n_zero: int
+    modes: str                 # human-readable description of negative and zero modes
+    min_eigenvalue: float      # smallest eigenvalue of the reduced stiffness [force/length]
+    mode_list: tuple = ()      # the described modes as numbers (Mode), unstable first
+    # the described unstable modes as vectors in model tangent coordinates (solvers/stable.py
+    # leaves an unstable equilibrium along them); not part of the outputs
+    vectors: tuple = field(default=(), compare=False, repr=False)
+
+
+def sign_normalised(a) -> np.ndarray:
+    """Unit vector ``a / |a|`` with the sign fixed: its largest-magnitude component is positive
+    (components within SIGN_TIE of the largest are tied: the first of them, in x, y, z order),
+    and no component is a negative zero."""
+    a = np.asarray(a, float)
+    n = float(np.linalg.norm(a))
+    if not np.isfinite(n) or n == 0.0:
+        return np.full(a.shape, np.nan)
+    a = a / n
+    m = np.abs(a)
+    i = int(np.argmax(m >= m.max() - SIGN_TIE))
+    if a[i] < 0.0:
+        a = -a
+    return a + 0.0
+
+
+def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo:
+    """StabilityInfo of a classified frame: ``unstable`` / ``neutral`` lists of ``(q, w)`` (mode
+    in model coordinates, its Rayleigh quotient [force/length]), up to N_MODES described each;
+    the text is built from the numeric modes."""
+    modes, texts = [], []
+    for label, found, count in (("unstable", unstable, n_neg), ("neutral", neutral, n_zero)):
+        for q, w in found[:N_MODES]:
+            mo = _describe(model, q, label, w)
+            modes.append(mo)
+            texts.append(f"{label}: {mo.text()}")
+        extra = count - min(len(found), N_MODES)
+        if extra > 0:
+            texts.append(f"{label}: ... {extra} more")
+    return StabilityInfo(klass, int(n_neg), int(n_zero), "; ".join(texts), float(wmin),
+                         tuple(modes), tuple(np.asarray(q, float) for q, _ in unstable[:N_MODES]))
+
+
+def _describe(model, q, klass="", eigenvalue=np.nan) -> Mode:
+    """Body with the largest participation in mode ``q`` and its dominant motion, as a
+    :class:`Mode` (vectorised over the bodies: cheap for 10 000 bodies)."""
+    q = np.asarray(q, float)
+    nb = model.nb
+    if nb == 0:
+        k = int(np.argmax(np.abs(q)))
+        name = model.coord_info[k] if k < len(model.coord_info) else f"coordinate {k}"
+        return Mode(klass, -1, "coordinate", (np.nan,) * 3, float(eigenvalue), k, str(name))
+    off = np.asarray(model.body_off)
+    rigid = np.asarray(model.body_kind) == 0
+    t = q[off[:, None] + np.arange(3)]
+    r = np.zeros((nb, 3))
+    r[rigid] = q[off[rigid][:, None] + 3 + np.arange(3)] * model.body_scale[rigid][:, None]
+    part = np.linalg.norm(t, axis=1) ** 2 + np.linalg.norm(r, axis=1) ** 2
+    b = int(np.argmax(part))
+    t, r = t[b], r[b]
+    bid = int(model.body_id[b])
+    nr, nt = np.linalg.norm(r), np.linalg.norm(t)
+    if nr >= (1.0 - 1e-9) * nt:       # a tie (hinge at the body's farthest marker): rotation
+        kind, a = "rotation", r
+    else:
+        kind, a = "translation", t
+    return Mode(klass, bid, kind, tuple(float(x) for x in sign_normalised(a)), float(eigenvalue))
+
+
+def stability_datasets(infos: list[StabilityInfo]) -> dict:
+    """Per-frame datasets (F frames): ``frames/stability``, ``frames/n_negative``,
+    ``frames/n_zero``, ``frames/stability_modes`` (text), ``frames/min_stiffness_eigenvalue``,
+    ``frames/n_modes``; and the described modes as numbers, flat in frame order (K = the sum of
+    ``n_modes``; the frame of mode ``j`` is ``np.repeat(np.arange(F), n_modes)[j]``, so frames
+    and runs concatenate along their axes): ``modes/class``, ``modes/kind`` (K,) strings,
+    ``modes/body`` (K,) ids, ``modes/direction`` (K, 3) unit vectors, ``modes/eigenvalue``
+    (K,). Frame ``f``'s modes are the :class:`Mode` records ``infos[f].mode_list``."""
+    ml = [mo for info in infos for mo in info.mode_list]
+    return {
+        "frames/stability": np.array([i.klass for i in infos], dtype=str),
+        "frames/n_negative": np.array([i.n_negative for i in infos], dtype=np.int64),
+        "frames/n_zero": np.array([i.n_zero for i in infos], dtype=np.int64),
+        "frames/stability_modes": np.array([i.modes for i in infos], dtype=str),
+        "frames/min_stiffness_eigenvalue": np.array([i.min_eigenvalue for i in infos]),
+        "frames/n_modes": np.array([len(i.mode_list) for i in infos], dtype=np.int64),
+        "modes/class": np.array([mo.klass for mo in ml], dtype=str),
+        "modes/kind": np.array([mo.kind for mo in ml], dtype=str),
+        "modes/body": np.array([mo.body for mo in ml], dtype=np.int64),
+        "modes/direction": np.array([mo.direction for mo in ml], float).reshape(len(ml), 3),
+        "modes/eigenvalue": np.array([mo.eigenvalue for mo in ml], float),
+    }
+
+
+def unknown_info(why: str = "") -> StabilityInfo:
+    """A frame that was not classified (not converged, or no trustworthy inertia)."""
+    return StabilityInfo("unknown", -1, -1, why, np.nan)
+
+
+
+def _unknown(why: str) -> StabilityInfo:
+    return unknown_info(f"not classified: {why}")
+

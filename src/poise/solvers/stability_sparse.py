@@ -1,0 +1,465 @@
+"""Stability of large models (``nq > DENSE_LIMIT``): inertia by spectrum slicing.
+
+``K_red`` is never formed: the inertia is counted from sparse ``L D L^T`` factorisations of the
+equilibrated, augmented KKT matrix (:class:`SymmetricLDL`, :class:`_SparsePencil`), and the
+unstable/neutral modes come from operators applied with those factorisations. Why and how
+(the equilibration, the augmentation, the trust tests, the mode iterations): docs/stability.md.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.solvers.redundancy import redundant_rows
+from poise.solvers.stability_modes import (
+    AUG_RHO,
+    BERR_MAX,
+    DIAG_FLOOR,
+    N_MODES,
+    NOISE_REL,
+    SMALL_OP,
+    TINY_PIVOT,
+    WEAK_DIAG,
+    ZERO_REL,
+    StabilityInfo,
+    _info,
+    _unknown,
+)
+
+
+def _classify_sparse(model, J, active=None) -> StabilityInfo:
+    """Inertia by spectrum slicing with sparse LDL^T factorisations of the equilibrated KKT
+    matrix (module docstring, "Large models"). Active constraint rows that have become
+    dependent at this configuration (a tiny pivot at a constraint row) are found by the
+    redundancy test of the static driver and dropped (the null space is unchanged), once."""
+    try:
+        P = _SparsePencil(model, J, active=active)
+        info = _classify_pencil(model, P)
+        if info.klass == "unknown" and P.singular:
+            red = redundant_rows(P.G_active, np.ones(model.nq))
+            if len(red):
+                info = _classify_pencil(model, _SparsePencil(model, J, drop=red, active=active))
+        return info
+    except (RuntimeError, ValueError, ArithmeticError, MemoryError,
+            np.linalg.LinAlgError) as e:
+        return _unknown(f"sparse classification failed ({type(e).__name__}: {e})")
+
+
+def _classify_pencil(model, P) -> StabilityInfo:
+    m, eps = P.m, P.eps
+    up, why = P.factor(+eps)
+    if up is None:
+        return _unknown(why)
+    below = up.n_negative - m                       # eigenvalues < +eps
+    if below < 0:
+        return _unknown("KKT inertia has fewer negative pivots than active constraint rows "
+                        "(dependent constraint rows?)")
+    if below == 0:
+        if P.nq == m:                    # valid factorisation: Gt square and non-singular
+            return StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
+        low = _lowest_mode(P, up, +eps)
+        return StabilityInfo("stable", 0, 0, "", low[0][1] if low else np.nan)
+    dn, why = P.factor(-eps)
+    if dn is None:
+        return _unknown(why)
+    n_neg = dn.n_negative - m                       # eigenvalues < -eps
+    if not 0 <= n_neg <= below:
+        return _unknown(f"inconsistent inertia at the two shifts ({below} eigenvalues below "
+                        f"+{eps:.1e}, {n_neg} below -{eps:.1e})")
+    n_zero = below - n_neg
+    unstable = _negative_modes(P, dn, -eps, n_neg) if n_neg else []
+    neutral = _zero_modes(P, dn, -eps, n_zero) if n_zero else []
+    ws = [w for _, w in unstable + neutral]
+    klass = "unstable" if n_neg else "neutral"
+    return _info(model, klass, n_neg, n_zero, unstable, neutral, min(ws) if ws else np.nan)
+
+
+class SymmetricLDL:
+    """Sparse ``L D L^T`` of a symmetric matrix with 1x1 diagonal pivots only, and its inertia.
+
+    SuperLU in symmetric mode with ``diag_pivot_thresh=0`` takes every diagonal pivot that is
+    not exactly zero; when no off-diagonal pivot was taken (``perm_r == perm_c``) the factors
+    of ``P^T A P`` satisfy ``U = D L^T`` and, by Sylvester's law of inertia, the signs of the
+    pivots ``diag(U)`` are the signs of A's eigenvalues. ``order`` is a symmetric elimination
+    order (``A[order][:, order]`` is factorised as given); None lets SuperLU choose (minimum
+    degree on A + A^T).
+
+    ``ok`` is False (with ``reason``) when a pivot was zero, non-finite or off the diagonal.
+    Without pivoting the factorisation is not backward stable in general, so
+    ``backward_error = 32 u ||(|L| |U|) 1||_inf`` estimates ``||L D L^T - A||``: the counted
+    inertia is A's when this is below A's smallest |eigenvalue| (Weyl).
+    """
+
+    def __init__(self, A, order=None):
+        import scipy.sparse as sp
+        import scipy.sparse.linalg as spla
+        A = sp.csc_matrix(A)
+        self.n = n = A.shape[0]
+        self.order = None if order is None else np.asarray(order)
+        if self.order is not None:
+            A = A[self.order][:, self.order].tocsc()
+        self.ok = False
+        self.reason = ""
+        self.backward_error = np.inf
+        self.n_negative = self.n_positive = -1
+        try:
+            lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A" if order is None else "NATURAL",
+                           diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+        except RuntimeError as e:
+            self.reason = f"the LDL^T factorisation failed ({e})"
+            return
+        if not np.array_equal(lu.perm_r, lu.perm_c):
+            self.reason = "the LDL^T factorisation needed an off-diagonal pivot"
+            return
+        U = lu.U
+        d = U.diagonal()
+        if not np.all(np.isfinite(d)) or np.any(d == 0.0):
+            self.reason = "the LDL^T factorisation has a zero or non-finite pivot"
+            return
+        g = abs(lu.L) @ (abs(U) @ np.ones(n))
+        self.backward_error = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
+        self.pivots = d
+        # original index of each pivot (pivot k eliminates column perm_c^-1[k] of A[order])
+        self.index = np.empty(n, np.int64)
+        self.index[lu.perm_c] = np.arange(n) if self.order is None else self.order
+        self.n_negative = int(np.count_nonzero(d < 0))
+        self.n_positive = n - self.n_negative
+        self.lu = lu
+        self.ok = True
+
+    @property
+    def inertia(self) -> tuple[int, int, int]:
+        """(negative, zero, positive) pivot counts (no zero pivot in a valid factorisation)."""
+        return self.n_negative, 0, self.n_positive
+
+    def solve(self, b):
+        b = np.asarray(b, float)
+        if self.order is None:
+            return self.lu.solve(b)
+        y = self.lu.solve(np.ascontiguousarray(b[self.order]))
+        x = np.empty_like(y)
+        x[self.order] = y
+        return x
+
+
+class _SparsePencil:
+    """The reduced-stiffness eigenproblem of a large model, never formed: the length-scaled
+    symmetric stiffness ``Kt`` and active constraint Jacobian ``Gt`` after a symmetric
+    equilibration of the KKT matrix, the KKT elimination order, and factorisations at shifts."""
+
+    def __init__(self, model, J, drop=(), active=None):
+        import scipy.sparse as sp
+        nq = model.nq
+        J = sp.csr_matrix(J)
+        d = np.asarray(model.q_scale, float)
+        Di = sp.diags(1.0 / d)
+        Ku = Di @ J[:nq, :nq] @ Di
+        Ks = _prune_noise(((Ku + Ku.T) * 0.5).tocsr())
+        rows = np.arange(model.nc) if active is None else np.nonzero(active)[0]
+        G = (J[nq:, :nq][rows] @ Di).tocsr()
+        self.G_active = G                 # active rows, length-scaled (dependent-row check)
+        self.rows = rows                  # constraint rows of Gt (model indices)
+        if G.shape[0]:
+            # a numerically empty row does not constrain anything (the dense SVD's rcond);
+            # ``drop``: active rows found dependent at this configuration
+            rn = np.sqrt(np.asarray(G.multiply(G).sum(axis=1)).ravel())
+            keep = rn > 1e-10 * rn.max()
+            keep[np.asarray(drop, np.int64)] = False
+            G = G[keep]
+            self.rows = self.rows[keep]
+        dq, dl = _equilibrate(Ks, G)
+        self.Kt = (sp.diags(dq) @ Ks @ sp.diags(dq)).tocsr()
+        self.Gt = (sp.diags(dl) @ G @ sp.diags(dq)).tocsr()
+        self.GtG = (self.Gt.T @ self.Gt).tocsr()
+        self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
+        self.nq, self.m = nq, self.Gt.shape[0]
+        self.order = _kkt_order(model, self.Kt, self.Gt, self.GtG)
+        # zero threshold: ZERO_REL of the spectral radius of Kt (an upper bound of the reduced
+        # matrix's), at least ZERO_REL (Kt has a unit-scale diagonal block after equilibration)
+        self.eps = ZERO_REL * max(_spectral_radius(self.Kt), 1.0)
+        self.singular = False             # a tiny pivot at a constraint row was met
+
+    def kkt(self, s, rho):
+        """``[[Kt - s I + rho Gt^T Gt, Gt^T], [Gt, 0]]`` (congruent to the rho = 0 matrix)."""
+        import scipy.sparse as sp
+        A = self.Kt + rho * self.GtG - s * sp.identity(self.nq, format="csr")
+        if self.m == 0:
+            return A.tocsc()
+        return sp.bmat([[A, self.Gt.T], [self.Gt, None]], format="csc")
+
+    def factor(self, s):
+        """A valid LDL^T of ``kkt(s, rho)`` for the first ``rho`` of AUG_RHO whose backward
+        error is below ``BERR_MAX * eps`` and whose pivots are all above ``TINY_PIVOT * eps``
+        (a pivot at round-off level has no reliable sign: the matrix is numerically singular,
+        typically dependent constraint rows at this configuration); else ``(None, reason)``."""
+        why = []
+        for rho in AUG_RHO:
+            F = SymmetricLDL(self.kkt(s, rho), self.order)
+            if not F.ok:                  # a zero pivot (exactly dependent rows?)
+                self.singular = True
+                why.append(F.reason)
+                continue
+            if F.backward_error > BERR_MAX * self.eps:
+                why.append(f"LDL^T backward error {F.backward_error:.1e} above "
+                           f"{BERR_MAX:g} x the zero threshold {self.eps:.1e}")
+                continue
+            tiny = np.abs(F.pivots) < TINY_PIVOT * self.eps
+            if tiny.any():
+                at_row = bool(np.any(F.index[tiny] >= self.nq))
+                self.singular |= at_row
+                why.append(f"pivot {np.abs(F.pivots).min():.1e} below {TINY_PIVOT:g} x the zero "
+                           f"threshold: numerically singular"
+                           + (" (dependent constraint rows?)" if at_row else ""))
+                continue
+            return F, ""
+        return None, (f"sparse inertia of the {self.nq + self.m}-unknown KKT matrix at shift "
+                      f"{s:+.1e} not reliable ({why[0]}; {len(why) - 1} other augmentation "
+                      "weights failed too)")
+
+    def op(self, F):
+        """``v -> x`` with ``kkt(s) [x; y] = [v; 0]``: ``Z (Z^T (Kt - s I) Z)^-1 Z^T v`` for an
+        orthonormal null-space basis Z of Gt (symmetric; its range satisfies Gt x = 0)."""
+        from scipy.sparse.linalg import LinearOperator
+        nq, m = self.nq, self.m
+
+        def mv(v):
+            v = np.asarray(v, float)
+            b = np.zeros((nq + m,) + v.shape[1:])
+            b[:nq] = v
+            return F.solve(b)[:nq]
+        return LinearOperator((nq, nq), matvec=mv, matmat=mv, dtype=float)
+
+    def modes(self, X):
+        """Check the columns of X (scaled coordinates) and return [(q, w, mu)]: ``q`` in model
+        coordinates, ``w`` the Rayleigh quotient in length coordinates [force/length] (as the
+        dense path), ``mu`` the scaled Rayleigh quotient (compared with ``eps``)."""
+        X = np.asarray(X, float).reshape(self.nq, -1)
+        nx = np.linalg.norm(X, axis=0)
+        ok = np.isfinite(nx) & (nx > 0.0)
+        X = X[:, ok] / nx[ok]
+        if self.m:                                    # on the manifold (Gt x = 0)?
+            X = X[:, np.linalg.norm(self.Gt @ X, axis=0) <= 1e-6]
+        mu = np.einsum("ij,ij->j", X, self.Kt @ X)
+        XL = self.dq[:, None] * X
+        XL /= np.linalg.norm(XL, axis=0)
+        w = np.einsum("ij,ij->j", XL, self.Ks @ XL)
+        return [(XL[:, j] / self.d, float(w[j]), float(mu[j])) for j in range(X.shape[1])]
+
+
+def _prune_noise(Ks):
+    """Drop the entries of Ks at round-off level of both rows they couple (``|K_ij| <=
+    NOISE_REL max(max_k |K_ik|, max_k |K_jk|)``): a perturbation of the size of the rounding in
+    those rows, but equilibration would otherwise scale a 1e-19-relative coupling next to a
+    zero diagonal (a box's yaw on a plane) up to unit size and count a negative eigenvalue."""
+    a = np.abs(Ks.data)
+    cnt = np.diff(Ks.indptr)
+    nz = cnt > 0
+    if not a.size:
+        return Ks
+    rmax = np.zeros(Ks.shape[0])
+    rmax[nz] = np.maximum.reduceat(a, Ks.indptr[:-1][nz])
+    rows = np.repeat(np.arange(Ks.shape[0]), cnt)
+    keep = a > NOISE_REL * np.maximum(rmax[rows], rmax[Ks.indices])
+    if keep.all():
+        return Ks
+    Ks = Ks.copy()
+    Ks.data[~keep] = 0.0
+    Ks.eliminate_zeros()
+    return Ks
+
+
+def _equilibrate(Ks, G, iters=12, tol=0.1):
+    """Symmetric Ruiz scaling ``D`` of the KKT matrix ``[[Ks, G^T], [G, 0]]``: every row of
+    ``D |KKT| D`` has a largest entry in ``[1 - tol, 1 + tol]`` (a diagonal congruence: the
+    inertia is unchanged), except that a coordinate is never scaled up beyond
+    ``1 / sqrt(DIAG_FLOOR max|Ks|)`` (the dense path's floor). Returns the coordinate and row
+    factors."""
+    import scipy.sparse as sp
+    nq = Ks.shape[0]
+    kmax = float(np.max(np.abs(Ks.data), initial=0.0))
+    cap = 1.0 / np.sqrt(DIAG_FLOOR * kmax) if kmax > 0.0 else np.inf
+    B = sp.bmat([[Ks, G.T], [G, None]], format="csr") if G.shape[0] else Ks.tocsr()
+    n = B.shape[0]
+    a = np.abs(B.data)
+    cnt = np.diff(B.indptr)
+    rows = np.repeat(np.arange(n), cnt)
+    nz = cnt > 0
+    starts = B.indptr[:-1][nz]
+    D = np.ones(n)
+    for _ in range(iters):
+        r = np.ones(n)
+        if a.size:
+            r[nz] = np.maximum.reduceat(a * D[rows] * D[B.indices], starts)
+        r[r <= 0.0] = 1.0                              # an all-zero row keeps its scale
+        if np.all(np.abs(r - 1.0) <= tol):
+            break
+        D /= np.sqrt(r)
+        np.minimum(D[:nq], cap, out=D[:nq])
+    return D[:nq], D[nq:]
+
+
+def _coordinate_groups(model) -> np.ndarray:
+    """Group of each coordinate: one per body, one per scalar unknown."""
+    nq, nb = model.nq, model.nb
+    grp = np.full(nq, -1, np.int64)
+    if nb:
+        size = np.where(np.asarray(model.body_kind) == 0, 6, 3)
+        within = np.arange(size.sum()) - np.repeat(np.cumsum(size) - size, size)
+        grp[np.repeat(np.asarray(model.body_off), size) + within] = np.repeat(np.arange(nb), size)
+    free = grp < 0
+    grp[free] = nb + np.arange(int(free.sum()))
+    return grp
+
+
+def _kkt_order(model, K, G, GtG) -> np.ndarray:
+    """Symmetric elimination order of the KKT matrix for 1x1 pivots. Bodies (and scalar
+    unknowns) are ordered by minimum degree on the quotient graph (one node per body) of
+    ``|K| + |G|^T |G|``; every constraint row comes right after the last of the bodies it acts
+    on (its pivot is then ``-g A^-1 g^T``, not its zero diagonal), and so does every *weak*
+    coordinate (augmented diagonal ``|K_ii + (G^T G)_ii|`` below ``WEAK_DIAG``, e.g. a scalar
+    unknown with no stiffness of its own): eliminated first, its near-zero pivot would blow up
+    the rest of the factor."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+    nq = model.nq
+    grp = _coordinate_groups(model)
+    ng = int(grp.max()) + 1
+    E = sp.csr_matrix((np.ones(nq), (np.arange(nq), grp)), shape=(nq, ng))
+    S = (abs(K) + abs(GtG)).tocsr()
+    S.sum_duplicates()
+    if ng > 1:
+        Q = (E.T @ S @ E).tocsc()
+        Q.data[:] = 1.0
+        Q = (Q + sp.identity(ng, format="csc") * (ng + 1.0)).tocsc()   # diagonally dominant
+        rank = spla.splu(Q, permc_spec="MMD_AT_PLUS_A").perm_c       # position of each group
+    else:
+        rank = np.zeros(1, np.int64)
+    key = 3 * rank[grp]
+    nzr = np.diff(S.indptr) > 0
+    weak = (np.abs((K + GtG).diagonal()) < WEAK_DIAG) & nzr
+    if weak.any():
+        last = np.zeros(nq, np.int64)
+        last[nzr] = np.maximum.reduceat(rank[grp[S.indices]], S.indptr[:-1][nzr])
+        key[weak] = 3 * last[weak] + 2
+    keys = [key]
+    if G.shape[0]:
+        Ga = abs(G).tocsr()
+        last = np.maximum.reduceat(rank[grp[Ga.indices]], Ga.indptr[:-1])
+        keys.append(3 * last + 1)
+    return np.argsort(np.concatenate(keys), kind="stable")
+
+
+def _spectral_radius(A, iters=20) -> float:
+    """Power-iteration estimate (a lower bound) of the spectral radius of symmetric A."""
+    x = np.random.default_rng(20240611).standard_normal(A.shape[0])
+    r = 0.0
+    for _ in range(iters):
+        nx = np.linalg.norm(x)
+        if nx == 0.0:
+            break
+        x = A @ (x / nx)
+        r = float(np.linalg.norm(x))
+    return r
+
+
+def _eig_extreme(op, n, k, which, tol, maxiter=20):
+    """``k`` eigenpairs of the symmetric operator ``op`` at the end ``which`` ('LA' or 'SA'):
+    dense for small operators, else implicitly restarted Lanczos (ARPACK; on non-convergence
+    the pairs that did converge)."""
+    if n <= SMALL_OP:
+        A = op.matmat(np.eye(n))
+        w, V = np.linalg.eigh(0.5 * (A + A.T))
+        idx = np.argsort(w if which == "SA" else -w)[:k]
+        return w[idx], V[:, idx]
+    from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, eigsh
+    v0 = op.matvec(np.random.default_rng(7).standard_normal(n))     # in the range of op
+    try:
+        return eigsh(op, k=k, which=which, tol=tol, v0=v0, maxiter=maxiter)
+    except ArpackNoConvergence as e:
+        return e.eigenvalues, e.eigenvectors
+    except ArpackError:
+        return np.zeros(0), np.zeros((n, 0))
+
+
+def _subspace(P, op, b, iters, seed, X=None):
+    """Block subspace iteration on ``op`` (block size ``b``, one multi-right-hand-side solve per
+    step) followed by a Rayleigh-Ritz step on Kt: the Ritz pairs ``(mu, X)`` (mu ascending) of
+    the dominant invariant subspace of ``op``. Ritz values are Rayleigh quotients, so a Ritz
+    vector of a tight cluster is a valid mode with that value even before it has converged."""
+    b = max(1, min(b, P.nq))
+    if X is None:
+        X = np.random.default_rng(seed).standard_normal((P.nq, b))
+    X = op.matmat(X)
+    for it in range(iters + 1):
+        U = _orthonormalize(_orthonormalize(X))
+        if it < iters:
+            X = op.matmat(U)
+    H = U.T @ (P.Kt @ U)
+    w, V = np.linalg.eigh(0.5 * (H + H.T))
+    return w, U @ V
+
+
+def _orthonormalize(X, rtol=1e-7):
+    """Orthonormal basis of the columns of tall X from its Gram matrix (one pass loses the
+    directions below ``rtol`` of the largest: harmless here, they are the ones the iteration
+    discards; call twice for orthogonality to round-off). Cheaper than QR for n x 10."""
+    Gm = X.T @ X
+    w, V = np.linalg.eigh(0.5 * (Gm + Gm.T))
+    keep = w > (rtol ** 2) * max(float(w[-1]), 0.0) if w.size else w > 0
+    keep &= w > 0
+    return (X @ V[:, keep]) / np.sqrt(w[keep])
+
+
+def _lowest_mode(P, F, s):
+    """Stable model (``kkt(s)`` has no reduced eigenvalue below ``s``): the smallest ones are
+    the dominant eigenvalues 1/(mu - s) > 0 of ``op(F)``; the lowest Ritz pair of a short block
+    iteration (a block, not Lanczos on one vector, so that clusters cost nothing extra)."""
+    _, X = _subspace(P, P.op(F), 4, 4, seed=5)
+    found = sorted(P.modes(X), key=lambda mo: mo[2])
+    return [mo[:2] for mo in found[:1]]
+
+
+def _negative_modes(P, F, s, n_neg):
+    """Up to N_MODES unstable modes, most negative first.
+
+    ``F`` factorises ``kkt(s)``, ``s = -eps``: the negative eigenvalues ``1/(mu - s)`` of
+    ``op(F)`` are exactly the n_neg unstable modes, well apart from the positive ones when the
+    instability is weak. When all of them are wanted (n_neg <= N_MODES) Lanczos takes them from
+    there. Otherwise (or if Lanczos does not deliver them all) a further factorisation at a
+    Gershgorin lower bound ``s_lo`` of the spectrum of Kt (no reduced eigenvalue below it,
+    checked by its inertia) makes the most unstable modes the dominant ones of a positive
+    operator, and a block iteration gives them (Ritz pairs: inside a tight cluster, valid
+    modes of that value). Its lowest Ritz value ``r`` then gives a closer shift ``1.1 r``,
+    used (after the same inertia check) for a few more steps: convergence goes with
+    ``(mu_1 - s) / (mu_j - s)``."""
+    k = min(n_neg, N_MODES)
+    found = []
+    if n_neg <= N_MODES:
+        th, X = _eig_extreme(P.op(F), P.nq, k, "SA", 1e-8)
+        found = [mo for mo in P.modes(X[:, th < 0]) if mo[2] < -P.eps]
+    if len(found) < k:
+        X = None
+        s_lo = -1.01 * float(abs(P.Kt).sum(axis=1).max()) - P.eps
+        for _ in range(2):
+            lo, _why = P.factor(s_lo)
+            if lo is None or lo.n_negative != P.m:
+                break
+            w, X = _subspace(P, P.op(lo), k + 6, 3, seed=3, X=X)
+            more = [mo for mo in P.modes(X) if mo[2] < -P.eps]
+            if len(more) >= len(found):
+                found = more
+            if not w.size or w[0] >= -P.eps:
+                break
+            s_lo = 1.1 * float(w[0])
+    found.sort(key=lambda mo: mo[2])
+    return [mo[:2] for mo in found[:k]]
+
+
+def _zero_modes(P, F, s, n_zero):
+    """Up to N_MODES neutral modes. With ``F`` factorising ``kkt(s)``, ``s = -eps``, the reduced
+    eigenvalues in [-eps, eps] are the dominant ones of ``op(F)`` (>= 1/(2 eps)), exactly
+    degenerate clusters included: a short block iteration and Rayleigh-Ritz give them."""
+    k = min(n_zero, N_MODES)
+    w, X = _subspace(P, P.op(F), k + 4, 4, seed=11)
+    X = X[:, np.argsort(np.abs(w), kind="stable")]
+    found = [mo for mo in P.modes(X) if abs(mo[2]) <= 2 * P.eps]
+    return [mo[:2] for mo in found[:k]]
