@@ -1,32 +1,12 @@
 """Compliance matrix of an equilibrium (MotionSolve GTCMAT; ``Param_Static compliance_delta``).
 
-For markers ``1..M`` the compliance ``C`` (6M x 6M) holds in block ``(i, j)`` the generalised
-displacement of marker ``i`` (3 translations, 3 small rotations, global axes) per unit force
-(columns 0-2) or torque (columns 3-5, global axes) applied at marker ``j``. It is the
-compliance of the *constrained* system: with ``K`` the tangent stiffness (coordinate block of
-the KKT Jacobian at the converged multipliers, no ``stability`` term) and ``P`` the active
-(non-redundant) constraint rows, a load ``f = G_j^T e`` gives ``[K P^T; P 0] [dq; dl] = [f; 0]``
-and ``u_i = G_i dq``, where ``G_i = [[I, -[r_i]x], [0, I]]`` maps a body's tangent increment
-(CG translation, spatial rotation) to the displacement of marker ``i`` (``r_i`` its lever from
-the CG). Equivalently ``C = G N (N^T K N)^-1 N^T G^T`` with ``N`` a null-space basis of ``P``.
-
-* ``exact`` (default): one factorisation of the KKT matrix, all 6M load columns in one solve.
-  When it is singular (a free mechanism direction, or a ``neutral`` frame) the reduced
-  stiffness ``N^T K N`` is pseudo-inverted densely and the entries whose row moves in, or
-  whose column loads, a zero-stiffness direction are NaN (flag ``singular``).
-* ``fd``: for every column a load ``compliance_delta`` (force units; torques
-  ``compliance_delta * L``, L the model length scale) is added at the marker as a constant
-  generalised force and the equilibrium re-solved by Newton from the converged state; the
-  marker's displacement (translation difference, rotation vector of ``A1 A0^T``) / load is
-  the column. Forward difference: agrees with ``exact`` to O(delta); a column whose re-solve
-  does not converge is NaN (flag ``fd_failed``).
-
-Per frame ``frames/compliance_flag``: ``ok``, ``unstable`` (tangent not positive definite on
-the manifold: the KKT solve is written as it is), ``singular``, ``fd_failed``, ``not_converged``
-(NaN). By default (``compliance_markers="auto"``) the CG marker of every body while the model
-has at most :data:`AUTO_MAX_BODIES` bodies and the run's matrices hold at most
-:data:`AUTO_MAX_ENTRIES` entries; otherwise the matrix is skipped and the analysis attribute
-``compliance_note`` says so (an explicit ``all`` or id list is always written).
+For markers ``1..M`` block ``(i, j)`` of ``C`` (6M x 6M) is the displacement of marker ``i``
+per unit force/torque at marker ``j`` of the *constrained* system, from the tangent stiffness
+without the ``stability`` term: ``exact`` (default, one KKT factorisation; pseudo-inverse and
+NaN along zero-stiffness directions when singular) or ``fd`` (finite-difference re-solves).
+Written per frame with ``frames/compliance_flag``; the default marker selection is bounded
+(:data:`AUTO_MAX_BODIES`, :data:`AUTO_MAX_ENTRIES`). Definitions, flags and selection:
+docs/solvers.md, "Compliance".
 """
 from __future__ import annotations
 

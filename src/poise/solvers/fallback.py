@@ -1,30 +1,12 @@
 """Solve one frame with recovery: plain Newton, then the documented fallback chain.
 
-:func:`solve_frame` is the one entry point every analysis uses for a frame (static solves,
-quasi-static FIM_S frames, FIM_D's first frame, final polish and per-frame fallbacks). Plain
-Newton gets ``max_num_iter`` iterations. When it fails (and the failure is one a strategy can
-fix), these strategies are tried in order, each starting from the *input* configuration of the
-frame; every switch is recorded in the iteration history (``iterations/event`` =
-``fallback: <strategy>: <reason>``, ``iterations/strategy`` = the stage of every row):
-
-1. ``stability``: Newton again with ``stability`` raised to ``FALLBACK_STABILITY`` (a larger mass
-   fraction in the Jacobian only: it never changes the equilibrium, it steadies the steps near
-   neutral or singular directions).
-2. ``continuation``: pseudo-transient continuation — Newton steps with ``mu M`` added to the
-   Jacobian, ``mu`` relaxed by switched evolution relaxation (see :func:`continuation`): a damped
-   pseudo-time flow far from equilibrium that turns into plain Newton near it.
-3. ``mkeam``: kinetic-energy attrition (only stable equilibria) followed by a Newton polish.
-
-Budget: the chain as a whole may spend ``fallback_max_num_iter`` iterations on a frame (default
-``max_num_iter``; CLI ``--fallback-budget``), counting every Newton iteration, continuation step
-and MKEAM iteration; a strategy that stops early leaves the rest to the next. The frame's
-``iterations`` is the total of plain Newton and every strategy; ``FrameOutcome.counts`` splits it.
-
-Not tried (stopped at once, the message says why): non-finite residuals, contradicting redundant
-constraints, and a coordinate that nothing restrains but a constant load pushes (a missing joint:
-:func:`unrestrained_load`), which no strategy can fix.
-
-``--no-fallback`` (``fallback=False`` in the overrides) turns the chain off.
+:func:`solve_frame` is the one entry point every analysis uses for a frame. Plain Newton gets
+``max_num_iter`` iterations; when it fails with a failure a strategy can fix, the :data:`CHAIN`
+stages (``stability``, ``continuation``, ``mkeam``) are tried in order from the frame's input
+configuration within the fallback budget (``fallback_max_num_iter``), each switch a history row.
+The stages are :class:`~poise.solvers.iterate.Iterative` strategies run by the one loop
+:func:`~poise.solvers.iterate.iterate`, as are Newton and :func:`continuation`. Stages,
+budget and what is not tried: docs/solvers.md, "Fallback chain".
 """
 from __future__ import annotations
 

@@ -1,33 +1,12 @@
 """``--require-stable``: from an unstable equilibrium, continue downhill to a stable one.
 
-Newton (FIM_S) converges to whichever equilibrium is near, stable or not. When the static
-analysis is asked for a stable equilibrium (``require_stable``) and Newton stopped at an
-unstable one, :func:`seek_stable` leaves it and continues by a stability-preserving Newton:
-
-1. Escape: the unstable modes of the classification (``StabilityInfo.vectors``, up to six,
-   computed by :mod:`poise.solvers.stability`) are combined into one direction; the state moves
-   along it (both signs, the largest rotation ``ESCAPE_ROT`` rad / translation ``ESCAPE_TRANS``
-   x L, shrunk by ``ESCAPE_SHRINK``; each trial assembled onto the constraints) to the trial of
-   lowest potential energy below the equilibrium's.
-2. Descent (:func:`descend`): inertia-controlled Newton. The KKT matrix of the symmetric
-   tangent stiffness, shifted by ``sigma`` times the diagonal metric of
-   :class:`~poise.solvers.stability._SparsePencil`, is factorised by a sparse ``L D L^T``
-   whose pivot signs give its inertia; ``sigma`` is 0 when the reduced stiffness is positive
-   definite, else grown (x8) until it is. The step is then a descent direction of the
-   potential energy; it is limited (``STEP_ROT`` rad, ``STEP_TRANS`` x L) and backtracked
-   (Armijo) on the potential energy of the trial assembled onto the constraints. Once a full
-   step with ``sigma = 0`` was taken, plain Newton (the deck's settings) polishes; its point is
-   kept only if its energy is not higher. The potential energy never increases, so the walk
-   cannot return to the equilibrium it left.
-3. The equilibrium reached is classified again; still unstable -> back to 1.
-
-Models without a potential energy (non-conservative loads) use the trapezoidal work of the
-applied forces along each step as the energy change. Every escape and descent step is a row
-of the iteration history (events ``stable: escape k: ...``, ``stable-descent sigma=...``,
-``stable-polish``). The budget is ``STEPS_PER_ITER x max_num_iter`` descent steps and
-``MAX_ESCAPES`` escapes; past it the analysis fails with status ``unstable`` (exit 1) and the
-last state is written. MKEAM uses :func:`descend` as its fast continuation
-(:meth:`poise.solvers.relaxation.Relaxation._handover`).
+Newton converges to whichever equilibrium is near, stable or not. When a stable one is asked
+for and Newton stopped at an unstable one, :func:`seek_stable` escapes along the unstable
+modes to lower potential energy and continues by inertia-controlled Newton (:func:`descend`),
+whose steps never raise the energy, until the classification says stable or the budget is
+spent (status ``unstable``). MKEAM uses :func:`descend` as its fast continuation. The
+escape, the descent, the energy of non-conservative models and the budget:
+docs/solvers.md, "Stable equilibria".
 """
 from __future__ import annotations
 
