@@ -47,6 +47,7 @@ MAX_ESCAPES = 20
 STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton steps in all
 STEP_TRANS = 0.4          # x L: largest translation of one descent step
 PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial
+CHORD_RATE = 0.25         # the projection refactorises when its error falls slower than this
 STEP_ROT = 1.0            # rad: largest rotation of one descent step
 
 
@@ -283,24 +284,29 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
 def _project(model, x, cnt, max_iter=8):
     """Gauss-Newton projection of a line-search trial onto the constraints to ``PROJECT_TOL``
     (relative): looser than the assembly's, the end point is polished by Newton to the deck's
-    tolerances. Returns ``(state, ok)``."""
+    tolerances. The factorisation is kept while the constraint error falls at least by
+    ``CHORD_RATE`` per iteration (chord steps need no Jacobian). Returns ``(state, ok)``."""
     from poise.solvers.linalg import SingularMatrix
     from poise.solvers.newton import _coord_weights, _evaluate, _factor, _jacobian, _weighted_kkt
     if model.nc == 0:
         return x, True
     W = _coord_weights(model)
+    scale = np.where(model.row_kind == 1, 1.0, model.L)
+    F, prev = None, np.inf
     for _ in range(max_iter + 1):
         ev = _evaluate(model, x, cnt, need_jac="defer")
         phi = ev.phi                       # inactive rows read 0
-        if float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L))) <= PROJECT_TOL:
+        err = float(np.max(np.abs(phi) / scale))
+        if err <= PROJECT_TOL:
             return x, True
-        _jacobian(model, ev, cnt)
-        try:
-            sol = _factor(_weighted_kkt(model, ev, W), cnt).solve(
-                np.concatenate([np.zeros(model.nq), -ev.phi]))
-        except SingularMatrix:
-            return x, False
-        x = model.retract(x, sol[:model.nq])
+        if F is None or err > CHORD_RATE * prev:
+            _jacobian(model, ev, cnt)
+            try:
+                F = _factor(_weighted_kkt(model, ev, W), cnt)
+            except SingularMatrix:
+                return x, False
+        prev = err
+        x = model.retract(x, F.solve(np.concatenate([np.zeros(model.nq), -phi]))[:model.nq])
     return x, False
 
 
