@@ -145,10 +145,11 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
         for f in ESCAPE_SHRINK:
             for sgn in (1.0, -1.0):
                 try:
-                    x = model.retract(state, sgn * f * d)
-                    x, _, ast = assemble(model, x, settings, history, frame, cnt)
-                    if not ast.ok:
-                        continue
+                    x, ok = _project(model, model.retract(state, sgn * f * d), cnt)
+                    if not ok:
+                        x, _, ast = assemble(model, x, settings, history, frame, cnt)
+                        if not ast.ok:
+                            continue
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                 except EvaluationError:
                     continue
@@ -241,10 +242,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
         for _ in range(12):
             try:
                 x = model.retract(state, alpha * dq)
-                x, ok = _project(model, x, cnt)
-                if not ok:
-                    x, _, ast = assemble(model, x, settings, _Quiet(), frame, cnt)
-                    ok = ast.ok
+                x, ok = _project(model, x, cnt)       # not projected: a shorter step
                 if ok:
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                     tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
@@ -292,14 +290,17 @@ def _project(model, x, cnt, max_iter=8):
         return x, True
     W = _coord_weights(model)
     scale = np.where(model.row_kind == 1, 1.0, model.L)
-    F, prev = None, np.inf
+    F, prev, fresh = None, np.inf, False
     for _ in range(max_iter + 1):
         ev = _evaluate(model, x, cnt, need_jac="defer")
         phi = ev.phi                       # inactive rows read 0
         err = float(np.max(np.abs(phi) / scale))
         if err <= PROJECT_TOL:
             return x, True
-        if F is None or err > CHORD_RATE * prev:
+        if err > prev and fresh:
+            return x, False                # diverging after a Newton step: the trial is too far
+        fresh = F is None or err > CHORD_RATE * prev
+        if fresh:
             _jacobian(model, ev, cnt)
             try:
                 F = _factor(_weighted_kkt(model, ev, W), cnt)
