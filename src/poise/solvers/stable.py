@@ -220,6 +220,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     sigma = 0.0
     steps = 0
     polish_fail = 0
+    alpha0 = 1.0                       # first trial: twice the last accepted step (<= 1)
     while steps < budget:
         try:
             dq, sigma, ev, dlam = _ic_step(model, state, cnt, sigma)
@@ -237,7 +238,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
                   float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L), 1.0)
         dq = dq / big
         slope = float(np.asarray(ev.r, float)[:model.nq] @ dq)
-        alpha = 1.0
+        alpha = alpha0
         accepted = None
         for _ in range(12):
             try:
@@ -263,6 +264,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
                 return state, None, pe, steps
             continue
         state, pe = accepted
+        alpha0 = min(1.0, 2.0 * alpha)
         state.lam = state.lam + alpha * dlam     # the KKT step's multiplier update
         if sigma == 0.0 and alpha == 1.0 and big == 1.0 and polish_fail < 3:
             st, o = newton(model, state, replace(settings, fallback=False), history, frame,
