@@ -49,7 +49,7 @@ class DeckBuilder:
 def random_rotation(rng):
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
-    from poise.model.rotation import from_euler_parameters
+    from poise.elements.rotation import from_euler_parameters
     return from_euler_parameters(*q)
 
 

@@ -195,7 +195,7 @@ def _rotations():
 
 
 def test_euler_parameters_and_313_reconstruct():
-    from poise.model.rotation import euler_313, euler_parameters
+    from poise.elements.rotation import euler_313, euler_parameters
     R = _rotations()
     q = euler_parameters(R)
     a = euler_313(R)

@@ -13,7 +13,7 @@ from scipy.optimize import brentq
 from builders import random_rotation, stable_seed
 from poise.app.api import run_deck
 from poise.core.errors import DeckError
-from poise.families.field_beam import beam_stiffness
+from poise.elements.field_beam import beam_stiffness
 from poise.model.compile import compile_model
 from test_jacobians import _fd_check, _perturbed_state, _two_body_deck
 

@@ -172,7 +172,7 @@ def test_curve_evaluation_error_names_the_parameter():
 
     from poise.deck.spec import Expr
     from poise.core.errors import EvaluationError, SourceLoc
-    from poise.model.curve_data import AnalyticCurve
+    from poise.elements.curve_data import AnalyticCurve
     loc = SourceLoc("c.xml", 14, "Reference_ParamCurve", 1)
     c = AnalyticCurve(None, [Expr("U", loc, "x_expression"), Expr("1/(U-3)", loc, "y_expression"),
                              0.0], -2.0, 2.0, False)

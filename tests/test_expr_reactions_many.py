@@ -216,8 +216,8 @@ def _reference_coupling(m, kept, P, A, vecs, row_active):
     """Dense (N, N) d r / d lambda of the reader families, one Python iteration per (reader
     instance, channel, constraint instance) as ReactionFeed.coupling did before it was batched
     (``vecs`` (C, 6): every channel's (F, T), see :func:`_reference_values`)."""
-    from poise.families.base import local_residual_tangent
-    from poise.families.expr_forces import apply_two_body_w
+    from poise.elements.kernel import local_residual_tangent
+    from poise.elements.expr_forces import apply_two_body_w
     feed = m.reaction_feed
     owners = feed.info.owner_maps(m)
     inv = {g: {o: key for key, o in om.items()} for g, om in owners.items()}

@@ -7,7 +7,8 @@ import numpy as np
 
 import poise.model.compile as C
 from builders import DeckBuilder, random_rotation
-from poise.families.base import ConstraintFamily
+from poise.elements.base import ConstraintFamily
+from poise.elements.registry import ElementType
 from poise.model.compile import compile_model
 from test_jacobians import _fd_check
 
@@ -50,8 +51,8 @@ def _deck(rng):
 
 
 def test_scalar_unknown_jacobian(monkeypatch):
-    orig = C.element_compilers
-    monkeypatch.setattr(C, "element_compilers", lambda: orig() + [_compiler])
+    orig = C.element_types
+    monkeypatch.setattr(C, "element_types", lambda: orig() + (ElementType("test", (), _compiler),))
     rng = np.random.default_rng(3)
     d = _deck(rng)
     d.add("Force_SpringDamper", id=1, type="TRANSLATIONAL", i_marker_id=21, j_marker_id=11,
@@ -68,8 +69,8 @@ def test_scalar_unknown_solve(monkeypatch):
     # a body whose marker 21 slides on a frictionless line through marker 11 (axis x_J), pulled
     # by gravity: it comes to rest where the line's lowest point ... the line is straight, so the
     # marker slides to where the spring to a ground anchor balances gravity along the line.
-    orig = C.element_compilers
-    monkeypatch.setattr(C, "element_compilers", lambda: orig() + [_compiler])
+    orig = C.element_types
+    monkeypatch.setattr(C, "element_types", lambda: orig() + (ElementType("test", (), _compiler),))
     from poise.app.runner import AnalysisRequest
     from poise.solvers.settings import StaticSettings
     from poise.solvers.driver import Driver

@@ -52,9 +52,9 @@ def make_result(timings=None) -> RunResult:
             "iterations/event": np.array(["assembly", "newton", "newton", "newton", "newton"]),
             "redundant/tag": np.array([], dtype=str),
             "redundant/id": np.zeros(0, dtype=np.int64),
-            "deep/nested/path/value": np.array([[1, 2], [3, 4]], dtype=np.int32),
+            "frames/strategy_iterations": np.array([[1, 2, 0, 0, 2]], dtype=np.int32),
         },
-        attrs={"reactions_unique": True, "n_redundant": 0},
+        attrs={"reactions_unique": True, "assembled": False},
     )
     a1 = AnalysisResult(
         index=1, analysis_type="static", method="FIM_D", status="failed",
@@ -110,7 +110,7 @@ def test_round_trip(tmp_path):
             else:
                 assert w.dtype == v.dtype, k
                 np.testing.assert_array_equal(w, v, err_msg=k)
-    assert back.analyses[0].attrs == {"reactions_unique": True, "n_redundant": 0}
+    assert back.analyses[0].attrs == {"reactions_unique": True, "assembled": False}
 
 
 def test_layout_and_attributes(tmp_path):
@@ -134,7 +134,7 @@ def test_layout_and_attributes(tmp_path):
         assert bool(g.attrs["reactions_unique"]) is True
         assert isinstance(g["bodies"], h5py.Group)
         assert g["bodies/position"].shape == (1, 2, 3)
-        assert g["deep/nested/path/value"].dtype == np.int32
+        assert g["frames/strategy_iterations"].dtype == np.int32
         lab = g["bodies/label"]
         assert h5py.check_string_dtype(lab.dtype).encoding == "utf-8"
         assert h5py.check_string_dtype(lab.dtype).length is None  # variable length
@@ -314,3 +314,40 @@ def test_low_level_datasets_equal_high_level_bytes(tmp_path):
         assert f["empty"].shape == (0, 3)
         np.testing.assert_array_equal(f["mat_f_order"][()], np.arange(12.0).reshape(3, 4))
         assert [s.decode() for s in f["strings"][()]] == ["a", "bé", ""]
+
+
+def test_units_attribute_on_every_dataset(tmp_path):
+    """Every dataset carries ``units`` in the deck's units (here N, kg, mm, s)."""
+    path = tmp_path / "u.h5"
+    write_results(make_result(), str(path))
+    with h5py.File(path, "r") as f:
+        units = {}
+        f.visititems(lambda n, o: units.__setitem__(n, o.attrs.get("units"))
+                     if isinstance(o, h5py.Dataset) else None)
+    assert None not in units.values()
+    assert units["analysis_000/bodies/position"] == "mm"
+    assert units["analysis_000/joints/torque"] == "N*mm"
+    assert units["analysis_000/frames/imbalance"] == "N"
+    assert units["analysis_000/time"] == "s"
+    assert units["analysis_000/bodies/orientation"] == "1"
+    assert units["model/bodies/mass"] == "kg"
+    assert units["analysis_000/bodies/label"] == ""          # text
+
+
+@pytest.mark.parametrize("where, value, match", [
+    ("dataset", ("bodies/positon", np.zeros((1, 2, 3))), "'bodies/positon' is not declared"),
+    ("attr", ("n_redundant", 0), "'n_redundant' is not declared"),
+    ("dataset", ("bodies/position", np.zeros((1, 2))), "does not match the declared"),
+    ("dataset", ("frames/status", np.zeros(1)), "does not match the declared str"),
+])
+def test_undeclared_objects_refused(tmp_path, where, value, match):
+    """The writer refuses what the schema does not declare (and wrong dtypes / ranks), naming
+    the path; nothing is left behind."""
+    from poise.results.schema import UndeclaredError
+    r = make_result()
+    key, v = value
+    (r.analyses[0].datasets if where == "dataset" else r.analyses[0].attrs)[key] = v
+    with pytest.raises(UndeclaredError, match=match) as e:
+        write_results(r, str(tmp_path / "x.h5"))
+    assert "/analysis_000" in str(e.value)
+    assert _leftovers(tmp_path) == []

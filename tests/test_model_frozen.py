@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import poise.app.runner as runner_mod
 import poise.model.compile as compile_mod
 from poise.app.api import run_deck
 
@@ -38,6 +39,7 @@ def test_solve_leaves_the_model_unchanged(deck, overrides, monkeypatch):
         return m
 
     monkeypatch.setattr(compile_mod, "compile_model", spy)
+    monkeypatch.setattr(runner_mod, "compile_model", spy)
     res = run_deck(str(DECKS / deck), overrides, quiet=True)
     assert res.analyses and compiled
     for m, snap, names in compiled:

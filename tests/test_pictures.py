@@ -66,3 +66,15 @@ def test_quasistatic_plot_labels_units_and_bodies(method):
     per_frame = [ln for ln in conv.get_lines() if ln.get_label().startswith("final imbalance")]
     assert len(per_frame) == 1
     assert len(per_frame[0].get_xdata()) == len(res.analyses[0].datasets["time"])
+
+
+def test_legends_name_joints_and_request_channels():
+    """Joint and request legends use the deck labels and the file's channel names (not
+    ``joint 1`` / ``request 1 ch4``)."""
+    res = run_deck(str(DECKS / "qs_slider_crank_11b.xml"), {"method": "FIM_S"})
+    fig = plot_results(res)
+    jf = " | ".join(_legend_texts(fig.axes[fig.poise_panels.index("joints/force")]))
+    assert "Crank pivot (joint 1)" in jf
+    rq = _legend_texts(fig.axes[fig.poise_panels.index("requests/values")])
+    assert rq and all(" ch" not in t for t in rq)
+    assert any(t.startswith("Driving torque on crank (global) (request 1) expr") for t in rq)

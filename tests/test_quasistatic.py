@@ -10,7 +10,7 @@ from poise.deck.schema import element_schema
 
 # decks with TIME expressions in forces / Post_Request need the expression-force work (issue 3)
 needs_expr = pytest.mark.skipif(
-    importlib.util.find_spec("poise.families.expr_forces") is None
+    importlib.util.find_spec("poise.elements.expr_forces") is None
     or not element_schema("Post_Request").supported,
     reason="expression-valued forces not available in this tree")
 
@@ -242,7 +242,7 @@ def test_fim_d_fallbacks_recorded(monkeypatch):
 def test_quiet_silences_progress_bar(monkeypatch, capsys, method):
     """``run_deck(quiet=True)`` (``poise solve --quiet``) turns the progress bar off even on a
     terminal; without it the bar follows the terminal / CI detection."""
-    import poise.solvers.quasistatic as qsm
+    import poise.app.progress as qsm
     seen = []
     orig = qsm.Progress.__init__
 

@@ -165,3 +165,15 @@ def test_cli_scheduler_address(tmp_path, cluster):
     r = CliRunner().invoke(cli, args)
     assert json.loads(r.stdout)["resumed"] == 3
     assert "\x1b[" not in r.output and "\r[" not in r.output   # no progress bar off a TTY
+
+
+def test_output_dataset_names_checked_against_the_schema(tmp_path):
+    """A misspelt --output dataset is a usage error (exit 2) with a did-you-mean, not an
+    empty column; groups come from the results schema (gears, couplers, curves, ...)."""
+    r = CliRunner().invoke(cli, ["sweep", str(DECK), "--set", f"{K}=1,2", "--output",
+                                 "bodies[2].positon", "--out-dir", str(tmp_path)])
+    assert r.exit_code == 2, r.output
+    assert "did you mean bodies[2].position?" in r.stderr
+    assert not (tmp_path / "index.csv").exists()
+    from poise.app.sweep import output_groups
+    assert {"gears", "couplers", "curves", "contacts", "requests"} <= set(output_groups())

@@ -13,6 +13,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from poise.app.progress import progress_bar, progress_callback
+from poise.app.times import output_times, print_arrays
 from poise.core import phases
 from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
 from poise.core.version import __version__
@@ -21,12 +23,12 @@ from poise.deck.spec import DeckSpec, Element
 from poise.deck.validate import validate
 from poise.model import commands as model_commands
 from poise.model.compile import compile_model
-from poise.model.compile_contact import _get
+from poise.elements.compile_contact import _get
 from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
+from poise.results.labels import Labeller
 from poise.results.summary import summarize
 from poise.results.summary import summary_line as _summary_line
 from poise.solvers.driver import Driver, strategy_for
-from poise.solvers.quasistatic import print_arrays, progress_bar
 from poise.solvers.settings import StaticSettings, check_override_names
 
 
@@ -105,6 +107,10 @@ class AnalysisRequest:
     transient: dict = field(default_factory=dict)
     commands: list = field(default_factory=list)
     arrays: dict = field(default_factory=dict)     # Reference_Array values by id (PRINT times)
+
+    def output_times(self, t_now: float):
+        """Output times of this (quasi-static) analysis starting at ``t_now``."""
+        return output_times(self.simulate, t_now, self.arrays)
 
 
 def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
@@ -204,6 +210,8 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     res.model_datasets = model_datasets(model)
     res.model_datasets.update(joint_marker_datasets(spec, model))
     res.model_datasets.update(graphics_datasets(spec, model))
+    labeller = Labeller(spec, model.units)            # <group>/label, request channels
+    res.model_datasets.update(labeller.datasets(res.model_datasets, model))
     models = _analysis_models(spec, model, analyses,
                               lambda sp: compile_model(sp, user_code=user_code))
     for m in models[1:]:
@@ -213,12 +221,14 @@ def run(path: str, overrides=None, command: str = "", progress=None,
     redundancy = None
     for k, req in enumerate(analyses):
         ta = time.perf_counter()
-        drv = Driver(models[k], req, redundancy=redundancy)
-        state, ar = drv.run(state, index=k)
+        drv = Driver(models[k], req, redundancy=redundancy, progress=progress_callback())
+        state, rec = drv.run(state, index=k)
+        ar = AnalysisResult.of(rec)
         redundancy = drv.redundancy
         res.timings[f"analysis_{k:03d}"] = time.perf_counter() - ta
         for key, v in drv.data.as_dict().items():
             counts[key] = counts.get(key, 0) + v
+        ar.datasets.update(labeller.datasets(ar.datasets, models[k]))
         res.analyses.append(ar)
         if progress:
             progress(summary_line(ar, res.timings[f"analysis_{k:03d}"]))

@@ -1,4 +1,4 @@
-"""Parameter sweeps on Dask distributed (``poise sweep`` and ``poise.sweep(...)``).
+"""Parameter sweeps on Dask distributed (``poise sweep`` and ``poise.app.sweep(...)``).
 
 A sweep substitutes attribute values into the parsed deck (:class:`~poise.deck.spec.DeckSpec`),
 one *case* per combination, and runs the cases as Dask tasks: on a ``LocalCluster`` (worker
@@ -55,7 +55,9 @@ from poise.core.errors import DeckError, UsageError
 from poise.core.version import __version__
 from poise.deck.parser import parse_deck_bytes, parse_number
 from poise.deck.schema import element_schema, ENUM_ALIASES
+from poise.elements.registry import output_groups as registry_output_groups
 from poise.results.hdf5 import read_results, write_results
+from poise.results.schema import element_outputs
 from poise.solvers.settings import check_override_names
 
 INDEX_VERSION = 1
@@ -69,16 +71,14 @@ _SPEC = re.compile(r"^\s*([A-Za-z][A-Za-z0-9_]*)\s*(?:\[\s*(-?\d+)\s*\])?\s*\.\s
 _OUT = re.compile(r"^\s*([a-z_]+)\s*\[\s*(-?\d+)\s*\]\s*\.\s*([A-Za-z_][A-Za-z0-9_]*)\s*$")
 _SWEEPABLE = ("real", "int", "real_or_expr", "enum", "bool")
 
-#: output group -> deck tags whose ids it holds (for checking ``--output`` ids)
-OUTPUT_GROUPS = {
-    "bodies": ("Body_Rigid", "Body_Point"),
-    "joints": ("Constraint_Joint",),
-    "jprims": ("Constraint_Jprim",),
-    "motions": ("Motion_Joint", "Motion_Marker"),
-    "requests": ("Post_Request",),
-    "forces": None,
-    "contacts": ("Force_Contact",),
-}
+def output_groups() -> dict:
+    """Output group -> deck tags whose ids it holds (for checking ``--output`` ids; None: any
+    tag): the bodies and every group an element type declares
+    (:func:`poise.elements.registry.output_groups`) whose per-element datasets the results
+    schema declares."""
+    declared = element_outputs()
+    groups = {"bodies": ("Body_Rigid", "Body_Point"), **registry_output_groups()}
+    return {g: tags for g, tags in groups.items() if g in declared}
 
 
 @dataclass
@@ -311,11 +311,19 @@ def parse_outputs(spec, outputs) -> list[tuple[str, str, int, str]]:
     out = []
     for text in outputs or ():
         m = _OUT.match(text)
-        if not m or m.group(1) not in OUTPUT_GROUPS:
+        groups = output_groups()
+        if not m or m.group(1) not in groups:
             raise UsageError(f"--output {text!r}: expected group[id].dataset with group one of "
-                             f"{', '.join(OUTPUT_GROUPS)}, e.g. bodies[2].position")
+                             f"{', '.join(groups)}, e.g. bodies[2].position")
         g, i, ds = m.group(1), int(m.group(2)), m.group(3)
-        tags = OUTPUT_GROUPS[g]
+        known = element_outputs()[g]
+        if ds not in known:
+            import difflib
+            near = difflib.get_close_matches(ds, known, n=1)
+            raise UsageError(f"--output {text!r}: {g} has no dataset {ds!r}"
+                             + (f"; did you mean {g}[{i}].{near[0]}?" if near else "")
+                             + f" ({g} datasets: {', '.join(known)})")
+        tags = groups[g]
         if tags and not any(e.tag in tags and e.id == i for e in spec.model):
             raise UsageError(f"--output {text!r}: the deck has no {'/'.join(tags)} id={i}")
         out.append((f"{g}[{i}].{ds}", g, i, ds))

@@ -275,24 +275,25 @@ _IJ = [M("i_marker_id", "I marker (first body)", required=True, lo=1),
 el("Constraint_Joint", "both", True,
    "Ideal joint between the bodies of its I and J markers (primitive names accepted as types).", [
        ID(), LABEL(), E("type", JOINT_TYPES, "joint type", required=True), *_IJ,
-       R("pitch", "SCREW: translation per full revolution"),
+       R("pitch", "SCREW: translation of I along z_J per full turn of I about z_J "
+         "(d.z_J = pitch*AZ(I,J)/(2 pi); > 0 right-handed; pair it with a CYLINDRICAL joint)"),
        R("pitch_diameter", "RACK_PINION: pinion pitch diameter", lo=0, lo_open=True),
        B("is_virtual", "virtual joint flag (treated as a normal joint)")])
 el("Constraint_Jprim", "both", True, "Joint primitive.", [
     ID(), LABEL(), E("type", JPRIM_TYPES, "primitive type", required=True), *_IJ,
     B("is_virtual", "virtual joint flag")])
-el("Constraint_Coupler", "model", True, "Coupler between 2 or 3 joints (poise.families.couplers).", [
+el("Constraint_Coupler", "model", True, "Coupler between 2 or 3 joints (poise.elements.couplers).", [
     ID(), LABEL(), A("joint1_id", "int", "first joint", ref="joint"), E("freedom_1", "T R", "freedom of joint 1"),
     A("joint2_id", "int", "second joint", ref="joint"), E("freedom_2", "T R", "freedom of joint 2"),
     A("joint3_id", "int", "third joint", ref="joint"), E("freedom_3", "T R", "freedom of joint 3"),
     A("coefficients", "real_list", "scale factors c1, c2[, c3]"), B("is_virtual", "virtual flag"), *USR()])
-el("Constraint_Gear", "model", True, "Gear between two joints (poise.families.gears).", [
+el("Constraint_Gear", "model", True, "Gear between two joints (poise.elements.gears).", [
     ID(), LABEL(), A("joint1_id", "int", "first joint", ref="joint"), A("joint2_id", "int", "second joint", ref="joint"),
     M("cv_marker_id", "contact-point marker (origin) and common-velocity direction (z), on the carrier", required=True, lo=1),
     B("is_virtual", "virtual flag"), *USR()])
 el("Constraint_UserConstr", "both", True, "User-defined constraint (UCOSUB).", [ID(), LABEL(), *USR()],
    open_attrs=True, aliases=("Constraint_Usrconstr",))
-# higher pairs (poise.model.compile_curves; docs/DESIGN.md "Curves and surfaces")
+# higher pairs (poise.elements.compile_curves; docs/DESIGN.md "Curves and surfaces")
 _CV = A("curve_id", "int", "Reference_ParamCurve id", ref="curve", lo=1)
 _SF = A("surface_id", "int", "Reference_ParamSurface id", ref="surface", lo=1)
 el("Constraint_PTCV", "model", True, "Point (I origin) on a curve fixed in J (3 rows, u unknown).", [
@@ -357,7 +358,7 @@ el("Force_Scalar_TwoBody", "both", True, "Scalar force along J->I or torque abou
     ID(), LABEL(), *_IJ, E("type", "FORCE TORQUE", "force or torque", required=True),
     B("is_action_only", "TRUE: no reaction (one-body scalar force)"),
     R("val", "constant magnitude"), A("val_expression", "real_or_expr", "magnitude expression"), *USR()])
-# Force_Field / Force_Beam: poise.families.field_beam (docs/DESIGN.md "Fields and beams")
+# Force_Field / Force_Beam: poise.elements.field_beam (docs/DESIGN.md "Fields and beams")
 el("Force_Field", "model", True, "Linear 6x6 field: [F;T]_J = -K (X - length) + preload, X = [DX..AZ](I,J) in J.", [
     ID(), LABEL(), *_IJ, [R(f"k{i}{j}", f"stiffness K{i}{j} (row {i}, column {j})", default=0.0)
                           for i in range(1, 7) for j in range(1, 7)],

@@ -15,6 +15,7 @@ import dataclasses
 import numpy as np
 
 from poise.core.errors import DeckError, Problem
+from poise.model.compile import compile_model
 
 _SIX = ("x", "y", "z", "tx", "ty", "tz")
 _VEC = tuple(f"{c}_expression" for c in ("fx", "fy", "fz", "tx", "ty", "tz"))
@@ -124,7 +125,7 @@ def recompile(base, spec, commands, compile_fn=None):
     change would alter the model's structure (the solver state could not be carried over).
     Returns (new spec, model)."""
     if compile_fn is None:
-        from poise.model.compile import compile_model as compile_fn
+        compile_fn = compile_model
     new_spec = apply(spec, commands)
     model = compile_fn(new_spec)
     if _structure(model) != _structure(base):

@@ -1,5 +1,8 @@
 """DeckSpec -> Model: resolve references to indices, lay out coordinates, build families.
 
+Markers and bodies are resolved here; element families come from the ``compile(spec, ctx)``
+of every registered element type (:mod:`poise.elements.registry`), in dependency order.
+
 Only element families present in the deck are compiled (a deck without ``Force_Gravity`` has no
 gravity term in its loop); ``Model.active_effects`` lists what was compiled.
 """
@@ -11,22 +14,14 @@ import numpy as np
 
 from poise.deck.spec import DeckSpec, Element, Expr
 from poise.core.errors import ProblemCollector
+from poise.elements.context import GLOBAL, CompileContext, num as _num
+from poise.elements.registry import element_types
 from poise.model import units as U
 from poise.model.model import Model
-from poise.model.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
+from poise.elements.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
+from poise.expr.batch import record_batches
 
 _DCM = ("a00", "a10", "a20", "a01", "a11", "a21", "a02", "a12", "a22")
-GLOBAL = 0  # compiled marker index of the global frame (marker id 0)
-
-
-def _num(el: Element, name: str, default=None, pc: ProblemCollector | None = None):
-    v = el.attrs.get(name, default)
-    if isinstance(v, Expr):
-        if pc is not None:
-            pc.error(el.loc, f"expression {v.text!r} is not supported here yet; expected a number",
-                     name)
-        return default if default is not None else 0.0
-    return v
 
 
 def unit_info(spec: DeckSpec):
@@ -370,93 +365,6 @@ class _Builder:
         return self.marker_index[mid]
 
 
-class CompileContext:
-    """What element compilers add to: constraint rows, families, output groups, angles.
-
-    Element compilers are functions ``compiler(spec, ctx)`` listed in :func:`element_compilers`;
-    each handles one group of deck elements and only runs work for elements present in the deck.
-    """
-
-    def __init__(self, builder):
-        self.b = builder
-        self.pc = builder.pc
-        self.rows: list[dict] = []
-        self.families: list = []
-        self.outputs: dict = {}
-        self.angles: list[tuple[int, int, int]] = []
-        self.extra_names: list[str] = []
-        self.extra0: list[float] = []
-        self.expr_forces: list = []      # (owner, el) of expression forces (compile_expr)
-        self.frame_hooks: list = []      # per-frame output hooks (requests, ...)
-        self.gravity_fn = None           # callable t -> (3,) for TIME-dependent gravity
-        self.time_sources: list[str] = []   # what reads TIME besides compiled expressions
-        self.batches: list = []          # every expression batch compiled (record_batches)
-
-    def reads_time(self, what: str) -> None:
-        """Record that the solution depends on the analysis time through ``what`` (compiled
-        expressions are found on their own; this is for opaque code such as user routines)."""
-        self.time_sources.append(what)
-
-    def angle(self, I: int, J: int, axis: int) -> int:
-        """Register a continuous angle of marker I about marker J's axis (0 x, 1 y, 2 z)."""
-        self.angles.append((I, J, axis))
-        return len(self.angles) - 1
-
-    def marker(self, el, attr, required=True) -> int:
-        return self.b.mk(el, attr, required)
-
-    def effect(self, name: str) -> None:
-        self.b.effects.append(name)
-
-    def add_row(self, el, equation: str, kind: str, group: str, owner: int) -> int:
-        self.rows.append(_row(el, equation, kind, group, owner))
-        return len(self.rows) - 1
-
-    def add_extra(self, name: str, initial: float = 0.0) -> int:
-        """Register a scalar unknown (appended after the bodies' coordinates); returns its index
-        into ``State.extra``. ``name`` labels it in messages (e.g. ``"<Control_Diff id=3> y"``).
-        Families read it through ``Family.scols``."""
-        self.extra_names.append(name)
-        self.extra0.append(float(initial))
-        return len(self.extra_names) - 1
-
-
-def element_compilers():
-    """The ordered list of element compilers (add new element groups here)."""
-    from poise.model import compile_constraints, compile_forces, compile_motions
-    from poise.model import compile_couplers, compile_field_beam, compile_gears
-    return [compile_constraints.compile_joints, compile_forces.compile_forces,
-            compile_motions.compile_motions, compile_couplers.compile_couplers,
-            compile_gears.compile_gears, compile_field_beam.compile_field_beam,
-            _compile_expressions, _compile_contacts, _compile_diff_vars, _compile_user,
-            _compile_curves]
-
-
-def _compile_curves(spec, ctx):
-    from poise.model.compile_curves import compile_curves
-    compile_curves(spec, ctx)
-
-
-def _compile_diff_vars(spec, ctx):
-    from poise.model.compile_diff_vars import compile_diff_vars
-    compile_diff_vars(spec, ctx)
-
-
-def _compile_user(spec, ctx):
-    from poise.model.compile_user import compile_user
-    compile_user(spec, ctx)
-
-
-def _compile_contacts(spec, ctx):
-    from poise.model.compile_contact import compile_contacts
-    compile_contacts(spec, ctx)
-
-
-def _compile_expressions(spec, ctx):
-    from poise.model.compile_expr import compile_expressions
-    compile_expressions(spec, ctx)
-
-
 def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
     """Compile a validated :class:`DeckSpec` into a :class:`Model`.
 
@@ -489,10 +397,9 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
         bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * b.L) ** 2 * np.eye(3)
 
     ctx = CompileContext(b)
-    from poise.expr.batch import record_batches
     with record_batches(ctx.batches):
-        for compiler in element_compilers():
-            compiler(spec, ctx)
+        for et in element_types():        # dependency order (poise.elements.registry)
+            et.compile(spec, ctx)
     rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
     pc = b.pc
 
@@ -566,8 +473,3 @@ def _time_sources(ctx) -> list[str]:
             out.append(loc.prefix(getattr(e, "attr", None)).rstrip(":")
                        if loc is not None else "an expression of TIME")
     return list(dict.fromkeys(out))
-
-
-def _row(el: Element, equation: str, kind: str, group: str, owner: int) -> dict:
-    return dict(tag=el.tag, id=el.id, equation=equation, line=el.loc.line, file=el.loc.file,
-                kind=kind, group=group, owner=owner)

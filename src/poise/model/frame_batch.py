@@ -1,28 +1,15 @@
 """Evaluate many frames of one model at once (quasi-static outputs).
 
 A quasi-static run writes per output frame the reactions, element loads, stability class and
-(FIM_D's interpolated frames) the imbalance — each needs the residual and the KKT Jacobian at the
-frame. Evaluating frame by frame costs one Python pass over every family per frame, which on
-small models is far more than the numerical work (a 3-body slider-crank: about 5 ms per frame,
-several times IDA's own cost per frame). Here all ``F`` frames are evaluated together:
-
-* marker kinematics for all frames in one array operation, ``(F, nm, 3)`` and ``(F, nm, 3, 3)``;
-* the joint primitives and marker-pair force laws (:func:`_tileable`: no
-  time, marker-table or scalar-unknown reads) are *tiled*: a shallow copy whose per-instance
-  arrays are repeated ``F`` times (marker indices shifted by ``nm`` per frame, continuous-angle
-  indices by ``na``), so one kernel call covers every frame;
-* any other family (motions and expression forces read the analysis time, curves the scalar
-  unknowns, ...) is called once per frame with that frame's context — exactly what
-  :meth:`Model.evaluate` does — and its outputs are stacked in the same frame-major order;
-* local residuals and tangents of the stacked instances go through the same slot kernel
-  (:func:`local_residual_tangent`) with the family's :class:`LocalPattern`; the residual
-  ``(F, nq)``, constraints ``(F, nc)`` and dense per-frame KKT Jacobians ``(F, N, N)`` are
-  scattered with one ``bincount`` each.
-
-The result equals ``F`` calls of ``Model.evaluate(state, need_jac=True, keep=True)`` with all
-rows active (tests compare every deck's frames, entry by entry). Models whose forces read
-constraint reactions (``reaction_feed``) or with ``N > MAX_N`` unknowns are not batched
-(:func:`batchable`); callers then evaluate frame by frame.
+(FIM_D's interpolated frames) the imbalance, each needing the residual and the KKT Jacobian at
+the frame; one Python pass over every family per frame costs far more than the numerical work
+on small models. Here all ``F`` frames are evaluated together: the families whose element type
+declares them tileable (:func:`poise.elements.registry.tileable_kernels`) are tiled across frames
+and called once, any other once per frame, and everything is scattered with one ``bincount``
+(how: :func:`evaluate_frames`). The result equals ``F`` calls of ``Model.evaluate(state,
+need_jac=True, keep=True)`` with all rows active (tests compare every deck's frames); models whose
+forces read constraint reactions or with ``N > MAX_N`` unknowns are not batched
+(:func:`batchable`).
 """
 from __future__ import annotations
 
@@ -31,21 +18,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from poise.elements.registry import tileable_kernels
 from poise.core.errors import EvaluationError
-from poise.families.base import (SlotKinematics, constraint_jacobian_local, local_pattern,
-                                 local_residual_tangent, slot_kinematics)
+from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, local_pattern,
+                                   local_residual_tangent, slot_kinematics)
+from poise.core import phases
+from poise.model.model import EvalContext, _constraint_ext
 
 MAX_N = 400                 # KKT size up to which frames are batched (dense (F, N, N) blocks)
 CHUNK_ENTRIES = 4_000_000   # dense Jacobian entries per chunk of frames (32 MB)
 
 
 def _tileable():
-    from poise.families.constraints import Coincident, InPlane, Perpendicular
-    from poise.families.contact import ContactForce
-    from poise.families.field_beam import FieldForce
-    from poise.families.forces import AxisForce, AxisTorque, Bushing, LineForce, VectorForce
-    return (Coincident, Perpendicular, InPlane, LineForce, AxisForce, AxisTorque, Bushing,
-            VectorForce, ContactForce, FieldForce)
+    """Kernels declared tileable by their element types (:mod:`poise.elements.registry`)."""
+    return tileable_kernels()
 
 
 #: per-instance index arrays of tileable families shifted per frame: attribute -> table
@@ -74,7 +60,7 @@ class FrameEvaluation:
     J : (F, N, N) dense KKT Jacobians (``None`` without ``need_jac``)
     items : list of ``(family, kin, rho, phi_y)`` over the stacked instances (frame-major:
         instance ``f * n + i``), the ``family`` a tiled copy whose ``owner`` / ``crow`` are
-        shifted per frame (output group size / ``nc``) for :func:`poise.solvers.outputs.loads_of`
+        shifted per frame (output group size / ``nc``) for :func:`poise.elements.loads.loads_of`
     """
 
     r: np.ndarray
@@ -136,8 +122,22 @@ def evaluate_frames(model, states, need_jac: bool = True) -> FrameEvaluation:
     EvaluationError
         A kernel produced NaN/Inf in some frame (callers fall back to frame-by-frame outputs,
         which name the element).
+
+    All ``F`` frames are evaluated together:
+
+    * marker kinematics for all frames in one array operation, ``(F, nm, 3)`` and ``(F, nm, 3, 3)``;
+    * the joint primitives and marker-pair force laws (:func:`_tileable`: no
+      time, marker-table or scalar-unknown reads) are *tiled*: a shallow copy whose per-instance
+      arrays are repeated ``F`` times (marker indices shifted by ``nm`` per frame, continuous-angle
+      indices by ``na``), so one kernel call covers every frame;
+    * any other family (motions and expression forces read the analysis time, curves the scalar
+      unknowns, ...) is called once per frame with that frame's context — exactly what
+      :meth:`Model.evaluate` does — and its outputs are stacked in the same frame-major order;
+    * local residuals and tangents of the stacked instances go through the same slot kernel
+      (:func:`local_residual_tangent`) with the family's :class:`LocalPattern`; the residual
+      ``(F, nq)``, constraints ``(F, nc)`` and dense per-frame KKT Jacobians ``(F, N, N)`` are
+      scattered with one ``bincount`` each.
     """
-    from poise.core import phases
     t_start = phases.now()
     try:
         return _evaluate_frames(model, states, need_jac)
@@ -146,7 +146,6 @@ def evaluate_frames(model, states, need_jac: bool = True) -> FrameEvaluation:
 
 
 def _evaluate_frames(model, states, need_jac):
-    from poise.model.model import EvalContext, _constraint_ext
 
     F = len(states)
     nb, nq, nc, N = model.nb, model.nq, model.nc, model.N

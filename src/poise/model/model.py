@@ -14,10 +14,12 @@ import numpy as np
 
 from poise.core import phases
 from poise.core.errors import EvaluationError
-from poise.families.base import (constraint_jacobian_local, local_pattern, local_residual_tangent,
-                                 slot_kinematics, tangent_compact)
+from poise.elements.base import EvalContext
+from poise.elements.kernel import (constraint_jacobian_local, local_pattern, local_residual_tangent,
+                                   slot_kinematics, tangent_compact)
 from poise.model.assembly import Assembler, scatter_add
-from poise.model.rotation import expm_so3, se3_left_jacobian, wrap_angle
+from poise.elements.rotation import (expm_so3, lift_rotation_vector, rotation_vector,
+                                     se3_left_jacobian, wrap_angle)
 
 MAX_SUBSTEP_ROTATION = np.pi / 4   # rad; larger rotation updates are applied in sub-steps
 DENSE_MAX = 600                    # KKT size up to which dense LU is used
@@ -72,19 +74,6 @@ class Evaluation:
     _pending: object = field(default=None, repr=False)   # deferred Jacobian (Model.jacobian)
     _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
     items: list = field(default=None, repr=False)   # per-family slot data (evaluate(keep=True))
-
-
-@dataclass
-class EvalContext:
-    """What element kernels may read besides slot vectors."""
-
-    t: float
-    angle: np.ndarray
-    static: bool = True
-    extra: np.ndarray | None = None  # (ne,) scalar unknowns
-    P: np.ndarray | None = None      # (nm, 3) marker origins (expression families)
-    A: np.ndarray | None = None      # (nm, 3, 3) marker axes as columns
-    reactions: np.ndarray | None = None  # reaction channels read by expression forces
 
 
 @dataclass
@@ -335,7 +324,6 @@ class Model:
         taken from ``state.rotvec`` (the nearest equivalent vector; principal if None).
         ``rot`` (..., nb, 3, 3) and ``rotvec`` (..., nb, 3) instead of ``state``: many frames
         at once."""
-        from poise.model.rotation import lift_rotation_vector, rotation_vector
         rot = state.rot if rot is None else rot
         rotvec = state.rotvec if rotvec is None and state is not None else rotvec
         v = rotation_vector(np.matmul(rot, np.swapaxes(self.init_rot, 1, 2)))

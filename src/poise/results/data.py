@@ -11,52 +11,28 @@ torques are in the deck's units; angles in radians.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
-STATUS_CONVERGED = "converged"
-STATUS_FAILED = "failed"
+from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord
 
 
 @dataclass
-class AnalysisResult:
-    """Result of one ``Simulate`` command.
-
-    Attributes
-    ----------
-    index : int
-        0-based position among the deck's analyses (group ``/analysis_{index:03d}``).
-    analysis_type : str
-        ``"static"`` or ``"quasistatic"``.
-    method : str
-        Method actually used (``"FIM_S"``, ``"FIM_D"``, ``"MKEAM"``).
-    status : str
-        ``"converged"`` or ``"failed"``.
-    message : str
-        Human-readable outcome (why it failed, fallbacks taken, ...).
-    settings : dict
-        Effective settings after defaults < deck < CLI (written as JSON).
-    datasets : dict[str, numpy.ndarray]
-        HDF5 path relative to the analysis group -> array. String arrays are numpy ``str_``
-        arrays; the writer stores them as variable-length UTF-8.
-    attrs : dict[str, Any]
-        Extra group attributes (scalars or strings).
+class AnalysisResult(AnalysisRecord):
+    """Result of one ``Simulate`` command: the solver's :class:`~poise.solvers.record.
+    AnalysisRecord` (index, analysis_type, method, status, message, settings, datasets, attrs)
+    with readers. String arrays in ``datasets`` are numpy ``str_`` arrays; the writer stores
+    them as variable-length UTF-8.
     """
 
-    index: int
-    analysis_type: str
-    method: str
-    status: str = STATUS_FAILED
-    message: str = ""
-    settings: dict = field(default_factory=dict)
-    datasets: dict[str, np.ndarray] = field(default_factory=dict)
-    attrs: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def converged(self) -> bool:
-        return self.status == STATUS_CONVERGED
+    @classmethod
+    def of(cls, record: AnalysisRecord) -> "AnalysisResult":
+        """The result of a solver's record (the same data, not copied)."""
+        if isinstance(record, cls):
+            return record
+        return cls(**{f.name: getattr(record, f.name) for f in fields(AnalysisRecord)})
 
     @property
     def n_frames(self) -> int:
@@ -134,11 +110,15 @@ class AnalysisResult:
         return (F, T) if frame is None else (F[frame], T[frame])
 
     def request(self, request: int, channel, frame=-1):
-        """Channel of ``Post_Request`` ``request`` (id): 1..8, or its name (``DM DX DY DZ``
-        ``YAW PITCH ROLL`` for displacement requests, ``FM FX FY FZ TM TX TY TZ`` for force
-        requests, ``f1``..``f8`` / ``expr1``..``expr8``; case-insensitive)."""
-        c = _channel_index(channel)
-        v = np.asarray(self.datasets["requests/values"])[:, self._row("requests", request), c]
+        """Channel of ``Post_Request`` ``request`` (id): 1..8, or its name as the file's
+        ``requests/channel`` gives it (``DM DX DY DZ YAW PITCH ROLL`` for displacement
+        requests, ``FM FX FY FZ TM TX TY TZ`` for force requests, ``expr1``..``expr8``;
+        case-insensitive; ``f1``..``f8`` also name channels 1..8)."""
+        row = self._row("requests", request)
+        names = self.datasets.get("requests/channel")
+        names = None if names is None else [str(n) for n in np.asarray(names)[row]]
+        c = _channel_index(channel, names)
+        v = np.asarray(self.datasets["requests/values"])[:, row, c]
         return v if frame is None else v[frame]
 
 
@@ -148,13 +128,22 @@ _CHANNELS = {**{n: i for i, n in enumerate(("dm", "dx", "dy", "dz", "", "yaw", "
              **{f"{p}{i + 1}": i for p in ("f", "expr") for i in range(8)}}
 
 
-def _channel_index(channel) -> int:
-    if isinstance(channel, str) and channel.strip().lower() in _CHANNELS:
-        return _CHANNELS[channel.strip().lower()]
-    if not isinstance(channel, str) and int(channel) == channel and 1 <= int(channel) <= 8:
+def _channel_index(channel, names=None) -> int:
+    """0-based channel of ``channel`` (1..8 or a name); ``names``: the request's own channel
+    names (``requests/channel``), searched first."""
+    if isinstance(channel, str):
+        key = channel.strip().lower()
+        if names:
+            hit = [k for k, n in enumerate(names) if n and n.lower() == key]
+            if hit:
+                return hit[0]
+        if key in _CHANNELS and (not names or key.startswith(("f", "expr"))
+                                 and key[-1].isdigit()):
+            return _CHANNELS[key]
+    elif int(channel) == channel and 1 <= int(channel) <= 8:
         return int(channel) - 1
-    raise KeyError(f"request channel {channel!r}; expected 1..8 or one of "
-                   f"{', '.join(n.upper() for n in _CHANNELS)}")
+    known = [n for n in names if n] if names else [n.upper() for n in _CHANNELS]
+    raise KeyError(f"request channel {channel!r}; expected 1..8 or one of {', '.join(known)}")
 
 
 @dataclass

@@ -36,6 +36,7 @@ import h5py
 import numpy as np
 
 from poise.core.version import __version__
+from poise.results import schema
 from poise.results.data import AnalysisResult, RunResult
 from poise.results.summary import summarize
 
@@ -89,8 +90,9 @@ def _attr_value(value: Any, what: str) -> Any:
     return str(value)
 
 
-def _set_attrs(obj: h5py.HLObject, attrs: dict[str, Any], where: str) -> None:
+def _set_attrs(obj: h5py.HLObject, attrs: dict[str, Any], where: str, scope: str) -> None:
     for key in sorted(attrs):
+        schema.declared_item(scope, "attr", key, f"{where}@{key}")
         v = _attr_value(attrs[key], f"{where}@{key}")
         if v is not None:
             obj.attrs[key] = v
@@ -113,7 +115,16 @@ def _dcpl():
     return dcpl
 
 
-def _create_dataset(parent: h5py.Group, name: str, arr: np.ndarray) -> None:
+@functools.cache
+def _units_type():
+    """(datatype, dataspace) of a ``units`` attribute: a scalar variable-length UTF-8 string,
+    as ``ds.attrs["units"] = "mm"`` would write it."""
+    from h5py import h5s, h5t
+    return h5t.py_create(_STR, logical=1), h5s.create(h5s.SCALAR)
+
+
+def _create_dataset(parent: h5py.Group, name: str, arr: np.ndarray, units: str | None = None
+                    ) -> None:
     """A contiguous dataset through h5py's low-level API.
 
     The bytes equal ``parent.create_dataset(name, data=arr, dtype=arr.dtype,
@@ -129,12 +140,30 @@ def _create_dataset(parent: h5py.Group, name: str, arr: np.ndarray) -> None:
     dsid = h5d.create(parent.id, name.encode("utf-8"), h5t.py_create(arr.dtype, logical=1),
                       h5s.create_simple(arr.shape), dcpl=_dcpl())
     dsid.write(h5s.ALL, h5s.ALL, arr)
+    if units is not None:
+        from h5py import h5a
+        tid, space = _units_type()
+        h5a.create(dsid, b"units", tid, space).write(np.array(units, dtype=_STR))
+
+
+def _scope(where: str) -> str:
+    """The schema scope of the group at ``where`` ("", "/model", "/analysis_NNN")."""
+    return "model" if where == "/model" else "analysis" if where.startswith("/analysis_") \
+        else "root"
 
 
 def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str) -> None:
+    """Every dataset of ``datasets`` (declared in :mod:`poise.results.schema`, else
+    :class:`~poise.results.schema.UndeclaredError`) with its ``units`` attribute, in the
+    units of the file's root ``units`` attribute (written first)."""
+    scope = _scope(where)
+    units = group.file.attrs.get("units", "")
     groups: dict[tuple, h5py.Group] = {(): group}   # opened subgroups (one lookup per group)
     for key in sorted(datasets):
         parts = _check_relpath(key, where)
+        item = schema.declared_item(scope, "dataset", key, f"{where}/{key}")
+        arr = _to_array(datasets[key], f"{where}/{key}")
+        schema.check_array(item, arr, f"{where}/{key}")
         parent = group
         for k in range(1, len(parts)):
             path = tuple(parts[:k])
@@ -142,7 +171,7 @@ def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str) -> 
             if parent is None:
                 parent = groups[path] = groups[path[:-1]].require_group(parts[k - 1])
         # contiguous layout, no filters, no timestamps: identical input -> identical bytes
-        _create_dataset(parent, parts[-1], _to_array(datasets[key], f"{where}/{key}"))
+        _create_dataset(parent, parts[-1], arr, schema.unit_string(item.unit, units))
 
 
 def _write_file(result: RunResult, path: str) -> None:
@@ -172,17 +201,17 @@ def _file_image(result: RunResult, name: str) -> bytes:
         clash = set(extra) & set(root_attrs)
         if clash:
             raise ValueError(f"/: attrs {sorted(clash)} clash with reserved root attributes")
-        _set_attrs(f, {**extra, **root_attrs}, "/")
+        _set_attrs(f, {**extra, **root_attrs}, "/", "root")
 
         model = f.create_group("model")
         _write_datasets(model, result.model_datasets, "/model")
 
         timings = f.create_group("timings")       # attributes set last (with the write time)
         counts = f.create_group("counts")
-        _set_attrs(counts, {k: int(v) for k, v in result.counts.items()}, "/counts")
+        _set_attrs(counts, {k: int(v) for k, v in result.counts.items()}, "/counts", "counts")
 
         warnings = np.array([str(w) for w in result.warnings], dtype=object)
-        _create_dataset(f, "warnings", _to_array(warnings.astype(_STR), "/warnings"))
+        _write_datasets(f, {"warnings": warnings.astype(_STR)}, "")
 
         for a in sorted(result.analyses, key=lambda a: a.index):
             name = analysis_group_name(a.index)
@@ -197,13 +226,13 @@ def _file_image(result: RunResult, name: str) -> bytes:
             clash = set(base) & set(a.attrs)
             if clash:
                 raise ValueError(f"/{name}: attrs {sorted(clash)} clash with reserved attributes")
-            _set_attrs(g, {**a.attrs, **base}, f"/{name}")
+            _set_attrs(g, {**a.attrs, **base}, f"/{name}", "analysis")
             _write_datasets(g, a.datasets, f"/{name}")
 
         # the write time covers everything but closing, fsync and rename of this file
         tim = {k: float(v) for k, v in result.timings.items() if k != "write"}
         tim["write"] = time.perf_counter() - t_start
-        _set_attrs(timings, tim, "/timings")
+        _set_attrs(timings, tim, "/timings", "timings")
         f.flush()
         return f.id.get_file_image()
 

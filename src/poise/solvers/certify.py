@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.model.model import Evaluation
+from poise.solvers.newton import Scales, measures
 from poise.solvers.status import Status
 
 
@@ -22,8 +24,6 @@ def certify(model, settings, outcome, r, phi, sc=None) -> tuple:
     measured infinity norm of ``r``; ``error`` the larger of the measured constraint error and
     the method's own estimate (if finite). Returns the measures ``(imbalance, constraint
     error, worst equation)``."""
-    from poise.model.model import Evaluation
-    from poise.solvers.newton import Scales, measures
     sc = sc if sc is not None else Scales(model, settings)
     imb, cerr, zinf, worst = measures(model, Evaluation(r=r, phi=phi, J=None), sc)
     own = outcome.error

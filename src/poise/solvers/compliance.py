@@ -32,6 +32,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.errors import EvaluationError, UsageError
+from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
+from poise.model.model import _log_so3
+from poise.solvers.data import SolveData
+from poise.solvers.history import History
+from poise.solvers.linalg import Factor, SingularMatrix
+from poise.solvers.newton import newton
+
 METHODS = ("exact", "fd")
 AUTO_MAX_BODIES = 100
 AUTO_MAX_ENTRIES = 4_000_000   # auto: F x (6M)^2 above this (32 MB) is skipped with a note
@@ -104,7 +112,6 @@ def select(model, settings):
     rows = []
     for m in spec.split():
         if int(m) not in index:
-            from poise.core.errors import UsageError
             raise UsageError(f"compliance_markers: marker id {m} is not a Reference_Marker of "
                              "the deck")
         rows.append(index[int(m)])
@@ -148,7 +155,6 @@ def marker_maps(model, states, rows) -> np.ndarray:
 
 def _exact(model, state, active, G, singular_hint=False):
     """``(C, flag)`` from the KKT Jacobian at ``state`` (one factorisation, all columns)."""
-    from poise.solvers.linalg import Factor, SingularMatrix
     nq = model.nq
     J = model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J
     if not singular_hint:
@@ -216,10 +222,6 @@ def _fd(model, state, active, G, rows, settings):
     """``(C, flag)`` by re-solving the equilibrium under a load ``delta`` per column."""
     from dataclasses import replace
 
-    from poise.model.model import _log_so3
-    from poise.solvers.data import SolveData
-    from poise.solvers.history import History
-    from poise.solvers.newton import newton
     delta = float(settings.compliance_delta)
     ncol = G.shape[0]
     C = np.full((ncol, ncol), np.nan)
@@ -249,7 +251,6 @@ def _fd(model, state, active, G, rows, settings):
 
 def frame_compliance(model, state, active, rows, settings, stability=""):
     """``(C (6M, 6M), flag)`` of one converged frame."""
-    from poise.core.errors import EvaluationError
     G = marker_map(model, state, rows)
     if model.nq == 0:
         return np.zeros((G.shape[0], G.shape[0])), "ok"
@@ -269,7 +270,6 @@ def _exact_frames(model, frames, active, rows, classes):
     """``exact`` compliance of many converged frames at once (batched evaluation and stacked
     dense solves), or None where batching does not apply. Frames whose stacked solve is not
     trustworthy (neutral, or a large residual) go through :func:`_exact` one by one."""
-    from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
     if len(frames) < 2 or not batchable(model):
         return None
     nq = model.nq
@@ -327,7 +327,6 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
     classes = [str(stab[k]) if stab is not None and k < len(stab) else ""
                for k in range(len(frames))]
     if method == "exact" and model.nq and len(frames) > 1:
-        from poise.core.errors import EvaluationError
         ok = [k for k, o in enumerate(outcomes) if o.ok]
         try:
             got = _exact_frames(model, [frames[k] for k in ok], active, rows,

@@ -14,14 +14,20 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.model.model import Evaluation
-from poise.results.data import STATUS_CONVERGED, STATUS_FAILED, AnalysisResult
 from poise.solvers.compliance import attach
 from poise.solvers.context import Context
 from poise.solvers.data import SolveData
-from poise.solvers.frames import (frame_datasets, frame_outputs, frames_datasets,
-                                  redundancy_datasets, stack_frames, strategy_attrs)
+from poise.solvers.frames import (
+    frame_datasets,
+    frame_outputs,
+    frames_datasets,
+    redundancy_datasets,
+    stack_frames,
+    strategy_attrs,
+)
 from poise.solvers.newton import FrameOutcome, Scales, measures
-from poise.solvers.quasistatic import NewtonFrames, output_times, progress_callback
+from poise.solvers.quasistatic import NewtonFrames
+from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord
 from poise.solvers.stable import require_stable_check
 from poise.solvers.status import Status
 
@@ -54,8 +60,9 @@ def strategy_for(request):
 
 class Driver:
     """One analysis: ``Driver(model, request, redundancy=None, progress=None).run(state,
-    index) -> (state, AnalysisResult)``; afterwards ``data`` (counters) and ``redundancy``
-    (handed to the next analysis: detection runs once per model).
+    index) -> (state, AnalysisRecord)``; afterwards ``data`` (counters) and ``redundancy``
+    (handed to the next analysis: detection runs once per model). ``request``: ``kind``,
+    ``settings``, ``transient`` and, quasi-static, ``output_times(t_start)``.
 
     ``progress``: ``progress(label, done, total)`` for the frames of a quasi-static run
     (``done`` None when finished), or None.
@@ -70,8 +77,7 @@ class Driver:
         self.ctx = Context(model=model, request=request, settings=request.settings,
                            data=SolveData.for_model(model, () if redundancy is None
                                                     else redundancy),
-                           redundancy=redundancy,
-                           progress=progress_callback() if progress is None else progress)
+                           redundancy=redundancy, progress=progress)
 
     @property
     def data(self) -> SolveData:
@@ -86,8 +92,7 @@ class Driver:
         strategy = self.strategy_cls()
         state = state.copy()
         if ctx.kind == "quasistatic":
-            ctx.times = output_times(self.request.simulate, state.t,
-                                     getattr(self.request, "arrays", None))
+            ctx.times = np.asarray(self.request.output_times(state.t), float)
             state.t = float(ctx.times[0])
             ctx.time_independent = not self.model.depends_on_time()
         else:
@@ -116,14 +121,14 @@ class Driver:
         return ctx.frames[-1], ar
 
 
-def build_result(ctx, strategy, index, extra=None) -> AnalysisResult:
+def build_result(ctx, strategy, index, extra=None) -> AnalysisRecord:
     """The result of an analysis: every frame's outcome is certified on its output evaluation
     (:func:`~poise.solvers.certify.certify`); ``ctx.measured`` frames take their history row's
     imbalance / constraint error / worst equation from it (FIM_D's interpolated frames)."""
     model, s = ctx.model, ctx.settings
     frames, outcomes = ctx.frames, ctx.outcomes
     static = ctx.kind == "static"
-    ar = AnalysisResult(index=index, analysis_type=ctx.kind, method=strategy.name,
+    ar = AnalysisRecord(index=index, analysis_type=ctx.kind, method=strategy.name,
                         settings=dict(s.as_dict(), method_requested=s.method))
     ar.attrs["reactions_unique"] = bool(len(ctx.redundancy) == 0)
     ar.attrs["assembled"] = bool(ctx.moved)

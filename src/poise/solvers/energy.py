@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.families.base import slot_kinematics
+from poise.elements.kernel import slot_kinematics
 from poise.model.model import EvalContext
 
 

@@ -16,14 +16,19 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.model.frame_batch import batchable, chunk_size, evaluate_frames
-from poise.model.rotation import euler_313, euler_parameters
+from poise.elements.rotation import euler_313, euler_parameters
 from poise.solvers.certify import certify
 from poise.solvers.history import STRATEGIES
 from poise.solvers.newton import Scales
 from poise.solvers.outputs import element_loads, loads_of
 from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
-from poise.solvers.stability import (DENSE_LIMIT, classify, classify_dense_frames,
-                                     stability_datasets, unknown_info)
+from poise.solvers.stability import (
+    DENSE_LIMIT,
+    classify,
+    classify_dense_frames,
+    stability_datasets,
+    unknown_info,
+)
 
 
 def frame_datasets(ctx, state, outcomes, on_eval=None):

@@ -5,6 +5,8 @@ import warnings
 
 import numpy as np
 
+from poise.core import phases
+
 # Dense systems up to this size are solved with numpy's LAPACK (gesv) and checked with an SVD:
 # no scipy import on the small-deck path (scipy.linalg/sparse cost ~0.25 s of process start).
 NUMPY_DENSE_MAX = 120
@@ -49,7 +51,6 @@ class Factor:
     count = 0
 
     def __init__(self, J, equilibrate: bool = False):
-        from poise.core import phases
         t0 = phases.now()
         self.scale = None
         try:

@@ -1,9 +1,6 @@
 """FIM_S per frame (static: one frame; quasi-static: every output time) and the output times.
 
-* Output times (:func:`output_times`): ``print_array_id`` (a ``Reference_Array`` of type PRINT,
-  times inside [start, end]), else ``num_steps`` (equal intervals of (end - start)/num_steps),
-  else ``print_interval`` (default 0.01). The start time is always the first frame
-  (conventions.md) and the end time the last one.
+* Output times: planned from the ``Simulate`` element (:mod:`poise.app.times`).
 * FIM_S (:class:`NewtonFrames`): frame 0 = the prologue (redundancy detection, assembly,
   least-squares multipliers) + Newton with the fallback chain; every later frame starts from a predictor
   extrapolated in the tangent space of the previous frame (``Model.local_difference`` /
@@ -17,15 +14,9 @@
 """
 from __future__ import annotations
 
-import contextlib
-import contextvars
-import os
-import sys
-import time as _time
+from dataclasses import replace
 
 import numpy as np
-
-from dataclasses import replace
 
 from poise.solvers.context import Strategy, prologue, replicate
 from poise.solvers.fallback import NO_RECOVERY, recover, solve_frame
@@ -33,135 +24,7 @@ from poise.solvers.newton import newton
 from poise.solvers.stability import classify
 from poise.solvers.stable import acceptable, seek_stable
 
-DEFAULT_PRINT_INTERVAL = 0.01
 MIN_SUBSTEP_FRACTION = 2.0 ** -10
-
-
-# ---------------------------------------------------------------------- output times
-#: Most output frames one quasi-static Simulate may ask for (a located deck error beyond).
-MAX_FRAMES = 1_000_000
-
-
-def _check_frames(sim, n: float, what: str) -> None:
-    if not n <= MAX_FRAMES:          # also inf/nan: times that overflow
-        from poise.core.errors import DeckError, Problem
-        raise DeckError(Problem(sim.loc, f"{what} asks for {n:.3g} output frames; expected at "
-                                         f"most {MAX_FRAMES} (a larger print_interval or a "
-                                         "shorter run)"))
-
-
-def output_times(sim, t_now: float, arrays: dict | None = None) -> np.ndarray:
-    """Output times of a quasi-static ``Simulate`` starting at ``t_now`` (start included)."""
-    a = sim.attrs
-    t0 = float(a["start_time"]) if a.get("start_time") is not None else float(t_now)
-    if a.get("end_time") is not None:
-        t1 = float(a["end_time"])
-    elif a.get("duration") is not None:
-        t1 = t0 + float(a["duration"])
-    else:
-        t1 = t0
-    aid = a.get("print_array_id")
-    if aid is not None and arrays and aid in arrays:
-        v = np.asarray(arrays[aid], float)
-        v = v[(v > t0 + 1e-12 * max(1.0, abs(t0))) & (v <= t1 + 1e-12 * max(1.0, abs(t1)))]
-        ts = np.unique(np.concatenate([[t0], v, [t1]]))
-        return ts
-    ns = a.get("num_steps", a.get("num_step"))
-    if ns is not None:
-        _check_frames(sim, float(ns), "num_steps")
-        return np.linspace(t0, t1, int(ns) + 1)
-    dt = float(a.get("print_interval") or DEFAULT_PRINT_INTERVAL)
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        n = (t1 - t0) / dt
-    _check_frames(sim, n, "(end_time - start) / print_interval")
-    k = int(np.floor(n + 1e-9))
-    ts = t0 + dt * np.arange(k + 1)
-    if t1 - ts[-1] > 1e-9 * dt:
-        ts = np.append(ts, t1)
-    else:
-        ts[-1] = t1
-    return ts
-
-
-def print_arrays(spec) -> dict:
-    """``{id: values}`` of ``Reference_Array`` elements (values from the element text)."""
-    out = {}
-    if spec is None:
-        return out
-    for e in spec.model:
-        if e.tag == "Reference_Array":
-            vals = e.attrs.get("values")
-            if vals is None:
-                vals = [float(x) for x in (e.text or "").replace(",", " ").split()]
-            out[e.id] = np.asarray(vals, float)
-    return out
-
-
-# ---------------------------------------------------------------------- progress
-#: ``False`` silences the progress bar of quasi-static runs started in this context (``poise
-#: solve --quiet`` through ``run_deck(quiet=True)``); ``None``: automatic (stderr is a terminal,
-#: not in CI, ``POISE_QUIET`` unset).
-PROGRESS: contextvars.ContextVar = contextvars.ContextVar("poise_progress", default=None)
-
-
-@contextlib.contextmanager
-def progress_bar(enabled: bool | None):
-    """Context in which quasi-static progress bars are ``enabled`` (None: automatic)."""
-    tok = PROGRESS.set(enabled)
-    try:
-        yield
-    finally:
-        PROGRESS.reset(tok)
-
-
-class Progress:
-    """A one-line progress bar on stderr for runs longer than ~1 s (TTY only, not in CI)."""
-
-    def __init__(self, total: int, label: str, enabled: bool | None = None):
-        if enabled is None:
-            enabled = (sys.stderr.isatty() and not os.environ.get("CI")
-                       and not os.environ.get("POISE_QUIET"))
-        self.enabled = enabled
-        self.total = max(total, 1)
-        self.label = label
-        self.t0 = _time.perf_counter()
-        self.last = 0.0
-        self.shown = False
-
-    def update(self, done: int):
-        if not self.enabled:
-            return
-        now = _time.perf_counter()
-        if now - self.t0 < 1.0 or now - self.last < 0.1:
-            return
-        self.last = now
-        f = done / self.total
-        bar = "#" * int(30 * f)
-        sys.stderr.write(f"\r{self.label} [{bar:<30}] {done}/{self.total} frames")
-        sys.stderr.flush()
-        self.shown = True
-
-    def close(self):
-        if self.shown:
-            sys.stderr.write("\r" + " " * 70 + "\r")
-            sys.stderr.flush()
-
-
-def progress_callback():
-    """A ``progress(label, done, total)`` drawing a :class:`Progress` bar per label (enabled
-    as the :data:`PROGRESS` context says when this is called); ``done`` None closes it."""
-    enabled = PROGRESS.get()
-    bars = {}
-
-    def progress(label, done, total):
-        bar = bars.get(label)
-        if bar is None:
-            bar = bars[label] = Progress(total, label, enabled=enabled)
-        if done is None:
-            bars.pop(label).close()
-        else:
-            bar.update(done)
-    return progress
 
 
 # ---------------------------------------------------------------------- helpers

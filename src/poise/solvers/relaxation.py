@@ -68,9 +68,9 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from poise.core.errors import EvaluationError
-from poise.families.base import slot_kinematics
+from poise.elements.kernel import slot_kinematics
 from poise.model.model import EvalContext
-from poise.model.rotation import expm_so3, wrap_angle
+from poise.elements.rotation import expm_so3, wrap_angle
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import Factor, SingularMatrix
 from poise.solvers.newton import assemble, initial_multipliers

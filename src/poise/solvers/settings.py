@@ -7,10 +7,11 @@ compliance_delta 1e-3.
 from __future__ import annotations
 
 import math
-
 from dataclasses import asdict, dataclass, fields, replace
+
 from poise.core.errors import UnknownOptionError
-from poise.solvers.compliance import METHODS as CM, parse_markers
+from poise.solvers.compliance import METHODS as CM
+from poise.solvers.compliance import parse_markers
 
 METHODS = ("MKEAM", "FIM_S", "FIM_D")
 TOL_MIN = 1e-100     # smallest tolerance (poise.deck.schema.TOL_MIN)

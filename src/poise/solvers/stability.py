@@ -73,6 +73,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from poise.solvers.redundancy import redundant_rows
+
 DENSE_LIMIT = 300       # coordinates; dense cost grows as nq^3 (3000: 30 s, sparse 0.05 s)
 ZERO_REL = 1e-8
 DIAG_FLOOR = 1e-24     # relative floor of the diagonal in the Jacobi equilibration
@@ -326,7 +328,6 @@ def _classify_sparse(model, J, active=None) -> StabilityInfo:
         P = _SparsePencil(model, J, active=active)
         info = _classify_pencil(model, P)
         if info.klass == "unknown" and P.singular:
-            from poise.solvers.redundancy import redundant_rows
             red = redundant_rows(P.G_active, np.ones(model.nq))
             if len(red):
                 info = _classify_pencil(model, _SparsePencil(model, J, drop=red, active=active))

@@ -37,7 +37,21 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.solvers.energy import potential_energy
-from poise.solvers.newton import FrameOutcome, assemble, newton
+from poise.solvers.linalg import SingularMatrix
+from poise.solvers.newton import (
+    FrameOutcome,
+    Scales,
+    _coord_weights,
+    _evaluate,
+    _factor,
+    _jacobian,
+    _weighted_kkt,
+    assemble,
+    initial_multipliers,
+    measures,
+    newton,
+)
+from poise.solvers.stability import AUG_RHO, SymmetricLDL, _SparsePencil
 from poise.solvers.status import Status
 
 ESCAPE_ROT = 0.3          # rad: largest rotation of the first escape trial
@@ -161,7 +175,6 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
             return state, _fail(used, "unstable, and no move along its unstable modes lowers "
                                 "the potential energy"), info, ""
         _, state, pe = moved
-        from poise.solvers.newton import initial_multipliers
         state = initial_multipliers(model, state, cnt)
         state, out, pe, n = descend(model, state, settings, history, frame, cnt,
                                     budget - used, pe)
@@ -180,7 +193,6 @@ def _ic_step(model, state, cnt, sigma):
     smallest ``sigma`` (0, else grown by 8) whose KKT inertia is ``(nq, m, 0)``: the reduced
     matrix is positive definite and ``dq`` a descent direction of the potential energy.
     Returns ``(dq, sigma, ev)`` (``dq`` None when no valid factorisation was found)."""
-    from poise.solvers.stability import AUG_RHO, SymmetricLDL, _SparsePencil
     cnt.residuals += 1
     cnt.jacobians += 1
     ev = model.evaluate(state, need_jac=True, active=cnt.active)
@@ -213,7 +225,6 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     directions, an Armijo backtracking on the potential energy of the trial assembled onto the
     constraints, the Newton polish once a full step with ``sigma = 0`` was taken). The
     potential energy never increases. Returns ``(state, outcome or None, pe, steps)``."""
-    from poise.solvers.newton import Scales, measures
     sc = Scales(model, settings)
     if pe is None:
         pe = potential_energy(model, state)
@@ -286,8 +297,6 @@ def _project(model, x, cnt, max_iter=8):
     (relative): looser than the assembly's, the end point is polished by Newton to the deck's
     tolerances. The factorisation is kept while the constraint error falls at least by
     ``CHORD_RATE`` per iteration (chord steps need no Jacobian). Returns ``(state, ok)``."""
-    from poise.solvers.linalg import SingularMatrix
-    from poise.solvers.newton import _coord_weights, _evaluate, _factor, _jacobian, _weighted_kkt
     if model.nc == 0:
         return x, True
     W = _coord_weights(model)

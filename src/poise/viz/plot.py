@@ -11,36 +11,10 @@ import numpy as np
 from poise.core.atomic import atomic_output
 from poise.core.errors import UsageError
 from poise.results.hdf5 import read_results
+from poise.results.schema import unit_symbols
 
-_ABBREV = {
-    # length
-    "MILLIMETER": "mm", "CENTIMETER": "cm", "METER": "m", "KILOMETER": "km", "NANOMETER": "nm",
-    "MICROMETER": "µm", "INCH": "in", "FOOT": "ft", "MILE": "mi", "YARD": "yd", "ANGSTROM": "Å",
-    "MILLIINCH": "mil", "MILS": "mil", "MICROINCH": "µin",
-    # force
-    "NEWTON": "N", "KNEWTON": "kN", "KILONEWTON": "kN", "MEGANEWTON": "MN", "CENTINEWTON": "cN",
-    "MILLINEWTON": "mN", "MICRONEWTON": "µN", "NANONEWTON": "nN", "POUND_FORCE": "lbf",
-    "KPOUND_FORCE": "kip", "OUNCE_FORCE": "ozf", "DYNE": "dyn", "KILOGRAM_FORCE": "kgf",
-    "POUNDAL": "pdl",
-    # mass
-    "KILOGRAM": "kg", "GRAM": "g", "MILLIGRAM": "mg", "MEGAGRAM": "Mg", "TONNE": "t",
-    "MICROGRAM": "µg", "NANOGRAM": "ng", "POUND_MASS": "lbm", "SLUG": "slug", "OUNCE_MASS": "oz",
-    "KPOUND_MASS": "klbm", "US_TON": "ton", "SLINCH": "slinch",
-    # time
-    "SECOND": "s", "MILLISECOND": "ms", "MICROSECOND": "µs", "NANOSECOND": "ns", "MINUTE": "min",
-    "HOUR": "h", "DAY": "d",
-}
-
-
-def units_of(units) -> dict:
-    """``{"length", "force", "mass", "time", "torque", "energy", "angle"}`` unit strings of the
-    deck's unit system (the results file's ``units`` attribute, e.g. ``force=NEWTON ...``)."""
-    u = dict(p.split("=", 1) for p in str(units or "").split() if "=" in p)
-    out = {k: _ABBREV.get(str(u.get(k, "")).upper(), str(u.get(k, "")).lower() or f"{k} unit")
-           for k in ("length", "force", "mass", "time")}
-    out["torque"] = out["energy"] = f"{out['force']}*{out['length']}"
-    out["angle"] = "rad"
-    return out
+# the deck's unit names (one table, poise.results.schema): {"length": "mm", "force": "N", ...}
+units_of = unit_symbols
 
 
 def _agg():
@@ -86,6 +60,34 @@ def body_names(res) -> dict:
     labels = [str(x) for x in np.asarray(md.get("bodies/label", [""] * len(ids)), dtype=str)]
     labels += [""] * (len(ids) - len(labels))
     return {i: (f"{lb} (body {i})" if lb.strip() else f"body {i}") for i, lb in zip(ids, labels)}
+
+
+def element_names(res, a, group: str, noun: str) -> dict:
+    """``{id: name}`` of ``group``'s elements: ``"<label> (<noun> <id>)"`` where the results
+    carry a label (``<group>/label`` of the analysis, else of ``/model``), else
+    ``"<noun> <id>"``."""
+    for d in (a.datasets, res.model_datasets):
+        ids, labels = d.get(f"{group}/id"), d.get(f"{group}/label")
+        if ids is not None and labels is not None and len(labels) == len(ids):
+            return {int(i): (f"{lb} ({noun} {int(i)})" if str(lb).strip() else f"{noun} {int(i)}")
+                    for i, lb in zip(np.asarray(ids), np.asarray(labels, dtype=str))}
+    return {}
+
+
+def request_channels(a, cols) -> list:
+    """Legend names of the 8 channels of each request column: the file's channel name and
+    unit (``FX [N]``), else ``ch1``..``ch8``; an unused channel is ``None``."""
+    names = a.datasets.get("requests/channel")
+    units = a.datasets.get("requests/channel_units")
+    out = []
+    for c in cols:
+        if names is None:
+            out.append([f"ch{k}" for k in range(1, 9)])
+            continue
+        row = [str(x) for x in np.asarray(names)[c]]
+        urow = [str(x) for x in np.asarray(units)[c]] if units is not None else [""] * 8
+        out.append([(f"{n} [{u}]" if u else n) if n else None for n, u in zip(row, urow)])
+    return out
 
 
 # tolerance lines: distinct colour and style, named in the legend
@@ -140,15 +142,18 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
         bn = body_names(res)
         if bi and "bodies/position" in d:
             series.append(("bodies/position", "body CG position", f"position [{U['length']}]",
-                           bi, [bn.get(i, f"body {i}") for i in bids], "xyz"))
+                           bi, [bn.get(i, f"body {i}") for i in bids], ["xyz"] * len(bi)))
         if ji and "joints/force" in d:
+            jn = element_names(res, a, "joints", "joint")
             series.append(("joints/force", "joint force on I body", f"force [{U['force']}]",
-                           ji, [f"joint {i}" for i in jids], "xyz"))
+                           ji, [jn.get(i, f"joint {i}") for i in jids], ["xyz"] * len(ji)))
         if ri and "requests/values" in d:
-            series.append(("requests/values", "request channels",
-                           f"value [{U['force']}, {U['length']}, {U['torque']}, rad by channel]",
-                           ri, [f"request {i}" for i in rids],
-                           [f"ch{k}" for k in range(1, 9)]))
+            rn = element_names(res, a, "requests", "request")
+            chans = request_channels(a, ri)
+            ylab = ("value [unit per channel: see legend]" if "requests/channel_units" in d
+                    else f"value [{U['force']}, {U['length']}, {U['torque']}, rad by channel]")
+            series.append(("requests/values", "request channels", ylab,
+                           ri, [rn.get(i, f"request {i}") for i in rids], chans))
         panels += [s[0] for s in series]
     heights = [1.0 if p != "iterations" else 0.55 for p in panels]
     fig, axes = plt.subplots(len(panels), 1, figsize=(8, 3.2 * sum(heights)), squeeze=False,
@@ -222,8 +227,10 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
         ax = axes[k]
         k += 1
         data = np.asarray(d[key], float)
-        for c, name in zip(cols, names):
-            for j, comp in enumerate(comps):
+        for c, name, col_comps in zip(cols, names, comps):
+            for j, comp in enumerate(col_comps):
+                if comp is None:               # an unused request channel
+                    continue
                 y = data[:, c, j]
                 if np.isfinite(y).any() and np.ptp(np.nan_to_num(y)) + abs(np.nanmax(y)) > 0:
                     ax.plot(t[:len(y)], y, label=f"{name} {comp}")

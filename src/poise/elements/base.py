@@ -1,0 +1,195 @@
+"""The element-family contract: what every element kernel computes from its marker slots.
+
+Every element acts on bodies through *markers*. A family instance reads a fixed list of
+**slots**: 3-vectors attached to one of its markers, either the marker origin ``P`` (kind 0) or one
+of its axes ``x, y, z`` (kinds 1, 2, 3), all in global components, ``y`` (shape ``(n, 3S)``):
+
+* force families return ``rho = -w``, ``w`` the generalised force work-conjugate to the slots
+  (a force ``F`` at origin slot ``s``: ``rho_s = -F``; a torque ``T`` through the three axes
+  ``a_c`` of a marker: ``rho_c = -T x a_c / 2``), and ``G = d rho / d y`` (n, 3S, 3S);
+* constraint families return ``phi`` (n, m), ``phi_y`` (n, m, 3S) and the multiplier-weighted
+  Hessian ``G = sum_r lam_r d2 phi_r / d y2``; their ``rho = phi_y^T lam``.
+
+:mod:`poise.elements.kernel` maps slots to body coordinates. Residual sign: the global residual
+is ``Phi_q^T lam - Q`` (internal minus applied), so a stable spring has a positive tangent.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# slot kinds and the slot kinematics the contract is written in (also re-exported)
+from poise.elements.kernel import AX_X, AX_Y, AX_Z, POINT, SlotKinematics, _cross  # noqa: F401
+from poise.elements.rotation import skew
+
+GLOBAL = 0  # compiled marker index of the global frame (marker id 0)
+
+
+@dataclass
+class EvalContext:
+    """What element kernels may read besides slot vectors."""
+
+    t: float
+    angle: np.ndarray
+    static: bool = True
+    extra: np.ndarray | None = None  # (ne,) scalar unknowns
+    P: np.ndarray | None = None      # (nm, 3) marker origins (expression families)
+    A: np.ndarray | None = None      # (nm, 3, 3) marker axes as columns
+    reactions: np.ndarray | None = None  # reaction channels read by expression forces
+
+@dataclass
+class Family:
+    """Base class of element families (vectorised over ``n`` instances).
+
+    Subclasses set the class attributes and implement :meth:`forces` (force families) or
+    :meth:`constraints` (constraint families).
+
+    Attributes
+    ----------
+    name : str
+        Effect name listed in the results' ``active_effects``.
+    markers : (n, K) int
+        Marker indices per instance.
+    slot_ml : (S,) int
+        Marker (0..K-1) read by each slot.
+    slot_kind : (n, S) int
+        Slot kinds per instance.
+    owner : (n,) int
+        Index of the owning deck element in its output group (joints, forces, ...).
+    m : int
+        Constraint rows per instance (0 for force families).
+    gcol : (n, 6K + U) int
+        Global coordinate index of each local coordinate, -1 where the body has none (set by the
+        compiler); the last U columns are the scalar unknowns of ``scols``.
+    scols : (n, U) int or None
+        Indices (into ``State.extra``) of the scalar unknowns each instance reads (-1 = none).
+    crow : (n, m) int
+        Global constraint row of each instance row (set by the compiler).
+    """
+
+    name: str
+    markers: np.ndarray
+    slot_ml: np.ndarray
+    slot_kind: np.ndarray
+    owner: np.ndarray
+    m: int = 0
+    gcol: np.ndarray = field(default=None, repr=False)
+    crow: np.ndarray = field(default=None, repr=False)
+    row_names: tuple = ()
+    scols: np.ndarray = field(default=None, repr=False)
+
+    @property
+    def U(self) -> int:
+        """Number of scalar-unknown columns per instance."""
+        return 0 if self.scols is None else int(self.scols.shape[1])
+
+    @property
+    def n(self) -> int:
+        return self.markers.shape[0]
+
+    @property
+    def K(self) -> int:
+        return self.markers.shape[1]
+
+    @property
+    def is_constraint(self) -> bool:
+        return self.m > 0
+
+    def depends_on_time(self) -> bool:
+        return False
+
+    def g_blocks(self):
+        """Static structure of ``G``: (S, S) bool array of the slot-pair 3x3 blocks of ``G`` that
+        can be non-zero (all False: ``G`` is always None or zero), or None (the default): ``G``
+        may be dense. Declaring it lets the kernel skip zero blocks and keeps structural zeros
+        out of the sparse KKT pattern; a block returned non-zero outside the declaration would
+        be dropped, so declare conservatively."""
+        return None
+
+    def phi_y_mask(self):
+        """Static structure of ``phi_y`` (constraint families): (m, 3S) bool array of the entries
+        that can be non-zero, or None (the default): dense."""
+        return None
+
+
+class ForceFamily(Family):
+    """Force families implement ``forces(kin, ctx, need_jac) -> (rho (n,3S), G (n,3S,3S) or
+    None[, ext])``; ``ext`` (families with scalar columns) as in :func:`local_residual_tangent`."""
+
+    def forces(self, kin: SlotKinematics, ctx) -> tuple[np.ndarray, np.ndarray | None]:
+        raise NotImplementedError
+
+
+class ConstraintFamily(Family):
+    """Constraint families implement ``constraints(kin, lam, ctx) -> (phi, phi_y, G[, ext])``.
+
+    ``lam`` has shape (n, m); ``phi`` (n, m); ``phi_y`` (n, m, 3S); ``G`` (n, 3S, 3S) or None.
+    Families with scalar columns may return ``ext`` with ``phi_s`` (n, m, U) = d phi / d s and
+    the multiplier-weighted Hessian blocks ``G_ys`` (n, 3S, U) and ``G_ss`` (n, U, U)
+    (``G_sy`` defaults to the transpose of ``G_ys``); ``rho_s = phi_s^T lam`` is added by the
+    model.
+    """
+
+    def constraints(self, kin: SlotKinematics, lam: np.ndarray, ctx):
+        raise NotImplementedError
+
+    def phi_t(self, kin: SlotKinematics, ctx) -> np.ndarray | None:
+        """d phi / d t, (n, m); None when the constraint does not depend on time."""
+        return None
+
+
+def add_force_at_point(rho, G, s, F, dF):
+    """Apply force ``F`` (n,3) at the point slot ``s``: ``rho_s -= F``; ``G_s,: -= dF`` (n,3,3S)."""
+    rho[:, 3 * s:3 * s + 3] -= F
+    if G is not None and dF is not None:
+        G[:, 3 * s:3 * s + 3, :] -= dF
+
+
+def add_torque_via_axes(rho, G, axis_slots, T, dT, Y):
+    """Apply torque ``T`` (n,3) to the body carrying the three axis slots ``axis_slots``.
+
+    Uses ``rho_c = -T x a_c / 2 = (a_c x T)/2`` so that ``sum_c a_c x w_c = T``.
+    ``dT`` (n, 3, 3S) is dT/dy or None.
+    """
+    for s in axis_slots:
+        a = Y[:, s]
+        rows = slice(3 * s, 3 * s + 3)
+        rho[:, rows] += 0.5 * _cross(a, T)
+        if G is not None:
+            if dT is not None:
+                G[:, rows, :] += 0.5 * np.matmul(skew(a), dT)
+            G[:, rows, rows] += -0.5 * skew(T)
+
+
+def column_map(index, cols):
+    """Map per-instance global indices to per-instance local columns (compile time).
+
+    ``index`` (n, C) holds global indices (negative = unused); ``cols`` is a list of n dicts
+    ``global -> local column`` extended in place (first use gets the next column). Returns the
+    ``(rows, c, local)`` int arrays of every used entry.
+    """
+    rows, cs, fs = [], [], []
+    for i in range(len(cols)):
+        d = cols[i]
+        for c, k in enumerate(index[i]):
+            k = int(k)
+            if k < 0:
+                continue
+            if k not in d:
+                d[k] = len(d)
+            rows.append(i)
+            cs.append(c)
+            fs.append(d[k])
+    ip = np.intp
+    return np.array(rows, ip), np.array(cs, ip), np.array(fs, ip)
+
+
+def columns_array(cols, width=None, fill=-1):
+    """(n, width) array with ``out[i, local] = global`` from the dicts of :func:`column_map`."""
+    width = max((len(d) for d in cols), default=0) if width is None else width
+    out = np.full((len(cols), width), fill, int)
+    for i, d in enumerate(cols):
+        for k, c in d.items():
+            out[i, c] = k
+    return out

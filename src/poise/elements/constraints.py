@@ -1,0 +1,169 @@
+"""Holonomic constraint primitives, vectorised.
+
+Every joint and joint primitive of the deck is decomposed into rows of three primitive kinds
+(deck_format.md §3.1/3.2, notation: I marker on body i, J marker on body j, d = P_I - P_J):
+
+* :class:`Coincident` — ``d = 0`` (3 rows, global components);
+* :class:`Perpendicular` — ``a_I . b_J (+ a2_I . b2_J) = 0`` (1 row; the optional second term
+  gives the constant-velocity joint row ``x_I.y_J + y_I.x_J = 0``; its z axes run down the two
+  shafts away from the joint centre, MotionSolve/Adams convention, checked at compile time:
+  with z axes the same way the row vanishes identically for coaxial shafts);
+* :class:`InPlane` — ``d . b_J = 0`` (1 row).
+
+Reactions (``lam``) of Coincident rows are forces; of Perpendicular rows torques; of InPlane
+rows forces.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.elements.base import POINT, ConstraintFamily
+
+_I3 = np.eye(3)
+
+# equations per joint type: list of ("point",) | ("perp", ci, cj[, ci2, cj2]) | ("plane", cj)
+# axis codes: 1 = x, 2 = y, 3 = z.
+_REV = [("point",), ("perp", 3, 1), ("perp", 3, 2)]
+JOINT_EQUATIONS: dict[str, list[tuple]] = {
+    "SPHERICAL": [("point",)],
+    "ATPOINT": [("point",)],
+    "REVOLUTE": _REV,
+    "CYLINDRICAL": [("plane", 1), ("plane", 2), ("perp", 3, 1), ("perp", 3, 2)],
+    "TRANSLATIONAL": [("plane", 1), ("plane", 2), ("perp", 3, 1), ("perp", 3, 2), ("perp", 1, 2)],
+    "FIXED": [("point",), ("perp", 3, 1), ("perp", 3, 2), ("perp", 1, 2)],
+    "UNIVERSAL": [("point",), ("perp", 3, 3)],
+    "HOOKE": [("point",), ("perp", 1, 2)],
+    "CONSTANT_VELOCITY": [("point",), ("perp", 1, 2, 2, 1)],
+    "PLANAR": [("plane", 3), ("perp", 3, 1), ("perp", 3, 2)],
+    "INLINE": [("plane", 1), ("plane", 2)],
+    "INPLANE": [("plane", 3)],
+    "ORIENTATION": [("perp", 3, 1), ("perp", 3, 2), ("perp", 1, 2)],
+    "PARALLEL_AXES": [("perp", 3, 1), ("perp", 3, 2)],
+    "PERPENDICULAR": [("perp", 3, 3)],
+    "FREE": [],
+}
+
+_AX = {1: "x", 2: "y", 3: "z"}
+
+
+def equation_names(eqs) -> list[str]:
+    """Readable names of the rows produced by an equation list (for logs and results)."""
+    names = []
+    for e in eqs:
+        if e[0] == "point":
+            names += ["dx", "dy", "dz"]
+        elif e[0] == "perp":
+            s = f"{_AX[e[1]]}I.{_AX[e[2]]}J"
+            if len(e) > 3:
+                s += f"+{_AX[e[3]]}I.{_AX[e[4]]}J"
+            names.append(s)
+        else:
+            names.append(f"d.{_AX[e[1]]}J")
+    return names
+
+
+def n_rows(eqs) -> int:
+    return sum(3 if e[0] == "point" else 1 for e in eqs)
+
+
+class Coincident(ConstraintFamily):
+    """``P_I - P_J = 0``. Slots: P_I, P_J."""
+
+    @classmethod
+    def build(cls, name, I, J, owner):
+        n = len(I)
+        return cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=np.array([0, 1]),
+                   slot_kind=np.zeros((n, 2), int), owner=np.asarray(owner, int), m=3)
+
+    def constraints(self, kin, lam, ctx):
+        n = self.n
+        phi = kin.Y[:, 0] - kin.Y[:, 1]
+        phi_y = np.zeros((n, 3, 6))
+        phi_y[:, :, 0:3] = _I3
+        phi_y[:, :, 3:6] = -_I3
+        return phi, phi_y, None
+
+    def g_blocks(self):
+        return np.zeros((2, 2), bool)                        # G is always None
+
+    def phi_y_mask(self):
+        return np.hstack([_I3, _I3]).astype(bool)
+
+
+class Perpendicular(ConstraintFamily):
+    """``a_I . b_J + c (a2_I . b2_J) = 0``. Slots: a_I, b_J, a2_I, b2_J; c in {0, 1}."""
+
+    @classmethod
+    def build(cls, name, I, J, ci, cj, ci2, cj2, coef2, owner):
+        kinds = np.stack([ci, cj, ci2, cj2], 1).astype(int)
+        fam = cls(name=name, markers=np.stack([I, J], 1).astype(int),
+                  slot_ml=np.array([0, 1, 0, 1]), slot_kind=kinds,
+                  owner=np.asarray(owner, int), m=1)
+        fam.coef2 = np.asarray(coef2, float)
+        return fam
+
+    def constraints(self, kin, lam, ctx):
+        Y = kin.Y
+        c = self.coef2
+        phi = (np.einsum("ni,ni->n", Y[:, 0], Y[:, 1])
+               + c * np.einsum("ni,ni->n", Y[:, 2], Y[:, 3]))[:, None]
+        n = self.n
+        phi_y = np.zeros((n, 1, 12))
+        phi_y[:, 0, 0:3] = Y[:, 1]
+        phi_y[:, 0, 3:6] = Y[:, 0]
+        phi_y[:, 0, 6:9] = c[:, None] * Y[:, 3]
+        phi_y[:, 0, 9:12] = c[:, None] * Y[:, 2]
+        G = np.zeros((n, 12, 12))
+        l = lam[:, 0]
+        blk = l[:, None, None] * _I3
+        G[:, 0:3, 3:6] = blk
+        G[:, 3:6, 0:3] = blk
+        blk2 = (l * c)[:, None, None] * _I3
+        G[:, 6:9, 9:12] = blk2
+        G[:, 9:12, 6:9] = blk2
+        return phi, phi_y, G
+
+    def g_blocks(self):
+        gb = np.zeros((4, 4), bool)
+        gb[0, 1] = gb[1, 0] = True
+        if np.any(self.coef2 != 0):
+            gb[2, 3] = gb[3, 2] = True
+        return gb
+
+
+class InPlane(ConstraintFamily):
+    """``(P_I - P_J) . b_J = 0``. Slots: P_I, P_J, b_J."""
+
+    @classmethod
+    def build(cls, name, I, J, cj, owner):
+        n = len(I)
+        kinds = np.stack([np.zeros(n, int), np.zeros(n, int), np.asarray(cj, int)], 1)
+        return cls(name=name, markers=np.stack([I, J], 1).astype(int),
+                   slot_ml=np.array([0, 1, 1]), slot_kind=kinds,
+                   owner=np.asarray(owner, int), m=1)
+
+    def constraints(self, kin, lam, ctx):
+        Y = kin.Y
+        d = Y[:, 0] - Y[:, 1]
+        b = Y[:, 2]
+        phi = np.einsum("ni,ni->n", d, b)[:, None]
+        n = self.n
+        phi_y = np.zeros((n, 1, 9))
+        phi_y[:, 0, 0:3] = b
+        phi_y[:, 0, 3:6] = -b
+        phi_y[:, 0, 6:9] = d
+        G = np.zeros((n, 9, 9))
+        blk = lam[:, 0][:, None, None] * _I3
+        G[:, 0:3, 6:9] = blk
+        G[:, 6:9, 0:3] = blk
+        G[:, 3:6, 6:9] = -blk
+        G[:, 6:9, 3:6] = -blk
+        return phi, phi_y, G
+
+    def g_blocks(self):
+        gb = np.zeros((3, 3), bool)
+        gb[0, 2] = gb[2, 0] = gb[1, 2] = gb[2, 1] = True
+        return gb
+
+
+assert POINT == 0

@@ -1,0 +1,279 @@
+"""Force families between two markers, vectorised.
+
+All two-body force elements share one slot layout (markers I, J, R):
+``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J, x_R, y_R, z_R]`` (slots 0..10), where R is the
+reference marker of vector-force components (the global frame when absent).
+
+Each family computes the force ``F`` and torque ``T`` acting on the body of I at the I origin
+(global components) and their derivatives with respect to the slot vectors. The generic
+:func:`apply_two_body` then applies ``(F, T)`` to I and, unless the element is action-only, the
+equal and opposite action to J: ``-F`` at ``P_J`` plus the torque ``-T - (P_I - P_J) x F``.
+Laws follow ``conventions.md`` (statics: velocities are zero, damping vanishes).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.core.errors import EvaluationError
+from poise.elements.base import ForceFamily, _cross, add_force_at_point, add_torque_via_axes
+from poise.elements.rotation import skew
+
+S_PI, S_XI, S_YI, S_ZI, S_PJ, S_XJ, S_YJ, S_ZJ, S_XR, S_YR, S_ZR = range(11)
+N_SLOTS = 11
+SLOT_ML = np.array([0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2])
+SLOT_KIND = np.array([0, 1, 2, 3, 0, 1, 2, 3, 1, 2, 3])
+_I3 = np.eye(3)
+# angle measure (about axis k of J): (u slot, e1 slot, e2 slot): theta = atan2(u.e2, u.e1)
+ANGLE_SLOTS = {0: (S_YI, S_YJ, S_ZJ), 1: (S_ZI, S_ZJ, S_XJ), 2: (S_XI, S_XJ, S_YJ)}
+
+
+def sl(s):
+    return slice(3 * s, 3 * s + 3)
+
+
+def angle_gradient(Y, axis):
+    """Gradient of the angle about J axis ``axis`` (0=x: AX, 1=y: AY, 2=z: AZ), (n, 33)."""
+    su, s1, s2 = ANGLE_SLOTS[axis]
+    u, e1, e2 = Y[:, su], Y[:, s1], Y[:, s2]
+    c = np.einsum("ni,ni->n", u, e1)
+    s = np.einsum("ni,ni->n", u, e2)
+    r2 = c * c + s * s
+    g = np.zeros((Y.shape[0], 3 * N_SLOTS))
+    g[:, sl(su)] = (c[:, None] * e2 - s[:, None] * e1) / r2[:, None]
+    g[:, sl(s1)] = -s[:, None] * u / r2[:, None]
+    g[:, sl(s2)] = c[:, None] * u / r2[:, None]
+    return g
+
+
+def principal_angle(Y, axis):
+    su, s1, s2 = ANGLE_SLOTS[axis]
+    u, e1, e2 = Y[:, su], Y[:, s1], Y[:, s2]
+    return np.arctan2(np.einsum("ni,ni->n", u, e2), np.einsum("ni,ni->n", u, e1))
+
+
+def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
+    """Assemble ``rho`` (n, 33) and ``G`` (n, 33, 33) from the action (F, T) on I.
+
+    ``action_only`` (n,) bool (or None: all react): no reaction on J for those instances.
+    """
+    n, S = Y.shape[:2]              # any slot count >= 11: extra slots enter only through dF, dT
+    W = 3 * S
+    rho = np.zeros((n, W))
+    G = np.zeros((n, W, W)) if need_jac else None
+    add_force_at_point(rho, G, S_PI, F, dF)
+    add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
+    react = (np.ones(n, bool) if action_only is None else ~np.asarray(action_only, bool))
+    if react.any():
+        d = Y[:, S_PI] - Y[:, S_PJ]
+        Fj = -F * react[:, None]
+        Tj = (-T - _cross(d, F)) * react[:, None]
+        dFj = dTj = None
+        if need_jac:
+            dFj = -dF * react[:, None, None]
+            # d(d x F) = -[F]x dd + [d]x dF
+            dd = np.zeros((n, 3, W))
+            dd[:, :, sl(S_PI)] = _I3
+            dd[:, :, sl(S_PJ)] = -_I3
+            dcross = -np.matmul(skew(F), dd) + np.matmul(skew(d), dF)
+            dTj = (-dT - dcross) * react[:, None, None]
+        add_force_at_point(rho, G, S_PJ, Fj, dFj)
+        add_torque_via_axes(rho, G, (S_XJ, S_YJ, S_ZJ), Tj, dTj, Y)
+    return rho, G
+
+
+class TwoBodyForce(ForceFamily):
+    """Common constructor for the marker-pair force families."""
+
+    @classmethod
+    def build(cls, name, I, J, R, owner, action_only=None, **params):
+        n = len(I)
+        fam = cls(name=name, markers=np.stack([I, J, R], 1).astype(int), slot_ml=SLOT_ML,
+                  slot_kind=np.broadcast_to(SLOT_KIND, (n, N_SLOTS)).copy(),
+                  owner=np.asarray(owner, int))
+        fam.action_only = np.zeros(n, bool) if action_only is None else np.asarray(action_only, bool)
+        for k, v in params.items():
+            setattr(fam, k, np.asarray(v))
+        fam.locs = params.get("locs", None)
+        return fam
+
+    def compute(self, Y, ctx, need_jac):
+        """Return F, T (n,3) and dF, dT (n,3,33)."""
+        raise NotImplementedError
+
+    def forces(self, kin, ctx, need_jac=True):
+        F, T, dF, dT = self.compute(kin.Y, ctx, need_jac)
+        return apply_two_body(kin.Y, F, T, dF, dT, self.action_only, need_jac)
+
+
+class LineForce(TwoBodyForce):
+    """Force of magnitude ``f = -k (L - length) + preload`` along J->I (positive repels).
+
+    Covers ``Force_SpringDamper TRANSLATIONAL`` (k, length, preload) and
+    ``Force_Scalar_TwoBody FORCE`` (k = 0, preload = value). Parameters: ``k``, ``length``,
+    ``preload`` (n,), ``element_locs`` list for error messages.
+    """
+
+    def compute(self, Y, ctx, need_jac):
+        # F = f u = -k d + c u with c = k length + preload: the first term is smooth everywhere,
+        # the second needs a defined direction (L > 0) unless c = 0.
+        d = Y[:, S_PI] - Y[:, S_PJ]
+        L = np.linalg.norm(d, axis=1)
+        c = self.k * self.length + self.preload
+        bad = (L <= 1e-300) & (c != 0.0)
+        if np.any(bad):
+            i = int(np.nonzero(bad)[0][0])
+            raise EvaluationError("the I and J markers coincide: the line of action is undefined",
+                                  self.element_locs[i] if self.element_locs else None)
+        Ls = np.where(L > 1e-300, L, 1.0)
+        u = d / Ls[:, None]
+        F = -self.k[:, None] * d + c[:, None] * u
+        T = np.zeros_like(F)
+        dF = dT = None
+        if need_jac:
+            n = len(L)
+            uu = u[:, :, None] * u[:, None, :]
+            dFdd = (-self.k)[:, None, None] * _I3 + (c / Ls)[:, None, None] * (_I3 - uu)
+            dF = np.zeros((n, 3, 3 * N_SLOTS))
+            dF[:, :, sl(S_PI)] = dFdd
+            dF[:, :, sl(S_PJ)] = -dFdd
+            dT = np.zeros_like(dF)
+        return F, T, dF, dT
+
+    def potential_energy(self, kin, ctx):
+        """``k/2 (L - length)^2 - preload L`` per instance (MKEAM history)."""
+        d = kin.Y[:, S_PI] - kin.Y[:, S_PJ]
+        L = np.linalg.norm(d, axis=1)
+        return 0.5 * self.k * (L - self.length) ** 2 - self.preload * L
+
+
+class AxisForce(TwoBodyForce):
+    """Action-only force of constant magnitude along J's z axis (``Force_Scalar_TwoBody``
+    ``FORCE`` with ``is_action_only``). Parameter ``value`` (n,)."""
+
+    def compute(self, Y, ctx, need_jac):
+        z = Y[:, S_ZJ]
+        F = self.value[:, None] * z
+        T = np.zeros_like(F)
+        dF = dT = None
+        if need_jac:
+            n = len(F)
+            dF = np.zeros((n, 3, 3 * N_SLOTS))
+            dF[:, :, sl(S_ZJ)] = self.value[:, None, None] * _I3
+            dT = np.zeros_like(dF)
+        return F, T, dF, dT
+
+
+class AxisTorque(TwoBodyForce):
+    """Torque ``tau = -k (AZ(I,J) - length) + preload`` about J's z axis.
+
+    ``Force_SpringDamper ROTATIONAL`` and ``Force_Scalar_TwoBody TORQUE`` (k = 0). AZ is the
+    continuous angle (full turns counted) held in ``ctx.angle[self.angle_index]``.
+    """
+
+    def compute(self, Y, ctx, need_jac):
+        theta = ctx.angle[self.angle_index]
+        tau = -self.k * (theta - self.length) + self.preload
+        z = Y[:, S_ZJ]
+        T = tau[:, None] * z
+        F = np.zeros_like(T)
+        dF = dT = None
+        if need_jac:
+            n = len(T)
+            g = angle_gradient(Y, 2)
+            dT = np.zeros((n, 3, 3 * N_SLOTS))
+            dT += z[:, :, None] * (-self.k)[:, None, None] * g[:, None, :]
+            dT[:, :, sl(S_ZJ)] += tau[:, None, None] * _I3
+            dF = np.zeros_like(dT)
+        return F, T, dF, dT
+
+    def potential_energy(self, kin, ctx):
+        """``k/2 (AZ - length)^2 - preload AZ`` (AZ continuous; exact when I's z stays along J's
+        z, as in a hinge); per instance."""
+        theta = ctx.angle[self.angle_index]
+        return 0.5 * self.k * (theta - self.length) ** 2 - self.preload * theta
+
+
+class Bushing(TwoBodyForce):
+    """``Force_Bushing``: ``F_J = -K (DX,DY,DZ)(I,J,J) + preload``, ``T_J = -Kt (AX,AY,AZ)(I,J)
+    + preload_t`` in J's axes, applied at I; reaction on J with the offset moment.
+
+    Parameters: ``kt3`` (n,3) translational stiffness, ``kr3`` (n,3) rotational, ``f0`` (n,3),
+    ``t0`` (n,3), ``angle_index`` (n,3) into ``ctx.angle``.
+    """
+
+    def compute(self, Y, ctx, need_jac):
+        n = Y.shape[0]
+        d = Y[:, S_PI] - Y[:, S_PJ]
+        AJ = np.stack([Y[:, S_XJ], Y[:, S_YJ], Y[:, S_ZJ]], axis=2)       # columns
+        D = np.einsum("nik,ni->nk", AJ, d)
+        th = ctx.angle[self.angle_index]                                    # (n,3)
+        FJ = -self.kt3 * D + self.f0
+        TJ = -self.kr3 * th + self.t0
+        F = np.einsum("nik,nk->ni", AJ, FJ)
+        T = np.einsum("nik,nk->ni", AJ, TJ)
+        dF = dT = None
+        if need_jac:
+            W = 3 * N_SLOTS
+            dD = np.zeros((n, 3, W))
+            AJt = np.swapaxes(AJ, 1, 2)
+            dD[:, :, sl(S_PI)] = AJt
+            dD[:, :, sl(S_PJ)] = -AJt
+            for k, s in enumerate((S_XJ, S_YJ, S_ZJ)):
+                dD[:, k, sl(s)] += d
+            dth = np.stack([angle_gradient(Y, k) for k in range(3)], axis=1)   # (n,3,W)
+            dFJ = -self.kt3[:, :, None] * dD
+            dTJ = -self.kr3[:, :, None] * dth
+            dF = np.matmul(AJ, dFJ)
+            dT = np.matmul(AJ, dTJ)
+            for k, s in enumerate((S_XJ, S_YJ, S_ZJ)):
+                dF[:, :, sl(s)] += FJ[:, k][:, None, None] * _I3
+                dT[:, :, sl(s)] += TJ[:, k][:, None, None] * _I3
+        return F, T, dF, dT
+
+    def potential_energy(self, kin, ctx):
+        """Translational part ``D^T K D / 2 - f0 . D``; None (not conservative in general) when a
+        rotational stiffness or torque preload is present."""
+        if np.any(self.kr3 != 0) or np.any(self.t0 != 0):
+            return None
+        Y = kin.Y
+        AJ = np.stack([Y[:, S_XJ], Y[:, S_YJ], Y[:, S_ZJ]], axis=2)
+        D = np.einsum("nik,ni->nk", AJ, Y[:, S_PI] - Y[:, S_PJ])
+        return np.sum(0.5 * self.kt3 * D * D - self.f0 * D, axis=1)
+
+
+class VectorForce(TwoBodyForce):
+    """Constant force and torque components along the reference marker R's axes, applied at I.
+
+    ``Force_Vector_OneBody`` (action-only; reaction to ground) and ``Force_Vector_TwoBody``
+    (reaction on the floating marker's body). Parameters ``fc`` (n,3), ``tc`` (n,3).
+    """
+
+    def compute(self, Y, ctx, need_jac):
+        AR = np.stack([Y[:, S_XR], Y[:, S_YR], Y[:, S_ZR]], axis=2)
+        F = np.einsum("nik,nk->ni", AR, self.fc)
+        T = np.einsum("nik,nk->ni", AR, self.tc)
+        dF = dT = None
+        if need_jac:
+            n = Y.shape[0]
+            dF = np.zeros((n, 3, 3 * N_SLOTS))
+            dT = np.zeros_like(dF)
+            for k, s in enumerate((S_XR, S_YR, S_ZR)):
+                dF[:, :, sl(s)] = self.fc[:, k][:, None, None] * _I3
+                dT[:, :, sl(s)] = self.tc[:, k][:, None, None] * _I3
+        return F, T, dF, dT
+
+    potential_needs_ground = True
+
+    def potential_energy(self, kin, ctx, on_ground=None):
+        """``-F . P_I`` per instance when the force is constant in space: reference marker R
+        and the reaction side (J, or action-only) on ground and no torque; None otherwise.
+        ``on_ground`` (n, 3) bool: which of the slots' markers I, J, R are fixed."""
+        if on_ground is None or np.any(self.tc != 0):
+            return None
+        fixed_j = self.action_only | on_ground[:, 1]
+        if not np.all(on_ground[:, 2] & fixed_j):
+            return None
+        Y = kin.Y
+        AR = np.stack([Y[:, S_XR], Y[:, S_YR], Y[:, S_ZR]], axis=2)
+        F = np.einsum("nik,nk->ni", AR, self.fc)
+        return -np.sum(F * Y[:, S_PI], axis=1)

@@ -1,0 +1,383 @@
+"""The generic marker-slot kernel: slot vectors -> local body coordinates, residual, tangent.
+
+Slots (:mod:`poise.elements.base`) are mapped to the 6 local coordinates of each marker's body:
+a translation ``dr`` and a spatial rotation increment ``dtheta`` (``R <- expm(skew(dtheta)) R``).
+For a point slot with lever ``v = P - r_body``: ``dP = dr - v x dtheta``; for an axis ``a``:
+``da = -a x dtheta``. The local residual is ``B^T rho`` and the local tangent ``B^T G B + C``,
+``C`` the connection term from rotating levers/axes, ``C_thth += v rho_s^T - (v . rho_s) I``
+per slot. This gives the complete Newton Jacobian (including the geometric stiffness of
+constraint reactions, d(Phi_q^T lam)/dq) for every family from first principles.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.elements.rotation import skew
+
+POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3    # slot kinds: the marker origin, its x, y, z axis
+_I3 = np.eye(3)
+
+
+class SlotKinematics:
+    """Slot vectors and their maps to local body coordinates for n instances.
+
+    Attributes
+    ----------
+    Y : (n, S, 3) slot vectors (global)
+    V : (n, S, 3) lever (point slots) or axis (axis slots) used by the connection term
+    pt : (n, S) bool, point slots
+    B : (n, 3S, 6K) d y / d local coordinates. Built on first access only: each slot's block is
+        ``[I | -skew(v)]`` (point) or ``[0 | -skew(a)]`` (axis) within its marker's 6 columns, and
+        the kernels below use that structure instead of the dense matrix.
+    """
+
+    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk")
+
+    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None):
+        self.Y = Y
+        self.V = V
+        self.pt = pt
+        self.slot_ml = slot_ml
+        self.K = K
+        self._B = B
+        self._Sk = None
+
+    @property
+    def Sk(self) -> np.ndarray:
+        """``skew(V)`` (n, S, 3, 3); ``B_s = [pt_s I | -Sk_s]``."""
+        if self._Sk is None:
+            self._Sk = skew(self.V)
+        return self._Sk
+
+    @property
+    def B(self) -> np.ndarray:
+        if self._B is None:
+            n, S = self.pt.shape
+            K = self.K
+            B = np.zeros((n, 3 * S, 6 * K))
+            sk = -self.Sk
+            for s in range(S):
+                k = self.slot_ml[s]
+                rows = slice(3 * s, 3 * s + 3)
+                pt = self.pt[:, s]
+                if pt.any():
+                    B[pt, rows, 6 * k:6 * k + 3] = _I3
+                B[:, rows, 6 * k + 3:6 * k + 6] = sk[:, s]
+            self._B = B
+        return self._B
+
+
+def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) -> SlotKinematics:
+    """Evaluate slot vectors (the B-matrices are implicit, see :class:`SlotKinematics`).
+
+    Parameters
+    ----------
+    markers : (n, K) int
+        Marker indices of each instance.
+    slot_ml : (S,) int
+        Which of the K markers each slot reads.
+    slot_kind : (n, S) int
+        0 = origin, 1..3 = x/y/z axis.
+    P : (nm, 3), A : (nm, 3, 3)
+        Marker origins and axes (columns), global.
+    marker_body : (nm,) int
+        Body index of each marker (-1 = ground).
+    body_pos : (nb, 3)
+        Body reference (CG) positions.
+    """
+    n, K = markers.shape
+    mk = markers[:, slot_ml]                                   # (n, S)
+    kind = slot_kind
+    pt = kind == POINT
+    if pt.all():
+        Pm = P[mk]
+        Y = Pm
+        V = Pm - body_pos[np.maximum(marker_body[mk], 0)]
+    elif not pt.any():
+        Y = A[mk, :, kind - 1]                                 # (n, S, 3): column kind-1
+        V = Y
+    else:
+        Pm = P[mk]                                             # (n, S, 3)
+        ax = np.clip(kind - 1, 0, 2)
+        Am = A[mk, :, ax]                                      # (n, S, 3): column ax
+        is_pt = pt[..., None]
+        Y = np.where(is_pt, Pm, Am)
+        lever = Pm - body_pos[np.maximum(marker_body[mk], 0)]
+        V = np.where(is_pt, lever, Am)
+    return SlotKinematics(Y=Y, V=V, pt=pt, slot_ml=np.asarray(slot_ml), K=K)
+
+
+def _cross(a, b):
+    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
+    """``B^T rho`` (n, 6K): per slot ``pt_s rho_s`` on the marker's translation and
+    ``v_s x rho_s`` on its rotation."""
+    n, S = kin.pt.shape
+    rho3 = rho.reshape(n, S, 3)
+    vr = _cross(kin.V, rho3)                                   # (n, S, 3)
+    r = np.zeros((n, 2 * K, 3))
+    pt = kin.pt
+    for s in range(S):
+        k = kin.slot_ml[s]
+        r[:, 2 * k + 1] += vr[:, s]
+        ps = pt[:, s]
+        if ps.all():
+            r[:, 2 * k] += rho3[:, s]
+        elif ps.any():
+            r[:, 2 * k] += rho3[:, s] * ps[:, None]
+    return r.reshape(n, 6 * K)
+
+
+class LocalPattern:
+    """Static structure of one family's local tangent and constraint Jacobian.
+
+    Built once per family (:func:`local_pattern`) from the slot layout and the family's optional
+    structure declarations (:meth:`Family.g_blocks`, :meth:`Family.phi_y_mask`). ``kmask``
+    (L, L) and ``pmask`` (m, L), L = 6K + U, mark the entries that can be non-zero; the model
+    registers only those with the sparse assembler. ``kidx`` / ``pidx`` are their flat indices
+    (C order), None when the mask is full. ``order`` is the order in which the model registers
+    and fills the tangent entries: block-wise for ``compact`` patterns (declared ``G`` structure,
+    no scalar columns; :func:`tangent_compact` fills them directly, entry-major: all instances
+    of one entry after the other), else ``kidx`` (instance-major).
+    """
+
+    def __init__(self, fam):
+        K, S, U, m = fam.K, len(fam.slot_ml), fam.U, fam.m
+        ml = np.asarray(fam.slot_ml)
+        L = 6 * K + U
+        pt_any = (np.asarray(fam.slot_kind) == POINT).any(axis=0) if fam.n else np.zeros(S, bool)
+        gb = fam.g_blocks()
+        self.declared = gb is not None
+        gb = np.ones((S, S), bool) if gb is None else np.asarray(gb, bool)
+        km = np.zeros((L, L), bool)
+
+        def tr(k):
+            return slice(6 * k, 6 * k + 3)
+
+        def rt(k):
+            return slice(6 * k + 3, 6 * k + 6)
+
+        for s in range(S):                                     # connection term
+            km[rt(ml[s]), rt(ml[s])] = True
+        pairs = np.argwhere(gb)
+        for s, t in pairs:
+            k, l = ml[s], ml[t]
+            km[rt(k), rt(l)] = True
+            if pt_any[s]:
+                km[tr(k), rt(l)] = True
+            if pt_any[t]:
+                km[rt(k), tr(l)] = True
+            if pt_any[s] and pt_any[t]:
+                km[tr(k), tr(l)] = True
+        if U:
+            km[:, 6 * K:] = True
+            km[6 * K:, :] = True
+        self.s_idx = pairs[:, 0].copy()
+        self.t_idx = pairs[:, 1].copy()
+        self.pt_any = pt_any
+        self.pt_all = (np.asarray(fam.slot_kind) == POINT).all(axis=0) if fam.n else pt_any
+        self.kmask = km
+        self.kidx = None if km.all() else np.flatnonzero(km)
+        # compact layout (declared families without scalar columns): the non-zero 3x3 blocks
+        # of the (2K x 2K) block grid, row-major; the tangent is computed straight into
+        # (nblocks, 3, 3, n) and registered with the assembler in that order (``order``)
+        self.compact = self.declared and not U
+        self.bpos = None
+        self.order = self.kidx
+        if self.declared:
+            bi, bj = np.nonzero(km[:6 * K:3, :6 * K:3])
+            self.bpos = np.full((2 * K, 2 * K), -1, np.intp)
+            self.bpos[bi, bj] = np.arange(bi.size)
+            if self.compact:
+                r = 3 * bi[:, None, None] + np.arange(3)[None, :, None]
+                c = 3 * bj[:, None, None] + np.arange(3)[None, None, :]
+                self.order = (r * L + c).ravel()
+        self.pmask = None
+        self.pidx = None
+        if m:
+            pm = fam.phi_y_mask()
+            pm = np.ones((m, 3 * S), bool) if pm is None else np.asarray(pm, bool)
+            qm = np.zeros((m, L), bool)
+            for s in range(S):
+                k = ml[s]
+                blk = pm[:, 3 * s:3 * s + 3]                  # (m, 3)
+                if pt_any[s]:
+                    qm[:, 6 * k:6 * k + 3] |= blk
+                cnt = blk.sum(axis=1)
+                # row p^T (-skew v) = (v x p)^T: component j is structurally zero only when p
+                # has its single non-zero in component j
+                rot = (cnt[:, None] >= 2) | ((cnt[:, None] == 1) & ~blk)
+                qm[:, 6 * k + 3:6 * k + 6] |= rot
+            if U:
+                qm[:, 6 * K:] = True
+            self.pmask = qm
+            self.pidx = None if qm.all() else np.flatnonzero(qm)
+
+    @property
+    def nk(self) -> int:
+        return int(self.kmask.sum())
+
+
+def local_pattern(fam) -> LocalPattern:
+    """The (cached) :class:`LocalPattern` of a family."""
+    pat = getattr(fam, "_local_pattern", None)
+    if pat is None:
+        pat = LocalPattern(fam)
+        fam._local_pattern = pat
+    return pat
+
+
+def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | None):
+    """``B^T G B + C`` (n, 6K, 6K): :func:`tangent_compact` scattered into the dense layout."""
+    n = kin.pt.shape[0]
+    Kc = tangent_compact(kin, rho, G, K, pat).reshape(-1, 3, 3, n)
+    Km = np.zeros((n, 2 * K, 3, 2 * K, 3))
+    bi, bj = np.nonzero(pat.bpos >= 0)
+    Km[:, bi, :, bj, :] = Kc[pat.bpos[bi, bj]].transpose(0, 3, 1, 2)
+    return Km.reshape(n, 6 * K, 6 * K)
+
+
+def _cross_cols(v, M):
+    """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
+    ``M`` crossed with ``v`` from the left."""
+    return np.stack([v[1] * M[2] - v[2] * M[1], v[2] * M[0] - v[0] * M[2],
+                     v[0] * M[1] - v[1] * M[0]])
+
+
+def _cross_rows(M, u):
+    """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
+    return np.stack([M[:, 1] * u[2] - M[:, 2] * u[1], M[:, 2] * u[0] - M[:, 0] * u[2],
+                     M[:, 0] * u[1] - M[:, 1] * u[0]], axis=1)
+
+
+def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> np.ndarray:
+    """``B^T G B + C`` of a family with a compact pattern (``pat.compact``), as
+    ``(9 * nblocks, n)`` values (entry-major) in the order of ``pat.order``, built block-wise.
+
+    Only the slot-pair blocks of G that the family declares (``pat.s_idx, pat.t_idx``) are
+    used; every pair is ``Sk_s G_st (-Sk_t)`` on (rot k, rot l), ``G_st (-Sk_t)`` on
+    (trans k, rot l) for point slots s, ``Sk_s G_st`` on (rot k, trans l) and ``G_st`` on
+    (trans k, trans l), with ``Sk = skew(v)`` applied as cross products. Blocks are built
+    component-major, ``(nblocks, 3, 3, n)``: every operation runs over all instances at once
+    (no per-instance 3x3 products) and the model registers the entries in this order (no
+    transpose). Slots without a reaction (``rho_s = 0``) add no connection term.
+    """
+    n, S = kin.pt.shape
+    ml = kin.slot_ml
+    bpos = pat.bpos
+    Kb = np.zeros((int(bpos.max()) + 1 if bpos.size else 0, 3, 3, n))
+    V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))          # (S, 3, n)
+    W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))
+    # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
+    for s in range(S):
+        v, w = V[s], W[s]
+        if not w.any():
+            continue
+        k = ml[s]
+        blk = Kb[bpos[2 * k + 1, 2 * k + 1]]
+        blk += v[:, None, :] * w[None, :, :]
+        d = v[0] * w[0] + v[1] * w[1] + v[2] * w[2]
+        for i in range(3):
+            blk[i, i] -= d
+    if G is not None and len(pat.s_idx):
+        pt = kin.pt
+        for s, t in zip(pat.s_idx.tolist(), pat.t_idx.tolist()):
+            k, l = ml[s], ml[t]
+            Gp = np.ascontiguousarray(G[:, 3 * s:3 * s + 3, 3 * t:3 * t + 3].transpose(1, 2, 0))
+            RT = _cross_cols(V[s], Gp)                          # Sk_s G_st
+            Kb[bpos[2 * k + 1, 2 * l + 1]] -= _cross_rows(RT, V[t])
+            ws = None if pat.pt_all[s] else pt[:, s]
+            wt = None if pat.pt_all[t] else pt[:, t]
+            if pat.pt_any[s]:
+                blk = _cross_rows(Gp, V[t])                     # G_st Sk_t
+                Kb[bpos[2 * k, 2 * l + 1]] -= blk if ws is None else blk * ws
+            if pat.pt_any[t]:
+                Kb[bpos[2 * k + 1, 2 * l]] += RT if wt is None else RT * wt
+            if pat.pt_any[s] and pat.pt_any[t]:
+                blk = Gp
+                if ws is not None:
+                    blk = blk * ws
+                if wt is not None:
+                    blk = blk * wt
+                Kb[bpos[2 * k, 2 * l]] += blk
+    return Kb.reshape(-1, n)
+
+
+def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) -> np.ndarray:
+    """``phi_y B`` (n, m, 6K) from the slot structure (no dense B)."""
+    n, S = kin.pt.shape
+    m = phi_y.shape[1]
+    py = phi_y.reshape(n, m, S, 3)
+    # rotation columns: p^T (-Sk_s) = (v_s x p)^T
+    rot = _cross(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
+    Pq = np.zeros((n, m, 2 * K, 3))
+    pt = kin.pt
+    for s in range(S):
+        k = kin.slot_ml[s]
+        Pq[:, :, 2 * k + 1] += rot[:, :, s]
+        ps = pt[:, s]
+        if ps.all():
+            Pq[:, :, 2 * k] += py[:, :, s]
+        elif ps.any():
+            Pq[:, :, 2 * k] += py[:, :, s] * ps[:, None, None]
+    return Pq.reshape(n, m, 6 * K)
+
+
+def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray | None,
+                           slot_ml, K: int, need_jac: bool = True, ext: dict | None = None,
+                           U: int = 0, pat: LocalPattern | None = None):
+    """Local residual ``[B^T rho; rho_s]`` (n, 6K+U) and tangent (n, 6K+U, 6K+U).
+
+    The marker block of the tangent is ``B^T G B + C``. With ``U`` scalar columns (extra unknowns
+    the family reads), ``ext`` may hold ``rho_s`` (n, U) (residual rows of the scalar unknowns
+    the family owns or its generalised forces on them), ``G_ys`` (n, 3S, U) = d rho / d s,
+    ``G_sy`` (n, U, 3S) = d rho_s / d y and ``G_ss`` (n, U, U); missing pieces are zero.
+
+    ``pat`` (the family's :class:`LocalPattern`) restricts ``G`` to its declared slot-pair
+    blocks; without it (or for families declaring none) ``G`` is used as a dense matrix.
+    """
+    n = rho.shape[0]
+    r = _local_residual(kin, rho, K)
+    ext = ext or {}
+    if U:
+        rs = ext.get("rho_s")
+        r = np.concatenate([r, np.zeros((n, U)) if rs is None else rs], axis=1)
+    if not need_jac:
+        return r, None
+    if pat is not None and pat.declared:
+        Kl = _tangent_blocks(kin, rho, G, K, pat)
+    else:
+        B = kin.B
+        if G is None:
+            Kl = np.zeros((n, 6 * K, 6 * K))
+        else:
+            Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(G, B))
+        S = kin.V.shape[1]
+        rho3 = rho.reshape(n, S, 3)
+        for s in range(S):
+            k = slot_ml[s]
+            v = kin.V[:, s]
+            w = rho3[:, s]
+            blk = v[:, :, None] * w[:, None, :]
+            d = np.einsum("ni,ni->n", v, w)
+            blk[:, 0, 0] -= d
+            blk[:, 1, 1] -= d
+            blk[:, 2, 2] -= d
+            Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk
+    if U:
+        B = kin.B
+        full = np.zeros((n, 6 * K + U, 6 * K + U))
+        full[:, :6 * K, :6 * K] = Kl
+        if ext.get("G_ys") is not None:
+            full[:, :6 * K, 6 * K:] = np.matmul(np.swapaxes(B, 1, 2), ext["G_ys"])
+        if ext.get("G_sy") is not None:
+            full[:, 6 * K:, :6 * K] = np.matmul(ext["G_sy"], B)
+        if ext.get("G_ss") is not None:
+            full[:, 6 * K:, 6 * K:] = ext["G_ss"]
+        Kl = full
+    return r, Kl

@@ -1,0 +1,58 @@
+"""Force and torque each element applies to the body of its I marker, from kept slot data.
+
+The loads of output groups (``joints``, ``forces``, ...) are read by results, by reaction
+channels of expressions (:mod:`poise.elements.compile_expr`) and by requests; they depend only
+on the element families' slot data, so they live with the elements.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.elements.base import _cross
+
+
+def element_loads(model, state, lam=None, ev=None):
+    """Force and torque each element applies to the body of its I marker (at I, global).
+
+    Returns ``{group: (F (n_group, 3), T (n_group, 3))}`` for the output groups present in the
+    model (``joints``, ``jprims``, ``motions``, ``forces``, ...). Constraint reactions use
+    ``lam`` (default ``state.lam``). ``ev``: an evaluation of ``state`` made with ``keep=True``
+    (its slot data are used instead of evaluating again).
+    """
+    if ev is None or ev.items is None:
+        ev = model.evaluate(state, need_jac=False, keep=True)
+    lam = state.lam if lam is None else lam
+    return loads_of(model, ev.items, lam)
+
+
+def loads_of(model, items, lam=None, frames: int = 1):
+    """:func:`element_loads` from kept ``(fam, kin, rho, phi_y)`` tuples (``rho`` used as is
+    when ``lam`` is None, else ``phi_y^T lam`` for constraint families).
+
+    ``frames > 1``: the items cover that many frames (:func:`poise.model.frame_batch.
+    evaluate_frames`; owners and rows shifted per frame, ``lam`` (frames * nc,)); the arrays
+    returned are (frames * n_group, 3), frame-major."""
+    out = {}
+    for fam, kin, rho, phy in items:
+        if phy is not None and lam is not None:
+            rho = np.einsum("nmy,nm->ny", phy, lam[fam.crow])
+        group = getattr(fam, "group", None)
+        if group is None or group not in model.outputs:
+            continue
+        n_out = len(model.outputs[group]["ids"]) * frames
+        F, T = out.setdefault(group, (np.zeros((n_out, 3)), np.zeros((n_out, 3))))
+        S = len(fam.slot_ml)
+        rho3 = rho.reshape(fam.n, S, 3)
+        Fi = np.zeros((fam.n, 3))
+        Ti = np.zeros((fam.n, 3))
+        for s in range(S):
+            if fam.slot_ml[s] != 0:
+                continue
+            kind = fam.slot_kind[:, s]
+            pt = kind == 0
+            Fi[pt] -= rho3[pt, s]
+            ax = ~pt
+            Ti[ax] -= _cross(kin.Y[ax, s], rho3[ax, s])
+        np.add.at(F, fam.owner, Fi)
+        np.add.at(T, fam.owner, Ti)
+    return out

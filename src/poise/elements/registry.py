@@ -1,0 +1,147 @@
+"""The element registry: every element type declared once, every element table derived from it.
+
+An element module of this package declares ``ELEMENTS = (ElementType(...), ...)``: its deck
+tags, its ``compile(spec, ctx)``, the kernel families it builds and its capabilities (tileable
+across frames, potential energy, output groups, reaction channels exposed to expressions, time
+dependence, finite-difference Jacobian cases). Modules are found by walking the package, so a new
+element type is one new module. Derived here: the compile order (a topological sort of the
+declared ``after`` dependencies), the batching whitelist, the reaction tables of expressions, the
+output groups of ``poise sweep --output``, the supported joint types and the FD test cases.
+"""
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from dataclasses import dataclass, field
+from functools import cache
+from typing import Callable
+import poise.elements as pkg
+
+
+@dataclass(frozen=True)
+class FDCase:
+    """A finite-difference Jacobian check (tests/test_jacobians.py): ``elements`` are added to a
+    random two-body deck once per marker pair of ``pairs`` (I, J marker ids of that deck; the
+    element's own marker attribute names in ``marker_attrs``)."""
+
+    name: str
+    elements: tuple                       # ((tag, attrs), ...)
+    pairs: tuple = ((21, 31), (32, 11))   # body-body, body-ground
+    marker_attrs: tuple = ("i_marker_id", "j_marker_id")
+    point_b: tuple = (False, True)        # second body rigid / a point body
+    seed: tuple | None = None             # stable_seed arguments (default: (name, point_b))
+    opposite_z: bool = False              # J marker z axis turned against I's (CV joints)
+
+
+@dataclass(frozen=True)
+class ElementType:
+    """One registered element type (see the module docstring).
+
+    ``types``: values of the ``type`` attribute this entry claims inside a tag another entry
+    compiles (e.g. ``SCREW`` of ``Constraint_Joint``); the owner of the tag skips them.
+    ``outputs``: output group -> deck tags whose ids it holds (None: several, by element).
+    ``reactions``: element-force function (``BUSH``) -> (output group, deck tags);
+    ``reaction_aliases``: ``ELEMENTAL_FORCE`` ``elem_type`` spellings -> function.
+    ``fd_tests``: where the FD Jacobian check lives when it needs more than :class:`FDCase`.
+    """
+
+    name: str
+    tags: tuple
+    compile: Callable
+    after: tuple = ()
+    types: tuple = ()
+    kernels: Callable = tuple            # () -> family classes (lazy: kernels import late)
+    tileable: Callable = tuple           # () -> the kernels batched across frames
+    potential_energy: bool = False
+    time_dependent: bool = False
+    outputs: dict = field(default_factory=dict)
+    datasets: tuple = ()
+    reactions: dict = field(default_factory=dict)
+    reaction_aliases: dict = field(default_factory=dict)
+    fd_cases: Callable = tuple           # () -> FDCase instances
+    fd_tests: str = ""
+
+
+@cache
+def element_types() -> tuple[ElementType, ...]:
+    """All registered element types in compile order (dependencies first)."""
+    found: dict[str, ElementType] = {}
+    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
+        mod = importlib.import_module(f"{pkg.__name__}.{info.name}")
+        for et in getattr(mod, "ELEMENTS", ()):
+            if et.name in found:
+                raise RuntimeError(f"element type {et.name!r} registered twice")
+            found[et.name] = et
+    return tuple(_topological(found))
+
+
+def _topological(found: dict) -> list:
+    """Kahn's algorithm; among ready types the one named first alphabetically goes first, so
+    the order is fully determined by the declared dependencies."""
+    deps = {}
+    for n, et in found.items():
+        missing = [a for a in et.after if a not in found]
+        if missing:
+            raise RuntimeError(f"element type {n!r} depends on unknown {missing}")
+        deps[n] = set(et.after)
+    out = []
+    while deps:
+        ready = sorted(n for n, d in deps.items() if not d)
+        if not ready:
+            raise RuntimeError(f"cyclic compile dependencies among {sorted(deps)}")
+        n = ready[0]
+        out.append(found[n])
+        del deps[n]
+        for d in deps.values():
+            d.discard(n)
+    return out
+
+
+def get(name: str) -> ElementType:
+    return next(et for et in element_types() if et.name == name)
+
+
+@cache
+def tileable_kernels() -> tuple:
+    """Family classes batched across frames (:mod:`poise.model.frame_batch`)."""
+    return tuple(k for et in element_types() for k in et.tileable())
+
+
+@cache
+def reaction_kinds() -> dict:
+    """Element-force function -> (output group, deck tags) of expressions (``BUSH(id, ...)``)."""
+    return {k: v for et in element_types() for k, v in et.reactions.items()}
+
+
+@cache
+def reaction_aliases() -> dict:
+    """``ELEMENTAL_FORCE`` ``elem_type`` spelling -> element-force function."""
+    out = {}
+    for et in element_types():
+        for k in et.reactions:
+            out[k] = k
+        out.update(et.reaction_aliases)
+    return out
+
+
+@cache
+def output_groups() -> dict:
+    """Output group -> deck tags whose ids it holds (None: any tag of the group)."""
+    out: dict = {}
+    for et in element_types():
+        for g, tags in et.outputs.items():
+            if g in out and out[g] != tags:
+                out[g] = None if out[g] is None or tags is None else tuple(
+                    dict.fromkeys(out[g] + tags))
+            else:
+                out.setdefault(g, tags)
+    return out
+
+
+def claimed_types(tag: str) -> dict:
+    """``type`` values of ``tag`` compiled by another element type: type -> ElementType."""
+    return {t: et for et in element_types() if tag in et.tags for t in et.types}
+
+
+def fd_cases() -> list[FDCase]:
+    return [c for et in element_types() for c in et.fd_cases()]

@@ -1,0 +1,127 @@
+"""``Post_Request`` outputs: 8 channels per request, evaluated after each converged frame.
+
+Every request type is reduced to eight expressions of the expression language (compiled once,
+one batch per channel over all requests) plus reaction channels read exactly from the converged
+multipliers (:func:`poise.elements.channels.channel_values`):
+
+The hook writes ``requests/id`` (R,), ``requests/values`` (R, 8) and ``requests/message`` (a
+string, empty when every channel evaluated) per frame. A channel whose evaluation fails (e.g.
+division by zero at the converged state, or a frame that failed before) is NaN and the reason is
+in ``requests/message``.
+
+The channels of each request type: :func:`build_request_hook`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.deck.spec import Expr
+from poise.core.errors import EvaluationError
+
+from poise.elements.channels import ExprInfo, channel_values
+from poise.elements.registry import reaction_aliases
+from poise.elements.resolver import compile_batch_located
+from poise.expr import EvalContext as XC
+
+
+def _channels(el, pc):
+    """Eight Expr/float/None channel definitions of one request."""
+    a = el.attrs
+    t = str(a.get("type", "EXPRESSION")).upper()
+    i, j, rm = a.get("i_marker_id"), a.get("j_marker_id") or 0, a.get("ref_marker_id") or 0
+
+    def X(text):
+        return Expr(text, el.loc, "type")
+    if t == "EXPRESSION" or (t not in ("MARKER_DISPLACEMENT", "MARKER_FORCE", "ELEMENTAL_FORCE",
+                                       "MARKER_VELOCITY", "MARKER_ACCELERATION", "USERSUB")):
+        out = []
+        for k in range(1, 9):
+            v = a.get(f"expr{k}")
+            if v is None or (isinstance(v, Expr) and v.text.strip().upper() == "NULL"):
+                out.append(None)
+            else:
+                out.append(v)
+        return out
+    if t == "USERSUB":
+        pc.error(el.loc, "user-subroutine requests are not supported; expected "
+                 "type=\"EXPRESSION\"", "type")
+        return [None] * 8
+    if t in ("MARKER_DISPLACEMENT", "MARKER_FORCE") and i is None:
+        pc.error(el.loc, f"{t} needs i_marker_id", "i_marker_id")
+        return [None] * 8
+    if t == "MARKER_DISPLACEMENT":
+        return [X(f"DM({i},{j})"), X(f"DX({i},{j},{rm})"), X(f"DY({i},{j},{rm})"),
+                X(f"DZ({i},{j},{rm})"), None, X(f"YAW({i},{j})"), X(f"PITCH({i},{j})"),
+                X(f"ROLL({i},{j})")]
+    if t == "MARKER_FORCE":
+        return [X(f"{f}({i},{j},{rm})") for f in ("FM", "FX", "FY", "FZ", "TM", "TX", "TY", "TZ")]
+    if t == "ELEMENTAL_FORCE":
+        kind = reaction_aliases().get(str(a.get("elem_type", "")).upper().replace(" ", "_"))
+        if kind is None or a.get("elem_id") is None:
+            pc.error(el.loc, f"elem_type {a.get('elem_type')!r} / elem_id not usable; expected "
+                     "elem_type JOINT, JPRIM, MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH or "
+                     "SPDP and an elem_id", "elem_type")
+            return [None] * 8
+        jf = int(a.get("jflag", 0) or 0)
+        return [X(f"{kind}({a['elem_id']},{jf},{c},{rm})") for c in range(1, 9)]
+    return [0.0] * 8                                      # velocities / accelerations
+
+
+def build_request_hook(reqs, ctx, res):
+    """Compile all requests; returns the frame hook ``hook(model, state) -> {path: array}``.
+
+    ================== ===========================================================================
+    type               channels 1..8
+    ================== ===========================================================================
+    EXPRESSION         ``expr1`` ... ``expr8``; ``"NULL"`` or absent -> NaN
+    MARKER_DISPLACEMENT DM(I,J), DX(I,J,RM), DY(I,J,RM), DZ(I,J,RM), NaN, YAW(I,J), PITCH(I,J),
+                       ROLL(I,J)  (J, RM absent: global frame; angles in radians; yaw-pitch-roll
+                       rather than 3-1-3 because 3-1-3 is singular at zero tilt, the planar case)
+    MARKER_FORCE       FM, FX, FY, FZ, TM, TX, TY, TZ (I, J, RM): resultant of every joint, jprim,
+                       motion and force element acting between I and J (all elements at I when J is
+                       absent), on I's body at the I origin, components in RM axes
+    ELEMENTAL_FORCE    KIND(elem_id, jflag, 1..8, RM) with KIND from ``elem_type`` (JOINT, JPRIM,
+                       MOTION, SFORCE, VFORCE, VTORQ, GFORCE, BUSH, SPDP or the element tag)
+    MARKER_VELOCITY,   0 (static and quasi-static analyses have no velocities)
+    MARKER_ACCELERATION
+    ================== ===========================================================================
+    """
+    pc = ctx.pc
+    chans = [_channels(el, pc) for el in reqs]
+    R = len(reqs)
+    null = np.array([[c is None for c in row] for row in chans], bool).reshape(R, 8)
+    batches = []
+    for k in range(8):
+        col = [row[k] if row[k] is not None else 0.0 for row in chans]
+        batches.append(compile_batch_located(col, res, pc))
+    if any(b is None for b in batches):
+        return None
+    ids = np.array([el.id if el.id is not None else -1 for el in reqs], np.int64)
+    info = ExprInfo(res, ctx.outputs)
+    channels = res.channels
+
+    def hook(model, state):
+        vals = np.full((R, 8), np.nan)
+        msgs = []
+        rx = None
+        try:
+            rx = channel_values(model, state, channels, info)
+        except EvaluationError as e:
+            msgs.append(f"reactions: {e}")
+        P, A, _ = model.marker_kinematics(state)
+        xc = XC(time=float(state.t), P=P, A=A, angle_ref=state.angle, scalars=state.extra,
+                reactions=rx if rx is not None else np.full(len(channels), np.nan))
+        for k, b in enumerate(batches):
+            uses_rx = b.reaction_index.shape[1] > 0 and bool((b.reaction_index >= 0).any())
+            if rx is None and uses_rx:
+                continue
+            try:
+                v = b.evaluate(xc).value
+            except EvaluationError as e:
+                msgs.append(str(e))
+                continue
+            vals[:, k] = np.where(null[:, k], np.nan, v)
+        return {"requests/id": ids, "requests/values": vals,
+                "requests/message": np.array("; ".join(msgs))}
+
+    return hook

@@ -1,0 +1,239 @@
+"""The model-side resolver of ``poise.expr`` (see ``poise/expr/CONTRACT.md``) and scalar unknowns.
+
+:class:`ModelResolver` maps deck ids to compiled indices: marker id -> compiled marker index
+(id 0 -> index 0, the global frame), explicit ``Reference_Variable`` -> shared (DAG) expression,
+``Reference_Spline`` / ``Reference_Array`` -> data parsed from the element text, ``AX/AY/AZ`` ->
+the continuous-angle table, element-force functions (the registry's reaction kinds) and
+resultants (FM, FX, ..., TZ) -> *reaction channels*. One resolver lives on the compile context
+(:meth:`poise.elements.context.CompileContext.resolver`); implicit and user
+``Reference_Variable`` and ``Control_Diff`` states are scalar unknowns registered on demand
+(:func:`scalar_unknown`).
+"""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from poise.core.errors import DeckError, Problem
+from poise.elements.base import GLOBAL
+from poise.elements.registry import reaction_kinds
+from poise.expr import compile_batch
+
+RESULTANTS = ("FM", "FX", "FY", "FZ", "TM", "TX", "TY", "TZ")
+
+_SPLIT = re.compile(r"[\s,;]+")
+
+
+def _numbers(el):
+    txt = (el.text or "").strip()
+    if not txt:
+        return np.zeros(0)
+    try:
+        return np.array([float(t.replace("D", "E").replace("d", "e"))
+                         for t in _SPLIT.split(txt) if t], float)
+    except ValueError as e:
+        raise DeckError(Problem(el.loc, f"element text is not a list of numbers ({e})")) from None
+
+
+class ModelResolver:
+    """Model-side resolver for :func:`poise.expr.compile_batch` (see ``poise/expr/CONTRACT.md``).
+
+    ``allow_reactions`` False makes element-force functions a located DeckError (forces,
+    gravity); True registers reaction channels (requests).
+    """
+
+    def __init__(self, spec, ctx):
+        self.spec = spec
+        self.ctx = ctx
+        self.b = ctx.b
+        self.allow_reactions = False
+        self.where = "forces"
+        self.channels: list[tuple] = []
+        self._chan_index: dict = {}
+        self.vars = {e.id: e for e in spec.elements("Reference_Variable")}
+        self.splines = {e.id: e for e in spec.elements("Reference_Spline")}
+        self.arrays = {e.id: e for e in spec.elements("Reference_Array")}
+        self._spline_cache: dict = {}
+        self._elements_d: dict | None = None
+
+    @property
+    def _elements(self) -> dict:
+        """(tag, id) -> first model element; built on first use (expressions reading element
+        functions), not for every deck."""
+        if self._elements_d is None:
+            d: dict = {}
+            for e in self.spec.model:
+                eid = e.attrs.get("id")
+                if eid is not None:
+                    d.setdefault((e.tag, eid), e)
+            self._elements_d = d
+        return self._elements_d
+
+    # ------------------------------------------------------------------ contract
+    def marker_index(self, id: int) -> int:
+        return self.b.marker_index[int(id)]          # 0 -> 0: the global frame; KeyError else
+
+    def variable(self, id: int):
+        el = self.vars[int(id)]
+        if el.attrs.get("is_implicit") or \
+                str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
+            # scalar unknown (model/compile_diff_vars.py); held: the constant ic
+            k = scalar_unknown(self.ctx, "var", int(id))
+            return ("explicit", k[1]) if isinstance(k, tuple) else ("implicit", k)
+        return ("explicit", el.attrs.get("expr", 0.0))
+
+    def diff_state(self, id: int):
+        """Scalar index of Control_Diff ``id`` or ``("const", ic)`` when statically held."""
+        return scalar_unknown(self.ctx, "diff", int(id))
+
+    def diff_derivative(self, id: int):
+        _els(self.ctx, "Control_Diff")[int(id)]     # KeyError for unknown ids
+        return None                                  # DIF1 = 0 in statics
+
+    def spline(self, id: int):
+        id = int(id)
+        if id in self._spline_cache:
+            return self._spline_cache[id]
+        el = self.splines[id]
+        v = _numbers(el)
+        a = el.attrs
+        lin = bool(a.get("linear_extrap", False))
+        nx, nz = a.get("num_x"), a.get("num_z")
+        if nz and nx and int(nz) > 1:
+            nx, nz = int(nx), int(nz)
+            if len(v) != nz + nx * (nz + 1):
+                raise DeckError(Problem(el.loc, f"surface spline text has {len(v)} numbers; "
+                                        f"expected num_z + num_x*(num_z+1) = "
+                                        f"{nz + nx * (nz + 1)}"))
+            z = v[:nz]
+            rows = v[nz:].reshape(nx, nz + 1)
+            out = (rows[:, 0], rows[:, 1:].T.copy(), z, lin)
+        else:
+            n = a.get("num_xy_pair")
+            if len(v) % 2:
+                raise DeckError(Problem(el.loc, f"spline text has {len(v)} numbers; expected "
+                                        "x y pairs"))
+            if n is not None and int(n) != len(v) // 2:
+                raise DeckError(Problem(el.loc, f"num_xy_pair={n} but the text has "
+                                        f"{len(v) // 2} x y pairs", "num_xy_pair"))
+            xy = v.reshape(-1, 2)
+            out = (xy[:, 0], xy[:, 1], None, lin)
+        self._spline_cache[id] = out
+        return out
+
+    def array(self, id: int):
+        el = self.arrays[int(id)]
+        v = _numbers(el)
+        n = el.attrs.get("num_element")
+        if n is not None and int(n) != len(v):
+            raise DeckError(Problem(el.loc, f"num_element={n} but the text has {len(v)} values",
+                                    "num_element"))
+        return v
+
+    def reaction(self, kind: str, id: int, jflag: int, comp: int, rm: int) -> int:
+        kind = kind.upper()
+        if not self.allow_reactions:
+            raise NotImplementedError(
+                f"{kind}() is not supported in {self.where} yet (reaction and element-force "
+                "functions are available in Post_Request and force expressions)")
+        if kind in RESULTANTS:
+            if not 1 <= comp <= 8:
+                raise NotImplementedError(f"{kind}: component {comp} outside 1..8")
+            key = ("RES", self.marker_index(id), self.marker_index(jflag) if jflag else -1,
+                   comp, self.marker_index(rm), int(jflag) != 0)
+        elif kind in reaction_kinds():
+            if not 1 <= comp <= 8:
+                raise NotImplementedError(f"{kind}: component {comp} outside 1..8; expected "
+                                          "1 |F|, 2-4 Fx Fy Fz, 5 |T|, 6-8 Tx Ty Tz")
+            if jflag not in (0, 1):
+                raise NotImplementedError(f"{kind}: jflag {jflag}; expected 0 or 1")
+            group, tags = reaction_kinds()[kind]
+            el = next((self._elements[(t, id)] for t in tags if (t, id) in self._elements), None)
+            if el is None:
+                raise KeyError(id)
+            key = ("EL", group, el.tag, int(id), int(jflag), int(comp),
+                   self.marker_index(rm))
+        else:
+            raise NotImplementedError(f"{kind}() is not supported yet")
+        if key not in self._chan_index:
+            self._chan_index[key] = len(self.channels)
+            self.channels.append(key)
+        return self._chan_index[key]
+
+    def angle_key(self, i_idx: int, j_idx: int, axis: int) -> int:
+        return self.ctx.angle(int(i_idx) if i_idx >= 0 else GLOBAL,
+                              int(j_idx) if j_idx >= 0 else GLOBAL, int(axis))
+
+    # ------------------------------------------------------------------ element markers
+    def element_markers(self, tag, id):
+        """(I, J) compiled marker indices of a deck element (J = global frame when absent)."""
+        el = self._elements.get((tag, id))
+        if el is None:
+            return GLOBAL, GLOBAL
+        a = el.attrs
+        if "joint_id" in a and "i_marker_id" not in a:
+            return self.element_markers("Constraint_Joint", a["joint_id"])
+        i = a.get("i_marker_id", a.get("marker_id"))
+        j = a.get("j_marker_id", a.get("j_floating_marker_id"))
+        mi = self.b.marker_index.get(i, GLOBAL) if i is not None else GLOBAL
+        mj = self.b.marker_index.get(j, GLOBAL) if j is not None else GLOBAL
+        return mi, mj
+
+
+def compile_batch_located(exprs, resolver, pc):
+    """``compile_batch`` whose DeckError problems are added to the collector (None on error)."""
+    try:
+        return compile_batch(exprs, resolver)
+    except DeckError as e:
+        for p in e.problems:
+            if isinstance(p, Problem):
+                pc.problems.append(p)
+            else:
+                pc.error(exprs[0].loc if hasattr(exprs[0], "loc") else None, str(p))
+        return None
+
+
+def ground_markers(b):
+    """(nm,) bool: compiled marker index on ground (index 0 = global frame)."""
+    return np.concatenate([[True], b.marker_on_ground])
+
+
+def _reg(ctx):
+    r = getattr(ctx, "scalar_registry", None)
+    if r is None:
+        r = ctx.scalar_registry = {}
+    return r
+
+
+def _els(ctx, tag):
+    cache = getattr(ctx, "_dv_els", None)
+    if cache is None:
+        cache = ctx._dv_els = {}
+    if tag not in cache:
+        cache[tag] = {e.id: e for e in ctx.b.spec.elements(tag)}
+    return cache[tag]
+
+
+def is_user(el) -> bool:
+    return str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB"
+
+
+def held(el) -> bool:
+    return bool(el.attrs.get("is_static_hold" if el.tag == "Control_Diff" else "static_hold"))
+
+
+def scalar_unknown(ctx, kind: str, id: int):
+    """Index into ``State.extra`` of the unknown of ``Control_Diff`` (kind ``"diff"``) or
+    ``Reference_Variable`` (kind ``"var"``) ``id``, or ``("const", value)`` for held states.
+    Raises KeyError for unknown ids."""
+    tag = "Control_Diff" if kind == "diff" else "Reference_Variable"
+    el = _els(ctx, tag)[int(id)]
+    ic = float(el.attrs.get("ic", 0.0) or 0.0)
+    if held(el):
+        return ("const", ic)
+    reg = _reg(ctx)
+    key = (kind, int(id))
+    if key not in reg:
+        reg[key] = ctx.add_extra(f"{el.loc.prefix()[:-1]} {'y' if kind == 'diff' else 'v'}", ic)
+    return reg[key]

@@ -1,0 +1,77 @@
+"""SCREW joint (``Constraint_Joint type="SCREW"``): translation along J's z tied to rotation.
+
+One equation (deck_format.md §3.1): ``(P_I - P_J) . z_J - pitch * AZ(I, J) / (2 pi) = 0``, where
+``AZ(I, J)`` is the continuous angle of I about J's z axis (full turns counted, principal value
+at the input configuration) and ``pitch`` the translation per full revolution (MotionView's
+ScrewJoint): a positive pitch is a right-handed screw, I advances along +z_J as it turns
+positively about z_J. Like MotionSolve's screw it removes one freedom only; a CYLINDRICAL joint
+on the same markers keeps the axes aligned. Its reaction joins the ``joints`` output group (after
+the other joints) and ``JOINT(id, ...)`` reads it.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.elements.base import ConstraintFamily
+from poise.elements.context import num
+from poise.elements.motions import SLOT_KIND, SLOT_ML, measure
+from poise.elements.registry import ElementType, FDCase
+
+
+class Screw(ConstraintFamily):
+    """``d . z_J - c AZ(I, J) = 0`` with ``c = pitch / (2 pi)``. Slots: the 8 slots of
+    :mod:`poise.elements.motions` ``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J]``."""
+
+    @classmethod
+    def build(cls, name, I, J, c, angle_index, owner):
+        n = len(I)
+        fam = cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=SLOT_ML,
+                  slot_kind=np.broadcast_to(SLOT_KIND, (n, len(SLOT_KIND))).copy(),
+                  owner=np.asarray(owner, int), m=1)
+        fam.c = np.asarray(c, float)
+        fam.angle_index = np.asarray(angle_index, int)
+        return fam
+
+    def constraints(self, kin, lam, ctx):
+        c = self.c
+        z, gz, Hz = measure(kin.Y, "Z", need_hess=True)
+        _, ga, Ha = measure(kin.Y, "AZ", need_hess=True)
+        phi = (z - c * ctx.angle[self.angle_index])[:, None]
+        phi_y = (gz - c[:, None] * ga)[:, None, :]
+        G = lam[:, 0][:, None, None] * (Hz - c[:, None, None] * Ha)
+        return phi, phi_y, G
+
+
+def compile_screws(spec, ctx):
+    els = [e for e in spec.elements("Constraint_Joint")
+           if str(e.attrs.get("type", "")).upper() == "SCREW"]
+    if not els:
+        return
+    out = ctx.outputs.setdefault("joints", dict(tag="Constraint_Joint", ids=np.zeros(0, int)))
+    first = len(out["ids"])
+    I, J, c, ang, rows = [], [], [], [], []
+    for k, el in enumerate(els):
+        i, j = ctx.marker(el, "i_marker_id"), ctx.marker(el, "j_marker_id")
+        I.append(i)
+        J.append(j)
+        c.append(float(num(el, "pitch", 0.0, ctx.pc) or 0.0) / (2.0 * np.pi))
+        ang.append(ctx.angle(i, j, 2))
+        rows.append([ctx.add_row(el, "d.zJ-pitch*AZ/2pi", "trans", "joints", first + k)])
+    ctx.effect("Constraint_Joint:SCREW")
+    out["ids"] = np.concatenate([out["ids"], [e.id for e in els]]).astype(int)
+    f = Screw.build("joints:screw", np.array(I), np.array(J), c, ang,
+                    np.arange(first, first + len(els)))
+    f.crow = np.array(rows, int)
+    f.group = "joints"
+    f.element_locs = [e.loc for e in els]
+    ctx.families.append(f)
+
+
+ELEMENTS = (ElementType(
+    "screw", ("Constraint_Joint",), compile_screws, types=("SCREW",),
+    after=("joints",),                    # its row and reaction follow the other joints'
+    kernels=lambda: (Screw,), outputs={"joints": ("Constraint_Joint",)},
+    datasets=("id", "force", "torque"),
+    fd_cases=lambda: (FDCase("Constraint_Joint:SCREW",
+                             (("Constraint_Joint", {"type": "SCREW", "pitch": 0.3}),),
+                             pairs=((21, 31), (22, 11)), point_b=(False,)),)),)
