@@ -123,3 +123,36 @@ def test_sweep_outputs_come_from_the_schema():
     outs = schema.element_outputs()
     assert "position" in outs["bodies"] and "force" in outs["gears"]
     assert "positon" not in outs["bodies"]
+
+
+def test_cli_undeclared_dataset_is_an_internal_error_naming_it(tmp_path, monkeypatch):
+    """A capability writing a dataset the schema does not declare fails loudly (exit 4, the
+    path named), and no results file is left."""
+    from click.testing import CliRunner
+
+    from poise.results.labels import Labeller
+    from poise_cli.main import cli
+    real = Labeller.datasets
+
+    def extra(self, datasets, model=None):
+        out = real(self, datasets, model)
+        if "time" in datasets:
+            out["bodies/positon"] = np.zeros((1, 1, 3))
+        return out
+    monkeypatch.setattr(Labeller, "datasets", extra)
+    out = tmp_path / "x.h5"
+    r = CliRunner().invoke(cli, ["solve", str(ROOT / "decks" / "double_pendulum.xml"), "-o",
+                                 str(out), "--quiet"])
+    assert r.exit_code == 4, r.output
+    assert "internal error" in r.stderr and "/analysis_000/bodies/positon" in r.stderr
+    assert "not declared in the results schema" in r.stderr
+    assert not out.exists()
+
+
+def test_result_unit_accessor(written):
+    from poise.results.hdf5 import read_results
+    res = read_results(str(written("slider_crank_load.xml")))
+    assert res.unit("bodies/position") == "mm" and res.unit("joints/torque") == "N*mm"
+    assert res.unit("model/bodies/mass") == "kg"
+    with h5py.File(written("slider_crank_load.xml"), "r") as f:
+        assert f["analysis_000/joints/torque"].attrs["units"] == res.unit("joints/torque")

@@ -10,7 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from poise.app.runner import check, run
+from poise.app.check import check
+from poise.app.runner import run
 
 DECK = '''<?xml version="1.0" encoding="UTF-8"?>
 <MotionSolve>

@@ -31,7 +31,8 @@ from poise_cli.summary import print_json
               show_default=True, help="Directory for case_NNNNN.h5 and index.csv/index.json.")
 @click.option("--output", "outputs", multiple=True, metavar="GROUP[ID].DATASET",
               help="Index column(s) from the last frame, e.g. bodies[2].position, "
-                   "joints[1].force, requests[1].values. Repeat.")
+                   "joints[1].force, requests[1].values: any per-element dataset of "
+                   "docs/results-format.md. Repeat.")
 @click.option("--force", is_flag=True, help="Rerun cases whose results file is complete.")
 @click.option("--max-cases", type=click.IntRange(min=1), default=100_000, show_default=True,
               help="Refuse sweeps with more cases than this (counted before any case is made).")

@@ -265,6 +265,7 @@ def _check_expression_syntax(pc: ProblemCollector, els: list[Element]) -> None:
     resolved later by the model compiler. Template parses are cached by ``poise.expr``."""
     if not any(isinstance(v, Expr) for el in els for v in el.attrs.values()):
         return  # no expression: do not import poise.expr (it pulls in scipy.interpolate)
+    # lazy: the poise.expr package imports scipy.interpolate (decks without expressions skip it)
     from poise.expr.parser import parse
     from poise.expr.tokens import ExprSyntaxError, make_template
     for el in els:

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from poise.results.schema import declared_item, unit_string
 from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord
 
 
@@ -236,3 +237,10 @@ class RunResult:
 
     def request(self, request: int, channel, frame=-1, analysis: int = -1):
         return self.analyses[analysis].request(request, channel, frame)
+
+    def unit(self, path: str) -> str:
+        """The unit of dataset ``path`` in this run's units, as its ``units`` attribute in
+        the file says (``"bodies/position"`` -> ``"mm"``; ``"model/bodies/mass"`` for
+        ``/model``): from the results schema, so results read from older files have it too."""
+        scope, name = ("model", path[6:]) if path.startswith("model/") else ("analysis", path)
+        return unit_string(declared_item(scope, "dataset", name, path).unit, self.units)

@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.results.schema import GROUP_TAGS, REQUEST_CHANNELS, unit_string
+from poise.elements.registry import output_groups
+from poise.results.schema import REQUEST_CHANNELS, element_groups, unit_string
+
+_BODY_TAGS = ("Body_Rigid", "Body_Point")
 
 
 class Labeller:
@@ -19,6 +22,7 @@ class Labeller:
 
     def __init__(self, spec, units: str = ""):
         self.units = units
+        self.group_tags = {"bodies": _BODY_TAGS, **output_groups()}   # element registry
         self.by_key: dict[tuple, str] = {}
         self.requests: dict[int, object] = {}
         for e in spec.model:
@@ -35,12 +39,12 @@ class Labeller:
         if t is not None:
             t = np.asarray(t)
             return [(str(x),) for x in (np.broadcast_to(t, (n,)) if t.ndim == 0 else t)]
-        return [GROUP_TAGS.get(g) or ()] * n
+        return [self.group_tags.get(g) or ()] * n
 
     def datasets(self, datasets: dict, model=None) -> dict:
         """The label (and request) datasets ``datasets`` lacks."""
         out = {}
-        for g in GROUP_TAGS:
+        for g in element_groups():
             ids = datasets.get(f"{g}/id")
             if ids is None or f"{g}/label" in datasets:
                 continue

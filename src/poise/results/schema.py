@@ -22,25 +22,6 @@ import numpy as np
 
 from poise.results.schema_items import Item, declared
 
-#: element groups of an analysis (and of ``/model``) -> the deck tags whose ids they hold
-#: (``None``: any force tag; ``forces/tag`` names each row's)
-GROUP_TAGS = {
-    "bodies": ("Body_Rigid", "Body_Point"),
-    "joints": ("Constraint_Joint",),
-    "jprims": ("Constraint_Jprim",),
-    "motions": ("Motion_Joint", "Motion_Marker"),
-    "forces": None,
-    "couplers": ("Constraint_Coupler",),
-    "gears": ("Constraint_Gear",),
-    "userconstrs": ("Constraint_UserConstr",),
-    "curves": ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
-               "Constraint_SFSF"),
-    "contacts": ("Force_Contact",),
-    "requests": ("Post_Request",),
-    "diffs": ("Control_Diff",),
-    "variables": ("Reference_Variable",),
-}
-
 SCOPES = ("root", "model", "analysis", "timings", "counts")
 _DTYPES = {"float": "f", "int": "iu", "bool": "b", "str": "OSUT", "json": "OSUT"}
 
@@ -73,6 +54,15 @@ def _index() -> tuple[dict, list]:
         else:
             exact[(it.scope, it.kind, it.name)] = it
     return exact, patterns
+
+
+@functools.cache
+def element_groups() -> tuple[str, ...]:
+    """The element groups: every analysis group declared with ``<group>/id`` and
+    ``<group>/label`` (``bodies``, ``joints``, ..., ``requests``), in declaration order."""
+    return tuple(it.name.split("/")[0] for it in items() if it.scope == "analysis"
+                 and it.kind == "dataset" and it.name.endswith("/label")
+                 and it.name.count("/") == 1)
 
 
 def lookup(scope: str, kind: str, name: str) -> Item | None:
@@ -188,7 +178,7 @@ def element_outputs() -> dict[str, tuple[str, ...]]:
         if it.scope != "analysis" or it.kind != "dataset" or it.dtype not in ("float", "int"):
             continue
         g, _, ds = it.name.partition("/")
-        if g in GROUP_TAGS and len(it.shape) >= 2 and it.shape[0] == "F" and "/" not in ds:
+        if g in element_groups() and len(it.shape) >= 2 and it.shape[0] == "F" and "/" not in ds:
             out.setdefault(g, []).append(ds)
     return {g: tuple(v) for g, v in out.items()}
 
