@@ -63,6 +63,7 @@ STEP_TRANS = 0.4          # x L: largest translation of one descent step
 PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial
 CHORD_RATE = 0.25         # the projection refactorises when its error falls slower than this
 STEP_ROT = 1.0            # rad: largest rotation of one descent step
+SKIP_ZERO_SHIFT = 0.05    # x spectral radius: above, the next step does not try sigma = 0
 
 
 def acceptable(info, settings) -> bool:
@@ -202,8 +203,11 @@ def _ic_step(model, state, cnt, sigma):
     f = -(P.dq / P.d) * r
     g = -P.dl * np.asarray(ev.phi, float)[P.rows] if m else np.zeros(0)
     scale = P.eps / 1e-8                      # spectral radius estimate of Kt
-    sig = 0.0                                 # plain Newton whenever the inertia allows
-    for k in range(40):
+    # plain Newton (sigma = 0) whenever the inertia allows; after a step that needed a large
+    # shift, start from a quarter of it (the zero-shift factorisation would almost surely fail)
+    k0 = 1 if sigma > SKIP_ZERO_SHIFT * scale else 0
+    sig = max(sigma / 4.0, 1e-6 * scale) if k0 else 0.0
+    for k in range(k0, 40):
         for rho in AUG_RHO:
             cnt.factorizations += 1
             F = SymmetricLDL(P.kkt(-sig, rho), P.order)
@@ -320,13 +324,6 @@ def _project(model, x, cnt, max_iter=8):
         prev = err
         x = model.retract(x, F.solve(np.concatenate([np.zeros(model.nq), -phi]))[:model.nq])
     return x, False
-
-
-class _Quiet:
-    """A history that records nothing (assembly of line-search trials)."""
-
-    def add(self, *a, **k):
-        pass
 
 
 def _fail(used, why):
