@@ -1,63 +1,17 @@
 """MKEAM: maximum kinetic energy attrition (the relaxation; the method is solvers/mkeam.py).
 
-The model is made conservative (no damping) and its constrained dynamics
-
-    M(q) dv/dt = Q(q) - Phi_q^T lam,    Phi(q) = 0
-
-is integrated from rest. At each peak of the kinetic energy (the power ``P = v^T Q`` crosses from
-positive to negative; constraint forces do no work because ``Phi_q v = 0``) the integration stops,
-every velocity is set to zero and it restarts: one peak = one iteration. In a conservative system a
-KE peak is a minimum of the potential along the path, so the iterates descend the potential and can
-only settle in a *stable* equilibrium.
-
-Integrator: RATTLE (constrained velocity Verlet) on the configuration manifold.
-
-* Coordinates: the tangent coordinates of :class:`Model` (CG translation, spatial rotation
-  increment); momenta ``p`` = (m v, pi) with ``pi = J_g omega`` the spatial angular momentum about
-  the CG, ``J_g = R J R^T``. Free rotation conserves ``pi`` exactly, so the gyroscopic term is
-  implicit in ``omega = J_g(R)^-1 pi``.
-* Positions move on R^3 x SO(3) (:func:`retract_flat`: CG on a straight line, rotation about the
-  CG by the exponential map, continuous angles unwrapped). The SE(3) screw update of
-  ``Model.retract`` is *not* used inside the integrator: it bends the path of a hinged body by
-  itself, so the constraint impulse no longer turns the momentum and the velocity projection loses
-  kinetic energy at first order in h (measured: 1 % of the energy after 0.2 s with h = 1e-4 s on
-  the multi-turn pendulum). ``Model.retract`` is still used for the perturbation and assembly.
-* Position constraints ``Phi(q1) = 0`` are solved by a simplified Newton on the multipliers
-  (matrix ``S = Phi_q M^-1 Phi_q^T`` factorised once per step); velocities are projected onto
-  ``Phi_q v = 0`` (second RATTLE multiplier). Redundant rows (found once per model) are inactive.
-* Step size: the smallest of (a) 1/20 of the shortest period estimated from the tangent stiffness
-  (Gershgorin bound of the mass-scaled tangent stiffness ``M^-1/2 K M^-1/2``), (b) a motion limit per step
-  (``0.1 L`` translation, ``0.1 rad`` rotation, from velocity and acceleration), (c) an
-  energy-error control: the step is rejected and halved when the change of kinetic energy differs
-  from the trapezoidal work of the applied forces by more than ``1e-3`` of the iteration's energy
-  scale, or by more than the energy the integration cannot resolve (the work of the applied
-  forces over the position-constraint tolerance, :meth:`Relaxation._energy_noise`: halving
-  the step does not reduce that error). The step grows by at most 2x per step.
-* KE peak: the step where ``P`` changes sign is re-taken with a shorter step found by regula falsi
-  (Illinois) on ``P`` until the bracket is below ``1e-3`` of the step.
-* Budget: an iteration whose energies stay at that noise level for ``REST_STEPS`` steps is at
-  rest; one still accelerating after ``MAX_STEPS_PER_ITER`` steps restarts where it stands (the
-  potential has only decreased); a run stops after ``MAX_TOTAL_STEPS`` steps, at a non-finite
-  state, when a body runs ``MAX_TRAVEL * L`` away, or when L itself is not finite — each with a
-  status, never an endless integration.
-
-Convergence (``Param_Static``): peak KE of an iteration ``<= max_ke_tol`` and the largest change
-of the state between consecutive restart points ``<= max_dq_tol`` (translations relative to the
-model size L, rotations in radians); ``max_num_iter`` iterations without that = failure.
-
-Hand-over (:meth:`Relaxation._handover`): the explicit integration's step is set by the
-fastest mode, so its cost explodes with model size. After ``HANDOVER_ITER`` KE iterations (on
-models above ``HANDOVER_NQ`` coordinates the first is cut at ``HANDOVER_CAP`` integrator steps:
-a restart before the peak still only lowers the potential) the descent continues by the
-inertia-controlled Newton of :func:`poise.solvers.stable.descend`: Newton steps on the tangent
-stiffness shifted until its reduction to the constraints is positive definite (inertia of a
-sparse ``L D L^T``), backtracked on the potential energy, so, like the dynamics, it never goes
-uphill; an unstable end point is left along its unstable modes. The point it reaches replaces
-the MKEAM iterations only if it is classified stable (or neutral), its potential energy is not
-above the restart point's, and one KE-attrition iteration from it (history event
-``mkeam-verify``) meets ``max_ke_tol`` and ``max_dq_tol``; otherwise the iterations go on as
-if nothing happened. Either way MKEAM reports only stable equilibria reached downhill from the
-input, and the tolerances keep their meaning. The equilibrium does not depend on the path.
+The model is made conservative and its constrained dynamics ``M dv/dt = Q - Phi_q^T lam``,
+``Phi = 0`` integrated from rest (RATTLE on the configuration manifold, step set by the
+shortest period, a motion limit and an energy-error control). At each kinetic-energy peak
+(power ``v^T Q`` changes sign, located by regula falsi) all velocities are zeroed: one peak =
+one iteration. A KE peak of a conservative system is a minimum of the potential along the path,
+so the iterates descend the potential and can only settle in a *stable* equilibrium.
+Convergence: peak KE ``<= max_ke_tol`` and restart-point change ``<= max_dq_tol``;
+``max_num_iter`` iterations without it = failure. After ``HANDOVER_ITER`` iterations the
+descent continues by the inertia-controlled Newton of :func:`poise.solvers.stable.descend`
+(never uphill); its point is taken only if stable, not above the restart point's energy, and one
+more KE iteration from it meets the tolerances; else the iterations go on. Design notes (step
+control, momenta, budgets, the hand-over): docs/mkeam.md.
 """
 from __future__ import annotations
 

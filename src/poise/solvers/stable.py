@@ -1,33 +1,17 @@
 """``--require-stable``: from an unstable equilibrium, continue downhill to a stable one.
 
-Newton (FIM_S) converges to whichever equilibrium is near, stable or not. When the static
-analysis is asked for a stable equilibrium (``require_stable``) and Newton stopped at an
-unstable one, :func:`seek_stable` leaves it and continues by a stability-preserving Newton:
-
-1. Escape: the unstable modes of the classification (``StabilityInfo.vectors``, up to six,
-   computed by :mod:`poise.solvers.stability`) are combined into one direction; the state moves
-   along it (both signs, the largest rotation ``ESCAPE_ROT`` rad / translation ``ESCAPE_TRANS``
-   x L, shrunk by ``ESCAPE_SHRINK``; each trial assembled onto the constraints) to the trial of
-   lowest potential energy below the equilibrium's.
-2. Descent (:func:`descend`): inertia-controlled Newton. The KKT matrix of the symmetric
-   tangent stiffness, shifted by ``sigma`` times the diagonal metric of
-   :class:`~poise.solvers.stability._SparsePencil`, is factorised by a sparse ``L D L^T``
-   whose pivot signs give its inertia; ``sigma`` is 0 when the reduced stiffness is positive
-   definite, else grown (x8) until it is. The step is then a descent direction of the
-   potential energy; it is limited (``STEP_ROT`` rad, ``STEP_TRANS`` x L) and backtracked
-   (Armijo) on the potential energy of the trial assembled onto the constraints. Once a full
-   step with ``sigma = 0`` was taken, plain Newton (the deck's settings) polishes; its point is
-   kept only if its energy is not higher. The potential energy never increases, so the walk
-   cannot return to the equilibrium it left.
-3. The equilibrium reached is classified again; still unstable -> back to 1.
-
-Models without a potential energy (non-conservative loads) use the trapezoidal work of the
-applied forces along each step as the energy change. Every escape and descent step is a row
-of the iteration history (events ``stable: escape k: ...``, ``stable-descent sigma=...``,
-``stable-polish``). The budget is ``STEPS_PER_ITER x max_num_iter`` descent steps and
-``MAX_ESCAPES`` escapes; past it the analysis fails with status ``unstable`` (exit 1) and the
-last state is written. MKEAM uses :func:`descend` as its fast continuation
-(:meth:`poise.solvers.relaxation.Relaxation._handover`).
+Newton converges to whichever equilibrium is near. :func:`seek_stable` leaves an unstable one
+along its unstable modes (escape: the trial of lowest potential energy, both signs, shrinking)
+and :func:`descend` continues by inertia-controlled Newton: the tangent stiffness is shifted by
+the smallest ``sigma`` whose sparse ``L D L^T`` inertia says the reduced matrix is positive
+definite, so every step is a descent direction; steps are limited and backtracked (Armijo) on
+the potential energy of trials projected onto the constraints (a trial that does not project
+is a rejected trial). The energy never increases, so the walk cannot return to the point it
+left; the end point is Newton-polished and classified again (unstable -> escape again).
+Without a potential energy the trapezoidal work of the applied forces is the energy change.
+Every escape and descent step is a history row; past the budget (``STEPS_PER_ITER x
+max_num_iter`` steps, ``MAX_ESCAPES`` escapes) the analysis fails with status ``unstable``.
+MKEAM uses :func:`descend` as its fast continuation (``Relaxation._handover``).
 """
 from __future__ import annotations
 
@@ -191,7 +175,8 @@ def _ic_step(model, state, cnt, sigma):
     """One inertia-controlled Newton direction at ``state``: ``(K_s + sigma D) dq + G^T y = -r``,
     ``G dq = -phi`` in the equilibrated length coordinates of
     :class:`poise.solvers.stability._SparsePencil` (``D`` its diagonal metric), with the
-    smallest ``sigma`` (0, else grown by 8) whose KKT inertia is ``(nq, m, 0)``: the reduced
+    smallest ``sigma`` (0, else from a quarter of the last step's, grown by 8; 0 is not tried
+    after a shift above ``SKIP_ZERO_SHIFT``) whose KKT inertia is ``(nq, m, 0)``: the reduced
     matrix is positive definite and ``dq`` a descent direction of the potential energy.
     Returns ``(dq, sigma, ev)`` (``dq`` None when no valid factorisation was found)."""
     cnt.residuals += 1
@@ -226,9 +211,11 @@ def _ic_step(model, state, cnt, sigma):
 
 def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     """Inertia-controlled Newton from ``state`` down to an equilibrium (:func:`_ic_step`
-    directions, an Armijo backtracking on the potential energy of the trial assembled onto the
-    constraints, the Newton polish once a full step with ``sigma = 0`` was taken). The
-    potential energy never increases. Returns ``(state, outcome or None, pe, steps)``."""
+    directions limited to ``STEP_ROT`` rad / ``STEP_TRANS`` x L, an Armijo backtracking on the
+    potential energy of the trial projected onto the constraints by :func:`_project`, starting
+    at twice the last accepted step; the Newton polish once a full step with ``sigma = 0`` was
+    taken, its point kept only if its energy is not higher). The potential energy never
+    increases. Returns ``(state, outcome or None, pe, steps)``."""
     sc = Scales(model, settings)
     if pe is None:
         pe = potential_energy(model, state)
