@@ -1,16 +1,9 @@
 """MKEAM as an analysis method: relaxation (solvers/relaxation.py), then a Newton polish.
 
-Afterwards a Newton polish (FIM_S Newton; if that fails, once more without the stability term
-and line search, with an equilibrated factorisation: a mode decades softer than the others is out
-of the integration's reach, see :meth:`MkeamMethod._polish`) refines the MKEAM point to the
-FIM tolerances. The polished point is reported if the tangent stiffness projected on the
-constraint null space is positive semi-definite there (a stable equilibrium) and it either stays
-within ``POLISH_MAX_DQ`` of the MKEAM point or is reached downhill (potential energy
-non-increasing along the path); otherwise the MKEAM point itself is reported. Either way the
-result is converged only if it meets ``max_imbalance`` / ``max_error``
-(:func:`poise.solvers.certify.certify`). An MKEAM point that is an *unstable* equilibrium (e.g.
-a start exactly at an inverted pendulum's upright pose, where no force acts) is perturbed along
-the most negative stiffness direction and the iterations continue.
+The polished point is reported if it is a stable equilibrium (projected stiffness positive
+semi-definite) reached within ``POLISH_MAX_DQ`` of the MKEAM point or downhill from it;
+otherwise the MKEAM point itself. Either way the result is converged only if it meets
+``max_imbalance`` / ``max_error``. Details: docs/mkeam.md.
 """
 from __future__ import annotations
 

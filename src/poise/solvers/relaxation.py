@@ -1,18 +1,15 @@
-"""MKEAM: maximum kinetic energy attrition (the relaxation; the method is solvers/mkeam.py).
+"""MKEAM relaxation: maximum kinetic energy attrition down to a stable equilibrium.
 
-The model is made conservative and its constrained dynamics ``M dv/dt = Q - Phi_q^T lam``,
-``Phi = 0`` integrated from rest (RATTLE on the configuration manifold, step set by the
-shortest period, a motion limit and an energy-error control). At each kinetic-energy peak
-(power ``v^T Q`` changes sign, located by regula falsi) all velocities are zeroed: one peak =
-one iteration. A KE peak of a conservative system is a minimum of the potential along the path,
-so the iterates descend the potential and can only settle in a *stable* equilibrium.
-Convergence: peak KE ``<= max_ke_tol`` and restart-point change ``<= max_dq_tol``;
-``max_num_iter`` iterations without it = failure. After ``HANDOVER_ITER`` iterations the
-descent continues by the inertia-controlled Newton of :func:`poise.solvers.stable.descend`
-(never uphill); its point is taken only if stable, not above the restart point's energy, and one
-more KE iteration from it meets the tolerances; else the iterations go on. Design notes (step
-control, momenta, budgets, the hand-over): docs/mkeam.md.
+The model is made conservative and its constrained dynamics integrated from rest by RATTLE
+(solvers/rattle.py); at every peak of the kinetic energy the velocities are zeroed and the
+integration restarts (one peak = one iteration), so the iterates descend the potential and can
+only settle in a stable equilibrium. After ``HANDOVER_ITER`` iterations the descent continues by
+the inertia-controlled Newton of solvers/stable.py when that verifiably reaches a stable point.
+Budgets end every run with a status. :class:`Relaxation` is the MKEAM method's solve
+(solvers/mkeam.py) and the fallback chain's last stage (:func:`relax`). The method in detail,
+step-size control and convergence: docs/mkeam.md.
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -22,12 +19,10 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from poise.core.errors import EvaluationError
-from poise.elements.kernel import slot_kinematics
-from poise.model.model import EvalContext
-from poise.elements.rotation import expm_so3, wrap_angle
 from poise.solvers.energy import potential_energy
-from poise.solvers.linalg import Factor, SingularMatrix
+from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import assemble, initial_multipliers
+from poise.solvers.rattle import CONSTRAINT_TOL, _Dyn, _Point, retract_flat
 from poise.solvers.stability import classify
 from poise.solvers.stable import descend, seek_stable
 from poise.solvers.status import Status
@@ -48,180 +43,8 @@ HANDOVER_ITER = 1            # KE iterations before the hand-over to the Newton 
 HANDOVER_NQ = 300            # models with more coordinates cut their first iterations ...
 HANDOVER_CAP = 20            # ... at this many integrator steps before the hand-over
 HANDOVER_STEPS = 2           # its budget: this many x max_num_iter Newton steps
-SPARSE_CHECK_NQ = 300       # above: stability sign by sparse inertia, not dense eigenvalues
-CONSTRAINT_TOL = 1e-11       # relative position-constraint tolerance in the RATTLE solve
+SPARSE_CHECK_NQ = 300        # above: stability sign by sparse inertia, not dense eigenvalues
 
-
-
-class _Dyn:
-    """Mass matrix, forces and constraint Jacobian of a model at a state."""
-
-    def __init__(self, model, cnt):
-        self.m = model
-        self.cnt = cnt
-        if np.any(model.body_mass <= 0):
-            i = int(np.argmin(model.body_mass))
-            raise ValueError(f"MKEAM needs a positive mass for every moving body; body id "
-                             f"{model.body_id[i]} has mass {model.deck_mass()[i]:g}")
-        self.phi_tol = np.where(model.row_kind == 1, 1.0, model.L) * CONSTRAINT_TOL
-        self.cfams = [f for f in model.families if f.is_constraint]
-        rb = model.body_off[model.rot_body][:, None] + 3 + np.arange(3)       # (nr, 3)
-        self._mi_r = np.concatenate([model.trans_idx,
-                                     np.repeat(rb[:, :, None], 3, 2).ravel()]).astype(int)
-        self._mi_c = np.concatenate([model.trans_idx,
-                                     np.repeat(rb[:, None, :], 3, 1).ravel()]).astype(int)
-        # curve/surface parameters (families with ``inertial_extras``) move with a fictitious
-        # mass so RATTLE carries them with the bodies (see extra_mass); other scalar unknowns
-        # stay massless (held per iteration, Relaxation._resolve_extras)
-        xi = [model.extra_off + fam.scols[fam.scols >= 0] for fam in model.families
-              if getattr(fam, "inertial_extras", False)]
-        self.x_idx = np.unique(np.concatenate(xi)).astype(int) if xi else np.zeros(0, int)
-        self.x_mass = None
-
-    def minv(self, state):
-        """Inverse mass as a (nq, nq) dense or sparse block-diagonal matrix."""
-        m = self.m
-        _, Jg = m.mass_blocks(state)
-        vals = [np.repeat(1.0 / m.body_mass, 3)]
-        if len(m.rot_body):
-            vals.append(np.linalg.inv(Jg).ravel())
-        r, c = self._mi_r, self._mi_c
-        if len(self.x_idx):
-            vals.append(1.0 / self.extra_mass(state))
-            r = np.concatenate([r, self.x_idx])
-            c = np.concatenate([c, self.x_idx])
-        v = np.concatenate(vals)
-        if m.dense:
-            Mi = np.zeros((m.nq, m.nq))
-            Mi[r, c] = v
-            return Mi
-        return sp.csr_matrix((v, (r, c)), shape=(m.nq, m.nq))
-
-    def extra_mass(self, state):
-        """Fictitious masses of the curve/surface parameters, fixed at the first call:
-        ``m_min * |d Phi / d s|^2`` (the smallest body mass times the squared length of the
-        parameter's constraint-Jacobian column: the mass of the lightest body sliding along the
-        curve at the start), floored at ``m_min * (1e-3 L)^2``. Any positive value leaves the
-        equilibria (and the potential) unchanged; it only shapes the relaxation path."""
-        if self.x_mass is None:
-            m = self.m
-            ev = m.evaluate(state, need_jac=True, active=self.cnt.active)
-            G = ev.J[m.nq:, :m.nq]
-            G = G.toarray() if sp.issparse(G) else np.asarray(G)
-            col = np.sum(G[:, self.x_idx] ** 2, axis=0)
-            mmin = float(np.min(m.body_mass))
-            self.x_mass = mmin * np.maximum(col, (1e-3 * m.L) ** 2)
-        return self.x_mass
-
-    extras_free = False
-
-    def solve_algebraic(self, state, ev):
-        """Massless scalar unknowns (Control_Diff states, implicit / user variables) are
-        algebraic unknowns of the integration: at every force evaluation they are solved from
-        their own equations at the current body configuration (Newton on ``d e / d s``,
-        ``state.extra`` updated in place), so the bodies move under the forces of the reduced
-        system. Where ``d e / d s`` is singular (an integrator state whose equation does not
-        contain it) they are held and left to the final Newton polish (``extras_free``)."""
-        m = self.m
-        ix = np.setdiff1d(m.extra_idx, self.x_idx)
-        if not len(ix):
-            return ev
-        for _ in range(20):
-            J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
-            Jss = J[np.ix_(ix, ix)]
-            sv = np.linalg.svd(Jss, compute_uv=False)
-            if sv.min() <= 1e-10 * max(sv.max(), 1e-300):
-                self.extras_free = True
-                return ev
-            ds = np.linalg.solve(Jss, -ev.r[ix])
-            state.extra[ix - m.extra_off] += ds
-            ev = m.evaluate(state, need_jac=True, active=self.cnt.active)
-            self.cnt.residuals += 1
-            self.cnt.jacobians += 1
-            if np.all(np.abs(ds) <= 1e-12 * (1.0 + np.abs(state.extra[ix - m.extra_off]))):
-                break
-        return ev
-
-    def at(self, state):
-        """(Q, G, K, Minv) at ``state`` (uses ``state.lam`` for the geometric stiffness)."""
-        m = self.m
-        self.cnt.residuals += 1
-        self.cnt.jacobians += 1
-        ev = m.evaluate(state, need_jac=True, active=self.cnt.active)
-        if m.n_extra:
-            ev = self.solve_algebraic(state, ev)
-        J = ev.J
-        G = J[m.nq:, :m.nq]
-        K = J[:m.nq, :m.nq]
-        Q = G.T @ state.lam - ev.r
-        return np.asarray(Q).ravel(), G, K, self.minv(state)
-
-    def schur(self, G, Minv):
-        m = self.m
-        S = G @ Minv @ G.T
-        inact = (~self.cnt.mask(m)).astype(float)
-        if sp.issparse(S):
-            S = (S + sp.diags(inact)).tocsr()
-        else:
-            S = np.asarray(S) + np.diag(inact)
-        self.cnt.factorizations += 1
-        return Factor(S)
-
-    def phi(self, state):
-        """Constraint values only (no force element is evaluated)."""
-        m = self.m
-        self.cnt.residuals += 1
-        P, A, pos = m.marker_kinematics(state)
-        ctx = EvalContext(t=state.t, angle=state.angle, extra=state.extra, P=P, A=A)
-        phi = np.zeros(m.nc)
-        for fam in self.cfams:
-            kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, m.marker_body, pos)
-            ph = fam.constraints(kin, state.lam[fam.crow], ctx)[0]
-            phi[fam.crow.ravel()] = ph.ravel()
-        if not np.all(np.isfinite(phi)):
-            raise EvaluationError("a constraint equation is not finite (NaN/Inf) during MKEAM")
-        return np.where(self.cnt.mask(m), phi, 0.0)
-
-
-def retract_flat(model, state, dq):
-    """``state (+) dq`` on R^3 x SO(3): each CG moves on a straight line, each body rotates about
-    its CG (``R <- expm(skew(dtheta)) R``); continuous angles are unwrapped (steps are small).
-
-    This, not the screw motion of :meth:`Model.retract`, is the configuration update for which
-    RATTLE is symplectic: with the screw update a hinged body's momentum is not turned by the
-    constraint impulse and the velocity projection bleeds kinetic energy at first order in h.
-    """
-    new = state.copy()
-    dq = np.asarray(dq, float)
-    new.pos = state.pos + dq[model.trans_idx].reshape(-1, 3)
-    rb = model.rot_body
-    if len(rb):
-        E = expm_so3(dq[model.rot_idx].reshape(-1, 3))
-        new.rot[rb] = np.matmul(E, state.rot[rb])
-        model.track_rotation(new, state, dq[model.rot_idx].reshape(-1, 3))
-    if len(model.angle_I):
-        p = model._principal_angles(new)
-        new.angle = state.angle + wrap_angle(p - state.angle)
-    if model.n_extra:
-        new.extra = state.extra + dq[model.extra_idx]
-    return new
-
-
-class _Point:
-    """Integrator state: configuration, momenta and cached quantities at the configuration."""
-
-    __slots__ = ("state", "p", "Q", "G", "K", "Minv", "S", "v", "ke", "power", "t", "lam")
-
-    def __init__(self, dyn, state, p, t):
-        self.state = state
-        self.p = p
-        self.t = t
-        self.Q, self.G, self.K, self.Minv = dyn.at(state)
-        self.S = dyn.schur(self.G, self.Minv) if dyn.m.nc else None
-        self.v = self.Minv @ p
-        self.ke = 0.5 * float(p @ self.v)
-        self.power = float(self.v @ self.Q)
-        self.lam = None
 
 
 class Relaxation:
