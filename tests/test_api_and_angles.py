@@ -183,6 +183,18 @@ def test_accessors_pendulum_multiturn_and_file(tmp_path):
     assert back.analyses[0].euler_313(2) == pytest.approx([psi, 0.0, 0.0], abs=1e-9)
 
 
+
+def test_angles_derived_when_a_file_has_no_euler_datasets():
+    """Results written before the Euler datasets existed: derived from bodies/orientation."""
+    res = poise.solve(MULTITURN)
+    a = res.analyses[-1]
+    e, e313 = a.euler_parameters(2), a.euler_313(2)
+    for key in ("bodies/euler_parameters", "bodies/euler_313"):
+        a.datasets.pop(key, None)
+    assert a.euler_parameters(2) == pytest.approx(e, abs=1e-12)
+    assert a.euler_313(2) == pytest.approx(e313, abs=1e-12)
+
+
 # --------------------------------------------------------------------------- angle maths
 def _rotations():
     R = list(Rotation.random(500, random_state=11).as_matrix())

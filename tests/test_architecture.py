@@ -20,9 +20,6 @@ PACKAGES = (ROOT / "src" / "poise", ROOT / "cli" / "poise_cli")
 
 # module (path from the repository root) -> function-local poise imports without a `lazy` comment
 ALLOWED = {
-    "src/poise/results/data.py": 1,
-    "src/poise/results/hdf5.py": 1,
-    "src/poise/results/summary.py": 1,
 }
 
 

@@ -44,3 +44,10 @@ def test_sweep_accepts_every_output_group():
     assert "gears" in output_groups()
     (text, g, i, ds), = parse_outputs(spec, [f"gears[{gid}].force"])
     assert (g, i, ds) == ("gears", gid, "force")
+
+
+def test_declared_potential_energy_matches_the_kernels():
+    """MKEAM sums ``potential_energy`` of the families that have it; the declaration says so."""
+    for et in element_types():
+        has = any(callable(getattr(k, "potential_energy", None)) for k in et.kernels())
+        assert et.potential_energy == has, et.name

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 from poise.app.runner import _load, plan
 from poise.model.compile import compile_model
-from poise.elements.compile_user import USER_CONSTRAINT_TAGS
+from poise.elements.user import USER_CONSTRAINT_TAGS
 from poise.solvers.redundancy import detect_redundancy
 
 

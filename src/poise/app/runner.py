@@ -23,7 +23,7 @@ from poise.deck.spec import DeckSpec, Element
 from poise.deck.validate import validate
 from poise.model import commands as model_commands
 from poise.model.compile import compile_model
-from poise.elements.compile_contact import _get
+from poise.elements.contact import _get
 from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
 from poise.results.labels import Labeller
 from poise.results.summary import summarize

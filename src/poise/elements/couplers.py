@@ -14,7 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from poise.elements.base import ConstraintFamily
+from poise.elements.context import GLOBAL
 from poise.elements.motions import measure
+from poise.elements.registry import ElementType
+
 
 N_JOINTS = 3
 N_SLOTS = 8 * N_JOINTS
@@ -97,3 +100,140 @@ class Coupler(ConstraintFamily):
                 phi_y[idx, 0, blk] = c[mask, None] * g
                 G[idx, blk, blk] = (lv[mask] * c[mask])[:, None, None] * H
         return phi, phi_y, G
+
+
+# ----------------------------------- compile
+_FREEDOMS = {"REVOLUTE": ("R",), "TRANSLATIONAL": ("T",), "CYLINDRICAL": ("R", "T")}
+
+
+def marker_pose(b, el, attr):
+    """Input-configuration origin and axes (columns) of the marker ``el.attrs[attr]``."""
+    mid = el.attrs.get(attr)
+    if mid in b.marker_glob:
+        return b.marker_glob[mid]
+    return np.zeros(3), np.eye(3)
+
+
+def joint_coordinate(b, pc, owner_el, jid, freedom, attr_j, attr_f):
+    """Resolve one coupled joint: (I, J, rot, q0, jel) or None (problem reported).
+
+    ``freedom`` may be None (derived from the joint type)."""
+    jel = b.element("Constraint_Joint", jid)
+    if jel is None:
+        pc.error(owner_el.loc, f"joint {jid} does not exist; expected the id of a "
+                 "Constraint_Joint", attr_j)
+        return None
+    jt = str(jel.attrs.get("type", "")).upper()
+    ok = _FREEDOMS.get(jt)
+    if ok is None:
+        pc.error(owner_el.loc, f"joint {jid} is a {jt} joint; expected a REVOLUTE, "
+                 "TRANSLATIONAL or CYLINDRICAL joint", attr_j)
+        return None
+    fr = str(freedom).upper() if freedom else (ok[0] if len(ok) == 1 else None)
+    if fr not in ok:
+        pc.error(owner_el.loc, f"freedom {fr} is not possible on the {jt} joint {jid}; expected "
+                 + " or ".join(ok) + (" (required for a CYLINDRICAL joint)" if jt == "CYLINDRICAL"
+                                      else ""), attr_f)
+        return None
+    I, J = b.mk(jel, "i_marker_id"), b.mk(jel, "j_marker_id")
+    pI, RI = marker_pose(b, jel, "i_marker_id")
+    pJ, RJ = marker_pose(b, jel, "j_marker_id")
+    if fr == "R":
+        q0 = float(np.arctan2(RI[:, 0] @ RJ[:, 1], RI[:, 0] @ RJ[:, 0]))
+    else:
+        q0 = float((pI - pJ) @ RJ[:, 2])
+    return dict(I=I, J=J, rot=fr == "R", q0=q0, jel=jel, pI=pI, RI=RI, pJ=pJ, RJ=RJ)
+
+
+def user_routine_error(pc, el, what):
+    """True (and a located error) if ``el`` names a user subroutine or script."""
+    for a in ("usrsub_dll_name", "usrsub_fnc_name", "usrsub_param_string", "script_name"):
+        if el.attrs.get(a):
+            pc.error(el.loc, f"user {what} routines ({a}) are not supported; expected "
+                     "coefficients", a)
+            return True
+    return False
+
+
+def add_coupler_family(ctx, group, tag, items, cls=Coupler):
+    """items: list of (el, [joint dicts], coef (3,), kind 'rot'|'trans')."""
+    if not items:
+        return
+    mk, coef, rot, q0, rows, owners = [], [], [], [], [], []
+    for k, (el, js, c, kind) in enumerate(items):
+        m = []
+        for j in range(N_JOINTS):
+            if j < len(js):
+                m += [js[j]["I"], js[j]["J"]]
+            else:
+                m += [GLOBAL, GLOBAL]
+        mk.append(m)
+        coef.append(list(c) + [0.0] * (N_JOINTS - len(c)))
+        rot.append([js[j]["rot"] if j < len(js) else False for j in range(N_JOINTS)])
+        q0.append([js[j]["q0"] if j < len(js) else 0.0 for j in range(N_JOINTS)])
+        rows.append([ctx.add_row(el, "sum c_k (q_k - q0_k)", kind, group, k)])
+        owners.append(k)
+    f = cls.build(f"{group}:{cls.__name__.lower()}", mk, coef, rot, q0, owners)
+    ai = -np.ones((len(items), N_JOINTS), int)
+    for k, it in enumerate(items):
+        for j, jd in enumerate(it[1]):
+            if jd["rot"]:
+                ai[k, j] = ctx.angle(jd["I"], jd["J"], 2)
+    f.angle_index = ai
+    f.crow = np.array(rows, int)
+    f.group = group
+    f.element_locs = [it[0].loc for it in items]
+    ctx.families.append(f)
+    ctx.outputs[group] = dict(tag=np.array([tag] * len(items)),
+                              ids=np.array([it[0].id for it in items], int))
+
+
+def compile_couplers(spec, ctx):
+    """Compile ``Constraint_Coupler`` into :class:`poise.elements.couplers.Coupler` rows.
+
+    Each coupler is one constraint row ``c1 (q1 - q1_0) + c2 (q2 - q2_0) [+ c3 (q3 - q3_0)] = 0``
+    (see :mod:`poise.elements.couplers`): q_k is AZ(I,J) (freedom R, continuous angle) or
+    DZ(I,J,J) (freedom T) of joint k's markers, q_k0 its value in the input configuration.
+    Joints must be REVOLUTE (R), TRANSLATIONAL (T) or CYLINDRICAL (R or T, ``freedom_k`` required).
+    User couplers (COUSUB via ``usrsub_*`` / ``script_name``) are rejected (exit 3).
+    Output group ``couplers``: force and torque of the coupler's multiplier acting through joint 1's
+    I marker on its body (torque about that marker's origin, global axes).
+    """
+    els = spec.elements("Constraint_Coupler")
+    if not els:
+        return
+    b, pc = ctx.b, ctx.pc
+    items = []
+    for el in els:
+        if user_routine_error(pc, el, "coupler (COUSUB)"):
+            continue
+        coef = el.attrs.get("coefficients")
+        if isinstance(coef, str):
+            coef = [float(x) for x in coef.replace(",", " ").split()]
+        coef = [float(x) for x in (coef or [])]
+        nj = 3 if el.attrs.get("joint3_id") else 2
+        if len(coef) != nj:
+            pc.error(el.loc, f"{len(coef)} coefficients for {nj} joints; expected "
+                     f"coefficients=\"c1, c2{', c3' if nj == 3 else ''}\"", "coefficients")
+            continue
+        js = []
+        for j in range(1, nj + 1):
+            jd = joint_coordinate(b, pc, el, el.attrs.get(f"joint{j}_id"),
+                                  el.attrs.get(f"freedom_{j}"), f"joint{j}_id", f"freedom_{j}")
+            if jd is None:
+                break
+            js.append(jd)
+        if len(js) != nj:
+            continue
+        kind = "rot" if all(jd["rot"] for jd in js) else "trans"
+        items.append((el, js, coef, kind))
+        b.effects.append("Constraint_Coupler")
+    pc.raise_if_any()
+    add_coupler_family(ctx, "couplers", "Constraint_Coupler", items)
+
+
+ELEMENTS = (ElementType(
+    "couplers", ("Constraint_Coupler",), compile_couplers,
+    after=("motions",),         # coupler rows after the motion rows (model layout)
+    kernels=lambda: (Coupler,), outputs={"couplers": ("Constraint_Coupler",)},
+    datasets=("id", "force", "torque"), fd_tests="tests/test_elements_8a.py"),)

@@ -14,7 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.elements.couplers import (add_coupler_family, joint_coordinate, marker_pose,
+                                             user_routine_error)
 from poise.elements.couplers import Coupler
+from poise.elements.registry import ElementType
 
 
 def signed_lever(rot: bool, sigma: float, zJ, pJ, c, w) -> float:
@@ -49,3 +52,83 @@ class Gear(Coupler):
     a :class:`poise.elements.couplers.Coupler` with coefficients ``(s_1, -s_2)`` (one row, a length
     equation). The multiplier is the tangential contact force along ``w`` (up to sign).
     """
+
+
+# ----------------------------------- compile
+def _marker_body(b, mid):
+    el = b.element("Reference_Marker", mid)
+    return None if el is None else el.attrs.get("body_id")
+
+
+def compile_gears(spec, ctx):
+    """Compile ``Constraint_Gear`` into one coupler row per gear (see :mod:`poise.elements.gears`).
+
+    The levers ``s_k`` are computed from the input configuration: contact point and common-velocity
+    direction from ``cv_marker_id`` (origin, z axis), joint axes from the joints' J markers. The
+    cv marker must be on the carrier, the body common to both joints (either marker of each joint
+    may be on it; the sign follows). Output group ``gears``: force and torque of the gear's
+    multiplier acting through joint 1's I marker on its body (torque about that marker's origin,
+    global axes) — for a revolute gear 1 whose I marker is on the gear, the torque the mesh applies
+    to gear 1.
+    """
+    els = spec.elements("Constraint_Gear")
+    if not els:
+        return
+    b, pc = ctx.b, ctx.pc
+    items = []
+    for el in els:
+        if user_routine_error(pc, el, "gear"):
+            continue
+        cv = el.attrs.get("cv_marker_id")
+        if cv not in b.marker_glob:
+            pc.error(el.loc, f"cv_marker_id {cv} is not a Reference_Marker; expected the "
+                     "contact-point marker on the carrier", "cv_marker_id")
+            continue
+        c, Rc = marker_pose(b, el, "cv_marker_id")
+        w = Rc[:, 2]
+        carrier = _marker_body(b, cv)
+        js = []
+        for j in (1, 2):
+            jid = el.attrs.get(f"joint{j}_id")
+            jel0 = b.element("Constraint_Joint", jid)
+            # a gear on a CYLINDRICAL joint turns with it (rotational freedom), as in Adams GEAR
+            fr = "R" if (jel0 is not None and
+                         str(jel0.attrs.get("type", "")).upper() == "CYLINDRICAL") else None
+            jd = joint_coordinate(b, pc, el, jid, fr, f"joint{j}_id", "joint")
+            if jd is None:
+                break
+            jel = jd["jel"]
+            bi = _marker_body(b, jel.attrs.get("i_marker_id"))
+            bj = _marker_body(b, jel.attrs.get("j_marker_id"))
+            if bj == carrier:
+                sigma = 1.0
+            elif bi == carrier:
+                sigma = -1.0
+            else:
+                pc.error(el.loc, f"joint {jel.id} does not connect to body {carrier} of the cv "
+                         "marker; expected the cv marker on the carrier (the body common to both "
+                         "joints)", "cv_marker_id")
+                break
+            jd["s"] = signed_lever(jd["rot"], sigma, jd["RJ"][:, 2], jd["pJ"], c, w)
+            if abs(jd["s"]) <= 1e-12 * max(1.0, b.L):
+                pc.error(el.loc, f"joint {jel.id} gives no velocity at the contact point along "
+                         "the cv marker's z axis (zero lever); expected z tangential to the "
+                         "pitch circle", "cv_marker_id")
+                break
+            js.append(jd)
+        if len(js) != 2:
+            continue
+        coef = [js[0]["s"], -js[1]["s"]]
+        items.append((el, js, coef, "trans"))
+        b.effects.append("Constraint_Gear")
+    pc.raise_if_any()
+    if not items:
+        return
+    add_coupler_family(ctx, "gears", "Constraint_Gear", items, cls=Gear)
+
+
+ELEMENTS = (ElementType(
+    "gears", ("Constraint_Gear",), compile_gears,
+    after=("couplers",),        # gear rows after the coupler rows (model layout)
+    kernels=lambda: (Gear,), outputs={"gears": ("Constraint_Gear",)},
+    datasets=("id", "force", "torque"), fd_tests="tests/test_elements_8a.py"),)

@@ -11,7 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.errors import DeckError, Problem
+from poise.deck.spec import Expr
 from poise.elements.base import ConstraintFamily
+from poise.elements.registry import ElementType
+from poise.expr import EvalContext, compile_batch
+
 
 S_PI, S_XI, S_YI, S_ZI, S_PJ, S_XJ, S_YJ, S_ZJ = range(8)
 N_SLOTS = 8
@@ -164,3 +169,267 @@ class MotionConstraint(ConstraintFamily):
     def phi_t(self, kin, ctx):
         _, df = self.targets.values(ctx.t)
         return -df[self.tidx][:, None]
+
+
+# ----------------------------------- compile
+INTEGRATION_PANEL = 1e-2
+_GAUSS: list = []     # 8-point Gauss-Legendre nodes and weights, computed on first use
+
+
+def _gauss_legendre():
+    """(nodes, weights) of ``np.polynomial.legendre.leggauss(8)``: imported lazily (numpy.polynomial
+    costs a few ms of start-up and only velocity/acceleration motions integrate)."""
+    if not _GAUSS:
+        _GAUSS.extend(np.polynomial.legendre.leggauss(8))
+    return _GAUSS
+
+
+class _Resolver:
+    """Minimal resolver: markers and explicit variables; anything state-like is flagged later."""
+
+    def __init__(self, spec, b):
+        self.spec = spec
+        self.b = b
+        self._angles = 0
+
+    def marker_index(self, id):
+        if id == 0:
+            raise KeyError(id)
+        return self.b.marker_index[id]
+
+    def variable(self, id):
+        for e in self.spec.elements("Reference_Variable"):
+            if e.id == id:
+                v = e.attrs.get("expr", e.attrs.get("value", 0.0))
+                return ("explicit", v)
+        raise KeyError(id)
+
+    def diff_state(self, id):
+        raise NotImplementedError("state-dependent motion not supported yet (DIF)")
+
+    def diff_derivative(self, id):
+        raise NotImplementedError("state-dependent motion not supported yet (DIF1)")
+
+    def spline(self, id):
+        raise KeyError(id)
+
+    def array(self, id):
+        for e in self.spec.elements("Reference_Array"):
+            if e.id == id:
+                return np.array([float(x) for x in (e.text or "").replace(",", " ").split()])
+        raise KeyError(id)
+
+    def reaction(self, kind, id, jflag, comp, rm):
+        raise NotImplementedError("state-dependent motion not supported yet (element force)")
+
+    def angle_key(self, i_idx, j_idx, axis):
+        self._angles += 1
+        return self._angles - 1
+
+
+class MotionTargets:
+    """Target displacements of all motions of a model and their time derivatives.
+
+    Parameters
+    ----------
+    batch : poise.expr.Batch or None
+        Compiled motion expressions (one per motion).
+    val_type : list[str]; ic_disp, ic_vel : (n,) float
+    t0 : float
+        Start of the numerical integration of V/A motions.
+    """
+
+    def __init__(self, batch, consts, val_type, ic_disp, ic_vel, t0=0.0):
+        self.batch = batch
+        self.consts = np.asarray(consts, float)
+        self.val_type = np.array(val_type)
+        self.ic_disp = np.asarray(ic_disp, float)
+        self.ic_vel = np.asarray(ic_vel, float)
+        self.t0 = float(t0)
+        self.n = len(self.val_type)
+        self._cache: dict = {}
+        self._grid = [np.zeros((2, self.n))]     # cumulative (int f, int tau f) at t0 + k*panel
+        self._time_dep = self._compute_time_dep()
+
+    def _compute_time_dep(self):
+        dep = np.zeros(self.n, bool)
+        if self.batch is not None:
+            dep |= np.asarray(self.batch.time_mask, bool)
+        dep |= self.val_type != "D"
+        # V/A with a zero integrand is still constant: keep it simple (time dependent)
+        return dep
+
+    def depends_on_time(self, idx=None) -> bool:
+        d = self._time_dep if idx is None else self._time_dep[idx]
+        return bool(np.any(d))
+
+    def f(self, t):
+        """Expression values and d/dTIME, (n,) each."""
+        if self.batch is None:
+            return self.consts.copy(), np.zeros(self.n)
+        out = self.batch.evaluate(EvalContext(time=float(t)))
+        return out.value, out.d_time
+
+    def _panel(self, a, b):
+        """(int_a^b f, int_a^b tau f) with 8-point Gauss-Legendre, (2, n)."""
+        if b == a:
+            return np.zeros((2, self.n))
+        h = 0.5 * (b - a)
+        m = 0.5 * (a + b)
+        acc = np.zeros((2, self.n))
+        for x, w in zip(*_gauss_legendre()):
+            tau = m + h * x
+            fv, _ = self.f(tau)
+            acc[0] += w * h * fv
+            acc[1] += w * h * tau * fv
+        return acc
+
+    def _integrals(self, t):
+        t0, P = self.t0, INTEGRATION_PANEL
+        if t < t0:
+            acc = np.zeros((2, self.n))
+            k = int(np.ceil((t0 - t) / P))
+            edges = np.linspace(t, t0, k + 1)
+            for a, b in zip(edges[:-1], edges[1:]):
+                acc -= self._panel(a, b)
+            return acc
+        k = int(np.floor((t - t0) / P))
+        while len(self._grid) <= k:
+            j = len(self._grid) - 1
+            self._grid.append(self._grid[-1] + self._panel(t0 + j * P, t0 + (j + 1) * P))
+        return self._grid[k] + self._panel(t0 + k * P, t)
+
+    def values(self, t):
+        """Targets and their time derivatives at ``t``, (n,) each (cached per t)."""
+        t = float(t)
+        hit = self._cache.get(t)
+        if hit is not None:
+            return hit
+        fv, df = self.f(t)
+        if np.all(self.val_type == "D"):
+            res = (fv, df)
+        else:
+            tgt = fv.copy()
+            dtg = df.copy()
+            isv = self.val_type == "V"
+            isa = self.val_type == "A"
+            I = self._integrals(t)
+            tgt[isv] = self.ic_disp[isv] + I[0, isv]
+            dtg[isv] = fv[isv]
+            dt = t - self.t0
+            tgt[isa] = (self.ic_disp[isa] + self.ic_vel[isa] * dt + t * I[0, isa] - I[1, isa])
+            dtg[isa] = self.ic_vel[isa] + I[0, isa]
+            res = (tgt, dtg)
+        if len(self._cache) > 256:
+            self._cache.clear()
+        self._cache[t] = res
+        return res
+
+
+def compile_motions(spec, ctx):
+    """Compile ``Motion_Joint`` and ``Motion_Marker`` into motion constraint families.
+
+    * ``Motion_Joint`` on a REVOLUTE (``joint_type`` R: ``AZ(I,J) - f(t)``, continuous angle), a
+      TRANSLATIONAL (T: ``DZ(I,J,J) - f(t)``) or a CYLINDRICAL joint (R or T, required); I and J are
+      the joint's markers. Without ``joint_type``/``motion_type`` a revolute is driven in R and a
+      translational in T.
+    * ``Motion_Marker`` ``direction`` X/Y/Z: ``DX/DY/DZ(I,J,J) - f``; B1/B2/B3: body-fixed 1-2-3
+      angles of I relative to J (see :mod:`poise.elements.motions`).
+
+    Targets (:class:`MotionTargets`): ``val_type`` D: ``f(t)``; V: ``ic_disp + int_{t0}^t f``;
+    A: ``ic_disp + ic_vel (t - t0) + int int f``, integrated numerically (8-point Gauss-Legendre on
+    panels of ``INTEGRATION_PANEL`` time units, cumulative values cached) from ``t0 = 0``, the
+    model's initial time (the start of the first Simulate). Expressions are compiled with
+    :func:`poise.expr.compile_batch`; an expression that reads the state (markers, reactions,
+    variables with unknowns) is rejected ("state-dependent motion not supported yet").
+    """
+    b = ctx.b
+    pc = ctx.pc
+    els = spec.elements("Motion_Joint") + spec.elements("Motion_Marker")
+    if not els:
+        return
+    joints = {e.id: e for e in spec.elements("Constraint_Joint")}
+    items = []          # (el, I, J, measure)
+    for el in els:
+        if el.tag == "Motion_Joint":
+            jel = joints.get(el.attrs.get("joint_id"))
+            if jel is None:
+                pc.error(el.loc, f"joint {el.attrs.get('joint_id')} does not exist; expected the "
+                         "id of a Constraint_Joint", "joint_id")
+                continue
+            jt = str(jel.attrs.get("type", "")).upper()
+            fr = el.attrs.get("joint_type") or el.attrs.get("motion_type")
+            fr = str(fr).upper() if fr else {"REVOLUTE": "R", "TRANSLATIONAL": "T"}.get(jt)
+            ok = {"REVOLUTE": ("R",), "TRANSLATIONAL": ("T",), "CYLINDRICAL": ("R", "T")}.get(jt, ())
+            if fr not in ok:
+                pc.error(el.loc, f"a motion in freedom {fr} is not possible on a {jt} joint; "
+                         "expected R on REVOLUTE/CYLINDRICAL, T on TRANSLATIONAL/CYLINDRICAL",
+                         "joint_type")
+                continue
+            I, J = b.mk(jel, "i_marker_id"), b.mk(jel, "j_marker_id")
+            items.append((el, I, J, "AZ" if fr == "R" else "Z"))
+        else:
+            d = str(el.attrs.get("direction", "")).upper()
+            if d not in ("X", "Y", "Z", "B1", "B2", "B3"):
+                pc.error(el.loc, f"direction {d} is not supported; expected X, Y, Z, B1, B2, B3",
+                         "direction")
+                continue
+            items.append((el, b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id"), d))
+    exprs, vt, icd, icv = [], [], [], []
+    for el, *_ in items:
+        if str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
+            pc.error(el.loc, "USERSUB motions are not supported; expected type=\"EXPRESSION\"",
+                     "type")
+        e = el.attrs.get("expr", 0.0)
+        exprs.append(e if isinstance(e, Expr) else float(e or 0.0))
+        v = str(el.attrs.get("val_type", "D")).upper()
+        vt.append(v)
+        icd.append(float(el.attrs.get("ic_disp") or 0.0))
+        icv.append(float(el.attrs.get("ic_vel") or 0.0))
+        if v in ("V", "A") and el.attrs.get("ic_disp") is None:
+            pc.warn(el.loc, f"val_type {v} without ic_disp; using ic_disp = 0", "ic_disp")
+    pc.raise_if_any()
+    batch = None
+    if any(isinstance(e, Expr) for e in exprs):
+        try:
+            batch = compile_batch(exprs, _Resolver(spec, b))
+        except DeckError as err:
+            if "state-dependent" in str(err):
+                raise
+            raise
+        if batch.depends_on_state:
+            sm = np.asarray(batch.state_mask, bool)
+            probs = [Problem(items[k][0].loc, "state-dependent motion not supported yet; expected "
+                             "an expression of TIME only", "expr") for k in np.nonzero(sm)[0]]
+            raise DeckError(probs)
+    targets = MotionTargets(batch, [e if not isinstance(e, Expr) else 0.0 for e in exprs],
+                            vt, icd, icv)
+    group = "motions"
+    by_measure: dict[str, list] = {}
+    for k, (el, I, J, meas) in enumerate(items):
+        kind = "rot" if meas in ROTATIONAL else "trans"
+        row = ctx.add_row(el, f"{meas}-f(t)", kind, group, k)
+        by_measure.setdefault(meas, []).append((k, I, J, row))
+        b.effects.append(f"{el.tag}:{meas}")
+    for meas, lst in by_measure.items():
+        f = MotionConstraint.build(f"motions:{meas}", np.array([x[1] for x in lst]),
+                                      np.array([x[2] for x in lst]), meas, targets,
+                                      [x[0] for x in lst], [x[0] for x in lst])
+        if meas == "AZ":
+            f.angle_index = np.array([ctx.angle(x[1], x[2], 2) for x in lst], int)
+        f.crow = np.array([[x[3]] for x in lst], int)
+        f.group = group
+        ctx.families.append(f)
+    ctx.outputs[group] = dict(tag=np.array([it[0].tag for it in items]),
+                              ids=np.array([it[0].id for it in items], int))
+    ctx.motion_targets = targets
+
+
+ELEMENTS = (ElementType(
+    "motions", ("Motion_Joint", "Motion_Marker"), compile_motions,
+    after=("forces",),          # motion rows after the joint rows, families after forces
+    kernels=lambda: (MotionConstraint,), time_dependent=True,
+    outputs={"motions": ("Motion_Joint", "Motion_Marker")}, datasets=("id", "force", "torque"),
+    reactions={"MOTION": ("motions", ("Motion_Joint", "Motion_Marker"))},
+    reaction_aliases={"MOTION_JOINT": "MOTION"},
+    fd_tests="tests/test_motions.py"),)

@@ -78,7 +78,7 @@ class ModelResolver:
         el = self.vars[int(id)]
         if el.attrs.get("is_implicit") or \
                 str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
-            # scalar unknown (model/compile_diff_vars.py); held: the constant ic
+            # scalar unknown (elements/diff_vars.py); held: the constant ic
             k = scalar_unknown(self.ctx, "var", int(id))
             return ("explicit", k[1]) if isinstance(k, tuple) else ("implicit", k)
         return ("explicit", el.attrs.get("expr", 0.0))

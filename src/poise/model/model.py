@@ -5,6 +5,9 @@ origin, then a spatial rotation increment), each point body 3; ground has none. 
 configuration itself is stored on the rotation group (``State.rot``), so there is no singular
 parametrisation and any number of full turns is possible; continuous relative angles (AZ etc.)
 are tracked in ``State.angle`` by unwrapping along the solution path.
+
+Over 500 lines: ``Model.evaluate``/``jacobian`` stay next to the arrays they read until the one
+evaluation module of issue 15 (item 1, frames F >= 1, with ``frame_batch``) takes them.
 """
 from __future__ import annotations
 

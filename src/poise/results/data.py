@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from poise.elements import rotation as rot
 from poise.results.schema import declared_item, unit_string
 from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord
 
@@ -57,7 +58,6 @@ class AnalysisResult(AnalysisRecord):
     def _body(self, key: str, body: int, frame):
         d = self.datasets.get(key)
         if d is None:             # a file written before the dataset existed: derive it
-            from poise.model import rotation as rot
             derive = {"bodies/euler_parameters": rot.euler_parameters,
                       "bodies/euler_313": rot.euler_313}.get(key)
             if derive is None or "bodies/orientation" not in self.datasets:

@@ -35,6 +35,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from poise.core.atomic import atomic_output
 from poise.core.version import __version__
 from poise.results import schema
 from poise.results.data import AnalysisResult, RunResult
@@ -250,7 +251,6 @@ def write_results(result: RunResult, path: str) -> None:
     the target is then untouched. Refused (:class:`poise.core.errors.UsageError`): a path that exists
     and is not a regular file, and the deck itself (``result.deck``).
     """
-    from poise.core.atomic import atomic_output
     with atomic_output(path, (getattr(result, "deck", None),), hold_interrupts=True) as tmp:
         _write_file(result, tmp)
 

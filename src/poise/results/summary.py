@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from poise.results.data import STATUS_CONVERGED
+from poise.solvers.stability import Mode
 
 #: worse classes rank higher
 STABILITY_RANK = {"stable": 0, "neutral": 1, "unknown": 2, "unstable": 3}
@@ -42,7 +43,6 @@ class ModeRecord:
     eigenvalue: float | None
 
     def text(self, short: bool = False) -> str:
-        from poise.solvers.stability import Mode
         return Mode(self.klass, self.body, self.kind, self.direction,
                     np.nan if self.eigenvalue is None else self.eigenvalue).text(short)
 
