@@ -39,10 +39,17 @@ def test_static_convergence_plot_has_units_integer_ticks_and_tolerances():
     assert "[N, N*mm]" in ax.get_ylabel()                  # the deck is N-kg-mm-s
     texts = _legend_texts(ax)
     tol = [ln for ln in ax.get_lines() if ln.get_label().startswith("max_")]
-    assert {ln.get_label().split(" =")[0] for ln in tol} == {"max_imbalance", "max_error"}
+    # force rows meet max_imbalance, moment rows max_imbalance*L: both lines are drawn
+    assert {ln.get_label().split(" =")[0] for ln in tol} == {"max_imbalance", "max_imbalance·L",
+                                                              "max_error"}
     styles = {(ln.get_color(), ln.get_linestyle()) for ln in tol}
-    assert len(styles) == 2                                # distinct lines
-    assert any(t.startswith("max_imbalance") for t in texts)
+    assert len(styles) == 3                                # distinct lines
+    L = float(res.model_datasets["length_scale"])
+    imb = res.analyses[-1].settings["max_imbalance"]
+    levels = {ln.get_label().split(" =")[0]: ln.get_ydata()[0] for ln in tol}
+    assert levels["max_imbalance"] == pytest.approx(imb)
+    assert levels["max_imbalance·L"] == pytest.approx(imb * L)
+    assert any(t.startswith("max_imbalance = ") and t.endswith("N (force rows)") for t in texts)
 
 
 @pytest.mark.parametrize("method", ["FIM_S", "FIM_D"])

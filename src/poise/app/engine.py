@@ -12,6 +12,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
+import threading
 import time
 import warnings
 
@@ -52,6 +54,25 @@ def quiet_dask(quiet: bool):
 
 
 @contextlib.contextmanager
+def _children_ignore_interrupt():
+    """Processes started in the block ignore SIGINT from their first instruction on.
+
+    Ctrl-C in a terminal signals the whole process group: a worker still starting Python
+    would die with Python's own traceback. An ignored signal stays ignored across exec, so
+    the workers never see it; the parent restores its handler after the block and stops them
+    itself (a Ctrl-C during the block, the cluster's start-up, is not acted on).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None, n_tasks: int = 1,
                 client=None, quiet: bool = False, feature: str = "poise sweep",
                 allowed_failures: int | None = None):
@@ -79,7 +100,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, n_task
             cfg = {} if allowed_failures is None else \
                 {"distributed.scheduler.allowed-failures": int(allowed_failures)}
             nw = workers or os.cpu_count() or 1
-            with dask.config.set(cfg):
+            with dask.config.set(cfg), _children_ignore_interrupt():
                 cluster = LocalCluster(n_workers=min(nw, max(1, n_tasks)), threads_per_worker=1,
                                        processes=True, dashboard_address=None,
                                        silence_logs=logging.CRITICAL if quiet else logging.ERROR)

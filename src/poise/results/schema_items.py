@@ -215,9 +215,11 @@ for n, t, sh, u, m in (
         ("strategy_iterations", "int", ("F", 5), "1", "the frame's iterations split by "
          "stage, columns `plain`, `stability`, `continuation`, `mkeam`, `polish` (they sum to "
          "`frames/iterations`)"),
-        ("imbalance", "float", ("F",), "force", "infinity norm of the force/moment residual "
+        ("imbalance", "float", ("F",), "mixed", "infinity norm of the force/moment residual "
          "(`Φ_qᵀλ − Q`) at the final iterate, **without** the `stability` regularisation "
-         "(force rows in force units, moment rows in force×length)"),
+         "(force rows in force units, moment rows in force×length: the largest of both, so "
+         "the units attribute says `mixed`; force rows meet `max_imbalance`, moment rows "
+         "`max_imbalance`·L, L = `/model/length_scale`)"),
         ("error", "float", ("F",), "1", "final error compared with `max_error`: the larger of "
          "the constraint violation (translational rows divided by the model size L, "
          "rotational rows in rad) and the last Newton update (translations / L, rotations in "
@@ -310,8 +312,8 @@ for g, (s, what, fm) in _REACT.items():
 for n, t, u, m in (
         ("frame", "int", "1", "frame index (0-based) the iteration belongs to"),
         ("iteration", "int", "1", "iteration number within the frame (0-based)"),
-        ("imbalance", "float", "force", "imbalance (infinity norm of the residual; moment rows "
-         "in force×length) after the iteration"),
+        ("imbalance", "float", "mixed", "imbalance (infinity norm of the residual; force rows "
+         "in force units, moment rows in force×length, hence `mixed`) after the iteration"),
         ("error", "float", "1", "error measure of the iteration (constraint violation and "
          "update, translations / L, rotations in rad)"),
         ("step_norm", "float", "1", "scaled norm of the Newton step before line search"),

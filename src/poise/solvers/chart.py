@@ -3,7 +3,7 @@
 :class:`_Chart` maps IDA's unknowns ``y`` (CG translations and rotation vectors relative to a
 reference state, then the multipliers) to states, provides IDA's residual and Jacobian
 callbacks and a consistent start; :class:`Corrector` brings IDA's output points onto the
-equilibrium to the ``Param_Static`` tolerances. Notes: docs/performance.md, "FIM_D (IDA)".
+equilibrium to the ``Param_Static`` tolerances. Notes: docs/fim_d.md.
 """
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ output point IDA passes is corrected onto the equilibrium to the ``Param_Static`
 IDA restarts). Budgets are deterministic: ``IDA_MAX_STEPS + IDA_STEPS_PER_FRAME`` x frames
 accepted steps, a step-size floor, and a body ``ESCAPE`` model sizes away ends the run. The
 per-step table ``steps/*`` comes from IDA's own counters. Design notes, tolerances and the
-measurements behind the constants: docs/performance.md, "FIM_D (IDA)".
+measurements behind the constants: docs/fim_d.md.
 """
 from __future__ import annotations
 

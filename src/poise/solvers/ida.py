@@ -3,7 +3,7 @@
 :class:`TransientSettings` (``Param_Transient``), :class:`SparseJacobian` (``dF/dy`` on a
 pattern fixed per model, filled by gathers), :class:`IdaStats` (IDA's own per-step counters
 read through ctypes: scikit-sundae exposes only ``nfev``/``njev``) and :func:`_ida` (one IDA
-instance). Design notes and measurements: docs/performance.md, "FIM_D (IDA)".
+instance). Design notes and measurements: docs/fim_d.md.
 """
 from __future__ import annotations
 

@@ -43,6 +43,7 @@ HANDOVER_ITER = 1            # KE iterations before the hand-over to the Newton 
 HANDOVER_NQ = 300            # models with more coordinates cut their first iterations ...
 HANDOVER_CAP = 20            # ... at this many integrator steps before the hand-over
 HANDOVER_STEPS = 2           # its budget: this many x max_num_iter Newton steps
+SPARSE_CHECK_NQ = 300        # above: stability sign by sparse inertia, not dense eigenvalues
 
 
 
@@ -231,8 +232,19 @@ class Relaxation:
 
     def projected_stiffness_min(self, state):
         """(smallest eigenvalue, eigenvector in tangent coords) of the tangent stiffness projected
-        on the constraint null space, coordinates scaled by ``q_scale`` (None if too large)."""
+        on the constraint null space, coordinates scaled by ``q_scale`` (None if too large).
+        Above ``SPARSE_CHECK_NQ`` coordinates only its sign is computed (sparse inertia of
+        :func:`~poise.solvers.stability.classify`): -1 with an unstable mode, 0 otherwise."""
         m = self.model
+        if m.nq > SPARSE_CHECK_NQ and not m.n_extra:
+            # large models: the sign from the sparse inertia count of the classification
+            # (the dense null space and eigenproblem below cost O(nq^3))
+            info = classify(m, state, active=self.counters.active)
+            if info.klass == "unstable":
+                vec = info.vectors[0] if info.vectors else None
+                return -1.0, vec
+            if info.klass in ("stable", "neutral"):
+                return 0.0, None
         if m.nq > 3000:
             return None, None
         ev = m.evaluate(state, need_jac=True, active=self.counters.active)

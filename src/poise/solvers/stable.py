@@ -1,12 +1,17 @@
 """``--require-stable``: from an unstable equilibrium, continue downhill to a stable one.
 
-Newton converges to whichever equilibrium is near, stable or not. When a stable one is asked
-for and Newton stopped at an unstable one, :func:`seek_stable` escapes along the unstable
-modes to lower potential energy and continues by inertia-controlled Newton (:func:`descend`),
-whose steps never raise the energy, until the classification says stable or the budget is
-spent (status ``unstable``). MKEAM uses :func:`descend` as its fast continuation. The
-escape, the descent, the energy of non-conservative models and the budget:
-docs/solvers.md, "Stable equilibria".
+Newton converges to whichever equilibrium is near. :func:`seek_stable` leaves an unstable one
+along its unstable modes (escape: the trial of lowest potential energy, both signs, shrinking)
+and :func:`descend` continues by inertia-controlled Newton: the tangent stiffness is shifted by
+the smallest ``sigma`` whose sparse ``L D L^T`` inertia says the reduced matrix is positive
+definite, so every step is a descent direction; steps are limited and backtracked (Armijo) on
+the potential energy of trials projected onto the constraints (a trial that does not project
+is a rejected trial). The energy never increases, so the walk cannot return to the point it
+left; the end point is Newton-polished and classified again (unstable -> escape again).
+Without a potential energy the trapezoidal work of the applied forces is the energy change.
+Every escape and descent step is a history row; past the budget (``STEPS_PER_ITER x
+max_num_iter`` steps, ``MAX_ESCAPES`` escapes) the analysis fails with status ``unstable``.
+MKEAM uses :func:`descend` as its fast continuation (``Relaxation._handover``).
 """
 from __future__ import annotations
 
@@ -40,7 +45,9 @@ MAX_ESCAPES = 20
 STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton steps in all
 STEP_TRANS = 0.4          # x L: largest translation of one descent step
 PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial
+CHORD_RATE = 0.25         # the projection refactorises when its error falls slower than this
 STEP_ROT = 1.0            # rad: largest rotation of one descent step
+SKIP_ZERO_SHIFT = 0.05    # x spectral radius: above, the next step does not try sigma = 0
 
 
 def acceptable(info, settings) -> bool:
@@ -137,10 +144,11 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
         for f in ESCAPE_SHRINK:
             for sgn in (1.0, -1.0):
                 try:
-                    x = model.retract(state, sgn * f * d)
-                    x, _, ast = assemble(model, x, settings, history, frame, cnt)
-                    if not ast.ok:
-                        continue
+                    x, ok = _project(model, model.retract(state, sgn * f * d), cnt)
+                    if not ok:
+                        x, _, ast = assemble(model, x, settings, history, frame, cnt)
+                        if not ast.ok:
+                            continue
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                 except EvaluationError:
                     continue
@@ -167,7 +175,8 @@ def _ic_step(model, state, cnt, sigma):
     """One inertia-controlled Newton direction at ``state``: ``(K_s + sigma D) dq + G^T y = -r``,
     ``G dq = -phi`` in the equilibrated length coordinates of
     :class:`poise.solvers.stability._SparsePencil` (``D`` its diagonal metric), with the
-    smallest ``sigma`` (0, else grown by 8) whose KKT inertia is ``(nq, m, 0)``: the reduced
+    smallest ``sigma`` (0, else from a quarter of the last step's, grown by 8; 0 is not tried
+    after a shift above ``SKIP_ZERO_SHIFT``) whose KKT inertia is ``(nq, m, 0)``: the reduced
     matrix is positive definite and ``dq`` a descent direction of the potential energy.
     Returns ``(dq, sigma, ev)`` (``dq`` None when no valid factorisation was found)."""
     cnt.residuals += 1
@@ -179,8 +188,11 @@ def _ic_step(model, state, cnt, sigma):
     f = -(P.dq / P.d) * r
     g = -P.dl * np.asarray(ev.phi, float)[P.rows] if m else np.zeros(0)
     scale = P.eps / 1e-8                      # spectral radius estimate of Kt
-    sig = 0.0                                 # plain Newton whenever the inertia allows
-    for k in range(40):
+    # plain Newton (sigma = 0) whenever the inertia allows; after a step that needed a large
+    # shift, start from a quarter of it (the zero-shift factorisation would almost surely fail)
+    k0 = 1 if sigma > SKIP_ZERO_SHIFT * scale else 0
+    sig = max(sigma / 4.0, 1e-6 * scale) if k0 else 0.0
+    for k in range(k0, 40):
         for rho in AUG_RHO:
             cnt.factorizations += 1
             F = SymmetricLDL(P.kkt(-sig, rho), P.order)
@@ -199,15 +211,18 @@ def _ic_step(model, state, cnt, sigma):
 
 def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     """Inertia-controlled Newton from ``state`` down to an equilibrium (:func:`_ic_step`
-    directions, an Armijo backtracking on the potential energy of the trial assembled onto the
-    constraints, the Newton polish once a full step with ``sigma = 0`` was taken). The
-    potential energy never increases. Returns ``(state, outcome or None, pe, steps)``."""
+    directions limited to ``STEP_ROT`` rad / ``STEP_TRANS`` x L, an Armijo backtracking on the
+    potential energy of the trial projected onto the constraints by :func:`_project`, starting
+    at twice the last accepted step; the Newton polish once a full step with ``sigma = 0`` was
+    taken, its point kept only if its energy is not higher). The potential energy never
+    increases. Returns ``(state, outcome or None, pe, steps)``."""
     sc = Scales(model, settings)
     if pe is None:
         pe = potential_energy(model, state)
     sigma = 0.0
     steps = 0
     polish_fail = 0
+    alpha0 = 1.0                       # first trial: twice the last accepted step (<= 1)
     while steps < budget:
         try:
             dq, sigma, ev, dlam = _ic_step(model, state, cnt, sigma)
@@ -225,15 +240,12 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
                   float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L), 1.0)
         dq = dq / big
         slope = float(np.asarray(ev.r, float)[:model.nq] @ dq)
-        alpha = 1.0
+        alpha = alpha0
         accepted = None
         for _ in range(12):
             try:
                 x = model.retract(state, alpha * dq)
-                x, ok = _project(model, x, cnt)
-                if not ok:
-                    x, _, ast = assemble(model, x, settings, _Quiet(), frame, cnt)
-                    ok = ast.ok
+                x, ok = _project(model, x, cnt)       # not projected: a shorter step
                 if ok:
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                     tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
@@ -254,6 +266,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
                 return state, None, pe, steps
             continue
         state, pe = accepted
+        alpha0 = min(1.0, 2.0 * alpha)
         state.lam = state.lam + alpha * dlam     # the KKT step's multiplier update
         if sigma == 0.0 and alpha == 1.0 and big == 1.0 and polish_fail < 3:
             st, o = newton(model, state, replace(settings, fallback=False), history, frame,
@@ -273,30 +286,31 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
 def _project(model, x, cnt, max_iter=8):
     """Gauss-Newton projection of a line-search trial onto the constraints to ``PROJECT_TOL``
     (relative): looser than the assembly's, the end point is polished by Newton to the deck's
-    tolerances. Returns ``(state, ok)``."""
+    tolerances. The factorisation is kept while the constraint error falls at least by
+    ``CHORD_RATE`` per iteration (chord steps need no Jacobian). Returns ``(state, ok)``."""
     if model.nc == 0:
         return x, True
     W = _coord_weights(model)
+    scale = np.where(model.row_kind == 1, 1.0, model.L)
+    F, prev, fresh = None, np.inf, False
     for _ in range(max_iter + 1):
         ev = _evaluate(model, x, cnt, need_jac="defer")
         phi = ev.phi                       # inactive rows read 0
-        if float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L))) <= PROJECT_TOL:
+        err = float(np.max(np.abs(phi) / scale))
+        if err <= PROJECT_TOL:
             return x, True
-        _jacobian(model, ev, cnt)
-        try:
-            sol = _factor(_weighted_kkt(model, ev, W), cnt).solve(
-                np.concatenate([np.zeros(model.nq), -ev.phi]))
-        except SingularMatrix:
-            return x, False
-        x = model.retract(x, sol[:model.nq])
+        if err > prev and fresh:
+            return x, False                # diverging after a Newton step: the trial is too far
+        fresh = F is None or err > CHORD_RATE * prev
+        if fresh:
+            _jacobian(model, ev, cnt)
+            try:
+                F = _factor(_weighted_kkt(model, ev, W), cnt)
+            except SingularMatrix:
+                return x, False
+        prev = err
+        x = model.retract(x, F.solve(np.concatenate([np.zeros(model.nq), -phi]))[:model.nq])
     return x, False
-
-
-class _Quiet:
-    """A history that records nothing (assembly of line-search trials)."""
-
-    def add(self, *a, **k):
-        pass
 
 
 def _fail(used, why):

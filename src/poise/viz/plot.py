@@ -94,15 +94,29 @@ def request_channels(a, cols) -> list:
 
 # tolerance lines: distinct colour and style, named in the legend
 _TOL_STYLE = {"max_imbalance": dict(color="C3", ls="--", lw=1.2),
+              "max_imbalance·L": dict(color="C3", ls=":", lw=1.2),
               "max_error": dict(color="C2", ls="-.", lw=1.2)}
 
 
-def _tolerances(ax, a):
+def _tolerances(ax, a, L: float | None, U: dict):
+    """The tolerance lines a frame is measured against: ``max_imbalance`` for force rows,
+    ``max_imbalance·L`` for moment rows (L the model size, so the same deck converges alike
+    in m and mm) and ``max_error``. The plotted imbalance is the largest of both kinds of row,
+    so a moment-row point between the two imbalance lines is within its tolerance."""
     st = a.settings or {}
-    for key, style in _TOL_STYLE.items():
-        v = st.get(key)
-        if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0:
-            ax.axhline(v, label=f"{key} = {v:.0e}", zorder=1, **style)
+
+    def num(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
+
+    imb, err = st.get("max_imbalance"), st.get("max_error")
+    if num(imb):
+        ax.axhline(imb, label=f"max_imbalance = {imb:.0e} {U['force']} (force rows)", zorder=1,
+                   **_TOL_STYLE["max_imbalance"])
+        if L is not None and np.isfinite(L) and L > 0 and L != 1.0:
+            ax.axhline(imb * L, label=f"max_imbalance·L = {imb * L:.1e} {U['torque']} "
+                       "(moment rows)", zorder=1, **_TOL_STYLE["max_imbalance·L"])
+    if num(err):
+        ax.axhline(err, label=f"max_error = {err:.0e}", zorder=1, **_TOL_STYLE["max_error"])
 
 
 def plot_results(result_or_path, analysis: int | None = None, bodies=None, joints=None,
@@ -165,6 +179,8 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
     title = f"{res.deck}  analysis {a.index}: {a.analysis_type} {a.method} {a.status}"
     t = np.asarray(d.get("time", []), float)
     tlab = f"time [{U['time']}]"
+    L = res.model_datasets.get("length_scale")
+    L = float(np.asarray(L)) if L is not None else None
 
     ax = axes[0]
     if qs:
@@ -182,14 +198,16 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
             bad = np.nonzero(~conv)[0]
             ax.semilogy(t[bad], _pos(np.nan_to_num(imb[bad], nan=1.0)), "x", color="r", ms=8,
                         label="frame not converged")
-        _tolerances(ax, a)
+        _tolerances(ax, a, L, U)
         ax.set_xlabel(tlab)
         ax.set_ylabel(f"imbalance [{U['force']}, {U['torque']}], error [1]")
         ax.set_title(title, fontsize=9)
         ax.legend(fontsize=8, loc="best")
         ax2 = axes[1]
         it = np.asarray(d.get("frames/iterations", []), int)
-        ax2.step(t[:len(it)], it, where="mid", color="C0", label="Newton iterations per frame")
+        what = ("corrections onto the equilibrium per frame" if a.method == "FIM_D"
+                else "iterations per frame")
+        ax2.step(t[:len(it)], it, where="mid", color="C0", label=what)
         ax2.set_xlabel(tlab)
         ax2.set_ylabel("iterations")
         ax2.yaxis.set_major_locator(MaxNLocator(integer=True))
@@ -204,7 +222,7 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
                         label="imbalance")
         if len(err):
             ax.semilogy(np.arange(len(err)), _pos(err), "s-", ms=3, color="C1", label="error")
-        _tolerances(ax, a)
+        _tolerances(ax, a, L, U)
         ax.set_xlabel("iteration")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel(f"imbalance [{U['force']}, {U['torque']}], error [1]")
