@@ -135,7 +135,7 @@ def test_reaction_in_force_accepted_in_gravity_rejected_with_column():
 
 
 def test_implicit_variable_is_a_scalar_unknown():
-    # issue 8: implicit variables are scalar unknowns (tests/test_elements_8b.py)
+    # implicit variables are scalar unknowns (tests/test_diffs_variables_user_routines.py)
     d = DeckBuilder().ground()
     d.body(2, 200, (0.0, -1.0, 0.0), point=True)
     d.add("Reference_Variable", id=3, type="EXPRESSION", is_implicit=True,

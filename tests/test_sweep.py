@@ -13,7 +13,8 @@ from click.testing import CliRunner
 
 import poise
 from poise.core.errors import UsageError
-from poise.app.sweep import apply_case, make_cases, resolve_param, run_case
+from poise.app.cases import apply_case, make_cases, resolve_param
+from poise.app.sweep import run_case
 from poise_cli.main import cli
 
 DECK = Path(__file__).resolve().parents[1] / "decks" / "pendulum_multiturn.xml"

@@ -11,7 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 from poise.core.errors import UsageError
-from poise.app.sweep import MAX_CASES, check_case_count, count_cases, run_sweep
+from poise.app.cases import MAX_CASES, check_case_count, count_cases
+from poise.app.sweep import run_sweep
 from poise_cli.main import cli
 
 ROOT = Path(__file__).resolve().parents[1]

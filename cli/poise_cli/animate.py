@@ -4,7 +4,7 @@ from __future__ import annotations
 import click
 
 from poise_cli.options import debug_option, json_option, quiet_option
-from poise_cli.plot import run_picture
+from poise_cli.picture import run_picture
 
 
 @click.command(short_help="Animate a results file as a stick figure (GIF, MP4 or PNG).")

@@ -5,9 +5,8 @@ from pathlib import Path
 
 import click
 
-from poise_cli.errors import report_exception
 from poise_cli.options import debug_option, json_option, quiet_option
-from poise_cli.summary import print_json
+from poise_cli.picture import run_picture
 
 
 def id_list(ctx, param, value):
@@ -17,36 +16,6 @@ def id_list(ctx, param, value):
         return [int(x) for x in value.replace(" ", "").split(",") if x]
     except ValueError:
         raise click.BadParameter(f"expected comma-separated ids, got {value!r}") from None
-
-
-def run_picture(ctx, results, make, as_json, debug, quiet, message) -> None:
-    """Shared body of ``poise plot`` / ``poise animate``: check the results file, call ``make()``
-    (returns an info dict), report errors with the CLI's exit codes, print the JSON or the line."""
-    try:
-        results_or_usage(results)
-        info = make()
-    except (Exception, KeyboardInterrupt) as exc:
-        code, info = report_exception(exc, debug=debug)
-        if as_json:
-            print_json({"results": results, "output": None, "exit_code": code, **info})
-        ctx.exit(code)
-        return
-    if as_json:
-        print_json({"results": results, "exit_code": 0, **info})
-    if not quiet:
-        click.echo(message(info), err=True)
-    ctx.exit(0)
-
-
-def results_or_usage(path: str) -> None:
-    """Exit 2 when PATH is not a poise results file."""
-    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
-    from poise.core.errors import UsageError
-    from poise.results.hdf5 import ResultsFormatError, _open_checked
-    try:
-        _open_checked(path).close()
-    except ResultsFormatError as e:
-        raise UsageError(str(e)) from None
 
 
 @click.command(short_help="Plot convergence and time histories of a results file (PNG).")

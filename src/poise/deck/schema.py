@@ -129,7 +129,7 @@ el("Constraint_Gear", "model", True, "Gear between two joints (poise.elements.ge
     B("is_virtual", "virtual flag"), *USR()])
 el("Constraint_UserConstr", "both", True, "User-defined constraint (UCOSUB).", [ID(), LABEL(), *USR()],
    open_attrs=True, aliases=("Constraint_Usrconstr",))
-# higher pairs (poise.elements.compile_curves; docs/DESIGN.md "Curves and surfaces")
+# higher pairs (poise.elements.compile_curves; docs/elements.md "Curves and surfaces")
 _CV = A("curve_id", "int", "Reference_ParamCurve id", ref="curve", lo=1)
 _SF = A("surface_id", "int", "Reference_ParamSurface id", ref="surface", lo=1)
 el("Constraint_PTCV", "model", True, "Point (I origin) on a curve fixed in J (3 rows, u unknown).", [
@@ -194,7 +194,7 @@ el("Force_Scalar_TwoBody", "both", True, "Scalar force along J->I or torque abou
     ID(), LABEL(), *_IJ, E("type", "FORCE TORQUE", "force or torque", required=True),
     B("is_action_only", "TRUE: no reaction (one-body scalar force)"),
     R("val", "constant magnitude"), A("val_expression", "real_or_expr", "magnitude expression"), *USR()])
-# Force_Field / Force_Beam: poise.elements.field_beam (docs/DESIGN.md "Fields and beams")
+# Force_Field / Force_Beam: poise.elements.field_beam (docs/elements.md "Fields and beams")
 el("Force_Field", "model", True, "Linear 6x6 field: [F;T]_J = -K (X - length) + preload, X = [DX..AZ](I,J) in J.", [
     ID(), LABEL(), *_IJ, [R(f"k{i}{j}", f"stiffness K{i}{j} (row {i}, column {j})", default=0.0)
                           for i in range(1, 7) for j in range(1, 7)],

@@ -4,7 +4,7 @@ Expressions are compiled with the resolver on the compile context
 (:class:`poise.elements.resolver.ModelResolver`). Reaction channels (element forces JOINT, BUSH,
 ... and resultants FX..TZ) are read exactly: in ``Post_Request`` from the converged multipliers,
 inside expression forces at every ``Model.evaluate`` (:class:`poise.elements.reaction_feed.
-ReactionFeed`, with exact Jacobian terms, docs/DESIGN.md "Reactions inside forces"). A force that
+ReactionFeed`, with exact Jacobian terms, docs/expressions.md). A force that
 reads an expression force which itself reads reactions is a located DeckError; gravity and
 Control_Diff expressions reject reaction functions.
 """

@@ -42,7 +42,7 @@ class Coupler(ConstraintFamily):
     * freedom ``T``: ``DZ(I_k, J_k, J_k) = (P_I - P_J) . z_J``;
 
     and ``q0_k`` its value in the input configuration (so the input configuration satisfies the
-    coupler; see docs/DESIGN.md "Couplers and gears"). A two-joint coupler has ``c_3 = 0`` and a
+    coupler; see docs/elements.md "Couplers", "Gears"). A two-joint coupler has ``c_3 = 0`` and a
     dummy third joint on the global frame (ground markers: no coordinates).
 
     Slot layout (markers ``[I1, J1, I2, J2, I3, J3]``): per joint k the 8 slots
@@ -236,4 +236,4 @@ ELEMENTS = (ElementType(
     "couplers", ("Constraint_Coupler",), compile_couplers,
     after=("motions",),         # coupler rows after the motion rows (model layout)
     kernels=lambda: (Coupler,), outputs={"couplers": ("Constraint_Coupler",)},
-    datasets=("id", "force", "torque"), fd_tests="tests/test_elements_8a.py"),)
+    datasets=("id", "force", "torque"), fd_tests="tests/test_couplers_gears_fields_beams.py"),)

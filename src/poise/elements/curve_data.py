@@ -1,6 +1,6 @@
 """Evaluation of ``Reference_ParamCurve`` / ``Reference_ParamSurface`` with parameter derivatives.
 
-Two forms (docs/DESIGN.md "Curves and surfaces"): **analytic** (``x/y/z_expression`` of the
+Two forms (docs/elements.md "Curves and surfaces"): **analytic** (``x/y/z_expression`` of the
 parameters ``U``, ``V`` in the deck expression language, exact first derivatives from
 :mod:`poise.expr`, higher ones central differences of those) and **spline data** (points in the
 element text; cubic / bicubic splines, derivatives exact). ``curve.derivs(u, order)`` returns
@@ -52,7 +52,7 @@ class _ParamResolver:
 
 
 class _AnalyticBase:
-    """Two forms (docs/DESIGN.md "Curves and surfaces"):
+    """Two forms (docs/elements.md "Curves and surfaces"):
 
     * **analytic** (poise extension of the CURSUB form): ``x_expression``, ``y_expression``,
       ``z_expression`` written in the deck expression language as functions of the parameter ``U``

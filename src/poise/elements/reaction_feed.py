@@ -3,7 +3,7 @@
 :class:`ReactionFeed` evaluates the constraint families and the force families that read no
 reaction first, then the channels the reading forces use, and gives the Newton Jacobian their
 exact derivatives w.r.t. the multipliers and w.r.t. the coordinates at fixed multipliers
-(docs/DESIGN.md, "Reactions inside forces"), so Newton converges quadratically.
+(docs/expressions.md), so Newton converges quadratically.
 """
 from __future__ import annotations
 

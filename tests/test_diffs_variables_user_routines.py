@@ -1,4 +1,4 @@
-"""Issue 8 (part b): Control_Diff, implicit Reference_Variable, Python user routines.
+"""Control_Diff, implicit Reference_Variable, Python user routines.
 
 FD Jacobian checks of every family on random constraint-violating states, and reference decks
 (decks/elem_diff*.xml, decks/elem_var*.xml, decks/elem_user*.xml) against closed forms or the

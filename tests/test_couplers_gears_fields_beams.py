@@ -1,4 +1,4 @@
-"""Issue 8 (part a): Body_Point, Constraint_Coupler, Constraint_Gear, Force_Field, Force_Beam.
+"""Body_Point, Constraint_Coupler, Constraint_Gear, Force_Field, Force_Beam.
 
 FD Jacobian checks on random configurations with random multipliers, and reference decks
 (decks/elem_*.xml) with references computed here independently of the solver (closed forms,
