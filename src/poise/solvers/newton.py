@@ -176,42 +176,62 @@ def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
 
 
 def assemble(model, state, settings, history: History, frame: int, cnt: Counters):
-    """Least-change projection onto the constraints (Gauss-Newton on the KKT system).
+    """Least-change projection onto the constraints (Gauss-Newton on the KKT system,
+    :class:`Assembly` run by :func:`~poise.solvers.iterate.iterate`).
 
     Returns ``(state, assembled: bool, status)``; ``assembled`` says whether anything moved.
     """
     if model.nc == 0:
         return state, False, Status.CONVERGED
-    sc = Scales(model, settings)
-    W = _coord_weights(model)
-    moved = False
-    for it in range(ASSEMBLY_MAX_ITER + 1):
-        ev = _evaluate(model, state, cnt, need_jac="defer")   # Jacobian only if violated
+    return iterate(Assembly(model, settings, history, frame, cnt), ASSEMBLY_MAX_ITER, state)
+
+
+class Assembly(Iterative):
+    """:func:`assemble` as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step`` is
+    one weighted least-change Gauss-Newton step and its ``assembly`` history row."""
+
+    def __init__(self, model, settings, history, frame, cnt):
+        self.model, self.history, self.frame, self.cnt = model, history, frame, cnt
+        self.sc = Scales(model, settings)
+        self.W = _coord_weights(model)
+
+    def init(self, state):
+        return {"state": state, "moved": False, "status": None, "ev": None, "v": np.nan}
+
+    def terminate(self, s, used):
+        if s["status"] is not None:
+            return True
+        model = self.model
+        ev = _evaluate(model, s["state"], self.cnt, need_jac="defer")   # Jacobian only if violated
         viol = np.abs(ev.phi) / np.where(model.row_kind == 1, 1.0, model.L)
-        v = float(viol.max())
-        if v <= ASSEMBLY_TOL:
-            return state, moved, Status.CONVERGED
-        if it == ASSEMBLY_MAX_ITER:
-            break
-        _jacobian(model, ev, cnt)
-        K = _weighted_kkt(model, ev, W)
+        s["ev"], s["v"] = ev, float(viol.max())
+        if s["v"] <= ASSEMBLY_TOL:
+            s["status"] = Status.CONVERGED
+        return s["status"] is not None
+
+    def exhausted(self, s, used):
+        s["status"] = Status.ASSEMBLY_FAILED
+
+    def postprocess(self, s, used):
+        return s["state"], s["moved"], s["status"]
+
+    def step(self, s, used, left):
+        model, ev = self.model, s["ev"]
+        _jacobian(model, ev, self.cnt)
+        K = _weighted_kkt(model, ev, self.W)
         try:
-            f = _factor(K, cnt)
+            x = _factor(K, self.cnt).solve(np.concatenate([np.zeros(model.nq), -ev.phi]))
         except SingularMatrix:
-            return state, moved, Status.ASSEMBLY_FAILED
-        rhs = np.concatenate([np.zeros(model.nq), -ev.phi])
-        try:
-            x = f.solve(rhs)
-        except SingularMatrix:
-            return state, moved, Status.ASSEMBLY_FAILED
+            s["status"] = Status.ASSEMBLY_FAILED
+            return 0
         dq = x[:model.nq]
-        prev = state                      # the row's pose: the configuration it measured
-        state = model.retract(state, dq)
-        moved = True
-        sn = float(np.max(np.abs(dq) / sc.q_len))
-        history.add(frame, it, float(np.max(np.abs(ev.r))) if ev.r.size else 0.0, v,
-                    sn, 1.0, "", "assembly", pos=prev.pos, rot=prev.rot)
-    return state, moved, Status.ASSEMBLY_FAILED
+        prev = s["state"]                 # the row's pose: the configuration it measured
+        s["state"] = model.retract(prev, dq)
+        s["moved"] = True
+        sn = float(np.max(np.abs(dq) / self.sc.q_len))
+        self.history.add(self.frame, used, float(np.max(np.abs(ev.r))) if ev.r.size else 0.0,
+                         s["v"], sn, 1.0, "", "assembly", pos=prev.pos, rot=prev.rot)
+        return 1
 
 
 def initial_multipliers(model, state, cnt: Counters):
