@@ -327,7 +327,7 @@ def test_units_attribute_on_every_dataset(tmp_path):
     assert None not in units.values()
     assert units["analysis_000/bodies/position"] == "mm"
     assert units["analysis_000/joints/torque"] == "N*mm"
-    assert units["analysis_000/frames/imbalance"] == "N"
+    assert units["analysis_000/frames/imbalance"] == "mixed"   # largest of N and N*mm rows
     assert units["analysis_000/time"] == "s"
     assert units["analysis_000/bodies/orientation"] == "1"
     assert units["model/bodies/mass"] == "kg"
