@@ -44,6 +44,7 @@ class CompileContext:
         self.extra_names: list[str] = []
         self.extra0: list[float] = []
         self.expr_forces: list = []      # (owner, el) of expression forces (compile_expr)
+        self.user_forces: list = []      # (force row, el) of Python user forces (elements.user)
         self.frame_hooks: list = []      # per-frame output hooks (requests, ...)
         self.gravity_fn = None           # callable t -> (3,) for TIME-dependent gravity
         self.time_sources: list[str] = []   # what reads TIME besides compiled expressions

@@ -319,7 +319,7 @@ def compile_forces(spec, ctx):
         t = str(el.attrs.get("type", "FORCE")).upper()
         if uses_user_routine(el):          # Python SFOSUB: compiled by compile_user
             force_rows.append(el)
-            ctx.user_forces = getattr(ctx, "user_forces", []) + [(len(force_rows) - 1, el)]
+            ctx.user_forces.append((len(force_rows) - 1, el))
             b.effects.append(f"Force_Scalar_TwoBody:{t}:python")
             continue
         I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
@@ -357,7 +357,7 @@ def compile_forces(spec, ctx):
             t = str(el.attrs.get("type", "FORCEANDTORQUE")).upper()
             if uses_user_routine(el):      # Python GFOSUB: compiled by compile_user
                 force_rows.append(el)
-                ctx.user_forces = getattr(ctx, "user_forces", []) + [(len(force_rows) - 1, el)]
+                ctx.user_forces.append((len(force_rows) - 1, el))
                 b.effects.append(f"{tag}:python")
                 continue
             if any(isinstance(el.attrs.get(f"{nm}_expression"), Expr)

@@ -240,7 +240,7 @@ def compile_user(spec, ctx):
       scalar unknown.
     """
     els = [e for t in USER_CONSTRAINT_TAGS for e in spec.elements(t)]
-    uf = list(getattr(ctx, "user_forces", []))
+    uf = list(ctx.user_forces)
     if not els and not uf:
         return
     P, A = _initial_kinematics(ctx)
