@@ -12,12 +12,16 @@ import pytest
 from builders import DeckBuilder, random_rotation, stable_seed
 from poise.elements.registry import element_types, fd_cases
 from poise.model.compile import compile_model
+from poise.model.evaluate import evaluate
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _fd_check(model, state, h=1e-6, tol=2e-6):
     ev = model.evaluate(state, need_jac=True)
+    # the constraint values alone (families' ``values``, used by projections) are the same
+    phi_only = evaluate(model, state, "phi")
+    assert np.allclose(phi_only, ev.phi, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(ev.phi).max(initial=0.0)))
     J = ev.J.toarray() if hasattr(ev.J, "toarray") else np.asarray(ev.J)
     F0 = np.concatenate([ev.r, ev.phi])
     N = model.N
