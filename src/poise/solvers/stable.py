@@ -36,7 +36,8 @@ from poise.solvers.newton import (
     measures,
     newton,
 )
-from poise.solvers.stability import AUG_RHO, SymmetricLDL, _SparsePencil
+from poise.solvers.pencil_dense import DENSE_PENCIL, DensePencil
+from poise.solvers.stability import AUG_RHO, _SparsePencil
 from poise.solvers.status import Status
 
 ESCAPE_ROT = 0.3          # rad: largest rotation of the first escape trial
@@ -192,10 +193,11 @@ def _ic_step(model, state, cnt, sigma, like=None):
     cnt.residuals += 1
     cnt.jacobians += 1
     ev = model.evaluate(state, need_jac=True, active=cnt.active)
-    P = _SparsePencil(model, ev.J, active=cnt.active, like=like)
+    pencil = DensePencil if model.nq + model.nc <= DENSE_PENCIL else _SparsePencil
+    P = pencil(model, ev.J, active=cnt.active, like=like)
     out = _ic_solve(model, P, ev, cnt, sigma)
     if out[0] is None and P.reused:
-        out = _ic_solve(model, _SparsePencil(model, ev.J, active=cnt.active), ev, cnt, sigma)
+        out = _ic_solve(model, pencil(model, ev.J, active=cnt.active), ev, cnt, sigma)
     return out
 
 
@@ -212,7 +214,7 @@ def _ic_solve(model, P, ev, cnt, sigma):
     for k in range(k0, 40):
         for rho in AUG_RHO:
             cnt.factorizations += 1
-            F = SymmetricLDL(P.kkt(-sig, rho), P.order)
+            F = P.ldl(-sig, rho)
             if F.ok and np.all(np.abs(F.pivots) > 1e-14 * scale):
                 break
         if F.ok and F.n_negative == m and np.all(np.abs(F.pivots) > 1e-14 * scale):
