@@ -32,7 +32,7 @@ QUICK_RUNGS = [10.0 ** -k for k in (2, 6, 10)]
 
 # --------------------------------------------------------------------------- references
 def _reference_module():
-    p = ROOT / "tests" / "reference.py"
+    p = ROOT / "tests" / "support" / "reference.py"
     spec = importlib.util.spec_from_file_location("poise_bench_reference", p)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,7 +17,9 @@ from scipy.spatial.transform import Rotation
 import poise
 from poise.core.errors import DeckError, UnknownOptionError, UsageError
 
-DECKS = Path(__file__).resolve().parent.parent / "decks"
+from support.paths import DECKS
+
+
 MULTITURN = DECKS / "pendulum_multiturn.xml"
 
 
@@ -181,7 +182,6 @@ def test_accessors_pendulum_multiturn_and_file(tmp_path):
     back = poise.read_results(str(tmp_path / "r.h5"))
     assert back.rotation_angle("Pendulum") == pytest.approx(th, abs=1e-7)
     assert back.analyses[0].euler_313(2) == pytest.approx([psi, 0.0, 0.0], abs=1e-9)
-
 
 
 def test_angles_derived_when_a_file_has_no_euler_datasets():

@@ -15,7 +15,9 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 PACKAGES = (ROOT / "src" / "poise", ROOT / "cli" / "poise_cli")
 
 # module (path from the repository root) -> function-local poise imports without a `lazy` comment

@@ -12,7 +12,10 @@ from poise.core.atomic import atomic_output, output_target
 from poise.core.errors import UsageError
 from poise_cli.main import cli
 
-DECK = Path(__file__).resolve().parents[1] / "decks" / "pendulum_multiturn.xml"
+from support.paths import DECKS
+
+
+DECK = DECKS / "pendulum_multiturn.xml"
 
 
 def test_refuses_devices_directories_and_fifos(tmp_path):

@@ -11,7 +11,9 @@ from click.testing import CliRunner
 from poise.app.batch import BATCH_KEYS, output_paths, worst_exit_code
 from poise_cli.main import cli
 
-DECKS = Path(__file__).resolve().parents[1] / "decks"
+from support.paths import DECKS
+
+
 GOOD = DECKS / "pendulum_multiturn.xml"
 GOOD2 = DECKS / "double_pendulum.xml"
 FAILING = DECKS / "expr_eval_error.xml"          # evaluation error: analysis fails, exit 1

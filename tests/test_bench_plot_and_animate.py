@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 
 import h5py
 import matplotlib
@@ -13,13 +12,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from support.paths import DECKS
+
+
 matplotlib.use("Agg", force=True)
 
 from poise.viz.animate import animate_results, pick_frames  # noqa: E402
 from poise.viz.workprec import work_precision_figure  # noqa: E402
 from poise_cli.main import cli  # noqa: E402
-
-DECKS = Path(__file__).resolve().parents[1] / "decks"
 
 
 def _row(m, tol, t, err, status="converged"):

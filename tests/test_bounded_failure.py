@@ -22,9 +22,10 @@ from poise.app.api import run_deck
 from poise.solvers.fallback import continuation
 from poise.solvers.history import History
 from poise.solvers.newton import Counters
+from hard.deckgen import Deck, rot_y
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from hard.deckgen import Deck, rot_y  # noqa: E402
+from support.paths import DECKS
+
 
 POISE = str(Path(sys.executable).parent / "poise")
 REL = Path("/work/shared/reliability/decks")
@@ -199,7 +200,7 @@ def test_user_routine_k200_matches_the_builtin_model(tmp_path):
     out = tmp_path / "u.h5"
     r, js = solve_cli(REL / "user_routine_k200_internal_error.xml", out, *_allow_user_code())
     assert r.returncode == 0, r.stderr
-    builtin = Path(__file__).resolve().parent.parent / "decks" / "elem_user_forces_builtin.xml"
+    builtin = DECKS / "elem_user_forces_builtin.xml"
     text = builtin.read_text().replace('stiffness="100."', 'stiffness="200."')
     assert 'stiffness="200."' in text
     p = tmp_path / "builtin_k200.xml"

@@ -7,7 +7,6 @@ or the attribute.
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -16,7 +15,9 @@ from poise.deck.parser import parse_deck_bytes
 from poise.core.errors import DeckError, UsageError
 from poise_cli.main import cli
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 DECK = ROOT / "decks" / "double_pendulum.xml"
 
 

@@ -26,7 +26,9 @@ from poise.results import hdf5
 from poise.results.data import AnalysisResult, RunResult
 from poise_cli.main import cli
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 POISE = Path(sys.executable).with_name("poise")
 LINE_RE = re.compile(r"^analysis \d+: \w+ \w+ (converged in|failed after) \d+ iterations?")
 # the numbers of a summary line, parsed back (compared as numbers, never as formatted text)

@@ -3,21 +3,17 @@ exact Jacobian vs central finite differences."""
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import optimize
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from builders import DeckBuilder, random_rotation, stable_seed  # noqa: E402
-from test_jacobians import _fd_check  # noqa: E402
+from poise.app import runner
+from poise.model.compile import compile_model
 
-from poise.app import runner  # noqa: E402
-from poise.model.compile import compile_model  # noqa: E402
-
-DECKS = Path(__file__).resolve().parents[1] / "decks"
+from support.builders import DeckBuilder, random_rotation, stable_seed
+from support.fd import fd_check
+from support.paths import DECKS
 
 
 def _run(name, **over):
@@ -112,7 +108,7 @@ def test_contact_jacobian(pair, exponent):
     kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, m.marker_body, pos)
     fam.compute(kin.Y, EvalContext(0.0, st.angle), False)
     assert np.any(fam.last_delta > 0), "random configuration must be in contact"
-    _fd_check(m, st, h=1e-6, tol=2e-6)
+    fd_check(m, st, h=1e-6, tol=2e-6)
 
 
 def test_no_contact_family_without_force_contact():

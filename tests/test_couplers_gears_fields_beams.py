@@ -10,20 +10,19 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from builders import random_rotation, stable_seed
 from poise.app.api import run_deck
 from poise.core.errors import DeckError
 from poise.elements.field_beam import beam_stiffness
 from poise.model.compile import compile_model
-from test_jacobians import _fd_check, _perturbed_state, _two_body_deck
 
-ROOT = Path(__file__).resolve().parents[1]
-DECKS = ROOT / "decks"
+from support.builders import random_rotation, stable_seed
+from support.fd import fd_check, perturbed_state, two_body_deck
+from support.paths import DECKS
 
 
 # ----------------------------------------------------------------------------- Jacobians
 def _joint_deck(rng, point_b=False):
-    d = _two_body_deck(rng, point_b)
+    d = two_body_deck(rng, point_b)
     d.marker(12, 1, rng.normal(size=3), random_rotation(rng))
     d.marker(13, 1, rng.normal(size=3), random_rotation(rng))
     return d
@@ -45,7 +44,7 @@ def test_coupler_jacobian(case):
         d.add("Constraint_Coupler", id=1, joint1_id=3, freedom_1=case[-1], joint2_id=1,
               coefficients=(1.0, 3.0))
     m = compile_model(d.spec)
-    _fd_check(m, _perturbed_state(m, rng))
+    fd_check(m, perturbed_state(m, rng))
 
 
 @pytest.mark.parametrize("second", ["REVOLUTE", "TRANSLATIONAL"])
@@ -56,7 +55,7 @@ def test_gear_jacobian(second):
     d.add("Constraint_Joint", id=2, type=second, i_marker_id=32, j_marker_id=12)
     d.add("Constraint_Gear", id=1, joint1_id=1, joint2_id=2, cv_marker_id=13)
     m = compile_model(d.spec)
-    _fd_check(m, _perturbed_state(m, rng))
+    fd_check(m, perturbed_state(m, rng))
 
 
 def _field_attrs(rng):
@@ -78,12 +77,12 @@ BEAM = dict(length=1.3, e=2.0e3, g=8.0e2, area=0.5, ixx=0.02, iyy=0.03, izz=0.05
 @pytest.mark.parametrize("point_b", [False, True])
 def test_field_beam_jacobian(tag, point_b):
     rng = np.random.default_rng(stable_seed(tag, point_b))
-    d = _two_body_deck(rng, point_b)
+    d = two_body_deck(rng, point_b)
     attrs = _field_attrs(rng) if tag == "Force_Field" else BEAM
     d.add(tag, id=1, i_marker_id=21, j_marker_id=31, **attrs)
     d.add(tag, id=2, i_marker_id=32, j_marker_id=11, **attrs)     # J on ground
     m = compile_model(d.spec)
-    _fd_check(m, _perturbed_state(m, rng))
+    fd_check(m, perturbed_state(m, rng))
 
 
 # ----------------------------------------------------------------------------- reference decks
@@ -313,7 +312,7 @@ def test_gear_on_cylindrical_joint_uses_rotation(tmp_path):
     # a gear on a CYLINDRICAL joint couples the joint's rotation (no freedom attribute exists)
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
-    src = (Path(__file__).resolve().parents[1] / "decks" / "elem_gear_pair.xml").read_text()
+    src = (DECKS / "elem_gear_pair.xml").read_text()
     text = src.replace('type="REVOLUTE"', 'type="CYLINDRICAL"', 1)
     assert text != src
     p = tmp_path / "gear_cyl.xml"

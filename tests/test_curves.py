@@ -1,16 +1,18 @@
 """Higher-pair constraints on curves and surfaces (PTCV, CVCV, PTSF, CVSF, SFSF).
 
 Jacobians are checked against central differences of the residual on random configurations
-with random multipliers (``_fd_check``); solves are checked against independent references.
+with random multipliers (``fd_check``); solves are checked against independent references.
 """
 import numpy as np
 import pytest
 
-from builders import DeckBuilder, random_rotation, stable_seed
 from poise.deck.spec import Expr
 from poise.core.errors import SourceLoc
 from poise.model.compile import compile_model
-from test_jacobians import _fd_check
+
+from support.builders import DeckBuilder, random_rotation, stable_seed
+from support.fd import fd_check
+from support.paths import DECKS
 
 
 def _x(text, tag="Reference_ParamCurve", id=1, attr="x_expression"):
@@ -54,7 +56,7 @@ def _check(d, rng):
     st = m.initial_state()
     st = m.retract(st, rng.normal(scale=0.3, size=m.nq))
     st.lam = rng.normal(size=m.nc)
-    return _fd_check(m, st, tol=1e-5)
+    return fd_check(m, st, tol=1e-5)
 
 
 @pytest.mark.parametrize("form", ["analytic", "spline", "closed"])
@@ -73,9 +75,6 @@ def test_ptcv_jacobian(form):
         curve_points(d, 7, pts, closed=form == "closed")
     d.add("Constraint_PTCV", id=1, i_marker_id=21, j_marker_id=31, curve_id=7)
     _check(d, rng)
-
-
-DECKS = __import__("pathlib").Path(__file__).resolve().parents[1] / "decks"
 
 
 def _run(name, **over):

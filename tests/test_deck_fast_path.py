@@ -17,7 +17,6 @@
 from __future__ import annotations
 
 import random
-from pathlib import Path
 from xml.parsers import expat
 
 import numpy as np
@@ -30,7 +29,9 @@ from poise.deck import validate as V
 from poise.deck.spec import Expr
 from poise.core.errors import DeckError
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 DECKS = sorted((ROOT / "decks").glob("*.xml"))
 
 TRICKY = b"""<?xml version="1.0" encoding="UTF-8"?>

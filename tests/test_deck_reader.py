@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import hashlib
 import re
-from pathlib import Path
 
 import pytest
 
@@ -13,7 +12,9 @@ from poise.deck.schema import SCHEMAS, element_schema, render_markdown
 from poise.deck.spec import Expr
 from poise.core.errors import DeckError
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 INVALID = ROOT / "decks" / "invalid"
 
 # (deck, line, message fragment) -- several rows per deck when it holds several problems

@@ -27,11 +27,10 @@ import numpy as np
 import pytest
 from lxml import etree
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import reference as R  # noqa: E402
+from support import reference as R
+from support.paths import DECKS
 
-ROOT = Path(__file__).resolve().parents[1]
-DECKS = ROOT / "decks"
+
 DECK_NAMES = ["pendulum_multiturn", "fourbar_spring", "slider_crank_load", "double_pendulum",
               "bushing_block", "chain_10", "chain_10_spherical"]
 REL = 1e-6

@@ -8,20 +8,18 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from builders import stable_seed
 from poise.deck.spec import Expr
 from poise.core.errors import SourceLoc
 from poise.model.compile import compile_model
 from poise.app.runner import run
-from test_jacobians import _fd_check, _perturbed_state, _two_body_deck
 
-ROOT = Path(__file__).resolve().parents[1]
-DECKS = ROOT / "decks"
+from support.builders import stable_seed
+from support.fd import fd_check, perturbed_state, two_body_deck
+from support.paths import DECKS
 
 
 def X(text, tag, id, attr="expr", line=9):
@@ -40,7 +38,7 @@ def _run(name, method=None):
 @pytest.mark.parametrize("point_b", [False, True])
 def test_diff_and_implicit_variable_jacobian(point_b):
     rng = np.random.default_rng(stable_seed("diffvar", point_b))
-    d = _two_body_deck(rng, point_b)
+    d = two_body_deck(rng, point_b)
     d.add("Control_Diff", id=1, ic=0.3,
           expr=X("DX(21,31)*DIF(1) - AZ(21,31) + VARVAL(2)**2 + TIME", "Control_Diff", 1))
     d.add("Control_Diff", id=2, ic=-0.2, is_implicit=True,
@@ -60,10 +58,10 @@ def test_diff_and_implicit_variable_jacobian(point_b):
     d.add("Constraint_Joint", id=1, type="SPHERICAL", i_marker_id=22, j_marker_id=11)
     m = compile_model(d.spec)
     assert m.n_extra == 3              # y1, y2, v2; Control_Diff 3 is held (a constant)
-    st = _perturbed_state(m, rng)
+    st = perturbed_state(m, rng)
     st.extra = st.extra + rng.normal(scale=0.3, size=m.n_extra)
     st.t = 0.4
-    _fd_check(m, st)
+    fd_check(m, st)
 
 
 # ============================================================================ reference decks
@@ -120,7 +118,7 @@ def test_user_routine_jacobians(point_b, monkeypatch):
     """UCOSUB with and without derivatives (FD fallback), SFOSUB, GFOSUB, VARSUB."""
     monkeypatch.chdir(DECKS)
     rng = np.random.default_rng(stable_seed("user", point_b))
-    d = _two_body_deck(rng, point_b)
+    d = two_body_deck(rng, point_b)
     d.add("Constraint_UserConstr", id=1, **_user_el("c", 1, "ucosub_spherical", "USER(22, 11)"))
     d.add("Constraint_Usrconstr", id=2, **_user_el("c", 2, "ucosub_inplane", "USER(32, 21)"))
     d.add("Force_Scalar_TwoBody", id=3, type="FORCE", i_marker_id=21, j_marker_id=31,
@@ -134,10 +132,10 @@ def test_user_routine_jacobians(point_b, monkeypatch):
           val_expression=X("-4*(VARVAL(5) - 0.3)", "Force_Scalar_TwoBody", 6, "val_expression"))
     m = compile_model(d.spec, user_code="run")
     assert m.n_extra == 1
-    st = _perturbed_state(m, rng)
+    st = perturbed_state(m, rng)
     st.extra = st.extra + 0.2
     # FD Hessians (user inplane) are central differences of FD gradients: looser tolerance
-    _fd_check(m, st, tol=2e-5)
+    fd_check(m, st, tol=2e-5)
 
 
 @pytest.mark.parametrize("method", ["FIM_S", "MKEAM"])   # FIM_D: static -> FIM_S

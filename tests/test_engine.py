@@ -16,7 +16,9 @@ from click.testing import CliRunner
 
 from poise_cli.main import cli
 
-DECKS = Path(__file__).resolve().parents[1] / "decks"
+from support.paths import DECKS
+
+
 GOOD = DECKS / "pendulum_multiturn.xml"
 GOOD2 = DECKS / "double_pendulum.xml"
 SET = "Force_SpringDamper[1].stiffness=10000,20000"

@@ -9,7 +9,8 @@ from scipy.interpolate import Akima1DInterpolator, CubicSpline
 
 from poise.core.errors import DeckError, EvaluationError
 from poise.expr import EvalContext, compile_batch
-from test_expr_support import FakeResolver, fd_check_scalars, make_ctx, mkexpr, scalar_grad
+
+from support.expr import FakeResolver, fd_check_scalars, make_ctx, mkexpr, scalar_grad
 
 
 def test_grouping_and_order():

@@ -6,7 +6,6 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -17,8 +16,9 @@ from scipy.optimize import brentq
 from poise.model.compile import compile_model
 from poise.app.runner import run
 
-ROOT = Path(__file__).resolve().parents[1]
-DECKS = ROOT / "decks"
+from support.paths import DECKS
+
+
 G = 9810.0                 # mm/s^2
 M = 2.0                    # kg (point-mass decks)
 W = M * G * 1e-3           # N

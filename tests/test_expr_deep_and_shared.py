@@ -13,7 +13,9 @@ import pytest
 
 from poise.expr import compile_batch, parse
 from poise.app.runner import run
-from test_expr_support import FakeResolver, fd_check_scalars, make_ctx, mkexpr, scalar_grad
+
+from support.expr import FakeResolver, fd_check_scalars, make_ctx, mkexpr, scalar_grad
+
 
 POISE = str(Path(sys.executable).parent / "poise")
 G = 9810.0          # mm/s^2

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-DECKS = ROOT / "decks"
+from support.paths import DECKS
+
+
 POISE = str(Path(sys.executable).parent / "poise")
 TIMEOUT = 60            # generous "does not hang" bound (the report asks for 20 s)
 

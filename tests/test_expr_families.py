@@ -3,11 +3,12 @@ dependence, gravity expressions, and located compile errors (tests/test_jacobian
 import numpy as np
 import pytest
 
-from builders import DeckBuilder
 from poise.deck.spec import Expr
 from poise.core.errors import DeckError, SourceLoc
 from poise.model.compile import compile_model
-from test_jacobians import _fd_check, _perturbed_state, _two_body_deck
+
+from support.builders import DeckBuilder
+from support.fd import fd_check, perturbed_state, two_body_deck
 
 
 def X(text, attr="val_expression", tag="Force_Scalar_TwoBody", id=1, line=7):
@@ -35,22 +36,22 @@ SCALAR_CASES = {
 @pytest.mark.parametrize("point_b", [False, True])
 def test_scalar_expression_jacobian(name, point_b):
     rng = np.random.default_rng(abs(hash((name, point_b))) % 2**32)
-    d = _two_body_deck(rng, point_b)
+    d = two_body_deck(rng, point_b)
     attrs = dict(SCALAR_CASES[name])
     attrs["val_expression"] = X(attrs["val_expression"])
     d.add("Force_Scalar_TwoBody", id=1, i_marker_id=21, j_marker_id=31, **attrs)
     d.add("Force_Scalar_TwoBody", id=2, i_marker_id=32, j_marker_id=11, **attrs)   # J on ground
     m = compile_model(d.spec)
     assert [f.name for f in m.families] == ["forces:ExprScalarForce"]
-    st = _perturbed_state(m, rng)
+    st = perturbed_state(m, rng)
     st.t = 0.3
-    _fd_check(m, st)
+    fd_check(m, st)
 
 
 @pytest.mark.parametrize("point_b", [False, True])
 def test_vector_expression_jacobian(point_b):
     rng = np.random.default_rng(11 + point_b)
-    d = _two_body_deck(rng, point_b)
+    d = two_body_deck(rng, point_b)
     comps = dict(fx="DX(21)*3+DZ(32,22,31)", fy=1.0, fz="AZ(21,31)", tx="DM(32,22)", ty=0.0,
                  tz="SIN(AX(31))*TIME")
     d.add("Force_Vector_OneBody", id=1, type="FORCEANDTORQUE", marker_id=21, ref_marker_id=32,
@@ -64,15 +65,15 @@ def test_vector_expression_jacobian(point_b):
     m = compile_model(d.spec)
     assert [f.name for f in m.families] == ["forces:ExprVectorForce"]
     assert m.families[0].depends_on_time()
-    st = _perturbed_state(m, rng)
+    st = perturbed_state(m, rng)
     st.t = 0.7
-    _fd_check(m, st)
+    fd_check(m, st)
 
 
 def test_expression_forces_with_joint_and_splines():
     """Mixed with a constraint family, a spline and an explicit variable."""
     rng = np.random.default_rng(3)
-    d = _two_body_deck(rng)
+    d = two_body_deck(rng)
     d.add("Constraint_Joint", id=1, type="SPHERICAL", i_marker_id=22, j_marker_id=11)
     from poise.deck.spec import Element
     sp = Element("Reference_Spline", dict(id=5, num_xy_pair=5, linear_extrap=True),
@@ -83,7 +84,7 @@ def test_expression_forces_with_joint_and_splines():
     d.add("Force_Scalar_TwoBody", id=1, type="FORCE", i_marker_id=21, j_marker_id=31,
           val_expression=X("-10*VARVAL(7) + AKISPL(DX(21,31),0,5,1)"))
     m = compile_model(d.spec)
-    _fd_check(m, _perturbed_state(m, rng))
+    fd_check(m, perturbed_state(m, rng))
 
 
 def test_time_drives_evaluation():

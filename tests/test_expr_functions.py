@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from poise.core.errors import EvaluationError
-from test_expr_support import ev, fd_check_scalars, make_ctx
+
+from support.expr import ev, fd_check_scalars, make_ctx
+
 
 V = [f"VARVAL({k})" for k in range(1, 21)]
 
@@ -180,7 +182,7 @@ def test_impact_velocity_ignored_in_static_context():
 
 def test_impact_dynamic_derivatives():
     # non-static: the damping part and all derivatives
-    from test_expr_support import FakeResolver, mkexpr
+    from support.expr import FakeResolver, mkexpr
     from poise.expr import compile_batch
     text = call("IMPACT", 7)
     b = compile_batch([mkexpr(text)], FakeResolver())

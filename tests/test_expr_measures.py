@@ -7,22 +7,8 @@ import numpy as np
 import pytest
 
 from poise.expr import EvalContext, compile_batch
-from test_expr_support import FakeResolver, make_ctx, mkexpr, random_frames
 
-
-def Rz(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-
-
-def Rx(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def Ry(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
+from support.expr import FakeResolver, make_ctx, mkexpr, random_frames, Rx, Ry, Rz
 
 
 def frame(P, A, mid):

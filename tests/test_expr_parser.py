@@ -8,7 +8,8 @@ import pytest
 from poise.core.errors import DeckError
 from poise.expr import ExprSyntaxError, compile_batch, parse
 from poise.expr.tokens import make_template, tokenize
-from test_expr_support import FakeResolver, ev, mkexpr
+
+from support.expr import ev, FakeResolver, mkexpr
 
 
 @pytest.mark.parametrize("text,value", [
@@ -139,3 +140,8 @@ def test_recursive_variable_and_error_inside_variable():
 def test_hash_is_not_a_valid_character():
     with pytest.raises(DeckError, match="col 3: invalid character '#'"):
         compile_batch([mkexpr("1 # 2")], FakeResolver())
+
+
+def test_fake_resolver_roundtrip():
+    res, b = ev("VARVAL(1) + 2")
+    assert b.n == 1 and res.value[0] == 2.0

@@ -12,7 +12,9 @@ from hypothesis import strategies as st
 
 from poise.core.errors import EvaluationError
 from poise.expr import EvalContext, compile_batch
-from test_expr_support import FakeResolver, mkexpr
+
+from support.expr import FakeResolver, mkexpr
+
 
 # literal text -> value (written independently of the tokenizer)
 LITERALS = [("2", 2.0), ("2.", 2.0), ("2.0", 2.0), (".5", 0.5), ("0.5", 0.5),

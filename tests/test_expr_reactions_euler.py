@@ -9,14 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.optimize import brentq
-from test_expr_measures import Rx, Rz
 
 from poise.core.errors import DeckError
 from poise.expr.measures import eval_measure
 from poise.app.runner import run
 
-ROOT = Path(__file__).resolve().parents[1]
-DECKS = ROOT / "decks"
+from support.expr import Rx, Rz
+from support.paths import DECKS
 
 
 def _solve(path):

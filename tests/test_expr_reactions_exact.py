@@ -7,19 +7,18 @@ on a point body, an expression force reading implicit variables) against central
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.optimize import brentq
-from test_expr_reactions_many import check_full_jacobian
 
 from poise.deck.parser import load_deck
 from poise.model.compile import compile_model
 from poise.app.runner import run
 
-ROOT = Path(__file__).resolve().parents[1]
-DECKS = ROOT / "decks"
+from support.fd import check_full_jacobian
+from support.paths import DECKS
+
 
 # ------------------------------------------------------------------ friction-like deck
 M, G, ALPHA, K, L0, MU, H, S0 = 2.0, 9.81, math.radians(30.0), 200.0, 1.0, 0.3, 0.4, 0.3

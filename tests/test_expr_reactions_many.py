@@ -12,10 +12,13 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from builders import DeckBuilder, random_rotation
 from poise.deck.spec import Expr
 from poise.core.errors import SourceLoc
 from poise.model.compile import compile_model
+
+from support.builders import DeckBuilder, random_rotation
+from support.fd import check_full_jacobian
+
 
 JOINT_TYPES = ("SPHERICAL", "REVOLUTE", "CYLINDRICAL", "TRANSLATIONAL", "UNIVERSAL", "FIXED",
                "PLANAR", "INLINE", "ORIENTATION", "INPLANE")
@@ -146,10 +149,6 @@ def _state(m, seed):
     st.lam = 10.0 * rng.normal(size=m.nc)
     st.t = 0.0
     return st
-
-
-def _dense(J):
-    return np.asarray(J.toarray() if hasattr(J, "toarray") else J)
 
 
 def _captured(m, st):
@@ -342,49 +341,6 @@ def test_many_readers_grouped_and_equal_to_per_entry_reference(many):
     assert scale > 1e-3
     # the multiplier columns (the coordinate columns: central differences below)
     np.testing.assert_allclose(got[:, m.nq:], ref[:, m.nq:], rtol=0, atol=1e-13 * scale)
-
-
-def _central_differences(m, st, h=1e-6):
-    """(N, N) central differences of ``[r; phi]`` along every coordinate (``retract``) and
-    multiplier."""
-    fd = np.zeros((m.N, m.N))
-    for k in range(m.N):
-        out = []
-        for sgn in (1.0, -1.0):
-            dq, dl = np.zeros(m.nq), np.zeros(m.nc)
-            if k < m.nq:
-                dq[k] = sgn * h
-            else:
-                dl[k - m.nq] = sgn * h
-            ev = m.evaluate(m.retract(st, dq, dl), need_jac=False)
-            out.append(np.r_[ev.r, ev.phi])
-        fd[:, k] = (out[0] - out[1]) / (2 * h)
-    return fd
-
-
-def _reader_rows(m):
-    rd = np.zeros(m.N, bool)
-    for f in m.families:
-        if getattr(f, "reads_reactions", False):
-            g = f.gcol[:, :6 * f.K]
-            rd[g[g >= 0]] = True
-    return rd
-
-
-def check_full_jacobian(m, st, tol=1e-7):
-    """The whole KKT Jacobian (coordinate and multiplier columns) against central differences;
-    returns the relative errors (coordinate columns, multiplier columns)."""
-    J = _dense(m.evaluate(st).J)
-    fd = _central_differences(m, st)
-    scale = np.abs(J).max()
-    err_q = np.abs(J[:, :m.nq] - fd[:, :m.nq]).max() / scale
-    err_l = np.abs(J[:, m.nq:] - fd[:, m.nq:]).max() / scale
-    assert err_q < tol and err_l < tol, (err_q, err_l)
-    # the readers' rows carry a real coupling through the channels: without it (the readers'
-    # own kinematics and the constraint transpose only) the coordinate columns would be off
-    rd = _reader_rows(m)
-    assert np.abs(J[rd, m.nq:]).max() > 1e-2
-    return err_q, err_l
 
 
 def test_many_readers_full_jacobian_matches_central_differences(many):

@@ -6,11 +6,13 @@ A synthetic constraint family "point on a straight line through J along x_J with
 import numpy as np
 
 import poise.model.compile as C
-from builders import DeckBuilder, random_rotation
 from poise.elements.base import ConstraintFamily
 from poise.elements.registry import ElementType
 from poise.model.compile import compile_model
-from test_jacobians import _fd_check
+
+from support.builders import DeckBuilder, random_rotation
+from support.fd import fd_check
+
 
 I3 = np.eye(3)
 
@@ -62,7 +64,7 @@ def test_scalar_unknown_jacobian(monkeypatch):
     st = m.initial_state()
     st = m.retract(st, rng.normal(scale=0.3, size=m.nq))
     st.lam = rng.normal(size=m.nc)
-    _fd_check(m, st)
+    fd_check(m, st)
 
 
 def test_scalar_unknown_solve(monkeypatch):

@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
 
 from poise_cli.main import cli
 
-DECKS = Path(__file__).resolve().parents[1] / "decks"
+from support.paths import DECKS
+
+
 NO_PLOT = ("matplotlib",)
 NO_DASK = ("dask", "distributed")
 

@@ -7,16 +7,13 @@ slider-crank's virtual-work equilibrium of ``tests/reference.py``, never poise o
 """
 from __future__ import annotations
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from poise.app.api import run_deck
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+from support.paths import ROOT
 
 
 def _pendulum_deck(tmp_path, interpolate=True, dae_tol=1e-6):
@@ -75,7 +72,7 @@ def test_slider_crank_1000_frames_all_meet_tolerances():
     """The benchmark deck (1001 frames, max_imbalance = max_error = 1e-8) with FIM_D: every
     frame meets the FIM_S scales (force rows 1e-8 N, moment rows 1e-8 * L N mm, constraints
     1e-8 (x L)) and matches the virtual-work reference to 1e-6 L."""
-    import reference as R
+    from support import reference as R
     res = run_deck(str(ROOT / "decks" / "bench" / "slider_crank_qs_1000.xml"),
                    overrides=dict(method="FIM_D"))
     a = res.analyses[0]

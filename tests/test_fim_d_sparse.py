@@ -12,12 +12,14 @@ from poise.app.api import run_deck
 from poise.deck.schema import element_schema
 from poise.gen.chain import build_chain_deck
 
+from support.paths import DECKS
+
+
 needs_expr = pytest.mark.skipif(
     importlib.util.find_spec("poise.elements.expr_forces") is None
     or not element_schema("Post_Request").supported,
     reason="expression-valued forces not available in this tree")
 
-DECKS = os.path.join(os.path.dirname(__file__), "..", "decks")
 HARMONIC = {k: sum(1.0 / i for i in range(1, k + 1)) for k in range(1, 6)}
 
 

@@ -2,7 +2,6 @@
 path entry by entry, on every example deck; expression batches tiled over frames evaluate each
 instance at its own frame's time."""
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +14,9 @@ from poise.solvers.frames import frame_datasets, frames_datasets
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.status import Status
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 DECKS = sorted(p for p in (ROOT / "decks").glob("*.xml")) + \
     sorted(p for p in (ROOT / "decks" / "bench").glob("*.xml") if "1000" not in p.name)
 NOT_BATCHED = {"expr_reaction_load.xml"}          # forces read reactions: frame by frame

@@ -32,7 +32,9 @@ from poise.deck.parser import parse_deck_bytes
 from poise.core.errors import DeckError
 from poise.model.compile import compile_model
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 NAMES = ("bushing_block chain_10 chain_10_spherical contact_ball_between_spheres contact_box_plane "
          "contact_sphere_plane double_pendulum expr_eval_error expr_follower_load "
          "expr_nonlinear_spring expr_spline_spring fourbar_spring mkeam_inverted_pendulum "

@@ -22,10 +22,10 @@ from poise.core.atomic import OutputError, atomic_output, remove_stale_temps, te
 from poise.results import hdf5
 from poise_cli.main import cli
 
-sys.path.insert(0, os.path.dirname(__file__))
-from test_hdf5 import make_result  # noqa: E402
+from support.paths import ROOT, TESTS
+from support.results import make_result
 
-ROOT = Path(__file__).resolve().parents[1]
+
 POISE = Path(sys.executable).with_name("poise")
 DECK = ROOT / "decks" / "pendulum_multiturn.xml"
 
@@ -172,8 +172,8 @@ def test_sigkilled_write_leaves_a_temp_the_next_run_removes(tmp_path):
     final = tmp_path / "killed.h5"
     script = textwrap.dedent(f"""
         import sys, time
-        sys.path.insert(0, {os.path.dirname(__file__)!r})
-        from test_hdf5 import make_result
+        sys.path.insert(0, {str(TESTS)!r})
+        from support.results import make_result
         from poise.results import hdf5
         real = hdf5._file_image
         def slow(result, name):

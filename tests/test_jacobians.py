@@ -4,65 +4,15 @@ The check runs on random (non-equilibrium, constraint-violating) configurations 
 multipliers, so it covers the complete Newton Jacobian: stiffness of forces, constraint Jacobian
 and the geometric stiffness d(Phi_q^T lam)/dq, on the rotation group.
 """
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from builders import DeckBuilder, random_rotation, stable_seed
 from poise.elements.registry import element_types, fd_cases
 from poise.model.compile import compile_model
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _fd_check(model, state, h=1e-6, tol=2e-6):
-    ev = model.evaluate(state, need_jac=True)
-    J = ev.J.toarray() if hasattr(ev.J, "toarray") else np.asarray(ev.J)
-    F0 = np.concatenate([ev.r, ev.phi])
-    N = model.N
-    Jfd = np.zeros((N, N))
-    for i in range(model.nq):
-        e = np.zeros(model.nq)
-        e[i] = h
-        sp = model.retract(state, e)
-        sm = model.retract(state, -e)
-        fp = model.evaluate(sp, need_jac=False)
-        fm = model.evaluate(sm, need_jac=False)
-        Jfd[:, i] = (np.concatenate([fp.r, fp.phi]) - np.concatenate([fm.r, fm.phi])) / (2 * h)
-    for j in range(model.nc):
-        s2 = state.copy()
-        s2.lam[j] += h
-        s3 = state.copy()
-        s3.lam[j] -= h
-        fp = model.evaluate(s2, need_jac=False)
-        fm = model.evaluate(s3, need_jac=False)
-        Jfd[:, model.nq + j] = (np.concatenate([fp.r, fp.phi]) - np.concatenate([fm.r, fm.phi])) / (2 * h)
-    scale = max(1.0, np.abs(J).max())
-    err = np.abs(J - Jfd).max() / scale
-    assert err < tol, f"max rel error {err:.3e}\n{np.round(J - Jfd, 6)}"
-    assert np.abs(F0).max() > 0  # a real, non-trivial state
-    return err
-
-
-def _two_body_deck(rng, point_b=False):
-    d = DeckBuilder().ground()
-    d.body(2, 200, rng.normal(size=3), random_rotation(rng), mass=2.0, inertia=(1, 2, 3))
-    d.body(3, 300, rng.normal(size=3), None if point_b else random_rotation(rng), mass=1.5,
-           inertia=(2, 1, 1.5), point=point_b)
-    d.marker(21, 2, rng.normal(size=3), random_rotation(rng))
-    d.marker(22, 2, rng.normal(size=3), random_rotation(rng))
-    d.marker(31, 3, rng.normal(size=3), random_rotation(rng))
-    d.marker(32, 3, rng.normal(size=3), random_rotation(rng))
-    d.marker(11, 1, rng.normal(size=3), random_rotation(rng))
-    return d
-
-
-def _perturbed_state(model, rng):
-    st = model.initial_state()
-    st = model.retract(st, rng.normal(scale=0.3, size=model.nq))
-    st.lam = rng.normal(size=model.nc)
-    return st
+from support.builders import stable_seed
+from support.fd import fd_check, perturbed_state, two_body_deck
+from support.paths import ROOT
 
 
 #: every FD case every registered element type declares (poise.elements.registry)
@@ -74,7 +24,7 @@ def test_element_jacobian(case, point_b):
     """Each element of the case between two bodies and between a body and ground."""
     seed = case.seed if case.seed is not None else (case.name, point_b)
     rng = np.random.default_rng(stable_seed(*seed))
-    d = _two_body_deck(rng, point_b)
+    d = two_body_deck(rng, point_b)
     ia, ja = case.marker_attrs
     for k, (tag, attrs) in enumerate(case.elements):
         for n, (i, j) in enumerate(case.pairs):
@@ -82,7 +32,7 @@ def test_element_jacobian(case, point_b):
     if case.opposite_z:   # z axes down the shafts: opposite ways (else an error)
         _cv_convention(d, list(case.pairs))
     m = compile_model(d.spec)
-    _fd_check(m, _perturbed_state(m, rng))
+    fd_check(m, perturbed_state(m, rng))
 
 
 @pytest.mark.parametrize("et", element_types(), ids=lambda et: et.name)
@@ -106,10 +56,10 @@ def _cv_convention(d, pairs):
 
 def test_vector_onebody_jacobian():
     rng = np.random.default_rng(5)
-    d = _two_body_deck(rng)
+    d = two_body_deck(rng)
     d.add("Force_Vector_OneBody", id=1, type="FORCEANDTORQUE", marker_id=21, ref_marker_id=31,
           fx_expression=1.0, fy_expression=-2.0, fz_expression=0.5, tx_expression=0.3,
           ty_expression=0.2, tz_expression=-0.1)
     d.add("Force_Gravity", grav_x=0.0, grav_y=-9.81, grav_z=1.0)
     m = compile_model(d.spec)
-    _fd_check(m, _perturbed_state(m, rng))
+    fd_check(m, perturbed_state(m, rng))

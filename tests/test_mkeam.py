@@ -13,20 +13,18 @@ the integrator) nor the total potential drop from the start.
 from __future__ import annotations
 
 import math
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import optimize
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import reference as R  # noqa: E402
+from poise.app import runner
 
-from poise.app import runner  # noqa: E402
+from support import reference as R
+from support.paths import DECKS
 
-DECKS = Path(__file__).resolve().parents[1] / "decks"
+
 W = 2.0 * 9.81          # N, weight of the 2 kg pendulum
 WL = W * 200.0          # N mm
 
@@ -139,7 +137,7 @@ def test_chain_20_catenary():
 
 def test_unstable_start_is_perturbed():
     """Exactly upright (no force acts): MKEAM must not stop at the unstable equilibrium."""
-    from builders import DeckBuilder
+    from support.builders import DeckBuilder
     d = DeckBuilder().ground()
     d.add("Param_Unit", force_unit="NEWTON", mass_unit="KILOGRAM", length_unit="MILLIMETER",
           time_unit="SECOND")
@@ -173,7 +171,7 @@ def test_tight_tolerances_are_reachable(tmp_path):
     import re
 
     from poise.app.api import run_deck
-    src = (Path(__file__).resolve().parents[1] / "decks" / "bench" / "pendulum_multiturn.xml")
+    src = DECKS / "bench" / "pendulum_multiturn.xml"
     xml = re.sub(r"<Param_Static[^>]*/>",
                  '<Param_Static method="MKEAM" max_ke_tol="1.0E-10" max_dq_tol="1.0E-10" '
                  'max_imbalance="1.0E-10" max_error="1.0E-10" max_num_iter="40"/>',

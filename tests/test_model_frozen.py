@@ -6,7 +6,6 @@ compiled model fail.
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ import poise.app.runner as runner_mod
 import poise.model.compile as compile_mod
 from poise.app.api import run_deck
 
-DECKS = Path(__file__).resolve().parents[1] / "decks"
+from support.paths import DECKS
 
 
 def _snapshot(model) -> dict:

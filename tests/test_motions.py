@@ -6,8 +6,9 @@ import pytest
 from poise.deck.spec import Expr
 from poise.core.errors import DeckError, SourceLoc
 from poise.model.compile import compile_model
-from builders import stable_seed
-from test_jacobians import _fd_check, _perturbed_state, _two_body_deck
+
+from support.builders import stable_seed
+from support.fd import fd_check, perturbed_state, two_body_deck
 
 
 def _expr(text, tag="Motion_Marker", id=1):
@@ -17,22 +18,22 @@ def _expr(text, tag="Motion_Marker", id=1):
 @pytest.mark.parametrize("direction", ["X", "Y", "Z", "B1", "B2", "B3"])
 def test_motion_marker_jacobian(direction):
     rng = np.random.default_rng(stable_seed(direction))
-    d = _two_body_deck(rng)
+    d = two_body_deck(rng)
     d.add("Motion_Marker", id=1, i_marker_id=21, j_marker_id=31, direction=direction,
           val_type="D", expr=_expr("0.3*TIME+0.1"))
     d.add("Motion_Marker", id=2, i_marker_id=22, j_marker_id=11, direction=direction,
           val_type="D", expr=_expr("-0.2+SIN(TIME)", id=2))
     m = compile_model(d.spec)
-    st = _perturbed_state(m, rng)
+    st = perturbed_state(m, rng)
     st.t = 0.7
-    _fd_check(m, st)
+    fd_check(m, st)
 
 
 @pytest.mark.parametrize("jtype,fr", [("REVOLUTE", "R"), ("TRANSLATIONAL", "T"),
                                       ("CYLINDRICAL", "R"), ("CYLINDRICAL", "T")])
 def test_motion_joint_jacobian(jtype, fr):
     rng = np.random.default_rng(stable_seed(jtype, fr))
-    d = _two_body_deck(rng)
+    d = two_body_deck(rng)
     d.add("Constraint_Joint", id=1, type=jtype, i_marker_id=21, j_marker_id=31)
     d.add("Constraint_Joint", id=2, type=jtype, i_marker_id=22, j_marker_id=11)
     d.add("Motion_Joint", id=1, joint_id=1, joint_type=fr, val_type="D",
@@ -40,14 +41,14 @@ def test_motion_joint_jacobian(jtype, fr):
     d.add("Motion_Joint", id=2, joint_id=2, joint_type=fr, val_type="V", ic_disp=0.2,
           expr=_expr("COS(TIME)", "Motion_Joint", 2))
     m = compile_model(d.spec)
-    st = _perturbed_state(m, rng)
+    st = perturbed_state(m, rng)
     st.t = 0.4
-    _fd_check(m, st)
+    fd_check(m, st)
 
 
 def test_motion_targets_v_a():
     rng = np.random.default_rng(3)
-    d = _two_body_deck(rng)
+    d = two_body_deck(rng)
     d.add("Motion_Marker", id=1, i_marker_id=21, j_marker_id=31, direction="X", val_type="V",
           ic_disp=0.5, expr=_expr("COS(TIME)"))
     d.add("Motion_Marker", id=2, i_marker_id=22, j_marker_id=11, direction="Z", val_type="A",
@@ -65,7 +66,7 @@ def test_motion_targets_v_a():
 
 def test_state_dependent_motion_rejected():
     rng = np.random.default_rng(4)
-    d = _two_body_deck(rng)
+    d = two_body_deck(rng)
     d.add("Motion_Marker", id=1, i_marker_id=21, j_marker_id=31, direction="X",
           expr=_expr("DX(21,31,31)+TIME"))
     with pytest.raises(DeckError, match="state-dependent motion not supported yet"):
@@ -74,10 +75,10 @@ def test_state_dependent_motion_rejected():
 
 def test_local_difference_inverts_retract():
     rng = np.random.default_rng(5)
-    d = _two_body_deck(rng, point_b=True)
+    d = two_body_deck(rng, point_b=True)
     d.add("Constraint_Joint", id=1, type="SPHERICAL", i_marker_id=21, j_marker_id=31)
     m = compile_model(d.spec)
-    a = _perturbed_state(m, rng)
+    a = perturbed_state(m, rng)
     dq = rng.normal(scale=0.8, size=m.nq)
     b = m.retract(a, dq)
     np.testing.assert_allclose(m.local_difference(a, b), dq, atol=1e-10)

@@ -8,7 +8,6 @@ import json
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,10 +16,10 @@ from click.testing import CliRunner
 import poise.app.api
 from poise_cli.main import cli
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_hdf5 import make_result  # noqa: E402
+from support.paths import ROOT
+from support.results import make_result
 
-ROOT = Path(__file__).resolve().parents[1]
+
 DECK = ROOT / "decks" / "pendulum_multiturn.xml"
 
 

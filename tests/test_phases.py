@@ -6,7 +6,9 @@ from pathlib import Path
 
 from poise.app.api import run_deck
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 POISE = str(Path(sys.executable).parent / "poise")
 
 

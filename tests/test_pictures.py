@@ -1,9 +1,10 @@
 """`poise plot`: units on every axis, element labels in legends, integer iteration ticks,
 distinct tolerance lines (checked on the Figure objects, never on pixels)."""
-from pathlib import Path
-
 import matplotlib
 import pytest
+
+from support.paths import DECKS
+
 
 matplotlib.use("Agg", force=True)
 
@@ -11,8 +12,6 @@ from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from poise.app.api import run_deck  # noqa: E402
 from poise.viz.plot import plot_results, units_of  # noqa: E402
-
-DECKS = Path(__file__).resolve().parents[1] / "decks"
 
 
 def _labels(fig):

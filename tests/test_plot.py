@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import shutil
-from pathlib import Path
 
 import h5py
 import matplotlib.image as mpimg
@@ -14,7 +13,7 @@ from PIL import Image
 
 from poise_cli.main import cli
 
-DECKS = Path(__file__).resolve().parents[1] / "decks"
+from support.paths import DECKS
 
 
 @pytest.fixture(scope="module")

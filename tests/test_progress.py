@@ -4,7 +4,6 @@ solvers report frames and MKEAM iterations through the poise.core.progress callb
 from __future__ import annotations
 
 import io
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -14,7 +13,7 @@ from poise.app.runner import run
 from poise.core.progress import reporting
 from poise_cli.main import cli
 
-DECKS = Path(__file__).resolve().parents[1] / "decks"
+from support.paths import DECKS
 
 
 class _Clock:

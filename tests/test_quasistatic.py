@@ -8,13 +8,14 @@ import pytest
 from poise.app.api import run_deck
 from poise.deck.schema import element_schema
 
+from support.paths import DECKS
+
+
 # decks with TIME expressions in forces / Post_Request need the expression-force work (issue 3)
 needs_expr = pytest.mark.skipif(
     importlib.util.find_spec("poise.elements.expr_forces") is None
     or not element_schema("Post_Request").supported,
     reason="expression-valued forces not available in this tree")
-
-DECKS = os.path.join(os.path.dirname(__file__), "..", "decks")
 
 
 def _deck(name):

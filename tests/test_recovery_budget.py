@@ -19,7 +19,9 @@ from scipy.optimize import brentq
 from poise.app.api import run_deck
 from poise.solvers.history import STRATEGIES
 
-DECKS = Path(__file__).resolve().parent.parent / "decks"
+from support.paths import DECKS
+
+
 POISE = str(Path(sys.executable).parent / "poise")
 PENDULUM = DECKS / "pendulum_multiturn.xml"
 

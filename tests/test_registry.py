@@ -1,12 +1,10 @@
 """The element registry and the tables derived from it (compile order, reactions, outputs)."""
-from pathlib import Path
-
 from poise.deck.parser import parse_deck_bytes
 from poise.elements.registry import (element_types, output_groups, reaction_aliases,
                                      reaction_kinds, tileable_kernels)
 from poise.app.sweep import parse_outputs
 
-DECKS = Path(__file__).resolve().parents[1] / "decks"
+from support.paths import DECKS
 
 
 def test_compile_order_respects_declared_dependencies():

@@ -18,7 +18,10 @@ from pathlib import Path
 
 import pytest
 
-DECKS = Path(__file__).resolve().parent / "data" / "reliability" / "decks"
+from support.paths import DATA
+
+
+DECKS = DATA / "reliability" / "decks"
 POISE = Path(sys.executable).with_name("poise")
 TIMEOUT = 20.0
 NAMES = sorted(p.name for p in DECKS.glob("*.xml"))

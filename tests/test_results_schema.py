@@ -17,7 +17,9 @@ from poise.results import schema
 from poise.results.hdf5 import write_results
 from poise.app.runner import run
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 DECKS = sorted(p.name for p in (ROOT / "decks").glob("*.xml"))
 
 

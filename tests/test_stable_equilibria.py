@@ -16,7 +16,6 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -26,8 +25,10 @@ from scipy.optimize import brentq
 from poise.gen.chain import build_chain_deck
 from poise.solvers.settings import StaticSettings
 
+from support.paths import ROOT
+
+
 A = 100.0           # link length [mm] (build_chain_deck default)
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def catenary_cgs(n, a=A, span=None):
@@ -175,8 +176,7 @@ def _fourbar_deck(tmp_path, phi):
     """decks/fourbar_spring.xml with the linkage placed at crank angle ``phi`` (exact loop
     closure from the closed-form positions of tests/reference.py)."""
     import re
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import reference as R
+    from support import reference as R
     st = R.fourbar_state(phi)
     P, cg, O = st["points"], st["cg"], st["orientation"]
     place = {200: (cg["crank"], O["crank"]), 201: (P["A"], O["crank"]), 202: (P["B"], O["crank"]),

@@ -17,7 +17,8 @@ import pytest
 
 import poise
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
 
 # never on the small FIM_S path (scipy: only sparse systems, > 120 unknowns dense, splines,
 # MKEAM, FIM_D via scikit-sundae)

@@ -12,8 +12,9 @@ from scipy.optimize import brentq
 
 from poise.app.api import check_deck, run_deck
 
-ROOT = Path(__file__).resolve().parents[1]
-DECKS = ROOT / "decks"
+from support.paths import DECKS
+
+
 POISE = str(Path(sys.executable).parent / "poise")
 
 I3 = 'a00="1" a10="0" a20="0" a01="0" a11="1" a21="0" a02="0" a12="0" a22="1"'

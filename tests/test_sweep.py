@@ -4,7 +4,6 @@ from __future__ import annotations
 import csv
 import json
 import os
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -17,7 +16,10 @@ from poise.app.cases import apply_case, make_cases, resolve_param
 from poise.app.sweep import run_case
 from poise_cli.main import cli
 
-DECK = Path(__file__).resolve().parents[1] / "decks" / "pendulum_multiturn.xml"
+from support.paths import DECKS
+
+
+DECK = DECKS / "pendulum_multiturn.xml"
 K = "Force_SpringDamper[1].stiffness"
 
 

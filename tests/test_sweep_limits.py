@@ -5,7 +5,6 @@ usage errors too. Nothing is created in the output directory in those cases."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -15,7 +14,9 @@ from poise.app.cases import MAX_CASES, check_case_count, count_cases
 from poise.app.sweep import run_sweep
 from poise_cli.main import cli
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
+
 DECK = ROOT / "decks" / "fourbar_spring.xml"
 K = "Force_SpringDamper[1].stiffness"
 C = "Force_SpringDamper[1].damping"

@@ -12,6 +12,9 @@ import pytest
 
 from poise.app.runner import run
 
+from support.paths import DECKS
+
+
 M, K = 2.0, 200.0
 
 DECK = '''<?xml version="1.0" encoding="UTF-8"?>
@@ -144,10 +147,9 @@ def test_request_of_time_does_not_make_the_solution_time_dependent(tmp_path):
 def test_curve_of_time_is_a_located_error(tmp_path):
     """Curve geometry is evaluated without a time: TIME there read 0 at every frame (the point
     stayed on the t = 0 curve); now a located error."""
-    from pathlib import Path
 
     from poise.core.errors import DeckError
-    src = Path(__file__).resolve().parents[1] / "decks" / "elem_ptcv_parabola.xml"
+    src = DECKS / "elem_ptcv_parabola.xml"
     text = src.read_text().replace('y_expression="0.5*U**2"', 'y_expression="0.5*U**2 + TIME"')
     p = tmp_path / "ptcv_time.xml"
     p.write_text(text)

@@ -24,8 +24,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-DECKS = ROOT / "decks"
+from support.paths import DECKS
+
+
 RELIABILITY = Path("/work/shared/reliability/decks")
 POISE = [sys.executable, "-m", "poise_cli"]
 G, M, K, Y0 = 9.81, 2.0, 50.0, 1.0

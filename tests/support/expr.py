@@ -1,5 +1,8 @@
-"""Shared helpers for the expression tests: a fake resolver and evaluation helpers."""
+"""Shared helpers for the expression tests: a fake resolver, evaluation helpers and rotation
+matrices about the coordinate axes."""
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -137,6 +140,16 @@ def fd_check_scalars(text, x, h=1e-6, rtol=1e-6, atol=1e-6, resolver=None):
     return res.value[0]
 
 
-def test_fake_resolver_roundtrip():
-    res, b = ev("VARVAL(1) + 2")
-    assert b.n == 1 and res.value[0] == 2.0
+def Rz(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def Rx(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def Ry(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
