@@ -4,8 +4,8 @@ independent reference.
 
 Error metric: ``max over frames and bodies |x_cg - x_cg,ref| / L`` (CG positions, ``L`` = the
 model's length scale ``/model/length_scale``), i.e. relative to model size, the measure of
-``tests/test_decks_reference.py``. References (documented per deck in :data:`DECKS`):
-closed forms from ``tests/reference.py`` (numpy/scipy only, never poise).
+``tests/reference/test_decks_reference.py``. References (documented per deck in :data:`DECKS`):
+closed forms from ``tests/support/reference.py`` (numpy/scipy only, never poise).
 """
 from __future__ import annotations
 

@@ -13,7 +13,7 @@ the deck (planar kinematics + potential energy / virtual work / statics) using t
   marker origin, global axes.
 
 The numeric parameters of every deck live here (``*_PARAMS``) so that the deck builder and the tests
-share one source; ``tests/test_decks_reference.py`` also checks that the XML decks carry these values.
+share one source; ``tests/reference/test_decks_reference.py`` also checks that the XML decks carry these values.
 """
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 Three groups of tests:
 
-1. ``test_reference_*`` check the reference computations in ``tests/reference.py`` on their own
+1. ``test_reference_*`` check the reference computations in ``tests/support/reference.py`` on their own
    (catenary closed form vs. constrained minimisation, residuals, stability, uniqueness). They do not
    need poise.
 2. ``test_deck_*`` parse every deck with lxml (not with poise) and check the geometry: orthonormal

@@ -11,7 +11,7 @@ Each must end with exit 0, 1 (results written) or 3 (located), never 4, a traceb
 
 Deterministic (``derandomize=True`` / fixed seeds). Longer runs (also ``-m slow``)::
 
-    POISE_FUZZ_EXAMPLES=200000 POISE_FUZZ_CLI=500 .venv/bin/pytest tests/test_fuzz_deck.py
+    POISE_FUZZ_EXAMPLES=200000 POISE_FUZZ_CLI=500 .venv/bin/pytest tests/regression/test_fuzz_deck.py
 """
 import copy
 import json

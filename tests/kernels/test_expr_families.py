@@ -1,5 +1,5 @@
 """Expression force families: analytic Jacobians against central finite differences, TIME
-dependence, gravity expressions, and located compile errors (tests/test_jacobians.py style)."""
+dependence, gravity expressions, and located compile errors (tests/kernels/test_jacobians.py style)."""
 import numpy as np
 import pytest
 
@@ -120,7 +120,7 @@ def test_state_dependent_gravity_rejected():
 
 
 def test_reaction_in_force_accepted_in_gravity_rejected_with_column():
-    # issue 3: forces may read reactions (ReactionFeed, tests/test_expr_reactions_euler.py);
+    # issue 3: forces may read reactions (ReactionFeed, tests/kernels/test_expr_reactions_euler.py);
     # gravity still may not
     d = DeckBuilder().ground()
     d.body(2, 200, (0.0, -1.0, 0.0), point=True)
@@ -136,7 +136,7 @@ def test_reaction_in_force_accepted_in_gravity_rejected_with_column():
 
 
 def test_implicit_variable_is_a_scalar_unknown():
-    # implicit variables are scalar unknowns (tests/test_diffs_variables_user_routines.py)
+    # implicit variables are scalar unknowns (tests/kernels/test_diffs_variables_user_routines.py)
     d = DeckBuilder().ground()
     d.body(2, 200, (0.0, -1.0, 0.0), point=True)
     d.add("Reference_Variable", id=3, type="EXPRESSION", is_implicit=True,

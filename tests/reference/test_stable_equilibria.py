@@ -174,7 +174,7 @@ def test_settings_validation():
 # --------------------------------------------------------------------------- four-bar
 def _fourbar_deck(tmp_path, phi):
     """decks/fourbar_spring.xml with the linkage placed at crank angle ``phi`` (exact loop
-    closure from the closed-form positions of tests/reference.py)."""
+    closure from the closed-form positions of tests/support/reference.py)."""
     import re
     from support import reference as R
     st = R.fourbar_state(phi)

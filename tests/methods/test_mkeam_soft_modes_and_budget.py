@@ -181,7 +181,7 @@ def test_inverted_pendulum_held_by_a_doubled_spring_stays_upright_in_bounded_tim
 def test_hopeless_inputs_fail_cleanly(tmp_path):
     """A gravity component 1/0 is a constant that cannot be evaluated: a located deck error
     (exit 3) before any method runs (state-dependent divisions by zero under MKEAM end as
-    exit 1: tests/test_expr_failures_clean.py)."""
+    exit 1: tests/regression/test_expr_failures_clean.py)."""
     deck = tmp_path / "bad.xml"
     deck.write_text(INVERTED.format(K=2000.0).replace('grav_y="-9810."', 'grav_y="1/0"'))
     r, js = _cli(deck, tmp_path / "bad.h5", timeout=60)

@@ -1,5 +1,5 @@
 """Every deck in ``decks/bench`` solved as a user would (``run_deck`` at the deck's own
-settings) matches its independent reference (``tests/reference.py``: closed forms, virtual
+settings) matches its independent reference (``tests/support/reference.py``: closed forms, virtual
 work, the discrete catenary) — the same references the work-precision benchmark measures
 errors against."""
 from __future__ import annotations

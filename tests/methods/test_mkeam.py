@@ -5,7 +5,7 @@ References are closed forms or 1-D root searches written here (never poise outpu
   V(theta) = k/2 (theta - ref)^2 + w l sin(theta) met going downhill from theta = 0;
 * inverted pendulum with a too-weak spring: the stable root of k phi = w l sin(phi); FIM_S from the
   same start stays at the (unstable) upright pose;
-* hanging chain: the discrete catenary of ``tests/reference.py``.
+* hanging chain: the discrete catenary of ``tests/support/reference.py``.
 History invariants: KE is zero at every restart (each iteration starts from rest), the peak KE of
 an iteration never exceeds the potential drop since the previous restart (energy conservation of
 the integrator) nor the total potential drop from the start.

@@ -3,7 +3,7 @@
 IDA's output points satisfy IDA's local error test, not ``max_imbalance``: they are corrected
 onto the equilibrium (``fim_d.Corrector``) and each frame records what it met. References are
 closed forms (the pendulum under a ramped side load: ``tan(theta) = F / (m g)``) or the
-slider-crank's virtual-work equilibrium of ``tests/reference.py``, never poise output.
+slider-crank's virtual-work equilibrium of ``tests/support/reference.py``, never poise output.
 """
 from __future__ import annotations
 
