@@ -1,4 +1,4 @@
-"""Pictures of issue 17 part 2, checked on the Figure objects (never on pixels):
+"""Benchmark and animation pictures, checked on the Figure objects (never on pixels):
 ``poise bench --plot`` (the work-precision diagram) and ``poise animate`` (--every,
 --max-frames, units on the axes, every marker of a body drawn)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Smoke tests of the issue-7 benchmark code (no timing assertions)."""
+"""Smoke tests of the work-precision benchmark code (no timing assertions)."""
 from __future__ import annotations
 
 import pytest

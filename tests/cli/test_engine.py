@@ -1,4 +1,4 @@
-"""Batch and sweep on one engine (issue 17 part 5): a real ``dask scheduler`` (started here on
+"""Batch and sweep on one engine: a real ``dask scheduler`` (started here on
 127.0.0.1, a free port) with zero workers makes sweep and batch exit 2 within --worker-timeout,
 saying why, with nothing from Dask under --quiet; batch runs on a scheduler with one worker;
 ``batch --json`` and ``sweep --json`` have one shape."""

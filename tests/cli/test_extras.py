@@ -1,4 +1,4 @@
-"""Optional extras (issue 17 part 5): without matplotlib / dask the commands that need them
+"""Optional extras: without matplotlib / dask the commands that need them
 exit 2 with the pip command to run; the solver itself needs neither.
 
 The missing package is simulated with ``sys.modules[name] = None`` (``import name`` then raises

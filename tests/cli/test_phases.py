@@ -1,5 +1,5 @@
-"""Every run records the wall time of its solver phases (issue 7: each results file shows what
-its accuracy cost), and ``poise show`` prints them as parts of the solve time."""
+"""Every run records the wall time of its solver phases (each results file shows what its
+accuracy cost), and ``poise show`` prints them as parts of the solve time."""
 import subprocess
 import sys
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""One way to show progress (issue 17 part 3): poise.core.progress.Bar on a terminal (click's
+"""One way to show progress: poise.core.progress.Bar on a terminal (click's
 bar with ETA), plain lines off a terminal (CI: every 10 % / 10 s), nothing when quiet; the
 solvers report frames and MKEAM iterations through the poise.core.progress callback."""
 from __future__ import annotations

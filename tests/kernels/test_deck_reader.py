@@ -343,14 +343,14 @@ def test_schema_table_and_markdown():
     md = render_markdown()
     for tag in SCHEMAS:
         assert f"## `{tag}`" in md
-    assert element_schema("Control_Diff").supported is True      # issue 8
+    assert element_schema("Control_Diff").supported is True      # implicit differential equations
     for tag in ("Body_Flexible",):
         assert element_schema(tag).supported is False
-    assert element_schema("Force_Contact").supported is True     # contact (issue 5)
+    assert element_schema("Force_Contact").supported is True     # contact
     for tag in ("Motion_Joint", "Motion_Marker"):
-        assert element_schema(tag).supported is True       # motions (issue 4)
+        assert element_schema(tag).supported is True       # motions
     for tag in ("Post_Request", "Reference_Spline", "Reference_Array", "Reference_Variable"):
-        assert element_schema(tag).supported is True       # expressions (issue 3)
+        assert element_schema(tag).supported is True       # expressions
     for tag in ("Param_Unit", "UNITS", "Force_Gravity", "Reference_Marker", "Body_Rigid", "Body_Point",
                 "Constraint_Joint", "Constraint_Jprim", "Force_SpringDamper", "Force_Bushing",
                 "Force_Vector_OneBody", "Force_Vector_TwoBody", "Force_Scalar_TwoBody", "Param_Static",

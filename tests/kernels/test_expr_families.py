@@ -120,7 +120,7 @@ def test_state_dependent_gravity_rejected():
 
 
 def test_reaction_in_force_accepted_in_gravity_rejected_with_column():
-    # issue 3: forces may read reactions (ReactionFeed, tests/kernels/test_expr_reactions_euler.py);
+    # forces may read reactions (ReactionFeed, tests/kernels/test_expr_reactions_euler.py);
     # gravity still may not
     d = DeckBuilder().ground()
     d.body(2, 200, (0.0, -1.0, 0.0), point=True)

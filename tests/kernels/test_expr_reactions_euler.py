@@ -1,4 +1,4 @@
-"""Issue 3 gaps: element-force functions inside forces (reaction channels evaluated inside
+"""Element-force functions inside forces (reaction channels evaluated inside
 Model.evaluate, closed-form equilibrium), MOTION() channels, PSI/THETA/PHI at gimbal lock
 against a constructive 3-1-3 decomposition."""
 from __future__ import annotations

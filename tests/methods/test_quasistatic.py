@@ -11,7 +11,7 @@ from poise.deck.schema import element_schema
 from support.paths import DECKS
 
 
-# decks with TIME expressions in forces / Post_Request need the expression-force work (issue 3)
+# decks with TIME expressions in forces / Post_Request need the expression forces
 needs_expr = pytest.mark.skipif(
     importlib.util.find_spec("poise.elements.expr_forces") is None
     or not element_schema("Post_Request").supported,
@@ -244,7 +244,7 @@ def test_quiet_silences_progress_bar(monkeypatch, capsys, method):
     """``run_deck(quiet=True)`` (``poise solve --quiet``) turns the progress bar off even on a
     terminal; without it the solver reports its frames to the callback of poise.core.progress,
     whose bar follows the terminal / CI detection (tty here). (Was: the solvers' own bar class;
-    one bar for all long work now, issue 17.)"""
+    one bar for all long work now.)"""
     import poise.core.progress as pm
     seen = []
     orig = pm.Bar.__init__
