@@ -14,6 +14,7 @@ Both sizes converge in the same number of Newton iterations, so per-iteration wo
 from __future__ import annotations
 
 import cProfile
+import gc
 import pstats
 
 import pytest
@@ -39,7 +40,11 @@ def _run(n: int):
     res = runner.run(spec)
     prof.disable()
     assert res.analyses[0].status == "converged"
-    calls = {k: v[1] for k, v in pstats.Stats(prof).stats.items()}
+    # callbacks the garbage collector runs (hypothesis registers one when a property test ran
+    # earlier in the session) follow the collector's thresholds, not poise's calls
+    gc_cbs = {(c.__code__.co_filename, c.__code__.co_firstlineno, c.__code__.co_name)
+              for c in gc.callbacks if hasattr(c, "__code__")}
+    calls = {k: v[1] for k, v in pstats.Stats(prof).stats.items() if k not in gc_cbs}
     return calls, res.counts
 
 
