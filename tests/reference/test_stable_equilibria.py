@@ -117,9 +117,10 @@ def _cli(args, cwd):
 
 
 def test_require_stable_out_of_budget_exit_1_results_written(tmp_path):
-    """Plain Newton needs 9 iterations; the descent's budget (2 x max_num_iter = 20 steps) is
-    too small for the 200-link V: exit 1, the file is written, the status says why."""
-    deck = _deck(tmp_path, 200)
+    """Plain Newton converges within 10 iterations; the descent's budget (2 x max_num_iter =
+    20 steps) is too small for the 300-link V: exit 1, the file is written, the status says
+    why."""
+    deck = _deck(tmp_path, 300)
     out = tmp_path / "r.h5"
     p = _cli(["solve", str(deck), "--method", "FIM_S", "--require-stable", "--max-num-iter",
               "10", "-o", str(out), "--json"], tmp_path)

@@ -5,11 +5,15 @@ rotation group), a random two-body deck and state to run it on, and :func:`check
 coupling is really present)."""
 import numpy as np
 
+from poise.model.evaluate import evaluate
 from support.builders import DeckBuilder, random_rotation
 
 
 def fd_check(model, state, h=1e-6, tol=2e-6):
     ev = model.evaluate(state, need_jac=True)
+    # the constraint values alone (families' ``values``, used by projections) are the same
+    phi_only = evaluate(model, state, "phi")
+    assert np.allclose(phi_only, ev.phi, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(ev.phi).max(initial=0.0)))
     J = ev.J.toarray() if hasattr(ev.J, "toarray") else np.asarray(ev.J)
     F0 = np.concatenate([ev.r, ev.phi])
     N = model.N
