@@ -75,7 +75,7 @@ def fourbar_deck(root: Path, phi: float) -> str:
     return re.sub(r'<Reference_Marker id="(\d+)"[^>]*/>', sub, text, flags=re.S)
 
 
-FOURBAR_MIN = -2.141631367731787    # rad: the only minimum (1-DOF scan, tests/reference.py)
+FOURBAR_MIN = -2.141631367731787    # rad: the only minimum (1-DOF scan, tests/support/reference.py)
 
 
 def _best_of(repeat, run):
