@@ -97,16 +97,14 @@ class _Chart:
         return float(np.max(np.linalg.norm(y[m.rot_idx].reshape(-1, 3), axis=1)))
 
     def F(self, st):
-        ev = self.model.evaluate(st, need_jac=False, active=self.cnt.active)
-        self.cnt.residuals += 1
+        ev = self.cnt.evaluate(self.model, st, "residual")
         return np.concatenate([ev.r, ev.phi])
 
     def jac(self, y, t):
         """``dF/dy``: dense ndarray, or the CSC data on ``self.sparse``'s pattern."""
         m = self.model
         st = self.state(y, t)
-        ev = m.evaluate(st, need_jac=True, eps_mass=self.eps, active=self.cnt.active)
-        self.cnt.jacobians += 1
+        ev = self.cnt.evaluate(m, st, "jacobian", eps=self.eps, residual=False)
         if self.sparse is not None:
             return self.sparse.values(ev.J, y[m.rot_idx].reshape(-1, 3))
         J = ev.J.toarray() if hasattr(ev.J, "toarray") else np.array(ev.J)
@@ -143,8 +141,10 @@ class _Chart:
 
     def _factor(self, y, t):
         """Solver for ``dF/dy`` at (y, t): a callable b -> F_y^{-1} b."""
-        J = self.jac(y, t)
-        self.cnt.factorizations += 1
+        return self.cnt.factor(self.jac(y, t), self._lu)
+
+    def _lu(self, J):
+        """``b -> J^{-1} b``: SuperLU on the sparse pattern, else LAPACK's LU."""
         if self.sparse is not None:
             import scipy.sparse.linalg as spla
             return spla.splu(self.sparse.matrix(J), permc_spec="COLAMD").solve

@@ -26,9 +26,6 @@ from poise.solvers.newton import (
     FrameOutcome,
     Scales,
     _coord_weights,
-    _evaluate,
-    _factor,
-    _jacobian,
     _weighted_kkt,
     assemble,
     initial_multipliers,
@@ -87,9 +84,8 @@ def _energy_drop(model, a, b, cnt, pa=None):
         return pb - pa, pb
     dq = model.local_difference(a, b)
     # residual r = -Q + G^T lam: its projection on a constraint-respecting step is -Q . dq
-    ra = np.asarray(model.evaluate(a, need_jac=False).r).ravel()[:model.nq]
-    rb = np.asarray(model.evaluate(b, need_jac=False).r).ravel()[:model.nq]
-    cnt.residuals += 2
+    ra = np.asarray(cnt.evaluate(model, a, "residual", every_row=True).r).ravel()[:model.nq]
+    rb = np.asarray(cnt.evaluate(model, b, "residual", every_row=True).r).ravel()[:model.nq]
     return 0.5 * float((ra + rb) @ dq), np.nan
 
 
@@ -179,9 +175,7 @@ def _ic_step(model, state, cnt, sigma):
     after a shift above ``SKIP_ZERO_SHIFT``) whose KKT inertia is ``(nq, m, 0)``: the reduced
     matrix is positive definite and ``dq`` a descent direction of the potential energy.
     Returns ``(dq, sigma, ev)`` (``dq`` None when no valid factorisation was found)."""
-    cnt.residuals += 1
-    cnt.jacobians += 1
-    ev = model.evaluate(state, need_jac=True, active=cnt.active)
+    ev = cnt.evaluate(model, state, "jacobian")
     P = _SparsePencil(model, ev.J, active=cnt.active)
     nq, m = P.nq, P.m
     r = np.asarray(ev.r, float)[:nq]
@@ -194,8 +188,7 @@ def _ic_step(model, state, cnt, sigma):
     sig = max(sigma / 4.0, 1e-6 * scale) if k0 else 0.0
     for k in range(k0, 40):
         for rho in AUG_RHO:
-            cnt.factorizations += 1
-            F = SymmetricLDL(P.kkt(-sig, rho), P.order)
+            F = cnt.factor(P.kkt(-sig, rho), lambda K: SymmetricLDL(K, P.order))
             if F.ok and np.all(np.abs(F.pivots) > 1e-14 * scale):
                 break
         if F.ok and F.n_negative == m and np.all(np.abs(F.pivots) > 1e-14 * scale):
@@ -294,7 +287,7 @@ def _project(model, x, cnt, max_iter=8):
     scale = np.where(model.row_kind == 1, 1.0, model.L)
     F, prev, fresh = None, np.inf, False
     for _ in range(max_iter + 1):
-        ev = _evaluate(model, x, cnt, need_jac="defer")
+        ev = cnt.evaluate(model, x, "defer")
         phi = ev.phi                       # inactive rows read 0
         err = float(np.max(np.abs(phi) / scale))
         if err <= PROJECT_TOL:
@@ -303,9 +296,9 @@ def _project(model, x, cnt, max_iter=8):
             return x, False                # diverging after a Newton step: the trial is too far
         fresh = F is None or err > CHORD_RATE * prev
         if fresh:
-            _jacobian(model, ev, cnt)
+            cnt.jacobian(model, ev)
             try:
-                F = _factor(_weighted_kkt(model, ev, W), cnt)
+                F = cnt.factor(_weighted_kkt(model, ev, W))
             except SingularMatrix:
                 return x, False
         prev = err
