@@ -43,6 +43,7 @@ STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton step
 STEP_TRANS = 0.4          # x L: largest translation of one descent step
 PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial
 CHORD_RATE = 0.25         # the projection refactorises when its error falls slower than this
+STEP_CHORD_RATE = 0.6     # ... and leaves the descent step's factorisation at this rate
 STEP_ROT = 1.0            # rad: largest rotation of one descent step
 SKIP_ZERO_SHIFT = 0.05    # x spectral radius: above, the next step does not try sigma = 0
 
@@ -167,16 +168,26 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
         info = classify_at(state)
 
 
-def _ic_step(model, state, cnt, sigma):
+def _ic_step(model, state, cnt, sigma, like=None):
     """One inertia-controlled Newton direction at ``state``: ``(K_s + sigma D) dq + G^T y = -r``,
     ``G dq = -phi`` in the equilibrated length coordinates of
     :class:`poise.solvers.stability._SparsePencil` (``D`` its diagonal metric), with the
     smallest ``sigma`` (0, else from a quarter of the last step's, grown by 8; 0 is not tried
     after a shift above ``SKIP_ZERO_SHIFT``) whose KKT inertia is ``(nq, m, 0)``: the reduced
     matrix is positive definite and ``dq`` a descent direction of the potential energy.
-    Returns ``(dq, sigma, ev)`` (``dq`` None when no valid factorisation was found)."""
+    ``like``: the previous step's pencil (its elimination order and scaling are reused; when
+    no valid factorisation is found with them, a fresh pencil is tried).
+    Returns ``(dq, sigma, ev, dlam, chord)``: ``dq`` None when no valid factorisation was
+    found; ``chord``: the factorised step (:class:`_Chord`) the line-search projections reuse."""
     ev = cnt.evaluate(model, state, "jacobian")
-    P = _SparsePencil(model, ev.J, active=cnt.active)
+    P = _SparsePencil(model, ev.J, active=cnt.active, like=like)
+    out = _ic_solve(model, P, ev, cnt, sigma)
+    if out[0] is None and P.reused:
+        out = _ic_solve(model, _SparsePencil(model, ev.J, active=cnt.active), ev, cnt, sigma)
+    return out
+
+
+def _ic_solve(model, P, ev, cnt, sigma):
     nq, m = P.nq, P.m
     r = np.asarray(ev.r, float)[:nq]
     f = -(P.dq / P.d) * r
@@ -197,9 +208,25 @@ def _ic_step(model, state, cnt, sigma):
             if np.all(np.isfinite(sol)):
                 dlam = np.zeros(model.nc)
                 dlam[P.rows] = P.dl * sol[nq:]
-                return sol[:nq] * P.dq / P.d, sig, ev, dlam
+                return sol[:nq] * P.dq / P.d, sig, ev, dlam, _Chord(P, F, rho)
         sig = max(sigma / 4.0, 1e-6 * scale) if k == 0 else 8.0 * sig
-    return None, sig, ev, None
+    return None, sig, ev, None, None
+
+
+class _Chord:
+    """A descent step's factorised KKT matrix used as the projection's (chord) Jacobian:
+    ``correction(phi)`` is the ``dq`` of smallest ``K_s + sigma D`` norm with ``G dq = -phi``
+    (``G`` at the step's start point). A positive definite metric on the constraint
+    tangent space, so the system is the step's own (no new factorisation per trial)."""
+
+    def __init__(self, P, F, rho):
+        self.P, self.F, self.rho = P, F, rho
+
+    def correction(self, phi):
+        P = self.P
+        g = -P.dl * phi[P.rows]
+        sol = self.F.solve(np.concatenate([self.rho * (P.Gt.T @ g), g]))
+        return sol[:P.nq] * P.dq / P.d
 
 
 def descend(model, state, settings, history, frame, cnt, budget, pe=None):
@@ -216,9 +243,10 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     steps = 0
     polish_fail = 0
     alpha0 = 1.0                       # first trial: twice the last accepted step (<= 1)
+    like = None                        # the last step's pencil (order and scaling reused)
     while steps < budget:
         try:
-            dq, sigma, ev, dlam = _ic_step(model, state, cnt, sigma)
+            dq, sigma, ev, dlam, chord = _ic_step(model, state, cnt, sigma, like)
         except EvaluationError:
             return state, None, pe, steps
         steps += 1
@@ -227,6 +255,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
             history.add(frame, steps, imb, cerr, np.nan, np.nan, worst,
                         "stable-descent: no valid factorisation", pos=state.pos, rot=state.rot)
             return state, None, pe, steps
+        like = chord.P
         # step limits (a trust region on the linearisation of the constraints)
         rot = model.q_kind == 1
         big = max(float(np.max(np.abs(dq[rot]), initial=0.0)) / STEP_ROT,
@@ -238,7 +267,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
         for _ in range(12):
             try:
                 x = model.retract(state, alpha * dq)
-                x, ok = _project(model, x, cnt)       # not projected: a shorter step
+                x, ok = _project(model, x, cnt, chord)   # not projected: a shorter step
                 if ok:
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                     tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
@@ -276,15 +305,31 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     return (st, o, pe, steps) if o.ok else (state, None, pe, steps)
 
 
-def _project(model, x, cnt, max_iter=8):
-    """Gauss-Newton projection of a line-search trial onto the constraints to ``PROJECT_TOL``
-    (relative): looser than the assembly's, the end point is polished by Newton to the deck's
-    tolerances. The factorisation is kept while the constraint error falls at least by
-    ``CHORD_RATE`` per iteration (chord steps need no Jacobian). Returns ``(state, ok)``."""
+def _project(model, x, cnt, chord=None, max_iter=8):
+    """Projection of a line-search trial onto the constraints to ``PROJECT_TOL`` (relative):
+    looser than the assembly's, the end point is polished by Newton to the deck's tolerances.
+    With ``chord`` (:class:`_Chord`, the descent step's factorisation) chord steps first, on
+    constraint values only; when they converge slower than ``CHORD_RATE`` per iteration,
+    Gauss-Newton from the best point, whose factorisation is kept while the constraint error
+    falls at least by ``CHORD_RATE`` per iteration. Returns ``(state, ok)``."""
     if model.nc == 0:
         return x, True
-    W = _coord_weights(model)
     scale = np.where(model.row_kind == 1, 1.0, model.L)
+    if chord is not None:
+        best, best_err, prev = x, np.inf, np.inf
+        for _ in range(2 * max_iter + 1):
+            phi = cnt.evaluate(model, x, "phi")
+            err = float(np.max(np.abs(phi) / scale))
+            if err <= PROJECT_TOL:
+                return x, True
+            if err < best_err:
+                best, best_err = x, err
+            if err > STEP_CHORD_RATE * prev:
+                break
+            prev = err
+            x = model.retract(x, chord.correction(phi))
+        x = best
+    W = _coord_weights(model)
     F, prev, fresh = None, np.inf, False
     for _ in range(max_iter + 1):
         ev = cnt.evaluate(model, x, "defer")
