@@ -63,7 +63,7 @@ class IdaContinuation(Strategy):
         self.stats_off = []          # why IDA's own counters could not be read (order -1)
         self.conv_coef_off = []      # why IDA's corrector coefficient could not be set
         self.fallbacks = []
-        self.correct = Corrector(model, s, ctx.data.mask(model))
+        self.correct = Corrector(model, s, ctx.data)
         self.k_out = 1
         self.n_starts = 0
         self.max_steps = IDA_MAX_STEPS + IDA_STEPS_PER_FRAME * len(ts)
