@@ -461,7 +461,8 @@ def newton(model, state, settings, history: History, frame: int, cnt: Counters,
            max_iter: int | None = None, event: str = "newton", equilibrate: bool = False):
     """Newton iterations from ``state`` (:class:`NewtonIteration` run by
     :func:`~poise.solvers.iterate.iterate`, ``max_iter`` default ``max_num_iter``). Returns
-    ``(state, FrameOutcome)``."""
+    ``(state, FrameOutcome)``. ``history``: where the loop appends the rows (a
+    :class:`~poise.solvers.history.History`, a stage view of one, or a list)."""
     max_iter = settings.max_num_iter if max_iter is None else max_iter
     return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate),
                    max_iter, history, state)
