@@ -42,9 +42,12 @@ MAX_ESCAPES = 20
 STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton steps in all
 STEP_TRANS = 0.4          # x L: largest translation of one descent step
 PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial
-CHORD_RATE = 0.25         # the projection refactorises when its error falls slower than this
-STEP_CHORD_RATE = 0.6     # ... and leaves the descent step's factorisation at this rate
+STEP_CHORD_RATE = 0.6     # the projection refactorises when its error falls slower than this
+PROJECT_MAX_ITER = 30     # projection iterations of one trial ...
+MAX_REFRESH = 4           # ... and factorisations
 STEP_ROT = 1.0            # rad: largest rotation of one descent step
+EXTEND = 2.0              # a shifted full step accepted at once is tried this much longer ...
+MAX_EXTEND = 3            # ... at most this many times (within the step limits)
 SKIP_ZERO_SHIFT = 0.05    # x spectral radius: above, the next step does not try sigma = 0
 
 
@@ -262,12 +265,13 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
                   float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L), 1.0)
         dq = dq / big
         slope = float(np.asarray(ev.r, float)[:model.nq] @ dq)
+        proj = _Projector(model, cnt, chord)
         alpha = alpha0
         accepted = None
         for _ in range(12):
             try:
                 x = model.retract(state, alpha * dq)
-                x, ok = _project(model, x, cnt, chord)   # not projected: a shorter step
+                x, ok = proj(x)          # not projected: a shorter step
                 if ok:
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                     tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
@@ -277,6 +281,8 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
             except EvaluationError:
                 pass
             alpha *= 0.5
+        if accepted is not None and alpha == 1.0 and sigma > 0.0 and big == 1.0:
+            alpha, accepted = _extend(model, state, dq, proj, cnt, pe, slope, accepted)
         history.add(frame, steps, imb, cerr, float(np.max(np.abs(alpha * dq) / sc.q_len)),
                     alpha if accepted else np.nan, worst,
                     f"stable-descent sigma={sigma:.3g}", pos=state.pos, rot=state.rot)
@@ -289,7 +295,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
             continue
         state, pe = accepted
         alpha0 = min(1.0, 2.0 * alpha)
-        state.lam = state.lam + alpha * dlam     # the KKT step's multiplier update
+        state.lam = state.lam + min(alpha, 1.0) * dlam     # the KKT step's multiplier update
         if sigma == 0.0 and alpha == 1.0 and big == 1.0 and polish_fail < 3:
             st, o = newton(model, state, replace(settings, fallback=False), history, frame,
                            cnt, max_iter=min(settings.max_num_iter, 20), event="stable-polish")
@@ -305,50 +311,90 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     return (st, o, pe, steps) if o.ok else (state, None, pe, steps)
 
 
-def _project(model, x, cnt, chord=None, max_iter=8):
-    """Projection of a line-search trial onto the constraints to ``PROJECT_TOL`` (relative):
-    looser than the assembly's, the end point is polished by Newton to the deck's tolerances.
-    With ``chord`` (:class:`_Chord`, the descent step's factorisation) chord steps first, on
-    constraint values only; when they converge slower than ``CHORD_RATE`` per iteration,
-    Gauss-Newton from the best point, whose factorisation is kept while the constraint error
-    falls at least by ``CHORD_RATE`` per iteration. Returns ``(state, ok)``."""
-    if model.nc == 0:
-        return x, True
-    scale = np.where(model.row_kind == 1, 1.0, model.L)
-    if chord is not None:
-        best, best_err, prev = x, np.inf, np.inf
-        for _ in range(2 * max_iter + 1):
-            phi = cnt.evaluate(model, x, "phi")
-            err = float(np.max(np.abs(phi) / scale))
+def _extend(model, state, dq, proj, cnt, pe, slope, accepted):
+    """A full shifted step that was accepted at once and stays inside the step limits: the
+    shift made the quadratic model conservative, so try ``EXTEND`` x longer steps along it (up
+    to the limits) while each lowers the energy more. Returns ``(alpha, (state, pe))``."""
+    rot = model.q_kind == 1
+    room = 1.0 / max(float(np.max(np.abs(dq[rot]), initial=0.0)) / STEP_ROT,
+                     float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L),
+                     1e-300)
+    alpha, best = 1.0, accepted
+    for _ in range(MAX_EXTEND):
+        a = min(EXTEND * alpha, room)
+        if a <= alpha * 1.01:
+            break
+        try:
+            x, ok = proj(model.retract(state, a * dq))
+            if not ok:
+                break
+            dv, pe_x = _energy_drop(model, state, x, cnt, pe)
+        except EvaluationError:
+            break
+        pe_new = pe_x if np.isfinite(pe_x) else pe + dv
+        if not (pe_new < best[1] and dv <= 1e-4 * a * min(slope, 0.0)):
+            break
+        alpha, best = a, (x, pe_new)
+    return alpha, best
+
+
+class _Projector:
+    """Projection of a descent step's line-search trials onto the constraints, to
+    ``PROJECT_TOL`` (relative: looser than the assembly's; the end point is polished by Newton
+    to the deck's tolerances). Corrections ``dq`` with ``G dq = -phi`` come from one
+    factorised operator, first the descent step's own (``chord``, :class:`_Chord`: no new
+    factorisation per trial); when the constraint error falls slower than
+    ``STEP_CHORD_RATE`` per iteration, a Gauss-Newton KKT factorisation at the current point
+    replaces it and serves the step's later trials too (they lie along the same direction).
+    ``proj(x) -> (state, ok)``."""
+
+    def __init__(self, model, cnt, chord=None):
+        self.model, self.cnt = model, cnt
+        self.op = chord.correction if chord is not None else None
+        self.scale = np.where(model.row_kind == 1, 1.0, model.L)
+
+    def __call__(self, x):
+        m = self.model
+        if m.nc == 0:
+            return x, True
+        refreshed, prev, fresh = 0, np.inf, False
+        last = last_phi = None
+        for _ in range(PROJECT_MAX_ITER):
+            phi = self.cnt.evaluate(m, x, "phi")
+            err = float(np.max(np.abs(phi) / self.scale))
             if err <= PROJECT_TOL:
                 return x, True
-            if err < best_err:
-                best, best_err = x, err
-            if err > STEP_CHORD_RATE * prev:
-                break
-            prev = err
-            x = model.retract(x, chord.correction(phi))
-        x = best
-    W = _coord_weights(model)
-    F, prev, fresh = None, np.inf, False
-    for _ in range(max_iter + 1):
-        ev = cnt.evaluate(model, x, "defer")
-        phi = ev.phi                       # inactive rows read 0
-        err = float(np.max(np.abs(phi) / scale))
-        if err <= PROJECT_TOL:
-            return x, True
-        if err > prev and fresh:
-            return x, False                # diverging after a Newton step: the trial is too far
-        fresh = F is None or err > CHORD_RATE * prev
-        if fresh:
-            cnt.jacobian(model, ev)
-            try:
-                F = cnt.factor(_weighted_kkt(model, ev, W))
-            except SingularMatrix:
-                return x, False
-        prev = err
-        x = model.retract(x, F.solve(np.concatenate([np.zeros(model.nq), -phi]))[:model.nq])
-    return x, False
+            if err > prev and fresh:
+                return x, False            # diverging after a fresh factorisation: too far
+            fresh = False
+            if self.op is None or err > STEP_CHORD_RATE * prev:
+                if refreshed == MAX_REFRESH:
+                    return x, False
+                if err > prev:             # back to the better point
+                    x, phi, err = last, last_phi, prev
+                if not self._refresh(x):
+                    return x, False
+                refreshed, fresh = refreshed + 1, True
+            last, last_phi, prev = x, phi, err
+            x = m.retract(x, self.op(phi))
+        return x, False
+
+    def _refresh(self, x):
+        """A Gauss-Newton operator at ``x`` (coordinate metric ``q_scale^2``)."""
+        m = self.model
+        ev = self.cnt.evaluate(m, x, "jacobian")
+        try:
+            F = self.cnt.factor(_weighted_kkt(m, ev, _coord_weights(m)))
+        except SingularMatrix:
+            return False
+        nq = m.nq
+        self.op = lambda phi: F.solve(np.concatenate([np.zeros(nq), -phi]))[:nq]
+        return True
+
+
+def _project(model, x, cnt, chord=None):
+    """Project one trial (:class:`_Projector`)."""
+    return _Projector(model, cnt, chord)(x)
 
 
 def _fail(used, why):
