@@ -35,8 +35,6 @@ class _Chart:
         self.sparse = sparse            # SparseJacobian, or None: dense
         self.stats = None               # IdaStats of the current IDA instance (set by _ida)
         self.conv_coef_set = False      # NONLIN_CONV_COEF applied to that instance (by _ida)
-        self.nres = 0
-        self.njac = 0
         self.trial_times = set()
         self.held = None                # a factorisation of dF/dy in this chart (Corrector)
 
@@ -116,7 +114,6 @@ class _Chart:
 
     # IDA callbacks
     def resfn(self, t, y, yp, res):
-        self.nres += 1
         self.trial_times.add(float(t))
         try:
             res[:] = self.F(self.state(y, t))
@@ -124,7 +121,6 @@ class _Chart:
             res[:] = 1e30
 
     def jacfn(self, t, y, yp, res, cj, JJ):
-        self.njac += 1
         try:
             JJ[:, :] = self.jac(y, t)
         except EvaluationError:
@@ -132,7 +128,6 @@ class _Chart:
 
     def jacfn_sparse(self, t, y, yp, res, cj, JJ):
         """``JJ``: the CSC data (1-D, pattern ``self.sparse.pattern()``)."""
-        self.njac += 1
         try:
             JJ[:] = self.jac(y, t)
         except EvaluationError:
