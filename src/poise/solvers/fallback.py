@@ -243,8 +243,8 @@ class Chain(Iterative):
         s["next"] += 1
         s["switched"] = False
         st2, out2, final, rows = stage.run(self.model, self.start, self.settings,
-                                     self.history.stage(stage.name), self.frame, self.cnt,
-                                     left, s["counts"], (s["st"], s["out"]))
+                                           self.history.stage(stage.name), self.frame,
+                                           self.cnt, left, s["counts"], (s["st"], s["out"]))
         if out2.ok:
             s["result"] = (st2, out2, stage.name)
         elif final:
