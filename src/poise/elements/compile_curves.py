@@ -297,4 +297,4 @@ ELEMENTS = (ElementType(
     after=("user",),            # curve rows and parameters after the user constraints
     kernels=lambda: (F.PointOnCurve, F.PointOnSurface, F.CurveOnCurve, F.CurveOnSurface,
                      F.SurfaceOnSurface), outputs={"curves": TAGS},
-    datasets=("id", "tag", "parameters", "point"), fd_tests="tests/test_curves.py"),)
+    datasets=("id", "tag", "parameters", "point"), fd_tests="tests/reference/test_curves.py"),)

@@ -144,4 +144,4 @@ ELEMENTS = (ElementType(
     after=("forces", "field_beam"),   # compiles the expression forces compile_forces routed here
     kernels=lambda: (XF.ExprVectorForce, XF.ExprScalarForce),
     outputs={"forces": None, "requests": ("Post_Request",)},
-    datasets=("id", "values", "message"), fd_tests="tests/test_expr_families.py"),)
+    datasets=("id", "values", "message"), fd_tests="tests/kernels/test_expr_families.py"),)

@@ -367,4 +367,4 @@ ELEMENTS = (ElementType(
     after=("expressions",),     # contact families after the expression forces (model layout)
     kernels=lambda: (ContactForce,), tileable=lambda: (ContactForce,),
     potential_energy=True, outputs={"contacts": ("Force_Contact",)},
-    datasets=("id", "kind", "force", "penetration"), fd_tests="tests/test_contact.py"),)
+    datasets=("id", "kind", "force", "penetration"), fd_tests="tests/reference/test_contact.py"),)

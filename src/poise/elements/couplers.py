@@ -236,4 +236,4 @@ ELEMENTS = (ElementType(
     "couplers", ("Constraint_Coupler",), compile_couplers,
     after=("motions",),         # coupler rows after the motion rows (model layout)
     kernels=lambda: (Coupler,), outputs={"couplers": ("Constraint_Coupler",)},
-    datasets=("id", "force", "torque"), fd_tests="tests/test_couplers_gears_fields_beams.py"),)
+    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

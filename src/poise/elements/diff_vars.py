@@ -227,4 +227,4 @@ ELEMENTS = (ElementType(
     after=("expressions", "contacts"),  # scalar unknowns the expressions registered come first
     kernels=lambda: (ScalarEquation,),
     outputs={"diffs": ("Control_Diff",), "variables": ("Reference_Variable",)},
-    datasets=("id", "value"), fd_tests="tests/test_extra_unknowns.py"),)
+    datasets=("id", "value"), fd_tests="tests/kernels/test_extra_unknowns.py"),)

@@ -131,4 +131,4 @@ ELEMENTS = (ElementType(
     "gears", ("Constraint_Gear",), compile_gears,
     after=("couplers",),        # gear rows after the coupler rows (model layout)
     kernels=lambda: (Gear,), outputs={"gears": ("Constraint_Gear",)},
-    datasets=("id", "force", "torque"), fd_tests="tests/test_couplers_gears_fields_beams.py"),)
+    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

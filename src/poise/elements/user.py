@@ -348,4 +348,4 @@ ELEMENTS = (ElementType(
     after=("forces", "diff_vars"),    # compiles the user forces compile_forces routed here
     kernels=lambda: (UserConstraint, UserScalarForce, UserVectorForce, UserScalarEquation),
     time_dependent=True, outputs={"userconstrs": USER_CONSTRAINT_TAGS, "forces": None},
-    datasets=("id", "force", "torque"), fd_tests="tests/test_diffs_variables_user_routines.py"),)
+    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)
