@@ -20,16 +20,12 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.model.evaluate import evaluate
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import (
     FrameOutcome,
     Scales,
     _coord_weights,
-    _evaluate,
-    _factor,
-    _jacobian,
     _weighted_kkt,
     assemble,
     initial_multipliers,
@@ -95,9 +91,8 @@ def _energy_drop(model, a, b, cnt, pa=None):
         return pb - pa, pb
     dq = model.local_difference(a, b)
     # residual r = -Q + G^T lam: its projection on a constraint-respecting step is -Q . dq
-    ra = np.asarray(model.evaluate(a, need_jac=False).r).ravel()[:model.nq]
-    rb = np.asarray(model.evaluate(b, need_jac=False).r).ravel()[:model.nq]
-    cnt.residuals += 2
+    ra = np.asarray(cnt.evaluate(model, a, "residual", every_row=True).r).ravel()[:model.nq]
+    rb = np.asarray(cnt.evaluate(model, b, "residual", every_row=True).r).ravel()[:model.nq]
     return 0.5 * float((ra + rb) @ dq), np.nan
 
 
@@ -214,9 +209,7 @@ def _ic_step(model, state, cnt, sigma, like=None):
     no valid factorisation is found with them, a fresh pencil is tried).
     Returns ``(dq, sigma, ev, dlam, chord)``: ``dq`` None when no valid factorisation was
     found; ``chord``: the factorised step (:class:`_Chord`) the line-search projections reuse."""
-    cnt.residuals += 1
-    cnt.jacobians += 1
-    ev = model.evaluate(state, need_jac=True, active=cnt.active)
+    ev = cnt.evaluate(model, state, "jacobian")
     pencil = DensePencil if model.nq + model.nc <= DENSE_PENCIL else _SparsePencil
     P = pencil(model, ev.J, active=cnt.active, like=like)
     out = _ic_solve(model, P, ev, cnt, sigma)
@@ -237,8 +230,7 @@ def _ic_solve(model, P, ev, cnt, sigma):
     sig = max(sigma / 4.0, 1e-6 * scale) if k0 else 0.0
     for k in range(k0, 40):
         for rho in AUG_RHO:
-            cnt.factorizations += 1
-            F = P.ldl(-sig, rho)
+            F = cnt.factor((-sig, rho), lambda at: P.ldl(*at))      # the pencil at (shift, rho)
             if F.ok and np.all(np.abs(F.pivots) > 1e-14 * scale):
                 break
         if F.ok and F.n_negative == m and np.all(np.abs(F.pivots) > 1e-14 * scale):
@@ -421,8 +413,7 @@ class _Projector:
         refreshed, prev, fresh = 0, np.inf, False
         last = last_phi = None
         for _ in range(PROJECT_MAX_ITER):
-            self.cnt.residuals += 1
-            phi = model_phi(m, x, self.cnt.active)
+            phi = self.cnt.evaluate(m, x, "phi")
             err = float(np.max(np.abs(phi) / self.scale))
             self.err = err
             if err <= tol:
@@ -445,9 +436,9 @@ class _Projector:
     def _refresh(self, x):
         """A Gauss-Newton operator at ``x`` (coordinate metric ``q_scale^2``)."""
         m = self.model
-        ev = _evaluate(m, x, self.cnt, need_jac=True)
+        ev = self.cnt.evaluate(m, x, "jacobian")
         try:
-            F = _factor(_weighted_kkt(m, ev, _coord_weights(m)), self.cnt)
+            F = self.cnt.factor(_weighted_kkt(m, ev, _coord_weights(m)))
         except SingularMatrix:
             return False
         nq = m.nq
@@ -458,11 +449,6 @@ class _Projector:
 def _project(model, x, cnt, chord=None):
     """Project one trial (:class:`_Projector`)."""
     return _Projector(model, cnt, chord)(x)
-
-
-def model_phi(model, x, active):
-    """Constraint values at ``x`` (inactive rows 0), no force element called."""
-    return evaluate(model, x, "phi", active=active)
 
 
 def _fail(used, why):
