@@ -96,9 +96,6 @@ class Family:
     def is_constraint(self) -> bool:
         return self.m > 0
 
-    def depends_on_time(self) -> bool:
-        return False
-
     def g_blocks(self):
         """Static structure of ``G``: (S, S) bool array of the slot-pair 3x3 blocks of ``G`` that
         can be non-zero (all False: ``G`` is always None or zero), or None (the default): ``G``
