@@ -23,6 +23,9 @@ class SolveData:
         self.residuals = 0
         self.jacobians = 0
         self.factorizations = 0
+        # (state, StabilityInfo): a solution the solve has classified already (the output
+        # reuses it for that very state object instead of classifying it again)
+        self.classified = None
 
     @classmethod
     def for_model(cls, model, redundancy=()) -> "SolveData":

@@ -157,10 +157,12 @@ def require_stable(ctx, state, out):
     stable equilibrium (:func:`poise.solvers.stable.seek_stable`)."""
     model, s, active = ctx.model, ctx.settings, ctx.data.active
     info = classify(model, state, active=active)
+    ctx.data.classified = (state, info)
     if acceptable(info, s) or info.klass != "unstable":
         return state, out        # judged on the output classification
-    st, o, _, note = seek_stable(model, state, s, ctx.history, 0, ctx.data, info,
-                                 lambda x: classify(model, x, active=active))
+    st, o, info, note = seek_stable(model, state, s, ctx.history, 0, ctx.data, info,
+                                    lambda x: classify(model, x, active=active))
+    ctx.data.classified = (st, info) if o.ok else None
     if note:
         ctx.notes.append(note)
     return st, replace(o, iterations=out.iterations + o.iterations)

@@ -99,7 +99,7 @@ class SymmetricLDL:
             A = A[self.order][:, self.order].tocsc()
         self.ok = False
         self.reason = ""
-        self.backward_error = np.inf
+        self._berr = np.inf
         self.n_negative = self.n_positive = -1
         try:
             lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A" if order is None else "NATURAL",
@@ -115,8 +115,7 @@ class SymmetricLDL:
         if not np.all(np.isfinite(d)) or np.any(d == 0.0):
             self.reason = "the LDL^T factorisation has a zero or non-finite pivot"
             return
-        g = abs(lu.L) @ (abs(U) @ np.ones(n))
-        self.backward_error = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
+        self._berr = None                 # computed on first use (the descent never asks)
         self.pivots = d
         # original index of each pivot (pivot k eliminates column perm_c^-1[k] of A[order])
         self.index = np.empty(n, np.int64)
@@ -125,6 +124,13 @@ class SymmetricLDL:
         self.n_positive = n - self.n_negative
         self.lu = lu
         self.ok = True
+
+    @property
+    def backward_error(self) -> float:
+        if self._berr is None:
+            g = abs(self.lu.L) @ (abs(self.lu.U) @ np.ones(self.n))
+            self._berr = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
+        return self._berr
 
     @property
     def inertia(self) -> tuple[int, int, int]:
@@ -146,7 +152,11 @@ class _SparsePencil:
     symmetric stiffness ``Kt`` and active constraint Jacobian ``Gt`` after a symmetric
     equilibration of the KKT matrix, the KKT elimination order, and factorisations at shifts."""
 
-    def __init__(self, model, J, drop=(), active=None):
+    def __init__(self, model, J, drop=(), active=None, like=None):
+        """``like``: a pencil of the same model at a nearby configuration (a descent's previous
+        step): its elimination order is reused and its scaling starts the equilibration, when
+        it has the same constraint rows (an order is a permutation: any one gives the inertia;
+        a poor one shows as a failed factorisation, and the caller builds a fresh pencil)."""
         import scipy.sparse as sp
         nq = model.nq
         J = sp.csr_matrix(J)
@@ -166,13 +176,15 @@ class _SparsePencil:
             keep[np.asarray(drop, np.int64)] = False
             G = G[keep]
             self.rows = self.rows[keep]
-        dq, dl = _equilibrate(Ks, G)
+        same = like is not None and like.nq == nq and np.array_equal(like.rows, self.rows)
+        dq, dl = _equilibrate(Ks, G, start=(like.dq, like.dl) if same else None)
         self.Kt = (sp.diags(dq) @ Ks @ sp.diags(dq)).tocsr()
         self.Gt = (sp.diags(dl) @ G @ sp.diags(dq)).tocsr()
         self.GtG = (self.Gt.T @ self.Gt).tocsr()
         self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
         self.nq, self.m = nq, self.Gt.shape[0]
-        self.order = _kkt_order(model, self.Kt, self.Gt, self.GtG)
+        self.reused = same
+        self.order = like.order if same else _kkt_order(model, self.Kt, self.Gt, self.GtG)
         # zero threshold: ZERO_REL of the spectral radius of Kt (an upper bound of the reduced
         # matrix's), at least ZERO_REL (Kt has a unit-scale diagonal block after equilibration)
         self.eps = ZERO_REL * max(_spectral_radius(self.Kt), 1.0)
@@ -267,12 +279,12 @@ def _prune_noise(Ks):
     return Ks
 
 
-def _equilibrate(Ks, G, iters=12, tol=0.1):
+def _equilibrate(Ks, G, iters=12, tol=0.1, start=None):
     """Symmetric Ruiz scaling ``D`` of the KKT matrix ``[[Ks, G^T], [G, 0]]``: every row of
     ``D |KKT| D`` has a largest entry in ``[1 - tol, 1 + tol]`` (a diagonal congruence: the
     inertia is unchanged), except that a coordinate is never scaled up beyond
     ``1 / sqrt(DIAG_FLOOR max|Ks|)`` (the dense path's floor). Returns the coordinate and row
-    factors."""
+    factors (``start``: the factors to start from, e.g. a nearby configuration's)."""
     import scipy.sparse as sp
     nq = Ks.shape[0]
     kmax = float(np.max(np.abs(Ks.data), initial=0.0))
@@ -284,7 +296,7 @@ def _equilibrate(Ks, G, iters=12, tol=0.1):
     rows = np.repeat(np.arange(n), cnt)
     nz = cnt > 0
     starts = B.indptr[:-1][nz]
-    D = np.ones(n)
+    D = np.ones(n) if start is None else np.concatenate(start)
     for _ in range(iters):
         r = np.ones(n)
         if a.size:

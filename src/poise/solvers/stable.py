@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.model.evaluate import evaluate
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import (
@@ -45,8 +46,12 @@ MAX_ESCAPES = 20
 STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton steps in all
 STEP_TRANS = 0.4          # x L: largest translation of one descent step
 PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial
-CHORD_RATE = 0.25         # the projection refactorises when its error falls slower than this
+STEP_CHORD_RATE = 0.6     # the projection refactorises when its error falls slower than this
+PROJECT_MAX_ITER = 30     # projection iterations of one trial ...
+MAX_REFRESH = 4           # ... and factorisations
 STEP_ROT = 1.0            # rad: largest rotation of one descent step
+EXTEND = 2.0              # a shifted full step accepted at once is tried this much longer ...
+MAX_EXTEND = 3            # ... at most this many times (within the step limits)
 SKIP_ZERO_SHIFT = 0.05    # x spectral radius: above, the next step does not try sigma = 0
 
 
@@ -171,18 +176,28 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
         info = classify_at(state)
 
 
-def _ic_step(model, state, cnt, sigma):
+def _ic_step(model, state, cnt, sigma, like=None):
     """One inertia-controlled Newton direction at ``state``: ``(K_s + sigma D) dq + G^T y = -r``,
     ``G dq = -phi`` in the equilibrated length coordinates of
     :class:`poise.solvers.stability._SparsePencil` (``D`` its diagonal metric), with the
     smallest ``sigma`` (0, else from a quarter of the last step's, grown by 8; 0 is not tried
     after a shift above ``SKIP_ZERO_SHIFT``) whose KKT inertia is ``(nq, m, 0)``: the reduced
     matrix is positive definite and ``dq`` a descent direction of the potential energy.
-    Returns ``(dq, sigma, ev)`` (``dq`` None when no valid factorisation was found)."""
+    ``like``: the previous step's pencil (its elimination order and scaling are reused; when
+    no valid factorisation is found with them, a fresh pencil is tried).
+    Returns ``(dq, sigma, ev, dlam, chord)``: ``dq`` None when no valid factorisation was
+    found; ``chord``: the factorised step (:class:`_Chord`) the line-search projections reuse."""
     cnt.residuals += 1
     cnt.jacobians += 1
     ev = model.evaluate(state, need_jac=True, active=cnt.active)
-    P = _SparsePencil(model, ev.J, active=cnt.active)
+    P = _SparsePencil(model, ev.J, active=cnt.active, like=like)
+    out = _ic_solve(model, P, ev, cnt, sigma)
+    if out[0] is None and P.reused:
+        out = _ic_solve(model, _SparsePencil(model, ev.J, active=cnt.active), ev, cnt, sigma)
+    return out
+
+
+def _ic_solve(model, P, ev, cnt, sigma):
     nq, m = P.nq, P.m
     r = np.asarray(ev.r, float)[:nq]
     f = -(P.dq / P.d) * r
@@ -204,9 +219,25 @@ def _ic_step(model, state, cnt, sigma):
             if np.all(np.isfinite(sol)):
                 dlam = np.zeros(model.nc)
                 dlam[P.rows] = P.dl * sol[nq:]
-                return sol[:nq] * P.dq / P.d, sig, ev, dlam
+                return sol[:nq] * P.dq / P.d, sig, ev, dlam, _Chord(P, F, rho)
         sig = max(sigma / 4.0, 1e-6 * scale) if k == 0 else 8.0 * sig
-    return None, sig, ev, None
+    return None, sig, ev, None, None
+
+
+class _Chord:
+    """A descent step's factorised KKT matrix used as the projection's (chord) Jacobian:
+    ``correction(phi)`` is the ``dq`` of smallest ``K_s + sigma D`` norm with ``G dq = -phi``
+    (``G`` at the step's start point). A positive definite metric on the constraint
+    tangent space, so the system is the step's own (no new factorisation per trial)."""
+
+    def __init__(self, P, F, rho):
+        self.P, self.F, self.rho = P, F, rho
+
+    def correction(self, phi):
+        P = self.P
+        g = -P.dl * phi[P.rows]
+        sol = self.F.solve(np.concatenate([self.rho * (P.Gt.T @ g), g]))
+        return sol[:P.nq] * P.dq / P.d
 
 
 def descend(model, state, settings, history, frame, cnt, budget, pe=None):
@@ -223,9 +254,10 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     steps = 0
     polish_fail = 0
     alpha0 = 1.0                       # first trial: twice the last accepted step (<= 1)
+    like = None                        # the last step's pencil (order and scaling reused)
     while steps < budget:
         try:
-            dq, sigma, ev, dlam = _ic_step(model, state, cnt, sigma)
+            dq, sigma, ev, dlam, chord = _ic_step(model, state, cnt, sigma, like)
         except EvaluationError:
             return state, None, pe, steps
         steps += 1
@@ -234,18 +266,20 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
             history.add(frame, steps, imb, cerr, np.nan, np.nan, worst,
                         "stable-descent: no valid factorisation", pos=state.pos, rot=state.rot)
             return state, None, pe, steps
+        like = chord.P
         # step limits (a trust region on the linearisation of the constraints)
         rot = model.q_kind == 1
         big = max(float(np.max(np.abs(dq[rot]), initial=0.0)) / STEP_ROT,
                   float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L), 1.0)
         dq = dq / big
         slope = float(np.asarray(ev.r, float)[:model.nq] @ dq)
+        proj = _Projector(model, cnt, chord)
         alpha = alpha0
         accepted = None
         for _ in range(12):
             try:
                 x = model.retract(state, alpha * dq)
-                x, ok = _project(model, x, cnt)       # not projected: a shorter step
+                x, ok = proj(x)          # not projected: a shorter step
                 if ok:
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                     tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
@@ -255,6 +289,8 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
             except EvaluationError:
                 pass
             alpha *= 0.5
+        if accepted is not None and alpha == 1.0 and sigma > 0.0 and big == 1.0:
+            alpha, accepted = _extend(model, state, dq, proj, cnt, pe, slope, accepted)
         history.add(frame, steps, imb, cerr, float(np.max(np.abs(alpha * dq) / sc.q_len)),
                     alpha if accepted else np.nan, worst,
                     f"stable-descent sigma={sigma:.3g}", pos=state.pos, rot=state.rot)
@@ -267,7 +303,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
             continue
         state, pe = accepted
         alpha0 = min(1.0, 2.0 * alpha)
-        state.lam = state.lam + alpha * dlam     # the KKT step's multiplier update
+        state.lam = state.lam + min(alpha, 1.0) * dlam     # the KKT step's multiplier update
         if sigma == 0.0 and alpha == 1.0 and big == 1.0 and polish_fail < 3:
             st, o = newton(model, state, replace(settings, fallback=False), history, frame,
                            cnt, max_iter=min(settings.max_num_iter, 20), event="stable-polish")
@@ -283,34 +319,96 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     return (st, o, pe, steps) if o.ok else (state, None, pe, steps)
 
 
-def _project(model, x, cnt, max_iter=8):
-    """Gauss-Newton projection of a line-search trial onto the constraints to ``PROJECT_TOL``
-    (relative): looser than the assembly's, the end point is polished by Newton to the deck's
-    tolerances. The factorisation is kept while the constraint error falls at least by
-    ``CHORD_RATE`` per iteration (chord steps need no Jacobian). Returns ``(state, ok)``."""
-    if model.nc == 0:
-        return x, True
-    W = _coord_weights(model)
-    scale = np.where(model.row_kind == 1, 1.0, model.L)
-    F, prev, fresh = None, np.inf, False
-    for _ in range(max_iter + 1):
-        ev = _evaluate(model, x, cnt, need_jac="defer")
-        phi = ev.phi                       # inactive rows read 0
-        err = float(np.max(np.abs(phi) / scale))
-        if err <= PROJECT_TOL:
+def _extend(model, state, dq, proj, cnt, pe, slope, accepted):
+    """A full shifted step that was accepted at once and stays inside the step limits: the
+    shift made the quadratic model conservative, so try ``EXTEND`` x longer steps along it (up
+    to the limits) while each lowers the energy more. Returns ``(alpha, (state, pe))``."""
+    rot = model.q_kind == 1
+    room = 1.0 / max(float(np.max(np.abs(dq[rot]), initial=0.0)) / STEP_ROT,
+                     float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L),
+                     1e-300)
+    alpha, best = 1.0, accepted
+    for _ in range(MAX_EXTEND):
+        a = min(EXTEND * alpha, room)
+        if a <= alpha * 1.01:
+            break
+        try:
+            x, ok = proj(model.retract(state, a * dq))
+            if not ok:
+                break
+            dv, pe_x = _energy_drop(model, state, x, cnt, pe)
+        except EvaluationError:
+            break
+        pe_new = pe_x if np.isfinite(pe_x) else pe + dv
+        if not (pe_new < best[1] and dv <= 1e-4 * a * min(slope, 0.0)):
+            break
+        alpha, best = a, (x, pe_new)
+    return alpha, best
+
+
+class _Projector:
+    """Projection of a descent step's line-search trials onto the constraints, to
+    ``PROJECT_TOL`` (relative: looser than the assembly's; the end point is polished by Newton
+    to the deck's tolerances). Corrections ``dq`` with ``G dq = -phi`` come from one
+    factorised operator, first the descent step's own (``chord``, :class:`_Chord`: no new
+    factorisation per trial); when the constraint error falls slower than
+    ``STEP_CHORD_RATE`` per iteration, a Gauss-Newton KKT factorisation at the current point
+    replaces it and serves the step's later trials too (they lie along the same direction).
+    ``proj(x) -> (state, ok)``."""
+
+    def __init__(self, model, cnt, chord=None):
+        self.model, self.cnt = model, cnt
+        self.op = chord.correction if chord is not None else None
+        self.scale = np.where(model.row_kind == 1, 1.0, model.L)
+
+    def __call__(self, x):
+        m = self.model
+        if m.nc == 0:
             return x, True
-        if err > prev and fresh:
-            return x, False                # diverging after a Newton step: the trial is too far
-        fresh = F is None or err > CHORD_RATE * prev
-        if fresh:
-            _jacobian(model, ev, cnt)
-            try:
-                F = _factor(_weighted_kkt(model, ev, W), cnt)
-            except SingularMatrix:
-                return x, False
-        prev = err
-        x = model.retract(x, F.solve(np.concatenate([np.zeros(model.nq), -phi]))[:model.nq])
-    return x, False
+        refreshed, prev, fresh = 0, np.inf, False
+        last = last_phi = None
+        for _ in range(PROJECT_MAX_ITER):
+            self.cnt.residuals += 1
+            phi = model_phi(m, x, self.cnt.active)
+            err = float(np.max(np.abs(phi) / self.scale))
+            if err <= PROJECT_TOL:
+                return x, True
+            if err > prev and fresh:
+                return x, False            # diverging after a fresh factorisation: too far
+            fresh = False
+            if self.op is None or err > STEP_CHORD_RATE * prev:
+                if refreshed == MAX_REFRESH:
+                    return x, False
+                if err > prev:             # back to the better point
+                    x, phi, err = last, last_phi, prev
+                if not self._refresh(x):
+                    return x, False
+                refreshed, fresh = refreshed + 1, True
+            last, last_phi, prev = x, phi, err
+            x = m.retract(x, self.op(phi))
+        return x, False
+
+    def _refresh(self, x):
+        """A Gauss-Newton operator at ``x`` (coordinate metric ``q_scale^2``)."""
+        m = self.model
+        ev = _evaluate(m, x, self.cnt, need_jac=True)
+        try:
+            F = _factor(_weighted_kkt(m, ev, _coord_weights(m)), self.cnt)
+        except SingularMatrix:
+            return False
+        nq = m.nq
+        self.op = lambda phi: F.solve(np.concatenate([np.zeros(nq), -phi]))[:nq]
+        return True
+
+
+def _project(model, x, cnt, chord=None):
+    """Project one trial (:class:`_Projector`)."""
+    return _Projector(model, cnt, chord)(x)
+
+
+def model_phi(model, x, active):
+    """Constraint values at ``x`` (inactive rows 0), no force element called."""
+    return evaluate(model, x, "phi", active=active)
 
 
 def _fail(used, why):
