@@ -57,9 +57,7 @@ class CompileContext:
 
     def body_centres(self):
         """Compiled CG marker index (nb,) and effective mass (nb,) of the moving bodies."""
-        b = self.b
-        cg = [b.marker_index.get(e.attrs.get("cg_id"), GLOBAL) for e in b.moving]
-        return cg, b.body_mass
+        return self.b.body_centres()
 
     def angle(self, I: int, J: int, axis: int) -> int:
         """Register a continuous angle of marker I about marker J's axis (0 x, 1 y, 2 z)."""

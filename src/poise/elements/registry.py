@@ -27,7 +27,8 @@ import poise.elements as pkg
 class FDCase:
     """A finite-difference Jacobian check (tests/test_jacobians.py): ``elements`` are added to a
     random two-body deck once per marker pair of ``pairs`` (I, J marker ids of that deck; the
-    element's own marker attribute names in ``marker_attrs``)."""
+    element's own marker attribute names in ``marker_attrs``; an element without markers, such
+    as gravity: ``pairs=((),), marker_attrs=()``, added once without an id)."""
 
     name: str
     elements: tuple                       # ((tag, attrs), ...)
@@ -210,11 +211,11 @@ def fd_cases() -> list[FDCase]:
     return [c for et in element_types() for c in et.fd_cases()]
 
 
-@cache
-def kernel_types() -> dict:
-    """Family class -> the element type declaring it among its ``kernels``."""
+def kernel_types(types=None) -> dict:
+    """Family class -> the element type declaring it among its ``kernels`` (``types``: the
+    element types a model was compiled with, default all registered)."""
     out = {}
-    for et in element_types():
+    for et in element_types() if types is None else types:
         for k in et.kernels():
             if out.setdefault(k, et) is not et:
                 raise RuntimeError(f"kernel {k.__name__} declared by {out[k].name!r} and "
@@ -222,28 +223,32 @@ def kernel_types() -> dict:
     return out
 
 
-def type_of(fam) -> ElementType:
-    """The element type of a compiled family (its class is a declared kernel)."""
-    et = kernel_types().get(type(fam))
+def type_of(fam, owners: dict | None = None) -> ElementType:
+    """The element type of a compiled family (its class is a declared kernel); ``owners`` a
+    :func:`kernel_types` table (default: of all registered types)."""
+    et = (kernel_types() if owners is None else owners).get(type(fam))
     if et is None:
         raise RuntimeError(f"family {fam.name!r}: {type(fam).__name__} is not a declared kernel "
                            "of any element type")
     return et
 
 
-def time_sources(families) -> list[str]:
+def time_sources(families, owners: dict | None = None) -> list[str]:
     """The deck places through which ``families`` make the solution depend on time, by their
     element types' ``time_dependent`` (duplicates removed, order kept)."""
-    return list(dict.fromkeys(s for f in families for s in type_of(f).time_dependent(f)))
+    owners = kernel_types() if owners is None else owners
+    return list(dict.fromkeys(s for f in families
+                              for s in type_of(f, owners).time_dependent(f)))
 
 
-def energy_terms(families) -> tuple:
+def energy_terms(families, owners: dict | None = None) -> tuple:
     """``(family index, fn)`` of the families that add potential energy: their type's
     ``potential_energy`` unless it is :func:`workless`; constraint families never (an ideal
     reaction does no work). In ``families`` order."""
+    owners = kernel_types() if owners is None else owners
     out = []
     for i, f in enumerate(families):
-        fn = type_of(f).potential_energy
+        fn = type_of(f, owners).potential_energy
         if fn is not workless and not f.is_constraint:
             out.append((i, fn))
     return tuple(out)

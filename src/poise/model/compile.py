@@ -16,7 +16,7 @@ import numpy as np
 from poise.deck.spec import DeckSpec, Element
 from poise.core.errors import ProblemCollector
 from poise.elements.context import GLOBAL, CompileContext, num as _num
-from poise.elements.registry import element_types, time_sources
+from poise.elements.registry import element_types, energy_terms, kernel_types, time_sources
 from poise.model import units as U
 from poise.model.model import Model
 from poise.elements.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
@@ -352,6 +352,11 @@ class _Builder:
                     marker_s0=np.concatenate([np.zeros((1, 3)), s0]),
                     marker_A0=np.concatenate([np.eye(3)[None], A0]))
 
+    def body_centres(self):
+        """CG marker index (nb,) and effective mass (nb,) of the moving bodies (gravity)."""
+        cg = [self.marker_index.get(e.attrs.get("cg_id"), GLOBAL) for e in self.moving]
+        return cg, self.body_mass
+
     def mk(self, el, attr, required=True):
         mid = el.attrs.get(attr)
         if mid is None:
@@ -398,7 +403,8 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     b.body_mass = bodies["body_mass"]
 
     ctx = CompileContext(b)
-    for et in element_types():            # dependency order (poise.elements.registry)
+    types = element_types()
+    for et in types:                      # dependency order (poise.elements.registry)
         et.compile(spec, ctx)
     rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
     pc = b.pc
@@ -437,7 +443,9 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
         n_extra=ne, extra0=np.array(ctx.extra0, float), extra_names=list(ctx.extra_names),
         mass_factor=float(mfac),
     )
-    model.time_sources = time_sources(fams)
+    owners = kernel_types(types)          # family class -> its element type
+    model.time_sources = time_sources(fams, owners)
+    model.energy_terms = energy_terms(fams, owners)
     model.frame_hooks.extend(ctx.frame_hooks)
     model.reaction_feed = getattr(ctx, "reaction_feed", None)
     model.spec_warnings = list(pc.warnings)
@@ -445,4 +453,3 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     model.input_files = dict(b.input_files)
     model.finalize()
     return model
-

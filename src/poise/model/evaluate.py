@@ -8,10 +8,10 @@ fixed-pattern assembler, sparse or dense); a list of states is ``F`` frames eval
 (the tileable families tiled across frames by :mod:`poise.model.frame_batch` and called once,
 dense ``(F, N, N)`` Jacobians scattered with one ``bincount``). Every family goes through
 :func:`_family_pass`, the only loop over the families; what differs per option is how its
-outputs are reduced. The energy sums what the element types declare
-(``Model.energy_terms``, :mod:`poise.elements.registry`). Active rows come from the caller's solve data (``active``); element
-loads of the kept slot data: :mod:`poise.elements.loads`; forces reading constraint reactions:
-the model's ``reaction_feed`` (:mod:`poise.elements.reaction_feed`), single frames only.
+outputs are reduced; the energy sums what the element types declare (``Model.energy_terms``,
+:mod:`poise.elements.registry`). Active rows come from the caller's solve data (``active``);
+element loads of the kept slot data: :mod:`poise.elements.loads`; forces reading constraint
+reactions: the model's ``reaction_feed`` (:mod:`poise.elements.reaction_feed`), single frames.
 """
 from __future__ import annotations
 
@@ -174,7 +174,6 @@ class _Frames:
         if ext is not None:
             out.append(ext)
         return t, kin, lam, out
-
 
 
 def _kernel(fam, kin, lam, ctx, need_jac):

@@ -16,7 +16,6 @@ import numpy as np
 
 from poise.elements.base import EvalContext  # noqa: F401  (re-exported: kernels' context)
 from poise.elements.kernel import local_pattern
-from poise.elements.registry import energy_terms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.rotation import (expm_so3, lift_rotation_vector, rotation_vector,
@@ -80,6 +79,8 @@ class Model:
     L : model length scale [length]
     time_sources : deck places through which the solution depends on time (from the element
         types' ``time_dependent``, :func:`poise.elements.registry.time_sources`)
+    energy_terms : ``(family index, potential_energy)`` the energy pass sums (the element
+        types' declarations, :func:`poise.elements.registry.energy_terms`)
     """
 
     body_id: np.ndarray
@@ -113,6 +114,7 @@ class Model:
     extra_names: list = field(default_factory=list)
     reaction_feed: object = None     # ReactionFeed: reaction channels read by forces, else None
     time_sources: list = field(default_factory=list)   # what reads TIME (see above)
+    energy_terms: tuple = ()         # (family index, declared potential_energy) (registry)
     mass_factor: float = 1.0         # body_mass = deck mass x mass_factor (poise.model.units)
 
     # ------------------------------------------------------------------ setup
@@ -182,8 +184,6 @@ class Model:
         rank = [2 if getattr(f, "eval_last", False) else
                 1 if getattr(f, "reads_reactions", False) else 0 for f in self.families]
         self.eval_order = sorted(range(len(self.families)), key=rank.__getitem__)
-        # families adding potential energy, as their element types declare (model order)
-        self.energy_terms = energy_terms(self.families)
         self.freeze()
 
     def freeze(self):
