@@ -15,7 +15,7 @@
 Output: one JSON object per benchmark (``--out``, JSON lines, machine info in every object) and a
 markdown report (``--markdown``) with the targets of issue 2 §9 marked PASS/MISS. The report has
 no dates, so regenerating it changes only the numbers. Nothing here is asserted by the tests
-(``tests/test_bench.py`` only runs a 10-link smoke case).
+(``tests/cli/test_bench.py`` only runs a 10-link smoke case).
 """
 from __future__ import annotations
 
@@ -320,7 +320,7 @@ names, unknown/duplicate-attribute warnings, defaults) and values are typed colu
 shape column-wise (types, finiteness, bounds, enums, references, required attributes; direction
 cosines and inertia eigenvalues in batches) and runs the element-by-element checks only on
 elements that may have a problem, in document order, so messages, their order and FILE:LINE are
-unchanged (`tests/test_deck_fast_path.py` compares both paths). Cyclic garbage collection is
+unchanged (`tests/kernels/test_deck_fast_path.py` compares both paths). Cyclic garbage collection is
 paused while parsing.
 What remains at 10 000 links: lxml itself ≈ 0.35 s and `float()` of 600 000 17-digit numbers
 ≈ 0.2 s.
@@ -331,7 +331,7 @@ reads a tag index built once (`DeckSpec.indexed()`). Marker poses (`rm_id` chain
 by level), bodies (inertia transforms) and marker arrays are batched numpy; joints are compiled
 from per-type row templates; couplers, gears and user elements found joints and markers by
 scanning the deck per element (quadratic) and now use dictionaries; the assembler's pattern uses
-a stable (run-merging) sort instead of `np.unique`. `tests/test_scaling.py` guards linear
+a stable (run-merging) sort instead of `np.unique`. `tests/methods/test_scaling.py` guards linear
 scaling with call counts (200 vs 2000 links; 287 Python-level calls per link, was 1750).
 
 **Solve.** One static analysis factorises 8 times: the Gram matrix for redundancy detection,

@@ -24,7 +24,7 @@ def _qs_slider_crank(src: str, interval: float) -> str:
     s = s.replace("<Param_Static ", '<Param_Transient dae_constr_tol="1.0E-6" integr_tol="1.0E-6"/>\n'
                   "    <Param_Static ", 1)
     s = re.sub(r"<!--.*?-->", "<!-- bench: slider_crank_load.xml with fx = -60*TIME N on the "
-               f"slider, quasi-static 0..1 s every {interval} s (reference: tests/reference.py "
+               f"slider, quasi-static 0..1 s every {interval} s (reference: tests/support/reference.py "
                "slider_crank per frame) -->", s, count=1, flags=re.S)
     return s
 

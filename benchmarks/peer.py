@@ -5,7 +5,7 @@ Exudyn is optional (``pip install -e '.[bench]'``); when it cannot be imported e
 and the report prints a note. All problems are planar and are built with Exudyn's planar items in
 SI units (m, kg, s, N); poise solves the 3-D decks in ``decks/bench``/``poise.gen.chain`` exactly
 as ``poise solve`` does. Both sides are judged by the achieved error against the same closed-form
-reference (``tests/reference.py``: CG positions / model length scale).
+reference (``tests/support/reference.py``: CG positions / model length scale).
 
 Why the model choice matters (diagnosed, not assumed): Exudyn's static solver builds its Newton
 matrix from the ODE2 stiffness, the constraint Jacobian C_q and C_qᵀ, but omits the derivative of

@@ -75,7 +75,22 @@ def fourbar_deck(root: Path, phi: float) -> str:
     return re.sub(r'<Reference_Marker id="(\d+)"[^>]*/>', sub, text, flags=re.S)
 
 
-FOURBAR_MIN = -2.141631367731787    # rad: the only minimum (1-DOF scan, tests/reference.py)
+FOURBAR_MIN = -2.141631367731787    # rad: the only minimum (1-DOF scan, tests/support/reference.py)
+
+
+def _best_of(repeat, run):
+    """``run()`` ``repeat`` times; the result with the smallest solve time (each case and the
+    FIM_S baseline it is compared with get the same number of repeats)."""
+    best = None
+    for _ in range(repeat):
+        res = run()
+        if best is None or res.timings.get("solve", np.inf) < best.timings.get("solve", np.inf):
+            best = res
+    return best
+
+
+def _repeats(n):
+    return 3 if n <= 200 else 2 if n <= 1000 else 1
 
 
 def _fourbar_case(tmp: Path, root: Path, method, log, **over):
@@ -83,7 +98,7 @@ def _fourbar_case(tmp: Path, root: Path, method, log, **over):
     p = tmp / "stable_fourbar_60.xml"
     if not p.exists():
         p.write_text(fourbar_deck(root, math.radians(60.0)))
-    res = poise.solve(str(p), method=method, **over)
+    res = _best_of(_repeats(3), lambda: poise.solve(str(p), method=method, **over))
     a = res.analyses[0]
     ids = list(np.asarray(a.datasets["bodies/id"]))
     Rc = np.asarray(a.datasets["bodies/orientation"])[0][ids.index(2)]
@@ -107,8 +122,8 @@ def _case(tmp: Path, n, start, method, log, **over):
     if not p.exists():
         p.write_text(build_chain_deck(n, start=start, span=span))
     t = time.perf_counter()
-    res = poise.solve(str(p), method=method, **over)
-    wall = time.perf_counter() - t
+    res = _best_of(_repeats(n), lambda: poise.solve(str(p), method=method, **over))
+    wall = (time.perf_counter() - t) / _repeats(n)
     a = res.analyses[0]
     ids = np.asarray(a.datasets["bodies/id"])
     pos = np.asarray(a.datasets["bodies/position"])[0][np.argsort(ids)][:, :2]
@@ -182,7 +197,9 @@ def run(tmp: Path, log=print, quick=False):
     md = ["## Stable equilibria", "",
           "Hanging chains of rigid links (`poise.gen.chain`; `V` = two straight legs, span "
           f"{V_SPAN} N a; `arc` = the default start near the catenary, span 0.8 N a). Solve "
-          "times in one process (parse and compile excluded); the deviation is the largest CG "
+          "times in one process (parse and compile excluded; the best of 3 runs for N <= 200 "
+          "and the four-bar, of 2 for N = 1000, one run above: a case and the FIM_S run it is "
+          "compared with get the same number); the deviation is the largest CG "
           "distance from the discrete catenary (closed form, one scalar root) over N a.", "",
           "| N | start | method | status | stability (negative modes) | solve [s] | "
           "x FIM_S | deviation |", "|---|---|---|---|---|---|---|---|"]

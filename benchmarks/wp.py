@@ -4,8 +4,8 @@ independent reference.
 
 Error metric: ``max over frames and bodies |x_cg - x_cg,ref| / L`` (CG positions, ``L`` = the
 model's length scale ``/model/length_scale``), i.e. relative to model size, the measure of
-``tests/test_decks_reference.py``. References (documented per deck in :data:`DECKS`):
-closed forms from ``tests/reference.py`` (numpy/scipy only, never poise).
+``tests/reference/test_decks_reference.py``. References (documented per deck in :data:`DECKS`):
+closed forms from ``tests/support/reference.py`` (numpy/scipy only, never poise).
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ QUICK_RUNGS = [10.0 ** -k for k in (2, 6, 10)]
 
 # --------------------------------------------------------------------------- references
 def _reference_module():
-    p = ROOT / "tests" / "reference.py"
+    p = ROOT / "tests" / "support" / "reference.py"
     spec = importlib.util.spec_from_file_location("poise_bench_reference", p)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

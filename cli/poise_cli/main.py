@@ -16,7 +16,7 @@ CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 
 
 #: name -> (module, one-line help). Command modules are imported only when their command runs
 #: (``poise solve`` never imports the plot/animate/batch/sweep/bench modules) and ``poise --help``
-#: prints this table without importing any of them; tests/test_startup.py checks it against the
+#: prints this table without importing any of them; tests/cli/test_startup.py checks it against the
 #: commands' own short help.
 COMMANDS = {
     "animate": ("poise_cli.animate", "Animate a results file as a stick figure (GIF, MP4 or PNG)."),

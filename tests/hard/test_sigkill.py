@@ -15,9 +15,10 @@ from pathlib import Path
 import h5py
 import pytest
 
+from support.paths import ROOT
+
 
 POISE = str(Path(sys.executable).parent / "poise")
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _gen_chain(n, path):

@@ -9,8 +9,6 @@
   the compressed catenary (598 unstable modes);
 * a factorisation that cannot be trusted gives ``unknown`` with the reason, never a class.
 """
-from pathlib import Path
-
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -22,7 +20,7 @@ from poise.gen.chain import build_chain_deck
 
 from .deckgen import Deck, rot_y, rot_z, stiff_soft_deck
 
-DECKS = Path(__file__).resolve().parents[2] / "decks"
+from support.paths import DECKS
 
 
 # ------------------------------------------------------------------ LDL^T inertia helper

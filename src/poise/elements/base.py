@@ -131,6 +131,11 @@ class ConstraintFamily(Family):
     def constraints(self, kin: SlotKinematics, lam: np.ndarray, ctx):
         raise NotImplementedError
 
+    def values(self, kin: SlotKinematics, ctx) -> np.ndarray:
+        """``phi`` (n, m) alone (projections onto the constraints evaluate nothing else);
+        families whose derivatives are costly override it."""
+        return self.constraints(kin, np.zeros((self.n, self.m)), ctx)[0]
+
     def phi_t(self, kin: SlotKinematics, ctx) -> np.ndarray | None:
         """d phi / d t, (n, m); None when the constraint does not depend on time."""
         return None

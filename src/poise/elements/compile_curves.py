@@ -299,4 +299,4 @@ ELEMENTS = (ElementType(
                      F.SurfaceOnSurface), potential_energy=workless,
     time_dependent=static,      # TIME in curve geometry is a located error (compile_curves)
     outputs={"curves": TAGS},
-    datasets=("id", "tag", "parameters", "point"), fd_tests="tests/test_curves.py"),)
+    datasets=("id", "tag", "parameters", "point"), fd_tests="tests/reference/test_curves.py"),)

@@ -112,4 +112,4 @@ ELEMENTS = (ElementType(
     kernels=lambda: (XF.ExprVectorForce, XF.ExprScalarForce),
     potential_energy=not_conservative, time_dependent=expressions_of_time,
     outputs={"forces": None, "requests": ("Post_Request",)},
-    datasets=("id", "values", "message"), fd_tests="tests/test_expr_families.py"),)
+    datasets=("id", "values", "message"), fd_tests="tests/kernels/test_expr_families.py"),)

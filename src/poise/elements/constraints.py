@@ -77,6 +77,9 @@ class Coincident(ConstraintFamily):
         return cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=np.array([0, 1]),
                    slot_kind=np.zeros((n, 2), int), owner=np.asarray(owner, int), m=3)
 
+    def values(self, kin, ctx):
+        return kin.Y[:, 0] - kin.Y[:, 1]
+
     def constraints(self, kin, lam, ctx):
         n = self.n
         phi = kin.Y[:, 0] - kin.Y[:, 1]
@@ -103,6 +106,11 @@ class Perpendicular(ConstraintFamily):
                   owner=np.asarray(owner, int), m=1)
         fam.coef2 = np.asarray(coef2, float)
         return fam
+
+    def values(self, kin, ctx):
+        Y = kin.Y
+        return (np.einsum("ni,ni->n", Y[:, 0], Y[:, 1])
+                + self.coef2 * np.einsum("ni,ni->n", Y[:, 2], Y[:, 3]))[:, None]
 
     def constraints(self, kin, lam, ctx):
         Y = kin.Y
@@ -143,6 +151,10 @@ class InPlane(ConstraintFamily):
         return cls(name=name, markers=np.stack([I, J], 1).astype(int),
                    slot_ml=np.array([0, 1, 1]), slot_kind=kinds,
                    owner=np.asarray(owner, int), m=1)
+
+    def values(self, kin, ctx):
+        Y = kin.Y
+        return np.einsum("ni,ni->n", Y[:, 0] - Y[:, 1], Y[:, 2])[:, None]
 
     def constraints(self, kin, lam, ctx):
         Y = kin.Y

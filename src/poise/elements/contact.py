@@ -368,4 +368,4 @@ ELEMENTS = (ElementType(
     kernels=lambda: (ContactForce,), tileable=lambda: (ContactForce,),
     potential_energy=kernel_potential, time_dependent=static,
     outputs={"contacts": ("Force_Contact",)},
-    datasets=("id", "kind", "force", "penetration"), fd_tests="tests/test_contact.py"),)
+    datasets=("id", "kind", "force", "penetration"), fd_tests="tests/reference/test_contact.py"),)

@@ -238,4 +238,4 @@ ELEMENTS = (ElementType(
     kernels=lambda: (Coupler,), potential_energy=workless,
     time_dependent=static,      # displacements from the input configuration: no time
     outputs={"couplers": ("Constraint_Coupler",)},
-    datasets=("id", "force", "torque"), fd_tests="tests/test_couplers_gears_fields_beams.py"),)
+    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

@@ -231,4 +231,4 @@ ELEMENTS = (ElementType(
     potential_energy=not_conservative,  # its rows are no force of a potential: energy NaN
     time_dependent=_time_sources,
     outputs={"diffs": ("Control_Diff",), "variables": ("Reference_Variable",)},
-    datasets=("id", "value"), fd_tests="tests/test_extra_unknowns.py"),)
+    datasets=("id", "value"), fd_tests="tests/kernels/test_extra_unknowns.py"),)

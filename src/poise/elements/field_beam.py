@@ -11,7 +11,7 @@ force and torque plus the moment of the I-J offset act on J's body
 
 ``Force_Beam`` builds K from the section data (:func:`beam_stiffness`), L = [length, 0, ...],
 F0 = the preloads. The Jacobian with respect to the slot vectors is exact (FD-checked in
-``tests/test_couplers_gears_fields_beams.py``).
+``tests/kernels/test_couplers_gears_fields_beams.py``).
 """
 from __future__ import annotations
 
@@ -186,4 +186,4 @@ ELEMENTS = (ElementType(
     kernels=lambda: (FieldForce,), tileable=lambda: (FieldForce,),
     potential_energy=kernel_potential, time_dependent=static,
     outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
-    fd_tests="tests/test_diffs_variables_user_routines.py"),)
+    fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)

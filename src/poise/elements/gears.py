@@ -132,4 +132,4 @@ ELEMENTS = (ElementType(
     after=("couplers",),        # gear rows after the coupler rows (model layout)
     kernels=lambda: (Gear,), potential_energy=workless, time_dependent=static,
     outputs={"gears": ("Constraint_Gear",)},
-    datasets=("id", "force", "torque"), fd_tests="tests/test_couplers_gears_fields_beams.py"),)
+    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

@@ -96,7 +96,7 @@ def measure(Y, name, need_hess=True):
       (principal values; b2 in [-pi/2, pi/2]).
 
     The multiplier-weighted Hessian ``G = lam d2 phi / dy2`` is exact (FD-checked in
-    ``tests/test_motions.py``).
+    ``tests/reference/test_motions.py``).
     """
     if name in _AXJ:
         a = _AXJ[name]
@@ -444,4 +444,4 @@ ELEMENTS = (ElementType(
     outputs={"motions": ("Motion_Joint", "Motion_Marker")}, datasets=("id", "force", "torque"),
     reactions={"MOTION": ("motions", ("Motion_Joint", "Motion_Marker"))},
     reaction_aliases={"MOTION_JOINT": "MOTION"},
-    fd_tests="tests/test_motions.py"),)
+    fd_tests="tests/reference/test_motions.py"),)

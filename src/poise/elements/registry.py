@@ -25,7 +25,7 @@ import poise.elements as pkg
 
 @dataclass(frozen=True)
 class FDCase:
-    """A finite-difference Jacobian check (tests/test_jacobians.py): ``elements`` are added to a
+    """A finite-difference Jacobian check (tests/kernels/test_jacobians.py): ``elements`` are added to a
     random two-body deck once per marker pair of ``pairs`` (I, J marker ids of that deck; the
     element's own marker attribute names in ``marker_attrs``; an element without markers, such
     as gravity: ``pairs=((),), marker_attrs=()``, added once without an id)."""

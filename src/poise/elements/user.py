@@ -345,4 +345,4 @@ ELEMENTS = (ElementType(
     kernels=lambda: (UserConstraint, UserScalarForce, UserVectorForce, UserScalarEquation),
     potential_energy=not_conservative,   # user forces and VARSUB rows (constraints: none)
     time_dependent=opaque_code, outputs={"userconstrs": USER_CONSTRAINT_TAGS, "forces": None},
-    datasets=("id", "force", "torque"), fd_tests="tests/test_diffs_variables_user_routines.py"),)
+    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)

@@ -178,6 +178,8 @@ class _Frames:
 
 def _kernel(fam, kin, lam, ctx, need_jac):
     if fam.is_constraint:
+        if need_jac == "phi":                  # constraint values alone
+            return fam.values(kin, ctx), None, None
         return fam.constraints(kin, lam, ctx)
     return fam.forces(kin, ctx, need_jac)
 
@@ -220,7 +222,7 @@ def _family_pass(model, fr, need_jac, only=None, done=None):
 def _phi(model, fr, active):
     """Constraint values of the frames (no force element is called)."""
     phi = np.zeros(fr.F * model.nc)
-    for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, False, only="phi"):
+    for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, "phi", only="phi"):
         phi[t.crow.ravel()] = ph.ravel()
     if not np.all(np.isfinite(phi)):
         raise EvaluationError(_nonfinite_message(model, np.zeros(0), phi[:model.nc])

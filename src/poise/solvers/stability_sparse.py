@@ -198,6 +198,10 @@ class _SparsePencil:
             return A.tocsc()
         return sp.bmat([[A, self.Gt.T], [self.Gt, None]], format="csc")
 
+    def ldl(self, s, rho):
+        """The :class:`SymmetricLDL` of ``kkt(s, rho)`` in the pencil's elimination order."""
+        return SymmetricLDL(self.kkt(s, rho), self.order)
+
     def factor(self, s):
         """A valid LDL^T of ``kkt(s, rho)`` for the first ``rho`` of AUG_RHO whose backward
         error is below ``BERR_MAX * eps`` and whose pivots are all above ``TINY_PIVOT * eps``

@@ -36,7 +36,8 @@ from poise.solvers.newton import (
     measures,
     newton,
 )
-from poise.solvers.stability import AUG_RHO, SymmetricLDL, _SparsePencil
+from poise.solvers.pencil_dense import DENSE_PENCIL, DensePencil
+from poise.solvers.stability import AUG_RHO, _SparsePencil
 from poise.solvers.status import Status
 
 ESCAPE_ROT = 0.3          # rad: largest rotation of the first escape trial
@@ -45,7 +46,9 @@ ESCAPE_SHRINK = (1.0, 0.3, 0.1, 0.03, 0.01)
 MAX_ESCAPES = 20
 STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton steps in all
 STEP_TRANS = 0.4          # x L: largest translation of one descent step
-PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial
+PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial, at most ...
+PROJECT_TOL_MAX = 1e-5    # ... and at least: the trial's energy error bound within
+ENERGY_MARGIN = 0.01      # this fraction of the step's predicted decrease
 STEP_CHORD_RATE = 0.6     # the projection refactorises when its error falls slower than this
 PROJECT_MAX_ITER = 30     # projection iterations of one trial ...
 MAX_REFRESH = 4           # ... and factorisations
@@ -190,10 +193,11 @@ def _ic_step(model, state, cnt, sigma, like=None):
     cnt.residuals += 1
     cnt.jacobians += 1
     ev = model.evaluate(state, need_jac=True, active=cnt.active)
-    P = _SparsePencil(model, ev.J, active=cnt.active, like=like)
+    pencil = DensePencil if model.nq + model.nc <= DENSE_PENCIL else _SparsePencil
+    P = pencil(model, ev.J, active=cnt.active, like=like)
     out = _ic_solve(model, P, ev, cnt, sigma)
     if out[0] is None and P.reused:
-        out = _ic_solve(model, _SparsePencil(model, ev.J, active=cnt.active), ev, cnt, sigma)
+        out = _ic_solve(model, pencil(model, ev.J, active=cnt.active), ev, cnt, sigma)
     return out
 
 
@@ -210,7 +214,7 @@ def _ic_solve(model, P, ev, cnt, sigma):
     for k in range(k0, 40):
         for rho in AUG_RHO:
             cnt.factorizations += 1
-            F = SymmetricLDL(P.kkt(-sig, rho), P.order)
+            F = P.ldl(-sig, rho)
             if F.ok and np.all(np.abs(F.pivots) > 1e-14 * scale):
                 break
         if F.ok and F.n_negative == m and np.all(np.abs(F.pivots) > 1e-14 * scale):
@@ -274,23 +278,24 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
         dq = dq / big
         slope = float(np.asarray(ev.r, float)[:model.nq] @ dq)
         proj = _Projector(model, cnt, chord)
+        work = _violation_work(model, ev, state)
         alpha = alpha0
         accepted = None
         for _ in range(12):
             try:
                 x = model.retract(state, alpha * dq)
-                x, ok = proj(x)          # not projected: a shorter step
+                x, ok = proj(x, _trial_tol(alpha, slope, work))   # not projected: shorter
                 if ok:
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                     tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
-                    if dv <= 1e-4 * alpha * min(slope, 0.0) + tol:
+                    if dv + proj.err * work <= 1e-4 * alpha * min(slope, 0.0) + tol:
                         accepted = (x, pe_x if np.isfinite(pe_x) else pe + dv)
                         break
             except EvaluationError:
                 pass
             alpha *= 0.5
         if accepted is not None and alpha == 1.0 and sigma > 0.0 and big == 1.0:
-            alpha, accepted = _extend(model, state, dq, proj, cnt, pe, slope, accepted)
+            alpha, accepted = _extend(model, state, dq, proj, cnt, pe, slope, accepted, work)
         history.add(frame, steps, imb, cerr, float(np.max(np.abs(alpha * dq) / sc.q_len)),
                     alpha if accepted else np.nan, worst,
                     f"stable-descent sigma={sigma:.3g}", pos=state.pos, rot=state.rot)
@@ -319,7 +324,27 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     return (st, o, pe, steps) if o.ok else (state, None, pe, steps)
 
 
-def _extend(model, state, dq, proj, cnt, pe, slope, accepted):
+def _violation_work(model, ev, state):
+    """``W``: a trial whose relative constraint violation is ``e`` has a potential energy
+    within about ``e W`` of its exact projection's (the correction moves each coordinate by
+    about ``e`` x its length, against the residual ``r``, and each constraint by ``e`` x its
+    scale, against its multiplier)."""
+    ql = np.where(model.q_kind == 1, 1.0, model.L)
+    rs = np.where(model.row_kind == 1, 1.0, model.L)
+    r = np.abs(np.asarray(ev.r, float)[:model.nq])
+    return float(np.sum(r * ql) + np.sum(np.abs(state.lam) * rs))
+
+
+def _trial_tol(alpha, slope, work):
+    """Projection tolerance of a trial at ``alpha``: its energy error bound within
+    ``ENERGY_MARGIN`` of the predicted decrease, between ``PROJECT_TOL`` and
+    ``PROJECT_TOL_MAX`` (near the equilibrium the decrease is small and the trials exact)."""
+    if not np.isfinite(work) or work <= 0.0:
+        return PROJECT_TOL
+    return min(max(ENERGY_MARGIN * alpha * abs(slope) / work, PROJECT_TOL), PROJECT_TOL_MAX)
+
+
+def _extend(model, state, dq, proj, cnt, pe, slope, accepted, work):
     """A full shifted step that was accepted at once and stays inside the step limits: the
     shift made the quadratic model conservative, so try ``EXTEND`` x longer steps along it (up
     to the limits) while each lowers the energy more. Returns ``(alpha, (state, pe))``."""
@@ -333,14 +358,15 @@ def _extend(model, state, dq, proj, cnt, pe, slope, accepted):
         if a <= alpha * 1.01:
             break
         try:
-            x, ok = proj(model.retract(state, a * dq))
+            x, ok = proj(model.retract(state, a * dq), _trial_tol(a, slope, work))
             if not ok:
                 break
             dv, pe_x = _energy_drop(model, state, x, cnt, pe)
         except EvaluationError:
             break
         pe_new = pe_x if np.isfinite(pe_x) else pe + dv
-        if not (pe_new < best[1] and dv <= 1e-4 * a * min(slope, 0.0)):
+        if not (pe_new + proj.err * work < best[1]
+                and dv + proj.err * work <= 1e-4 * a * min(slope, 0.0)):
             break
         alpha, best = a, (x, pe_new)
     return alpha, best
@@ -361,8 +387,9 @@ class _Projector:
         self.op = chord.correction if chord is not None else None
         self.scale = np.where(model.row_kind == 1, 1.0, model.L)
 
-    def __call__(self, x):
+    def __call__(self, x, tol=PROJECT_TOL):
         m = self.model
+        self.err = 0.0
         if m.nc == 0:
             return x, True
         refreshed, prev, fresh = 0, np.inf, False
@@ -371,7 +398,8 @@ class _Projector:
             self.cnt.residuals += 1
             phi = model_phi(m, x, self.cnt.active)
             err = float(np.max(np.abs(phi) / self.scale))
-            if err <= PROJECT_TOL:
+            self.err = err
+            if err <= tol:
                 return x, True
             if err > prev and fresh:
                 return x, False            # diverging after a fresh factorisation: too far

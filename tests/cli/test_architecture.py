@@ -1,0 +1,98 @@
+"""The package's architecture, checked in ``make test`` (and so in CI).
+
+* The import-linter contracts in ``pyproject.toml`` (``[tool.importlinter]``, also run by
+  ``make lint``): the layers of the pipeline, no import cycles, independent commands.
+* Function-local ``poise`` imports: allowed only where they keep start-up light, said by a
+  comment containing ``lazy`` on the import, or above it in the same block of imports. The
+  modules that still have others are listed in :data:`ALLOWED` with their count; the count may
+  only go down (shrink the list as the imports move to the top of their modules).
+"""
+from __future__ import annotations
+
+import ast
+import os
+from pathlib import Path
+
+import pytest
+
+from support.paths import ROOT
+
+
+PACKAGES = (ROOT / "src" / "poise", ROOT / "cli" / "poise_cli")
+
+# module (path from the repository root) -> function-local poise imports without a `lazy` comment
+ALLOWED = {
+}
+
+
+def _is_poise_import(node: ast.AST) -> bool:
+    if isinstance(node, ast.Import):
+        return any(a.name == "poise" or a.name.startswith("poise.") for a in node.names)
+    if isinstance(node, ast.ImportFrom):
+        mod = node.module or ""
+        return node.level > 0 or mod == "poise" or mod.startswith("poise.")
+    return False
+
+
+def _commented_lazy(lines: list[str], node: ast.stmt) -> bool:
+    """``lazy`` in a comment on the statement's lines, or on a comment line above it with only
+    imports (and comments) in between."""
+    if any("#" in ln and "lazy" in ln.split("#", 1)[1]
+           for ln in lines[node.lineno - 1:node.end_lineno]):
+        return True
+    i = node.lineno - 2
+    while i >= 0:
+        s = lines[i].strip()
+        if s.startswith("#"):
+            if "lazy" in s:
+                return True
+        elif not s.startswith(("from ", "import ")) and not s.endswith(("\\", ",")) \
+                and not s.startswith(")"):
+            return False
+        i -= 1
+    return False
+
+
+def local_imports(path: Path) -> tuple[int, int]:
+    """(function-local poise imports without a lazy comment, with one)."""
+    text = path.read_text()
+    lines = text.splitlines()
+    plain = lazy = 0
+
+    def walk(node: ast.AST, in_function: bool) -> None:
+        nonlocal plain, lazy
+        for child in ast.iter_child_nodes(node):
+            if in_function and _is_poise_import(child):
+                if _commented_lazy(lines, child):
+                    lazy += 1
+                else:
+                    plain += 1
+            walk(child, in_function or isinstance(
+                child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
+
+    walk(ast.parse(text), False)
+    return plain, lazy
+
+
+def test_function_local_poise_imports_only_where_they_keep_start_up_light():
+    found = {}
+    for pkg in PACKAGES:
+        for path in sorted(pkg.rglob("*.py")):
+            plain, _ = local_imports(path)
+            if plain:
+                found[path.relative_to(ROOT).as_posix()] = plain
+    grown = {m: (n, ALLOWED.get(m, 0)) for m, n in found.items() if n > ALLOWED.get(m, 0)}
+    assert not grown, ("function-local poise imports without a `# lazy: why` comment "
+                       f"(module: (found, allowed)): {grown}; import at the top of the module")
+    shrunk = {m: (found.get(m, 0), n) for m, n in ALLOWED.items() if found.get(m, 0) < n}
+    assert not shrunk, f"fewer function-local imports than allowed, lower ALLOWED: {shrunk}"
+
+
+def test_import_contracts_are_kept():
+    """``lint-imports`` (the contracts of pyproject.toml) passes; CI installs the dev extra."""
+    if os.environ.get("CI"):
+        from importlinter.cli import lint_imports
+    else:
+        lint_imports = pytest.importorskip("importlinter.cli").lint_imports
+    rc = lint_imports(config_filename=str(ROOT / "pyproject.toml"), no_cache=True, no_logo=True)
+    assert rc == 0, "import contracts broken: run `make lint` (lint-imports) for the report"

@@ -1,0 +1,33 @@
+"""Smoke test of the benchmark module (no timing assertions: targets live in docs/performance.md)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from support.paths import ROOT
+
+
+def test_bench_smoke(tmp_path):
+    out = tmp_path / "results.jsonl"
+    md = tmp_path / "performance.md"
+    r = subprocess.run([sys.executable, "-m", "benchmarks", "--no-wp", "--sizes", "10", "--repeat", "1",
+                        "--cli-repeat", "1", "--out", str(out), "--markdown", str(md)],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    chain = [x for x in rows if x["bench"] == "chain"]
+    assert len(chain) == 1 and chain[0]["n"] == 10
+    c = chain[0]
+    for key in ("parse_s", "compile_s", "solve_s", "iteration_s", "lu_s", "peak_rss_bytes"):
+        assert set(c[key]) >= {"median", "min", "max"}, key
+    for key in ("iterations", "status", "nq", "nc", "phases", "counters", "iteration_per_lu"):
+        assert key in c, key
+    assert c["status"] == "converged"
+    assert {x["bench"] for x in rows} >= {"chain", "help", "small_deck"}
+    for x in rows:
+        assert {"cores", "python", "numpy", "scipy"} <= set(x["machine"])
+        if x["bench"] in ("help", "small_deck"):
+            assert x["returncode"] == 0 and set(x["wall_s"]) >= {"median", "min", "max"}
+    text = md.read_text()
+    assert "## Targets" in text and "## Machine" in text and "| 10 |" in text
