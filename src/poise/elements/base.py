@@ -79,6 +79,9 @@ class Family:
     row_names: tuple = ()
     scols: np.ndarray = field(default=None, repr=False)
 
+    #: evaluated after every other family (``Model.eval_order``; gravity's uniform load)
+    eval_last = False
+
     @property
     def U(self) -> int:
         """Number of scalar-unknown columns per instance."""

@@ -181,7 +181,7 @@ class Model:
         # evaluation order: families reading reaction channels after every other (they read
         # the constraint reactions), then those declaring ``eval_last`` (gravity: the residual
         # sums in the order of earlier releases)
-        rank = [2 if getattr(f, "eval_last", False) else
+        rank = [2 if f.eval_last else
                 1 if getattr(f, "reads_reactions", False) else 0 for f in self.families]
         self.eval_order = sorted(range(len(self.families)), key=rank.__getitem__)
         self.freeze()
