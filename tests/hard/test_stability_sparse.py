@@ -291,3 +291,30 @@ def test_large_chain_upside_down_is_unstable(tmp_path):
         assert d["modes/direction"][k][2] > 0.995
         assert d["modes/eigenvalue"][k] < 0
     assert d["frames/min_stiffness_eigenvalue"][0] < 0
+
+
+@pytest.mark.parametrize("name", ["chain_10.xml", "fourbar_spring.xml"])
+def test_dense_pencil_inertia_matches_sparse_pencil(name):
+    """The descent's dense pencil (small models) and the sparse one count the same inertia of
+    the shifted KKT matrix at shifts below, at and above the reduced stiffness' spectrum, and
+    solve the same system."""
+    from poise.solvers.pencil_dense import DensePencil
+    model, state, drv = _solved(DECKS / name)
+    active = np.ones(model.nc, bool)
+    active[np.asarray(drv.redundancy, int)] = False
+    J = model.evaluate(state, need_jac=True, active=active).J
+    Pd, Ps = DensePencil(model, J, active=active), stab._SparsePencil(model, J, active=active)
+    assert Pd.m == Ps.m and np.array_equal(Pd.rows, Ps.rows)
+    Kr = Pd.Kt                                   # scaled stiffness: its spread sets the shifts
+    top = float(np.max(np.abs(np.linalg.eigvalsh(Kr))))
+    seen = set()
+    for s in (-2.0 * top, -1e-3 * top, 0.0, 1e-3 * top, 2.0 * top):
+        Fd, Fs = Pd.ldl(s, 1.0), Ps.ldl(s, 1.0)
+        if not Fs.ok:
+            continue
+        assert Fd.ok and Fd.n_negative == Fs.n_negative
+        seen.add(Fd.n_negative - Pd.m)
+        b = np.random.default_rng(3).standard_normal(Pd.nq + Pd.m)
+        xd = Fd.solve(b)
+        assert np.allclose(Pd.kkt(s, 1.0) @ xd, b, atol=1e-8 * np.abs(b).max())
+    assert len(seen) >= 2          # both a positive definite and an indefinite reduced matrix

@@ -135,3 +135,60 @@ def test_quasistatic_frame_zero_gets_the_recovery(tmp_path, method):
     check_counts(a)
     off = run_deck(deck, overrides={"max_num_iter": 2, "fallback": False}).analyses[0]
     assert not off.converged
+
+
+def test_the_loop_appends_every_row_and_owns_the_budget():
+    """``iterate`` appends each step's rows, then the closing rows, and stops at the budget;
+    a ``History.stage`` view labels the rows recorded through it."""
+    from poise.solvers.history import History, Row
+    from poise.solvers.iterate import Iterative, Step, iterate
+
+    class Count(Iterative):
+        def init(self, n):
+            return {"n": n, "why": ""}
+
+        def terminate(self, s, used):
+            return s["n"] == 0
+
+        def step(self, s, used, left):
+            s["n"] -= 1
+            return Step(1, (Row(0, used, event="step"),))
+
+        def exhausted(self, s, used):
+            s["why"] = "budget"
+
+        def close(self, s, used):
+            return (Row(0, used, event="close"),)
+
+        def postprocess(self, s, used):
+            return used, s["why"]
+
+    h = History()
+    assert iterate(Count(), 10, h, 3) == (3, "")
+    assert iterate(Count(), 2, h.stage("continuation"), 5) == (2, "budget")
+    d = h.datasets()
+    assert list(d["iterations/event"]) == ["step"] * 3 + ["close"] + ["step"] * 2 + ["close"]
+    assert list(d["iterations/iteration"]) == [0, 1, 2, 3, 0, 1, 2]
+    assert list(d["iterations/strategy"]) == ["plain"] * 4 + ["continuation"] * 3
+
+
+def test_solve_data_counts_every_evaluation_and_factorisation():
+    """``SolveData.evaluate`` / ``jacobian`` / ``factor`` are the counted entry points."""
+    from poise.deck.parser import load_deck
+    from poise.model.compile import compile_model
+    from poise.solvers.data import SolveData
+
+    model = compile_model(load_deck(PENDULUM))
+    st = model.initial_state()
+    d = SolveData.for_model(model)
+    ev = d.evaluate(model, st, "defer")
+    assert d.as_dict() == {"residuals": 1, "jacobians": 0, "factorizations": 0}
+    d.factor(d.jacobian(model, ev))
+    d.jacobian(model, ev)                                    # assembled once, counted once
+    assert d.as_dict() == {"residuals": 1, "jacobians": 1, "factorizations": 1}
+    d.evaluate(model, st, "jacobian", residual=False)        # IDA's Jacobian callback
+    d.evaluate(model, [st, st, st], "residual")              # three frames
+    d.evaluate(model, st, "phi")
+    assert d.as_dict() == {"residuals": 5, "jacobians": 2, "factorizations": 1}
+    assert d.factor(np.eye(2), lambda J: "mine", count=3) == "mine"
+    assert d.factorizations == 4

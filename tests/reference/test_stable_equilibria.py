@@ -96,11 +96,49 @@ def test_plain_fim_s_lands_on_an_unstable_equilibrium_and_says_so(tmp_path):
 
 
 def test_require_stable_history_records_the_path(tmp_path):
+    """Newton's kinked V is unstable: the descent from the input (the V) reaches the
+    catenary; the path is in the history and the message."""
     ar = _solve(_deck(tmp_path, 200), method="FIM_S", require_stable=True)
     ev = [str(e) for e in ar.datasets["iterations/event"]]
-    assert any(e.startswith("stable: escape 1: unstable") for e in ev)
+    assert any(e.startswith("stable: Newton's equilibrium is unstable") and
+               e.endswith("descent from the input") for e in ev)
     assert any(e.startswith("stable-descent") for e in ev)
-    assert "--require-stable" in ar.message
+    assert not any(e.startswith("stable: escape") for e in ev)
+    assert "descended from the input" in ar.message
+    assert _cg_deviation(ar, 200) <= 1e-6
+
+
+def _upright_pendulum(tmp_path):
+    """decks/mkeam_inverted_pendulum.xml standing exactly upright, its torsion spring free
+    there: the input IS the unstable equilibrium (V = k/2 phi^2 + m g l cos phi, k = 2000
+    N mm/rad < m g l = 3924 N mm), so the descent from the input cannot leave it."""
+    text = (ROOT / "decks" / "mkeam_inverted_pendulum.xml").read_text()
+    text = text.replace('pos_x="-19.966683329365637" pos_y="199.00083305560514" pos_z="0." '
+                        'a00="-0.09983341664682818" a10="0.9950041652780257" a20="0." '
+                        'a01="-0.9950041652780257" a11="-0.09983341664682818"',
+                        'pos_x="0." pos_y="200." pos_z="0." a00="0." a10="1." a20="0." '
+                        'a01="-1." a11="0."').replace('length="-0.1"', 'length="0."')
+    assert 'pos_y="200."' in text
+    p = tmp_path / "upright.xml"
+    p.write_text(text)
+    return p
+
+
+def test_require_stable_escapes_when_the_input_is_the_unstable_point(tmp_path):
+    """The descent from the input ends where it started (unstable): Newton's point is left
+    along its unstable mode; the answer is the closed-form rest angle k phi = m g l sin phi."""
+    ar = _solve(_upright_pendulum(tmp_path), method="FIM_S", require_stable=True)
+    assert ar.status == "converged", ar.message
+    assert str(ar.datasets["frames/stability"][0]) == "stable"
+    ev = [str(e) for e in ar.datasets["iterations/event"]]
+    assert any(e.startswith("stable: the descent from the input did not end") for e in ev)
+    assert any(e.startswith("stable: escape 1: unstable (1 negative modes)") for e in ev)
+    k, mgl = 2000.0, 2.0 * 9.81 * 200.0            # N mm/rad, N mm (g = 9810 mm/s^2)
+    phi = brentq(lambda f: k * f - mgl * np.sin(f), 0.5, 3.0, xtol=1e-14)
+    ids = list(np.asarray(ar.datasets["bodies/id"]))
+    cg = np.asarray(ar.datasets["bodies/position"])[0][ids.index(2)]
+    tilt = np.arctan2(-cg[0], cg[1])               # from +Y, positive towards -X
+    assert abs(abs(tilt) - phi) <= 1e-6
 
 
 def test_mkeam_reaches_the_catenary_from_a_v(tmp_path):
@@ -117,13 +155,13 @@ def _cli(args, cwd):
 
 
 def test_require_stable_out_of_budget_exit_1_results_written(tmp_path):
-    """Plain Newton converges within 10 iterations; the descent's budget (2 x max_num_iter =
-    20 steps) is too small for the 300-link V: exit 1, the file is written, the status says
-    why."""
-    deck = _deck(tmp_path, 300)
+    """The upright pendulum: Newton is done at once (the input is an equilibrium); the
+    descent's budget (2 x max_num_iter = 6 steps) is too small to fall from upright to rest:
+    exit 1, the file is written, the status says why."""
+    deck = _upright_pendulum(tmp_path)
     out = tmp_path / "r.h5"
     p = _cli(["solve", str(deck), "--method", "FIM_S", "--require-stable", "--max-num-iter",
-              "10", "-o", str(out), "--json"], tmp_path)
+              "3", "-o", str(out), "--json"], tmp_path)
     assert p.returncode == 1, p.stderr
     assert out.exists()
     s = json.loads(p.stdout)

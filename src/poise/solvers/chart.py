@@ -13,7 +13,6 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.elements.rotation import expm_so3, se3_left_jacobian, wrap_angle
-from poise.model.evaluate import evaluate
 from poise.model.frame_batch import batchable
 from poise.model.model import State
 from poise.solvers.newton import Scales
@@ -36,8 +35,6 @@ class _Chart:
         self.sparse = sparse            # SparseJacobian, or None: dense
         self.stats = None               # IdaStats of the current IDA instance (set by _ida)
         self.conv_coef_set = False      # NONLIN_CONV_COEF applied to that instance (by _ida)
-        self.nres = 0
-        self.njac = 0
         self.trial_times = set()
         self.held = None                # a factorisation of dF/dy in this chart (Corrector)
 
@@ -97,16 +94,14 @@ class _Chart:
         return float(np.max(np.linalg.norm(y[m.rot_idx].reshape(-1, 3), axis=1)))
 
     def F(self, st):
-        ev = self.model.evaluate(st, need_jac=False, active=self.cnt.active)
-        self.cnt.residuals += 1
+        ev = self.cnt.evaluate(self.model, st, "residual")
         return np.concatenate([ev.r, ev.phi])
 
     def jac(self, y, t):
         """``dF/dy``: dense ndarray, or the CSC data on ``self.sparse``'s pattern."""
         m = self.model
         st = self.state(y, t)
-        ev = m.evaluate(st, need_jac=True, eps_mass=self.eps, active=self.cnt.active)
-        self.cnt.jacobians += 1
+        ev = self.cnt.evaluate(m, st, "jacobian", eps=self.eps, residual=False)
         if self.sparse is not None:
             return self.sparse.values(ev.J, y[m.rot_idx].reshape(-1, 3))
         J = ev.J.toarray() if hasattr(ev.J, "toarray") else np.array(ev.J)
@@ -119,7 +114,6 @@ class _Chart:
 
     # IDA callbacks
     def resfn(self, t, y, yp, res):
-        self.nres += 1
         self.trial_times.add(float(t))
         try:
             res[:] = self.F(self.state(y, t))
@@ -127,7 +121,6 @@ class _Chart:
             res[:] = 1e30
 
     def jacfn(self, t, y, yp, res, cj, JJ):
-        self.njac += 1
         try:
             JJ[:, :] = self.jac(y, t)
         except EvaluationError:
@@ -135,7 +128,6 @@ class _Chart:
 
     def jacfn_sparse(self, t, y, yp, res, cj, JJ):
         """``JJ``: the CSC data (1-D, pattern ``self.sparse.pattern()``)."""
-        self.njac += 1
         try:
             JJ[:] = self.jac(y, t)
         except EvaluationError:
@@ -143,8 +135,10 @@ class _Chart:
 
     def _factor(self, y, t):
         """Solver for ``dF/dy`` at (y, t): a callable b -> F_y^{-1} b."""
-        J = self.jac(y, t)
-        self.cnt.factorizations += 1
+        return self.cnt.factor(self.jac(y, t), self._lu)
+
+    def _lu(self, J):
+        """``b -> J^{-1} b``: SuperLU on the sparse pattern, else LAPACK's LU."""
         if self.sparse is not None:
             import scipy.sparse.linalg as spla
             return spla.splu(self.sparse.matrix(J), permc_spec="COLAMD").solve
@@ -229,12 +223,15 @@ class Corrector:
     simplified Newton with a factorisation held per chart (refactorised at the frame when the
     contraction is slower than ``CORRECT_RATE``); the caller runs a full Newton (FIM_S) on a
     frame that still fails. ``stats``: frames, corrections, residual evaluations,
-    factorisations, full-Newton fallbacks and the wall time spent here.
+    factorisations, full-Newton fallbacks and the wall time spent here; its residuals and
+    factorisations are the part of the solve's counters (``data``, through which every
+    evaluation and factorisation here goes) spent in the corrections.
     """
 
-    def __init__(self, model, settings, active):
+    def __init__(self, model, settings, data):
         self.model = model
-        self.active = np.asarray(active, bool)      # the solve's active constraint rows
+        self.data = data
+        self.active = np.asarray(data.mask(model), bool)   # the solve's active constraint rows
         self.sc = Scales(model, settings)
         self.max_error = settings.max_error
         self.chart = None
@@ -267,21 +264,20 @@ class Corrector:
         if not F_:
             return Y, its, errs, ok
         t0 = _t.perf_counter()
-        st = self.stats
+        st, data = self.stats, self.data
         st["frames"] += F_
         done = False
         if batchable(m):
             saved = self.active
             inact = np.nonzero(~saved)[0] + m.nq
+            counted = data.residuals, data.factorizations
             try:
-                ev = evaluate(m, chart.states(Y, T), "jacobian")
-                st["residuals"] += F_
+                ev = data.evaluate(m, chart.states(Y, T), "jacobian")
                 Fv = np.concatenate([ev.r, np.where(saved, ev.phi, 0.0)], axis=1)
-                J = self._chart_jacobian(ev.J, Y, inact)
-                st["factorisations"] += F_
+                J = data.factor(self._chart_jacobian(ev.J, Y, inact), _Stacked, count=F_)
                 live = np.arange(F_)
                 for it in range(CORRECT_MAX_ITER + 1):
-                    dy = np.linalg.solve(J[live], -Fv[live][..., None])[..., 0]
+                    dy = J.solve(live, -Fv[live])
                     if not np.all(np.isfinite(dy)):
                         raise np.linalg.LinAlgError("non-finite correction")
                     e = self._err(dy)
@@ -292,12 +288,13 @@ class Corrector:
                         break
                     Y[live] += dy
                     st["corrections"] += live.size
-                    ev = evaluate(m, chart.states(Y[live], T[live]), "residual")
-                    st["residuals"] += live.size
+                    ev = data.evaluate(m, chart.states(Y[live], T[live]), "residual")
                     Fv[live] = np.concatenate([ev.r, np.where(saved, ev.phi, 0.0)], axis=1)
                 done = True
             except (np.linalg.LinAlgError, EvaluationError, ValueError):
                 pass
+            st["residuals"] += data.residuals - counted[0]
+            st["factorisations"] += data.factorizations - counted[1]
         if not done:
             ok[:], its[:] = False, 0
         st["seconds"] += _t.perf_counter() - t0
@@ -331,6 +328,7 @@ class Corrector:
         import time as _t
         t0 = _t.perf_counter()
         st = self.stats
+        counted = self.data.residuals, self.data.factorizations
         if chart is not self.chart:
             self.chart, self.solve = chart, chart.held
         y = np.array(y, float)
@@ -345,13 +343,11 @@ class Corrector:
 
         try:
             F = chart.F(chart.state(y, t))
-            st["residuals"] += 1
             z_prev = np.inf
             while True:
                 z = float(self._z(F))
                 if self.solve is None:
                     self.solve, refreshed = chart._factor(y, t), True
-                    st["factorisations"] += 1
                 dy, err = step(F)
                 if z <= 1.0 and err <= self.max_error:
                     ok = True
@@ -360,15 +356,26 @@ class Corrector:
                     break
                 if it > 0 and z > CORRECT_RATE * z_prev and not refreshed:
                     self.solve, refreshed = chart._factor(y, t), True
-                    st["factorisations"] += 1
                     dy, err = step(F)
                 y = y + dy
                 it += 1
                 z_prev = z
                 F = chart.F(chart.state(y, t))
-                st["residuals"] += 1
         except (np.linalg.LinAlgError, RuntimeError, ValueError, EvaluationError):
             ok = False
         st["corrections"] += it
+        st["residuals"] += self.data.residuals - counted[0]
+        st["factorisations"] += self.data.factorizations - counted[1]
         st["seconds"] += _t.perf_counter() - t0
         return y, it, err, ok
+
+
+class _Stacked:
+    """A stack of per-frame Jacobians ``J`` (F, N, N): ``solve(frames, b)`` solves the listed
+    frames' systems with right-hand sides ``b`` (n, N) (one LAPACK LU solve per frame)."""
+
+    def __init__(self, J):
+        self.J = J
+
+    def solve(self, frames, b):
+        return np.linalg.solve(self.J[frames], b[..., None])[..., 0]

@@ -183,19 +183,18 @@ def _reduced(model, J, active, G):
     return C, "singular"
 
 
-class _Loaded:
-    """The model with a constant generalised force ``f`` added to the applied loads."""
+class _Loaded(SolveData):
+    """Solve data whose evaluations add a constant generalised force ``f`` to the applied
+    loads (the Newton re-solves of the ``fd`` method evaluate through it)."""
 
-    def __init__(self, model, f):
-        self._model = model
+    def __init__(self, active, f):
+        super().__init__(active)
         self._f = f
 
-    def __getattr__(self, name):
-        return getattr(self._model, name)
-
-    def evaluate(self, state, *args, **kwargs):
-        ev = self._model.evaluate(state, *args, **kwargs)
-        ev.r = ev.r - self._f
+    def evaluate(self, model, states, what="jacobian", **kw):
+        ev = super().evaluate(model, states, what, **kw)
+        if what != "phi":
+            ev.r = ev.r - self._f
         return ev
 
 
@@ -213,10 +212,10 @@ def _fd(model, state, active, G, rows, settings):
     failed = False
     for c in range(ncol):
         h = delta if c % 6 < 3 else delta * model.L
-        lm = _Loaded(model, G[c] * h)
         st = None
         for s in (tight, settings):
-            st, out = newton(lm, state.copy(), s, History(), 0, SolveData(active), max_iter=50)
+            st, out = newton(model, state.copy(), s, History(), 0, _Loaded(active, G[c] * h),
+                             max_iter=50)
             if out.ok:
                 break
         if not out.ok:

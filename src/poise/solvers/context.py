@@ -47,6 +47,7 @@ class Context:
     time_independent: bool = False
     measured: dict = field(default_factory=dict)
     progress: Callable | None = None
+    start: Any = None        # frame 0's assembled input (require_stable descends from it)
 
     @property
     def kind(self) -> str:

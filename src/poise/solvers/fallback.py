@@ -15,8 +15,9 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.solvers.iterate import Iterative, iterate
-from poise.solvers.newton import FrameOutcome, Scales, _evaluate, merit, newton
+from poise.solvers.history import Row
+from poise.solvers.iterate import Iterative, Step, iterate
+from poise.solvers.newton import FrameOutcome, Scales, merit, newton
 from poise.solvers.status import MESSAGES, Status
 
 FALLBACK_STABILITY = 1e-2
@@ -95,7 +96,7 @@ def unrestrained_load(model, settings, states, cnt) -> str:
     k = 0
     while k < len(pts):
         try:
-            ev = _evaluate(model, pts[k], cnt, need_jac=True)
+            ev = cnt.evaluate(model, pts[k], "jacobian")
         except EvaluationError:
             return ""
         J = ev.J
@@ -140,7 +141,7 @@ class StabilityStage:
         st, out = newton(model, start.copy(), s1, history, frame, cnt, max_iter=n,
                          event="fallback-stability")
         counts[self.name] = out.iterations
-        return st, out, False
+        return st, out, False, ()
 
 
 class ContinuationStage:
@@ -155,11 +156,11 @@ class ContinuationStage:
         n = min(PTC_MAX_ITER, max(1, (2 * left) // 3))
         st, out = continuation(model, start.copy(), settings, history, frame, cnt, max_steps=n)
         counts[self.name] = out.iterations
-        return st, out, False
+        return st, out, False, ()
 
 
 class MkeamStage:
-    """MKEAM relaxation (:func:`poise.solvers.relaxation.relax`, stable equilibria only), a
+    """MKEAM relaxation (:meth:`poise.solvers.relaxation.Relaxation.relax`, stable equilibria only), a
     quarter of the budget left kept for the Newton polish of its point (stage ``polish``).
     The last stage: its outcome is final."""
 
@@ -172,30 +173,29 @@ class MkeamStage:
         st, out = prev
         polish = min(int(settings.max_num_iter), max(1, left // 4))
         n_mk = max(1, left - polish)
-        n0 = len(history)
+        rx = None
         try:
             # lazy: MKEAM needs scipy, which the small-deck path never loads
-            from poise.solvers.relaxation import relax
-            st2, ok = relax(model, start.copy(), replace(settings, max_num_iter=n_mk), history,
-                            frame, cnt)
+            from poise.solvers.relaxation import Relaxation
+            rx = Relaxation(model, replace(settings, max_num_iter=n_mk), history, cnt)
+            st2, ok = rx.relax(start.copy())
         except Exception as e:   # noqa: BLE001 - any MKEAM failure just ends the chain
-            counts["mkeam"] = sum(1 for r in history.rows[n0:] if r[7] == "mkeam")
-            history.add(frame, 0, np.nan, np.nan, event=f"fallback: mkeam failed: {e}")
-            return st, replace(out, message=f"MKEAM failed: {e}"), True
-        counts["mkeam"] = sum(1 for r in history.rows[n0:] if r[7] == "mkeam")
+            counts["mkeam"] = 0 if rx is None else rx.iterations
+            why = Row(frame, 0, event=f"fallback: mkeam failed: {e}", strategy=self.name)
+            return st, replace(out, message=f"MKEAM failed: {e}"), True, (why,)
+        counts["mkeam"] = rx.iterations
         left -= counts["mkeam"]
         if not ok:
             return st, replace(out, message="MKEAM did not converge within its share of the "
-                                            "fallback budget"), True
+                                            "fallback budget"), True, ()
         if left <= 0:
             return st2, FrameOutcome(Status.MAX_ITERATIONS, 0, np.nan, np.nan,
                                      "no budget left for the Newton polish of the MKEAM point"
-                                     ), True
-        history.strategy = "polish"
-        st3, out3 = newton(model, st2, settings, history, frame, cnt, max_iter=left,
-                           event="fallback-polish")
+                                     ), True, ()
+        st3, out3 = newton(model, st2, settings, history.stage("polish"), frame, cnt,
+                           max_iter=left, event="fallback-polish")
         counts["polish"] = out3.iterations
-        return st3, out3, True
+        return st3, out3, True, ()
 
 
 #: The fallback chain: tried in this order after plain Newton failed, each from the frame's
@@ -204,9 +204,17 @@ CHAIN = (StabilityStage(), ContinuationStage(), MkeamStage())
 
 
 class Chain(Iterative):
-    """The :data:`CHAIN` stages as an :class:`~poise.solvers.iterate.Iterative` strategy:
-    ``step`` runs the next stage from the frame's input configuration (its switch row, then
-    the stage); the budget is the fallback budget, each stage spending its iterations."""
+    """The :data:`CHAIN` stages as an :class:`~poise.solvers.iterate.Iterative` strategy; the
+    budget is the fallback budget. A stage takes two steps: the switch (its ``fallback:``
+    event row, no budget spent), then the stage's run from the frame's input configuration on
+    ``history.stage(name)`` (its rows labelled with the stage; the stage's own loops append
+    them), spending the stage's iterations; rows a stage returns (why MKEAM failed) follow.
+    Two steps, so that the switch row is returned like every other row and still precedes
+    the stage's rows.
+
+    A stage: ``name``, ``event(settings, reason)`` (the switch row's text) and
+    ``run(model, start, settings, history, frame, cnt, left, counts, prev) -> (state, outcome,
+    final, rows)``."""
 
     def __init__(self, model, start, settings, history, frame, cnt, stages=None):
         self.model, self.start, self.settings = model, start, settings
@@ -216,7 +224,7 @@ class Chain(Iterative):
     def init(self, first):
         return {"counts": {"stability": 0, "continuation": 0, "mkeam": 0, "polish": 0},
                 "reason": first.status.value, "st": self.start, "out": first, "next": 0,
-                "result": None}
+                "switched": False, "result": None}
 
     def terminate(self, s, used):
         if s["result"] is None and s["next"] == len(self.stages):
@@ -228,12 +236,15 @@ class Chain(Iterative):
 
     def step(self, s, used, left):
         stage = self.stages[s["next"]]
+        if not s["switched"]:
+            s["switched"] = True
+            return Step(0, (Row(self.frame, 0, event=stage.event(self.settings, s["reason"]),
+                                strategy=stage.name),))
         s["next"] += 1
-        h = self.history
-        h.strategy = stage.name
-        h.add(self.frame, 0, np.nan, np.nan, event=stage.event(self.settings, s["reason"]))
-        st2, out2, final = stage.run(self.model, self.start, self.settings, h, self.frame,
-                                     self.cnt, left, s["counts"], (s["st"], s["out"]))
+        s["switched"] = False
+        st2, out2, final, rows = stage.run(self.model, self.start, self.settings,
+                                           self.history.stage(stage.name), self.frame,
+                                           self.cnt, left, s["counts"], (s["st"], s["out"]))
         if out2.ok:
             s["result"] = (st2, out2, stage.name)
         elif final:
@@ -242,7 +253,7 @@ class Chain(Iterative):
             s["st"], s["out"], s["reason"] = st2, out2, out2.status.value
             if out2.status in NO_RECOVERY[:2]:
                 s["result"] = (st2, out2, "")
-        return s["counts"][stage.name]
+        return Step(s["counts"][stage.name], rows)
 
     def postprocess(self, s, used):
         st, out, name = s["result"]
@@ -253,10 +264,8 @@ def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome, 
     """Try the :data:`CHAIN` strategies after ``first`` failed, within ``budget`` iterations
     in total (:class:`Chain` run by :func:`~poise.solvers.iterate.iterate`). Returns
     ``(state, outcome, used, counts)``; ``counts``: iterations per strategy."""
-    try:
-        return iterate(Chain(model, start, settings, history, frame, cnt), int(budget), first)
-    finally:
-        history.strategy = "plain"
+    return iterate(Chain(model, start, settings, history, frame, cnt), int(budget), history,
+                   first)
 
 
 def continuation(model, state, settings, history, frame, cnt, max_steps=PTC_MAX_ITER):
@@ -270,24 +279,30 @@ def continuation(model, state, settings, history, frame, cnt, max_steps=PTC_MAX_
     not. At most ``max_steps`` steps; a residual that keeps growing (``mu`` beyond
     ``PTC_MU_GROWTH`` times its start) or turns non-finite ends it as ``diverged``.
     """
-    return iterate(Continuation(model, settings, history, frame, cnt), int(max_steps), state)
+    return iterate(Continuation(model, settings, frame, cnt), int(max_steps), history, state)
 
 
 class Continuation(Iterative):
     """:func:`continuation` as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step``
-    is one Newton step on ``(K + mu M) dx = -F`` (its rows written by that Newton) and the
-    ``mu`` update; the budget counts steps, the outcome the Newton iterations."""
+    is one Newton step on ``(K + mu M) dx = -F`` and the ``mu`` update; the budget counts
+    steps, the outcome the Newton iterations.
 
-    def __init__(self, model, settings, history, frame, cnt):
-        self.model, self.settings, self.history, self.frame, self.cnt = (
-            model, settings, history, frame, cnt)
+    A step returns the rows of its one-iteration Newton, collected and handed to the loop:
+    the step row (the point it started from, the step taken) and Newton's closing row (the
+    point it reached: converged, or measured and not yet converged); one row when the step
+    could not be taken. Two rows, not one merged row: the second measures another point
+    (the one the next step starts from), and a converged continuation then ends, like every
+    Newton in ``iterations/*``, on the row of its converged point."""
+
+    def __init__(self, model, settings, frame, cnt):
+        self.model, self.settings, self.frame, self.cnt = model, settings, frame, cnt
         self.sc = Scales(model, settings)
 
     def init(self, state):
         model = self.model
         s = {"state": state, "outcome": None, "total": 0, "last": None}
         try:
-            ev = _evaluate(model, state, self.cnt, need_jac=True)
+            ev = self.cnt.evaluate(model, state, "jacobian")
         except EvaluationError as e:
             s["outcome"] = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
             return s
@@ -317,35 +332,37 @@ class Continuation(Iterative):
     def step(self, s, used, left):
         mu = s["mu"]
         s_mu = replace(self.settings, stability=mu * mu, fallback=False, line_search=False)
-        st, o = newton(self.model, s["state"], s_mu, self.history, self.frame, self.cnt,
-                       max_iter=1, event=f"continuation mu={mu:.3g}")
+        rows = []
+        st, o = newton(self.model, s["state"], s_mu, rows, self.frame, self.cnt, max_iter=1,
+                       event=f"continuation mu={mu:.3g}")
+        rec = Step(1, tuple(rows))
         s["total"] += o.iterations
         s["last"] = o
         s["state"] = st
         total = s["total"]
         if o.ok:
             s["outcome"] = FrameOutcome(Status.CONVERGED, total, o.imbalance, o.error, "converged")
-            return 1
+            return rec
         if o.status is Status.NONFINITE:
             o.iterations = total
             s["outcome"] = o
-            return 1
+            return rec
         if o.iterations == 0:          # singular even with mu M: the flow cannot move
             s["outcome"] = FrameOutcome(o.status, total, o.imbalance, o.error, o.message)
-            return 1
+            return rec
         try:
-            ev = _evaluate(self.model, st, self.cnt, need_jac=False)
+            ev = self.cnt.evaluate(self.model, st, "residual")
         except EvaluationError as e:
             s["outcome"] = FrameOutcome(Status.NONFINITE, total, np.nan, np.nan, str(e))
-            return 1
+            return rec
         m_new = merit(ev, self.sc)
         mu = mu * np.sqrt(m_new / max(s["m_old"], 1e-300)) if np.isfinite(m_new) else np.inf
         if not (np.isfinite(mu) and mu <= s["mu_max"]):
             s["outcome"] = FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,
                                         "pseudo-transient continuation diverged (the residual "
                                         "kept growing)")
-            return 1
+            return rec
         if mu < PTC_MU_MIN * s["mu0"]:
             mu = 0.0
         s["mu"], s["m_old"] = mu, m_new
-        return 1
+        return rec

@@ -63,7 +63,7 @@ class IdaContinuation(Strategy):
         self.stats_off = []          # why IDA's own counters could not be read (order -1)
         self.conv_coef_off = []      # why IDA's corrector coefficient could not be set
         self.fallbacks = []
-        self.correct = Corrector(model, s, ctx.data.mask(model))
+        self.correct = Corrector(model, s, ctx.data)
         self.k_out = 1
         self.n_starts = 0
         self.max_steps = IDA_MAX_STEPS + IDA_STEPS_PER_FRAME * len(ts)
@@ -127,7 +127,8 @@ class IdaContinuation(Strategy):
                 return
         chart, solver = self.chart, self.solver
         stop = T_end if self.tsd.interpolate else float(ts[self.k_out])
-        n0r, nj0 = chart.nres, chart.njac
+        # IDA's callbacks per step, when its own counters cannot be read: the solve's counts
+        n0r, nj0 = ctx.data.residuals, ctx.data.jacobians
         chart.trial_times = set()
         try:
             r = solver.step(stop, method="onestep", tstop=stop)
@@ -144,7 +145,7 @@ class IdaContinuation(Strategy):
             self.rebased = 1
             return
         d = chart.stats.step(r) if chart.stats is not None else None
-        if (d["NumSteps"] == 0) if d is not None else (r.t == self.t_last and chart.nres == n0r):
+        if (d["NumSteps"] == 0) if d is not None else (r.t == self.t_last and ctx.data.residuals == n0r):
             # no step taken: ONE_STEP after an interpolated output returns IDA's pending
             # solution at t_n first (nothing to record)
             pass
@@ -157,8 +158,8 @@ class IdaContinuation(Strategy):
                 # per Newton iteration); retries = extra trial times (both failure kinds)
                 if chart.stats is not None and chart.stats.reason not in self.stats_off:
                     self.stats_off.append(chart.stats.reason)
-                row = (r.t - self.t_last, -1, chart.nres - n0r,
-                       max(len(chart.trial_times) - 1, 0), -1, chart.njac - nj0)
+                row = (r.t - self.t_last, -1, ctx.data.residuals - n0r,
+                       max(len(chart.trial_times) - 1, 0), -1, ctx.data.jacobians - nj0)
             for k, v in zip(("time", "step_size", "order", "nonlinear_iterations",
                              "error_test_failures", "convergence_failures",
                              "jacobian_evaluations", "rebase"), (r.t, *row, self.rebased)):

@@ -7,8 +7,14 @@ bounded: once ``B x 12 x stored rows`` would exceed :attr:`History.MAX_POSE_VALU
 ``k``-th pose-bearing row (k doubling as needed) and the last one are kept, and the datasets then
 hold only those rows, with ``iterations/pose_row`` naming their history rows and
 ``attrs()["iterations_poses_stride"] = k``.
+
+A row is a :class:`Row`. The frame-level strategies return theirs from their steps and the
+loop (:func:`poise.solvers.iterate.iterate`) appends them; the fallback chain labels the rows
+of each of its stages by running it on a :meth:`History.stage` view.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -20,7 +26,55 @@ COLUMNS = ("frame", "iteration", "imbalance", "error", "step_norm", "step_length
 STRATEGIES = ("plain", "stability", "continuation", "mkeam", "polish")
 
 
-class History:
+@dataclass(frozen=True)
+class Row:
+    """One ``iterations/*`` row: what one iteration (or one event) of a solver did.
+
+    ``imbalance``: largest force/moment residual; ``error``: constraint error or last update
+    (relative); ``step_norm`` / ``step_length``: the scaled step and its line-search factor;
+    ``worst_equation``: the equation furthest from its tolerance (or a message);
+    ``event``: what the row is (``newton``, ``assembly``, ``continuation mu=...``,
+    ``fallback: ...``); ``strategy``: the recovery stage (:data:`STRATEGIES`). ``pos`` /
+    ``rot``: the pose of the iterate the row measured (optional, not kept on the row).
+    """
+
+    frame: int
+    iteration: int
+    imbalance: float = np.nan
+    error: float = np.nan
+    step_norm: float = np.nan
+    step_length: float = np.nan
+    worst_equation: str = ""
+    event: str = "newton"
+    strategy: str = "plain"
+    pos: np.ndarray | None = None
+    rot: np.ndarray | None = None
+
+    def columns(self) -> tuple:
+        """The row's :data:`COLUMNS` values, typed as they are stored."""
+        return (int(self.frame), int(self.iteration), float(self.imbalance), float(self.error),
+                float(self.step_norm), float(self.step_length), str(self.worst_equation),
+                str(self.event), str(self.strategy))
+
+
+class _Rows:
+    """What records rows: ``append(row)``; :meth:`add` builds the :class:`Row`."""
+
+    def append(self, row: Row) -> None:
+        raise NotImplementedError
+
+    def add(self, frame, iteration, imbalance, error, step_norm=np.nan, step_length=np.nan,
+            worst_equation="", event="newton", pos=None, rot=None):
+        """Record a row given by its fields (the driver-level rows: sub-steps, FIM_D, MKEAM)."""
+        self.append(Row(frame, iteration, imbalance, error, step_norm, step_length,
+                        worst_equation, event, pos=pos, rot=rot))
+
+    def stage(self, name: str) -> "Staged":
+        """A view that labels every row recorded through it ``name`` (a fallback stage)."""
+        return Staged(self, name)
+
+
+class History(_Rows):
     """Append-only table of solver iterations (every frame, every method)."""
 
     MAX_POSE_VALUES = 5_000_000     # float values (12 per body per stored pose)
@@ -31,15 +85,12 @@ class History:
         self._last_pose: tuple | None = None   # (row, pos, rot) of the newest pose, always kept
         self._n_posed = 0                      # pose-bearing rows seen
         self.pose_stride = 1
-        self.strategy = "plain"                # recorded with every row (set by the recovery)
 
-    def add(self, frame, iteration, imbalance, error, step_norm=np.nan, step_length=np.nan,
-            worst_equation="", event="newton", pos=None, rot=None):
-        self.rows.append((int(frame), int(iteration), float(imbalance), float(error),
-                          float(step_norm), float(step_length), str(worst_equation), str(event),
-                          self.strategy))
-        if pos is not None and rot is not None:
-            self._add_pose(len(self.rows) - 1, pos, rot)
+    def append(self, row: Row) -> None:
+        """Record ``row`` (its pose, if any, subsampled as the module says)."""
+        self.rows.append(row.columns())
+        if row.pos is not None and row.rot is not None:
+            self._add_pose(len(self.rows) - 1, row.pos, row.rot)
 
     def _add_pose(self, row, pos, rot):
         p = np.array(pos, dtype=float, copy=True).reshape(-1, 3)
@@ -100,3 +151,25 @@ class History:
                 out[prefix + name] = np.asarray(col, dtype=float)
         out.update(self.pose_datasets(prefix))
         return out
+
+
+class Staged(_Rows):
+    """A view of a :class:`History` whose rows get the strategy ``name`` (a fallback stage):
+    ``rows`` and ``len`` are the underlying history's."""
+
+    def __init__(self, history: History, name: str):
+        self.base = history.base if isinstance(history, Staged) else history
+        self.name = name
+
+    @property
+    def rows(self):
+        return self.base.rows
+
+    def __len__(self):
+        return len(self.base)
+
+    def append(self, row: Row) -> None:
+        self.base.append(replace(row, strategy=self.name))
+
+    def stage(self, name: str) -> "Staged":
+        return Staged(self.base, name)

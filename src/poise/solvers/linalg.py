@@ -43,12 +43,11 @@ def equilibration(J):
 
 
 class Factor:
-    """Factorisation of a dense or CSR matrix; ``solve(b)``. Counts in ``Factor.count``.
+    """Factorisation of a dense or CSR matrix; ``solve(b)``. Solvers factorise through
+    :meth:`poise.solvers.data.SolveData.factor`, which counts.
 
     ``equilibrate=True`` factorises ``diag(r) J diag(c)`` (:func:`equilibration`) and maps the
     solution back: for badly scaled but regular systems (stiffnesses 1e21 apart)."""
-
-    count = 0
 
     def __init__(self, J, equilibrate: bool = False):
         t0 = phases.now()
@@ -70,7 +69,6 @@ class Factor:
             phases.add("factorise", phases.now() - t0)
 
     def _factor(self, J):
-        Factor.count += 1
         self.sparse = hasattr(J, "tocsc")
         self.order = None
         self.numpy = False

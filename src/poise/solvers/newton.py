@@ -21,9 +21,9 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.solvers.data import SolveData
-from poise.solvers.history import History
-from poise.solvers.iterate import Iterative, iterate
-from poise.solvers.linalg import Factor, SingularMatrix
+from poise.solvers.history import History, Row
+from poise.solvers.iterate import Iterative, Step, iterate
+from poise.solvers.linalg import SingularMatrix
 from poise.solvers.status import MESSAGES, Status
 
 ASSEMBLY_MAX_ITER = 50
@@ -52,7 +52,8 @@ class FrameOutcome:
         return self.status.ok
 
 
-#: The per-solve data doubles as the counters every solver function receives (``cnt``).
+#: The per-solve data doubles as the counters every solver function receives (``cnt``): its
+#: ``evaluate`` / ``jacobian`` / ``factor`` are the counted evaluations and factorisations.
 Counters = SolveData
 
 
@@ -111,26 +112,6 @@ def _coord_weights(model):
     return model.q_scale ** 2
 
 
-def _evaluate(model, state, cnt, need_jac=True, eps=0.0):
-    cnt.residuals += 1
-    if need_jac is True:
-        cnt.jacobians += 1
-    return model.evaluate(state, need_jac=need_jac, eps_mass=eps, active=cnt.active)
-
-
-def _jacobian(model, ev, cnt):
-    """The Jacobian of an evaluation made with ``need_jac="defer"`` (assembled on first use)."""
-    if ev.J is None:
-        cnt.jacobians += 1
-        model.jacobian(ev)
-    return ev.J
-
-
-def _factor(J, cnt, equilibrate=False):
-    cnt.factorizations += 1
-    return Factor(J, equilibrate=equilibrate)
-
-
 def singular_message(model, row):
     if row is None:
         return ""
@@ -183,15 +164,15 @@ def assemble(model, state, settings, history: History, frame: int, cnt: Counters
     """
     if model.nc == 0:
         return state, False, Status.CONVERGED
-    return iterate(Assembly(model, settings, history, frame, cnt), ASSEMBLY_MAX_ITER, state)
+    return iterate(Assembly(model, settings, frame, cnt), ASSEMBLY_MAX_ITER, history, state)
 
 
 class Assembly(Iterative):
     """:func:`assemble` as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step`` is
     one weighted least-change Gauss-Newton step and its ``assembly`` history row."""
 
-    def __init__(self, model, settings, history, frame, cnt):
-        self.model, self.history, self.frame, self.cnt = model, history, frame, cnt
+    def __init__(self, model, settings, frame, cnt):
+        self.model, self.frame, self.cnt = model, frame, cnt
         self.sc = Scales(model, settings)
         self.W = _coord_weights(model)
 
@@ -202,7 +183,7 @@ class Assembly(Iterative):
         if s["status"] is not None:
             return True
         model = self.model
-        ev = _evaluate(model, s["state"], self.cnt, need_jac="defer")   # Jacobian only if violated
+        ev = self.cnt.evaluate(model, s["state"], "defer")   # Jacobian only if violated
         viol = np.abs(ev.phi) / np.where(model.row_kind == 1, 1.0, model.L)
         s["ev"], s["v"] = ev, float(viol.max())
         if s["v"] <= ASSEMBLY_TOL:
@@ -217,21 +198,20 @@ class Assembly(Iterative):
 
     def step(self, s, used, left):
         model, ev = self.model, s["ev"]
-        _jacobian(model, ev, self.cnt)
+        self.cnt.jacobian(model, ev)
         K = _weighted_kkt(model, ev, self.W)
         try:
-            x = _factor(K, self.cnt).solve(np.concatenate([np.zeros(model.nq), -ev.phi]))
+            x = self.cnt.factor(K).solve(np.concatenate([np.zeros(model.nq), -ev.phi]))
         except SingularMatrix:
             s["status"] = Status.ASSEMBLY_FAILED
-            return 0
+            return Step(0)
         dq = x[:model.nq]
         prev = s["state"]                 # the row's pose: the configuration it measured
         s["state"] = model.retract(prev, dq)
         s["moved"] = True
         sn = float(np.max(np.abs(dq) / self.sc.q_len))
-        self.history.add(self.frame, used, float(np.max(np.abs(ev.r))) if ev.r.size else 0.0,
-                         s["v"], sn, 1.0, "", "assembly", pos=prev.pos, rot=prev.rot)
-        return 1
+        return Step(1, (Row(self.frame, used, float(np.max(np.abs(ev.r))) if ev.r.size else 0.0,
+                            s["v"], sn, 1.0, "", "assembly", pos=prev.pos, rot=prev.rot),))
 
 
 def initial_multipliers(model, state, cnt: Counters):
@@ -240,11 +220,11 @@ def initial_multipliers(model, state, cnt: Counters):
         return state
     st = state.copy()
     st.lam[:] = 0.0
-    ev = _evaluate(model, st, cnt, need_jac=True)
+    ev = cnt.evaluate(model, st, "jacobian")
     W = _coord_weights(model)
     K = _weighted_kkt(model, ev, W)
     try:
-        f = _factor(K, cnt)
+        f = cnt.factor(K)
     except SingularMatrix:
         return state
     Q = -ev.r                     # with lam = 0, r = -Q
@@ -331,13 +311,14 @@ def _neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
 
 class NewtonIteration(Iterative):
     """Frame-level Newton as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step``
-    is one Newton iteration (factorise, solve, limit, line search) and its history row;
-    ``terminate`` checks convergence (writing the final row). ``equilibrate``: factorise the
-    row/column-equilibrated Jacobian (:class:`~poise.solvers.linalg.Factor`)."""
+    is one Newton iteration (factorise, solve, limit, line search) and returns its history
+    row; ``terminate`` checks convergence; ``close`` gives the row of the last measured point
+    (converged or why not). ``equilibrate``: factorise the row/column-equilibrated Jacobian
+    (:class:`~poise.solvers.linalg.Factor`)."""
 
-    def __init__(self, model, settings, history: History, frame: int, cnt: Counters,
-                 event: str = "newton", equilibrate: bool = False):
-        self.model, self.settings, self.history = model, settings, history
+    def __init__(self, model, settings, frame: int, cnt: Counters, event: str = "newton",
+                 equilibrate: bool = False):
+        self.model, self.settings = model, settings
         self.frame, self.cnt, self.event, self.equilibrate = frame, cnt, event, equilibrate
         self.sc = Scales(model, settings)
         self.eps = float(np.sqrt(settings.stability))
@@ -345,28 +326,27 @@ class NewtonIteration(Iterative):
     def _ev_at(self, st):
         # Jacobian deferred: line-search trials pay for the residual only, the accepted point
         # assembles its Jacobian when it is factorised (never at the converged point)
-        return _evaluate(self.model, st, self.cnt, need_jac="defer", eps=self.eps)
+        return self.cnt.evaluate(self.model, st, "defer", eps=self.eps)
 
     def _row(self, s, it, step=np.nan, alpha=np.nan, worst=None, pose=None):
         pose = s.state if pose is None else pose
-        self.history.add(self.frame, it, s.imb, s.err, step, alpha,
-                         s.worst if worst is None else worst, self.event,
-                         pos=pose.pos, rot=pose.rot)
+        return Row(self.frame, it, s.imb, s.err, step, alpha,
+                   s.worst if worst is None else worst, self.event, pos=pose.pos, rot=pose.rot)
 
     def _converged(self, s, it, err):
         # within tolerance: unless a removed redundant equation contradicts the others
         bad = inconsistent_redundant(self.model, s.state, self.sc, self.cnt)
         s.err = err
-        self._row(s, it, worst=bad or s.worst)
+        s.last_row = self._row(s, it, worst=bad or s.worst)
         if bad:
             return FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, s.imb, err,
                                 MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
         return FrameOutcome(Status.CONVERGED, it, s.imb, err, "converged")
 
     def _fail(self, s, it, status, message):
-        self._row(s, it)
+        s.last_row = self._row(s, it)
         s.outcome = FrameOutcome(status, it, s.imb, s.err, message)
-        return 0
+        return Step(0)
 
     def init(self, state):
         s = _NewtonState(state)
@@ -392,6 +372,9 @@ class NewtonIteration(Iterative):
         self._fail(s, used, Status.MAX_ITERATIONS,
                    MESSAGES[Status.MAX_ITERATIONS] + f"; worst equation: {s.worst}")
 
+    def close(self, s, used):
+        return () if s.last_row is None else (s.last_row,)
+
     def postprocess(self, s, used):
         return s.state, s.outcome
 
@@ -399,7 +382,7 @@ class NewtonIteration(Iterative):
         model, settings, sc, eps, state, ev = (self.model, self.settings, self.sc, self.eps,
                                                s.state, s.ev)
         try:
-            f = _factor(_jacobian(model, ev, self.cnt), self.cnt, self.equilibrate)
+            f = self.cnt.factor(self.cnt.jacobian(model, ev), equilibrate=self.equilibrate)
             x = f.solve(-np.concatenate([ev.r, ev.phi]))
         except SingularMatrix as e:
             return self._fail(s, it, Status.SINGULAR_JACOBIAN,
@@ -453,11 +436,11 @@ class NewtonIteration(Iterative):
             # step not taken (the distance Newton still sees), not the last one taken
             nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
             s.outcome = self._converged(s, it, max(s.cerr, nxt))
-            return 0
+            return Step(0)
         m1, alpha, s.state, s.ev = best
         s.last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0
-        self._row(s, it, s.last_step, alpha, pose=state)   # the iterate the row measured
-        return 1
+        # the row of the iterate it measured (``state``), with the step taken from it
+        return Step(1, (self._row(s, it, s.last_step, alpha, pose=state),))
 
 
 class _NewtonState:
@@ -471,13 +454,15 @@ class _NewtonState:
         self.imb = self.cerr = self.zinf = self.err = np.nan
         self.worst = ""
         self.res_ok = False
+        self.last_row = None          # the closing row (converged or why not)
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
            max_iter: int | None = None, event: str = "newton", equilibrate: bool = False):
     """Newton iterations from ``state`` (:class:`NewtonIteration` run by
     :func:`~poise.solvers.iterate.iterate`, ``max_iter`` default ``max_num_iter``). Returns
-    ``(state, FrameOutcome)``."""
+    ``(state, FrameOutcome)``. ``history``: where the loop appends the rows (a
+    :class:`~poise.solvers.history.History`, a stage view of one, or a list)."""
     max_iter = settings.max_num_iter if max_iter is None else max_iter
-    return iterate(NewtonIteration(model, settings, history, frame, cnt, event, equilibrate),
-                   max_iter, state)
+    return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate),
+                   max_iter, history, state)

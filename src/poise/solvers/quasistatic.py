@@ -60,6 +60,7 @@ def first_frame(ctx, state):
     state, out = prologue(ctx, state)
     if out is not None:
         return state, out
+    ctx.start = state.copy()
     state, out = solve_frame(ctx.model, state, ctx.settings, ctx.history, 0, ctx.data)
     if out.strategy != "plain" and ctx.kind == "quasistatic":
         ctx.notes.append(f"frame 0: plain Newton failed; converged with the fallback strategy "
@@ -153,15 +154,16 @@ class NewtonFrames(Strategy):
 
 
 def require_stable(ctx, state, out):
-    """``require_stable``: classify the converged point; unstable -> continue downhill to a
-    stable equilibrium (:func:`poise.solvers.stable.seek_stable`)."""
+    """``require_stable``: classify the converged point; unstable -> a stable equilibrium
+    downhill from the input, else from the unstable point
+    (:func:`poise.solvers.stable.seek_stable`)."""
     model, s, active = ctx.model, ctx.settings, ctx.data.active
     info = classify(model, state, active=active)
     ctx.data.classified = (state, info)
     if acceptable(info, s) or info.klass != "unstable":
         return state, out        # judged on the output classification
     st, o, info, note = seek_stable(model, state, s, ctx.history, 0, ctx.data, info,
-                                    lambda x: classify(model, x, active=active))
+                                    lambda x: classify(model, x, active=active), ctx.start)
     ctx.data.classified = (st, info) if o.ok else None
     if note:
         ctx.notes.append(note)

@@ -10,8 +10,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from poise.elements.rotation import expm_so3, wrap_angle
-from poise.model.evaluate import evaluate
-from poise.solvers.linalg import Factor
 
 CONSTRAINT_TOL = 1e-11       # relative position-constraint tolerance in the RATTLE solve
 
@@ -97,9 +95,7 @@ class _Dyn:
                 return ev
             ds = np.linalg.solve(Jss, -ev.r[ix])
             state.extra[ix - m.extra_off] += ds
-            ev = m.evaluate(state, need_jac=True, active=self.cnt.active)
-            self.cnt.residuals += 1
-            self.cnt.jacobians += 1
+            ev = self.cnt.evaluate(m, state, "jacobian")
             if np.all(np.abs(ds) <= 1e-12 * (1.0 + np.abs(state.extra[ix - m.extra_off]))):
                 break
         return ev
@@ -107,9 +103,7 @@ class _Dyn:
     def at(self, state):
         """(Q, G, K, Minv) at ``state`` (uses ``state.lam`` for the geometric stiffness)."""
         m = self.m
-        self.cnt.residuals += 1
-        self.cnt.jacobians += 1
-        ev = m.evaluate(state, need_jac=True, active=self.cnt.active)
+        ev = self.cnt.evaluate(m, state, "jacobian")
         if m.n_extra:
             ev = self.solve_algebraic(state, ev)
         J = ev.J
@@ -126,13 +120,11 @@ class _Dyn:
             S = (S + sp.diags(inact)).tocsr()
         else:
             S = np.asarray(S) + np.diag(inact)
-        self.cnt.factorizations += 1
-        return Factor(S)
+        return self.cnt.factor(S)
 
     def phi(self, state):
         """Constraint values only (no force element is evaluated; inactive rows read 0)."""
-        self.cnt.residuals += 1
-        return evaluate(self.m, state, "phi", active=self.cnt.mask(self.m))
+        return self.cnt.evaluate(self.m, state, "phi")
 
 
 def retract_flat(model, state, dq):

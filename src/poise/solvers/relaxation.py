@@ -6,7 +6,7 @@ integration restarts (one peak = one iteration), so the iterates descend the pot
 only settle in a stable equilibrium. After ``HANDOVER_ITER`` iterations the descent continues by
 the inertia-controlled Newton of solvers/stable.py when that verifiably reaches a stable point.
 Budgets end every run with a status. :class:`Relaxation` is the MKEAM method's solve
-(solvers/mkeam.py) and the fallback chain's last stage (:func:`relax`). The method in detail,
+(solvers/mkeam.py) and the fallback chain's last stage (:meth:`Relaxation.relax`). The method in detail,
 step-size control and convergence: docs/mkeam.md.
 """
 
@@ -313,9 +313,7 @@ class Relaxation:
             return state
         st = state
         for _ in range(20):
-            ev = m.evaluate(st, need_jac=True, active=self.counters.active)
-            self.counters.residuals += 1
-            self.counters.jacobians += 1
+            ev = self.counters.evaluate(m, st, "jacobian")
             J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
             Jss = J[np.ix_(ix, ix)]
             rs = ev.r[ix]
@@ -439,6 +437,21 @@ class Relaxation:
         except (EvaluationError, SingularMatrix, ValueError, ArithmeticError):
             return None
 
+    def relax(self, state):
+        """MKEAM iterations from ``state`` (the fallback chain's ``mkeam`` stage). Returns
+        ``(state, ok)``; ``ok`` when the MKEAM tolerances were met; :attr:`iterations`: the
+        MKEAM iterations it recorded."""
+        if not np.isfinite(self.model.L):
+            return state, False
+        st = initial_multipliers(self.model, state, self.counters)
+        st, status, _msg, _n = self.iterate(st)
+        return st, status.ok
+
+    @property
+    def iterations(self) -> int:
+        """MKEAM iterations recorded so far (one ``mkeam`` history row each)."""
+        return len(self.rows)
+
     def _row(self, it, ke, dq, worst, peak, steps, pe, event):
         self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event)
         self.rows.append((len(self.history) - 1, dict(kinetic_energy=ke, peak_time=peak.t,
@@ -468,17 +481,3 @@ def relaxation_datasets(n, rows, iterates, mk_state, pe_start) -> dict:
     d["mkeam/orientation"] = mk_state.rot[None].copy()
     d["mkeam/initial_potential_energy"] = np.array(pe_start)
     return d
-
-
-def relax(model, state, settings, history, frame, cnt):
-    """MKEAM iterations from ``state`` (the fallback chain's ``mkeam`` stage).
-
-    Returns ``(state, ok)``; ``ok`` when the MKEAM tolerances were met. Rows are added to
-    ``history`` (event ``mkeam``); counters to ``cnt``.
-    """
-    rx = Relaxation(model, settings, history, cnt)
-    if not np.isfinite(model.L):
-        return state, False
-    st = initial_multipliers(model, state, cnt)
-    st, status, _msg, _n = rx.iterate(st)
-    return st, status.ok

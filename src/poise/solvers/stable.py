@@ -1,13 +1,13 @@
-"""``--require-stable``: from an unstable equilibrium, continue downhill to a stable one.
+"""``--require-stable``: when Newton's equilibrium is unstable, reach a stable one downhill.
 
-Newton converges to whichever equilibrium is near. :func:`seek_stable` leaves an unstable one
-along its unstable modes (escape: the trial of lowest potential energy, both signs, shrinking)
-and :func:`descend` continues by inertia-controlled Newton: the tangent stiffness is shifted by
-the smallest ``sigma`` whose sparse ``L D L^T`` inertia says the reduced matrix is positive
-definite, so every step is a descent direction; steps are limited and backtracked (Armijo) on
-the potential energy of trials projected onto the constraints (a trial that does not project
-is a rejected trial). The energy never increases, so the walk cannot return to the point it
-left; the end point is Newton-polished and classified again (unstable -> escape again).
+:func:`descend` is an inertia-controlled Newton: the tangent stiffness is shifted by the
+smallest ``sigma`` whose ``L D L^T`` inertia says the reduced matrix is positive definite, so
+every step is a descent direction; steps are limited and backtracked (Armijo) on the potential
+energy of trials projected onto the constraints (:class:`_Projector`). The energy never
+increases; the end point is Newton-polished. :func:`seek_stable` runs it first from the input
+Newton started from (the rest position downhill from the input), then, if that does not end
+stable, leaves Newton's equilibrium along its unstable modes (escape: the trial of lowest
+energy, both signs, shrinking) and descends again (unstable end point -> escape again).
 Without a potential energy the trapezoidal work of the applied forces is the energy change.
 Every escape and descent step is a history row; past the budget (``STEPS_PER_ITER x
 max_num_iter`` steps, ``MAX_ESCAPES`` escapes) the analysis fails with status ``unstable``.
@@ -20,16 +20,12 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.model.evaluate import evaluate
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import (
     FrameOutcome,
     Scales,
     _coord_weights,
-    _evaluate,
-    _factor,
-    _jacobian,
     _weighted_kkt,
     assemble,
     initial_multipliers,
@@ -95,9 +91,8 @@ def _energy_drop(model, a, b, cnt, pa=None):
         return pb - pa, pb
     dq = model.local_difference(a, b)
     # residual r = -Q + G^T lam: its projection on a constraint-respecting step is -Q . dq
-    ra = np.asarray(model.evaluate(a, need_jac=False).r).ravel()[:model.nq]
-    rb = np.asarray(model.evaluate(b, need_jac=False).r).ravel()[:model.nq]
-    cnt.residuals += 2
+    ra = np.asarray(cnt.evaluate(model, a, "residual", every_row=True).r).ravel()[:model.nq]
+    rb = np.asarray(cnt.evaluate(model, b, "residual", every_row=True).r).ravel()[:model.nq]
     return 0.5 * float((ra + rb) @ dq), np.nan
 
 
@@ -118,12 +113,36 @@ def _escape_direction(model, info):
     return d / s if s > 0 else None
 
 
-def seek_stable(model, state, settings, history, frame, cnt, info, classify_at):
+def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, start=None):
     """Continue from the unstable equilibrium ``state`` (classification ``info``) to a stable
     one. ``classify_at(state) -> StabilityInfo``. Returns ``(state, outcome, info, note)``;
-    ``outcome.ok`` only at an equilibrium whose classification is :func:`acceptable`."""
+    ``outcome.ok`` only at an equilibrium whose classification is :func:`acceptable`.
+
+    ``start``: the (assembled) input Newton started from. The descent is tried from there
+    first, with at most half the budget: it is the rest position reached downhill from the
+    input (MKEAM's answer), and Newton's path into an unstable equilibrium often leaves the
+    model in a shape far from any minimum (a chain released as a V converges to a kinked V:
+    16 descent steps from there, 3 from the input). If that does not end at an acceptable
+    equilibrium, Newton's point is left along its unstable modes."""
     budget = STEPS_PER_ITER * settings.max_num_iter
     used = 0
+    if start is not None:
+        history.add(frame, 0, np.nan, np.nan, event=f"stable: Newton's equilibrium is unstable "
+                    f"({info.n_negative} negative modes): descent from the input")
+        try:
+            st, out, _, used = descend(model, start, settings, history, frame, cnt, budget // 2)
+        except (EvaluationError, SingularMatrix):
+            out = None
+        if out is not None:
+            i2 = classify_at(st)
+            if acceptable(i2, settings):
+                note = (f"--require-stable: Newton's equilibrium was unstable ({info.n_negative} "
+                        f"negative modes); descended from the input ({used} steps) to a "
+                        f"{i2.klass} one")
+                return st, FrameOutcome(Status.CONVERGED, used, np.nan, np.nan, "converged"), \
+                    i2, note
+        history.add(frame, 0, np.nan, np.nan, event="stable: the descent from the input did not "
+                    "end at a stable equilibrium; leaving Newton's along its unstable modes")
     escapes = 0
     pe = potential_energy(model, state)
     while True:
@@ -190,9 +209,7 @@ def _ic_step(model, state, cnt, sigma, like=None):
     no valid factorisation is found with them, a fresh pencil is tried).
     Returns ``(dq, sigma, ev, dlam, chord)``: ``dq`` None when no valid factorisation was
     found; ``chord``: the factorised step (:class:`_Chord`) the line-search projections reuse."""
-    cnt.residuals += 1
-    cnt.jacobians += 1
-    ev = model.evaluate(state, need_jac=True, active=cnt.active)
+    ev = cnt.evaluate(model, state, "jacobian")
     pencil = DensePencil if model.nq + model.nc <= DENSE_PENCIL else _SparsePencil
     P = pencil(model, ev.J, active=cnt.active, like=like)
     out = _ic_solve(model, P, ev, cnt, sigma)
@@ -213,8 +230,7 @@ def _ic_solve(model, P, ev, cnt, sigma):
     sig = max(sigma / 4.0, 1e-6 * scale) if k0 else 0.0
     for k in range(k0, 40):
         for rho in AUG_RHO:
-            cnt.factorizations += 1
-            F = P.ldl(-sig, rho)
+            F = cnt.factor((-sig, rho), lambda at: P.ldl(*at))      # the pencil at (shift, rho)
             if F.ok and np.all(np.abs(F.pivots) > 1e-14 * scale):
                 break
         if F.ok and F.n_negative == m and np.all(np.abs(F.pivots) > 1e-14 * scale):
@@ -299,8 +315,10 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
         history.add(frame, steps, imb, cerr, float(np.max(np.abs(alpha * dq) / sc.q_len)),
                     alpha if accepted else np.nan, worst,
                     f"stable-descent sigma={sigma:.3g}", pos=state.pos, rot=state.rot)
-        if zinf <= 1.0 and accepted is None:
-            break                      # at an equilibrium already: the polish certifies it
+        if zinf <= 1.0 and (accepted is None or
+                            not accepted[1] < pe - 1e-13 * max(abs(pe), 1.0)):
+            break                      # at an equilibrium already (no step lowers the energy
+            #                            either): the polish certifies it, the caller classifies
         if accepted is None:
             sigma = max(8.0 * sigma, 1.0) if sigma > 0 else 0.0
             if sigma == 0.0:
@@ -395,8 +413,7 @@ class _Projector:
         refreshed, prev, fresh = 0, np.inf, False
         last = last_phi = None
         for _ in range(PROJECT_MAX_ITER):
-            self.cnt.residuals += 1
-            phi = model_phi(m, x, self.cnt.active)
+            phi = self.cnt.evaluate(m, x, "phi")
             err = float(np.max(np.abs(phi) / self.scale))
             self.err = err
             if err <= tol:
@@ -419,9 +436,9 @@ class _Projector:
     def _refresh(self, x):
         """A Gauss-Newton operator at ``x`` (coordinate metric ``q_scale^2``)."""
         m = self.model
-        ev = _evaluate(m, x, self.cnt, need_jac=True)
+        ev = self.cnt.evaluate(m, x, "jacobian")
         try:
-            F = _factor(_weighted_kkt(m, ev, _coord_weights(m)), self.cnt)
+            F = self.cnt.factor(_weighted_kkt(m, ev, _coord_weights(m)))
         except SingularMatrix:
             return False
         nq = m.nq
@@ -432,11 +449,6 @@ class _Projector:
 def _project(model, x, cnt, chord=None):
     """Project one trial (:class:`_Projector`)."""
     return _Projector(model, cnt, chord)(x)
-
-
-def model_phi(model, x, active):
-    """Constraint values at ``x`` (inactive rows 0), no force element called."""
-    return evaluate(model, x, "phi", active=active)
 
 
 def _fail(used, why):
