@@ -5,6 +5,7 @@ import pytest
 
 from poise.deck.spec import Expr
 from poise.core.errors import DeckError, SourceLoc
+from poise.elements.registry import type_of
 from poise.model.compile import compile_model
 
 from support.builders import DeckBuilder
@@ -64,7 +65,7 @@ def test_vector_expression_jacobian(point_b):
           **_vec(tx="DM(31,21)", ty="ROLL(21)", tz=0.5))
     m = compile_model(d.spec)
     assert [f.name for f in m.families] == ["forces:ExprVectorForce"]
-    assert m.families[0].depends_on_time()
+    assert type_of(m.families[0]).time_dependent(m.families[0])   # the registry's predicate
     st = perturbed_state(m, rng)
     st.t = 0.7
     fd_check(m, st)
@@ -95,7 +96,7 @@ def test_time_drives_evaluation():
     d.add("Force_Gravity", grav_x=0.0, grav_y=X("-10 + 4*TIME", "grav_y", "Force_Gravity", None),
           grav_z=0.0)
     m = compile_model(d.spec)
-    assert m.depends_on_time() if hasattr(m, "depends_on_time") else m.families[0].depends_on_time()
+    assert m.depends_on_time()
     st = m.initial_state()
     for t in (0.0, 1.5):
         st.t = t

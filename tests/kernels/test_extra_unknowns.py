@@ -7,7 +7,7 @@ import numpy as np
 
 import poise.model.compile as C
 from poise.elements.base import ConstraintFamily
-from poise.elements.registry import ElementType
+from poise.elements.registry import ElementType, static, workless
 from poise.model.compile import compile_model
 
 from support.builders import DeckBuilder, random_rotation
@@ -44,6 +44,11 @@ def _compiler(spec, ctx):
     ctx.families.append(f)
 
 
+#: the synthetic element type (its kernel and capabilities declared, as every type's are)
+TEST_TYPE = ElementType("test", (), _compiler, kernels=lambda: (PointOnLine,),
+                        potential_energy=workless, time_dependent=static)
+
+
 def _deck(rng):
     d = DeckBuilder().ground()
     d.body(2, 200, rng.normal(size=3), random_rotation(rng), mass=2.0, inertia=(1, 2, 3))
@@ -54,7 +59,7 @@ def _deck(rng):
 
 def test_scalar_unknown_jacobian(monkeypatch):
     orig = C.element_types
-    monkeypatch.setattr(C, "element_types", lambda: orig() + (ElementType("test", (), _compiler),))
+    monkeypatch.setattr(C, "element_types", lambda: orig() + (TEST_TYPE,))
     rng = np.random.default_rng(3)
     d = _deck(rng)
     d.add("Force_SpringDamper", id=1, type="TRANSLATIONAL", i_marker_id=21, j_marker_id=11,
@@ -72,7 +77,7 @@ def test_scalar_unknown_solve(monkeypatch):
     # by gravity: it comes to rest where the line's lowest point ... the line is straight, so the
     # marker slides to where the spring to a ground anchor balances gravity along the line.
     orig = C.element_types
-    monkeypatch.setattr(C, "element_types", lambda: orig() + (ElementType("test", (), _compiler),))
+    monkeypatch.setattr(C, "element_types", lambda: orig() + (TEST_TYPE,))
     from poise.app.runner import AnalysisRequest
     from poise.solvers.settings import StaticSettings
     from poise.solvers.driver import Driver

@@ -25,10 +25,10 @@ def test_element_jacobian(case, point_b):
     seed = case.seed if case.seed is not None else (case.name, point_b)
     rng = np.random.default_rng(stable_seed(*seed))
     d = two_body_deck(rng, point_b)
-    ia, ja = case.marker_attrs
     for k, (tag, attrs) in enumerate(case.elements):
-        for n, (i, j) in enumerate(case.pairs):
-            d.add(tag, id=k + 1 + 10 * n, **{ia: i, ja: j}, **attrs)
+        for n, pair in enumerate(case.pairs):    # () with marker_attrs (): no markers, no id
+            ids = {"id": k + 1 + 10 * n} if case.marker_attrs else {}
+            d.add(tag, **ids, **dict(zip(case.marker_attrs, pair)), **attrs)
     if case.opposite_z:   # z axes down the shafts: opposite ways (else an error)
         _cv_convention(d, list(case.pairs))
     m = compile_model(d.spec)

@@ -1,7 +1,14 @@
 """The element registry and the tables derived from it (compile order, reactions, outputs)."""
+import numpy as np
+import pytest
+
 from poise.deck.parser import parse_deck_bytes
-from poise.elements.registry import (element_types, output_groups, reaction_aliases,
-                                     reaction_kinds, tileable_kernels)
+from poise.elements.base import ConstraintFamily
+from poise.elements.registry import (element_types, kernel_potential, kernel_types, output_groups,
+                                     reaction_aliases, reaction_kinds, tileable_kernels, type_of,
+                                     workless)
+from poise.model.compile import compile_model
+from poise.model.evaluate import evaluate
 from poise.app.sweep import parse_outputs
 
 from support.paths import DECKS
@@ -44,8 +51,55 @@ def test_sweep_accepts_every_output_group():
     assert (g, i, ds) == ("gears", gid, "force")
 
 
+def test_every_type_declares_energy_and_time_dependence():
+    """Both are required (keyword-only) declarations, functions of a compiled family."""
+    for et in element_types():
+        assert callable(et.potential_energy) and callable(et.time_dependent), et.name
+
+
+def test_every_kernel_belongs_to_one_type():
+    owners = kernel_types()
+    assert set(owners) == {k for et in element_types() for k in et.kernels()}
+
+
 def test_declared_potential_energy_matches_the_kernels():
-    """MKEAM sums ``potential_energy`` of the families that have it; the declaration says so."""
+    """The energy pass (``evaluate(..., "energy")``) calls what each type declares: the kernels'
+    own method (``kernel_potential``), nothing for constraint-only types (``workless``), NaN for
+    forces without a potential (``not_conservative``)."""
     for et in element_types():
         has = any(callable(getattr(k, "potential_energy", None)) for k in et.kernels())
-        assert et.potential_energy == has, et.name
+        assert (et.potential_energy is kernel_potential) == has, et.name
+        if et.potential_energy is workless:
+            assert all(issubclass(k, ConstraintFamily) for k in et.kernels()), et.name
+
+
+def _energy_deck(extra=""):
+    return f"""<?xml version="1.0"?>
+<MotionSolve><Model>
+  <Body_Rigid id="1" isground="TRUE" cg_id="10"/>
+  <Reference_Marker id="10" body_id="1"/>
+  <Body_Rigid id="2" cg_id="20" mass="2.0" inertia_xx="1" inertia_yy="1" inertia_zz="1"/>
+  <Reference_Marker id="20" body_id="2" pos_x="0.5" pos_y="-1.5" pos_z="0.25"/>
+  <Force_SpringDamper id="1" type="TRANSLATIONAL" i_marker_id="20" j_marker_id="10"
+      stiffness="200." damping="0." length="1.0" preload="0."/>
+  <Force_Gravity grav_x="0" grav_y="-9.81" grav_z="0"/>
+  {extra}
+</Model></MotionSolve>""".encode()
+
+
+def test_energy_pass_sums_the_declared_terms():
+    """Gravity (its own element type) and the spring add their potential; a joint adds
+    nothing; an expression force has none, so the model's potential energy is NaN (MKEAM)."""
+    joint = ('<Reference_Marker id="11" body_id="1" pos_x="0.5"/>'
+             '<Reference_Marker id="21" body_id="2" pos_x="0.5"/>'
+             '<Constraint_Joint id="1" type="INLINE" i_marker_id="21" j_marker_id="11"/>')
+    m = compile_model(parse_deck_bytes(_energy_deck(joint), "e.xml"))
+    assert [type_of(m.families[i]).name for i, _ in m.energy_terms] == ["gravity", "forces"]
+    p = np.array([0.5, -1.5, 0.25])
+    L = np.linalg.norm(p)
+    expected = -2.0 * -9.81 * p[1] + 0.5 * 200.0 * (L - 1.0) ** 2
+    assert evaluate(m, m.initial_state(), "energy") == pytest.approx(expected, rel=1e-14)
+    xf = ('<Force_Vector_OneBody id="2" type="FORCEONLY" marker_id="20" fx_expression="0" '
+          'fy_expression="-DX(20)" fz_expression="0"/>')
+    m = compile_model(parse_deck_bytes(_energy_deck(xf), "e.xml"))
+    assert np.isnan(evaluate(m, m.initial_state(), "energy"))

@@ -158,3 +158,37 @@ def test_curve_of_time_is_a_located_error(tmp_path):
         run(str(p))
     assert f"{p}:{line}: <Reference_ParamCurve id=1> y_expression" in str(e.value)
     assert "TIME" in str(e.value)
+
+
+#: element type -> a scene of SOURCES whose only time dependence is in that type
+TIME_SCENES = {"gravity": "gravity_step", "motions": "motion_of_time",
+               "expressions": "spline_of_time", "diff_vars": "control_diff_state",
+               "user": "user_routine"}
+
+
+def _time_capable():
+    from poise.elements.registry import element_types, static
+    return [et.name for et in element_types() if et.time_dependent is not static]
+
+
+def test_every_time_capable_type_has_a_scene():
+    """A type that declares a ``time_dependent`` other than ``static`` gets a scene below."""
+    assert sorted(_time_capable()) == sorted(TIME_SCENES)
+
+
+@pytest.mark.parametrize("name", _time_capable())
+def test_time_dependence_comes_from_the_declaring_type(tmp_path, name):
+    """The model's decision (solve once or per frame) is the element types' declared
+    ``time_dependent`` of its compiled families; a scene whose only time dependence is in
+    element type ``name`` is detected, through that type alone."""
+    from poise.deck.parser import load_deck
+    from poise.elements.registry import type_of
+    from poise.model.compile import compile_model
+    (tmp_path / "ramp_routines.py").write_text(USER_SCRIPT)
+    deck = tmp_path / "scene.xml"
+    deck.write_text(DECK.format(method="FIM_S", extra=SOURCES[TIME_SCENES[name]][0]))
+    model = compile_model(load_deck(str(deck)), user_code="run")
+    assert model.depends_on_time()
+    reading = {type_of(f).name for f in model.families if type_of(f).time_dependent(f)}
+    assert reading == {name}
+    assert model.time_sources and all("scene.xml:" in s for s in model.time_sources)

@@ -48,9 +48,10 @@ def test_nonlinear_spring_closed_form_and_quadratic_convergence():
 def test_gravity_expression_is_time_dependent():
     m = compile_model(__import__("poise.deck.parser", fromlist=["load_deck"])
                       .load_deck(str(DECKS / "expr_nonlinear_spring.xml")))
-    assert m.gravity_fn is not None
-    np.testing.assert_allclose(m.gravity_fn(0.0), [0.0, -9810.0, 0.0])
-    np.testing.assert_allclose(m.gravity_fn(2.0), [0.0, -8810.0, 0.0])
+    grav = next(f for f in m.families if f.name == "gravity")    # elements/gravity.py
+    assert grav.batch is not None and m.depends_on_time()
+    np.testing.assert_allclose(grav.acceleration(0.0)[0], [0.0, -9810.0, 0.0])
+    np.testing.assert_allclose(grav.acceleration(2.0)[0], [0.0, -8810.0, 0.0])
 
 
 def test_spline_spring_vs_scipy_akima():

@@ -79,6 +79,9 @@ class Family:
     row_names: tuple = ()
     scols: np.ndarray = field(default=None, repr=False)
 
+    #: evaluated after every other family (``Model.eval_order``; gravity's uniform load)
+    eval_last = False
+
     @property
     def U(self) -> int:
         """Number of scalar-unknown columns per instance."""
@@ -95,9 +98,6 @@ class Family:
     @property
     def is_constraint(self) -> bool:
         return self.m > 0
-
-    def depends_on_time(self) -> bool:
-        return False
 
     def g_blocks(self):
         """Static structure of ``G``: (S, S) bool array of the slot-pair 3x3 blocks of ``G`` that

@@ -19,7 +19,7 @@ from poise.deck.spec import Expr
 from poise.core.errors import EvaluationError
 from poise.elements import curves as F
 from poise.elements import curve_data as CD
-from poise.elements.registry import ElementType
+from poise.elements.registry import ElementType, static, workless
 from poise.elements.kernel import slot_kinematics
 
 TAGS = ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
@@ -296,5 +296,7 @@ ELEMENTS = (ElementType(
     "curves", TAGS, compile_curves,
     after=("user",),            # curve rows and parameters after the user constraints
     kernels=lambda: (F.PointOnCurve, F.PointOnSurface, F.CurveOnCurve, F.CurveOnSurface,
-                     F.SurfaceOnSurface), outputs={"curves": TAGS},
+                     F.SurfaceOnSurface), potential_energy=workless,
+    time_dependent=static,      # TIME in curve geometry is a located error (compile_curves)
+    outputs={"curves": TAGS},
     datasets=("id", "tag", "parameters", "point"), fd_tests="tests/reference/test_curves.py"),)

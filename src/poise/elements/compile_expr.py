@@ -1,26 +1,22 @@
-"""Expressions in the model: expression forces, time-dependent gravity and ``Post_Request`` outputs.
+"""Expressions in the model: expression forces and ``Post_Request`` outputs.
 
 Expressions are compiled with the resolver on the compile context
 (:class:`poise.elements.resolver.ModelResolver`). Reaction channels (element forces JOINT, BUSH,
 ... and resultants FX..TZ) are read exactly: in ``Post_Request`` from the converged multipliers,
 inside expression forces at every ``Model.evaluate`` (:class:`poise.elements.reaction_feed.
 ReactionFeed`, with exact Jacobian terms, docs/expressions.md). A force that
-reads an expression force which itself reads reactions is a located DeckError; gravity and
-Control_Diff expressions reject reaction functions.
+reads an expression force which itself reads reactions is a located DeckError; gravity
+(elements/gravity.py) and Control_Diff expressions reject reaction functions.
 """
 from __future__ import annotations
-
-import numpy as np
 
 from poise.deck.spec import Expr
 from poise.elements import expr_forces as XF
 from poise.elements.channels import ExprInfo
 from poise.elements.reaction_feed import ReactionFeed
-from poise.elements.registry import ElementType
+from poise.elements.registry import ElementType, expressions_of_time, not_conservative
 from poise.elements.requests import build_request_hook
-from poise.elements.resolver import compile_batch_located, ground_markers
-from poise.expr import EvalContext as XC
-from poise.expr.batch import record_batches
+from poise.elements.resolver import ground_markers
 
 
 def _is_null(v):
@@ -28,7 +24,7 @@ def _is_null(v):
 
 
 def compile_expressions(spec, ctx):
-    """Element compiler: expression forces, gravity expressions, Post_Request hooks."""
+    """Element compiler: expression forces, Post_Request hooks."""
     pc = ctx.pc
     res = ctx.resolver()
     ground = ground_markers(ctx.b)
@@ -54,29 +50,12 @@ def compile_expressions(spec, ctx):
     if res.channels:
         _reaction_feed(ctx, res, built, pc)
 
-    # ------------------------------------------------------------ gravity
-    gels = spec.elements("Force_Gravity")
-    if gels:
-        el = gels[-1]
-        comps = [el.attrs.get(k, 0.0) for k in ("grav_x", "grav_y", "grav_z")]
-        if any(isinstance(c, Expr) for c in comps):
-            res.where = "gravity"
-            batch = compile_batch_located(comps, res, pc)
-            if batch is not None:
-                if batch.depends_on_state:
-                    k = int(np.argmax(batch.state_mask))
-                    pc.error(el.loc, "gravity may depend on TIME only; for a state-dependent "
-                             "load use a Force_Vector_TwoBody", ("grav_x", "grav_y", "grav_z")[k])
-                else:
-                    ctx.gravity_fn = GravityFunction(batch)
-
     # ------------------------------------------------------------ requests
     reqs = spec.elements("Post_Request")
     if reqs:
         res.allow_reactions = True
         res.where = "requests"
-        with record_batches(None):     # outputs only: never make the solution time-dependent
-            hook = build_request_hook(reqs, ctx, res)
+        hook = build_request_hook(reqs, ctx, res)   # outputs only: no family, no time source
         if hook is not None:
             ctx.frame_hooks = getattr(ctx, "frame_hooks", []) + [hook]
 
@@ -127,21 +106,10 @@ def _reaction_feed(ctx, res, built, pc):
     ctx.reaction_feed = ReactionFeed(res.channels, ExprInfo(res, ctx.outputs), readers)
 
 
-class GravityFunction:
-    """``g(t)`` (3,) from a batch of TIME-only expressions."""
-
-    depends_on_time = True
-
-    def __init__(self, batch):
-        self.batch = batch
-
-    def __call__(self, t: float) -> np.ndarray:
-        return np.asarray(self.batch.evaluate(XC(time=float(t))).value, float)
-
-
 ELEMENTS = (ElementType(
     "expressions", ("Post_Request",), compile_expressions,
     after=("forces", "field_beam"),   # compiles the expression forces compile_forces routed here
     kernels=lambda: (XF.ExprVectorForce, XF.ExprScalarForce),
+    potential_energy=not_conservative, time_dependent=expressions_of_time,
     outputs={"forces": None, "requests": ("Post_Request",)},
     datasets=("id", "values", "message"), fd_tests="tests/kernels/test_expr_families.py"),)

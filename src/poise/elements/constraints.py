@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.elements.base import POINT, ConstraintFamily
-from poise.elements.registry import ElementType, FDCase, claimed_types
+from poise.elements.registry import ElementType, FDCase, claimed_types, static, workless
 
 
 _I3 = np.eye(3)
@@ -313,6 +313,7 @@ ELEMENTS = (ElementType(
     "joints", ("Constraint_Joint", "Constraint_Jprim"), compile_joints,
     kernels=lambda: (Coincident, Perpendicular, InPlane),
     tileable=lambda: (Coincident, Perpendicular, InPlane),
+    potential_energy=workless, time_dependent=static,
     outputs={"joints": ("Constraint_Joint",), "jprims": ("Constraint_Jprim",)},
     datasets=("id", "force", "torque"),
     reactions={"JOINT": ("joints", ("Constraint_Joint",)),

@@ -17,7 +17,7 @@ from poise.elements.context import GLOBAL
 from poise.elements.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_YI, S_YJ, S_ZI, S_ZJ, \
     TwoBodyForce
 from poise.elements.kernel import slot_kinematics
-from poise.elements.registry import ElementType
+from poise.elements.registry import ElementType, kernel_potential, static
 
 
 SPHERE_PLANE, SPHERE_SPHERE, SPHERE_BOX, CORNER_PLANE = 0, 1, 2, 3
@@ -366,5 +366,6 @@ ELEMENTS = (ElementType(
     "contacts", ("Force_Contact",), compile_contacts,
     after=("expressions",),     # contact families after the expression forces (model layout)
     kernels=lambda: (ContactForce,), tileable=lambda: (ContactForce,),
-    potential_energy=True, outputs={"contacts": ("Force_Contact",)},
+    potential_energy=kernel_potential, time_dependent=static,
+    outputs={"contacts": ("Force_Contact",)},
     datasets=("id", "kind", "force", "penetration"), fd_tests="tests/reference/test_contact.py"),)

@@ -46,9 +46,6 @@ class CompileContext:
         self.expr_forces: list = []      # (owner, el) of expression forces (compile_expr)
         self.user_forces: list = []      # (force row, el) of Python user forces (elements.user)
         self.frame_hooks: list = []      # per-frame output hooks (requests, ...)
-        self.gravity_fn = None           # callable t -> (3,) for TIME-dependent gravity
-        self.time_sources: list[str] = []   # what reads TIME besides compiled expressions
-        self.batches: list = []          # every expression batch compiled (record_batches)
         self._resolver = None
 
     def resolver(self) -> ModelResolver:
@@ -58,10 +55,9 @@ class CompileContext:
             self._resolver = ModelResolver(self.b.spec, self)
         return self._resolver
 
-    def reads_time(self, what: str) -> None:
-        """Record that the solution depends on the analysis time through ``what`` (compiled
-        expressions are found on their own; this is for opaque code such as user routines)."""
-        self.time_sources.append(what)
+    def body_centres(self):
+        """Compiled CG marker index (nb,) and effective mass (nb,) of the moving bodies."""
+        return self.b.body_centres()
 
     def angle(self, I: int, J: int, axis: int) -> int:
         """Register a continuous angle of marker I about marker J's axis (0 x, 1 y, 2 z)."""

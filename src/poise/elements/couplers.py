@@ -16,7 +16,7 @@ import numpy as np
 from poise.elements.base import ConstraintFamily
 from poise.elements.context import GLOBAL
 from poise.elements.motions import measure
-from poise.elements.registry import ElementType
+from poise.elements.registry import ElementType, static, workless
 
 
 N_JOINTS = 3
@@ -235,5 +235,7 @@ def compile_couplers(spec, ctx):
 ELEMENTS = (ElementType(
     "couplers", ("Constraint_Coupler",), compile_couplers,
     after=("motions",),         # coupler rows after the motion rows (model layout)
-    kernels=lambda: (Coupler,), outputs={"couplers": ("Constraint_Coupler",)},
+    kernels=lambda: (Coupler,), potential_energy=workless,
+    time_dependent=static,      # displacements from the input configuration: no time
+    outputs={"couplers": ("Constraint_Coupler",)},
     datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

@@ -14,7 +14,7 @@ import numpy as np
 
 from poise.deck.spec import Expr
 from poise.elements.base import ForceFamily, column_map, columns_array
-from poise.elements.registry import ElementType
+from poise.elements.registry import ElementType, batch_time_sources, not_conservative
 from poise.elements.resolver import (compile_batch_located, ground_markers, held, is_user,
                                      scalar_unknown)
 from poise.elements.user import compile_user_variables
@@ -39,9 +39,6 @@ class ScalarEquation(ForceFamily):
     batch = None
     slot_map = None          # (rows, batch_slot, family_slot)
     sc_map = None            # (rows, batch_col, family_col)
-
-    def depends_on_time(self) -> bool:
-        return bool(self.batch.depends_on_time)
 
     def forces(self, kin, ctx, need_jac=True):
         n, S, U = self.n, len(self.slot_ml), self.U
@@ -222,9 +219,16 @@ def _output_hook(ctx, diffs, all_vars):
     return hook
 
 
+def _time_sources(fam) -> list:
+    """``time_dependent``: the scalar equations reading TIME."""
+    return batch_time_sources([fam.batch])
+
+
 ELEMENTS = (ElementType(
     "diff_vars", ("Control_Diff", "Reference_Variable"), compile_diff_vars,
     after=("expressions", "contacts"),  # scalar unknowns the expressions registered come first
     kernels=lambda: (ScalarEquation,),
+    potential_energy=not_conservative,  # its rows are no force of a potential: energy NaN
+    time_dependent=_time_sources,
     outputs={"diffs": ("Control_Diff",), "variables": ("Reference_Variable",)},
     datasets=("id", "value"), fd_tests="tests/kernels/test_extra_unknowns.py"),)

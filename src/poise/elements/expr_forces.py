@@ -55,9 +55,6 @@ class ExprForce(ForceFamily):
     batches: list
     slot_maps: list          # per batch: (rows, batch_slot, family_slot) index arrays
 
-    def depends_on_time(self) -> bool:
-        return any(b.depends_on_time for b in self.batches)
-
     def _expr_values(self, ctx, need_jac):
         """Values (n, nb) and slot gradients (n, nb, 3S) of all batches."""
         t = ctx.t

@@ -21,7 +21,7 @@ from poise.elements.context import GLOBAL, num as _num
 from poise.elements.couplers import user_routine_error
 from poise.elements.forces import (N_SLOTS, S_PI, S_PJ, S_XJ, S_YJ, S_ZJ, TwoBodyForce,
                                    angle_gradient, sl)
-from poise.elements.registry import ElementType
+from poise.elements.registry import ElementType, kernel_potential, static
 
 
 _I3 = np.eye(3)
@@ -183,6 +183,7 @@ def compile_field_beam(spec, ctx):
 ELEMENTS = (ElementType(
     "field_beam", ("Force_Field", "Force_Beam"), compile_field_beam,
     after=("forces", "gears"),  # extends the "forces" output group after compile_forces
-    kernels=lambda: (FieldForce,), tileable=lambda: (FieldForce,), potential_energy=True,
+    kernels=lambda: (FieldForce,), tileable=lambda: (FieldForce,),
+    potential_energy=kernel_potential, time_dependent=static,
     outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
     fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)

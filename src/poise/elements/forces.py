@@ -19,7 +19,7 @@ from poise.core.user_routines import uses_user_routine
 from poise.deck.spec import Expr
 from poise.elements.base import ForceFamily, _cross, add_force_at_point, add_torque_via_axes
 from poise.elements.context import GLOBAL, num as _num
-from poise.elements.registry import ElementType, FDCase
+from poise.elements.registry import ElementType, FDCase, kernel_potential, static
 from poise.elements.rotation import skew
 
 
@@ -433,7 +433,8 @@ ELEMENTS = (ElementType(
     "forces", ("Force_SpringDamper", "Force_Scalar_TwoBody", "Force_Bushing") + _VEC,
     compile_forces,
     after=("joints",),          # force families after the joint families (model layout)
-    kernels=_KERNELS, tileable=_KERNELS, potential_energy=True,
+    kernels=_KERNELS, tileable=_KERNELS, potential_energy=kernel_potential,
+    time_dependent=static,      # constant parameters (expression forces: "expressions")
     outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
     reactions={"SFORCE": ("forces", ("Force_Scalar_TwoBody",)), "VFORCE": ("forces", _VEC),
                "VTORQ": ("forces", _VEC), "GFORCE": ("forces", _VEC),

@@ -14,7 +14,7 @@ import numpy as np
 from poise.core.errors import DeckError, Problem
 from poise.deck.spec import Expr
 from poise.elements.base import ConstraintFamily
-from poise.elements.registry import ElementType
+from poise.elements.registry import ElementType, workless
 from poise.expr import EvalContext, compile_batch
 
 
@@ -141,9 +141,6 @@ class MotionConstraint(ConstraintFamily):
         fam.angle_index = None
         return fam
 
-    def depends_on_time(self) -> bool:
-        return bool(self.targets.depends_on_time(self.tidx))
-
     def tile_frames(self, t, F, model):
         """Frame tiling (:mod:`poise.model.frame_batch`): the per-instance arrays tiled by the
         generic tiler suffice; :meth:`constraints` then reads one time per frame."""
@@ -259,9 +256,10 @@ class MotionTargets:
         # V/A with a zero integrand is still constant: keep it simple (time dependent)
         return dep
 
-    def depends_on_time(self, idx=None) -> bool:
-        d = self._time_dep if idx is None else self._time_dep[idx]
-        return bool(np.any(d))
+    def time_dependent(self, idx) -> np.ndarray:
+        """(len(idx),) bool: the targets ``idx`` that move with time (an expression of TIME, or
+        a velocity / acceleration motion, integrated from the start time)."""
+        return self._time_dep[np.asarray(idx, int)]
 
     def f(self, t):
         """Expression values and d/dTIME, (n,) each."""
@@ -419,16 +417,30 @@ def compile_motions(spec, ctx):
             f.angle_index = np.array([ctx.angle(x[1], x[2], 2) for x in lst], int)
         f.crow = np.array([[x[3]] for x in lst], int)
         f.group = group
+        f.element_locs = [items[x[0]][0].loc for x in lst]
         ctx.families.append(f)
     ctx.outputs[group] = dict(tag=np.array([it[0].tag for it in items]),
                               ids=np.array([it[0].id for it in items], int))
     ctx.motion_targets = targets
 
 
+def motion_time_sources(fam) -> list:
+    """``time_dependent`` of motions: each motion whose target moves with time, named by its
+    expression (TIME read directly or through variables, splines, ...) or its ``val_type``."""
+    out = []
+    dep = fam.targets.time_dependent(fam.tidx)
+    for k in np.flatnonzero(dep).tolist():
+        i = int(fam.tidx[k])
+        reads = fam.targets.batch is not None and bool(fam.targets.batch.time_mask[i])
+        out.append(fam.element_locs[k].prefix("expr" if reads else "val_type").rstrip(":"))
+    return out
+
+
 ELEMENTS = (ElementType(
     "motions", ("Motion_Joint", "Motion_Marker"), compile_motions,
     after=("forces",),          # motion rows after the joint rows, families after forces
-    kernels=lambda: (MotionConstraint,), time_dependent=True,
+    kernels=lambda: (MotionConstraint,), potential_energy=workless,
+    time_dependent=motion_time_sources,
     outputs={"motions": ("Motion_Joint", "Motion_Marker")}, datasets=("id", "force", "torque"),
     reactions={"MOTION": ("motions", ("Motion_Joint", "Motion_Marker"))},
     reaction_aliases={"MOTION_JOINT": "MOTION"},

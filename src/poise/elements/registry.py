@@ -6,7 +6,9 @@ across frames, potential energy, output groups, reaction channels exposed to exp
 dependence, finite-difference Jacobian cases). Modules are found by walking the package, so a new
 element type is one new module. Derived here: the compile order (a topological sort of the
 declared ``after`` dependencies), the batching whitelist, the reaction tables of expressions, the
-output groups of ``poise sweep --output``, the supported joint types and the FD test cases.
+output groups of ``poise sweep --output``, the supported joint types, the FD test cases, which
+compiled families make the solution depend on time (:func:`time_sources`) and which add
+potential energy (:func:`energy_terms`).
 """
 from __future__ import annotations
 
@@ -15,6 +17,9 @@ import pkgutil
 from dataclasses import dataclass, field
 from functools import cache
 from typing import Callable
+
+import numpy as np
+
 import poise.elements as pkg
 
 
@@ -22,7 +27,8 @@ import poise.elements as pkg
 class FDCase:
     """A finite-difference Jacobian check (tests/kernels/test_jacobians.py): ``elements`` are added to a
     random two-body deck once per marker pair of ``pairs`` (I, J marker ids of that deck; the
-    element's own marker attribute names in ``marker_attrs``)."""
+    element's own marker attribute names in ``marker_attrs``; an element without markers, such
+    as gravity: ``pairs=((),), marker_attrs=()``, added once without an id)."""
 
     name: str
     elements: tuple                       # ((tag, attrs), ...)
@@ -31,6 +37,62 @@ class FDCase:
     point_b: tuple = (False, True)        # second body rigid / a point body
     seed: tuple | None = None             # stable_seed arguments (default: (name, point_b))
     opposite_z: bool = False              # J marker z axis turned against I's (CV joints)
+
+
+# ------------------------------------------------------------------ declared capabilities
+# ``ElementType.potential_energy``: how a compiled family of the type adds to the model's potential
+# energy, ``fn(fam, frame) -> array | None``. ``frame`` offers ``kinematics(fam)`` (slot
+# vectors), ``ctx`` (time, angles) and ``on_ground(fam)`` (n, K) (see poise.model.evaluate);
+# the energy is the sum of the array; None means the model has no potential energy (NaN).
+def workless(fam, frame):
+    """Constraints only: an ideal reaction does no work, nothing is added (the energy pass
+    skips these types)."""
+    return 0.0
+
+
+def not_conservative(fam, frame):
+    """Forces with no potential (expression and user forces, scalar-equation rows): the model's
+    potential energy is NaN (MKEAM's descent measure and restart rule, ``--require-stable``)."""
+    return None
+
+
+def kernel_potential(fam, frame):
+    """The kernel's own ``potential_energy(kin, ctx[, on_ground])`` (None where the family has
+    none or its law has no potential at these parameters)."""
+    fn = getattr(fam, "potential_energy", None)
+    if fn is None:
+        return None
+    kin = frame.kinematics(fam)
+    if getattr(fam, "potential_needs_ground", False):
+        return fn(kin, frame.ctx, on_ground=frame.on_ground(fam))
+    return fn(kin, frame.ctx)
+
+
+# ``ElementType.time_dependent``: ``fn(fam) -> list[str]``, the deck places through which a compiled
+# family makes the solution depend on the analysis time (empty: it does not); the model depends
+# on time when any family names one (quasi-static runs of a time-independent scene are solved
+# once and replicated).
+def static(fam) -> list:
+    """The type's elements never read the analysis time."""
+    return []
+
+
+def expressions_of_time(fam) -> list:
+    """The first expression reading TIME (directly or through variables, splines, ...) of each
+    of the family's compiled expression batches (``fam.batches``)."""
+    return batch_time_sources(getattr(fam, "batches", ()))
+
+
+def batch_time_sources(batches) -> list:
+    """``file:line: <Tag id=..> attr`` of the first TIME-reading expression of each batch."""
+    out = []
+    for b in batches:
+        if b is not None and b.depends_on_time:
+            e = b.exprs[int(np.argmax(b.time_mask))]
+            loc = getattr(e, "loc", None)
+            out.append(loc.prefix(getattr(e, "attr", None)).rstrip(":")
+                       if loc is not None else "an expression of TIME")
+    return out
 
 
 @dataclass(frozen=True)
@@ -43,6 +105,8 @@ class ElementType:
     ``reactions``: element-force function (``BUSH``) -> (output group, deck tags);
     ``reaction_aliases``: ``ELEMENTAL_FORCE`` ``elem_type`` spellings -> function.
     ``fd_tests``: where the FD Jacobian check lives when it needs more than :class:`FDCase`.
+    ``potential_energy`` and ``time_dependent`` (required, keyword-only): the functions above
+    or the type's own, applied to each compiled family of the type's ``kernels``.
     """
 
     name: str
@@ -52,8 +116,8 @@ class ElementType:
     types: tuple = ()
     kernels: Callable = tuple            # () -> family classes (lazy: kernels import late)
     tileable: Callable = tuple           # () -> the kernels batched across frames
-    potential_energy: bool = False
-    time_dependent: bool = False
+    potential_energy: Callable = field(kw_only=True)
+    time_dependent: Callable = field(kw_only=True)
     outputs: dict = field(default_factory=dict)
     datasets: tuple = ()
     reactions: dict = field(default_factory=dict)
@@ -145,3 +209,46 @@ def claimed_types(tag: str) -> dict:
 
 def fd_cases() -> list[FDCase]:
     return [c for et in element_types() for c in et.fd_cases()]
+
+
+def kernel_types(types=None) -> dict:
+    """Family class -> the element type declaring it among its ``kernels`` (``types``: the
+    element types a model was compiled with, default all registered)."""
+    out = {}
+    for et in element_types() if types is None else types:
+        for k in et.kernels():
+            if out.setdefault(k, et) is not et:
+                raise RuntimeError(f"kernel {k.__name__} declared by {out[k].name!r} and "
+                                   f"{et.name!r}")
+    return out
+
+
+def type_of(fam, owners: dict | None = None) -> ElementType:
+    """The element type of a compiled family (its class is a declared kernel); ``owners`` a
+    :func:`kernel_types` table (default: of all registered types)."""
+    et = (kernel_types() if owners is None else owners).get(type(fam))
+    if et is None:
+        raise RuntimeError(f"family {fam.name!r}: {type(fam).__name__} is not a declared kernel "
+                           "of any element type")
+    return et
+
+
+def time_sources(families, owners: dict | None = None) -> list[str]:
+    """The deck places through which ``families`` make the solution depend on time, by their
+    element types' ``time_dependent`` (duplicates removed, order kept)."""
+    owners = kernel_types() if owners is None else owners
+    return list(dict.fromkeys(s for f in families
+                              for s in type_of(f, owners).time_dependent(f)))
+
+
+def energy_terms(families, owners: dict | None = None) -> tuple:
+    """``(family index, fn)`` of the families that add potential energy: their type's
+    ``potential_energy`` unless it is :func:`workless`; constraint families never (an ideal
+    reaction does no work). In ``families`` order."""
+    owners = kernel_types() if owners is None else owners
+    out = []
+    for i, f in enumerate(families):
+        fn = type_of(f, owners).potential_energy
+        if fn is not workless and not f.is_constraint:
+            out.append((i, fn))
+    return tuple(out)

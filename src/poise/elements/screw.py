@@ -15,7 +15,7 @@ import numpy as np
 from poise.elements.base import ConstraintFamily
 from poise.elements.context import num
 from poise.elements.motions import SLOT_KIND, SLOT_ML, measure
-from poise.elements.registry import ElementType, FDCase
+from poise.elements.registry import ElementType, FDCase, static, workless
 
 
 class Screw(ConstraintFamily):
@@ -70,7 +70,8 @@ def compile_screws(spec, ctx):
 ELEMENTS = (ElementType(
     "screw", ("Constraint_Joint",), compile_screws, types=("SCREW",),
     after=("joints",),                    # its row and reaction follow the other joints'
-    kernels=lambda: (Screw,), outputs={"joints": ("Constraint_Joint",)},
+    kernels=lambda: (Screw,), potential_energy=workless, time_dependent=static,
+    outputs={"joints": ("Constraint_Joint",)},
     datasets=("id", "force", "torque"),
     fd_cases=lambda: (FDCase("Constraint_Joint:SCREW",
                              (("Constraint_Joint", {"type": "SCREW", "pitch": 0.3}),),

@@ -22,7 +22,7 @@ from poise.elements.base import ConstraintFamily, ForceFamily
 from poise.elements.base import POINT
 from poise.elements.context import GLOBAL
 from poise.elements.expr_forces import ExprScalarForce, ExprVectorForce
-from poise.elements.registry import ElementType
+from poise.elements.registry import ElementType, not_conservative
 from poise.elements.resolver import ground_markers
 
 
@@ -39,9 +39,6 @@ def _vectors_from_slots(routine, Y, slot_of):
 class UserConstraint(ConstraintFamily):
     routine = None
     slot_of = None            # (marker_id, kind) -> family slot
-
-    def depends_on_time(self) -> bool:
-        return bool(self.routine.time_dependent)
 
     def _vec(self, kin, ctx):
         vec = _vectors_from_slots(self.routine, kin.Y, self.slot_of)
@@ -86,9 +83,6 @@ class _UserForceMixin:
     comp_index = None          # positions of the user's values among the family components
     user_map = None            # (user slot index, family slot) pairs of moving-marker vectors
 
-    def depends_on_time(self) -> bool:
-        return bool(self.routine.time_dependent)
-
     def _expr_values(self, ctx, need_jac):
         r = self.routine
         vec = {key: (ctx.P[r.mi[key[0]]] if key[1] == 0 else ctx.A[r.mi[key[0]]][:, key[1] - 1])
@@ -120,9 +114,6 @@ class UserScalarEquation(ForceFamily):
 
     routine = None
     slot_of = None
-
-    def depends_on_time(self) -> bool:
-        return bool(self.routine.time_dependent)
 
     def forces(self, kin, ctx, need_jac=True):
         r = self.routine
@@ -178,7 +169,6 @@ def _routine(el, ctx, P, A):
     fn, path, par, digest = got
     b.input_files[str(path)] = digest
     r = UserRoutine(el, fn, path, par, ctx.b.marker_index, ctx.b.L)
-    ctx.reads_time(el.loc.prefix()[:-1])   # opaque code: may read its time argument anywhere
     try:
         r.probe(0.0, P, A)
     except EvaluationError as e:
@@ -343,9 +333,16 @@ def compile_user_variables(spec, ctx, items):
         ctx.families.append(fam)
 
 
+def opaque_code(fam) -> list:
+    """``time_dependent`` of user routines: opaque code may read its time argument anywhere
+    (the probe at two times cannot prove it does not), so every user element counts."""
+    return [loc.prefix()[:-1] for loc in fam.element_locs]
+
+
 ELEMENTS = (ElementType(
     "user", USER_CONSTRAINT_TAGS, compile_user,
     after=("forces", "diff_vars"),    # compiles the user forces compile_forces routed here
     kernels=lambda: (UserConstraint, UserScalarForce, UserVectorForce, UserScalarEquation),
-    time_dependent=True, outputs={"userconstrs": USER_CONSTRAINT_TAGS, "forces": None},
+    potential_energy=not_conservative,   # user forces and VARSUB rows (constraints: none)
+    time_dependent=opaque_code, outputs={"userconstrs": USER_CONSTRAINT_TAGS, "forces": None},
     datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)

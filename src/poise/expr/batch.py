@@ -1,8 +1,6 @@
 """Batch compiler: many expressions -> grouped vectorised programs (see CONTRACT.md)."""
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import gc
 from dataclasses import dataclass
 
@@ -15,21 +13,7 @@ from .lower import Lowering
 from .tape import extract
 from .program import GroupEnv, build
 
-__all__ = ["compile_batch", "Batch", "EvalContext", "EvalResult", "record_batches"]
-
-_SINK = contextvars.ContextVar("poise_compiled_batches", default=None)
-
-
-@contextlib.contextmanager
-def record_batches(sink):
-    """Append every :class:`Batch` compiled inside the block to the list ``sink`` (None: stop
-    recording, e.g. for output-only expressions). The model compiler uses it to know whether
-    anything it compiled reads TIME (``Model.depends_on_time``)."""
-    tok = _SINK.set(sink)
-    try:
-        yield sink
-    finally:
-        _SINK.reset(tok)
+__all__ = ["compile_batch", "Batch", "EvalContext", "EvalResult"]
 
 
 @dataclass
@@ -178,9 +162,6 @@ def compile_batch(exprs, resolver) -> "Batch":
     finally:
         if gc_was_enabled:
             gc.enable()
-    sink = _SINK.get()
-    if sink is not None:
-        sink.append(batch)
     return batch
 
 

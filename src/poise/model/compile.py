@@ -4,7 +4,8 @@ Markers and bodies are resolved here; element families come from the ``compile(s
 of every registered element type (:mod:`poise.elements.registry`), in dependency order.
 
 Only element families present in the deck are compiled (a deck without ``Force_Gravity`` has no
-gravity term in its loop); ``Model.active_effects`` lists what was compiled.
+gravity family); ``Model.active_effects`` lists what was compiled. What makes the solution
+depend on time comes from the element types' declarations (``registry.time_sources``).
 """
 from __future__ import annotations
 
@@ -12,14 +13,13 @@ from operator import itemgetter
 
 import numpy as np
 
-from poise.deck.spec import DeckSpec, Element, Expr
+from poise.deck.spec import DeckSpec, Element
 from poise.core.errors import ProblemCollector
 from poise.elements.context import GLOBAL, CompileContext, num as _num
-from poise.elements.registry import element_types
+from poise.elements.registry import element_types, energy_terms, kernel_types, time_sources
 from poise.model import units as U
 from poise.model.model import Model
 from poise.elements.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
-from poise.expr.batch import record_batches
 
 _DCM = ("a00", "a10", "a20", "a01", "a11", "a21", "a02", "a12", "a22")
 
@@ -352,6 +352,11 @@ class _Builder:
                     marker_s0=np.concatenate([np.zeros((1, 3)), s0]),
                     marker_A0=np.concatenate([np.eye(3)[None], A0]))
 
+    def body_centres(self):
+        """CG marker index (nb,) and effective mass (nb,) of the moving bodies (gravity)."""
+        cg = [self.marker_index.get(e.attrs.get("cg_id"), GLOBAL) for e in self.moving]
+        return cg, self.body_mass
+
     def mk(self, el, attr, required=True):
         mid = el.attrs.get(attr)
         if mid is None:
@@ -395,25 +400,14 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     for bid in getattr(b, "_needs_default_inertia", []):
         i = b.body_index[bid]
         bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * b.L) ** 2 * np.eye(3)
+    b.body_mass = bodies["body_mass"]
 
     ctx = CompileContext(b)
-    with record_batches(ctx.batches):
-        for et in element_types():        # dependency order (poise.elements.registry)
-            et.compile(spec, ctx)
+    types = element_types()
+    for et in types:                      # dependency order (poise.elements.registry)
+        et.compile(spec, ctx)
     rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
     pc = b.pc
-
-    # ------------------------------------------------------------ gravity
-    grav = np.zeros(3)
-    gels = spec.elements("Force_Gravity")
-    if gels:
-        el = gels[-1]
-        gpc = None if any(isinstance(el.attrs.get(k), Expr)   # expressions: compile_expr
-                          for k in ("grav_x", "grav_y", "grav_z")) else pc
-        grav = np.array([_num(el, "grav_x", 0.0, gpc), _num(el, "grav_y", 0.0, gpc),
-                         _num(el, "grav_z", 0.0, gpc)], float)
-        b.effects.insert(0, "gravity")
-
     pc.raise_if_any()
 
     # ------------------------------------------------------------ layout
@@ -444,13 +438,14 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     model = Model(
         **bodies, **markers, families=fams, nq=b.nq + ne, nc=nc, row_info=rows,
         angle_I=np.array([a[0] for a in angles], int), angle_J=np.array([a[1] for a in angles], int),
-        angle_axis=np.array([a[2] for a in angles], int), gravity=grav, L=b.L,
-        gravity_on=bool(gels) and (np.any(grav != 0) or ctx.gravity_fn is not None),
-        active_effects=effects, outputs=outputs, units=udesc, gravity_fn=ctx.gravity_fn,
+        angle_axis=np.array([a[2] for a in angles], int), L=b.L,
+        active_effects=effects, outputs=outputs, units=udesc,
         n_extra=ne, extra0=np.array(ctx.extra0, float), extra_names=list(ctx.extra_names),
         mass_factor=float(mfac),
     )
-    model.time_sources = _time_sources(ctx)
+    owners = kernel_types(types)          # family class -> its element type
+    model.time_sources = time_sources(fams, owners)
+    model.energy_terms = energy_terms(fams, owners)
     model.frame_hooks.extend(ctx.frame_hooks)
     model.reaction_feed = getattr(ctx, "reaction_feed", None)
     model.spec_warnings = list(pc.warnings)
@@ -458,18 +453,3 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     model.input_files = dict(b.input_files)
     model.finalize()
     return model
-
-
-def _time_sources(ctx) -> list[str]:
-    """What makes the solution depend on the analysis time: every compiled expression that reads
-    TIME (directly or through variables, splines, ...; gravity, forces, motions, states, ...)
-    and the opaque sources the element compilers registered (user routines)."""
-    out = list(ctx.time_sources)
-    for batch in ctx.batches:
-        if batch.depends_on_time:
-            k = int(np.argmax(batch.time_mask))
-            e = batch.exprs[k]
-            loc = getattr(e, "loc", None)
-            out.append(loc.prefix(getattr(e, "attr", None)).rstrip(":")
-                       if loc is not None else "an expression of TIME")
-    return list(dict.fromkeys(out))

@@ -8,9 +8,10 @@ fixed-pattern assembler, sparse or dense); a list of states is ``F`` frames eval
 (the tileable families tiled across frames by :mod:`poise.model.frame_batch` and called once,
 dense ``(F, N, N)`` Jacobians scattered with one ``bincount``). Every family goes through
 :func:`_family_pass`, the only loop over the families; what differs per option is how its
-outputs are reduced. Active rows come from the caller's solve data (``active``); element
-loads of the kept slot data: :mod:`poise.elements.loads`; forces reading constraint reactions:
-the model's ``reaction_feed`` (:mod:`poise.elements.reaction_feed`), single frames only.
+outputs are reduced; the energy sums what the element types declare (``Model.energy_terms``,
+:mod:`poise.elements.registry`). Active rows come from the caller's solve data (``active``);
+element loads of the kept slot data: :mod:`poise.elements.loads`; forces reading constraint
+reactions: the model's ``reaction_feed`` (:mod:`poise.elements.reaction_feed`), single frames.
 """
 from __future__ import annotations
 
@@ -175,20 +176,6 @@ class _Frames:
         return t, kin, lam, out
 
 
-    def energy(self, fam):
-        """Potential energy per instance of a force family at one frame (None: not
-        conservative)."""
-        fn = getattr(fam, "potential_energy", None)
-        if fn is None:
-            return None
-        kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, self.P, self.A, self.mb,
-                              self.pos)
-        ctx = EvalContext(t=self.ctx.t, angle=self.ctx.angle)
-        if getattr(fam, "potential_needs_ground", False):
-            return fn(kin, ctx, on_ground=self.mb[fam.markers] == self.model.nb)
-        return fn(kin, ctx)
-
-
 def _kernel(fam, kin, lam, ctx, need_jac):
     if fam.is_constraint:
         if need_jac == "phi":                  # constraint values alone
@@ -198,24 +185,21 @@ def _kernel(fam, kin, lam, ctx, need_jac):
 
 
 def _family_pass(model, fr, need_jac, only=None, done=None):
-    """The one loop over the element families (evaluation order: reaction readers last).
+    """The one loop over the element families (``Model.eval_order``: reaction readers after
+    the others, gravity last).
 
     Yields ``(fi, t, kin, rho, G, ph, phy, ext)`` per family (``ph``/``phy`` None for
-    forces). ``only="phi"``: constraint families only, ``ph`` alone; ``only="energy"``: force
-    families only, their potential energy per instance in place of ``rho`` (None: the element
-    is not conservative). ``done`` (a dict): the reaction feed's record of the families
-    evaluated so far; the channels are computed before the first family that reads them."""
+    forces). ``only="phi"``: constraint families only, ``ph`` alone. ``done`` (a dict): the
+    reaction feed's record of the families evaluated so far; the channels are computed before
+    the first family that reads them."""
     for fi in model.eval_order:
         fam = model.families[fi]
-        if (only == "phi" and not fam.is_constraint) or (only == "energy" and fam.is_constraint):
+        if only == "phi" and not fam.is_constraint:
             continue
         if done is not None and fr.ctx.reactions is None and \
                 getattr(fam, "reads_reactions", False):
             # reaction channels from every family evaluated so far (exact at this iterate)
             fr.ctx.reactions = model.reaction_feed.values(model, done.values(), fr.P, fr.A)
-        if only == "energy":
-            yield fi, fam, None, fr.energy(fam), None, None, None, None
-            continue
         t, kin, lam, out = fr.call(fi, need_jac)
         if fam.is_constraint:
             ph, phy, G = out[:3]
@@ -270,9 +254,6 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
         if need_jac:
             pend[fi] = (fam, kin, rho, G, phy, ext)
     state = fr.states[0]
-    if model.gravity_on:
-        g = model.gravity if model.gravity_fn is None else model.gravity_fn(state.t)
-        r[model.trans_idx] -= (model.body_mass[:, None] * g[None, :]).ravel()
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
     if active is not None:
         phi = np.where(mask, phi, 0.0)
@@ -369,11 +350,6 @@ def _many_frames(model, fr, need_jac):
         r = np.bincount(idx[ok], weights=val[ok], minlength=F * nq)
     r = r.reshape(F, nq)
     phi = phi.reshape(F, nc)
-    if model.gravity_on:
-        mg = model.body_mass[:, None]
-        for f, s in enumerate(fr.states):
-            g = model.gravity if model.gravity_fn is None else model.gravity_fn(s.t)
-            r[f, model.trans_idx] -= (mg * g[None, :]).ravel()
     if not (np.isfinite(r).all() and np.isfinite(phi).all()):
         raise EvaluationError("non-finite residual in a batched frame evaluation")
     J = None
@@ -385,17 +361,36 @@ def _many_frames(model, fr, need_jac):
 
 
 def _energy(model, fr) -> float:
-    """Potential energy of gravity and the force elements at one frame; NaN when a force
-    element is not conservative (MKEAM's descent measure, ``--require-stable``)."""
+    """Potential energy at one frame: the sum of what the element types declare for their
+    families (``Model.energy_terms``: gravity, springs, contacts, ...; constraints add nothing);
+    NaN when one declares none (a non-conservative force: MKEAM's descent measure and restart
+    rule, ``--require-stable``)."""
     V = 0.0
-    if model.gravity_on:
-        pos = fr.states[0].pos
-        V -= float(np.sum(model.body_mass[:, None] * pos * model.gravity[None, :]))
-    for _, _, _, e, _, _, _, _ in _family_pass(model, fr, False, only="energy"):
+    view = _EnergyView(model, fr)
+    for fi, fn in model.energy_terms:
+        e = fn(model.families[fi], view)
         if e is None:
             return np.nan
         V += float(np.sum(e))
     return V
+
+
+class _EnergyView:
+    """What a declared ``potential_energy(fam, frame)`` reads at one frame
+    (:mod:`poise.elements.registry`): slot kinematics, time and angles, fixed markers."""
+
+    def __init__(self, model, fr):
+        self.model, self.fr = model, fr
+        self.ctx = EvalContext(t=fr.ctx.t, angle=fr.ctx.angle)
+
+    def kinematics(self, fam):
+        fr = self.fr
+        return slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, fr.P, fr.A, fr.mb,
+                               fr.pos)
+
+    def on_ground(self, fam):
+        """(n, K) bool: which of each instance's markers are fixed."""
+        return self.fr.mb[fam.markers] == self.model.nb
 
 
 # ---------------------------------------------------------------------------- helpers

@@ -76,8 +76,11 @@ class Model:
     nq, nc : sizes
     row_info : list of dict per constraint row (tag, id, equation, line, kind 'trans'|'rot')
     angle_I, angle_J, angle_axis : (na,) continuous-angle table
-    gravity : (3,) [length/time^2]
     L : model length scale [length]
+    time_sources : deck places through which the solution depends on time (from the element
+        types' ``time_dependent``, :func:`poise.elements.registry.time_sources`)
+    energy_terms : ``(family index, potential_energy)`` the energy pass sums (the element
+        types' declarations, :func:`poise.elements.registry.energy_terms`)
     """
 
     body_id: np.ndarray
@@ -97,11 +100,9 @@ class Model:
     angle_I: np.ndarray
     angle_J: np.ndarray
     angle_axis: np.ndarray
-    gravity: np.ndarray
     L: float
     init_pos: np.ndarray
     init_rot: np.ndarray
-    gravity_on: bool = False
     active_effects: list = field(default_factory=list)
     outputs: dict = field(default_factory=dict)
     coord_info: list = field(default_factory=list)
@@ -111,9 +112,9 @@ class Model:
     n_extra: int = 0
     extra0: np.ndarray = None
     extra_names: list = field(default_factory=list)
-    gravity_fn: object = None        # TIME-dependent gravity: callable t -> (3,), else None
     reaction_feed: object = None     # ReactionFeed: reaction channels read by forces, else None
-    time_sources: list = field(default_factory=list)   # what reads TIME (compile._time_sources)
+    time_sources: list = field(default_factory=list)   # what reads TIME (see above)
+    energy_terms: tuple = ()         # (family index, declared potential_energy) (registry)
     mass_factor: float = 1.0         # body_mass = deck mass x mass_factor (poise.model.units)
 
     # ------------------------------------------------------------------ setup
@@ -177,9 +178,12 @@ class Model:
         qs[self.rot_idx] = np.repeat(self.body_scale[rigid], 3)
         self.q_scale = qs            # length per unit of each coordinate (rad -> length)
         self.row_kind = np.array([1 if ri["kind"] == "rot" else 0 for ri in self.row_info], int)
-        # evaluation order: families reading reaction channels last (after every constraint)
-        rd = [k for k, f in enumerate(self.families) if getattr(f, "reads_reactions", False)]
-        self.eval_order = [k for k in range(len(self.families)) if k not in rd] + rd
+        # evaluation order: families reading reaction channels after every other (they read
+        # the constraint reactions), then those declaring ``eval_last`` (gravity: the residual
+        # sums in the order of earlier releases)
+        rank = [2 if f.eval_last else
+                1 if getattr(f, "reads_reactions", False) else 0 for f in self.families]
+        self.eval_order = sorted(range(len(self.families)), key=rank.__getitem__)
         self.freeze()
 
     def freeze(self):
@@ -336,10 +340,10 @@ class Model:
         return dq
 
     def depends_on_time(self) -> bool:
-        """True if the solution may change with the analysis time: anything compiled reads TIME
-        (``time_sources``: expressions anywhere, gravity, user routines) or a family's own rule
-        does (velocity / acceleration motions integrate over time)."""
-        return bool(self.time_sources) or any(f.depends_on_time() for f in self.families)
+        """True if the solution may change with the analysis time: a compiled family's element
+        type says so (``time_sources``: expressions of TIME in forces, gravity, motions and
+        states, velocity / acceleration motions, user routines as opaque code)."""
+        return bool(self.time_sources)
 
     # ------------------------------------------------------------------ mass
     def deck_mass(self) -> np.ndarray:
