@@ -10,8 +10,10 @@ whose eigenvectors solve. Same interface as the sparse pencil for
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
-from poise.solvers.stability_modes import DIAG_FLOOR, NOISE_REL, ZERO_REL
+from poise.solvers.stability_modes import ZERO_REL
+from poise.solvers.stability_sparse import _equilibrate, _prune_noise
 
 DENSE_PENCIL = 150        # nq + constraint rows at or below: the dense pencil (eigh ~ ms)
 
@@ -47,10 +49,7 @@ class DensePencil:
         J = J.toarray() if hasattr(J, "toarray") else np.asarray(J, float)
         d = np.asarray(model.q_scale, float)
         Ku = J[:nq, :nq] / d[:, None] / d[None, :]
-        Ks = 0.5 * (Ku + Ku.T)
-        a = np.abs(Ks)
-        rmax = a.max(axis=1, initial=0.0)
-        Ks = np.where(a > NOISE_REL * np.maximum(rmax[:, None], rmax[None, :]), Ks, 0.0)
+        Ks = _prune_noise(sp.csr_matrix(0.5 * (Ku + Ku.T))).toarray()
         rows = np.arange(model.nc) if active is None else np.nonzero(active)[0]
         G = J[nq:, :nq][rows] / d[None, :]
         if len(rows):
@@ -59,7 +58,8 @@ class DensePencil:
             G, rows = G[keep], rows[keep]
         self.rows = rows
         self.reused = like is not None and like.nq == nq and np.array_equal(like.rows, rows)
-        dq, dl = _equilibrate(Ks, G, (like.dq, like.dl) if self.reused else None)
+        dq, dl = _equilibrate(sp.csr_matrix(Ks), sp.csr_matrix(G),
+                              start=(like.dq, like.dl) if self.reused else None)
         self.Kt = dq[:, None] * Ks * dq[None, :]
         self.Gt = dl[:, None] * G * dq[None, :]
         self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
@@ -77,20 +77,3 @@ class DensePencil:
 
     def ldl(self, s, rho):
         return EigenLDL(self.kkt(s, rho))
-
-
-def _equilibrate(Ks, G, start=None, iters=12, tol=0.1):
-    """Dense version of :func:`poise.solvers.stability_sparse._equilibrate` (same rule)."""
-    nq, m = Ks.shape[0], G.shape[0]
-    kmax = float(np.max(np.abs(Ks), initial=0.0))
-    cap = 1.0 / np.sqrt(DIAG_FLOOR * kmax) if kmax > 0.0 else np.inf
-    B = np.abs(np.block([[Ks, G.T], [G, np.zeros((m, m))]])) if m else np.abs(Ks)
-    D = np.ones(nq + m) if start is None else np.concatenate(start)
-    for _ in range(iters):
-        r = (B * D[:, None] * D[None, :]).max(axis=1, initial=0.0)
-        r[r <= 0.0] = 1.0
-        if np.all(np.abs(r - 1.0) <= tol):
-            break
-        D /= np.sqrt(r)
-        np.minimum(D[:nq], cap, out=D[:nq])
-    return D[:nq], D[nq:]
