@@ -121,9 +121,9 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
     ``start``: the (assembled) input Newton started from. The descent is tried from there
     first, with at most half the budget: it is the rest position reached downhill from the
     input (MKEAM's answer), and Newton's path into an unstable equilibrium often leaves the
-    model in a shape far from any minimum (a chain released as a V converges to a kinked V:
-    16 descent steps from there, 3 from the input). If that does not end at an acceptable
-    equilibrium, Newton's point is left along its unstable modes."""
+    model in a shape far from any minimum (a chain released as a V converges to a kinked V;
+    the descent from there is several times longer: docs/mkeam.md). If that does not end at an
+    acceptable equilibrium, Newton's point is left along its unstable modes."""
     budget = STEPS_PER_ITER * settings.max_num_iter
     used = 0
     if start is not None:
