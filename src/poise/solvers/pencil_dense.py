@@ -10,7 +10,6 @@ whose eigenvectors solve. Same interface as the sparse pencil for
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from poise.solvers.stability_modes import ZERO_REL
 from poise.solvers.stability_sparse import _equilibrate, _prune_noise
@@ -45,6 +44,7 @@ class DensePencil:
     the same rows whose scaling starts the equilibration."""
 
     def __init__(self, model, J, active=None, like=None):
+        import scipy.sparse as sp         # lazy: a plain solve of a small deck imports no scipy
         nq = model.nq
         J = J.toarray() if hasattr(J, "toarray") else np.asarray(J, float)
         d = np.asarray(model.q_scale, float)
