@@ -299,6 +299,13 @@ def compile_forces(spec, ctx):
         force_rows.append(el)
         per_type.setdefault(kind, []).append(dict(owner=len(force_rows) - 1, el=el, **kw))
 
+    def defer(el, routed, effect):
+        """Its force row now, its kernel from a later compiler (``routed``: ``ctx.user_forces``
+        or ``ctx.expr_forces``)."""
+        force_rows.append(el)
+        routed.append((len(force_rows) - 1, el))
+        b.effects.append(effect)
+
     pc = b.pc
     for el in spec.elements("Force_SpringDamper"):
         t = str(el.attrs.get("type", "TRANSLATIONAL")).upper()
@@ -318,16 +325,12 @@ def compile_forces(spec, ctx):
     for el in spec.elements("Force_Scalar_TwoBody"):
         t = str(el.attrs.get("type", "FORCE")).upper()
         if uses_user_routine(el):          # Python SFOSUB: compiled by compile_user
-            force_rows.append(el)
-            ctx.user_forces.append((len(force_rows) - 1, el))
-            b.effects.append(f"Force_Scalar_TwoBody:{t}:python")
+            defer(el, ctx.user_forces, f"Force_Scalar_TwoBody:{t}:python")
             continue
         I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
         val = el.attrs.get("val", el.attrs.get("val_expression", 0.0))
         if isinstance(val, Expr):          # expression force: compiled by compile_expr
-            force_rows.append(el)
-            ctx.expr_forces.append((len(force_rows) - 1, el))
-            b.effects.append(f"Force_Scalar_TwoBody:{t}")
+            defer(el, ctx.expr_forces, f"Force_Scalar_TwoBody:{t}")
             continue
         ao = bool(el.attrs.get("is_action_only", False))
         if t == "TORQUE":
@@ -356,15 +359,11 @@ def compile_forces(spec, ctx):
             R = b.mk(el, "ref_marker_id", required=False)
             t = str(el.attrs.get("type", "FORCEANDTORQUE")).upper()
             if uses_user_routine(el):      # Python GFOSUB: compiled by compile_user
-                force_rows.append(el)
-                ctx.user_forces.append((len(force_rows) - 1, el))
-                b.effects.append(f"{tag}:python")
+                defer(el, ctx.user_forces, f"{tag}:python")
                 continue
             if any(isinstance(el.attrs.get(f"{nm}_expression"), Expr)
                    for nm in ("fx", "fy", "fz", "tx", "ty", "tz")):
-                force_rows.append(el)      # expression force: compiled by compile_expr
-                ctx.expr_forces.append((len(force_rows) - 1, el))
-                b.effects.append(tag)
+                defer(el, ctx.expr_forces, tag)   # expression force: compiled by compile_expr
                 continue
             comp = []
             for nm in ("fx", "fy", "fz", "tx", "ty", "tz"):

@@ -200,8 +200,9 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
 
 def _ic_step(model, state, cnt, sigma, like=None):
     """One inertia-controlled Newton direction at ``state``: ``(K_s + sigma D) dq + G^T y = -r``,
-    ``G dq = -phi`` in the equilibrated length coordinates of
-    :class:`poise.solvers.stability._SparsePencil` (``D`` its diagonal metric), with the
+    ``G dq = -phi`` in the equilibrated length coordinates of the pencil (sparse, or
+    :class:`~poise.solvers.pencil_dense.DensePencil` for small models; ``D`` its diagonal
+    metric), with the
     smallest ``sigma`` (0, else from a quarter of the last step's, grown by 8; 0 is not tried
     after a shift above ``SKIP_ZERO_SHIFT``) whose KKT inertia is ``(nq, m, 0)``: the reduced
     matrix is positive definite and ``dq`` a descent direction of the potential energy.
