@@ -82,20 +82,25 @@ def test_solve_on_full_disk_is_exit_2(tmp_path, monkeypatch):
     assert _files(tmp_path) == []
 
 
-@pytest.fixture
-def small_tmpfs(tmp_path):
-    """A 64 KiB tmpfs (root only): a real full disk."""
+def _tmpfs(mnt, options):
+    """Mount a tmpfs with ``options`` at the new directory ``mnt`` (root only; else skip),
+    yield it, unmount it."""
     if os.geteuid() != 0:
         pytest.skip("mounting a tmpfs needs root")
-    mnt = tmp_path / "mnt"
     mnt.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)],
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(mnt)],
                       capture_output=True).returncode != 0:
         pytest.skip("cannot mount a tmpfs here")
     try:
         yield mnt
     finally:
         subprocess.run(["umount", str(mnt)], capture_output=True)
+
+
+@pytest.fixture
+def small_tmpfs(tmp_path):
+    """A 64 KiB tmpfs (root only): a real full disk."""
+    yield from _tmpfs(tmp_path / "mnt", "size=64k")
 
 
 def test_solve_on_a_real_full_disk(small_tmpfs):
@@ -285,17 +290,7 @@ def test_ctrl_c_on_a_batch_is_one_line(tmp_path, chain_deck):
 @pytest.fixture
 def read_only_dir(tmp_path):
     """A read-only tmpfs (root only): a directory nobody, not even root, can write."""
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    mnt = tmp_path / "ro"
-    mnt.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(mnt)],
-                      capture_output=True).returncode != 0:
-        pytest.skip("cannot mount a tmpfs here")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", str(mnt)], capture_output=True)
+    yield from _tmpfs(tmp_path / "ro", "ro,size=64k")
 
 
 def test_read_only_out_dirs_are_exit_2(read_only_dir):
