@@ -18,13 +18,24 @@ from dataclasses import replace
 
 import numpy as np
 
+from poise.core.errors import EvaluationError
+from poise.solvers import singular
 from poise.solvers.context import Strategy, prologue, replicate
 from poise.solvers.fallback import NO_RECOVERY, recover, solve_frame
-from poise.solvers.newton import newton
+from poise.solvers.linalg import SingularMatrix
+from poise.solvers.newton import FrameOutcome, newton
+from poise.solvers.status import Status
 from poise.solvers.stability import classify
 from poise.solvers.stable import acceptable, seek_stable
 
 MIN_SUBSTEP_FRACTION = 2.0 ** -10
+JUMP_RATIO = 1.0          # correction / predicted step above this: a suspected jump (sub-step)
+JUMP_RATIO_SUB = 3.0      # ... on sub-steps <= JUMP_SUB of the interval (a kink in a drive)
+JUMP_SUB = 1.0 / 8.0
+JUMP_FLOOR = 10.0         # x max_error: a correction this small is never a jump
+SUBSTEP_MAX_ITER = 25     # Newton iterations of a sub-step (a full step: max_num_iter)
+PROBE_MAX_ITER = 12       # ... of a bisection probe locating where a branch ends
+LOCATE_REL = 1e-10        # bisection width, relative to max(1, |t|)
 
 
 # ---------------------------------------------------------------------- helpers
@@ -68,50 +79,235 @@ def first_frame(ctx, state):
     return state, out
 
 
-def fims_step(model, frames, t_target, settings, history, counters, frame, min_dt):
-    """FIM_S from ``frames[-1]`` to ``t_target`` with automatic sub-stepping; when halving
-    reaches ``min_dt`` the fallback chain of a static solve (:func:`~poise.solvers.fallback.
-    recover`) solves the frame at ``t_target`` from its predictor.
+def distance(model, a, b) -> float:
+    """Largest body motion from ``a`` to ``b``: CG translations / L, rotation angles [rad]
+    (the scale of ``max_error``)."""
+    if not model.nb:
+        return 0.0
+    d = float(np.max(np.linalg.norm(b.pos - a.pos, axis=1))) / model.L
+    rb = model.rot_body
+    if len(rb):
+        f = np.linalg.norm((b.rot[rb] - a.rot[rb]).reshape(len(rb), 9), axis=1)
+        d = max(d, float(np.max(2.0 * np.arcsin(np.minimum(f / np.sqrt(8.0), 1.0)))))
+    return d
 
-    Returns ``(state, outcome, n_substeps)``; ``frames`` is not modified. The outcome's
-    iterations count every sub-step and strategy.
+
+def tangent(model, state, settings, data):
+    """The path's direction at ``state``: ``(dq/dt, dlam/dt) = -F_y^{-1} F_t`` (``F_t`` by
+    central differences at fixed configuration; ``F_y`` regularised as Newton's), or None."""
+    h = 1e-6 * max(1.0, abs(state.t))
+    try:
+        f = data.factor(data.evaluate(model, state, "jacobian",
+                                      eps=float(np.sqrt(settings.stability))).J)
+        F = []
+        for dt in (h, -h):
+            st = state.copy()
+            st.t = state.t + dt
+            ev = data.evaluate(model, st, "residual")
+            F.append(np.concatenate([ev.r, ev.phi]))
+        y = f.solve((F[1] - F[0]) / (2.0 * h))
+    except (SingularMatrix, EvaluationError, np.linalg.LinAlgError):
+        return None
+    if not np.all(np.isfinite(y)):
+        return None
+    return y[:model.nq], y[model.nq:]
+
+
+class _Path:
+    """The branch being followed in one :func:`fims_step`: the last (up to 3) accepted states,
+    predictions from them (a tangent from the first when it is alone) and the continuity test
+    of a corrected point against its prediction."""
+
+    def __init__(self, model, frames, settings, data, interval, orient=None):
+        self.model, self.settings, self.data = model, settings, data
+        self.hist = list(frames[-3:])
+        self.interval = interval
+        self.floor = JUMP_FLOOR * settings.max_error
+        self._tangent = (None, None)     # (state, its tangent or None)
+        self.first_order = False         # after a jump: tangent predictions only
+        self.orient = orient if orient is not None else singular.Orientation(model, data)
+        self._tested = None              # (state, its orientation matrix): the last tested
+
+    def predict(self, t):
+        """``(predicted state at t, known)``: extrapolated from the last accepted states
+        (:func:`predictor`), or along the path's tangent at the last one when it is alone or
+        after a jump (a kink in a driven motion inside the extrapolation's history
+        misleads it at any step size); ``known`` False: no direction was available (the
+        prediction is the last state, no distance test)."""
+        hist, model = self.hist, self.model
+        last = hist[-1]
+        if len(hist) > 1 and not self.first_order:
+            return predictor(model, hist, t), True
+        if self._tangent[0] is not last:
+            self._tangent = (last, tangent(model, last, self.settings, self.data))
+        v = self._tangent[1]
+        st = last.copy() if v is None else model.retract(last, (t - last.t) * v[0],
+                                                          (t - last.t) * v[1])
+        st.t = t
+        return st, v is not None
+
+    def jump(self, pred, st, known) -> str:
+        """Why ``st`` (corrected from ``pred``) is not on the branch, or ``""``.
+
+        * Its assembly orientation (:class:`~poise.solvers.singular.Orientation`) must be the
+          last accepted state's: a prediction that overshot a toggle converges on the mirrored
+          branch, however small the correction.
+        * The correction may not exceed the predicted step (``JUMP_RATIO``); on sub-steps of
+          at most ``JUMP_SUB`` of the interval, ``JUMP_RATIO_SUB`` times the larger of the
+          predicted step and the path's speed times the step (a kink in a driven motion
+          passes); never less than ``JUMP_FLOOR`` x ``max_error``.
+        """
+        model, last = self.model, self.hist[-1]
+        same, A = self.orient.same(last, st)
+        self._tested = (st, A)
+        if not same:
+            return ("the assembly changed branch (the orientation of its constraints flipped: "
+                    "a singular configuration lies between)")
+        if not known:
+            return ""
+        corr = distance(model, pred, st)
+        step = distance(model, last, pred)
+        dt = pred.t - last.t
+        if dt <= JUMP_SUB * self.interval:
+            rate = 0.0
+            if len(self.hist) > 1 and last.t > self.hist[-2].t:
+                rate = distance(model, self.hist[-2], last) / (last.t - self.hist[-2].t)
+            allowed = self.floor + JUMP_RATIO_SUB * max(step, rate * dt)
+        else:
+            allowed = self.floor + JUMP_RATIO * step
+        if corr <= allowed:
+            return ""
+        self.first_order = True
+        return (f"the corrector landed {corr:.3g} from the predicted point, more than the step "
+                f"allows ({allowed:.3g}; translations / L, rotations in rad): a jump off the "
+                "branch")
+
+    def accept(self, st):
+        self.hist = (self.hist + [st])[-3:]
+        if self._tested is not None and self._tested[0] is st and self._tested[1] is not None:
+            self.orient.reference(st, self._tested[1])
+
+    def locate(self, history, frame, t_hi):
+        """Bisection of ``(last accepted time, t_hi]`` for where the branch ends (probes of at
+        most ``PROBE_MAX_ITER`` Newton iterations from the predictions, continuity tested),
+        to ``LOCATE_REL``. Returns ``(t_lo, t_hi, iterations)``; the accepted probes extend
+        the branch."""
+        t_lo = self.hist[-1].t
+        tol = LOCATE_REL * max(1.0, abs(t_hi))
+        its = 0
+        while t_hi - t_lo > tol:
+            t = 0.5 * (t_lo + t_hi)
+            pred, known = self.predict(t)
+            st, out = newton(self.model, pred, self.settings, history, frame, self.data,
+                             max_iter=PROBE_MAX_ITER, event="locate")
+            its += out.iterations
+            if out.ok and not self.jump(pred, st, known):
+                self.accept(st)
+                t_lo = t
+            else:
+                t_hi = t
+        return t_lo, t_hi, its
+
+
+def fims_step(model, frames, t_target, settings, history, counters, frame, min_dt,
+              orient=None):
+    """FIM_S from ``frames[-1]`` to ``t_target`` on the same branch, with automatic
+    sub-stepping.
+
+    A step whose Newton fails, or whose corrected point jumped off the branch
+    (:meth:`_Path.jump`), is halved; after a success the step doubles again (up to what is
+    left). When halving reaches ``min_dt``: if the last point reached approaches a singular
+    configuration (:func:`~poise.solvers.singular.diagnose`), the end of the branch is located
+    by bisection and the frame is ``singular_configuration`` at that time (the state written
+    is the last one on the branch); else a persistent jump fails the frame
+    (``step_too_small``) and a Newton failure goes to the fallback chain of a static solve
+    (:func:`~poise.solvers.fallback.recover`) from the frame's predictor (its result must be on
+    the branch too).
+
+    ``orient``: the :class:`~poise.solvers.singular.Orientation` kept across the frames of a
+    run (its reference is the last accepted state). Returns ``(state, outcome, n_substeps)``;
+    ``frames`` is not modified. The outcome's iterations count every sub-step, probe and
+    strategy.
     """
-    hist = list(frames[-3:])
-    t_prev = hist[-1].t
+    path = _Path(model, frames, settings, counters, t_target - frames[-1].t, orient)
+    t_prev = frames[-1].t
     dt = t_target - t_prev
-    n_sub = 0
-    total_it = 0
+    n_sub = total_it = 0
+    sub_iter = min(settings.max_num_iter, SUBSTEP_MAX_ITER)
     while True:
-        t = min(t_prev + dt, t_target) if dt > 0 else t_target
+        t = t_prev + dt
         if t_target - t < 1e-12 * max(1.0, abs(t_target)):
             t = t_target
-        st = predictor(model, hist, t)
-        st, out = newton(model, st, settings, history, frame, counters,
-                         event="newton" if n_sub == 0 and t == t_target else "substep")
+        pred, known = path.predict(t)
+        full = n_sub == 0 and t == t_target
+        st, out = newton(model, pred, settings, history, frame, counters,
+                         max_iter=None if full else sub_iter,
+                         event="newton" if full else "substep")
         total_it += out.iterations
-        if out.ok:
-            hist = (hist + [st])[-3:]
+        why = path.jump(pred, st, known) if out.ok else out.status.value
+        if not why:
+            path.accept(st)
             t_prev = t
             if t == t_target:
                 out.iterations = total_it
                 return st, out, n_sub
+            dt = min(2.0 * dt, t_target - t_prev)
             continue
         dt *= 0.5
         n_sub += 1
         history.add(frame, 0, out.imbalance, out.error, np.nan, np.nan,
-                    f"step to t={t:.9g} failed ({out.status.value}); halving to {dt:.3g}",
-                    "substep_retry")
-        if dt < min_dt:
-            out.iterations = total_it
-            out.counts = {"plain": total_it}
-            if not settings.fallback or out.status in NO_RECOVERY:
-                return st, out, n_sub
-            history.add(frame, 0, out.imbalance, out.error, np.nan, np.nan,
-                        f"step to t={t_target:.9g} failed after {n_sub} halvings; fallback "
-                        "chain from the frame's predictor", "substep_retry")
-            st, out = recover(model, predictor(model, hist, t_target), st, out, settings,
-                              history, frame, counters)
+                    f"step to t={t:.9g} failed ({why}); halving to {dt:.3g}", "substep_retry")
+        if dt >= min_dt:
+            continue
+        end = _branch_end(model, settings, counters, history, frame, path, frames, t)
+        if end is not None:
+            st, sing, its = end
+            sing.iterations += total_it + its
+            sing.counts = {"plain": sing.iterations}
+            return st, sing, n_sub
+        out.iterations = total_it
+        out.counts = {"plain": total_it}
+        if out.ok:          # Newton converged, but off the branch, however small the step
+            return path.hist[-1], FrameOutcome(
+                Status.STEP_TOO_SMALL, total_it, np.nan, np.nan,
+                f"the equilibrium path jumps at t = {t:.6g}: {why}, also on sub-steps of "
+                f"{2 * dt:.3g} (a discontinuous load or motion?)", out.counts), n_sub
+        if not settings.fallback or out.status in NO_RECOVERY:
             return st, out, n_sub
+        history.add(frame, 0, out.imbalance, out.error, np.nan, np.nan,
+                    f"step to t={t_target:.9g} failed after {n_sub} halvings; fallback "
+                    "chain from the frame's predictor", "substep_retry")
+        pred, known = path.predict(t_target)
+        st, out = recover(model, pred, st, out, settings, history, frame, counters)
+        why = path.jump(pred, st, known) if out.ok else ""
+        if why:
+            out = FrameOutcome(Status.STEP_TOO_SMALL, out.iterations, out.imbalance, out.error,
+                               f"the fallback chain's equilibrium at t = {t_target:.6g} is not "
+                               f"on the branch: {why}", out.counts, out.strategy)
+        return st, out, n_sub
+
+
+def _branch_end(model, settings, data, history, frame, path, frames, t_fail):
+    """Where a path that cannot go on within ``min_dt`` ends: when the last point reached
+    approaches a singular configuration (``NEAR``), bisection to ``LOCATE_REL`` and the
+    diagnosis there (``DROP``). Returns ``(state, SingularOutcome, probe iterations)`` or
+    None (not singular)."""
+    hist = path.hist
+    near = hist[-1]
+    refs = [f for f in frames[-3:] if f.t < near.t]
+    if not refs:
+        return None
+    before = hist[-2] if len(hist) > 1 else None
+    if singular.diagnose(model, data, near, before, refs, near.t, singular.NEAR) is None:
+        return None
+    t_lo, t_hi, its = path.locate(history, frame, t_fail)
+    hist = path.hist
+    info = singular.diagnose(model, data, hist[-1], hist[-2] if len(hist) > 1 else None,
+                             refs, 0.5 * (t_lo + t_hi))
+    if info is None:
+        return None
+    history.add(frame, 0, np.nan, np.nan, np.nan, np.nan, info.message(), "singular")
+    return hist[-1], singular.singular_outcome(info, 0), its
 
 
 # ---------------------------------------------------------------------- strategy
@@ -142,8 +338,10 @@ class NewtonFrames(Strategy):
     def step(self, ctx):
         k, ts = len(ctx.frames), ctx.times
         min_dt = MIN_SUBSTEP_FRACTION * (ts[k] - ts[k - 1])
+        if getattr(self, "orient", None) is None:
+            self.orient = singular.Orientation(ctx.model, ctx.data)
         st, o, nsub = fims_step(ctx.model, ctx.frames, float(ts[k]), ctx.settings, ctx.history,
-                                ctx.data, k, min_dt)
+                                ctx.data, k, min_dt, self.orient)
         if nsub:
             ctx.notes.append(f"frame {k}: {nsub} sub-step halvings")
         if o.strategy != "plain":
