@@ -85,4 +85,4 @@ class CompileContext:
 
 def _row(el: Element, equation: str, kind: str, group: str, owner: int) -> dict:
     return dict(tag=el.tag, id=el.id, equation=equation, line=el.loc.line, file=el.loc.file,
-                kind=kind, group=group, owner=owner)
+                kind=kind, group=group, owner=owner, label=str(el.attrs.get("label") or ""))

@@ -362,7 +362,9 @@ class NewtonIteration(Iterative):
         s.imb, s.cerr, s.zinf, s.worst = measures(self.model, s.ev, self.sc)
         s.err = max(s.cerr, s.last_step if np.isfinite(s.last_step) else 0.0)
         s.res_ok = s.zinf <= 1.0
-        step_ok = (not np.isfinite(s.last_step)) or s.last_step <= self.settings.max_error
+        # converged needs an error estimate: a Newton step measured at (or taken to) the point;
+        # a residual within tolerance alone says nothing about the distance to the solution
+        step_ok = np.isfinite(s.last_step) and s.last_step <= self.settings.max_error
         if s.res_ok and step_ok:
             s.outcome = self._converged(s, used, s.err)
             return True

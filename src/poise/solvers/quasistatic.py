@@ -33,8 +33,9 @@ JUMP_RATIO = 1.0          # correction / predicted step above this: a suspected 
 JUMP_RATIO_SUB = 3.0      # ... on sub-steps <= JUMP_SUB of the interval (a kink in a drive)
 JUMP_SUB = 1.0 / 8.0
 JUMP_FLOOR = 10.0         # x max_error: a correction this small is never a jump
-SUBSTEP_MAX_ITER = 25     # Newton iterations of a sub-step (a full step: max_num_iter)
-PROBE_MAX_ITER = 12       # ... of a bisection probe locating where a branch ends
+JUMP_SHRINK = 0.6         # ... nor one that shrank this much when the sub-step was halved
+SUBSTEP_MAX_ITER = 25     # Newton iterations of a step (at most max_num_iter)
+PROBE_MAX_ITER = 6        # ... of a bisection probe locating where a branch ends
 LOCATE_REL = 1e-10        # bisection width, relative to max(1, |t|)
 
 
@@ -125,6 +126,10 @@ class _Path:
         self.floor = JUMP_FLOOR * settings.max_error
         self._tangent = (None, None)     # (state, its tangent or None)
         self.first_order = False         # after a jump: tangent predictions only
+        self._flagged = None             # (from time, step, correction) of the last jump
+        self._refs = None                # singularity measures of the frames before
+        self.probe_iterations = 0
+        self.located_from = None         # the last state reached before the bisection
         self.orient = orient if orient is not None else singular.Orientation(model, data)
         self._tested = None              # (state, its orientation matrix): the last tested
 
@@ -146,7 +151,7 @@ class _Path:
         st.t = t
         return st, v is not None
 
-    def jump(self, pred, st, known) -> str:
+    def jump(self, pred, st, known, probe=False) -> str:
         """Why ``st`` (corrected from ``pred``) is not on the branch, or ``""``.
 
         * Its assembly orientation (:class:`~poise.solvers.singular.Orientation`) must be the
@@ -155,7 +160,11 @@ class _Path:
         * The correction may not exceed the predicted step (``JUMP_RATIO``); on sub-steps of
           at most ``JUMP_SUB`` of the interval, ``JUMP_RATIO_SUB`` times the larger of the
           predicted step and the path's speed times the step (a kink in a driven motion
-          passes); never less than ``JUMP_FLOOR`` x ``max_error``.
+          passes), or it must have shrunk to ``JUMP_SHRINK`` of the correction of the same
+          step twice as long (a path from rest: the correction falls as the step squared,
+          a jump's stays); never less than ``JUMP_FLOOR`` x ``max_error``. A bisection
+          ``probe`` next to the end of a branch, where the path has a square-root shape that
+          no extrapolation follows, may also move as far as it went from the last state.
         """
         model, last = self.model, self.hist[-1]
         same, A = self.orient.same(last, st)
@@ -168,11 +177,15 @@ class _Path:
         corr = distance(model, pred, st)
         step = distance(model, last, pred)
         dt = pred.t - last.t
-        if dt <= JUMP_SUB * self.interval:
+        prev, self._flagged = self._flagged, (last.t, dt, corr)
+        if probe or dt <= JUMP_SUB * self.interval:
             rate = 0.0
             if len(self.hist) > 1 and last.t > self.hist[-2].t:
                 rate = distance(model, self.hist[-2], last) / (last.t - self.hist[-2].t)
-            allowed = self.floor + JUMP_RATIO_SUB * max(step, rate * dt)
+            allowed = self.floor + JUMP_RATIO_SUB * max(step, rate * dt,
+                                                        distance(model, last, st) if probe else 0)
+            if prev is not None and prev[0] == last.t and abs(prev[1] - 2.0 * dt) <= 1e-9 * dt:
+                allowed = max(allowed, JUMP_SHRINK * prev[2])
         else:
             allowed = self.floor + JUMP_RATIO * step
         if corr <= allowed:
@@ -182,30 +195,53 @@ class _Path:
                 f"allows ({allowed:.3g}; translations / L, rotations in rad): a jump off the "
                 "branch")
 
+    def refs(self, frames):
+        """Measures of the output frames before the last state reached (regular points of the
+        path the singularity measures are compared with), computed once."""
+        if self._refs is None:
+            near = self.hist[-1]
+            self._refs = [singular.measure(self.model, self.data, f)
+                          for f in frames[-3:] if f.t < near.t]
+        return self._refs
+
+    def near_singular(self, frames) -> bool:
+        """Does the last state reached approach a singular configuration (``NEAR``)?"""
+        refs = self.refs(frames)
+        hist = self.hist
+        return bool(refs) and singular.diagnose(
+            self.model, self.data, hist[-1], None, refs, hist[-1].t, singular.NEAR) is not None
+
     def accept(self, st):
         self.hist = (self.hist + [st])[-3:]
         if self._tested is not None and self._tested[0] is st and self._tested[1] is not None:
             self.orient.reference(st, self._tested[1])
 
     def locate(self, history, frame, t_hi):
-        """Bisection of ``(last accepted time, t_hi]`` for where the branch ends (probes of at
-        most ``PROBE_MAX_ITER`` Newton iterations from the predictions, continuity tested),
-        to ``LOCATE_REL``. Returns ``(t_lo, t_hi, iterations)``; the accepted probes extend
-        the branch."""
+        """Bisection of ``(last accepted time, t_hi]`` for where the branch ends, to
+        ``LOCATE_REL``. A probe is Newton (at most ``PROBE_MAX_ITER`` iterations, continuity
+        tested) from the prediction, and when that fails from the last state reached (next to
+        a fold the extrapolation lands where the Jacobian is singular). Returns ``(t_lo, t_hi,
+        iterations)``; the accepted probes extend the branch."""
+        self.located_from = self.hist[-1]
         t_lo = self.hist[-1].t
         tol = LOCATE_REL * max(1.0, abs(t_hi))
         its = 0
         while t_hi - t_lo > tol:
             t = 0.5 * (t_lo + t_hi)
             pred, known = self.predict(t)
-            st, out = newton(self.model, pred, self.settings, history, frame, self.data,
-                             max_iter=PROBE_MAX_ITER, event="locate")
-            its += out.iterations
-            if out.ok and not self.jump(pred, st, known):
-                self.accept(st)
-                t_lo = t
+            last = self.hist[-1].copy()
+            last.t = t
+            for start in (pred, last):
+                st, out = newton(self.model, start, self.settings, history, frame, self.data,
+                                 max_iter=PROBE_MAX_ITER, event="locate")
+                its += out.iterations
+                if out.ok and not self.jump(pred, st, known, probe=True):
+                    break
             else:
                 t_hi = t
+                continue
+            self.accept(st)
+            t_lo = t
         return t_lo, t_hi, its
 
 
@@ -233,15 +269,15 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
     t_prev = frames[-1].t
     dt = t_target - t_prev
     n_sub = total_it = 0
-    sub_iter = min(settings.max_num_iter, SUBSTEP_MAX_ITER)
+    max_iter = min(settings.max_num_iter, SUBSTEP_MAX_ITER)
+    ended = False                       # the branch's end was looked for (not singular)
     while True:
         t = t_prev + dt
         if t_target - t < 1e-12 * max(1.0, abs(t_target)):
             t = t_target
         pred, known = path.predict(t)
         full = n_sub == 0 and t == t_target
-        st, out = newton(model, pred, settings, history, frame, counters,
-                         max_iter=None if full else sub_iter,
+        st, out = newton(model, pred, settings, history, frame, counters, max_iter=max_iter,
                          event="newton" if full else "substep")
         total_it += out.iterations
         why = path.jump(pred, st, known) if out.ok else out.status.value
@@ -257,14 +293,18 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
         n_sub += 1
         history.add(frame, 0, out.imbalance, out.error, np.nan, np.nan,
                     f"step to t={t:.9g} failed ({why}); halving to {dt:.3g}", "substep_retry")
+        if not ended and (dt < min_dt or path.near_singular(frames)):
+            ended = True
+            end = _branch_end(model, settings, counters, history, frame, path, frames, t)
+            if end is not None:
+                st, sing, its = end
+                sing.iterations = total_it + its
+                sing.counts = {"plain": sing.iterations}
+                return st, sing, n_sub
+            total_it += path.probe_iterations
+            t_prev = path.hist[-1].t
         if dt >= min_dt:
             continue
-        end = _branch_end(model, settings, counters, history, frame, path, frames, t)
-        if end is not None:
-            st, sing, its = end
-            sing.iterations += total_it + its
-            sing.counts = {"plain": sing.iterations}
-            return st, sing, n_sub
         out.iterations = total_it
         out.counts = {"plain": total_it}
         if out.ok:          # Newton converged, but off the branch, however small the step
@@ -288,24 +328,24 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
 
 
 def _branch_end(model, settings, data, history, frame, path, frames, t_fail):
-    """Where a path that cannot go on within ``min_dt`` ends: when the last point reached
-    approaches a singular configuration (``NEAR``), bisection to ``LOCATE_REL`` and the
-    diagnosis there (``DROP``). Returns ``(state, SingularOutcome, probe iterations)`` or
-    None (not singular)."""
-    hist = path.hist
-    near = hist[-1]
-    refs = [f for f in frames[-3:] if f.t < near.t]
+    """Where a branch that does not go on ends: bisection to ``LOCATE_REL`` from the last
+    state reached towards ``t_fail`` and the diagnosis there
+    (:func:`~poise.solvers.singular.diagnose` against the output frames before). Returns
+    ``(state, SingularOutcome, probe iterations)``, or None (not singular; the probes'
+    iterations are in ``path.probe_iterations``)."""
+    refs = path.refs(frames)
     if not refs:
-        return None
-    before = hist[-2] if len(hist) > 1 else None
-    if singular.diagnose(model, data, near, before, refs, near.t, singular.NEAR) is None:
         return None
     t_lo, t_hi, its = path.locate(history, frame, t_fail)
     hist = path.hist
-    info = singular.diagnose(model, data, hist[-1], hist[-2] if len(hist) > 1 else None,
-                             refs, 0.5 * (t_lo + t_hi))
+    before = hist[-2] if len(hist) > 1 else None
+    info = singular.diagnose(model, data, hist[-1], before, refs, 0.5 * (t_lo + t_hi))
     if info is None:
+        path.probe_iterations = its
         return None
+    if path.located_from is not hist[-1]:   # the fold's time, closer than probes can reach
+        info = replace(info, time=singular.fold_time(model, data, info.kind, path.located_from,
+                                                     hist[-1], t_fail))
     history.add(frame, 0, np.nan, np.nan, np.nan, np.nan, info.message(), "singular")
     return hist[-1], singular.singular_outcome(info, 0), its
 
@@ -334,6 +374,9 @@ class NewtonFrames(Strategy):
 
     def terminate(self, ctx):
         return (len(ctx.frames) == len(ctx.times) or not ctx.outcomes[-1].ok)
+
+    def postprocess(self, ctx):
+        return {}, singular.located_attrs(ctx.outcomes)
 
     def step(self, ctx):
         k, ts = len(ctx.frames), ctx.times

@@ -252,3 +252,26 @@ def diagnose(model, data, near, before, refs, t, threshold=DROP) -> SingularInfo
     if np.isfinite(mn.stiffness) and k_ref > 0 and mn.stiffness <= threshold * k_ref:
         return SingularInfo(t, "limit_point", (), path_mode(model, before, near))
     return None
+
+
+def fold_time(model, data, kind, a, b, t_max) -> float:
+    """The time of a fold (a singular point where the path turns back in time) from two
+    states next to it, ``a`` before ``b`` (``b`` the last reached): there the vanishing measure
+    (the constraints' smallest singular value, or the reduced stiffness' smallest eigenvalue)
+    goes as the square root of the time left, so its square extrapolates linearly to zero.
+    Newton's own factorisation calls the Jacobian singular a little before the fold (about
+    1e-7 of the time scale for a slider-crank): the extrapolation covers that gap. Clamped to
+    ``[b.t, t_max]``; ``b.t`` when the two do not fit that shape."""
+    ma, mb = measure(model, data, a), measure(model, data, b)
+    ya, yb = ((ma.sigma, mb.sigma) if kind == "dead_point" else (ma.stiffness, mb.stiffness))
+    ya, yb = ya * ya, yb * yb
+    if not (np.isfinite(ya) and np.isfinite(yb) and ya > yb > 0 and b.t > a.t):
+        return float(b.t)
+    return float(min(max(b.t + yb * (b.t - a.t) / (ya - yb), b.t), t_max))
+
+
+def located_attrs(outcomes) -> dict:
+    """Analysis attributes of a run that ended at a located singular configuration (the last
+    outcome's :class:`SingularInfo`), else ``{}``."""
+    where = getattr(outcomes[-1], "where", None) if outcomes else None
+    return where.attrs() if where is not None else {}
