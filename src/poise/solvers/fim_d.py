@@ -18,10 +18,16 @@ import numpy as np
 from poise.solvers.chart import Corrector, _Chart
 from poise.solvers.context import Strategy, replicate
 from poise.solvers.fallback import solve_frame
-from poise.solvers import ida, singular
+from poise.solvers import ida, path, singular
 from poise.solvers.ida import IdaStats, SparseJacobian, TransientSettings, _ida  # noqa: F401
 from poise.solvers.newton import FrameOutcome
-from poise.solvers.quasistatic import MIN_SUBSTEP_FRACTION, _Path, fims_step, first_frame
+from poise.solvers.quasistatic import (
+    MIN_SUBSTEP_FRACTION,
+    _Path,
+    fims_step,
+    first_frame,
+    require_stable,
+)
 from poise.solvers.status import Status
 
 REBASE_ANGLE = 1.0        # rad
@@ -44,6 +50,8 @@ class IdaContinuation(Strategy):
     def init(self, ctx, state):
         model, s, ts = ctx.model, ctx.settings, ctx.times
         st, out = first_frame(ctx, state)
+        if out.ok and s.require_stable:
+            st, out = require_stable(ctx, st, out)
         ctx.frames, ctx.outcomes = [st], [out]
         self.done = not out.ok or len(ts) == 1
         if self.done:
@@ -259,6 +267,7 @@ class IdaContinuation(Strategy):
         return path.near_singular(ctx.frames)
 
     def postprocess(self, ctx):
+        path.check(ctx, fims_step)
         if not hasattr(self, "steps"):        # frame 0 failed or nothing to integrate
             return {}, singular.located_attrs(ctx.outcomes)
         model, notes, fallbacks = ctx.model, ctx.notes, self.fallbacks

@@ -22,6 +22,7 @@ from poise.solvers.certify import certify
 from poise.solvers.history import STRATEGIES
 from poise.solvers.newton import Scales
 from poise.solvers.outputs import element_loads, loads_of
+from poise.solvers.path import cached_info
 from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
 from poise.solvers.stability import (
     DENSE_LIMIT,
@@ -66,7 +67,7 @@ def frame_datasets(ctx, state, outcomes, on_eval=None):
     if all(o.ok for o in outcomes) and J is not None:
         done = ctx.data.classified
         info = done[1] if done is not None and done[0] is state else \
-            classify(model, state, J=J, active=saved)
+            cached_info(ctx, state) or classify(model, state, J=J, active=saved)
         d.update(stability_datasets([info]))
     else:   # the same datasets either way: frames of a sequence are concatenated by key
         d.update(stability_datasets([unknown_info()] * len(outcomes)))
@@ -237,7 +238,10 @@ def frames_datasets(ctx, frames, outcomes, measure=None) -> dict | None:
                 loads.setdefault(g, []).append((Fg.reshape(-1, n_out, 3),
                                                 Tg.reshape(-1, n_out, 3)))
             ok = np.array([o.ok for o in outcomes[a:a + C]])
-            if model.nq <= DENSE_LIMIT:
+            got = [cached_info(ctx, st) if k else None for st, k in zip(chunk, ok)]
+            if all(g is not None for g, k in zip(got, ok) if k):   # classified by the solve
+                infos += [g if k else unknown_info() for g, k in zip(got, ok)]
+            elif model.nq <= DENSE_LIMIT:
                 infos += classify_dense_frames(model, ev.J, saved, ok)
             else:                                     # sparse inertia, frame by frame
                 infos += [classify(model, None, J=ev.J[j], active=saved) if ok[j] else

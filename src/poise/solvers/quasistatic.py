@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.solvers import singular
+from poise.solvers import path, singular
 from poise.solvers.context import Strategy, prologue, replicate
 from poise.solvers.fallback import NO_RECOVERY, recover, solve_frame
 from poise.solvers.linalg import SingularMatrix
@@ -34,9 +34,9 @@ JUMP_RATIO_SUB = 3.0      # ... on sub-steps <= JUMP_SUB of the interval (a kink
 JUMP_SUB = 1.0 / 8.0
 JUMP_FLOOR = 10.0         # x max_error: a correction this small is never a jump
 JUMP_SHRINK = 0.6         # ... nor one that shrank this much when the sub-step was halved
-SUBSTEP_MAX_ITER = 25     # Newton iterations of a step (at most max_num_iter)
+SUBSTEP_MAX_ITER = 15     # Newton iterations of a continuation step (at most max_num_iter)
 PROBE_MAX_ITER = 6        # ... of a bisection probe locating where a branch ends
-LOCATE_REL = 1e-10        # bisection width, relative to max(1, |t|)
+LOCATE_REL = 1e-9         # bisection width, relative to max(1, |t|)
 
 
 # ---------------------------------------------------------------------- helpers
@@ -220,7 +220,8 @@ class _Path:
         """Bisection of ``(last accepted time, t_hi]`` for where the branch ends, to
         ``LOCATE_REL``. A probe is Newton (at most ``PROBE_MAX_ITER`` iterations, continuity
         tested) from the prediction, and when that fails from the last state reached (next to
-        a fold the extrapolation lands where the Jacobian is singular). Returns ``(t_lo, t_hi,
+        a fold the extrapolation lands where the Jacobian is singular: Newton stops at once).
+        Returns ``(t_lo, t_hi,
         iterations)``; the accepted probes extend the branch."""
         self.located_from = self.hist[-1]
         t_lo = self.hist[-1].t
@@ -231,13 +232,15 @@ class _Path:
             pred, known = self.predict(t)
             last = self.hist[-1].copy()
             last.t = t
+            ok = False
             for start in (pred, last):
                 st, out = newton(self.model, start, self.settings, history, frame, self.data,
                                  max_iter=PROBE_MAX_ITER, event="locate")
                 its += out.iterations
-                if out.ok and not self.jump(pred, st, known, probe=True):
+                ok = out.ok and not self.jump(pred, st, known, probe=True)
+                if ok or out.iterations > 1:  # converged, or Newton worked and failed there
                     break
-            else:
+            if not ok:
                 t_hi = t
                 continue
             self.accept(st)
@@ -265,7 +268,7 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
     ``frames`` is not modified. The outcome's iterations count every sub-step, probe and
     strategy.
     """
-    path = _Path(model, frames, settings, counters, t_target - frames[-1].t, orient)
+    branch = _Path(model, frames, settings, counters, t_target - frames[-1].t, orient)
     t_prev = frames[-1].t
     dt = t_target - t_prev
     n_sub = total_it = 0
@@ -275,14 +278,14 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
         t = t_prev + dt
         if t_target - t < 1e-12 * max(1.0, abs(t_target)):
             t = t_target
-        pred, known = path.predict(t)
+        pred, known = branch.predict(t)
         full = n_sub == 0 and t == t_target
         st, out = newton(model, pred, settings, history, frame, counters, max_iter=max_iter,
                          event="newton" if full else "substep")
         total_it += out.iterations
-        why = path.jump(pred, st, known) if out.ok else out.status.value
+        why = branch.jump(pred, st, known) if out.ok else out.status.value
         if not why:
-            path.accept(st)
+            branch.accept(st)
             t_prev = t
             if t == t_target:
                 out.iterations = total_it
@@ -293,22 +296,22 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
         n_sub += 1
         history.add(frame, 0, out.imbalance, out.error, np.nan, np.nan,
                     f"step to t={t:.9g} failed ({why}); halving to {dt:.3g}", "substep_retry")
-        if not ended and (dt < min_dt or path.near_singular(frames)):
+        if not ended and (dt < min_dt or branch.near_singular(frames)):
             ended = True
-            end = _branch_end(model, settings, counters, history, frame, path, frames, t)
+            end = _branch_end(model, settings, counters, history, frame, branch, frames, t)
             if end is not None:
                 st, sing, its = end
                 sing.iterations = total_it + its
                 sing.counts = {"plain": sing.iterations}
                 return st, sing, n_sub
-            total_it += path.probe_iterations
-            t_prev = path.hist[-1].t
+            total_it += branch.probe_iterations
+            t_prev = branch.hist[-1].t
         if dt >= min_dt:
             continue
         out.iterations = total_it
         out.counts = {"plain": total_it}
         if out.ok:          # Newton converged, but off the branch, however small the step
-            return path.hist[-1], FrameOutcome(
+            return branch.hist[-1], FrameOutcome(
                 Status.STEP_TOO_SMALL, total_it, np.nan, np.nan,
                 f"the equilibrium path jumps at t = {t:.6g}: {why}, also on sub-steps of "
                 f"{2 * dt:.3g} (a discontinuous load or motion?)", out.counts), n_sub
@@ -317,9 +320,9 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
         history.add(frame, 0, out.imbalance, out.error, np.nan, np.nan,
                     f"step to t={t_target:.9g} failed after {n_sub} halvings; fallback "
                     "chain from the frame's predictor", "substep_retry")
-        pred, known = path.predict(t_target)
+        pred, known = branch.predict(t_target)
         st, out = recover(model, pred, st, out, settings, history, frame, counters)
-        why = path.jump(pred, st, known) if out.ok else ""
+        why = branch.jump(pred, st, known) if out.ok else ""
         if why:
             out = FrameOutcome(Status.STEP_TOO_SMALL, out.iterations, out.imbalance, out.error,
                                f"the fallback chain's equilibrium at t = {t_target:.6g} is not "
@@ -327,24 +330,24 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
         return st, out, n_sub
 
 
-def _branch_end(model, settings, data, history, frame, path, frames, t_fail):
+def _branch_end(model, settings, data, history, frame, branch, frames, t_fail):
     """Where a branch that does not go on ends: bisection to ``LOCATE_REL`` from the last
     state reached towards ``t_fail`` and the diagnosis there
     (:func:`~poise.solvers.singular.diagnose` against the output frames before). Returns
     ``(state, SingularOutcome, probe iterations)``, or None (not singular; the probes'
-    iterations are in ``path.probe_iterations``)."""
-    refs = path.refs(frames)
+    iterations are in ``branch.probe_iterations``)."""
+    refs = branch.refs(frames)
     if not refs:
         return None
-    t_lo, t_hi, its = path.locate(history, frame, t_fail)
-    hist = path.hist
+    t_lo, t_hi, its = branch.locate(history, frame, t_fail)
+    hist = branch.hist
     before = hist[-2] if len(hist) > 1 else None
     info = singular.diagnose(model, data, hist[-1], before, refs, 0.5 * (t_lo + t_hi))
     if info is None:
-        path.probe_iterations = its
+        branch.probe_iterations = its
         return None
-    if path.located_from is not hist[-1]:   # the fold's time, closer than probes can reach
-        info = replace(info, time=singular.fold_time(model, data, info.kind, path.located_from,
+    if branch.located_from is not hist[-1]:   # the fold's time, closer than probes can reach
+        info = replace(info, time=singular.fold_time(model, data, info.kind, branch.located_from,
                                                      hist[-1], t_fail))
     history.add(frame, 0, np.nan, np.nan, np.nan, np.nan, info.message(), "singular")
     return hist[-1], singular.singular_outcome(info, 0), its
@@ -365,7 +368,7 @@ class NewtonFrames(Strategy):
         if ctx.kind == "quasistatic" and s.method == "MKEAM":
             ctx.notes.append("warning: MKEAM does not apply to quasi-static runs; FIM_S used")
         st, out = first_frame(ctx, state)
-        if out.ok and s.require_stable and ctx.kind == "static":
+        if out.ok and s.require_stable:
             st, out = require_stable(ctx, st, out)
         ctx.frames, ctx.outcomes = [st], [out]
         self.k = 1
@@ -376,6 +379,8 @@ class NewtonFrames(Strategy):
         return (len(ctx.frames) == len(ctx.times) or not ctx.outcomes[-1].ok)
 
     def postprocess(self, ctx):
+        if ctx.kind == "quasistatic":
+            path.check(ctx, fims_step)
         return {}, singular.located_attrs(ctx.outcomes)
 
     def step(self, ctx):
