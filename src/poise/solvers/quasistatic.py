@@ -29,6 +29,7 @@ from poise.solvers.stability import classify
 from poise.solvers.stable import acceptable, seek_stable
 
 MIN_SUBSTEP_FRACTION = 2.0 ** -10
+PREDICT_SPACING = 1e-2    # extrapolation nodes closer than this fraction of the step: dropped
 JUMP_RATIO = 1.0          # correction / predicted step above this: a suspected jump (sub-step)
 JUMP_RATIO_SUB = 3.0      # ... on sub-steps <= JUMP_SUB of the interval (a kink in a drive)
 JUMP_SUB = 1.0 / 8.0
@@ -42,16 +43,24 @@ LOCATE_REL = 1e-9         # bisection width, relative to max(1, |t|)
 # ---------------------------------------------------------------------- helpers
 def predictor(model, frames, t):
     """State extrapolated to ``t`` from the last (up to 3) ``frames`` (quadratic in the tangent
-    space of the last frame; multipliers by the same Lagrange weights)."""
+    space of the last frame; multipliers by the same Lagrange weights). Nodes closer than
+    ``PREDICT_SPACING`` of the step to the last one are dropped (the last state alone: no
+    extrapolation)."""
     last = frames[-1]
     if len(frames) == 1:
         st = last.copy()
         st.t = t
         return st
     tau = t - last.t
-    pts = frames[-3:-1][::-1]          # previous frames, most recent first
+    # previous frames, most recent first; nodes much closer to the last one than the step
+    # would amplify their difference without bound (weights ~ tau^2 / spacing^2)
+    pts = [p for p in frames[-3:-1][::-1] if abs(p.t - last.t) > PREDICT_SPACING * abs(tau)]
+    if not pts:
+        st = last.copy()
+        st.t = t
+        return st
     taus = [p.t - last.t for p in pts]
-    if len(pts) == 2 and abs(taus[0] - taus[1]) > 0:
+    if len(pts) == 2 and abs(taus[0] - taus[1]) > PREDICT_SPACING * abs(tau):
         t1, t2 = taus
         w1 = tau * (tau - t2) / (t1 * (t1 - t2))
         w2 = tau * (tau - t1) / (t2 * (t2 - t1))
@@ -341,8 +350,8 @@ def _branch_end(model, settings, data, history, frame, branch, frames, t_fail):
         return None
     t_lo, t_hi, its = branch.locate(history, frame, t_fail)
     hist = branch.hist
-    before = hist[-2] if len(hist) > 1 else None
-    info = singular.diagnose(model, data, hist[-1], before, refs, 0.5 * (t_lo + t_hi))
+    info = singular.diagnose(model, data, hist[-1], branch.located_from, refs,
+                             0.5 * (t_lo + t_hi))
     if info is None:
         branch.probe_iterations = its
         return None

@@ -21,7 +21,7 @@ from poise.solvers.newton import FrameOutcome
 from poise.solvers.stability import DENSE_LIMIT, _describe, classify
 from poise.solvers.status import Status
 
-DROP = 1e-2          # a measure this fraction of its value on the path before: singular there
+DROP = 0.05          # a measure this fraction of its value on the path before: singular there
 NEAR = 0.3           # ... this fraction: approaching a singularity (worth locating)
 SHARE_MIN = 0.05     # constraints with this share of the largest share of the self-stress named
 INVERSE_STEPS = 12   # inverse iterations for the smallest singular value (large models)
@@ -37,8 +37,8 @@ KINDS = {"dead_point": "at a dead point (the constraint equations lose rank: a t
 class SingularInfo:
     """Where and why a path is singular: ``time``, ``kind`` (a :data:`KINDS` key),
     ``elements`` (dicts ``tag``, ``id``, ``label``, ``line``, ``share`` of the constraints in
-    the self-stress, kinematic kinds), ``mode`` (the motion at the singular point, e.g.
-    ``body 2 rotation about z``)."""
+    the self-stress, kinematic kinds; the joint the linkage folds at first, with ``fold``
+    true), ``mode`` (the motion at the singular point, e.g. ``body 2 rotation about z``)."""
     time: float
     kind: str
     elements: tuple = ()
@@ -46,9 +46,11 @@ class SingularInfo:
 
     def message(self) -> str:
         names = [element_name(e) for e in self.elements]
-        who = ", ".join(names) + " " if names else ""
+        who = names[0] + " " if names else ""
+        also = f"; the constraints that lock: {', '.join(names)}" if len(names) > 1 else ""
         where = f"; moving: {self.mode}" if self.mode else ""
-        return f"singular configuration at t = {self.time:.6g}: {who}{KINDS[self.kind]}{where}"
+        return (f"singular configuration at t = {self.time:.6g}: {who}{KINDS[self.kind]}"
+                f"{also}{where}")
 
     def attrs(self) -> dict:
         """Analysis attributes ``singular_time``, ``singular_kind``, ``singular_elements``
@@ -93,6 +95,7 @@ class Measures:
     u: np.ndarray
     stiffness: float
     info: object
+    v: np.ndarray = None     # the motion the constraints allow there (model coordinates)
 
 
 def scaled_constraints(model, J, active):
@@ -118,17 +121,18 @@ def measure(model, data, state) -> Measures:
     if model.nc == 0 or not np.any(active):
         return Measures(np.inf, u, k, info)
     A, rows = scaled_constraints(model, J, active)
-    if hasattr(A, "tocsr"):
-        if model.nq > DENSE_LIMIT:
-            s, v = _smallest_sparse(A)
-            u[rows] = v
-            return Measures(s, u, k, info)
-        A = A.toarray()
-    U, sv, _ = np.linalg.svd(A, full_matrices=True)
-    m, n = A.shape
-    s = float(sv[m - 1]) if m <= n else 0.0
-    u[rows] = U[:, m - 1] if m <= n else U[:, -1]
-    return Measures(s, u, k, info)
+    if hasattr(A, "tocsr") and model.nq > DENSE_LIMIT:
+        s, w = _smallest_sparse(A)
+        x = np.asarray(A.T @ w).ravel()
+    else:
+        A = A.toarray() if hasattr(A, "toarray") else A
+        U, sv, vh = np.linalg.svd(A, full_matrices=True)
+        m, n = A.shape
+        s = float(sv[m - 1]) if m <= n else 0.0
+        w = U[:, m - 1] if m <= n else U[:, -1]
+        x = vh[m - 1] if m <= n else vh[-1]
+    u[rows] = w
+    return Measures(s, u, k, info, x / model.q_scale)
 
 
 class Orientation:
@@ -224,6 +228,34 @@ def self_stress_elements(model, u) -> tuple:
                   "share": round(share[k] / tot, 6)} for k in keys)
 
 
+def fold_joint(model, v, elements) -> tuple:
+    """``elements`` with the one the linkage folds at first (``fold`` true): of the
+    constraints between two bodies, the one whose bodies turn most against each other in the
+    singular motion ``v`` (at a dead centre, the joint between the two collinear links)."""
+    if v is None or not elements or not len(model.rot_body):
+        return elements
+    w = np.zeros((model.nb + 1, 3))
+    w[model.rot_body] = v[model.rot_idx].reshape(-1, 3)
+    rel: dict = {}
+    for fam in model.families:
+        if not fam.is_constraint or fam.crow is None:
+            continue
+        b = np.asarray(model.marker_body)[fam.markers]
+        b0, b1 = b.min(axis=1), b.max(axis=1)
+        two = np.all((b == b0[:, None]) | (b == b1[:, None]), axis=1) & (b0 != b1)
+        turn = np.linalg.norm(w[b0] - w[b1], axis=1)
+        for i in np.nonzero(two)[0]:
+            ri = model.row_info[int(fam.crow[i][0])]
+            key = (ri["tag"], int(ri["id"]))
+            rel[key] = max(rel.get(key, 0.0), float(turn[i]))
+    cand = [e for e in elements if (e["tag"], e["id"]) in rel]
+    if not cand:
+        return elements
+    top = max(rel[(e["tag"], e["id"])] for e in cand)
+    first = next(e for e in cand if rel[(e["tag"], e["id"])] >= (1.0 - 1e-6) * top)
+    return (dict(first, fold=True),) + tuple(e for e in elements if e is not first)
+
+
 def path_mode(model, a, b) -> str:
     """The motion from state ``a`` to ``b`` named by the body that moves most (next to a
     singular point the path's direction is its critical mode)."""
@@ -246,8 +278,10 @@ def diagnose(model, data, near, before, refs, t, threshold=DROP) -> SingularInfo
     mr = [r if isinstance(r, Measures) else measure(model, data, r) for r in refs]
     s_ref = max([r.sigma for r in mr if np.isfinite(r.sigma)], default=np.nan)
     if np.isfinite(mn.sigma) and s_ref > 0 and mn.sigma <= threshold * s_ref:
-        return SingularInfo(t, "dead_point", self_stress_elements(model, mn.u),
-                            path_mode(model, before, near))
+        mode = _describe(model, mn.v, "singular").text(short=True) \
+            if mn.v is not None and model.nb else ""
+        return SingularInfo(t, "dead_point",
+                            fold_joint(model, mn.v, self_stress_elements(model, mn.u)), mode)
     k_ref = max([r.stiffness for r in mr if np.isfinite(r.stiffness)], default=np.nan)
     if np.isfinite(mn.stiffness) and k_ref > 0 and mn.stiffness <= threshold * k_ref:
         return SingularInfo(t, "limit_point", (), path_mode(model, before, near))
