@@ -30,13 +30,14 @@ from poise.solvers.stable import acceptable, seek_stable
 
 MIN_SUBSTEP_FRACTION = 2.0 ** -10
 PREDICT_SPACING = 1e-2    # extrapolation nodes closer than this fraction of the step: dropped
+MAX_PATH_STEP = 0.25      # predicted motion per step at most (translations / L, rotations in rad)
 JUMP_RATIO = 1.0          # correction / predicted step above this: a suspected jump (sub-step)
 JUMP_RATIO_SUB = 3.0      # ... on sub-steps <= JUMP_SUB of the interval (a kink in a drive)
 JUMP_SUB = 1.0 / 8.0
 JUMP_FLOOR = 10.0         # x max_error: a correction this small is never a jump
 JUMP_SHRINK = 0.6         # ... nor one that shrank this much when the sub-step was halved
 SUBSTEP_MAX_ITER = 15     # Newton iterations of a continuation step (at most max_num_iter)
-PROBE_MAX_ITER = 6        # ... of a bisection probe locating where a branch ends
+PROBE_MAX_ITER = 8        # ... of a bisection probe locating where a branch ends
 LOCATE_REL = 1e-9         # bisection width, relative to max(1, |t|)
 
 
@@ -128,8 +129,10 @@ class _Path:
     predictions from them (a tangent from the first when it is alone) and the continuity test
     of a corrected point against its prediction."""
 
-    def __init__(self, model, frames, settings, data, interval, orient=None):
+    def __init__(self, model, frames, settings, data, interval, orient=None, history=None,
+                 frame=0):
         self.model, self.settings, self.data = model, settings, data
+        self.history, self.frame = history, frame
         self.hist = list(frames[-3:])
         self.interval = interval
         self.floor = JUMP_FLOOR * settings.max_error
@@ -139,7 +142,11 @@ class _Path:
         self._refs = None                # singularity measures of the frames before
         self.probe_iterations = 0
         self.located_from = None         # the last state reached before the bisection
-        self.orient = orient if orient is not None else singular.Orientation(model, data)
+        if orient is None:              # a new branch record: the measures of the states so far
+            orient = singular.Orientation(model, data)
+            for st in self.hist:
+                orient.reference(st)
+        self.orient = orient
         self._tested = None              # (state, its orientation matrix): the last tested
 
     def predict(self, t):
@@ -182,7 +189,7 @@ class _Path:
             return ("the assembly changed branch (the orientation of its constraints flipped: "
                     "a singular configuration lies between)")
         if not known:
-            return ""
+            return self.returns(st)
         corr = distance(model, pred, st)
         step = distance(model, last, pred)
         dt = pred.t - last.t
@@ -198,11 +205,33 @@ class _Path:
         else:
             allowed = self.floor + JUMP_RATIO * step
         if corr <= allowed:
-            return ""
+            return self.returns(st)
         self.first_order = True
         return (f"the corrector landed {corr:.3g} from the predicted point, more than the step "
                 f"allows ({allowed:.3g}; translations / L, rotations in rad): a jump off the "
                 "branch")
+
+    def returns(self, st) -> str:
+        """Next to a singular configuration (:meth:`~poise.solvers.singular.Orientation.near`)
+        branches meet, and neither the distance nor the orientation tells them apart: the step
+        must come back. Newton at the last state's time from ``st`` (at most
+        ``SUBSTEP_MAX_ITER`` iterations) must land on the last state (within ``JUMP_FLOOR`` x
+        ``max_error``) when it converges; from the mirrored branch it lands on its mirror."""
+        if self.history is None or not self.orient.near():
+            return ""
+        last = self.hist[-1]
+        back = st.copy()
+        back.t = last.t
+        b, out = newton(self.model, back, self.settings, self.history, self.frame, self.data,
+                        event="return")
+        if not out.ok:          # inconclusive (Newton is slow next to a fold): no verdict
+            return ""
+        d = distance(self.model, b, last)
+        if d <= self.floor:
+            return ""
+        self.first_order = True
+        return (f"stepping back to t={last.t:.9g} from it leads {d:.3g} away from the state "
+                "there (next to a singular configuration): another branch")
 
     def refs(self, frames):
         """Measures of the output frames before the last state reached (regular points of the
@@ -229,15 +258,20 @@ class _Path:
         """Bisection of ``(last accepted time, t_hi]`` for where the branch ends, to
         ``LOCATE_REL``. A probe is Newton (at most ``PROBE_MAX_ITER`` iterations, continuity
         tested) from the prediction, and when that fails from the last state reached (next to
-        a fold the extrapolation lands where the Jacobian is singular: Newton stops at once).
-        Returns ``(t_lo, t_hi,
-        iterations)``; the accepted probes extend the branch."""
+        a fold the extrapolation lands where the Jacobian is singular, or past a turning point
+        of the drive on the other branch). After the first probe that goes on, one probe at
+        ``t_hi`` itself: a branch that merely turned back near a singular point goes on (then
+        ``t_lo == t_hi``). Returns ``(t_lo, t_hi, iterations)``; the accepted probes extend the
+        branch."""
         self.located_from = self.hist[-1]
         t_lo = self.hist[-1].t
         tol = LOCATE_REL * max(1.0, abs(t_hi))
         its = 0
+        t_end, tried_end = t_hi, False
         while t_hi - t_lo > tol:
             t = 0.5 * (t_lo + t_hi)
+            if t_lo > self.located_from.t and not tried_end:
+                t, tried_end = t_end, True   # once on the way: does the branch go on after all?
             pred, known = self.predict(t)
             last = self.hist[-1].copy()
             last.t = t
@@ -246,11 +280,11 @@ class _Path:
                 st, out = newton(self.model, start, self.settings, history, frame, self.data,
                                  max_iter=PROBE_MAX_ITER, event="locate")
                 its += out.iterations
-                ok = out.ok and not self.jump(pred, st, known, probe=True)
-                if ok or out.iterations > 1:  # converged, or Newton worked and failed there
+                ok = out.ok and not self.jump(start, st, known and start is pred, probe=True)
+                if ok:
                     break
             if not ok:
-                t_hi = t
+                t_hi = min(t_hi, t)
                 continue
             self.accept(st)
             t_lo = t
@@ -262,7 +296,9 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
     """FIM_S from ``frames[-1]`` to ``t_target`` on the same branch, with automatic
     sub-stepping.
 
-    A step whose Newton fails, or whose corrected point jumped off the branch
+    A step whose prediction moves a body more than ``MAX_PATH_STEP`` (a path sampled too
+    coarsely may pass a singular configuration and come back on the other branch within one
+    output interval), whose Newton fails, or whose corrected point jumped off the branch
     (:meth:`_Path.jump`), is halved; after a success the step doubles again (up to what is
     left). When halving reaches ``min_dt``: if the last point reached approaches a singular
     configuration (:func:`~poise.solvers.singular.diagnose`), the end of the branch is located
@@ -277,7 +313,8 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
     ``frames`` is not modified. The outcome's iterations count every sub-step, probe and
     strategy.
     """
-    branch = _Path(model, frames, settings, counters, t_target - frames[-1].t, orient)
+    branch = _Path(model, frames, settings, counters, t_target - frames[-1].t, orient,
+                   history, frame)
     t_prev = frames[-1].t
     dt = t_target - t_prev
     n_sub = total_it = 0
@@ -288,6 +325,10 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
         if t_target - t < 1e-12 * max(1.0, abs(t_target)):
             t = t_target
         pred, known = branch.predict(t)
+        if known and dt > min_dt and distance(model, branch.hist[-1], pred) > MAX_PATH_STEP:
+            dt *= 0.5                   # a step the path's shape cannot be trusted over
+            n_sub += 1
+            continue
         full = n_sub == 0 and t == t_target
         st, out = newton(model, pred, settings, history, frame, counters, max_iter=max_iter,
                          event="newton" if full else "substep")
@@ -350,6 +391,9 @@ def _branch_end(model, settings, data, history, frame, branch, frames, t_fail):
         return None
     t_lo, t_hi, its = branch.locate(history, frame, t_fail)
     hist = branch.hist
+    if t_lo >= t_fail:                  # the branch goes on
+        branch.probe_iterations = its
+        return None
     info = singular.diagnose(model, data, hist[-1], branch.located_from, refs,
                              0.5 * (t_lo + t_hi))
     if info is None:

@@ -23,6 +23,7 @@ from poise.solvers.status import Status
 
 DROP = 0.05          # a measure this fraction of its value on the path before: singular there
 NEAR = 0.3           # ... this fraction: approaching a singularity (worth locating)
+NEAR_HISTORY = 6     # accepted states whose measure the current one is compared with
 SHARE_MIN = 0.05     # constraints with this share of the largest share of the self-stress named
 INVERSE_STEPS = 12   # inverse iterations for the smallest singular value (large models)
 KINDS = {"dead_point": "at a dead point (the constraint equations lose rank: a toggle, a dead "
@@ -136,17 +137,21 @@ def measure(model, data, state) -> Measures:
 
 
 class Orientation:
-    """Which assembly branch a state is on, relative to a reference state: the sign of
-    ``det([A(x); N^T])`` with ``A`` the scaled active constraint Jacobian and ``N`` the null
-    space of ``A`` at the reference. The sign is continuous along a branch and flips where the
-    path crosses a configuration in which the constraints lose rank, so two states on
-    mirrored branches (a crank above and below a toggle) differ. Dense models only
-    (``nq <= DENSE_LIMIT``); otherwise every state agrees."""
+    """Which assembly branch a state is on, relative to a reference state (the last accepted
+    one): the sign of ``det([A(x); N^T])`` with ``A`` the scaled active constraint Jacobian and
+    ``N`` the null space of ``A`` at the reference. The sign is continuous along a branch and
+    flips where the path crosses a configuration in which the constraints lose rank an odd
+    number of times, so two states on mirrored branches (a crank above and below a toggle)
+    differ. It also keeps the constraints' smallest singular value of the recent references:
+    :meth:`near` says the reference approaches a singular configuration, where branches may
+    meet without a sign change (three legs of a parallel robot reaching their toggle together).
+    Dense models only (``nq <= DENSE_LIMIT``); otherwise every state agrees."""
 
     def __init__(self, model, data):
         self.model, self.data = model, data
         self.on = model.nc > 0 and model.nq <= DENSE_LIMIT
-        self.ref = None              # (state, N, sign)
+        self.ref = None              # (state, N, sign, sigma)
+        self.sigmas = []             # sigma of the recent references, oldest first
 
     def matrix(self, state):
         if not self.on:
@@ -165,9 +170,11 @@ class Orientation:
         if m > n:
             self.ref = None
             return
-        _, _, vh = np.linalg.svd(A, full_matrices=True)
+        _, sv, vh = np.linalg.svd(A, full_matrices=True)
         N = vh[m:]
-        self.ref = (state, N, self._sign(A, N))
+        sigma = float(sv[m - 1]) if m else np.inf
+        self.ref = (state, N, self._sign(A, N), sigma)
+        self.sigmas = (self.sigmas + [sigma])[-NEAR_HISTORY:]
 
     @staticmethod
     def _sign(A, N):
@@ -186,6 +193,12 @@ class Orientation:
         A = self.matrix(state) if A is None else A
         s = self._sign(A, self.ref[1])
         return s != 0.0 and s == self.ref[2], A
+
+    def near(self) -> bool:
+        """The reference's constraints' smallest singular value is at most ``NEAR`` of the
+        largest of the references before it."""
+        s = self.sigmas
+        return len(s) > 1 and np.isfinite(s[-1]) and s[-1] <= NEAR * max(s[:-1])
 
 
 def _smallest_sparse(A):
