@@ -38,7 +38,8 @@ JUMP_FLOOR = 10.0         # x max_error: a correction this small is never a jump
 JUMP_SHRINK = 0.6         # ... nor one that shrank this much when the sub-step was halved
 SUBSTEP_MAX_ITER = 15     # Newton iterations of a continuation step (at most max_num_iter)
 PROBE_MAX_ITER = 8        # ... of a bisection probe locating where a branch ends
-LOCATE_REL = 1e-9         # bisection width, relative to max(1, |t|)
+RETURN_MAX_ITER = 30      # ... of the return test next to a singular point (Newton is slow there)
+LOCATE_REL = 1e-7         # bisection width, relative to max(1, |t|) (then the fold law)
 
 
 # ---------------------------------------------------------------------- helpers
@@ -180,7 +181,8 @@ class _Path:
           step twice as long (a path from rest: the correction falls as the step squared,
           a jump's stays); never less than ``JUMP_FLOOR`` x ``max_error``. A bisection
           ``probe`` next to the end of a branch, where the path has a square-root shape that
-          no extrapolation follows, may also move as far as it went from the last state.
+          no extrapolation follows, may also move as far as it went from the last state (and
+          gets no return test: it is next to a singular point by construction).
         """
         model, last = self.model, self.hist[-1]
         same, A = self.orient.same(last, st)
@@ -189,7 +191,7 @@ class _Path:
             return ("the assembly changed branch (the orientation of its constraints flipped: "
                     "a singular configuration lies between)")
         if not known:
-            return self.returns(st)
+            return "" if probe else self.returns(st)
         corr = distance(model, pred, st)
         step = distance(model, last, pred)
         dt = pred.t - last.t
@@ -205,7 +207,7 @@ class _Path:
         else:
             allowed = self.floor + JUMP_RATIO * step
         if corr <= allowed:
-            return self.returns(st)
+            return "" if probe else self.returns(st)
         self.first_order = True
         return (f"the corrector landed {corr:.3g} from the predicted point, more than the step "
                 f"allows ({allowed:.3g}; translations / L, rotations in rad): a jump off the "
@@ -215,7 +217,7 @@ class _Path:
         """Next to a singular configuration (:meth:`~poise.solvers.singular.Orientation.near`)
         branches meet, and neither the distance nor the orientation tells them apart: the step
         must come back. Newton at the last state's time from ``st`` (at most
-        ``SUBSTEP_MAX_ITER`` iterations) must land on the last state (within ``JUMP_FLOOR`` x
+        ``RETURN_MAX_ITER`` iterations) must land on the last state (within ``JUMP_FLOOR`` x
         ``max_error``) when it converges; from the mirrored branch it lands on its mirror."""
         if self.history is None or not self.orient.near():
             return ""
@@ -223,6 +225,7 @@ class _Path:
         back = st.copy()
         back.t = last.t
         b, out = newton(self.model, back, self.settings, self.history, self.frame, self.data,
+                        max_iter=min(self.settings.max_num_iter, RETURN_MAX_ITER),
                         event="return")
         if not out.ok:          # inconclusive (Newton is slow next to a fold): no verdict
             return ""
@@ -257,9 +260,9 @@ class _Path:
     def locate(self, history, frame, t_hi):
         """Bisection of ``(last accepted time, t_hi]`` for where the branch ends, to
         ``LOCATE_REL``. A probe is Newton (at most ``PROBE_MAX_ITER`` iterations, continuity
-        tested) from the prediction, and when that fails from the last state reached (next to
-        a fold the extrapolation lands where the Jacobian is singular, or past a turning point
-        of the drive on the other branch). After the first probe that goes on, one probe at
+        tested) from the prediction, and when that stops at once or lands off the branch, from
+        the last state reached (next to a fold the extrapolation lands where the Jacobian is
+        singular, or past a turning point of the drive on the other branch). After the first probe that goes on, one probe at
         ``t_hi`` itself: a branch that merely turned back near a singular point goes on (then
         ``t_lo == t_hi``). Returns ``(t_lo, t_hi, iterations)``; the accepted probes extend the
         branch."""
@@ -281,8 +284,8 @@ class _Path:
                                  max_iter=PROBE_MAX_ITER, event="locate")
                 its += out.iterations
                 ok = out.ok and not self.jump(start, st, known and start is pred, probe=True)
-                if ok:
-                    break
+                if ok or (not out.ok and out.iterations > 2):   # no second start when Newton
+                    break                                       # worked and found nothing
             if not ok:
                 t_hi = min(t_hi, t)
                 continue
