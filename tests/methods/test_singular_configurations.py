@@ -30,6 +30,7 @@ from support.linkages import (
     delta_height,
     fourbar,
     fourbar_dead_time,
+    loaded_slide,
     slider_crank,
     vonmises,
     vonmises_limit_time,
@@ -182,6 +183,19 @@ def test_loaded_column_bifurcation(tmp_path, method):
     t = np.asarray(a.datasets["time"])
     cls = np.asarray(a.datasets["frames/stability"])
     assert set(cls[t < column_critical_time() - 1e-6].tolist()) == {"stable"}
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_stiffness_that_jumps_is_no_singular_configuration(tmp_path, method):
+    """The block's stiffness jumps from +1000 to -1000 N/m at t = 0.5 (an IF of TIME): the
+    classification changes between frames, but no eigenvalue passes through zero, so the run
+    goes on (unstable frames after 0.5, said as such)."""
+    res, a = _solve(tmp_path, loaded_slide("-1000*IF(TIME-0.5: 1, 1, -1)*DX(200,100)", method))
+    assert res.exit_code == 0 and a.status == "converged", a.message
+    t = np.asarray(a.datasets["time"])
+    assert list(np.asarray(a.datasets["frames/stability"])) == \
+        ["stable" if x <= 0.5 + 1e-9 else "unstable" for x in t]
+    assert "singular_time" not in a.attrs
 
 
 # ------------------------------------------------------------------ --require-stable

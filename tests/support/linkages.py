@@ -268,3 +268,20 @@ def shf_reversal(method: str = "FIM_S", interval: float = 0.05, p=SHF,
           ref_marker_id=0, fx_expression=f"SHF(TIME, 0, {p['force']!r}, 360D, 0, 0)",
           fy_expression="0", fz_expression="0")
     return quasistatic(d, interval=interval)
+
+
+def loaded_slide(fx: str, method: str = "FIM_S", interval: float = 0.1) -> Deck:
+    """A 2 kg block on a guide along X at the origin, load ``fx`` (an expression of TIME and
+    DX(200, 100)): x = 0 is an equilibrium of every frame when the load vanishes there."""
+    d = Deck(units=None)
+    d.add("Param_Unit", force_unit="NEWTON", mass_unit="KILOGRAM", length_unit="METER",
+          time_unit="SECOND")
+    d.add("Param_Static", method=method, max_imbalance=1e-8, max_error=1e-8)
+    d.ground(1, 100)
+    d.marker(101, 1, (0, 0, 0), X_ALONG)
+    d.body(2, 200, (0, 0, 0), mass=2.0, inertia=(1.0, 1.0, 1.0))
+    d.marker(201, 2, (0, 0, 0), X_ALONG)
+    d.add("Constraint_Joint", id=1, type="TRANSLATIONAL", i_marker_id=201, j_marker_id=101)
+    d.add("Force_Vector_OneBody", id=2, type="FORCEONLY", marker_id=200, ref_marker_id=0,
+          fx_expression=fx, fy_expression="0", fz_expression="0")
+    return quasistatic(d, interval=interval)

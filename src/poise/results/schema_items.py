@@ -244,7 +244,8 @@ for n, t, sh, u, m in (
         ("stability", "str", ("F",), "", "stability class of the converged equilibrium: "
          "`stable`, `neutral`, `unstable`, or `unknown` (frame not converged, or the sparse "
          "inertia computation could not be trusted — the reason is in "
-         "`frames/stability_modes`)"),
+         "`frames/stability_modes`); the last frame of a path that ended at a singular "
+         "configuration or lost stability is classified too (the state past the event)"),
         ("n_negative", "int", ("F",), "1", "number of negative eigenvalues of the tangent "
          "stiffness reduced to the constraint manifold (−1 when not classified)"),
         ("n_zero", "int", ("F",), "1", "number of zero eigenvalues (neutral directions; "

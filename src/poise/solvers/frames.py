@@ -69,6 +69,8 @@ def frame_datasets(ctx, state, outcomes, on_eval=None):
         info = done[1] if done is not None and done[0] is state else \
             cached_info(ctx, state) or classify(model, state, J=J, active=saved)
         d.update(stability_datasets([info]))
+    elif len(outcomes) == 1 and cached_info(ctx, state) is not None:   # a path's located end
+        d.update(stability_datasets([cached_info(ctx, state)]))
     else:   # the same datasets either way: frames of a sequence are concatenated by key
         d.update(stability_datasets([unknown_info()] * len(outcomes)))
     return d
@@ -238,9 +240,9 @@ def frames_datasets(ctx, frames, outcomes, measure=None) -> dict | None:
                 loads.setdefault(g, []).append((Fg.reshape(-1, n_out, 3),
                                                 Tg.reshape(-1, n_out, 3)))
             ok = np.array([o.ok for o in outcomes[a:a + C]])
-            got = [cached_info(ctx, st) if k else None for st, k in zip(chunk, ok)]
-            if all(g is not None for g, k in zip(got, ok) if k):   # classified by the solve
-                infos += [g if k else unknown_info() for g, k in zip(got, ok)]
+            got = [cached_info(ctx, st) for st in chunk]    # classified by the solve (also
+            if all(g is not None for g, k in zip(got, ok) if k):   # a path's located end)
+                infos += [g if g is not None else unknown_info() for g in got]
             elif model.nq <= DENSE_LIMIT:
                 infos += classify_dense_frames(model, ev.J, saved, ok)
             else:                                     # sparse inertia, frame by frame

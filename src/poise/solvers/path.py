@@ -63,37 +63,33 @@ def check(ctx, step) -> None:
     if n == 0 or (ctx.time_independent and not s.require_stable):
         return
     infos = classify_frames(ctx, frames[:n] if not ctx.time_independent else frames[:1])
-    event, prev = None, None
-    for k, info in enumerate(infos):
-        if s.require_stable and not acceptable(info, s):
-            event = (k, "unstable")
+    prev, start = None, 0
+    while True:
+        event = _first_event(infos, s, prev, start)
+        if event is None:
+            return
+        k, kind, prev = event
+        if k == 0:               # --require-stable and the start is not stable enough
+            outcomes[0].status = Status.UNSTABLE
+            outcomes[0].message = (f"no stable equilibrium reached (--require-stable): the "
+                                   f"start of the path is {infos[0].klass}")
+            del frames[1:], outcomes[1:]
+            return
+        lo = k - 1 if kind == "unstable" else prev
+        if kind == "unstable":
+            same = lambda i: acceptable(i, s)                                       # noqa: E731
+        else:
+            same = lambda i, n0=infos[lo].n_negative: (i.klass != "unknown"          # noqa: E731
+                                                      and i.n_negative == n0)
+        st, info, t = _locate(ctx, step, lo, k, infos[k], same)
+        crossed = _crossed(info, infos[lo], infos[k])
+        if kind == "unstable" or crossed:
             break
-        if info.klass == "unknown":
-            continue
-        if prev is not None and info.n_negative != infos[prev].n_negative:
-            event = (k, "bifurcation")
-            break
-        prev = k
-    if event is None:
-        return
-    k, kind = event
-    if k == 0:               # --require-stable and the start is not stable enough
-        outcomes[0].status = Status.UNSTABLE
-        outcomes[0].message = (f"no stable equilibrium reached (--require-stable): the start of "
-                               f"the path is {infos[0].klass}")
-        del frames[1:], outcomes[1:]
-        return
-    lo = k - 1 if kind == "unstable" else prev
-    if kind == "unstable":
-        same = lambda i: acceptable(i, s)                  # noqa: E731
-    else:
-        same = lambda i, n0=infos[lo].n_negative: i.klass != "unknown" and i.n_negative == n0  # noqa: E731
-    st, info, t = _locate(ctx, step, lo, k, infos[k], same)
+        prev, start = k, k + 1   # the stiffness jumped (a discontinuous load): no singular point
     del frames[lo + 1:], outcomes[lo + 1:]
     for key in [j for j in ctx.measured if j > lo]:
         del ctx.measured[key]
     ctx.infos[id(st)] = (st, info)
-    crossed = info.klass != "unknown" and info.n_negative != infos[lo].n_negative
     where = singular.SingularInfo(t, "bifurcation", (), _mode(info, infos[lo]))
     if kind == "unstable":
         modes = "; ".join(m.text(short=True) for m in info.mode_list)
@@ -103,11 +99,36 @@ def check(ctx, step) -> None:
             f"stops being stable; there it is {info.klass}" + (f": {modes})" if modes else ")"),
             {}, "plain", where if crossed else None)
     else:
-        out = singular.singular_outcome(
-            singular.SingularInfo(t, "bifurcation", (), _mode(info, infos[lo])), 0)
+        out = singular.singular_outcome(where, 0)
     ctx.history.add(len(frames), 0, np.nan, np.nan, np.nan, np.nan, out.message, "singular")
     frames.append(st)
     outcomes.append(out)
+
+
+def _first_event(infos, s, prev, start):
+    """``(frame, kind, previous known frame)`` of the first event from frame ``start`` on
+    (``prev``: the last classified frame before it), or None."""
+    for k in range(start, len(infos)):
+        info = infos[k]
+        if s.require_stable and not acceptable(info, s):
+            return k, "unstable", prev
+        if info.klass == "unknown":
+            continue
+        if prev is not None and info.n_negative != infos[prev].n_negative:
+            return k, "bifurcation", prev
+        prev = k
+    return None
+
+
+def _crossed(info, a, b) -> bool:
+    """Did an eigenvalue of the reduced stiffness cross zero where the classification changed
+    (``info``: just past the change), rather than jump (a discontinuous load or stiffness)?
+    Its smallest eigenvalue there is at most ``singular.DROP`` of the smallest eigenvalues of
+    the frames ``a`` and ``b`` on either side."""
+    scale = max(abs(a.min_eigenvalue), abs(b.min_eigenvalue))
+    lam = abs(info.min_eigenvalue)
+    return bool(info.klass != "unknown" and np.isfinite(lam) and np.isfinite(scale)
+                and lam <= singular.DROP * scale)
 
 
 def _mode(a, b) -> str:
