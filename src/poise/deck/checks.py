@@ -231,6 +231,9 @@ def check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Element
             pc.error(el.loc, "SCREW joint needs 'pitch'; expected a real number, got nothing")
         if jt == "RACK_PINION" and not el.has("pitch_diameter"):
             pc.error(el.loc, "RACK_PINION joint needs 'pitch_diameter'; expected a real number, got nothing")
+        elif jt == "RACK_PINION" and el.get("pitch_diameter") == 0.0:
+            pc.error(el.loc, "RACK_PINION joint with pitch_diameter 0; expected a non-zero pitch "
+                             "diameter (the rack would not move with the pinion)", "pitch_diameter")
     if t in ("Constraint_Joint", "Constraint_Jprim") and not el.is_command:
         mi, mj = markers.get(el.get("i_marker_id")), markers.get(el.get("j_marker_id"))
         if mi is not None and mj is not None and mi.get("body_id") == mj.get("body_id"):

@@ -113,7 +113,9 @@ el("Constraint_Joint", "both", True,
        ID(), LABEL(), E("type", JOINT_TYPES, "joint type", required=True), *_IJ,
        R("pitch", "SCREW: translation of I along z_J per full turn of I about z_J "
          "(d.z_J = pitch*AZ(I,J)/(2 pi); > 0 right-handed; pair it with a CYLINDRICAL joint)"),
-       R("pitch_diameter", "RACK_PINION: pinion pitch diameter", lo=0, lo_open=True),
+       R("pitch_diameter", "RACK_PINION: pinion pitch diameter PD (I on the pinion, J on the rack): "
+         "the rack travels PD/2 along z_J per radian the pinion turns about z_I, measured from "
+         "the input configuration; < 0 reverses the direction; non-zero"),
        B("is_virtual", "virtual joint flag (treated as a normal joint)")])
 el("Constraint_Jprim", "both", True, "Joint primitive.", [
     ID(), LABEL(), E("type", JPRIM_TYPES, "primitive type", required=True), *_IJ,
