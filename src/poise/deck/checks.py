@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from poise.deck.matrix import matrix_values
 from poise.deck.schema_types import NAMESPACES, Attr, ElementSchema
 from poise.deck.spec import Element, Expr
 from poise.core.errors import ProblemCollector
@@ -247,6 +248,8 @@ def check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Element
     if t == "Force_Scalar_TwoBody" and not el.is_command and not any(
             el.has(n) for n in ("val", "val_expression", "usrsub_param_string", "script_name")):
         pc.error(el.loc, "no magnitude; expected 'val' or 'val_expression', got neither")
+    if t == "Reference_Matrix":
+        matrix_values(el, pc)             # every matrix checked, used or not
     if t == "Simulate":
         st, en = el.get("start_time", 0.0), el.get("end_time")
         if isinstance(st, float) and isinstance(en, float) and en < st:

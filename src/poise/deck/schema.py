@@ -224,6 +224,15 @@ for _t, _d in _UNS_FORCES.items():
 el("Reference_Array", "both", True, "Array of values given as element text.", [
     ID(), LABEL(), E("type", "IC RESTART PRINT X Y U", "array type"),
     A("num_element", "int", "number of values", lo=0), *USR()])
+el("Reference_Matrix", "model", True,
+   "nrow x ncol matrix as element text: full (column order; row order with isroworder) or sparse "
+   "(issparse: nval row col value triples, 1-based); poise.deck.matrix. Read by "
+   "Reference_ParamCurve matrix_id.", [
+       ID(), LABEL(), A("nrow", "int", "number of rows", required=True, lo=1),
+       A("ncol", "int", "number of columns", required=True, lo=1),
+       B("isroworder", "full form: values row by row (default: column by column)"),
+       B("issparse", "sparse form: the text holds nval row col value triples"),
+       A("nval", "int", "sparse form: number of triples", lo=0), *USR()])
 el("Reference_Variable", "both", True, "Algebraic variable usable through VARVAL(id).", [
     ID(), LABEL(), E("type", "EXPRESSION USERSUB", "how it is given", default="EXPRESSION"),
     A("expr", "expr", "defining expression"), *USR(), B("is_implicit", "implicit (adds an equation)"),
@@ -240,7 +249,8 @@ _PC = [B("is_u_closed", "closed in u (periodic spline; analytic: u wraps into [u
        A("u_end", "real", "last u (analytic; spline data: default 1)"),
        B("is_curve_points", "text holds points the spline passes through (always so in poise)"),
        A("num_pts", "int", "number of x y z points in the element text (spline form)", lo=2),
-       A("matrix_id", "int", "Reference_Matrix with the points (not supported)"), *USR()]
+       A("matrix_id", "int", "Reference_Matrix with the points, one row per point, columns x y z "
+         "(curves; Adams CURVE/MATRIX=)", ref="matrix", lo=1), *USR()]
 el("Reference_ParamCurve", "model", True,
    "Curve c(u) in a marker frame: spline through x y z points (text) or x/y/z_expression of U.", [
        ID(), LABEL(), *_PC, *[A(f"{c}_expression", "expr", f"{c}(U), analytic form (poise)") for c in "xyz"]],

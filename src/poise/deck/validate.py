@@ -30,7 +30,7 @@ class FileProblem(Problem):
 
 
 _SPECIFIC = frozenset({"Constraint_Joint", "Constraint_Jprim", "Force_SpringDamper",
-                       "Force_Scalar_TwoBody", "Simulate"})
+                       "Force_Scalar_TwoBody", "Simulate", "Reference_Matrix"})
 _ns = functools.cache(namespace_of)
 
 
