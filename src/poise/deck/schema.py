@@ -129,6 +129,14 @@ el("Constraint_Gear", "model", True, "Gear between two joints (poise.elements.ge
     ID(), LABEL(), A("joint1_id", "int", "first joint", ref="joint"), A("joint2_id", "int", "second joint", ref="joint"),
     M("cv_marker_id", "contact-point marker (origin) and common-velocity direction (z), on the carrier", required=True, lo=1),
     B("is_virtual", "virtual flag"), *USR()])
+el("Constraint_General", "both", True,
+   "Expression held at zero (Adams GCON; poise.elements.general); exact first and second "
+   "derivatives; i_marker_id: reaction marker (group gcons).", [
+       ID(), LABEL(), E("type", "EXPRESSION USERSUB", "how it is given (USERSUB: GCOSUB, not "
+                        "supported)", default="EXPRESSION"),
+       A("expr", "expr", "the constraint: expr = 0"),
+       M("i_marker_id", "reaction marker: the row's load on its body is reported (group gcons)",
+         lo=1), B("is_virtual", "virtual flag (treated as a normal constraint)"), *USR()])
 el("Constraint_UserConstr", "both", True, "User-defined constraint (UCOSUB).", [ID(), LABEL(), *USR()],
    open_attrs=True, aliases=("Constraint_Usrconstr",))
 # higher pairs (poise.elements.compile_curves; docs/elements.md "Curves and surfaces")

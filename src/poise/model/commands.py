@@ -38,6 +38,7 @@ CHANGEABLE: dict[str, tuple[str, ...]] = {
     "Motion_Joint": ("expr",),
     "Motion_Marker": ("expr",),
     "Control_Diff": ("expr",),
+    "Constraint_General": ("expr",),
 }
 
 #: command elements that are settings, not model changes (handled by the runner, or output
