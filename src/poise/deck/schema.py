@@ -280,14 +280,33 @@ el("Control_Diff", "both", True, "First-order differential equation state DIF(id
 for _t in ("Control_StateEqn", "Control_SISO"):
     el(_t, "model", False, "Control element.", [ID(), LABEL()], open_attrs=True)
 
+# --------------------------------------------------------------------------- no effect on statics
+#: elements modelling tools write that do not affect statics: accepted, one warning per kind
+#: (poise.deck.validate); tag -> (kind, what it is)
+NO_EFFECT = {
+    "Control_PlantInput": ("model", "controls plant inputs (linearisation and co-simulation; "
+                           "PINVAL reads them)"),
+    "Control_PlantOutput": ("model", "controls plant outputs (linearisation and co-simulation; "
+                            "POUVAL reads them)"),
+    "Post_UserAPI": ("model", "a user results-output routine (POST_SUB)"),
+    "Reference_String": ("model", "string data for user subroutines"),
+    "Param_Linear": ("both", "linear-analysis settings (poise runs no linear analysis)"),
+}
+_PLANT = [ID(), LABEL(), A("variable_id_list", "int_list", "Reference_Variable ids (plant I/O)")]
+for _t, (_k, _d) in NO_EFFECT.items():
+    el(_t, _k, True, _d[0].upper() + _d[1:] + "; no effect on statics: accepted with a warning.",
+       _PLANT if _t.startswith("Control_Plant") else [ID(), LABEL()] if _t == "Reference_String"
+       else [], open_attrs=True)
+
 # --------------------------------------------------------------------------- output
 el("Post_Graphic", "model", True, "Graphic/geometry; all attributes kept as data (used by contact).",
    [ID(), LABEL(), A("type", "str", "geometry type"), A("body_id", "int", "owning body", ref="body")],
    open_attrs=True)
-el("Post_Request", "model", True, "Output request.", [
-    ID(), LABEL(), A("comment", "str", "comment"),
-    E("type", "MARKER_DISPLACEMENT MARKER_VELOCITY MARKER_ACCELERATION MARKER_FORCE ELEMENTAL_FORCE "
-      "EXPRESSION USERSUB", "request type"),
+el("Post_Request", "model", True, "Output request (its label: `label`, else `comment`).", [
+    ID(), LABEL(), A("comment", "str", "comment (the request's label when it has no label)"),
+    A("type", "str", "request type: MARKER_DISPLACEMENT MARKER_VELOCITY MARKER_ACCELERATION "
+      "MARKER_FORCE ELEMENTAL_FORCE EXPRESSION (computed); USERSUB and any other type are "
+      "accepted with a warning and not computed"),
     M("i_marker_id", "I marker", lo=1), M("j_marker_id", "J marker", zero_ok=True),
     M("ref_marker_id", "result axes", zero_ok=True), A("elem_type", "str", "element type (ELEMENTAL_FORCE)"),
     A("elem_id", "int", "element id (ELEMENTAL_FORCE)"), A("jflag", "int", "0: on I, 1: on J", lo=0, hi=1),

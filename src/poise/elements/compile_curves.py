@@ -329,4 +329,7 @@ ELEMENTS = (ElementType(
                      F.SurfaceOnSurface), potential_energy=workless,
     time_dependent=static,      # TIME in curve geometry is a located error (compile_curves)
     outputs={"curves": TAGS},
-    datasets=("id", "tag", "parameters", "point"), fd_tests="tests/reference/test_curves.py"),)
+    datasets=("id", "tag", "parameters", "point"),
+    reactions={"PTCV": ("curves", ("Constraint_PTCV",)), "CVCV": ("curves", ("Constraint_CVCV",))},
+    reaction_aliases={"CONSTRAINT_PTCV": "PTCV", "CONSTRAINT_CVCV": "CVCV"},
+    fd_tests="tests/reference/test_curves.py"),)
