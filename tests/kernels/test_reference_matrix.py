@@ -6,7 +6,6 @@ import pytest
 from poise.core.errors import DeckError
 from poise.deck.parser import load_deck as parse_deck
 
-from support.paths import DECKS
 
 M = np.arange(1.0, 13.0).reshape(3, 4)          # 3 x 4, M[i, j] = 4 i + j + 1
 

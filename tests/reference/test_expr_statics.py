@@ -8,7 +8,6 @@ acceleration measures are 0: a static equilibrium is a state at rest (MotionSolv
 the velocity and acceleration terms to zero), also in quasi-static runs. Functions poise does
 not evaluate are located errors wherever they appear, also in a variable nothing reads.
 """
-import re
 
 import numpy as np
 import pytest

@@ -48,7 +48,8 @@ def _rz(t):
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _check(tmp_path, T, pd, Q=np.eye(3)):
+def _check(tmp_path, T, pd, Q=None):
+    Q = np.eye(3) if Q is None else Q
     a = run_deck(str(_deck(tmp_path, T, pd, Q))).analyses[0]
     assert a.converged, a.message
     d = a.datasets

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.elements.base import GLOBAL, ConstraintFamily, _cross, column_map, columns_array
+from poise.elements.base import GLOBAL, ConstraintFamily, _cross
+from poise.elements.diff_vars import layout
 from poise.elements.registry import ElementType, expressions_of_time, workless
 from poise.elements.resolver import compile_batch_located, ground_markers
 from poise.expr import EvalContext as XC
@@ -100,30 +101,6 @@ class GeneralConstraint(ConstraintFamily):
         return F, T
 
 
-def _layout(batch, first, ground):
-    """Markers (n, K), scols and maps: marker 0 of instance i is ``first[i]``; every other
-    moving marker the expression reads gets the next position (4 slots each)."""
-    n = batch.n
-    mk = [{int(first[i]): 0} for i in range(n)]
-    rows, bs, fs = [], [], []
-    for i in range(n):
-        for s, (m, kind) in enumerate(zip(batch.slot_marker[i], batch.slot_kind[i])):
-            m, kind = int(m), int(kind)
-            if m < 0 or ground[m]:
-                continue
-            if m not in mk[i]:
-                mk[i][m] = len(mk[i])
-            rows.append(i)
-            bs.append(s)
-            fs.append(4 * mk[i][m] + kind)
-    sc = [dict() for _ in range(n)]
-    smap = column_map(batch.scalar_index, sc)
-    markers = columns_array(mk, width=max(len(d) for d in mk), fill=GLOBAL)
-    ip = np.intp
-    return markers, columns_array(sc), (np.array(rows, ip), np.array(bs, ip),
-                                        np.array(fs, ip)), smap
-
-
 def compile_general(spec, ctx):
     els = spec.elements(TAG)
     if not els:
@@ -183,7 +160,7 @@ def _build(ctx, els, batch, ground):
     n = len(els)
     first = np.array([ctx.marker(el, "i_marker_id") if el.attrs.get("i_marker_id") is not None
                       else GLOBAL for el in els], int)
-    markers, scols, smap, cmap = _layout(batch, first, ground)
+    markers, scols, smap, cmap = layout(batch, None, ground, first)
     K = markers.shape[1]
     fam = GeneralConstraint(name="gcons:expression", markers=markers,
                             slot_ml=np.repeat(np.arange(K), 4),

@@ -23,6 +23,7 @@ from poise.elements.context import num
 from poise.elements.motions import (S_PI, S_PJ, S_XI, S_YI, S_ZJ, SLOT_KIND, SLOT_ML,
                                     atan2_term, dot_term)
 from poise.elements.registry import ElementType, FDCase, static, workless
+from poise.elements.screw import add_joint_family
 
 #: smallest |sin| of the angle between the pinion axis z_I and the rack direction z_J
 AXIS_SIN_MIN = 1e-3
@@ -98,14 +99,9 @@ def compile_rack_pinions(spec, ctx):
         c0.append(z0 - rk * phi0)
         ang.append(ctx.angle(j, i, 3))          # direction of z_J in I's x-y plane
         rows.append([ctx.add_row(el, "rack-r*pinion", "trans", "joints", first + k)])
-    ctx.effect("Constraint_Joint:RACK_PINION")
-    out["ids"] = np.concatenate([out["ids"], [e.id for e in els]]).astype(int)
     f = RackPinion.build("joints:rack_pinion", np.array(I), np.array(J), r, c0, ang,
                          np.arange(first, first + len(els)))
-    f.crow = np.array(rows, int)
-    f.group = "joints"
-    f.element_locs = [e.loc for e in els]
-    ctx.families.append(f)
+    add_joint_family(ctx, out, els, f, rows, "RACK_PINION")
 
 
 ELEMENTS = (ElementType(

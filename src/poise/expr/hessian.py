@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .functions import FUNCTIONS, DomainError
+from .functions import FUNCTIONS, DomainError, check_power
 from .measures import EULER_LOCK_TOL, MEASURE_SLOTS, wrap_to_ref
 from .second import NO_SECOND, SECOND
 
@@ -91,12 +91,7 @@ def _div(a, b):
 
 def _pow(a, b):
     va, vb = a.v, b.v
-    bad = (va < 0) & (vb != np.trunc(vb))
-    if bad.any():
-        raise DomainError("negative number raised to a non-integer power", bad)
-    bad = (va == 0) & (vb < 0)
-    if bad.any():
-        raise DomainError("division by zero (0 raised to a negative power)", bad)
+    check_power(va, vb)
     v = va ** vb
     pos = va > 0
     lg = np.log(np.where(pos, va, 1.0))

@@ -108,7 +108,7 @@ def _cheby(a):
     u = x - x0
     one, zero = np.ones_like(u), np.zeros_like(u)
     t, d, e = [one, u], [zero, one], [zero, zero]                    # T_j, T_j', T_j''
-    for j in range(2, len(coef)):
+    for _ in range(2, len(coef)):
         t.append(2.0 * u * t[-1] - t[-2])
         e.append(4.0 * d[-1] + 2.0 * u * e[-1] - e[-2])
         d.append(2.0 * t[-2] + 2.0 * u * d[-1] - d[-2])
