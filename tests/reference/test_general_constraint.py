@@ -169,3 +169,33 @@ def test_configuration_free_expression_is_left_out_with_a_warning(tmp_path):
     assert list(a.datasets["gcons/id"]) == [7, 8]
     assert any("<Constraint_General id=9>" in str(w) and "constrains nothing in statics" in str(w)
                for w in run.warnings)
+
+
+POINT = """<MotionSolve><Model>
+<Param_Static method="FIM_S" max_imbalance="1.0E-10" max_error="1.0E-10"/>
+<Force_Gravity grav_x="0" grav_y="-9.81" grav_z="0"/>
+<Body_Rigid id="1" isground="TRUE" cg_id="10"/>
+<Reference_Marker id="10" body_id="1"/>
+<Body_Point id="2" cg_id="20" mass="2.0"/>
+<Reference_Marker id="20" body_id="2" pos_x="0.1" pos_y="{y}" pos_z="0"/>
+<Constraint_General id="1" expr="DM(20,10) - 1.0" i_marker_id="20"/>
+<Constraint_General id="2" expr="DZ(20,10,10)"/>
+</Model><Command><Simulate analysis_type="Static"/></Command></MotionSolve>
+"""
+
+
+@pytest.mark.parametrize("y,cls", [(-0.99, "stable"), (0.99, "unstable")])
+def test_distance_constraint_stability_and_quadratic_newton(tmp_path, y, cls):
+    """A point mass held only by DM(I, J) - L: its tangential stiffness is the constraint's
+    geometric stiffness lam d2DM/dy2 alone (m g / L, + below the pivot, - above), so the
+    stability class tests the exact Hessian; Newton converges quadratically."""
+    p = tmp_path / "pt.xml"
+    p.write_text(POINT.format(y=y))
+    a = run_deck(str(p)).analyses[0]
+    assert a.converged, a.message
+    d = a.datasets
+    np.testing.assert_allclose(d["bodies/position"][-1, 0], [0.0, np.sign(y), 0.0], atol=1e-12)
+    assert list(d["frames/stability"]) == [cls]
+    r = np.asarray(d["iterations/imbalance"], float)
+    k = int(np.argmax(r < 1.0))                  # inside the quadratic basin
+    assert r[k + 1] < 10.0 * r[k] ** 2

@@ -120,3 +120,26 @@ def test_rack_pinion_parallel_axes_is_located(tmp_path):
     with pytest.raises(DeckError) as e:
         run_deck(str(path))
     assert "parallel to the pinion axis" in str(e.value)
+
+
+@pytest.mark.parametrize("method", ["FIM_S", "FIM_D"])
+def test_rack_pinion_quasi_static_torque_ramp(tmp_path, method):
+    """T = 0.8 TIME over t in [0, 1]: theta(t) = T / (k r^2) along the whole run (FIM_D carries
+    the rack-and-pinion angle through its chart)."""
+    root = etree.parse(str(DECKS / "elem_rack_pinion.xml")).getroot()
+    for e in root.iter("Force_Scalar_TwoBody"):
+        del e.attrib["val"]
+        e.set("val_expression", "0.8*TIME")
+    root.find("Model/Param_Static").set("method", method)
+    root.find("Command/Simulate").set("end_time", "1.0")
+    root.find("Command/Simulate").set("num_steps", "8")
+    path = tmp_path / "ramp.xml"
+    path.write_bytes(etree.tostring(root))
+    a = run_deck(str(path)).analyses[0]
+    assert a.converged, a.message
+    d = a.datasets
+    t = np.asarray(d["time"])
+    theta = 0.8 * t / (K * R * R)
+    np.testing.assert_allclose(d["bodies/position"][:, 1, 0], R * theta, atol=1e-8)
+    R0 = d["bodies/orientation"][:, 0]
+    np.testing.assert_allclose(np.arctan2(R0[:, 1, 0], R0[:, 0, 0]), theta, atol=1e-7)
