@@ -71,3 +71,17 @@ def test_unusable_curve_matrix_is_located(tmp_path, matrix, msg):
         _solve(tmp_path, matrix)
     assert "<Reference_ParamCurve id=1> matrix_id:" in str(e.value)
     assert msg in str(e.value)
+
+
+def test_control_points_are_refused_not_misread(tmp_path):
+    """is_curve_points="FALSE" (Adams CURVE without CURVE_POINTS: B-spline control points)
+    would be silently misread as points on the curve: a located error instead."""
+    from poise.core.errors import DeckError
+    text = (DECKS / "elem_ptcv_matrix.xml").read_text().replace('is_curve_points="TRUE"',
+                                                                'is_curve_points="FALSE"')
+    p = tmp_path / "cp.xml"
+    p.write_text(text)
+    with pytest.raises(DeckError) as e:
+        run_deck(str(p))
+    assert "<Reference_ParamCurve id=1> is_curve_points:" in str(e.value)
+    assert "control points" in str(e.value)

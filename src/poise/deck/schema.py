@@ -255,7 +255,8 @@ el("Reference_Spline", "model", True, "Curve y(x) (or surface y(x,z)) given as e
 _PC = [B("is_u_closed", "closed in u (periodic spline; analytic: u wraps into [u_start, u_end))"),
        A("u_start", "real", "first u (analytic; spline data: default 0)"),
        A("u_end", "real", "last u (analytic; spline data: default 1)"),
-       B("is_curve_points", "text holds points the spline passes through (always so in poise)"),
+       B("is_curve_points", "the points (text or matrix) are points the spline passes through; "
+         "FALSE (B-spline control points) is refused"),
        A("num_pts", "int", "number of x y z points in the element text (spline form)", lo=2),
        A("matrix_id", "int", "Reference_Matrix with the points, one row per point, columns x y z "
          "(curves; Adams CURVE/MATRIX=)", ref="matrix", lo=1), *USR()]

@@ -138,6 +138,11 @@ def _geometry(spec, ctx, tag):
                                        _f(el, "v_end", 1.0))
             else:
                 npts = a.get("num_pts")
+                if a.get("is_curve_points") is False:
+                    pc.error(el.loc, "is_curve_points=\"FALSE\": the points would be B-spline "
+                             "control points, which poise does not support; expected points the "
+                             "curve passes through (is_curve_points=\"TRUE\")", "is_curve_points")
+                    continue
                 if a.get("matrix_id") is not None:
                     pts = _matrix_points(spec, el, pc, int(npts) if npts else None)
                 else:
