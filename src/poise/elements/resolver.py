@@ -232,15 +232,20 @@ def check_variables(spec, ctx):
           and isinstance(e.attrs.get("expr"), Expr)]
     if not vs:
         return
+    from poise.expr.lower import Lowering       # lazy: names only, no evaluation program
+    low = Lowering(CheckingResolver(spec, ctx))
     try:
-        compile_batch([e.attrs["expr"] for e in vs], CheckingResolver(spec, ctx))
-    except DeckError as e:
-        pc = ctx.pc
-        seen = {str(p) for p in pc.problems}
-        for p in e.problems:
-            if isinstance(p, Problem) and str(p) not in seen:
-                seen.add(str(p))
-                pc.problems.append(p)
+        for e in vs:
+            low.lower_expr(e.attrs["expr"])
+        problems = low.var_problems + low.problems
+    except DeckError as e:                        # malformed spline / array data
+        problems = list(e.problems)
+    pc = ctx.pc
+    seen = {str(p) for p in pc.problems}
+    for p in problems:
+        if isinstance(p, Problem) and str(p) not in seen:
+            seen.add(str(p))
+            pc.problems.append(p)
 
 
 def compile_batch_located(exprs, resolver, pc):
