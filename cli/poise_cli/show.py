@@ -5,6 +5,7 @@ from collections import Counter
 
 import click
 
+from poise.core.wording import ELLIPSIS
 from poise_cli.errors import EXIT_USAGE, report_exception
 from poise_cli.options import debug_option, json_option
 from poise_cli.summary import analysis_line, analysis_time, fmt_num, print_json, sanitize
@@ -34,7 +35,7 @@ def _at(a: dict, what: str) -> str:
 def format_summary(s: dict) -> list[str]:
     lines = [
         f"file: {s['file']} ({s['format']} v{s['format_version']}, poise {s['poise_version']})",
-        f"deck: {s['deck']} (sha256 {str(s['deck_sha256'])[:16]})",
+        f"deck: {s['deck']} (sha256 {str(s['deck_sha256'])[:16]}{ELLIPSIS})",
         f"status: {s['status']}",
     ]
     if s.get("units"):
