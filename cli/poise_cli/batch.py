@@ -150,7 +150,7 @@ def _print_table(rows):
              _stability_cell(r),
              shorten("skipped (up to date)" if r["skipped"] else (r["message"] or ""), 100))
             for r in rows]
-    w = [max(len(h), *(len(d[i]) for d in data)) for i, h in enumerate(heads)]
+    w = [max([len(h), *(len(d[i]) for d in data)]) for i, h in enumerate(heads)]
     click.echo("  ".join(h.ljust(w[i]) for i, h in enumerate(heads)).rstrip())
     for d in data:
         click.echo("  ".join(x.ljust(w[i]) for i, x in enumerate(d)).rstrip())
