@@ -108,8 +108,9 @@ def show(results, as_json, debug):
 
 
 def timings_line(t: dict) -> str:
-    """``parse, compile, solve (its phases + the rest), write; total`` — what the run's accuracy
-    cost. ``analysis_*`` entries are parts of ``solve`` (printed per analysis above)."""
+    """``parse, compile, solve (its phases + the rest), write, import; total`` — what the run's
+    accuracy cost (``import``: modules first needed by this run, outside the other phases).
+    ``analysis_*`` entries are parts of ``solve`` (printed per analysis above)."""
     def num(k):
         v = t.get(k)
         return float(v) if isinstance(v, (int, float)) else None
@@ -126,9 +127,11 @@ def timings_line(t: dict) -> str:
         parts.append(f"solve {solve:.3g}" + (f" ({inner})" if inner else ""))
     if num("write") is not None:
         parts.append(f"write {num('write'):.3g}")
-    known = {"parse", "compile", "solve", "write"}
+    if num("import") is not None:
+        parts.append(f"import {num('import'):.3g}")
+    known = {"parse", "compile", "solve", "write", "import"}
     parts += [f"{k} {num(k):.3g}" for k in t if k not in known and not k.startswith(
         ("solve_", "analysis_")) and num(k) is not None]
-    total = sum(num(k) or 0.0 for k in ("parse", "compile", "solve", "write"))
+    total = sum(num(k) or 0.0 for k in ("parse", "compile", "solve", "write", "import"))
     return "timings [s]: " + ", ".join(parts) + f"; total {total:.3g}"
 
