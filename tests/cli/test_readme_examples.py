@@ -76,28 +76,36 @@ def test_readme_block_runs_as_written(line, block, tmp_path):
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, f"README.md:{line}: exit {r.returncode}\n{r.stdout}\n{r.stderr}"
     assert "Traceback" not in r.stderr, f"README.md:{line}: {r.stderr}"
-    _check_outputs(tmp_path, r.stdout)
+    _check_outputs(tmp_path, block, r.stdout)
 
 
-def _check_outputs(d, stdout: str) -> None:
-    """What the README's examples promise, read back from what they wrote."""
-    if (d / "pendulum.h5").exists():
-        import poise
-        res = poise.read_results(str(d / "pendulum.h5"))
-        assert res.status == "converged" and res.analyses[-1].method == "FIM_S"
-        if "status:" in stdout:                        # poise show printed the file's status
-            assert "status: converged" in stdout
-        if "degrees of freedom:" in stdout:            # poise check: the pendulum's one DOF
-            assert "degrees of freedom: 1" in stdout
-    if (d / "wp.png").exists():
-        import matplotlib.image as mpimg
-        img = mpimg.imread(str(d / "wp.png"))
-        assert img.ndim == 3 and img.shape[0] >= 300 and img.shape[1] >= 400
-    if (d / "sw" / "index.csv").exists():
-        with open(d / "sw" / "index.csv", newline="") as f:
-            rows = list(csv.DictReader(f))
-        ks = sorted({float(r["Force_SpringDamper[1].stiffness"]) for r in rows})
-        assert ks == [10000.0 + 1000.0 * i for i in range(21)]
-        assert sorted({r["Param_Static.method"] for r in rows}) == ["FIM_S", "MKEAM"]
-        assert all(r["status"] == "converged" for r in rows) and len(rows) == 42
-        assert all(r["bodies[2].position[0]"] != "" for r in rows)
+def _check_outputs(d, block: str, stdout: str) -> None:
+    """What the README's examples promise, read back from what they wrote: every results file
+    converged, every picture a real image, every sweep index complete and converged."""
+    import poise
+    h5 = sorted(d.glob("*.h5"))
+    if "poise solve" in block:
+        assert h5, "poise solve wrote no results file"
+    for f in h5:
+        res = poise.read_results(str(f))
+        assert res.status == "converged", f.name
+        assert all(a.status == "converged" for a in res.analyses)
+    if "status:" in stdout:                           # poise show printed a file's status
+        assert "status: converged" in stdout
+    pngs = sorted(d.glob("*.png"))
+    if "--plot" in block or "poise plot" in block:
+        assert pngs, "no picture written"
+    import matplotlib.image as mpimg
+    for f in pngs:
+        img = mpimg.imread(str(f))
+        assert img.ndim == 3 and img.shape[0] >= 300 and img.shape[1] >= 400, f.name
+    indexes = sorted(d.glob("*/index.csv"))
+    if "poise sweep" in block:
+        assert indexes, "poise sweep wrote no index"
+    for f in indexes:
+        with open(f, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        assert rows and all(r["status"] == "converged" for r in rows), f
+        if "stiffness=10000:30000:1000" in block and "FIM_S,MKEAM" in block:
+            ks = sorted({float(r["Force_SpringDamper[1].stiffness"]) for r in rows})
+            assert ks == [10000.0 + 1000.0 * i for i in range(21)] and len(rows) == 42
