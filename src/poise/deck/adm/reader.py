@@ -108,21 +108,41 @@ def translate(ctx: Ctx, stmts: list[Statement]) -> None:
             continue
         by_id[s.id] = s
     parts.place(ctx, stmts)
+    carry: list[str] = []            # comments of statements that made no element
     for s in stmts:
-        status = s.defn.status
-        if status == "skip":
-            ctx.skipped.setdefault(s.name, []).append(s)
-            continue
-        if status == "refuse":
-            ctx.refuse(s, s.name, s.defn.why)
-            continue
-        if s.id is not None and ctx.stmts.get(s.name, {}).get(s.id) is not s:
-            continue                                    # a duplicate (reported)
-        for v in s.values.values():
-            kw = (s.defn.keywords if v.kind != "flag" else s.defn.flags)[v.name]
-            if kw.ignored:
-                ctx.ignored_kw.setdefault((s.name, v.name), []).append(s)
-        TRANSLATORS[s.name](ctx, s)
+        n = len(ctx.recs)
+        _translate_one(ctx, s)
+        if len(ctx.recs) > n:
+            ctx.recs[n].comments[:0] = carry
+            carry = []
+        else:
+            carry += s.comments + [f"{s.who} (line {s.line}): {_fate(s)}"]
+    ctx.trailing = carry
+
+
+def _fate(s: Statement) -> str:
+    if s.defn.status == "skip":
+        return f"skipped ({s.defn.why}: no effect on statics)"
+    if s.defn.status == "refuse":
+        return f"not translated ({s.defn.why})"
+    return "no element"
+
+
+def _translate_one(ctx: Ctx, s: Statement) -> None:
+    status = s.defn.status
+    if status == "skip":
+        ctx.skipped.setdefault(s.name, []).append(s)
+        return
+    if status == "refuse":
+        ctx.refuse(s, s.name, s.defn.why)
+        return
+    if s.id is not None and ctx.stmts.get(s.name, {}).get(s.id) is not s:
+        return                                          # a duplicate (reported)
+    for v in s.values.values():
+        kw = (s.defn.keywords if v.kind != "flag" else s.defn.flags)[v.name]
+        if kw.ignored:
+            ctx.ignored_kw.setdefault((s.name, v.name), []).append(s)
+    TRANSLATORS[s.name](ctx, s)
 
 
 def summarize(ctx: Ctx, defs: dict) -> None:

@@ -79,6 +79,9 @@ class Ctx:
         self.refused: dict[tuple, Problem] = {}   # (statement, id) -> its problem
         self.by_stmt: dict[int, list] = {}        # id(Statement) -> its records
         self.next_marker = 0
+        self.title = ""
+        self.trailing: list[str] = []             # comments after the last element
+        self.statements: list = []
 
     # ------------------------------------------------------------------ locations
     @staticmethod

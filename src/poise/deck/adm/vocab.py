@@ -230,6 +230,12 @@ REDEFINABLE = ("ACCGRAV", "BEAM", "BUSHING", "DIFF", "EQUILIBRIUM", "FIELD", "GF
                "ARRAY", "MATRIX", "CURVE")
 
 
+#: kinds ``--ignore`` accepts: the refused statements, USER (user subroutines) and CURVE
+#: (control-point curves)
+IGNORABLE = sorted({n for t in (_DEFS, ACF) for n, d in t.items() if d.status == "refuse"}
+                   | {"USER", "CURVE"})
+
+
 def lookup(name: str, table: dict) -> tuple[StatementDef | None, str]:
     """The statement a written name stands for (exact, else a unique prefix), or a message."""
     n = name.upper()
