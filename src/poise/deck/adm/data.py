@@ -132,18 +132,15 @@ def matrix(ctx: Ctx, s) -> None:
     m = matrix_values(ctx, s)
     if m is None:
         return
-    sparse = s.has("SPARSE")
-    a = {"nrow": num(m.shape[0]), "ncol": num(m.shape[1]),
-         "isroworder": "TRUE" if sparse or str(s.get("FULL", "RORDER")).upper() == "RORDER"
-         else "FALSE", "issparse": "TRUE" if sparse else "FALSE"}
-    if sparse:
+    a = {"nrow": num(m.shape[0]), "ncol": num(m.shape[1])}
+    if s.has("SPARSE"):
         i, j, v = s.get("I"), s.get("J"), s.get("VALUES")
-        a["nval"] = num(len(v))
+        a.update(issparse="TRUE", nval=num(len(v)))
         text = "\n".join(f"{num(r)} {num(c)} {num(x)}" for r, c, x in zip(i, j, v))
     else:
-        flat = m.ravel() if a["isroworder"] == "TRUE" else m.T.ravel()
-        a["nval"] = num(flat.size)
-        text = " ".join(num(x) for x in flat)
+        rows = str(s.get("FULL", "RORDER")).upper() == "RORDER"
+        a["isroworder"] = "TRUE" if rows else "FALSE"
+        text = " ".join(num(x) for x in (m.ravel() if rows else m.T.ravel()))
     ctx.add(s, "Reference_Matrix", a, text)
 
 
@@ -212,7 +209,8 @@ def equilibrium(ctx: Ctx, s, section: str = "model") -> None:
     a = {}
     for key, name in (("ERROR", "max_error"), ("IMBALANCE", "max_imbalance"),
                       ("MAXIT", "max_num_iter"), ("STABILITY", "stability"),
-                      ("COMPDELTA", "compliance_delta")):
+                      ("COMPDELTA", "compliance_delta"), ("KINETIC_ENERGY_ERROR", "max_ke_tol"),
+                      ("MAX_KE_TOL", "max_ke_tol"), ("MAX_DQ_TOL", "max_dq_tol")):
         if s.has(key):
             a[name] = num(s.get(key))
     m = ctx.one_of(s, ["FIM_S", "FIM_D", "MKEAM", "DYNAMIC"], "method", default="")

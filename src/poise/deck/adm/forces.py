@@ -2,7 +2,8 @@
 elements.
 
 VFORCE, VTORQUE and GFORCE whose JFLOAT marker is on ground act on one body only and become
-Force_Vector_OneBody (the same loads, no reaction on ground); poise keeps the ids of the three
+Force_Vector_OneBody (the same loads, no reaction on ground); without RM (which Adams requires)
+their components are global. poise keeps the ids of the three
 statements in one namespace (VFORCE(id, ...), VTORQ and GFORCE read any of them), so two of them
 with the same id are a located problem. FIELD's KMATRIX lists the 6x6 matrix by columns, as
 Adams enters it. Damping (C, CT, CMATRIX, CRATIO) is translated where the XML keeps it and
@@ -10,6 +11,7 @@ vanishes in statics either way.
 """
 from __future__ import annotations
 
+from poise.deck.adm.parts import floating_marker
 from poise.deck.adm.records import Ctx, num
 
 _SIX = ("x", "y", "z", "tx", "ty", "tz")
@@ -112,13 +114,14 @@ def vector(ctx: Ctx, s) -> None:
     if ctx.user(s):
         return
     comps = _COMPONENTS[s.name]
-    if not ctx.need(s, "I", "JFLOAT", "RM", *comps):
+    if not ctx.need(s, "I", "JFLOAT", *comps):
         return
     i = ctx.marker(s, "I")
     jf = ctx.marker(s, "JFLOAT", floating_ok=True)
-    rm = ctx.marker(s, "RM", floating_ok=True)
-    if i is None or jf is None or rm is None:
+    rm = ctx.marker(s, "RM", required=False)
+    if i is None or jf is None or (s.has("RM") and rm is None):
         return
+    axes = {} if rm is None else {"ref_marker_id": num(rm.id)}
     for other in _COMPONENTS:
         prev = ctx.stmts.get(other, {}).get(s.id)
         if other != s.name and prev is not None and prev.line < s.line:
@@ -128,11 +131,13 @@ def vector(ctx: Ctx, s) -> None:
     expr = {f"{c.lower()}_expression": s.get(c) for c in comps}
     ground = ctx.parts.get(jf.part)
     if ground is not None and ground.ground:
-        a = {"marker_id": num(i.id), "ref_marker_id": num(rm.id), "type": _TYPE[s.name], **expr}
+        a = {"marker_id": num(i.id), **axes, "type": _TYPE[s.name], **expr}
         ctx.add(s, "Force_Vector_OneBody", a)
         return
-    a = {"i_marker_id": num(i.id), "j_floating_marker_id": num(jf.id),
-         "ref_marker_id": num(rm.id), "type": _TYPE[s.name], **expr}
+    if jf.floating:
+        floating_marker(ctx, jf.id)
+    a = {"i_marker_id": num(i.id), "j_floating_marker_id": num(jf.id), **axes,
+         "type": _TYPE[s.name], **expr}
     ctx.add(s, "Force_Vector_TwoBody", a)
 
 

@@ -20,7 +20,7 @@ def _cs(a: float, deg: bool) -> tuple[float, float]:
         q = round(d / 90.0)
         if abs(d - 90.0 * q) <= 1e-9 * max(1.0, abs(d)):
             return ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))[q % 4]
-    return math.cos(a), math.sin(a)
+    return float(np.cos(a)), float(np.sin(a))      # as poise.elements.rotation.from_313
 
 
 def euler313(angles, degs=(False, False, False)) -> np.ndarray:

@@ -198,9 +198,27 @@ def marker(ctx: Ctx, s) -> None:
     m = ctx.markers.get(s.id)
     if m is None:
         return
-    if m.floating and any(s.has(k) for k in ("QP", "REULER", "XP", "ZP")):
-        ctx.warn(s, "a FLOATING marker's QP/REULER/XP/ZP are ignored (its position is that of "
-                    "the force or constraint using it)")
+    if m.floating:
+        if any(s.has(k) for k in ("QP", "REULER", "XP", "ZP")):
+            ctx.warn(s, "a FLOATING marker's QP/REULER/XP/ZP are ignored (its position is that "
+                        "of the force or constraint using it)")
+        return              # written where a two-body vector force needs it (floating_marker)
+    _fixed_marker(ctx, s, m)
+
+
+def floating_marker(ctx: Ctx, mid: int) -> None:
+    """The Reference_Marker of FLOATING marker ``mid`` (once), where a force needs one: at its
+    part's reference frame (its position is not used: poise applies the reaction at I)."""
+    done = ctx.__dict__.setdefault("_floating_done", set())
+    if mid in done:
+        return
+    done.add(mid)
+    m = ctx.markers[mid]
+    s = ctx.stmts["MARKER"][mid]
+    _fixed_marker(ctx, s, m)
+
+
+def _fixed_marker(ctx: Ctx, s, m) -> None:
     a = {"id": num(s.id), "body_id": num(m.part)}
     if s.label is not None:
         a["label"] = s.label

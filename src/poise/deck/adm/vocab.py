@@ -151,8 +151,9 @@ st("GEAR", "translate", "JOINTS:ints CV:int", xml="Constraint_Gear")
 st("GCON", "translate", "FUNCTION:expr I:int" + _USER, xml="Constraint_General")
 _EQ = ("ALIMIT:real- ERROR:real IMBALANCE:real MAXIT:int PATTERN:str- STABILITY:real "
        "TLIMIT:real- STATIC DYNAMIC GLOBAL_DAMPING:real- SETTLING_TIME:real- "
-       "KINETIC_ENERGY_ERROR:real- ACCELERATION_ERROR:real- METHOD:str- ATOL:real- RTOL:real- "
-       "MAXITL:int- ETAMAX:real- ETA:real- FIM_S FIM_D MKEAM COMPDELTA:real")
+       "KINETIC_ENERGY_ERROR:real ACCELERATION_ERROR:real- METHOD:str- ATOL:real- RTOL:real- "
+       "MAXITL:int- ETAMAX:real- ETA:real- FIM_S FIM_D MKEAM COMPDELTA:real MAX_KE_TOL:real "
+       "MAX_DQ_TOL:real")
 st("EQUILIBRIUM", "translate", _EQ, "no", xml="Param_Static")
 _INT = ("GSTIFF WSTIFF HHT NEWMARK CONSTANT_BDF SI2 SI1 I3 HASTIFF DSTIFF CSTIFF VSTIFF MSTIFF "
         "ABAM ERROR:real HMAX:real HMIN:real HINIT:real KMAX:int MAXIT:int PATTERN:str- "
