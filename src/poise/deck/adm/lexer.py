@@ -52,7 +52,11 @@ class Statement:
 
     @property
     def who(self) -> str:
-        return f"{self.name}/{self.id}" if self.id is not None else f"{self.name}/"
+        """``JOINT/3``; a statement without an id by its first option (``SIMULATE/STATIC``)."""
+        if self.id is not None:
+            return f"{self.name}/{self.id}"
+        flag = next((v.name for v in self.values.values() if v.kind == "flag"), "")
+        return f"{self.name}/{flag}"
 
     def get(self, key, default=None):
         v = self.values.get(key)
