@@ -116,15 +116,19 @@ def translate(ctx: Ctx, stmts: list[Statement]) -> None:
             ctx.recs[n].comments[:0] = carry
             carry = []
         else:
-            carry += s.comments + [f"{s.who} (line {s.line}): {_fate(s)}"]
+            name = f" '{s.label}'" if s.label is not None else ""
+            carry += s.comments + [f"{s.who}{name} (line {s.line}): {_fate(ctx, s)}"]
     ctx.trailing = carry
 
 
-def _fate(s: Statement) -> str:
+def _fate(ctx: Ctx, s: Statement) -> str:
     if s.defn.status == "skip":
         return f"skipped ({s.defn.why}: no effect on statics)"
     if s.defn.status == "refuse":
         return f"not translated ({s.defn.why})"
+    m = ctx.markers.get(s.id) if s.name == "MARKER" else None
+    if m is not None and m.floating:
+        return "a FLOATING marker (written where a two-body vector force needs it)"
     return "no element"
 
 
@@ -187,10 +191,9 @@ def no_command_file(ctx: Ctx, path: str) -> None:
     """One static analysis at t = 0 (a dataset read without a command file)."""
     st = Statement("SIMULATE", None, 1, path, comments=["no command file: one static analysis "
                                                        "at t = 0"])
-    st_stop = Statement("STOP", None, 1, path)
     ctx.recs.append(Rec("Simulate", {"analysis_type": "STATIC"}, path, 1, "SIMULATE/STATIC",
                         "command", None, st.comments))
-    ctx.recs.append(Rec("Stop", {}, path, 1, st_stop.who, "command"))
+    ctx.recs.append(Rec("Stop", {}, path, 1, "STOP", "command"))
 
 
 def read_adm(path: str, data: bytes, *, check: bool = True, ignore=()) -> tuple[DeckSpec, Ctx]:
