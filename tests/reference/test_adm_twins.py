@@ -23,6 +23,8 @@ from lxml import etree
 
 from poise.app.convert import convert
 from poise.app.runner import run_deck
+from poise.deck.parser import load_deck
+from poise.deck.spec import Expr
 
 from support.paths import DECKS
 from support.twins import differences
@@ -90,14 +92,27 @@ def test_own_dataset_gives_the_results_of_its_hand_written_xml(twin):
     assert all(x.converged for x in b.analyses)
 
 
+def _typed(spec):
+    """The elements of a spec as comparable values (expressions by their text, element text by
+    its numbers)."""
+    def val(v):
+        return v.text if isinstance(v, Expr) else v
+
+    return [(e.tag, e.is_command, {k: val(v) for k, v in e.attrs.items()},
+             (e.text or "").replace(",", " ").split()) for e in [*spec.model, *spec.commands]]
+
+
 @pytest.mark.parametrize("twin", TWINS, ids=lambda p: p.stem)
 def test_convert_round_trips(twin, tmp_path):
     out = tmp_path / f"{twin.stem}.xml"
     rep = convert(str(twin), str(out))
     assert rep.model_elements > 0 and rep.commands >= 2
-    a = run_deck(str(twin), quiet=True)
-    b = run_deck(str(out), quiet=True)
-    assert differences(a, b, rtol=0.0) == []
+    # the same typed elements, hence the same model and results (solved below for poise's own)
+    assert _typed(load_deck(str(out))) == _typed(load_deck(str(twin)))
+    if twin in OWN:
+        a = run_deck(str(twin), quiet=True)
+        b = run_deck(str(out), quiet=True)
+        assert differences(a, b, rtol=0.0) == []
     root = etree.parse(str(out)).getroot()
     comments = " | ".join(c.text for c in root.iter(etree.Comment))
     labels = {el.get("label") for el in root.iter() if isinstance(el.tag, str)}

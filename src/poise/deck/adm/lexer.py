@@ -303,9 +303,10 @@ class Scanner:
                 j = e
                 break
             nxt = e + 1
-            peek_end = self._next_sep(nxt)
-            peek = self.s[nxt:peek_end].strip()
-            if not peek or number(peek)[0] is None or self._at_keyword(nxt):
+            while nxt < len(self.s) and self.s[nxt] in " \t" + CONT:   # "1, 2,\n, 3"
+                nxt += 1
+            peek = self.s[nxt:self._next_sep(nxt)].strip()
+            if not peek or self._at_keyword(nxt):
                 j = e
                 break
             j = nxt
@@ -316,7 +317,9 @@ class Scanner:
                 return j, None
             v, deg = number(tok)
             if v is None:
-                self.err(at, f"{kw.name}: {tok!r} is not a number")
+                what = "is neither a number nor a keyword" if _WORD.fullmatch(tok) else \
+                    "is not a number"
+                self.err(at, f"{kw.name}: {tok!r} {what}")
                 return j, None
             if k in ("int", "ints"):
                 if deg or v != int(v) or not abs(v) < 2.0 ** 62:
