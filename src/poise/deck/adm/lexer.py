@@ -322,7 +322,7 @@ class Scanner:
                 self.err(at, f"{kw.name}: {tok!r} {what}")
                 return j, None
             if k in ("int", "ints"):
-                if deg or v != int(v) or not abs(v) < 2.0 ** 62:
+                if deg or not abs(v) < 2.0 ** 62 or v != int(v):
                     self.err(at, f"{kw.name}: {tok!r} is not an integer")
                     return j, None
                 v = int(v)
