@@ -11,6 +11,7 @@ comma. Numbers take Fortran and C notation; a ``D`` suffix means degrees (conver
 """
 from __future__ import annotations
 
+import bisect
 import math
 import re
 from dataclasses import dataclass, field
@@ -22,6 +23,7 @@ _NUM = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][+-]?\d+)?(D)?$", re.IGNORE
 _WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _VIEW_NAME = re.compile(r"adams_view_name\s*=\s*'([^']*)'", re.IGNORECASE)
 _HEAD = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)\s*(/?)")
+_SEP_OR_PAREN = re.compile("[,(\x1e]")
 
 
 @dataclass
@@ -174,13 +176,11 @@ class Scanner:
         self.problems: list[tuple[int, str]] = []
 
     def line_at(self, pos: int) -> int:
-        ln = self.c.line
-        for off, l in self.c.lines:
-            if off <= pos:
-                ln = l
-            else:
-                break
-        return ln
+        offs = self.c.lines
+        if len(offs) == 1:
+            return offs[0][1]
+        k = bisect.bisect_right([o for o, _ in offs], pos) - 1
+        return offs[max(k, 0)][1]
 
     def err(self, pos: int, msg: str) -> None:
         self.problems.append((self.line_at(pos), msg))
@@ -260,7 +260,13 @@ class Scanner:
         return ident, vals, label
 
     def _next_sep(self, i: int) -> int:
-        s, depth = self.s, 0
+        s = self.s
+        m = _SEP_OR_PAREN.search(s, i)
+        if m is None:
+            return len(s)
+        if m.group(0) != "(":
+            return m.start()
+        depth = 0
         while i < len(s):
             ch = s[i]
             if ch == "(":

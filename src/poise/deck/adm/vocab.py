@@ -41,6 +41,13 @@ class StatementDef:
     def resolve(self, word: str, valued: bool) -> tuple[str | None, str]:
         """Canonical keyword of ``word`` (case-insensitive; an exact name, an alias or a unique
         prefix) among the valued keywords (``valued``) or the flags; (None, message) else."""
+        key = (id(self), word, valued)
+        hit = _RESOLVED.get(key)
+        if hit is None:
+            hit = _RESOLVED[key] = self._resolve(word, valued)
+        return hit
+
+    def _resolve(self, word: str, valued: bool) -> tuple[str | None, str]:
         table = self.keywords if valued else self.flags
         w = word.upper()
         if w in table:
@@ -66,6 +73,9 @@ class StatementDef:
         expect = ("; expected one of " + ", ".join(sorted(table))) if len(table) <= 12 else ""
         return None, (f"unknown {kind} {word!r}" + (f"; did you mean {near[0]}?" if near
                                                      else expect))
+
+
+_RESOLVED: dict[tuple, tuple] = {}      # (id(StatementDef), word, valued) -> resolve()
 
 
 def _kw(spec: str) -> tuple[dict, dict]:
