@@ -277,3 +277,11 @@ def test_binary_input_refused(tmp_path):
     p.write_bytes(b"\x00\x01\x02" * 100)
     with pytest.raises(DeckError, match="not an Adams dataset"):
         load_deck(str(p))
+
+
+def test_docs_name_every_statement_and_command():
+    from poise.deck.adm.vocab import ACF, STATEMENTS
+    from support.paths import ROOT
+    text = (ROOT / "docs" / "adm.md").read_text()
+    missing = [n for n in [*STATEMENTS, *ACF] if f"`{n}" not in text and f"**{n}" not in text]
+    assert missing == []

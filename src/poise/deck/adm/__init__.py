@@ -7,15 +7,14 @@ maps every statement and keyword.
 """
 from __future__ import annotations
 
-from poise.deck.adm.reader import is_dataset
+from poise.deck.adm.acf import read_acf
+from poise.deck.adm.reader import is_dataset, read_adm
 
 
 def translate_dataset(path: str, data: bytes, *, check: bool = True, ignore=()):
     """(DeckSpec, translation context) of a dataset or command file's bytes."""
     if str(path).lower().endswith(".acf"):
-        from poise.deck.adm.acf import read_acf
         return read_acf(path, data, check=check, ignore=ignore)
-    from poise.deck.adm.reader import read_adm
     return read_adm(path, data, check=check, ignore=ignore)
 
 
