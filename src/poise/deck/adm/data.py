@@ -226,7 +226,7 @@ _MS_INTEGRATORS = ("GSTIFF", "DSTIFF", "CSTIFF", "VSTIFF", "MSTIFF", "ABAM")
 
 def integrator(ctx: Ctx, s, section: str = "model") -> None:
     a = {}
-    kinds = [k for k in s.defn.flags if s.has(k)]
+    kinds = [k for k, kw in s.defn.flags.items() if s.has(k) and not kw.ignored]
     if len(kinds) > 1:
         ctx.error(s, f"{' and '.join(kinds)} both given; expected one integrator")
         return

@@ -165,8 +165,8 @@ _EQ = ("ALIMIT:real- ERROR:real IMBALANCE:real MAXIT:int PATTERN:str- STABILITY:
        "MAXITL:int- ETAMAX:real- ETA:real- FIM_S FIM_D MKEAM COMPDELTA:real MAX_KE_TOL:real "
        "MAX_DQ_TOL:real")
 st("EQUILIBRIUM", "translate", _EQ, "no", xml="Param_Static")
-_INT = ("GSTIFF WSTIFF HHT NEWMARK CONSTANT_BDF SI2 SI1 I3 HASTIFF DSTIFF CSTIFF VSTIFF MSTIFF "
-        "ABAM ERROR:real HMAX:real HMIN:real HINIT:real KMAX:int MAXIT:int PATTERN:str- "
+_INT = ("GSTIFF WSTIFF HHT NEWMARK CONSTANT_BDF HASTIFF DSTIFF CSTIFF VSTIFF MSTIFF ABAM "
+        "SI2:flag- SI1:flag- I3:flag- ERROR:real HMAX:real HMIN:real HINIT:real KMAX:int MAXIT:int PATTERN:str- "
         "CORRECTOR:str- INTERPOLATE:str- ALPHA:real- BETA:real- GAMMA:real- MINIT:int "
         "CONSTR_TOL:real VEL_CTRL:int JACINIT:str")
 st("INTEGRATOR", "translate", _INT, "no", xml="Param_Transient")
