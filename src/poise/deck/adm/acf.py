@@ -135,7 +135,7 @@ def commands(ctx: Ctx, cmds: list[Statement]) -> None:
         if status == "skip":
             st.skipped.setdefault(name, []).append(c)
         elif status == "refuse" and name in ACF:
-            ctx.refuse(c, name, c.defn.why)
+            ctx.refuse(c, c.defn.kind, c.defn.why)
         elif name == "SIMULATE":
             _simulate(ctx, c, st)
         elif name in ("ACTIVATE", "DEACTIVATE"):

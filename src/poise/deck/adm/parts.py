@@ -67,10 +67,13 @@ def place(ctx: Ctx, stmts) -> None:
         if s.name != "MARKER" or s.id is None:
             continue
         top = max(top, s.id)
-        owners = [k for k in ("PART", "POINT_MASS", "FLEX_BODY") if s.has(k)]
+        owners = [k for k in ("PART", "POINT_MASS", "FLEX_BODY", "FE_PART") if s.has(k)]
         if len(owners) != 1:
-            ctx.error(s, "expected exactly one of PART=, POINT_MASS=, FLEX_BODY=" if owners
-                      else "PART= is missing; expected the id of the marker's part")
+            ctx.error(s, "expected exactly one of PART=, POINT_MASS=, FLEX_BODY=, FE_PART=" if
+                      owners else "PART= is missing; expected the id of the marker's part")
+            continue
+        if owners[0] == "FE_PART" or s.has("NODE_LABEL"):
+            ctx.refuse(s, "FE_PART", "a marker on a finite-element part")
             continue
         if owners[0] == "FLEX_BODY" or s.has("NODE_ID"):
             ctx.refuse(s, "FLEX_BODY", "a marker on a flexible body")

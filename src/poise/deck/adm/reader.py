@@ -138,7 +138,7 @@ def _translate_one(ctx: Ctx, s: Statement) -> None:
         ctx.skipped.setdefault(s.name, []).append(s)
         return
     if status == "refuse":
-        ctx.refuse(s, s.name, s.defn.why)
+        ctx.refuse(s, s.defn.kind, s.defn.why)
         return
     if s.id is not None and ctx.stmts.get(s.name, {}).get(s.id) is not s:
         return                                          # a duplicate (reported)

@@ -37,6 +37,7 @@ class StatementDef:
     aliases: dict = field(default_factory=dict)    # short spelling -> NAME
     why: str = ""                       # skip / refuse: the reason said in the message
     xml: str = ""                       # docs: the XML element(s) it becomes
+    kind: str = ""                      # refuse: the --ignore KIND (default: the name)
 
     def resolve(self, word: str, valued: bool) -> tuple[str | None, str]:
         """Canonical keyword of ``word`` (case-insensitive; an exact name, an alias or a unique
@@ -95,10 +96,10 @@ def _kw(spec: str) -> tuple[dict, dict]:
 _DEFS: dict[str, StatementDef] = {}
 
 
-def st(name, status, spec="", has_id="yes", aliases=None, why="", xml="", table=None):
+def st(name, status, spec="", has_id="yes", aliases=None, why="", xml="", table=None, kind=""):
     valued, flags = _kw(spec + (" LABEL:str" if status in ("translate", "command") else ""))
     (table if table is not None else _DEFS)[name] = StatementDef(
-        name, status, has_id, valued, flags, dict(aliases or {}), why, xml)
+        name, status, has_id, valued, flags, dict(aliases or {}), why, xml, kind or name)
 
 
 _USER = " ROUTINE:str"
@@ -111,7 +112,8 @@ st("PART", "translate", "GROUND MASS:real CM:int IM:int IP:reals QG:reals REULER
    "ZG:reals MATERIAL:str- DENSITY:real- PLANAR-" + _VEL, xml="Body_Rigid")
 st("POINT_MASS", "translate", "MASS:real CM:int QG:reals REULER:reals XG:reals ZG:reals" + _VEL,
    xml="Body_Point")
-st("MARKER", "translate", "PART:int POINT_MASS:int FLEX_BODY:int NODE_ID:int QP:reals "
+st("MARKER", "translate", "PART:int POINT_MASS:int FLEX_BODY:int FE_PART:int NODE_ID:int "
+   "NODE_LABEL:str QP:reals "
    "REULER:reals XP:reals ZP:reals USEXP FLOATING", xml="Reference_Marker")
 _JOINTS = "REVOLUTE SPHERICAL TRANSLATIONAL CYLINDRICAL FIXED UNIVERSAL HOOKE PLANAR CONVEL "
 st("JOINT", "translate", "I:int J:int " + _JOINTS + "RACKPIN SCREW PD:real PITCH:real "
@@ -147,7 +149,7 @@ st("DIFF", "translate", "FUNCTION:expr IC:reals IMPLICIT STATIC_HOLD" + _USER,
 st("SPLINE", "translate", "X:reals Y:reals Z:reals LINEAR_EXTRAPOLATE FILE:str BLOCK:str",
    xml="Reference_Spline")
 st("ARRAY", "translate", "IC U X Y NUMBERS:reals SIZE:int VARIABLES:ints", xml="Reference_Array")
-st("CURVE", "translate", "MATRIX:int CLOSED CURVE_POINTS MINPAR:real MAXPAR:real ORDER:int "
+st("CURVE", "translate", "MATRIX:int CLOSED OPEN CURVE_POINTS MINPAR:real MAXPAR:real ORDER:int "
    "FUNCTION:expr" + _USER, xml="Reference_ParamCurve")
 st("MATRIX", "translate", "FULL:str SPARSE ROWS:int COLUMNS:int I:ints J:ints VALUES:reals "
    "FILE:str NAME:str", xml="Reference_Matrix")
@@ -204,6 +206,7 @@ for _n, _why in (("CONTACT", "contact between CAD solids"), ("FRICTION", "joint 
                  ("PSTATE", "user-defined plant states"), ("DSTATE", "discrete states"),
                  ("DEQUATION", "discrete equations")):
     st(_n, "refuse", has_id="optional", why=_why)
+st("FE_NODE", "refuse", has_id="optional", why="finite-element part nodes", kind="FE_PART")
 
 STATEMENTS = _DEFS
 END = "END"
@@ -243,7 +246,7 @@ REDEFINABLE = ("ACCGRAV", "BEAM", "BUSHING", "DIFF", "EQUILIBRIUM", "FIELD", "GF
 
 #: kinds ``--ignore`` accepts: the refused statements, USER (user subroutines) and CURVE
 #: (control-point curves)
-IGNORABLE = sorted({n for t in (_DEFS, ACF) for n, d in t.items() if d.status == "refuse"}
+IGNORABLE = sorted({d.kind for t in (_DEFS, ACF) for d in t.values() if d.status == "refuse"}
                    | {"USER", "CURVE"})
 
 
