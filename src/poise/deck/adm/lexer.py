@@ -290,6 +290,8 @@ class Scanner:
     # ------------------------------------------------------------------ values
     def _value(self, kw, i: int, line: int):
         k = kw.kind
+        while i < len(self.s) and self.s[i] in " \t" + CONT:   # "KEY =" then the next line
+            i += 1
         if k == "expr":
             return self._expr(kw, i, line)
         if k == "str":
