@@ -105,7 +105,15 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
     from poise.app.ladder import method_settings, run_point, with_settings
     from poise.core.progress import Bar
 
-    xml = Path(deck).read_text()
+    if deck.lower().endswith((".adm", ".acf")):       # an Adams dataset: its XML deck
+        from poise.app.convert import xml_text
+        try:
+            xml = xml_text(deck)
+        except Exception as exc:  # noqa: BLE001 - DeckError: located, exit 3
+            ctx.exit(report_exception(exc)[0])
+            return
+    else:
+        xml = Path(deck).read_text()
     ref = None
     rows = []
     with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:

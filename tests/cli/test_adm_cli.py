@@ -124,3 +124,23 @@ def test_command_files_run_every_analysis(name, tmp_path):
     with h5py.File(tmp_path / "r.h5") as f:
         model = json.loads(f.attrs["input_files"])
         assert list(model) == [str(DECKS / "adm" / name.replace(".acf", ".adm"))]
+
+
+def test_batch_freshness_follows_the_dataset_of_a_command_file(tmp_path):
+    from poise.app.batch import up_to_date
+    (tmp_path / "model.adm").write_text((DECKS / "adm" / "pendulum_multiturn.adm").read_text())
+    acf = tmp_path / "run.acf"
+    acf.write_text("model\nout\nSIMULATE/STATIC\nSTOP\n")
+    out = tmp_path / "run.h5"
+    assert poise("solve", acf, "-o", out, "-q").returncode == 0
+    assert up_to_date(str(acf), str(out), None)
+    (tmp_path / "model.adm").write_text((tmp_path / "model.adm").read_text() + "! edited\n")
+    assert not up_to_date(str(acf), str(out), None)
+
+
+def test_bench_ladder_of_a_dataset():
+    r = poise("bench", PENDULUM, "--methods", "FIM_S", "--tolerances", "1e-6", "--repeat", "1",
+              "-q")
+    assert r.returncode == 0, r.stderr
+    row = [ln.split() for ln in r.stdout.splitlines() if ln.startswith("FIM_S")][0]
+    assert row[2] == "converged"

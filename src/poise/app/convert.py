@@ -29,6 +29,15 @@ class ConvertReport:
     ignored: list = field(default_factory=list)
 
 
+def xml_text(source: str, ignore=()) -> str:
+    """The XML deck text of a dataset or command file (validated: a located DeckError when it
+    is invalid), for tools that edit XML decks (``poise bench``'s tolerance ladder)."""
+    source = os.fspath(source)
+    with open(source, "rb") as f:
+        data = f.read()
+    return to_xml(translate_dataset(source, data, ignore=ignore)[1], source)
+
+
 def convert(source: str, output: str, ignore=()) -> ConvertReport:
     """Translate ``source`` (``.adm``/``.acf``) and write the XML deck ``output``."""
     source = os.fspath(source)
