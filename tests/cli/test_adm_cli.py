@@ -131,11 +131,11 @@ def test_batch_freshness_follows_the_dataset_of_a_command_file(tmp_path):
     (tmp_path / "model.adm").write_text((DECKS / "adm" / "pendulum_multiturn.adm").read_text())
     acf = tmp_path / "run.acf"
     acf.write_text("model\nout\nSIMULATE/STATIC\nSTOP\n")
-    out = tmp_path / "run.h5"
-    assert poise("solve", acf, "-o", out, "-q").returncode == 0
-    assert up_to_date(str(acf), str(out), None)
+    out = tmp_path / "b" / "run.h5"
+    assert poise("batch", acf, "--out-dir", tmp_path / "b", "-j", "1", "-q").returncode == 0
+    assert up_to_date(str(acf), str(out), {})
     (tmp_path / "model.adm").write_text((tmp_path / "model.adm").read_text() + "! edited\n")
-    assert not up_to_date(str(acf), str(out), None)
+    assert not up_to_date(str(acf), str(out), {})
 
 
 def test_bench_ladder_of_a_dataset():
