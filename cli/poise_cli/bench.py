@@ -106,7 +106,7 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
     from poise.core.progress import Bar
 
     if deck.lower().endswith((".adm", ".acf")):       # an Adams dataset: its XML deck
-        from poise.app.convert import xml_text
+        from poise.app.convert import xml_text  # lazy: only Adams datasets need it
         try:
             xml = xml_text(deck)
         except Exception as exc:  # noqa: BLE001 - DeckError: located, exit 3

@@ -82,7 +82,7 @@ def check(deck, ignore, as_json, debug):
         with guarded_stdout(), collected_warnings() as numeric:
             # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
             from poise.app.api import check_deck
-            rep = check_deck(deck, ignore=ignore)
+            rep = check_deck(deck, **({"ignore": ignore} if ignore else {}))
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:

@@ -99,8 +99,9 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
         with guarded_stdout(quiet), collected_warnings() as numeric:
             # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
             from poise.app.api import run_deck
+            more = {"ignore": ignore} if ignore else {}      # Adams datasets only
             result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet,
-                              allow_user_code=allow_user_code, ignore=ignore)
+                              allow_user_code=allow_user_code, **more)
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return
