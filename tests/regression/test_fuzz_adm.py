@@ -27,6 +27,7 @@ from poise.core.errors import DeckError
 from poise.deck.parser import parse_deck_bytes
 from poise.model.compile import compile_model
 
+from support.fuzz import damage
 from support.paths import DECKS
 
 NAMES = ("adm_joint_zoo adm_force_zoo elem_diff_integrator pendulum_multiturn double_pendulum "
@@ -87,16 +88,7 @@ def mutate(text: str, rnd: random.Random) -> bytes:
             lines[k], lines[j] = lines[j], lines[k]
         else:
             lines[k] = _mutate_line(lines[k], rnd)
-    out = "\n".join(lines).encode("utf-8")
-    r = rnd.random()
-    if r < 0.08:
-        out = out[:rnd.randrange(len(out) + 1)]
-    elif r < 0.14:
-        b = bytearray(out)
-        for _ in range(rnd.randint(1, 4)):
-            b[rnd.randrange(len(b))] = rnd.randrange(256)
-        out = bytes(b)
-    return out
+    return damage("\n".join(lines).encode("utf-8"), rnd, truncate=0.08, noise=0.06)
 
 
 def _check_in_process(data: bytes):

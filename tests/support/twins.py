@@ -29,33 +29,30 @@ def _differs(x, y, rtol: float) -> str | None:
     return None if np.array_equal(x.astype(str), y.astype(str)) else "text differs"
 
 
-def differences(a, b, rtol: float = 1e-12, skip=()) -> list[str]:
-    """Every dataset where two RunResults differ (empty when they give the same results)."""
+def _compare(da: dict, db: dict, where: str, rtol: float, skip) -> list[str]:
     out = []
-    skip = set(PROVENANCE) | set(skip)
-    for k in sorted(set(a.model_datasets) | set(b.model_datasets)):
+    for k in sorted(set(da) | set(db)):
         if k in skip:
             continue
-        if k not in a.model_datasets or k not in b.model_datasets:
-            out.append(f"model {k}: only in one file")
+        if k not in da or k not in db:
+            out.append(f"{where} {k}: only in one file")
             continue
-        d = _differs(a.model_datasets[k], b.model_datasets[k], rtol)
+        d = _differs(da[k], db[k], rtol)
         if d:
-            out.append(f"model {k}: {d}")
+            out.append(f"{where} {k}: {d}")
+    return out
+
+
+def differences(a, b, rtol: float = 1e-12, skip=()) -> list[str]:
+    """Every dataset where two RunResults differ (empty when they give the same results)."""
+    skip = set(PROVENANCE) | set(skip)
+    out = _compare(a.model_datasets, b.model_datasets, "model", rtol, skip)
     if len(a.analyses) != len(b.analyses):
         return out + [f"{len(a.analyses)} != {len(b.analyses)} analyses"]
     for i, (x, y) in enumerate(zip(a.analyses, b.analyses)):
         if (x.status, x.analysis_type, x.method) != (y.status, y.analysis_type, y.method):
             out.append(f"analysis {i}: {x.status} {x.method} != {y.status} {y.method}")
-        for k in sorted(set(x.datasets) | set(y.datasets)):
-            if k in skip:
-                continue
-            if k not in x.datasets or k not in y.datasets:
-                out.append(f"analysis {i} {k}: only in one file")
-                continue
-            d = _differs(x.datasets[k], y.datasets[k], rtol)
-            if d:
-                out.append(f"analysis {i} {k}: {d}")
+        out += _compare(x.datasets, y.datasets, f"analysis {i}", rtol, skip)
     if (a.units, a.active_effects) != (b.units, b.active_effects):
         out.append("units or active effects differ")
     return out

@@ -45,28 +45,24 @@ def frame_from_points(origin, zp=None, xp=None, usexp: bool = False) -> tuple[np
             return None, what
         return v / n, ""
 
-    if usexp:
-        x, msg = unit(np.asarray(xp, float) - o, "XP coincides with the origin")
-        if x is None:
-            return None, msg
-        if zp is None:
-            ref = np.array([0.0, 0.0, 1.0]) if abs(x[2]) < math.sqrt(0.5) else np.array([1.0, 0.0, 0.0])
-        else:
-            ref = np.asarray(zp, float) - o
-        z, msg = unit(ref - (ref @ x) * x, "ZP lies on the x axis given by XP")
-        if z is None:
-            return None, msg
-        return np.column_stack([x, np.cross(z, x), z]), ""
-    z, msg = unit(np.asarray(zp, float) - o, "ZP coincides with the origin")
-    if z is None:
+    if usexp:       # x towards XP, z towards ZP made orthogonal (default: global z or x)
+        first, second, names, k = xp, zp, ("XP", "ZP", "x"), 2
+        refs = (np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
+    else:           # z towards ZP, x towards XP made orthogonal (default: global x or y)
+        first, second, names, k = zp, xp, ("ZP", "XP", "z"), 0
+        refs = (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    a, msg = unit(np.asarray(first, float) - o, f"{names[0]} coincides with the origin")
+    if a is None:
         return None, msg
-    if xp is None:
-        ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < math.sqrt(0.5) else np.array([0.0, 1.0, 0.0])
+    if second is None:
+        ref = refs[0] if abs(a[k]) < math.sqrt(0.5) else refs[1]
     else:
-        ref = np.asarray(xp, float) - o
-    x, msg = unit(ref - (ref @ z) * z, "XP lies on the z axis given by ZP")
-    if x is None:
+        ref = np.asarray(second, float) - o
+    b, msg = unit(ref - (ref @ a) * a, f"{names[1]} lies on the {names[2]} axis given by "
+                                        f"{names[0]}")
+    if b is None:
         return None, msg
+    x, z = (a, b) if usexp else (b, a)
     return np.column_stack([x, np.cross(z, x), z]), ""
 
 
