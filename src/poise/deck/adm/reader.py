@@ -108,6 +108,9 @@ def translate(ctx: Ctx, stmts: list[Statement]) -> None:
             continue
         by_id[s.id] = s
     parts.place(ctx, stmts)
+    if not any(fr.ground for fr in ctx.parts.values()):
+        ctx.problems.append(FileProblem(SourceLoc(ctx.file, 1, "adm"), "no ground part; "
+                                        "expected one PART/id, GROUND"))
     carry: list[str] = []            # comments of statements that made no element
     for s in stmts:
         n = len(ctx.recs)
