@@ -260,6 +260,7 @@ DEACTIVATE/JOINT, ID = 1
 SIMULATE/TRANSIENT
 SFORCE/9, FUNCTION = 3
 LINEAR/EIGENSOL
+MARKER/20, QP = 1, 1, 1
 """, "run.acf")
     f = str(tmp_path / "run.acf")
     assert f"{f}:3: DEACTIVATE/JOINT: deactivating JOINT/1 between analyses would change the " \
@@ -268,6 +269,8 @@ LINEAR/EIGENSOL
     assert f"{f}:4: SIMULATE/TRANSIENT: SIMULATE/TRANSIENT needs END= or DURATION=" in probs
     assert f"{f}:5: SFORCE/9: no SFORCE/9 in the model to change" in probs
     assert any(p.startswith(f"{f}:6: LINEAR/") and "linear" in p for p in probs)
+    assert f"{f}:7: MARKER/20: changing QP of MARKER/20 between analyses would move markers, " \
+           "which poise cannot do; expected changes of values such as MASS or IP" in probs
     missing = problems(tmp_path, "nothere\nout\nSIMULATE/STATIC\n", "other.acf")
     assert missing[0].startswith(f"{tmp_path / 'other.acf'}:1: cannot read the model")
 

@@ -37,6 +37,10 @@ _ZERO = {"Force_Scalar_TwoBody": ("val_expression",),
          "Force_Vector_TwoBody": tuple(f"{c}_expression" for c in ("fx", "fy", "fz", "tx", "ty", "tz")),
          "Force_Vector_OneBody": tuple(f"{c}_expression" for c in ("fx", "fy", "fz", "tx", "ty", "tz"))}
 _HEADER = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)\s*/")
+#: keywords that place frames (fixed before any analysis): changing them between analyses would
+#: move markers, which command versions cannot do
+_PLACED = {"MARKER": None, "PART": ("QG", "REULER", "XG", "ZG", "CM", "IM", "GROUND"),
+           "POINT_MASS": ("QG", "REULER", "XG", "ZG", "CM")}
 
 
 def _header(text: str) -> tuple[str, list[tuple[int, str]]]:
@@ -253,6 +257,13 @@ def _switch(ctx: Ctx, c: Statement, st: _State) -> None:
 
 def _redefine(ctx: Ctx, c: Statement, st: _State) -> None:
     """A model statement written again: the changed attributes as an XML command."""
+    if c.name in _PLACED:
+        keys = [k for k in c.values if _PLACED[c.name] is None or k in _PLACED[c.name]]
+        if keys:
+            ctx.error(c, f"changing {', '.join(keys)} of {c.who} between analyses would move "
+                         "markers, which poise cannot do; expected changes of values such as "
+                         "MASS or IP")
+            return
     if c.defn.has_id == "yes":
         model = ctx.stmts.get(c.name, {}).get(c.id)
         if model is None:
