@@ -288,3 +288,16 @@ def test_docs_name_every_statement_and_command():
     text = (ROOT / "docs" / "adm.md").read_text()
     missing = [n for n in [*STATEMENTS, *ACF] if f"`{n}" not in text and f"**{n}" not in text]
     assert missing == []
+
+
+def test_request_channels_poise_does_not_compute_are_left_out(tmp_path):
+    spec = load(tmp_path, HEAD + BODY + """REQUEST/1, F2 = ORIENT(27, 1, 20, 10)\\F3 = DX(20, 10)
+REQUEST/2, F1 = ORIENT(27, 2, 20, 10)
+""")
+    r = el(spec, "Post_Request", 1)
+    assert r.attrs["expr3"].text == "DX(20, 10)" and "expr2" not in r.attrs
+    assert not any(e.tag == "Post_Request" and e.id == 2 for e in spec.model)
+    w = [str(x) for x in spec.warnings]
+    assert any("REQUEST/1: F2 left out: poise does not compute ORIENT (a request is output "
+               "only)" in x for x in w)
+    assert any("REQUEST/2: F1 left out" in x and "the request is skipped" in x for x in w)

@@ -10,6 +10,8 @@ becomes MKEAM, and MotionSolve's ``!MS#`` lines choose FIM_S, FIM_D or MKEAM.
 """
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from poise.deck.adm.records import Ctx, num
@@ -195,6 +197,9 @@ def request(ctx: Ctx, s) -> None:
                     return
                 a[name] = num(s.get(key))
     elif fs:
+        fs = _computable(ctx, s, fs)
+        if not fs:
+            return
         a = {"type": "EXPRESSION", **{f"expr{f[1]}": s.get(f) for f in fs}}
     else:
         ctx.warn(s, "a request with no marker type and no F1..F8 expressions (e.g. VARIABLES=) "
@@ -203,6 +208,27 @@ def request(ctx: Ctx, s) -> None:
     if s.has("COMMENT"):
         a["comment"] = s.get("COMMENT")
     ctx.add(s, "Post_Request", a)
+
+
+_CALL = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\s*\(")
+
+
+def _computable(ctx: Ctx, s, fs: list) -> list:
+    """The request channels whose functions poise computes; the others (e.g. ``ORIENT``) are
+    left out with one warning: a request is output only."""
+    from poise.expr.lower import known_function  # lazy: the expression language imports scipy
+    keep, unknown = [], {}
+    for f in fs:
+        names = sorted({n.upper() for n in _CALL.findall(s.get(f)) if not known_function(n)})
+        if names:
+            unknown[f] = names
+        else:
+            keep.append(f)
+    if unknown:
+        fns = sorted({n for v in unknown.values() for n in v})
+        ctx.warn(s, f"{', '.join(unknown)} left out: poise does not compute {', '.join(fns)} "
+                    "(a request is output only)" + ("" if keep else "; the request is skipped"))
+    return keep
 
 
 def equilibrium(ctx: Ctx, s, section: str = "model") -> None:
