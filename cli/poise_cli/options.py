@@ -30,6 +30,12 @@ user_code_option = click.option(
          "is refused (exit 3): decks may come from anywhere. Scripts must lie inside the "
          "deck's directory either way.")
 
+ignore_option = click.option(
+    "--ignore", "ignore", multiple=True, metavar="KIND",
+    help="Adams datasets (.adm/.acf): leave out the statements of KIND poise cannot solve "
+         "(CONTACT, FRICTION, SENSOR, GSE, USER for user subroutines, ...) instead of refusing "
+         "the dataset; recorded in the results and on the summary lines. Repeatable.")
+
 quiet_option = click.option(
     "-q", "--quiet", is_flag=True,
     help="Print nothing on stderr except errors (no summary lines, no warnings).")

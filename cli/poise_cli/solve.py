@@ -9,8 +9,8 @@ from pathlib import Path
 import click
 
 from poise_cli.errors import report_exception
-from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
-    solver_options, user_code_option
+from poise_cli.options import collect_overrides, debug_option, ignore_option, json_option, \
+    quiet_option, solver_options, user_code_option
 from poise_cli.summary import analysis_line, analysis_summary, analysis_time, print_json, \
     sanitize, solve_summary
 
@@ -34,12 +34,13 @@ def default_output(deck: str) -> str:
               help="exact: from the analytic tangent (default); fd: re-solve under a load "
                    "compliance_delta per column (Param_Static compliance_method).")
 @user_code_option
+@ignore_option
 @quiet_option
 @json_option
 @debug_option
 def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stability,
           no_fallback, require_stable, allow_neutral, compliance_markers, compliance_method,
-          allow_user_code, quiet, as_json, debug):
+          allow_user_code, ignore, quiet, as_json, debug):
     """Solve every analysis of DECK and write the results to an HDF5 file.
 
     The file is written even when an analysis fails (exit code 1). Options given here override
@@ -97,8 +98,9 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
         with guarded_stdout(quiet), collected_warnings() as numeric:
             # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
             from poise.app.api import run_deck
+            more = {"ignore": ignore} if ignore else {}      # Adams datasets only
             result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet,
-                              allow_user_code=allow_user_code)
+                              allow_user_code=allow_user_code, **more)
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return

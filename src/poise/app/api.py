@@ -14,28 +14,29 @@ from poise.solvers.settings import check_override_names
 __all__ = ["CheckReport", "RunResult", "check_deck", "run_deck", "solve", "sweep"]
 
 
-def check_deck(path: str) -> CheckReport:
+def check_deck(path: str, ignore=()) -> CheckReport:
     """Parse and compile a deck, detect redundant equations; no solve, and no deck code runs
-    (user routines are reported in ``user_routines``, not imported)."""
-    return check(path)
+    (user routines are reported in ``user_routines``, not imported). ``ignore``: kinds an
+    Adams dataset leaves out instead of refusing them (``--ignore``)."""
+    return check(path, ignore)
 
 
-def solve(deck_or_path, allow_user_code: bool = False, **overrides) -> RunResult:
+def solve(deck_or_path, allow_user_code: bool = False, ignore=(), **overrides) -> RunResult:
     """Convenience wrapper: ``poise.solve("deck.xml", method="FIM_S")``.
 
     ``deck_or_path`` is a deck path (str or path-like) or an already parsed (possibly modified)
     :class:`poise.deck.spec.DeckSpec` from ``poise.load_deck``. Keyword arguments are
     ``Param_Static`` overrides (``method``, ``max_num_iter``, ``max_imbalance``, ...), except
-    ``allow_user_code`` (see :func:`run_deck`). An unknown keyword raises
+    ``allow_user_code`` and ``ignore`` (see :func:`run_deck`). An unknown keyword raises
     :class:`poise.core.errors.UnknownOptionError` (a ``TypeError``) naming the closest valid one; a
     DeckSpec is validated again exactly as its file would be (edits included).
     """
-    check_override_names(overrides, "keyword argument", also=("allow_user_code",))
+    check_override_names(overrides, "keyword argument", also=("allow_user_code", "ignore"))
     if isinstance(deck_or_path, DeckSpec):
         return run_spec(deck_or_path, overrides=overrides, command="poise.solve",
                         allow_user_code=allow_user_code)
     return run_deck(str(deck_or_path), overrides=overrides, command="poise.solve",
-                    allow_user_code=allow_user_code)
+                    allow_user_code=allow_user_code, ignore=ignore)
 
 
 def sweep(deck, sets: dict, mode: str = "grid", out_dir: str = "sweep", scheduler=None,

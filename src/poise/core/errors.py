@@ -24,16 +24,23 @@ class SourceLoc:
         Canonical element name (e.g. ``"Force_SpringDamper"``).
     id : int or None
         The element's ``id`` attribute when present.
+    who : str or None
+        How the source names the element when it is not an XML tag (an Adams dataset
+        statement: ``"JOINT/3"``); the prefix then reads ``FILE:LINE: JOINT/3:``.
     """
 
     file: str = "<deck>"
     line: int = 0
     tag: str = ""
     id: int | None = None
+    who: str | None = None
 
     def prefix(self, attr: str | None = None) -> str:
         """``FILE:LINE: <Tag id=N>:`` (plus ``attr`` when given)."""
-        who = f"<{self.tag} id={self.id}>" if self.id is not None else f"<{self.tag}>"
+        if self.who is not None:
+            who = self.who
+        else:
+            who = f"<{self.tag} id={self.id}>" if self.id is not None else f"<{self.tag}>"
         s = f"{self.file}:{self.line}: {who}"
         if attr:
             s += f" {attr}"

@@ -66,8 +66,11 @@ for n, t, m in (
     _a("root", n, t, m, "root")
 for n, t, m in (
         ("input_files", "json", "written by `poise solve` when the deck reads other files "
-                                "(user scripts): JSON (sorted keys) describing them; `poise "
-                                "batch` freshness covers them"),
+                                "(user scripts, the dataset an Adams command file names): JSON "
+                                "(sorted keys) describing them; `poise batch` freshness covers "
+                                "them"),
+        ("ignored", "json", "Adams datasets: the elements `--ignore KIND` left out, a JSON list "
+                            "of `{kind, statement, file, line}` (absent when none)"),
         ("run_overrides", "json", "JSON (sorted keys) of the solver options given on the "
                                   "command line (`{}` if none); `poise batch` compares it to "
                                   "decide whether a file is up to date"),
