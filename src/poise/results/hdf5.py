@@ -120,6 +120,10 @@ def _write_datasets(group: h5py.Group, items: list, where: str, dims: Dimensions
         dsid = _create_dataset(parent, parts[-1], arr, schema.unit_string(item.unit, units),
                                attrs)
         dims.attach(dsid, where, item)
+    for sub, names in members.items():        # netCDF: the group's coordinates, all of them
+        coords = schema.group_coordinates(names)
+        if sub and coords:
+            groups[sub].attrs["coordinates"] = " ".join(coords)
 
 
 def _write_file(result: RunResult, path: str) -> None:

@@ -50,8 +50,7 @@ def _nodes(xr, datasets: dict, scope: str, where: str, units: str, attrs: dict) 
         members.setdefault(parent, {})[name] = (it, datasets[key])
     out = {where or "/": xr.Dataset(attrs=attrs)}
     for parent, vs in members.items():
-        dims = {n: schema.dims(it) for n, (it, _) in vs.items()}
-        coords = {c for n, d in dims.items() for c in schema.coordinates(dims, n, d)}
+        coords = set(schema.group_coordinates(vs)) if parent else set()
         if scope == "analysis" and not parent and "time" in vs:
             coords.add("time")
         var = {n: _variable(xr, it, a, units) for n, (it, a) in vs.items()}

@@ -27,6 +27,7 @@ from poise.results.schema_dims import (  # noqa: F401 (the netCDF view, re-expor
     coordinates,
     dimension_names,
     dims,
+    group_coordinates,
     long_name,
 )
 from poise.results.schema_items import Item, declared
@@ -315,8 +316,11 @@ def conformance(path) -> list[str]:
                     dimension(o, name, "/" + top)
                 elif isinstance(o, h5py.Dataset):
                     dataset(o, scope, "/" + top, name, units)
-                elif len(o.attrs):
+                elif set(o.attrs) - {"coordinates"}:
                     problems.append(f"/{top}/{name}: undeclared attributes {sorted(o.attrs)}")
+                elif "coordinates" in o.attrs and any(
+                        c not in o for c in _text(o.attrs["coordinates"]).split()):
+                    problems.append(f"/{top}/{name}: coordinates not in the group")
             obj.visititems(visit)
         for inst, scope in insts.items():
             for it in items():

@@ -254,3 +254,10 @@ def coordinates(names, name: str, its_dims: tuple) -> list[str]:
         return []
     return [c for c in COORDINATE_NAMES
             if c in names and set(names[c]) & set(its_dims)]
+
+
+def group_coordinates(names) -> list[str]:
+    """The coordinate datasets among ``names`` (one group's datasets), written as the group's
+    ``coordinates`` attribute: xarray then reads them as coordinates even where no dataset of
+    the group refers to them (``/model/forces``: ids and labels only)."""
+    return [c for c in COORDINATE_NAMES if c in names]
