@@ -35,6 +35,7 @@ import h5py
 import numpy as np
 
 from poise.core.atomic import atomic_output
+from poise.core.errors import require_file
 from poise.core.version import __version__
 from poise.results import schema
 from poise.results.data import AnalysisResult, RunResult
@@ -263,6 +264,7 @@ def _collect(group: h5py.Group) -> dict[str, np.ndarray]:
 
 
 def _open_checked(path: str) -> h5py.File:
+    require_file(path, "results file")       # FileNotFoundError (exit 2 on the command line)
     try:
         f = h5py.File(path, "r")
     except OSError as e:
