@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.extras import require
+from poise.core.version import __version__
 from poise.results import schema
 from poise.results.h5objects import attr_value
 
@@ -68,7 +69,7 @@ def to_datatree(result, convenient: bool = True):
     xr = _xr()
     units = str(result.units)
     root_attrs = {**(result.attrs or {}), "format": "poise-results", "format_version": 1,
-                  "poise_version": _version(), "deck": str(result.deck),
+                  "poise_version": __version__, "deck": str(result.deck),
                   "deck_sha256": str(result.deck_sha256), "status": result.status,
                   "units": units, "active_effects": [str(e) for e in result.active_effects],
                   "command": str(result.command)}
@@ -115,11 +116,6 @@ def _indexed(ds):
                 and ds[name].dims[0] != name:
             ds = ds.set_xindex(name)
     return ds
-
-
-def _version() -> str:
-    from poise.core.version import __version__
-    return __version__
 
 
 def group_path(result, group: str | None, analysis) -> str:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from poise.results import schema_dims as sd
 from poise.results.schema_dims import (  # noqa: F401 (the netCDF view, re-exported)
     component_dim,
     component_meaning,
@@ -376,7 +377,6 @@ def table(kind: str, section: str) -> str:
 
 def dimension_table() -> str:
     """The netCDF dimensions: name, where it is defined, its size and coordinate values."""
-    from poise.results import schema_dims as sd
     out = ["| dimension | defined in | size | coordinate values / meaning |", "|---|---|---|---|"]
     for sym, name in sd.DIMENSIONS.items():
         where = sorted({it.scope for it in items() if it.kind == "dataset"
