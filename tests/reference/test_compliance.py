@@ -327,3 +327,30 @@ def test_cli_option_writes_datasets(tmp_path):
                           str(tmp_path / "b.h5"), "-q"], capture_output=True, text=True,
                          env=env, timeout=60)
     assert bad.returncode == 3 and f"{q}:4:" in bad.stderr and "777" in bad.stderr
+
+
+def test_batch_and_sweep_take_the_compliance_options(tmp_path, monkeypatch):
+    """``--compliance-markers`` / ``--compliance-method`` on every command: a batch (local
+    process pool) writes the matrix it asked for, and a sweep hands them to every case."""
+    from click.testing import CliRunner
+
+    import poise.app.sweep as sw
+    from poise_cli.main import cli
+    h5py = pytest.importorskip("h5py")
+    p = tmp_path / "pend.xml"
+    p.write_text(deck(pendulum()))
+    for n in ("dask", "distributed"):
+        monkeypatch.setitem(sys.modules, n, None)          # the local process pool: quick
+    r = CliRunner().invoke(cli, ["batch", str(p), "--out-dir", str(tmp_path / "b"), "-q",
+                                 "--compliance-markers", "20"])
+    assert r.exit_code == 0, r.output
+    with h5py.File(tmp_path / "b" / "pend.h5", "r") as f:
+        C = f["analysis_000/frames/compliance"][0]
+        np.testing.assert_allclose(C, pendulum_expected(), rtol=1e-7, atol=1e-10)
+    seen = {}
+    monkeypatch.setattr(sw, "run_sweep", lambda *a, **kw: seen.update(kw) or [])
+    r = CliRunner().invoke(cli, ["sweep", str(p), "--set", "Param_Static.max_num_iter=20,30",
+                                 "--out-dir", str(tmp_path / "s"), "-q",
+                                 "--compliance-markers", "all", "--compliance-method", "FD"])
+    assert seen["overrides"] == {"compliance_markers": "all", "compliance_method": "fd"}, \
+        r.output
