@@ -233,3 +233,36 @@ def test_to_xarray_equals_the_file_opened_in_xarray(written, name):
             else:
                 np.testing.assert_array_equal(a[v].values, b[v].values, err_msg=v)
         assert set(a.attrs) == set(b.attrs), node.path
+
+
+def test_open_dataset_with_group(written):
+    """``xarray.open_dataset(file, group=...)``: one group, named dimensions, ids and labels
+    as coordinates, units and long names."""
+    import xarray as xr
+    ds = xr.open_dataset(written("slider_crank_load.xml"), engine="h5netcdf",
+                         group="analysis_000/joints")
+    assert ds.force.dims == ("frame", "joint", "axis")
+    assert list(ds.label.values) == ["Crank pivot", "Crank pin", "Wrist pin", "Slide"]
+    assert {"id", "label"} <= set(ds.coords)
+    assert ds.force.attrs["units"] == "N" and ds.torque.attrs["units"] == "N*mm"
+    assert ds.force.attrs["long_name"] == "joint force on its I body"
+    a = xr.open_dataset(written("slider_crank_load.xml"), engine="h5netcdf",
+                        group="analysis_000")
+    assert "time" in a.coords and a.attrs["method"] == "FIM_S"
+
+
+def test_every_declared_dataset_has_a_long_name_and_dimensions():
+    """A new dataset declares its long name (poise.results.schema_dims.LONG_NAMES, generic
+    ``<group>/id|label|force|torque|tag|unique`` for element groups) and its dimensions follow
+    from its shape (a new symbol: DIMENSIONS; a fixed size other than 3: ITEM_DIMS)."""
+    from poise.results import schema_dims as sd
+    missing = []
+    for it in schema.items():
+        if it.kind != "dataset":
+            continue
+        assert len(schema.dims(it)) == len(it.shape), it.path
+        group, _, rest = it.name.partition("/")
+        generic = sd.element_name(group) and f"<any>/<group>/{rest}" in sd.LONG_NAMES
+        if f"{it.scope}/{it.name}" not in sd.LONG_NAMES and not generic:
+            missing.append(f"{it.scope}/{it.name}")
+    assert missing == [], "declare their long names in poise.results.schema_dims.LONG_NAMES"

@@ -10,6 +10,7 @@ Layout (documented dataset by dataset in ``docs/results-format.md``)::
     /warnings               (W,) variable-length UTF-8 strings
     /analysis_000           attrs: analysis_type, method, status, message, settings (JSON), + attrs
         time, bodies/..., joints/..., frames/..., iterations/..., ...
+    /axis, /analysis_000/frame, ...   netCDF-4 dimension scales (poise.results.h5objects)
 
 Determinism: the same :class:`~poise.results.data.RunResult` always produces the same bytes.
 Objects are written in sorted name order, datasets are contiguous (no chunking, no
