@@ -298,3 +298,21 @@ def test_undeclared_objects_refused(tmp_path, where, value, match):
         write_results(r, str(tmp_path / "x.h5"))
     assert "/analysis_000" in str(e.value)
     assert _leftovers(tmp_path) == []
+
+
+def test_inconsistent_shapes_still_written_and_reported(tmp_path):
+    """A capability writing a dataset whose frame count disagrees with the others does not
+    lose the results: the file is written (the odd axis gets dimension ``frame_<n>``), reads
+    back, opens in xarray, and the schema conformance names the inconsistency."""
+    import xarray as xr
+
+    from poise.results.schema import conformance
+    r = make_result()
+    r.analyses[1].datasets["frames/iterations"] = np.array([3, 4])       # 2 rows, F = 3
+    path = tmp_path / "odd.h5"
+    write_results(r, str(path))
+    back = read_results(str(path))
+    assert set(back.analyses[1].datasets) == set(r.analyses[1].datasets)
+    tree = xr.open_datatree(path, engine="h5netcdf")
+    assert tree["analysis_001/frames"]["iterations"].dims == ("frame_2",)
+    assert any("frames/iterations" in p for p in conformance(path))

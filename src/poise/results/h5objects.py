@@ -118,6 +118,7 @@ class Dimensions:
 
     def __init__(self, f: h5py.File, prepared: dict):
         self.scales: dict[tuple[str, str], Any] = {}     # (group path, dim) -> dataset id
+        self.dims: dict[str, dict] = {}                  # group path -> dataset_dims()
         used = sorted({d for items in prepared.values() for _, it, _ in items
                        for d in schema.dims(it) if schema.component_dim(d)})
         for name in used:
@@ -144,21 +145,35 @@ class Dimensions:
 
     def define(self, group: h5py.Group, where: str, items: list) -> None:
         """The symbol dimensions the datasets ``items`` of group ``where`` use, with their
-        sizes (one size per dimension, else :class:`~poise.results.schema.UndeclaredError`)."""
-        sizes: dict[str, int] = {}
-        for key, it, arr in items:
-            for d, n in zip(schema.dims(it), arr.shape):
-                if schema.component_dim(d):
-                    continue
-                if sizes.setdefault(d, n) != n:
-                    raise schema.UndeclaredError(
-                        f"{where}/{key}: dimension {d!r} is {n}, elsewhere in {where or '/'} "
-                        f"{sizes[d]} (results schema)")
+        sizes (:func:`dataset_dims`)."""
+        self.dims[where] = dataset_dims(items)
+        sizes = {d: n for ds, shape in self.dims[where].values() for d, n in zip(ds, shape)
+                 if not schema.component_dim(d)}
         for d in sorted(sizes):
             self.scales[(where, d)] = self._pure(group, d, sizes[d])
 
-    def attach(self, dsid, where: str, it) -> None:
+    def attach(self, dsid, where: str, key: str) -> None:
         from h5py import h5ds
-        for k, d in enumerate(schema.dims(it)):
+        for k, d in enumerate(self.dims[where][key][0]):
             h5ds.attach_scale(dsid, self.scales[("" if schema.component_dim(d) else where, d)],
                               k)
+
+
+def dataset_dims(items: list) -> dict[str, tuple[tuple, tuple]]:
+    """``{key: (dimension names, shape)}`` of one scope group's prepared datasets ``items``
+    (``(key, declaration, array)``). netCDF gives a dimension one size: a dataset whose axis
+    disagrees with the size most datasets give it (a capability writing inconsistent shapes)
+    gets the dimension ``<name>_<size>`` instead, so the file is still written and readable;
+    :func:`poise.results.schema.conformance` reports the inconsistency."""
+    from collections import Counter
+    count: dict[str, Counter] = {}
+    for _, it, arr in items:
+        for d, n in zip(schema.dims(it), arr.shape):
+            count.setdefault(d, Counter())[n] += 1
+    size = {d: c.most_common(1)[0][0] for d, c in count.items()}
+    out = {}
+    for key, it, arr in items:
+        names = tuple(d if n == size[d] or schema.component_dim(d) else f"{d}_{n}"
+                      for d, n in zip(schema.dims(it), arr.shape))
+        out[key] = (names, arr.shape)
+    return out

@@ -103,9 +103,9 @@ def _write_datasets(group: h5py.Group, items: list, where: str, dims: Dimensions
     units = group.file.attrs.get("units", "")
     groups: dict[tuple, h5py.Group] = {(): group}   # opened subgroups (one lookup per group)
     members: dict[tuple, dict] = {}                 # subgroup -> {dataset name: dims}
-    for key, item, _ in items:
+    for key, _item, _ in items:
         parts = key.split("/")
-        members.setdefault(tuple(parts[:-1]), {})[parts[-1]] = schema.dims(item)
+        members.setdefault(tuple(parts[:-1]), {})[parts[-1]] = dims.dims[where][key][0]
     for key, item, arr in items:
         parts = key.split("/")
         parent = group
@@ -115,13 +115,14 @@ def _write_datasets(group: h5py.Group, items: list, where: str, dims: Dimensions
             if parent is None:
                 parent = groups[path] = groups[path[:-1]].require_group(parts[k - 1])
         attrs = {"long_name": schema.long_name(item)}
-        coords = schema.coordinates(members[tuple(parts[:-1])], parts[-1], schema.dims(item))
+        coords = schema.coordinates(members[tuple(parts[:-1])], parts[-1],
+                                    dims.dims[where][key][0])
         if coords:
             attrs["coordinates"] = " ".join(coords)
         # contiguous layout, no filters, no timestamps: identical input -> identical bytes
         dsid = _create_dataset(parent, parts[-1], arr, schema.unit_string(item.unit, units),
                                attrs)
-        dims.attach(dsid, where, item)
+        dims.attach(dsid, where, key)
     for sub, names in members.items():        # netCDF: the group's coordinates, all of them
         coords = schema.group_coordinates(names)
         if sub and coords:
@@ -250,7 +251,10 @@ def _read_dataset(ds: h5py.Dataset) -> np.ndarray:
 def _is_dimension(name: str) -> bool:
     """Whether the dataset ``name`` (relative to a scope group) is a netCDF dimension scale
     (``frame``, ``body``, ... : not a declared dataset)."""
-    return "/" not in name and name in schema.dimension_names()
+    if "/" in name:
+        return False
+    base, _, n = name.rpartition("_")
+    return name in schema.dimension_names() or (n.isdigit() and base in schema.dimension_names())
 
 
 def _collect(group: h5py.Group) -> dict[str, np.ndarray]:

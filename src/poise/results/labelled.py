@@ -14,7 +14,7 @@ import numpy as np
 from poise.core.extras import require
 from poise.core.version import __version__
 from poise.results import schema
-from poise.results.h5objects import attr_value
+from poise.results.h5objects import attr_value, dataset_dims
 
 _FEATURE = "labelled arrays (RunResult.to_xarray, to_dataframe)"
 
@@ -25,12 +25,12 @@ def _xr():
     return xr
 
 
-def _variable(xr, it, arr, units: str):
+def _variable(xr, it, arr, dims, units: str):
     arr = np.asarray(arr)
     if arr.dtype.kind in "OSU":
         arr = arr.astype(str)
-    return xr.Variable(schema.dims(it), arr, {"units": schema.unit_string(it.unit, units),
-                                               "long_name": schema.long_name(it)})
+    return xr.Variable(dims, arr, {"units": schema.unit_string(it.unit, units),
+                                   "long_name": schema.long_name(it)})
 
 
 def _attrs(attrs: dict) -> dict:
@@ -45,16 +45,18 @@ def _attrs(attrs: dict) -> dict:
 def _nodes(xr, datasets: dict, scope: str, where: str, units: str, attrs: dict) -> dict:
     """``{node path: Dataset}`` of one scope group (``""``, ``/model``, ``/analysis_NNN``)."""
     members: dict[str, dict] = {}
-    for key in sorted(datasets):
-        it = schema.declared_item(scope, "dataset", key, f"{where}/{key}")
+    items = [(key, schema.declared_item(scope, "dataset", key, f"{where}/{key}"),
+              np.asarray(datasets[key])) for key in sorted(datasets)]
+    dims = dataset_dims(items)
+    for key, it, arr in items:
         parent, _, name = key.rpartition("/")
-        members.setdefault(parent, {})[name] = (it, datasets[key])
+        members.setdefault(parent, {})[name] = (it, arr, dims[key][0])
     out = {where or "/": xr.Dataset(attrs=attrs)}
     for parent, vs in members.items():
         coords = set(schema.group_coordinates(vs)) if parent else set()
         if scope == "analysis" and not parent and "time" in vs:
             coords.add("time")
-        var = {n: _variable(xr, it, a, units) for n, (it, a) in vs.items()}
+        var = {n: _variable(xr, it, a, d, units) for n, (it, a, d) in vs.items()}
         path = f"{where}/{parent}" if parent else (where or "/")
         ds = xr.Dataset({n: v for n, v in var.items() if n not in coords},
                         coords={n: v for n, v in var.items() if n in coords},
