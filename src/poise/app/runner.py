@@ -7,6 +7,7 @@ CLI overrides win over the deck (defaults < deck < CLI).
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -66,13 +67,12 @@ def _unknown_attributes(spec: DeckSpec) -> list[Problem]:
     import difflib
     out = []
     for el in [*spec.model, *spec.commands]:
-        sch = element_schema(el.tag)
-        if sch is None or sch.open_attrs:
+        known = _attribute_names(el.tag)
+        if known is None or known.issuperset(el.attrs):
             continue                      # validate() says what is wrong with the tag
-        for k in el.attrs:
+        sch = element_schema(el.tag)
+        for k in set(el.attrs) - known:
             a = sch.attr(str(k))
-            if a is not None and a.name == k:
-                continue
             if a is not None:
                 hint = f"; it is spelt '{a.name}'"
             else:
@@ -80,6 +80,13 @@ def _unknown_attributes(spec: DeckSpec) -> list[Problem]:
                 hint = f" (did you mean '{close[0]}'?)" if close else ""
             out.append(Problem(el.loc, f"unknown attribute '{k}' of <{sch.tag}>{hint}"))
     return out
+
+
+@functools.lru_cache(maxsize=None)
+def _attribute_names(tag: str) -> frozenset | None:
+    """Canonical attribute names of element ``tag`` (None: unknown tag or open attributes)."""
+    sch = element_schema(tag)
+    return None if sch is None or sch.open_attrs else frozenset(sch.attrs)
 
 
 def _static_settings(el_list) -> StaticSettings:
