@@ -7,6 +7,7 @@ CLI overrides win over the deck (defaults < deck < CLI).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -18,6 +19,7 @@ from poise.core.progress import installed, solver_progress
 from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
 from poise.core.version import __version__
 from poise.deck.parser import load_deck
+from poise.deck.schema import element_schema
 from poise.deck.spec import DeckSpec, Element
 from poise.deck.validate import validate
 from poise.model import commands as model_commands
@@ -73,11 +75,43 @@ def revalidated(spec: DeckSpec) -> DeckSpec:
     """
     from dataclasses import replace
 
+    unknown = _unknown_attributes(spec)
+    if unknown:
+        raise DeckError(unknown)
     tmp = replace(spec, warnings=[])
     validate(tmp)
     known = {str(w) for w in spec.warnings}
     new = [w for w in tmp.warnings if str(w) not in known]
     return replace(spec, warnings=[*spec.warnings, *new]) if new else spec
+
+
+def _unknown_attributes(spec: DeckSpec) -> list[Problem]:
+    """Attributes of a DeckSpec its element's schema does not know (or spells otherwise): the
+    parser drops and warns about those of a file, so here they come from an edit such as
+    ``spring.attrs["stifness"] = 1`` that would otherwise be ignored without a word."""
+    import difflib
+    out = []
+    for el in [*spec.model, *spec.commands]:
+        known = _attribute_names(el.tag)
+        if known is None or known.issuperset(el.attrs):
+            continue                      # validate() says what is wrong with the tag
+        sch = element_schema(el.tag)
+        for k in set(el.attrs) - known:
+            a = sch.attr(str(k))
+            if a is not None:
+                hint = f"; it is spelt '{a.name}'"
+            else:
+                close = difflib.get_close_matches(str(k).lower(), sorted(sch.attrs), n=1)
+                hint = f" (did you mean '{close[0]}'?)" if close else ""
+            out.append(Problem(el.loc, f"unknown attribute '{k}' of <{sch.tag}>{hint}"))
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _attribute_names(tag: str) -> frozenset | None:
+    """Canonical attribute names of element ``tag`` (None: unknown tag or open attributes)."""
+    sch = element_schema(tag)
+    return None if sch is None or sch.open_attrs else frozenset(sch.attrs)
 
 
 def _static_settings(el_list) -> StaticSettings:
@@ -350,9 +384,9 @@ def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
 
 
 def run_spec(spec: DeckSpec, overrides=None, command: str = "", progress=None,
-             allow_user_code: bool = False) -> RunResult:
+             allow_user_code: bool = False, quiet: bool = False) -> RunResult:
     """Run an already-parsed (possibly modified) :class:`DeckSpec`; same as :func:`run`."""
-    with solver_progress(None):
+    with solver_progress(False if quiet else None):
         return run(spec, overrides=overrides, command=command, progress=progress,
                    allow_user_code=allow_user_code)
 

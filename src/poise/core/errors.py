@@ -114,6 +114,19 @@ class UsageError(PoiseError):
     exit_code = 2
 
 
+class MissingFileError(UsageError, FileNotFoundError):
+    """An input file that does not exist: a ``FileNotFoundError`` for library callers, a usage
+    error (exit code 2) for the command line."""
+
+
+def require_file(path, what: str = "file") -> None:
+    """Raise :class:`MissingFileError` unless ``path`` exists."""
+    import errno
+    import os
+    if not os.path.exists(path):
+        raise MissingFileError(errno.ENOENT, f"no such {what}", os.fspath(path))
+
+
 class UnknownOptionError(UsageError, TypeError):
     """An unknown keyword / override name given to a public API function (exit code 2).
 

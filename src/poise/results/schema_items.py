@@ -172,6 +172,9 @@ for n, t, m in (
         ("assembled", "bool", "the initial configuration was moved to satisfy the "
                               "constraints before solving")):
     _a(A, n, t, m, "analysis-attrs")
+_a(A, "coordinates", "str", "`time` when the analysis has frames: netCDF's name of the "
+   "coordinate of the `frame` dimension (see *netCDF and xarray*)", "analysis-attrs",
+   optional=True)
 _a(A, "iterations_total", "int", "iterations of all frames (`sum(frames/iterations)`; FIM_S "
    "and FIM_D analyses)", "analysis-attrs", optional=True)
 for s in ("plain", "stability", "continuation", "mkeam", "polish"):
