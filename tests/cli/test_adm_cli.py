@@ -57,7 +57,7 @@ def test_refused_physics_is_exit_3_then_ignore_solves_and_records(tmp_path):
     adm.write_text(CONTACT)
     r = poise("solve", adm, "-o", tmp_path / "c.h5")
     assert r.returncode == 3
-    assert f"{adm}:10: CONTACT/7: contact between CAD solids is not supported by poise; " \
+    assert f"{adm}:10: CONTACT/7: poise does not support contact between CAD solids; " \
            "`--ignore CONTACT` solves without it" in r.stderr
     assert not (tmp_path / "c.h5").exists()
     r = poise("solve", adm, "-o", tmp_path / "c.h5", "--ignore", "contact")
