@@ -331,3 +331,34 @@ EQUILIBRIUM/ERROR = 1E-10, LABEL = tight
     assert "label 'tight'" in xml and "MOTION_3" not in xml.split("<Force_Gravity")[1][:200]
     assert not [w for w in load_deck(str(out)).warnings if "label" in str(w)]
     assert "adams_view_name='MOTION_3'" in xml.split("<Force_Gravity")[0]    # kept, as written
+
+
+def test_command_lines_ending_in_ampersand_continue(tmp_path):
+    """Adams command files continue a command on the next line after a trailing '&' (with or
+    without the comma before it); keywords without effect on statics warn once per kind."""
+    (tmp_path / "model.adm").write_text(ACF_MODEL)
+    spec = load(tmp_path, """model
+out
+output/noseparator
+integrator/gstiff, &
+\terror = 1.0e-4, hmax=1e-5
+EQUILIBRIUM/STABILITY=1e-3,   &
+            ERROR=1e-2       &
+            , MAXIT=50,         &
+            ALIMIT=5.0D
+simulate/transient, &
+\tend=1.0, dtout=0.5
+EQUILIBRIUM/ERROR = 1e-3, ALIMIT = 2D
+SIMULATE/STATIC
+stop
+""", "run.acf")
+    cmds = [(c.tag, dict(c.attrs)) for c in spec.commands]
+    assert cmds == [
+        ("Param_Transient", {"integrator_type": "GSTIFF", "integr_tol": 1e-4, "h_max": 1e-5}),
+        ("Param_Static", {"stability": 1e-3, "max_error": 1e-2, "max_num_iter": 50}),
+        ("Simulate", {"analysis_type": "STATIC", "end_time": 1.0, "print_interval": 0.5}),
+        ("Param_Static", {"max_error": 1e-3}),
+        ("Simulate", {"analysis_type": "STATIC"}),
+        ("Stop", {})]
+    assert any("run.acf:6: EQUILIBRIUM/: ALIMIT ignored in 2 EQUILIBRIUM commands" in str(w)
+               for w in spec.warnings)

@@ -99,6 +99,7 @@ def split_lines(text: str, title: bool) -> tuple[str, list[Chunk], list[tuple[in
     pending: list[str] = []
     label = None
     named = ""                       # the comment line that gave ``label``
+    amp = False                      # the line before ended with '&': this one continues it
     cur: list | None = None          # [head, pieces, line, comments, label]
 
     def close():
@@ -133,12 +134,19 @@ def split_lines(text: str, title: bool) -> tuple[str, list[Chunk], list[tuple[in
                         label = None
                     pending.append(comment.strip())
             continue
-        if stripped.startswith(","):
+        joined, amp = amp, stripped.endswith("&")
+        if amp:                             # Adams command language: '&' ends a line that
+            stripped = stripped[:-1].rstrip()       # the next one continues
+            if stripped.endswith(","):
+                stripped = stripped[:-1].rstrip()
+            if not stripped:
+                continue
+        if stripped.startswith(",") or (joined and cur is not None):
             if cur is None:
                 problems.append((ln, "a continuation line (starting with ',') with no "
                                      "statement before it"))
                 continue
-            cur[1].append((stripped[1:], ln))
+            cur[1].append((stripped[1:] if stripped.startswith(",") else stripped, ln))
         else:
             close()
             m = _HEAD.match(stripped)
