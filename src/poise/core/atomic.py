@@ -76,6 +76,21 @@ def output_target(path, inputs=()) -> str:
     return real
 
 
+def check_output(path, inputs=()) -> str:
+    """:func:`output_target` plus a directory that exists and can be written, checked before
+    any work (for outputs written at the end of a long run); raises :class:`OutputError`
+    (exit 2) naming ``path``, or the :class:`UsageError` of :func:`output_target`."""
+    target = output_target(path, inputs)
+    directory = os.path.dirname(target)
+    if not os.path.isdir(directory):
+        raise OutputError(f"cannot write {os.fspath(path)!r}: directory {directory!r} does not "
+                          "exist")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise OutputError(f"cannot write {os.fspath(path)!r}: directory {directory!r} is not "
+                          "writable")
+    return target
+
+
 def fsync_path(path: str, directory: bool = False) -> None:
     """fsync a file (errors propagate) or a directory (best effort)."""
     flags = os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0)
