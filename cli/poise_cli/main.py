@@ -68,6 +68,8 @@ class LazyGroup(click.Group):
         if (kwargs.get("standalone_mode", True) is False
                 or sys._getframe(1).f_globals.get("__name__") != "__main__"):
             return self.main(*args, **kwargs)
+        from poise_cli import watchdog
+        watchdog.start()    # Ctrl-C/SIGTERM honoured while native code holds the main thread
         try:
             try:
                 self.main(*args, **kwargs)

@@ -114,6 +114,9 @@ _HOST = re.sub(r"[^A-Za-z0-9-]", "-", os.uname().nodename if hasattr(os, "uname"
 _TMP = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)(?:@(?P<host>[A-Za-z0-9-]*))?"
                   r"(?:\.[A-Za-z0-9]+)?$")
 _SCANNED: set = set()
+#: temporary files being written now (removed by the CLI's interrupt watchdog when it has to end
+#: the process while native code holds the main thread: poise_cli.watchdog)
+ACTIVE_TEMPS: set = set()
 
 
 def temp_name(target: str, keep_suffix: bool = False) -> str:
@@ -247,6 +250,7 @@ def atomic_output(path, inputs=(), keep_suffix: bool = False, hold_interrupts: b
     remove_stale_temps(directory, os.path.basename(target))
     tmp = temp_name(target, keep_suffix)
     with _held_interrupts(hold_interrupts) as signals, _collect_unraisable() as unraisable:
+        ACTIVE_TEMPS.add(tmp)
         try:
             yield tmp
             if signals:
@@ -259,12 +263,14 @@ def atomic_output(path, inputs=(), keep_suffix: bool = False, hold_interrupts: b
         except BaseException as exc:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+            ACTIVE_TEMPS.discard(tmp)
             if isinstance(exc, (KeyboardInterrupt, UsageError)):
                 raise
             reason = _io_reason(exc, unraisable)
             if reason is None:
                 raise
             raise OutputError(f"cannot write {os.fspath(path)!r}: {reason}") from exc
+    ACTIVE_TEMPS.discard(tmp)
     fsync_path(directory, directory=True)
     if signals:     # arrived after the last check: the file is complete, the run interrupted
         raise KeyboardInterrupt
