@@ -49,7 +49,7 @@ import os
 from pathlib import Path
 
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
-from poise.core.progress import Bar
+from poise.core.progress import Bar, ending
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_deck
 from poise.core.atomic import atomic_output, OutputError
@@ -221,17 +221,20 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
         bar.step()
     rows: list[Any] = [None] * len(decks)
     try:
-        return _run_batch(decks, out_dir, jobs, overrides, force, command, on_row,
-                          allow_user_code, rows, scheduler, progress is False, worker_timeout)
-    except NoWorkers as e:
-        e.rows = [r for r in rows if r is not None]
+        out = _run_batch(decks, out_dir, jobs, overrides, force, command, on_row,
+                         allow_user_code, rows, scheduler, progress is False, worker_timeout,
+                         say=bar.note)
+    except BaseException as e:
+        bar.close(ending(e))            # the last progress line says "gave up", "interrupted"
+        if isinstance(e, NoWorkers):
+            e.rows = [r for r in rows if r is not None]
         raise
-    finally:
-        bar.close()
+    bar.close()
+    return out
 
 
 def _run_batch(decks, out_dir, jobs, overrides, force, command, on_row, allow_user_code, rows,
-               scheduler=None, quiet=False, worker_timeout=WORKER_TIMEOUT):
+               scheduler=None, quiet=False, worker_timeout=WORKER_TIMEOUT, say=None):
     if scheduler:
         require("sweep", "poise batch --scheduler")
     import functools
@@ -254,7 +257,7 @@ def _run_batch(decks, out_dir, jobs, overrides, force, command, on_row, allow_us
         return rows
     if scheduler or available("sweep"):
         _solve_on_dask(todo, jobs, decks, outs, overrides, command, rows, on_row, job,
-                       scheduler, quiet, worker_timeout)
+                       scheduler, quiet, worker_timeout, say)
         return rows
     # lean install (no Dask): a local process pool,
     # always in worker processes (also with -j 1): a deck that kills its process (out of memory,
@@ -279,7 +282,7 @@ WORKER_DIED = ("the worker process solving this deck died (killed by a signal, e
 
 
 def _solve_on_dask(todo, jobs, decks, outs, overrides, command, rows, on_row, job, scheduler,
-                   quiet, worker_timeout) -> None:
+                   quiet, worker_timeout, say=None) -> None:
     """Solve ``todo`` on Dask (:mod:`poise.app.engine`). A task whose worker died
     (``KilledWorker``: on the local cluster at the first death) is a suspect; each suspect is
     then solved again alone on the cluster, so only the deck that kills its worker is
@@ -300,13 +303,13 @@ def _solve_on_dask(todo, jobs, decks, outs, overrides, command, rows, on_row, jo
             on_row(row)
 
     with dask_client(scheduler, jobs, len(todo), quiet=quiet, feature="poise batch",
-                     allowed_failures=0) as client:
+                     allowed_failures=0, worker_timeout=worker_timeout) as client:
         run_tasks(client, {k: (job, decks[k], outs[k], overrides, command) for k in todo},
-                  done, worker_timeout=worker_timeout, what="decks")
+                  done, worker_timeout=worker_timeout, what="decks", say=say)
         for k in sorted(suspects):      # one at a time, nothing else on the cluster
             run_tasks(client, {k: (job, decks[k], outs[k], overrides, command)},
                       lambda k, row, exc: done(k, row, exc, alone=True),
-                      worker_timeout=worker_timeout, what="decks")
+                      worker_timeout=worker_timeout, what="decks", say=say)
 
 
 def _spawn_pool(workers: int):

@@ -37,7 +37,7 @@ from typing import Any
 from poise.app.cases import (MAX_CASES, Param, apply_case, case_hash, check_case_count,
                              make_cases, parse_set, resolve_param)
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
-from poise.core.progress import Bar
+from poise.core.progress import Bar, ending
 from poise.app.batch import ensure_out_dir, inputs_fresh, result_stats, sanitize, write_table
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_spec
@@ -311,12 +311,12 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
             _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
                       scheduler, workers, client, bar, on_row, allow_user_code,
                       quiet=progress is False, worker_timeout=worker_timeout)
-    except NoWorkers as e:              # the index keeps the finished cases
-        bar.close()
-        e.rows = finish()
+    except BaseException as e:
+        bar.close(ending(e))            # the last progress line says "gave up", "interrupted"
+        if isinstance(e, NoWorkers):    # the index keeps the finished cases
+            e.rows = finish()
         raise
-    finally:
-        bar.close()
+    bar.close()
     return finish()
 
 
@@ -353,5 +353,6 @@ def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, o
             on_row(rows[i])
         bar.step()
 
-    with dask_client(scheduler, workers, len(todo), client, quiet=quiet) as cl:
-        run_tasks(cl, tasks, done, worker_timeout=worker_timeout, what="cases")
+    with dask_client(scheduler, workers, len(todo), client, quiet=quiet,
+                     worker_timeout=worker_timeout) as cl:
+        run_tasks(cl, tasks, done, worker_timeout=worker_timeout, what="cases", say=bar.note)
