@@ -114,8 +114,13 @@ def test_the_last_line_says_how_the_work_ended(clock):
     s = _Tty()                             # on a terminal too: the bar erased, then the line
     b = P.Bar(10, "sweep", "cases", stream=s, delay=0.0)
     b.update(1)
+    clock.t += 3
     b.close("gave up")
-    assert s.getvalue().endswith("poise: sweep 1/10 cases (10%), 0 s, gave up\n")
+    assert s.getvalue().endswith("poise: sweep 1/10 cases (10%), 3 s, gave up\n")
+    s = io.StringIO()                      # refused at once (a usage error): no line at all
+    b = P.Bar(10, "sweep", "cases", stream=s, delay=0.0)
+    b.close("failed")
+    assert s.getvalue() == ""
 
 
 def test_progress_uses_public_api_only():

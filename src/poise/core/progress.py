@@ -155,13 +155,17 @@ class Bar:
     def close(self, end: str = "done") -> None:
         if self.mode == "off":
             return
+        now = time.monotonic()
+        # work that ended otherwise than done is said in a last line, unless it ended at once
+        # (a usage error before any work) without a line before
+        said = end != "done" and (self.lines or now - self.t0 >= 1.0)
         if self._bar is not None:
             self._bar.close()                  # erased (leave=False)
             self._bar = None
-            if end != "done":
-                self._line(time.monotonic(), final=end)
-        elif self.mode == "plain" and ((self.lines and self._last_f < 1.0) or end != "done"):
-            self._line(time.monotonic(), final=end)
+            if said:
+                self._line(now, final=end)
+        elif self.mode == "plain" and ((self.lines and self._last_f < 1.0) or said):
+            self._line(now, final=end)
         self.mode = "off"                    # closed: says nothing more
 
     def __enter__(self):
@@ -188,6 +192,13 @@ class Bar:
         self.stream.flush()
         self._last_t, self._last_f = now, f
         self.lines += 1
+
+
+def note(line: str, enabled: bool | None = None) -> None:
+    """Print ``line`` on stderr unless progress is off (quiet, a worker process)."""
+    if choose_mode(enabled) != "off":
+        sys.stderr.write(line + "\n")
+        sys.stderr.flush()
 
 
 def ending(exc: BaseException | None) -> str:
