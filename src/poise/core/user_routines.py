@@ -382,6 +382,18 @@ class UserRoutine:
                                   f"{self.m} (as at the first call)", self.el.loc)
         return v
 
+    def _derivative_key(self, key) -> tuple[int, int]:
+        """``(marker_id, "P"|"x"|"y"|"z")`` -> (marker id, kind index), else EvaluationError."""
+        ok = isinstance(key, tuple) and len(key) == 2 and str(key[1]) in KIND_NAMES
+        try:
+            mid = int(key[0]) if ok else None
+        except (TypeError, ValueError):
+            mid = None
+        if mid is None:
+            raise EvaluationError(f"{self._where()} returned a derivative keyed {key!r}; "
+                                  "expected (marker_id, 'P' | 'x' | 'y' | 'z')", self.el.loc)
+        return mid, KIND_NAMES.index(str(key[1]))
+
     def _steps(self, scale=1e-6):
         return [scale * self.L if k == 0 else scale for _, k in self.slots]
 
@@ -399,11 +411,15 @@ class UserRoutine:
         if der is not None:
             index = {s: k for k, s in enumerate(self.slots)}
             for key, g in der.items():
-                mid, kn = int(key[0]), str(key[1])
-                k = KIND_NAMES.index(kn) if kn in KIND_NAMES else -1
+                mid, k = self._derivative_key(key)
                 if (mid, k) not in index:
                     continue            # derivative w.r.t. a vector it does not read: zero
-                g = np.asarray(g, float).reshape(self.m, 3)
+                try:
+                    g = np.asarray(g, float).reshape(self.m, 3)
+                except (TypeError, ValueError):
+                    raise EvaluationError(
+                        f"{self._where()} returned the derivative {key!r}: {g!r}; expected "
+                        f"{self.m} x 3 numbers (d value / d vector)", self.el.loc) from None
                 D[:, index[(mid, k)]] = g
             if not np.all(np.isfinite(D)):
                 raise EvaluationError(f"{self._where()} returned non-finite derivatives",
