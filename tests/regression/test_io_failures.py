@@ -202,6 +202,7 @@ def test_sigkilled_write_leaves_a_temp_the_next_run_removes(tmp_path):
 
 
 def test_interrupt_during_the_write_removes_the_temp(tmp_path, monkeypatch):
+    before = signal.getsignal(signal.SIGINT)     # whatever the suite inherited (nohup: SIG_IGN)
     real = hdf5._file_image
 
     def interrupted(result, name):
@@ -211,7 +212,7 @@ def test_interrupt_during_the_write_removes_the_temp(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         hdf5.write_results(make_result(), str(tmp_path / "r.h5"))
     assert _files(tmp_path) == []
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is before        # restored as it was
 
 
 def test_atomic_output_keeps_other_errors(tmp_path):
