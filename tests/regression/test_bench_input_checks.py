@@ -17,6 +17,7 @@ from click.testing import CliRunner
 from poise_cli.main import cli
 
 from support.paths import DECKS
+from support.tmpfs import tmpfs
 
 POISE = Path(sys.executable).with_name("poise")
 
@@ -85,27 +86,13 @@ def test_out_is_written_atomically_as_json_lines(deck, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.jsonl", "d.xml"]
 
 
-def _tmpfs(mnt: Path, options: str):
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    mnt.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(mnt)],
-                      capture_output=True).returncode != 0:
-        pytest.skip("cannot mount a tmpfs here")
-    return mnt
-
-
 def test_out_into_a_read_only_or_full_directory_is_exit_2_and_leaves_nothing(deck, tmp_path):
-    ro = _tmpfs(tmp_path / "ro", "ro,size=64k")
-    try:
+    with tmpfs(tmp_path / "ro", "ro,size=64k") as ro:
         r = _bench(deck, "--tolerances", "1e-4", "--repeat", 1, "--out", ro / "b.jsonl")
         _refused_before_solving(r)
         assert "cannot write" in r.stderr and "not writable" in r.stderr
         assert os.listdir(ro) == []
-    finally:
-        subprocess.run(["umount", str(ro)], capture_output=True)
-    full = _tmpfs(tmp_path / "full", "size=64k")
-    try:
+    with tmpfs(tmp_path / "full", "size=64k") as full:
         (full / "filler").write_bytes(b"\1" * (64 * 1024 - 100))      # no room for the rows
         p = subprocess.run([str(POISE), "bench", str(deck), "--tolerances", "1e-3,1e-6",
                             "--repeat", "1", "--out", str(full / "b.jsonl")],
@@ -114,5 +101,3 @@ def test_out_into_a_read_only_or_full_directory_is_exit_2_and_leaves_nothing(dec
         assert "cannot write" in p.stderr and "No space left on device" in p.stderr
         assert "Traceback" not in p.stderr
         assert os.listdir(full) == ["filler"]
-    finally:
-        subprocess.run(["umount", str(full)], capture_output=True)

@@ -36,11 +36,8 @@ class NoWorkers(UsageError):
 
 
 @contextlib.contextmanager
-def quiet_dask(quiet: bool):
-    """Inside the block, under ``quiet``: Dask's loggers say nothing and warnings are dropped."""
-    if not quiet:
-        yield
-        return
+def _silenced():
+    """Dask's loggers say nothing and warnings are dropped inside the block."""
     loggers = [logging.getLogger(n) for n in ("distributed", "dask", "tornado", "asyncio")]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
@@ -52,6 +49,16 @@ def quiet_dask(quiet: bool):
     finally:
         for lg, lv in zip(loggers, levels):
             lg.setLevel(lv)
+
+
+@contextlib.contextmanager
+def quiet_dask(quiet: bool):
+    """Inside the block, under ``quiet``: Dask's loggers say nothing and warnings are dropped."""
+    if not quiet:
+        yield
+        return
+    with _silenced():
+        yield
 
 
 @contextlib.contextmanager
@@ -125,19 +132,11 @@ def _quiet_shutdown():
     heartbeat (``CommClosedError: Stream is closed``) is logged with a traceback on a loaded
     machine, and nothing about closing a finished run is worth a line; errors closing it are
     dropped (the run's outcome is known)."""
-    loggers = [logging.getLogger(n) for n in ("distributed", "dask", "tornado", "asyncio")]
-    levels = [lg.level for lg in loggers]
-    for lg in loggers:
-        lg.setLevel(logging.CRITICAL + 1)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with _silenced():
             yield
     except Exception:  # noqa: BLE001 - see above
         pass
-    finally:
-        for lg, lv in zip(loggers, levels):
-            lg.setLevel(lv)
 
 
 @contextlib.contextmanager

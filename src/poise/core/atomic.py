@@ -58,7 +58,7 @@ def output_target(path, inputs=()) -> str:
     real = os.path.realpath(path)
     try:
         st = os.stat(real)
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):     # a new file (its directory: the writer's)
         return real
     if not stat.S_ISREG(st.st_mode):
         raise UsageError(f"output {path!r} exists and is not a regular file; expected the path "
