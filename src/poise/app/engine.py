@@ -93,9 +93,12 @@ def probe_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
     thread of its own (its own event loop), bounded by ``timeout``."""
     import asyncio
     from distributed.comm import connect
+    from distributed.security import Security
 
     async def ask():
-        comm = await connect(address, timeout=timeout)
+        # the client's connection arguments (TLS from the Dask configuration, as Client uses)
+        comm = await connect(address, timeout=timeout,
+                             **Security().get_connection_args("client"))
         try:
             await comm.write({"op": "identity", "reply": True})
             return await comm.read()
