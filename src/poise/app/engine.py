@@ -35,10 +35,16 @@ class NoWorkers(UsageError):
         self.rows = rows
 
 
+_DASK_LOGGERS = ("distributed", "dask", "tornado", "asyncio")
+
+
 @contextlib.contextmanager
 def _silenced():
-    """Dask's loggers say nothing and warnings are dropped inside the block."""
-    loggers = [logging.getLogger(n) for n in ("distributed", "dask", "tornado", "asyncio")]
+    """Dask's loggers say nothing and warnings are dropped inside the block (every logger of
+    those packages: Dask gives some children levels of their own, ``distributed.client``)."""
+    names = [n for n in list(logging.root.manager.loggerDict)
+             if n.split(".", 1)[0] in _DASK_LOGGERS]
+    loggers = [logging.getLogger(n) for n in dict.fromkeys([*_DASK_LOGGERS, *names])]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
         lg.setLevel(logging.CRITICAL + 1)
