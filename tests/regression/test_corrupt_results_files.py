@@ -30,7 +30,8 @@ REFUSED = {
     "external_link_missing": "/analysis_000/bodies: a link to another file",
     "external_link_etc_passwd": "/model: a link to another file (/etc/passwd:/x)",
     "virtual_dataset_missing_source": "/analysis_000/frames/imbalance: a virtual dataset",
-    "huge_declared_dataset": "/analysis_000/frames/imbalance: axis F has 100000000000 entries",
+    "huge_declared_dataset": "/analysis_000/frames/imbalance: declares 745 GiB of data (shape "
+                             "(100000000000,)",
     "settings_not_json": "/analysis_000@settings: not a JSON object",
     "position_2d": "/analysis_000/bodies/position: shape (21, 9), declared (F, B, 3)",
     "mkeam_no_bodies": "/analysis_000: no dataset 'bodies/position'",

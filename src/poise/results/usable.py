@@ -7,13 +7,13 @@ metadata (no data is read) and refuses, with :class:`ResultsFormatError` (exit 2
 
 * links to other files, soft links, virtual or externally stored datasets (poise writes none:
   reading them would open other files, e.g. ``/etc/passwd``), null dataspaces;
-* a declared dataset (:mod:`poise.results.schema`) whose dtype kind or rank differs from its
-  declaration, or whose shape disagrees with the rest of its group (``F`` frames of
-  ``frames/imbalance`` against ``time``, ``B`` bodies ...), so a dataset declaring 745 GiB
-  never gets allocated;
+* a declared dataset (:mod:`poise.results.schema`) whose dtype kind, rank or fixed axis
+  (``3`` of a position) differs from its declaration (a frame count that disagrees with the
+  others is read: such a file is written rather than lost, and conformance names it);
 * an analysis without ``time`` or ``bodies/position`` (every poise file has them), or whose
   ``settings`` attribute is not a JSON object;
-* more data than the memory available;
+* more data than the memory available (a dataset declaring 745 GiB is named, never
+  allocated);
 * anything HDF5 cannot read while walking it (damaged metadata), naming the object.
 
 Undeclared objects (a newer poise, another tool's additions) are allowed; their size counts.
@@ -29,7 +29,6 @@ import h5py
 from poise.core.errors import UsageError
 from poise.results.schema import _DTYPES, lookup, shape_text
 
-_SYMBOL = re.compile(r"(\d*)([A-Za-z]\w*)")
 #: datasets every analysis group of a poise file has, whatever its method or age
 _REQUIRED = ("time", "bodies/position")
 
@@ -56,8 +55,10 @@ def check_usable(f: h5py.File, path) -> None:
                     raise _Unusable(inst, f"no dataset {name!r} (every poise analysis has one)")
         avail = _available_memory()
         if avail is not None and walk.nbytes > avail:
-            raise _Unusable("/", f"holds {_gib(walk.nbytes)} of data, more than the "
-                            f"{_gib(avail)} of memory available")
+            where, size, shape = walk.largest
+            raise _Unusable(where, f"declares {_gib(size)} of data (shape {shape}; "
+                            f"{_gib(walk.nbytes)} in all), more than the {_gib(avail)} of "
+                            "memory available")
     except _Unusable as e:
         raise ResultsFormatError(f"{os.fspath(path)}: not a usable poise results file: {e}") \
             from None
@@ -71,7 +72,7 @@ class _Walk:
     def __init__(self):
         self.where = ""
         self.nbytes = 0
-        self.sizes: dict[tuple, int] = {}
+        self.largest = ("/", 0, ())
         self.analyses: dict[str, set] = {}
 
     def group(self, g: h5py.Group, scope: str, inst: str, rel: str = "") -> None:
@@ -118,7 +119,10 @@ class _Walk:
             raise _Unusable(where, "a virtual dataset (data in other files); poise writes none")
         if ds.external:
             raise _Unusable(where, "data stored in external files; poise writes none")
-        self.nbytes += int(ds.size) * int(ds.dtype.itemsize)
+        size = int(ds.size) * int(ds.dtype.itemsize)
+        self.nbytes += size
+        if size > self.largest[1]:
+            self.largest = (where, size, ds.shape)
         if scope == "analysis":
             self.analyses[inst].add(rel)
         it = lookup(scope, "dataset", rel)
@@ -130,16 +134,8 @@ class _Walk:
         if len(ds.shape) != len(it.shape):
             raise _Unusable(where, f"shape {ds.shape}, declared {shape_text(it.shape)}")
         for n, s in zip(ds.shape, it.shape):
-            m = _SYMBOL.fullmatch(str(s))
-            if isinstance(s, int) or not m:
-                if n != s:
-                    raise _Unusable(where, f"shape {ds.shape}, declared {shape_text(it.shape)}")
-                continue
-            k = int(m.group(1) or 1)
-            key = (inst, m.group(2))
-            if n % k or self.sizes.setdefault(key, n // k) != n // k:
-                raise _Unusable(where, f"axis {s} has {n} entries, elsewhere in "
-                                f"{inst or '/'} {m.group(2)} = {self.sizes[key] * k}")
+            if isinstance(s, int) and n != s:
+                raise _Unusable(where, f"shape {ds.shape}, declared {shape_text(it.shape)}")
 
 
 def _available_memory() -> int | None:
