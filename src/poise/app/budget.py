@@ -10,8 +10,9 @@ Two things grow without bound with what a deck (or an option) asks for:
   :mod:`poise.solvers.compliance`): per converged frame the 6M x 6M matrix plus the dense
   right-hand sides and solutions of the KKT solve, 2 x (nq + nc) x 6M numbers.
 
-The budget is the smaller of the memory available (``MemAvailable``) and ``POISE_MAX_MEMORY``
-(bytes, or with a unit: ``8G``, ``512M``, ``2GiB``; default :data:`DEFAULT_MAX`). Too many
+The budget is the memory available (``MemAvailable``), capped by ``POISE_MAX_MEMORY`` when set
+(bytes, or with a unit: ``8G``, ``512M``, ``2GiB``): a run that fits the machine is never
+refused by an arbitrary default. Too many
 frames is the deck's problem (located at its ``Simulate``, exit 3); a compliance request the
 deck's (``Param_Static compliance_markers``, exit 3) or the command line's (exit 2).
 """
@@ -24,25 +25,26 @@ from poise.core.errors import DeckError, Problem, UsageError
 
 FRAME_BYTES = 24_000
 FRAME_BYTES_PER_COORD = 250
-DEFAULT_MAX = 4 * 2**30
 ENV = "POISE_MAX_MEMORY"
 _UNITS = {"": 1, "B": 1, "K": 10**3, "M": 10**6, "G": 10**9, "T": 10**12,
           "KI": 2**10, "MI": 2**20, "GI": 2**30, "TI": 2**40}
 
 
 def memory_budget() -> tuple[int, str]:
-    """``(bytes, where it comes from)``: ``POISE_MAX_MEMORY`` (default 4 GiB) or the memory
-    available, whichever is smaller."""
+    """``(bytes, where it comes from)``: the memory available, or ``POISE_MAX_MEMORY`` where
+    that is smaller."""
     text = os.environ.get(ENV, "").strip()
-    limit, src = DEFAULT_MAX, f"the default limit ({ENV} to change it)"
+    limit, src = None, ""
     if text:
         m = re.fullmatch(r"(\d+(?:\.\d*)?(?:[eE][+-]?\d+)?)\s*([kKmMgGtT]?[iI]?)[bB]?", text)
         if not m:
             raise UsageError(f"{ENV}={text!r}: expected a size such as 8G, 512M or 2GiB")
         limit, src = int(float(m.group(1)) * _UNITS[m.group(2).upper()]), ENV
     avail = available_memory()
-    if avail is not None and avail < limit:
-        return avail, "the memory available"
+    if avail is not None and (limit is None or avail < limit):
+        return avail, f"the memory available ({ENV} to cap it)"
+    if limit is None:                   # nothing known about this machine: no refusal
+        return 2**63, "no known limit"
     return limit, src
 
 
