@@ -342,12 +342,8 @@ class _Builder:
             RbT = np.swapaxes(body_rot[b], 1, 2)
             s0[mv] = np.einsum("nij,nj->ni", RbT, P[mv] - body_pos[b])
             A0[mv] = np.matmul(RbT, R[mv])
-        if len(els):
-            c = P.mean(axis=0)
-            L = float(np.max(np.linalg.norm(P - c, axis=1)))
-        else:
-            L = 0.0
-        self.L = L if L > 0 else 1.0
+        self.marker_P = P
+        self.L = _extent(P)
         return dict(marker_id=np.array(ids, int), marker_body=np.concatenate([[nb], mb]),
                     marker_s0=np.concatenate([np.zeros((1, 3)), s0]),
                     marker_A0=np.concatenate([np.eye(3)[None], A0]))
@@ -368,6 +364,25 @@ class _Builder:
                           attr)
             return GLOBAL
         return self.marker_index[mid]
+
+
+def _extent(P) -> float:
+    """Largest distance of the points ``P`` (n, 3) from their centroid (1.0 if none or 0)."""
+    L = float(np.max(np.linalg.norm(P - P.mean(axis=0), axis=1))) if len(P) else 0.0
+    return L if L > 0 and np.isfinite(L) else 1.0
+
+
+def _participating_extent(P, on_moving, fams, fallback) -> float:
+    """The model size ``L``: :func:`_extent` of the markers that play a part in the equations,
+    i.e. those on moving bodies and those an element family reads (``f.markers``, row 0 of
+    the marker arrays is the global frame). A marker nothing reads (an unused ground marker
+    1e14 mm away) must not set the scale of tolerances, rotations and the stability
+    classification. ``fallback``: the extent of all markers, when none plays a part."""
+    used = np.asarray(on_moving, bool).copy()
+    for f in fams:
+        idx = np.asarray(getattr(f, "markers", np.zeros((0, 0), int)), np.int64).ravel() - 1
+        used[idx[(idx >= 0) & (idx < len(used))]] = True
+    return _extent(P[used]) if used.any() else fallback
 
 
 def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
@@ -397,9 +412,6 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     b.markers()
     bodies = b.bodies(mfac)
     markers = b.marker_arrays(bodies["init_pos"], bodies["init_rot"])
-    for bid in getattr(b, "_needs_default_inertia", []):
-        i = b.body_index[bid]
-        bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * b.L) ** 2 * np.eye(3)
     b.body_mass = bodies["body_mass"]
 
     ctx = CompileContext(b)
@@ -409,6 +421,13 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
     pc = b.pc
     pc.raise_if_any()
+    b.L = _participating_extent(b.marker_P, markers["marker_body"][1:] < len(b.moving), fams, b.L)
+    for f in fams:                        # user routines' finite-difference steps scale with L
+        if getattr(f, "routine", None) is not None:
+            f.routine.L = b.L
+    for bid in getattr(b, "_needs_default_inertia", []):
+        i = b.body_index[bid]
+        bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * b.L) ** 2 * np.eye(3)
 
     # ------------------------------------------------------------ layout
     nb = len(b.moving)
