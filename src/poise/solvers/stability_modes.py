@@ -13,13 +13,16 @@ import numpy as np
 
 DENSE_LIMIT = 300       # coordinates; dense cost grows as nq^3 (3000: 30 s, sparse 0.05 s)
 ZERO_REL = 1e-8
-DIAG_FLOOR = 1e-24     # relative floor of the diagonal in the Jacobi equilibration
+NOISE_REL = 1e-14      # round-off level of a stiffness entry, relative to its matrix or rows
+# relative floor of the diagonal in the equilibrations (x ||K_s||): round-off (NOISE_REL x
+# ||K_s||) is never magnified beyond a tenth of the zero threshold, so an exactly zero direction
+# (a free spin) is zero whatever the sign of its rounding errors
+DIAG_FLOOR = 10.0 * NOISE_REL / ZERO_REL
 # sparse path (nq > DENSE_LIMIT)
 N_MODES = 6            # modes described per class (as the dense path)
 AUG_RHO = (1.0, 16.0, 1.0 / 16.0)   # augmented-Lagrangian weights tried in turn (inertia-neutral)
 BERR_MAX = 1e-2        # LDL^T backward-error estimate allowed, as a fraction of the zero threshold
 SMALL_OP = 64          # mode operators up to this size are decomposed densely
-NOISE_REL = 1e-14      # stiffness entries below this fraction of both their rows' largest: round-off
 WEAK_DIAG = 1e-3       # scaled augmented diagonal below this: eliminated after its neighbours
 TINY_PIVOT = 1e-3      # pivots below this fraction of the zero threshold: sign not reliable
 
