@@ -89,6 +89,7 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
         if a.size:
             r[nz] = np.maximum.reduceat(a * D[rows] * D[B.indices], starts)
         r[r <= 0.0] = 1.0                              # an all-zero row keeps its scale
+        r[:nq][(D[:nq] >= cap) & (r[:nq] < 1.0)] = 1.0   # at its cap: as far as it goes
         if np.all(np.abs(r - 1.0) <= tol):
             break
         D /= np.sqrt(r)
@@ -98,31 +99,29 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
 
 def equilibrate_dense(Ks, G, iters=12, tol=0.1):
     """:func:`equilibrate` of a stack of dense KKT matrices, ``Ks`` (F, n, n) and ``G``
-    (F, m, n), each frame iterated as it would be alone. Returns ``Dq`` (F, n), ``Dl`` (F, m)."""
+    (F, m, n), each frame iterated as it would be alone (a frame whose rows are within ``tol``
+    keeps its factors). Returns ``Dq`` (F, n), ``Dl`` (F, m)."""
     F, n = Ks.shape[:2]
     m = G.shape[1]
     A, B = np.abs(Ks), np.abs(G)
     R = A.sum(axis=2)
     nbr = np.maximum(R, np.where(A > 0.0, R[:, None, :], 0.0).max(axis=2, initial=0.0))
     cap = _cap(R, nbr)
-    Dq, Dl = np.ones((F, n)), np.ones((F, m))
-    np.minimum(Dq, cap, out=Dq)
+    Dq, Dl = np.minimum(np.ones((F, n)), cap), np.ones((F, m))
+    bufA, bufB = np.empty_like(A), np.empty_like(B)
     go = np.ones(F, bool)
     for _ in range(iters):
-        f = np.nonzero(go)[0]
-        rq = (A[f] * Dq[f][:, None, :]).max(axis=2, initial=0.0)
+        rq = np.multiply(A, Dq[:, None, :], out=bufA).max(axis=2, initial=0.0)
         if m:
-            rq = np.maximum(rq, (B[f] * Dl[f][:, :, None]).max(axis=1, initial=0.0))
-        rq *= Dq[f]
-        rl = (B[f] * Dq[f][:, None, :]).max(axis=2, initial=0.0) * Dl[f]
-        rq[rq <= 0.0] = 1.0                            # an all-zero row keeps its scale
+            rq = np.maximum(rq, np.multiply(B, Dl[:, :, None], out=bufB).max(axis=1, initial=0.0))
+        rq *= Dq
+        rl = np.multiply(B, Dq[:, None, :], out=bufB).max(axis=2, initial=0.0) * Dl
+        rq[(rq <= 0.0) | ((Dq >= cap) & (rq < 1.0))] = 1.0   # all-zero row, or at its cap
         rl[rl <= 0.0] = 1.0
-        done = np.all(np.abs(rq - 1.0) <= tol, axis=1) & np.all(np.abs(rl - 1.0) <= tol, axis=1)
-        go[f[done]] = False
-        u = ~done
-        if not u.any():
+        go &= ~(np.all(np.abs(rq - 1.0) <= tol, axis=1) & np.all(np.abs(rl - 1.0) <= tol, axis=1))
+        if not go.any():
             break
-        fu = f[u]
-        Dq[fu] = np.minimum(Dq[fu] / np.sqrt(rq[u]), cap[fu])
-        Dl[fu] = Dl[fu] / np.sqrt(rl[u])
+        rq[~go], rl[~go] = 1.0, 1.0
+        Dq = np.minimum(Dq / np.sqrt(rq), cap)
+        Dl = Dl / np.sqrt(rl)
     return Dq, Dl
