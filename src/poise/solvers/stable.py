@@ -33,7 +33,7 @@ from poise.solvers.newton import (
     newton,
 )
 from poise.solvers.pencil_dense import DENSE_PENCIL, DensePencil
-from poise.solvers.stability import AUG_RHO, _SparsePencil
+from poise.solvers.stability import AUG_RHO, _SparsePencil, unknown_info
 from poise.solvers.status import Status
 
 ESCAPE_ROT = 0.3          # rad: largest rotation of the first escape trial
@@ -116,7 +116,9 @@ def _escape_direction(model, info):
 def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, start=None):
     """Continue from the unstable equilibrium ``state`` (classification ``info``) to a stable
     one. ``classify_at(state) -> StabilityInfo``. Returns ``(state, outcome, info, note)``;
-    ``outcome.ok`` only at an equilibrium whose classification is :func:`acceptable`.
+    ``outcome.ok`` only at an equilibrium whose classification is :func:`acceptable`; ``info``
+    is the returned state's classification (``unknown`` when the descent stopped short of an
+    equilibrium), also when the outcome fails.
 
     ``start``: the (assembled) input Newton started from. The descent is tried from there
     first, with at most half the budget: it is the rest position reached downhill from the
@@ -200,7 +202,8 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
             reason = why[0] if why else (f"the descent did not reach an equilibrium within its "
                                          f"budget ({budget} = {STEPS_PER_ITER} x max_num_iter "
                                          "steps)")
-            return state, _fail(used, reason + _zero_modes_at(classify_at, state)), info, ""
+            return state, _fail(used, reason + _zero_modes_at(classify_at, state)), \
+                unknown_info(f"not classified: not at an equilibrium ({reason})"), ""
         info = classify_at(state)
 
 
