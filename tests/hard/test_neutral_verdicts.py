@@ -328,7 +328,9 @@ def test_unused_far_marker_changes_nothing(runner):
                             'pos_x="1e14" pos_y="0" pos_z="0"/>\n</Model>')
     far = runner.tmp / "far.xml"
     far.write_text(far_text)
-    assert compile_model(load_deck(str(far))).L == compile_model(load_deck(str(base))).L == 250.0
+    # L: the largest distance of the deck's five markers (all at z = 0 on the X axis: 0, 0, 0,
+    # 200, 400 mm) from their centroid (120 mm): 280 mm, with or without the far marker
+    assert compile_model(load_deck(str(far))).L == compile_model(load_deck(str(base))).L == 280.0
     a, b = run_deck(str(base)).analyses[0], run_deck(str(far)).analyses[0]
     assert a.converged and b.converged
     assert _verdict(a) == _verdict(b) == ("stable", 0, 0)

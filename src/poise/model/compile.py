@@ -372,15 +372,35 @@ def _extent(P) -> float:
     return L if L > 0 and np.isfinite(L) else 1.0
 
 
-def _participating_extent(P, on_moving, fams, fallback) -> float:
-    """The model size ``L``: :func:`_extent` of the markers that play a part in the equations,
-    i.e. those on moving bodies and those an element family reads (``f.markers``, row 0 of
-    the marker arrays is the global frame). A marker nothing reads (an unused ground marker
-    1e14 mm away) must not set the scale of tolerances, rotations and the stability
-    classification. ``fallback``: the extent of all markers, when none plays a part."""
-    used = np.asarray(on_moving, bool).copy()
+_MARKER_REFS = ("cg_id", "lprf_id", "im_id", "jm_id", "rm_id")
+
+
+def _referenced_markers(spec, ids) -> np.ndarray:
+    """(len(ids),) bool: the marker is named by a marker attribute (``*marker_id``, ``cg_id``,
+    ``lprf_id``, ``rm_id``, ...) of a model element other than the output-only ``Post_*``."""
+    named = set()
+    for el in spec.model:
+        if el.tag.startswith("Post_"):
+            continue
+        for k, v in el.attrs.items():
+            if k.endswith("marker_id") or k in _MARKER_REFS:
+                named.add(v)
+    return np.array([i in named for i in ids], bool)
+
+
+def _participating_extent(P, used, fams, fallback) -> float:
+    """The model size ``L``: :func:`_extent` of the markers that play a part, i.e. ``used``
+    (those on moving bodies and those model elements name) and those an element family reads
+    (``f.markers``, row 0 of the marker arrays is the global frame). A marker nothing uses (an
+    unused ground marker 1e14 mm away) must not set the scale of tolerances, rotations and the
+    stability classification. ``fallback``: the extent of all markers, when none plays a part."""
+    used = np.asarray(used, bool).copy()
     for f in fams:
-        idx = np.asarray(getattr(f, "markers", np.zeros((0, 0), int)), np.int64).ravel() - 1
+        idx = list(np.asarray(getattr(f, "markers", np.zeros((0, 0), int)), np.int64).ravel())
+        r = getattr(f, "routine", None)          # a user routine also reads ground markers
+        if r is not None:
+            idx += [r.mi.get(mid, 0) for mid, _ in r.slots]
+        idx = np.asarray(idx, np.int64) - 1
         used[idx[(idx >= 0) & (idx < len(used))]] = True
     return _extent(P[used]) if used.any() else fallback
 
@@ -421,7 +441,12 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
     pc = b.pc
     pc.raise_if_any()
-    b.L = _participating_extent(b.marker_P, markers["marker_body"][1:] < len(b.moving), fams, b.L)
+    # L from the markers that play a part (unknown when a user routine was not run: which
+    # markers it reads is learnt by running it; all markers then, as poise check needs no more)
+    if not (b.user_routines and user_code != "run"):
+        used = (markers["marker_body"][1:] < len(b.moving)) | \
+            _referenced_markers(spec, markers["marker_id"][1:].tolist())
+        b.L = _participating_extent(b.marker_P, used, fams, b.L)
     for f in fams:                        # user routines' finite-difference steps scale with L
         if getattr(f, "routine", None) is not None:
             f.routine.L = b.L

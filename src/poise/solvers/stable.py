@@ -78,7 +78,9 @@ def require_stable_check(ar, out, settings):
     ar.datasets["frames/converged"] = np.array([False])
     ar.datasets["frames/status"] = np.array([Status.UNSTABLE.value], dtype=str)
     ar.status = "failed"
-    ar.message = "no stable equilibrium reached (--require-stable): " + why + "; " + ar.message
+    rest = "; ".join(m for m in ar.message.split("; ") if m and m != "converged")
+    ar.message = "no stable equilibrium reached (--require-stable): " + why + \
+        (f"; {rest}" if rest else "")
 
 
 def _energy_drop(model, a, b, cnt, pa=None):
