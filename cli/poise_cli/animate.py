@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import click
 
+from poise.core.wording import plural
 from poise_cli.options import debug_option, json_option, quiet_option
 from poise_cli.picture import run_picture
 
@@ -40,5 +41,5 @@ def animate(results, out, analysis, frame, every, max_frames, fps, no_graphics, 
                                progress=False if quiet else None)
 
     run_picture(ctx, results, make, as_json, debug, quiet,
-                lambda info: f"wrote {out} ({info['frames']} frames, "
+                lambda info: f"wrote {out} ({plural(info['frames'], 'frame')}, "
                              f"{info['width']}x{info['height']}, plane {info['plane']})")

@@ -5,6 +5,7 @@ import dataclasses
 
 import click
 
+from poise.core.wording import plural
 from poise_cli.errors import report_exception
 from poise_cli.options import debug_option, json_option
 from poise_cli.summary import print_json, sanitize
@@ -25,13 +26,14 @@ def format_report(rep) -> list[str]:
     lines = [f"deck: {rep.deck}"]
     lines.append(f"analyses: {len(rep.analyses)}")
     for i, a in enumerate(rep.analyses):
-        lines.append(f"  {i}: {_s(a.get('analysis_type'))} {_s(a.get('method'))}, "
-                     f"{_s(a.get('n_frames'))} frame(s)")
+        n = a.get("n_frames")
+        lines.append(f"  {i}: {_s(a.get('analysis_type'))} {_s(a.get('method'))}"
+                     + ("" if n is None else f", {plural(n, 'frame')}"))
     lines.append(f"bodies: {len(rep.bodies)}")
     lines += _table([["id", "label", "kind", "mass"]] + [
         [_s(b.get("id")), _s(b.get("label")), _s(b.get("kind")), _s(b.get("mass"))]
         for b in rep.bodies]) if rep.bodies else []
-    lines.append(f"constraints: {len(rep.constraints)} ({rep.n_equations} equations)")
+    lines.append(f"constraints: {len(rep.constraints)} ({plural(rep.n_equations, 'equation')})")
     lines += _table([["tag", "id", "type", "equations", "line"]] + [
         [_s(c.get("tag")), _s(c.get("id")), _s(c.get("type")), _s(c.get("n_equations")),
          _s(c.get("line"))] for c in rep.constraints]) if rep.constraints else []

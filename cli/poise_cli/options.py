@@ -106,3 +106,33 @@ worker_timeout_option = click.option(
     show_default=True, metavar="SECONDS",
     help="Give up (exit 2, keeping what finished) when the Dask cluster has had no worker for "
          "this long (a scheduler nobody joined, or whose workers all died).")
+
+
+#: ``ctx.meta`` key of ``poise batch --jobs`` (the former name of -j/--workers, kept hidden)
+_JOBS_ALIAS = "poise.jobs"
+
+
+def _store_jobs(ctx, param, value):
+    if value is not None:
+        ctx.meta[_JOBS_ALIAS] = value
+    return value
+
+
+def workers_option(f):
+    """``-j/--workers N`` of ``poise batch`` and ``poise sweep`` (one name, one meaning)."""
+    f = click.option("--jobs", type=click.IntRange(min=0), default=None, hidden=True,
+                     expose_value=False, callback=_store_jobs,
+                     help="Former name of -j/--workers.")(f)
+    return click.option(
+        "-j", "--workers", type=click.IntRange(min=0), default=0, show_default=True,
+        metavar="N", help="Worker processes of the local cluster (0 = number of CPUs; ignored "
+                          "with --scheduler).")(f)
+
+
+def workers_given(workers: int) -> int:
+    """``-j/--workers``, or the hidden ``--jobs`` when only that was given."""
+    ctx = click.get_current_context(silent=True)
+    jobs = ctx.meta.get(_JOBS_ALIAS) if ctx is not None else None
+    if jobs is not None and ctx.get_parameter_source("workers") is click.core.ParameterSource.DEFAULT:
+        return jobs
+    return workers

@@ -4,7 +4,6 @@ from __future__ import annotations
 import os
 import shlex
 import sys
-import time
 from pathlib import Path
 
 import click
@@ -110,17 +109,21 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
         for w in warnings:
             click.echo(f"warning: {w}", err=True)
 
-    t0 = time.perf_counter()
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+    from poise.core import phases
     try:
-        with guarded_stdout(quiet), collected_warnings():
-            # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
-            from poise.results.hdf5 import write_results
+        with phases.counting_imports(), guarded_stdout(quiet), collected_warnings():
+            t0, imported = phases.now(), phases.import_seconds()   # imports: their own phase
+            from poise.results.hdf5 import write_results   # lazy: h5py, timed as import
             write_results(result, out)
+            t_write = phases.now() - t0
+            imported = phases.import_seconds() - imported
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return
     timings = dict(result.timings)
-    timings["write"] = time.perf_counter() - t0
+    timings["write"] = t_write
+    timings["import"] = timings.get("import", 0.0) + imported
 
     if not quiet:
         if not reported:  # the runner did not report per analysis: print our own lines

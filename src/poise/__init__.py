@@ -4,13 +4,9 @@ Imports are lazy so that ``import poise`` (and ``poise --help``) stays light.
 """
 from __future__ import annotations
 
-import os
-
-# The solver's dense work is on 3x3 .. 12x12 blocks and vectors: multi-threaded OpenBLAS only adds
-# thread start-up and, on a loaded machine, busy-waiting (a 1000-link chain solved 1.8x slower on
-# 2 cores with another process running). Takes effect when poise is imported before numpy; an
-# explicit setting in the environment wins.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# first: single-threaded BLAS for every library loaded from now on (poise.core.blas; runs
+# limit the ones loaded before)
+from poise.core import blas as _blas  # noqa: F401
 
 from poise.core.version import __version__
 

@@ -84,6 +84,8 @@ _d("root", "warnings", "str", ("W",), "", "located warnings (`FILE:LINE: <Tag id
 for n, m in (("parse", "reading and validating the deck"),
              ("compile", "building the compiled model"),
              ("solve", "all analyses (everything between compile and writing)"),
+             ("import", "importing the modules the run needed on first use (SciPy, SUNDIALS, "
+                        "...); left out of `parse`, `compile`, `solve` and its phases"),
              ("solve_evaluate", "inside `solve`: element kernels and residuals (incl. batched "
                                 "frame outputs)"),
              ("solve_assemble", "inside `solve`: KKT Jacobian assembly (local tangents + "
@@ -92,7 +94,8 @@ for n, m in (("parse", "reading and validating the deck"),
              ("analysis_<NNN>", "one analysis (part of `solve`; printed on the analysis' "
                                 "summary line)"),
              ("write", "writing this file, up to closing it (fsync and rename excluded)")):
-    _a("timings", n, "float", m, "timings", unit="s", optional=n.startswith("solve_"))
+    _a("timings", n, "float", m, "timings", unit="s",
+       optional=n.startswith("solve_") or n == "import")
 for n, m in (("residuals", "residual evaluations"), ("jacobians", "Jacobian evaluations"),
              ("factorizations", "factorisations of the KKT matrix")):
     _a("counts", n, "int", m, "counts")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError, UsageError
+from poise.core.wording import plural
 from poise.model.evaluate import evaluate
 from poise.model.frame_batch import batchable, chunk_size
 from poise.model.model import _log_so3
@@ -342,7 +343,7 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
             "unstable": "unstable equilibrium: written as the KKT solve gives it",
             "fd_failed": "fd re-solve did not converge: NaN columns",
             "not_converged": "frame not converged: NaN"}
-    parts = [f"{sum(f == k for f in flags)} frame(s) {k} ({v})" for k, v in said.items()
+    parts = [f"{plural(sum(f == k for f in flags), 'frame')} {k} ({v})" for k, v in said.items()
              if k in flags]
     if note or parts:
         ar.attrs["compliance_note"] = "; ".join([note] * bool(note) + parts)

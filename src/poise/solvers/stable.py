@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.core.wording import plural
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import (
@@ -132,7 +133,7 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
     used = 0
     if start is not None:
         history.add(frame, 0, np.nan, np.nan, event=f"stable: Newton's equilibrium is unstable "
-                    f"({info.n_negative} negative modes): descent from the input")
+                    f"({plural(info.n_negative, 'negative mode')}): descent from the input")
         why = []
         try:
             st, out, _, used = descend(model, start, settings, history, frame, cnt,
@@ -143,8 +144,9 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
         if out is not None:
             i2 = classify_at(st)
             if acceptable(i2, settings):
-                note = (f"--require-stable: Newton's equilibrium was unstable ({info.n_negative} "
-                        f"negative modes); descended from the input ({used} steps) to a "
+                note = (f"--require-stable: Newton's equilibrium was unstable "
+                        f"({plural(info.n_negative, 'negative mode')}); descended from the input "
+                        f"({plural(used, 'step')}) to a "
                         f"{i2.klass} one")
                 return st, FrameOutcome(Status.CONVERGED, used, np.nan, np.nan, "converged"), \
                     i2, note
@@ -156,7 +158,7 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
     while True:
         if acceptable(info, settings):
             note = (f"--require-stable: left {escapes} unstable equilibri"
-                    f"{'um' if escapes == 1 else 'a'} downhill ({used} descent steps) to a "
+                    f"{'um' if escapes == 1 else 'a'} downhill ({plural(used, 'descent step')}) to a "
                     f"{info.klass} one")
             return state, FrameOutcome(Status.CONVERGED, used, np.nan, np.nan, "converged"), info, note
         if info.klass != "unstable":
@@ -165,8 +167,9 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
                    (f" ({info.modes})" if info.modes else ""))
             return state, _fail(used, why), info, ""
         if escapes >= MAX_ESCAPES or used >= budget:
-            return state, _fail(used, f"still unstable ({info.n_negative} negative modes) after "
-                                f"{escapes} escapes and {used} descent steps (budget "
+            return state, _fail(used, f"still unstable ({plural(info.n_negative, 'negative mode')}) "
+                                f"after {plural(escapes, 'escape')} and "
+                                f"{plural(used, 'descent step')} (budget "
                                 f"{budget} = {STEPS_PER_ITER} x max_num_iter)"), info, ""
         d = _escape_direction(model, info)
         if d is None:
@@ -174,7 +177,7 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
                 info, ""
         escapes += 1
         history.add(frame, 0, np.nan, np.nan, event=f"stable: escape {escapes}: unstable "
-                    f"({info.n_negative} negative modes)")
+                    f"({plural(info.n_negative, 'negative mode')})")
         moved = None
         for f in ESCAPE_SHRINK:
             for sgn in (1.0, -1.0):
@@ -217,8 +220,8 @@ def _zero_modes_at(classify_at, state) -> str:
     except (EvaluationError, SingularMatrix, ValueError, ArithmeticError):
         return ""
     if info.n_zero > 0:
-        return (f"; the point reached has {info.n_zero} zero-stiffness "
-                f"mode{'s' if info.n_zero > 1 else ''} ({info.modes})")
+        return (f"; the point reached has {plural(info.n_zero, 'zero-stiffness mode')} "
+                f"({info.modes})")
     return ""
 
 
@@ -380,7 +383,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None, why=No
     steps += o.iterations
     if o.ok:
         return st, o, pe, steps
-    why.append(f"not at an equilibrium after {steps} descent steps (imbalance {imb:.3g}; "
+    why.append(f"not at an equilibrium after {plural(steps, 'descent step')} (imbalance {imb:.3g}; "
                f"budget {budget}), and Newton's polish from there failed ({o.message})"
                if steps >= budget else
                f"the descent stopped at imbalance {imb:.3g} and Newton's polish from there "
@@ -391,9 +394,9 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None, why=No
 def _stalled(imb, sigma, failed):
     """Why the descent stopped without a step (not the budget: it was not used up)."""
     if failed:
-        return (f"the descent stalled at imbalance {imb:.3g}: no trial along {failed} "
-                f"successively shifted directions (shift up to {sigma:.3g}) lowered the "
-                "potential energy measurably")
+        return (f"the descent stalled at imbalance {imb:.3g}: no trial along "
+                f"{plural(failed, 'successively shifted direction')} (shift up to {sigma:.3g}) "
+                "lowered the potential energy measurably")
     return (f"the descent stalled at imbalance {imb:.3g}: no shift of the stiffness (up to "
             f"{sigma:.3g}) gave a positive definite reduced matrix with a reliable "
             "factorisation")
