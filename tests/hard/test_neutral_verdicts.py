@@ -349,6 +349,20 @@ def test_far_marker_on_a_neutral_pendulum(runner, far):
     _check_hanging(a, "mm")
 
 
+def test_far_marker_only_a_request_reads_changes_nothing(runner):
+    """A request measuring from a ground marker 1e14 mm away: the marker plays no part in the
+    equilibrium: L, rotation scales and verdict are those of the deck without it."""
+    d = spherical_pendulum("mm", far=1e14)
+    d.add("Post_Request", id=1, type="MARKER_DISPLACEMENT", i_marker_id=20, j_marker_id=999)
+    a = runner.api(d)
+    _check_hanging(a, "mm")
+    from poise.deck.parser import load_deck
+    from poise.model.compile import compile_model
+    near = spherical_pendulum("mm")
+    assert compile_model(load_deck(d.write(runner.tmp / "r.xml"))).L == \
+        compile_model(load_deck(near.write(runner.tmp / "n.xml"))).L
+
+
 def test_far_marker_deck_require_stable(tmp_path):
     """The reliability deck far_ground_marker_1e14.xml (pendulum_multiturn + an unused ground
     marker at x = 1e14 mm; also 1e99): stable, exit 0, with and without --require-stable."""

@@ -239,9 +239,11 @@ class _Builder:
         spec = self.spec
         rig = [e for e in spec.model if e.tag in _BODY_TAGS]
         moving = [e for e in rig if not (e.tag == "Body_Rigid" and e.attrs.get("isground"))]
-        ground_ids = {e.id for e in rig if e.tag == "Body_Rigid" and e.attrs.get("isground")}
+        ground = [e for e in rig if e.tag == "Body_Rigid" and e.attrs.get("isground")]
+        ground_ids = {e.id for e in ground}
         self.body_index = {e.id: i for i, e in enumerate(moving)}
         self.ground_ids = ground_ids
+        self.ground_frames = {e.attrs.get(k) for e in ground for k in ("cg_id", "lprf_id")}
         nb = len(moving)
         rigid = [e.tag == "Body_Rigid" for e in moving]
         kind = np.array([0 if r else 1 for r in rigid], int)
@@ -372,37 +374,46 @@ def _extent(P) -> float:
     return L if L > 0 and np.isfinite(L) else 1.0
 
 
-_MARKER_REFS = ("cg_id", "lprf_id", "im_id", "jm_id", "rm_id")
-
-
-def _referenced_markers(spec, ids) -> np.ndarray:
-    """(len(ids),) bool: the marker is named by a marker attribute (``*marker_id``, ``cg_id``,
-    ``lprf_id``, ``rm_id``, ...) of a model element other than the output-only ``Post_*``."""
+def _named_markers(spec, ids) -> np.ndarray:
+    """(len(ids),) bool: the marker is named by a marker attribute (the schema's marker
+    references: ``*marker_id``, ``cg_id``, ``lprf_id``, ...) of a model element other than a
+    ``Reference_Marker`` (its ``rm_id`` frame) or an output-only ``Post_*``: a body's frame, a
+    gear's contact point, a joint's markers."""
+    from poise.deck.schema import element_schema
     named = set()
-    for el in spec.model:
-        if el.tag.startswith("Post_"):
+    for tag in {e.tag for e in spec.model}:
+        sch = element_schema(tag)
+        if sch is None or tag == "Reference_Marker" or tag.startswith("Post_"):
             continue
-        for k, v in el.attrs.items():
-            if k.endswith("marker_id") or k in _MARKER_REFS:
-                named.add(v)
+        keys = [a.name for a in sch.attrs.values() if a.ref == "marker"]
+        if keys:
+            for el in spec.elements(tag):
+                named.update(el.attrs.get(k) for k in keys)
     return np.array([i in named for i in ids], bool)
 
 
-def _participating_extent(P, used, fams, fallback) -> float:
-    """The model size ``L``: :func:`_extent` of the markers that play a part, i.e. ``used``
-    (those on moving bodies and those model elements name) and those an element family reads
-    (``f.markers``, row 0 of the marker arrays is the global frame). A marker nothing uses (an
-    unused ground marker 1e14 mm away) must not set the scale of tolerances, rotations and the
-    stability classification. ``fallback``: the extent of all markers, when none plays a part."""
-    used = np.asarray(used, bool).copy()
+def _participating_extent(spec, b, markers, fams) -> float:
+    """The model size ``L``: :func:`_extent` of the markers that play a part: on moving
+    bodies, the ground's frames, read by an element family (``f.markers``; row 0 of the marker
+    arrays is the global frame) or a user routine, or else named by a model element
+    (:func:`_named_markers`, scanned only when markers are left over). A marker nothing reads
+    (an unused ground marker 1e14 mm away, one only a Post_Request names) must not set the
+    scale of tolerances, rotations and the stability classification. All markers when none
+    plays a part."""
+    ids = markers["marker_id"][1:]
+    used = markers["marker_body"][1:] < len(b.moving)
+    used |= np.isin(ids, np.array([i for i in b.ground_frames if i is not None], int))
+    idx = [np.asarray(getattr(f, "markers", np.zeros((0, 0), int)), np.int64).ravel()
+           for f in fams]
     for f in fams:
-        idx = list(np.asarray(getattr(f, "markers", np.zeros((0, 0), int)), np.int64).ravel())
         r = getattr(f, "routine", None)          # a user routine also reads ground markers
         if r is not None:
-            idx += [r.mi.get(mid, 0) for mid, _ in r.slots]
-        idx = np.asarray(idx, np.int64) - 1
-        used[idx[(idx >= 0) & (idx < len(used))]] = True
-    return _extent(P[used]) if used.any() else fallback
+            idx.append(np.array([r.mi.get(mid, 0) for mid, _ in r.slots], np.int64))
+    idx = np.concatenate(idx + [np.zeros(0, np.int64)]) - 1
+    used[idx[(idx >= 0) & (idx < len(used))]] = True
+    if not used.all():
+        used |= _named_markers(spec, ids.tolist())
+    return _extent(b.marker_P[used]) if used.any() else b.L
 
 
 def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
@@ -444,9 +455,7 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     # L from the markers that play a part (unknown when a user routine was not run: which
     # markers it reads is learnt by running it; all markers then, as poise check needs no more)
     if not (b.user_routines and user_code != "run"):
-        used = (markers["marker_body"][1:] < len(b.moving)) | \
-            _referenced_markers(spec, markers["marker_id"][1:].tolist())
-        b.L = _participating_extent(b.marker_P, used, fams, b.L)
+        b.L = _participating_extent(spec, b, markers, fams)
     for f in fams:                        # user routines' finite-difference steps scale with L
         if getattr(f, "routine", None) is not None:
             f.routine.L = b.L
