@@ -117,7 +117,8 @@ _MODEL_GROUPS = {"joints": ("J", "`Constraint_Joint`"), "jprims": ("P", "`Constr
                  "forces": ("E", "force element"), "couplers": ("Cp", "`Constraint_Coupler`"),
                  "gears": ("G", "`Constraint_Gear`"),
                  "userconstrs": ("U", "`Constraint_UserConstr`"),
-                 "curves": ("Cv", "`Constraint_PTCV/CVCV/PTSF/CVSF/SFSF`")}
+                 "curves": ("Cv", "`Constraint_PTCV/CVCV/PTSF/CVSF/SFSF`"),
+                 "gcons": ("Gc", "`Constraint_General`")}
 for g, (s, what) in _MODEL_GROUPS.items():
     _d(M, f"{g}/id", "int", (s,), "1", f"{what} ids, in the order of the analyses' `{g}/*`",
        "model", optional=True)
@@ -295,6 +296,9 @@ _REACT = {
               "through its I marker"),
     "userconstrs": ("U", "`Constraint_UserConstr` (Python UCOSUB)", "reaction on the body of "
                     "the first marker the user routine reads, at its origin, global axes"),
+    "gcons": ("Gc", "`Constraint_General`", "the constraint's load on the body of its "
+              "`i_marker_id`, reduced to that marker's origin, global axes; NaN when the "
+              "element names no `i_marker_id` (MotionSolve gives no reaction then)"),
 }
 for g, (s, what, fm) in _REACT.items():
     opt = True
