@@ -376,20 +376,25 @@ def _extent(P) -> float:
 
 
 def _named_markers(spec, ids) -> np.ndarray:
-    """(len(ids),) bool: the marker is named by a marker attribute (the schema's marker
-    references: ``*marker_id``, ``cg_id``, ``lprf_id``, ...) of a model element other than a
-    ``Reference_Marker`` (its ``rm_id`` frame) or an output-only ``Post_*``: a body's frame, a
-    gear's contact point, a joint's markers."""
+    """(len(ids),) bool: the marker is named by a model element other than a
+    ``Reference_Marker`` (its ``rm_id`` frame) or an output-only ``Post_*``: in a marker
+    attribute of the schema (``*marker_id``, ``cg_id``, ``lprf_id``, ...: a gear's contact
+    point) or as a number in a text attribute (an expression's ``DX(200,101,101)``; a number
+    that is not a marker there only keeps a marker in, as before)."""
+    import re
     from poise.deck.schema import element_schema
     named = set()
     for tag in {e.tag for e in spec.model}:
         sch = element_schema(tag)
-        if sch is None or tag == "Reference_Marker" or tag.startswith("Post_"):
+        if tag == "Reference_Marker" or tag.startswith("Post_"):
             continue
-        keys = [a.name for a in sch.attrs.values() if a.ref == "marker"]
-        if keys:
-            for el in spec.elements(tag):
-                named.update(el.attrs.get(k) for k in keys)
+        keys = [a.name for a in sch.attrs.values() if a.ref == "marker"] if sch else []
+        for el in spec.elements(tag):
+            named.update(el.attrs.get(k) for k in keys)
+            for v in el.attrs.values():
+                v = getattr(v, "text", v)                 # an expression: its text
+                if isinstance(v, str):
+                    named.update(int(t) for t in re.findall(r"(?<![\w.])\d+(?![\w.])", v))
     return np.array([i in named for i in ids], bool)
 
 
