@@ -9,10 +9,12 @@ depend on time comes from the element types' declarations (``registry.time_sourc
 """
 from __future__ import annotations
 
+import re
 from operator import itemgetter
 
 import numpy as np
 
+from poise.deck.schema import element_schema
 from poise.deck.spec import DeckSpec, Element
 from poise.core.errors import ProblemCollector
 from poise.elements.context import GLOBAL, CompileContext, num as _num
@@ -381,8 +383,6 @@ def _named_markers(spec, ids) -> np.ndarray:
     attribute of the schema (``*marker_id``, ``cg_id``, ``lprf_id``, ...: a gear's contact
     point) or as a number in a text attribute (an expression's ``DX(200,101,101)``; a number
     that is not a marker there only keeps a marker in, as before)."""
-    import re
-    from poise.deck.schema import element_schema
     named = set()
     for tag in {e.tag for e in spec.model}:
         sch = element_schema(tag)
