@@ -398,14 +398,18 @@ def _named_markers(spec, ids) -> np.ndarray:
     return np.array([i in named for i in ids], bool)
 
 
+UNUSED_REACH = 10.0      # model sizes: an unused marker farther out sets no scale
+
+
 def _participating_extent(spec, b, markers, fams) -> float:
     """The model size ``L``: :func:`_extent` of the markers that play a part: on moving
     bodies, the ground's frames, read by an element family (``f.markers``; row 0 of the marker
     arrays is the global frame) or a user routine, or else named by a model element
-    (:func:`_named_markers`, scanned only when markers are left over). A marker nothing reads
-    (an unused ground marker 1e14 mm away, one only a Post_Request names) must not set the
-    scale of tolerances, rotations and the stability classification. All markers when none
-    plays a part."""
+    (:func:`_named_markers`, scanned only when markers are left over), and the unused ones
+    within ``UNUSED_REACH`` of them. A marker nothing reads far outside the model (an unused
+    ground marker 1e14 mm away, one only a Post_Request names) must not set the scale of
+    tolerances, rotations and the stability classification. All markers when none plays a
+    part."""
     ids = markers["marker_id"][1:]
     used = markers["marker_body"][1:] < len(b.moving)
     used |= np.isin(ids, np.array([i for i in b.ground_frames if i is not None], int))
@@ -419,7 +423,14 @@ def _participating_extent(spec, b, markers, fams) -> float:
     used[idx[(idx >= 0) & (idx < len(used))]] = True
     if not used.all():
         used |= _named_markers(spec, ids.tolist())
-    return _extent(b.marker_P[used]) if used.any() else b.L
+    if not used.any():
+        return b.L
+    # a marker nothing uses still counts within UNUSED_REACH model sizes of those that do (the
+    # ground origin of a dataset, a graphics anchor: the scale they always set), never beyond
+    P = b.marker_P
+    c = P[used].mean(axis=0)
+    near = np.linalg.norm(P - c, axis=1) <= UNUSED_REACH * _extent(P[used])
+    return _extent(P[used | near])
 
 
 def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
