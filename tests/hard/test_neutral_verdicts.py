@@ -486,3 +486,29 @@ def test_sparse_path_load_free_delta(runner, monkeypatch):
     assert d["frames/stability"].tolist() == ["neutral"] * 3
     assert d["frames/n_negative"].tolist() == [0] * 3
     assert d["frames/n_zero"].tolist() == [6] * 3
+
+
+# -- scalar unknowns --------------------------------------------------------------------------
+@pytest.mark.parametrize("expr,y", [("3 - DIF(2)", 3.0), ("DIF(2) - 3", 3.0),
+                                    ("4 - 2*DIF(2) + 0*DX(20,101)", 2.0)])
+def test_a_control_state_does_not_change_the_mechanism_verdict(runner, monkeypatch, expr, y):
+    """A hanging pendulum (stable) with a Control_Diff state its equations determine (y' = 3 - y,
+    y' = y - 3, y' = 4 - 2 y): the state's row is an equation, not a force, whatever its sign.
+    Before: UNSTABLE, "body 2 rotation about (nan,nan,nan)". Closed forms: y = 3, 3, 2; the
+    pendulum hangs below its pivot. Dense and sparse paths alike."""
+    def deck():
+        d = Deck(units="mm")
+        d.ground()
+        d.marker(101, 1, (0, 0, 0))
+        d.body(2, 20, (0, -400, 0), mass=2.0, inertia=(9e4, 2e3, 8e4))
+        d.marker(21, 2, (0, 0, 0))
+        d.joint(1, "REVOLUTE", 21, 101)
+        d.add("Control_Diff", id=2, is_implicit=False, ic=0.0, expr=expr)
+        return d
+    for limit in (stab.DENSE_LIMIT, 0):
+        monkeypatch.setattr(stab, "DENSE_LIMIT", limit)
+        a = runner.api(deck())
+        assert a.converged, a.message
+        assert _verdict(a) == ("stable", 0, 0), a.datasets["frames/stability_modes"][0]
+        np.testing.assert_allclose(a.datasets["bodies/position"][0, 0], [0, -400, 0], atol=1e-9)
+        np.testing.assert_allclose(a.datasets["diffs/value"][0], [y], atol=1e-12)

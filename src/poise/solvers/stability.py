@@ -10,6 +10,8 @@ limitations: docs/stability.md.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from poise.solvers.equilibrate import equilibrate_dense, prune_noise_dense
@@ -29,6 +31,7 @@ from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the pub
     stability_datasets,
     unknown_info,
 )
+from poise.solvers.stability_scalars import eliminate_dense, eliminate_sparse
 from poise.solvers.stability_sparse import (  # noqa: F401 - re-exported
     SymmetricLDL,
     _classify_pencil,
@@ -52,12 +55,36 @@ def classify(model, state, J=None, active=None) -> StabilityInfo:
     if active is None:
         active = np.ones(model.nc, bool)
     if nq > DENSE_LIMIT:
-        return _classify_sparse(model, J, active)
+        red = eliminate_sparse(model, J)
+        if red is None:
+            return _classify_sparse(model, J, active)
+        view, Jr, lift = red
+        return _lifted(_classify_sparse(view, Jr, active), lift)
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
     return classify_dense_frames(model, J[None], active)[0]
 
 
+def _lifted(info, lift):
+    """``info`` of the mechanism with its mode vectors completed by the scalar unknowns."""
+    return replace(info, vectors=tuple(lift(v) for v in info.vectors))
+
+
 def classify_dense_frames(model, J, active, ok=None) -> list[StabilityInfo]:
+    """Dense classification of ``F`` frames from their KKT Jacobians ``J`` (F, N, N) (dense);
+    scalar unknowns are eliminated first where their equations determine them
+    (:mod:`poise.solvers.stability_scalars`), frame by frame."""
+    ok = np.ones(J.shape[0], bool) if ok is None else np.asarray(ok, bool)
+    red = eliminate_dense(model, J) if model.n_extra else None
+    if red is None:
+        return _dense_frames(model, J, active, ok)
+    view, Jr, good, lift = red
+    out = _dense_frames(view, Jr, active, ok & good)
+    rest = _dense_frames(model, J, active, ok & ~good) if (ok & ~good).any() else out
+    return [_lifted(out[f], lambda x, f=f: lift(f, x)) if ok[f] and good[f] else rest[f]
+            for f in range(J.shape[0])]
+
+
+def _dense_frames(model, J, active, ok) -> list[StabilityInfo]:
     """Dense classification of ``F`` frames from their KKT Jacobians ``J`` (F, N, N) (dense).
 
     Per frame, the sparse path's metric (docs/stability.md): the length-scaled symmetric
@@ -72,7 +99,6 @@ def classify_dense_frames(model, J, active, ok=None) -> list[StabilityInfo]:
     F = J.shape[0]
     nq = model.nq
     unknown = StabilityInfo("unknown", -1, -1, "", np.nan)
-    ok = np.ones(F, bool) if ok is None else np.asarray(ok, bool)
     if nq == 0:
         return [StabilityInfo("stable", 0, 0, "", np.nan) if k else unknown for k in ok]
     out = [unknown] * F

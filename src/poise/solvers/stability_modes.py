@@ -115,19 +115,19 @@ def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo
 
 def _describe(model, q, klass="", eigenvalue=np.nan) -> Mode:
     """Body with the largest participation in mode ``q`` and its dominant motion, as a
-    :class:`Mode` (vectorised over the bodies: cheap for 10 000 bodies)."""
+    :class:`Mode` (vectorised over the bodies: cheap for 10 000 bodies); the scalar unknown
+    that moves most (``coordinate``) when no body moves, or without bodies."""
     q = np.asarray(q, float)
     nb = model.nb
-    if nb == 0:
-        k = int(np.argmax(np.abs(q)))
+    if nb:
+        t, r = _body_motion(model, q)
+        part = np.linalg.norm(t, axis=1) ** 2 + np.linalg.norm(r, axis=1) ** 2
+    nbq = model.nq - model.n_extra                  # body coordinates come first
+    k = nbq + int(np.argmax(np.abs(q[nbq:]))) if model.n_extra else -1
+    if nb == 0 or (k >= 0 and part.max() <= 1e-24 * q[k] ** 2):     # no body moves
+        k = int(np.argmax(np.abs(q))) if nb == 0 else k
         name = model.coord_info[k] if k < len(model.coord_info) else f"coordinate {k}"
         return Mode(klass, -1, "coordinate", (np.nan,) * 3, float(eigenvalue), k, str(name))
-    off = np.asarray(model.body_off)
-    rigid = np.asarray(model.body_kind) == 0
-    t = q[off[:, None] + np.arange(3)]
-    r = np.zeros((nb, 3))
-    r[rigid] = q[off[rigid][:, None] + 3 + np.arange(3)] * model.body_scale[rigid][:, None]
-    part = np.linalg.norm(t, axis=1) ** 2 + np.linalg.norm(r, axis=1) ** 2
     b = int(np.argmax(part))
     t, r = t[b], r[b]
     bid = int(model.body_id[b])
@@ -137,6 +137,16 @@ def _describe(model, q, klass="", eigenvalue=np.nan) -> Mode:
     else:
         kind, a = "translation", t
     return Mode(klass, bid, kind, tuple(float(x) for x in sign_normalised(a)), float(eigenvalue))
+
+
+def _body_motion(model, q):
+    """(nb, 3) translations and (nb, 3) rotations x body scale of every body in mode ``q``."""
+    off = np.asarray(model.body_off)
+    rigid = np.asarray(model.body_kind) == 0
+    t = q[off[:, None] + np.arange(3)]
+    r = np.zeros((model.nb, 3))
+    r[rigid] = q[off[rigid][:, None] + 3 + np.arange(3)] * model.body_scale[rigid][:, None]
+    return t, r
 
 
 def stability_datasets(infos: list[StabilityInfo]) -> dict:
