@@ -7,8 +7,10 @@ import sys
 
 import click
 
-from poise_cli.options import collect_overrides, json_option, quiet_option, solver_options, \
-    user_code_option, worker_timeout_option
+from poise.core.wording import plural, shorten
+from poise_cli.options import collect_overrides, debug_option, ignore_option, json_option, \
+    quiet_option, solver_options, user_code_option, worker_timeout_option, workers_given, \
+    workers_option
 from poise_cli.summary import fmt_num, print_json, styled_status, table_json
 
 
@@ -21,7 +23,7 @@ def _equilibrium(row: dict) -> str:
     n = row.get("n_negative") if c == "unstable" else row.get("n_zero")
     word = "negative" if c == "unstable" else "zero"
     return (f" to {'an UNSTABLE' if c == 'unstable' else 'a NEUTRAL'} equilibrium "
-            f"({n} {word} mode{'s' if n != 1 else ''}: {row.get('stability_modes', '')})")
+            f"({plural(n, word + ' mode')}: {row.get('stability_modes', '')})")
 
 
 def _line(row: dict) -> str:
@@ -29,12 +31,14 @@ def _line(row: dict) -> str:
     t = row.get("time")
     parts = [f"{row['deck']}: {styled_status(row['status'])}{_equilibrium(row)}"]
     if it is not None:
-        parts.append(f"{it} iterations")
+        parts.append(plural(it, "iteration"))
     if row.get("imbalance") is not None:
         parts.append(f"imbalance {fmt_num(row['imbalance'])}")
     if t is not None:
         parts.append(f"{t:.3g} s")
     line = ", ".join(parts)
+    if row.get("ignored"):      # as poise solve's summary line
+        line += f"; left out (--ignore): {row['ignored']}"
     if row.get("skipped"):
         line += " (skipped, up to date)"
     elif row.get("message"):
@@ -45,8 +49,7 @@ def _line(row: dict) -> str:
 @click.command(short_help="Solve many decks in parallel, one results file each.")
 @click.argument("decks", nargs=-1, required=True,
                 type=click.Path(exists=True, dir_okay=False, readable=True))
-@click.option("-j", "--jobs", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Parallel worker processes (0 = number of CPUs).")
+@workers_option
 @click.option("--out-dir", type=click.Path(file_okay=False), default="poise_batch",
               show_default=True, help="Directory for <stem>.h5 files and summary.csv/.json.")
 @click.option("--force", is_flag=True, help="Solve every deck even if its results are up to date.")
@@ -56,10 +59,13 @@ def _line(row: dict) -> str:
 @worker_timeout_option
 @solver_options
 @user_code_option
+@ignore_option
 @quiet_option
 @json_option
-def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_num_iter, max_imbalance, max_error,
-          stability, no_fallback, require_stable, allow_neutral, allow_user_code, quiet, as_json):
+@debug_option
+def batch(decks, workers, out_dir, force, scheduler, worker_timeout, method, max_num_iter,
+          max_imbalance, max_error, stability, no_fallback, require_stable, allow_neutral,
+          allow_user_code, ignore, quiet, as_json, debug):
     """Solve every DECK in parallel on Dask (the engine of poise sweep: a local cluster by
     default, --scheduler for a real one; a local process pool without Dask installed).
 
@@ -67,8 +73,9 @@ def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_nu
     Writes OUT_DIR/<deck stem>.h5 per deck (equal stems: <stem>-2.h5, ...) and the summary
     table OUT_DIR/summary.csv and OUT_DIR/summary.json (deck, output, status, exit_code,
     iterations, time, the worst imbalance and stability class with their frames and modes,
-    skipped, message). Decks whose results file records the same deck hash, solver options,
-    poise version and user scripts are skipped unless --force.
+    skipped, message, ignored). Decks whose results file records the same deck hash, solver
+    options, --ignore kinds, poise version and user scripts are skipped unless --force.
+    --ignore applies to the Adams datasets among the decks.
     A deck that fails (whatever its user code does, even killing its worker) is its own row.
     Exit code: the worst deck's (0 converged, 1 not converged, 3 invalid deck, 4 internal
     error); 2 when the cluster had no worker for --worker-timeout seconds (the summary keeps
@@ -94,7 +101,7 @@ def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_nu
     table = os.path.join(out_dir, "summary.csv")
 
     def fail(exc):
-        code, info = report_exception(exc)
+        code, info = report_exception(exc, debug=debug)
         if as_json:
             done = getattr(exc, "rows", None) or []
             print_json(table_json("batch", out_dir, code, done,
@@ -104,10 +111,12 @@ def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_nu
 
     try:
         with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout
-            rows = run_batch(list(decks), out_dir, jobs=jobs, overrides=overrides, force=force,
+            rows = run_batch(list(decks), out_dir, jobs=workers_given(workers),
+                             overrides=overrides, force=force,
                              command=command, on_row=on_row, allow_user_code=allow_user_code,
                              progress=False if quiet else None, scheduler=scheduler,
-                             worker_timeout=worker_timeout)
+                             worker_timeout=worker_timeout,
+                             **({"ignore": ignore} if ignore else {}))
     except (Exception, KeyboardInterrupt) as exc:   # out-dir not writable, no workers: exit 2
         if getattr(exc, "rows", None) is not None:  # no workers: keep what finished
             try:
@@ -132,7 +141,7 @@ def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_nu
     else:
         _print_table(rows)
     if not quiet:
-        click.echo(f"poise batch: {len(rows)} decks: "
+        click.echo(f"poise batch: {plural(len(rows), 'deck')}: "
                    + ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
                    + (f" ({n_skipped} skipped, up to date)" if n_skipped else "")
                    + f"; summary in {os.path.join(out_dir, 'summary.csv')}", err=True)
@@ -145,9 +154,9 @@ def _print_table(rows):
              "" if r["iterations"] is None else str(r["iterations"]),
              "" if r["time"] is None else f"{r['time']:.3g}",
              _stability_cell(r),
-             ("skipped (up to date)" if r["skipped"] else (r["message"] or ""))[:100])
+             shorten("skipped (up to date)" if r["skipped"] else (r["message"] or ""), 100))
             for r in rows]
-    w = [max(len(h), *(len(d[i]) for d in data)) for i, h in enumerate(heads)]
+    w = [max([len(h), *(len(d[i]) for d in data)]) for i, h in enumerate(heads)]
     click.echo("  ".join(h.ljust(w[i]) for i, h in enumerate(heads)).rstrip())
     for d in data:
         click.echo("  ".join(x.ljust(w[i]) for i, x in enumerate(d)).rstrip())

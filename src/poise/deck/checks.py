@@ -7,10 +7,12 @@ elements need them, and fills :data:`DCM_CHECK` and :data:`EIG` with batch resul
 """
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 import numpy as np
 
+from poise.deck.matrix import matrix_values
 from poise.deck.schema_types import NAMESPACES, Attr, ElementSchema
 from poise.deck.spec import Element, Expr
 from poise.core.errors import ProblemCollector
@@ -21,6 +23,7 @@ _KIND_TEXT = {"real": "a real number", "int": "an integer", "bool": "TRUE or FAL
               "real_or_expr": "a number or an expression", "int_list": "a list of integers",
               "real_list": "a list of real numbers", "expr": "an expression", "str": "text"}
 DCM = tuple(f"a{r}{c}" for c in range(3) for r in range(3))
+_SCALAR_KINDS = frozenset({"real", "int", "bool", "real_or_expr"})
 
 
 def ns_text(ns: str) -> str:
@@ -45,6 +48,11 @@ def _check_value(pc: ProblemCollector, el: Element, a: Attr, v: Any) -> None:
             what = ("not a number" if x is None else "not a finite number" if not np.isfinite(x)
                     else "not an integer")
         pc.error(el.loc, f"attribute '{a.name}' is {what}; expected {_KIND_TEXT[k]}, got '{v}'")
+        return
+    if k in _SCALAR_KINDS and not isinstance(v, (numbers.Real, Expr, type(None))):
+        # only an in-memory edit gets here (poise.solve(spec) after attrs[...] = [1, 2])
+        pc.error(el.loc, f"attribute '{a.name}' is a {type(v).__name__}; expected "
+                         f"{_KIND_TEXT[k]}, got {' '.join(repr(v).split())[:80]}")
         return
     if isinstance(v, (int, float)) and not isinstance(v, bool):
         if not np.isfinite(v):
@@ -231,6 +239,9 @@ def check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Element
             pc.error(el.loc, "SCREW joint needs 'pitch'; expected a real number, got nothing")
         if jt == "RACK_PINION" and not el.has("pitch_diameter"):
             pc.error(el.loc, "RACK_PINION joint needs 'pitch_diameter'; expected a real number, got nothing")
+        elif jt == "RACK_PINION" and el.get("pitch_diameter") == 0.0:
+            pc.error(el.loc, "RACK_PINION joint with pitch_diameter 0; expected a non-zero pitch "
+                             "diameter (the rack would not move with the pinion)", "pitch_diameter")
     if t in ("Constraint_Joint", "Constraint_Jprim") and not el.is_command:
         mi, mj = markers.get(el.get("i_marker_id")), markers.get(el.get("j_marker_id"))
         if mi is not None and mj is not None and mi.get("body_id") == mj.get("body_id"):
@@ -244,6 +255,8 @@ def check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Element
     if t == "Force_Scalar_TwoBody" and not el.is_command and not any(
             el.has(n) for n in ("val", "val_expression", "usrsub_param_string", "script_name")):
         pc.error(el.loc, "no magnitude; expected 'val' or 'val_expression', got neither")
+    if t == "Reference_Matrix":
+        matrix_values(el, pc)             # every matrix checked, used or not
     if t == "Simulate":
         st, en = el.get("start_time", 0.0), el.get("end_time")
         if isinstance(st, float) and isinstance(en, float) and en < st:

@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.deck.matrix import matrix_values
 from poise.deck.spec import Expr
-from poise.core.errors import EvaluationError
+from poise.core.errors import EvaluationError, ProblemCollector
 from poise.elements import curves as F
 from poise.elements import curve_data as CD
 from poise.elements.registry import ElementType, static, workless
@@ -53,6 +54,28 @@ def _points(el, pc, per):
     return pts
 
 
+def _matrix_points(spec, el, pc, per):
+    """Curve points from the ``Reference_Matrix`` of ``matrix_id``: one row per point, three
+    columns x y z (Adams ``CURVE/id, MATRIX=id``); None after a located problem."""
+    mid = el.attrs["matrix_id"]
+    mel = next((m for m in spec.elements("Reference_Matrix") if m.id == mid), None)
+    if mel is None:                  # validation reports the missing reference
+        return None
+    scratch = ProblemCollector()
+    M = matrix_values(mel, scratch)
+    if M is None:                    # validation reports the matrix's own problem
+        return None
+    if M.shape[1] != 3:
+        pc.error(el.loc, f"Reference_Matrix id={mid} has {M.shape[1]} columns; expected 3 "
+                 "(x y z of one curve point per row)", "matrix_id")
+        return None
+    if per is not None and len(M) != per:
+        pc.error(el.loc, f"num_pts={per} but Reference_Matrix id={mid} has {len(M)} rows",
+                 "num_pts")
+        return None
+    return M
+
+
 def _eval_problem(pc, el, e: EvaluationError, when: str):
     """A curve/surface expression that fails where the compiler samples it: located deck error
     (the geometry must be defined on its whole parameter range)."""
@@ -66,11 +89,15 @@ def _geometry(spec, ctx, tag):
     surf = tag == "Reference_ParamSurface"
     for el in spec.elements(tag):
         a = el.attrs
-        if a.get("matrix_id") is not None or a.get("usrsub_dll_name") or a.get("script_name") \
-                or a.get("usrsub_fnc_name"):
-            pc.error(el.loc, "matrix/user-subroutine curve and surface data are not supported; "
-                     "give x_expression/y_expression/z_expression of U (and V) or the points "
-                     "in the element text")
+        if a.get("usrsub_dll_name") or a.get("script_name") or a.get("usrsub_fnc_name"):
+            pc.error(el.loc, "user-subroutine curve and surface data are not supported; "
+                     "give x_expression/y_expression/z_expression of U (and V), the points "
+                     "in the element text or a Reference_Matrix (curves)")
+            continue
+        if a.get("matrix_id") is not None and surf:
+            pc.error(el.loc, "surface data from a Reference_Matrix are not supported; give "
+                     "the grid points in the element text or x/y/z_expression of U and V",
+                     "matrix_id")
             continue
         ex = [a.get(f"{c}_expression") for c in "xyz"]
         u0, u1 = _f(el, "u_start", 0.0), _f(el, "u_end", 1.0)
@@ -111,13 +138,23 @@ def _geometry(spec, ctx, tag):
                                        _f(el, "v_end", 1.0))
             else:
                 npts = a.get("num_pts")
-                pts = _points(el, pc, int(npts) if npts else None)
+                if a.get("is_curve_points") is False:
+                    pc.error(el.loc, "is_curve_points=\"FALSE\": the points would be B-spline "
+                             "control points, which poise does not support; expected points the "
+                             "curve passes through (is_curve_points=\"TRUE\")", "is_curve_points")
+                    continue
+                if a.get("matrix_id") is not None:
+                    pts = _matrix_points(spec, el, pc, int(npts) if npts else None)
+                else:
+                    pts = _points(el, pc, int(npts) if npts else None)
                 if pts is None:
                     continue
                 if len(pts) < 4:
                     pc.error(el.loc, "a spline curve needs at least 4 points")
                     continue
                 obj = CD.SplineCurve(pts, u0, u1, closed)
+            if not _within_range(el, pc, obj, surf):
+                continue
         except ValueError as e:
             pc.error(el.loc, str(e))
             continue
@@ -129,9 +166,41 @@ def _geometry(spec, ctx, tag):
     return out
 
 
+#: largest coordinate (or first/second derivative) a curve or surface may reach: squared
+#: distances and sums of samples stay finite (beyond, LAPACK may never return on them)
+EXTENT_MAX = 1e150
+
+
+def _within_range(el, pc, obj, surf) -> bool:
+    """Sample the geometry over its parameter range: its points and first two derivatives
+    must be finite and within EXTENT_MAX (else a located deck error, False)."""
+    if surf:
+        U, V = np.meshgrid(np.linspace(obj.u0, obj.u1, 21), np.linspace(obj.v0, obj.v1, 21),
+                           indexing="ij")
+        U, V = U.ravel(), V.ravel()
+        d = obj.derivs(U, V, 2)
+        arr = np.stack([d[k] for k in ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))])
+    else:
+        U = np.linspace(obj.u0, obj.u1, 181)
+        V = None
+        arr = obj.derivs(U, 2)                        # (3 orders, k, 3)
+    with np.errstate(invalid="ignore", over="ignore"):
+        bad = ~(np.abs(arr) <= EXTENT_MAX)           # NaN counts as bad
+    if not bad.any():
+        return True
+    order, k, c = (int(x[0]) for x in np.nonzero(bad))
+    what = ("its coordinates", "their first derivatives", "their second derivatives")[min(order, 2)]
+    at = f"U = {U[k]:.6g}" + (f", V = {V[k]:.6g}" if V is not None else "")
+    attr = f"{'xyz'[c]}_expression" if el.attrs.get(f"{'xyz'[c]}_expression") is not None \
+        else None
+    pc.error(el.loc, f"the geometry overflows: {'xyz'[c]} of {what} is {arr[order, k, c]:.6g} "
+             f"at {at}; expected finite values within {EXTENT_MAX:.0e}", attr)
+    return False
+
+
 def _plane_basis(curve, loc, pc):
     """Columns e1, e2, n (marker axes) of the plane a curve lies in (CVCV)."""
-    _, pts = CD.sample_curve(curve, 181)
+    _, pts = CD.sample_curve(curve, 181)             # finite: _within_range
     c = pts.mean(0)
     _, sv, Vt = np.linalg.svd(pts - c)
     n = Vt[2]
@@ -161,7 +230,8 @@ def compile_curves(spec, ctx):
     def geo_ref(el, attr, table, what):
         gid = el.attrs.get(attr)
         if gid not in table:
-            pc.error(el.loc, f"{attr} {gid} is not a {what}", attr)
+            if not any(g.id == gid for g in spec.elements(what)):   # else: reported itself
+                pc.error(el.loc, f"{attr} {gid} is not a {what}", attr)
             return None
         return table[gid]
 
@@ -299,4 +369,7 @@ ELEMENTS = (ElementType(
                      F.SurfaceOnSurface), potential_energy=workless,
     time_dependent=static,      # TIME in curve geometry is a located error (compile_curves)
     outputs={"curves": TAGS},
-    datasets=("id", "tag", "parameters", "point"), fd_tests="tests/reference/test_curves.py"),)
+    datasets=("id", "tag", "parameters", "point"),
+    reactions={"PTCV": ("curves", ("Constraint_PTCV",)), "CVCV": ("curves", ("Constraint_CVCV",))},
+    reaction_aliases={"CONSTRAINT_PTCV": "PTCV", "CONSTRAINT_CVCV": "CVCV"},
+    fd_tests="tests/reference/test_curves.py"),)

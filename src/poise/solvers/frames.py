@@ -64,13 +64,14 @@ def frame_datasets(ctx, state, outcomes, on_eval=None):
         loads = {}
     d = output_datasets(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
                         dep, outcomes)
-    if all(o.ok for o in outcomes) and J is not None:
-        done = ctx.data.classified
-        info = done[1] if done is not None and done[0] is state else \
-            cached_info(ctx, state) or classify(model, state, J=J, active=saved)
-        d.update(stability_datasets([info]))
-    elif len(outcomes) == 1 and cached_info(ctx, state) is not None:   # a path's located end
-        d.update(stability_datasets([cached_info(ctx, state)]))
+    done = ctx.data.classified
+    known = done[1] if done is not None and done[0] is state else cached_info(ctx, state)
+    if known is not None and (len(outcomes) == 1 or all(o.ok for o in outcomes)):
+        # classified by the solve: also an equilibrium --require-stable refused (neutral),
+        # or a path's located end
+        d.update(stability_datasets([known]))
+    elif all(o.ok for o in outcomes) and J is not None:
+        d.update(stability_datasets([classify(model, state, J=J, active=saved)]))
     else:   # the same datasets either way: frames of a sequence are concatenated by key
         d.update(stability_datasets([unknown_info()] * len(outcomes)))
     return d

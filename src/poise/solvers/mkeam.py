@@ -13,8 +13,10 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.core.wording import plural
 from poise.solvers.context import Strategy, prologue
 from poise.solvers.history import History
+from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import FrameOutcome, Scales, assemble, initial_multipliers, merit, newton
 from poise.solvers.relaxation import Relaxation, relaxation_datasets
 from poise.solvers.status import Status
@@ -65,6 +67,10 @@ class MkeamMethod(Strategy):
             mk_state, status, msg, n_it = self.rx.iterate(state)
         except EvaluationError as e:
             mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(self.rx.iterates)
+        except SingularMatrix as e:     # constraints that cannot be solved for the momenta
+            mk_state, status, n_it = state, Status.SINGULAR_JACOBIAN, len(self.rx.iterates)
+            msg = (f"MKEAM: the constraint matrix G M^-1 G^T is singular ({e}): the constraints "
+                   "lock a direction, or masses and inertias span too many decades")
         finally:
             ctx.report("MKEAM", None, self.settings.max_num_iter)
         if not status.ok:
@@ -124,7 +130,7 @@ class MkeamMethod(Strategy):
         worst = out.message.partition("; worst equation: ")[2]
         return trial, FrameOutcome(out.status, n_it, out.imbalance, out.error, (
             f"the Newton polish of the MKEAM point stopped ({out.status.value}, "
-            f"{out.iterations} iterations) at imbalance {out.imbalance:.3g}, error "
+            f"{plural(out.iterations, 'iteration')}) at imbalance {out.imbalance:.3g}, error "
             f"{out.error:.3g} (max_imbalance {s.max_imbalance:g}, max_error {s.max_error:g})"
             + (f"; worst equation: {worst}" if worst else ""))), note
 
