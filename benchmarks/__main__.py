@@ -5,7 +5,8 @@
 
 Runs the hanging-chain and command-line benchmarks (:mod:`benchmarks.chain`), the expression
 benchmark (:mod:`benchmarks.expr`), the work-precision, peer and scaling suites
-(:mod:`benchmarks.suite`) and the stable-equilibria table (:mod:`benchmarks.stable`), then writes
+(:mod:`benchmarks.suite`), the stable-equilibria table (:mod:`benchmarks.stable`) and the
+quasi-static path tables (:mod:`benchmarks.singular`, :mod:`benchmarks.frame_error`), then writes
 the JSON lines and the markdown report.
 The benchmarks are not part of the installed package.
 """
@@ -20,6 +21,7 @@ from pathlib import Path
 from benchmarks import adm as bench_adm
 from benchmarks import expr as bench_expr
 from benchmarks import frame_error as bench_frame_error
+from benchmarks import singular as bench_singular
 from benchmarks import stable as bench_stable
 from benchmarks.chain import (SIZES, SMALL_DECK, _pf, _s, bench_chain, bench_cli,
                               machine_info, render_markdown, targets)
@@ -48,18 +50,19 @@ def main(argv=None) -> int:
                          "skipped with --no-wp)")
     ap.add_argument("--stable-only", action="store_true",
                     help="run only the stable-equilibria table")
-    ap.add_argument("--no-frame-error", action="store_true",
-                    help="skip the frame-error table (issue 22: reported vs true frame error)")
-    ap.add_argument("--frame-error-only", action="store_true",
-                    help="run only the frame-error table")
+    ap.add_argument("--no-path", action="store_true",
+                    help="skip the quasi-static path tables (issue 22: time to a singular "
+                         "configuration, reported vs true frame error)")
+    ap.add_argument("--path-only", action="store_true",
+                    help="run only the quasi-static path tables")
     args = ap.parse_args(argv)
     root = Path(__file__).resolve().parents[1]
     machine = machine_info()
     results = []
-    if args.stable_only or args.frame_error_only:
+    if args.stable_only or args.path_only:
         args.sizes, args.no_cli, args.no_expr, args.no_wp = "", True, True, True
-        args.no_stable = args.frame_error_only
-        args.no_frame_error = args.stable_only
+        args.no_stable = args.path_only
+        args.no_path = args.stable_only
         args.no_adm = True
     with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
         tmp = Path(td)
@@ -97,11 +100,13 @@ def main(argv=None) -> int:
             wp_targets += t7
         st_rows = []
         fe_rows = []
-        if not args.no_frame_error:     # issue 22: the reported frame error bounds the true one
-            fe_rows, fe_md, fe_t = bench_frame_error.run(
-                tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
-            wp_md += fe_md
-            wp_targets += fe_t
+        if not args.no_path:    # issue 22: singular configurations, frame error bounds
+            for table in (bench_singular, bench_frame_error):
+                rows, t_md, t_t = table.run(
+                    tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
+                fe_rows += rows
+                wp_md += t_md
+                wp_targets += t_t
         if args.stable_only or not (args.no_stable or args.no_wp):
             # stable equilibria: MKEAM and --require-stable vs FIM_S (a long suite, like wp)
             st_rows, st_md, st_t = bench_stable.run(

@@ -4,7 +4,9 @@ and back, a delta-like parallel robot driven next to its workspace boundary and 
 path that reaches a singular configuration fails there, located in time and named (the toggle
 of a slider-crank, a slider driven beyond the reach of its linkage, the dead point of a
 four-bar, the boundary of the delta robot, the limit point of a von Mises truss, the
-bifurcation of a loaded column), both with FIM_S and FIM_D."""
+bifurcation of a loaded column), a jump that persists (a load stepping past the limit point)
+fails its frame, and --require-stable follows the stable branch (from an unstable start too),
+both with FIM_S and FIM_D."""
 from __future__ import annotations
 
 import json
@@ -19,6 +21,7 @@ import pytest
 from poise.app.api import run_deck
 
 from support.linkages import (
+    COLUMN,
     DELTA,
     SC_L,
     SC_R,
@@ -32,6 +35,7 @@ from support.linkages import (
     fourbar_dead_time,
     loaded_slide,
     slider_crank,
+    VM,
     vonmises,
     vonmises_limit_time,
 )
@@ -198,6 +202,35 @@ def test_a_stiffness_that_jumps_is_no_singular_configuration(tmp_path, method):
     assert "singular_time" not in a.attrs
 
 
+@pytest.mark.parametrize("method", METHODS)
+def test_a_load_that_jumps_past_the_limit_point_fails_the_frame(tmp_path, method):
+    """The truss's load steps from 1 N to twice its limit load at t = 0.5: no equilibrium on
+    the branch is left (only the snapped-through one, far away), so the frame after the step
+    is a failed frame (``step_too_small``, exit 1), never a converged one; the frames before
+    sit on the closed form P(y) = k y (L0 / sqrt(a^2 + y^2) - 1) = 1 N."""
+    p_max = VM["c"] * vonmises_limit_time()
+    text = vonmises(method).text()
+    jumped = text.replace('fy_expression="-40.0*TIME"',
+                          f'fy_expression="-IF(TIME-0.5: 1.0, 1.0, {2.0 * p_max!r})"')
+    assert jumped != text
+    path = tmp_path / "vm_step.xml"
+    path.write_text(jumped)
+    res = run_deck(str(path))
+    a = res.analyses[0]
+    assert res.exit_code == 1 and a.status == "failed"
+    st = np.asarray(a.datasets["frames/status"])
+    t = np.asarray(a.datasets["time"])
+    assert st[-1] == "step_too_small" and t[-1] == pytest.approx(0.6)
+    assert all(s == "converged" for s in st[:-1]) and t[-2] == pytest.approx(0.5)
+    assert not np.asarray(a.datasets["frames/converged"])[-1]
+    assert "not on the branch" in a.message or "path jumps" in a.message
+    y = np.asarray(a.datasets["bodies/position"])[:-1, 0, 1]
+    L0 = math.hypot(VM["a"], VM["h"])
+    load = VM["k"] * y * (L0 / np.sqrt(VM["a"] ** 2 + y * y) - 1.0)
+    np.testing.assert_allclose(load, 1.0, rtol=1e-6)
+    assert np.all(y > 0.0)                                   # the upper branch
+
+
 # ------------------------------------------------------------------ --require-stable
 @pytest.mark.parametrize("method", METHODS)
 def test_require_stable_ends_where_the_column_loses_stability(tmp_path, method):
@@ -218,6 +251,38 @@ def test_require_stable_on_a_stable_path_converges(tmp_path, method):
                     require_stable=True)
     assert res.exit_code == 0, a.message
     assert set(np.asarray(a.datasets["frames/stability"]).tolist()) == {"stable"}
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_require_stable_from_an_unstable_start_follows_the_buckled_branch(tmp_path, method):
+    """The column starts loaded past its critical load (P = 300 + 100 t N > k / l = 200 N): the
+    upright start is unstable. Without --require-stable every frame is the upright equilibrium,
+    said to be unstable (exit 0, nothing hidden); with it, frame 0 descends to the buckled
+    equilibrium and the run follows that stable branch: theta / sin(theta) = P l / k, one side
+    throughout."""
+    from scipy.optimize import brentq
+
+    text = column(method).text()
+    loaded = text.replace('fy_expression="-400.0*TIME"', 'fy_expression="-(300+100*TIME)"')
+    assert loaded != text
+    path = tmp_path / "column_loaded.xml"
+    path.write_text(loaded)
+    res = run_deck(str(path))
+    a = res.analyses[0]
+    assert res.exit_code == 0, a.message
+    assert set(np.asarray(a.datasets["frames/stability"]).tolist()) == {"unstable"}
+    res = run_deck(str(path), overrides={"require_stable": True})
+    a = res.analyses[0]
+    assert res.exit_code == 0 and a.status == "converged", a.message
+    assert set(np.asarray(a.datasets["frames/stability"]).tolist()) == {"stable"}
+    t = np.asarray(a.datasets["time"])
+    R = np.asarray(a.datasets["bodies/orientation"])[:, 0]
+    theta = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    l, k = COLUMN["l"], COLUMN["k"]
+    want = [brentq(lambda x, c=(300.0 + 100.0 * ti) * l / k: x / math.sin(x) - c, 1e-9, 3.1)
+            for ti in t]
+    assert np.all(np.sign(theta) == np.sign(theta[0]))
+    np.testing.assert_allclose(np.abs(theta), want, atol=1e-6)
 
 
 # ------------------------------------------------------------------ what a user sees
