@@ -13,7 +13,6 @@ alone.
 """
 from __future__ import annotations
 
-import importlib.util
 import math
 import tempfile
 import time
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.decks import BENCH_DIR, ROOT
+from benchmarks.decks import BENCH_DIR, ROOT, support_module
 
 ROUNDOFF = 1e-12
 DEFAULTS = {"max_imbalance": 1e-4, "max_error": 1e-4}
@@ -29,11 +28,23 @@ TIGHT = {"method": "FIM_S", "max_imbalance": 1e-12, "max_error": 1e-12, "max_num
 
 
 def _linkages():
-    p = ROOT / "tests" / "support" / "linkages.py"
-    spec = importlib.util.spec_from_file_location("poise_bench_linkages", p)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return support_module("linkages")
+
+
+def table(columns, cells, rows) -> list[str]:
+    """Markdown table of ``cells`` (one tuple per row) and a last column, PASS or MISS, from
+    each row's ``ok``."""
+    return (["| " + " | ".join(columns) + " | result |", "|---" * (len(columns) + 1) + "|"]
+            + ["| " + " | ".join(map(str, c)) + f" | {'PASS' if r['ok'] else 'MISS'} |"
+               for c, r in zip(cells, rows)])
+
+
+def close_table(md: list, what: str, t0: float, rows, target: str, limit: str, detail: str):
+    """End a table's markdown (``md``, in place) with its duration; its target row passes when
+    every row passed (``ok``)."""
+    md += ["", f"{what} table took {time.perf_counter() - t0:.0f} s.", ""]
+    n_bad = sum(not r["ok"] for r in rows)
+    return [(target, limit, f"{n_bad} of {len(rows)} rows missed, {detail}", n_bad == 0)]
 
 
 def decks(tmp: Path, quick: bool = False) -> list[Path]:
@@ -100,18 +111,13 @@ def run(tmp: Path, log=print, quick: bool = False):
           "a tight FIM_S solve (1e-12) as the largest CG displacement / L and rotation [rad]. "
           "*worst true/reported* is the largest ratio over the frames (frames whose true error is "
           "round-off, below 1e-12, are not counted); a row passes when no frame's true error "
-          "exceeds its reported error.", "",
-          "| deck | method | tolerances | status | frames | max reported | max true | "
-          "worst true/reported (t) | result |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        md.append(f"| {r['deck']} | {r['method']} | {r['tolerances']} | {r['status']} | "
-                  f"{r['frames']} | {r['max_reported']:.2e} | {r['max_true']:.2e} | "
-                  f"{r['worst_ratio']:.3g} ({r['worst_time']:.3g}) | "
-                  f"{'PASS' if r['ok'] else 'MISS'} |")
-    md += ["", f"Frame-error table took {time.perf_counter() - t0:.0f} s.", ""]
-    n_bad = sum(not r["ok"] for r in rows)
+          "exceeds its reported error.", ""]
+    md += table(["deck", "method", "tolerances", "status", "frames", "max reported", "max true",
+                 "worst true/reported (t)"],
+                [(r["deck"], r["method"], r["tolerances"], r["status"], r["frames"],
+                  f"{r['max_reported']:.2e}", f"{r['max_true']:.2e}",
+                  f"{r['worst_ratio']:.3g} ({r['worst_time']:.3g})") for r in rows], rows)
     worst = max((r["worst_ratio"] for r in rows), default=0.0)
-    targets = [("frame error: reported bounds true on every quasi-static frame", "0 rows missed",
-                f"{n_bad} of {len(rows)} rows missed, worst true/reported {worst:.3g}",
-                n_bad == 0)]
-    return rows, md, targets
+    return rows, md, close_table(md, "Frame-error", t0, rows,
+                                 "frame error: reported bounds true on every quasi-static frame",
+                                 "0 rows missed", f"worst true/reported {worst:.3g}")

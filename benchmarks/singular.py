@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from benchmarks.chain import _poise_cmd, _walls
-from benchmarks.frame_error import _linkages
+from benchmarks.frame_error import _linkages, close_table, table
 
 LIMIT_S = 3.0            # "within a few seconds", whole process
 TIME_TOL = 1e-6          # located time against the closed form
@@ -112,18 +112,15 @@ def run(tmp: Path, log=print, quick: bool = False):
           "`singular_configuration` of the expected kind, exit 1, at the closed-form time "
           f"(within {TIME_TOL:g}), in at most {LIMIT_S:g} s. Load average (1 min) before and "
           f"after: {load[0]:.1f}, {load[1]:.1f} (wall times grow with it on a shared machine).",
-          "",
-          "| case | method | verdict | located t (error vs closed form) | joint named first | "
-          "wall [s] | healthy [s] | ratio | result |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        md.append(f"| {r['case']} | {r['method']} | {r['status']}, {r['kind']}, exit "
-                  f"{r['exit_code']} | {r['located_time']:.9g} ({r['time_error']:.1e}) | "
-                  f"{r['named'] or '–'} | {r['wall_s']:.2f} | {r['healthy_wall_s']:.2f} | "
-                  f"{r['ratio']:.2f} | {'PASS' if r['ok'] else 'MISS'} |")
-    md += ["", f"Singular-configuration table took {time.perf_counter() - t0:.0f} s.", ""]
-    n_bad = sum(not r["ok"] for r in rows)
+          ""]
+    md += table(["case", "method", "verdict", "located t (error vs closed form)",
+                 "joint named first", "wall [s]", "healthy [s]", "ratio"],
+                [(r["case"], r["method"], f"{r['status']}, {r['kind']}, exit {r['exit_code']}",
+                  f"{r['located_time']:.9g} ({r['time_error']:.1e})", r["named"] or "–",
+                  f"{r['wall_s']:.2f}", f"{r['healthy_wall_s']:.2f}", f"{r['ratio']:.2f}")
+                 for r in rows], rows)
     worst = max((r["wall_s"] for r in rows), default=0.0)
-    targets = [("singular configurations: located, named and exit 1 within a few seconds",
-                f"every row <= {LIMIT_S:g} s at the closed-form time",
-                f"{n_bad} of {len(rows)} rows missed, slowest {worst:.2f} s", n_bad == 0)]
-    return rows, md, targets
+    return rows, md, close_table(
+        md, "Singular-configuration", t0, rows,
+        "singular configurations: located, named and exit 1 within a few seconds",
+        f"every row <= {LIMIT_S:g} s at the closed-form time", f"slowest {worst:.2f} s")
