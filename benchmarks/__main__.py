@@ -52,7 +52,8 @@ def main(argv=None) -> int:
                     help="run only the stable-equilibria table")
     ap.add_argument("--no-path", action="store_true",
                     help="skip the quasi-static path tables (issue 22: time to a singular "
-                         "configuration, reported vs true frame error)")
+                         "configuration, reported vs true frame error; also skipped with "
+                         "--no-wp)")
     ap.add_argument("--path-only", action="store_true",
                     help="run only the quasi-static path tables")
     args = ap.parse_args(argv)
@@ -100,7 +101,8 @@ def main(argv=None) -> int:
             wp_targets += t7
         st_rows = []
         fe_rows = []
-        if not args.no_path:    # issue 22: singular configurations, frame error bounds
+        if args.path_only or not (args.no_path or args.no_wp):
+            # issue 22: singular configurations, frame error bounds (long suites, like wp)
             for table in (bench_singular, bench_frame_error):
                 rows, t_md, t_t = table.run(
                     tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
