@@ -42,6 +42,34 @@ def prune_noise(Ks):
     return Ks
 
 
+def prune_rows(G):
+    """Drop the entries of sparse constraint rows ``G`` at round-off level of their row
+    (``|G_ij| <= NOISE_REL max_k |G_ik|``): a coordinate that no constraint really involves
+    and no stiffness couples (a free spin about a link's own axis) would otherwise be scaled
+    until that rounding is of unit size, and the SVD would count it as constrained."""
+    G = G.tocsr()
+    a = np.abs(G.data)
+    cnt = np.diff(G.indptr)
+    nz = cnt > 0
+    if not a.size:
+        return G
+    rmax = np.zeros(G.shape[0])
+    rmax[nz] = np.maximum.reduceat(a, G.indptr[:-1][nz])
+    keep = a > NOISE_REL * np.repeat(rmax, cnt)
+    if keep.all():
+        return G
+    G = G.copy()
+    G.data[~keep] = 0.0
+    G.eliminate_zeros()
+    return G
+
+
+def prune_rows_dense(G):
+    """:func:`prune_rows` of a stack of dense constraint rows (F, m, n)."""
+    B = np.abs(G)
+    return np.where(B > NOISE_REL * B.max(axis=2, keepdims=True, initial=0.0), G, 0.0)
+
+
 def prune_noise_dense(Ks):
     """:func:`prune_noise` of a stack of dense symmetric matrices (F, n, n)."""
     A = np.abs(Ks)
