@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.solvers import freedom
 from poise.solvers.history import Row
 from poise.solvers.iterate import Iterative, Step, iterate
 from poise.solvers.newton import FrameOutcome, Scales, merit, newton
@@ -36,7 +37,8 @@ def solve_frame(model, state, settings, history, frame, cnt, event="newton"):
     strategy, ``strategy`` names the one that converged (``plain``: no recovery needed).
     """
     start = state.copy()
-    st, out = newton(model, state, settings, history, frame, cnt, event=event)
+    st, out = newton(model, state, settings, history, frame, cnt, event=event,
+                     probe=freedom.probe)
     out.counts = {"plain": out.iterations}
     if out.ok:
         return st, out
@@ -58,7 +60,8 @@ def recover(model, start, st, out, settings, history, frame, cnt):
                                 f"{out.message}; the force imbalance ({out.imbalance:.3g}) is "
                                 "beyond any physical scale (floating-point overflow): check the "
                                 "loads; the fallback chain was not tried", out.counts)
-    why = unrestrained_load(model, settings, (start, st), cnt)
+    why = (freedom.candidate(model, start, settings, cnt)
+           or unrestrained_load(model, settings, (start, st), cnt))
     if why:
         return st, FrameOutcome(Status.NO_EQUILIBRIUM, plain, out.imbalance, out.error,
                                 MESSAGES[Status.NO_EQUILIBRIUM] + "; " + why, out.counts)

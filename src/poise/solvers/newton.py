@@ -24,6 +24,9 @@ from poise.solvers.data import SolveData
 from poise.solvers.history import History, Row
 from poise.solvers.iterate import Iterative, Step, iterate
 from poise.solvers.linalg import SingularMatrix
+from poise.solvers.reach import PROJECT_ABOVE, project, violation
+from poise.solvers.reach import coord_weights as _coord_weights
+from poise.solvers.reach import weighted_kkt as _weighted_kkt
 from poise.solvers.status import MESSAGES, Status
 
 ASSEMBLY_MAX_ITER = 50
@@ -91,25 +94,6 @@ def merit(ev, sc):
     z = np.concatenate([ev.r / sc.r_tol, ev.phi / sc.phi_tol])
     with np.errstate(over="ignore", invalid="ignore"):     # inf: a residual beyond any scale
         return 0.5 * float(z @ z)
-
-
-def _weighted_kkt(model, ev, W):
-    """KKT matrix with ``diag(W)`` in the coordinate block and the constraint Jacobian."""
-    nq = model.nq
-    J = ev.J
-    if hasattr(J, "tocsc"):
-        import scipy.sparse as sp
-        B = J[:nq, nq:]
-        Cm = J[nq:, :nq]
-        D = J[nq:, nq:]
-        return sp.bmat([[sp.diags(W), B], [Cm, D]], format="csc")
-    K = np.array(J, copy=True)
-    K[:nq, :nq] = np.diag(W)
-    return K
-
-
-def _coord_weights(model):
-    return model.q_scale ** 2
 
 
 def singular_message(model, row):
@@ -317,9 +301,10 @@ class NewtonIteration(Iterative):
     (:class:`~poise.solvers.linalg.Factor`)."""
 
     def __init__(self, model, settings, frame: int, cnt: Counters, event: str = "newton",
-                 equilibrate: bool = False):
+                 equilibrate: bool = False, probe=None):
         self.model, self.settings = model, settings
         self.frame, self.cnt, self.event, self.equilibrate = frame, cnt, event, equilibrate
+        self.probe = probe
         self.sc = Scales(model, settings)
         self.eps = float(np.sqrt(settings.stability))
 
@@ -327,6 +312,19 @@ class NewtonIteration(Iterative):
         # Jacobian deferred: line-search trials pay for the residual only, the accepted point
         # assembles its Jacobian when it is factorised (never at the converged point)
         return self.cnt.evaluate(self.model, st, "defer", eps=self.eps)
+
+    def _measure(self, trial):
+        """``(trial, evaluation, merit)`` of a line-search trial; a trial Newton's linearised
+        constraints left by more than ``PROJECT_ABOVE`` is first projected back onto them
+        (:func:`~poise.solvers.reach.project`), one beyond the assembly's reach is
+        ``(None, None, inf)``: the line search shortens the step."""
+        ev = self._ev_at(trial)
+        if self.model.nc and violation(self.model, ev.phi) > PROJECT_ABOVE:
+            trial = project(self.model, trial, self.cnt, ev)
+            if trial is None:
+                return None, None, np.inf
+            ev = self._ev_at(trial)
+        return trial, ev, merit(ev, self.sc)
 
     def _row(self, s, it, step=np.nan, alpha=np.nan, worst=None, pose=None):
         pose = s.state if pose is None else pose
@@ -389,6 +387,12 @@ class NewtonIteration(Iterative):
                               MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
         if not np.all(np.isfinite(x)):
             return self._fail(s, it, Status.SINGULAR_JACOBIAN, MESSAGES[Status.SINGULAR_JACOBIAN])
+        if it == 0 and self.probe is not None:
+            # before Newton spends its budget: a free direction a constant load pushes along
+            why = self.probe(model, state, settings, self.cnt, f, x, eps, s.zinf)
+            if why:
+                return self._fail(s, it, Status.NO_EQUILIBRIUM,
+                                  MESSAGES[Status.NO_EQUILIBRIUM] + "; " + why)
         dq, dl = x[:model.nq], x[model.nq:]
         m0 = merit(ev, sc)
         best = None
@@ -403,8 +407,7 @@ class NewtonIteration(Iterative):
                 tf = model.retract(state, af * xf[:model.nq])
             tf.lam = tf.lam + af * xf[model.nq:]
             try:
-                ev_f = self._ev_at(tf)
-                mf = merit(ev_f, sc)
+                tf, ev_f, mf = self._measure(tf)
                 if mf <= (1.0 - ARMIJO * af) * m0:
                     best = (mf, af, tf, ev_f)
                     dq = xf[:model.nq]
@@ -417,14 +420,16 @@ class NewtonIteration(Iterative):
             else:
                 trial = model.retract(state, alpha * dq, alpha * dl)
             try:
-                ev_t = self._ev_at(trial)
-                m1 = merit(ev_t, sc)
+                trial, ev_t, m1 = self._measure(trial)
             except EvaluationError as e:
                 ev_t, m1 = None, np.inf
                 eval_error = str(e)
             if ev_t is not None and (best is None or m1 < best[0]):
                 best = (m1, alpha, trial, ev_t)
-            if not settings.line_search or m1 <= (1.0 - ARMIJO * alpha) * m0:
+            if ev_t is None and not eval_error:
+                eval_error = "every trial left the reach of the constraints"
+            if (not settings.line_search and ev_t is not None) \
+                    or m1 <= (1.0 - ARMIJO * alpha) * m0:
                 break
             alpha *= 0.5
         if best is None:
@@ -458,11 +463,14 @@ class _NewtonState:
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
-           max_iter: int | None = None, event: str = "newton", equilibrate: bool = False):
+           max_iter: int | None = None, event: str = "newton", equilibrate: bool = False,
+           probe=None):
     """Newton iterations from ``state`` (:class:`NewtonIteration` run by
     :func:`~poise.solvers.iterate.iterate`, ``max_iter`` default ``max_num_iter``). Returns
     ``(state, FrameOutcome)``. ``history``: where the loop appends the rows (a
-    :class:`~poise.solvers.history.History`, a stage view of one, or a list)."""
+    :class:`~poise.solvers.history.History`, a stage view of one, or a list). ``probe``:
+    ``probe(model, state, settings, cnt, f, x, eps, zinf) -> message`` called with the first
+    step (factorisation ``f``, step ``x``); a message ends Newton as ``no_equilibrium``."""
     max_iter = settings.max_num_iter if max_iter is None else max_iter
-    return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate),
+    return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate, probe),
                    max_iter, history, state)
