@@ -21,6 +21,7 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.solvers.data import SolveData
+from poise.solvers.downhill import downhill_step
 from poise.solvers.history import History, Row
 from poise.solvers.iterate import Iterative, Step, iterate
 from poise.solvers.linalg import SingularMatrix
@@ -35,6 +36,7 @@ LINE_SEARCH_MAX = 8
 NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
 TAIL_SHARE = 1e-6             # eps M dx above this share of the residual: filter the step
 ARMIJO = 1e-4
+ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step)
 
 
 @dataclass
@@ -198,14 +200,15 @@ class Assembly(Iterative):
                             s["v"], sn, 1.0, "", "assembly", pos=prev.pos, rot=prev.rot),))
 
 
-def initial_multipliers(model, state, cnt: Counters):
-    """Least-squares multipliers ``argmin ||Phi_q^T lam - Q||_{W^-1}`` at the current state."""
+def initial_multipliers(model, state, cnt: Counters, weights=None):
+    """Least-squares multipliers ``argmin ||Phi_q^T lam - Q||_{W^-1}`` at the current state
+    (``weights``: ``W``, default the squared coordinate scales)."""
     if model.nc == 0:
         return state
     st = state.copy()
     st.lam[:] = 0.0
     ev = cnt.evaluate(model, st, "jacobian")
-    W = _coord_weights(model)
+    W = _coord_weights(model) if weights is None else weights
     K = _weighted_kkt(model, ev, W)
     try:
         f = cnt.factor(K)
@@ -323,13 +326,17 @@ class NewtonIteration(Iterative):
             trial = project(self.model, trial, self.cnt, ev)
             if trial is None:
                 return None, None, np.inf
+            # the multipliers of the linearised step do not fit the projected point: those
+            # that minimise the merit there (its weights), so it can only be lower
+            trial = initial_multipliers(self.model, trial, self.cnt, self.sc.r_tol ** 2)
             ev = self._ev_at(trial)
         return trial, ev, merit(ev, self.sc)
 
-    def _row(self, s, it, step=np.nan, alpha=np.nan, worst=None, pose=None):
+    def _row(self, s, it, step=np.nan, alpha=np.nan, worst=None, pose=None, event=None):
         pose = s.state if pose is None else pose
+        ev = self.event if event is None else f"{self.event}-{event}"
         return Row(self.frame, it, s.imb, s.err, step, alpha,
-                   s.worst if worst is None else worst, self.event, pos=pose.pos, rot=pose.rot)
+                   s.worst if worst is None else worst, ev, pos=pose.pos, rot=pose.rot)
 
     def _converged(self, s, it, err):
         # within tolerance: unless a removed redundant equation contradicts the others
@@ -395,6 +402,12 @@ class NewtonIteration(Iterative):
                                   MESSAGES[Status.NO_EQUILIBRIUM] + "; " + why)
         dq, dl = x[:model.nq], x[model.nq:]
         m0 = merit(ev, sc)
+        if s.stall is not None and not m0 < s.stall:
+            # still above the merit where it stalled: on down the potential energy
+            down = self._downhill(state, ev, dq)
+            if down is not None:
+                return self._take(s, it, state, down[:4], down[4], "downhill")
+        s.stall = None
         best = None
         eval_error = ""
         alpha, first = _limit_step_trial(model, state, dq, settings)
@@ -442,10 +455,30 @@ class NewtonIteration(Iterative):
             nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
             s.outcome = self._converged(s, it, max(s.cerr, nxt))
             return Step(0)
-        m1, alpha, s.state, s.ev = best
-        s.last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0
+        if not s.res_ok and (best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
+            # the merit stalls (a valley of the residual norm that is no equilibrium): steps
+            # down the potential energy instead, until the merit is below this one
+            down = self._downhill(state, ev, dq)
+            if down is not None:
+                s.stall = m0
+                return self._take(s, it, state, down[:4], down[4], "downhill")
+        return self._take(s, it, state, (best[2], best[3], best[0], best[1]), dq)
+
+    def _downhill(self, state, ev, dq):
+        """:func:`~poise.solvers.downhill.downhill_step` with Newton's step limits and
+        trials."""
+        model, settings = self.model, self.settings
+        return downhill_step(model, state, ev, dq, self.cnt,
+                             lambda st, d: _limit_step_trial(model, st, d, settings),
+                             self._measure, lambda st, v: _mass_times(model, st, v), self.eps)
+
+    def _take(self, s, it, state, trial, dq, event=None):
+        """Accept ``trial`` = ``(state, evaluation, merit, alpha)`` reached from ``state`` by
+        ``alpha * dq``: the iteration's history row."""
+        s.state, s.ev, _, alpha = trial
+        s.last_step = float(np.max(np.abs(alpha * dq) / self.sc.q_len)) if dq.size else 0.0
         # the row of the iterate it measured (``state``), with the step taken from it
-        return Step(1, (self._row(s, it, s.last_step, alpha, pose=state),))
+        return Step(1, (self._row(s, it, s.last_step, alpha, pose=state, event=event),))
 
 
 class _NewtonState:
@@ -460,6 +493,7 @@ class _NewtonState:
         self.worst = ""
         self.res_ok = False
         self.last_row = None          # the closing row (converged or why not)
+        self.stall = None             # merit where the line search stalled (downhill steps)
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
