@@ -19,7 +19,8 @@ from poise.core.errors import EvaluationError
 from poise.elements.registry import kernel_types
 from poise.solvers.history import History
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.newton import Scales, _mass_times, assemble
+from poise.solvers.newton import Scales, assemble
+from poise.solvers.steps import mass_times
 
 #: Element types whose laws are polynomial or analytic in the marker poses and never switch on
 #: along a motion (contacts, expressions, user routines, curves and scalar unknowns may).
@@ -42,7 +43,7 @@ def probe(model, state, settings, cnt, f, x, eps, zinf) -> str:
     if not eps > 0 or model.nq == 0:
         return ""
     sc = Scales(model, settings)
-    reg = eps * _mass_times(model, state, x[:model.nq])
+    reg = eps * mass_times(model, state, x[:model.nq])
     if not float(np.max(np.abs(reg) / sc.r_tol)) >= SHARE * max(zinf, 1e-300):
         return ""
     return certify(model, state, settings, cnt, _free_part(model, state, f, x, eps))
@@ -71,9 +72,9 @@ def _free_part(model, state, f, x, eps):
     nq = model.nq
     pad = np.zeros(len(x) - nq)
     try:
-        Sx = f.solve(np.concatenate([eps * _mass_times(model, state, x[:nq]), pad]))
+        Sx = f.solve(np.concatenate([eps * mass_times(model, state, x[:nq]), pad]))
         z = x + 2.0 * Sx
-        Sz = f.solve(np.concatenate([eps * _mass_times(model, state, z[:nq]), pad]))
+        Sz = f.solve(np.concatenate([eps * mass_times(model, state, z[:nq]), pad]))
     except SingularMatrix:
         return x[:nq]
     v = (x - z + Sz)[:nq]

@@ -29,12 +29,13 @@ from poise.solvers.reach import PROJECT_ABOVE, project, violation
 from poise.solvers.reach import coord_weights as _coord_weights
 from poise.solvers.reach import weighted_kkt as _weighted_kkt
 from poise.solvers.status import MESSAGES, Status
+from poise.solvers.steps import limit_step as _limit_step_trial
+from poise.solvers.steps import mass_times as _mass_times
+from poise.solvers.steps import neutral_filtered as _neutral_filtered
 
 ASSEMBLY_MAX_ITER = 50
 ASSEMBLY_TOL = 1e-10          # relative constraint violation after assembly
 LINE_SEARCH_MAX = 8
-NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
-TAIL_SHARE = 1e-6             # eps M dx above this share of the residual: filter the step
 ARMIJO = 1e-4
 ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step)
 
@@ -223,79 +224,6 @@ def initial_multipliers(model, state, cnt: Counters, weights=None):
     return st
 
 
-def _limit_step_trial(model, state, dq, settings):
-    """Uniform step factor so that no body moves (actual screw displacement of its CG) more than
-    ``max_translation_step * L`` nor rotates more than ``max_rotation_step``, and the
-    configuration it accepted: ``(factor, retract(state, factor * dq))``, or ``(factor, None)``
-    when the last retraction tried another factor. The line search starts from that
-    configuration instead of retracting again."""
-    fac = 1.0
-    if len(model.rot_idx):
-        r = dq[model.rot_idx].reshape(-1, 3)
-        mr = float(np.max(np.linalg.norm(r, axis=1)))
-        if mr > settings.max_rotation_step:
-            fac = settings.max_rotation_step / mr
-    lim = settings.max_translation_step * model.L
-    for _ in range(4):
-        trial = model.retract(state, fac * dq)
-        disp = float(np.max(np.linalg.norm(trial.pos - state.pos, axis=1))) if model.nb else 0.0
-        if disp <= lim * 1.0001:
-            return fac, trial
-        fac *= 0.9 * lim / disp
-    return fac, None
-
-
-def _mass_times(model, state, v):
-    """``M v`` for a tangent vector ``v`` (nq,): body masses on translations, world inertia on
-    rotations, zero on scalar unknowns."""
-    out = np.zeros(model.nq)
-    out[model.trans_idx] = np.repeat(model.body_mass, 3) * v[model.trans_idx]
-    if len(model.rot_idx):
-        _, Jg = model.mass_blocks(state)
-        out[model.rot_idx] = np.einsum("nij,nj->ni", Jg,
-                                       v[model.rot_idx].reshape(-1, 3)).ravel()
-    return out
-
-
-def _neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
-    """The Newton step ``x = A^-1 (-F)`` (``A = K + eps M``) with near-neutral directions filtered
-    out, or None when the regularisation does not dominate it.
-
-    Along a direction of zero stiffness (the spin of a slender rod about its axis) a residual
-    that is consistent only to second order still has a component ``O(e^2)`` there, which ``A``
-    divides by ``eps`` times that direction's (possibly tiny) inertia: a huge spurious step that
-    the step limits then cut down to nothing, so Newton stalls. With ``S = eps A^-1 M``
-    (eigenvalues ``eps / (lambda + eps)`` for the generalised stiffness ``lambda``), the step
-    ``(I - S)(I + 2 S) x`` scales each direction by ``lambda (lambda + 3 eps) / (lambda + eps)^3``:
-    zero along neutral directions (the minimum-norm step) and ``1/lambda (1 - 3 (eps/lambda)^2)``
-    along stiff ones (Newton's step, quadratic convergence for ``eps << lambda``). Two extra
-    solves with the same factorisation, only when ``eps M x`` carries more than ``TAIL_SHARE``
-    of the residual (then the regularisation would slow Newton down to a linear rate
-    ``eps/lambda``), or when the step limits cut ``x`` (``limited``) and ``S x`` is more than
-    ``NEUTRAL_SHARE`` of ``x`` (scaled).
-    """
-    if not eps > 0 or model.nq == 0:
-        return None
-    nq = model.nq
-    reg = eps * _mass_times(model, state, x[:nq])
-    share = float(np.max(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
-    if not (limited or share > TAIL_SHARE):
-        return None
-    pad = np.zeros(len(x) - nq)
-    try:
-        Sx = f.solve(np.concatenate([reg, pad]))
-        size = np.max(np.abs(x[:nq]) / sc.q_len)
-        if share <= TAIL_SHARE and \
-                not float(np.max(np.abs(Sx[:nq]) / sc.q_len)) > NEUTRAL_SHARE * size:
-            return None
-        z = x + 2.0 * Sx
-        Sz = f.solve(np.concatenate([eps * _mass_times(model, state, z[:nq]), pad]))
-    except SingularMatrix:
-        return None
-    xf = z - Sz
-    return xf if np.all(np.isfinite(xf)) else None
-
-
 class NewtonIteration(Iterative):
     """Frame-level Newton as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step``
     is one Newton iteration (factorise, solve, limit, line search) and returns its history
@@ -316,13 +244,13 @@ class NewtonIteration(Iterative):
         # assembles its Jacobian when it is factorised (never at the converged point)
         return self.cnt.evaluate(self.model, st, "defer", eps=self.eps)
 
-    def _measure(self, trial):
-        """``(trial, evaluation, merit)`` of a line-search trial; a trial Newton's linearised
-        constraints left by more than ``PROJECT_ABOVE`` is first projected back onto them
-        (:func:`~poise.solvers.reach.project`), one beyond the assembly's reach is
-        ``(None, None, inf)``: the line search shortens the step."""
+    def _measure(self, trial, reach=True):
+        """``(trial, evaluation, merit)`` of a line-search trial; with ``reach``, a trial
+        Newton's linearised constraints left by more than ``PROJECT_ABOVE`` is first projected
+        back onto them (:func:`~poise.solvers.reach.project`), one beyond the assembly's reach
+        is ``(None, None, inf)``: the line search shortens the step."""
         ev = self._ev_at(trial)
-        if self.model.nc and violation(self.model, ev.phi) > PROJECT_ABOVE:
+        if reach and self.model.nc and violation(self.model, ev.phi) > PROJECT_ABOVE:
             trial = project(self.model, trial, self.cnt, ev)
             if trial is None:
                 return None, None, np.inf
@@ -359,6 +287,9 @@ class NewtonIteration(Iterative):
             s.ev = self._ev_at(state)
         except EvaluationError as e:
             s.outcome = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
+            return s
+        if violation(self.model, s.ev.phi) <= PROJECT_ABOVE:
+            s.feasible = (state, s.ev)
         return s
 
     def terminate(self, s, used):
@@ -420,7 +351,7 @@ class NewtonIteration(Iterative):
                 tf = model.retract(state, af * xf[:model.nq])
             tf.lam = tf.lam + af * xf[model.nq:]
             try:
-                tf, ev_f, mf = self._measure(tf)
+                tf, ev_f, mf = self._measure(tf, s.robust)
                 if mf <= (1.0 - ARMIJO * af) * m0:
                     best = (mf, af, tf, ev_f)
                     dq = xf[:model.nq]
@@ -433,7 +364,7 @@ class NewtonIteration(Iterative):
             else:
                 trial = model.retract(state, alpha * dq, alpha * dl)
             try:
-                trial, ev_t, m1 = self._measure(trial)
+                trial, ev_t, m1 = self._measure(trial, s.robust)
             except EvaluationError as e:
                 ev_t, m1 = None, np.inf
                 eval_error = str(e)
@@ -455,14 +386,33 @@ class NewtonIteration(Iterative):
             nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
             s.outcome = self._converged(s, it, max(s.cerr, nxt))
             return Step(0)
-        if not s.res_ok and (best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
-            # the merit stalls (a valley of the residual norm that is no equilibrium): steps
-            # down the potential energy instead, until the merit is below this one
+        if settings.line_search and not s.res_ok and (
+                best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
+            # the merit stalls: from now on every trial is kept on the constraints (the
+            # iterate first, if Newton's linearisation left them), and where the merit has a
+            # valley that is no equilibrium, steps go down the potential energy instead until
+            # the merit is below this one (docs/solvers.md, "Newton on mechanisms")
+            if not s.robust:
+                s.robust = True
+                if violation(model, ev.phi) > PROJECT_ABOVE:
+                    return self._onto(s, it, state)
             down = self._downhill(state, ev, dq)
             if down is not None:
                 s.stall = m0
                 return self._take(s, it, state, down[:4], down[4], "downhill")
         return self._take(s, it, state, (best[2], best[3], best[0], best[1]), dq)
+
+    def _onto(self, s, it, state):
+        """The iterate projected back onto its constraints or, beyond their reach, the last
+        iterate that was on them: the iteration's row (``reach``)."""
+        p = project(self.model, state, self.cnt, s.ev)
+        if p is not None:
+            p = initial_multipliers(self.model, p, self.cnt, self.sc.r_tol ** 2)
+            s.state, s.ev = p, self._ev_at(p)
+        elif s.feasible is not None:
+            s.state, s.ev = s.feasible
+        s.last_step = np.inf
+        return Step(1, (self._row(s, it, np.nan, np.nan, pose=state, event="reach"),))
 
     def _downhill(self, state, ev, dq):
         """:func:`~poise.solvers.downhill.downhill_step` with Newton's step limits and
@@ -477,6 +427,8 @@ class NewtonIteration(Iterative):
         ``alpha * dq``: the iteration's history row."""
         s.state, s.ev, _, alpha = trial
         s.last_step = float(np.max(np.abs(alpha * dq) / self.sc.q_len)) if dq.size else 0.0
+        if violation(self.model, s.ev.phi) <= PROJECT_ABOVE:
+            s.feasible = (s.state, s.ev)
         # the row of the iterate it measured (``state``), with the step taken from it
         return Step(1, (self._row(s, it, s.last_step, alpha, pose=state, event=event),))
 
@@ -494,6 +446,8 @@ class _NewtonState:
         self.res_ok = False
         self.last_row = None          # the closing row (converged or why not)
         self.stall = None             # merit where the line search stalled (downhill steps)
+        self.robust = False           # it stalled once: trials kept on the constraints
+        self.feasible = None          # (state, evaluation) of the last iterate on them
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
