@@ -23,18 +23,21 @@ ARMIJO = 1e-4
 BACKTRACK = 8             # energy line-search halvings
 MU_TRIES = 6              # shifts tried, each x 10
 MU_FIRST = 2.0            # first shift: this x the negative curvature along Newton's step
+RUNAWAY = 2 * np.pi       # a body turned a full turn (rad) or moved this many model sizes
 
 
 def downhill_step(model, state, ev, dq, cnt, limit, measure, mass_times, eps):
-    """A trial below ``state``'s potential energy, ``(trial, evaluation, merit, alpha, step)``,
-    or None (no potential, no descent found). ``ev``: the evaluation at ``state`` (its
-    Jacobian assembled), ``dq``: Newton's step, ``limit(state, dq) -> (factor, trial or
-    None)``: the step limits, ``measure(trial) -> (trial, evaluation, merit)``: a trial
+    """A trial below ``state``'s potential energy, ``(trial, evaluation, merit, alpha, step,
+    drop)`` (``drop``: how much lower), or None (no descent found). ``ev``: the evaluation at
+    ``state`` (its Jacobian assembled), ``dq``: Newton's step, ``limit(state, dq) -> (factor,
+    trial or None)``: the step limits, ``measure(trial) -> (trial, evaluation, merit)``: a trial
     projected onto the constraints (None beyond their reach), ``mass_times(state, v)``: ``M v``,
-    ``eps``: the mass multiple in ``ev``'s Jacobian."""
-    v0 = potential_energy(model, state)
-    if not np.isfinite(v0) or model.nq == 0:
+    ``eps``: the mass multiple in ``ev``'s Jacobian. A model without a potential (a constant
+    torque, expression forces) measures the drop by the work of its loads along the step
+    (trapezoidal rule: exact for a quadratic potential)."""
+    if model.nq == 0:
         return None
+    v0 = potential_energy(model, state)
     nq = model.nq
     r = ev.r
     d = dq
@@ -67,13 +70,22 @@ def downhill_step(model, state, ev, dq, cnt, limit, measure, mass_times, eps):
         first = None
         try:
             trial, evt, m1 = measure(trial)
-            v1 = potential_energy(model, trial) if trial is not None else np.nan
+            drop = np.nan if trial is None else _drop(model, r, v0, trial, evt, alpha * d)
         except EvaluationError:
-            trial, v1 = None, np.nan
-        if trial is not None and v1 <= v0 + ARMIJO * alpha * slope:
-            return trial, evt, m1, alpha, d
+            trial, drop = None, np.nan
+        if trial is not None and drop >= -ARMIJO * alpha * slope:
+            return trial, evt, m1, alpha, d, drop
         alpha *= 0.5
     return None
+
+
+def _drop(model, r0, v0, trial, ev1, dq) -> float:
+    """How much lower the potential is at ``trial`` (reached by the step ``dq``, projected)
+    than at the start (residual ``r0``, potential ``v0``): exact when the model has one
+    (``v0`` finite), else the work of the loads along the step (trapezoidal)."""
+    if np.isfinite(v0):
+        return v0 - potential_energy(model, trial)
+    return -0.5 * float((r0 + ev1.r) @ dq)
 
 
 def _mu_scale(model, state, ev):
@@ -84,3 +96,42 @@ def _mu_scale(model, state, ev):
     has = (md > 0) & np.isfinite(kd)
     mu = float(np.max(kd[has] / md[has])) * 1e-3 if has.any() else 1.0
     return mu if np.isfinite(mu) and mu > 0 else 1.0
+
+
+class Runaway:
+    """Steps down the potential that never bring the merit below where it stalled: the
+    distance each body has travelled along them and the potential drop. ``add(dq, drop)``
+    returns why there is no equilibrium in reach once some body has turned a full turn or
+    moved ``2 pi`` model sizes (a load that is never balanced along the way), else ""."""
+
+    def __init__(self, model, imbalance, worst):
+        self.model = model
+        self.turn = np.zeros(model.nb)
+        self.move = np.zeros(model.nb)
+        self.drop = 0.0
+        self.imbalance, self.worst = imbalance, worst
+
+    def add(self, a, b, drop, imbalance, worst) -> str:
+        """A step from state ``a`` to ``b``, the potential ``drop`` along it and the imbalance
+        and worst equation at ``a``."""
+        m = self.model
+        if m.nb == 0:
+            return ""
+        self.move += np.linalg.norm(b.pos - a.pos, axis=1) / m.L
+        if a.rotvec is not None and b.rotvec is not None:
+            # continuous rotation vectors: full turns within one step counted
+            self.turn += np.linalg.norm(b.rotvec - a.rotvec, axis=1)
+        self.drop += float(drop)
+        if imbalance < self.imbalance:
+            self.imbalance, self.worst = imbalance, worst
+        far = np.maximum(self.turn, self.move)
+        b = int(np.argmax(far))
+        if not far[b] >= RUNAWAY:
+            return ""
+        where = m.coord_info[int(m.body_off[b])].rsplit(" ", 1)[0]
+        went = (f"turned {self.turn[b] / (2 * np.pi):.3g} turns" if self.turn[b] >= self.move[b]
+                else f"moved {self.move[b]:.3g} model sizes (L = {m.L:.6g})")
+        return (f"no equilibrium within reach: along steps that lowered the potential energy by "
+                f"{self.drop:.6g} in all, {where} {went} and the imbalance never fell below "
+                f"{self.imbalance:.6g} (worst: {self.worst}): a load the model cannot hold "
+                "(more than its springs or gravity can balance anywhere along that path)")

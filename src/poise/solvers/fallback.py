@@ -18,7 +18,8 @@ from poise.core.errors import EvaluationError
 from poise.solvers import freedom
 from poise.solvers.history import Row
 from poise.solvers.iterate import Iterative, Step, iterate
-from poise.solvers.newton import FrameOutcome, Scales, merit, newton
+from poise.solvers.downhill import Runaway
+from poise.solvers.newton import FrameOutcome, Scales, measures, merit, newton
 from poise.solvers.status import MESSAGES, Status
 
 FALLBACK_STABILITY = 1e-2
@@ -163,9 +164,10 @@ class ContinuationStage:
 
 
 class MkeamStage:
-    """MKEAM relaxation (:meth:`poise.solvers.relaxation.Relaxation.relax`, stable equilibria only), a
-    quarter of the budget left kept for the Newton polish of its point (stage ``polish``).
-    The last stage: its outcome is final."""
+    """MKEAM relaxation (:meth:`poise.solvers.relaxation.Relaxation.relax`, stable equilibria
+    only) within the budget left in units of work (integration steps of the dynamics, steps of
+    its Newton descent), a quarter of it kept for the Newton polish of its point (stage
+    ``polish``). The last stage: its outcome is final."""
 
     name = "mkeam"
 
@@ -175,22 +177,23 @@ class MkeamStage:
     def run(self, model, start, settings, history, frame, cnt, left, counts, prev):
         st, out = prev
         polish = min(int(settings.max_num_iter), max(1, left // 4))
-        n_mk = max(1, left - polish)
+        units = max(1, left - polish)
         rx = None
         try:
             # lazy: MKEAM needs scipy, which the small-deck path never loads
             from poise.solvers.relaxation import Relaxation
-            rx = Relaxation(model, replace(settings, max_num_iter=n_mk), history, cnt)
-            st2, ok = rx.relax(start.copy())
+            rx = Relaxation(model, replace(settings, max_num_iter=units), history, cnt,
+                            units=units)
+            st2, ok, why = rx.relax(start.copy())
         except Exception as e:   # noqa: BLE001 - any MKEAM failure just ends the chain
-            counts["mkeam"] = 0 if rx is None else rx.iterations
+            counts["mkeam"] = 0 if rx is None else rx.used
             why = Row(frame, 0, event=f"fallback: mkeam failed: {e}", strategy=self.name)
             return st, replace(out, message=f"MKEAM failed: {e}"), True, (why,)
-        counts["mkeam"] = rx.iterations
+        counts["mkeam"] = rx.used
         left -= counts["mkeam"]
         if not ok:
-            return st, replace(out, message="MKEAM did not converge within its share of the "
-                                            "fallback budget"), True, ()
+            return st, replace(out, message=f"MKEAM did not converge within its share of the "
+                                            f"fallback budget ({units} units): {why}"), True, ()
         if left <= 0:
             return st2, FrameOutcome(Status.MAX_ITERATIONS, 0, np.nan, np.nan,
                                      "no budget left for the Newton polish of the MKEAM point"
@@ -316,7 +319,8 @@ class Continuation(Iterative):
         if not (np.isfinite(mu0) and mu0 > 0):
             mu0 = 1.0
         s.update(mu0=mu0, mu=mu0, mu_max=min(mu0 * PTC_MU_GROWTH, 1e150),  # mu**2 stays finite
-                 m_old=merit(ev, self.sc))
+                 m_old=merit(ev, self.sc), r=ev.r, m_ref=merit(ev, self.sc),
+                 runaway=Runaway(model, *measures(model, ev, self.sc)[::3]))
         return s
 
     def terminate(self, s, used):
@@ -336,7 +340,8 @@ class Continuation(Iterative):
         mu = s["mu"]
         s_mu = replace(self.settings, stability=mu * mu, fallback=False, line_search=False)
         rows = []
-        st, o = newton(self.model, s["state"], s_mu, rows, self.frame, self.cnt, max_iter=1,
+        prev = s["state"]
+        st, o = newton(self.model, prev, s_mu, rows, self.frame, self.cnt, max_iter=1,
                        event=f"continuation mu={mu:.3g}")
         rec = Step(1, tuple(rows))
         s["total"] += o.iterations
@@ -359,6 +364,20 @@ class Continuation(Iterative):
             s["outcome"] = FrameOutcome(Status.NONFINITE, total, np.nan, np.nan, str(e))
             return rec
         m_new = merit(ev, self.sc)
+        if m_new < 0.5 * s["m_ref"]:     # on its way to an equilibrium
+            s["m_ref"], s["runaway"] = m_new, Runaway(self.model, *measures(self.model, ev,
+                                                                           self.sc)[::3])
+        else:
+            # the flow goes downhill; a full turn or 2 pi L without the residual halving: no
+            # equilibrium within reach of the flow
+            dq = self.model.local_difference(prev, st)
+            why = s["runaway"].add(prev, st, -0.5 * float((s["r"] + ev.r) @ dq), o.imbalance,
+                                   measures(self.model, ev, self.sc)[3])
+            if why:
+                s["outcome"] = FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,
+                                            "pseudo-transient continuation: " + why)
+                return rec
+        s["r"] = ev.r
         mu = mu * np.sqrt(m_new / max(s["m_old"], 1e-300)) if np.isfinite(m_new) else np.inf
         if not (np.isfinite(mu) and mu <= s["mu_max"]):
             s["outcome"] = FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,

@@ -21,7 +21,7 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.solvers.data import SolveData
-from poise.solvers.downhill import downhill_step
+from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.history import History, Row
 from poise.solvers.iterate import Iterative, Step, iterate
 from poise.solvers.linalg import SingularMatrix
@@ -337,7 +337,7 @@ class NewtonIteration(Iterative):
             # still above the merit where it stalled: on down the potential energy
             down = self._downhill(state, ev, dq)
             if down is not None:
-                return self._take(s, it, state, down[:4], down[4], "downhill")
+                return self._down(s, it, state, down)
         s.stall = None
         best = None
         eval_error = ""
@@ -399,7 +399,8 @@ class NewtonIteration(Iterative):
             down = self._downhill(state, ev, dq)
             if down is not None:
                 s.stall = m0
-                return self._take(s, it, state, down[:4], down[4], "downhill")
+                s.runaway = Runaway(model, s.imb, s.worst)
+                return self._down(s, it, state, down)
         return self._take(s, it, state, (best[2], best[3], best[0], best[1]), dq)
 
     def _onto(self, s, it, state):
@@ -421,6 +422,15 @@ class NewtonIteration(Iterative):
         return downhill_step(model, state, ev, dq, self.cnt,
                              lambda st, d: _limit_step_trial(model, st, d, settings),
                              self._measure, lambda st, v: _mass_times(model, st, v), self.eps)
+
+    def _down(self, s, it, state, down):
+        """Accept the downhill step ``down`` (:func:`~poise.solvers.downhill.downhill_step`),
+        or end Newton when the steps down have gone beyond reach (:class:`Runaway`)."""
+        row = self._take(s, it, state, down[:4], down[4], "downhill")
+        why = s.runaway.add(state, s.state, down[5], s.imb, s.worst)
+        if why:
+            s.outcome = FrameOutcome(Status.DIVERGED, it + 1, s.imb, s.err, why)
+        return row
 
     def _take(self, s, it, state, trial, dq, event=None):
         """Accept ``trial`` = ``(state, evaluation, merit, alpha)`` reached from ``state`` by
@@ -447,6 +457,7 @@ class _NewtonState:
         self.last_row = None          # the closing row (converged or why not)
         self.stall = None             # merit where the line search stalled (downhill steps)
         self.robust = False           # it stalled once: trials kept on the constraints
+        self.runaway = None           # the steps down since the stall (downhill.Runaway)
         self.feasible = None          # (state, evaluation) of the last iterate on them
 
 

@@ -52,8 +52,13 @@ class Relaxation:
     of the fallback chain). Rows go to ``history``, counts to ``data`` (:class:`SolveData`,
     whose active rows the integration keeps)."""
 
-    def __init__(self, model, settings, history, data):
+    def __init__(self, model, settings, history, data, units=None):
         self.model = model
+        # budget in units of work (integration steps, descent steps), None: MAX_TOTAL_STEPS
+        # (the fallback chain passes its share: the time the stage may take is bounded)
+        self.units = MAX_TOTAL_STEPS if units is None else max(1, min(int(units),
+                                                                       MAX_TOTAL_STEPS))
+        self.used = 0
         self.settings = settings
         self.history = history
         self.counters = data
@@ -169,7 +174,7 @@ class Relaxation:
             if b.power <= 0.0:
                 if a.power <= 0.0:                 # never accelerated: at rest already
                     return (a if a.ke >= b.ke else b), steps, h, ""
-                peak, n = self._locate_peak(dyn, a, b, h)
+                peak, n = self._locate_peak(dyn, a, b, h, min(12, budget - steps))
                 return peak, steps + n, h, ""
             a = b
         return a, steps, h, ""
@@ -196,13 +201,13 @@ class Relaxation:
                     "input configuration (nothing holds it: no equilibrium within reach)")
         return ""
 
-    def _locate_peak(self, dyn, a, b, h):
+    def _locate_peak(self, dyn, a, b, h, most=12):
         lo, hi = 0.0, h
         plo, phi_ = a.power, b.power
         best = b
         n = 0
         side = 0
-        while hi - lo > PEAK_TOL * h and n < 12:
+        while hi - lo > PEAK_TOL * h and n < most:
             tau = (lo * phi_ - hi * plo) / (phi_ - plo)
             if not (lo < tau < hi):
                 tau = 0.5 * (lo + hi)
@@ -349,16 +354,17 @@ class Relaxation:
         for it in range(1, s.max_num_iter + 1):
             if self.report is not None:
                 self.report("MKEAM", it - 1, s.max_num_iter)
-            if used >= MAX_TOTAL_STEPS:
+            used = self.used
+            if used >= self.units:
                 return state, Status.MAX_ITERATIONS, (
-                    f"MKEAM used its integration budget ({MAX_TOTAL_STEPS} steps) in {it - 1} "
+                    f"MKEAM used its integration budget ({self.units} steps) in {it - 1} "
                     "iterations without meeting max_ke_tol / max_dq_tol"), it - 1
             cap = MAX_STEPS_PER_ITER
             if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
                 cap = HANDOVER_CAP       # a large model: restart early, then hand over
             peak, steps, h, msg = self._iteration(dyn, state, h,
-                                                  min(cap, MAX_TOTAL_STEPS - used))
-            used += steps
+                                                  min(cap, self.units - used))
+            self.used += steps
             if msg and "already at rest" not in msg:
                 self._row(it, np.nan, np.nan, msg, peak, steps, np.nan, "mkeam")
                 status = (Status.NONFINITE if "non-finite" in msg else
@@ -412,21 +418,28 @@ class Relaxation:
             st = initial_multipliers(m, state, self.counters)
             self.history.add(0, 0, np.nan, np.nan, event="mkeam: handover to the "
                              "inertia-controlled Newton descent")
-            st, out, _, _ = descend(m, st, s_any, self.history, 0, self.counters,
-                                    HANDOVER_STEPS * s.max_num_iter)
+            st, out, _, steps = descend(m, st, s_any, self.history, 0, self.counters,
+                                        min(HANDOVER_STEPS * s.max_num_iter, self._left()))
+            self.used += steps
             if out is None:
                 return None
             info = classify(m, st, active=self.counters.active)
             if info.klass == "unstable":
                 act = self.counters.active
+                rows = len(self.history)
                 st, out, info, _ = seek_stable(m, st, s_any, self.history, 0, self.counters,
                                                info, lambda x: classify(m, x, active=act))
+                self.used += len(self.history) - rows       # its escape and descent steps
             if not out.ok or info.klass not in ("stable", "neutral"):
                 return None
             pe1 = self.potential_energy(st)
             if np.isfinite(pe0) and np.isfinite(pe1) and pe1 > pe0 + 1e-9 * max(abs(pe0), 1.0):
                 return None
-            peak, steps, _, msg = self._iteration(self.dyn, st, h, MAX_STEPS_PER_ITER)
+            if self._left() <= 0:
+                return None
+            peak, steps, _, msg = self._iteration(self.dyn, st, h,
+                                                  max(1, min(MAX_STEPS_PER_ITER, self._left())))
+            self.used += steps
             ke, dq = peak.ke, self._dq(st, peak.state)
             self.history.add(0, 0, np.nan, dq, dq, np.nan, msg, "mkeam-verify")
             if msg and "already at rest" not in msg:
@@ -437,15 +450,19 @@ class Relaxation:
         except (EvaluationError, SingularMatrix, ValueError, ArithmeticError):
             return None
 
+    def _left(self) -> int:
+        """Units of the budget not spent yet (integration and descent steps)."""
+        return max(0, self.units - self.used)
+
     def relax(self, state):
         """MKEAM iterations from ``state`` (the fallback chain's ``mkeam`` stage). Returns
-        ``(state, ok)``; ``ok`` when the MKEAM tolerances were met; :attr:`iterations`: the
-        MKEAM iterations it recorded."""
+        ``(state, ok, message)``; ``ok`` when the MKEAM tolerances were met, else why not;
+        :attr:`used`: the units of work spent (integration and descent steps)."""
         if not np.isfinite(self.model.L):
-            return state, False
+            return state, False, "the model size L is not finite"
         st = initial_multipliers(self.model, state, self.counters)
-        st, status, _msg, _n = self.iterate(st)
-        return st, status.ok
+        st, status, msg, _n = self.iterate(st)
+        return st, status.ok, msg
 
     @property
     def iterations(self) -> int:
