@@ -54,10 +54,10 @@ def test_missing_joint_stops_before_the_chain(tmp_path):
     a = run_deck(double_pendulum(False).write(tmp_path / "missing.xml")).analyses[0]
     assert not a.converged
     assert a.datasets["frames/status"][0] == "no_equilibrium"
-    assert "Body_Rigid id=3" in a.message and "nothing restrains" in a.message
-    # no fallback strategy ran: plain Newton's budget only
+    assert "Body_Rigid id=3" in a.message and "is free to translate" in a.message
+    # found before Newton spent any iteration, no fallback strategy ran
     assert set(a.datasets["iterations/strategy"]) == {"plain"}
-    assert a.datasets["frames/iterations"][0] <= 100
+    assert a.datasets["frames/iterations"][0] == 0
     # with the joint the same model converges (the check does not flag a sound model); the
     # answer from the potential in the two absolute link angles (N mm; m g in N = kg x 9.81)
     b = run_deck(double_pendulum(True).write(tmp_path / "sound.xml")).analyses[0]

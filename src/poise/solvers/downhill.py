@@ -23,7 +23,7 @@ ARMIJO = 1e-4
 BACKTRACK = 8             # energy line-search halvings
 MU_TRIES = 6              # shifts tried, each x 10
 MU_FIRST = 2.0            # first shift: this x the negative curvature along Newton's step
-RUNAWAY = 2 * np.pi       # a body turned a full turn (rad) or moved this many model sizes
+RUNAWAY = 2 * np.pi       # a body turned a full turn: no equilibrium within reach
 
 
 def downhill_step(model, state, ev, dq, cnt, limit, measure, mass_times, eps):
@@ -99,15 +99,16 @@ def _mu_scale(model, state, ev):
 
 
 class Runaway:
-    """Steps down the potential that never bring the merit below where it stalled: the
-    distance each body has travelled along them and the potential drop. ``add(dq, drop)``
-    returns why there is no equilibrium in reach once some body has turned a full turn or
-    moved ``2 pi`` model sizes (a load that is never balanced along the way), else ""."""
+    """Steps down the potential that never bring the merit below where it stalled, and the
+    angle each body has turned along them (continuous rotation vectors: full turns within a
+    step counted). ``add`` returns why there is no equilibrium in reach once a body has
+    turned a full turn: the model came back to where it was with the load never balanced on
+    the way, and the potential lower; else "". A translation has no such natural measure (the
+    model size says nothing about where a load's law balances): budgets bound it."""
 
     def __init__(self, model, imbalance, worst):
         self.model = model
         self.turn = np.zeros(model.nb)
-        self.move = np.zeros(model.nb)
         self.drop = 0.0
         self.imbalance, self.worst = imbalance, worst
 
@@ -115,23 +116,18 @@ class Runaway:
         """A step from state ``a`` to ``b``, the potential ``drop`` along it and the imbalance
         and worst equation at ``a``."""
         m = self.model
-        if m.nb == 0:
+        if m.nb == 0 or a.rotvec is None or b.rotvec is None:
             return ""
-        self.move += np.linalg.norm(b.pos - a.pos, axis=1) / m.L
-        if a.rotvec is not None and b.rotvec is not None:
-            # continuous rotation vectors: full turns within one step counted
-            self.turn += np.linalg.norm(b.rotvec - a.rotvec, axis=1)
+        self.turn += np.linalg.norm(b.rotvec - a.rotvec, axis=1)
         self.drop += float(drop)
         if imbalance < self.imbalance:
             self.imbalance, self.worst = imbalance, worst
-        far = np.maximum(self.turn, self.move)
-        b = int(np.argmax(far))
-        if not far[b] >= RUNAWAY:
+        k = int(np.argmax(self.turn))
+        if not self.turn[k] >= RUNAWAY:
             return ""
-        where = m.coord_info[int(m.body_off[b])].rsplit(" ", 1)[0]
-        went = (f"turned {self.turn[b] / (2 * np.pi):.3g} turns" if self.turn[b] >= self.move[b]
-                else f"moved {self.move[b]:.3g} model sizes (L = {m.L:.6g})")
+        where = m.coord_info[int(m.body_off[k])].rsplit(" ", 1)[0]
         return (f"no equilibrium within reach: along steps that lowered the potential energy by "
-                f"{self.drop:.6g} in all, {where} {went} and the imbalance never fell below "
-                f"{self.imbalance:.6g} (worst: {self.worst}): a load the model cannot hold "
-                "(more than its springs or gravity can balance anywhere along that path)")
+                f"{self.drop:.6g} in all, {where} turned {self.turn[k] / (2 * np.pi):.3g} "
+                f"turns and the imbalance never fell below {self.imbalance:.6g} (worst: "
+                f"{self.worst}): a load the model cannot hold (more than its springs or gravity "
+                "can balance anywhere along a full turn)")

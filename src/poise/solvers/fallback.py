@@ -18,8 +18,7 @@ from poise.core.errors import EvaluationError
 from poise.solvers import freedom
 from poise.solvers.history import Row
 from poise.solvers.iterate import Iterative, Step, iterate
-from poise.solvers.downhill import Runaway
-from poise.solvers.newton import FrameOutcome, Scales, measures, merit, newton
+from poise.solvers.newton import FrameOutcome, Scales, merit, newton
 from poise.solvers.status import MESSAGES, Status
 
 FALLBACK_STABILITY = 1e-2
@@ -319,8 +318,7 @@ class Continuation(Iterative):
         if not (np.isfinite(mu0) and mu0 > 0):
             mu0 = 1.0
         s.update(mu0=mu0, mu=mu0, mu_max=min(mu0 * PTC_MU_GROWTH, 1e150),  # mu**2 stays finite
-                 m_old=merit(ev, self.sc), r=ev.r, m_ref=merit(ev, self.sc),
-                 runaway=Runaway(model, *measures(model, ev, self.sc)[::3]))
+                 m_old=merit(ev, self.sc))
         return s
 
     def terminate(self, s, used):
@@ -340,8 +338,7 @@ class Continuation(Iterative):
         mu = s["mu"]
         s_mu = replace(self.settings, stability=mu * mu, fallback=False, line_search=False)
         rows = []
-        prev = s["state"]
-        st, o = newton(self.model, prev, s_mu, rows, self.frame, self.cnt, max_iter=1,
+        st, o = newton(self.model, s["state"], s_mu, rows, self.frame, self.cnt, max_iter=1,
                        event=f"continuation mu={mu:.3g}")
         rec = Step(1, tuple(rows))
         s["total"] += o.iterations
@@ -364,20 +361,6 @@ class Continuation(Iterative):
             s["outcome"] = FrameOutcome(Status.NONFINITE, total, np.nan, np.nan, str(e))
             return rec
         m_new = merit(ev, self.sc)
-        if m_new < 0.5 * s["m_ref"]:     # on its way to an equilibrium
-            s["m_ref"], s["runaway"] = m_new, Runaway(self.model, *measures(self.model, ev,
-                                                                           self.sc)[::3])
-        else:
-            # the flow goes downhill; a full turn or 2 pi L without the residual halving: no
-            # equilibrium within reach of the flow
-            dq = self.model.local_difference(prev, st)
-            why = s["runaway"].add(prev, st, -0.5 * float((s["r"] + ev.r) @ dq), o.imbalance,
-                                   measures(self.model, ev, self.sc)[3])
-            if why:
-                s["outcome"] = FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,
-                                            "pseudo-transient continuation: " + why)
-                return rec
-        s["r"] = ev.r
         mu = mu * np.sqrt(m_new / max(s["m_old"], 1e-300)) if np.isfinite(m_new) else np.inf
         if not (np.isfinite(mu) and mu <= s["mu_max"]):
             s["outcome"] = FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,

@@ -38,6 +38,7 @@ ASSEMBLY_TOL = 1e-10          # relative constraint violation after assembly
 LINE_SEARCH_MAX = 8
 ARMIJO = 1e-4
 ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step)
+CRAWL = 6                     # ... as has one whose merit did not halve in this many iterations
 
 
 @dataclass
@@ -386,8 +387,10 @@ class NewtonIteration(Iterative):
             nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
             s.outcome = self._converged(s, it, max(s.cerr, nxt))
             return Step(0)
+        s.merits.append(m0)
+        crawl = len(s.merits) > CRAWL and not m0 <= 0.5 * s.merits[-1 - CRAWL]
         if settings.line_search and not s.res_ok and (
-                best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
+                crawl or best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
             # the merit stalls: from now on every trial is kept on the constraints (the
             # iterate first, if Newton's linearisation left them), and where the merit has a
             # valley that is no equilibrium, steps go down the potential energy instead until
@@ -459,6 +462,7 @@ class _NewtonState:
         self.robust = False           # it stalled once: trials kept on the constraints
         self.runaway = None           # the steps down since the stall (downhill.Runaway)
         self.feasible = None          # (state, evaluation) of the last iterate on them
+        self.merits = []              # merit at each iteration (progress)
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,

@@ -58,6 +58,7 @@ class Relaxation:
         # (the fallback chain passes its share: the time the stage may take is bounded)
         self.units = MAX_TOTAL_STEPS if units is None else max(1, min(int(units),
                                                                        MAX_TOTAL_STEPS))
+        self.limited = units is not None
         self.used = 0
         self.settings = settings
         self.history = history
@@ -362,6 +363,8 @@ class Relaxation:
             cap = MAX_STEPS_PER_ITER
             if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
                 cap = HANDOVER_CAP       # a large model: restart early, then hand over
+            if it <= HANDOVER_ITER and self.limited and not m.n_extra:
+                cap = max(1, min(cap, self.units // 4))   # leave the hand-over most of it
             peak, steps, h, msg = self._iteration(dyn, state, h,
                                                   min(cap, self.units - used))
             self.used += steps
@@ -413,13 +416,20 @@ class Relaxation:
         iterations continue from ``state`` as if nothing happened)."""
         m, s = self.model, self.settings
         s_any = replace(s, allow_neutral=True)
+        budget = HANDOVER_STEPS * s.max_num_iter
+        if self.limited:
+            # within the units left: the descent gets half, its Newton polishes (at most four,
+            # of max_num_iter each) and escapes the other half
+            budget = self._left() // 2
+            s_any = replace(s_any, max_num_iter=max(1, self._left() // 8))
+            if budget < 1:
+                return None
         pe0 = self.potential_energy(state)
         try:
             st = initial_multipliers(m, state, self.counters)
             self.history.add(0, 0, np.nan, np.nan, event="mkeam: handover to the "
                              "inertia-controlled Newton descent")
-            st, out, _, steps = descend(m, st, s_any, self.history, 0, self.counters,
-                                        min(HANDOVER_STEPS * s.max_num_iter, self._left()))
+            st, out, _, steps = descend(m, st, s_any, self.history, 0, self.counters, budget)
             self.used += steps
             if out is None:
                 return None
