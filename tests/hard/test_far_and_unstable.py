@@ -79,7 +79,8 @@ def test_far_start_plain_newton_stalls_fallback_converges(runner):
     assert 100 * u < off.datasets["bodies/position"][0, 0, 0] < 0
     assert "newton-downhill" in set(off.datasets["iterations/event"])
     assert off.datasets["frames/imbalance"][0] > 0.9
-    a = runner.api(cubic_slider(0.0), "fallback.xml")
+    # the chain's budget counts MKEAM's integration steps too: 1 mm steps need more than 30
+    a = runner.api(cubic_slider(0.0), "fallback.xml", fallback_max_num_iter=1000)
     assert a.converged, a.message
     assert abs(a.datasets["bodies/position"][0, 0, 0] - 100 * u) < 1e-7
     ev = list(a.datasets["iterations/event"])
