@@ -24,6 +24,7 @@ BACKTRACK = 8             # energy line-search halvings
 MU_TRIES = 6              # shifts tried, each x 10
 MU_FIRST = 2.0            # first shift: this x the negative curvature along Newton's step
 RUNAWAY = 2 * np.pi       # a body turned a full turn: no equilibrium within reach
+WORK_TURN = 0.25          # rad: largest turn of a step whose drop is measured by the work
 
 
 def downhill_step(model, state, ev, dq, cnt, limit, measure, mass_times, eps):
@@ -64,6 +65,13 @@ def downhill_step(model, state, ev, dq, cnt, limit, measure, mass_times, eps):
             mu *= 10.0
         if d is None:
             return None
+    if not np.isfinite(v0) and len(model.rot_idx):
+        # no potential: the drop is the work along the step by the trapezoidal rule, which
+        # holds only while the loads change little along it (a turn of at most WORK_TURN)
+        big = float(np.max(np.linalg.norm(d[model.rot_idx].reshape(-1, 3), axis=1)))
+        if big > WORK_TURN:
+            d = d * (WORK_TURN / big)
+            slope = float(r @ d)
     alpha, first = limit(state, d)
     for _ in range(BACKTRACK + 1):
         trial = first if first is not None else model.retract(state, alpha * d)

@@ -55,6 +55,10 @@ def recover(model, start, st, out, settings, history, frame, cnt):
     out.iterations = plain
     if out.ok or not settings.fallback or out.status in NO_RECOVERY:
         return st, out
+    if out.final:
+        out.message += ("; the fallback chain was not tried (continuation and MKEAM descend the "
+                        "same way)")
+        return st, out
     if not out.imbalance <= OVERFLOW:
         return st, FrameOutcome(Status.NONFINITE, plain, out.imbalance, out.error,
                                 f"{out.message}; the force imbalance ({out.imbalance:.3g}) is "

@@ -45,7 +45,9 @@ CRAWL = 6                     # ... as has one whose merit did not halve in this
 class FrameOutcome:
     """One frame's solve. ``iterations`` counts all the work of the frame (every strategy);
     ``counts``: iterations per strategy (history.STRATEGIES) when the recovery ran;
-    ``strategy``: the one that produced the frame (``plain``: no recovery needed)."""
+    ``strategy``: the one that produced the frame (``plain``: no recovery needed); ``final``:
+    the fallback chain is not tried (Newton's steps down the potential ran away: continuation
+    and MKEAM descend the same way)."""
     status: Status
     iterations: int
     imbalance: float
@@ -53,6 +55,7 @@ class FrameOutcome:
     message: str = ""
     counts: dict = field(default_factory=dict)
     strategy: str = "plain"
+    final: bool = False           # nothing the fallback chain does can change it (a runaway)
 
     @property
     def ok(self):
@@ -432,7 +435,7 @@ class NewtonIteration(Iterative):
         row = self._take(s, it, state, down[:4], down[4], "downhill")
         why = s.runaway.add(state, s.state, down[5], s.imb, s.worst)
         if why:
-            s.outcome = FrameOutcome(Status.DIVERGED, it + 1, s.imb, s.err, why)
+            s.outcome = FrameOutcome(Status.DIVERGED, it + 1, s.imb, s.err, why, final=True)
         return row
 
     def _take(self, s, it, state, trial, dq, event=None):
