@@ -7,8 +7,9 @@ import sys
 
 import click
 
-from poise_cli.options import collect_overrides, json_option, quiet_option, solver_options, \
-    user_code_option, worker_timeout_option
+from poise.core.wording import plural, shorten
+from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
+    solver_options, user_code_option, worker_timeout_option, workers_given, workers_option
 from poise_cli.summary import fmt_num, print_json, styled_status, table_json
 
 
@@ -21,7 +22,7 @@ def _equilibrium(row: dict) -> str:
     n = row.get("n_negative") if c == "unstable" else row.get("n_zero")
     word = "negative" if c == "unstable" else "zero"
     return (f" to {'an UNSTABLE' if c == 'unstable' else 'a NEUTRAL'} equilibrium "
-            f"({n} {word} mode{'s' if n != 1 else ''}: {row.get('stability_modes', '')})")
+            f"({plural(n, word + ' mode')}: {row.get('stability_modes', '')})")
 
 
 def _line(row: dict) -> str:
@@ -29,7 +30,7 @@ def _line(row: dict) -> str:
     t = row.get("time")
     parts = [f"{row['deck']}: {styled_status(row['status'])}{_equilibrium(row)}"]
     if it is not None:
-        parts.append(f"{it} iterations")
+        parts.append(plural(it, "iteration"))
     if row.get("imbalance") is not None:
         parts.append(f"imbalance {fmt_num(row['imbalance'])}")
     if t is not None:
@@ -45,8 +46,7 @@ def _line(row: dict) -> str:
 @click.command(short_help="Solve many decks in parallel, one results file each.")
 @click.argument("decks", nargs=-1, required=True,
                 type=click.Path(exists=True, dir_okay=False, readable=True))
-@click.option("-j", "--jobs", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Parallel worker processes (0 = number of CPUs).")
+@workers_option
 @click.option("--out-dir", type=click.Path(file_okay=False), default="poise_batch",
               show_default=True, help="Directory for <stem>.h5 files and summary.csv/.json.")
 @click.option("--force", is_flag=True, help="Solve every deck even if its results are up to date.")
@@ -58,8 +58,10 @@ def _line(row: dict) -> str:
 @user_code_option
 @quiet_option
 @json_option
-def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_num_iter, max_imbalance, max_error,
-          stability, no_fallback, require_stable, allow_neutral, allow_user_code, quiet, as_json):
+@debug_option
+def batch(decks, workers, out_dir, force, scheduler, worker_timeout, method, max_num_iter,
+          max_imbalance, max_error, stability, no_fallback, require_stable, allow_neutral,
+          allow_user_code, quiet, as_json, debug):
     """Solve every DECK in parallel on Dask (the engine of poise sweep: a local cluster by
     default, --scheduler for a real one; a local process pool without Dask installed).
 
@@ -94,7 +96,7 @@ def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_nu
     table = os.path.join(out_dir, "summary.csv")
 
     def fail(exc):
-        code, info = report_exception(exc)
+        code, info = report_exception(exc, debug=debug)
         if as_json:
             done = getattr(exc, "rows", None) or []
             print_json(table_json("batch", out_dir, code, done,
@@ -104,7 +106,8 @@ def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_nu
 
     try:
         with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout
-            rows = run_batch(list(decks), out_dir, jobs=jobs, overrides=overrides, force=force,
+            rows = run_batch(list(decks), out_dir, jobs=workers_given(workers),
+                             overrides=overrides, force=force,
                              command=command, on_row=on_row, allow_user_code=allow_user_code,
                              progress=False if quiet else None, scheduler=scheduler,
                              worker_timeout=worker_timeout)
@@ -132,7 +135,7 @@ def batch(decks, jobs, out_dir, force, scheduler, worker_timeout, method, max_nu
     else:
         _print_table(rows)
     if not quiet:
-        click.echo(f"poise batch: {len(rows)} decks: "
+        click.echo(f"poise batch: {plural(len(rows), 'deck')}: "
                    + ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
                    + (f" ({n_skipped} skipped, up to date)" if n_skipped else "")
                    + f"; summary in {os.path.join(out_dir, 'summary.csv')}", err=True)
@@ -145,9 +148,9 @@ def _print_table(rows):
              "" if r["iterations"] is None else str(r["iterations"]),
              "" if r["time"] is None else f"{r['time']:.3g}",
              _stability_cell(r),
-             ("skipped (up to date)" if r["skipped"] else (r["message"] or ""))[:100])
+             shorten("skipped (up to date)" if r["skipped"] else (r["message"] or ""), 100))
             for r in rows]
-    w = [max(len(h), *(len(d[i]) for d in data)) for i, h in enumerate(heads)]
+    w = [max([len(h), *(len(d[i]) for d in data)]) for i, h in enumerate(heads)]
     click.echo("  ".join(h.ljust(w[i]) for i, h in enumerate(heads)).rstrip())
     for d in data:
         click.echo("  ".join(x.ljust(w[i]) for i, x in enumerate(d)).rstrip())

@@ -9,13 +9,17 @@ tightest rung (1e-12, or tighter when the ladder is) of FIM_S, or of ``--referen
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import tempfile
 from pathlib import Path
 
 import click
 
-from poise_cli.options import quiet_option, user_code_option
+from poise_cli.options import debug_option, json_option, quiet_option, user_code_option
+
+#: version of the ``poise bench --json`` document (bump on incompatible changes)
+BENCH_VERSION = 1
 
 
 def _user_scripts(deck: str, dest: Path, allow: bool) -> None:
@@ -44,6 +48,18 @@ def _user_scripts(deck: str, dest: Path, allow: bool) -> None:
         raise DeckError(problems)
 
 
+@contextlib.contextmanager
+def _reported(fail):
+    """Any error inside the block (an invalid deck met by the solves, Ctrl-C) is reported the
+    CLI's way by ``fail(exc)`` (exit code, ``--json`` document), never as a traceback."""
+    try:
+        yield
+    except click.exceptions.Exit:
+        raise
+    except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - reported, mapped to a code
+        fail(exc)
+
+
 def _cg(res):
     import numpy as np
     a = res.analyses[-1].datasets
@@ -68,19 +84,36 @@ def _cg(res):
                    "method, log-log) to this PNG (needs poise[plot]).")
 @user_code_option
 @quiet_option
+@json_option
+@debug_option
 def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, allow_user_code,
-          quiet):
+          quiet, as_json, debug):
     """Time DECK over a tolerance ladder for each method and print the table.
 
     \b
     The error column is the largest CG position difference from the reference solution over L
     (the model's length scale); the reference is the tightest FIM_S rung unless
     --reference-method says otherwise. A deck naming Python user routines needs
-    --allow-user-code (exit 3 otherwise)."""
+    --allow-user-code (exit 3 otherwise). With --json the table goes to stderr and stdout holds
+    one JSON object: the reference, the rows (as --out writes them) and the files written."""
     import numpy as np
     from poise_cli.errors import report_exception   # lazy: poise CMD --help stays light
+    from poise_cli.streams import guarded_stdout
+    from poise_cli.summary import print_json
 
     ctx = click.get_current_context()
+    doc = {"bench_version": BENCH_VERSION, "command": "bench", "deck": deck}
+    guard = contextlib.ExitStack()      # --json: fd 1 -> stderr until the JSON is printed
+
+    def finish(code: int, **info) -> None:
+        guard.close()
+        if as_json:
+            print_json({**doc, "exit_code": code, **info})
+        ctx.exit(code)
+
+    def fail(exc: BaseException) -> None:
+        code, info = report_exception(exc, debug=debug)
+        finish(code, **info)
     try:
         meths = [x.strip().upper() for x in methods.split(",") if x.strip()]
         tols = [float(x) for x in tolerances.split(",") if x.strip()]
@@ -97,7 +130,7 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
             from poise.core.extras import require
             require("plot", "poise bench --plot")
         except Exception as exc:  # noqa: BLE001 - MissingExtra: exit 2 with the pip command
-            ctx.exit(report_exception(exc)[0])
+            fail(exc)
             return
 
     # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
@@ -105,14 +138,24 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
     from poise.app.ladder import method_settings, run_point, with_settings
     from poise.core.progress import Bar
 
-    xml = Path(deck).read_text()
+    if as_json:
+        guard.enter_context(guarded_stdout(quiet))
+    if deck.lower().endswith((".adm", ".acf")):       # an Adams dataset: its XML deck
+        from poise.app.convert import xml_text  # lazy: only Adams datasets need it
+        try:
+            xml = xml_text(deck)
+        except Exception as exc:  # noqa: BLE001 - DeckError: located, exit 3
+            fail(exc)
+            return
+    else:
+        xml = Path(deck).read_text()
     ref = None
     rows = []
-    with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
+    with _reported(fail), tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
         try:
             _user_scripts(deck, Path(td), allow_user_code)
         except Exception as exc:  # noqa: BLE001 - DeckError: located, exit 3
-            ctx.exit(report_exception(exc)[0])
+            fail(exc)
             return
         ref_method = reference_method.upper()
         ref_tol = min([1e-12, *tols])
@@ -160,7 +203,7 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
                                  title=Path(deck).name,
                                  reference=f"{ref_method} at {ref_tol:.0e}")
         except Exception as exc:  # noqa: BLE001 - not writable: exit 2
-            ctx.exit(report_exception(exc)[0])
+            fail(exc)
             return
         if not quiet:
             click.echo(f"wrote {plot_out}", err=True)
@@ -168,3 +211,15 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
         with open(out, "w") as f:
             for r in rows:
                 f.write(json.dumps(r, default=float) + "\n")
+    finish(0, status="completed", methods=meths, tolerances=tols, repeat=repeat,
+           reference=dict(method=ref_method, tol=ref_tol,
+                          status="converged" if all(a.status == "converged"
+                                                    for a in ref_res.analyses) else "failed"),
+           length_unit=_length_unit(ref_res), length_scale=ref[1], out=out, plot=plot_out,
+           rows=rows)
+
+
+def _length_unit(res) -> str:
+    # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+    from poise.results.schema import unit_symbols
+    return unit_symbols(res.units)["length"]

@@ -5,8 +5,9 @@ import dataclasses
 
 import click
 
+from poise.core.wording import plural
 from poise_cli.errors import report_exception
-from poise_cli.options import debug_option, json_option
+from poise_cli.options import debug_option, ignore_option, json_option
 from poise_cli.summary import print_json, sanitize
 
 
@@ -25,13 +26,14 @@ def format_report(rep) -> list[str]:
     lines = [f"deck: {rep.deck}"]
     lines.append(f"analyses: {len(rep.analyses)}")
     for i, a in enumerate(rep.analyses):
-        lines.append(f"  {i}: {_s(a.get('analysis_type'))} {_s(a.get('method'))}, "
-                     f"{_s(a.get('n_frames'))} frame(s)")
+        n = a.get("n_frames")
+        lines.append(f"  {i}: {_s(a.get('analysis_type'))} {_s(a.get('method'))}"
+                     + ("" if n is None else f", {plural(n, 'frame')}"))
     lines.append(f"bodies: {len(rep.bodies)}")
     lines += _table([["id", "label", "kind", "mass"]] + [
         [_s(b.get("id")), _s(b.get("label")), _s(b.get("kind")), _s(b.get("mass"))]
         for b in rep.bodies]) if rep.bodies else []
-    lines.append(f"constraints: {len(rep.constraints)} ({rep.n_equations} equations)")
+    lines.append(f"constraints: {len(rep.constraints)} ({plural(rep.n_equations, 'equation')})")
     lines += _table([["tag", "id", "type", "equations", "line"]] + [
         [_s(c.get("tag")), _s(c.get("id")), _s(c.get("type")), _s(c.get("n_equations")),
          _s(c.get("line"))] for c in rep.constraints]) if rep.constraints else []
@@ -64,9 +66,10 @@ def format_report(rep) -> list[str]:
 
 @click.command(short_help="Validate a deck and print its structure (no solve).")
 @click.argument("deck", type=click.Path(exists=True, dir_okay=False, readable=True))
+@ignore_option
 @json_option
 @debug_option
-def check(deck, as_json, debug):
+def check(deck, ignore, as_json, debug):
     """Parse and compile DECK; print bodies, constraints, degrees of freedom, redundant
     equations and active effects without solving.
 
@@ -81,7 +84,7 @@ def check(deck, as_json, debug):
         with guarded_stdout(), collected_warnings() as numeric:
             # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
             from poise.app.api import check_deck
-            rep = check_deck(deck)
+            rep = check_deck(deck, **({"ignore": ignore} if ignore else {}))
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:

@@ -5,6 +5,7 @@ from collections import Counter
 
 import click
 
+from poise.core.wording import ELLIPSIS
 from poise_cli.errors import EXIT_USAGE, report_exception
 from poise_cli.options import debug_option, json_option
 from poise_cli.summary import analysis_line, analysis_time, fmt_num, print_json, sanitize
@@ -34,7 +35,7 @@ def _at(a: dict, what: str) -> str:
 def format_summary(s: dict) -> list[str]:
     lines = [
         f"file: {s['file']} ({s['format']} v{s['format_version']}, poise {s['poise_version']})",
-        f"deck: {s['deck']} (sha256 {str(s['deck_sha256'])[:16]})",
+        f"deck: {s['deck']} (sha256 {str(s['deck_sha256'])[:16]}{ELLIPSIS})",
         f"status: {s['status']}",
     ]
     if s.get("units"):
@@ -107,8 +108,9 @@ def show(results, as_json, debug):
 
 
 def timings_line(t: dict) -> str:
-    """``parse, compile, solve (its phases + the rest), write; total`` — what the run's accuracy
-    cost. ``analysis_*`` entries are parts of ``solve`` (printed per analysis above)."""
+    """``parse, compile, solve (its phases + the rest), write, import; total`` — what the run's
+    accuracy cost (``import``: modules first needed by this run, outside the other phases).
+    ``analysis_*`` entries are parts of ``solve`` (printed per analysis above)."""
     def num(k):
         v = t.get(k)
         return float(v) if isinstance(v, (int, float)) else None
@@ -125,9 +127,11 @@ def timings_line(t: dict) -> str:
         parts.append(f"solve {solve:.3g}" + (f" ({inner})" if inner else ""))
     if num("write") is not None:
         parts.append(f"write {num('write'):.3g}")
-    known = {"parse", "compile", "solve", "write"}
+    if num("import") is not None:
+        parts.append(f"import {num('import'):.3g}")
+    known = {"parse", "compile", "solve", "write", "import"}
     parts += [f"{k} {num(k):.3g}" for k in t if k not in known and not k.startswith(
         ("solve_", "analysis_")) and num(k) is not None]
-    total = sum(num(k) or 0.0 for k in ("parse", "compile", "solve", "write"))
+    total = sum(num(k) or 0.0 for k in ("parse", "compile", "solve", "write", "import"))
     return "timings [s]: " + ", ".join(parts) + f"; total {total:.3g}"
 

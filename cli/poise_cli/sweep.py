@@ -6,9 +6,10 @@ import sys
 
 import click
 
+from poise.core.wording import plural
 from poise_cli.errors import report_exception
 from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
-    solver_options, user_code_option, worker_timeout_option
+    solver_options, user_code_option, worker_timeout_option, workers_option
 from poise_cli.summary import print_json, table_json
 
 
@@ -25,8 +26,7 @@ from poise_cli.summary import print_json, table_json
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed for --random.")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Existing Dask scheduler, e.g. tcp://host:8786 (default: a local cluster).")
-@click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Worker processes of the local cluster (default: number of CPUs).")
+@workers_option
 @worker_timeout_option
 @click.option("--out-dir", type=click.Path(file_okay=False), default="poise_sweep",
               show_default=True, help="Directory for case_NNNNN.h5 and index.csv/index.json.")
@@ -42,9 +42,9 @@ from poise_cli.summary import print_json, table_json
 @quiet_option
 @json_option
 @debug_option
-def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, out_dir, outputs, force,
-          max_cases, method, max_num_iter, max_imbalance, max_error, stability, no_fallback,
-          require_stable, allow_neutral, allow_user_code, quiet, as_json, debug):
+def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, out_dir, outputs,
+          force, max_cases, method, max_num_iter, max_imbalance, max_error, stability,
+          no_fallback, require_stable, allow_neutral, allow_user_code, quiet, as_json, debug):
     """Solve DECK once per combination of --set values on Dask distributed.
 
     \b
@@ -78,7 +78,8 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, 
         from poise.app.sweep import INDEX_VERSION, run_sweep
         with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout
             rows = run_sweep(deck, list(sets), mode=mode, out_dir=out_dir, scheduler=scheduler,
-                             outputs=list(outputs), n=n_random, seed=seed, workers=workers,
+                             outputs=list(outputs), n=n_random, seed=seed,
+                             workers=workers or None,
                              overrides=overrides, force=force, progress=None if not quiet else False,
                              on_row=on_row, max_cases=max_cases, allow_user_code=allow_user_code,
                              worker_timeout=worker_timeout)
@@ -100,7 +101,7 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, 
     if as_json:
         print_json(doc)
     if not quiet:
-        click.echo(f"poise sweep: {len(rows)} cases: "
+        click.echo(f"poise sweep: {plural(len(rows), 'case')}: "
                    + ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
                    + f" ({n_resumed} resumed, {len(rows) - n_resumed} run); index in "
                    + os.path.join(out_dir, "index.csv"), err=True)

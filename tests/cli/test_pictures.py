@@ -81,6 +81,7 @@ def test_legends_name_joints_and_request_channels():
     fig = plot_results(res)
     jf = " | ".join(_legend_texts(fig.axes[fig.poise_panels.index("joints/force")]))
     assert "Crank pivot (joint 1)" in jf
-    rq = _legend_texts(fig.axes[fig.poise_panels.index("requests/values")])
+    # the deck's one request is an EXPRESSION request: its channels have no declared unit
+    rq = _legend_texts(fig.axes[fig.poise_panels.index("requests/values [expression]")])
     assert rq and all(" ch" not in t for t in rq)
     assert any(t.startswith("Driving torque on crank (global) (request 1) expr") for t in rq)

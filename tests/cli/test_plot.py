@@ -40,18 +40,18 @@ def test_plot_png_sizes(results, tmp_path):
     info = json.loads(r.stdout)
     assert info["panels"] == ["convergence"]
     img = mpimg.imread(png)
-    assert img.shape[:2] == (info["height"], info["width"]) == (320, 800)
+    assert img.shape[:2] == (info["height"], info["width"]) == (320, 1000)
     r = _inv("plot", results["mkeam_pendulum_multiturn"], "--out", png, "--json")
     info = json.loads(r.stdout)
     assert info["panels"] == ["convergence", "kinetic_energy"]
-    assert mpimg.imread(png).shape[:2] == (640, 800)
+    assert mpimg.imread(png).shape[:2] == (640, 1000)
     r = _inv("plot", results["qs_slider_crank_rev"], "--out", png, "--json", "--bodies", "2,3",
              "--joints", "1")
     info = json.loads(r.stdout)
     # quasi-static: per-frame convergence + a short iterations-per-frame panel (0.55 height)
     assert info["panels"] == ["convergence", "iterations", "bodies/position", "joints/force"]
     with Image.open(png) as im:
-        assert im.size == (800, 1136)
+        assert im.size == (1000, 1136)
     # usage errors: unknown id, not a results file
     assert _inv("plot", results["qs_slider_crank_rev"], "--out", png, "--bodies", "99").exit_code == 2
     bad = tmp_path / "x.h5"

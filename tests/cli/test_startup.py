@@ -23,7 +23,8 @@ from support.paths import ROOT
 # never on the small FIM_S path (scipy: only sparse systems, > 120 unknowns dense, splines,
 # MKEAM, FIM_D via scikit-sundae)
 HEAVY = ("scipy", "matplotlib", "dask", "distributed", "sksundae", "numpy.polynomial",
-         "numpy.ma")        # numpy.ma: pulled in by np.unique (~15 ms)
+         "numpy.ma",        # numpy.ma: pulled in by np.unique (~15 ms)
+         "threadpoolctl")   # only when numpy was loaded before poise (poise.core.blas)
 OTHER_COMMANDS = ("poise_cli.plot", "poise_cli.animate", "poise_cli.batch", "poise_cli.sweep",
                   "poise_cli.bench", "poise_cli.check", "poise_cli.show")
 

@@ -89,7 +89,10 @@ def test_exact_message_format():
 
 
 @pytest.mark.parametrize("text,col,msg", [
-    ("FOO(1)", 1, "unknown function 'FOO'"),
+    ("FOO(1)", 1, "unknown function 'FOO'; did you mean FORCOS?"),
+    ("FLIBBERTIGIBBET(1)", 1, "unknown function 'FLIBBERTIGIBBET'"),
+    ("SWEEP(TIME, 1, 0, 1, 1, 2, 0.1)", 1, "SWEEP is a MotionSolve function poise does not "
+     "evaluate: a swept-sine excitation for dynamic analyses"),
     ("1 + BAR", 5, "unknown name 'BAR'"),
     ("SIN(1, 2)", 1, "SIN takes 1 arguments, got 2"),
     ("STEP(TIME,0,0,1)", 1, "STEP takes 5 arguments, got 4"),
@@ -119,7 +122,8 @@ def test_all_problems_collected():
     lines = str(ei.value).splitlines()
     assert lines == [
         "deck.xml:1: <Force_Scalar_TwoBody id=3> expr col 9: expected ')'",
-        "deck.xml:3: <Force_Scalar_TwoBody id=3> expr col 1: unknown function 'FOO'",
+        "deck.xml:3: <Force_Scalar_TwoBody id=3> expr col 1: unknown function 'FOO'; did you "
+        "mean FORCOS?",
         "deck.xml:4: <Force_Scalar_TwoBody id=3> expr col 6: unknown marker id 99",
     ]
 

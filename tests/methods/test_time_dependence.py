@@ -79,6 +79,8 @@ SOURCES = {
     "implicit_variable": ('<Reference_Variable id="5" type="EXPRESSION" is_implicit="TRUE" '
                           'expr="VARVAL(5) + 20*TIME"/>\n' + FY.format(e="VARVAL(5)"),
                           lambda t: -1 - 20 * t / K),
+    "general_constraint_of_time": ('<Constraint_General id="1" expr="DY(20,10,10) + 1 + 0.1*TIME"/>',
+                                   lambda t: -1 - 0.1 * t),
     "user_routine": ('<Force_Vector_OneBody id="2" type="FORCEONLY" marker_id="20" '
                      'usrsub_param_string="USER(-20)" usrsub_fnc_name="gfosub_ramp" '
                      'script_name="ramp_routines.py" interpreter="PYTHON"/>',
@@ -163,7 +165,7 @@ def test_curve_of_time_is_a_located_error(tmp_path):
 #: element type -> a scene of SOURCES whose only time dependence is in that type
 TIME_SCENES = {"gravity": "gravity_step", "motions": "motion_of_time",
                "expressions": "spline_of_time", "diff_vars": "control_diff_state",
-               "user": "user_routine"}
+               "user": "user_routine", "gcons": "general_constraint_of_time"}
 
 
 def _time_capable():

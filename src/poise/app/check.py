@@ -47,7 +47,8 @@ class CheckReport:
     active_effects : list[str]
     warnings : list[str]
     analyses : list[dict]
-        One dict per Simulate: ``analysis_type``, ``method``, ``n_frames``.
+        One dict per Simulate: ``analysis_type``, ``method``, ``n_frames`` (output frames: 1 for
+        a static analysis, the output times of a quasi-static one).
     """
 
     deck: str
@@ -66,8 +67,8 @@ class CheckReport:
     dof_without_user_constraints: int | None = None
 
 
-def check(path: str):
-    spec = _load(path)
+def check(path: str, ignore=()):
+    spec = _load(path, ignore)
     model = compile_model(spec, user_code="skip")      # check never runs deck code
     rep = CheckReport(deck=spec.path)
     mass = model.deck_mass()
@@ -108,9 +109,14 @@ def check(path: str):
                      for r in red]
     rep.active_effects = list(model.active_effects)
     rep.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
+    t_now = model.initial_state().t
     for req in plan(spec, None):
         method = req.settings.method
         if req.kind == "static" and method == "FIM_D":
             method = "FIM_S"
-        rep.analyses.append(dict(analysis_type=req.kind, method=method))
+        n_frames = 1
+        if req.kind == "quasistatic":       # the times the solve will output (same planner)
+            times = req.output_times(t_now)
+            n_frames, t_now = len(times), float(times[-1])
+        rep.analyses.append(dict(analysis_type=req.kind, method=method, n_frames=n_frames))
     return rep

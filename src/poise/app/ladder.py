@@ -78,7 +78,8 @@ def run_point(xml_text: str, static: dict, transient: dict | None, repeat: int, 
     """Solve one deck variant ``repeat`` times in this process (after one warm-up run);
     ``allow_user_code``: run its Python user routines (scripts next to ``tmpdir/variant.xml``).
     Returns the row (status, counts, timings, imbalance, ...) and the last run's RunResult."""
-    run_deck = partial(runner.run_deck, allow_user_code=allow_user_code)
+    # quiet: no per-solve progress lines inside a timed ladder (the caller shows its rungs)
+    run_deck = partial(runner.run_deck, allow_user_code=allow_user_code, quiet=True)
     p = tmpdir / "variant.xml"
     p.write_bytes(with_settings(xml_text, static, transient))
     ov = {"fallback": False}

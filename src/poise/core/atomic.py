@@ -31,6 +31,7 @@ import sys
 import threading
 
 from poise.core.errors import UsageError
+from poise.core.wording import shorten
 
 
 class OutputError(UsageError):
@@ -169,7 +170,7 @@ def _io_reason(exc: BaseException | None, unraisable: list) -> str | None:
             if no is None:
                 m = _ERRNO.search(str(e))
                 no = int(m.group(1)) if m else None
-            return os.strerror(no) if no else " ".join(str(e).split())[:200]
+            return os.strerror(no) if no else shorten(str(e), 200)
         m = _ERRNO.search(str(e))
         if m:          # HDF5 reports failed writes as RuntimeError "... errno = 28 ..."
             return os.strerror(int(m.group(1)))

@@ -10,16 +10,37 @@ places add their elapsed time with :func:`add`:
 Phases are exclusive (none is timed inside another), so ``solve - (evaluate + assemble +
 factorise)`` is the rest: linear solves, line search, retraction, IDA/RATTLE bookkeeping,
 outputs. The clock is per thread (sweeps may solve in threads).
+
+Imports are a phase of their own: poise imports what a deck needs when it first needs it (SciPy
+for a sparse system, SUNDIALS for FIM_D), so the first solve in a process would otherwise carry
+0.1-0.3 s that no later solve pays. Inside :func:`counting_imports` every module import is timed
+(a finder at the front of ``sys.meta_path`` wraps the loaders) and :func:`now` is a clock that
+stops while a module is imported: every interval measured with it, the phases above included,
+excludes import time, which :func:`import_seconds` reports instead.
 """
 from __future__ import annotations
 
+import contextlib
+import sys
 import threading
 import time
 
 PHASES = ("evaluate", "assemble", "factorise")
 
 _local = threading.local()
-now = time.perf_counter
+_clock = time.perf_counter
+
+
+def now() -> float:
+    """Seconds on a per-thread clock that does not advance while a module is being imported
+    (inside :func:`counting_imports`); differences of it are wall times without imports."""
+    return _clock() - getattr(_local, "imports", 0.0)
+
+
+def import_seconds() -> float:
+    """Seconds this thread has spent importing modules inside :func:`counting_imports` (a
+    running total: take differences)."""
+    return getattr(_local, "imports", 0.0)
 
 
 def _acc() -> dict:
@@ -43,3 +64,101 @@ def add(phase: str, seconds: float) -> None:
 def snapshot() -> dict:
     """Copy of the accumulated times [s] per phase."""
     return dict(_acc())
+
+
+# ------------------------------------------------------------------------------ import clock
+@contextlib.contextmanager
+def _timed():
+    """Time the block as import work of this thread; nested imports count once (outermost)."""
+    depth = getattr(_local, "depth", 0)
+    _local.depth = depth + 1
+    t0 = _clock()
+    try:
+        yield
+    finally:
+        _local.depth = depth
+        if depth == 0:
+            _local.imports = getattr(_local, "imports", 0.0) + (_clock() - t0)
+
+
+class _TimedLoader:
+    """A module's own loader, its ``create_module``/``exec_module`` timed; the module gets its
+    own loader back once executed (``__loader__``, ``__spec__.loader``)."""
+
+    def __init__(self, loader):
+        self._loader = loader
+
+    def __getattr__(self, name):         # get_resource_reader, get_source, is_package, ...
+        return getattr(self._loader, name)
+
+    def create_module(self, spec):
+        create = getattr(self._loader, "create_module", None)
+        if create is None:
+            return None
+        with _timed():
+            return create(spec)
+
+    def exec_module(self, module):
+        try:
+            with _timed():
+                self._loader.exec_module(module)
+        finally:
+            if getattr(module, "__loader__", None) is self:
+                module.__loader__ = self._loader
+            spec = getattr(module, "__spec__", None)
+            if spec is not None and spec.loader is self:
+                spec.loader = self._loader
+
+
+class _ImportClock:
+    """``sys.meta_path`` finder: asks the finders after it for the spec (timing the search)
+    and wraps the loader it returns in a :class:`_TimedLoader`."""
+
+    def find_spec(self, name, path, target=None):
+        if getattr(_local, "finding", False):
+            return None
+        _local.finding = True
+        try:
+            with _timed():
+                spec = None
+                for finder in list(sys.meta_path):
+                    find = getattr(finder, "find_spec", None)
+                    if finder is self or find is None:
+                        continue
+                    spec = find(name, path, target)
+                    if spec is not None:
+                        break
+        finally:
+            _local.finding = False
+        if spec is not None and hasattr(spec.loader, "exec_module") \
+                and not isinstance(spec.loader, _TimedLoader):
+            spec.loader = _TimedLoader(spec.loader)
+        return spec
+
+    def invalidate_caches(self):
+        pass
+
+
+_finder = _ImportClock()
+_users = 0
+_users_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def counting_imports():
+    """Inside the block, module imports (of any thread) are timed as that thread's import phase
+    and left out of :func:`now`. Re-entrant; the finder leaves ``sys.meta_path`` with the last
+    user."""
+    global _users
+    with _users_lock:
+        if _users == 0 and _finder not in sys.meta_path:
+            sys.meta_path.insert(0, _finder)
+        _users += 1
+    try:
+        yield
+    finally:
+        with _users_lock:
+            _users -= 1
+            if _users == 0:
+                with contextlib.suppress(ValueError):
+                    sys.meta_path.remove(_finder)

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from poise.deck.matrix import matrix_values
 from poise.deck.schema_types import NAMESPACES, Attr, ElementSchema
 from poise.deck.spec import Element, Expr
 from poise.core.errors import ProblemCollector
@@ -231,6 +232,9 @@ def check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Element
             pc.error(el.loc, "SCREW joint needs 'pitch'; expected a real number, got nothing")
         if jt == "RACK_PINION" and not el.has("pitch_diameter"):
             pc.error(el.loc, "RACK_PINION joint needs 'pitch_diameter'; expected a real number, got nothing")
+        elif jt == "RACK_PINION" and el.get("pitch_diameter") == 0.0:
+            pc.error(el.loc, "RACK_PINION joint with pitch_diameter 0; expected a non-zero pitch "
+                             "diameter (the rack would not move with the pinion)", "pitch_diameter")
     if t in ("Constraint_Joint", "Constraint_Jprim") and not el.is_command:
         mi, mj = markers.get(el.get("i_marker_id")), markers.get(el.get("j_marker_id"))
         if mi is not None and mj is not None and mi.get("body_id") == mj.get("body_id"):
@@ -244,6 +248,8 @@ def check_specific(pc: ProblemCollector, el: Element, markers: dict[int, Element
     if t == "Force_Scalar_TwoBody" and not el.is_command and not any(
             el.has(n) for n in ("val", "val_expression", "usrsub_param_string", "script_name")):
         pc.error(el.loc, "no magnitude; expected 'val' or 'val_expression', got neither")
+    if t == "Reference_Matrix":
+        matrix_values(el, pc)             # every matrix checked, used or not
     if t == "Simulate":
         st, en = el.get("start_time", 0.0), el.get("end_time")
         if isinstance(st, float) and isinstance(en, float) and en < st:

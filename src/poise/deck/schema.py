@@ -113,7 +113,9 @@ el("Constraint_Joint", "both", True,
        ID(), LABEL(), E("type", JOINT_TYPES, "joint type", required=True), *_IJ,
        R("pitch", "SCREW: translation of I along z_J per full turn of I about z_J "
          "(d.z_J = pitch*AZ(I,J)/(2 pi); > 0 right-handed; pair it with a CYLINDRICAL joint)"),
-       R("pitch_diameter", "RACK_PINION: pinion pitch diameter", lo=0, lo_open=True),
+       R("pitch_diameter", "RACK_PINION: pinion pitch diameter PD (I on the pinion, J on the rack): "
+         "the rack travels PD/2 along z_J per radian the pinion turns about z_I, measured from "
+         "the input configuration; < 0 reverses the direction; non-zero"),
        B("is_virtual", "virtual joint flag (treated as a normal joint)")])
 el("Constraint_Jprim", "both", True, "Joint primitive.", [
     ID(), LABEL(), E("type", JPRIM_TYPES, "primitive type", required=True), *_IJ,
@@ -127,6 +129,14 @@ el("Constraint_Gear", "model", True, "Gear between two joints (poise.elements.ge
     ID(), LABEL(), A("joint1_id", "int", "first joint", ref="joint"), A("joint2_id", "int", "second joint", ref="joint"),
     M("cv_marker_id", "contact-point marker (origin) and common-velocity direction (z), on the carrier", required=True, lo=1),
     B("is_virtual", "virtual flag"), *USR()])
+el("Constraint_General", "both", True,
+   "Expression held at zero (Adams GCON; poise.elements.general); exact first and second "
+   "derivatives; i_marker_id: reaction marker (group gcons).", [
+       ID(), LABEL(), E("type", "EXPRESSION USERSUB", "how it is given (USERSUB: GCOSUB, not "
+                        "supported)", default="EXPRESSION"),
+       A("expr", "expr", "the constraint: expr = 0"),
+       M("i_marker_id", "reaction marker: the row's load on its body is reported (group gcons)",
+         lo=1), B("is_virtual", "virtual flag (treated as a normal constraint)"), *USR()])
 el("Constraint_UserConstr", "both", True, "User-defined constraint (UCOSUB).", [ID(), LABEL(), *USR()],
    open_attrs=True, aliases=("Constraint_Usrconstr",))
 # higher pairs (poise.elements.compile_curves; docs/elements.md "Curves and surfaces")
@@ -222,6 +232,15 @@ for _t, _d in _UNS_FORCES.items():
 el("Reference_Array", "both", True, "Array of values given as element text.", [
     ID(), LABEL(), E("type", "IC RESTART PRINT X Y U", "array type"),
     A("num_element", "int", "number of values", lo=0), *USR()])
+el("Reference_Matrix", "model", True,
+   "nrow x ncol matrix as element text: full (column order; row order with isroworder) or sparse "
+   "(issparse: nval row col value triples, 1-based); poise.deck.matrix. Read by "
+   "Reference_ParamCurve matrix_id.", [
+       ID(), LABEL(), A("nrow", "int", "number of rows", required=True, lo=1),
+       A("ncol", "int", "number of columns", required=True, lo=1),
+       B("isroworder", "full form: values row by row (default: column by column)"),
+       B("issparse", "sparse form: the text holds nval row col value triples"),
+       A("nval", "int", "sparse form: number of triples", lo=0), *USR()])
 el("Reference_Variable", "both", True, "Algebraic variable usable through VARVAL(id).", [
     ID(), LABEL(), E("type", "EXPRESSION USERSUB", "how it is given", default="EXPRESSION"),
     A("expr", "expr", "defining expression"), *USR(), B("is_implicit", "implicit (adds an equation)"),
@@ -236,9 +255,11 @@ el("Reference_Spline", "model", True, "Curve y(x) (or surface y(x,z)) given as e
 _PC = [B("is_u_closed", "closed in u (periodic spline; analytic: u wraps into [u_start, u_end))"),
        A("u_start", "real", "first u (analytic; spline data: default 0)"),
        A("u_end", "real", "last u (analytic; spline data: default 1)"),
-       B("is_curve_points", "text holds points the spline passes through (always so in poise)"),
+       B("is_curve_points", "the points (text or matrix) are points the spline passes through; "
+         "FALSE (B-spline control points) is refused"),
        A("num_pts", "int", "number of x y z points in the element text (spline form)", lo=2),
-       A("matrix_id", "int", "Reference_Matrix with the points (not supported)"), *USR()]
+       A("matrix_id", "int", "Reference_Matrix with the points, one row per point, columns x y z "
+         "(curves; Adams CURVE/MATRIX=)", ref="matrix", lo=1), *USR()]
 el("Reference_ParamCurve", "model", True,
    "Curve c(u) in a marker frame: spline through x y z points (text) or x/y/z_expression of U.", [
        ID(), LABEL(), *_PC, *[A(f"{c}_expression", "expr", f"{c}(U), analytic form (poise)") for c in "xyz"]],
@@ -260,14 +281,33 @@ el("Control_Diff", "both", True, "First-order differential equation state DIF(id
 for _t in ("Control_StateEqn", "Control_SISO"):
     el(_t, "model", False, "Control element.", [ID(), LABEL()], open_attrs=True)
 
+# --------------------------------------------------------------------------- no effect on statics
+#: elements modelling tools write that do not affect statics: accepted, one warning per kind
+#: (poise.deck.validate); tag -> (kind, what it is)
+NO_EFFECT = {
+    "Control_PlantInput": ("model", "controls plant inputs (linearisation and co-simulation; "
+                           "PINVAL reads them)"),
+    "Control_PlantOutput": ("model", "controls plant outputs (linearisation and co-simulation; "
+                            "POUVAL reads them)"),
+    "Post_UserAPI": ("model", "a user results-output routine (POST_SUB)"),
+    "Reference_String": ("model", "string data for user subroutines"),
+    "Param_Linear": ("both", "linear-analysis settings (poise runs no linear analysis)"),
+}
+_PLANT = [ID(), LABEL(), A("variable_id_list", "int_list", "Reference_Variable ids (plant I/O)")]
+for _t, (_k, _d) in NO_EFFECT.items():
+    el(_t, _k, True, _d[0].upper() + _d[1:] + "; no effect on statics: accepted with a warning.",
+       _PLANT if _t.startswith("Control_Plant") else [ID(), LABEL()] if _t == "Reference_String"
+       else [], open_attrs=True)
+
 # --------------------------------------------------------------------------- output
 el("Post_Graphic", "model", True, "Graphic/geometry; all attributes kept as data (used by contact).",
    [ID(), LABEL(), A("type", "str", "geometry type"), A("body_id", "int", "owning body", ref="body")],
    open_attrs=True)
-el("Post_Request", "model", True, "Output request.", [
-    ID(), LABEL(), A("comment", "str", "comment"),
-    E("type", "MARKER_DISPLACEMENT MARKER_VELOCITY MARKER_ACCELERATION MARKER_FORCE ELEMENTAL_FORCE "
-      "EXPRESSION USERSUB", "request type"),
+el("Post_Request", "model", True, "Output request (its label: `label`, else `comment`).", [
+    ID(), LABEL(), A("comment", "str", "comment (the request's label when it has no label)"),
+    A("type", "str", "request type: MARKER_DISPLACEMENT MARKER_VELOCITY MARKER_ACCELERATION "
+      "MARKER_FORCE ELEMENTAL_FORCE EXPRESSION (computed); USERSUB and any other type are "
+      "accepted with a warning and not computed"),
     M("i_marker_id", "I marker", lo=1), M("j_marker_id", "J marker", zero_ok=True),
     M("ref_marker_id", "result axes", zero_ok=True), A("elem_type", "str", "element type (ELEMENTAL_FORCE)"),
     A("elem_id", "int", "element id (ELEMENTAL_FORCE)"), A("jflag", "int", "0: on I, 1: on J", lo=0, hi=1),
@@ -284,7 +324,7 @@ el("Param_Static", "both", True, "Static / quasi-static solver settings.", [
       aliases=("max_residual",)),
     R("stability", "FIM: sqrt(stability) x mass matrix added to the Jacobian", default=1e-10, lo=0),
     R("compliance_delta", "FIM: perturbation for the compliance matrix", default=1e-3, lo=0, lo_open=True),
-    A("compliance_markers", "str", "poise: markers of the compliance matrix (ids, all, auto, none)"),
+    A("compliance_markers", "str", "poise: markers of the compliance matrix (ids, all, auto, none; default none)"),
     E("compliance_method", "EXACT FD", "poise: compliance from the analytic tangent or by re-solving")])
 el("Param_Transient", "both", True, "DAE integrator settings (FIM_D quasi-static stepping).", [
     E("integrator_type", "DSTIFF CSTIFF VSTIFF MSTIFF ABAM GSTIFF HSTIFF", "integrator", default="DSTIFF"),

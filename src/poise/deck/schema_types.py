@@ -22,6 +22,7 @@ NAMESPACES: dict[str, tuple[str, ...]] = {
     "graphic": ("Post_Graphic",),
     "curve": ("Reference_ParamCurve",),
     "surface": ("Reference_ParamSurface",),
+    "matrix": ("Reference_Matrix",),
 }
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from poise.deck.checks import (DCM_CHECK, EIG, check_body, check_element, check_expression_syntax,
                                check_marker, check_specific, ns_text, ref_attrs)
-from poise.deck.schema import namespace_of
+from poise.deck.schema import NO_EFFECT, namespace_of
 from poise.deck.schema_types import NAMESPACES
 from poise.deck.screen import Screen, schema_of
 from poise.deck.spec import DeckSpec, Element, Expr
@@ -30,7 +30,7 @@ class FileProblem(Problem):
 
 
 _SPECIFIC = frozenset({"Constraint_Joint", "Constraint_Jprim", "Force_SpringDamper",
-                       "Force_Scalar_TwoBody", "Simulate"})
+                       "Force_Scalar_TwoBody", "Simulate", "Reference_Matrix"})
 _ns = functools.cache(namespace_of)
 
 
@@ -83,6 +83,7 @@ def validate(spec: DeckSpec) -> None:
     scr = Screen(els)
     good: list[Element] = []
     gidx: list[int] = []
+    ignored: dict[str, list[Element]] = {}
     for k, el in enumerate(els):
         sch = schema_of(el.tag)
         if sch is None:
@@ -98,8 +99,11 @@ def validate(spec: DeckSpec) -> None:
             continue
         if not scr.values[k]:
             check_element(pc, el, sch)
+        if sch.tag in NO_EFFECT:
+            ignored.setdefault(sch.tag, []).append(el)
         good.append(el)
         gidx.append(k)
+    _warn_no_effect(pc, ignored)
 
     # ids: unique within each element type, and within a shared namespace (bodies)
     fast = _ids_fast(good)
@@ -180,6 +184,16 @@ def validate(spec: DeckSpec) -> None:
     spec.warnings.extend(pc.warnings)
     pc.problems.sort(key=lambda p: p.loc.line)
     pc.raise_if_any()
+
+
+def _warn_no_effect(pc: ProblemCollector, ignored: dict) -> None:
+    """One warning per kind of element without effect on statics, at its first element, with
+    the count and lines."""
+    for tag, els in ignored.items():
+        n = len(els)
+        lines = ", ".join(str(e.loc.line) for e in els[:8]) + (", ..." if n > 8 else "")
+        pc.warn(els[0].loc, f"{NO_EFFECT[tag][1]}: no effect on statics; {n} <{tag}> "
+                f"element{'s' if n > 1 else ''} ignored (line{'s' if n > 1 else ''} {lines})")
 
 
 __all__ = ["validate", "FileProblem", "Expr"]

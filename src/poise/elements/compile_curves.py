@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.deck.matrix import matrix_values
 from poise.deck.spec import Expr
-from poise.core.errors import EvaluationError
+from poise.core.errors import EvaluationError, ProblemCollector
 from poise.elements import curves as F
 from poise.elements import curve_data as CD
 from poise.elements.registry import ElementType, static, workless
@@ -53,6 +54,28 @@ def _points(el, pc, per):
     return pts
 
 
+def _matrix_points(spec, el, pc, per):
+    """Curve points from the ``Reference_Matrix`` of ``matrix_id``: one row per point, three
+    columns x y z (Adams ``CURVE/id, MATRIX=id``); None after a located problem."""
+    mid = el.attrs["matrix_id"]
+    mel = next((m for m in spec.elements("Reference_Matrix") if m.id == mid), None)
+    if mel is None:                  # validation reports the missing reference
+        return None
+    scratch = ProblemCollector()
+    M = matrix_values(mel, scratch)
+    if M is None:                    # validation reports the matrix's own problem
+        return None
+    if M.shape[1] != 3:
+        pc.error(el.loc, f"Reference_Matrix id={mid} has {M.shape[1]} columns; expected 3 "
+                 "(x y z of one curve point per row)", "matrix_id")
+        return None
+    if per is not None and len(M) != per:
+        pc.error(el.loc, f"num_pts={per} but Reference_Matrix id={mid} has {len(M)} rows",
+                 "num_pts")
+        return None
+    return M
+
+
 def _eval_problem(pc, el, e: EvaluationError, when: str):
     """A curve/surface expression that fails where the compiler samples it: located deck error
     (the geometry must be defined on its whole parameter range)."""
@@ -66,11 +89,15 @@ def _geometry(spec, ctx, tag):
     surf = tag == "Reference_ParamSurface"
     for el in spec.elements(tag):
         a = el.attrs
-        if a.get("matrix_id") is not None or a.get("usrsub_dll_name") or a.get("script_name") \
-                or a.get("usrsub_fnc_name"):
-            pc.error(el.loc, "matrix/user-subroutine curve and surface data are not supported; "
-                     "give x_expression/y_expression/z_expression of U (and V) or the points "
-                     "in the element text")
+        if a.get("usrsub_dll_name") or a.get("script_name") or a.get("usrsub_fnc_name"):
+            pc.error(el.loc, "user-subroutine curve and surface data are not supported; "
+                     "give x_expression/y_expression/z_expression of U (and V), the points "
+                     "in the element text or a Reference_Matrix (curves)")
+            continue
+        if a.get("matrix_id") is not None and surf:
+            pc.error(el.loc, "surface data from a Reference_Matrix are not supported; give "
+                     "the grid points in the element text or x/y/z_expression of U and V",
+                     "matrix_id")
             continue
         ex = [a.get(f"{c}_expression") for c in "xyz"]
         u0, u1 = _f(el, "u_start", 0.0), _f(el, "u_end", 1.0)
@@ -111,7 +138,15 @@ def _geometry(spec, ctx, tag):
                                        _f(el, "v_end", 1.0))
             else:
                 npts = a.get("num_pts")
-                pts = _points(el, pc, int(npts) if npts else None)
+                if a.get("is_curve_points") is False:
+                    pc.error(el.loc, "is_curve_points=\"FALSE\": the points would be B-spline "
+                             "control points, which poise does not support; expected points the "
+                             "curve passes through (is_curve_points=\"TRUE\")", "is_curve_points")
+                    continue
+                if a.get("matrix_id") is not None:
+                    pts = _matrix_points(spec, el, pc, int(npts) if npts else None)
+                else:
+                    pts = _points(el, pc, int(npts) if npts else None)
                 if pts is None:
                     continue
                 if len(pts) < 4:
@@ -299,4 +334,7 @@ ELEMENTS = (ElementType(
                      F.SurfaceOnSurface), potential_energy=workless,
     time_dependent=static,      # TIME in curve geometry is a located error (compile_curves)
     outputs={"curves": TAGS},
-    datasets=("id", "tag", "parameters", "point"), fd_tests="tests/reference/test_curves.py"),)
+    datasets=("id", "tag", "parameters", "point"),
+    reactions={"PTCV": ("curves", ("Constraint_PTCV",)), "CVCV": ("curves", ("Constraint_CVCV",))},
+    reaction_aliases={"CONSTRAINT_PTCV": "PTCV", "CONSTRAINT_CVCV": "CVCV"},
+    fd_tests="tests/reference/test_curves.py"),)

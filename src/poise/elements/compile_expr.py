@@ -15,7 +15,7 @@ from poise.elements import expr_forces as XF
 from poise.elements.channels import ExprInfo
 from poise.elements.reaction_feed import ReactionFeed
 from poise.elements.registry import ElementType, expressions_of_time, not_conservative
-from poise.elements.requests import build_request_hook
+from poise.elements.requests import build_request_hook, computed_requests
 from poise.elements.resolver import ground_markers
 
 
@@ -51,7 +51,7 @@ def compile_expressions(spec, ctx):
         _reaction_feed(ctx, res, built, pc)
 
     # ------------------------------------------------------------ requests
-    reqs = spec.elements("Post_Request")
+    reqs = computed_requests(spec.elements("Post_Request"), pc)
     if reqs:
         res.allow_reactions = True
         res.where = "requests"

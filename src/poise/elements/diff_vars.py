@@ -66,15 +66,16 @@ class ScalarEquation(ForceFamily):
         return rho, None, ext
 
 
-def layout(batch, own, ground):
+def layout(batch, own, ground, first=None):
     """Markers (n, X), scols (n, U) and the slot / scalar maps of one batch.
 
-    ``own`` (n,) the scalar unknown each instance owns (column 0 of ``scols``); ``ground`` (nm,)
-    bool marks markers without coordinates (their slots are dropped).
+    ``own`` (n,) the scalar unknown each instance owns (column 0 of ``scols``; None: none);
+    ``ground`` (nm,) bool marks markers without coordinates (their slots are dropped); ``first``
+    (n,) a marker each instance puts first (marker 0), read or not.
     """
-    n = len(own)
-    mk = [dict() for _ in range(n)]
-    sc = [{int(own[i]): 0} for i in range(n)]
+    n = batch.n
+    mk = [dict() if first is None else {int(first[i]): 0} for i in range(n)]
+    sc = [dict() if own is None else {int(own[i]): 0} for i in range(n)]
     rows, bs, fs = [], [], []
     for i in range(n):
         for s, (m, kind) in enumerate(zip(batch.slot_marker[i], batch.slot_kind[i])):

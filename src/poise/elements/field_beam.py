@@ -186,4 +186,6 @@ ELEMENTS = (ElementType(
     kernels=lambda: (FieldForce,), tileable=lambda: (FieldForce,),
     potential_energy=kernel_potential, time_dependent=static,
     outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
+    reactions={"BEAM": ("forces", ("Force_Beam",)), "FIELD": ("forces", ("Force_Field",))},
+    reaction_aliases={"FORCE_BEAM": "BEAM", "FORCE_FIELD": "FIELD"},
     fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)

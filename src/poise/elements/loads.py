@@ -41,6 +41,12 @@ def loads_of(model, items, lam=None, frames: int = 1):
             continue
         n_out = len(model.outputs[group]["ids"]) * frames
         F, T = out.setdefault(group, (np.zeros((n_out, 3)), np.zeros((n_out, 3))))
+        own = getattr(fam, "reaction_on_i", None)   # families reducing several markers
+        if own is not None:
+            Fi, Ti = own(kin, rho)
+            np.add.at(F, fam.owner, Fi)
+            np.add.at(T, fam.owner, Ti)
+            continue
         S = len(fam.slot_ml)
         rho3 = rho.reshape(fam.n, S, 3)
         Fi = np.zeros((fam.n, 3))

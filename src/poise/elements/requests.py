@@ -32,8 +32,7 @@ def _channels(el, pc):
 
     def X(text):
         return Expr(text, el.loc, "type")
-    if t == "EXPRESSION" or (t not in ("MARKER_DISPLACEMENT", "MARKER_FORCE", "ELEMENTAL_FORCE",
-                                       "MARKER_VELOCITY", "MARKER_ACCELERATION", "USERSUB")):
+    if t == "EXPRESSION":
         out = []
         for k in range(1, 9):
             v = a.get(f"expr{k}")
@@ -42,10 +41,6 @@ def _channels(el, pc):
             else:
                 out.append(v)
         return out
-    if t == "USERSUB":
-        pc.error(el.loc, "user-subroutine requests are not supported; expected "
-                 "type=\"EXPRESSION\"", "type")
-        return [None] * 8
     if t in ("MARKER_DISPLACEMENT", "MARKER_FORCE") and i is None:
         pc.error(el.loc, f"{t} needs i_marker_id", "i_marker_id")
         return [None] * 8
@@ -65,6 +60,35 @@ def _channels(el, pc):
         jf = int(a.get("jflag", 0) or 0)
         return [X(f"{kind}({a['elem_id']},{jf},{c},{rm})") for c in range(1, 9)]
     return [0.0] * 8                                      # velocities / accelerations
+
+
+#: request types poise computes (every other request is output only: skipped with a warning)
+COMPUTED = ("EXPRESSION", "MARKER_DISPLACEMENT", "MARKER_VELOCITY", "MARKER_ACCELERATION",
+            "MARKER_FORCE", "ELEMENTAL_FORCE")
+_USER = ("usrsub_param_string", "usrsub_fnc_name", "usrsub_dll_name", "script_name")
+
+
+def computed_requests(reqs, pc):
+    """The requests poise computes. The others are output only (user REQSUB routines and
+    scripts, types poise does not know): one warning per type with the count, not an error."""
+    keep, skip = [], {}
+    for el in reqs:
+        a = el.attrs
+        t = str(a.get("type") or ("USERSUB" if any(a.get(k) for k in _USER)
+                                  else "EXPRESSION")).upper()
+        if t in COMPUTED:
+            keep.append(el)
+        else:
+            skip.setdefault(t, []).append(el)
+    for t, els in skip.items():
+        n = len(els)
+        what = ("a user subroutine or script (REQSUB)" if t == "USERSUB"
+                else "a type poise does not compute")
+        lines = ", ".join(str(e.loc.line) for e in els[:8]) + (", ..." if n > 8 else "")
+        pc.warn(els[0].loc, f"Post_Request type {t} is {what}: output only, not computed; {n} "
+                f"request{'s' if n > 1 else ''} skipped (line{'s' if n > 1 else ''} {lines}); "
+                f"poise computes the types {', '.join(COMPUTED)}", "type")
+    return keep
 
 
 def build_request_hook(reqs, ctx, res):

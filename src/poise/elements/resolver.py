@@ -16,6 +16,7 @@ import re
 import numpy as np
 
 from poise.core.errors import DeckError, Problem
+from poise.deck.spec import Expr
 from poise.elements.base import GLOBAL
 from poise.elements.registry import reaction_kinds
 from poise.expr import compile_batch
@@ -131,7 +132,25 @@ class ModelResolver:
                                     "num_element"))
         return v
 
+    def plant_variables(self, tag: str, id: int) -> list:
+        """Variable ids of a ``Control_PlantInput`` / ``Control_PlantOutput`` (PINVAL/POUVAL)."""
+        el = self._elements.get((tag, int(id)))
+        if el is None:
+            raise KeyError(id)
+        v = el.attrs.get("variable_id_list")
+        v = [] if v is None else (list(v) if isinstance(v, (list, tuple)) else [v])
+        return [int(x) for x in v]
+
     def reaction(self, kind: str, id: int, jflag: int, comp: int, rm: int) -> int:
+        key = self._reaction_key(kind, id, jflag, comp, rm)
+        if key not in self._chan_index:
+            self._chan_index[key] = len(self.channels)
+            self.channels.append(key)
+        return self._chan_index[key]
+
+    def _reaction_key(self, kind: str, id: int, jflag: int, comp: int, rm: int) -> tuple:
+        """The channel key of an element-force function or resultant (raises
+        NotImplementedError or KeyError with the problem)."""
         kind = kind.upper()
         if not self.allow_reactions:
             raise NotImplementedError(
@@ -156,10 +175,7 @@ class ModelResolver:
                    self.marker_index(rm))
         else:
             raise NotImplementedError(f"{kind}() is not supported yet")
-        if key not in self._chan_index:
-            self._chan_index[key] = len(self.channels)
-            self.channels.append(key)
-        return self._chan_index[key]
+        return key
 
     def angle_key(self, i_idx: int, j_idx: int, axis: int) -> int:
         return self.ctx.angle(int(i_idx) if i_idx >= 0 else GLOBAL,
@@ -179,6 +195,57 @@ class ModelResolver:
         mi = self.b.marker_index.get(i, GLOBAL) if i is not None else GLOBAL
         mj = self.b.marker_index.get(j, GLOBAL) if j is not None else GLOBAL
         return mi, mj
+
+
+class CheckingResolver(ModelResolver):
+    """A resolver that checks names and ids but registers nothing (no scalar unknown, angle or
+    reaction channel): for expressions nothing evaluates, e.g. a variable no element reads."""
+
+    def __init__(self, spec, ctx):
+        super().__init__(spec, ctx)
+        self.allow_reactions = True
+
+    def variable(self, id: int):
+        el = self.vars[int(id)]
+        if el.attrs.get("is_implicit") or is_user(el):
+            return ("implicit", 0)
+        return ("explicit", el.attrs.get("expr", 0.0))
+
+    def diff_state(self, id: int):
+        _els(self.ctx, "Control_Diff")[int(id)]      # KeyError for unknown ids
+        return ("const", 0.0)
+
+    def reaction(self, kind, id, jflag, comp, rm):
+        self._reaction_key(kind, id, jflag, comp, rm)
+        return 0
+
+    def angle_key(self, i_idx, j_idx, axis):
+        return 0
+
+
+def check_variables(spec, ctx):
+    """Every explicit ``Reference_Variable`` compiled once more, so that a problem in one that
+    no element reads (an unknown function, a missing marker) is a located error like anywhere
+    else; problems already reported are not repeated. Runs after every element compiler."""
+    vs = [e for e in spec.elements("Reference_Variable")
+          if not e.attrs.get("is_implicit") and not is_user(e)
+          and isinstance(e.attrs.get("expr"), Expr)]
+    if not vs:
+        return
+    from poise.expr.lower import Lowering       # lazy: names only, no evaluation program
+    low = Lowering(CheckingResolver(spec, ctx))
+    try:
+        for e in vs:
+            low.lower_expr(e.attrs["expr"])
+        problems = low.var_problems + low.problems
+    except DeckError as e:                        # malformed spline / array data
+        problems = list(e.problems)
+    pc = ctx.pc
+    seen = {str(p) for p in pc.problems}
+    for p in problems:
+        if isinstance(p, Problem) and str(p) not in seen:
+            seen.add(str(p))
+            pc.problems.append(p)
 
 
 def compile_batch_located(exprs, resolver, pc):

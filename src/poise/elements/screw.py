@@ -57,10 +57,16 @@ def compile_screws(spec, ctx):
         c.append(float(num(el, "pitch", 0.0, ctx.pc) or 0.0) / (2.0 * np.pi))
         ang.append(ctx.angle(i, j, 2))
         rows.append([ctx.add_row(el, "d.zJ-pitch*AZ/2pi", "trans", "joints", first + k)])
-    ctx.effect("Constraint_Joint:SCREW")
-    out["ids"] = np.concatenate([out["ids"], [e.id for e in els]]).astype(int)
     f = Screw.build("joints:screw", np.array(I), np.array(J), c, ang,
                     np.arange(first, first + len(els)))
+    add_joint_family(ctx, out, els, f, rows, "SCREW")
+
+
+def add_joint_family(ctx, out, els, f, rows, jtype):
+    """Append a one-row-per-joint family of ``Constraint_Joint`` elements ``els`` (rows
+    ``rows``) after the other joints: ids, rows, output group, effect."""
+    ctx.effect(f"Constraint_Joint:{jtype}")
+    out["ids"] = np.concatenate([out["ids"], [e.id for e in els]]).astype(int)
     f.crow = np.array(rows, int)
     f.group = "joints"
     f.element_locs = [e.loc for e in els]

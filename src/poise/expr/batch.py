@@ -11,6 +11,7 @@ from poise.core.errors import DeckError, EvaluationError
 from .functions import DomainError
 from .lower import Lowering
 from .tape import extract
+from .hessian import build_hessian
 from .program import GroupEnv, build
 
 __all__ = ["compile_batch", "Batch", "EvalContext", "EvalResult"]
@@ -109,8 +110,21 @@ class _Group:
                 self.spl.append([(splines[u], np.nonzero(ids == u)[0]) for u in uniq])
         self.uses_time = "time" in repr(key)
         self.fn = build(key)
+        self.hfn = None           # second-order program, built on first use (hessian.py)
 
     def evaluate(self, ctx, P_ext, A_ext):
+        v, g = self.fn(self.env(ctx, P_ext, A_ext))
+        if np.ndim(v) == 0 or v.shape[0] != self.m:
+            v = np.broadcast_to(v, (self.m,))
+        return v, g
+
+    def hessian(self, ctx, P_ext, A_ext):
+        """``(m, D, D)`` second derivatives over the group's ``D = 3 S + U`` local variables."""
+        if self.hfn is None:
+            self.hfn = build_hessian(self.key, self.S, self.U)
+        return self.hfn(self.env(ctx, P_ext, A_ext))[2]
+
+    def env(self, ctx, P_ext, A_ext):
         env = GroupEnv()
         m = self.m
         env.params = self.params
@@ -129,10 +143,7 @@ class _Group:
             env.ang = None
         env.spl = self.spl
         env.static = bool(ctx.static)
-        v, g = self.fn(env)
-        if np.ndim(v) == 0 or v.shape[0] != m:
-            v = np.broadcast_to(v, (m,))
-        return v, g
+        return env
 
 
 def compile_batch(exprs, resolver) -> "Batch":
@@ -322,6 +333,40 @@ class Batch:
             d_slot[self._global_slots] = 0.0
         return EvalResult(value, d_slot, self.slot_marker, self.slot_kind, d_time,
                           d_scalar, self.scalar_index, d_reaction, self.reaction_index)
+
+    def hessian(self, ctx: EvalContext) -> np.ndarray:
+        """Exact second derivatives ``(n, 3S + U, 3S + U)`` of every instance w.r.t. its slot
+        vector components (``3 s + c``) and scalar unknowns (``3 S + k``), in the layout of
+        :meth:`evaluate`'s ``d_slot``/``d_scalar`` (global-frame slots zero). TIME and reaction
+        channels are not variables here; a batch reading reactions or IMPACT/BISTOP raises
+        :class:`poise.expr.hessian.NoHessian`. Evaluation problems as in :meth:`evaluate`."""
+        n, S, U = self.n, self.S, self.U
+        D = 3 * S + U
+        out = np.zeros((n, D, D))
+        P_ext = A_ext = None
+        if S:
+            P = np.asarray(ctx.P, dtype=float).reshape(-1, 3)
+            P_ext = np.concatenate([P, np.zeros((1, 3))])
+            if self._needs_axes:
+                A = np.asarray(ctx.A, dtype=float).reshape(-1, 3, 3)
+                A_ext = [np.concatenate([A[:, :, k], np.eye(3)[k:k + 1]]) for k in range(3)]
+        with np.errstate(all="ignore"):
+            for g in self.groups:
+                try:
+                    H = g.hessian(ctx, P_ext, A_ext)
+                except DomainError as e:
+                    self._fail(g, e.message, e.mask)
+                bad = ~np.isfinite(H).all(axis=(1, 2))
+                if bad.any():
+                    self._fail(g, "non-finite second derivative", bad)
+                idx = np.concatenate([np.arange(3 * g.S), 3 * S + np.arange(g.U)]).astype(np.intp)
+                rows = np.arange(n)[g.rows]
+                out[rows[:, None, None], idx[None, :, None], idx[None, None, :]] = H
+        if self._has_global:
+            gl = np.repeat(self._global_slots, 3, axis=1)          # (n, 3S)
+            out[:, :3 * S, :][gl] = 0.0
+            out[:, :, :3 * S].transpose(0, 2, 1)[gl] = 0.0
+        return out
 
     def tiled(self, F: int, n_markers: int, n_angles: int, n_scalars: int) -> "Batch":
         """This batch repeated for ``F`` frames (instance ``f * n + i``), for evaluating many

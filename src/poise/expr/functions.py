@@ -35,6 +35,12 @@ def _check(bad, message: str) -> None:
         raise DomainError(message, bad)
 
 
+def check_power(va, vb) -> None:
+    """Domain of ``va ** vb`` (both (m,) arrays): DomainError where it is not a real number."""
+    _check((va < 0) & (vb != np.trunc(vb)), "negative number raised to a non-integer power")
+    _check((va == 0) & (vb < 0), "division by zero (0 raised to a negative power)")
+
+
 def _abs(a, need):
     x = a[0]
     return np.abs(x), [np.sign(x)]

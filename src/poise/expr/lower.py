@@ -30,9 +30,44 @@ __all__ = ["Lowering"]
 
 CONSTANTS = {"PI": math.pi, "DTOR": math.pi / 180.0, "RTOD": 180.0 / math.pi}
 REACTION_FUNCS = {"JOINT", "JPRIM", "MOTION", "MATE", "SFORCE", "VFORCE", "VTORQ", "GFORCE",
-                  "BUSH", "SPDP"}
+                  "BUSH", "SPDP", "BEAM", "FIELD", "PTCV", "CVCV"}
 RESULTANT_FUNCS = {"FM": 1, "FX": 2, "FY": 3, "FZ": 4, "TM": 5, "TX": 6, "TY": 7, "TZ": 8}
 _IMPURE = {"IMPACT", "BISTOP"}
+
+#: MotionSolve functions poise does not evaluate, and why (a located error names the reason)
+NOT_SUPPORTED = {
+    "SWEEP": "a swept-sine excitation for dynamic analyses",
+    "INVPSD": "a random excitation from a power spectral density (dynamic analyses)",
+    "DELAY": "a time delay (it reads the solution's history, which statics has not)",
+    "Q": "a flexible body's modal coordinate (poise has no flexible bodies)",
+    "QDOT": "a flexible body's modal velocity (poise has no flexible bodies)",
+    "QDDOT": "a flexible body's modal acceleration (poise has no flexible bodies)",
+    "MODE": "the active mode of a linear analysis",
+    "NFORCE": "the force of a Force_MultiPoint (not supported)",
+    "SENVAL": "a sensor's value (sensors are not supported)",
+    "CONTACT": "a Force_Contact's force (read contacts/force in the results instead)",
+    "CURVE": "a Reference_ParamCurve evaluated in an expression",
+    "INTERP": "interpolation of measured data (use AKISPL, CUBSPL, LINSPL or FITSPL)",
+    "USER": "a compiled user function (poise runs Python user routines of elements with "
+            "script_name only)",
+}
+
+
+def known_names() -> list:
+    """Every function and constant name the language knows (for did-you-mean)."""
+    return sorted({*ARITY, *MEASURE_SLOTS, *VELOCITY_MEASURES, *REACTION_FUNCS,
+                   *RESULTANT_FUNCS, *SPLINE_KINDS, "FRICTION", "VARVAL", "DIF", "DIF1",
+                   "ARYVAL", "PINVAL", "POUVAL"})
+
+
+def unknown_function(name: str) -> str:
+    """The message for a call of a function poise does not evaluate."""
+    if name in NOT_SUPPORTED:
+        return f"{name} is a MotionSolve function poise does not evaluate: {NOT_SUPPORTED[name]}"
+    import difflib
+    close = difflib.get_close_matches(name, known_names(), n=3, cutoff=0.6)
+    hint = f"; did you mean {' or '.join(close)}?" if close else ""
+    return f"unknown function {name!r}{hint}"
 _BINOPS = {"+": "+", "-": "-", "*": "*", "/": "/", "**": "^"}
 
 
@@ -288,6 +323,8 @@ class Lowering:
             if vid is None:
                 vid = yield self.int_arg(node, 0)
             return (yield self.state(node, vid))
+        if name in ("PINVAL", "POUVAL"):
+            return (yield self.plant(node))
         if name == "ARYVAL":
             self._arity(node, 2, 2)
             aid, k = (yield self.int_arg(node, 0)), (yield self.int_arg(node, 1))
@@ -301,7 +338,25 @@ class Lowering:
             if not math.isfinite(v):
                 self.error(node.col, f"Reference_Array id {aid} value {k} is not finite")
             return ("c", v)
-        self.error(node.col, f"unknown function {name!r}")
+        self.error(node.col, unknown_function(name))
+
+    def plant(self, node):
+        """``PINVAL(id, k)`` / ``POUVAL(id, k)``: the k-th variable of a Control_PlantInput /
+        Control_PlantOutput (``variable_id_list``), i.e. ``VARVAL`` of that variable."""
+        self._arity(node, 2, 2)
+        pid, k = (yield self.int_arg(node, 0)), (yield self.int_arg(node, 1))
+        what = "Control_PlantInput" if node.name == "PINVAL" else "Control_PlantOutput"
+        fn = getattr(self.resolver, "plant_variables", None)
+        try:
+            if fn is None:
+                raise KeyError(pid)
+            ids = list(fn(what, pid))
+        except KeyError:
+            self.error(node.args[0].col, f"unknown {what} id {pid}")
+        if not 1 <= k <= len(ids):
+            self.error(node.args[1].col, f"{node.name} index {k} outside 1..{len(ids)} "
+                       f"({what} id {pid} lists {len(ids)} variables)")
+        return (yield self.state(node, int(ids[k - 1]), "VARVAL"))
 
     def _fn(self, node, args):
         name = node.name
@@ -359,9 +414,9 @@ class Lowering:
             self.splines.append(sp)
         return ("spl", node.name, order, x, z, self.spline_index[key])
 
-    def state(self, node, vid):
+    def state(self, node, vid, name=None):
         r = self.resolver
-        name = node.name
+        name = name or node.name
         try:
             if name == "DIF":
                 k = r.diff_state(vid)
@@ -399,3 +454,14 @@ class Lowering:
         if ir is None:
             self.error(node.col, f"Reference_Variable id {vid} is invalid")
         return ir
+
+
+def known_function(name: str) -> bool:
+    """Whether the expression language computes function ``name`` (case-insensitive): the
+    dispatch of :meth:`Lowering.call`, read from its tables (an Adams request naming a function
+    poise does not compute, such as ORIENT, can then be told apart before compiling)."""
+    n = name.upper()
+    return (n in ARITY or n in MEASURE_SLOTS or n in VELOCITY_MEASURES or n in REACTION_FUNCS
+            or n in RESULTANT_FUNCS or n in SPLINE_KINDS
+            or n in ("FRICTION", "VARVAL", "DIF", "DIF1", "ARYVAL", "IF"))
+

@@ -33,10 +33,13 @@ MEASURE_SLOTS = {
     "THETA": ((0, 3), (1, 1), (1, 2), (1, 3)),
     "PITCH": ((0, 1), (1, 1), (1, 2), (1, 3)),
 }
+# AXU/AYU/AZU: MotionSolve's unwrapped AX/AY/AZ; poise's AX/AY/AZ already count turns
+for _a in ("AX", "AY", "AZ"):
+    MEASURE_SLOTS[_a + "U"] = MEASURE_SLOTS[_a]
 MEASURE_ARITY = {"DX": (1, 3), "DY": (1, 3), "DZ": (1, 3), "DM": (1, 3)}
-MEASURE_ARITY.update({k: (1, 2) for k in ("AX", "AY", "AZ", "YAW", "PSI", "PHI", "ROLL",
-                                          "THETA", "PITCH")})
-CONTINUOUS = {"AX": 0, "AY": 1, "AZ": 2}
+MEASURE_ARITY.update({k: (1, 2) for k in ("AX", "AY", "AZ", "AXU", "AYU", "AZU", "YAW", "PSI",
+                                          "PHI", "ROLL", "THETA", "PITCH")})
+CONTINUOUS = {"AX": 0, "AY": 1, "AZ": 2, "AXU": 0, "AYU": 1, "AZU": 2}
 """Angle measures made continuous through ``ctx.angle_ref``; value = axis code for angle_key."""
 
 VELOCITY_MEASURES = {}

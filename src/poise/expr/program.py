@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .functions import FUNCTIONS, DomainError, bistop, impact
+from .functions import FUNCTIONS, DomainError, bistop, check_power, impact
 from .measures import MEASURE_SLOTS, eval_measure
 
 __all__ = ["build", "GroupEnv"]
@@ -185,12 +185,7 @@ def _build_bin(op, a, b):
     else:  # power
         def f(env, V, G):
             va, ga, vb, gb = V[a], G[a], V[b], G[b]
-            bad = (va < 0) & (vb != np.trunc(vb))
-            if bad.any():
-                raise DomainError("negative number raised to a non-integer power", bad)
-            bad = (va == 0) & (vb < 0)
-            if bad.any():
-                raise DomainError("division by zero (0 raised to a negative power)", bad)
+            check_power(va, vb)
             v = va ** vb
             out = {}
             if ga:

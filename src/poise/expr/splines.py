@@ -1,7 +1,8 @@
-"""Spline interpolation for AKISPL / CUBSPL / LINSPL (deck_format.md §6.2, §8.4).
+"""Spline interpolation for AKISPL / CUBSPL / LINSPL / FITSPL (deck_format.md §6.2, §8.4).
 
 ``AKISPL``: Akima spline (local, scipy ``Akima1DInterpolator``); ``CUBSPL``: global cubic
-spline with **not-a-knot** end conditions (scipy ``CubicSpline`` default); ``LINSPL``: linear.
+spline with **not-a-knot** end conditions (scipy ``CubicSpline`` default); ``LINSPL``: linear;
+``FITSPL``: FITPACK's interpolating quadratic B-spline (MotionSolve: order 3, at least 4 points).
 
 Every curve is stored as piecewise cubic coefficients ``(4, nseg)`` (highest power first) and
 evaluated with Horner's rule, so the value, the requested derivative order (0..2) and its
@@ -19,7 +20,20 @@ import numpy as np
 
 __all__ = ["PreparedSpline", "SPLINE_KINDS"]
 
-SPLINE_KINDS = ("AKISPL", "CUBSPL", "LINSPL")
+SPLINE_KINDS = ("AKISPL", "CUBSPL", "LINSPL", "FITSPL")
+
+
+def _fitspl(x: np.ndarray, y: np.ndarray):
+    """FITSPL: FITPACK's interpolating B-spline of order 3 (quadratic pieces, knots between the
+    data points, Dierckx ``curfit`` with s = 0, scipy ``splrep(k=2, s=0)``) as piecewise
+    polynomials ``(4, nseg)`` on their own breakpoints."""
+    from scipy.interpolate import PPoly, splrep       # lazy: only decks with FITSPL curves
+    pp = PPoly.from_spline(splrep(x, y, k=2, s=0))
+    bx = np.asarray(pp.x, float)
+    keep = np.flatnonzero(np.diff(bx) > 0)             # drop the repeated end knots
+    c = np.zeros((4, len(keep)))
+    c[1:] = pp.c[:, keep]
+    return c, np.concatenate([bx[keep], bx[keep[-1] + 1:keep[-1] + 2]])
 
 
 def _coefs(kind: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -102,16 +116,24 @@ class PreparedSpline:
         self.z = z
         self.linear_extrap = bool(linear_extrap)
         ys = y[None, :] if z is None else y
-        self.c = np.stack([_coefs(kind, x, row) for row in ys])           # (nc, 4, nseg)
+        self.bx = x                                        # breakpoints of the pieces
+        if kind == "FITSPL":
+            if len(x) < 4:
+                raise ValueError("FITSPL needs at least 4 points")
+            fits = [_fitspl(x, row) for row in ys]
+            self.bx = fits[0][1]
+            self.c = np.stack([f[0] for f in fits])
+        else:
+            self.c = np.stack([_coefs(kind, x, row) for row in ys])       # (nc, 4, nseg)
         self.y0 = ys[:, 0]
         self.yn = ys[:, -1]
         self.s0 = self.c[:, 2, 0]
-        h = x[-1] - x[-2]
+        h = self.bx[-1] - self.bx[-2]
         self.sn = _horner(self.c[:, :, -1].T, h, 1)
 
     def _curve(self, k, xq, order):
         """Value of derivative ``order`` and its x-derivative on curve(s) ``k`` ((m,) ints)."""
-        x = self.x
+        x = self.bx
         idx = np.clip(np.searchsorted(x, xq, side="right") - 1, 0, len(x) - 2)
         t = xq - x[idx]
         c = self.c[k, :, idx].T                                            # (4, m)

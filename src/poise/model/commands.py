@@ -38,12 +38,13 @@ CHANGEABLE: dict[str, tuple[str, ...]] = {
     "Motion_Joint": ("expr",),
     "Motion_Marker": ("expr",),
     "Control_Diff": ("expr",),
+    "Constraint_General": ("expr",),
 }
 
 #: command elements that are settings, not model changes (handled by the runner, or output
 #: options that have no effect on results, like their model versions)
 SETTINGS = ("Param_Static", "Param_Transient", "Param_Simulation", "Reference_Array",
-            "ResOutput", "DebugOutput", "H3DOutput", "Simulate", "Stop")
+            "ResOutput", "DebugOutput", "H3DOutput", "Simulate", "Stop", "Param_Linear")
 
 
 def model_commands(commands) -> list:

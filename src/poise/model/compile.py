@@ -17,6 +17,7 @@ from poise.deck.spec import DeckSpec, Element
 from poise.core.errors import ProblemCollector
 from poise.elements.context import GLOBAL, CompileContext, num as _num
 from poise.elements.registry import element_types, energy_terms, kernel_types, time_sources
+from poise.elements.resolver import check_variables
 from poise.model import units as U
 from poise.model.model import Model
 from poise.elements.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
@@ -406,6 +407,7 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     types = element_types()
     for et in types:                      # dependency order (poise.elements.registry)
         et.compile(spec, ctx)
+    check_variables(spec, ctx)            # variables no element reads: problems located too
     rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
     pc = b.pc
     pc.raise_if_any()

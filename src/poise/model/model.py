@@ -405,14 +405,26 @@ def _log_so3(R):
     return w
 
 
+#: columns of the continuous-angle table's kinds (0 AX, 1 AY, 2 AZ, 3 the rack-and-pinion angle):
+#: angle = atan2(u . e2, u . e1), u an axis of the first marker, e1 and e2 axes of the second.
+#: Kind 3 is the direction of the first marker's z axis in the second's x-y plane.
+ANGLE_U_COL = np.array([1, 2, 0, 2])     # AX: y_I, AY: z_I, AZ: x_I, 3: z_I
+ANGLE_E1_COL = np.array([1, 2, 0, 0])    # AX: y_J, AY: z_J, AZ: x_J, 3: x_J
+ANGLE_E2_COL = np.array([2, 0, 1, 1])    # AX: z_J, AY: x_J, AZ: y_J, 3: y_J
+
+
 def principal_angles(A, I, J, axis):
-    """Principal relative angles (na,) of marker I about marker J's axis (0 x, 1 y, 2 z)."""
+    """Principal relative angles (..., na) of the angle table (:data:`ANGLE_U_COL`): marker I
+    about marker J's axis (kinds 0 x, 1 y, 2 z) or kind 3. ``A`` (..., nm, 3, 3) marker axes
+    as columns, optionally with leading frame axes."""
+    A = np.asarray(A)
+    lead = A.shape[:-3]
     if len(I) == 0:
-        return np.zeros(0)
-    u_col = np.array([1, 2, 0])[axis]   # AX: y_I, AY: z_I, AZ: x_I
-    e1_col = u_col
-    e2_col = np.array([2, 0, 1])[axis]  # AX: z_J, AY: x_J, AZ: y_J
-    u = A[I, :, u_col]
-    e1 = A[J, :, e1_col]
-    e2 = A[J, :, e2_col]
-    return np.arctan2(np.einsum("ni,ni->n", u, e2), np.einsum("ni,ni->n", u, e1))
+        return np.zeros(lead + (0,))
+    axis = np.asarray(axis)
+
+    def col(idx, c):
+        k = c[axis].reshape((1,) * len(lead) + (-1, 1, 1))
+        return np.take_along_axis(A[..., idx, :, :], k, axis=-1)[..., 0]
+    u, e1, e2 = col(I, ANGLE_U_COL), col(J, ANGLE_E1_COL), col(J, ANGLE_E2_COL)
+    return np.arctan2(np.sum(u * e2, axis=-1), np.sum(u * e1, axis=-1))

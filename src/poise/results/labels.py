@@ -26,9 +26,11 @@ class Labeller:
         self.by_key: dict[tuple, str] = {}
         self.requests: dict[int, object] = {}
         for e in spec.model:
-            self.by_key.setdefault((e.tag, e.id), str(e.attrs.get("label", "") or ""))
+            lab = e.attrs.get("label", "") or ""
             if e.tag == "Post_Request":
+                lab = lab or e.attrs.get("comment", "") or ""     # a request's comment labels it
                 self.requests.setdefault(e.id, e)
+            self.by_key.setdefault((e.tag, e.id), str(lab))
 
     def _tags(self, g: str, datasets: dict, model, n: int) -> list:
         """Candidate tags of each of the ``n`` rows of group ``g``."""

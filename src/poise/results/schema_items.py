@@ -66,8 +66,11 @@ for n, t, m in (
     _a("root", n, t, m, "root")
 for n, t, m in (
         ("input_files", "json", "written by `poise solve` when the deck reads other files "
-                                "(user scripts): JSON (sorted keys) describing them; `poise "
-                                "batch` freshness covers them"),
+                                "(user scripts, the dataset an Adams command file names): JSON "
+                                "(sorted keys) describing them; `poise batch` freshness covers "
+                                "them"),
+        ("ignored", "json", "Adams datasets: the elements `--ignore KIND` left out, a JSON list "
+                            "of `{kind, statement, file, line}` (absent when none)"),
         ("run_overrides", "json", "JSON (sorted keys) of the solver options given on the "
                                   "command line (`{}` if none); `poise batch` compares it to "
                                   "decide whether a file is up to date"),
@@ -84,6 +87,8 @@ _d("root", "warnings", "str", ("W",), "", "located warnings (`FILE:LINE: <Tag id
 for n, m in (("parse", "reading and validating the deck"),
              ("compile", "building the compiled model"),
              ("solve", "all analyses (everything between compile and writing)"),
+             ("import", "importing the modules the run needed on first use (SciPy, SUNDIALS, "
+                        "...); left out of `parse`, `compile`, `solve` and its phases"),
              ("solve_evaluate", "inside `solve`: element kernels and residuals (incl. batched "
                                 "frame outputs)"),
              ("solve_assemble", "inside `solve`: KKT Jacobian assembly (local tangents + "
@@ -92,7 +97,8 @@ for n, m in (("parse", "reading and validating the deck"),
              ("analysis_<NNN>", "one analysis (part of `solve`; printed on the analysis' "
                                 "summary line)"),
              ("write", "writing this file, up to closing it (fsync and rename excluded)")):
-    _a("timings", n, "float", m, "timings", unit="s", optional=n.startswith("solve_"))
+    _a("timings", n, "float", m, "timings", unit="s",
+       optional=n.startswith("solve_") or n == "import")
 for n, m in (("residuals", "residual evaluations"), ("jacobians", "Jacobian evaluations"),
              ("factorizations", "factorisations of the KKT matrix")):
     _a("counts", n, "int", m, "counts")
@@ -114,7 +120,8 @@ _MODEL_GROUPS = {"joints": ("J", "`Constraint_Joint`"), "jprims": ("P", "`Constr
                  "forces": ("E", "force element"), "couplers": ("Cp", "`Constraint_Coupler`"),
                  "gears": ("G", "`Constraint_Gear`"),
                  "userconstrs": ("U", "`Constraint_UserConstr`"),
-                 "curves": ("Cv", "`Constraint_PTCV/CVCV/PTSF/CVSF/SFSF`")}
+                 "curves": ("Cv", "`Constraint_PTCV/CVCV/PTSF/CVSF/SFSF`"),
+                 "gcons": ("Gc", "`Constraint_General`")}
 for g, (s, what) in _MODEL_GROUPS.items():
     _d(M, f"{g}/id", "int", (s,), "1", f"{what} ids, in the order of the analyses' `{g}/*`",
        "model", optional=True)
@@ -165,6 +172,9 @@ for n, t, m in (
         ("assembled", "bool", "the initial configuration was moved to satisfy the "
                               "constraints before solving")):
     _a(A, n, t, m, "analysis-attrs")
+_a(A, "coordinates", "str", "`time` when the analysis has frames: netCDF's name of the "
+   "coordinate of the `frame` dimension (see *netCDF and xarray*)", "analysis-attrs",
+   optional=True)
 _a(A, "iterations_total", "int", "iterations of all frames (`sum(frames/iterations)`; FIM_S "
    "and FIM_D analyses)", "analysis-attrs", optional=True)
 for s in ("plain", "stability", "continuation", "mkeam", "polish"):
@@ -292,6 +302,9 @@ _REACT = {
               "through its I marker"),
     "userconstrs": ("U", "`Constraint_UserConstr` (Python UCOSUB)", "reaction on the body of "
                     "the first marker the user routine reads, at its origin, global axes"),
+    "gcons": ("Gc", "`Constraint_General`", "the constraint's load on the body of its "
+              "`i_marker_id`, reduced to that marker's origin, global axes; NaN when the "
+              "element names no `i_marker_id` (MotionSolve gives no reaction then)"),
 }
 for g, (s, what, fm) in _REACT.items():
     opt = True

@@ -14,7 +14,7 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.elements.rotation import expm_so3, se3_left_jacobian, wrap_angle
 from poise.model.frame_batch import batchable
-from poise.model.model import State
+from poise.model.model import State, principal_angles
 from poise.solvers.newton import Scales
 
 START_NEWTON = 3          # chord-Newton corrections of a (re)start point, at most
@@ -69,14 +69,7 @@ class _Chart:
         if len(m.angle_I):
             rx = np.concatenate([rot, np.broadcast_to(np.eye(3), (F_, 1, 3, 3))], axis=1)
             A = np.matmul(rx[:, m.marker_body], m.marker_A0)                # (F, nm, 3, 3)
-            u_col = np.array([1, 2, 0])[m.angle_axis]
-            e2_col = np.array([2, 0, 1])[m.angle_axis]
-
-            def col(idx, c):
-                return np.take_along_axis(A[:, idx], c[None, :, None, None], axis=3)[..., 0]
-
-            u, e1, e2 = col(m.angle_I, u_col), col(m.angle_J, u_col), col(m.angle_J, e2_col)
-            p = np.arctan2(np.sum(u * e2, axis=2), np.sum(u * e1, axis=2))
+            p = principal_angles(A, m.angle_I, m.angle_J, m.angle_axis)
             ang = ref.angle[None] + wrap_angle(p - ref.angle[None])
         out = []
         for k in range(F_):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError, UsageError
+from poise.core.wording import plural
 from poise.model.evaluate import evaluate
 from poise.model.frame_batch import batchable, chunk_size
 from poise.model.model import _log_so3
@@ -37,7 +38,7 @@ def parse_markers(value) -> str:
     """Normalised ``compliance_markers``: ``auto``, ``all``, ``none`` or space-separated marker
     ids (accepts ``"10,20"``, ``"10 20"``, a sequence of ints). Raises ValueError."""
     if value is None:
-        return "auto"
+        return "none"
     if isinstance(value, (list, tuple, np.ndarray)):
         items = [str(v) for v in value]
     else:
@@ -79,9 +80,11 @@ def _cg_marker_rows(model) -> np.ndarray:
 
 def select(model, settings):
     """``(marker rows, note)``: the markers to report, or ``(None, note)`` when skipped."""
-    spec = getattr(settings, "compliance_markers", "auto")
+    spec = getattr(settings, "compliance_markers", "none")
     if spec == "none":
-        return None, "compliance matrix not requested (compliance_markers none)"
+        return None, ("compliance matrix not requested: ask for it with --compliance-markers "
+                      "all (or marker ids), Param_Static compliance_markers=\"all\" or "
+                      "poise.solve(deck, compliance_markers=\"all\")")
     if spec in ("auto", "all"):
         if spec == "auto" and model.nb > AUTO_MAX_BODIES:
             return None, (f"compliance matrix skipped: {model.nb} bodies > {AUTO_MAX_BODIES}; "
@@ -342,7 +345,7 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
             "unstable": "unstable equilibrium: written as the KKT solve gives it",
             "fd_failed": "fd re-solve did not converge: NaN columns",
             "not_converged": "frame not converged: NaN"}
-    parts = [f"{sum(f == k for f in flags)} frame(s) {k} ({v})" for k, v in said.items()
+    parts = [f"{plural(sum(f == k for f in flags), 'frame')} {k} ({v})" for k, v in said.items()
              if k in flags]
     if note or parts:
         ar.attrs["compliance_note"] = "; ".join([note] * bool(note) + parts)

@@ -4,6 +4,12 @@
 pattern fixed per model, filled by gathers), :class:`IdaStats` (IDA's own per-step counters
 read through ctypes: scikit-sundae exposes only ``nfev``/``njev``) and :func:`_ida` (one IDA
 instance). Design notes and measurements: docs/fim_d.md.
+
+scikit-sundae's public API has no per-step order or counters and no way to set IDA's corrector
+coefficient, which FIM_D's results depend on; :class:`IdaStats` therefore reads the solver
+object's C layout, which only the releases in :data:`SUPPORTED` are known to have (tested:
+:data:`TESTED`; pyproject pins the same range). :func:`_ida` refuses any other release with a
+clear message (:class:`UnsupportedSundae`, exit 2) instead of running with other numbers.
 """
 from __future__ import annotations
 
@@ -12,7 +18,40 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poise.core.errors import UsageError
 from poise.elements.rotation import se3_left_jacobian
+
+#: scikit-sundae releases (major, minor) whose solver layout IdaStats reads: [1.1, 1.3)
+SUPPORTED = ((1, 1), (1, 3))
+#: the releases FIM_D was run and compared with (same results on every example deck)
+TESTED = ("1.1.3", "1.2.0")
+#: where each supported release keeps its Cython solver on the public ``sksundae.ida.IDA``
+_INNER = ("_IDA__IDA", "_IDA")       # 1.2: name-mangled; 1.1: plain
+PIN = "scikit-sundae>=1.1,<1.3"
+
+
+class UnsupportedSundae(UsageError):
+    """The installed scikit-sundae is not a release FIM_D supports (exit 2, says what to
+    install)."""
+
+
+def check_supported(version: str | None = None) -> None:
+    """Raise :class:`UnsupportedSundae` unless scikit-sundae ``version`` (default: the imported
+    one) is in :data:`SUPPORTED`."""
+    if version is None:
+        import sksundae                 # lazy: SUNDIALS loads only for FIM_D runs
+        version = str(getattr(sksundae, "__version__", "unknown"))
+    try:
+        mm = tuple(int(x) for x in version.split(".")[:2])
+    except ValueError:
+        mm = None
+    if mm is not None and len(mm) == 2 and SUPPORTED[0] <= mm < SUPPORTED[1]:
+        return
+    raise UnsupportedSundae(
+        f"FIM_D needs scikit-sundae 1.1 or 1.2 (it reads IDA's step order and counters, and "
+        f"sets IDA's corrector coefficient, through the solver object of these releases; tested "
+        f"with {', '.join(TESTED)}), but {version} is installed; run: pip install '{PIN}' "
+        "(or use --method FIM_S)")
 
 DEFAULT_DAE_CONSTR_TOL = 1e-6
 NONLIN_CONV_COEF = 0.03   # IDA's corrector convergence coefficient (IDA's default 0.33)
@@ -147,12 +186,13 @@ class SparseJacobian:
 class IdaStats:
     """Per-step statistics of one IDA instance read with the SUNDIALS C API.
 
-    scikit-sundae 1.2 returns only ``nfev``/``njev`` from a step; the BDF order and the
+    scikit-sundae (1.1, 1.2) returns only ``nfev``/``njev`` from a step; the BDF order and the
     nonlinear-solver / error-test counters are not exposed. They are read here with
     ``IDAGetLastOrder``, ``IDAGetLastStep``, ``IDAGetNumSteps``, ``IDAGetNumNonlinSolvIters``,
     ``IDAGetNumErrTestFails``, ``IDAGetNumNonlinSolvConvFails`` and ``IDAGetNumResEvals`` of the
     ``libsundials_ida`` bundled in the wheel (ctypes), on the ``IDAMem`` pointer held by the
-    Cython solver object (its first C field after the vtable). Guards, any failing one disables
+    Cython solver object (its first C field after the vtable; the object is ``_IDA__IDA`` of the
+    public wrapper in 1.2, ``_IDA`` in 1.1: :data:`_INNER`). Guards, any failing one disables
     the reader (``ok`` False, ``reason`` says why; the caller then records order -1): the
     object's C size is the one of the known layout; the pointer is non-NULL and the ``IDAMem``
     starts with the solver's own ``SUNContext`` (the next field); the library exports the
@@ -197,7 +237,7 @@ class IdaStats:
         self.ok, self.reason, self.mem = False, "", None
         self.prev = dict.fromkeys(self._LONG, 0)
         lib = self.library()
-        obj = getattr(solver, "_IDA__IDA", None)
+        obj = next((o for o in (getattr(solver, n, None) for n in _INNER) if o is not None), None)
         if lib is None:
             self.reason = self._lib_reason
         elif obj is None or type(obj).__basicsize__ != self._BASICSIZE:
@@ -255,6 +295,7 @@ class IdaStats:
 
 
 def _ida(chart, ts_settings, atol, t0, y0, yp0, first_step):
+    check_supported()                 # another release: a clear error, not other numbers
     from sksundae.ida import IDA      # lazy: SUNDIALS loads only for FIM_D runs
     n = len(y0)
     opts = dict(algebraic_idx=list(range(n)), rtol=ts_settings.tol, atol=atol,

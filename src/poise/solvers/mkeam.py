@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.core.wording import plural
 from poise.solvers.context import Strategy, prologue
 from poise.solvers.history import History
 from poise.solvers.newton import FrameOutcome, Scales, assemble, initial_multipliers, merit, newton
@@ -124,7 +125,7 @@ class MkeamMethod(Strategy):
         worst = out.message.partition("; worst equation: ")[2]
         return trial, FrameOutcome(out.status, n_it, out.imbalance, out.error, (
             f"the Newton polish of the MKEAM point stopped ({out.status.value}, "
-            f"{out.iterations} iterations) at imbalance {out.imbalance:.3g}, error "
+            f"{plural(out.iterations, 'iteration')}) at imbalance {out.imbalance:.3g}, error "
             f"{out.error:.3g} (max_imbalance {s.max_imbalance:g}, max_error {s.max_error:g})"
             + (f"; worst equation: {worst}" if worst else ""))), note
 

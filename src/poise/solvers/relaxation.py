@@ -19,6 +19,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from poise.core.errors import EvaluationError
+from poise.core.wording import plural
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import assemble, initial_multipliers
@@ -358,8 +359,8 @@ class Relaxation:
             used = self.used
             if used >= self.units:
                 return state, Status.MAX_ITERATIONS, (
-                    f"MKEAM used its integration budget ({self.units} steps) in {it - 1} "
-                    "iterations without meeting max_ke_tol / max_dq_tol"), it - 1
+                    f"MKEAM used its integration budget ({self.units} steps) in "
+                    f"{plural(it - 1, 'iteration')} without meeting max_ke_tol / max_dq_tol"), it - 1
             cap = MAX_STEPS_PER_ITER
             if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
                 cap = HANDOVER_CAP       # a large model: restart early, then hand over

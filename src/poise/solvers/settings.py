@@ -40,8 +40,9 @@ class StaticSettings:
     compliance_delta : float
         Load perturbation of the ``fd`` compliance method [force units; torques x L].
     compliance_markers : str
-        Markers of the compliance matrix (poise.solvers.compliance): ``auto`` (every body's CG
-        marker up to 100 bodies), ``all``, ``none`` or marker ids (``"10 20"``).
+        Markers of the compliance matrix (poise.solvers.compliance): ``none`` (default: the
+        matrix is computed on request, as in MotionSolve), ``auto`` (every body's CG marker up
+        to 100 bodies), ``all`` or marker ids (``"10 20"``).
     compliance_method : str
         ``exact`` (analytic KKT tangent) or ``fd`` (re-solve under ``compliance_delta``).
     max_translation_step : float
@@ -73,7 +74,7 @@ class StaticSettings:
     max_error: float = 1e-4
     stability: float = 1e-10
     compliance_delta: float = 1e-3
-    compliance_markers: str = "auto"
+    compliance_markers: str = "none"
     compliance_method: str = "exact"
     max_translation_step: float = 1.0
     max_rotation_step: float = 6.283185307179586 * 4

@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.core.wording import plural
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import (
@@ -128,7 +129,7 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
     used = 0
     if start is not None:
         history.add(frame, 0, np.nan, np.nan, event=f"stable: Newton's equilibrium is unstable "
-                    f"({info.n_negative} negative modes): descent from the input")
+                    f"({plural(info.n_negative, 'negative mode')}): descent from the input")
         try:
             st, out, _, used = descend(model, start, settings, history, frame, cnt, budget // 2)
         except (EvaluationError, SingularMatrix):
@@ -136,8 +137,9 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
         if out is not None:
             i2 = classify_at(st)
             if acceptable(i2, settings):
-                note = (f"--require-stable: Newton's equilibrium was unstable ({info.n_negative} "
-                        f"negative modes); descended from the input ({used} steps) to a "
+                note = (f"--require-stable: Newton's equilibrium was unstable "
+                        f"({plural(info.n_negative, 'negative mode')}); descended from the input "
+                        f"({plural(used, 'step')}) to a "
                         f"{i2.klass} one")
                 return st, FrameOutcome(Status.CONVERGED, used, np.nan, np.nan, "converged"), \
                     i2, note
@@ -148,7 +150,7 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
     while True:
         if acceptable(info, settings):
             note = (f"--require-stable: left {escapes} unstable equilibri"
-                    f"{'um' if escapes == 1 else 'a'} downhill ({used} descent steps) to a "
+                    f"{'um' if escapes == 1 else 'a'} downhill ({plural(used, 'descent step')}) to a "
                     f"{info.klass} one")
             return state, FrameOutcome(Status.CONVERGED, used, np.nan, np.nan, "converged"), info, note
         if info.klass != "unstable":
@@ -157,8 +159,9 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
                    (f" ({info.modes})" if info.modes else ""))
             return state, _fail(used, why), info, ""
         if escapes >= MAX_ESCAPES or used >= budget:
-            return state, _fail(used, f"still unstable ({info.n_negative} negative modes) after "
-                                f"{escapes} escapes and {used} descent steps (budget "
+            return state, _fail(used, f"still unstable ({plural(info.n_negative, 'negative mode')}) "
+                                f"after {plural(escapes, 'escape')} and "
+                                f"{plural(used, 'descent step')} (budget "
                                 f"{budget} = {STEPS_PER_ITER} x max_num_iter)"), info, ""
         d = _escape_direction(model, info)
         if d is None:
@@ -166,7 +169,7 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
                 info, ""
         escapes += 1
         history.add(frame, 0, np.nan, np.nan, event=f"stable: escape {escapes}: unstable "
-                    f"({info.n_negative} negative modes)")
+                    f"({plural(info.n_negative, 'negative mode')})")
         moved = None
         for f in ESCAPE_SHRINK:
             for sgn in (1.0, -1.0):

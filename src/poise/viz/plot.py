@@ -6,13 +6,18 @@ forces, torques (force*length), time; angles are rad.
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from poise.core.atomic import atomic_output
 from poise.core.errors import UsageError
 from poise.core.extras import require
+from poise.core.wording import shorten
 from poise.results.hdf5 import read_results
 from poise.results.schema import unit_symbols
+from poise.viz.figure import LogFloor, legend_outside, new_figure, readable_ticks, \
+    reference_lines
 
 # the deck's unit names (one table, poise.results.schema): {"length": "mm", "force": "N", ...}
 units_of = unit_symbols
@@ -38,8 +43,9 @@ def pick_analysis(res, index: int | None):
                      f"{', '.join(str(a.index) for a in res.analyses)}")
 
 
-def _columns(a, group: str, ids, what: str):
-    """Indices of ``ids`` in ``group/id`` (all when ids is None)."""
+def _columns(a, group: str, ids, what: str, res=None):
+    """Indices and ids of ``ids`` (ids or deck labels) in ``group/id`` (all when ids is
+    None)."""
     have = a.datasets.get(f"{group}/id")
     if have is None:
         if ids:
@@ -48,11 +54,24 @@ def _columns(a, group: str, ids, what: str):
     have = [int(x) for x in np.asarray(have).ravel()]
     if ids is None:
         return list(range(len(have))), have
-    bad = [i for i in ids if i not in have]
-    if bad:
-        raise UsageError(f"--{what}: no {group} id {', '.join(map(str, bad))}; "
-                         f"ids: {', '.join(map(str, have))}")
-    return [have.index(i) for i in ids], list(ids)
+    labels = a.datasets.get(f"{group}/label")
+    if labels is None and res is not None:
+        labels = res.model_datasets.get(f"{group}/label")
+    labels = [str(x) for x in np.asarray(labels if labels is not None else [""] * len(have))]
+    rows = []
+    for i in ids:
+        if isinstance(i, str) and not i.lstrip("-").isdigit():
+            hit = [k for k, lab in enumerate(labels) if lab == i]
+            if len(hit) != 1:
+                raise UsageError(f"--{what}: {'no' if not hit else 'more than one'} "
+                                 f"{group[:-1] if group != 'bodies' else 'body'} labelled "
+                                 f"{i!r}; labels: {', '.join(repr(x) for x in labels if x) or 'none'}")
+            rows.append(hit[0])
+        elif int(i) in have:
+            rows.append(have.index(int(i)))
+        else:
+            raise UsageError(f"--{what}: no {group} id {i}; ids: {', '.join(map(str, have))}")
+    return rows, [have[k] for k in rows]
 
 
 def body_names(res) -> dict:
@@ -92,31 +111,68 @@ def request_channels(a, cols) -> list:
     return out
 
 
-# tolerance lines: distinct colour and style, named in the legend
+# tolerance lines: distinct colour and style, named in the legend; lines at equal heights are
+# interleaved (poise.viz.figure.reference_lines)
 _TOL_STYLE = {"max_imbalance": dict(color="C3", ls="--", lw=1.2),
               "max_imbalance·L": dict(color="C3", ls=":", lw=1.2),
               "max_error": dict(color="C2", ls="-.", lw=1.2)}
 
+#: figure width [in]; panel heights [in] (the iterations-per-frame panel is shorter)
+WIDTH, PANEL, SHORT_PANEL = 10.0, 3.2, 1.76
+#: above this many points a series is drawn as a line without markers
+MARKERS_UP_TO = 200
+#: legend names longer than this are shortened (a long deck label must not squeeze the data)
+LABEL_CHARS = 60
 
-def _tolerances(ax, a, L: float | None, U: dict):
-    """The tolerance lines a frame is measured against: ``max_imbalance`` for force rows,
-    ``max_imbalance·L`` for moment rows (L the model size, so the same deck converges alike
-    in m and mm) and ``max_error``. The plotted imbalance is the largest of both kinds of row,
-    so a moment-row point between the two imbalance lines is within its tolerance."""
+
+def _tolerance_values(a, L: float | None) -> list:
+    """``[(y, label, style)]`` of the tolerance lines a frame is measured against:
+    ``max_imbalance`` for force rows, ``max_imbalance·L`` for moment rows (L the model size, so
+    the same deck converges alike in m and mm) and ``max_error``."""
     st = a.settings or {}
 
     def num(v):
         return isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
 
     imb, err = st.get("max_imbalance"), st.get("max_error")
+    out = []
     if num(imb):
-        ax.axhline(imb, label=f"max_imbalance = {imb:.0e} {U['force']} (force rows)", zorder=1,
-                   **_TOL_STYLE["max_imbalance"])
+        out.append((imb, "max_imbalance", f"max_imbalance = {imb:.0e} {{force}} (force rows)"))
         if L is not None and np.isfinite(L) and L > 0 and L != 1.0:
-            ax.axhline(imb * L, label=f"max_imbalance·L = {imb * L:.1e} {U['torque']} "
-                       "(moment rows)", zorder=1, **_TOL_STYLE["max_imbalance·L"])
+            out.append((imb * L, "max_imbalance·L",
+                        f"max_imbalance·L = {imb * L:.1e} {{torque}} (moment rows)"))
     if num(err):
-        ax.axhline(err, label=f"max_error = {err:.0e}", zorder=1, **_TOL_STYLE["max_error"])
+        out.append((err, "max_error", f"max_error = {err:.0e}"))
+    return out
+
+
+def _tolerances(ax, tols, U: dict):
+    """Draw the tolerance lines. The plotted imbalance is the largest of both kinds of row, so a
+    moment-row point between the two imbalance lines is within its tolerance."""
+    reference_lines(ax, [(y, label.format(**U), dict(zorder=1, **_TOL_STYLE[key]))
+                         for y, key, label in tols])
+
+
+def _marked(fmt: str, n: int) -> str:
+    """``fmt`` without its marker for long series (1001 frames of dots hide each other)."""
+    return "-" if n > MARKERS_UP_TO else fmt
+
+
+def _request_groups(a, cols, names):
+    """The request channels of ``cols`` grouped by unit: ``[(unit or None, [(col, channel
+    index, legend name)])]``; unit None: the file declares no channel units (older files), ""
+    an expression channel (its unit is not declared)."""
+    units = a.datasets.get("requests/channel_units")
+    chans = request_channels(a, cols) if units is None else [
+        [str(n) or None for n in np.asarray(a.datasets["requests/channel"])[c]] for c in cols]
+    groups: dict = {}
+    for c, name, row in zip(cols, names, chans):
+        for j, comp in enumerate(row):
+            if comp is None:
+                continue
+            u = None if units is None else str(np.asarray(units)[c][j])
+            groups.setdefault(u, []).append((c, j, f"{name} {comp}"))
+    return list(groups.items())
 
 
 def plot_results(result_or_path, analysis: int | None = None, bodies=None, joints=None,
@@ -124,10 +180,11 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
     """The matplotlib Figure of a RunResult or a results file: convergence (static: per
     iteration; quasi-static: final imbalance/error per frame against the tolerances, iterations
     per frame below) (+ MKEAM kinetic energy) and, for quasi-static runs, time histories of body
-    positions, joint forces and request channels.
+    positions, joint forces and request channels (one panel per channel unit).
 
-    ``bodies``/``joints``/``requests``: lists of ids (None: up to 4 of each for quasi-static
-    runs). ``fig.poise_panels`` names the panels.
+    ``bodies``/``joints``/``requests``: lists of ids or deck labels (None: up to 4 of each for
+    quasi-static runs). ``fig.poise_panels`` names the panels. Legends are right of their
+    panel; log axes show exact zeros at a marked floor (poise.viz.figure).
     """
     plt = _agg()
     from matplotlib.ticker import MaxNLocator
@@ -146,9 +203,9 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
         panels.append("kinetic_energy")
     series = []
     if qs or bodies or joints or requests:
-        bi, bids = _columns(a, "bodies", bodies, "bodies")
-        ji, jids = _columns(a, "joints", joints, "joints")
-        ri, rids = _columns(a, "requests", requests, "requests")
+        bi, bids = _columns(a, "bodies", bodies, "bodies", res)
+        ji, jids = _columns(a, "joints", joints, "joints", res)
+        ri, rids = _columns(a, "requests", requests, "requests", res)
         if bodies is None:
             bi, bids = bi[:4], bids[:4]
         if joints is None:
@@ -157,52 +214,69 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
             ri, rids = ri[:4], rids[:4]
         bn = body_names(res)
         if bi and "bodies/position" in d:
+            names = [bn.get(i, f"body {i}") for i in bids]
             series.append(("bodies/position", "body CG position", f"position [{U['length']}]",
-                           bi, [bn.get(i, f"body {i}") for i in bids], ["xyz"] * len(bi)))
+                           "bodies/position",
+                           [(c, j, f"{n} {x}") for c, n in zip(bi, names)
+                            for j, x in enumerate("xyz")]))
         if ji and "joints/force" in d:
             jn = element_names(res, a, "joints", "joint")
+            names = [jn.get(i, f"joint {i}") for i in jids]
             series.append(("joints/force", "joint force on I body", f"force [{U['force']}]",
-                           ji, [jn.get(i, f"joint {i}") for i in jids], ["xyz"] * len(ji)))
+                           "joints/force",
+                           [(c, j, f"{n} {x}") for c, n in zip(ji, names)
+                            for j, x in enumerate("xyz")]))
         if ri and "requests/values" in d:
             rn = element_names(res, a, "requests", "request")
-            chans = request_channels(a, ri)
-            ylab = ("value [unit per channel: see legend]" if "requests/channel_units" in d
-                    else f"value [{U['force']}, {U['length']}, {U['torque']}, rad by channel]")
-            series.append(("requests/values", "request channels", ylab,
-                           ri, [rn.get(i, f"request {i}") for i in rids], chans))
+            groups = _request_groups(a, ri, [rn.get(i, f"request {i}") for i in rids])
+            for u, chans in groups:
+                if u is None:
+                    key, title = "requests/values", "request channels"
+                    ylab = f"value [{U['force']}, {U['length']}, {U['torque']}, rad by channel]"
+                elif u:
+                    key, title, ylab = f"requests/values [{u}]", f"request channels in {u}", \
+                        f"value [{u}]"
+                else:
+                    key, title = "requests/values [expression]", \
+                        "request channels: expressions (unit not declared in the deck)"
+                    ylab = "value [unit not declared]"
+                series.append((key, title, ylab, "requests/values", chans))
         panels += [s[0] for s in series]
-    heights = [1.0 if p != "iterations" else 0.55 for p in panels]
-    fig, axes = plt.subplots(len(panels), 1, figsize=(8, 3.2 * sum(heights)), squeeze=False,
-                             gridspec_kw=dict(height_ratios=heights))
-    axes = axes[:, 0]
+    heights = [PANEL if p != "iterations" else SHORT_PANEL for p in panels]
+    fig, axes = new_figure(plt, WIDTH, heights)
     fig.poise_panels = panels
-    title = f"{res.deck}  analysis {a.index}: {a.analysis_type} {a.method} {a.status}"
+    title = (f"{os.path.basename(str(res.deck))}  analysis {a.index}: {a.analysis_type} "
+             f"{a.method} {a.status}")
     t = np.asarray(d.get("time", []), float)
     tlab = f"time [{U['time']}]"
     L = res.model_datasets.get("length_scale")
     L = float(np.asarray(L)) if L is not None else None
+    tols = _tolerance_values(a, L)
 
     ax = axes[0]
     if qs:
         # one point per frame: the imbalance/error that frame ended with, against the tolerance
         imb = np.asarray(d.get("frames/imbalance", []), float)
         err = np.asarray(d.get("frames/error", []), float)
+        floor = LogFloor(imb, err, [y for y, _, _ in tols])
         if len(imb):
-            ax.semilogy(t[:len(imb)], _pos(imb), "o-", ms=3, color="C0",
-                        label="final imbalance per frame")
+            floor.plot(ax, t[:len(imb)], imb, _marked("o-", len(imb)), ms=3, color="C0",
+                       lw=1.0, label="final imbalance per frame")
         if len(err):
-            ax.semilogy(t[:len(err)], _pos(err), "s-", ms=3, color="C1",
-                        label="final error per frame")
+            floor.plot(ax, t[:len(err)], err, _marked("s-", len(err)), ms=3, color="C1",
+                       lw=1.0, label="final error per frame")
         conv = np.asarray(d.get("frames/converged", []), bool)
         if len(conv) and len(imb) and (~conv).any():
             bad = np.nonzero(~conv)[0]
-            ax.semilogy(t[bad], _pos(np.nan_to_num(imb[bad], nan=1.0)), "x", color="r", ms=8,
+            y = np.abs(np.nan_to_num(imb[bad], nan=1.0))
+            ax.semilogy(t[bad], np.where(y > 0, y, floor.level), "x", color="r", ms=8,
                         label="frame not converged")
-        _tolerances(ax, a, L, U)
+        _tolerances(ax, tols, U)
+        floor.legend_entry(ax)
         ax.set_xlabel(tlab)
         ax.set_ylabel(f"imbalance [{U['force']}, {U['torque']}], error [1]")
         ax.set_title(title, fontsize=9)
-        ax.legend(fontsize=8, loc="best")
+        legend_outside(ax)
         ax2 = axes[1]
         it = np.asarray(d.get("frames/iterations", []), int)
         what = ("corrections onto the equilibrium per frame" if a.method == "FIM_D"
@@ -211,24 +285,29 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
         ax2.set_xlabel(tlab)
         ax2.set_ylabel("iterations")
         ax2.yaxis.set_major_locator(MaxNLocator(integer=True))
-        ax2.set_ylim(bottom=0, top=max(1, int(it.max()) if len(it) else 1) + 0.5)
-        ax2.legend(fontsize=8, loc="upper right")
+        # a little below 0: a run of zero-iteration frames is not hidden by the axis line
+        ax2.set_ylim(bottom=-0.25, top=max(1, int(it.max()) if len(it) else 1) + 0.5)
+        legend_outside(ax2)
         k = 2
     else:
         imb = np.asarray(d.get("iterations/imbalance", []), float)
         err = np.asarray(d.get("iterations/error", []), float)
+        floor = LogFloor(imb, err, [y for y, _, _ in tols])
         if len(imb):
-            ax.semilogy(np.arange(len(imb)), _pos(imb), "o-", ms=3, color="C0",
-                        label="imbalance")
+            floor.plot(ax, np.arange(len(imb)), imb, _marked("o-", len(imb)), ms=3, color="C0",
+                       label="imbalance")
         if len(err):
-            ax.semilogy(np.arange(len(err)), _pos(err), "s-", ms=3, color="C1", label="error")
-        _tolerances(ax, a, L, U)
+            floor.plot(ax, np.arange(len(err)), err, _marked("s-", len(err)), ms=3, color="C1",
+                       label="error")
+        _tolerances(ax, tols, U)
+        floor.legend_entry(ax)
         ax.set_xlabel("iteration")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel(f"imbalance [{U['force']}, {U['torque']}], error [1]")
         ax.set_title(title, fontsize=9)
         if len(imb) or len(err):
-            ax.legend(fontsize=8)
+            ax.set_xlim(-0.5, max(len(imb), len(err)) - 0.5)
+            legend_outside(ax)
         else:
             ax.text(0.5, 0.5, "no iteration history", ha="center", transform=ax.transAxes)
         k = 1
@@ -236,30 +315,30 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
         ax = axes[k]
         ke = np.asarray(d["iterations/kinetic_energy"], float)
         rows = np.nonzero(np.isfinite(ke))[0]
-        ax.semilogy(rows, _pos(ke[rows]), "o-", ms=4, color="C3", label="peak kinetic energy")
+        floor = LogFloor(ke[rows])
+        floor.plot(ax, rows, ke[rows], "o-", ms=4, color="C3", label="peak kinetic energy")
+        floor.legend_entry(ax)
         ax.set_xlabel("iteration")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_xlim(-0.5, len(ke) - 0.5)          # the iteration axis of the panel above
         ax.set_ylabel(f"kinetic energy [{U['energy']}]")
         ax.set_title("MKEAM: kinetic energy per iteration", fontsize=9)
-        ax.legend(fontsize=8)
+        legend_outside(ax)
         k += 1
-    for key, label, ylab, cols, names, comps in series:
+    for _key, label, ylab, dataset, chans in series:
         ax = axes[k]
         k += 1
-        data = np.asarray(d[key], float)
-        for c, name, col_comps in zip(cols, names, comps):
-            for j, comp in enumerate(col_comps):
-                if comp is None:               # an unused request channel
-                    continue
-                y = data[:, c, j]
-                if np.isfinite(y).any() and np.ptp(np.nan_to_num(y)) + abs(np.nanmax(y)) > 0:
-                    ax.plot(t[:len(y)], y, label=f"{name} {comp}")
+        data = np.asarray(d[dataset], float)
+        for c, j, name in chans:
+            y = data[:, c, j]
+            if np.isfinite(y).any() and np.ptp(np.nan_to_num(y)) + abs(np.nanmax(y)) > 0:
+                ax.plot(t[:len(y)], y, "o-" if len(y) == 1 else "-", ms=4,
+                        label=shorten(name, LABEL_CHARS))
         ax.set_xlabel(tlab)
         ax.set_ylabel(ylab)
         ax.set_title(label, fontsize=9)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7, ncol=3)
-    fig.tight_layout()
+        legend_outside(ax, fontsize=7)
+    readable_ticks(fig)
     return fig
 
 
@@ -275,8 +354,3 @@ def write_plot(path: str, out: str, analysis: int | None = None, bodies=None, jo
     return {"output": out, "panels": fig.poise_panels, "width": int(round(w)),
             "height": int(round(h))}
 
-
-def _pos(v):
-    """Non-positive values are not drawn on a log axis (exact zeros, e.g. an exact start)."""
-    v = np.abs(np.asarray(v, float))
-    return np.where(v > 0, v, np.nan)
