@@ -114,28 +114,37 @@ class Runaway:
     the way, and the potential lower; else "". A translation has no such natural measure (the
     model size says nothing about where a load's law balances): budgets bound it."""
 
-    def __init__(self, model, imbalance, worst):
+    def __init__(self, model):
         self.model = model
         self.turn = np.zeros(model.nb)
         self.drop = 0.0
-        self.imbalance, self.worst = imbalance, worst
 
-    def add(self, a, b, drop, imbalance, worst) -> str:
-        """A step from state ``a`` to ``b``, the potential ``drop`` along it and the imbalance
-        and worst equation at ``a``."""
+    def add(self, a, b, drop) -> str:
+        """A step from state ``a`` to ``b`` and the potential ``drop`` along it."""
         m = self.model
         if m.nb == 0 or a.rotvec is None or b.rotvec is None:
             return ""
         self.turn += np.linalg.norm(b.rotvec - a.rotvec, axis=1)
         self.drop += float(drop)
-        if imbalance < self.imbalance:
-            self.imbalance, self.worst = imbalance, worst
         k = int(np.argmax(self.turn))
         if not self.turn[k] >= RUNAWAY:
             return ""
         where = m.coord_info[int(m.body_off[k])].rsplit(" ", 1)[0]
-        return (f"no equilibrium within reach: along steps that lowered the potential energy by "
-                f"{self.drop:.6g} in all, {where} turned {self.turn[k] / (2 * np.pi):.3g} "
-                f"turns and the imbalance never fell below {self.imbalance:.6g} (worst: "
-                f"{self.worst}): a load the model cannot hold (more than its springs or gravity "
-                "can balance anywhere along a full turn)")
+        energy = f"{unit_name(m, 'force')}*{unit_name(m, 'length')}"
+        return (f"no equilibrium within reach: {where} turned "
+                f"{self.turn[k] / (2 * np.pi):.3g} turns down the potential energy (it fell by "
+                f"{self.drop:.6g} {energy}) and the imbalance never came closer to zero than "
+                "where Newton's line search stalled: a load the model cannot hold anywhere along "
+                "a full turn (more than its springs or gravity can balance)")
+
+
+_ABBREV = {"NEWTON": "N", "KNEWTON": "kN", "MILLINEWTON": "mN", "POUND_FORCE": "lbf",
+           "METER": "m", "MILLIMETER": "mm", "CENTIMETER": "cm", "KILOMETER": "km",
+           "INCH": "in", "FOOT": "ft"}
+
+
+def unit_name(model, kind) -> str:
+    """The deck's unit name of ``kind`` (``force``, ``length``) for messages."""
+    names = dict(p.split("=", 1) for p in str(model.units or "").split() if "=" in p)
+    name = names.get(kind, "NEWTON" if kind == "force" else "METER").upper()
+    return _ABBREV.get(name, name.lower())

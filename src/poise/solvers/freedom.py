@@ -18,6 +18,7 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.elements.registry import kernel_types
 from poise.solvers.history import History
+from poise.solvers.downhill import unit_name
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import Scales, assemble
 from poise.solvers.steps import mass_times
@@ -265,7 +266,7 @@ def _describe(model, state, mo, w0) -> str:
     elif not np.any(w):
         d = v0 / np.linalg.norm(v0)
         how = f"translate along ({_v(d)})"
-        load = (f"a constant load of {w0 / np.linalg.norm(v0):.6g} {_unit(model, 'force')} "
+        load = (f"a constant load of {w0 / np.linalg.norm(v0):.6g} {unit_name(model, 'force')} "
                 "pushes it")
     else:
         n = float(np.linalg.norm(w))
@@ -275,22 +276,10 @@ def _describe(model, state, mo, w0) -> str:
         how = f"turn about the axis ({_v(a)}) through ({_v(p)})"
         if abs(pitch) > 1e-9 * model.L:
             how += f", advancing {pitch:.6g} per radian"
-        load = (f"a constant moment of {w0 / n:.6g} {_unit(model, 'force')}*"
-                f"{_unit(model, 'length')} turns it")
+        load = (f"a constant moment of {w0 / n:.6g} {unit_name(model, 'force')}*"
+                f"{unit_name(model, 'length')} turns it")
     return (f"{who} {how}: no constraint or force resists that motion anywhere along it, and "
             f"{load}: add the joint, spring or stop that should hold it, or balance the load")
-
-
-_ABBREV = {"NEWTON": "N", "KNEWTON": "kN", "MILLINEWTON": "mN", "POUND_FORCE": "lbf",
-           "METER": "m", "MILLIMETER": "mm", "CENTIMETER": "cm", "KILOMETER": "km",
-           "INCH": "in", "FOOT": "ft"}
-
-
-def _unit(model, kind) -> str:
-    """The deck's unit name of ``kind`` (``force``, ``length``) for messages."""
-    names = dict(p.split("=", 1) for p in str(model.units or "").split() if "=" in p)
-    name = names.get(kind, "NEWTON" if kind == "force" else "METER").upper()
-    return _ABBREV.get(name, name.lower())
 
 
 def _v(x) -> str:
