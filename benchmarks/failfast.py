@@ -30,18 +30,8 @@ G = 9.81                 # N/kg
 
 
 def _pendulum(frac: float) -> str:
-    """A 2 kg bar hinged 200 mm from its CG about global Z, horizontal, under gravity and a
-    constant torque ``frac`` x m g l (no equilibrium above 1)."""
-    from poise.gen.deck import Deck
-    d = Deck()
-    d.ground()
-    d.marker(101, 1, (0, 0, 0))
-    d.body(2, 20, (200, 0, 0), mass=2.0, inertia=(25, 26679, 26679))
-    d.marker(21, 2, (0, 0, 0))
-    d.joint(1, "REVOLUTE", 21, 101)
-    d.add("Force_Vector_OneBody", id=1, type="TORQUEONLY", marker_id=20, ref_marker_id=0,
-          tx_expression=0.0, ty_expression=0.0, tz_expression=frac * 2.0 * G * 200.0)
-    return d.text()
+    from poise.gen.torque import torque_pendulum
+    return torque_pendulum(frac).text()
 
 
 def _slide(spring: bool) -> str:
@@ -126,6 +116,10 @@ def pairs(root: Path, quick: bool = False) -> list[tuple[str, int, str, str]]:
     return out
 
 
+def _solve_cmd(deck: Path) -> list[str]:
+    return _poise_cmd() + ["solve", str(deck), "-o", str(deck.with_suffix(".h5")), "-q"]
+
+
 def _outcome(deck: Path, out: Path) -> dict:
     """One ``poise solve --json`` of the failing deck: exit code, status, message, file."""
     if out.exists():
@@ -155,9 +149,8 @@ def run(tmp: Path, log=print, quick=False, repeat: int | None = None):
         pb, pg = tmp / f"failfast_{k}_fail.xml", tmp / f"failfast_{k}_ok.xml"
         pb.write_text(bad)
         pg.write_text(good)
-        cmd = lambda p: _poise_cmd() + ["solve", str(p), "-o", str(p.with_suffix(".h5")), "-q"]  # noqa: E731
-        w = _walls({"fail": cmd(pb), "ok": cmd(pg)}, repeat)
-        (st_f, rc_f), (st_g, rc_g) = w["fail"], w["ok"]
+        w = _walls({"fail": _solve_cmd(pb), "ok": _solve_cmd(pg)}, repeat)
+        (st_f, _), (st_g, rc_g) = w["fail"], w["ok"]
         o = _outcome(pb, tmp / f"failfast_{k}_fail_json.h5")
         tf, tg = st_f["median"], st_g["median"]
         row = dict(bench="failfast", name=name, bodies=nb, fail_s=st_f, healthy_s=st_g,
@@ -207,7 +200,7 @@ def markdown(rows) -> list[str]:
     for r in rows:
         why = r["message"].split("; ")
         why = next((p for p in why if "free to" in p or "within reach" in p), why[0])
-        why = re.sub(r"^\S+\.xml:\d+: ", "", why)[:110].replace("|", "/")
+        why = re.sub(r"\S+\.xml:\d+: ", "", why)[:110].replace("|", "/")
         md.append(f"| {r['name']} | {r['bodies']} | {r['fail_s']['median']:.2f} | "
                   f"{r['healthy_s']['median']:.2f} | {r['ratio']:.2f} | {r['exit']} | "
                   f"{r['frame_status']} | {why}… |")

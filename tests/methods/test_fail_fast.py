@@ -19,7 +19,7 @@ import h5py
 import numpy as np
 
 from poise.app.api import run_deck
-from poise.gen.deck import Deck
+from poise.gen.torque import torque_pendulum
 from poise.solvers.history import STRATEGIES
 
 from support.paths import DECKS
@@ -29,18 +29,9 @@ G = 9.81
 
 
 def pendulum(frac):
-    """A 2 kg bar, CG 200 mm from a hinge about global Z, horizontal, gravity -Y, a constant
-    torque ``frac`` x m g l about the hinge (no equilibrium above 1: the torque exceeds what
-    gravity can hold at any angle)."""
-    d = Deck()
-    d.ground()
-    d.marker(101, 1, (0, 0, 0))
-    d.body(2, 20, (200, 0, 0), mass=2.0, inertia=(25, 26679, 26679))
-    d.marker(21, 2, (0, 0, 0))
-    d.joint(1, "REVOLUTE", 21, 101)
-    d.add("Force_Vector_OneBody", id=1, type="TORQUEONLY", marker_id=20, ref_marker_id=0,
-          tx_expression=0.0, ty_expression=0.0, tz_expression=frac * 2.0 * G * 200.0)
-    return d
+    """A 2 kg bar hinged 200 mm from its CG under gravity and a constant torque frac x m g l
+    (no equilibrium above 1)."""
+    return torque_pendulum(frac)
 
 
 def crank_torque(torque):
