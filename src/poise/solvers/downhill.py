@@ -24,7 +24,7 @@ BACKTRACK = 8             # energy line-search halvings
 MU_TRIES = 6              # shifts tried, each x 10
 MU_FIRST = 2.0            # first shift: this x the negative curvature along Newton's step
 RUNAWAY = 2 * np.pi       # a body turned a full turn: no equilibrium within reach
-WORK_TURN = 0.25          # rad: largest turn of a step whose drop is measured by the work
+WORK_TURN = 0.5           # rad: largest turn of a step whose drop is measured by the work
 
 
 def downhill_step(model, state, ev, dq, cnt, limit, measure, mass_times, eps):
@@ -81,7 +81,9 @@ def downhill_step(model, state, ev, dq, cnt, limit, measure, mass_times, eps):
             drop = np.nan if trial is None else _drop(model, r, v0, trial, evt, alpha * d)
         except EvaluationError:
             trial, drop = None, np.nan
-        if trial is not None and drop >= -ARMIJO * alpha * slope:
+        # lower, and still going down at the trial: a step never jumps over a minimum along
+        # its line (a basin passed over would look like a runaway)
+        if trial is not None and drop >= -ARMIJO * alpha * slope and float(evt.r @ d) < 0:
             return trial, evt, m1, alpha, d, drop
         alpha *= 0.5
     return None

@@ -249,20 +249,27 @@ class NewtonIteration(Iterative):
         return self.cnt.evaluate(self.model, st, "defer", eps=self.eps)
 
     def _measure(self, trial, reach=True):
-        """``(trial, evaluation, merit)`` of a line-search trial; with ``reach``, a trial
-        Newton's linearised constraints left by more than ``PROJECT_ABOVE`` is first projected
-        back onto them (:func:`~poise.solvers.reach.project`), one beyond the assembly's reach
-        is ``(None, None, inf)``: the line search shortens the step."""
-        ev = self._ev_at(trial)
-        if reach and self.model.nc and violation(self.model, ev.phi) > PROJECT_ABOVE:
-            trial = project(self.model, trial, self.cnt, ev)
-            if trial is None:
-                return None, None, np.inf
-            # the multipliers of the linearised step do not fit the projected point: those
-            # that minimise the merit there (its weights), so it can only be lower
-            trial = initial_multipliers(self.model, trial, self.cnt, self.sc.r_tol ** 2)
+        """``(trial, evaluation, merit)`` of a line-search trial. With ``reach`` (after a
+        stall), a trial Newton's linearised constraints left by more than ``PROJECT_ABOVE`` is
+        first projected back onto them (:func:`~poise.solvers.reach.project`; beyond the
+        assembly's reach ``(None, None, inf)``: the line search shortens the step), and its
+        multipliers are those that minimise the merit there (the linearised step's do not fit
+        a point off its line), so the merit measures the imbalance itself."""
+        if reach and self.model.nc:
             ev = self._ev_at(trial)
+            if violation(self.model, ev.phi) > PROJECT_ABOVE:
+                trial = project(self.model, trial, self.cnt, ev)
+                if trial is None:
+                    return None, None, np.inf
+            trial = initial_multipliers(self.model, trial, self.cnt, self._merit_weights())
+        ev = self._ev_at(trial)
         return trial, ev, merit(ev, self.sc)
+
+    def _merit_weights(self):
+        """Least-squares weights whose multipliers minimise the merit (squared tolerances,
+        scaled to a unit force row so the weighted KKT matrix keeps the usual scale)."""
+        rt = self.sc.r_tol
+        return (rt / float(np.min(rt))) ** 2 if rt.size else rt
 
     def _row(self, s, it, step=np.nan, alpha=np.nan, worst=None, pose=None, event=None):
         pose = s.state if pose is None else pose
@@ -414,7 +421,7 @@ class NewtonIteration(Iterative):
         iterate that was on them: the iteration's row (``reach``)."""
         p = project(self.model, state, self.cnt, s.ev)
         if p is not None:
-            p = initial_multipliers(self.model, p, self.cnt, self.sc.r_tol ** 2)
+            p = initial_multipliers(self.model, p, self.cnt, self._merit_weights())
             s.state, s.ev = p, self._ev_at(p)
         elif s.feasible is not None:
             s.state, s.ev = s.feasible
