@@ -37,7 +37,8 @@ def solve_frame(model, state, settings, history, frame, cnt, event="newton"):
     strategy, ``strategy`` names the one that converged (``plain``: no recovery needed).
     """
     start = state.copy()
-    st, out = newton(model, state, settings, history, frame, cnt, event=event, probe=_probe)
+    st, out = newton(model, state, settings, history, frame, cnt, event=event,
+                     probe=freedom.probe)
     out.counts = {"plain": out.iterations}
     if out.ok:
         return st, out
@@ -85,14 +86,6 @@ def recover(model, start, st, out, settings, history, frame, cnt):
                     f"({total - plain} of its {budget} iterations used, raise --fallback-budget; last: "
                     f"{out2.message})")
     return st, out
-
-
-def _probe(model, state, settings, cnt, f, x, eps, zinf) -> str:
-    """Newton's check at its first step, before it spends its budget: a free motion a constant
-    load pushes along (:func:`poise.solvers.freedom.probe`), else a coordinate nothing
-    restrains under a constant load (:func:`unrestrained_load`, e.g. a scalar unknown)."""
-    return freedom.probe(model, state, settings, cnt, f, x, eps, zinf,
-                         then=lambda: unrestrained_load(model, settings, (state,), cnt))
 
 
 def unrestrained_load(model, settings, states, cnt) -> str:

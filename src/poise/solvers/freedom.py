@@ -37,19 +37,17 @@ OTHER_POSES = 2              # configurations off the motion where the load is c
 OFF_SIZE = 0.05              # their distance from the input (x L, rad)
 
 
-def probe(model, state, settings, cnt, f, x, eps, zinf, then=None) -> str:
+def probe(model, state, settings, cnt, f, x, eps, zinf) -> str:
     """Newton's first step ``x`` (factorisation ``f`` of ``K + eps M`` with the constraints):
     when the ``eps M`` term carries at least ``SHARE`` of the scaled residual ``zinf``, its
-    free part is certified (:func:`certify`), else ``then()`` (another check of the same
-    situation) is asked. Returns the message, or ""."""
+    free part is certified (:func:`certify`). Returns the message, or ""."""
     if not eps > 0 or model.nq == 0:
         return ""
     sc = Scales(model, settings)
     reg = eps * mass_times(model, state, x[:model.nq])
     if not float(np.max(np.abs(reg) / sc.r_tol)) >= SHARE * max(zinf, 1e-300):
         return ""
-    why = certify(model, state, settings, cnt, _free_part(model, state, f, x, eps))
-    return why or (then() if then is not None else "")
+    return certify(model, state, settings, cnt, _free_part(model, state, f, x, eps))
 
 
 def candidate(model, state, settings, cnt) -> str:
