@@ -28,8 +28,8 @@ N1, N2 = 200, 2000
 # element reader and compiler this replaced; the budget leaves room for small changes, not for
 # an element-by-element path. Solving an in-memory DeckSpec validates it again (an edited spec is
 # checked exactly like the file): ~80 more calls per link, measured 437. Measured with
-# scipy.optimize imported (as any test session has it after the first reference test; SciPy's
-# array-API layer then adds ~10 calls per link): 489.
+# scipy.optimize imported (as a test session has it once a reference test ran: importing it
+# adds ~10 calls per link to this count): 489.
 CALLS_PER_LINK = 500
 
 
