@@ -4,12 +4,12 @@ A *free motion* moves groups of bodies rigidly (each group by one constant screw
 a rotation or both) so that no constraint equation changes and nothing resists. When the
 applied loads do work ``w != 0`` per unit of such a motion, ``w`` is the same at every
 configuration and the virtual work along the motion can never vanish: no equilibrium exists,
-and no strategy can find one. :func:`probe` (Newton's first iteration, with its own
-factorisation) and :func:`candidate` propose the direction: the part of a regularised Newton
-step that only the ``stability`` mass term carries, i.e. the null space of the constrained
-tangent stiffness loaded by the residual; :func:`certify` proves it or returns "". The
-argument, the element types it holds for and why each check is needed: docs/solvers.md,
-"No equilibrium".
+and no strategy can find one. :func:`probe` (at Newton's first iteration, with Newton's
+factorisation) and :func:`candidate` (with its own) propose the direction: the part of a
+regularised Newton step that only the ``stability`` mass term carries, i.e. the null space of
+the constrained tangent stiffness loaded by the residual; :func:`certify` proves it or returns
+"". The argument, the element types it holds for and why each check is needed:
+docs/solvers.md, "No equilibrium".
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ TRANSLATIONS = (1e-3, 0.37, 1.0, 3.3, 10.0, 100.0, 1000.0)    # sample distances
 TURNS = (1e-3, 0.37, 1.1, 2.3, 3.9, 5.2, 8.6)                   # sample angles [rad]
 LOAD_REL = 1e-9              # a load differing by more than this (relative) is not constant
 OTHER_POSES = 2              # configurations off the motion where the load is checked too
-OFF_SIZE = 0.05              # their distance from the input (x L, rad)
+OFF_SIZE = 0.05              # their distance from the input (x each body's size, rad)
 
 
 def probe(model, state, settings, cnt, f, x, eps, zinf) -> str:
