@@ -47,7 +47,6 @@ HANDOVER_STEPS = 2           # its budget: this many x max_num_iter Newton steps
 SPARSE_CHECK_NQ = 300        # above: stability sign by sparse inertia, not dense eigenvalues
 
 
-
 class Relaxation:
     """MKEAM iterations on ``model`` from a state (the MKEAM method's solve and the last stage
     of the fallback chain). Rows go to ``history``, counts to ``data`` (:class:`SolveData`,
@@ -55,12 +54,10 @@ class Relaxation:
 
     def __init__(self, model, settings, history, data, units=None):
         self.model = model
-        # budget in units of work (integration steps, descent steps), None: MAX_TOTAL_STEPS
-        # (the fallback chain passes its share: the time the stage may take is bounded)
-        self.units = MAX_TOTAL_STEPS if units is None else max(1, min(int(units),
-                                                                       MAX_TOTAL_STEPS))
+        # units of work (integration and descent steps): the fallback chain's share, else
+        # MAX_TOTAL_STEPS; ``used``: spent so far
         self.limited = units is not None
-        self.used = 0
+        self.units, self.used = max(1, min(int(units or MAX_TOTAL_STEPS), MAX_TOTAL_STEPS)), 0
         self.settings = settings
         self.history = history
         self.counters = data
@@ -352,7 +349,6 @@ class Relaxation:
         perturbs = 0
         self.last_dq = np.nan
         t_total = 0.0
-        used = 0
         for it in range(1, s.max_num_iter + 1):
             if self.report is not None:
                 self.report("MKEAM", it - 1, s.max_num_iter)
@@ -418,9 +414,7 @@ class Relaxation:
         m, s = self.model, self.settings
         s_any = replace(s, allow_neutral=True)
         budget = HANDOVER_STEPS * s.max_num_iter
-        if self.limited:
-            # within the units left: the descent gets half, its Newton polishes (at most four,
-            # of max_num_iter each) and escapes the other half
+        if self.limited:   # the descent gets half the units left, its polishes and escapes half
             budget = self._left() // 2
             s_any = replace(s_any, max_num_iter=max(1, self._left() // 8))
             if budget < 1:
@@ -448,8 +442,8 @@ class Relaxation:
                 return None
             if self._left() <= 0:
                 return None
-            peak, steps, _, msg = self._iteration(self.dyn, st, h,
-                                                  max(1, min(MAX_STEPS_PER_ITER, self._left())))
+            peak, steps, _, msg = self._iteration(self.dyn, st, h, min(MAX_STEPS_PER_ITER,
+                                                                       self._left()))
             self.used += steps
             ke, dq = peak.ke, self._dq(st, peak.state)
             self.history.add(0, 0, np.nan, dq, dq, np.nan, msg, "mkeam-verify")
@@ -462,8 +456,7 @@ class Relaxation:
             return None
 
     def _left(self) -> int:
-        """Units of the budget not spent yet (integration and descent steps)."""
-        return max(0, self.units - self.used)
+        return max(0, self.units - self.used)     # units not spent yet
 
     def relax(self, state):
         """MKEAM iterations from ``state`` (the fallback chain's ``mkeam`` stage). Returns
@@ -474,11 +467,6 @@ class Relaxation:
         st = initial_multipliers(self.model, state, self.counters)
         st, status, msg, _n = self.iterate(st)
         return st, status.ok, msg
-
-    @property
-    def iterations(self) -> int:
-        """MKEAM iterations recorded so far (one ``mkeam`` history row each)."""
-        return len(self.rows)
 
     def _row(self, it, ke, dq, worst, peak, steps, pe, event):
         self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event)
