@@ -5,7 +5,8 @@ A failing deck must cost little more than the healthy one (ratio <= 3) and, unde
 at most 2 s; it must still say why (status ``no_equilibrium`` or ``diverged`` with the body
 named, never the generic "try MKEAM"), exit 1 and write the results file. The pairs: a
 pendulum whose torque exceeds m g l, a slide at 45 degrees with nothing holding the body
-along it, a slider-crank whose crank torque no slider load position can balance, decks with a
+along it (also on a cylindrical joint with the mass off its axis), a rack sliding down and
+turning a free pinion, a slider-crank whose crank torque no slider load position can balance, decks with a
 joint, gear or coupler removed or a bushing re-routed (the mutations the fuzzer makes), and
 hanging chains of 200 and 1000 links with two pins removed (``poise.gen.chain``). Each pair
 runs round-robin after one warm-up run each (``benchmarks.chain._walls``).
@@ -14,7 +15,6 @@ runs round-robin after one warm-up run each (``benchmarks.chain._walls``).
 from __future__ import annotations
 
 import json
-import math
 import re
 import subprocess
 from pathlib import Path
@@ -34,21 +34,19 @@ def _pendulum(frac: float) -> str:
     return torque_pendulum(frac).text()
 
 
-def _slide(spring: bool) -> str:
-    """A 1 kg body on a TRANSLATIONAL joint inclined at 45 degrees under gravity (6.9 N along
-    the slide), held along it by a spring or by nothing."""
-    from poise.gen.deck import Deck, rot_y, rot_z
-    d = Deck()
-    d.ground()
-    R = rot_z(math.pi / 4) @ rot_y(math.pi / 2)
-    d.marker(101, 1, (0, 0, 0), R)
-    d.marker(102, 1, (0, 0, 0))
-    d.body(2, 20, (0, 0, 0), mass=1.0, inertia=(100, 100, 100))
-    d.marker(21, 2, (0, 0, 0), R)
-    d.joint(1, "TRANSLATIONAL", 21, 101)
-    if spring:
-        d.spring(1, 20, 102, 1.0, 0.0)
-    return d.text()
+def _slide(spring: bool, joint: str = "TRANSLATIONAL", arm: float = 0.0) -> str:
+    """A 1 kg body on a joint inclined at 45 degrees under gravity (6.9 N along the slide),
+    ``arm`` mm off its axis, held along it by a spring or by nothing (``poise.gen.slide``)."""
+    from poise.gen.slide import slide
+    extra = (lambda d: d.spring(1, 20, 102, 1.0, 0.0)) if spring else None
+    return slide(45.0, joint=joint, arm=arm, extra=extra).text()
+
+
+def _rack(spring: float) -> str:
+    """A rack on a 30 degree slide turning its pinion, held by a torsion spring on the pinion
+    or by nothing."""
+    from poise.gen.slide import rack_and_pinion
+    return rack_and_pinion(30.0, spring=spring).text()
 
 
 def _delete(text: str, tag: str, id_: int) -> str:
@@ -95,6 +93,10 @@ def pairs(root: Path, quick: bool = False) -> list[tuple[str, int, str, str]]:
         ("pendulum, torque 1.5 m g l (healthy: 0.5 m g l)", 1, _pendulum(1.5), _pendulum(0.5)),
         ("slide at 45 deg, nothing along it (healthy: a spring)", 1, _slide(False),
          _slide(True)),
+        ("cylindrical joint at 45 deg, mass 600 mm off its axis (healthy: a spring)", 1,
+         _slide(False, "CYLINDRICAL", 600.0), _slide(True, "CYLINDRICAL", 600.0)),
+        ("rack at 30 deg turning a free pinion (healthy: a torsion spring)", 2, _rack(0.0),
+         _rack(500.0)),
         ("slider-crank, crank torque 10 N m (healthy: 3 N m)", 3,
          _crank_torque(root, 10000.0), _crank_torque(root, 3000.0)),
         ("double_pendulum, elbow joint removed", 2,

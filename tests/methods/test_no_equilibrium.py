@@ -14,31 +14,10 @@ import pytest
 
 from poise.app.api import run_deck
 from poise.gen.chain import build_chain_deck
-from poise.gen.deck import Deck, rot_x, rot_y, rot_z
+from poise.gen.deck import Deck, rot_x, rot_z
+from poise.gen.slide import rack_and_pinion, slide
 
 G = 9.81
-
-
-def slide(angle_deg=45.0, joint="TRANSLATIONAL", units="mm", extra=None, pendulum=False):
-    """A 1 kg body on a joint whose axis lies in the XY plane at ``angle_deg`` from X, gravity
-    -Y, its ground marker 300 mm down the slide (the model size); ``pendulum``: a 0.5 kg bob
-    hinged to it 150 mm below."""
-    d = Deck(units=units)
-    d.ground()
-    R = rot_z(np.radians(angle_deg)) @ rot_y(np.pi / 2)
-    d.marker(101, 1, -300.0 * R[:, 2], R)
-    d.marker(102, 1, (0, 0, 0))
-    d.body(2, 20, (0, 0, 0), mass=1.0, inertia=(100, 100, 100))
-    d.marker(21, 2, (0, 0, 0), R)
-    d.joint(1, joint, 21, 101)
-    if pendulum:
-        d.body(3, 30, (0, -150, 0), mass=0.5, inertia=(10, 10, 10))
-        d.marker(31, 3, (0, 0, 0))
-        d.marker(22, 2, (0, 0, 0))
-        d.joint(2, "REVOLUTE", 31, 22)
-    if extra:
-        extra(d)
-    return d
 
 
 def hinge(theta0=0.0, torque=0.0, gravity=True, axis="z"):
@@ -102,6 +81,81 @@ def test_vertical_slide_and_cylindrical_joint(tmp_path):
         said_at_once(a)
         np.testing.assert_allclose(vector(a.message, "along"), [0, -1, 0], atol=1e-9)
         assert number(a.message, r"constant load of ([-0-9.e+]+) N") == pytest.approx(G)
+
+
+@pytest.mark.parametrize("joint", ["TRANSLATIONAL", "CYLINDRICAL"])
+def test_a_mass_off_the_axis_of_a_45_degree_slide(tmp_path, joint):
+    """The mass centre 600 mm off the slide's axis (horizontal): on a CYLINDRICAL joint gravity
+    also turns the body about the axis (zero stiffness there at the start, and a load that
+    changes along the turn), but the slide alone is free with a constant load, m g sin 45."""
+    a = solve(slide(45.0, joint=joint, arm=600.0), tmp_path)
+    said_at_once(a)
+    assert "<Body_Rigid id=2> is free to translate along" in a.message
+    d = vector(a.message, "along")
+    np.testing.assert_allclose(d, [-np.sqrt(0.5), -np.sqrt(0.5), 0.0], atol=1e-6)
+    assert number(a.message, r"constant load of ([-0-9.e+]+) N") == pytest.approx(
+        G * np.sin(np.pi / 4), rel=1e-5)
+
+
+ADM_CYLINDER = """poise test: a bar on a cylindrical joint whose axis is 30 deg from the vertical
+UNITS/
+, FORCE = NEWTON, MASS = KILOGRAM, LENGTH = METER, TIME = SECOND
+PART/1, GROUND
+MARKER/11, PART = 1, QP = 0, 0, 0, REULER = 0D, 30D, 0D
+PART/2, MASS = 2, CM = 21, IP = 0.05, 0.4, 0.4
+MARKER/21, PART = 2, QP = 1.5, 0, 0, REULER = 0D, 30D, 0D
+MARKER/22, PART = 2, QP = 0, 0, 0, REULER = 0D, 30D, 0D
+JOINT/1, CYLINDRICAL, I = 22, J = 11
+ACCGRAV/
+, KGRAV = -9.80665
+END
+"""
+
+
+def test_an_adams_bar_on_a_tilted_cylindrical_joint(tmp_path):
+    """An Adams dataset: the bar's mass 1.5 m off an axis 30 deg from the vertical; the axis
+    (z of MARKER/11, body-fixed 3-1-3 angles 0, 30, 0) is (0, -sin 30, cos 30); the load
+    along it is m g cos 30 = 2 x 9.80665 x cos 30 N, down the axis."""
+    p = tmp_path / "cylinder.adm"
+    p.write_text(ADM_CYLINDER)
+    a = run_deck(str(p)).analyses[0]
+    said_at_once(a)
+    assert "cylinder.adm:6: PART/2 is free to translate along" in a.message
+    np.testing.assert_allclose(vector(a.message, "along"),
+                               [0.0, np.sin(np.pi / 6), -np.cos(np.pi / 6)], atol=1e-6)
+    assert number(a.message, r"constant load of ([-0-9.e+]+) N") == pytest.approx(
+        2 * 9.80665 * np.cos(np.pi / 6), rel=1e-6)
+
+
+def test_a_rack_free_to_slide_down_turns_its_pinion(tmp_path):
+    """Two rigid groups move together: the rack slides down, the pinion turns 2 / PD rad per
+    mm of it; the load per mm of rack travel is m g sin 30."""
+    a = solve(rack_and_pinion(30.0), tmp_path)
+    said_at_once(a)
+    assert "bodies 2-3 (2 bodies" in a.message
+    assert "as <Body_Rigid id=3> translates along" in a.message
+    np.testing.assert_allclose(vector(a.message, "translates along"),
+                               [-np.cos(np.pi / 6), -np.sin(np.pi / 6), 0.0], atol=1e-6)
+    assert number(a.message, r"<Body_Rigid id=2> turns ([-0-9.e+]+) rad") == pytest.approx(
+        2 / 80.0, rel=1e-6)
+    np.testing.assert_allclose(np.abs(vector(a.message, "rad about the axis")), [0, 0, 1],
+                               atol=1e-9)
+    assert number(a.message, r"constant load of ([-0-9.e+]+) N") == pytest.approx(
+        G * 0.5, rel=1e-5)
+
+
+def test_a_torsion_spring_on_the_pinion_holds_the_rack(tmp_path):
+    """k = 500 N mm/rad: k |theta| = m g sin 30 x PD / 2, the rack PD / 2 |theta| down."""
+    k = 500.0
+    a = solve(rack_and_pinion(30.0, spring=k), tmp_path)
+    assert a.converged, a.message
+    theta = 1.0 * G * 0.5 * 40.0 / k
+    R = a.datasets["bodies/orientation"][0, 0]
+    assert abs(np.arctan2(R[1, 0], R[0, 0])) == pytest.approx(theta, rel=1e-7)
+    at = 40.0 * np.array([0.5, -np.cos(np.pi / 6), 0.0])
+    down = -np.array([np.cos(np.pi / 6), 0.5, 0.0])
+    np.testing.assert_allclose(a.datasets["bodies/position"][0, 1], at + 40.0 * theta * down,
+                               atol=1e-6)
 
 
 def test_a_slider_carrying_a_pendulum_slides_as_one_group(tmp_path):

@@ -26,13 +26,14 @@ from poise.solvers.steps import mass_times
 #: Element types whose laws are polynomial or analytic in the marker poses and never switch on
 #: along a motion (contacts, expressions, user routines, curves and scalar unknowns may).
 ANALYTIC = frozenset({"gravity", "joints", "forces", "motions", "couplers", "gears",
-                      "field_beam", "screw"})
+                      "field_beam", "screw", "rack_pinion"})
 SHARE = 0.1                  # the mass term carries this share of the residual: a free direction
 STILL = 1e-6                 # a body slower than this x the fastest one does not move
 SAME = 1e-6                  # twists closer than this (relative) belong to one group
 TRANSLATIONS = (1e-3, 0.37, 1.0, 3.3, 10.0, 100.0, 1000.0)    # sample distances x L
 TURNS = (1e-3, 0.37, 1.1, 2.3, 3.9, 5.2, 8.6)                   # sample angles [rad]
 LOAD_REL = 1e-9              # a load differing by more than this (relative) is not constant
+POSE_REL = 1e-7              # the same at configurations assembled to the position tolerance
 OTHER_POSES = 2              # configurations off the motion where the load is checked too
 OFF_SIZE = 0.05              # their distance from the input (x each body's size, rad)
 
@@ -115,6 +116,18 @@ class _Motion:
             v0[b] = self.v0[b[0]] + np.cross(self.w[b[0]], c)
         return _Motion(m, w, v0, self.group, self.pos)
 
+    def split(self):
+        """Each group's screw as its two free parts: the slide along its axis (every point
+        moves by the same ``(w.v0) w / |w|^2``) and the pure turn about it (a cylindrical
+        joint's body: the slide carries a constant load, the turn a changing one)."""
+        n2 = np.maximum(np.sum(self.w * self.w, axis=1), 1e-300)[:, None]
+        slide = np.sum(self.w * self.v0, axis=1)[:, None] / n2 * self.w
+        out = []
+        if np.any(np.abs(slide) > 0):
+            out.append(_Motion(self.model, np.zeros_like(self.w), slide, self.group, self.pos))
+            out.append(_Motion(self.model, self.w, self.v0 - slide, self.group, self.pos))
+        return out
+
 
 def _snap(model, state, dq):
     """Group the bodies of the tangent vector ``dq`` by their screw; None when it is not a
@@ -183,15 +196,15 @@ def _load(model, cnt, state, mo):
     return -float(ev.r @ mo.tangent(st)), ev
 
 
-def _along(model, cnt, state, mo, sc, w0, phi0, samples) -> bool:
-    """The constraints keep their values and the load its work ``w0`` at ``samples`` along
-    the motion from ``state``."""
+def _along(model, cnt, state, mo, sc, w0, phi0, samples, rel=LOAD_REL) -> bool:
+    """The constraints keep their values and the load its work ``w0`` (to ``rel``) at
+    ``samples`` along the motion from ``state``."""
     v = mo.tangent(state)
     for s in samples:
         for sg in (1.0, -1.0):
             q = model.retract(state, sg * s * v)
             w, ev = _load(model, cnt, q, mo)
-            if not abs(w - w0) <= LOAD_REL * abs(w0):
+            if not abs(w - w0) <= rel * abs(w0):
                 return False
             if ev.phi.size and np.any(np.abs(ev.phi - phi0) > sc.phi_tol):
                 return False
@@ -204,7 +217,7 @@ def certify(model, state, settings, cnt, dq) -> str:
     mo = _snap(model, state, np.asarray(dq, float))
     if mo is None:
         return ""
-    for motion in (mo, mo.translation_only()) if mo.turning() else (mo,):
+    for motion in [mo, mo.translation_only(), *mo.split()] if mo.turning() else (mo,):
         try:
             why = _certify(model, state, settings, cnt, motion)
         except (EvaluationError, SingularMatrix, FloatingPointError):
@@ -241,45 +254,81 @@ def _certify(model, state, settings, cnt, mo) -> str:
         if not st.ok:
             continue
         w1, ev1 = _load(model, cnt, q, mo)
-        if not abs(w1 - w0) <= LOAD_REL * abs(w0):
+        if not abs(w1 - w0) <= POSE_REL * abs(w0):
             return ""
-        if not _along(model, cnt, q, mo, sc, w0, ev1.phi, samples[1:4]):
+        if not _along(model, cnt, q, mo, sc, w1, ev1.phi, samples[1:4], POSE_REL):
             return ""
     return _describe(model, state, mo, w0)
 
 
 def _describe(model, state, mo, w0) -> str:
-    """Names the moving bodies, the motion and the load (deck units)."""
+    """Names the moving bodies, the motion and the load (deck units). Several rigid groups
+    (a rack falling and its pinion turning): the lead group's motion (the fastest sliding one,
+    else the fastest turning one), how far each other group moves per unit of it, and the
+    load as the force (moment) conjugate to the lead motion."""
     b = mo.moving
     ids = [int(model.body_id[i]) for i in b]
-    where = model.coord_info[int(model.body_off[b[0]])].rsplit(" ", 1)[0]
-    if len(b) == 1:
-        who = f"{where} is free to"
+    who = (f"{_where(model, b[0])} is free to" if len(b) == 1 else
+           f"bodies {_ranges(ids)} ({len(b)} bodies, first {_where(model, b[0])}) are free to")
+    first = [int(np.nonzero(mo.group == g)[0][0]) for g in np.unique(mo.group[b])]
+    slides = [g for g in first if not np.any(mo.w[g])]
+    lead = (max(slides, key=lambda g: np.linalg.norm(mo.v0[g])) if slides else
+            max(first, key=lambda g: np.linalg.norm(mo.w[g])))
+    how, rate = _screw(model, mo.w[lead], mo.v0[lead])
+    force, length = unit_name(model, "force"), unit_name(model, "length")
+    if len(first) > 1:
+        rest = [_follows(model, g, mo.w[g] / rate, mo.v0[g] / rate, length)
+                for g in first if g != lead]
+        more = f" and {len(rest) - 3} more groups" if len(rest) > 3 else ""
+        per = length if slides else "radian"
+        how = (f"move together, as {_name(model, lead)} {_screw(model, mo.w[lead], mo.v0[lead], 's')[0]} "
+               f"and, per {per} of it, {', '.join(rest[:3])}{more}")
+    if slides:
+        load = f"a constant load of {w0 / rate:.6g} {force} pushes it"
     else:
-        who = (f"bodies {_ranges(ids)} ({len(b)} bodies, first {where}) are free to")
-    groups = np.unique(mo.group[b])
-    g0 = b[0]
-    w, v0 = mo.w[g0], mo.v0[g0]
-    if len(groups) > 1:
-        how = f"move together ({len(groups)} rigid groups, each along its own screw)"
-        load = f"a constant load doing {w0:.6g} of work per unit of that motion"
-    elif not np.any(w):
-        d = v0 / np.linalg.norm(v0)
-        how = f"translate along ({_v(d)})"
-        load = (f"a constant load of {w0 / np.linalg.norm(v0):.6g} {unit_name(model, 'force')} "
-                "pushes it")
-    else:
-        n = float(np.linalg.norm(w))
-        a = w / n
-        p = np.cross(w, v0) / (n * n)
-        pitch = float(w @ v0) / (n * n)
-        how = f"turn about the axis ({_v(a)}) through ({_v(p)})"
-        if abs(pitch) > 1e-9 * model.L:
-            how += f", advancing {pitch:.6g} per radian"
-        load = (f"a constant moment of {w0 / n:.6g} {unit_name(model, 'force')}*"
-                f"{unit_name(model, 'length')} turns it")
+        load = f"a constant moment of {w0 / rate:.6g} {force}*{length} turns it"
     return (f"{who} {how}: no constraint or force resists that motion anywhere along it, and "
             f"{load}: add the joint, spring or stop that should hold it, or balance the load")
+
+
+def _where(model, body) -> str:
+    """The body's located name (``FILE:LINE: <Body_Rigid id=2>``)."""
+    return model.coord_info[int(model.body_off[body])].rsplit(" ", 1)[0]
+
+
+def _name(model, body) -> str:
+    """The body's name without its location (``<Body_Rigid id=2>``, ``PART/2``)."""
+    return _where(model, body).rsplit(": ", 1)[-1]
+
+
+def _screw(model, w, v0, s=""):
+    """``(words, rate)``: the motion of one rigid group with twist ``(w, v0)`` (verbs in the
+    infinitive, or the third person with ``s="s"``) and its rate (speed of a slide, angular
+    speed of a turn)."""
+    n = float(np.linalg.norm(w))
+    if n == 0:
+        rate = float(np.linalg.norm(v0))
+        return f"translate{s} along ({_v(v0 / rate)})", rate
+    return f"turn{s} about {_axis(model, w, v0)}", n
+
+
+def _follows(model, g, w, v0, length) -> str:
+    """How far the group of body ``g`` moves with twist ``(w, v0)`` per unit of the lead's."""
+    n = float(np.linalg.norm(w))
+    if n == 0:
+        d = float(np.linalg.norm(v0))
+        return f"{_name(model, g)} moves {d:.6g} {length} along ({_v(v0 / d)})"
+    return f"{_name(model, g)} turns {n:.6g} rad about {_axis(model, w, v0)}"
+
+
+def _axis(model, w, v0) -> str:
+    n = float(np.linalg.norm(w))
+    p = np.cross(w, v0) / (n * n)
+    pitch = float(w @ v0) / (n * n)
+    how = f"the axis ({_v(w / n)}) through ({_v(p)})"
+    if abs(pitch) > 1e-9 * model.L:
+        how += f", advancing {pitch:.6g} per radian"
+    return how
 
 
 def _v(x) -> str:
