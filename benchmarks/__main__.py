@@ -105,8 +105,9 @@ def main(argv=None) -> int:
         if args.stable_only or (not args.failfast_only
                                 and not (args.no_stable or args.no_wp)):
             # stable equilibria: MKEAM and --require-stable vs FIM_S (a long suite, like wp)
-            st_rows, st_md, st_t = bench_stable.run(
+            rows_s, st_md, st_t = bench_stable.run(
                 tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
+            st_rows += rows_s
             wp_md += st_md
             wp_targets += st_t
     if args.out:

@@ -68,7 +68,7 @@ def test_max_num_iter_binds_the_whole_frame():
     check_counts(a)
     it = a.datasets["frames/strategy_iterations"][0]
     assert it[STRATEGIES.index("plain")] == 2
-    assert "fallback chain" in a.message and "of its 2 iterations" in a.message
+    assert "fallback chain" in a.message and "of its 2 units of work" in a.message
 
 
 def test_fallback_budget_grants_the_chain_more_and_counts_every_strategy():

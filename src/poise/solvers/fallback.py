@@ -83,8 +83,8 @@ def recover(model, start, st, out, settings, history, frame, cnt):
         return st2, out2
     out.iterations, out.counts = total, counts
     out.message += (f"; fallback chain (stability, continuation, mkeam) did not converge "
-                    f"({total - plain} of its {budget} iterations used, raise --fallback-budget; last: "
-                    f"{out2.message})")
+                    f"({total - plain} of its {budget} units of work used, raise "
+                    f"--fallback-budget; last: {out2.message})")
     return st, out
 
 
