@@ -226,6 +226,19 @@ def test_a_spring_along_the_slide_holds_it(tmp_path):
                                [-s * np.cos(np.pi / 4), -s * np.sin(np.pi / 4), 0], atol=1e-6)
 
 
+def test_a_spring_along_a_cylindrical_joint_holds_the_body_off_its_axis(tmp_path):
+    """The slide of the mass-off-the-axis body held by a spring on the axis (k = 1 N/mm, free
+    length 0): the turn alone is no proof either; the body settles m g sin 45 / k down the
+    slide with its mass hanging 600 mm from the axis along the part of gravity across it."""
+    a = solve(slide(45.0, joint="CYLINDRICAL", arm=600.0,
+                    extra=lambda d: d.spring(1, 21, 102, 1.0, 0.0)), tmp_path)
+    assert a.converged, a.message
+    u = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0])          # up the slide
+    across = np.array([0.0, -1.0, 0.0]) + np.sin(np.pi / 4) * u        # gravity across it
+    cm = -G * np.sin(np.pi / 4) * u + 600.0 * across / np.linalg.norm(across)
+    np.testing.assert_allclose(a.datasets["bodies/position"][0, 0], cm, atol=1e-6)
+
+
 def test_zero_stiffness_only_at_the_start_is_no_proof(tmp_path):
     """Horizontal pendulum: the stiffness about the hinge is zero there and the load is not,
     but both change along the turn: it hangs (theta = -90 deg). At the top of an inverted
