@@ -115,3 +115,23 @@ def test_a_smooth_start_keeps_plain_newton(tmp_path):
     r = [e[-3] / e[-4] ** 2, e[-2] / e[-3] ** 2]
     assert max(r) < 10.0 / float(np.max(e)), e
     assert e[-2] < 1e-4 * e[-3] < 1e-4 * e[-4], e
+
+
+def test_a_bar_on_a_string_started_upside_down_hangs(tmp_path):
+    """chrono's Adams validation model Distance_Case02 rebuilt: a 1 kg bar (thin along X:
+    spinning about its own axis is a direction of no stiffness) tied at P, 2 m from its mass
+    centre, by a 2 m distance constraint to a ground point G, started with the string and the
+    bar horizontal and square to each other. Newton's steps there are all spin; steps down the potential (a
+    shifted, pseudo-time step) bring it to hang straight down (Adams' answer), P 2 m and the
+    mass centre 4 m below G. A spin about a neutral axis is no runaway (it turned many times
+    while the potential hardly fell)."""
+    d = Deck(units="m")
+    d.ground()
+    d.marker(101, 1, (0, 0, 0))
+    d.body(2, 20, (-2000, 0, 2000), mass=1.0, inertia=(4e4, 1e5, 1e5))
+    d.marker(21, 2, (0, 0, 2000))
+    d.add("Constraint_General", id=1, expr="DM(21, 101) - 2", i_marker_id=21)
+    a = run_deck(d.write(tmp_path / "string.xml")).analyses[0]
+    assert a.converged, a.message
+    np.testing.assert_allclose(a.datasets["bodies/position"][0, 0], [0, -4, 0], atol=1e-9)
+    assert a.datasets["frames/stability"][0] == "neutral"

@@ -412,7 +412,7 @@ class NewtonIteration(Iterative):
             down = self._downhill(state, ev, dq)
             if down is not None:
                 s.stall = m0
-                s.runaway = Runaway(model)
+                s.runaway = Runaway(model, ev.r)
                 return self._down(s, it, state, down)
         return self._take(s, it, state, (best[2], best[3], best[0], best[1]), dq)
 
@@ -440,7 +440,7 @@ class NewtonIteration(Iterative):
         """Accept the downhill step ``down`` (:func:`~poise.solvers.downhill.downhill_step`),
         or end Newton when the steps down have gone beyond reach (:class:`Runaway`)."""
         row = self._take(s, it, state, down[:4], down[4], "downhill")
-        why = s.runaway.add(state, s.state, down[5])
+        why = s.runaway.add(down[3] * down[4], down[5])
         if why:
             s.outcome = FrameOutcome(Status.DIVERGED, it + 1, s.imb, s.err, why, final=True)
         return row
