@@ -117,6 +117,9 @@ def _shifted(model, state, ev, cnt, eps, mu, cap=np.inf):
                         if len(model.rot_idx) else 0.0)
                 if turn <= cap:
                     return out
+                # a large shift's step shrinks as 1 / mu: aim at the cap
+                mu *= min(10.0, max(2.0, 1.2 * turn / cap))
+                continue
         mu *= 10.0
     return out
 
