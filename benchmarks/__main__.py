@@ -5,9 +5,10 @@
 
 Runs the hanging-chain and command-line benchmarks (:mod:`benchmarks.chain`), the expression
 benchmark (:mod:`benchmarks.expr`), the work-precision, peer and scaling suites
-(:mod:`benchmarks.suite`), the stable-equilibria table (:mod:`benchmarks.stable`) and the
-quasi-static path tables (:mod:`benchmarks.singular`, :mod:`benchmarks.frame_error`), then writes
-the JSON lines and the markdown report.
+(:mod:`benchmarks.suite`), the time-to-fail table (:mod:`benchmarks.failfast`), the
+stable-equilibria table (:mod:`benchmarks.stable`) and the quasi-static path tables
+(:mod:`benchmarks.singular`, :mod:`benchmarks.frame_error`), then writes the JSON lines and the
+markdown report.
 The benchmarks are not part of the installed package.
 """
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 
 from benchmarks import adm as bench_adm
 from benchmarks import expr as bench_expr
+from benchmarks import failfast as bench_failfast
 from benchmarks import frame_error as bench_frame_error
 from benchmarks import singular as bench_singular
 from benchmarks import stable as bench_stable
@@ -50,6 +52,10 @@ def main(argv=None) -> int:
                          "skipped with --no-wp)")
     ap.add_argument("--stable-only", action="store_true",
                     help="run only the stable-equilibria table")
+    ap.add_argument("--no-failfast", action="store_true",
+                    help="skip the time-to-fail table (failing decks vs healthy ones)")
+    ap.add_argument("--failfast-only", action="store_true",
+                    help="run only the time-to-fail table")
     ap.add_argument("--no-path", action="store_true",
                     help="skip the quasi-static path tables (issue 22: time to a singular "
                          "configuration, reported vs true frame error; also skipped with "
@@ -60,10 +66,9 @@ def main(argv=None) -> int:
     root = Path(__file__).resolve().parents[1]
     machine = machine_info()
     results = []
-    if args.stable_only or args.path_only:
+    only = args.stable_only or args.failfast_only or args.path_only
+    if only:
         args.sizes, args.no_cli, args.no_expr, args.no_wp = "", True, True, True
-        args.no_stable = args.path_only
-        args.no_path = args.stable_only
         args.no_adm = True
     with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
         tmp = Path(td)
@@ -100,19 +105,26 @@ def main(argv=None) -> int:
             wp_md += md7
             wp_targets += t7
         st_rows = []
-        fe_rows = []
-        if args.path_only or not (args.no_path or args.no_wp):
+        if not args.no_failfast and (args.failfast_only or not only):
+            # time to fail: failing decks against their healthy counterparts
+            ff_rows, ff_md, ff_t = bench_failfast.run(
+                tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
+            st_rows += ff_rows
+            wp_md += ff_md
+            wp_targets += ff_t
+        if args.path_only or not (only or args.no_path or args.no_wp):
             # issue 22: singular configurations, frame error bounds (long suites, like wp)
             for table in (bench_singular, bench_frame_error):
-                rows, t_md, t_t = table.run(
+                rows_p, p_md, p_t = table.run(
                     tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
-                fe_rows += rows
-                wp_md += t_md
-                wp_targets += t_t
-        if args.stable_only or not (args.no_stable or args.no_wp):
+                st_rows += rows_p
+                wp_md += p_md
+                wp_targets += p_t
+        if args.stable_only or not (only or args.no_stable or args.no_wp):
             # stable equilibria: MKEAM and --require-stable vs FIM_S (a long suite, like wp)
-            st_rows, st_md, st_t = bench_stable.run(
+            rows_s, st_md, st_t = bench_stable.run(
                 tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
+            st_rows += rows_s
             wp_md += st_md
             wp_targets += st_t
     if args.out:
@@ -121,7 +133,7 @@ def main(argv=None) -> int:
         with p.open("w") as f:
             for r in results:
                 f.write(json.dumps(dict(r, machine=machine), sort_keys=True) + "\n")
-            for r in st_rows + fe_rows:
+            for r in st_rows:
                 f.write(json.dumps(dict(r, machine=machine), sort_keys=True, default=float) + "\n")
             for r in wp_rows if not args.no_wp else []:
                 f.write(json.dumps(dict(r, machine=machine), sort_keys=True, default=float) + "\n")
