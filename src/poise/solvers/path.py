@@ -97,7 +97,7 @@ def check(ctx, step) -> None:
             Status.UNSTABLE, 0, np.nan, np.nan,
             f"stability lost at t = {t:.6g} (--require-stable: the path ends where its branch "
             f"stops being stable; there it is {info.klass}" + (f": {modes})" if modes else ")"),
-            {}, "plain", where if crossed else None)
+            {}, "plain", where=where if crossed else None)
     else:
         out = singular.singular_outcome(where, 0)
     ctx.history.add(len(frames), 0, np.nan, np.nan, np.nan, np.nan, out.message, "singular")

@@ -72,7 +72,7 @@ def singular_outcome(info: SingularInfo, iterations: int, status=Status.SINGULAR
                      message: str | None = None, counts=None) -> SingularOutcome:
     return SingularOutcome(status, int(iterations), np.nan, np.nan,
                            info.message() if message is None else message,
-                           dict(counts or {}), "plain", info)
+                           dict(counts or {}), "plain", where=info)
 
 
 def element_name(e: dict) -> str:
