@@ -226,7 +226,7 @@ class _Path:
         back.t = last.t
         b, out = newton(self.model, back, self.settings, self.history, self.frame, self.data,
                         max_iter=min(self.settings.max_num_iter, RETURN_MAX_ITER),
-                        event="return")
+                        event="return", downhill=False)
         if not out.ok:          # inconclusive (Newton is slow next to a fold): no verdict
             return ""
         d = distance(self.model, b, last)
@@ -281,7 +281,7 @@ class _Path:
             ok = False
             for start in (pred, last):
                 st, out = newton(self.model, start, self.settings, history, frame, self.data,
-                                 max_iter=PROBE_MAX_ITER, event="locate")
+                                 max_iter=PROBE_MAX_ITER, event="locate", downhill=False)
                 its += out.iterations
                 ok = out.ok and not self.jump(start, st, known and start is pred, probe=True)
                 if ok or (not out.ok and out.iterations > 2):   # no second start when Newton
@@ -334,7 +334,7 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
             continue
         full = n_sub == 0 and t == t_target
         st, out = newton(model, pred, settings, history, frame, counters, max_iter=max_iter,
-                         event="newton" if full else "substep")
+                         event="newton" if full else "substep", downhill=False)
         total_it += out.iterations
         why = branch.jump(pred, st, known) if out.ok else out.status.value
         if not why:
