@@ -114,7 +114,7 @@ class _Motion:
             mass = m.body_mass[b]
             c = (mass @ self.pos[b]) / max(float(mass.sum()), 1e-300)
             v0[b] = self.v0[b[0]] + np.cross(self.w[b[0]], c)
-        return _Motion(m, w, v0, self.group, self.pos)
+        return _Motion(m, w, v0, self.group, self.pos).unit()
 
     def split(self):
         """Each group's screw as its two free parts: the slide along its axis (every point
@@ -124,9 +124,24 @@ class _Motion:
         slide = np.sum(self.w * self.v0, axis=1)[:, None] / n2 * self.w
         out = []
         if np.any(np.abs(slide) > 0):
-            out.append(_Motion(self.model, np.zeros_like(self.w), slide, self.group, self.pos))
-            out.append(_Motion(self.model, self.w, self.v0 - slide, self.group, self.pos))
+            for part in (_Motion(self.model, np.zeros_like(self.w), slide, self.group, self.pos),
+                         _Motion(self.model, self.w, self.v0 - slide, self.group, self.pos)):
+                if part.top() > SAME * self.top():      # a part at round-off is no motion
+                    out.append(part.unit())
         return out
+
+    def top(self) -> float:
+        """The fastest speed of the motion (a turn's by the model size L)."""
+        b = self.moving
+        v = self.v0[b] + np.cross(self.w[b], self.pos[b])
+        return float(max(np.max(np.linalg.norm(v, axis=1), initial=0.0),
+                         np.max(np.linalg.norm(self.w[b], axis=1), initial=0.0) * self.model.L))
+
+    def unit(self):
+        """The same motion at unit fastest speed: sample distances and the constraint
+        tolerance then mean lengths, whatever share of the step the motion was."""
+        t = self.top()
+        return _Motion(self.model, self.w / t, self.v0 / t, self.group, self.pos) if t > 0 else self
 
 
 def _snap(model, state, dq):
@@ -145,6 +160,9 @@ def _snap(model, state, dq):
         return None
     if model.n_extra and float(np.max(np.abs(dq[model.extra_idx]))) > STILL * top:
         return None
+    # a rotation at the rounding level of the step is none (its split or lever would make a
+    # motion of its own out of round-off)
+    w[np.linalg.norm(w, axis=1) * model.L <= SAME * top] = 0.0
     v0 = dt - np.cross(w, state.pos)
     reach = top + float(np.max(np.linalg.norm(w, axis=1))) * float(
         np.max(np.linalg.norm(state.pos, axis=1)))
