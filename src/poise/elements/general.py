@@ -11,7 +11,8 @@ measures are 0 at rest) constrains nothing in statics: it is left out with a war
 
 Reactions: output group ``gcons``; ``i_marker_id`` names the reaction marker (MotionSolve: the
 marker that extracts the reaction force): the row's load on that marker's body, reduced to its
-origin. Without ``i_marker_id`` MotionSolve gives no reaction: force and torque are NaN.
+origin (a ground marker: minus the load on the moving bodies, as Adams reports it). Without
+``i_marker_id`` MotionSolve gives no reaction: force and torque are NaN.
 """
 from __future__ import annotations
 
@@ -79,10 +80,15 @@ class GeneralConstraint(ConstraintFamily):
 
     def reaction_on_i(self, kin, rho):
         """Force and torque (n, 3) of the row on the reaction marker's body at its origin (slot
-        0 is that marker's origin); NaN without a reaction marker."""
+        0 is that marker's origin); NaN without a reaction marker. A reaction marker on ground
+        (no coordinates) gets minus the row's load on the moving bodies (a measure between
+        markers is unchanged by a rigid motion of everything, so the loads balance), as Adams
+        reports a GCON whose I marker is on ground."""
         n, S = kin.Y.shape[0], len(self.slot_ml)
         reps = n // len(self.has_i)            # frames evaluated together: instances repeated
         on = np.tile(self.on_i_body, (reps, 1))
+        on_ground = np.tile(self.i_ground, reps)
+        on[on_ground] = ~on[on_ground]
         Y = kin.Y
         r3 = rho.reshape(n, S, 3)
         F = np.zeros((n, 3))
@@ -95,6 +101,8 @@ class GeneralConstraint(ConstraintFamily):
             F[pt] -= r3[pt, s]
             T[pt] -= _cross(Y[pt, s] - Y[pt, 0], r3[pt, s])
             T[ax] -= _cross(Y[ax, s], r3[ax, s])
+        F[on_ground] *= -1.0
+        T[on_ground] *= -1.0
         none = np.tile(~self.has_i, reps)
         F[none] = np.nan
         T[none] = np.nan
@@ -173,6 +181,7 @@ def _build(ctx, els, batch, ground):
     fam.sc_map = cmap
     fam._yy, fam._ys, fam._ss = _pairs(batch, smap, cmap, n)
     fam.has_i = np.array([el.attrs.get("i_marker_id") is not None for el in els])
+    fam.i_ground = fam.has_i & ground[first]
     body = _marker_bodies(ctx)
     fam.on_i_body = np.array([[fam.has_i[i] and body.get(int(m), -1) == body.get(int(first[i]),
                                                                                    -2)
