@@ -6,7 +6,8 @@ stores them), a ``long_name`` and, in element groups, a ``coordinates`` attribut
 shape symbol is :data:`DIMENSIONS`; a fixed-size axis is named by :data:`ITEM_DIMS` or, for a
 trailing 3 (or 3×3), ``axis`` (``axis, marker_axis``). Symbol dimensions live in the group of
 their scope (``/model``, each ``/analysis_NNN``); fixed-size ones at the root, with coordinate
-values (:data:`COMPONENTS`). ``case`` is reserved for a root dimension of sweep files.
+values (:data:`COMPONENTS`). ``case`` (symbol ``C``) is the root dimension of sweep files
+(:mod:`poise.results.schema_sweep`).
 Adding a dataset: give it a long name in :data:`LONG_NAMES` (patterns ``<group>``: any element
 group); a new shape symbol needs a :data:`DIMENSIONS` entry.
 """
@@ -21,7 +22,7 @@ DIMENSIONS = {
     "Mk": "marker", "Gr": "graphic", "K": "mode", "N": "iteration", "Np": "pose",
     "I1": "mkeam_iterate", "Ct": "contact", "D": "redundant_equation", "R": "request",
     "Dd": "diff", "V": "reference_variable", "Mc": "compliance_marker", "S": "step",
-    "Gc": "gcon",
+    "Gc": "gcon", "C": "case",
 }
 RESERVED = ("case",)
 #: meanings of the symbol dimensions in the format document
@@ -33,6 +34,8 @@ DIM_MEANINGS = {
     "mkeam_iterate": "MKEAM start and restarts", "mode": "described mode (all frames)",
     "redundant_equation": "removed redundant equation", "step": "accepted IDA step",
     "warning": "deck warning", "compliance_marker": "compliance marker",
+    "case": "sweep case (sweep files: `case` holds the case numbers; the swept parameters "
+            "are its other coordinates)",
 }
 
 #: fixed-size dimensions (root): name -> (coordinate values or a size, meaning)
