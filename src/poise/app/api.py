@@ -10,6 +10,7 @@ from poise.app.check import CheckReport, check
 from poise.app.engine import WORKER_TIMEOUT
 from poise.app.runner import run_deck, run_spec
 from poise.core.errors import require_file
+from poise.core.extras import available
 from poise.deck.parser import load_deck as _load_deck
 from poise.deck.spec import DeckSpec
 from poise.results.data import RunResult
@@ -142,7 +143,6 @@ def open_sweep(path):
     ``FileNotFoundError``."""
     import pathlib
     require_file(path, "sweep file")
-    from poise.core.extras import available
     if not available("xarray"):
         return pathlib.Path(path)
     from poise.results.sweepfile import open_sweep as _open   # lazy: h5py, xarray

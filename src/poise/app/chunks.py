@@ -36,7 +36,7 @@ from poise.results.summary import summarize_run
 
 @dataclass(frozen=True)
 class FrameLayout:
-    """The frames of a sweep file: each frame's planned time and analysis (``Simulate``)."""
+    """The frames of a sweep file: each frame's time and analysis (``Simulate``)."""
 
     time: tuple = ()
     analysis: tuple = ()
@@ -223,7 +223,7 @@ def _empty(index: int, status: str, code: int, message: str, layout: FrameLayout
 def record_of(index: int, res, job: SweepJob) -> CaseRecord:
     """The record of a solved case: the run summary of a batch row
     (:func:`poise.results.summary.summarize_run`), the worst error, and ``converged`` and the
-    outputs at each planned frame."""
+    outputs at each of the sweep's frames."""
     run = summarize_run(res)
     errors = [s.error for s in run.analyses if s.error is not None and math.isfinite(s.error)]
     rec = CaseRecord(
@@ -250,8 +250,8 @@ def _float(v) -> float:
 
 
 def frame_values(res, job: SweepJob) -> tuple[np.ndarray, dict, str]:
-    """``converged (F,)`` and ``{output: (F, ...)}`` of a run at the sweep's planned frames,
-    and a note when a frame the run has is at another time than planned (its values are then
+    """``converged (F,)`` and ``{output: (F, ...)}`` of a run at the sweep's frames,
+    and a note when a frame the run has is at another time than the sweep's (its values are then
     left out: NaN, not converged)."""
     layout = job.layout
     times = np.asarray(layout.time, float)
@@ -276,7 +276,7 @@ def frame_values(res, job: SweepJob) -> tuple[np.ndarray, dict, str]:
             if arr is not None:
                 outs[o.text][at] = arr[rows]
     note = "" if not moved else (
-        f"frames of analysis {', '.join(map(str, moved))} are not at the planned times (an "
+        f"frames of analysis {', '.join(map(str, moved))} are not at the sweep's frame times (an "
         "analysis before stopped early): left out of the sweep file")
     return conv, outs, note
 

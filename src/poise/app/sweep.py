@@ -70,6 +70,7 @@ class SweepOutcome:
     workers: int = 0
     chunk_size: int = 0
     rows: list | None = None
+    ignored: str = ""
 
 
 def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=None,
@@ -229,7 +230,8 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
             counts[s] = counts.get(s, 0) + 1
         outcome = SweepOutcome(sweep_path, os.path.join(out_dir, "index.csv"), len(cases),
                                counts, worst_exit_code(run.exit[run.done].tolist()),
-                               int(run.taken.sum()), run.timings, run.workers, run.size, kept)
+                               int(run.taken.sum()), run.timings, run.workers, run.size, kept,
+                               ignored)
         if run.gave_up is not None:        # the sweep file and the index keep what finished
             run.gave_up.outcome = outcome
             run.gave_up.rows = kept or []

@@ -171,6 +171,21 @@ LONG_NAMES = {
     "analysis/steps/convergence_failures": "IDA convergence failures",
     "analysis/steps/jacobian_evaluations": "IDA Jacobian evaluations",
     "analysis/steps/rebase": "IDA reinitialised before the step",
+    "sweep/case": "case number", "sweep/time": "time", "sweep/analysis": "analysis of the frame",
+    "sweep/status": "case status", "sweep/exit_code": "exit code of the case",
+    "sweep/iterations": "iterations of all frames", "sweep/wall_time": "wall time of the case",
+    "sweep/imbalance": "largest force imbalance",
+    "sweep/imbalance_analysis": "analysis of the largest imbalance",
+    "sweep/imbalance_frame": "frame of the largest imbalance", "sweep/error": "largest error",
+    "sweep/stability": "worst stability class",
+    "sweep/stability_analysis": "analysis of the worst stability class",
+    "sweep/stability_frame": "frame of the worst stability class",
+    "sweep/n_negative": "negative stiffness eigenvalues",
+    "sweep/n_zero": "zero stiffness eigenvalues",
+    "sweep/stability_modes": "unstable and neutral modes", "sweep/modes": "modes as numbers",
+    "sweep/message": "why the case failed", "sweep/converged": "frame converged",
+    "sweep/file": "the case's results file", "sweep/<parameter>": "swept parameter",
+    "sweep/<output>": "(the long name of the output's dataset)",
 }
 
 

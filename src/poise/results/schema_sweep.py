@@ -74,9 +74,10 @@ _a("ignored", "json", "Adams datasets: the elements `--ignore KIND` left out (JS
 
 _d("case", "int", ("C",), "1", "case number (0-based, the order of `index.csv`): the "
    "coordinate of `case`")
-_d("time", "float", ("F",), "time", "time of each frame as planned (0 for a static analysis "
-   "first in the deck); a case's frame whose own time differs (an analysis before it stopped "
-   "early) is written as not converged with NaN outputs")
+_d("time", "float", ("F",), "time", "time of each frame: the output times of each analysis, "
+   "each starting where the one before ends (0 for a static analysis first in the deck); a "
+   "case's frame at another time (an analysis before it stopped early) is written as not "
+   "converged with NaN outputs")
 _d("analysis", "int", ("F",), "1", "the analysis (`Simulate`, 0-based) each frame belongs to")
 for _n, _t, _u, _m in (
         ("status", "str", "", "`converged`, `failed` (an analysis did not converge; exit 1), "
@@ -122,26 +123,6 @@ _d("<output>", "float", ("C", "F"), "mixed", "one variable per `--output group[i
    "declaration (NaN where the case has no such frame)")
 
 
-#: long names of the fixed variables
-LONG_NAMES = {
-    "case": "case number", "time": "time", "analysis": "analysis of the frame",
-    "status": "case status", "exit_code": "exit code of the case",
-    "iterations": "iterations of all frames", "wall_time": "wall time of the case",
-    "imbalance": "largest force imbalance", "imbalance_analysis": "analysis of the largest "
-    "imbalance", "imbalance_frame": "frame of the largest imbalance", "error": "largest error",
-    "stability": "worst stability class", "stability_analysis": "analysis of the worst "
-    "stability class", "stability_frame": "frame of the worst stability class",
-    "n_negative": "negative stiffness eigenvalues", "n_zero": "zero stiffness eigenvalues",
-    "stability_modes": "unstable and neutral modes", "modes": "modes as numbers (JSON)",
-    "message": "why the case failed", "converged": "frame converged",
-    "file": "the case's results file"}
-
-
-def long_name(it: Item) -> str:
-    """The ``long_name`` of a fixed variable or a parameter (outputs: their source's)."""
-    return LONG_NAMES.get(it.name) or it.meaning
-
-
 def declared() -> list[Item]:
     """Every sweep-file declaration (the two rules last)."""
     return list(_ROWS)
@@ -163,7 +144,7 @@ def parameter_item(key: str, kind: str) -> Item:
     rule = next(it for it in _ROWS if it.name == "<parameter>")
     return Item(SCOPE, key, "dataset", _KIND_DTYPE[kind], ("C",),
                 "1" if kind == "int" else "" if kind in ("enum", "bool") else rule.unit,
-                f"swept parameter {key}", False, rule.section)
+                rule.meaning, False, rule.section)
 
 
 def output_item(text: str, source: Item) -> Item:

@@ -20,6 +20,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from poise.core.errors import require_file
 from poise.core.extras import require
 from poise.core.version import __version__
 from poise.results import schema
@@ -61,6 +62,7 @@ class SweepWriter:
         coords = []
         for key, kind, values in params:
             it = ss.parameter_item(key, kind)
+            self.long[key] = f"swept parameter {key}"
             arr = _storable(values, it.dtype)
             schema.check_array(it, arr, f"sweep file {key}")
             ds = f.create_dataset(key, data=arr, dtype=STR if it.dtype == "str" else None)
@@ -87,7 +89,7 @@ class SweepWriter:
     # ------------------------------------------------------------------------ creation
     def _describe(self, ds, it) -> None:
         ds.attrs["units"] = schema.unit_string(it.unit, self.units)
-        ds.attrs["long_name"] = self.long.get(it.name) or ss.long_name(it)
+        ds.attrs["long_name"] = self.long.get(it.name) or schema.long_name(it)
 
     def _dims(self, name: str, it) -> tuple:
         return self.output_dims.get(name) or schema.dims(it)
@@ -252,7 +254,6 @@ def open_sweep(path):
     dimension ``case`` with the swept parameters as coordinates, ``frame`` with ``time`` and
     ``analysis`` (needs ``poise[xarray]``). A missing file raises ``FileNotFoundError``."""
     require("xarray", "opening a sweep file as a labelled dataset")
-    from poise.core.errors import require_file
     require_file(path, "sweep file")
     import xarray as xr                   # lazy: an optional extra
     return xr.open_dataset(os.fspath(path), engine="h5netcdf")
