@@ -354,7 +354,7 @@ def _run_chunks(client, run: _Run, todo: list[tuple[dict, list]], worker_timeout
     """Solve the chunks on the cluster. A chunk whose task failed (its worker died, or the
     task could not run) is split into single cases, solved in parallel; a single case that
     fails again is solved alone, and reported as ``internal_error`` if it fails then."""
-    job_f = client.scatter(run.job, broadcast=True, hash=False)
+    job_f = run.job          # sent with each task (a scatter would fail with no worker yet)
     rounds = [(todo, False), None, None]
     for r in range(3):
         work = rounds[r]

@@ -12,7 +12,7 @@ sweep file is in place.
 when the source has the same ``sweep_hash`` (deck, solver options, ``--ignore`` kinds, poise
 version), the same frames, every requested output, the scripts it read unchanged, a finished
 status (``converged``, ``failed``, ``invalid_deck``: an ``internal_error`` or ``io_error`` is
-solved again) and the same parameter values (the case number may differ: a longer range keeps
+solved again, and so is an ``invalid_deck`` when user code is now allowed) and the same parameter values (the case number may differ: a longer range keeps
 the cases solved before). With ``--per-case-files`` its file must exist too.
 """
 from __future__ import annotations
@@ -116,8 +116,9 @@ def _matches(head: dict, want: dict, outputs, allow_user_code: bool) -> bool:
     return not files or inputs_fresh({"input_files": files}, allow_user_code)
 
 
-def _usable(rows: dict, out_dir: str, files: bool) -> np.ndarray:
-    ok = np.isin(np.asarray(rows["status"], dtype=object), FINISHED)
+def _usable(rows: dict, out_dir: str, files: bool, allow_user_code: bool) -> np.ndarray:
+    keep = [s for s in FINISHED if not (allow_user_code and s == "invalid_deck")]
+    ok = np.isin(np.asarray(rows["status"], dtype=object), keep)
     if files:
         names = np.asarray(rows.get("file", np.full(len(ok), "", object)), dtype=object)
         ok &= np.array([bool(n) and os.path.isfile(os.path.join(out_dir, str(n)))
@@ -138,7 +139,7 @@ def reuse(journal: Journal, sweep_file: str, want: dict, params, keys: list[str]
     taken = np.zeros(len(keys), bool)
 
     def take(rows: dict, src_keys: list[str], files_read=None) -> None:
-        ok = _usable(rows, out_dir, files)
+        ok = _usable(rows, out_dir, files, allow_user_code)
         src, dst = [], []
         for j, k in enumerate(src_keys):
             if ok[j]:
