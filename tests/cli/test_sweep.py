@@ -260,3 +260,45 @@ def test_output_dataset_names_checked_against_the_schema(tmp_path):
     assert not (tmp_path / "index.csv").exists() and not (tmp_path / "sweep.h5").exists()
     from poise.app.sweep import output_groups
     assert {"gears", "couplers", "curves", "contacts", "requests"} <= set(output_groups())
+
+
+def test_sweep_file_rows_in_any_order_failed_cases_and_not_run(tmp_path):
+    """The writer puts each chunk's rows where they belong, whatever order the chunks come
+    in; a failed case keeps its status, exit code and message; rows not written read as empty
+    status with NaN/-1 fills (a sweep marks them ``not_run``). No Dask: the worker's functions
+    called directly."""
+    xr = pytest.importorskip("xarray")
+    from poise.app.chunks import SweepJob, pack
+    from poise.app.sweep import frame_layout
+    from poise.app.sweep_index import outputs_of, parse_outputs, source_item
+    from poise.results.sweepfile import SweepWriter
+    spec = poise.load_deck(str(DECK))
+    params = [resolve_param(spec, "Param_Static.max_num_iter", "1,2,40,50,60")]
+    cases = make_cases(params, "grid")
+    outs = outputs_of(parse_outputs(spec, OUTS))
+    over = {"method": "FIM_S", "fallback": False}
+    job = SweepJob(DECK.read_bytes(), str(DECK), tuple(params), over, outs,
+                   frame_layout(spec, params, cases, over), key="f")
+    t = make_template(job, {})
+    w = SweepWriter(str(tmp_path / "s.h5"), len(cases), job.layout.time, job.layout.analysis,
+                    [(p.key, p.kind, [c[p.key] for c in cases]) for p in params],
+                    [(o.text, source_item(o.group, o.dataset)) for o in outs],
+                    {"deck": str(DECK), "units": "", "command": "test", "mode": "grid",
+                     "parameters": {}, "overrides": {}, "outputs": "[]", "sweep_hash": "h",
+                     "deck_sha256": spec.sha256})
+    w.write(pack(solve_chunk(t, [(3, cases[3]), (0, cases[0])]), job))   # out of order
+    w.write(pack(solve_chunk(t, [(2, cases[2])]), job))
+    w.close(3)
+    with xr.open_dataset(tmp_path / "s.h5", engine="h5netcdf") as ds:
+        assert not ds.attrs["complete"] and ds.attrs["n_done"] == 3
+        assert ds.status.values.tolist() == ["failed", "", "converged", "converged", ""]
+        assert ds.exit_code.values.tolist() == [1, -1, 0, 0, -1]
+        assert ds["Param_Static.max_num_iter"].values.tolist() == [1, 2, 40, 50, 60]
+        ref = poise.solve(str(DECK), max_num_iter=1, quiet=True, **over)
+        assert ref.status == "failed" and ds.message.values[0] == f"analysis 0: {ref.analyses[0].message}"
+        assert int(ds.iterations[0]) == 1 and not bool(ds.converged[0, 0])
+        assert np.isnan(ds["bodies[2].position"].values[1]).all()
+        assert ds.iterations.values[1] == -1 and np.isnan(ds.imbalance.values[1])
+        assert _bits(ds["bodies[2].position"].values[2]) == _bits(ds["bodies[2].position"].values[3])
+    r = CliRunner().invoke(cli, ["show", str(tmp_path / "s.h5")])
+    assert r.exit_code == 2 and "poise.open_sweep" in r.stderr
