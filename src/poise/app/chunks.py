@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from poise.app.batch import overrides_json
-from poise.app.cases import Param, apply_case, case_hash
+from poise.app.cases import apply_case, case_hash
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_spec
 from poise.core.atomic import OutputError

@@ -23,7 +23,6 @@ import json
 import os
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -363,7 +362,7 @@ def _run_chunks(client, run: _Run, todo: list[tuple[dict, list]], worker_timeout
         work, alone = work
         failed: list[tuple[dict, list, BaseException]] = []
 
-        def done(k, value, exc, work=work):
+        def done(k, value, exc, work=work, failed=failed):
             if exc is None:
                 run.write(value)
             else:
@@ -385,7 +384,7 @@ def _run_chunks(client, run: _Run, todo: list[tuple[dict, list]], worker_timeout
         elif r == 1:
             rounds[2] = (singles, True) if singles else None
         else:
-            for (g, idx, exc) in failed:
+            for _g, idx, exc in failed:
                 _fail(run, idx, exc)
 
 
