@@ -50,8 +50,8 @@ from poise_cli.summary import print_json, table_json
 @debug_option
 def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, out_dir, outputs,
           chunk_size, per_case_files, force, max_cases, method, max_num_iter, max_imbalance,
-          max_error, stability, no_fallback, require_stable, allow_neutral, allow_user_code, ignore, quiet, as_json,
-          debug):
+          max_error, stability, no_fallback, require_stable, allow_neutral, allow_user_code,
+          ignore, quiet, as_json, debug):
     """Solve DECK once per combination of --set values on Dask distributed.
 
     \b
