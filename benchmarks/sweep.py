@@ -101,7 +101,8 @@ def bench_inprocess(root: Path, name: str, repeat: int = 50) -> dict:
                 solve_ms=statistics.median(solve) * 1e3)
 
 
-def run(tmp: Path, root: Path, cases=(1000, 100_000), repeat: int = 5, log=None) -> list[dict]:
+def run(tmp: Path, root: Path, cases=(1000, 100_000), repeat: int = 5, log=None,
+        inprocess_repeat: int = 50) -> list[dict]:
     say = log or (lambda m: None)
     rows = []
     st, rc = _wall(_poise_cmd() + ["solve", str(root / DECK), "-o", str(tmp / "one.h5"),
@@ -109,7 +110,7 @@ def run(tmp: Path, root: Path, cases=(1000, 100_000), repeat: int = 5, log=None)
     rows.append(dict(bench="solve_process", deck=DECK, repeat=repeat, wall_s=st, returncode=rc))
     say(f"poise solve {DECK}: {st['median']:.3f} s")
     for name in (DECK, THREE_BODIES):
-        rows.append(bench_inprocess(root, name))
+        rows.append(bench_inprocess(root, name, inprocess_repeat))
         say(f"poise.solve({name}) in process: {rows[-1]['ms']['median']:.2f} ms")
     for n in cases:
         rows.append(bench_sweep(n, tmp, root))

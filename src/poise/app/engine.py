@@ -218,6 +218,7 @@ def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKE
         futs[client.submit(fn, *args, key=f"poise-{what}-{key}-{time.monotonic_ns()}",
                            pure=False)] = key
     pending = set(futs)
+    total = len(futs)
     seen = time.monotonic()
     where = getattr(client.scheduler, "address", None) or "the scheduler"
     waiting = False
@@ -232,7 +233,8 @@ def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKE
                     value, exc = f.result(), None
                 except Exception as e:  # noqa: BLE001 - the task's or the cluster's error
                     value, exc = None, e
-                on_done(futs[f], value, exc)
+                on_done(futs.pop(f), value, exc)     # released: the cluster forgets it
+                del value
             now = time.monotonic()
             if done or _n_workers(client):
                 seen = now
@@ -247,7 +249,7 @@ def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKE
                 n = len(pending)
                 raise NoWorkers(
                     f"no Dask worker at {where} for {worker_timeout:g} s (none joined, or all "
-                    f"died): gave up with {n} of {len(futs)} {what} not run; what finished is "
+                    f"died): gave up with {n} of {total} {what} not run; what finished is "
                     f"kept (run again to do the rest; --worker-timeout to wait longer)")
     finally:
         if pending:

@@ -22,7 +22,7 @@ import hashlib
 import json
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -179,7 +179,9 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     sweep_hash = hashlib.sha256(json.dumps(
         {"deck_sha256": spec.sha256, "overrides": hashed, "poise_version": __version__},
         sort_keys=True, default=str).encode()).hexdigest()
-    job = SweepJob(data, deck, tuple(params), overrides, outs, layout, bool(allow_user_code),
+    # the parameters without their values: a task carries its own cases' values only
+    job = SweepJob(data, deck, tuple(replace(p, values=[]) for p in params), overrides, outs,
+                   layout, bool(allow_user_code),
                    tuple(kinds), out_abs if per_case_files else None, width,
                    hashlib.sha256(sweep_hash.encode() + json.dumps(
                        [p.key for p in params]).encode()).hexdigest())
