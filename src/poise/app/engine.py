@@ -179,8 +179,11 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, n_task
             except (OSError, TimeoutError, ValueError, TypeError) as e:
                 raise UsageError(f"--scheduler {scheduler!r}: cannot connect: {e}") from None
         else:
-            cfg = {} if allowed_failures is None else \
-                {"distributed.scheduler.allowed-failures": int(allowed_failures)}
+            # no statistical profiler in the workers: its history (an hour of stack samples)
+            # is the memory a long sweep's workers would otherwise grow by
+            cfg = {"distributed.worker.profile.enabled": False}
+            if allowed_failures is not None:
+                cfg["distributed.scheduler.allowed-failures"] = int(allowed_failures)
             nw = workers or os.cpu_count() or 1
             with dask.config.set(cfg), _children_ignore_interrupt():
                 cluster = LocalCluster(n_workers=min(nw, max(1, n_tasks)), threads_per_worker=1,
