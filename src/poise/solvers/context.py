@@ -30,7 +30,9 @@ class Context:
     detected; detection runs once per model and is handed on to later analyses); ``frames`` /
     ``outcomes``: the solved frames; ``times``: the output times; ``notes``: message parts;
     ``measured``: ``{frame: history row}`` whose measures the output evaluation fills in;
-    ``progress``: ``progress(label, done, total)`` or None (``done`` None: finished).
+    ``progress``: ``progress(label, done, total)`` or None (``done`` None: finished);
+    ``infos``: classifications made during the solve (:mod:`poise.solvers.path`), reused by
+    the output.
     """
 
     model: Any
@@ -48,6 +50,7 @@ class Context:
     measured: dict = field(default_factory=dict)
     progress: Callable | None = None
     start: Any = None        # frame 0's assembled input (require_stable descends from it)
+    infos: dict = field(default_factory=dict)   # id(state) -> (state, StabilityInfo) classified
 
     @property
     def kind(self) -> str:

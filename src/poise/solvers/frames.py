@@ -22,6 +22,7 @@ from poise.solvers.certify import certify
 from poise.solvers.history import STRATEGIES
 from poise.solvers.newton import Scales
 from poise.solvers.outputs import element_loads, loads_of
+from poise.solvers.path import cached_info
 from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
 from poise.solvers.stability import (
     DENSE_LIMIT,
@@ -64,9 +65,11 @@ def frame_datasets(ctx, state, outcomes, on_eval=None):
     d = output_datasets(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
                         dep, outcomes)
     done = ctx.data.classified
-    if done is not None and done[0] is state and len(outcomes) == 1:
-        # classified by the solve: also an equilibrium --require-stable refused (neutral)
-        d.update(stability_datasets([done[1]]))
+    known = done[1] if done is not None and done[0] is state else cached_info(ctx, state)
+    if known is not None and (len(outcomes) == 1 or all(o.ok for o in outcomes)):
+        # classified by the solve: also an equilibrium --require-stable refused (neutral),
+        # or a path's located end
+        d.update(stability_datasets([known]))
     elif all(o.ok for o in outcomes) and J is not None:
         d.update(stability_datasets([classify(model, state, J=J, active=saved)]))
     else:   # the same datasets either way: frames of a sequence are concatenated by key
@@ -238,7 +241,10 @@ def frames_datasets(ctx, frames, outcomes, measure=None) -> dict | None:
                 loads.setdefault(g, []).append((Fg.reshape(-1, n_out, 3),
                                                 Tg.reshape(-1, n_out, 3)))
             ok = np.array([o.ok for o in outcomes[a:a + C]])
-            if model.nq <= DENSE_LIMIT:
+            got = [cached_info(ctx, st) for st in chunk]    # classified by the solve (also
+            if all(g is not None for g, k in zip(got, ok) if k):   # a path's located end)
+                infos += [g if g is not None else unknown_info() for g in got]
+            elif model.nq <= DENSE_LIMIT:
                 infos += classify_dense_frames(model, ev.J, saved, ok)
             else:                                     # sparse inertia, frame by frame
                 infos += [classify(model, None, J=ev.J[j], active=saved) if ok[j] else
