@@ -25,6 +25,7 @@ from benchmarks import failfast as bench_failfast
 from benchmarks import frame_error as bench_frame_error
 from benchmarks import singular as bench_singular
 from benchmarks import stable as bench_stable
+from benchmarks import sweep as bench_sweep
 from benchmarks.chain import (SIZES, SMALL_DECK, _pf, _s, bench_chain, bench_cli,
                               machine_info, render_markdown, targets)
 from benchmarks.suite import run as run_issue7
@@ -52,6 +53,9 @@ def main(argv=None) -> int:
                          "skipped with --no-wp)")
     ap.add_argument("--stable-only", action="store_true",
                     help="run only the stable-equilibria table")
+    ap.add_argument("--no-sweep", action="store_true",
+                    help="skip the sweep table (issue 25 §1: 1000 and 100,000 cases)")
+    ap.add_argument("--sweep-only", action="store_true", help="run only the sweep table")
     ap.add_argument("--no-failfast", action="store_true",
                     help="skip the time-to-fail table (failing decks vs healthy ones)")
     ap.add_argument("--failfast-only", action="store_true",
@@ -66,10 +70,11 @@ def main(argv=None) -> int:
     root = Path(__file__).resolve().parents[1]
     machine = machine_info()
     results = []
-    only = args.stable_only or args.failfast_only or args.path_only
+    only = args.stable_only or args.failfast_only or args.path_only or args.sweep_only
     if only:
         args.sizes, args.no_cli, args.no_expr, args.no_wp = "", True, True, True
         args.no_adm = True
+        args.no_sweep = not args.sweep_only
     with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
         tmp = Path(td)
         for n in [int(x) for x in args.sizes.split(",") if x.strip()]:
@@ -97,8 +102,15 @@ def main(argv=None) -> int:
             results.append(ra)
             wp_md.append(bench_adm.markdown(ra))
             wp_targets += bench_adm.targets(ra)
+        if not args.no_sweep:   # issue 25 §1: sweeps of a small model, in-process solve
+            sw = bench_sweep.run(tmp, root, (1000, 10_000) if args.quick else (1000, 100_000),
+                                 log=lambda m: print(m, file=sys.stderr, flush=True))
+            results += sw
+            wp_md += bench_sweep.markdown(sw)
+            wp_targets += bench_sweep.targets(sw)
         if not args.no_wp:      # issue 7: work-precision, peer, scaling (benchmarks)
-            other = ("expressions", "adm_read_check")
+            other = ("expressions", "adm_read_check", "sweep", "solve_process",
+                     "inprocess_solve")
             wp_rows, md7, t7 = run_issue7(root, tmp, [r for r in results
                                                        if r.get("bench") not in other],
                                           quick=args.quick)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import shlex
 import sys
 
 import click
@@ -29,12 +30,16 @@ from poise_cli.summary import print_json, table_json
 @workers_option
 @worker_timeout_option
 @click.option("--out-dir", type=click.Path(file_okay=False), default="poise_sweep",
-              show_default=True, help="Directory for case_NNNNN.h5 and index.csv/index.json.")
+              show_default=True, help="Directory for sweep.h5 and index.csv/index.json.")
 @click.option("--output", "outputs", multiple=True, metavar="GROUP[ID].DATASET",
-              help="Index column(s) from the last frame, e.g. bodies[2].position, "
-                   "joints[1].force, requests[1].values: any per-element dataset of "
-                   "docs/results-format.md. Repeat.")
-@click.option("--force", is_flag=True, help="Rerun cases whose results file is complete.")
+              help="Variable of sweep.h5 at every frame and index column(s) from the last "
+                   "frame, e.g. bodies[2].position, joints[1].force, requests[1].values: any "
+                   "per-element dataset of docs/results-format.md. Repeat.")
+@click.option("--chunk-size", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Cases per Dask task (default: about 8 chunks per worker, at most 1000).")
+@click.option("--per-case-files", is_flag=True,
+              help="Also write each case's results file OUT_DIR/case_NNNNN.h5.")
+@click.option("--force", is_flag=True, help="Solve every case again (reuse nothing).")
 @click.option("--max-cases", type=click.IntRange(min=1), default=100_000, show_default=True,
               help="Refuse sweeps with more cases than this (counted before any case is made).")
 @solver_options
@@ -44,17 +49,20 @@ from poise_cli.summary import print_json, table_json
 @json_option
 @debug_option
 def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, out_dir, outputs,
-          force, max_cases, method, max_num_iter, max_imbalance, max_error, stability,
-          no_fallback, require_stable, allow_neutral, allow_user_code, ignore, quiet, as_json,
-          debug):
+          chunk_size, per_case_files, force, max_cases, method, max_num_iter, max_imbalance,
+          max_error, stability, no_fallback, require_stable, allow_neutral, allow_user_code,
+          ignore, quiet, as_json, debug):
     """Solve DECK once per combination of --set values on Dask distributed.
 
     \b
-    Each case writes OUT_DIR/case_NNNNN.h5; OUT_DIR/index.csv and index.json hold one row per
-    case: case, the parameter values, file, status, exit_code, iterations, wall_time, the
-    worst imbalance and stability class with their frames and modes, resumed, message, ignored
-    (what --ignore left out of an Adams dataset) and the --output columns. Cases whose file is complete and was
-    made with the same values are not run again (resume after an interruption).
+    Cases go to the workers in chunks; their results go into one file, OUT_DIR/sweep.h5
+    (netCDF-4: dimension case with the parameters as coordinates; open it with
+    xarray.open_dataset(path, engine="h5netcdf") or poise.open_sweep). OUT_DIR/index.csv and
+    index.json hold one row per case: case, the parameter values, file, status, exit_code,
+    iterations, wall_time, the worst imbalance, error and stability class with their frames
+    and modes, resumed, message, ignored (what --ignore left out of an Adams dataset) and the
+    --output columns. Cases already solved with the same deck, options and values (an
+    interrupted sweep, a longer range) are taken from the last run, not solved again.
     Exit code: the worst case's (0, 1, 3, 4); 2 for a bad --set/--output, or when the cluster
     had no worker for --worker-timeout seconds (the index keeps the finished cases); 3 invalid
     deck.
@@ -76,16 +84,17 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, 
     from poise_cli.streams import guarded_stdout
     try:
         # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
-        from poise.app.batch import worst_exit_code
         from poise.app.sweep import INDEX_VERSION, run_sweep
         with guarded_stdout(quiet):      # workers inherit fd 1: nothing of theirs on stdout
-            rows = run_sweep(deck, list(sets), mode=mode, out_dir=out_dir, scheduler=scheduler,
-                             outputs=list(outputs), n=n_random, seed=seed,
-                             workers=workers or None,
-                             overrides=overrides, force=force, progress=None if not quiet else False,
-                             on_row=on_row, max_cases=max_cases, allow_user_code=allow_user_code,
-                             worker_timeout=worker_timeout,
-                             **({"ignore": ignore} if ignore else {}))
+            out = run_sweep(deck, list(sets), mode=mode, out_dir=out_dir, scheduler=scheduler,
+                            outputs=list(outputs), n=n_random, seed=seed,
+                            workers=workers or None,
+                            overrides=overrides, force=force, progress=None if not quiet else False,
+                            on_row=on_row, max_cases=max_cases, allow_user_code=allow_user_code,
+                            worker_timeout=worker_timeout, chunk_size=chunk_size,
+                            per_case_files=per_case_files, rows=as_json,
+                            command=shlex.join(["poise", *sys.argv[1:]]),
+                            **({"ignore": ignore} if ignore else {}))
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:
@@ -95,20 +104,21 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, 
                                   index_version=1, deck=deck, **info))
         ctx.exit(code)
         return
-    code = worst_exit_code(r["exit_code"] for r in rows)
-    n_resumed = sum(bool(r.get("resumed")) for r in rows)
-    doc = table_json("sweep", out_dir, code, rows, n_resumed, index,
-                     index_version=INDEX_VERSION, deck=deck, n_cases=len(rows),
-                     resumed=n_resumed, index=index)
-    counts = doc["counts"]
+    code = out.exit_code
+    n_resumed = out.n_resumed
+    counts = out.counts
     if as_json:
+        doc = table_json("sweep", out_dir, code, out.rows or [], n_resumed, index,
+                         index_version=INDEX_VERSION, deck=deck, n_cases=out.n_cases,
+                         resumed=n_resumed, index=index, sweep_file=out.path,
+                         chunk_size=out.chunk_size)
         print_json(doc)
     if not quiet:
-        left = next((r["ignored"] for r in rows if r.get("ignored")), "")
-        click.echo(f"poise sweep: {plural(len(rows), 'case')}: "
+        left = out.ignored
+        click.echo(f"poise sweep: {plural(out.n_cases, 'case')}: "
                    + ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
-                   + f" ({n_resumed} resumed, {len(rows) - n_resumed} run); index in "
-                   + os.path.join(out_dir, "index.csv")
+                   + f" ({n_resumed} resumed, {out.n_cases - n_resumed} run); results in "
+                   + out.path + ", index in " + os.path.join(out_dir, "index.csv")
                    + (f"; left out (--ignore): {left}" if left else ""), err=True)
     sys.stdout.flush()
     ctx.exit(code)

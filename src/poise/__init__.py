@@ -10,11 +10,12 @@ from poise.core import blas as _blas  # noqa: F401
 
 from poise.core.version import __version__
 
-__all__ = ["__version__", "solve", "sweep", "load_deck", "run_deck", "check_deck",
+__all__ = ["__version__", "solve", "sweep", "open_sweep", "load_deck", "run_deck", "check_deck",
            "read_results", "write_results", "plot_results", "RunResult", "DeckSpec"]
 
 # lazy public API: name -> module holding it (imported on first use, keeps `import poise` light)
-_LAZY = {"solve": "poise.app.api", "sweep": "poise.app.api", "run_deck": "poise.app.api",
+_LAZY = {"solve": "poise.app.api", "sweep": "poise.app.api", "open_sweep": "poise.app.api",
+         "run_deck": "poise.app.api",
          "check_deck": "poise.app.api", "read_results": "poise.results.hdf5",
          "write_results": "poise.results.hdf5", "load_deck": "poise.app.api",
          "plot_results": "poise.viz.plot", "RunResult": "poise.results.data",

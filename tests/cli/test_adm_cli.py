@@ -206,9 +206,9 @@ def test_sweep_ignore_records_in_cases_index_and_summary(tmp_path):
         x, y = row["bodies[2].position[0]"], row["bodies[2].position[1]"]
         theta = np.arctan2(-y, x)
         assert abs(k * theta - 9.81 * np.cos(theta)) < 1e-8
-        with h5py.File(out / row["file"]) as f:
-            assert json.loads(f.attrs["ignored"])[0]["kind"] == "CONTACT"
-            assert json.loads(f.attrs["run_overrides"]) == {"ignore": ["CONTACT"]}
+    with h5py.File(out / "sweep.h5") as f:
+        assert json.loads(f.attrs["ignored"])[0]["kind"] == "CONTACT"
+        assert json.loads(f.attrs["overrides"]) == {"ignore": ["CONTACT"]}
     index = json.loads((out / "index.json").read_text())
     assert index["ignore"] == ["CONTACT"] and index["ignored"][0]["line"] == 10
     r = poise(*args, "--ignore", "CONTACT", "--json")        # the same kinds: resumed

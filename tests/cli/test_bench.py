@@ -5,13 +5,15 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from support.paths import ROOT
 
 
 def test_bench_smoke(tmp_path):
     out = tmp_path / "results.jsonl"
     md = tmp_path / "performance.md"
-    r = subprocess.run([sys.executable, "-m", "benchmarks", "--no-wp", "--sizes", "10", "--repeat", "1",
+    r = subprocess.run([sys.executable, "-m", "benchmarks", "--no-wp", "--no-sweep", "--sizes", "10", "--repeat", "1",
                         "--cli-repeat", "1", "--out", str(out), "--markdown", str(md)],
                        capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert r.returncode == 0, r.stderr
@@ -31,3 +33,19 @@ def test_bench_smoke(tmp_path):
             assert x["returncode"] == 0 and set(x["wall_s"]) >= {"median", "min", "max"}
     text = md.read_text()
     assert "## Targets" in text and "## Machine" in text and "| 10 |" in text
+
+
+@pytest.mark.slow
+def test_sweep_bench_rows_and_targets(tmp_path):
+    """The sweep table (issue 25 §1) on a 6-case sweep: its rows, the report and the ratios."""
+    pytest.importorskip("distributed")
+    from benchmarks import sweep as bs
+    rows = bs.run(tmp_path, ROOT, cases=(6,), repeat=1, inprocess_repeat=2)
+    assert [r["bench"] for r in rows] == ["solve_process", "inprocess_solve", "inprocess_solve",
+                                          "sweep"]
+    sw = rows[-1]
+    assert sw["returncode"] == 0 and sw["converged"] == 6 and sw["case_ms_median"] > 0
+    assert sw["peak_rss_mb"] > 0 and rows[2]["bodies"] == 3 and rows[2]["status"] == "converged"
+    assert "| sweep, 6 cases |" in "\n".join(bs.markdown(rows))
+    names = [t[0] for t in bs.targets(rows)]
+    assert any("3-body deck" in n for n in names)        # 1000/100,000 rows: not run here

@@ -60,7 +60,7 @@ def test_batch_jobs_alias_and_sweep_workers_reach_the_engine(tmp_path, monkeypat
 
     def fake_sweep(deck, sets, workers=None, **kw):
         seen.setdefault("sweep", []).append(workers)
-        return []
+        return sweep_mod.SweepOutcome("sweep.h5", "index.csv", 2, {"converged": 2}, 0, 0)
 
     monkeypatch.setattr(batch_mod, "run_batch", fake_batch)
     monkeypatch.setattr(sweep_mod, "run_sweep", fake_sweep)

@@ -280,11 +280,12 @@ def test_cli_neutral_and_quasistatic(tmp_path):
 
 
 def test_sweep_row_carries_the_summary(tmp_path):
-    from poise.app.sweep import run_case
+    import json
+
+    from poise.app.chunks import FrameLayout, SweepJob, make_template, solve_chunk
     deck = tilted_inverted_pendulum().write(tmp_path / "up.xml")
-    data = Path(deck).read_bytes()
-    row = run_case(data, deck, [], 0, {}, None, str(tmp_path / "case_00000.h5"), "h", [])
-    assert (row["status"], row["stability_class"], row["n_negative"]) == \
-        ("converged", "unstable", 1)
-    np.testing.assert_allclose(row["modes"][0]["direction"], expected_direction(AXIS),
+    job = SweepJob(Path(deck).read_bytes(), str(deck), (), {}, (), FrameLayout((0.0,), (0,)))
+    rec, = solve_chunk(make_template(job, {}), [(0, {})])
+    assert (rec.status, rec.stability, rec.n_negative) == ("converged", "unstable", 1)
+    np.testing.assert_allclose(json.loads(rec.modes)[0]["direction"], expected_direction(AXIS),
                                atol=1e-8)

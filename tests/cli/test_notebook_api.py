@@ -114,10 +114,13 @@ def test_misspelt_deckspec_attribute_is_an_error():
 def test_sweep_passes_a_dask_client_on(monkeypatch, tmp_path):
     import poise.app.sweep as sw
     seen = {}
-    monkeypatch.setattr(sw, "run_sweep", lambda *a, **kw: seen.update(kw) or [])
+    import poise.app.api as api
+    monkeypatch.setattr(sw, "run_sweep", lambda *a, **kw: seen.update(kw) or sw.SweepOutcome(
+        "there/sweep.h5", "there/index.csv", 1, {"converged": 1}, 0, 0))
+    monkeypatch.setattr(api, "open_sweep", lambda path: ("opened", path))
     client = object()
     assert poise.sweep(DECKS / "pendulum_multiturn.xml", {"Param_Static.max_num_iter": [5]},
-                       out_dir=str(tmp_path), client=client) == []
+                       out_dir=str(tmp_path), client=client) == ("opened", "there/sweep.h5")
     assert seen["client"] is client
 
 

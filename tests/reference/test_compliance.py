@@ -348,7 +348,8 @@ def test_batch_and_sweep_take_the_compliance_options(tmp_path, monkeypatch):
         C = f["analysis_000/frames/compliance"][0]
         np.testing.assert_allclose(C, pendulum_expected(), rtol=1e-7, atol=1e-10)
     seen = {}
-    monkeypatch.setattr(sw, "run_sweep", lambda *a, **kw: seen.update(kw) or [])
+    monkeypatch.setattr(sw, "run_sweep", lambda *a, **kw: seen.update(kw) or sw.SweepOutcome(
+        "sweep.h5", "index.csv", 2, {"converged": 2}, 0, 0))
     r = CliRunner().invoke(cli, ["sweep", str(p), "--set", "Param_Static.max_num_iter=20,30",
                                  "--out-dir", str(tmp_path / "s"), "-q",
                                  "--compliance-markers", "all", "--compliance-method", "FD"])

@@ -360,7 +360,7 @@ def test_sweep_passes_the_opt_in_to_the_workers(tmp_path):
     _script(tmp_path / "routine.py")
     deck = _deck(tmp_path)
     rows = run_sweep(str(deck), {"Body_Point[2].mass": [1.0, 3.0]}, out_dir=str(tmp_path / "s"),
-                     workers=1, outputs=["bodies[2].position"], progress=False)
+                     workers=1, outputs=["bodies[2].position"], progress=False, rows=True).rows
     assert [r["status"] for r in rows] == ["invalid_deck", "invalid_deck"]
     assert all("allow_user_code=True" in r["message"] for r in rows)
     r = _poise("sweep", deck, "--set", "Body_Point[2].mass=1.0,3.0", "--workers", "1",

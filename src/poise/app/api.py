@@ -10,12 +10,14 @@ from poise.app.check import CheckReport, check
 from poise.app.engine import WORKER_TIMEOUT
 from poise.app.runner import run_deck, run_spec
 from poise.core.errors import require_file
+from poise.core.extras import available
 from poise.deck.parser import load_deck as _load_deck
 from poise.deck.spec import DeckSpec
 from poise.results.data import RunResult
 from poise.solvers.settings import check_override_names
 
-__all__ = ["CheckReport", "RunResult", "check_deck", "load_deck", "run_deck", "solve", "sweep"]
+__all__ = ["CheckReport", "RunResult", "check_deck", "load_deck", "open_sweep", "run_deck",
+           "solve", "sweep"]
 
 
 def check_deck(path, ignore=()) -> CheckReport:
@@ -100,22 +102,48 @@ def solve(deck, *, method: str | None = None, max_num_iter: int | None = None,
 def sweep(deck, sets: dict, mode: str = "grid", out_dir: str = "sweep", scheduler=None,
           outputs=(), n=None, seed=0, workers=None, overrides=None, force=False,
           allow_user_code: bool = False, client=None,
-          worker_timeout: float | None = WORKER_TIMEOUT, ignore=()) -> list[dict]:
-    """Parameter sweep on Dask distributed; returns the index rows (one dict per case).
+          worker_timeout: float | None = WORKER_TIMEOUT, ignore=(), chunk_size=None,
+          per_case_files: bool = False, quiet: bool = False):
+    """Parameter sweep on Dask distributed; returns the sweep file as a labelled dataset.
 
     ``sets`` maps ``"Tag[id].attr"`` / ``"Tag.attr"`` to a list of values or a range string
     (``"10:100:10"``, ``"FIM_S,MKEAM"``); ``mode`` is ``grid``, ``zip`` or ``random`` (``n``
-    cases, ``seed``). ``client``: an existing ``dask.distributed.Client`` to run on
+    cases, ``seed``). ``outputs``: ``group[id].dataset`` variables kept at every frame
+    (``"bodies[2].position"``). ``client``: an existing ``dask.distributed.Client`` to run on
     (``scheduler`` and ``workers`` are then ignored); otherwise ``scheduler`` (an address) or
     a local cluster of ``workers`` processes. ``overrides``: solver options for every case
     (the names of :func:`solve`'s). ``worker_timeout``: seconds without a Dask worker before
     giving up (:class:`poise.app.engine.NoWorkers`). ``ignore``: kinds of Adams statements
-    left out instead of refused (``--ignore``). See :func:`poise.app.sweep.run_sweep`.
+    left out instead of refused (``--ignore``). ``chunk_size``: cases per Dask task (default:
+    from the number of cases and workers); ``per_case_files``: also write each case's results
+    file; ``quiet``: no progress bar.
+
+    Returns ``OUT_DIR/sweep.h5`` opened with ``xarray.open_dataset(..., engine="h5netcdf")``
+    (dimension ``case`` with the swept parameters as coordinates, ``frame`` with ``time``;
+    one variable per output; ``status``, ``iterations``, ``imbalance``, ... per case), or its
+    path (a ``pathlib.Path``) when xarray is not installed (``pip install 'poise[xarray]'``).
+    The index ``OUT_DIR/index.csv`` / ``index.json`` holds the same cases as rows. See
+    :func:`poise.app.sweep.run_sweep` (which returns a summary of the run instead).
     """
     check_override_names(overrides)
     require_file(deck, "deck")
     from poise.app.sweep import run_sweep   # lazy: keeps `poise solve` start-up light
-    return run_sweep(deck, sets, mode=mode, out_dir=out_dir, scheduler=scheduler,
-                     outputs=outputs, n=n, seed=seed, workers=workers, overrides=overrides,
-                     force=force, allow_user_code=allow_user_code, client=client,
-                     worker_timeout=worker_timeout, **({"ignore": ignore} if ignore else {}))
+    out = run_sweep(deck, sets, mode=mode, out_dir=out_dir, scheduler=scheduler,
+                    outputs=outputs, n=n, seed=seed, workers=workers, overrides=overrides,
+                    force=force, allow_user_code=allow_user_code, client=client,
+                    worker_timeout=worker_timeout, ignore=ignore, chunk_size=chunk_size,
+                    per_case_files=per_case_files, progress=False if quiet else None,
+                    command="poise.sweep")
+    return open_sweep(out.path)
+
+
+def open_sweep(path):
+    """A sweep file (``OUT_DIR/sweep.h5``) as an ``xarray.Dataset``, or its path (a
+    ``pathlib.Path``) when xarray is not installed. A missing file raises
+    ``FileNotFoundError``."""
+    import pathlib
+    require_file(path, "sweep file")
+    if not available("xarray"):
+        return pathlib.Path(path)
+    from poise.results.sweepfile import open_sweep as _open   # lazy: h5py, xarray
+    return _open(path)

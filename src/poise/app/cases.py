@@ -11,6 +11,10 @@ a solver override.
 Modes: ``grid`` (Cartesian product, first parameter slowest), ``zip`` (parameters in lock-step,
 equal lengths), ``random`` (``n`` cases; ranges of real attributes are sampled uniformly in
 [a, b], other parameters uniformly from their values; ``numpy.random.default_rng(seed)``).
+
+Groups and chunks: cases with the same values of the structural (enum, boolean) parameters
+form a group; each group is cut into chunks of consecutive cases (:func:`chunks`), the unit a
+worker solves and a resumed sweep keeps.
 """
 from __future__ import annotations
 
@@ -43,6 +47,12 @@ class Param:
     values: list
     range: tuple | None = None        # (a, b) of an a:b:step range
     override: bool = False            # Param_Static without a model element: solver override
+
+    @property
+    def structural(self) -> bool:
+        """An enum or boolean attribute (a method, a joint type, a flag): cases with other
+        values may have another structure, so they are solved in separate groups."""
+        return self.kind in ("enum", "bool")
 
 
 # ---------------------------------------------------------------------------- parameters
@@ -255,4 +265,34 @@ def apply_case(spec, params: list[Param], values: dict):
     return replace(spec, model=model, warnings=[]), overrides
 
 
-# ---------------------------------------------------------------------------- outputs
+# ---------------------------------------------------------------------------- chunks
+def group_cases(params: list[Param], cases: list[dict], todo) -> dict[str, tuple[dict, list]]:
+    """``{group key: (structural values, [case numbers])}`` of the cases ``todo`` (in order),
+    grouped by the values of the structural parameters (one group when there are none)."""
+    keys = [p.key for p in params if p.structural]
+    out: dict[str, tuple[dict, list]] = {}
+    for i in todo:
+        group = {k: cases[i][k] for k in keys}
+        g = json.dumps(group, sort_keys=True, default=str)
+        out.setdefault(g, (group, []))[1].append(int(i))
+    return out
+
+
+#: most cases in one chunk (progress and memory per task stay small)
+MAX_CHUNK = 1000
+
+
+def chunk_size(n: int, workers: int, per_case_bytes: int = 0, limit: int = 64 << 20) -> int:
+    """Cases per chunk for ``n`` cases on ``workers``: about eight chunks per worker (load
+    balance, progress), at most :data:`MAX_CHUNK` and at most ``limit`` bytes of results per
+    chunk (``per_case_bytes`` each)."""
+    size = math.ceil(n / max(1, 8 * max(1, workers)))
+    if per_case_bytes:
+        size = min(size, max(1, limit // per_case_bytes))
+    return max(1, min(MAX_CHUNK, size))
+
+
+def chunks(groups: dict, size: int) -> list[tuple[dict, list]]:
+    """``[(structural values, [case numbers])]``: each group cut into chunks of ``size``."""
+    return [(group, idx[k:k + size]) for group, idx in groups.values()
+            for k in range(0, len(idx), size)]

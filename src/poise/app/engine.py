@@ -179,8 +179,11 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, n_task
             except (OSError, TimeoutError, ValueError, TypeError) as e:
                 raise UsageError(f"--scheduler {scheduler!r}: cannot connect: {e}") from None
         else:
-            cfg = {} if allowed_failures is None else \
-                {"distributed.scheduler.allowed-failures": int(allowed_failures)}
+            # no statistical profiler in the workers: its history (an hour of stack samples)
+            # is the memory a long sweep's workers would otherwise grow by
+            cfg = {"distributed.worker.profile.enabled": False}
+            if allowed_failures is not None:
+                cfg["distributed.scheduler.allowed-failures"] = int(allowed_failures)
             nw = workers or os.cpu_count() or 1
             with dask.config.set(cfg), _children_ignore_interrupt():
                 cluster = LocalCluster(n_workers=min(nw, max(1, n_tasks)), threads_per_worker=1,
@@ -218,6 +221,7 @@ def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKE
         futs[client.submit(fn, *args, key=f"poise-{what}-{key}-{time.monotonic_ns()}",
                            pure=False)] = key
     pending = set(futs)
+    total = len(futs)
     seen = time.monotonic()
     where = getattr(client.scheduler, "address", None) or "the scheduler"
     waiting = False
@@ -232,7 +236,8 @@ def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKE
                     value, exc = f.result(), None
                 except Exception as e:  # noqa: BLE001 - the task's or the cluster's error
                     value, exc = None, e
-                on_done(futs[f], value, exc)
+                on_done(futs.pop(f), value, exc)     # released: the cluster forgets it
+                del value
             now = time.monotonic()
             if done or _n_workers(client):
                 seen = now
@@ -247,7 +252,7 @@ def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKE
                 n = len(pending)
                 raise NoWorkers(
                     f"no Dask worker at {where} for {worker_timeout:g} s (none joined, or all "
-                    f"died): gave up with {n} of {len(futs)} {what} not run; what finished is "
+                    f"died): gave up with {n} of {total} {what} not run; what finished is "
                     f"kept (run again to do the rest; --worker-timeout to wait longer)")
     finally:
         if pending:

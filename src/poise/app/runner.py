@@ -249,22 +249,25 @@ def _check_compliance_markers(spec, s, el, from_cli: bool) -> None:
 
 
 def run(path: str, overrides=None, command: str = "", progress=None,
-        allow_user_code: bool = False, ignore=()) -> RunResult:
+        allow_user_code: bool = False, ignore=(), model=None) -> RunResult:
     """``allow_user_code``: run the Python user routines the deck names (otherwise such a deck
     is a located deck error saying how to allow them). ``ignore``: kinds of Adams dataset
-    statements left out instead of refused (recorded in the results).
+    statements left out instead of refused (recorded in the results). ``model``: the model
+    already compiled from this deck's model elements (a sweep's cases that change only
+    ``Param_Static`` values share one: :mod:`poise.app.chunks`), else it is compiled here.
 
     BLAS runs single-threaded meanwhile (poise.core.blas: the dense work is on tiny blocks,
     whatever the caller imported first), and the modules imported on the way are timed as
     their own phase, ``timings['import']``, outside parse/compile/solve (poise.core.phases)."""
     with phases.counting_imports(), blas.limited():
         imported = phases.import_seconds()
-        res = _run(path, overrides, command, progress, allow_user_code, ignore)
+        res = _run(path, overrides, command, progress, allow_user_code, ignore, model)
         res.timings["import"] = phases.import_seconds() - imported
         return res
 
 
-def _run(path, overrides, command, progress, allow_user_code, ignore=()) -> RunResult:
+def _run(path, overrides, command, progress, allow_user_code, ignore=(),
+         model=None) -> RunResult:
     phases.reset()
     now = phases.now            # a clock that stops while modules are imported
     t0 = now()
@@ -272,7 +275,8 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=()) -> RunR
     path = spec.path
     t1 = now()
     user_code = "run" if allow_user_code else "refuse"
-    model = compile_model(spec, user_code=user_code)
+    if model is None:
+        model = compile_model(spec, user_code=user_code)
     t2 = now()
     analyses = plan(spec, overrides)
     problems = []
@@ -399,11 +403,11 @@ def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
 
 
 def run_spec(spec: DeckSpec, overrides=None, command: str = "", progress=None,
-             allow_user_code: bool = False, quiet: bool = False) -> RunResult:
+             allow_user_code: bool = False, quiet: bool = False, model=None) -> RunResult:
     """Run an already-parsed (possibly modified) :class:`DeckSpec`; same as :func:`run`."""
     with solver_progress(False if quiet else None):
         return run(spec, overrides=overrides, command=command, progress=progress,
-                   allow_user_code=allow_user_code)
+                   allow_user_code=allow_user_code, model=model)
 
 
 def joint_marker_datasets(spec: DeckSpec, model) -> dict:

@@ -283,7 +283,9 @@ def _open_checked(path: str) -> h5py.File:
     fmt = _py(f.attrs.get("format"))
     if fmt != FORMAT:
         f.close()
-        raise ResultsFormatError(f"{path}: not a poise results file (format={fmt!r})")
+        sweep = "; a sweep file (one row per case): open it with poise.open_sweep(path) or " \
+            "xarray.open_dataset(path, engine='h5netcdf')" if fmt == "poise-sweep" else ""
+        raise ResultsFormatError(f"{path}: not a poise results file (format={fmt!r}){sweep}")
     version = _py(f.attrs.get("format_version"))
     if version != FORMAT_VERSION:
         f.close()

@@ -31,9 +31,10 @@ from poise.results.schema_dims import (  # noqa: F401 (the netCDF view, re-expor
     group_coordinates,
     long_name,
 )
+from poise.results import schema_sweep
 from poise.results.schema_items import Item, declared
 
-SCOPES = ("root", "model", "analysis", "timings", "counts")
+SCOPES = ("root", "model", "analysis", "timings", "counts", schema_sweep.SCOPE)
 _DTYPES = {"float": "f", "int": "iu", "bool": "b", "str": "OSUT", "json": "OSUT"}
 
 
@@ -44,7 +45,7 @@ class UndeclaredError(AssertionError):
 
 @functools.cache
 def items() -> tuple[Item, ...]:
-    out = tuple(declared())
+    out = tuple(declared()) + tuple(schema_sweep.declared())
     seen = set()
     for it in out:
         assert it.scope in SCOPES and it.dtype in _DTYPES, it
@@ -382,6 +383,7 @@ def dimension_table() -> str:
         where = sorted({it.scope for it in items() if it.kind == "dataset"
                         and name in dims(it)})
         place = ", ".join("`/`" if w == "root" else "`/model`" if w == "model"
+                          else "sweep file" if w == schema_sweep.SCOPE
                           else "`/analysis_NNN`" for w in where)
         e = next((it.name[:-3] for it in items() if it.kind == "dataset"
                   and it.name.endswith("/id") and dims(it) == (name,)), None)

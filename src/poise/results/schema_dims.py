@@ -6,7 +6,8 @@ stores them), a ``long_name`` and, in element groups, a ``coordinates`` attribut
 shape symbol is :data:`DIMENSIONS`; a fixed-size axis is named by :data:`ITEM_DIMS` or, for a
 trailing 3 (or 3×3), ``axis`` (``axis, marker_axis``). Symbol dimensions live in the group of
 their scope (``/model``, each ``/analysis_NNN``); fixed-size ones at the root, with coordinate
-values (:data:`COMPONENTS`). ``case`` is reserved for a root dimension of sweep files.
+values (:data:`COMPONENTS`). ``case`` (symbol ``C``) is the root dimension of sweep files
+(:mod:`poise.results.schema_sweep`).
 Adding a dataset: give it a long name in :data:`LONG_NAMES` (patterns ``<group>``: any element
 group); a new shape symbol needs a :data:`DIMENSIONS` entry.
 """
@@ -21,7 +22,7 @@ DIMENSIONS = {
     "Mk": "marker", "Gr": "graphic", "K": "mode", "N": "iteration", "Np": "pose",
     "I1": "mkeam_iterate", "Ct": "contact", "D": "redundant_equation", "R": "request",
     "Dd": "diff", "V": "reference_variable", "Mc": "compliance_marker", "S": "step",
-    "Gc": "gcon",
+    "Gc": "gcon", "C": "case",
 }
 RESERVED = ("case",)
 #: meanings of the symbol dimensions in the format document
@@ -33,6 +34,8 @@ DIM_MEANINGS = {
     "mkeam_iterate": "MKEAM start and restarts", "mode": "described mode (all frames)",
     "redundant_equation": "removed redundant equation", "step": "accepted IDA step",
     "warning": "deck warning", "compliance_marker": "compliance marker",
+    "case": "sweep case (sweep files: `case` holds the case numbers; the swept parameters "
+            "are its other coordinates)",
 }
 
 #: fixed-size dimensions (root): name -> (coordinate values or a size, meaning)
@@ -168,6 +171,21 @@ LONG_NAMES = {
     "analysis/steps/convergence_failures": "IDA convergence failures",
     "analysis/steps/jacobian_evaluations": "IDA Jacobian evaluations",
     "analysis/steps/rebase": "IDA reinitialised before the step",
+    "sweep/case": "case number", "sweep/time": "time", "sweep/analysis": "analysis of the frame",
+    "sweep/status": "case status", "sweep/exit_code": "exit code of the case",
+    "sweep/iterations": "iterations of all frames", "sweep/wall_time": "wall time of the case",
+    "sweep/imbalance": "largest force imbalance",
+    "sweep/imbalance_analysis": "analysis of the largest imbalance",
+    "sweep/imbalance_frame": "frame of the largest imbalance", "sweep/error": "largest error",
+    "sweep/stability": "worst stability class",
+    "sweep/stability_analysis": "analysis of the worst stability class",
+    "sweep/stability_frame": "frame of the worst stability class",
+    "sweep/n_negative": "negative stiffness eigenvalues",
+    "sweep/n_zero": "zero stiffness eigenvalues",
+    "sweep/stability_modes": "unstable and neutral modes", "sweep/modes": "modes as numbers",
+    "sweep/message": "why the case failed", "sweep/converged": "frame converged",
+    "sweep/file": "the case's results file", "sweep/<parameter>": "swept parameter",
+    "sweep/<output>": "(the long name of the output's dataset)",
 }
 
 
