@@ -27,18 +27,6 @@ GLOBAL = 0  # compiled marker index of the global frame (marker id 0)
 
 
 @dataclass
-class EvalContext:
-    """What element kernels may read besides slot vectors."""
-
-    t: float
-    angle: np.ndarray
-    static: bool = True
-    extra: np.ndarray | None = None  # (ne,) scalar unknowns
-    P: np.ndarray | None = None      # (nm, 3) marker origins (expression families)
-    A: np.ndarray | None = None      # (nm, 3, 3) marker axes as columns
-    reactions: np.ndarray | None = None  # reaction channels read by expression forces
-
-@dataclass
 class Family:
     """Base class of element families (vectorised over ``n`` instances).
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.elements.base import EvalContext
+from poise.expr import EvalContext
 from poise.elements.context import GLOBAL
 from poise.elements.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_YI, S_YJ, S_ZI, S_ZJ, \
     TwoBodyForce

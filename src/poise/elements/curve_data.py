@@ -100,7 +100,7 @@ class _AnalyticBase:
         k = params.shape[0]
         b = self._batch(k)
         try:
-            out = b.evaluate(EvalContext(scalars=np.asarray(params, float).ravel()))
+            out = b.evaluate(EvalContext(extra=np.asarray(params, float).ravel()))
         except EvaluationError as e:
             i = getattr(e, "instance", None)
             if i is None:

@@ -18,7 +18,6 @@ from poise.elements.registry import ElementType, batch_time_sources, not_conserv
 from poise.elements.resolver import (compile_batch_located, ground_markers, held, is_user,
                                      scalar_unknown)
 from poise.elements.user import compile_user_variables
-from poise.expr import EvalContext as XC
 
 
 class ScalarEquation(ForceFamily):
@@ -42,9 +41,7 @@ class ScalarEquation(ForceFamily):
 
     def forces(self, kin, ctx, need_jac=True):
         n, S, U = self.n, len(self.slot_ml), self.U
-        xc = XC(time=float(ctx.t), P=ctx.P, A=ctx.A, angle_ref=ctx.angle,
-                scalars=ctx.extra, static=True)
-        out = self.batch.evaluate(xc)
+        out = self.batch.evaluate(ctx)
         rho = np.zeros((n, 3 * S))
         rs = np.zeros((n, U))
         rs[:, 0] = out.value

@@ -7,6 +7,8 @@ Marker and slot layout, and the force laws of vector and scalar forces: :class:`
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from poise.core.errors import EvaluationError
@@ -14,7 +16,6 @@ from poise.elements.base import ForceFamily, column_map, columns_array
 from poise.elements.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
 from poise.elements.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
 from poise.elements.resolver import compile_batch_located
-from poise.expr import EvalContext as XC
 
 _I3 = np.eye(3)
 VEC_ATTRS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -60,9 +61,7 @@ class ExprForce(ForceFamily):
         t = ctx.t
         # one time per frame (frames evaluated together, model/frame_batch): one per instance
         t = np.repeat(np.asarray(t, float), self.n // len(t)) if np.ndim(t) else float(t)
-        xc = XC(time=t, P=getattr(ctx, "P", None), A=getattr(ctx, "A", None),
-                angle_ref=ctx.angle, static=bool(getattr(ctx, "static", True)),
-                scalars=getattr(ctx, "extra", None), reactions=getattr(ctx, "reactions", None))
+        xc = replace(ctx, t=t)
         n, S = self.n, len(self.slot_ml)
         vals = np.zeros((n, len(self.batches)))
         grads = np.zeros((n, len(self.batches), S, 3)) if need_jac else None

@@ -22,7 +22,6 @@ from poise.elements.base import GLOBAL, ConstraintFamily, _cross
 from poise.elements.diff_vars import layout
 from poise.elements.registry import ElementType, expressions_of_time, workless
 from poise.elements.resolver import compile_batch_located, ground_markers
-from poise.expr import EvalContext as XC
 
 TAG = "Constraint_General"
 
@@ -36,23 +35,18 @@ class GeneralConstraint(ConstraintFamily):
     slot_map = None          # (rows, batch slot, family slot)
     sc_map = None            # (rows, batch column, family column)
 
-    def _xc(self, ctx):
-        return XC(time=float(ctx.t), P=ctx.P, A=ctx.A, angle_ref=ctx.angle, scalars=ctx.extra,
-                  static=True)
-
     def values(self, kin, ctx):
-        return self.batch.evaluate(self._xc(ctx)).value[:, None]
+        return self.batch.evaluate(ctx).value[:, None]
 
     def phi_t(self, kin, ctx):
         if not self.batch.depends_on_time:
             return None
-        return self.batch.evaluate(self._xc(ctx)).d_time[:, None]
+        return self.batch.evaluate(ctx).d_time[:, None]
 
     def constraints(self, kin, lam, ctx):
         n, S, U = self.n, len(self.slot_ml), self.U
-        xc = self._xc(ctx)
-        out = self.batch.evaluate(xc)
-        H = self.batch.hessian(xc)
+        out = self.batch.evaluate(ctx)
+        H = self.batch.hessian(ctx)
         r, bs, fs = self.slot_map
         gy = np.zeros((n, S, 3))
         gy[r, fs] = out.d_slot[r, bs]

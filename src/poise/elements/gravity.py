@@ -19,7 +19,7 @@ from poise.elements.context import num
 from poise.elements.registry import (ElementType, FDCase, batch_time_sources,
                                      kernel_potential)
 from poise.elements.resolver import compile_batch_located
-from poise.expr import EvalContext as XC
+from poise.expr import EvalContext
 
 ATTRS = ("grav_x", "grav_y", "grav_z")
 
@@ -42,7 +42,7 @@ class GravityLoad(ForceFamily):
         if self.batch is None:
             return self.g
         ts = np.atleast_1d(np.asarray(t, float))
-        gs = np.array([np.asarray(self.batch.evaluate(XC(time=float(x))).value, float)
+        gs = np.array([np.asarray(self.batch.evaluate(EvalContext(t=float(x))).value, float)
                        for x in ts]).reshape(len(ts), 3)
         return np.repeat(gs, self.n // len(ts), axis=0)
 

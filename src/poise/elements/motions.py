@@ -265,7 +265,7 @@ class MotionTargets:
         """Expression values and d/dTIME, (n,) each."""
         if self.batch is None:
             return self.consts.copy(), np.zeros(self.n)
-        out = self.batch.evaluate(EvalContext(time=float(t)))
+        out = self.batch.evaluate(EvalContext(t=float(t)))
         return out.value, out.d_time
 
     def _panel(self, a, b):

@@ -21,7 +21,7 @@ from poise.core.errors import EvaluationError
 from poise.elements.channels import ExprInfo, channel_values
 from poise.elements.registry import reaction_aliases
 from poise.elements.resolver import compile_batch_located
-from poise.expr import EvalContext as XC
+from poise.expr import EvalContext
 
 
 def _channels(el, pc):
@@ -133,8 +133,8 @@ def build_request_hook(reqs, ctx, res):
         except EvaluationError as e:
             msgs.append(f"reactions: {e}")
         P, A, _ = model.marker_kinematics(state)
-        xc = XC(time=float(state.t), P=P, A=A, angle_ref=state.angle, scalars=state.extra,
-                reactions=rx if rx is not None else np.full(len(channels), np.nan))
+        xc = EvalContext(t=float(state.t), P=P, A=A, angle=state.angle, extra=state.extra,
+                         reactions=rx if rx is not None else np.full(len(channels), np.nan))
         for k, b in enumerate(batches):
             uses_rx = b.reaction_index.shape[1] > 0 and bool((b.reaction_index >= 0).any())
             if rx is None and uses_rx:

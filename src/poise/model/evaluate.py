@@ -21,7 +21,7 @@ import numpy as np
 
 from poise.core import phases
 from poise.core.errors import EvaluationError
-from poise.elements.base import EvalContext
+from poise.expr import EvalContext
 from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, local_pattern,
                                    local_residual_tangent, slot_kinematics, tangent_compact)
 from poise.model.assembly import scatter_add

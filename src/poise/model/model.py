@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from poise.elements.base import EvalContext  # noqa: F401  (re-exported: kernels' context)
+
 from poise.elements.kernel import local_pattern
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
