@@ -1,6 +1,7 @@
 """Batch compiler: many expressions -> grouped vectorised programs (see CONTRACT.md)."""
 from __future__ import annotations
 
+import copy
 import gc
 from dataclasses import dataclass
 
@@ -118,7 +119,7 @@ class _Group:
                 self.spl.append([(splines[u], np.nonzero(ids == u)[0]) for u in uniq])
         self.uses_time = "time" in repr(key)
         self.fn = build(key)
-        self.hfn = None           # second-order program, built on first use (hessian.py)
+        self.hfn = None           # second-order program (:meth:`second_order`, hessian.py)
 
     def evaluate(self, ctx, P_ext, A_ext):
         v, g = self.fn(self.env(ctx, P_ext, A_ext))
@@ -127,10 +128,16 @@ class _Group:
         return v, g
 
     def hessian(self, ctx, P_ext, A_ext):
-        """``(m, D, D)`` second derivatives over the group's ``D = 3 S + U`` local variables."""
-        if self.hfn is None:
-            self.hfn = build_hessian(self.key, self.S, self.U)
-        return self.hfn(self.env(ctx, P_ext, A_ext))[2]
+        """``(m, D, D)`` second derivatives over the group's ``D = 3 S + U`` local variables
+        (the second-order program built now when the batch was compiled without it)."""
+        hfn = self.hfn if self.hfn is not None else build_hessian(self.key, self.S, self.U)
+        return hfn(self.env(ctx, P_ext, A_ext))[2]
+
+    def second_order(self) -> "_Group":
+        """A copy of this group with its second-order program built."""
+        h = copy.copy(self)
+        h.hfn = build_hessian(self.key, self.S, self.U)
+        return h
 
     def env(self, ctx, P_ext, A_ext):
         env = GroupEnv()
@@ -264,6 +271,11 @@ class Batch:
         self._global_slots = self.slot_marker < 0
         self._has_global = bool(self._global_slots[:, :S].any()) if S else False
 
+    def with_second_order(self) -> "Batch":
+        """This batch with the second-order programs of its groups built (:meth:`hessian`
+        then evaluates without building them: batches of a compiled model never change)."""
+        return Batch(self.exprs, [g.second_order() for g in self.groups])
+
     @property
     def depends_on_time(self) -> bool:
         """True if any instance reads TIME."""
@@ -382,7 +394,6 @@ class Batch:
         ``n_markers`` per frame, continuous angles by ``n_angles``, scalar unknowns by
         ``n_scalars``; ``EvalContext.t`` may then be one time per tiled instance. Batches
         reading reaction channels are not tiled (their models are evaluated frame by frame)."""
-        import copy
         if self.C:
             raise ValueError("batches reading reaction channels are not tiled")
         n = self.n
