@@ -15,7 +15,7 @@ is ``Phi_q^T lam - Q`` (internal minus applied), so a stable spring has a positi
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import FrozenInstanceError, dataclass, field
 from typing import ClassVar
 
 import numpy as np
@@ -121,6 +121,21 @@ class Family:
         """Fields of the copy covering ``F`` frames besides the per-instance arrays the frame
         tiler repeats (:mod:`poise.model.frame_batch`; tileable kernels only)."""
         return {}
+
+
+def _refuse_set(self, name, value):
+    raise FrozenInstanceError(f"cannot assign to {name!r}: element families are immutable "
+                              "(build a new one with dataclasses.replace)")
+
+
+def _refuse_del(self, name):
+    raise FrozenInstanceError(f"cannot delete {name!r}: element families are immutable")
+
+
+# A frozen dataclass refuses only its declared fields on instances of undecorated subclasses
+# (e.g. ``Gear(Coupler)``): every other assignment ends here and is refused too.
+Family.__setattr__ = _refuse_set
+Family.__delattr__ = _refuse_del
 
 
 class ForceFamily(Family):

@@ -114,6 +114,9 @@ class ReactionFeed:
     :attr:`blocks`: the coupling pattern the model's assembler registers.
     """
 
+    __slots__ = ("channels", "info", "plan", "blocks", "entries", "groups", "rm_blocks",
+                 "_mlever", "_pairs", "_inst", "_qcols", "_need_f")
+
     def __init__(self, model, reaction_channels, element_markers):
         self.channels = tuple(reaction_channels.channels)
         self.info = ExprInfo(model.outputs, element_markers)
