@@ -44,7 +44,7 @@ def _compiler(spec, ctx):
 
 
 #: the synthetic element type (its kernel and capabilities declared, as every type's are)
-TEST_TYPE = ElementType("test", (), _compiler, kernels=lambda: (PointOnLine,),
+TEST_TYPE = ElementType("test", (), _compiler, rank=1000, kernels=lambda: (PointOnLine,),
                         potential_energy=workless, time_dependent=static)
 
 

@@ -20,7 +20,7 @@ from poise.deck.spec import Expr
 from poise.core.errors import EvaluationError, ProblemCollector
 from poise.elements import curves as F
 from poise.elements import curve_data as CD
-from poise.elements.registry import ElementType, static, workless
+from poise.elements.registry import ElementType, OutputGroup, static, workless
 from poise.elements.kernel import slot_kinematics
 
 TAGS = ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
@@ -327,12 +327,12 @@ def curves_frame_hook(model, state):
 
 ELEMENTS = (ElementType(
     "curves", TAGS, compile_curves,
-    after=("user",),            # curve rows and parameters after the user constraints
+    rank=140,                   # curve rows and parameters after the user constraints
     kernels=lambda: (F.PointOnCurve, F.PointOnSurface, F.CurveOnCurve, F.CurveOnSurface,
                      F.SurfaceOnSurface), potential_energy=workless,
     time_dependent=static,      # TIME in curve geometry is a located error (compile_curves)
-    outputs={"curves": TAGS},
-    datasets=("id", "tag", "parameters", "point"),
+    outputs=(OutputGroup("curves", "Cv", "`Constraint_PTCV/CVCV/PTSF/CVSF/SFSF`", TAGS,
+                         ("id", "tag", "label", "parameters", "point", "force", "torque")),),
     reactions={"PTCV": ("curves", ("Constraint_PTCV",)), "CVCV": ("curves", ("Constraint_CVCV",))},
     reaction_aliases={"CONSTRAINT_PTCV": "PTCV", "CONSTRAINT_CVCV": "CVCV"},
     fd_tests="tests/reference/test_curves.py"),)

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 from poise.deck.spec import Expr
 from poise.elements import expr_forces as XF
+from poise.elements.forces import FORCES
 from poise.elements.reaction_feed import ReactionChannels
-from poise.elements.registry import ElementType, expressions_of_time, not_conservative
+from poise.elements.registry import (ElementType, OutputGroup, expressions_of_time,
+                                     not_conservative)
 from poise.elements.requests import build_request_hook, computed_requests
 
 
@@ -100,9 +102,11 @@ def _reaction_feed(ctx, built, pc):
 
 ELEMENTS = (ElementType(
     "expressions", ("Post_Request",), compile_expressions,
-    after=("forces", "field_beam"),   # compiles the expression forces compile_forces routed here
+    rank=70, needs=("forces",),   # compiles the expression forces compile_forces routed here
     kernels=lambda: (XF.ExprVectorForce, XF.ExprScalarForce),
     tileable=lambda: (XF.ExprVectorForce, XF.ExprScalarForce),
     potential_energy=not_conservative, time_dependent=expressions_of_time,
-    outputs={"forces": None, "requests": ("Post_Request",)},
-    datasets=("id", "values", "message"), fd_tests="tests/kernels/test_expr_families.py"),)
+    outputs=(FORCES, OutputGroup("requests", "R", "`Post_Request`", ("Post_Request",),
+                                 ("id", "label", "type", "channel", "channel_units", "values",
+                                  "message"), model_ids=False)),
+    fd_tests="tests/kernels/test_expr_families.py"),)

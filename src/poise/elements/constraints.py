@@ -21,7 +21,8 @@ import numpy as np
 
 from poise.elements.base import ConstraintFamily
 from poise.elements.kernel import POINT
-from poise.elements.registry import ElementType, FDCase, claimed_types, static, workless
+from poise.elements.registry import (ElementType, FDCase, OutputGroup, claimed_types, static,
+                                     workless)
 
 
 _I3 = np.eye(3)
@@ -307,13 +308,20 @@ def _fd_cases():
                          point_b=(False,), seed=(jt, tag), opposite_z=jt == "CONSTANT_VELOCITY")
 
 
+#: the output groups of joints and joint primitives (the results schema's, too)
+_WITH_UNIQUE = ("id", "label", "force", "torque", "unique")
+JOINTS = OutputGroup("joints", "J", "`Constraint_Joint`", ("Constraint_Joint",), _WITH_UNIQUE,
+                     load="force on the I body at the I marker, global axes")
+JPRIMS = OutputGroup("jprims", "P", "`Constraint_Jprim`", ("Constraint_Jprim",), _WITH_UNIQUE,
+                     load="as for joints")
+
 ELEMENTS = (ElementType(
     "joints", ("Constraint_Joint", "Constraint_Jprim"), compile_joints,
+    rank=10,                    # the joints' rows lead the constraint rows
     kernels=lambda: (Coincident, Perpendicular, InPlane),
     tileable=lambda: (Coincident, Perpendicular, InPlane),
     potential_energy=workless, time_dependent=static,
-    outputs={"joints": ("Constraint_Joint",), "jprims": ("Constraint_Jprim",)},
-    datasets=("id", "force", "torque"),
+    outputs=(JOINTS, JPRIMS),
     reactions={"JOINT": ("joints", ("Constraint_Joint",)),
                "JPRIM": ("jprims", ("Constraint_Jprim",))},
     reaction_aliases={"CONSTRAINT_JOINT": "JOINT", "CONSTRAINT_JPRIM": "JPRIM"},

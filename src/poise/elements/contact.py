@@ -18,7 +18,7 @@ from poise.elements.context import GLOBAL
 from poise.elements.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_YI, S_YJ, S_ZI, S_ZJ, \
     TwoBodyForce
 from poise.elements.kernel import slot_kinematics
-from poise.elements.registry import ElementType, kernel_potential, static
+from poise.elements.registry import ElementType, OutputGroup, kernel_potential, static
 
 
 SPHERE_PLANE, SPHERE_SPHERE, SPHERE_BOX, CORNER_PLANE = 0, 1, 2, 3
@@ -379,8 +379,9 @@ def contact_frame_hook(model, state):
 
 ELEMENTS = (ElementType(
     "contacts", ("Force_Contact",), compile_contacts,
-    after=("expressions",),     # contact families after the expression forces (model layout)
+    rank=80,                    # contact families after the expression forces
     kernels=lambda: (ContactForce,), tileable=lambda: (ContactForce,),
     potential_energy=kernel_potential, time_dependent=static,
-    outputs={"contacts": ("Force_Contact",)},
-    datasets=("id", "kind", "force", "penetration"), fd_tests="tests/reference/test_contact.py"),)
+    outputs=(OutputGroup("contacts", "Ct", "`Force_Contact`", ("Force_Contact",),
+                         ("id", "label", "kind", "force", "penetration"), model_ids=False),),
+    fd_tests="tests/reference/test_contact.py"),)

@@ -18,7 +18,7 @@ import numpy as np
 from poise.elements.base import ConstraintFamily
 from poise.elements.context import GLOBAL
 from poise.elements.motions import measure
-from poise.elements.registry import ElementType, static, workless
+from poise.elements.registry import ElementType, OutputGroup, static, workless
 
 
 N_JOINTS = 3
@@ -237,8 +237,11 @@ def compile_couplers(spec, ctx):
 
 ELEMENTS = (ElementType(
     "couplers", ("Constraint_Coupler",), compile_couplers,
-    after=("motions",),         # coupler rows after the motion rows (model layout)
+    rank=40,                    # coupler rows after the motion rows
     kernels=lambda: (Coupler,), potential_energy=workless,
     time_dependent=static,      # displacements from the input configuration: no time
-    outputs={"couplers": ("Constraint_Coupler",)},
-    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)
+    outputs=(OutputGroup("couplers", "Cp", "`Constraint_Coupler`", ("Constraint_Coupler",),
+                         load="load the coupler's multiplier applies **through joint 1's I "
+                         "marker** to that marker's body (e.g. the coupling torque on shaft "
+                         "1)"),),
+    fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

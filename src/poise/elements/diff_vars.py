@@ -16,7 +16,8 @@ import numpy as np
 
 from poise.deck.spec import Expr
 from poise.elements.base import ForceFamily, column_map, columns_array
-from poise.elements.registry import ElementType, batch_time_sources, not_conservative
+from poise.elements.registry import (ElementType, OutputGroup, batch_time_sources,
+                                     not_conservative)
 from poise.elements.resolver import compile_batch_located, held, is_user, scalar_unknown
 from poise.elements.user import compile_user_variables
 
@@ -225,9 +226,12 @@ def _time_sources(fam) -> list:
 
 ELEMENTS = (ElementType(
     "diff_vars", ("Control_Diff", "Reference_Variable"), compile_diff_vars,
-    after=("expressions", "contacts"),  # scalar unknowns the expressions registered come first
+    rank=90,                    # after the scalar unknowns expression forces registered
     kernels=lambda: (ScalarEquation,),
     potential_energy=not_conservative,  # its rows are no force of a potential: energy NaN
     time_dependent=_time_sources,
-    outputs={"diffs": ("Control_Diff",), "variables": ("Reference_Variable",)},
-    datasets=("id", "value"), fd_tests="tests/kernels/test_extra_unknowns.py"),)
+    outputs=(OutputGroup("diffs", "Dd", "`Control_Diff`", ("Control_Diff",),
+                         ("id", "label", "value"), model_ids=False),
+             OutputGroup("variables", "V", "implicit and user (`USERSUB`) `Reference_Variable`",
+                         ("Reference_Variable",), ("id", "label", "value"), model_ids=False)),
+    fd_tests="tests/kernels/test_extra_unknowns.py"),)

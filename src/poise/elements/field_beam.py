@@ -21,7 +21,7 @@ import numpy as np
 
 from poise.elements.context import GLOBAL, num as _num
 from poise.elements.couplers import user_routine_error
-from poise.elements.forces import (N_SLOTS, S_PI, S_PJ, S_XJ, S_YJ, S_ZJ, TwoBodyForce,
+from poise.elements.forces import (FORCES, N_SLOTS, S_PI, S_PJ, S_XJ, S_YJ, S_ZJ, TwoBodyForce,
                                    angle_gradient, sl)
 from poise.elements.registry import ElementType, kernel_potential, static
 
@@ -183,10 +183,10 @@ def compile_field_beam(spec, ctx):
 
 ELEMENTS = (ElementType(
     "field_beam", ("Force_Field", "Force_Beam"), compile_field_beam,
-    after=("forces", "gears"),  # extends the "forces" output group after compile_forces
+    rank=60,                    # extends the "forces" output group after compile_forces
     kernels=lambda: (FieldForce,), tileable=lambda: (FieldForce,),
     potential_energy=kernel_potential, time_dependent=static,
-    outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
+    outputs=(FORCES,),
     reactions={"BEAM": ("forces", ("Force_Beam",)), "FIELD": ("forces", ("Force_Field",))},
     reaction_aliases={"FORCE_BEAM": "BEAM", "FORCE_FIELD": "FIELD"},
     fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)

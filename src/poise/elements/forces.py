@@ -21,7 +21,7 @@ from poise.core.user_routines import uses_user_routine
 from poise.deck.spec import Expr
 from poise.elements.base import ForceFamily, add_force_at_point, add_torque_via_axes
 from poise.elements.context import GLOBAL, num as _num
-from poise.elements.registry import ElementType, FDCase, kernel_potential, static
+from poise.elements.registry import ElementType, FDCase, OutputGroup, kernel_potential, static
 from poise.elements.kernel import cross3
 from poise.elements.rotation import skew
 
@@ -458,13 +458,19 @@ def _fd_cases():
 
 _KERNELS = lambda: (LineForce, AxisForce, AxisTorque, Bushing,  # noqa: E731
                     VectorForce)
+#: the output group of every force element (the results schema's, too)
+FORCES = OutputGroup("forces", "E", "force element", None,
+                     ("id", "label", "tag", "force", "torque"),
+                     load="force the element applies to the body of its I marker, at the I "
+                     "marker origin, global axes")
+
 ELEMENTS = (ElementType(
     "forces", ("Force_SpringDamper", "Force_Scalar_TwoBody", "Force_Bushing") + _VEC,
     compile_forces,
-    after=("joints",),          # force families after the joint families (model layout)
+    rank=20,                    # force families after the joint families
     kernels=_KERNELS, tileable=_KERNELS, potential_energy=kernel_potential,
     time_dependent=static,      # constant parameters (expression forces: "expressions")
-    outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
+    outputs=(FORCES,),
     reactions={"SFORCE": ("forces", ("Force_Scalar_TwoBody",)), "VFORCE": ("forces", _VEC),
                "VTORQ": ("forces", _VEC), "GFORCE": ("forces", _VEC),
                "BUSH": ("forces", ("Force_Bushing",)), "SPDP": ("forces", ("Force_SpringDamper",))},

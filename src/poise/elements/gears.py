@@ -17,7 +17,7 @@ import numpy as np
 from poise.elements.couplers import (add_coupler_family, joint_coordinate, marker_pose,
                                              user_routine_error)
 from poise.elements.couplers import Coupler
-from poise.elements.registry import ElementType, static, workless
+from poise.elements.registry import ElementType, OutputGroup, static, workless
 
 
 def signed_lever(rot: bool, sigma: float, zJ, pJ, c, w) -> float:
@@ -124,7 +124,9 @@ def compile_gears(spec, ctx):
 
 ELEMENTS = (ElementType(
     "gears", ("Constraint_Gear",), compile_gears,
-    after=("couplers",),        # gear rows after the coupler rows (model layout)
+    rank=50,                    # gear rows after the coupler rows
     kernels=lambda: (Gear,), potential_energy=workless, time_dependent=static,
-    outputs={"gears": ("Constraint_Gear",)},
-    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)
+    outputs=(OutputGroup("gears", "G", "`Constraint_Gear`", ("Constraint_Gear",),
+                         load="as for couplers: the mesh load on joint 1's I body through its "
+                         "I marker"),),
+    fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

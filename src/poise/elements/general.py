@@ -23,7 +23,7 @@ from poise.deck.spec import Expr
 from poise.elements.base import GLOBAL, ConstraintFamily
 from poise.elements.kernel import cross3
 from poise.elements.diff_vars import layout
-from poise.elements.registry import ElementType, expressions_of_time, workless
+from poise.elements.registry import ElementType, OutputGroup, expressions_of_time, workless
 from poise.elements.resolver import compile_batch_located
 
 TAG = "Constraint_General"
@@ -223,8 +223,11 @@ def _marker_bodies(ctx):
 
 ELEMENTS = (ElementType(
     "gcons", (TAG,), compile_general,
-    after=("rack_pinion", "diff_vars"),   # rows after the joints'; scalar unknowns registered
+    rank=120,                             # rows after the joints', unknowns after the states'
     kernels=lambda: (GeneralConstraint,), potential_energy=workless,
     time_dependent=expressions_of_time,
-    outputs={"gcons": (TAG,)}, datasets=("id", "force", "torque"),
+    outputs=(OutputGroup("gcons", "Gc", "`Constraint_General`", (TAG,),
+                         load="the constraint's load on the body of its `i_marker_id`, reduced "
+                         "to that marker's origin, global axes; NaN when the element names no "
+                         "`i_marker_id` (MotionSolve gives no reaction then)"),),
     fd_tests="tests/reference/test_general_constraint.py"),)

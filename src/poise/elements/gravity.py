@@ -96,8 +96,9 @@ def _time_sources(fam) -> list:
 
 ELEMENTS = (ElementType(
     "gravity", ("Force_Gravity",), compile_gravity,
-    # no compile dependency: compiled first, its family leads the model's families (the order
-    # in which the potential energy is summed)
+    # first: its family leads the model's families (the order in which the potential energy
+    # is summed)
+    rank=0,
     kernels=lambda: (GravityLoad,), tileable=lambda: (GravityLoad,),
     potential_energy=kernel_potential, time_dependent=_time_sources,
     fd_cases=lambda: (FDCase("Force_Gravity", (("Force_Gravity", {

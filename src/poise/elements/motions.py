@@ -16,7 +16,7 @@ import numpy as np
 from poise.core.errors import DeckError, Problem
 from poise.deck.spec import Expr
 from poise.elements.base import ConstraintFamily
-from poise.elements.registry import ElementType, workless
+from poise.elements.registry import ElementType, OutputGroup, workless
 from poise.expr import EvalContext, compile_batch
 
 
@@ -458,11 +458,14 @@ def motion_time_sources(fam) -> list:
 
 ELEMENTS = (ElementType(
     "motions", ("Motion_Joint", "Motion_Marker"), compile_motions,
-    after=("forces",),          # motion rows after the joint rows, families after forces
+    rank=30,                    # motion rows after the joint rows, families after forces
     kernels=lambda: (MotionConstraint,), tileable=lambda: (MotionConstraint,),
     potential_energy=workless,
     time_dependent=motion_time_sources,
-    outputs={"motions": ("Motion_Joint", "Motion_Marker")}, datasets=("id", "force", "torque"),
+    outputs=(OutputGroup("motions", "Mo", "`Motion_Joint` / `Motion_Marker`",
+                         ("Motion_Joint", "Motion_Marker"),
+                         load="driving force the motion applies to the body of its I marker, "
+                         "at the I origin, global axes"),),
     reactions={"MOTION": ("motions", ("Motion_Joint", "Motion_Marker"))},
     reaction_aliases={"MOTION_JOINT": "MOTION"},
     fd_tests="tests/reference/test_motions.py"),)

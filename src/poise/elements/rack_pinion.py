@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.elements.base import ConstraintFamily
+from poise.elements.constraints import JOINTS
 from poise.elements.context import num
 from poise.elements.motions import (S_PI, S_PJ, S_XI, S_YI, S_ZJ, SLOT_KIND, SLOT_ML,
                                     atan2_term, dot_term)
@@ -111,10 +112,9 @@ def compile_rack_pinions(spec, ctx):
 
 ELEMENTS = (ElementType(
     "rack_pinion", ("Constraint_Joint",), compile_rack_pinions, types=("RACK_PINION",),
-    after=("screw",),                     # its row and reaction follow the other joints'
+    rank=110,                             # its row and reaction follow the screws'
     kernels=lambda: (RackPinion,), potential_energy=workless, time_dependent=static,
-    outputs={"joints": ("Constraint_Joint",)},
-    datasets=("id", "force", "torque"),
+    outputs=(JOINTS,),
     fd_cases=lambda: (FDCase("Constraint_Joint:RACK_PINION",
                              (("Constraint_Joint", {"type": "RACK_PINION",
                                                     "pitch_diameter": 0.7}),),

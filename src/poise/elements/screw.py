@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.elements.base import ConstraintFamily
+from poise.elements.constraints import JOINTS
 from poise.elements.context import num
 from poise.elements.motions import SLOT_KIND, SLOT_ML, measure
 from poise.elements.registry import ElementType, FDCase, static, workless
@@ -75,10 +76,9 @@ def joint_layout(els, rows) -> dict:
 
 ELEMENTS = (ElementType(
     "screw", ("Constraint_Joint",), compile_screws, types=("SCREW",),
-    after=("joints",),                    # its row and reaction follow the other joints'
+    rank=100,                             # its row and reaction follow the other joints'
     kernels=lambda: (Screw,), potential_energy=workless, time_dependent=static,
-    outputs={"joints": ("Constraint_Joint",)},
-    datasets=("id", "force", "torque"),
+    outputs=(JOINTS,),
     fd_cases=lambda: (FDCase("Constraint_Joint:SCREW",
                              (("Constraint_Joint", {"type": "SCREW", "pitch": 0.3}),),
                              pairs=((21, 31), (22, 11)), point_b=(False,)),)),)

@@ -25,7 +25,8 @@ from poise.elements.base import ConstraintFamily, ForceFamily
 from poise.elements.kernel import POINT
 from poise.elements.context import GLOBAL
 from poise.elements.expr_forces import ExprScalarForce, ExprVectorForce
-from poise.elements.registry import ElementType, not_conservative
+from poise.elements.forces import FORCES
+from poise.elements.registry import ElementType, OutputGroup, not_conservative
 
 
 def _vectors_from_slots(routine, Y, slot_of):
@@ -329,8 +330,12 @@ def opaque_code(fam) -> list:
 
 ELEMENTS = (ElementType(
     "user", USER_CONSTRAINT_TAGS, compile_user,
-    after=("forces", "diff_vars"),    # compiles the user forces compile_forces routed here
+    rank=130, needs=("forces",),      # compiles the user forces compile_forces routed here
     kernels=lambda: (UserConstraint, UserScalarForce, UserVectorForce, UserScalarEquation),
     potential_energy=not_conservative,   # user forces and VARSUB rows (constraints: none)
-    time_dependent=opaque_code, outputs={"userconstrs": USER_CONSTRAINT_TAGS, "forces": None},
-    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)
+    time_dependent=opaque_code,
+    outputs=(OutputGroup("userconstrs", "U", "`Constraint_UserConstr` (Python UCOSUB)",
+                         USER_CONSTRAINT_TAGS,
+                         load="reaction on the body of the first marker the user routine "
+                         "reads, at its origin, global axes"), FORCES),
+    fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)
