@@ -53,7 +53,7 @@ def reachable(root) -> dict:
 
 def _filled(cell) -> bool:
     try:
-        cell.cell_contents
+        _ = cell.cell_contents
     except ValueError:
         return False
     return True

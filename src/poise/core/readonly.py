@@ -60,7 +60,7 @@ def reachable(root):
 
 def _filled(cell) -> bool:
     try:
-        cell.cell_contents
+        _ = cell.cell_contents
     except ValueError:                      # an empty cell
         return False
     return True

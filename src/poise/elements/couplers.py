@@ -17,7 +17,7 @@ import numpy as np
 
 from poise.elements.base import ConstraintFamily
 from poise.elements.context import GLOBAL
-from poise.elements.motions import measure
+from poise.elements.measures import measure
 from poise.elements.registry import ElementType, OutputGroup, static, workless
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from poise.elements.base import ConstraintFamily
 from poise.elements.constraints import JOINTS
 from poise.elements.context import num
-from poise.elements.motions import (S_PI, S_PJ, S_XI, S_YI, S_ZJ, SLOT_KIND, SLOT_ML,
+from poise.elements.measures import (S_PI, S_PJ, S_XI, S_YI, S_ZJ, SLOT_KIND, SLOT_ML,
                                     atan2_term, dot_term)
 from poise.elements.registry import ElementType, FDCase, static, workless
 from poise.elements.screw import joint_layout

@@ -17,7 +17,7 @@ import numpy as np
 from poise.elements.base import ConstraintFamily
 from poise.elements.constraints import JOINTS
 from poise.elements.context import num
-from poise.elements.motions import SLOT_KIND, SLOT_ML, measure
+from poise.elements.measures import SLOT_KIND, SLOT_ML, measure
 from poise.elements.registry import ElementType, FDCase, static, workless
 
 

@@ -22,7 +22,6 @@ from poise.solvers.history import History
 from poise.solvers.linalg import Factor, SingularMatrix
 from poise.solvers.newton import newton
 
-METHODS = ("exact", "fd")
 AUTO_MAX_BODIES = 100
 AUTO_MAX_ENTRIES = 4_000_000   # auto: F x (6M)^2 above this (32 MB) is skipped with a note
 REDUCED_MAX_NQ = 3000          # singular frames: dense reduced stiffness up to this size
