@@ -18,7 +18,8 @@ import poise.solvers.stability_sparse as stab_sparse
 from poise.app.api import run_deck
 from poise.gen.chain import build_chain_deck
 
-from .deckgen import Deck, rot_y, rot_z, stiff_soft_deck
+from poise.gen.deck import Deck, rot_y, rot_z
+from support.builders import stiff_soft_deck
 
 from support.paths import DECKS
 
