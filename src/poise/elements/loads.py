@@ -36,7 +36,7 @@ def loads_of(model, items, lam=None, frames: int = 1):
     for fam, kin, rho, phy in items:
         if phy is not None and lam is not None:
             rho = np.einsum("nmy,nm->ny", phy, lam[fam.crow])
-        group = getattr(fam, "group", None)
+        group = fam.group
         if group is None or group not in model.outputs:
             continue
         n_out = len(model.outputs[group]["ids"]) * frames

@@ -152,7 +152,7 @@ class ReactionFeed:
         inv = {g: {o: key for key, o in om.items()} for g, om in owners.items()}
         by_key, by_mk = {}, {}              # contributing instances with a reaction output
         for fi, f in enumerate(fams):
-            if getattr(f, "reads_reactions", False) or getattr(f, "group", None) not in inv:
+            if f.reads_reactions or f.group not in inv:
                 continue
             for j, o in enumerate(np.asarray(f.owner).ravel().tolist()):
                 key = inv[f.group].get(o)

@@ -456,7 +456,7 @@ def _constraint_ext(ext, lam, n, m, U):
 def _family_nonfinite(fam, rl) -> str:
     """Message naming the deck element whose kernel produced NaN/Inf."""
     k = int(np.nonzero(~np.isfinite(rl).all(axis=1))[0][0])
-    locs = getattr(fam, "element_locs", None)
+    locs = fam.element_locs
     if locs:
         return f"{locs[k].prefix()} produced a non-finite force (NaN/Inf)"
     return f"element family {fam.name} (instance {k}) produced a non-finite value (NaN/Inf)"
