@@ -17,6 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from benchmarks import adm as bench_adm
 from benchmarks import expr as bench_expr
 from benchmarks import stable as bench_stable
 from benchmarks.chain import (SIZES, SMALL_DECK, _pf, _s, bench_chain, bench_cli,
@@ -35,6 +36,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-cli", action="store_true", help="skip the command-line benchmarks")
     ap.add_argument("--quick", action="store_true",
                     help="issue-7 suites with a reduced ladder and sizes (make bench-quick)")
+    ap.add_argument("--no-adm", action="store_true",
+                    help="skip the Adams dataset reading benchmark (issue 23)")
     ap.add_argument("--no-expr", action="store_true",
                     help="skip the expression benchmark (issue 3)")
     ap.add_argument("--no-wp", action="store_true",
@@ -50,6 +53,7 @@ def main(argv=None) -> int:
     results = []
     if args.stable_only:
         args.sizes, args.no_cli, args.no_expr, args.no_wp = "", True, True, True
+        args.no_adm = True
     with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
         tmp = Path(td)
         for n in [int(x) for x in args.sizes.split(",") if x.strip()]:
@@ -70,9 +74,17 @@ def main(argv=None) -> int:
             results.append(rx)
             wp_md.append(bench_expr.markdown(rx))
             wp_targets += bench_expr.targets(rx)
+        if not args.no_adm:     # issue 23: a 2,500-statement Adams dataset read and checked
+            ra = bench_adm.bench_adm(tmp)
+            print(f"adm {ra['statements']} statements: check {_s(ra['check_s']['median'])} s",
+                  file=sys.stderr)
+            results.append(ra)
+            wp_md.append(bench_adm.markdown(ra))
+            wp_targets += bench_adm.targets(ra)
         if not args.no_wp:      # issue 7: work-precision, peer, scaling (benchmarks)
+            other = ("expressions", "adm_read_check")
             wp_rows, md7, t7 = run_issue7(root, tmp, [r for r in results
-                                                       if r.get("bench") != "expressions"],
+                                                       if r.get("bench") not in other],
                                           quick=args.quick)
             wp_md += md7
             wp_targets += t7

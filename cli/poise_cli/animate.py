@@ -15,8 +15,9 @@ from poise_cli.picture import run_picture
 @click.option("--analysis", type=int, default=None, help="Analysis index (default: the last).")
 @click.option("--frame", type=int, default=None,
               help="Only this frame (negative: from the end).")
-@click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, metavar="N",
-              help="Draw every N-th frame (the last frame is always drawn).")
+@click.option("--every", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Draw every N-th frame (the last frame is always drawn); --every 1 draws "
+                   "all. Default: at most 200 frames spread evenly over the run.")
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, metavar="N",
               help="At most N frames, spread evenly over the run (after --every).")
 @click.option("--fps", type=click.IntRange(min=1), default=4, show_default=True)

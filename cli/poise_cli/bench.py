@@ -140,7 +140,15 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
 
     if as_json:
         guard.enter_context(guarded_stdout(quiet))
-    xml = Path(deck).read_text()
+    if deck.lower().endswith((".adm", ".acf")):       # an Adams dataset: its XML deck
+        from poise.app.convert import xml_text  # lazy: only Adams datasets need it
+        try:
+            xml = xml_text(deck)
+        except Exception as exc:  # noqa: BLE001 - DeckError: located, exit 3
+            fail(exc)
+            return
+    else:
+        xml = Path(deck).read_text()
     ref = None
     rows = []
     with _reported(fail), tempfile.TemporaryDirectory(prefix="poise-bench-") as td:

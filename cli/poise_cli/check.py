@@ -7,7 +7,7 @@ import click
 
 from poise.core.wording import plural
 from poise_cli.errors import report_exception
-from poise_cli.options import debug_option, json_option
+from poise_cli.options import debug_option, ignore_option, json_option
 from poise_cli.summary import print_json, sanitize
 
 
@@ -66,9 +66,10 @@ def format_report(rep) -> list[str]:
 
 @click.command(short_help="Validate a deck and print its structure (no solve).")
 @click.argument("deck", type=click.Path(exists=True, dir_okay=False, readable=True))
+@ignore_option
 @json_option
 @debug_option
-def check(deck, as_json, debug):
+def check(deck, ignore, as_json, debug):
     """Parse and compile DECK; print bodies, constraints, degrees of freedom, redundant
     equations and active effects without solving.
 
@@ -83,7 +84,7 @@ def check(deck, as_json, debug):
         with guarded_stdout(), collected_warnings() as numeric:
             # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
             from poise.app.api import check_deck
-            rep = check_deck(deck)
+            rep = check_deck(deck, **({"ignore": ignore} if ignore else {}))
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:

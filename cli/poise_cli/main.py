@@ -24,6 +24,8 @@ COMMANDS = {
     "bench": ("poise_cli.bench", "Time DECK over a tolerance ladder for each method and print "
                                  "the table."),
     "check": ("poise_cli.check", "Validate a deck and print its structure (no solve)."),
+    "convert": ("poise_cli.convert", "Write an Adams dataset (.adm/.acf) as a MotionSolve XML "
+                                     "deck."),
     "plot": ("poise_cli.plot", "Plot convergence and time histories of a results file (PNG)."),
     "show": ("poise_cli.show", "Summarise an HDF5 results file."),
     "solve": ("poise_cli.solve", "Solve a deck and write the HDF5 results file."),

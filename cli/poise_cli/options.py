@@ -5,10 +5,14 @@ import click
 
 #: CLI option name -> ``Param_Static`` attribute name used as override key by poise.app.api.run_deck
 OVERRIDE_KEYS = ("method", "max_num_iter", "max_imbalance", "max_error", "stability", "fallback",
-                 "fallback_max_num_iter", "require_stable", "allow_neutral")
+                 "fallback_max_num_iter", "require_stable", "allow_neutral", "compliance_markers",
+                 "compliance_method")
 
 #: ``ctx.meta`` key of ``--fallback-budget`` (kept out of the commands' signatures)
 _FALLBACK_BUDGET = "poise.fallback_max_num_iter"
+#: Param_Static names of options kept out of the commands' signatures (``ctx.meta`` keys
+#: ``poise.<name>``): the fallback budget and the compliance matrix options
+_META = ("fallback_max_num_iter", "compliance_markers", "compliance_method")
 
 METHODS = ("FIM_D", "FIM_S", "MKEAM")
 
@@ -30,6 +34,12 @@ user_code_option = click.option(
          "is refused (exit 3): decks may come from anywhere. Scripts must lie inside the "
          "deck's directory either way.")
 
+ignore_option = click.option(
+    "--ignore", "ignore", multiple=True, metavar="KIND",
+    help="Adams datasets (.adm/.acf): leave out the statements of KIND poise cannot solve "
+         "(CONTACT, FRICTION, SENSOR, GSE, USER for user subroutines, ...) instead of refusing "
+         "the dataset; recorded in the results and on the summary lines. Repeatable.")
+
 quiet_option = click.option(
     "-q", "--quiet", is_flag=True,
     help="Print nothing on stderr except errors (no summary lines, no warnings).")
@@ -49,6 +59,23 @@ class _Finite(click.FloatRange):
 def _store_fallback_budget(ctx, param, value):
     if value is not None:
         ctx.meta[_FALLBACK_BUDGET] = value
+    return value
+
+
+def _store_compliance_markers(ctx, param, value):
+    if value is not None:
+        try:
+            # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+            from poise.solvers.compliance import parse_markers
+            ctx.meta["poise.compliance_markers"] = parse_markers(value)
+        except ValueError as e:
+            raise click.BadParameter(str(e)) from None
+    return value
+
+
+def _store_compliance_method(ctx, param, value):
+    if value is not None:
+        ctx.meta["poise.compliance_method"] = value.lower()
     return value
 
 
@@ -83,6 +110,17 @@ def solver_options(f):
         click.option("--allow-neutral/--no-allow-neutral", "allow_neutral", default=None,
                      help="With --require-stable: a neutral equilibrium (free spins) counts as "
                           "stable (default: allowed)."),
+        click.option("--compliance-markers", default=None, metavar="IDS|all|auto|none",
+                     expose_value=False, callback=_store_compliance_markers,
+                     help="Write the compliance matrix of these markers at every equilibrium "
+                          "frame: marker ids (\"10,20\"), 'all' (every body's CG marker), "
+                          "'auto' (all up to 100 bodies) or 'none'. Default: the deck's "
+                          "Param_Static compliance_markers, else none."),
+        click.option("--compliance-method", default=None, expose_value=False,
+                     type=click.Choice(("exact", "fd"), case_sensitive=False),
+                     callback=_store_compliance_method,
+                     help="exact: from the analytic tangent (default); fd: re-solve under a "
+                          "load compliance_delta per column (Param_Static compliance_method)."),
     ]
     for opt in reversed(opts):
         f = opt(f)
@@ -92,8 +130,9 @@ def solver_options(f):
 def collect_overrides(**values) -> dict:
     """Only the options the user actually gave, keyed by Param_Static attribute name."""
     ctx = click.get_current_context(silent=True)
-    if ctx is not None and values.get("fallback_max_num_iter") is None:
-        values["fallback_max_num_iter"] = ctx.meta.get(_FALLBACK_BUDGET)
+    for k in _META:
+        if ctx is not None and values.get(k) is None:
+            values[k] = ctx.meta.get(f"poise.{k}")
     return {k: values[k] for k in OVERRIDE_KEYS if values.get(k) is not None}
 
 

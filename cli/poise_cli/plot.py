@@ -10,12 +10,11 @@ from poise_cli.picture import run_picture
 
 
 def id_list(ctx, param, value):
+    """Comma-separated ids or deck labels (``2,3`` or ``'Wrist pin,Slide'``)."""
     if value is None:
         return None
-    try:
-        return [int(x) for x in value.replace(" ", "").split(",") if x]
-    except ValueError:
-        raise click.BadParameter(f"expected comma-separated ids, got {value!r}") from None
+    out = [x.strip() for x in value.split(",") if x.strip()]
+    return [int(x) if x.lstrip("-").isdigit() else x for x in out]
 
 
 @click.command(short_help="Plot convergence and time histories of a results file (PNG).")
@@ -24,11 +23,11 @@ def id_list(ctx, param, value):
               help="PNG file. Default: <results stem>.png next to the results file.")
 @click.option("--analysis", type=int, default=None, help="Analysis index (default: the last).")
 @click.option("--bodies", callback=id_list, default=None, metavar="IDS",
-              help="Body ids for position histories, e.g. 2,3.")
+              help="Body ids or labels for position histories, e.g. 2,3 or 'Crank,Rod'.")
 @click.option("--joints", callback=id_list, default=None, metavar="IDS",
-              help="Joint ids for force histories.")
+              help="Joint ids or labels for force histories, e.g. 'Wrist pin'.")
 @click.option("--requests", callback=id_list, default=None, metavar="IDS",
-              help="Post_Request ids for channel histories.")
+              help="Post_Request ids or labels for channel histories.")
 @quiet_option
 @json_option
 @debug_option

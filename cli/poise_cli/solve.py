@@ -9,8 +9,8 @@ from pathlib import Path
 import click
 
 from poise_cli.errors import report_exception
-from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
-    solver_options, user_code_option
+from poise_cli.options import collect_overrides, debug_option, ignore_option, json_option, \
+    quiet_option, solver_options, user_code_option
 from poise_cli.summary import analysis_line, analysis_summary, analysis_time, print_json, \
     sanitize, solve_summary
 
@@ -25,21 +25,14 @@ def default_output(deck: str) -> str:
 @click.option("-o", "--output", type=click.Path(dir_okay=False, writable=True), default=None,
               help="Results file (HDF5). Default: <deck stem>.h5 in the current directory.")
 @solver_options
-@click.option("--compliance-markers", "compliance_markers", default=None, metavar="IDS|all|none",
-              help="Markers of the compliance matrix written at every equilibrium frame: marker "
-                   "ids (\"10,20\"), 'all' (every body's CG marker), 'none'. Default: every "
-                   "body's CG marker up to 100 bodies (Param_Static compliance_markers).")
-@click.option("--compliance-method", "compliance_method", default=None,
-              type=click.Choice(("exact", "fd"), case_sensitive=False),
-              help="exact: from the analytic tangent (default); fd: re-solve under a load "
-                   "compliance_delta per column (Param_Static compliance_method).")
 @user_code_option
+@ignore_option
 @quiet_option
 @json_option
 @debug_option
 def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stability,
-          no_fallback, require_stable, allow_neutral, compliance_markers, compliance_method,
-          allow_user_code, quiet, as_json, debug):
+          no_fallback, require_stable, allow_neutral, allow_user_code, ignore, quiet, as_json,
+          debug):
     """Solve every analysis of DECK and write the results to an HDF5 file.
 
     The file is written even when an analysis fails (exit code 1). Options given here override
@@ -60,15 +53,6 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
                                   fallback=False if no_fallback else None,
                                   require_stable=True if require_stable else None,
                                   allow_neutral=allow_neutral)
-    if compliance_markers is not None:
-        try:
-            # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
-            from poise.solvers.compliance import parse_markers
-            overrides["compliance_markers"] = parse_markers(compliance_markers)
-        except ValueError as e:
-            raise click.BadParameter(str(e), param_hint="'--compliance-markers'") from None
-    if compliance_method is not None:
-        overrides["compliance_method"] = compliance_method.lower()
     command = shlex.join(["poise", *sys.argv[1:]])
     reported: list[str] = []
 
@@ -97,8 +81,9 @@ def solve(deck, output, method, max_num_iter, max_imbalance, max_error, stabilit
         with guarded_stdout(quiet), collected_warnings() as numeric:
             # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
             from poise.app.api import run_deck
+            more = {"ignore": ignore} if ignore else {}      # Adams datasets only
             result = run_deck(deck, overrides, command=command, progress=progress, quiet=quiet,
-                              allow_user_code=allow_user_code)
+                              allow_user_code=allow_user_code, **more)
     except (Exception, KeyboardInterrupt) as exc:
         fail(exc)
         return

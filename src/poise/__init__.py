@@ -11,12 +11,14 @@ from poise.core import blas as _blas  # noqa: F401
 from poise.core.version import __version__
 
 __all__ = ["__version__", "solve", "sweep", "load_deck", "run_deck", "check_deck",
-           "read_results", "plot_results"]
+           "read_results", "write_results", "plot_results", "RunResult", "DeckSpec"]
 
 # lazy public API: name -> module holding it (imported on first use, keeps `import poise` light)
 _LAZY = {"solve": "poise.app.api", "sweep": "poise.app.api", "run_deck": "poise.app.api",
          "check_deck": "poise.app.api", "read_results": "poise.results.hdf5",
-         "load_deck": "poise.deck.parser", "plot_results": "poise.viz.plot"}
+         "write_results": "poise.results.hdf5", "load_deck": "poise.app.api",
+         "plot_results": "poise.viz.plot", "RunResult": "poise.results.data",
+         "DeckSpec": "poise.deck.spec"}
 
 
 def __getattr__(name):
@@ -24,3 +26,9 @@ def __getattr__(name):
         import importlib
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'poise' has no attribute {name!r}")
+
+
+def __dir__():
+    """The public API (resolved lazily) with the module's own names: ``dir(poise)`` and tab
+    completion show ``solve``, ``read_results``, ..."""
+    return sorted({*__all__, *(n for n in globals() if n.startswith("__"))})

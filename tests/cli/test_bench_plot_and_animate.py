@@ -70,6 +70,11 @@ def test_bench_plot_without_matplotlib_exits_2(tmp_path, monkeypatch):
 
 def test_pick_frames():
     assert pick_frames(10) == list(range(10))
+    # default: at most 200 spread evenly, first and last kept; --every 1: all of them
+    d = pick_frames(1001)
+    assert len(d) == 200 and d[0] == 0 and d[-1] == 1000
+    assert max(np.diff(d)) - min(np.diff(d)) <= 1                 # evenly spread
+    assert pick_frames(1001, every=1) == list(range(1001))
     assert pick_frames(10, every=4) == [0, 4, 8, 9]             # the last frame is kept
     assert pick_frames(101, max_frames=5) == [0, 25, 50, 75, 100]
     assert pick_frames(101, every=10, max_frames=3) == [0, 50, 100]

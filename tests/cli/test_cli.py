@@ -271,10 +271,10 @@ def test_solve_atomic_write_failure(deck, fake_run, monkeypatch):
     fake_run(make_result(("converged", "converged")))
     real = hdf5._write_datasets
 
-    def boom(group, datasets, where):
+    def boom(group, datasets, where, *rest):
         if where.startswith("/analysis_001"):
             raise OSError(28, "No space left on device")
-        return real(group, datasets, where)
+        return real(group, datasets, where, *rest)
 
     monkeypatch.setattr(hdf5, "_write_datasets", boom)
     r = invoke("solve", str(deck), "-o", "out.h5")

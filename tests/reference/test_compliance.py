@@ -87,7 +87,7 @@ def solve_text(tmp_path, text, name="d.xml", **kw):
 
 
 def test_spring_mass_axis_is_one_over_k_rest_constrained(tmp_path):
-    a = solve_text(tmp_path, deck(spring_mass()))
+    a = solve_text(tmp_path, deck(spring_mass()), compliance_markers="auto")
     assert list(a.datasets["compliance/marker_id"]) == [20]
     C = a.datasets["frames/compliance"]
     assert C.shape == (1, 6, 6)
@@ -99,7 +99,7 @@ def test_spring_mass_axis_is_one_over_k_rest_constrained(tmp_path):
 
 
 def test_spring_mass_redundant_joint_same_compliance(tmp_path):
-    a = solve_text(tmp_path, deck(spring_mass(redundant=True)))
+    a = solve_text(tmp_path, deck(spring_mass(redundant=True)), compliance_markers="all")
     assert len(a.datasets["redundant/id"]) > 0          # the second joint is redundant
     C = a.datasets["frames/compliance"][0]
     expect = np.zeros((6, 6))
@@ -149,7 +149,7 @@ def test_pendulum_marker_off_the_cg_lever_arms(tmp_path):
 
 
 def test_pendulum_redundant_hinge_same_compliance(tmp_path):
-    a = solve_text(tmp_path, deck(pendulum(redundant=True)))
+    a = solve_text(tmp_path, deck(pendulum(redundant=True)), compliance_markers="all")
     assert len(a.datasets["redundant/id"]) > 0
     ids = list(a.datasets["compliance/marker_id"])
     C = a.datasets["frames/compliance"][0]
@@ -161,8 +161,8 @@ def test_pendulum_redundant_hinge_same_compliance(tmp_path):
 @pytest.mark.parametrize("make", [lambda: spring_mass(), lambda: pendulum()])
 def test_exact_and_fd_agree(tmp_path, make):
     text = deck(make())
-    ex = solve_text(tmp_path, text)
-    fd = solve_text(tmp_path, text, compliance_method="fd")
+    ex = solve_text(tmp_path, text, compliance_markers="all")
+    fd = solve_text(tmp_path, text, compliance_markers="all", compliance_method="fd")
     assert str(fd.datasets["compliance/method"]) == "fd"
     assert fd.attrs["compliance_delta"] == pytest.approx(1e-3)
     Ce, Cf = ex.datasets["frames/compliance"][0], fd.datasets["frames/compliance"][0]
@@ -211,7 +211,8 @@ def test_free_mechanism_direction_is_nan(tmp_path):
 
 def test_quasistatic_every_frame(tmp_path):
     a = solve_text(tmp_path, deck(spring_mass(),
-                                  sim='analysis_type="Static" end_time="1.0" print_interval="0.25"'))
+                                  sim='analysis_type="Static" end_time="1.0" print_interval="0.25"'),
+                   compliance_markers="all")
     C = a.datasets["frames/compliance"]
     assert C.shape == (5, 6, 6)
     np.testing.assert_allclose(C[:, 2, 2], 1.0 / K_SPRING, rtol=1e-9)
@@ -240,7 +241,11 @@ def test_deck_attributes_select_fd(tmp_path):
     np.testing.assert_allclose(C[6:], 0.0, atol=1e-12)
 
 
-def test_none_and_bad_marker(tmp_path):
+def test_none_by_default_and_bad_marker(tmp_path):
+    """The matrix is computed on request only (as MotionSolve's GTCMAT): not by default."""
+    a = solve_text(tmp_path, deck(spring_mass()))
+    assert "frames/compliance" not in a.datasets and "compliance/marker_id" not in a.datasets
+    assert "not requested" in a.attrs["compliance_note"]
     a = solve_text(tmp_path, deck(spring_mass()), compliance_markers="none")
     assert "frames/compliance" not in a.datasets
     p = tmp_path / "bad.xml"
@@ -271,7 +276,7 @@ def many_bodies(n) -> str:
 
 def test_more_than_100_bodies_skipped_with_note(tmp_path):
     text = deck(many_bodies(101))
-    a = solve_text(tmp_path, text)
+    a = solve_text(tmp_path, text, compliance_markers="auto")
     assert "frames/compliance" not in a.datasets
     assert "skipped" in a.attrs["compliance_note"] and "all" in a.attrs["compliance_note"]
     b = solve_text(tmp_path, text, compliance_markers="1000 1010")
@@ -284,7 +289,7 @@ def test_auto_skips_above_entry_budget(tmp_path, monkeypatch):
     from poise.solvers import compliance
     monkeypatch.setattr(compliance, "AUTO_MAX_ENTRIES", 100)     # 5 frames x 36 > 100
     text = deck(spring_mass(), sim='analysis_type="Static" end_time="1.0" print_interval="0.25"')
-    a = solve_text(tmp_path, text)
+    a = solve_text(tmp_path, text, compliance_markers="auto")
     assert "frames/compliance" not in a.datasets
     assert "skipped" in a.attrs["compliance_note"]
     b = solve_text(tmp_path, text, compliance_markers="20")           # explicit: written
@@ -322,3 +327,30 @@ def test_cli_option_writes_datasets(tmp_path):
                           str(tmp_path / "b.h5"), "-q"], capture_output=True, text=True,
                          env=env, timeout=60)
     assert bad.returncode == 3 and f"{q}:4:" in bad.stderr and "777" in bad.stderr
+
+
+def test_batch_and_sweep_take_the_compliance_options(tmp_path, monkeypatch):
+    """``--compliance-markers`` / ``--compliance-method`` on every command: a batch (local
+    process pool) writes the matrix it asked for, and a sweep hands them to every case."""
+    from click.testing import CliRunner
+
+    import poise.app.sweep as sw
+    from poise_cli.main import cli
+    h5py = pytest.importorskip("h5py")
+    p = tmp_path / "pend.xml"
+    p.write_text(deck(pendulum()))
+    for n in ("dask", "distributed"):
+        monkeypatch.setitem(sys.modules, n, None)          # the local process pool: quick
+    r = CliRunner().invoke(cli, ["batch", str(p), "--out-dir", str(tmp_path / "b"), "-q",
+                                 "--compliance-markers", "20"])
+    assert r.exit_code == 0, r.output
+    with h5py.File(tmp_path / "b" / "pend.h5", "r") as f:
+        C = f["analysis_000/frames/compliance"][0]
+        np.testing.assert_allclose(C, pendulum_expected(), rtol=1e-7, atol=1e-10)
+    seen = {}
+    monkeypatch.setattr(sw, "run_sweep", lambda *a, **kw: seen.update(kw) or [])
+    r = CliRunner().invoke(cli, ["sweep", str(p), "--set", "Param_Static.max_num_iter=20,30",
+                                 "--out-dir", str(tmp_path / "s"), "-q",
+                                 "--compliance-markers", "all", "--compliance-method", "FD"])
+    assert seen["overrides"] == {"compliance_markers": "all", "compliance_method": "fd"}, \
+        r.output

@@ -32,6 +32,7 @@ from poise.deck.parser import parse_deck_bytes
 from poise.core.errors import DeckError
 from poise.model.compile import compile_model
 
+from support.fuzz import damage
 from support.paths import ROOT
 
 
@@ -156,15 +157,7 @@ def mutate(data: bytes, rnd: random.Random) -> bytes:
                 k = rnd.choice(ks)
                 e.set(k, rnd.choice(EXPR_MUTATIONS)(e.get(k), rnd))
     out = etree.tostring(root, encoding="utf-8", xml_declaration=True)
-    r = rnd.random()
-    if r < 0.15:                                               # truncation at a random offset
-        out = out[:rnd.randrange(len(out) + 1)]
-    elif r < 0.25:                                             # random byte noise
-        b = bytearray(out)
-        for _ in range(rnd.randint(1, 4)):
-            b[rnd.randrange(len(b))] = rnd.randrange(256)
-        out = bytes(b)
-    return out
+    return damage(out, rnd, truncate=0.15, noise=0.10)     # truncation or random byte noise
 
 
 def _check_in_process(data: bytes):

@@ -164,11 +164,11 @@ def test_atomic_on_exception(tmp_path, monkeypatch):
     calls = {"n": 0}
     real = hdf5._write_datasets
 
-    def boom(group, datasets, where):
+    def boom(group, datasets, where, *rest):
         calls["n"] += 1
         if where.startswith("/analysis_001"):
             raise RuntimeError("disk on fire")
-        return real(group, datasets, where)
+        return real(group, datasets, where, *rest)
 
     monkeypatch.setattr(hdf5, "_write_datasets", boom)
     with pytest.raises(RuntimeError, match="disk on fire"):
@@ -197,8 +197,8 @@ def test_sigkill_mid_write_leaves_no_final_file(tmp_path):
         from support.results import make_result
         from poise.results import hdf5
         real = hdf5._write_datasets
-        def slow(group, datasets, where):
-            real(group, datasets, where)
+        def slow(group, datasets, where, *rest):
+            real(group, datasets, where, *rest)
             if where.startswith("/analysis_000"):
                 group.file.flush()
                 print("mid-write", flush=True)
@@ -261,13 +261,16 @@ def test_low_level_datasets_equal_high_level_bytes(tmp_path):
 
 
 def test_units_attribute_on_every_dataset(tmp_path):
-    """Every dataset carries ``units`` in the deck's units (here N, kg, mm, s)."""
+    """Every dataset carries ``units`` in the deck's units (here N, kg, mm, s); netCDF
+    dimensions that are not variables (``frame``, ``body``, ...) are not datasets of the
+    schema."""
     path = tmp_path / "u.h5"
     write_results(make_result(), str(path))
     with h5py.File(path, "r") as f:
         units = {}
         f.visititems(lambda n, o: units.__setitem__(n, o.attrs.get("units"))
-                     if isinstance(o, h5py.Dataset) else None)
+                     if isinstance(o, h5py.Dataset) and not hdf5._is_dimension(
+                         n.split("/", 1)[-1] if "/" in n else n) else None)
     assert None not in units.values()
     assert units["analysis_000/bodies/position"] == "mm"
     assert units["analysis_000/joints/torque"] == "N*mm"
@@ -295,3 +298,21 @@ def test_undeclared_objects_refused(tmp_path, where, value, match):
         write_results(r, str(tmp_path / "x.h5"))
     assert "/analysis_000" in str(e.value)
     assert _leftovers(tmp_path) == []
+
+
+def test_inconsistent_shapes_still_written_and_reported(tmp_path):
+    """A capability writing a dataset whose frame count disagrees with the others does not
+    lose the results: the file is written (the odd axis gets dimension ``frame_<n>``), reads
+    back, opens in xarray, and the schema conformance names the inconsistency."""
+    import xarray as xr
+
+    from poise.results.schema import conformance
+    r = make_result()
+    r.analyses[1].datasets["frames/iterations"] = np.array([3, 4])       # 2 rows, F = 3
+    path = tmp_path / "odd.h5"
+    write_results(r, str(path))
+    back = read_results(str(path))
+    assert set(back.analyses[1].datasets) == set(r.analyses[1].datasets)
+    tree = xr.open_datatree(path, engine="h5netcdf")
+    assert tree["analysis_001/frames"]["iterations"].dims == ("frame_2",)
+    assert any("frames/iterations" in p for p in conformance(path))

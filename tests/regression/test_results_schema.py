@@ -158,3 +158,111 @@ def test_result_unit_accessor(written):
     assert res.unit("model/bodies/mass") == "kg"
     with h5py.File(written("slider_crank_load.xml"), "r") as f:
         assert f["analysis_000/joints/torque"].attrs["units"] == res.unit("joints/torque")
+
+
+# ------------------------------------------------------------------- netCDF-4 / xarray view
+def _declared_dataset(path: str):
+    """The declaration of the dataset at tree path ``path`` (``/analysis_000/joints/force``)."""
+    top, _, rel = path.lstrip("/").partition("/")
+    if top == "model":
+        return schema.lookup("model", "dataset", rel)
+    if top.startswith("analysis_"):
+        return schema.lookup("analysis", "dataset", rel)
+    return schema.lookup("root", "dataset", path.lstrip("/"))
+
+
+@pytest.mark.parametrize("name", DECKS)
+def test_example_deck_opens_in_xarray_as_declared(written, name):
+    """``xarray.open_datatree(file, engine="h5netcdf")`` gives every declared dataset with its
+    declared dimension names (no phony dimensions), ``units`` and ``long_name``; element ids
+    and labels are coordinates, and so is each analysis' ``time``."""
+    import xarray as xr
+    path = written(name)
+    with h5py.File(path, "r") as f:
+        units = f.attrs["units"]
+        expected = set()
+        f.visititems(lambda n, o: expected.add("/" + n) if isinstance(o, h5py.Dataset)
+                     and _declared_dataset("/" + n) is not None else None)
+    tree = xr.open_datatree(path, engine="h5netcdf")
+    seen = set()
+    for node in tree.subtree:
+        ds = node.to_dataset(inherit=False)
+        assert not [d for d in ds.dims if str(d).startswith("phony_dim")], node.path
+        for vname, var in ds.variables.items():
+            full = f"{node.path.rstrip('/')}/{vname}"
+            it = _declared_dataset(full)
+            if it is None:                    # a fixed-size dimension's coordinate values
+                assert node.path == "/" and schema.component_dim(str(vname)), full
+                assert list(var.values) == list(schema.component_values(str(vname)))
+                continue
+            seen.add(full)
+            assert var.dims == schema.dims(it), full
+            assert var.attrs["units"] == schema.unit_string(it.unit, units), full
+            assert var.attrs["long_name"] == schema.long_name(it), full
+        group = node.path.rsplit("/", 1)[-1]
+        if "label" in ds.variables and "id" in ds.variables:
+            assert {"id", "label"} <= set(ds.coords), node.path
+        if group.startswith("analysis_") and "time" in ds.variables:
+            assert "time" in ds.coords and ds["time"].dims == ("frame",)
+    assert seen == expected
+
+
+@pytest.mark.parametrize("name", ["qs_slider_crank_11b.xml", "slider_crank_load.xml",
+                                  "expr_reaction_load.xml", "mkeam_pendulum_multiturn.xml"])
+def test_to_xarray_equals_the_file_opened_in_xarray(written, name):
+    """``RunResult.to_xarray()`` (built without a file) holds what xarray reads from the file:
+    the same groups, variables, dimensions, values and attributes (plus its conveniences: the
+    ``time`` coordinate on groups with frames and indexes)."""
+    import xarray as xr
+    from poise.results.hdf5 import read_results
+    path = written(name)
+    ours = read_results(str(path)).to_xarray()
+    theirs = xr.open_datatree(path, engine="h5netcdf").load()
+    assert {n.path for n in ours.subtree} == {n.path for n in theirs.subtree}
+    for node in theirs.subtree:
+        a = node.to_dataset(inherit=False)
+        b = ours[node.path].to_dataset(inherit=False)
+        extra = set(b.variables) - set(a.variables)
+        assert extra <= {"time"}, (node.path, extra)
+        assert set(a.coords) <= set(b.coords), node.path
+        for v in a.variables:
+            assert a[v].dims == b[v].dims, (node.path, v)
+            assert a[v].attrs == b[v].attrs, (node.path, v)
+            if a[v].dtype.kind in "OU":
+                assert a[v].values.tolist() == b[v].values.tolist(), (node.path, v)
+            else:
+                np.testing.assert_array_equal(a[v].values, b[v].values, err_msg=v)
+        assert set(a.attrs) == set(b.attrs), node.path
+
+
+def test_open_dataset_with_group(written):
+    """``xarray.open_dataset(file, group=...)``: one group, named dimensions, ids and labels
+    as coordinates, units and long names."""
+    import xarray as xr
+    ds = xr.open_dataset(written("slider_crank_load.xml"), engine="h5netcdf",
+                         group="analysis_000/joints")
+    assert ds.force.dims == ("frame", "joint", "axis")
+    assert list(ds.label.values) == ["Crank pivot", "Crank pin", "Wrist pin", "Slide"]
+    assert {"id", "label"} <= set(ds.coords)
+    assert ds.force.attrs["units"] == "N" and ds.torque.attrs["units"] == "N*mm"
+    assert ds.force.attrs["long_name"] == "joint force on its I body"
+    a = xr.open_dataset(written("slider_crank_load.xml"), engine="h5netcdf",
+                        group="analysis_000")
+    assert "time" in a.coords and a.attrs["method"] == "FIM_S"
+
+
+def test_every_declared_dataset_has_a_long_name_and_dimensions():
+    """A new dataset declares its long name (poise.results.schema_dims.LONG_NAMES, generic
+    ``<group>/id|label|force|torque|tag|unique`` for element groups) and its dimensions follow
+    from its shape (a new symbol: DIMENSIONS; a fixed size other than 3: ITEM_DIMS)."""
+    from poise.results import schema_dims as sd
+    missing = []
+    for it in schema.items():
+        if it.kind != "dataset":
+            continue
+        assert len(schema.dims(it)) == len(it.shape), it.path
+        group, _, rest = it.name.partition("/")
+        generic = sd.element_name(group) and f"<any>/<group>/{rest}" in sd.LONG_NAMES
+        if f"{it.scope}/{it.name}" not in sd.LONG_NAMES and not generic:
+            missing.append(f"{it.scope}/{it.name}")
+    assert missing == [], "declare their long names in poise.results.schema_dims.LONG_NAMES"

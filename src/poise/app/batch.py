@@ -123,7 +123,8 @@ def inputs_fresh(attrs, allow_user_code: bool = False) -> bool:
         return False
     if not isinstance(files, dict):
         return False
-    if files and not allow_user_code:
+    # scripts need allow_user_code; an Adams command file's dataset is data, not code
+    if not allow_user_code and any(not str(p).lower().endswith(".adm") for p in files):
         return False
     for path, digest in files.items():
         try:

@@ -67,8 +67,8 @@ class CheckReport:
     dof_without_user_constraints: int | None = None
 
 
-def check(path: str):
-    spec = _load(path)
+def check(path: str, ignore=()):
+    spec = _load(path, ignore)
     model = compile_model(spec, user_code="skip")      # check never runs deck code
     rep = CheckReport(deck=spec.path)
     mass = model.deck_mass()

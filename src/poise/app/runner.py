@@ -7,6 +7,7 @@ CLI overrides win over the deck (defaults < deck < CLI).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -18,6 +19,7 @@ from poise.core.progress import installed, solver_progress
 from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
 from poise.core.version import __version__
 from poise.deck.parser import load_deck
+from poise.deck.schema import element_schema
 from poise.deck.spec import DeckSpec, Element
 from poise.deck.validate import validate
 from poise.model import commands as model_commands
@@ -31,10 +33,36 @@ from poise.solvers.driver import Driver, strategy_for
 from poise.solvers.settings import StaticSettings, check_override_names
 
 
-def _load(path):
+def _load(path, ignore=()):
     if isinstance(path, DeckSpec):  # already parsed (run_spec: sweeps, poise.solve(spec))
         return revalidated(path)
-    return load_deck(path)
+    check_ignore(path, ignore)
+    return load_deck(path, ignore=ignore)
+
+
+def check_ignore(path, ignore) -> None:
+    """``ignore`` (``--ignore KIND``) names kinds an Adams dataset may leave out; a usage
+    error for any other kind, or for a deck that is not an Adams dataset."""
+    if not ignore:
+        return
+    from poise.deck.adm.vocab import IGNORABLE  # lazy: only Adams datasets need the vocabulary
+    if not str(path).lower().endswith((".adm", ".acf")):
+        raise UsageError("--ignore applies to Adams datasets (.adm, .acf); "
+                         f"{str(path)!r} is not one")
+    bad = [k for k in ignore if str(k).upper() not in IGNORABLE]
+    if bad:
+        import difflib
+        near = difflib.get_close_matches(str(bad[0]).upper(), IGNORABLE, n=1)
+        raise UsageError(f"--ignore {bad[0]}: unknown kind" + (f" (did you mean {near[0]}?)"
+                         if near else "") + "; expected one of " + ", ".join(IGNORABLE))
+
+
+def ignored_text(ignored) -> str:
+    """``left out (--ignore): 2 CONTACT, 1 USER`` for the elements an Adams dataset left out."""
+    counts: dict = {}
+    for d in ignored:
+        counts[d["kind"]] = counts.get(d["kind"], 0) + 1
+    return "left out (--ignore): " + ", ".join(f"{n} {k}" for k, n in counts.items())
 
 
 def revalidated(spec: DeckSpec) -> DeckSpec:
@@ -47,11 +75,43 @@ def revalidated(spec: DeckSpec) -> DeckSpec:
     """
     from dataclasses import replace
 
+    unknown = _unknown_attributes(spec)
+    if unknown:
+        raise DeckError(unknown)
     tmp = replace(spec, warnings=[])
     validate(tmp)
     known = {str(w) for w in spec.warnings}
     new = [w for w in tmp.warnings if str(w) not in known]
     return replace(spec, warnings=[*spec.warnings, *new]) if new else spec
+
+
+def _unknown_attributes(spec: DeckSpec) -> list[Problem]:
+    """Attributes of a DeckSpec its element's schema does not know (or spells otherwise): the
+    parser drops and warns about those of a file, so here they come from an edit such as
+    ``spring.attrs["stifness"] = 1`` that would otherwise be ignored without a word."""
+    import difflib
+    out = []
+    for el in [*spec.model, *spec.commands]:
+        known = _attribute_names(el.tag)
+        if known is None or known.issuperset(el.attrs):
+            continue                      # validate() says what is wrong with the tag
+        sch = element_schema(el.tag)
+        for k in set(el.attrs) - known:
+            a = sch.attr(str(k))
+            if a is not None:
+                hint = f"; it is spelt '{a.name}'"
+            else:
+                close = difflib.get_close_matches(str(k).lower(), sorted(sch.attrs), n=1)
+                hint = f" (did you mean '{close[0]}'?)" if close else ""
+            out.append(Problem(el.loc, f"unknown attribute '{k}' of <{sch.tag}>{hint}"))
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _attribute_names(tag: str) -> frozenset | None:
+    """Canonical attribute names of element ``tag`` (None: unknown tag or open attributes)."""
+    sch = element_schema(tag)
+    return None if sch is None or sch.open_attrs else frozenset(sch.attrs)
 
 
 def _static_settings(el_list) -> StaticSettings:
@@ -175,25 +235,26 @@ def _check_compliance_markers(spec, s, el, from_cli: bool) -> None:
 
 
 def run(path: str, overrides=None, command: str = "", progress=None,
-        allow_user_code: bool = False) -> RunResult:
+        allow_user_code: bool = False, ignore=()) -> RunResult:
     """``allow_user_code``: run the Python user routines the deck names (otherwise such a deck
-    is a located deck error saying how to allow them).
+    is a located deck error saying how to allow them). ``ignore``: kinds of Adams dataset
+    statements left out instead of refused (recorded in the results).
 
     BLAS runs single-threaded meanwhile (poise.core.blas: the dense work is on tiny blocks,
     whatever the caller imported first), and the modules imported on the way are timed as
     their own phase, ``timings['import']``, outside parse/compile/solve (poise.core.phases)."""
     with phases.counting_imports(), blas.limited():
         imported = phases.import_seconds()
-        res = _run(path, overrides, command, progress, allow_user_code)
+        res = _run(path, overrides, command, progress, allow_user_code, ignore)
         res.timings["import"] = phases.import_seconds() - imported
         return res
 
 
-def _run(path, overrides, command, progress, allow_user_code) -> RunResult:
+def _run(path, overrides, command, progress, allow_user_code, ignore=()) -> RunResult:
     phases.reset()
     now = phases.now            # a clock that stops while modules are imported
     t0 = now()
-    spec = _load(path)
+    spec = _load(path, ignore)
     path = spec.path
     t1 = now()
     user_code = "run" if allow_user_code else "refuse"
@@ -215,7 +276,10 @@ def _run(path, overrides, command, progress, allow_user_code) -> RunResult:
     res = RunResult(deck=path, deck_sha256=spec.sha256, units=model.units,
                     active_effects=list(model.active_effects), command=command)
     res.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]
-    inputs = getattr(model, "input_files", None)
+    inputs = {**spec.input_files, **(getattr(model, "input_files", None) or {})}
+    if spec.ignored:
+        import json
+        res.attrs["ignored"] = json.dumps(spec.ignored, sort_keys=True)
     if inputs:           # files read besides the deck (scripts): batch freshness covers them
         import json
         res.attrs["input_files"] = json.dumps(inputs, sort_keys=True)
@@ -243,7 +307,8 @@ def _run(path, overrides, command, progress, allow_user_code) -> RunResult:
         ar.datasets.update(labeller.datasets(ar.datasets, models[k]))
         res.analyses.append(ar)
         if progress:
-            progress(summary_line(ar, res.timings[f"analysis_{k:03d}"]))
+            line = summary_line(ar, res.timings[f"analysis_{k:03d}"])
+            progress(f"{line}; {ignored_text(spec.ignored)}" if spec.ignored else line)
     t3 = now()
     # solve = its phases (poise.core.phases: evaluate, assemble, factorise) + the rest
     res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2,
@@ -260,6 +325,7 @@ def run_deck(
     progress: Callable[[str], None] | None = None,
     quiet: bool = False,
     allow_user_code: bool = False,
+    ignore=(),
 ) -> RunResult:
     """Parse, compile and run every analysis of a deck.
 
@@ -283,6 +349,10 @@ def run_deck(
         Run the Python user routines the deck names (``script_name``). Default False: decks
         come from anywhere, so such a deck is an invalid deck (a located problem per element
         saying how to allow it). Scripts must lie inside the deck's directory tree either way.
+    ignore : iterable of str
+        Adams datasets (``.adm``/``.acf``): kinds of statements poise cannot solve (``CONTACT``,
+        ``FRICTION``, ``USER``, ...) left out instead of refused; recorded in the results
+        (root attribute ``ignored``) and on each analysis' summary line.
 
     Returns
     -------
@@ -297,7 +367,7 @@ def run_deck(
     check_override_names(overrides)          # before parsing: a typo is the caller's error
     with solver_progress(False if quiet else None):
         return run(path, overrides=overrides, command=command, progress=progress,
-                   allow_user_code=allow_user_code)
+                   allow_user_code=allow_user_code, ignore=ignore)
 
 
 def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
@@ -314,9 +384,9 @@ def _analysis_models(spec: DeckSpec, model, analyses, compile_fn) -> list:
 
 
 def run_spec(spec: DeckSpec, overrides=None, command: str = "", progress=None,
-             allow_user_code: bool = False) -> RunResult:
+             allow_user_code: bool = False, quiet: bool = False) -> RunResult:
     """Run an already-parsed (possibly modified) :class:`DeckSpec`; same as :func:`run`."""
-    with solver_progress(None):
+    with solver_progress(False if quiet else None):
         return run(spec, overrides=overrides, command=command, progress=progress,
                    allow_user_code=allow_user_code)
 

@@ -24,16 +24,23 @@ class SourceLoc:
         Canonical element name (e.g. ``"Force_SpringDamper"``).
     id : int or None
         The element's ``id`` attribute when present.
+    who : str or None
+        How the source names the element when it is not an XML tag (an Adams dataset
+        statement: ``"JOINT/3"``); the prefix then reads ``FILE:LINE: JOINT/3:``.
     """
 
     file: str = "<deck>"
     line: int = 0
     tag: str = ""
     id: int | None = None
+    who: str | None = None
 
     def prefix(self, attr: str | None = None) -> str:
         """``FILE:LINE: <Tag id=N>:`` (plus ``attr`` when given)."""
-        who = f"<{self.tag} id={self.id}>" if self.id is not None else f"<{self.tag}>"
+        if self.who is not None:
+            who = self.who
+        else:
+            who = f"<{self.tag} id={self.id}>" if self.id is not None else f"<{self.tag}>"
         s = f"{self.file}:{self.line}: {who}"
         if attr:
             s += f" {attr}"
@@ -105,6 +112,19 @@ class EvaluationError(PoiseError):
 
 class UsageError(PoiseError):
     exit_code = 2
+
+
+class MissingFileError(UsageError, FileNotFoundError):
+    """An input file that does not exist: a ``FileNotFoundError`` for library callers, a usage
+    error (exit code 2) for the command line."""
+
+
+def require_file(path, what: str = "file") -> None:
+    """Raise :class:`MissingFileError` unless ``path`` exists."""
+    import errno
+    import os
+    if not os.path.exists(path):
+        raise MissingFileError(errno.ENOENT, f"no such {what}", os.fspath(path))
 
 
 class UnknownOptionError(UsageError, TypeError):

@@ -207,3 +207,21 @@ def _defaults(tag: str) -> tuple:
         d = _DEFAULTS[tag] = () if sch is None else tuple(
             (a.name, a.default) for a in sch.attrs.values() if a.default is not None)
     return d
+
+
+def place(spec, items, seen_model: bool = True) -> None:
+    """Put built elements into ``spec``: commands (a command-only element, or one from the
+    command section) in ``spec.commands``, the others, with their defaults, in ``spec.model``.
+    ``items`` are :attr:`Builder.items`; ``seen_model``: the document had a model section
+    (elements directly under the root that may be both are then commands)."""
+    model, commands = spec.model, spec.commands
+    for el, where, shp in items:
+        kind = shp.kind
+        if kind == "command" or where == "command" or (where == "root" and seen_model
+                                                       and kind == "both"):
+            el.is_command = True
+            commands.append(el)
+        else:
+            if shp.defaults:
+                el.attrs.update(shp.defaults)
+            model.append(el)

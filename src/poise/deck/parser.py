@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from lxml import etree
 
-from poise.deck.build import Builder, local_name, local_tag
+from poise.deck.build import Builder, local_name, local_tag, place
 from poise.deck.scan import as_utf8, refuse_entities, start_tag_scan
 from poise.deck.spec import DeckSpec
 from poise.deck.validate import FileProblem, validate
@@ -204,7 +204,7 @@ def _walk_tree(data: bytes, path: str, lines: Any = _SCAN) -> tuple[Builder, boo
 
 
 # --------------------------------------------------------------------------- main entry points
-def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
+def parse_deck_bytes(data: bytes, path: str, *, check: bool = True, ignore=()) -> DeckSpec:
     """Parse deck bytes into a :class:`DeckSpec`.
 
     Parameters
@@ -215,6 +215,8 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
         Deck path used in every message.
     check : bool, optional
         Run :func:`poise.deck.validate.validate` (default True).
+    ignore : iterable of str, optional
+        Adams datasets only: kinds of statements left out instead of refused (``--ignore``).
 
     Returns
     -------
@@ -226,8 +228,16 @@ def parse_deck_bytes(data: bytes, path: str, *, check: bool = True) -> DeckSpec:
         Malformed XML, entity declarations, or (with ``check``) any validation problem; all
         validation problems of the deck are reported in one error.
     """
+    if _is_dataset(path):
+        from poise.deck.adm import load_dataset  # lazy: only Adams datasets need the reader
+        return load_dataset(path, data, check=check, ignore=ignore)
     with _no_gc():     # millions of small acyclic objects: no cyclic collection meanwhile
         return _parse(data, path, check)
+
+
+def _is_dataset(path: str) -> bool:
+    """An Adams dataset (``.adm``) or command file (``.acf``): read by poise.deck.adm."""
+    return str(path).lower().endswith((".adm", ".acf"))
 
 
 class _no_gc:
@@ -263,17 +273,7 @@ def _parse(data: bytes, path: str, check: bool) -> DeckSpec:
                                         f"cannot parse deck: {type(e).__name__}: {e}")) from None
     b, seen_model = walked
 
-    model, commands = spec.model, spec.commands
-    for el, where, shp in b.items:
-        kind = shp.kind
-        if kind == "command" or where == "command" or (where == "root" and seen_model
-                                                       and kind == "both"):
-            el.is_command = True
-            commands.append(el)
-        else:
-            if shp.defaults:
-                el.attrs.update(shp.defaults)
-            model.append(el)
+    place(spec, b.items, seen_model)
     b.warnings.sort(key=lambda w: w[0])
     spec.warnings.extend(w for _, w in b.warnings)
     if check:
@@ -281,7 +281,7 @@ def _parse(data: bytes, path: str, check: bool) -> DeckSpec:
     return spec
 
 
-def load_deck(path, *, check: bool = True) -> DeckSpec:
+def load_deck(path, *, check: bool = True, ignore=()) -> DeckSpec:
     """Read, parse and validate a deck file.
 
     Parameters
@@ -290,6 +290,8 @@ def load_deck(path, *, check: bool = True) -> DeckSpec:
         Deck path (used as given in every message).
     check : bool, optional
         Validate the deck (default True).
+    ignore : iterable of str, optional
+        Adams datasets only (``.adm``/``.acf``): kinds left out instead of refused.
 
     Returns
     -------
@@ -302,11 +304,11 @@ def load_deck(path, *, check: bool = True) -> DeckSpec:
     """
     path = str(path)          # os.PathLike accepted; messages and locations carry text
     try:
-        data = _read_deck(path)
+        data = _read_deck(path, dataset=_is_dataset(path))
     except OSError as e:
         raise DeckError(FileProblem(SourceLoc(path, 0, "xml"),
                                     f"cannot read deck: {e.strerror or e}")) from None
-    return parse_deck_bytes(data, path, check=check)
+    return parse_deck_bytes(data, path, check=check, ignore=ignore)
 
 
 #: Largest deck read (bytes). A 100 000-link chain deck is ~130 MB and needs ~3 GiB to solve;
@@ -315,7 +317,7 @@ MAX_DECK_BYTES = 1 << 32
 _HEAD = 1 << 16
 
 
-def _read_deck(path: str) -> bytes:
+def _read_deck(path: str, dataset: bool = False) -> bytes:
     """The deck's bytes; a stream that cannot be XML (``/dev/zero``, binary data) is refused
     after its first 64 KiB, and any input beyond :data:`MAX_DECK_BYTES` is refused."""
     def refuse(msg):
@@ -325,9 +327,11 @@ def _read_deck(path: str) -> bytes:
         head = f.read(_HEAD)
         # after byte-order marks, whitespace (and the NULs of UTF-16/32) a deck starts with '<'
         start = head.lstrip(b"\xef\xbb\xbf\xfe\xff\x00 \t\r\n")[:1]
-        if start and start != b"<":
+        if start and start != b"<" and not dataset:
             refuse(f"not an XML deck: expected '<' at the start of the file, found byte "
                    f"0x{start[0]:02x}")
+        if dataset and b"\x00" in head:
+            refuse("not an Adams dataset: the file holds binary data (NUL bytes)")
         if not start and len(head) == _HEAD:
             refuse(f"not an XML deck: only NUL bytes and whitespace in the first {_HEAD} bytes")
         chunks, n = [head], len(head)

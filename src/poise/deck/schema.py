@@ -324,7 +324,7 @@ el("Param_Static", "both", True, "Static / quasi-static solver settings.", [
       aliases=("max_residual",)),
     R("stability", "FIM: sqrt(stability) x mass matrix added to the Jacobian", default=1e-10, lo=0),
     R("compliance_delta", "FIM: perturbation for the compliance matrix", default=1e-3, lo=0, lo_open=True),
-    A("compliance_markers", "str", "poise: markers of the compliance matrix (ids, all, auto, none)"),
+    A("compliance_markers", "str", "poise: markers of the compliance matrix (ids, all, auto, none; default none)"),
     E("compliance_method", "EXACT FD", "poise: compliance from the analytic tangent or by re-solving")])
 el("Param_Transient", "both", True, "DAE integrator settings (FIM_D quasi-static stepping).", [
     E("integrator_type", "DSTIFF CSTIFF VSTIFF MSTIFF ABAM GSTIFF HSTIFF", "integrator", default="DSTIFF"),

@@ -92,6 +92,11 @@ class DeckSpec:
         ``Param_Static`` etc.).
     warnings : list
         :class:`poise.core.errors.Problem` warnings (unknown attributes, ...), already located.
+    ignored : list[dict]
+        Elements of an Adams dataset left out by ``--ignore KIND`` (``kind``, ``statement``,
+        ``file``, ``line``), recorded in the results.
+    input_files : dict[str, str]
+        Files read besides the deck (an Adams command file's model) -> SHA-256.
     """
 
     path: str
@@ -99,6 +104,8 @@ class DeckSpec:
     model: list[Element] = field(default_factory=list)
     commands: list[Element] = field(default_factory=list)
     warnings: list = field(default_factory=list)
+    ignored: list = field(default_factory=list)
+    input_files: dict = field(default_factory=dict)
 
     def elements(self, tag: str) -> list[Element]:
         """Model elements with canonical tag ``tag`` in document order."""

@@ -386,6 +386,13 @@ class _ElementMarkers:
         return mi, mj
 
 
+def row_where(ri: dict) -> str:
+    """``FILE:LINE: <Tag id=N>`` (or ``FILE:LINE: JOINT/3`` for an Adams dataset) of a
+    constraint row's element."""
+    w = ri.get("where")
+    return w if w else f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}>"
+
+
 def _row(el: Element, equation: str, kind: str, group: str, owner: int) -> dict:
     return dict(tag=el.tag, id=el.id, equation=equation, line=el.loc.line, file=el.loc.file,
-                kind=kind, group=group, owner=owner)
+                kind=kind, group=group, owner=owner, where=el.loc.prefix()[:-1])

@@ -454,3 +454,14 @@ class Lowering:
         if ir is None:
             self.error(node.col, f"Reference_Variable id {vid} is invalid")
         return ir
+
+
+def known_function(name: str) -> bool:
+    """Whether the expression language computes function ``name`` (case-insensitive): the
+    dispatch of :meth:`Lowering.call`, read from its tables (an Adams request naming a function
+    poise does not compute, such as ORIENT, can then be told apart before compiling)."""
+    n = name.upper()
+    return (n in ARITY or n in MEASURE_SLOTS or n in VELOCITY_MEASURES or n in REACTION_FUNCS
+            or n in RESULTANT_FUNCS or n in SPLINE_KINDS
+            or n in ("FRICTION", "VARVAL", "DIF", "DIF1", "ARYVAL", "IF"))
+

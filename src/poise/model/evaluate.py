@@ -23,6 +23,7 @@ import numpy as np
 
 from poise.core import phases
 from poise.core.errors import EvaluationError
+from poise.elements.context import row_where
 from poise.expr import EvalContext
 from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, local_pattern,
                                    local_residual_tangent, slot_kinematics, tangent_compact)
@@ -466,8 +467,7 @@ def _nonfinite_message(model, r, phi):
     bad = np.nonzero(~np.isfinite(phi))[0]
     if len(bad):
         ri = model.row_info[bad[0]]
-        return (f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}>: equation "
-                f"{ri['equation']} is not finite (NaN/Inf)")
+        return f"{row_where(ri)}: equation {ri['equation']} is not finite (NaN/Inf)"
     bad = np.nonzero(~np.isfinite(r))[0]
     ci = model.coord_info[bad[0]]
     return f"non-finite force on {ci} (NaN/Inf produced by an element acting on it)"

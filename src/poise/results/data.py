@@ -41,14 +41,34 @@ class AnalysisResult(AnalysisRecord):
         t = self.datasets.get("time")
         return 0 if t is None else int(len(t))
 
+    @property
+    def time(self) -> np.ndarray:
+        """Time of each output frame (F,) [time unit]; 0 for a plain static analysis."""
+        return np.asarray(self.datasets.get("time", np.zeros(0)))
+
+    def __repr__(self) -> str:
+        groups = sorted({k.split("/")[0] for k in self.datasets if "/" in k})
+        return (f"<AnalysisResult {self.index}: {self.analysis_type} {self.method} "
+                f"{self.status}, {self.n_frames} frame{'s' * (self.n_frames != 1)}; groups: "
+                f"{', '.join(groups) or 'none'}>")
+
     def settings_json(self) -> str:
         return json.dumps(self.settings, sort_keys=True, default=str)
 
     # ------------------------------------------------------------------ accessors
     # Thin reads of the datasets by element id. ``frame``: an index (default -1, the last
     # frame) or None for every frame (leading axis F).
-    def _row(self, group: str, ident: int) -> int:
+    def _row(self, group: str, ident) -> int:
+        """Row of element ``ident`` (its id, or its deck label) in ``group``'s datasets."""
         ids = np.asarray(self.datasets.get(f"{group}/id", np.zeros(0, int)))
+        if isinstance(ident, str):
+            labels = [str(x) for x in np.asarray(self.datasets.get(f"{group}/label", []))]
+            hit = [k for k, lab in enumerate(labels) if lab == ident]
+            if len(hit) != 1:
+                raise KeyError(f"{'no' if not hit else 'more than one'} {group[:-1]} labelled "
+                               f"{ident!r} in analysis {self.index}; labels: "
+                               f"{', '.join(repr(x) for x in labels if x) or 'none'}")
+            return hit[0]
         hit = np.nonzero(ids == int(ident))[0]
         if not len(hit):
             raise KeyError(f"no {group[:-1]} with id {ident} in analysis {self.index}; ids: "
@@ -102,16 +122,17 @@ class AnalysisResult(AnalysisRecord):
             u = np.asarray(axis, float) / np.linalg.norm(axis)
         return v @ u
 
-    def reaction(self, joint: int, frame=-1, group: str = "joints"):
-        """``(force, torque)`` of constraint element ``joint`` (id) of ``group`` (``joints``,
-        ``jprims``, ``motions``, ...): on the I body at the I marker, global axes."""
+    def reaction(self, joint, frame=-1, group: str = "joints"):
+        """``(force, torque)`` of element ``joint`` (id or deck label) of ``group``
+        (``joints``, ``jprims``, ``motions``, ``forces``, ...): on the I body at the I marker,
+        global axes."""
         k = self._row(group, joint)
         F = np.asarray(self.datasets[f"{group}/force"])[:, k]
         T = np.asarray(self.datasets[f"{group}/torque"])[:, k]
         return (F, T) if frame is None else (F[frame], T[frame])
 
-    def request(self, request: int, channel, frame=-1):
-        """Channel of ``Post_Request`` ``request`` (id): 1..8, or its name as the file's
+    def request(self, request, channel, frame=-1):
+        """Channel of ``Post_Request`` ``request`` (id or deck label): 1..8, or its name as the file's
         ``requests/channel`` gives it (``DM DX DY DZ YAW PITCH ROLL`` for displacement
         requests, ``FM FX FY FZ TM TX TY TZ`` for force requests, ``expr1``..``expr8``;
         case-insensitive; ``f1``..``f8`` also name channels 1..8)."""
@@ -232,11 +253,59 @@ class RunResult:
     def rotation_angle(self, body, frame=-1, axis=None, analysis: int = -1):
         return self.analyses[analysis].rotation_angle(self.body_id(body), frame, axis)
 
-    def reaction(self, joint: int, frame=-1, group: str = "joints", analysis: int = -1):
+    def reaction(self, joint, frame=-1, group: str = "joints", analysis: int = -1):
+        """``(force, torque)`` of joint ``joint`` (id or label; ``group="forces"``,
+        ``"motions"``, ... for other elements) on its I body at the I marker, global axes."""
         return self.analyses[analysis].reaction(joint, frame, group)
 
-    def request(self, request: int, channel, frame=-1, analysis: int = -1):
+    def request(self, request, channel, frame=-1, analysis: int = -1):
+        """Channel ``channel`` (1..8 or a name such as ``"FX"``) of ``Post_Request``
+        ``request`` (id or label)."""
         return self.analyses[analysis].request(request, channel, frame)
+
+    @property
+    def time(self) -> np.ndarray:
+        """Output times (F,) of the last analysis [time unit] (``analyses[k].time`` for
+        another)."""
+        return self.analyses[-1].time if self.analyses else np.zeros(0)
+
+    def to_xarray(self, group: str | None = None, analysis: int | None = None):
+        """The results as labelled arrays (needs ``pip install 'poise[xarray]'``).
+
+        No arguments: an ``xarray.DataTree`` with the results file's layout (``/model``,
+        ``/analysis_000/joints``, ...; the groups, names, dimensions, coordinates, units and
+        long names of ``xarray.open_datatree(file, engine="h5netcdf")``), plus the analysis'
+        ``time`` coordinate on each group with frames and indexes on ``time``, ``id`` and
+        ``label``. ``group="joints"`` (``"bodies"``, ``"frames"``, ``"model/bodies"``, ...):
+        that group of analysis ``analysis`` (default the last) as an ``xarray.Dataset``, e.g.
+        ``r.to_xarray("joints").force.sel(label="Wrist pin")``. ``analysis=k`` alone: that
+        analysis' node of the tree."""
+        from poise.results import labelled      # lazy: the optional extra poise[xarray]
+        tree = labelled.to_datatree(self)
+        if group is None and analysis is None:
+            return tree
+        path = labelled.group_path(self, group, -1 if analysis is None else analysis)
+        try:
+            node = tree[path]
+        except KeyError:
+            raise KeyError(f"no group {path} in the results; groups: "
+                           f"{', '.join(n.path for n in tree.subtree if n.path != '/')}"
+                           ) from None
+        return node if group is None else labelled.trim(node.to_dataset())
+
+    def to_dataframe(self, group: str = "frames", analysis: int = -1):
+        """A ``pandas.DataFrame`` with one row per frame of analysis ``analysis``: ``frames``
+        (status, iterations, imbalance, stability, ...) or an element group's per-frame
+        datasets (columns ``(quantity, element, component)``); units in ``df.attrs["units"]``
+        (:func:`poise.results.labelled.to_dataframe`; needs ``poise[xarray]``)."""
+        from poise.results import labelled      # lazy: the optional extra poise[xarray]
+        return labelled.to_dataframe(self, group, analysis)
+
+    def __repr__(self) -> str:
+        an = "; ".join(f"{a.index}: {a.analysis_type} {a.method} {a.status}, {a.n_frames} "
+                       f"frame{'s' * (a.n_frames != 1)}" for a in self.analyses)
+        return (f"<RunResult {self.deck!r}: {self.status}; analyses [{an}]; "
+                f"units {self.units or '?'}>")
 
     def unit(self, path: str) -> str:
         """The unit of dataset ``path`` in this run's units, as its ``units`` attribute in

@@ -10,6 +10,7 @@ Layout (documented dataset by dataset in ``docs/results-format.md``)::
     /warnings               (W,) variable-length UTF-8 strings
     /analysis_000           attrs: analysis_type, method, status, message, settings (JSON), + attrs
         time, bodies/..., joints/..., frames/..., iterations/..., ...
+    /axis, /analysis_000/frame, ...   netCDF-4 dimension scales (poise.results.h5objects)
 
 Determinism: the same :class:`~poise.results.data.RunResult` always produces the same bytes.
 Objects are written in sorted name order, datasets are contiguous (no chunking, no
@@ -26,7 +27,6 @@ or that are the deck itself).
 """
 from __future__ import annotations
 
-import functools
 import json
 import os
 import time
@@ -36,15 +36,20 @@ import h5py
 import numpy as np
 
 from poise.core.atomic import atomic_output
+from poise.core.errors import require_file
 from poise.core.version import __version__
 from poise.results import schema
 from poise.results.data import AnalysisResult, RunResult
+from poise.results.h5objects import STR as _STR
+from poise.results.h5objects import attr_value as _attr_value
+from poise.results.h5objects import Dimensions
+from poise.results.h5objects import create_dataset as _create_dataset  # noqa: F401 (tests)
+from poise.results.h5objects import to_array as _to_array
 from poise.results.summary import summarize
 
 FORMAT = "poise-results"
 FORMAT_VERSION = 1
 
-_STR = h5py.string_dtype("utf-8")
 
 
 class ResultsFormatError(ValueError):
@@ -54,42 +59,6 @@ class ResultsFormatError(ValueError):
 # --------------------------------------------------------------------------------------------
 # conversion helpers
 # --------------------------------------------------------------------------------------------
-
-def _to_array(value: Any, what: str) -> np.ndarray:
-    """Convert a dataset value to an array HDF5 can store deterministically."""
-    arr = np.asarray(value)
-    kind = arr.dtype.kind
-    if kind in "US" or (kind == "O" and all(isinstance(x, (str, bytes)) for x in arr.flat)):
-        out = np.empty(arr.shape, dtype=_STR)
-        for idx, x in np.ndenumerate(arr):
-            out[idx] = x.decode("utf-8") if isinstance(x, bytes) else str(x)
-        return out
-    if kind in "biuf":
-        return arr
-    raise TypeError(f"{what}: cannot store dtype {arr.dtype} in HDF5 results")
-
-
-def _attr_value(value: Any, what: str) -> Any:
-    """Convert an attribute value; ``None`` means "do not write"."""
-    if value is None:
-        return None
-    if isinstance(value, str):
-        return value
-    if isinstance(value, (bool, np.bool_)):
-        return np.bool_(value)
-    if isinstance(value, (int, np.integer)):
-        return np.int64(value)
-    if isinstance(value, (float, np.floating)):
-        return np.float64(value)
-    if isinstance(value, dict):
-        return json.dumps(value, sort_keys=True, default=str)
-    if isinstance(value, (list, tuple, np.ndarray)):
-        arr = np.asarray(value) if len(value) else np.asarray(value, dtype=_STR)
-        if arr.dtype.kind == "O" and not all(isinstance(x, (str, bytes)) for x in arr.flat):
-            return json.dumps(list(value), sort_keys=True, default=str)
-        return _to_array(arr, what)
-    return str(value)
-
 
 def _set_attrs(obj: h5py.HLObject, attrs: dict[str, Any], where: str, scope: str) -> None:
     for key in sorted(attrs):
@@ -106,73 +75,58 @@ def _check_relpath(key: str, where: str) -> list[str]:
     return parts
 
 
-@functools.cache
-def _dcpl():
-    """The dataset-creation property list every results dataset shares (built once)."""
-    from h5py import h5p
-    dcpl = h5p.create(h5p.DATASET_CREATE)
-    dcpl.set_obj_track_times(False)
-    dcpl.set_attr_creation_order(0)
-    return dcpl
-
-
-@functools.cache
-def _units_type():
-    """(datatype, dataspace) of a ``units`` attribute: a scalar variable-length UTF-8 string,
-    as ``ds.attrs["units"] = "mm"`` would write it."""
-    from h5py import h5s, h5t
-    return h5t.py_create(_STR, logical=1), h5s.create(h5s.SCALAR)
-
-
-def _create_dataset(parent: h5py.Group, name: str, arr: np.ndarray, units: str | None = None
-                    ) -> None:
-    """A contiguous dataset through h5py's low-level API.
-
-    The bytes equal ``parent.create_dataset(name, data=arr, dtype=arr.dtype,
-    track_times=False)`` (same creation property list: no chunks, no filters, no timestamps,
-    attribute creation order not tracked; same datatype and dataspace calls; default
-    link-creation list), but the property list is built once per process (:func:`_dcpl`)
-    instead of once per dataset: a small deck's results file has ~50 datasets, and the
-    high-level call cost ~0.25 ms each.
-    """
-    from h5py import h5d, h5s, h5t
-    if not arr.flags.c_contiguous:     # (np.ascontiguousarray would make 0-d arrays 1-d)
-        arr = arr.copy(order="C")
-    dsid = h5d.create(parent.id, name.encode("utf-8"), h5t.py_create(arr.dtype, logical=1),
-                      h5s.create_simple(arr.shape), dcpl=_dcpl())
-    dsid.write(h5s.ALL, h5s.ALL, arr)
-    if units is not None:
-        from h5py import h5a
-        tid, space = _units_type()
-        h5a.create(dsid, b"units", tid, space).write(np.array(units, dtype=_STR))
-
-
 def _scope(where: str) -> str:
     """The schema scope of the group at ``where`` ("", "/model", "/analysis_NNN")."""
     return "model" if where == "/model" else "analysis" if where.startswith("/analysis_") \
         else "root"
 
 
-def _write_datasets(group: h5py.Group, datasets: dict[str, Any], where: str) -> None:
-    """Every dataset of ``datasets`` (declared in :mod:`poise.results.schema`, else
-    :class:`~poise.results.schema.UndeclaredError`) with its ``units`` attribute, in the
-    units of the file's root ``units`` attribute (written first)."""
+def _prepare(datasets: dict[str, Any], where: str) -> list[tuple[str, Any, np.ndarray]]:
+    """``(key, declaration, array)`` of every dataset of ``datasets`` in sorted order, each
+    declared in :mod:`poise.results.schema` (else
+    :class:`~poise.results.schema.UndeclaredError`) with the declared dtype and rank."""
     scope = _scope(where)
-    units = group.file.attrs.get("units", "")
-    groups: dict[tuple, h5py.Group] = {(): group}   # opened subgroups (one lookup per group)
+    out = []
     for key in sorted(datasets):
-        parts = _check_relpath(key, where)
+        _check_relpath(key, where)
         item = schema.declared_item(scope, "dataset", key, f"{where}/{key}")
         arr = _to_array(datasets[key], f"{where}/{key}")
         schema.check_array(item, arr, f"{where}/{key}")
+        out.append((key, item, arr))
+    return out
+
+
+def _write_datasets(group: h5py.Group, items: list, where: str, dims: Dimensions) -> None:
+    """Every prepared dataset (:func:`_prepare`) with its ``units`` attribute (in the units of
+    the file's root ``units`` attribute, written first), ``long_name``, ``coordinates`` (the
+    group's id/label datasets sharing a dimension) and dimension scales."""
+    units = group.file.attrs.get("units", "")
+    groups: dict[tuple, h5py.Group] = {(): group}   # opened subgroups (one lookup per group)
+    members: dict[tuple, dict] = {}                 # subgroup -> {dataset name: dims}
+    for key, _item, _ in items:
+        parts = key.split("/")
+        members.setdefault(tuple(parts[:-1]), {})[parts[-1]] = dims.dims[where][key][0]
+    for key, item, arr in items:
+        parts = key.split("/")
         parent = group
         for k in range(1, len(parts)):
             path = tuple(parts[:k])
             parent = groups.get(path)
             if parent is None:
                 parent = groups[path] = groups[path[:-1]].require_group(parts[k - 1])
+        attrs = {"long_name": schema.long_name(item)}
+        coords = schema.coordinates(members[tuple(parts[:-1])], parts[-1],
+                                    dims.dims[where][key][0])
+        if coords:
+            attrs["coordinates"] = " ".join(coords)
         # contiguous layout, no filters, no timestamps: identical input -> identical bytes
-        _create_dataset(parent, parts[-1], arr, schema.unit_string(item.unit, units))
+        dsid = _create_dataset(parent, parts[-1], arr, schema.unit_string(item.unit, units),
+                               attrs)
+        dims.attach(dsid, where, key)
+    for sub, names in members.items():        # netCDF: the group's coordinates, all of them
+        coords = schema.group_coordinates(names)
+        if sub and coords:
+            groups[sub].attrs["coordinates"] = " ".join(coords)
 
 
 def _write_file(result: RunResult, path: str) -> None:
@@ -204,17 +158,25 @@ def _file_image(result: RunResult, name: str) -> bytes:
             raise ValueError(f"/: attrs {sorted(clash)} clash with reserved root attributes")
         _set_attrs(f, {**extra, **root_attrs}, "/", "root")
 
+        groups = [("/model", result.model_datasets), ("", {"warnings": np.array(
+            [str(w) for w in result.warnings], dtype=object).astype(_STR)})]
+        analyses = sorted(result.analyses, key=lambda a: a.index)
+        groups += [("/" + analysis_group_name(a.index), a.datasets) for a in analyses]
+        prepared = {where: _prepare(ds, where) for where, ds in groups}
+        dims = Dimensions(f, prepared)
+
         model = f.create_group("model")
-        _write_datasets(model, result.model_datasets, "/model")
+        dims.define(model, "/model", prepared["/model"])
+        _write_datasets(model, prepared["/model"], "/model", dims)
 
         timings = f.create_group("timings")       # attributes set last (with the write time)
         counts = f.create_group("counts")
         _set_attrs(counts, {k: int(v) for k, v in result.counts.items()}, "/counts", "counts")
 
-        warnings = np.array([str(w) for w in result.warnings], dtype=object)
-        _write_datasets(f, {"warnings": warnings.astype(_STR)}, "")
+        dims.define(f, "", prepared[""])
+        _write_datasets(f, prepared[""], "", dims)
 
-        for a in sorted(result.analyses, key=lambda a: a.index):
+        for a in analyses:
             name = analysis_group_name(a.index)
             g = f.create_group(name)
             base = {
@@ -224,11 +186,14 @@ def _file_image(result: RunResult, name: str) -> bytes:
                 "message": str(a.message),
                 "settings": a.settings_json(),
             }
+            if "time" in a.datasets:
+                base["coordinates"] = "time"      # netCDF: the coordinate of `frame`
             clash = set(base) & set(a.attrs)
             if clash:
                 raise ValueError(f"/{name}: attrs {sorted(clash)} clash with reserved attributes")
             _set_attrs(g, {**a.attrs, **base}, f"/{name}", "analysis")
-            _write_datasets(g, a.datasets, f"/{name}")
+            dims.define(g, f"/{name}", prepared[f"/{name}"])
+            _write_datasets(g, prepared[f"/{name}"], f"/{name}", dims)
 
         # the write time covers everything but closing, fsync and rename of this file
         tim = {k: float(v) for k, v in result.timings.items() if k != "write"}
@@ -283,11 +248,20 @@ def _read_dataset(ds: h5py.Dataset) -> np.ndarray:
     return ds[()]
 
 
+def _is_dimension(name: str) -> bool:
+    """Whether the dataset ``name`` (relative to a scope group) is a netCDF dimension scale
+    (``frame``, ``body``, ... : not a declared dataset)."""
+    if "/" in name:
+        return False
+    base, _, n = name.rpartition("_")
+    return name in schema.dimension_names() or (n.isdigit() and base in schema.dimension_names())
+
+
 def _collect(group: h5py.Group) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
 
     def visit(name: str, obj: Any) -> None:
-        if isinstance(obj, h5py.Dataset):
+        if isinstance(obj, h5py.Dataset) and not _is_dimension(name):
             out[name] = _read_dataset(obj)
 
     group.visititems(visit)
@@ -295,6 +269,7 @@ def _collect(group: h5py.Group) -> dict[str, np.ndarray]:
 
 
 def _open_checked(path: str) -> h5py.File:
+    require_file(path, "results file")       # FileNotFoundError (exit 2 on the command line)
     try:
         f = h5py.File(path, "r")
     except OSError as e:
@@ -322,7 +297,7 @@ def _analysis_groups(f: h5py.File) -> list[tuple[int, h5py.Group]]:
     return sorted(out, key=lambda t: t[0])
 
 
-_RESERVED = ("analysis_type", "method", "status", "message", "settings")
+_RESERVED = ("analysis_type", "method", "status", "message", "settings", "coordinates")
 _ROOT_RESERVED = ("format", "format_version", "poise_version", "deck", "deck_sha256", "status",
                   "units", "active_effects", "command")
 
@@ -390,7 +365,7 @@ def read_summary(path: str) -> dict:
         def shapes(g: h5py.Group) -> dict[str, list[int]]:
             d: dict[str, list[int]] = {}
             g.visititems(lambda n, o: d.__setitem__(n, list(o.shape))
-                         if isinstance(o, h5py.Dataset) else None)
+                         if isinstance(o, h5py.Dataset) and not _is_dimension(n) else None)
             return d
 
         out["model"] = shapes(f["model"]) if "model" in f else {}

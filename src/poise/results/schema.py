@@ -20,6 +20,17 @@ from pathlib import Path
 
 import numpy as np
 
+from poise.results import schema_dims as sd
+from poise.results.schema_dims import (  # noqa: F401 (the netCDF view, re-exported)
+    component_dim,
+    component_meaning,
+    component_values,
+    coordinates,
+    dimension_names,
+    dims,
+    group_coordinates,
+    long_name,
+)
 from poise.results.schema_items import Item, declared
 
 SCOPES = ("root", "model", "analysis", "timings", "counts")
@@ -39,6 +50,8 @@ def items() -> tuple[Item, ...]:
         assert it.scope in SCOPES and it.dtype in _DTYPES, it
         assert (it.scope, it.kind, it.name) not in seen, f"declared twice: {it.path}"
         seen.add((it.scope, it.kind, it.name))
+        if it.kind == "dataset":
+            dims(it)                   # every axis has a dimension name
     return out
 
 
@@ -192,11 +205,16 @@ def _scope_of(top: str) -> str | None:
     return None
 
 
+def _text(v) -> str | None:
+    return v.decode() if isinstance(v, bytes) else None if v is None else str(v)
+
+
 def conformance(path) -> list[str]:
     """Problems of the results file ``path`` against the schema (empty: it conforms): every
     object declared, dtype and rank as declared, each shape symbol one size within its group
     (``F`` = frames of the analysis, ``B`` = bodies, ...), every dataset's ``units`` attribute
-    the declared unit in the file's units, every non-optional object present."""
+    the declared unit in the file's units, its ``long_name`` and dimension scales the declared
+    ones (netCDF-4), every non-optional object present."""
     import h5py
     problems: list[str] = []
     sizes: dict[tuple, int] = {}
@@ -235,9 +253,19 @@ def conformance(path) -> list[str]:
             if n % k or sizes.setdefault(key, n // k) != n // k:
                 problems.append(f"{where}: axis {s} is {n}, elsewhere in {inst or '/'} "
                                 f"{m.group(2)} = {sizes[key]}")
-        extra = set(ds.attrs) - {"units"}
+        extra = set(ds.attrs) - {"units", "long_name", "coordinates", "DIMENSION_LIST"}
         if extra:
             problems.append(f"{where}: undeclared attributes {sorted(extra)}")
+        if _text(ds.attrs.get("long_name")) != long_name(it):
+            problems.append(f"{where}: long_name {_text(ds.attrs.get('long_name'))!r}, "
+                            f"declared {long_name(it)!r}")
+        got = tuple(d[0].name.rsplit("/", 1)[-1] if len(d) else None for d in ds.dims)
+        if got != dims(it)[:len(got)]:
+            problems.append(f"{where}: dimensions {got}, declared {dims(it)}")
+        if "coordinates" in ds.attrs:
+            missing = [c for c in _text(ds.attrs["coordinates"]).split() if c not in ds.parent]
+            if missing:
+                problems.append(f"{where}: coordinates {missing} not in its group")
         if "units" not in ds.attrs:
             problems.append(f"{where}: no units attribute")
         else:
@@ -245,6 +273,19 @@ def conformance(path) -> list[str]:
             u = u.decode() if isinstance(u, bytes) else str(u)
             if u != unit_string(it.unit, units):
                 problems.append(f"{where}: units {u!r}, declared {unit_string(it.unit, units)!r}")
+
+    def dimension(ds, name, where):
+        """A netCDF dimension scale: a declared dimension, a scale, sized as its users."""
+        if name not in dimension_names() or _text(ds.attrs.get("CLASS")) != "DIMENSION_SCALE":
+            problems.append(f"{where}/{name}: undeclared dataset")
+            return
+        if component_dim(name):
+            if where:
+                problems.append(f"{where}/{name}: fixed-size dimension outside the root")
+            values = component_values(name)
+            n = values if isinstance(values, int) else len(values)
+            if ds.shape != (n,):
+                problems.append(f"/{name}: shape {ds.shape}, declared ({n},)")
 
     with h5py.File(path, "r") as f:
         units = f.attrs.get("units", "")
@@ -254,7 +295,10 @@ def conformance(path) -> list[str]:
             obj = f[top]
             scope = _scope_of(top)
             if isinstance(obj, h5py.Dataset):
-                dataset(obj, "root", "", top, units)
+                if top in dimension_names():
+                    dimension(obj, top, "")
+                else:
+                    dataset(obj, "root", "", top, units)
                 continue
             if top in ("timings", "counts"):
                 attrs(obj, top, "/" + top)
@@ -269,10 +313,15 @@ def conformance(path) -> list[str]:
                 problems.append(f"/{top}: undeclared attributes {sorted(obj.attrs)}")
 
             def visit(name, o, top=top, scope=scope):
-                if isinstance(o, h5py.Dataset):
+                if isinstance(o, h5py.Dataset) and "/" not in name and name in dimension_names():
+                    dimension(o, name, "/" + top)
+                elif isinstance(o, h5py.Dataset):
                     dataset(o, scope, "/" + top, name, units)
-                elif len(o.attrs):
+                elif set(o.attrs) - {"coordinates"}:
                     problems.append(f"/{top}/{name}: undeclared attributes {sorted(o.attrs)}")
+                elif "coordinates" in o.attrs and any(
+                        c not in o for c in _text(o.attrs["coordinates"]).split()):
+                    problems.append(f"/{top}/{name}: coordinates not in the group")
             obj.visititems(visit)
         for inst, scope in insts.items():
             for it in items():
@@ -311,11 +360,13 @@ def table(kind: str, section: str) -> str:
     if not rows:
         raise ValueError(f"{TEMPLATE.name}: no {kind} declared in section {section!r}")
     if kind == "datasets":
-        out = ["| dataset | shape | dtype | units | meaning |", "|---|---|---|---|---|"]
+        out = ["| dataset | shape (dimensions) | dtype | units | meaning |",
+               "|---|---|---|---|---|"]
         for it in rows:
             opt = "*(optional)* " if it.optional else ""
-            out.append(f"| {_name(it)} | {shape_text(it.shape)} | {it.dtype} | {_unit(it)} | "
-                       f"{opt}{_cell(it.meaning)} |")
+            dn = f" ({', '.join(dims(it))})" if it.shape else ""
+            out.append(f"| {_name(it)} | {shape_text(it.shape)}{dn} | {it.dtype} | "
+                       f"{_unit(it)} | {opt}{_cell(it.meaning)} |")
     else:
         out = ["| attribute | type | units | meaning |", "|---|---|---|---|"]
         for it in rows:
@@ -324,9 +375,30 @@ def table(kind: str, section: str) -> str:
     return "\n".join(out)
 
 
+def dimension_table() -> str:
+    """The netCDF dimensions: name, where it is defined, its size and coordinate values."""
+    out = ["| dimension | defined in | size | coordinate values / meaning |", "|---|---|---|---|"]
+    for sym, name in sd.DIMENSIONS.items():
+        where = sorted({it.scope for it in items() if it.kind == "dataset"
+                        and name in dims(it)})
+        place = ", ".join("`/`" if w == "root" else "`/model`" if w == "model"
+                          else "`/analysis_NNN`" for w in where)
+        e = next((it.name[:-3] for it in items() if it.kind == "dataset"
+                  and it.name.endswith("/id") and dims(it) == (name,)), None)
+        meaning = sd.DIM_MEANINGS.get(name) or (f"one per `{e}/id` row" if e else "")
+        out.append(f"| `{name}` | {place} | `{sym}` | {_cell(meaning)} |")
+    for name, (sym, k, meaning) in sd.DERIVED.items():
+        out.append(f"| `{name}` | `/analysis_NNN` | {k}·`{sym}` | {_cell(meaning)} |")
+    for name, (values, meaning) in sd.COMPONENTS.items():
+        size, vals = (values, "") if isinstance(values, int) else \
+            (len(values), ", ".join(f"`{v}`" for v in values) + ": ")
+        out.append(f"| `{name}` | `/` | {size} | {vals}{_cell(meaning)} |")
+    return "\n".join(out)
+
+
 def markdown() -> str:
     """The whole document: the template with every table filled in."""
-    text = TEMPLATE.read_text(encoding="utf-8")
+    text = TEMPLATE.read_text(encoding="utf-8").replace("{{dimensions}}", dimension_table())
     used = set()
 
     def fill(m):

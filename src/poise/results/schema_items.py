@@ -67,8 +67,11 @@ for n, t, m in (
     _a("root", n, t, m, "root")
 for n, t, m in (
         ("input_files", "json", "written by `poise solve` when the deck reads other files "
-                                "(user scripts): JSON (sorted keys) describing them; `poise "
-                                "batch` freshness covers them"),
+                                "(user scripts, the dataset an Adams command file names): JSON "
+                                "(sorted keys) describing them; `poise batch` freshness covers "
+                                "them"),
+        ("ignored", "json", "Adams datasets: the elements `--ignore KIND` left out, a JSON list "
+                            "of `{kind, statement, file, line}` (absent when none)"),
         ("run_overrides", "json", "JSON (sorted keys) of the solver options given on the "
                                   "command line (`{}` if none); `poise batch` compares it to "
                                   "decide whether a file is up to date"),
@@ -158,6 +161,9 @@ for n, t, m in (
         ("assembled", "bool", "the initial configuration was moved to satisfy the "
                               "constraints before solving")):
     _a(A, n, t, m, "analysis-attrs")
+_a(A, "coordinates", "str", "`time` when the analysis has frames: netCDF's name of the "
+   "coordinate of the `frame` dimension (see *netCDF and xarray*)", "analysis-attrs",
+   optional=True)
 _a(A, "iterations_total", "int", "iterations of all frames (`sum(frames/iterations)`; FIM_S "
    "and FIM_D analyses)", "analysis-attrs", optional=True)
 for s in ("plain", "stability", "continuation", "mkeam", "polish"):

@@ -37,7 +37,7 @@ def parse_markers(value) -> str:
     """Normalised ``compliance_markers``: ``auto``, ``all``, ``none`` or space-separated marker
     ids (accepts ``"10,20"``, ``"10 20"``, a sequence of ints). Raises ValueError."""
     if value is None:
-        return "auto"
+        return "none"
     if isinstance(value, (list, tuple, np.ndarray)):
         items = [str(v) for v in value]
     else:
@@ -79,9 +79,11 @@ def _cg_marker_rows(model) -> np.ndarray:
 
 def select(model, settings):
     """``(marker rows, note)``: the markers to report, or ``(None, note)`` when skipped."""
-    spec = getattr(settings, "compliance_markers", "auto")
+    spec = getattr(settings, "compliance_markers", "none")
     if spec == "none":
-        return None, "compliance matrix not requested (compliance_markers none)"
+        return None, ("compliance matrix not requested: ask for it with --compliance-markers "
+                      "all (or marker ids), Param_Static compliance_markers=\"all\" or "
+                      "poise.solve(deck, compliance_markers=\"all\")")
     if spec in ("auto", "all"):
         if spec == "auto" and model.nb > AUTO_MAX_BODIES:
             return None, (f"compliance matrix skipped: {model.nb} bodies > {AUTO_MAX_BODIES}; "

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.elements.context import row_where
 from poise.solvers.data import SolveData
 from poise.solvers.history import History, Row
 from poise.solvers.iterate import Iterative, Step, iterate
@@ -83,7 +84,7 @@ def measures(model, ev, sc: Scales):
             worst = model.coord_info[k]
         else:
             ri = model.row_info[k - model.nq]
-            worst = f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}> {ri['equation']}"
+            worst = f"{row_where(ri)} {ri['equation']}"
     return imb, cerr, float(z.max()) if z.size else 0.0, worst
 
 
@@ -127,8 +128,7 @@ def singular_message(model, row):
                     "increase stability")
         return f"; no stiffness or mass in {model.coord_info[row]} ({what})"
     ri = model.row_info[row - model.nq]
-    return (f"; at {ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}> equation "
-            f"{ri['equation']}")
+    return f"; at {row_where(ri)} equation {ri['equation']}"
 
 
 def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
@@ -151,7 +151,7 @@ def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
     if not z[k] > 1.0:
         return ""
     ri = model.row_info[k]
-    return (f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}> equation {ri['equation']} "
+    return (f"{row_where(ri)} equation {ri['equation']} "
             f"(removed as redundant) is violated by {abs(phi[k]):.6g} "
             f"(tolerance {sc.phi_tol[k]:.3g})")
 

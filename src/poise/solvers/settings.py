@@ -53,8 +53,9 @@ class StaticSettings:
     compliance_delta : float
         Load perturbation of the ``fd`` compliance method [force units; torques x L].
     compliance_markers : str
-        Markers of the compliance matrix (poise.solvers.compliance): ``auto`` (every body's CG
-        marker up to 100 bodies), ``all``, ``none`` or marker ids (``"10 20"``).
+        Markers of the compliance matrix (poise.solvers.compliance): ``none`` (default: the
+        matrix is computed on request, as in MotionSolve), ``auto`` (every body's CG marker up
+        to 100 bodies), ``all`` or marker ids (``"10 20"``).
     compliance_method : str
         ``exact`` (analytic KKT tangent) or ``fd`` (re-solve under ``compliance_delta``).
     max_translation_step : float
@@ -86,7 +87,7 @@ class StaticSettings:
     max_error: float = _deck("max_error")
     stability: float = _deck("stability")
     compliance_delta: float = _deck("compliance_delta")
-    compliance_markers: str = "auto"       # the deck schema has no default for these two
+    compliance_markers: str = "none"       # the deck schema has no default for these two
     compliance_method: str = "exact"
     max_translation_step: float = 1.0
     max_rotation_step: float = 6.283185307179586 * 4

@@ -164,9 +164,18 @@ def _stick_segments(res, pos, rot, skip=()):
     return frame
 
 
-def pick_frames(n: int, every: int = 1, max_frames: int | None = None) -> list[int]:
+#: frames drawn when neither ``every`` nor ``max_frames`` is given (a 1001-frame run: 200
+#: pictures, not a 250 s GIF that takes a minute to render)
+DEFAULT_MAX_FRAMES = 200
+
+
+def pick_frames(n: int, every: int | None = None, max_frames: int | None = None) -> list[int]:
     """Every ``every``-th of ``n`` frames, then at most ``max_frames`` of those spread evenly;
-    the last frame (the equilibrium) is always kept."""
+    the last frame (the equilibrium) is always kept. Neither given: at most
+    :data:`DEFAULT_MAX_FRAMES` spread evenly (``every=1`` alone: all frames)."""
+    if every is None and max_frames is None:
+        max_frames = DEFAULT_MAX_FRAMES
+    every = 1 if every is None else every
     if every < 1 or (max_frames is not None and max_frames < 1):
         raise UsageError("--every and --max-frames must be at least 1")
     idx = list(range(0, n, every))
@@ -179,12 +188,14 @@ def pick_frames(n: int, every: int = 1, max_frames: int | None = None) -> list[i
 
 
 def animate_results(path: str, out: str, analysis: int | None = None, frame: int | None = None,
-                    fps: int = 4, dpi: int = 80, graphics: bool = True, every: int = 1,
-                    max_frames: int | None = None, progress: bool | None = None,
+                    fps: int = 4, dpi: int = 80, graphics: bool = True,
+                    every: int | None = None, max_frames: int | None = None,
+                    progress: bool | None = None,
                     keep_figure: bool = False) -> dict:
     """Write the animation (``.gif`` via Pillow, ``.mp4`` via ffmpeg) or, with ``.png``, one
     frame. ``frame`` selects a single frame (negative counts from the end); ``every`` /
-    ``max_frames`` thin the frames (:func:`pick_frames`). ``graphics=False`` ignores
+    ``max_frames`` thin the frames (:func:`pick_frames`; neither: at most 200 spread evenly,
+    ``every=1``: all). ``graphics=False`` ignores
     ``/model/graphics`` (stick figure only). ``progress``: the frames bar
     (:mod:`poise.core.progress`; False: none).
 

@@ -43,8 +43,9 @@ def pick_analysis(res, index: int | None):
                      f"{', '.join(str(a.index) for a in res.analyses)}")
 
 
-def _columns(a, group: str, ids, what: str):
-    """Indices of ``ids`` in ``group/id`` (all when ids is None)."""
+def _columns(a, group: str, ids, what: str, res=None):
+    """Indices and ids of ``ids`` (ids or deck labels) in ``group/id`` (all when ids is
+    None)."""
     have = a.datasets.get(f"{group}/id")
     if have is None:
         if ids:
@@ -53,11 +54,24 @@ def _columns(a, group: str, ids, what: str):
     have = [int(x) for x in np.asarray(have).ravel()]
     if ids is None:
         return list(range(len(have))), have
-    bad = [i for i in ids if i not in have]
-    if bad:
-        raise UsageError(f"--{what}: no {group} id {', '.join(map(str, bad))}; "
-                         f"ids: {', '.join(map(str, have))}")
-    return [have.index(i) for i in ids], list(ids)
+    labels = a.datasets.get(f"{group}/label")
+    if labels is None and res is not None:
+        labels = res.model_datasets.get(f"{group}/label")
+    labels = [str(x) for x in np.asarray(labels if labels is not None else [""] * len(have))]
+    rows = []
+    for i in ids:
+        if isinstance(i, str) and not i.lstrip("-").isdigit():
+            hit = [k for k, lab in enumerate(labels) if lab == i]
+            if len(hit) != 1:
+                raise UsageError(f"--{what}: {'no' if not hit else 'more than one'} "
+                                 f"{group[:-1] if group != 'bodies' else 'body'} labelled "
+                                 f"{i!r}; labels: {', '.join(repr(x) for x in labels if x) or 'none'}")
+            rows.append(hit[0])
+        elif int(i) in have:
+            rows.append(have.index(int(i)))
+        else:
+            raise UsageError(f"--{what}: no {group} id {i}; ids: {', '.join(map(str, have))}")
+    return rows, [have[k] for k in rows]
 
 
 def body_names(res) -> dict:
@@ -168,9 +182,9 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
     per frame below) (+ MKEAM kinetic energy) and, for quasi-static runs, time histories of body
     positions, joint forces and request channels (one panel per channel unit).
 
-    ``bodies``/``joints``/``requests``: lists of ids (None: up to 4 of each for quasi-static
-    runs). ``fig.poise_panels`` names the panels. Legends are right of their panel; log axes
-    show exact zeros at a marked floor (poise.viz.figure).
+    ``bodies``/``joints``/``requests``: lists of ids or deck labels (None: up to 4 of each for
+    quasi-static runs). ``fig.poise_panels`` names the panels. Legends are right of their
+    panel; log axes show exact zeros at a marked floor (poise.viz.figure).
     """
     plt = _agg()
     from matplotlib.ticker import MaxNLocator
@@ -189,9 +203,9 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
         panels.append("kinetic_energy")
     series = []
     if qs or bodies or joints or requests:
-        bi, bids = _columns(a, "bodies", bodies, "bodies")
-        ji, jids = _columns(a, "joints", joints, "joints")
-        ri, rids = _columns(a, "requests", requests, "requests")
+        bi, bids = _columns(a, "bodies", bodies, "bodies", res)
+        ji, jids = _columns(a, "joints", joints, "joints", res)
+        ri, rids = _columns(a, "requests", requests, "requests", res)
         if bodies is None:
             bi, bids = bi[:4], bids[:4]
         if joints is None:
