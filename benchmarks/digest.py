@@ -33,7 +33,7 @@ def decks(root: Path) -> list[Path]:
     out = sorted((root / "decks").glob("*.xml")) + sorted((root / "decks" / "bench").glob("*.xml"))
     adm = root / "decks" / "adm"
     if adm.is_dir():
-        out += sorted(p for p in adm.iterdir() if p.suffix in (".adm", ".acf"))
+        out += sorted(p for p in adm.iterdir() if p.suffix in (".adm", ".acf", ".xml"))
     return out
 
 
@@ -44,7 +44,8 @@ def solve(src: Path, out: Path, only: str | None = None) -> None:
     for deck in decks(ROOT):
         if only and only not in deck.name:
             continue
-        name = f"{deck.parent.name}__{deck.stem}" if deck.parent.name != "decks" else deck.stem
+        name = (f"{deck.parent.name}__{deck.name}" if deck.parent.name != "decks"
+                else deck.stem)
         h5 = out / f"{name}.h5"
         r = subprocess.run([sys.executable, "-c", "from poise_cli.main import main; main()",
                             "solve", str(deck), "-o", str(h5), "--allow-user-code", "-q"],
@@ -61,7 +62,23 @@ def _attrs(obj) -> dict:
             if k not in SKIP_ATTRS and not k.endswith(("_wall_time", "_seconds"))}
 
 
+def _plain(v, f):
+    """``v`` with HDF5 object references (dimension scales) replaced by the names they point to
+    in file ``f`` (references are file addresses, equal files have different ones)."""
+    import h5py
+    if isinstance(v, h5py.Reference):
+        return f[v].name if v else None
+    a = np.asarray(v)
+    if a.dtype.names:                                    # REFERENCE_LIST: (dataset, dimension)
+        return [tuple(_plain(x[n], f) for n in a.dtype.names) for x in a.ravel()]
+    if a.dtype == object:
+        return [_plain(x, f) for x in a.ravel()]
+    return v
+
+
 def _same(a, b) -> bool:
+    if isinstance(a, list) or isinstance(b, list):
+        return a == b
     a, b = np.asarray(a), np.asarray(b)
     if a.dtype != b.dtype or a.shape != b.shape:
         return False
@@ -87,9 +104,11 @@ def compare_files(pa: Path, pb: Path) -> list[str]:
             if sorted(aa) != sorted(ab):
                 diffs.append(f"/{name}: attributes differ {sorted(set(aa) ^ set(ab))}")
             for k in set(aa) & set(ab):
-                if not _same(aa[k], ab[k]):
-                    diffs.append(f"/{name} attr {k}: {aa[k]!r} != {ab[k]!r}")
-            if isinstance(oa, h5py.Dataset) and not _same(oa[()], ob[()]):
+                va, vb = _plain(aa[k], fa), _plain(ab[k], fb)
+                if not _same(va, vb):
+                    diffs.append(f"/{name} attr {k}: {str(va)[:80]} != {str(vb)[:80]}")
+            if isinstance(oa, h5py.Dataset) and not _same(_plain(oa[()], fa),
+                                                          _plain(ob[()], fb)):
                 diffs.append(f"/{name}: values differ")
     return diffs
 
@@ -114,7 +133,7 @@ def compare(a: Path, b: Path) -> int:
             d += compare_files(ha, hb)
         if d:
             bad += 1
-            print(f"{n}: " + "; ".join(d[:8]) + (f" (+{len(d) - 8})" if len(d) > 8 else ""))
+            print(f"{n}: " + "; ".join(d[:4]) + (f" (+{len(d) - 4})" if len(d) > 4 else ""))
     print(f"digest: {len(names)} decks, {bad} differences")
     return 1 if bad else 0
 

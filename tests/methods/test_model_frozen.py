@@ -28,7 +28,7 @@ QUICK = ["chain_10.xml", "qs_pendulum_ramp.xml", "elem_cvcv_cam_qs.xml",
 ALL = sorted(p.name for p in DECKS.glob("*.xml"))
 if (DECKS / "adm").is_dir():
     ALL += sorted(f"adm/{p.name}" for p in (DECKS / "adm").iterdir()
-                  if p.suffix in (".adm", ".acf"))
+                  if p.suffix in (".adm", ".acf", ".xml"))
 
 
 def _solve_and_check(deck, overrides, monkeypatch):

@@ -331,7 +331,8 @@ ELEMENTS = (ElementType(
     kernels=lambda: (F.PointOnCurve, F.PointOnSurface, F.CurveOnCurve, F.CurveOnSurface,
                      F.SurfaceOnSurface), potential_energy=workless,
     time_dependent=static,      # TIME in curve geometry is a located error (compile_curves)
-    outputs=(OutputGroup("curves", "Cv", "`Constraint_PTCV/CVCV/PTSF/CVSF/SFSF`", TAGS,
+    outputs=(OutputGroup("curves", "Cv", "curve", "curve constraint",
+                         "`Constraint_PTCV/CVCV/PTSF/CVSF/SFSF`", TAGS,
                          ("id", "tag", "label", "parameters", "point", "force", "torque")),),
     reactions={"PTCV": ("curves", ("Constraint_PTCV",)), "CVCV": ("curves", ("Constraint_CVCV",))},
     reaction_aliases={"CONSTRAINT_PTCV": "PTCV", "CONSTRAINT_CVCV": "CVCV"},

@@ -106,7 +106,8 @@ ELEMENTS = (ElementType(
     kernels=lambda: (XF.ExprVectorForce, XF.ExprScalarForce),
     tileable=lambda: (XF.ExprVectorForce, XF.ExprScalarForce),
     potential_energy=not_conservative, time_dependent=expressions_of_time,
-    outputs=(FORCES, OutputGroup("requests", "R", "`Post_Request`", ("Post_Request",),
+    outputs=(FORCES, OutputGroup("requests", "R", "request", "request",
+                                 "`Post_Request`", ("Post_Request",),
                                  ("id", "label", "type", "channel", "channel_units", "values",
                                   "message"), model_ids=False)),
     fd_tests="tests/kernels/test_expr_families.py"),)

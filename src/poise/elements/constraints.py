@@ -310,9 +310,11 @@ def _fd_cases():
 
 #: the output groups of joints and joint primitives (the results schema's, too)
 _WITH_UNIQUE = ("id", "label", "force", "torque", "unique")
-JOINTS = OutputGroup("joints", "J", "`Constraint_Joint`", ("Constraint_Joint",), _WITH_UNIQUE,
+JOINTS = OutputGroup("joints", "J", "joint", "joint",
+                     "`Constraint_Joint`", ("Constraint_Joint",), _WITH_UNIQUE,
                      load="force on the I body at the I marker, global axes")
-JPRIMS = OutputGroup("jprims", "P", "`Constraint_Jprim`", ("Constraint_Jprim",), _WITH_UNIQUE,
+JPRIMS = OutputGroup("jprims", "P", "jprim", "joint primitive",
+                     "`Constraint_Jprim`", ("Constraint_Jprim",), _WITH_UNIQUE,
                      load="as for joints")
 
 ELEMENTS = (ElementType(

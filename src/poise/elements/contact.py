@@ -382,6 +382,7 @@ ELEMENTS = (ElementType(
     rank=80,                    # contact families after the expression forces
     kernels=lambda: (ContactForce,), tileable=lambda: (ContactForce,),
     potential_energy=kernel_potential, time_dependent=static,
-    outputs=(OutputGroup("contacts", "Ct", "`Force_Contact`", ("Force_Contact",),
+    outputs=(OutputGroup("contacts", "Ct", "contact", "contact point",
+                         "`Force_Contact`", ("Force_Contact",),
                          ("id", "label", "kind", "force", "penetration"), model_ids=False),),
     fd_tests="tests/reference/test_contact.py"),)

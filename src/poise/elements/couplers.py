@@ -240,7 +240,8 @@ ELEMENTS = (ElementType(
     rank=40,                    # coupler rows after the motion rows
     kernels=lambda: (Coupler,), potential_energy=workless,
     time_dependent=static,      # displacements from the input configuration: no time
-    outputs=(OutputGroup("couplers", "Cp", "`Constraint_Coupler`", ("Constraint_Coupler",),
+    outputs=(OutputGroup("couplers", "Cp", "coupler", "coupler",
+                         "`Constraint_Coupler`", ("Constraint_Coupler",),
                          load="load the coupler's multiplier applies **through joint 1's I "
                          "marker** to that marker's body (e.g. the coupling torque on shaft "
                          "1)"),),

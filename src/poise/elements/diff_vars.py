@@ -230,8 +230,9 @@ ELEMENTS = (ElementType(
     kernels=lambda: (ScalarEquation,),
     potential_energy=not_conservative,  # its rows are no force of a potential: energy NaN
     time_dependent=_time_sources,
-    outputs=(OutputGroup("diffs", "Dd", "`Control_Diff`", ("Control_Diff",),
+    outputs=(OutputGroup("diffs", "Dd", "diff", "Control_Diff", "`Control_Diff`", ("Control_Diff",),
                          ("id", "label", "value"), model_ids=False),
-             OutputGroup("variables", "V", "implicit and user (`USERSUB`) `Reference_Variable`",
+             OutputGroup("variables", "V", "reference_variable", "variable",
+                         "implicit and user (`USERSUB`) `Reference_Variable`",
                          ("Reference_Variable",), ("id", "label", "value"), model_ids=False)),
     fd_tests="tests/kernels/test_extra_unknowns.py"),)

@@ -459,7 +459,7 @@ def _fd_cases():
 _KERNELS = lambda: (LineForce, AxisForce, AxisTorque, Bushing,  # noqa: E731
                     VectorForce)
 #: the output group of every force element (the results schema's, too)
-FORCES = OutputGroup("forces", "E", "force element", None,
+FORCES = OutputGroup("forces", "E", "force_element", "force element", "force element", None,
                      ("id", "label", "tag", "force", "torque"),
                      load="force the element applies to the body of its I marker, at the I "
                      "marker origin, global axes")

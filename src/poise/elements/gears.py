@@ -126,7 +126,7 @@ ELEMENTS = (ElementType(
     "gears", ("Constraint_Gear",), compile_gears,
     rank=50,                    # gear rows after the coupler rows
     kernels=lambda: (Gear,), potential_energy=workless, time_dependent=static,
-    outputs=(OutputGroup("gears", "G", "`Constraint_Gear`", ("Constraint_Gear",),
+    outputs=(OutputGroup("gears", "G", "gear", "gear", "`Constraint_Gear`", ("Constraint_Gear",),
                          load="as for couplers: the mesh load on joint 1's I body through its "
                          "I marker"),),
     fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

@@ -226,7 +226,8 @@ ELEMENTS = (ElementType(
     rank=120,                             # rows after the joints', unknowns after the states'
     kernels=lambda: (GeneralConstraint,), potential_energy=workless,
     time_dependent=expressions_of_time,
-    outputs=(OutputGroup("gcons", "Gc", "`Constraint_General`", (TAG,),
+    outputs=(OutputGroup("gcons", "Gc", "gcon", "general constraint",
+                         "`Constraint_General`", (TAG,),
                          load="the constraint's load on the body of its `i_marker_id`, reduced "
                          "to that marker's origin, global axes; NaN when the element names no "
                          "`i_marker_id` (MotionSolve gives no reaction then)"),),

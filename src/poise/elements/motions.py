@@ -366,7 +366,7 @@ ELEMENTS = (ElementType(
     kernels=lambda: (MotionConstraint,), tileable=lambda: (MotionConstraint,),
     potential_energy=workless,
     time_dependent=motion_time_sources,
-    outputs=(OutputGroup("motions", "Mo", "`Motion_Joint` / `Motion_Marker`",
+    outputs=(OutputGroup("motions", "Mo", "motion", "motion", "`Motion_Joint` / `Motion_Marker`",
                          ("Motion_Joint", "Motion_Marker"),
                          load="driving force the motion applies to the body of its I marker, "
                          "at the I origin, global axes"),),

@@ -101,14 +101,18 @@ class OutputGroup:
     and ``label`` when ``model_ids``), declared once by the element types that fill it: the
     results schema derives the group's datasets from it (:mod:`poise.results.schema_items`).
 
-    ``symbol``: its shape symbol (``results_format.md``, *Conventions*); ``what``: the
-    elements it holds (documentation); ``tags``: deck tags whose ids it holds (None: several,
-    by element); ``datasets``: its per-analysis datasets; ``load``: for a reaction group
-    (``force``/``torque`` from the element loads), what ``force`` is.
+    ``symbol``: its shape symbol (``results_format.md``, *Conventions*); ``dimension``: the
+    netCDF dimension of that symbol, ``noun``: one element of the group (long names,
+    :mod:`poise.results.schema_dims`); ``what``: the elements it holds (documentation);
+    ``tags``: deck tags whose ids it holds (None: several, by element); ``datasets``: its
+    per-analysis datasets; ``load``: for a reaction group (``force``/``torque`` from the
+    element loads), what ``force`` is.
     """
 
     name: str
     symbol: str
+    dimension: str
+    noun: str
     what: str
     tags: tuple | None = None
     datasets: tuple = ("id", "label", "force", "torque")

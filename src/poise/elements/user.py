@@ -334,7 +334,8 @@ ELEMENTS = (ElementType(
     kernels=lambda: (UserConstraint, UserScalarForce, UserVectorForce, UserScalarEquation),
     potential_energy=not_conservative,   # user forces and VARSUB rows (constraints: none)
     time_dependent=opaque_code,
-    outputs=(OutputGroup("userconstrs", "U", "`Constraint_UserConstr` (Python UCOSUB)",
+    outputs=(OutputGroup("userconstrs", "U", "userconstr", "user constraint",
+                         "`Constraint_UserConstr` (Python UCOSUB)",
                          USER_CONSTRAINT_TAGS,
                          load="reaction on the body of the first marker the user routine "
                          "reads, at its origin, global axes"), FORCES),
