@@ -15,30 +15,44 @@ import numpy as np
 
 _LEAVES = (str, bytes, int, float, complex, bool, type(None), type, types.ModuleType,
            types.BuiltinFunctionType, np.generic, np.dtype)
+#: exact types skipped before they are pushed (most items of a model's tuples and dicts)
+_SCALARS = frozenset((str, int, float, bool, type(None)))
+_SLOTS: dict = {}
 
 
-def reachable(root):
-    """Every object reachable from ``root`` (each once), depth first."""
-    seen: set[int] = set()
+def _slots(cls) -> tuple:
+    """The ``__slots__`` names of ``cls`` and its bases (cached per class)."""
+    names = _SLOTS.get(cls)
+    if names is None:
+        names = _SLOTS[cls] = tuple(s for c in cls.__mro__ for s in getattr(c, "__slots__", ())
+                                    if s not in ("__dict__", "__weakref__"))
+    return names
+
+
+def reachable(root, skip=()):
+    """Every object reachable from ``root`` (each once), depth first. Dict keys are not
+    entered (hashable: never an array, nor holding one in a model), nor the objects ``skip``
+    (the caller knows they hold none: large tables of text and numbers)."""
+    seen: set[int] = {id(o) for o in skip}
     stack = [root]
     while stack:
         o = stack.pop()
-        if isinstance(o, _LEAVES) or id(o) in seen:
+        if id(o) in seen or isinstance(o, _LEAVES):
             continue
         seen.add(id(o))
         yield o
-        if isinstance(o, np.ndarray):
+        t = type(o)
+        if t is np.ndarray:
             if o.dtype == object:
                 stack.extend(o.ravel().tolist())
             elif o.base is not None:
                 stack.append(o.base)
             continue
-        if isinstance(o, dict):
-            stack.extend(o.keys())
-            stack.extend(o.values())
+        if t is dict:
+            stack.extend([v for v in o.values() if type(v) not in _SCALARS])
             continue
-        if isinstance(o, (list, tuple, set, frozenset)):
-            stack.extend(o)
+        if t is tuple or t is list or isinstance(o, (list, tuple, set, frozenset)):
+            stack.extend([v for v in o if type(v) not in _SCALARS])
             continue
         if isinstance(o, types.MethodType):
             stack.append(o.__self__)
@@ -51,11 +65,11 @@ def reachable(root):
             continue
         d = getattr(o, "__dict__", None)
         if d is not None:
-            stack.extend(d.values())
-        for cls in type(o).__mro__:
-            for s in getattr(cls, "__slots__", ()):
-                if s not in ("__dict__", "__weakref__") and hasattr(o, s):
-                    stack.append(getattr(o, s))
+            stack.extend([v for v in d.values() if type(v) not in _SCALARS])
+        for s in _slots(t):
+            v = getattr(o, s, None)
+            if v is not None:
+                stack.append(v)
 
 
 def _filled(cell) -> bool:
@@ -66,9 +80,10 @@ def _filled(cell) -> bool:
     return True
 
 
-def seal(root):
-    """Make every array reachable from ``root`` read-only; returns ``root``."""
-    for o in reachable(root):
+def seal(root, skip=()):
+    """Make every array reachable from ``root`` read-only; returns ``root``. ``skip``: objects
+    known to hold no array (not entered)."""
+    for o in reachable(root, skip):
         if isinstance(o, np.ndarray) and o.flags.writeable:
             o.flags.writeable = False
     return root

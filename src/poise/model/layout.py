@@ -109,7 +109,12 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
     f["frame_hooks"] = tuple(h.bind(view) if hasattr(h, "bind") else h for h in res.frame_hooks)
     f["assembler"] = Assembler(N, _blocks(view, feed), dense=f["dense"],
                                groups=_order_groups(view))
-    return seal(Model(**f))
+    model = Model(**f)
+    # the tables of text and numbers (one entry per row, coordinate, ...) hold no array: not
+    # walked (tests/methods/test_model_frozen.py checks every array of the model is sealed)
+    return seal(model, skip=(model.row_info, model.coord_info, model.extra_names,
+                             model.spec_warnings, model.user_routines, model.input_files,
+                             model.active_effects, model.time_sources))
 
 
 def _blocks(m, feed) -> list:
