@@ -16,7 +16,8 @@ from pathlib import Path
 
 import click
 
-from poise_cli.options import debug_option, json_option, quiet_option, user_code_option
+from poise_cli.options import TOL_MIN, debug_option, json_option, quiet_option, \
+    user_code_option
 
 #: version of the ``poise bench --json`` document (bump on incompatible changes)
 BENCH_VERSION = 1
@@ -64,6 +65,26 @@ def _cg(res):
     import numpy as np
     a = res.analyses[-1].datasets
     return np.asarray(a["bodies/position"]), float(res.model_datasets.get("length_scale", 1.0))
+
+
+def _tolerances(text: str) -> list[float]:
+    """The ladder rungs of ``--tolerances``: finite numbers of at least TOL_MIN (as
+    ``--max-imbalance``), else a usage error naming the option and the bad rungs."""
+    import math
+    try:
+        tols = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated numbers, got {text!r}",
+                                 param_hint="'--tolerances'") from None
+    if not tols:
+        raise click.BadParameter("expected comma-separated numbers, got none",
+                                 param_hint="'--tolerances'")
+    bad = [x.strip() for x, t in zip([x for x in text.split(",") if x.strip()], tols)
+           if not math.isfinite(t) or t < TOL_MIN]
+    if bad:
+        raise click.BadParameter(f"every rung must be a finite number >= {TOL_MIN:g}; got "
+                                 f"{', '.join(bad)}", param_hint="'--tolerances'")
+    return tols
 
 
 @click.command("bench")
@@ -114,24 +135,29 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
     def fail(exc: BaseException) -> None:
         code, info = report_exception(exc, debug=debug)
         finish(code, **info)
-    try:
-        meths = [x.strip().upper() for x in methods.split(",") if x.strip()]
-        tols = [float(x) for x in tolerances.split(",") if x.strip()]
-    except ValueError:
-        raise click.BadParameter(f"expected comma-separated numbers, got {tolerances!r}",
-                                 param_hint="'--tolerances'") from None
+    meths = [x.strip().upper() for x in methods.split(",") if x.strip()]
+    tols = _tolerances(tolerances)
     bad = [m for m in meths if m not in ("FIM_S", "MKEAM", "FIM_D")]
     if bad or not meths or not tols:
         raise click.BadParameter(f"expected FIM_S, MKEAM and/or FIM_D, got {methods!r}",
                                  param_hint="'--methods'")
-    if plot_out:
-        try:
-            # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
-            from poise.core.extras import require
+    try:   # outputs that cannot be written fail now, not after the ladder
+        # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
+        from poise.core.atomic import check_output
+        from poise.core.errors import UsageError
+        for path in (out, plot_out):
+            if path:
+                check_output(path, (deck,))
+        if out and plot_out and check_output(out) == check_output(plot_out):
+            raise UsageError(f"--plot {plot_out!r} is also the --out file")
+        if plot_out:
+            from poise.core.extras import require  # lazy: see above
             require("plot", "poise bench --plot")
-        except Exception as exc:  # noqa: BLE001 - MissingExtra: exit 2 with the pip command
-            fail(exc)
-            return
+            from poise.viz.workprec import check_picture_format  # lazy: matplotlib
+            check_picture_format(plot_out)
+    except Exception as exc:  # noqa: BLE001 - UsageError/OutputError/MissingExtra: exit 2
+        fail(exc)
+        return
 
     # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.app.api import run_deck
@@ -208,9 +234,14 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
         if not quiet:
             click.echo(f"wrote {plot_out}", err=True)
     if out:
-        with open(out, "w") as f:
-            for r in rows:
-                f.write(json.dumps(r, default=float) + "\n")
+        try:
+            from poise.core.atomic import atomic_output  # lazy: see above
+            with atomic_output(out, (deck,)) as tmp, open(tmp, "w") as f:
+                for r in rows:
+                    f.write(json.dumps(r, default=float) + "\n")
+        except Exception as exc:  # noqa: BLE001 - OutputError (disk full ...): exit 2
+            fail(exc)
+            return
     finish(0, status="completed", methods=meths, tolerances=tols, repeat=repeat,
            reference=dict(method=ref_method, tol=ref_tol,
                           status="converged" if all(a.status == "converged"

@@ -57,11 +57,14 @@ class LazyGroup(click.Group):
     def invoke(self, ctx):
         # Ctrl-C (and SIGTERM, _install_sigterm) in a command: one line, exit 130, never a
         # traceback or click's "Aborted!" (exit 1)
-        _install_sigterm()
+        previous = _install_sigterm()
         try:
             return super().invoke(ctx)
         except KeyboardInterrupt:
             interrupted()
+        finally:
+            if not _PROCESS:        # a test or library caller: its dispositions as they were
+                _restore(previous)
 
     def __call__(self, *args, **kwargs):
         # The console script, ``python -m poise_cli`` and ``python -c`` call ``cli()`` from
@@ -70,6 +73,10 @@ class LazyGroup(click.Group):
         if (kwargs.get("standalone_mode", True) is False
                 or sys._getframe(1).f_globals.get("__name__") != "__main__"):
             return self.main(*args, **kwargs)
+        global _PROCESS
+        _PROCESS = True
+        from poise_cli import watchdog
+        watchdog.start()    # Ctrl-C/SIGTERM honoured while native code holds the main thread
         try:
             try:
                 self.main(*args, **kwargs)
@@ -104,16 +111,33 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt
 
 
-def _install_sigterm() -> None:
+#: True in the process the console script (or ``python -m poise_cli``) runs: the command owns
+#: the process and its signal dispositions
+_PROCESS = False
+
+
+def _install_sigterm() -> dict:
+    """Install the command's handlers; returns the ones replaced (signal -> handler)."""
     import signal
     import threading
     from poise_cli import _early_interrupt
+    previous: dict = {}
     if threading.current_thread() is threading.main_thread():
         try:
             if signal.getsignal(signal.SIGINT) is _early_interrupt:
-                signal.signal(signal.SIGINT, signal.default_int_handler)
+                previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
             if signal.getsignal(signal.SIGTERM) in (signal.SIG_DFL, _early_interrupt):
-                signal.signal(signal.SIGTERM, _terminate)
+                previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _terminate)
+        except (ValueError, OSError):
+            pass
+    return previous
+
+
+def _restore(previous: dict) -> None:
+    import signal
+    for sig, handler in previous.items():
+        try:
+            signal.signal(sig, handler)
         except (ValueError, OSError):
             pass
 

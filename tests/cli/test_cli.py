@@ -344,6 +344,9 @@ def test_show(tmp_path):
     res.analyses[1].datasets["frames/iterations"] = np.array([3, 4, 25])
     res.analyses[1].datasets["frames/imbalance"] = np.array([1e-9, 1e-9, 12.0])
     res.analyses[1].datasets["frames/stability"] = np.array(["stable", "stable", "unknown"])
+    res.analyses[1].datasets["frames/converged"] = np.array([True, True, False])
+    res.analyses[1].datasets["frames/error"] = np.full(3, 1e-10)
+    res.analyses[1].datasets["bodies/position"] = np.zeros((3, 1, 3))
     hdf5.write_results(res, str(path))
     r = invoke("show", str(path))
     assert r.exit_code == 0, r.output

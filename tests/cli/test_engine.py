@@ -1,6 +1,6 @@
 """Batch and sweep on one engine: a real ``dask scheduler`` (started here on
-127.0.0.1, a free port) with zero workers makes sweep and batch exit 2 within --worker-timeout,
-saying why, with nothing from Dask under --quiet; batch runs on a scheduler with one worker;
+127.0.0.1, a free port) with zero workers makes sweep and batch say they wait for workers, then
+exit 2 within --worker-timeout, saying why (the last progress line: "gave up"), with nothing from Dask under --quiet; batch runs on a scheduler with one worker;
 ``batch --json`` and ``sweep --json`` have one shape."""
 from __future__ import annotations
 
@@ -88,6 +88,10 @@ def test_zero_workers_sweep_and_batch_exit_2_within_the_timeout(scheduler, tmp_p
         assert "for 3 s" in lines[-1] and "2 of 2" in lines[-1]
         if quiet:        # nothing but the error: no Dask log line or warning
             assert lines == lines[-1:], res.stderr
+        else:            # said while waiting, and the last progress line says it gave up
+            assert f"waiting for Dask workers at {address} (up to 3 s)" in lines, res.stderr
+            assert lines[-2].startswith("poise: ") and lines[-2].endswith(", gave up"), lines
+            assert "0/2" in lines[-2]
     doc = json.loads(rb.stdout)
     assert doc["status"] == "no_workers" and doc["exit_code"] == 2 and doc["rows"] == []
     # what finished is kept: the index / summary exist (here empty)

@@ -1,14 +1,16 @@
-"""One way to show progress: poise.core.progress.Bar on a terminal (click's
-bar with ETA), plain lines off a terminal (CI: every 10 % / 10 s), nothing when quiet; the
+"""One way to show progress: poise.core.progress.Bar on a terminal (a tqdm
+bar with ETA, through its public API), plain lines off a terminal (CI: every 10 % / 10 s), nothing when quiet; the
 solvers report frames and MKEAM iterations through the poise.core.progress callback."""
 from __future__ import annotations
 
 import io
+import re
 
 import pytest
 from click.testing import CliRunner
 
 from poise.core import progress as P
+from poise.app.engine import NoWorkers
 from poise.app.runner import run
 from poise.core.progress import reporting
 from poise_cli.main import cli
@@ -81,15 +83,51 @@ def test_tty_bar_with_eta_erased_at_the_end(clock):
     b = P.Bar(10, "FIM_S", "frames", stream=s, delay=0.0)
     assert b.mode == "tty"
     b.update(3)
-    b._bar.last_eta -= 2                   # click refreshes its ETA once a second
-    b._bar.start -= 6
+    b.clear()                              # erased; the next update draws it again
     b.update(4)
     out = s.getvalue()
-    assert "FIM_S" in out and "4/10" in out and "40%" in out and "00:00:09" in out
+    last = out.split("\r")[-1]
+    assert last.startswith("FIM_S:") and "4/10" in last and "40%" in last
+    assert re.search(r"\[\d\d:\d\d<(\d\d:\d\d|\?)", last)      # elapsed < remaining (ETA)
     b.write("a line")
     assert "a line\n" in s.getvalue()
     b.close()
-    assert s.getvalue().endswith("\r\x1b[?25h")
+    assert s.getvalue().split("\r")[-1] == ""            # the bar is erased: nothing left
+    assert s.getvalue().split("\r")[-2].strip() == ""
+
+
+def test_the_last_line_says_how_the_work_ended(clock):
+    s = io.StringIO()
+    b = P.Bar(10, "sweep", "cases", stream=s, delay=0.0)
+    b.update(3)
+    b.close(P.ending(None))
+    assert s.getvalue().splitlines()[-1] == "poise: sweep 3/10 cases (30%), 0 s, done"
+    for exc, word in ((KeyboardInterrupt(), "interrupted"), (ValueError("x"), "failed"),
+                      (NoWorkers("none"), "gave up")):
+        s = io.StringIO()
+        clock.t += 5
+        with pytest.raises(type(exc)), P.Bar(10, "sweep", "cases", stream=s, delay=0.0) as b:
+            b.update(2)
+            clock.t += 12
+            raise exc
+        assert s.getvalue().splitlines()[-1] == f"poise: sweep 2/10 cases (20%), 12 s, {word}"
+    s = _Tty()                             # on a terminal too: the bar erased, then the line
+    b = P.Bar(10, "sweep", "cases", stream=s, delay=0.0)
+    b.update(1)
+    clock.t += 3
+    b.close("gave up")
+    assert s.getvalue().endswith("poise: sweep 1/10 cases (10%), 3 s, gave up\n")
+    s = io.StringIO()                      # refused at once (a usage error): no line at all
+    b = P.Bar(10, "sweep", "cases", stream=s, delay=0.0)
+    b.close("failed")
+    assert s.getvalue() == ""
+
+
+def test_progress_uses_public_api_only():
+    import inspect
+    src = inspect.getsource(P)
+    assert "click" not in src
+    assert not re.search(r"_bar\._[a-z]", src)
 
 
 def test_solvers_report_frames_and_mkeam_iterations():

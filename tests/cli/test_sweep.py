@@ -145,7 +145,8 @@ def test_local_cluster_sweep_matches_serial_and_resumes(tmp_path):
 @pytest.fixture(scope="module")
 def cluster():
     from dask.distributed import LocalCluster
-    c = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    c = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                     scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     yield c
     c.close()
 

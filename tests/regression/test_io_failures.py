@@ -24,6 +24,7 @@ from poise_cli.main import cli
 
 from support.paths import ROOT, TESTS
 from support.results import make_result
+from support.tmpfs import tmpfs
 
 
 POISE = Path(sys.executable).with_name("poise")
@@ -82,25 +83,11 @@ def test_solve_on_full_disk_is_exit_2(tmp_path, monkeypatch):
     assert _files(tmp_path) == []
 
 
-def _tmpfs(mnt, options):
-    """Mount a tmpfs with ``options`` at the new directory ``mnt`` (root only; else skip),
-    yield it, unmount it."""
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    mnt.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(mnt)],
-                      capture_output=True).returncode != 0:
-        pytest.skip("cannot mount a tmpfs here")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", str(mnt)], capture_output=True)
-
-
 @pytest.fixture
 def small_tmpfs(tmp_path):
     """A 64 KiB tmpfs (root only): a real full disk."""
-    yield from _tmpfs(tmp_path / "mnt", "size=64k")
+    with tmpfs(tmp_path / "mnt", "size=64k") as mnt:
+        yield mnt
 
 
 def test_solve_on_a_real_full_disk(small_tmpfs):
@@ -202,6 +189,7 @@ def test_sigkilled_write_leaves_a_temp_the_next_run_removes(tmp_path):
 
 
 def test_interrupt_during_the_write_removes_the_temp(tmp_path, monkeypatch):
+    before = signal.getsignal(signal.SIGINT)     # whatever the suite inherited (nohup: SIG_IGN)
     real = hdf5._file_image
 
     def interrupted(result, name):
@@ -211,7 +199,7 @@ def test_interrupt_during_the_write_removes_the_temp(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         hdf5.write_results(make_result(), str(tmp_path / "r.h5"))
     assert _files(tmp_path) == []
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is before        # restored as it was
 
 
 def test_atomic_output_keeps_other_errors(tmp_path):
@@ -290,7 +278,8 @@ def test_ctrl_c_on_a_batch_is_one_line(tmp_path, chain_deck):
 @pytest.fixture
 def read_only_dir(tmp_path):
     """A read-only tmpfs (root only): a directory nobody, not even root, can write."""
-    yield from _tmpfs(tmp_path / "ro", "ro,size=64k")
+    with tmpfs(tmp_path / "ro", "ro,size=64k") as mnt:
+        yield mnt
 
 
 def test_read_only_out_dirs_are_exit_2(read_only_dir):

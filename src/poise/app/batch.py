@@ -49,10 +49,11 @@ import os
 from pathlib import Path
 
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
-from poise.core.progress import Bar
+from poise.core.progress import Bar, ending
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_deck
-from poise.core.atomic import atomic_output, OutputError
+from poise.core.atomic import atomic_output, output_target, OutputError
+from poise.core.dirlock import directory_lock
 from poise.core.errors import DeckError
 from poise.core.extras import available, require
 from poise.core.version import __version__
@@ -108,6 +109,14 @@ def output_paths(decks: list[str], out_dir: str) -> list[str]:
         used.add(name.lower())
         out.append(os.path.join(out_dir, name + ".h5"))
     return out
+
+
+def check_outputs(outputs: list[str], inputs: list[str]) -> None:
+    """Refuse a run one of whose outputs is one of its inputs (a deck given as ``p.h5`` next
+    to ``p.xml``, whose results would replace it): :class:`UsageError` (exit 2) before any work,
+    as ``poise solve -o`` refuses the deck."""
+    for o in outputs:
+        output_target(o, inputs)
 
 
 def inputs_fresh(attrs, allow_user_code: bool = False) -> bool:
@@ -222,22 +231,34 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
         bar.step()
     rows: list[Any] = [None] * len(decks)
     try:
-        return _run_batch(decks, out_dir, jobs, overrides, force, command, on_row,
-                          allow_user_code, rows, scheduler, progress is False, worker_timeout)
-    except NoWorkers as e:
-        e.rows = [r for r in rows if r is not None]
+        out = _run_batch(decks, out_dir, jobs, overrides, force, command, on_row,
+                         allow_user_code, rows, scheduler, progress is False, worker_timeout,
+                         say=bar.note)
+    except BaseException as e:
+        bar.close(ending(e))            # the last progress line says "gave up", "interrupted"
+        if isinstance(e, NoWorkers):
+            e.rows = [r for r in rows if r is not None]
         raise
-    finally:
-        bar.close()
+    bar.close()
+    return out
 
 
 def _run_batch(decks, out_dir, jobs, overrides, force, command, on_row, allow_user_code, rows,
-               scheduler=None, quiet=False, worker_timeout=WORKER_TIMEOUT):
+               scheduler=None, quiet=False, worker_timeout=WORKER_TIMEOUT, say=None):
     if scheduler:
         require("sweep", "poise batch --scheduler")
     import functools
     job = functools.partial(solve_one, allow_user_code=bool(allow_user_code))   # picklable
+    check_outputs([*output_paths(decks, out_dir), os.path.join(out_dir, "summary.csv"),
+                   os.path.join(out_dir, "summary.json")], decks)
     ensure_out_dir(out_dir)
+    with directory_lock(out_dir, "batch", say=say):      # a second batch waits, then skips
+        return _solve_all(decks, out_dir, jobs, overrides, force, command, on_row,
+                          allow_user_code, rows, scheduler, quiet, worker_timeout, say, job)
+
+
+def _solve_all(decks, out_dir, jobs, overrides, force, command, on_row, allow_user_code, rows,
+               scheduler, quiet, worker_timeout, say, job):
     outs = output_paths(decks, out_dir)
     todo = []
     for k, (d, o) in enumerate(zip(decks, outs)):
@@ -255,7 +276,7 @@ def _run_batch(decks, out_dir, jobs, overrides, force, command, on_row, allow_us
         return rows
     if scheduler or available("sweep"):
         _solve_on_dask(todo, jobs, decks, outs, overrides, command, rows, on_row, job,
-                       scheduler, quiet, worker_timeout)
+                       scheduler, quiet, worker_timeout, say)
         return rows
     # lean install (no Dask): a local process pool,
     # always in worker processes (also with -j 1): a deck that kills its process (out of memory,
@@ -280,7 +301,7 @@ WORKER_DIED = ("the worker process solving this deck died (killed by a signal, e
 
 
 def _solve_on_dask(todo, jobs, decks, outs, overrides, command, rows, on_row, job, scheduler,
-                   quiet, worker_timeout) -> None:
+                   quiet, worker_timeout, say=None) -> None:
     """Solve ``todo`` on Dask (:mod:`poise.app.engine`). A task whose worker died
     (``KilledWorker``: on the local cluster at the first death) is a suspect; each suspect is
     then solved again alone on the cluster, so only the deck that kills its worker is
@@ -301,13 +322,13 @@ def _solve_on_dask(todo, jobs, decks, outs, overrides, command, rows, on_row, jo
             on_row(row)
 
     with dask_client(scheduler, jobs, len(todo), quiet=quiet, feature="poise batch",
-                     allowed_failures=0) as client:
+                     allowed_failures=0, worker_timeout=worker_timeout) as client:
         run_tasks(client, {k: (job, decks[k], outs[k], overrides, command) for k in todo},
-                  done, worker_timeout=worker_timeout, what="decks")
+                  done, worker_timeout=worker_timeout, what="decks", say=say)
         for k in sorted(suspects):      # one at a time, nothing else on the cluster
             run_tasks(client, {k: (job, decks[k], outs[k], overrides, command)},
                       lambda k, row, exc: done(k, row, exc, alone=True),
-                      worker_timeout=worker_timeout, what="decks")
+                      worker_timeout=worker_timeout, what="decks", say=say)
 
 
 def _spawn_pool(workers: int):
@@ -375,20 +396,24 @@ def ensure_out_dir(out_dir: str) -> None:
         raise OutputError(f"--out-dir {out_dir!r}: the directory is not writable")
 
 
-def write_table(rows: list[dict], path_stem: str, keys=None, extra: dict | None = None) -> None:
+def write_table(rows: list[dict], path_stem: str, keys=None, extra: dict | None = None,
+                units: dict | None = None) -> None:
     """``<path_stem>.csv`` and ``<path_stem>.json`` (``{"rows": [...], **extra}``), atomically
-    (:func:`poise.core.atomic.atomic_output`: a failed write is an ``OutputError``, exit 2)."""
+    (:func:`poise.core.atomic.atomic_output`: a failed write is an ``OutputError``, exit 2).
+    ``units`` (``{column: unit}``): the CSV header says ``column [unit]``, the JSON has them
+    as ``"units"`` (its rows keep the bare column names)."""
     import csv
 
     keys = list(keys) if keys else list(dict.fromkeys(k for r in rows for k in r))
+    units = {k: u for k, u in (units or {}).items() if k in keys and u}
     with atomic_output(f"{path_stem}.csv") as tmp, open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
-        w.writeheader()
+        w = csv.writer(f)
+        w.writerow([f"{k} [{units[k]}]" if k in units else k for k in keys])
         for r in rows:
-            w.writerow({k: _cell(r.get(k)) for k in keys})
+            w.writerow([_cell(r.get(k)) for k in keys])
+    head = {**(extra or {}), **({"units": units} if units else {})}
     with atomic_output(f"{path_stem}.json") as tmp, open(tmp, "w") as f:
-        json.dump({**(extra or {}), "rows": [sanitize(r) for r in rows]}, f, indent=1,
-                  sort_keys=False)
+        json.dump({**head, "rows": [sanitize(r) for r in rows]}, f, indent=1, sort_keys=False)
         f.write("\n")
 
 

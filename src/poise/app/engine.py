@@ -28,19 +28,23 @@ class NoWorkers(UsageError):
     """No Dask worker for ``worker_timeout`` seconds (exit 2); ``rows``: what finished."""
 
     status = "no_workers"
+    progress_end = "gave up"        # the last progress line says so (poise.core.progress)
 
     def __init__(self, message: str, rows=None):
         super().__init__(message)
         self.rows = rows
 
 
+_DASK_LOGGERS = ("distributed", "dask", "tornado", "asyncio")
+
+
 @contextlib.contextmanager
-def quiet_dask(quiet: bool):
-    """Inside the block, under ``quiet``: Dask's loggers say nothing and warnings are dropped."""
-    if not quiet:
-        yield
-        return
-    loggers = [logging.getLogger(n) for n in ("distributed", "dask", "tornado", "asyncio")]
+def _silenced():
+    """Dask's loggers say nothing and warnings are dropped inside the block (every logger of
+    those packages: Dask gives some children levels of their own, ``distributed.client``)."""
+    names = [n for n in list(logging.root.manager.loggerDict)
+             if n.split(".", 1)[0] in _DASK_LOGGERS]
+    loggers = [logging.getLogger(n) for n in dict.fromkeys([*_DASK_LOGGERS, *names])]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
         lg.setLevel(logging.CRITICAL + 1)
@@ -51,6 +55,16 @@ def quiet_dask(quiet: bool):
     finally:
         for lg, lv in zip(loggers, levels):
             lg.setLevel(lv)
+
+
+@contextlib.contextmanager
+def quiet_dask(quiet: bool):
+    """Inside the block, under ``quiet``: Dask's loggers say nothing and warnings are dropped."""
+    if not quiet:
+        yield
+        return
+    with _silenced():
+        yield
 
 
 @contextlib.contextmanager
@@ -72,15 +86,81 @@ def _children_ignore_interrupt():
         signal.signal(signal.SIGINT, previous)
 
 
+#: seconds to reach a ``--scheduler`` and hear it say it is a Dask scheduler (at most)
+CONNECT_TIMEOUT = 20.0
+
+
+def probe_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
+    """Ask ``address`` who it is (Dask's ``identity`` call) before a client connects to it.
+
+    A port that does not answer within ``timeout`` seconds (a Dask client would wait forever
+    for its handshake), answers bytes that are not Dask's protocol, or answers as something
+    other than a scheduler is a :class:`UsageError` (exit 2) naming the address. Runs in a
+    thread of its own (its own event loop), bounded by ``timeout``."""
+    import asyncio
+    from distributed.comm import connect
+    from distributed.security import Security
+
+    async def ask():
+        # the client's connection arguments (TLS from the Dask configuration, as Client uses)
+        comm = await connect(address, timeout=timeout,
+                             **Security().get_connection_args("client"))
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    out: dict = {}
+
+    def run():
+        try:
+            out["reply"] = asyncio.run(asyncio.wait_for(ask(), timeout + 0.5))
+        except BaseException as e:  # noqa: BLE001 - garbage may raise anything (MemoryError)
+            out["error"] = e
+
+    th = threading.Thread(target=run, name="poise-scheduler-probe", daemon=True)
+    th.start()
+    th.join(timeout + 5.0)
+    where = f"--scheduler {address!r}"
+    err = out.get("error")
+    reply = out.get("reply")
+    if th.is_alive() or isinstance(err, (TimeoutError, asyncio.TimeoutError)):
+        raise UsageError(f"{where}: no answer from a Dask scheduler within {timeout:g} s")
+    if isinstance(err, OSError):
+        raise UsageError(f"{where}: cannot connect: {' '.join(str(err).split())}")
+    if err is not None or not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        what = (f"it answered as {reply.get('type')!r}" if isinstance(reply, dict)
+                and reply.get("type") else "its answer is not Dask's protocol")
+        raise UsageError(f"{where}: not a Dask scheduler ({what})")
+
+
+@contextlib.contextmanager
+def _quiet_shutdown():
+    """Dask's loggers say nothing while a client and its cluster close: a comm closed under a
+    heartbeat (``CommClosedError: Stream is closed``) is logged with a traceback on a loaded
+    machine, and nothing about closing a finished run is worth a line; errors closing it are
+    dropped (the run's outcome is known)."""
+    try:
+        with _silenced():
+            yield
+    except Exception:  # noqa: BLE001 - see above
+        pass
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None, n_tasks: int = 1,
                 client=None, quiet: bool = False, feature: str = "poise sweep",
-                allowed_failures: int | None = None):
+                allowed_failures: int | None = None,
+                worker_timeout: float | None = WORKER_TIMEOUT):
     """A Dask client for the block (closed after it unless ``client`` was given).
 
-    ``scheduler``: address of an existing scheduler; else a LocalCluster of ``workers``
-    processes (default: CPUs, at most ``n_tasks``). ``allowed_failures``: how often a task may
-    be on a worker that dies before it fails with ``KilledWorker`` (local cluster only).
+    ``scheduler``: address of an existing scheduler (asked first whether it is one,
+    :func:`probe_scheduler`, within CONNECT_TIMEOUT or ``worker_timeout`` seconds); else a LocalCluster of
+    ``workers`` processes (default: CPUs, at most ``n_tasks``) with no dashboard, its
+    scheduler's HTTP endpoint on a free local port (never a "port 8787 is in use" warning),
+    workers that log nothing. ``allowed_failures``: how often a task may be on a worker that
+    dies before it fails with ``KilledWorker`` (local cluster only).
     """
     if client is not None:
         with quiet_dask(quiet):
@@ -92,8 +172,10 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, n_task
     cluster = None
     with quiet_dask(quiet):
         if scheduler:
+            connect_timeout = min(CONNECT_TIMEOUT, worker_timeout or CONNECT_TIMEOUT)
+            probe_scheduler(scheduler, connect_timeout)
             try:
-                client = Client(scheduler, timeout="20s")
+                client = Client(scheduler, timeout=f"{connect_timeout:g}s")
             except (OSError, TimeoutError, ValueError, TypeError) as e:
                 raise UsageError(f"--scheduler {scheduler!r}: cannot connect: {e}") from None
         else:
@@ -103,14 +185,17 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, n_task
             with dask.config.set(cfg), _children_ignore_interrupt():
                 cluster = LocalCluster(n_workers=min(nw, max(1, n_tasks)), threads_per_worker=1,
                                        processes=True, dashboard_address=None,
-                                       silence_logs=logging.CRITICAL if quiet else logging.ERROR)
+                                       scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                                       silence_logs=logging.CRITICAL)
             client = Client(cluster)
         try:
             yield client
         finally:
-            client.close()
+            with _quiet_shutdown():
+                client.close()
             if cluster is not None:
-                cluster.close()
+                with _quiet_shutdown():
+                    cluster.close()
 
 
 def _n_workers(client) -> int:
@@ -121,10 +206,12 @@ def _n_workers(client) -> int:
 
 
 def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKER_TIMEOUT,
-              what: str = "tasks", poll: float = 1.0) -> None:
+              what: str = "tasks", poll: float = 1.0, say=None) -> None:
     """Run ``tasks`` (``{key: (fn, *args)}``) on ``client``; ``on_done(key, value, exc)`` as each
     ends (``exc``: the exception it raised, e.g. ``KilledWorker``). Raises :class:`NoWorkers`
-    when the cluster has no worker for ``worker_timeout`` seconds (None: wait forever)."""
+    when the cluster has no worker for ``worker_timeout`` seconds (None: wait forever).
+    ``say(line)``: told once each time the cluster is found without a worker
+    (``waiting for Dask workers at ADDRESS (up to N s)``)."""
     from dask.distributed import wait
     futs = {}
     for key, (fn, *args) in tasks.items():
@@ -132,6 +219,8 @@ def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKE
                            pure=False)] = key
     pending = set(futs)
     seen = time.monotonic()
+    where = getattr(client.scheduler, "address", None) or "the scheduler"
+    waiting = False
     try:
         while pending:
             try:
@@ -147,9 +236,15 @@ def run_tasks(client, tasks: dict, on_done, worker_timeout: float | None = WORKE
             now = time.monotonic()
             if done or _n_workers(client):
                 seen = now
-            elif worker_timeout is not None and now - seen > worker_timeout:
+                waiting = False
+                continue
+            if not waiting:             # said once each time the cluster is found empty
+                waiting = True
+                if say is not None:
+                    limit = "" if worker_timeout is None else f" (up to {worker_timeout:g} s)"
+                    say(f"waiting for Dask workers at {where}{limit}")
+            if worker_timeout is not None and now - seen > worker_timeout:
                 n = len(pending)
-                where = getattr(client.scheduler, "address", None) or "the scheduler"
                 raise NoWorkers(
                     f"no Dask worker at {where} for {worker_timeout:g} s (none joined, or all "
                     f"died): gave up with {n} of {len(futs)} {what} not run; what finished is "

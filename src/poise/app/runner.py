@@ -13,6 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from poise.app.budget import check_memory
 from poise.app.times import output_times, print_arrays
 from poise.core import blas, phases
 from poise.core.progress import installed, solver_progress
@@ -273,6 +274,7 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=()) -> RunR
                                 spec.model[0].loc if spec.model else _noloc(path),
                                 "no Simulate command; expected at least one "
                                 "<Simulate analysis_type=\"Static\"/>"))
+    check_memory(spec, model, analyses, overrides)    # a run that cannot fit: refused now
     res = RunResult(deck=path, deck_sha256=spec.sha256, units=model.units,
                     active_effects=list(model.active_effects), command=command)
     res.warnings = [str(w) for w in spec.warnings] + [str(w) for w in model.spec_warnings]

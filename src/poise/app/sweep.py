@@ -37,17 +37,18 @@ from typing import Any
 from poise.app.cases import (MAX_CASES, Param, apply_case, case_hash, check_case_count,
                              make_cases, parse_set, resolve_param)
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
-from poise.core.progress import Bar
-from poise.app.batch import ensure_out_dir, inputs_fresh, result_stats, sanitize, write_table
+from poise.core.progress import Bar, ending, note
+from poise.app.batch import check_outputs, ensure_out_dir, inputs_fresh, result_stats, sanitize, write_table
 from poise.app.run_warnings import collected_warnings
 from poise.app.runner import run_spec
 from poise.core.atomic import OutputError
+from poise.core.dirlock import directory_lock
 from poise.core.errors import DeckError, UsageError
 from poise.core.extras import require
 from poise.deck.parser import parse_deck_bytes
 from poise.elements.registry import output_groups as registry_output_groups
 from poise.results.hdf5 import read_results, write_results
-from poise.results.schema import element_outputs
+from poise.results.schema import REQUEST_CHANNELS, element_outputs, lookup, unit_string
 from poise.solvers.settings import check_override_names
 
 INDEX_VERSION = 1
@@ -89,6 +90,31 @@ def parse_outputs(spec, outputs) -> list[tuple[str, str, int, str]]:
         if tags and not any(e.tag in tags and e.id == i for e in spec.model):
             raise UsageError(f"--output {text!r}: the deck has no {'/'.join(tags)} id={i}")
         out.append((f"{g}[{i}].{ds}", g, i, ds))
+    return out
+
+
+def output_units(spec, outputs) -> dict:
+    """``{column: unit}`` of the ``--output`` columns in the deck's units (``"mm"``, ``"N"``):
+    one per output from the results schema, one per channel for ``requests[i].values``; and
+    ``wall_time`` in seconds. Columns of a dataset without one unit are left out."""
+    from poise.model.compile import unit_info     # lazy: compiling is the workers' business
+    units = unit_info(spec)[1]
+    out = {"wall_time": "s"}
+    for text, g, i, ds in outputs:
+        if (g, ds) == ("requests", "values"):
+            el = next((e for e in spec.model if e.tag == "Post_Request" and e.id == i), None)
+            t = str(el.attrs.get("type", "EXPRESSION") if el is not None else "").upper()
+            chans = REQUEST_CHANNELS.get(t, REQUEST_CHANNELS["EXPRESSION"])[1]
+            out.update({f"{text}[{k}]": unit_string(u, units) for k, u in enumerate(chans) if u})
+            continue
+        it = lookup("analysis", "dataset", f"{g}/{ds}")
+        if it is None or not it.unit or it.unit == "mixed":
+            continue
+        u = unit_string(it.unit, units)
+        n = 1
+        for d in it.shape[2:]:
+            n *= d if isinstance(d, int) else 0
+        out.update({text: u} if n == 1 else {f"{text}[{k}]": u for k in range(n)})
     return out
 
 
@@ -262,62 +288,65 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     if len({p.key for p in params}) != len(params):
         raise UsageError("the same attribute is given twice in --set")
     outs = parse_outputs(spec, outputs)
+    col_units = output_units(spec, outs)
     check_case_count(params, mode, n=n, max_cases=max_cases)
     if scheduler and client is None:
         check_scheduler(scheduler)
     cases = make_cases(params, mode, n=n, seed=seed)
     check_override_names(overrides)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    ensure_out_dir(out_dir)
     width = max(5, len(str(len(cases) - 1)))
     files = [os.path.join(os.path.abspath(out_dir), f"case_{i:0{width}d}.h5")
              for i in range(len(cases))]
-    hashes = [case_hash(spec.sha256, c, overrides) for c in cases]
-    rows: list[Any] = [None] * len(cases)
-    bar = Bar(len(cases), "sweep", "cases", enabled=progress, delay=0.0)
-    todo = []
-    for i, c in enumerate(cases):
-        if not force and resumable(files[i], hashes[i], allow_user_code):
-            try:
-                rows[i] = {**resumed_row(files[i], i, c, outs), "resumed": True}
-                if on_row:
-                    bar.clear()
-                    on_row(rows[i])
-                bar.step()
-                continue
-            except Exception:  # noqa: BLE001 - unreadable: run again
-                pass
-        todo.append(i)
+    check_outputs(files + [os.path.join(out_dir, f"index.{x}") for x in ("csv", "json")], [deck])
+    ensure_out_dir(out_dir)
+    with directory_lock(out_dir, "sweep", say=lambda line: note(line, progress)):
+        bar = Bar(len(cases), "sweep", "cases", enabled=progress, delay=0.0)
+        hashes = [case_hash(spec.sha256, c, overrides) for c in cases]
+        rows: list[Any] = [None] * len(cases)
+        todo = []
+        for i, c in enumerate(cases):
+            if not force and resumable(files[i], hashes[i], allow_user_code):
+                try:
+                    rows[i] = {**resumed_row(files[i], i, c, outs), "resumed": True}
+                    if on_row:
+                        bar.clear()
+                        on_row(rows[i])
+                    bar.step()
+                    continue
+                except Exception:  # noqa: BLE001 - unreadable: run again
+                    pass
+            todo.append(i)
 
-    def finish():
-        done = [r for r in rows if r is not None]
-        for r in done:
-            r.setdefault("resumed", False)
-            if r.get("file"):
-                r["file"] = os.path.relpath(r["file"], os.path.abspath(out_dir))
-        keys = ["case", *[p.key for p in params], *INDEX_KEYS[1:]]
-        keys += [k for r in done for k in r if k not in keys]
-        keys = list(dict.fromkeys(keys))
-        ordered = [{k: r.get(k) for k in keys} for r in done]
-        write_table(ordered, os.path.join(out_dir, "index"), keys=keys,
-                    extra={"index_version": INDEX_VERSION, "deck": deck,
-                           "deck_sha256": spec.sha256, "mode": mode,
-                           "parameters": {p.key: p.values for p in params},
-                           "overrides": overrides, "n_cases": len(cases)})
-        return [sanitize(r) for r in ordered]
+        def finish():
+            done = [r for r in rows if r is not None]
+            for r in done:
+                r.setdefault("resumed", False)
+                if r.get("file"):
+                    r["file"] = os.path.relpath(r["file"], os.path.abspath(out_dir))
+            keys = ["case", *[p.key for p in params], *INDEX_KEYS[1:]]
+            keys += [k for r in done for k in r if k not in keys]
+            keys = list(dict.fromkeys(keys))
+            ordered = [{k: r.get(k) for k in keys} for r in done]
+            write_table(ordered, os.path.join(out_dir, "index"), keys=keys, units=col_units,
+                        extra={"index_version": INDEX_VERSION, "deck": deck,
+                               "deck_sha256": spec.sha256, "mode": mode,
+                               "parameters": {p.key: p.values for p in params},
+                               "overrides": overrides, "n_cases": len(cases)})
+            return [sanitize(r) for r in ordered]
 
-    try:
-        if todo:
-            _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
-                      scheduler, workers, client, bar, on_row, allow_user_code,
-                      quiet=progress is False, worker_timeout=worker_timeout)
-    except NoWorkers as e:              # the index keeps the finished cases
+        try:
+            if todo:
+                _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
+                          scheduler, workers, client, bar, on_row, allow_user_code,
+                          quiet=progress is False, worker_timeout=worker_timeout)
+        except BaseException as e:
+            bar.close(ending(e))            # the last progress line says "gave up", "interrupted"
+            if isinstance(e, NoWorkers):    # the index keeps the finished cases
+                e.rows = finish()
+            raise
         bar.close()
-        e.rows = finish()
-        raise
-    finally:
-        bar.close()
-    return finish()
+        return finish()
 
 
 def check_scheduler(address: str) -> None:
@@ -353,5 +382,6 @@ def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, o
             on_row(rows[i])
         bar.step()
 
-    with dask_client(scheduler, workers, len(todo), client, quiet=quiet) as cl:
-        run_tasks(cl, tasks, done, worker_timeout=worker_timeout, what="cases")
+    with dask_client(scheduler, workers, len(todo), client, quiet=quiet,
+                     worker_timeout=worker_timeout) as cl:
+        run_tasks(cl, tasks, done, worker_timeout=worker_timeout, what="cases", say=bar.note)

@@ -59,7 +59,7 @@ def output_target(path, inputs=()) -> str:
     real = os.path.realpath(path)
     try:
         st = os.stat(real)
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):     # a new file (its directory: the writer's)
         return real
     if not stat.S_ISREG(st.st_mode):
         raise UsageError(f"output {path!r} exists and is not a regular file; expected the path "
@@ -75,6 +75,21 @@ def output_target(path, inputs=()) -> str:
             raise UsageError(f"output {path!r} is the input deck {os.fspath(other)!r}; writing "
                              "there would destroy the deck")
     return real
+
+
+def check_output(path, inputs=()) -> str:
+    """:func:`output_target` plus a directory that exists and can be written, checked before
+    any work (for outputs written at the end of a long run); raises :class:`OutputError`
+    (exit 2) naming ``path``, or the :class:`UsageError` of :func:`output_target`."""
+    target = output_target(path, inputs)
+    directory = os.path.dirname(target)
+    if not os.path.isdir(directory):
+        raise OutputError(f"cannot write {os.fspath(path)!r}: directory {directory!r} does not "
+                          "exist")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise OutputError(f"cannot write {os.fspath(path)!r}: directory {directory!r} is not "
+                          "writable")
+    return target
 
 
 def fsync_path(path: str, directory: bool = False) -> None:
@@ -100,6 +115,9 @@ _HOST = re.sub(r"[^A-Za-z0-9-]", "-", os.uname().nodename if hasattr(os, "uname"
 _TMP = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)(?:@(?P<host>[A-Za-z0-9-]*))?"
                   r"(?:\.[A-Za-z0-9]+)?$")
 _SCANNED: set = set()
+#: temporary files being written now (removed by the CLI's interrupt watchdog when it has to end
+#: the process while native code holds the main thread: poise_cli.watchdog)
+ACTIVE_TEMPS: set = set()
 
 
 def temp_name(target: str, keep_suffix: bool = False) -> str:
@@ -233,6 +251,7 @@ def atomic_output(path, inputs=(), keep_suffix: bool = False, hold_interrupts: b
     remove_stale_temps(directory, os.path.basename(target))
     tmp = temp_name(target, keep_suffix)
     with _held_interrupts(hold_interrupts) as signals, _collect_unraisable() as unraisable:
+        ACTIVE_TEMPS.add(tmp)
         try:
             yield tmp
             if signals:
@@ -245,12 +264,14 @@ def atomic_output(path, inputs=(), keep_suffix: bool = False, hold_interrupts: b
         except BaseException as exc:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+            ACTIVE_TEMPS.discard(tmp)
             if isinstance(exc, (KeyboardInterrupt, UsageError)):
                 raise
             reason = _io_reason(exc, unraisable)
             if reason is None:
                 raise
             raise OutputError(f"cannot write {os.fspath(path)!r}: {reason}") from exc
+    ACTIVE_TEMPS.discard(tmp)
     fsync_path(directory, directory=True)
     if signals:     # arrived after the last check: the file is complete, the run interrupted
         raise KeyboardInterrupt

@@ -4,8 +4,8 @@ sweep, animate, bench).
 Solvers never draw: they call :func:`report` with ``(label, done, total)`` as work advances and
 ``done=None`` when it ends; the orchestration installs a callback for a run
 (:func:`solver_progress`: :func:`reporter` draws one :class:`Bar` per label). :class:`Bar` has
-three modes, chosen once: ``tty`` (stderr is a terminal, ``CI`` unset): click's progress bar
-with position, percentage and ETA, erased when done; ``plain`` (a log, CI): a line ``poise:
+three modes, chosen once: ``tty`` (stderr is a terminal, ``CI`` unset): a tqdm bar
+with position, percentage, rate and ETA, erased when done; ``plain`` (a log, CI): a line ``poise:
 LABEL 40/100 UNIT (40%), 12 s, ETA 18 s`` every 10 % or 10 s, nothing for work that ends
 within ``delay`` seconds; ``off``: ``--quiet``, ``POISE_QUIET`` set, or a worker process
 (batch/sweep workers: their parent shows the cases done). Here in core because the solvers,
@@ -87,7 +87,9 @@ class Bar:
     """Progress of ``total`` units of work labelled ``label`` (see the module doc for modes).
 
     ``update(done)`` sets the position, ``step(k)`` advances it, ``write(line)`` prints a line
-    without breaking the bar, ``close()`` ends it. ``delay``: seconds before anything is shown.
+    without breaking the bar, ``note(line)`` the same unless the bar is off (``--quiet``),
+    ``close(end)`` ends it: ``end`` other than ``"done"`` (``"gave up"``, ``"interrupted"``)
+    is said in a last line. ``delay``: seconds before anything is shown.
     """
 
     def __init__(self, total: int, label: str, unit: str = "", enabled: bool | None = None,
@@ -98,10 +100,16 @@ class Bar:
         self.delay = delay
         self.done = 0
         self.t0 = time.monotonic()
-        self._bar = None                 # click's ProgressBar once shown (tty)
+        self._bar = None                 # the tqdm bar (tty), drawn once ``delay`` has passed
+        self._cleared = False
         self._last_t = self.t0           # plain: time and fraction of the last line
         self._last_f = 0.0
         self.lines = 0                   # plain lines written
+        if self.mode == "tty":
+            from tqdm import tqdm        # lazy: only on a terminal
+            self._bar = tqdm(total=self.total, desc=label, unit=f" {unit}" if unit else "it",
+                             file=self.stream, leave=False, delay=delay, dynamic_ncols=True,
+                             mininterval=0.2)
 
     # ------------------------------------------------------------------ public
     def update(self, done: int) -> None:
@@ -109,13 +117,17 @@ class Bar:
         delta, self.done = done - self.done, done
         if self.mode == "off":
             return
+        if self.mode == "tty":
+            if delta:
+                self._bar.update(delta)
+            if self._cleared:
+                self._cleared = False
+                self._bar.refresh()
+            return
         now = time.monotonic()
         if now - self.t0 < self.delay:          # quick work says nothing
             return
-        if self.mode == "tty":
-            self._tty(delta)
-        else:
-            self._plain(now)
+        self._plain(now)
 
     def step(self, k: int = 1) -> None:
         self.update(self.done + k)
@@ -124,69 +136,79 @@ class Bar:
         """Erase the bar from the terminal (it comes back on the next update): call before
         printing a line of one's own."""
         if self._bar is not None:
-            self._erase()
-            self.stream.flush()
-            self._bar._last_line = None      # click redraws only a changed line
+            self._bar.clear()
+            self._cleared = True
 
     def write(self, line: str) -> None:
         """Print ``line`` on the stream (above the bar on a terminal)."""
-        self.clear()
-        self.stream.write(line + "\n")
-        self.stream.flush()
         if self._bar is not None:
-            self._bar.render_progress()
+            self._bar.write(line, file=self.stream)
+        else:
+            self.stream.write(line + "\n")
+            self.stream.flush()
 
-    def close(self) -> None:
+    def note(self, line: str) -> None:
+        """:meth:`write`, unless the bar is off (quiet)."""
+        if self.mode != "off":
+            self.write(line)
+
+    def close(self, end: str = "done") -> None:
         if self.mode == "off":
             return
+        now = time.monotonic()
+        # work that ended otherwise than done is said in a last line, unless it ended at once
+        # (a usage error before any work) without a line before
+        said = end != "done" and (self.lines or now - self.t0 >= 1.0)
         if self._bar is not None:
-            self._erase()
-            self.stream.write("\033[?25h")   # click hides the cursor while drawing
-            self.stream.flush()
+            self._bar.close()                  # erased (leave=False)
             self._bar = None
-        elif self.mode == "plain" and self.lines and self._last_f < 1.0:
-            self._line(time.monotonic(), final=True)
+            if said:
+                self._line(now, final=end)
+        elif self.mode == "plain" and ((self.lines and self._last_f < 1.0) or said):
+            self._line(now, final=end)
         self.mode = "off"                    # closed: says nothing more
 
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, exc, tb):
+        self.close(ending(exc))
 
     # ------------------------------------------------------------------ drawing
-    def _tty(self, delta: int) -> None:
-        if self._bar is None:
-            import click
-            self._bar = click.progressbar(length=self.total, label=self.label, show_eta=True,
-                                          show_percent=True, show_pos=True, width=30,
-                                          file=self.stream)
-            self._bar.start = time.time() - (time.monotonic() - self.t0)   # ETA from our start
-            self._bar.update(self.done)
-        elif delta:
-            self._bar.update(delta)
-
-    def _erase(self) -> None:
-        width = (self._bar.max_width or 0) + len(self.label) + 40
-        self.stream.write("\r" + " " * width + "\r")
-
     def _plain(self, now: float) -> None:
         f = self.done / self.total
         if (f - self._last_f >= PLAIN_STEP - 1e-9 or now - self._last_t >= PLAIN_EVERY_S
                 or (f >= 1.0 and self.lines)):
             self._line(now)
 
-    def _line(self, now: float, final: bool = False) -> None:
+    def _line(self, now: float, final: str | None = None) -> None:
         f = self.done / self.total
         el = now - self.t0
         eta = f", ETA {_dur(el * (1 - f) / f)}" if 0 < f < 1 and not final else ""
         unit = f" {self.unit}" if self.unit else ""
-        end = ", done" if final else ""
+        end = f", {final}" if final else ""
         self.stream.write(f"poise: {self.label} {self.done}/{self.total}{unit} ({f:.0%}), "
                           f"{_dur(el)}{eta}{end}\n")
         self.stream.flush()
         self._last_t, self._last_f = now, f
         self.lines += 1
+
+
+def note(line: str, enabled: bool | None = None) -> None:
+    """Print ``line`` on stderr unless progress is off (quiet, a worker process)."""
+    if choose_mode(enabled) != "off":
+        sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+
+
+def ending(exc: BaseException | None) -> str:
+    """The word a progress line ends with for a run ended by ``exc``: ``done`` (None), the
+    exception's ``progress_end`` (e.g. ``gave up``), ``interrupted`` or ``failed``."""
+    if exc is None:
+        return "done"
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted"
+    return getattr(exc, "progress_end", None) or "failed"
 
 
 def reporter(enabled: bool | None = None):

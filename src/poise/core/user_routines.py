@@ -46,6 +46,7 @@ Calling convention (all elements)::
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import re
@@ -55,6 +56,7 @@ from pathlib import Path
 import numpy as np
 
 from poise.core.errors import DeckError, EvaluationError, Problem
+from poise.core.interrupts import kept_interrupts
 
 DEFAULT_NAMES = {"Constraint_UserConstr": "ucosub", "Force_Scalar_TwoBody": "sfosub",
                  "Force_Vector_OneBody": "gfosub", "Force_Vector_TwoBody": "gfosub",
@@ -113,7 +115,7 @@ def _import(path: Path, data: bytes, digest: str):
     name = "poise_user_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
     spec = importlib.util.spec_from_file_location(name, str(path))
     mod = importlib.util.module_from_spec(spec)
-    with _UserStdout():
+    with kept_interrupts(), _UserStdout():
         exec(compile(data, str(path), "exec"), mod.__dict__)  # noqa: S102 - allowed user code
     _MODULES[key] = mod
     return mod
@@ -296,6 +298,16 @@ class MarkerAccess:
         return self._ang(i, j, 1, 1, 2)
 
 
+def _keeping_interrupts(method):
+    """The method's user calls share one relay of Ctrl-C/SIGTERM (installed once per call of
+    the method, not per user call): a real interrupt ends the run (exit 130)."""
+    @functools.wraps(method)
+    def kept(*args, **kwargs):
+        with kept_interrupts():
+            return method(*args, **kwargs)
+    return kept
+
+
 class UserRoutine:
     """One element's user function: recorded slots, values, derivatives, Hessians."""
 
@@ -316,18 +328,21 @@ class UserRoutine:
 
     def _call(self, t, vec, record=None):
         q = MarkerAccess(t, vec, self.mi, record)
-        try:
-            with _UserStdout():
-                out = self.fn(self.el.id, float(t), self.par, q)
-        except _NewSlot as e:
-            mid, kind = e.args[0]
-            raise EvaluationError(f"{self._where()} read {KIND_NAMES[kind]} of marker {mid}, "
-                                  "which it did not read at the first call (the marker vectors "
-                                  "a user routine reads must not change)", self.el.loc) from None
-        except BaseException as e:  # noqa: BLE001 - anything user code raises (SystemExit,
-            # KeyboardInterrupt too) fails the solve cleanly, never exits the process
-            raise EvaluationError(f"{self._where()} raised {_raised(e).removeprefix('it raised ')}",
-                                  self.el.loc) from None
+        with kept_interrupts():       # a real Ctrl-C/SIGTERM interrupts the run (exit 130)
+            try:
+                with _UserStdout():
+                    out = self.fn(self.el.id, float(t), self.par, q)
+            except _NewSlot as e:
+                mid, kind = e.args[0]
+                raise EvaluationError(f"{self._where()} read {KIND_NAMES[kind]} of marker {mid},"
+                                      " which it did not read at the first call (the marker "
+                                      "vectors a user routine reads must not change)",
+                                      self.el.loc) from None
+            except BaseException as e:  # noqa: BLE001 - anything user code raises (SystemExit,
+                # KeyboardInterrupt too) fails the solve cleanly, never exits the process
+                raise EvaluationError(f"{self._where()} raised "
+                                      f"{_raised(e).removeprefix('it raised ')}",
+                                      self.el.loc) from None
         der = None
         if isinstance(out, tuple) and len(out) == 2 and isinstance(out[1], dict):
             out, der = out
@@ -345,6 +360,7 @@ class UserRoutine:
         return {(mid, k): (P[self.mi[mid]] if k == 0 else A[self.mi[mid]][:, k - 1])
                 for mid, k in self.slots}
 
+    @_keeping_interrupts
     def probe(self, t, P, A):
         """First call at the input configuration: records the vectors read, the value count
         and whether the result depends on time."""
@@ -358,6 +374,7 @@ class UserRoutine:
         self.time_dependent = bool(np.any(v1 != v0)) if len(v1) == len(v0) else True
         return v0
 
+    @_keeping_interrupts
     def values(self, t, vec):
         v, _ = self._call(t, vec)
         if len(v) != self.m:
@@ -365,9 +382,22 @@ class UserRoutine:
                                   f"{self.m} (as at the first call)", self.el.loc)
         return v
 
+    def _derivative_key(self, key) -> tuple[int, int]:
+        """``(marker_id, "P"|"x"|"y"|"z")`` -> (marker id, kind index), else EvaluationError."""
+        ok = isinstance(key, tuple) and len(key) == 2 and str(key[1]) in KIND_NAMES
+        try:
+            mid = int(key[0]) if ok else None
+        except (TypeError, ValueError):
+            mid = None
+        if mid is None:
+            raise EvaluationError(f"{self._where()} returned a derivative keyed {key!r}; "
+                                  "expected (marker_id, 'P' | 'x' | 'y' | 'z')", self.el.loc)
+        return mid, KIND_NAMES.index(str(key[1]))
+
     def _steps(self, scale=1e-6):
         return [scale * self.L if k == 0 else scale for _, k in self.slots]
 
+    @_keeping_interrupts
     def evaluate(self, t, vec, need_jac=True, h=1e-6):
         """Values (m,) and derivatives (m, S, 3) w.r.t. the recorded vectors."""
         v, der = self._call(t, vec)
@@ -381,11 +411,15 @@ class UserRoutine:
         if der is not None:
             index = {s: k for k, s in enumerate(self.slots)}
             for key, g in der.items():
-                mid, kn = int(key[0]), str(key[1])
-                k = KIND_NAMES.index(kn) if kn in KIND_NAMES else -1
+                mid, k = self._derivative_key(key)
                 if (mid, k) not in index:
                     continue            # derivative w.r.t. a vector it does not read: zero
-                g = np.asarray(g, float).reshape(self.m, 3)
+                try:
+                    g = np.asarray(g, float).reshape(self.m, 3)
+                except (TypeError, ValueError):
+                    raise EvaluationError(
+                        f"{self._where()} returned the derivative {key!r}: {g!r}; expected "
+                        f"{self.m} x 3 numbers (d value / d vector)", self.el.loc) from None
                 D[:, index[(mid, k)]] = g
             if not np.all(np.isfinite(D)):
                 raise EvaluationError(f"{self._where()} returned non-finite derivatives",
@@ -397,6 +431,7 @@ class UserRoutine:
                 D[:, s, c] = (self.values(t, vp) - self.values(t, vm)) / (2 * hs)
         return v, D
 
+    @_keeping_interrupts
     def hessian(self, t, vec, w):
         """``sum_r w_r d2 v_r / dy2`` (3S, 3S) by central differences of the gradient."""
         S = len(self.slots)

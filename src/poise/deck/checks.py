@@ -7,6 +7,7 @@ elements need them, and fills :data:`DCM_CHECK` and :data:`EIG` with batch resul
 """
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,7 @@ _KIND_TEXT = {"real": "a real number", "int": "an integer", "bool": "TRUE or FAL
               "real_or_expr": "a number or an expression", "int_list": "a list of integers",
               "real_list": "a list of real numbers", "expr": "an expression", "str": "text"}
 DCM = tuple(f"a{r}{c}" for c in range(3) for r in range(3))
+_SCALAR_KINDS = frozenset({"real", "int", "bool", "real_or_expr"})
 
 
 def ns_text(ns: str) -> str:
@@ -46,6 +48,11 @@ def _check_value(pc: ProblemCollector, el: Element, a: Attr, v: Any) -> None:
             what = ("not a number" if x is None else "not a finite number" if not np.isfinite(x)
                     else "not an integer")
         pc.error(el.loc, f"attribute '{a.name}' is {what}; expected {_KIND_TEXT[k]}, got '{v}'")
+        return
+    if k in _SCALAR_KINDS and not isinstance(v, (numbers.Real, Expr, type(None))):
+        # only an in-memory edit gets here (poise.solve(spec) after attrs[...] = [1, 2])
+        pc.error(el.loc, f"attribute '{a.name}' is a {type(v).__name__}; expected "
+                         f"{_KIND_TEXT[k]}, got {' '.join(repr(v).split())[:80]}")
         return
     if isinstance(v, (int, float)) and not isinstance(v, bool):
         if not np.isfinite(v):

@@ -153,6 +153,8 @@ def _geometry(spec, ctx, tag):
                     pc.error(el.loc, "a spline curve needs at least 4 points")
                     continue
                 obj = CD.SplineCurve(pts, u0, u1, closed)
+            if not _within_range(el, pc, obj, surf):
+                continue
         except ValueError as e:
             pc.error(el.loc, str(e))
             continue
@@ -164,9 +166,41 @@ def _geometry(spec, ctx, tag):
     return out
 
 
+#: largest coordinate (or first/second derivative) a curve or surface may reach: squared
+#: distances and sums of samples stay finite (beyond, LAPACK may never return on them)
+EXTENT_MAX = 1e150
+
+
+def _within_range(el, pc, obj, surf) -> bool:
+    """Sample the geometry over its parameter range: its points and first two derivatives
+    must be finite and within EXTENT_MAX (else a located deck error, False)."""
+    if surf:
+        U, V = np.meshgrid(np.linspace(obj.u0, obj.u1, 21), np.linspace(obj.v0, obj.v1, 21),
+                           indexing="ij")
+        U, V = U.ravel(), V.ravel()
+        d = obj.derivs(U, V, 2)
+        arr = np.stack([d[k] for k in ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))])
+    else:
+        U = np.linspace(obj.u0, obj.u1, 181)
+        V = None
+        arr = obj.derivs(U, 2)                        # (3 orders, k, 3)
+    with np.errstate(invalid="ignore", over="ignore"):
+        bad = ~(np.abs(arr) <= EXTENT_MAX)           # NaN counts as bad
+    if not bad.any():
+        return True
+    order, k, c = (int(x[0]) for x in np.nonzero(bad))
+    what = ("its coordinates", "their first derivatives", "their second derivatives")[min(order, 2)]
+    at = f"U = {U[k]:.6g}" + (f", V = {V[k]:.6g}" if V is not None else "")
+    attr = f"{'xyz'[c]}_expression" if el.attrs.get(f"{'xyz'[c]}_expression") is not None \
+        else None
+    pc.error(el.loc, f"the geometry overflows: {'xyz'[c]} of {what} is {arr[order, k, c]:.6g} "
+             f"at {at}; expected finite values within {EXTENT_MAX:.0e}", attr)
+    return False
+
+
 def _plane_basis(curve, loc, pc):
     """Columns e1, e2, n (marker axes) of the plane a curve lies in (CVCV)."""
-    _, pts = CD.sample_curve(curve, 181)
+    _, pts = CD.sample_curve(curve, 181)             # finite: _within_range
     c = pts.mean(0)
     _, sv, Vt = np.linalg.svd(pts - c)
     n = Vt[2]
@@ -197,7 +231,8 @@ def compile_curves(spec, ctx):
     def geo_ref(el, attr, table, what):
         gid = el.attrs.get(attr)
         if gid not in table:
-            pc.error(el.loc, f"{attr} {gid} is not a {what}", attr)
+            if not any(g.id == gid for g in spec.elements(what)):   # else: reported itself
+                pc.error(el.loc, f"{attr} {gid} is not a {what}", attr)
             return None
         return table[gid]
 

@@ -46,14 +46,14 @@ from poise.results.h5objects import Dimensions
 from poise.results.h5objects import create_dataset as _create_dataset  # noqa: F401 (tests)
 from poise.results.h5objects import to_array as _to_array
 from poise.results.summary import summarize
+from poise.results.usable import ResultsFormatError, check_usable
 
 FORMAT = "poise-results"
 FORMAT_VERSION = 1
 
 
 
-class ResultsFormatError(ValueError):
-    """The file is not a poise results file (or an unsupported format version)."""
+# ResultsFormatError: the file is not a (usable) poise results file, exit 2 (results/usable.py)
 
 
 # --------------------------------------------------------------------------------------------
@@ -242,10 +242,16 @@ def _read_strings(ds: h5py.Dataset) -> np.ndarray:
 
 
 def _read_dataset(ds: h5py.Dataset) -> np.ndarray:
-    if h5py.check_string_dtype(ds.dtype) is not None:
-        data = ds.asstr()[()]
-        return np.asarray(data, dtype=str) if isinstance(data, np.ndarray) else np.asarray(data)
-    return ds[()]
+    try:
+        if h5py.check_string_dtype(ds.dtype) is not None:
+            data = ds.asstr()[()]
+            return np.asarray(data, dtype=str) if isinstance(data, np.ndarray) \
+                else np.asarray(data)
+        return ds[()]
+    except (OSError, RuntimeError, KeyError, ValueError, UnicodeDecodeError) as e:  # damaged
+        raise ResultsFormatError(f"{ds.file.filename}: not a usable poise results file: "
+                                 f"{ds.name}: unreadable ({' '.join(str(e).split())[:200]})"
+                                 ) from None
 
 
 def _is_dimension(name: str) -> bool:
@@ -283,6 +289,11 @@ def _open_checked(path: str) -> h5py.File:
         f.close()
         raise ResultsFormatError(f"{path}: unsupported format_version {version!r} "
                                  f"(this poise reads {FORMAT_VERSION})")
+    try:
+        check_usable(f, path)        # metadata only: nothing read yet that could hurt
+    except BaseException:
+        f.close()
+        raise
     return f
 
 

@@ -16,6 +16,7 @@ from poise.core.errors import EvaluationError
 from poise.core.wording import plural
 from poise.solvers.context import Strategy, prologue
 from poise.solvers.history import History
+from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import FrameOutcome, Scales, assemble, initial_multipliers, merit, newton
 from poise.solvers.relaxation import Relaxation, relaxation_datasets
 from poise.solvers.status import Status
@@ -66,6 +67,10 @@ class MkeamMethod(Strategy):
             mk_state, status, msg, n_it = self.rx.iterate(state)
         except EvaluationError as e:
             mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(self.rx.iterates)
+        except SingularMatrix as e:     # constraints that cannot be solved for the momenta
+            mk_state, status, n_it = state, Status.SINGULAR_JACOBIAN, len(self.rx.iterates)
+            msg = (f"MKEAM: the constraint matrix G M^-1 G^T is singular ({e}): the constraints "
+                   "lock a direction, or masses and inertias span too many decades")
         finally:
             ctx.report("MKEAM", None, self.settings.max_num_iter)
         if not status.ok:

@@ -120,7 +120,7 @@ class _Dyn:
             S = (S + sp.diags(inact)).tocsr()
         else:
             S = np.asarray(S) + np.diag(inact)
-        return self.cnt.factor(S)
+        return self.cnt.factor(S, equilibrate=True)   # masses 1e-12 next to 1: rows decades apart
 
     def phi(self, state):
         """Constraint values only (no force element is evaluated; inactive rows read 0)."""

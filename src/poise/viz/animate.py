@@ -233,6 +233,9 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
         pts += [np.asarray([q for _, q in segs]).reshape(-1, 3), g]
         pts += [_graphic_points(gr_, pos[f], rot[f]) for gr_ in gfx]
     allp = np.concatenate(pts)
+    allp = allp[np.isfinite(allp).all(axis=1)]       # NaN/Inf positions are not drawn
+    if not len(allp):
+        raise UsageError(f"{path}: analysis {a.index} has no finite body positions to draw")
     ext = np.nanmax(allp, axis=0) - np.nanmin(allp, axis=0)
     ax2 = sorted(np.argsort(-ext, kind="stable")[:2].tolist())
     names = "XYZ"

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.atomic import atomic_output
+from poise.core.errors import UsageError
 from poise.viz.figure import LogFloor, legend_outside, new_figure, readable_ticks
 from poise.viz.plot import _agg
 
@@ -76,6 +77,19 @@ def _label_rungs(ax, marks, dx: float = 30.0, dy: float = 10.0) -> None:
         if any(t.get_window_extent(r).overlaps(p) for p in placed):
             t.set_position((4, -11))
         placed.append(t.get_window_extent(r))
+
+
+def check_picture_format(out: str, option: str = "--plot") -> None:
+    """Refuse, before any work, a picture path whose extension matplotlib cannot write
+    (:class:`UsageError`, exit 2); no extension means PNG. PGF is refused (it needs LaTeX)."""
+    import os
+    _agg()
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    ext = os.path.splitext(os.fspath(out))[1].lower().lstrip(".")
+    formats = sorted(set(FigureCanvasAgg.get_supported_filetypes()) - {"pgf"})
+    if ext and ext not in formats:
+        raise UsageError(f"{option} {os.fspath(out)!r}: format {ext!r} is not supported; "
+                         f"expected one of {', '.join(formats)} (e.g. FILE.png)")
 
 
 def write_work_precision(rows: list[dict], out: str, length_unit: str, title: str = "",
