@@ -8,8 +8,9 @@ import sys
 import click
 
 from poise.core.wording import plural, shorten
-from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
-    solver_options, user_code_option, worker_timeout_option, workers_given, workers_option
+from poise_cli.options import collect_overrides, debug_option, ignore_option, json_option, \
+    quiet_option, solver_options, user_code_option, worker_timeout_option, workers_given, \
+    workers_option
 from poise_cli.summary import fmt_num, print_json, styled_status, table_json
 
 
@@ -36,6 +37,8 @@ def _line(row: dict) -> str:
     if t is not None:
         parts.append(f"{t:.3g} s")
     line = ", ".join(parts)
+    if row.get("ignored"):      # as poise solve's summary line
+        line += f"; left out (--ignore): {row['ignored']}"
     if row.get("skipped"):
         line += " (skipped, up to date)"
     elif row.get("message"):
@@ -56,12 +59,13 @@ def _line(row: dict) -> str:
 @worker_timeout_option
 @solver_options
 @user_code_option
+@ignore_option
 @quiet_option
 @json_option
 @debug_option
 def batch(decks, workers, out_dir, force, scheduler, worker_timeout, method, max_num_iter,
           max_imbalance, max_error, stability, no_fallback, require_stable, allow_neutral,
-          allow_user_code, quiet, as_json, debug):
+          allow_user_code, ignore, quiet, as_json, debug):
     """Solve every DECK in parallel on Dask (the engine of poise sweep: a local cluster by
     default, --scheduler for a real one; a local process pool without Dask installed).
 
@@ -69,8 +73,9 @@ def batch(decks, workers, out_dir, force, scheduler, worker_timeout, method, max
     Writes OUT_DIR/<deck stem>.h5 per deck (equal stems: <stem>-2.h5, ...) and the summary
     table OUT_DIR/summary.csv and OUT_DIR/summary.json (deck, output, status, exit_code,
     iterations, time, the worst imbalance and stability class with their frames and modes,
-    skipped, message). Decks whose results file records the same deck hash, solver options,
-    poise version and user scripts are skipped unless --force.
+    skipped, message, ignored). Decks whose results file records the same deck hash, solver
+    options, --ignore kinds, poise version and user scripts are skipped unless --force.
+    --ignore applies to the Adams datasets among the decks.
     A deck that fails (whatever its user code does, even killing its worker) is its own row.
     Exit code: the worst deck's (0 converged, 1 not converged, 3 invalid deck, 4 internal
     error); 2 when the cluster had no worker for --worker-timeout seconds (the summary keeps
@@ -110,7 +115,8 @@ def batch(decks, workers, out_dir, force, scheduler, worker_timeout, method, max
                              overrides=overrides, force=force,
                              command=command, on_row=on_row, allow_user_code=allow_user_code,
                              progress=False if quiet else None, scheduler=scheduler,
-                             worker_timeout=worker_timeout)
+                             worker_timeout=worker_timeout,
+                             **({"ignore": ignore} if ignore else {}))
     except (Exception, KeyboardInterrupt) as exc:   # out-dir not writable, no workers: exit 2
         if getattr(exc, "rows", None) is not None:  # no workers: keep what finished
             try:

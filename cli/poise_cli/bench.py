@@ -16,14 +16,14 @@ from pathlib import Path
 
 import click
 
-from poise_cli.options import TOL_MIN, debug_option, json_option, quiet_option, \
-    user_code_option
+from poise_cli.options import TOL_MIN, debug_option, ignore_option, json_option, \
+    quiet_option, user_code_option
 
 #: version of the ``poise bench --json`` document (bump on incompatible changes)
 BENCH_VERSION = 1
 
 
-def _user_scripts(deck: str, dest: Path, allow: bool) -> None:
+def _user_scripts(deck: str, dest: Path, allow: bool, ignore=()) -> None:
     """The variant decks live in ``dest``: copy the user scripts DECK names there (same
     relative paths) when ``allow``, else refuse such a deck, located in DECK itself. The
     references are checked (inside the deck's directory); nothing is imported here."""
@@ -34,7 +34,7 @@ def _user_scripts(deck: str, dest: Path, allow: bool) -> None:
     from poise.core.errors import DeckError
     from poise.core.user_routines import REFUSE, SKIP, load, script_path, uses_user_routine
     problems = []
-    for el in load_deck(deck).model:
+    for el in load_deck(deck, **({"ignore": ignore} if ignore else {})).model:
         if not uses_user_routine(el):
             continue
         try:
@@ -104,19 +104,22 @@ def _tolerances(text: str) -> list[float]:
               help="Draw the work-precision diagram (error against solve time, one line per "
                    "method, log-log) to this PNG (needs poise[plot]).")
 @user_code_option
+@ignore_option
 @quiet_option
 @json_option
 @debug_option
 def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, allow_user_code,
-          quiet, as_json, debug):
+          ignore, quiet, as_json, debug):
     """Time DECK over a tolerance ladder for each method and print the table.
 
     \b
     The error column is the largest CG position difference from the reference solution over L
     (the model's length scale); the reference is the tightest FIM_S rung unless
     --reference-method says otherwise. A deck naming Python user routines needs
-    --allow-user-code (exit 3 otherwise). With --json the table goes to stderr and stdout holds
-    one JSON object: the reference, the rows (as --out writes them) and the files written."""
+    --allow-user-code (exit 3 otherwise). An Adams dataset runs as the XML deck it translates
+    to; --ignore leaves out its refused statements (said after the table and recorded as
+    `ignored` in the JSON). With --json the table goes to stderr and stdout holds one JSON
+    object: the reference, the rows (as --out writes them) and the files written."""
     import numpy as np
     from poise_cli.errors import report_exception   # lazy: poise CMD --help stays light
     from poise_cli.streams import guarded_stdout
@@ -166,20 +169,29 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
 
     if as_json:
         guard.enter_context(guarded_stdout(quiet))
+    ignored: list = []
+    try:
+        from poise.app.runner import check_ignore  # lazy: poise CMD --help stays light
+        check_ignore(deck, ignore)
+    except Exception as exc:  # noqa: BLE001 - UsageError: exit 2
+        fail(exc)
+        return
     if deck.lower().endswith((".adm", ".acf")):       # an Adams dataset: its XML deck
         from poise.app.convert import xml_text  # lazy: only Adams datasets need it
         try:
-            xml = xml_text(deck)
+            xml, ignored = xml_text(deck, ignore)
         except Exception as exc:  # noqa: BLE001 - DeckError: located, exit 3
             fail(exc)
             return
     else:
         xml = Path(deck).read_text()
+    if ignored:
+        doc["ignored"] = ignored
     ref = None
     rows = []
     with _reported(fail), tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
         try:
-            _user_scripts(deck, Path(td), allow_user_code)
+            _user_scripts(deck, Path(td), allow_user_code, ignore)
         except Exception as exc:  # noqa: BLE001 - DeckError: located, exit 3
             fail(exc)
             return
@@ -209,7 +221,8 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
                     err_abs = float(np.max(np.abs(x - ref[0])))
                     err = err_abs / L
                 r.update(method=m, tol=tol, error=err, error_abs=err_abs, deck=deck,
-                         reference=f"{ref_method} {ref_tol:.0e}")
+                         reference=f"{ref_method} {ref_tol:.0e}",
+                         **({"ignored": ignored} if ignored else {}))
                 rows.append(r)
                 bar.clear()
                 c, s = r["counts"], r["solve_s"]
@@ -220,6 +233,9 @@ def bench(deck, methods, tolerances, repeat, reference_method, out, plot_out, al
                            f"{'—' if err is None else f'{err:9.1e}':>9}")
                 bar.step()
         bar.close()
+    if ignored and not quiet:       # as poise solve's summary line
+        from poise.app.runner import ignored_text  # lazy: poise CMD --help stays light
+        click.echo(f"poise bench: {ignored_text(ignored)}", err=True)
     if plot_out:
         try:
             # lazy: matplotlib (poise[plot]) only when --plot is given

@@ -8,8 +8,8 @@ import click
 
 from poise.core.wording import plural
 from poise_cli.errors import report_exception
-from poise_cli.options import collect_overrides, debug_option, json_option, quiet_option, \
-    solver_options, user_code_option, worker_timeout_option, workers_option
+from poise_cli.options import collect_overrides, debug_option, ignore_option, json_option, \
+    quiet_option, solver_options, user_code_option, worker_timeout_option, workers_option
 from poise_cli.summary import print_json, table_json
 
 
@@ -39,19 +39,21 @@ from poise_cli.summary import print_json, table_json
               help="Refuse sweeps with more cases than this (counted before any case is made).")
 @solver_options
 @user_code_option
+@ignore_option
 @quiet_option
 @json_option
 @debug_option
 def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, out_dir, outputs,
           force, max_cases, method, max_num_iter, max_imbalance, max_error, stability,
-          no_fallback, require_stable, allow_neutral, allow_user_code, quiet, as_json, debug):
+          no_fallback, require_stable, allow_neutral, allow_user_code, ignore, quiet, as_json,
+          debug):
     """Solve DECK once per combination of --set values on Dask distributed.
 
     \b
     Each case writes OUT_DIR/case_NNNNN.h5; OUT_DIR/index.csv and index.json hold one row per
     case: case, the parameter values, file, status, exit_code, iterations, wall_time, the
-    worst imbalance and stability class with their frames and modes, resumed, message and the
-    --output columns. Cases whose file is complete and was
+    worst imbalance and stability class with their frames and modes, resumed, message, ignored
+    (what --ignore left out of an Adams dataset) and the --output columns. Cases whose file is complete and was
     made with the same values are not run again (resume after an interruption).
     Exit code: the worst case's (0, 1, 3, 4); 2 for a bad --set/--output, or when the cluster
     had no worker for --worker-timeout seconds (the index keeps the finished cases); 3 invalid
@@ -82,7 +84,8 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, 
                              workers=workers or None,
                              overrides=overrides, force=force, progress=None if not quiet else False,
                              on_row=on_row, max_cases=max_cases, allow_user_code=allow_user_code,
-                             worker_timeout=worker_timeout)
+                             worker_timeout=worker_timeout,
+                             **({"ignore": ignore} if ignore else {}))
     except (Exception, KeyboardInterrupt) as exc:
         code, info = report_exception(exc, debug=debug)
         if as_json:
@@ -101,9 +104,11 @@ def sweep(deck, sets, mode, n_random, seed, scheduler, workers, worker_timeout, 
     if as_json:
         print_json(doc)
     if not quiet:
+        left = next((r["ignored"] for r in rows if r.get("ignored")), "")
         click.echo(f"poise sweep: {plural(len(rows), 'case')}: "
                    + ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
                    + f" ({n_resumed} resumed, {len(rows) - n_resumed} run); index in "
-                   + os.path.join(out_dir, "index.csv"), err=True)
+                   + os.path.join(out_dir, "index.csv")
+                   + (f"; left out (--ignore): {left}" if left else ""), err=True)
     sys.stdout.flush()
     ctx.exit(code)

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 
 from support.paths import DECKS
@@ -56,7 +57,7 @@ def test_refused_physics_is_exit_3_then_ignore_solves_and_records(tmp_path):
     adm.write_text(CONTACT)
     r = poise("solve", adm, "-o", tmp_path / "c.h5")
     assert r.returncode == 3
-    assert f"{adm}:10: CONTACT/7: contact between CAD solids is not supported by poise; " \
+    assert f"{adm}:10: CONTACT/7: poise does not support contact between CAD solids; " \
            "`--ignore CONTACT` solves without it" in r.stderr
     assert not (tmp_path / "c.h5").exists()
     r = poise("solve", adm, "-o", tmp_path / "c.h5", "--ignore", "contact")
@@ -144,3 +145,95 @@ def test_bench_ladder_of_a_dataset():
     assert r.returncode == 0, r.stderr
     row = [ln.split() for ln in r.stdout.splitlines() if ln.startswith("FIM_S")][0]
     assert row[2] == "converged"
+
+
+def test_batch_ignore_applies_to_datasets_records_and_keys_freshness(tmp_path):
+    from poise.app.batch import BATCH_KEYS, up_to_date
+    adm = tmp_path / "c.adm"
+    adm.write_text(CONTACT)
+    xml = DECKS / "pendulum_multiturn.xml"
+    out = tmp_path / "b"
+    r = poise("batch", adm, xml, "--out-dir", out, "-j", "1", "--json")
+    assert r.returncode == 3
+    rows = json.loads(r.stdout)["rows"]
+    assert rows[0]["status"] == "invalid_deck" and "`--ignore CONTACT`" in rows[0]["message"]
+    assert rows[1]["status"] == "converged" and rows[1]["ignored"] == ""
+
+    r = poise("batch", adm, xml, "--out-dir", out, "-j", "1", "--ignore", "contact", "--json")
+    assert r.returncode == 0, r.stderr
+    c, p = json.loads(r.stdout)["rows"]
+    assert (c["status"], c["skipped"], c["ignored"]) == ("converged", False, "1 CONTACT")
+    assert (p["skipped"], p["ignored"]) == (True, "")       # an XML deck: --ignore is not its
+    assert f"{adm}: converged" in r.stderr and "; left out (--ignore): 1 CONTACT" in r.stderr
+    with h5py.File(out / "c.h5") as f:
+        assert [d["statement"] for d in json.loads(f.attrs["ignored"])] == ["CONTACT/7"]
+        assert json.loads(f.attrs["run_overrides"]) == {"ignore": ["CONTACT"]}
+    with open(out / "summary.csv") as f:
+        head = f.readline().strip().split(",")
+    assert head == list(BATCH_KEYS) and head[-1] == "ignored"
+    assert "1 CONTACT" in (out / "summary.csv").read_text().splitlines()[1]
+    # the --ignore kinds key freshness: the same kinds are up to date, others are not
+    assert up_to_date(str(adm), str(out / "c.h5"), {}, ignore=("CONTACT",))
+    assert not up_to_date(str(adm), str(out / "c.h5"), {})
+    assert not up_to_date(str(adm), str(out / "c.h5"), {}, ignore=("CONTACT", "FRICTION"))
+    assert up_to_date(str(xml), str(out / "pendulum_multiturn.h5"), {}, ignore=("CONTACT",))
+
+    r = poise("batch", adm, xml, "--out-dir", out, "-j", "1", "--ignore", "CONTACT", "--json")
+    assert [row["skipped"] for row in json.loads(r.stdout)["rows"]] == [True, True]
+    assert "1 CONTACT (skipped, up to date)" in r.stderr    # read back from the file
+
+    r = poise("batch", xml, "--out-dir", out, "--ignore", "CONTACT")
+    assert r.returncode == 2 and "none of the decks is one" in r.stderr
+    r = poise("batch", adm, "--out-dir", out, "--ignore", "CONTACTS")
+    assert r.returncode == 2 and "did you mean CONTACT?" in r.stderr
+
+
+def test_sweep_ignore_records_in_cases_index_and_summary(tmp_path):
+    adm = tmp_path / "c.adm"
+    adm.write_text(CONTACT)
+    out = tmp_path / "s"
+    args = ["sweep", adm, "--set", "Force_SpringDamper[2].stiffness=100,400", "--out-dir", out,
+            "-j", "1", "--output", "bodies[2].position"]
+    r = poise(*args, "--json")
+    assert r.returncode == 3 and "CONTACT/7" in r.stderr
+    r = poise(*args, "--ignore", "CONTACT", "--json")
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.strip().splitlines()[-1].endswith("; left out (--ignore): 1 CONTACT")
+    rows = json.loads(r.stdout)["rows"]
+    assert [row["ignored"] for row in rows] == ["1 CONTACT", "1 CONTACT"]
+    # a 1 kg bob 1 m from the hinge, gravity -Y, torsion spring k: k theta = g cos(theta)
+    for row, k in zip(rows, (100.0, 400.0)):
+        x, y = row["bodies[2].position[0]"], row["bodies[2].position[1]"]
+        theta = np.arctan2(-y, x)
+        assert abs(k * theta - 9.81 * np.cos(theta)) < 1e-8
+        with h5py.File(out / row["file"]) as f:
+            assert json.loads(f.attrs["ignored"])[0]["kind"] == "CONTACT"
+            assert json.loads(f.attrs["run_overrides"]) == {"ignore": ["CONTACT"]}
+    index = json.loads((out / "index.json").read_text())
+    assert index["ignore"] == ["CONTACT"] and index["ignored"][0]["line"] == 10
+    r = poise(*args, "--ignore", "CONTACT", "--json")        # the same kinds: resumed
+    assert json.loads(r.stdout)["resumed"] == 2
+    r = poise(*args, "--ignore", "CONTACT", "--ignore", "SENSOR", "--json")   # others: run
+    assert json.loads(r.stdout)["resumed"] == 0
+    r = poise("sweep", DECKS / "pendulum_multiturn.xml", "--set",
+              "Force_SpringDamper[1].stiffness=1,2", "--out-dir", out, "--ignore", "CONTACT")
+    assert r.returncode == 2 and "--ignore applies to Adams datasets" in r.stderr
+
+
+def test_bench_ignore(tmp_path):
+    adm = tmp_path / "c.adm"
+    adm.write_text(CONTACT)
+    args = ["bench", adm, "--tolerances", "1e-6", "--repeat", "1", "--json"]
+    r = poise(*args)
+    assert r.returncode == 3 and "CONTACT/7" in r.stderr
+    r = poise(*args, "--ignore", "CONTACT", "--out", tmp_path / "rows.jsonl")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["ignored"] == [{"file": str(adm), "kind": "CONTACT", "line": 10,
+                               "statement": "CONTACT/7"}]
+    assert doc["rows"][0]["status"] == "converged" and doc["rows"][0]["error"] < 1e-6
+    assert "poise bench: left out (--ignore): 1 CONTACT" in r.stderr
+    row = json.loads((tmp_path / "rows.jsonl").read_text().splitlines()[0])
+    assert row["ignored"][0]["statement"] == "CONTACT/7"
+    r = poise("bench", DECKS / "pendulum_multiturn.xml", "--ignore", "CONTACT")
+    assert r.returncode == 2 and "--ignore applies to Adams datasets" in r.stderr

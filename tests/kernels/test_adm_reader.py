@@ -172,7 +172,7 @@ CONTACT/7, I = 20
     assert f"{f}:11: MARKER/40: QP: 'x' is neither a number nor a keyword" in probs
     assert f"{f}:12: JOINT/3: ambiguous option 'C'; it abbreviates CONVEL, CYLINDRICAL" in probs
     assert f"{f}:13: JOINT/1: JOINT/1 is defined twice (also at line 9)" in probs
-    assert f"{f}:15: CONTACT/7: contact between CAD solids is not supported by poise; " \
+    assert f"{f}:15: CONTACT/7: poise does not support contact between CAD solids; " \
            "`--ignore CONTACT` solves without it" in text
     assert len(probs) >= 7
 
@@ -183,9 +183,9 @@ FRICTION/3, JOINT = 1, MU_STATIC = 0.1
 SFORCE/4, ROTATION, I = 21, J = 10, FUNCTION = USER(1, 2, 3)
 """
     probs = problems(tmp_path, text)
-    assert any("FRICTION/3: joint friction is not supported" in p for p in probs)
-    assert any("SFORCE/4: a Fortran/C user subroutine (FUNCTION=USER(...)) is not supported"
-               in p for p in probs)
+    assert any("FRICTION/3: poise does not support joint friction" in p for p in probs)
+    assert any("SFORCE/4: poise does not support a Fortran/C user subroutine "
+               "(FUNCTION=USER(...))" in p for p in probs)
     spec = load(tmp_path, text, ignore=("FRICTION", "USER"))
     assert [(d["kind"], d["statement"], d["line"]) for d in spec.ignored] == \
         [("FRICTION", "FRICTION/3", 9), ("USER", "SFORCE/4", 10)]
@@ -301,3 +301,64 @@ REQUEST/2, F1 = ORIENT(27, 2, 20, 10)
     assert any("REQUEST/1: F2 left out: poise does not compute ORIENT (a request is output "
                "only)" in x for x in w)
     assert any("REQUEST/2: F1 left out" in x and "the request is skipped" in x for x in w)
+
+
+def test_a_name_before_a_commented_out_statement_is_not_the_next_ones(tmp_path):
+    """Adams View keeps statements commented out with their ``adams_view_name`` comment above:
+    the name is theirs, not the next statement's; an element without a label attribute
+    (ACCGRAV -> Force_Gravity) keeps its LABEL= as a comment, without a warning."""
+    from poise.app.convert import convert
+    text = HEAD + BODY + """!                           adams_view_name='MOTION_3'
+!MOTION/3
+!, TRANSLATIONAL
+!, JOINT = 20
+!
+ACCGRAV/
+, JGRAV = -9.81
+!                           adams_view_name='hinge'
+!JOINT/7, REVOLUTE, I = 21, J = 10
+! the hinge that stays
+JOINT/1, REVOLUTE, I = 21, J = 10
+EQUILIBRIUM/ERROR = 1E-10, LABEL = tight
+"""
+    spec = load(tmp_path, text)
+    assert "label" not in el(spec, "Force_Gravity").attrs
+    assert "label" not in el(spec, "Constraint_Joint", 1).attrs
+    assert not [w for w in spec.warnings if "label" in str(w)]
+    out = tmp_path / "m.xml"
+    convert(str(tmp_path / "m.adm"), str(out))
+    xml = out.read_text()
+    assert "label 'tight'" in xml and "MOTION_3" not in xml.split("<Force_Gravity")[1][:200]
+    assert not [w for w in load_deck(str(out)).warnings if "label" in str(w)]
+    assert "adams_view_name='MOTION_3'" in xml.split("<Force_Gravity")[0]    # kept, as written
+
+
+def test_command_lines_ending_in_ampersand_continue(tmp_path):
+    """Adams command files continue a command on the next line after a trailing '&' (with or
+    without the comma before it); keywords without effect on statics warn once per kind."""
+    (tmp_path / "model.adm").write_text(ACF_MODEL)
+    spec = load(tmp_path, """model
+out
+output/noseparator
+integrator/gstiff, &
+\terror = 1.0e-4, hmax=1e-5
+EQUILIBRIUM/STABILITY=1e-3,   &
+            ERROR=1e-2       &
+            , MAXIT=50,         &
+            ALIMIT=5.0D
+simulate/transient, &
+\tend=1.0, dtout=0.5
+EQUILIBRIUM/ERROR = 1e-3, ALIMIT = 2D
+SIMULATE/STATIC
+stop
+""", "run.acf")
+    cmds = [(c.tag, dict(c.attrs)) for c in spec.commands]
+    assert cmds == [
+        ("Param_Transient", {"integrator_type": "GSTIFF", "integr_tol": 1e-4, "h_max": 1e-5}),
+        ("Param_Static", {"stability": 1e-3, "max_error": 1e-2, "max_num_iter": 50}),
+        ("Simulate", {"analysis_type": "STATIC", "end_time": 1.0, "print_interval": 0.5}),
+        ("Param_Static", {"max_error": 1e-3}),
+        ("Simulate", {"analysis_type": "STATIC"}),
+        ("Stop", {})]
+    assert any("run.acf:6: EQUILIBRIUM/: ALIMIT ignored in 2 EQUILIBRIUM commands" in str(w)
+               for w in spec.warnings)

@@ -87,10 +87,24 @@ def fd_markers(text, seed=3, h=1e-6, rtol=1e-5, atol=1e-7, ctx_kw=None):
     "DX(1,2,3)", "DY(1,2,3)", "DZ(1,2,3)", "DX(1)", "DM(1,2)", "DM(3)", "AX(1,2)", "AY(1,2)",
     "AZ(1,2)", "AZ(4)", "PSI(1,2)", "THETA(1,2)", "PHI(1,2)", "YAW(1,2)", "PITCH(1,2)",
     "ROLL(1,2)", "PSI(3)", "DM(1,2)*DX(1,2,2) + SIN(AZ(1,2))", "DX(1,2,1)",
-    "-1000*(DM(1,2)-50)+STEP(TIME,0,0,1,100)",
+    "-1000*(DM(1,2)-50)+STEP(TIME,0,0,1,100)", "INCANG(1,2,3)", "INCANG(3,1,2)",
 ])
 def test_measure_derivatives(text):
     fd_markers(text)
+
+
+def test_included_angle_at_the_middle_marker():
+    """INCANG(I, J, K): the angle at J between the lines to I and to K, in [0, pi]."""
+    P = np.zeros((6, 3))
+    A = np.tile(np.eye(3), (6, 1, 1))
+    P[0], P[1] = [3.0, 1.0, 0.0], [1.0, 1.0, 0.0]
+    b = compile_batch([mkexpr("INCANG(1,2,3)")], FakeResolver())
+    for k, want in (([1.0, 3.0, 0.0], math.pi / 2), ([-1.0, 1.0, 0.0], math.pi),
+                    ([1.0 + math.sqrt(3.0), 2.0, 0.0], math.pi / 6),
+                    ([0.0, 1.0, -1.0], 3 * math.pi / 4)):
+        P[2] = k
+        ctx = EvalContext(P=P, A=A, scalars=np.zeros(50), reactions=np.zeros(10))
+        assert b.evaluate(ctx).value[0] == pytest.approx(want, abs=1e-14)
 
 
 def test_euler_angles_reconstruct_relative_rotation():

@@ -24,7 +24,6 @@ from lxml import etree
 from poise.app.convert import convert
 from poise.app.runner import run_deck
 from poise.deck.parser import load_deck
-from poise.deck.schema import element_schema
 from poise.deck.spec import Expr
 
 from support.paths import DECKS
@@ -45,17 +44,6 @@ ULP_SENSITIVE = ("frames/min_stiffness_eigenvalue", "frames/stability_modes", "m
 #: have none either
 NO_STATEMENT = {"Post_Graphic", "Force_Contact", "Reference_ParamSurface", "Constraint_UserConstr",
                 "Constraint_Usrconstr", "Constraint_PTSF", "Constraint_CVSF", "Constraint_SFSF"}
-
-
-#: XML elements of poise's own datasets that another branch adds (rack and pinion, general
-#: constraint, matrix: issue 23 section 5); until it is merged those datasets are skipped
-PENDING = ("Constraint_General", "Reference_Matrix")
-
-
-def _skip_pending(twin) -> None:
-    if twin.stem == "adm_elements" and any(element_schema(t) is None for t in PENDING):
-        pytest.skip("needs Constraint_General, Reference_Matrix and RACK_PINION (elements "
-                    "branch) in main")
 
 
 def _needs_twin(path) -> bool:
@@ -82,7 +70,7 @@ def test_every_eligible_example_deck_has_a_twin():
     missing = [p.name for p in sorted(DECKS.glob("*.xml")) if _needs_twin(p)
                and not any(t.stem == p.stem for t in TWINS)]
     assert not missing
-    assert len(EXAMPLES) >= 29
+    assert len(EXAMPLES) >= 32
 
 
 def _compliance_request(path) -> dict:
@@ -109,7 +97,6 @@ def test_example_twin_solves_to_the_xml_results(twin):
 
 @pytest.mark.parametrize("twin", OWN, ids=lambda p: p.stem)
 def test_own_dataset_gives_the_results_of_its_hand_written_xml(twin):
-    _skip_pending(twin)
     a = run_deck(str(ADM / f"{twin.stem}.xml"), quiet=True)
     b = run_deck(str(twin), quiet=True)
     assert differences(a, b, rtol=0.0) == []
@@ -128,7 +115,6 @@ def _typed(spec):
 
 @pytest.mark.parametrize("twin", TWINS, ids=lambda p: p.stem)
 def test_convert_round_trips(twin, tmp_path):
-    _skip_pending(twin)
     out = tmp_path / f"{twin.stem}.xml"
     rep = convert(str(twin), str(out))
     assert rep.model_elements > 0 and rep.commands >= 2

@@ -100,7 +100,7 @@ def solve(deck, *, method: str | None = None, max_num_iter: int | None = None,
 def sweep(deck, sets: dict, mode: str = "grid", out_dir: str = "sweep", scheduler=None,
           outputs=(), n=None, seed=0, workers=None, overrides=None, force=False,
           allow_user_code: bool = False, client=None,
-          worker_timeout: float | None = WORKER_TIMEOUT) -> list[dict]:
+          worker_timeout: float | None = WORKER_TIMEOUT, ignore=()) -> list[dict]:
     """Parameter sweep on Dask distributed; returns the index rows (one dict per case).
 
     ``sets`` maps ``"Tag[id].attr"`` / ``"Tag.attr"`` to a list of values or a range string
@@ -109,7 +109,8 @@ def sweep(deck, sets: dict, mode: str = "grid", out_dir: str = "sweep", schedule
     (``scheduler`` and ``workers`` are then ignored); otherwise ``scheduler`` (an address) or
     a local cluster of ``workers`` processes. ``overrides``: solver options for every case
     (the names of :func:`solve`'s). ``worker_timeout``: seconds without a Dask worker before
-    giving up (:class:`poise.app.engine.NoWorkers`). See :func:`poise.app.sweep.run_sweep`.
+    giving up (:class:`poise.app.engine.NoWorkers`). ``ignore``: kinds of Adams statements
+    left out instead of refused (``--ignore``). See :func:`poise.app.sweep.run_sweep`.
     """
     check_override_names(overrides)
     require_file(deck, "deck")
@@ -117,4 +118,4 @@ def sweep(deck, sets: dict, mode: str = "grid", out_dir: str = "sweep", schedule
     return run_sweep(deck, sets, mode=mode, out_dir=out_dir, scheduler=scheduler,
                      outputs=outputs, n=n, seed=seed, workers=workers, overrides=overrides,
                      force=force, allow_user_code=allow_user_code, client=client,
-                     worker_timeout=worker_timeout)
+                     worker_timeout=worker_timeout, **({"ignore": ignore} if ignore else {}))

@@ -17,7 +17,8 @@ Either way only the deck that kills its process is reported (``internal_error``,
 
 Up-to-date check (re-runs skip work): a results file is reused when its root attributes record
 the same ``deck_sha256`` (hash of the deck bytes now), the same ``poise_version`` and the same
-``run_overrides`` (JSON of the solver options given to ``poise batch``), it has a ``status``,
+``run_overrides`` (JSON of the solver options given to ``poise batch`` and, for an Adams
+dataset, the ``--ignore`` kinds), it has a ``status``,
 and every other file the run read (``input_files``: the Python user scripts, path -> SHA-256)
 still has the recorded hash; a file whose run read scripts is stale without
 ``allow_user_code`` (the deck would now be refused).
@@ -37,7 +38,8 @@ and frame: ``stable < neutral < unknown < unstable``, at ``stability_analysis`` 
 ``stability_frame``, with that frame's ``n_negative``, ``n_zero``, ``stability_modes`` text and
 ``modes``: the numeric modes, a JSON list in the CSV), ``skipped`` (true when the file was up to
 date), ``message`` (failed analyses' messages, the located deck problems joined by ``"; "``, or
-``skipped (up to date)``). One definition with ``poise solve`` / ``poise show``:
+``skipped (up to date)``), ``ignored`` (what ``--ignore`` left out of an Adams dataset:
+``1 CONTACT, 2 USER``; empty when nothing). One definition with ``poise solve`` / ``poise show``:
 :mod:`poise.results.summary`.
 """
 from __future__ import annotations
@@ -51,10 +53,10 @@ from pathlib import Path
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
 from poise.core.progress import Bar, ending
 from poise.app.run_warnings import collected_warnings
-from poise.app.runner import run_deck
+from poise.app.runner import check_ignore, ignore_kinds, ignored_counts, run_deck
 from poise.core.atomic import atomic_output, output_target, OutputError
 from poise.core.dirlock import directory_lock
-from poise.core.errors import DeckError
+from poise.core.errors import DeckError, UsageError
 from poise.core.extras import available, require
 from poise.core.version import __version__
 from poise.results.hdf5 import read_results, write_results
@@ -66,7 +68,7 @@ BATCH_VERSION = 1
 BATCH_KEYS = ("deck", "output", "status", "exit_code", "iterations", "time", "imbalance",
               "imbalance_analysis", "imbalance_frame", "stability_class", "stability_analysis",
               "stability_frame", "n_negative", "n_zero", "stability_modes", "modes",
-              "skipped", "message")
+              "skipped", "message", "ignored")
 
 #: severity order of exit codes (worst last)
 _RANK = {0: 0, 1: 1, 3: 2, 2: 3, 4: 4}     # 2: a results file could not be written
@@ -77,9 +79,25 @@ def worst_exit_code(codes) -> int:
     return max(codes, key=lambda c: _RANK.get(c, 4)) if codes else 0
 
 
-def overrides_json(overrides: dict | None) -> str:
-    return json.dumps({k: v for k, v in (overrides or {}).items() if v is not None},
-                      sort_keys=True, default=str)
+def overrides_json(overrides: dict | None, ignore=()) -> str:
+    """The ``run_overrides`` record: the solver options and the ``--ignore`` kinds that
+    apply (:func:`poise.app.runner.ignore_kinds`; absent when none)."""
+    d = {k: v for k, v in (overrides or {}).items() if v is not None}
+    if ignore:
+        d["ignore"] = list(ignore)
+    return json.dumps(d, sort_keys=True, default=str)
+
+
+def check_ignore_decks(decks, ignore) -> None:
+    """``--ignore`` kinds for a batch: known kinds (:func:`poise.app.runner.check_ignore`),
+    and at least one deck an Adams dataset (they apply to those only); else a UsageError."""
+    if not ignore:
+        return
+    adams = [d for d in decks if ignore_kinds(d, ignore)]
+    if not adams:
+        raise UsageError("--ignore applies to Adams datasets (.adm, .acf); none of the decks "
+                         "is one")
+    check_ignore(adams[0], ignore)
 
 
 def file_sha256(path: str) -> str:
@@ -93,7 +111,18 @@ def result_stats(res) -> dict:
     (:func:`poise.results.summary.summarize_run`: iterations summed, the worst imbalance and
     stability over the analyses and frames, the failed analyses' messages)."""
     t = sum(float(res.timings.get(k, 0.0)) for k in ("parse", "compile", "solve"))
-    return dict(summarize_run(res).row(), exit_code=res.exit_code, time=t)
+    return dict(summarize_run(res).row(), exit_code=res.exit_code, time=t,
+                ignored=_ignored(res.attrs.get("ignored")))
+
+
+def _ignored(text) -> str:
+    """``1 CONTACT, 2 USER`` from a results file's ``ignored`` root attribute (JSON)."""
+    if not text:
+        return ""
+    try:
+        return ignored_counts(json.loads(text.decode() if isinstance(text, bytes) else text))
+    except (ValueError, TypeError, KeyError):
+        return "unreadable record"
 
 
 def output_paths(decks: list[str], out_dir: str) -> list[str]:
@@ -145,9 +174,9 @@ def inputs_fresh(attrs, allow_user_code: bool = False) -> bool:
 
 
 def up_to_date(deck: str, output: str, overrides: dict | None,
-               allow_user_code: bool = False) -> bool:
-    """Whether ``output`` holds the results of ``deck`` with these overrides and the same
-    scripts (see module doc)."""
+               allow_user_code: bool = False, ignore=()) -> bool:
+    """Whether ``output`` holds the results of ``deck`` with these overrides, ``--ignore``
+    kinds and the same scripts (see module doc)."""
     if not os.path.isfile(output):
         return False
     try:
@@ -158,7 +187,8 @@ def up_to_date(deck: str, output: str, overrides: dict | None,
         return (a.get("format") == "poise-results" and "status" in a
                 and a.get("poise_version") == __version__
                 and a.get("deck_sha256") == file_sha256(deck)
-                and a.get("run_overrides") == overrides_json(overrides)
+                and a.get("run_overrides") == overrides_json(overrides,
+                                                             ignore_kinds(deck, ignore))
                 and inputs_fresh(a, allow_user_code))
     except (OSError, ValueError, KeyError):
         return False
@@ -166,7 +196,7 @@ def up_to_date(deck: str, output: str, overrides: dict | None,
 
 def _row(deck, output, **kw) -> dict:
     row = dict.fromkeys(BATCH_KEYS)
-    row.update(deck=deck, output=output, skipped=False, message="")
+    row.update(deck=deck, output=output, skipped=False, message="", ignored="")
     row.update(kw)
     return row
 
@@ -183,11 +213,14 @@ def _error_row(deck: str, message: str) -> dict:
 
 
 def solve_one(deck: str, output: str, overrides: dict | None, command: str,
-              allow_user_code: bool = False) -> dict:
-    """Solve one deck and write its results file (runs in a worker process)."""
+              allow_user_code: bool = False, ignore=()) -> dict:
+    """Solve one deck and write its results file (runs in a worker process). ``ignore``: the
+    ``--ignore`` kinds, applied to an Adams dataset only."""
+    kinds = ignore_kinds(deck, ignore)
     try:
         with collected_warnings() as numeric:          # numpy warnings: run warnings
-            res = run_deck(deck, overrides, command=command, allow_user_code=allow_user_code)
+            res = run_deck(deck, overrides, command=command, allow_user_code=allow_user_code,
+                           **({"ignore": kinds} if kinds else {}))
         res.warnings = list(res.warnings) + numeric
     except DeckError as e:
         problems = [str(p) for p in e.problems] or [str(e)]
@@ -196,7 +229,7 @@ def solve_one(deck: str, output: str, overrides: dict | None, command: str,
     except (Exception, SystemExit) as e:  # noqa: BLE001 - a row, never kills the batch
         return _error_row(deck, f"{type(e).__name__}: {' '.join(str(e).split())}")
     try:
-        res.attrs["run_overrides"] = overrides_json(overrides)
+        res.attrs["run_overrides"] = overrides_json(overrides, kinds)
         write_results(res, output)
     except OutputError as e:         # disk full, no permission: an I/O error, not a bug
         return _row(deck, None, status="io_error", exit_code=2, message=" ".join(str(e).split()))
@@ -209,7 +242,7 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
               force: bool = False, command: str = "poise batch",
               on_row=None, allow_user_code: bool = False,
               progress: bool | None = None, scheduler: str | None = None,
-              worker_timeout: float | None = WORKER_TIMEOUT) -> list[dict]:
+              worker_timeout: float | None = WORKER_TIMEOUT, ignore=()) -> list[dict]:
     """Solve ``decks`` (in parallel), return one row per deck in the order given.
 
     ``jobs`` ≤ 0 means ``os.cpu_count()``. ``on_row(row)`` is called as each deck finishes.
@@ -219,8 +252,11 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
     local cluster of ``jobs`` workers; without Dask installed: a local process pool).
     ``worker_timeout``: seconds the cluster may have no worker before the batch gives up
     (:class:`poise.app.engine.NoWorkers`, exit 2, its ``rows`` the finished decks).
+    ``ignore``: kinds of Adams statements left out instead of refused (``--ignore``), applied
+    to the Adams datasets among ``decks`` (a UsageError when none is one).
     """
     check_override_names(overrides)
+    check_ignore_decks(decks, ignore)
     bar = Bar(len(decks), "batch", "decks", enabled=progress, delay=0.0)
     user_on_row = on_row
 
@@ -233,7 +269,7 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
     try:
         out = _run_batch(decks, out_dir, jobs, overrides, force, command, on_row,
                          allow_user_code, rows, scheduler, progress is False, worker_timeout,
-                         say=bar.note)
+                         say=bar.note, ignore=tuple(ignore or ()))
     except BaseException as e:
         bar.close(ending(e))            # the last progress line says "gave up", "interrupted"
         if isinstance(e, NoWorkers):
@@ -244,25 +280,27 @@ def run_batch(decks: list[str], out_dir: str, jobs: int = 0, overrides: dict | N
 
 
 def _run_batch(decks, out_dir, jobs, overrides, force, command, on_row, allow_user_code, rows,
-               scheduler=None, quiet=False, worker_timeout=WORKER_TIMEOUT, say=None):
+               scheduler=None, quiet=False, worker_timeout=WORKER_TIMEOUT, say=None, ignore=()):
     if scheduler:
         require("sweep", "poise batch --scheduler")
     import functools
-    job = functools.partial(solve_one, allow_user_code=bool(allow_user_code))   # picklable
+    job = functools.partial(solve_one, allow_user_code=bool(allow_user_code),   # picklable
+                            ignore=ignore)
     check_outputs([*output_paths(decks, out_dir), os.path.join(out_dir, "summary.csv"),
                    os.path.join(out_dir, "summary.json")], decks)
     ensure_out_dir(out_dir)
     with directory_lock(out_dir, "batch", say=say):      # a second batch waits, then skips
         return _solve_all(decks, out_dir, jobs, overrides, force, command, on_row,
-                          allow_user_code, rows, scheduler, quiet, worker_timeout, say, job)
+                          allow_user_code, rows, scheduler, quiet, worker_timeout, say, job,
+                          ignore)
 
 
 def _solve_all(decks, out_dir, jobs, overrides, force, command, on_row, allow_user_code, rows,
-               scheduler, quiet, worker_timeout, say, job):
+               scheduler, quiet, worker_timeout, say, job, ignore=()):
     outs = output_paths(decks, out_dir)
     todo = []
     for k, (d, o) in enumerate(zip(decks, outs)):
-        if not force and up_to_date(d, o, overrides, allow_user_code):
+        if not force and up_to_date(d, o, overrides, allow_user_code, ignore):
             try:
                 rows[k] = skipped_row(d, o)
                 if on_row:

@@ -29,13 +29,15 @@ class ConvertReport:
     ignored: list = field(default_factory=list)
 
 
-def xml_text(source: str, ignore=()) -> str:
+def xml_text(source: str, ignore=()) -> tuple[str, list]:
     """The XML deck text of a dataset or command file (validated: a located DeckError when it
-    is invalid), for tools that edit XML decks (``poise bench``'s tolerance ladder)."""
+    is invalid), for tools that edit XML decks (``poise bench``'s tolerance ladder), and the
+    elements ``ignore`` left out (``DeckSpec.ignored``)."""
     source = os.fspath(source)
     with open(source, "rb") as f:
         data = f.read()
-    return to_xml(translate_dataset(source, data, ignore=ignore)[1], source)
+    spec, ctx = translate_dataset(source, data, ignore=ignore)
+    return to_xml(ctx, source), list(spec.ignored)
 
 
 def convert(source: str, output: str, ignore=()) -> ConvertReport:

@@ -58,12 +58,25 @@ def check_ignore(path, ignore) -> None:
                          if near else "") + "; expected one of " + ", ".join(IGNORABLE))
 
 
-def ignored_text(ignored) -> str:
-    """``left out (--ignore): 2 CONTACT, 1 USER`` for the elements an Adams dataset left out."""
+def ignored_counts(ignored) -> str:
+    """``2 CONTACT, 1 USER`` for the elements an Adams dataset left out (``""``: none)."""
     counts: dict = {}
     for d in ignored:
         counts[d["kind"]] = counts.get(d["kind"], 0) + 1
-    return "left out (--ignore): " + ", ".join(f"{n} {k}" for k, n in counts.items())
+    return ", ".join(f"{n} {k}" for k, n in counts.items())
+
+
+def ignored_text(ignored) -> str:
+    """``left out (--ignore): 2 CONTACT, 1 USER`` for the elements an Adams dataset left out."""
+    return "left out (--ignore): " + ignored_counts(ignored)
+
+
+def ignore_kinds(path, ignore) -> tuple:
+    """The ``--ignore`` kinds that apply to ``path`` (sorted, upper case; none for an XML
+    deck): what a batch or sweep records to tell whether a results file is up to date."""
+    if not str(path).lower().endswith((".adm", ".acf")):
+        return ()
+    return tuple(sorted({str(k).upper() for k in ignore or ()}))
 
 
 def revalidated(spec: DeckSpec) -> DeckSpec:

@@ -5,12 +5,15 @@ one *case* per combination, and runs the cases as Dask tasks: on a ``LocalCluste
 processes, one thread each, no dashboard) by default, or on an existing cluster given by its
 scheduler address. Each case writes ``OUT_DIR/case_NNNNN.h5`` (from the worker: with a remote
 cluster OUT_DIR must be on a filesystem the workers share); the index ``OUT_DIR/index.csv`` and
-``OUT_DIR/index.json`` hold one row per case.
+``OUT_DIR/index.json`` hold one row per case. An Adams dataset is swept like an XML deck
+(``--set`` names the XML elements it translates to); ``ignore`` (``--ignore KIND``) leaves out
+its refused statements in every case, recorded in each case file and the index.
 
 Parameters and modes: :mod:`poise.app.cases`.
 
 Resuming: a case whose file exists, has a ``status`` root attribute and records the same
-``sweep_case_hash`` (SHA-256 of deck hash, case values, overrides and poise version) is not
+``sweep_case_hash`` (SHA-256 of deck hash, case values, overrides, ``--ignore`` kinds and poise
+version) is not
 run again, unless a user script it read changed (root attribute ``input_files``); its row is
 read back from the file (``resumed = true``). Decks naming Python user routines need
 ``allow_user_code`` (``--allow-user-code``), passed on to the workers.
@@ -22,7 +25,7 @@ Index row keys (``INDEX_KEYS``, then one column per parameter, then the ``--outp
 :func:`poise.app.batch.result_stats` (``imbalance_analysis``, ``imbalance_frame``,
 ``stability_class`` — the worst over the analyses and frames — ``stability_analysis``,
 ``stability_frame``, ``n_negative``, ``n_zero``, ``stability_modes``, ``modes``), ``resumed``,
-``message``. Outputs
+``message``, ``ignored`` (what ``--ignore`` left out: ``1 CONTACT``). Outputs
 ``group[id].dataset`` (``bodies[2].position``, ``joints[1].force``, ``requests[1].values``, …)
 give the last frame of the last analysis, flattened: ``bodies[2].position[0]`` … ``[2]``.
 """
@@ -40,7 +43,7 @@ from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
 from poise.core.progress import Bar, ending, note
 from poise.app.batch import check_outputs, ensure_out_dir, inputs_fresh, result_stats, sanitize, write_table
 from poise.app.run_warnings import collected_warnings
-from poise.app.runner import run_spec
+from poise.app.runner import check_ignore, ignore_kinds, run_spec
 from poise.core.atomic import OutputError
 from poise.core.dirlock import directory_lock
 from poise.core.errors import DeckError, UsageError
@@ -55,7 +58,7 @@ INDEX_VERSION = 1
 INDEX_KEYS = ("case", "file", "status", "exit_code", "iterations", "wall_time", "imbalance",
               "imbalance_analysis", "imbalance_frame", "stability_class", "stability_analysis",
               "stability_frame", "n_negative", "n_zero", "stability_modes", "modes",
-              "resumed", "message")
+              "resumed", "message", "ignored")
 
 _OUT = re.compile(r"^\s*([a-z_]+)\s*\[\s*(-?\d+)\s*\]\s*\.\s*([A-Za-z_][A-Za-z0-9_]*)\s*$")
 
@@ -148,11 +151,11 @@ def output_columns(res, outputs, analysis: int = -1) -> dict:
 _SPEC_CACHE: dict[str, Any] = {}
 
 
-def _spec_from_bytes(data: bytes, path: str):
-    key = hashlib.sha256(data).hexdigest() + "\0" + path
+def _spec_from_bytes(data: bytes, path: str, ignore=()):
+    key = hashlib.sha256(data).hexdigest() + "\0" + path + "\0" + ",".join(ignore)
     spec = _SPEC_CACHE.get(key)
     if spec is None:
-        spec = parse_deck_bytes(data, path)
+        spec = parse_deck_bytes(data, path, **({"ignore": ignore} if ignore else {}))
         if len(_SPEC_CACHE) > 8:
             _SPEC_CACHE.clear()
         _SPEC_CACHE[key] = spec
@@ -161,12 +164,13 @@ def _spec_from_bytes(data: bytes, path: str):
 
 def run_case(data: bytes, path: str, params: list[Param], index: int, values: dict,
              overrides: dict | None, out_file: str, chash: str, outputs,
-             allow_user_code: bool = False) -> dict:
+             allow_user_code: bool = False, ignore=()) -> dict:
     """Solve one case and write its results file; return its index row (a Dask task).
-    ``allow_user_code``: run the deck's Python user routines (in the worker)."""
+    ``allow_user_code``: run the deck's Python user routines (in the worker); ``ignore``: the
+    ``--ignore`` kinds of an Adams dataset."""
     row = {"case": index, "file": None, **values}
     try:
-        base = _spec_from_bytes(data, path)
+        base = _spec_from_bytes(data, path, ignore)
         spec, extra = apply_case(base, params, values)
         spec.warnings = list(base.warnings)     # run_spec validates the case (once)
         with collected_warnings() as numeric:          # numpy warnings: run warnings
@@ -186,7 +190,9 @@ def run_case(data: bytes, path: str, params: list[Param], index: int, values: di
         return row
     res.attrs.update(sweep_case=int(index), sweep_case_hash=chash,
                      sweep_values=json.dumps(values, sort_keys=True, default=str),
-                     run_overrides=json.dumps(overrides or {}, sort_keys=True, default=str))
+                     run_overrides=json.dumps({**(overrides or {}),
+                                               **({"ignore": list(ignore)} if ignore else {})},
+                                              sort_keys=True, default=str))
     try:
         write_results(res, out_file)
     except OutputError as e:         # disk full: an I/O error row, the sweep goes on
@@ -230,7 +236,7 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
               outputs=(), n=None, seed=0, workers=None, overrides=None, force=False,
               progress: bool | None = None, on_row=None, client=None,
               allow_user_code: bool = False, max_cases: int | None = MAX_CASES,
-              worker_timeout: float | None = WORKER_TIMEOUT) -> list[dict]:
+              worker_timeout: float | None = WORKER_TIMEOUT, ignore=()) -> list[dict]:
     """Run a sweep; return the index rows (sorted by case) and write ``index.csv``/``.json``.
 
     Parameters
@@ -264,6 +270,9 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     worker_timeout : float or None
         Seconds the cluster may have no worker before the sweep gives up
         (:class:`poise.app.engine.NoWorkers`, exit 2; the index keeps the finished cases).
+    ignore : iterable of str
+        Adams datasets: kinds of statements left out instead of refused (``--ignore``), in
+        every case; recorded in the case files, the rows and the index.
 
     Raises
     ------
@@ -275,12 +284,14 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     if client is None:
         require("sweep", "poise sweep")     # exit 2 with the pip command in a lean install
     deck = os.fspath(deck)
+    check_ignore(deck, ignore)
+    kinds = ignore_kinds(deck, ignore)
     try:
         with open(deck, "rb") as f:
             data = f.read()
     except OSError as e:
         raise UsageError(f"cannot read deck {deck!r}: {e.strerror or e}") from None
-    spec = parse_deck_bytes(data, deck)
+    spec = parse_deck_bytes(data, deck, **({"ignore": kinds} if kinds else {}))
     items = [parse_set(s) for s in sets] if isinstance(sets, (list, tuple)) else list(sets.items())
     if not items:
         raise UsageError("nothing to sweep: give at least one --set Tag[id].attr=VALUES")
@@ -302,7 +313,8 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
     ensure_out_dir(out_dir)
     with directory_lock(out_dir, "sweep", say=lambda line: note(line, progress)):
         bar = Bar(len(cases), "sweep", "cases", enabled=progress, delay=0.0)
-        hashes = [case_hash(spec.sha256, c, overrides) for c in cases]
+        hashes = [case_hash(spec.sha256, c, {**overrides, **({"ignore": list(kinds)} if kinds
+                                                              else {})}) for c in cases]
         rows: list[Any] = [None] * len(cases)
         todo = []
         for i, c in enumerate(cases):
@@ -332,14 +344,17 @@ def run_sweep(deck, sets, mode: str = "grid", out_dir: str = "sweep", scheduler=
                         extra={"index_version": INDEX_VERSION, "deck": deck,
                                "deck_sha256": spec.sha256, "mode": mode,
                                "parameters": {p.key: p.values for p in params},
-                               "overrides": overrides, "n_cases": len(cases)})
+                               "overrides": overrides, "n_cases": len(cases),
+                               **({"ignore": list(kinds), "ignored": spec.ignored} if kinds
+                                  else {})})
             return [sanitize(r) for r in ordered]
 
         try:
             if todo:
                 _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
                           scheduler, workers, client, bar, on_row, allow_user_code,
-                          quiet=progress is False, worker_timeout=worker_timeout)
+                          quiet=progress is False, worker_timeout=worker_timeout,
+                          ignore=kinds)
         except BaseException as e:
             bar.close(ending(e))            # the last progress line says "gave up", "interrupted"
             if isinstance(e, NoWorkers):    # the index keeps the finished cases
@@ -367,9 +382,9 @@ def check_scheduler(address: str) -> None:
 
 def _run_dask(todo, rows, data, deck, params, cases, overrides, files, hashes, outs,
               scheduler, workers, client, bar, on_row, allow_user_code=False, quiet=False,
-              worker_timeout=WORKER_TIMEOUT):
+              worker_timeout=WORKER_TIMEOUT, ignore=()):
     tasks = {i: (run_case, data, deck, params, i, cases[i], overrides, files[i], hashes[i], outs,
-                 bool(allow_user_code)) for i in todo}
+                 bool(allow_user_code), tuple(ignore)) for i in todo}
 
     def done(i, row, exc):
         if exc is not None:          # lost worker, serialisation ...

@@ -11,7 +11,8 @@ measures are 0 at rest) constrains nothing in statics: it is left out with a war
 
 Reactions: output group ``gcons``; ``i_marker_id`` names the reaction marker (MotionSolve: the
 marker that extracts the reaction force): the row's load on that marker's body, reduced to its
-origin. Without ``i_marker_id`` MotionSolve gives no reaction: force and torque are NaN.
+origin (a ground marker: minus the load on the moving bodies, as Adams reports it). Without
+``i_marker_id`` MotionSolve gives no reaction: force and torque are NaN.
 """
 from __future__ import annotations
 
@@ -35,8 +36,9 @@ class GeneralConstraint(ConstraintFamily):
     the reaction marker (the global frame when absent) then the moving markers the expression
     reads; slots ``P x y z`` per marker; scalar columns ``scols`` for the scalar unknowns.
     ``yy``, ``ys``, ``ss``: index pairs moving the batch Hessian into ``G``, ``G_ys``, ``G_ss``
-    (:func:`hessian_pairs`); ``has_i`` (n,) the element names a reaction marker, ``on_i_body``
-    (n, S) the slot's marker is on that marker's body."""
+    (:func:`hessian_pairs`); ``has_i`` (n,) the element names a reaction marker, ``i_ground``
+    (n,) that marker is on ground, ``on_i_body`` (n, S) the slot's marker is on that marker's
+    body."""
 
     batch: object                    # poise.expr.Batch
     slot_map: tuple                  # (rows, batch slot, family slot)
@@ -45,6 +47,7 @@ class GeneralConstraint(ConstraintFamily):
     ys: tuple
     ss: tuple
     has_i: np.ndarray
+    i_ground: np.ndarray
     on_i_body: np.ndarray
 
     @property
@@ -90,10 +93,15 @@ class GeneralConstraint(ConstraintFamily):
 
     def reaction_on_i(self, kin, rho):
         """Force and torque (n, 3) of the row on the reaction marker's body at its origin (slot
-        0 is that marker's origin); NaN without a reaction marker."""
+        0 is that marker's origin); NaN without a reaction marker. A reaction marker on ground
+        (no coordinates) gets minus the row's load on the moving bodies (a measure between
+        markers is unchanged by a rigid motion of everything, so the loads balance), as Adams
+        reports a GCON whose I marker is on ground."""
         n, S = kin.Y.shape[0], len(self.slot_ml)
         reps = n // len(self.has_i)            # frames evaluated together: instances repeated
         on = np.tile(self.on_i_body, (reps, 1))
+        on_ground = np.tile(self.i_ground, reps)
+        on[on_ground] = ~on[on_ground]
         Y = kin.Y
         r3 = rho.reshape(n, S, 3)
         F = np.zeros((n, 3))
@@ -106,6 +114,8 @@ class GeneralConstraint(ConstraintFamily):
             F[pt] -= r3[pt, s]
             T[pt] -= cross3(Y[pt, s] - Y[pt, 0], r3[pt, s])
             T[ax] -= cross3(Y[ax, s], r3[ax, s])
+        F[on_ground] *= -1.0
+        T[on_ground] *= -1.0
         none = np.tile(~self.has_i, reps)
         F[none] = np.nan
         T[none] = np.nan
@@ -182,7 +192,8 @@ def _build(ctx, els, batch, ground):
         name="gcons:expression", markers=markers, slot_ml=np.repeat(np.arange(K), 4),
         slot_kind=np.tile(np.tile([0, 1, 2, 3], K), (n, 1)), owner=np.arange(n), m=1,
         scols=scols if scols.shape[1] else None, batch=batch, slot_map=smap, sc_map=cmap,
-        yy=yy, ys=ys, ss=ss, has_i=has_i, on_i_body=on_i_body, crow=crow, group="gcons",
+        yy=yy, ys=ys, ss=ss, has_i=has_i, i_ground=has_i & ground[first], on_i_body=on_i_body,
+        crow=crow, group="gcons",
         element_locs=tuple(el.loc for el in els)))
     ctx.output("gcons", TAG, [el.id for el in els])
     ctx.effect(f"{TAG}:EXPRESSION")

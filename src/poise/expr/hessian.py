@@ -147,6 +147,11 @@ def _add(*jets):
     return out
 
 
+def _lin(k, j):
+    """``k * j`` of a jet."""
+    return Jet(k * j.v, _scaled(j.g, k), _scaled(j.H, k))
+
+
 def _atan2j(s, c):
     r2 = s.v * s.v + c.v * c.v
     ok = r2 > 0
@@ -178,6 +183,14 @@ def _measure(V, name, slots, ref):
         return _add(V.dot(pi, e), V.dot(pj, e, -1.0))
     if name == "DM":
         return _sqrtj(V.dist2(*slots))
+    if name == "INCANG":                # |a|^2 |b|^2 - (a.b)^2 = |a x b|^2, a.b from distances
+        pi, pj, pk = slots
+        aa, bb = V.dist2(pi, pj), V.dist2(pk, pj)
+        ab = _lin(0.5, _add(aa, bb, _lin(-1.0, V.dist2(pi, pk))))
+        s = _sqrtj(_add(_mul(aa, bb), _lin(-1.0, _mul(ab, ab))))
+        out = _atan2j(s, ab)
+        flat = _zero_where(out, s.v <= 0)           # collinear: derivatives 0, value kept
+        return Jet(out.v, flat.g, flat.H)
     if name in ("THETA", "PITCH"):
         u, a, b, c = slots
         sa, sb, sc = V.dot(u, a), V.dot(u, b), V.dot(u, c)

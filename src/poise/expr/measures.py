@@ -32,11 +32,13 @@ MEASURE_SLOTS = {
     # hypot forms: slots (u, a, b, c)
     "THETA": ((0, 3), (1, 1), (1, 2), (1, 3)),
     "PITCH": ((0, 1), (1, 1), (1, 2), (1, 3)),
+    # the included angle at J between the lines to I and to K: slots (P_I, P_J, P_K)
+    "INCANG": ((0, 0), (1, 0), (2, 0)),
 }
 # AXU/AYU/AZU: MotionSolve's unwrapped AX/AY/AZ; poise's AX/AY/AZ already count turns
 for _a in ("AX", "AY", "AZ"):
     MEASURE_SLOTS[_a + "U"] = MEASURE_SLOTS[_a]
-MEASURE_ARITY = {"DX": (1, 3), "DY": (1, 3), "DZ": (1, 3), "DM": (1, 3)}
+MEASURE_ARITY = {"DX": (1, 3), "DY": (1, 3), "DZ": (1, 3), "DM": (1, 3), "INCANG": (3, 3)}
 MEASURE_ARITY.update({k: (1, 2) for k in ("AX", "AY", "AZ", "AXU", "AYU", "AZU", "YAW", "PSI",
                                           "PHI", "ROLL", "THETA", "PITCH")})
 CONTINUOUS = {"AX": 0, "AY": 1, "AZ": 2, "AXU": 0, "AYU": 1, "AZU": 2}
@@ -89,8 +91,13 @@ def eval_measure(name: str, vecs: list, ref=None):
     * ``YAW/PITCH/ROLL(I, J)`` – ``R = Rz(yaw) Ry(-pitch) Rx(roll)``:
       ``yaw = atan2(R21, R11)``, ``pitch = atan2(R31, hypot(R11, R21))``, ``roll = atan2(R32, R33)``.
 
-    At singular points (zero distance for ``DM``, gimbal lock for THETA/YAW/PITCH/ROLL) the
-    gradient is set to 0 instead of NaN.
+    Included angle
+    --------------
+    * ``INCANG(I, J, K)`` – the angle at J between the lines J-I and J-K,
+      ``atan2(|a x b|, a . b)`` with ``a = P_I - P_J``, ``b = P_K - P_J``: in [0, pi].
+
+    At singular points (zero distance for ``DM``, gimbal lock for THETA/YAW/PITCH/ROLL,
+    collinear or coincident points for ``INCANG``) the gradient is set to 0 instead of NaN.
 
     Parameters
     ----------
@@ -118,6 +125,8 @@ def eval_measure(name: str, vecs: list, ref=None):
         ok = r > 0
         g = d * np.where(ok, 1.0 / np.where(ok, r, 1.0), 0.0)[:, None]
         return r, [g, -g]
+    if name == "INCANG":
+        return _incang(*vecs)
     if name in ("THETA", "PITCH"):
         u, a, b, c = vecs
         sa, sb, sc = _dot(u, a), _dot(u, b), _dot(u, c)
@@ -152,6 +161,21 @@ def eval_measure(name: str, vecs: list, ref=None):
     if ref is not None:
         v = wrap_to_ref(v, ref)
     return v, grads
+
+
+def _incang(pi, pj, pk):
+    """``atan2(|a x b|, a . b)``: d|n|/da = b x n^, d|n|/db = n^ x a (n = a x b)."""
+    a, b = pi - pj, pk - pj
+    n = np.cross(a, b)
+    s = np.sqrt(_dot(n, n))
+    ok = s > 0
+    nh = n * np.where(ok, 1.0 / np.where(ok, s, 1.0), 0.0)[:, None]
+    v, ds, dc = _atan2_grad(s, _dot(a, b))
+    ga = ds[:, None] * np.cross(b, nh) + dc[:, None] * b
+    gb = ds[:, None] * np.cross(nh, a) + dc[:, None] * a
+    ga = np.where(ok[:, None], ga, 0.0)
+    gb = np.where(ok[:, None], gb, 0.0)
+    return v, [ga, -(ga + gb), gb]
 
 
 def _psi(zI, yJ, xJ, xI):

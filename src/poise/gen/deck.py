@@ -6,9 +6,9 @@ expect a message located at it) and, for elements given as a tag and attributes,
 :class:`~poise.deck.spec.Element` of the live :attr:`Deck.spec` (typed values as given, located at
 the same line) for tests that compile a model without parsing XML.
 
-Lengths are given in millimetres and scaled by ``units``: ``"mm"`` (N-kg-mm-s) or ``"m"``
-(N-kg-m-s); forces stay in newtons, so translational stiffness scales by 1/s, rotational by s,
-inertia by s**2 and gravity by s. ``units=None`` writes no ``Param_Unit`` / gravity /
+Lengths are given in millimetres and scaled by ``units``: ``"mm"`` (N-kg-mm-s), ``"m"``
+(N-kg-m-s) or ``"km"`` (N-kg-km-s); forces stay in newtons, so translational stiffness scales
+by 1/s, rotational by s, inertia by s**2 and gravity by s. ``units=None`` writes no ``Param_Unit`` / gravity /
 ``Param_Static`` and scales nothing (a bare deck).
 """
 from __future__ import annotations
@@ -21,6 +21,7 @@ from poise.core.errors import SourceLoc
 from poise.deck.spec import DeckSpec, Element
 
 I3 = np.eye(3)
+_LENGTH = {"mm": (1.0, "MILLIMETER"), "m": (1e-3, "METER"), "km": (1e-6, "KILOMETER")}
 
 
 def rot_x(t: float) -> np.ndarray:
@@ -56,14 +57,14 @@ class Deck:
 
     def __init__(self, units: str | None = "mm", grav=(0.0, -9810.0, 0.0), static=None,
                  method: str = "FIM_S", path: str = "<built>"):
-        self.s = 1.0 if units in (None, "mm") else 1e-3
+        self.s = _LENGTH.get(units, (1.0, ""))[0]
         self.spec = DeckSpec(path=path, sha256="0" * 64)
         self.lines = ["<MotionSolve>", "<Model>"]
         self.commands = []
         if units is None:
             return
         self.add("Param_Unit", force_unit="NEWTON", mass_unit="KILOGRAM",
-                 length_unit="MILLIMETER" if units == "mm" else "METER", time_unit="SECOND")
+                 length_unit=_LENGTH[units][1], time_unit="SECOND")
         if grav is not None:
             g = [float(x) * self.s for x in grav]
             self.add("Force_Gravity", grav_x=g[0], grav_y=g[1], grav_z=g[2])

@@ -9,10 +9,12 @@ depend on time comes from the element types' declarations (``registry.time_sourc
 """
 from __future__ import annotations
 
+import re
 from operator import itemgetter
 
 import numpy as np
 
+from poise.deck.schema import element_schema
 from poise.deck.spec import DeckSpec, Element
 from poise.core.errors import ProblemCollector
 from poise.elements.context import GLOBAL, CompileContext, Geometry, MarkerPoses, num as _num
@@ -205,9 +207,11 @@ class _Builder:
         spec = self.spec
         rig = [e for e in spec.model if e.tag in _BODY_TAGS]
         moving = [e for e in rig if not (e.tag == "Body_Rigid" and e.attrs.get("isground"))]
-        ground_ids = {e.id for e in rig if e.tag == "Body_Rigid" and e.attrs.get("isground")}
+        ground = [e for e in rig if e.tag == "Body_Rigid" and e.attrs.get("isground")]
+        ground_ids = {e.id for e in ground}
         self.body_index = {e.id: i for i, e in enumerate(moving)}
         self.ground_ids = ground_ids
+        self.ground_frames = {e.attrs.get(k) for e in ground for k in ("cg_id", "lprf_id")}
         nb = len(moving)
         rigid = [e.tag == "Body_Rigid" for e in moving]
         kind = np.array([0 if r else 1 for r in rigid], int)
@@ -307,12 +311,8 @@ class _Builder:
             RbT = np.swapaxes(body_rot[b], 1, 2)
             s0[mv] = np.einsum("nij,nj->ni", RbT, P[mv] - body_pos[b])
             A0[mv] = np.matmul(RbT, R[mv])
-        if len(els):
-            c = P.mean(axis=0)
-            L = float(np.max(np.linalg.norm(P - c, axis=1)))
-        else:
-            L = 0.0
-        self.L = L if L > 0 else 1.0
+        self.marker_P = P
+        self.L = _extent(P)
         return dict(marker_id=np.array(ids, int), marker_body=np.concatenate([[nb], mb]),
                     marker_s0=np.concatenate([np.zeros((1, 3)), s0]),
                     marker_A0=np.concatenate([np.eye(3)[None], A0]))
@@ -325,6 +325,68 @@ class _Builder:
                         marker_elements=tuple(self.marker_els),
                         marker_on_ground=np.concatenate([[True], self.marker_on_ground]),
                         body_index=self.body_index, body_cg=cg, body_mass=body_mass, L=self.L)
+
+
+def _extent(P) -> float:
+    """Largest distance of the points ``P`` (n, 3) from their centroid (1.0 if none or 0)."""
+    L = float(np.max(np.linalg.norm(P - P.mean(axis=0), axis=1))) if len(P) else 0.0
+    return L if L > 0 and np.isfinite(L) else 1.0
+
+
+def _named_markers(spec, ids) -> np.ndarray:
+    """(len(ids),) bool: the marker is named by a model element other than a
+    ``Reference_Marker`` (its ``rm_id`` frame) or an output-only ``Post_*``: in a marker
+    attribute of the schema (``*marker_id``, ``cg_id``, ``lprf_id``, ...: a gear's contact
+    point) or as a number in a text attribute (an expression's ``DX(200,101,101)``; a number
+    that is not a marker there only keeps a marker in, as before)."""
+    named = set()
+    for tag in {e.tag for e in spec.model}:
+        sch = element_schema(tag)
+        if tag == "Reference_Marker" or tag.startswith("Post_"):
+            continue
+        keys = [a.name for a in sch.attrs.values() if a.ref == "marker"] if sch else []
+        for el in spec.elements(tag):
+            named.update(el.attrs.get(k) for k in keys)
+            for v in el.attrs.values():
+                v = getattr(v, "text", v)                 # an expression: its text
+                if isinstance(v, str):
+                    named.update(int(t) for t in re.findall(r"(?<![\w.])\d+(?![\w.])", v))
+    return np.array([i in named for i in ids], bool)
+
+
+UNUSED_REACH = 10.0      # model sizes: an unused marker farther out sets no scale
+
+
+def _participating_extent(spec, b, markers, fams) -> float:
+    """The model size ``L``: :func:`_extent` of the markers that play a part: on moving
+    bodies, the ground's frames, read by an element family (``f.markers``; row 0 of the marker
+    arrays is the global frame) or a user routine, or else named by a model element
+    (:func:`_named_markers`, scanned only when markers are left over), and the unused ones
+    within ``UNUSED_REACH`` of them. A marker nothing reads far outside the model (an unused
+    ground marker 1e14 mm away, one only a Post_Request names) must not set the scale of
+    tolerances, rotations and the stability classification. All markers when none plays a
+    part."""
+    ids = markers["marker_id"][1:]
+    used = markers["marker_body"][1:] < len(b.moving)
+    used |= np.isin(ids, np.array([i for i in b.ground_frames if i is not None], int))
+    idx = [np.asarray(getattr(f, "markers", np.zeros((0, 0), int)), np.int64).ravel()
+           for f in fams]
+    for f in fams:
+        r = getattr(f, "routine", None)          # a user routine also reads ground markers
+        if r is not None:
+            idx.append(np.array([r.mi.get(mid, 0) for mid, _ in r.slots], np.int64))
+    idx = np.concatenate(idx + [np.zeros(0, np.int64)]) - 1
+    used[idx[(idx >= 0) & (idx < len(used))]] = True
+    if not used.all():
+        used |= _named_markers(spec, ids.tolist())
+    if not used.any():
+        return b.L
+    # a marker nothing uses still counts within UNUSED_REACH model sizes of those that do (the
+    # ground origin of a dataset, a graphics anchor: the scale they always set), never beyond
+    P = b.marker_P
+    c = P[used].mean(axis=0)
+    near = np.linalg.norm(P - c, axis=1) <= UNUSED_REACH * _extent(P[used])
+    return _extent(P[used | near])
 
 
 def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
@@ -353,9 +415,6 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     b.markers()
     bodies = b.bodies(mfac)
     markers = b.marker_arrays(bodies["init_pos"], bodies["init_rot"])
-    for bid in b.needs_default_inertia:
-        i = b.body_index[bid]
-        bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * b.L) ** 2 * np.eye(3)
 
     ctx = CompileContext(spec, b.geometry(bodies["body_mass"]), b.pc, user_code)
     types = element_types()
@@ -363,5 +422,16 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
         et.compile(spec, ctx)
     check_variables(spec, ctx)            # variables no element reads: problems located too
     result = ctx.result()                 # raises the problems collected
-    return build_model(bodies=bodies, markers=markers, result=result, nq_bodies=b.nq, L=b.L,
+    # L from the markers that play a part (unknown when a user routine was not run: which
+    # markers it reads is learnt by running it; all markers then, as poise check needs no more)
+    L = b.L
+    if not (result.user_routines and user_code != "run"):
+        L = _participating_extent(spec, b, markers, result.families)
+    for f in result.families:             # user routines' finite-difference steps scale with L
+        if getattr(f, "routine", None) is not None:
+            f.routine.L = L               # before the model is built and sealed
+    for bid in b.needs_default_inertia:
+        i = b.body_index[bid]
+        bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * L) ** 2 * np.eye(3)
+    return build_model(bodies=bodies, markers=markers, result=result, nq_bodies=b.nq, L=L,
                        units=udesc, mass_factor=mfac, types=types, warnings=b.pc.warnings)

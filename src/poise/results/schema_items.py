@@ -73,8 +73,9 @@ for n, t, m in (
         ("ignored", "json", "Adams datasets: the elements `--ignore KIND` left out, a JSON list "
                             "of `{kind, statement, file, line}` (absent when none)"),
         ("run_overrides", "json", "JSON (sorted keys) of the solver options given on the "
-                                  "command line (`{}` if none); `poise batch` compares it to "
-                                  "decide whether a file is up to date"),
+                                  "command line (`{}` if none) and, for an Adams dataset, "
+                                  "the `--ignore` kinds (`ignore`); `poise batch` compares it "
+                                  "to decide whether a file is up to date"),
         ("sweep_case", "int", "case number of a sweep case file"),
         ("sweep_values", "json", "JSON of the case's parameter values "
                                  "(`{\"Force_SpringDamper[1].stiffness\": 15000.0}`)"),

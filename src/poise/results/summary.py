@@ -41,10 +41,12 @@ class ModeRecord:
     kind: str
     direction: tuple
     eigenvalue: float | None
+    label: str = ""          # a scalar unknown's name (kind coordinate), from the modes text
 
     def text(self, short: bool = False) -> str:
         return Mode(self.klass, self.body, self.kind, self.direction,
-                    np.nan if self.eigenvalue is None else self.eigenvalue).text(short)
+                    np.nan if self.eigenvalue is None else self.eigenvalue,
+                    label=self.label).text(short)
 
     def as_dict(self) -> dict:
         return {"class": self.klass, "body": self.body, "kind": self.kind,
@@ -241,8 +243,15 @@ def _modes(ds, k) -> tuple:
     cls, kind = _get(ds, "modes/class"), _get(ds, "modes/kind")
     body, dirn = _get(ds, "modes/body"), _get(ds, "modes/direction")
     eig = _get(ds, "modes/eigenvalue")
+    # a scalar unknown's name is only in the text (``unstable: <name>``, in the same order)
+    text = _get(ds, "frames/stability_modes")
+    parts = [p.split(": ", 1)[-1] for p in str(text[k]).split("; ")] \
+        if text is not None and k < len(text) else []
+    parts = [p for p in parts if not p.startswith("... ")]
     return tuple(ModeRecord(str(cls[j]), int(body[j]), str(kind[j]),
-                            tuple(float(x) for x in dirn[j]), _finite(eig[j]))
+                            tuple(float(x) for x in dirn[j]), _finite(eig[j]),
+                            parts[j - a] if str(kind[j]) == "coordinate" and
+                            j - a < len(parts) else "")
                  for j in range(a, b))
 
 

@@ -140,8 +140,7 @@ def build_result(ctx, strategy, index, extra=None) -> AnalysisRecord:
         out = outcomes[0]
         ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
         ar.message = "; ".join([m for m in [out.message] + ctx.notes if m])
-        if strategy.name == "FIM_S":
-            require_stable_check(ar, out, s)
+        require_stable_check(ar, out, s)          # every static method (MKEAM too)
     else:
         ok = all(o.ok for o in outcomes) and len(frames) == len(ctx.times)
         ar.status = STATUS_CONVERGED if ok else STATUS_FAILED

@@ -63,11 +63,12 @@ def frame_datasets(ctx, state, outcomes, on_eval=None):
         loads = {}
     d = output_datasets(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
                         dep, outcomes)
-    if all(o.ok for o in outcomes) and J is not None:
-        done = ctx.data.classified
-        info = done[1] if done is not None and done[0] is state else \
-            classify(model, state, J=J, active=saved)
-        d.update(stability_datasets([info]))
+    done = ctx.data.classified
+    if done is not None and done[0] is state and len(outcomes) == 1:
+        # classified by the solve: also an equilibrium --require-stable refused (neutral)
+        d.update(stability_datasets([done[1]]))
+    elif all(o.ok for o in outcomes) and J is not None:
+        d.update(stability_datasets([classify(model, state, J=J, active=saved)]))
     else:   # the same datasets either way: frames of a sequence are concatenated by key
         d.update(stability_datasets([unknown_info()] * len(outcomes)))
     return d

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from poise.solvers.stability_modes import ZERO_REL
-from poise.solvers.stability_sparse import _equilibrate, _prune_noise
+from poise.solvers.equilibrate import equilibrate as _equilibrate
+from poise.solvers.equilibrate import prune_noise as _prune_noise
 
 DENSE_PENCIL = 150        # nq + constraint rows at or below: the dense pencil (eigh ~ ms)
 

@@ -164,7 +164,7 @@ def require_stable(ctx, state, out):
         return state, out        # judged on the output classification
     st, o, info, note = seek_stable(model, state, s, ctx.history, 0, ctx.data, info,
                                     lambda x: classify(model, x, active=active), ctx.start)
-    ctx.data.classified = (st, info) if o.ok else None
+    ctx.data.classified = (st, info)     # also a failed one: its class is reported
     if note:
         ctx.notes.append(note)
     return st, replace(o, iterations=out.iterations + o.iterations)

@@ -10,8 +10,11 @@ limitations: docs/stability.md.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from poise.solvers.equilibrate import equilibrate_dense, prune_noise_dense
 from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the public names
     AUG_RHO,
     DENSE_LIMIT,
@@ -28,6 +31,7 @@ from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the pub
     stability_datasets,
     unknown_info,
 )
+from poise.solvers.stability_scalars import eliminate_dense, eliminate_sparse
 from poise.solvers.stability_sparse import (  # noqa: F401 - re-exported
     SymmetricLDL,
     _classify_pencil,
@@ -51,23 +55,50 @@ def classify(model, state, J=None, active=None) -> StabilityInfo:
     if active is None:
         active = np.ones(model.nc, bool)
     if nq > DENSE_LIMIT:
-        return _classify_sparse(model, J, active)
+        red = eliminate_sparse(model, J)
+        if red is None:
+            return _classify_sparse(model, J, active)
+        view, Jr, lift = red
+        return _lifted(_classify_sparse(view, Jr, active), lift)
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
     return classify_dense_frames(model, J[None], active)[0]
 
 
+def _lifted(info, lift):
+    """``info`` of the mechanism with its mode vectors completed by the scalar unknowns."""
+    return replace(info, vectors=tuple(lift(v) for v in info.vectors))
+
+
 def classify_dense_frames(model, J, active, ok=None) -> list[StabilityInfo]:
+    """Dense classification of ``F`` frames from their KKT Jacobians ``J`` (F, N, N) (dense);
+    scalar unknowns are eliminated first where their equations determine them
+    (:mod:`poise.solvers.stability_scalars`), frame by frame."""
+    ok = np.ones(J.shape[0], bool) if ok is None else np.asarray(ok, bool)
+    red = eliminate_dense(model, J) if model.n_extra else None
+    if red is None:
+        return _dense_frames(model, J, active, ok)
+    view, Jr, good, lift = red
+    out = _dense_frames(view, Jr, active, ok & good)
+    rest = _dense_frames(model, J, active, ok & ~good) if (ok & ~good).any() else out
+    return [_lifted(out[f], lambda x, f=f: lift(f, x)) if ok[f] and good[f] else rest[f]
+            for f in range(J.shape[0])]
+
+
+def _dense_frames(model, J, active, ok) -> list[StabilityInfo]:
     """Dense classification of ``F`` frames from their KKT Jacobians ``J`` (F, N, N) (dense).
 
-    Per frame: the length-scaled symmetric stiffness reduced to the SVD null space of the
-    ``active`` constraint rows, Jacobi-equilibrated, ``eigh`` with the ``ZERO_REL`` threshold
-    (module docstring). Frames are processed with stacked SVDs and eigen-decompositions; frames
-    of equal constraint rank share one call. Frames with ``ok[k]`` False are ``unknown``.
+    Per frame, the sparse path's metric (docs/stability.md): the length-scaled symmetric
+    stiffness ``K_s`` and the ``active`` constraint rows ``G`` (numerically empty rows
+    dropped), equilibrated together (:func:`~poise.solvers.equilibrate.equilibrate_dense`:
+    ``Kt``, ``Gt``), ``Kt`` reduced to the SVD null space of ``Gt``, ``eigh``, and ``|w| <=
+    ZERO_REL max(rho(Kt), 1)`` is zero. The equilibration never scales a coordinate past its
+    round-off-aware cap, so an exactly zero direction is zero whatever the sign of its rounding
+    errors. Frames are processed with stacked decompositions; frames of equal constraint rank
+    share one call. Frames with ``ok[k]`` False are ``unknown``.
     """
     F = J.shape[0]
     nq = model.nq
     unknown = StabilityInfo("unknown", -1, -1, "", np.nan)
-    ok = np.ones(F, bool) if ok is None else np.asarray(ok, bool)
     if nq == 0:
         return [StabilityInfo("stable", 0, 0, "", np.nan) if k else unknown for k in ok]
     out = [unknown] * F
@@ -77,37 +108,38 @@ def classify_dense_frames(model, J, active, ok=None) -> list[StabilityInfo]:
     d = model.q_scale                       # length per coordinate unit
     Ku = J[sel, :nq, :nq] / d[:, None] / d[None, :]
     Ku = 0.5 * (Ku + np.swapaxes(Ku, 1, 2))
-    Pq = J[sel, nq:, :nq][:, active]
+    G = J[sel, nq:, :nq][:, active] / d[None, None, :]
+    if G.shape[1]:        # a numerically empty row constrains nothing (as on the sparse path)
+        rn = np.linalg.norm(G, axis=2)
+        G = np.where((rn > 1e-10 * rn.max(axis=1, keepdims=True))[:, :, None], G, 0.0)
+    Ks = prune_noise_dense(Ku)
+    Dq, Dl = equilibrate_dense(Ks, G)
+    Kt = Ks * Dq[:, :, None] * Dq[:, None, :]
     Fo = len(sel)
-    if Pq.shape[1]:
-        _, s, vh = np.linalg.svd(Pq / d[None, None, :], full_matrices=True)
+    if G.shape[1]:
+        _, s, vh = np.linalg.svd(G * Dl[:, :, None] * Dq[:, None, :], full_matrices=True)
         tol = 1e-10 * (s.max(axis=1) if s.shape[1] else np.zeros(Fo))
         rank = np.sum(s > tol[:, None], axis=1)
     else:
         vh = np.broadcast_to(np.eye(nq), (Fo, nq, nq))
         rank = np.zeros(Fo, int)
+    # zero threshold: ZERO_REL of the spectral radius of Kt (as the sparse path), at least
+    # ZERO_REL (Kt's rows have unit-size entries after equilibration)
+    eps = ZERO_REL * np.maximum(np.abs(np.linalg.eigvalsh(Kt)).max(axis=1), 1.0)
     for rk in sorted(set(rank.tolist())):        # (np.unique imports numpy.ma: ~15 ms)
         grp = np.nonzero(rank == rk)[0]
-        Nb = np.swapaxes(vh[grp, rk:, :], 1, 2)                      # (g, nq, k) null spaces
-        if Nb.shape[2] == 0:
+        Z = np.swapaxes(vh[grp, rk:, :], 1, 2)                       # (g, nq, k) null spaces
+        if Z.shape[2] == 0:
             for i in grp:
                 out[sel[i]] = StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
             continue
         Kg = Ku[grp]
-        Kr = np.matmul(np.swapaxes(Nb, 1, 2), np.matmul(Kg, Nb))
-        Kr = 0.5 * (Kr + np.swapaxes(Kr, 1, 2))
-        # Jacobi equilibration (a congruence: the inertia is unchanged, Sylvester): a stiff/soft
-        # mix (a 1e9 N/m spring next to a 1 N/m one) is judged per direction, not against the
-        # stiffest
-        dg = np.abs(np.diagonal(Kr, axis1=1, axis2=2))
-        ref = np.maximum(dg.max(axis=1), np.abs(np.diagonal(Kg, axis1=1, axis2=2)).max(axis=1))
-        fl = np.where(ref > 1e-280, DIAG_FLOOR * ref, 1.0)          # all-zero: no scaling
-        sj = 1.0 / np.sqrt(np.maximum(dg, fl[:, None]))
-        w, V = np.linalg.eigh(Kr * sj[:, :, None] * sj[:, None, :])
-        ztol = ZERO_REL * np.maximum(np.abs(w).max(axis=1), 1.0)
+        Kr = np.matmul(np.swapaxes(Z, 1, 2), np.matmul(Kt[grp], Z))
+        w, V = np.linalg.eigh(0.5 * (Kr + np.swapaxes(Kr, 1, 2)))
+        ztol = eps[grp]
         neg = w < -ztol[:, None]
         zero = np.abs(w) <= ztol[:, None]
-        X = np.matmul(Nb, sj[:, :, None] * V)        # eigenvectors in (length) coordinates
+        X = Dq[grp][:, :, None] * np.matmul(Z, V)    # eigenvectors in (length) coordinates
         X /= np.maximum(np.linalg.norm(X, axis=1), 1e-300)[:, None, :]
         kmin = np.argmin(w, axis=1)
         xk = X[np.arange(len(grp)), :, kmin]
@@ -123,4 +155,3 @@ def classify_dense_frames(model, J, active, ok=None) -> list[StabilityInfo]:
             out[sel[i]] = _info(model, klass, int(neg[j].sum()), int(zero[j].sum()),
                                 found[0], found[1], wmin[j])
     return out
-

@@ -13,13 +13,16 @@ import numpy as np
 
 DENSE_LIMIT = 300       # coordinates; dense cost grows as nq^3 (3000: 30 s, sparse 0.05 s)
 ZERO_REL = 1e-8
-DIAG_FLOOR = 1e-24     # relative floor of the diagonal in the Jacobi equilibration
+NOISE_REL = 1e-14      # round-off level of a stiffness entry, relative to its matrix or rows
+# relative floor of the diagonal in the equilibrations (x ||K_s||): round-off (NOISE_REL x
+# ||K_s||) is never magnified beyond a tenth of the zero threshold, so an exactly zero direction
+# (a free spin) is zero whatever the sign of its rounding errors
+DIAG_FLOOR = 10.0 * NOISE_REL / ZERO_REL
 # sparse path (nq > DENSE_LIMIT)
 N_MODES = 6            # modes described per class (as the dense path)
 AUG_RHO = (1.0, 16.0, 1.0 / 16.0)   # augmented-Lagrangian weights tried in turn (inertia-neutral)
 BERR_MAX = 1e-2        # LDL^T backward-error estimate allowed, as a fraction of the zero threshold
 SMALL_OP = 64          # mode operators up to this size are decomposed densely
-NOISE_REL = 1e-14      # stiffness entries below this fraction of both their rows' largest: round-off
 WEAK_DIAG = 1e-3       # scaled augmented diagonal below this: eliminated after its neighbours
 TINY_PIVOT = 1e-3      # pivots below this fraction of the zero threshold: sign not reliable
 
@@ -112,19 +115,19 @@ def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo
 
 def _describe(model, q, klass="", eigenvalue=np.nan) -> Mode:
     """Body with the largest participation in mode ``q`` and its dominant motion, as a
-    :class:`Mode` (vectorised over the bodies: cheap for 10 000 bodies)."""
+    :class:`Mode` (vectorised over the bodies: cheap for 10 000 bodies); the scalar unknown
+    that moves most (``coordinate``) when no body moves, or without bodies."""
     q = np.asarray(q, float)
     nb = model.nb
-    if nb == 0:
-        k = int(np.argmax(np.abs(q)))
+    if nb:
+        t, r = _body_motion(model, q)
+        part = np.linalg.norm(t, axis=1) ** 2 + np.linalg.norm(r, axis=1) ** 2
+    nbq = model.nq - model.n_extra                  # body coordinates come first
+    k = nbq + int(np.argmax(np.abs(q[nbq:]))) if model.n_extra else -1
+    if nb == 0 or (k >= 0 and part.max() <= 1e-24 * q[k] ** 2):     # no body moves
+        k = int(np.argmax(np.abs(q))) if nb == 0 else k
         name = model.coord_info[k] if k < len(model.coord_info) else f"coordinate {k}"
         return Mode(klass, -1, "coordinate", (np.nan,) * 3, float(eigenvalue), k, str(name))
-    off = np.asarray(model.body_off)
-    rigid = np.asarray(model.body_kind) == 0
-    t = q[off[:, None] + np.arange(3)]
-    r = np.zeros((nb, 3))
-    r[rigid] = q[off[rigid][:, None] + 3 + np.arange(3)] * model.body_scale[rigid][:, None]
-    part = np.linalg.norm(t, axis=1) ** 2 + np.linalg.norm(r, axis=1) ** 2
     b = int(np.argmax(part))
     t, r = t[b], r[b]
     bid = int(model.body_id[b])
@@ -134,6 +137,16 @@ def _describe(model, q, klass="", eigenvalue=np.nan) -> Mode:
     else:
         kind, a = "translation", t
     return Mode(klass, bid, kind, tuple(float(x) for x in sign_normalised(a)), float(eigenvalue))
+
+
+def _body_motion(model, q):
+    """(nb, 3) translations and (nb, 3) rotations x body scale of every body in mode ``q``."""
+    off = np.asarray(model.body_off)
+    rigid = np.asarray(model.body_kind) == 0
+    t = q[off[:, None] + np.arange(3)]
+    r = np.zeros((model.nb, 3))
+    r[rigid] = q[off[rigid][:, None] + 3 + np.arange(3)] * model.body_scale[rigid][:, None]
+    return t, r
 
 
 def stability_datasets(infos: list[StabilityInfo]) -> dict:

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.solvers.equilibrate import equilibrate as _equilibrate
+from poise.solvers.equilibrate import prune_noise as _prune_noise
 from poise.solvers.redundancy import redundant_rows
 from poise.solvers.stability_modes import (
     AUG_RHO,
     BERR_MAX,
-    DIAG_FLOOR,
     N_MODES,
-    NOISE_REL,
     SMALL_OP,
     TINY_PIVOT,
     WEAK_DIAG,
@@ -259,58 +259,6 @@ class _SparsePencil:
         XL /= np.linalg.norm(XL, axis=0)
         w = np.einsum("ij,ij->j", XL, self.Ks @ XL)
         return [(XL[:, j] / self.d, float(w[j]), float(mu[j])) for j in range(X.shape[1])]
-
-
-def _prune_noise(Ks):
-    """Drop the entries of Ks at round-off level of both rows they couple (``|K_ij| <=
-    NOISE_REL max(max_k |K_ik|, max_k |K_jk|)``): a perturbation of the size of the rounding in
-    those rows, but equilibration would otherwise scale a 1e-19-relative coupling next to a
-    zero diagonal (a box's yaw on a plane) up to unit size and count a negative eigenvalue."""
-    a = np.abs(Ks.data)
-    cnt = np.diff(Ks.indptr)
-    nz = cnt > 0
-    if not a.size:
-        return Ks
-    rmax = np.zeros(Ks.shape[0])
-    rmax[nz] = np.maximum.reduceat(a, Ks.indptr[:-1][nz])
-    rows = np.repeat(np.arange(Ks.shape[0]), cnt)
-    keep = a > NOISE_REL * np.maximum(rmax[rows], rmax[Ks.indices])
-    if keep.all():
-        return Ks
-    Ks = Ks.copy()
-    Ks.data[~keep] = 0.0
-    Ks.eliminate_zeros()
-    return Ks
-
-
-def _equilibrate(Ks, G, iters=12, tol=0.1, start=None):
-    """Symmetric Ruiz scaling ``D`` of the KKT matrix ``[[Ks, G^T], [G, 0]]``: every row of
-    ``D |KKT| D`` has a largest entry in ``[1 - tol, 1 + tol]`` (a diagonal congruence: the
-    inertia is unchanged), except that a coordinate is never scaled up beyond
-    ``1 / sqrt(DIAG_FLOOR max|Ks|)`` (the dense path's floor). Returns the coordinate and row
-    factors (``start``: the factors to start from, e.g. a nearby configuration's)."""
-    import scipy.sparse as sp
-    nq = Ks.shape[0]
-    kmax = float(np.max(np.abs(Ks.data), initial=0.0))
-    cap = 1.0 / np.sqrt(DIAG_FLOOR * kmax) if kmax > 0.0 else np.inf
-    B = sp.bmat([[Ks, G.T], [G, None]], format="csr") if G.shape[0] else Ks.tocsr()
-    n = B.shape[0]
-    a = np.abs(B.data)
-    cnt = np.diff(B.indptr)
-    rows = np.repeat(np.arange(n), cnt)
-    nz = cnt > 0
-    starts = B.indptr[:-1][nz]
-    D = np.ones(n) if start is None else np.concatenate(start)
-    for _ in range(iters):
-        r = np.ones(n)
-        if a.size:
-            r[nz] = np.maximum.reduceat(a * D[rows] * D[B.indices], starts)
-        r[r <= 0.0] = 1.0                              # an all-zero row keeps its scale
-        if np.all(np.abs(r - 1.0) <= tol):
-            break
-        D /= np.sqrt(r)
-        np.minimum(D[:nq], cap, out=D[:nq])
-    return D[:nq], D[nq:]
 
 
 def _coordinate_groups(model) -> np.ndarray:

@@ -34,7 +34,7 @@ from poise.solvers.newton import (
     newton,
 )
 from poise.solvers.pencil_dense import DENSE_PENCIL, DensePencil
-from poise.solvers.stability import AUG_RHO, _SparsePencil
+from poise.solvers.stability import AUG_RHO, _SparsePencil, unknown_info
 from poise.solvers.status import Status
 
 ESCAPE_ROT = 0.3          # rad: largest rotation of the first escape trial
@@ -79,7 +79,9 @@ def require_stable_check(ar, out, settings):
     ar.datasets["frames/converged"] = np.array([False])
     ar.datasets["frames/status"] = np.array([Status.UNSTABLE.value], dtype=str)
     ar.status = "failed"
-    ar.message = "no stable equilibrium reached (--require-stable): " + why + "; " + ar.message
+    rest = "; ".join(m for m in ar.message.split("; ") if m and m != "converged")
+    ar.message = "no stable equilibrium reached (--require-stable): " + why + \
+        (f"; {rest}" if rest else "")
 
 
 def _energy_drop(model, a, b, cnt, pa=None):
@@ -117,7 +119,9 @@ def _escape_direction(model, info):
 def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, start=None):
     """Continue from the unstable equilibrium ``state`` (classification ``info``) to a stable
     one. ``classify_at(state) -> StabilityInfo``. Returns ``(state, outcome, info, note)``;
-    ``outcome.ok`` only at an equilibrium whose classification is :func:`acceptable`.
+    ``outcome.ok`` only at an equilibrium whose classification is :func:`acceptable`; ``info``
+    is the returned state's classification (``unknown`` when the descent stopped short of an
+    equilibrium), also when the outcome fails.
 
     ``start``: the (assembled) input Newton started from. The descent is tried from there
     first, with at most half the budget: it is the rest position reached downhill from the
@@ -130,10 +134,13 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
     if start is not None:
         history.add(frame, 0, np.nan, np.nan, event=f"stable: Newton's equilibrium is unstable "
                     f"({plural(info.n_negative, 'negative mode')}): descent from the input")
+        why = []
         try:
-            st, out, _, used = descend(model, start, settings, history, frame, cnt, budget // 2)
-        except (EvaluationError, SingularMatrix):
+            st, out, _, used = descend(model, start, settings, history, frame, cnt,
+                                       budget // 2, why=why)
+        except (EvaluationError, SingularMatrix) as e:
             out = None
+            why.append(f"{type(e).__name__}: {e}")
         if out is not None:
             i2 = classify_at(st)
             if acceptable(i2, settings):
@@ -144,7 +151,8 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
                 return st, FrameOutcome(Status.CONVERGED, used, np.nan, np.nan, "converged"), \
                     i2, note
         history.add(frame, 0, np.nan, np.nan, event="stable: the descent from the input did not "
-                    "end at a stable equilibrium; leaving Newton's along its unstable modes")
+                    "end at a stable equilibrium" + (f" ({why[0]})" if why else "") +
+                    "; leaving Newton's along its unstable modes")
     escapes = 0
     pe = potential_energy(model, state)
     while True:
@@ -191,14 +199,30 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
                                 "the potential energy"), info, ""
         _, state, pe = moved
         state = initial_multipliers(model, state, cnt)
+        why = []
         state, out, pe, n = descend(model, state, settings, history, frame, cnt,
-                                    budget - used, pe)
+                                    budget - used, pe, why=why)
         used += n
         if out is None:
-            return state, _fail(used, f"the descent did not reach an equilibrium within its "
-                                f"budget ({budget} = {STEPS_PER_ITER} x max_num_iter steps)"), \
-                info, ""
+            reason = why[0] if why else (f"the descent did not reach an equilibrium within its "
+                                         f"budget ({budget} = {STEPS_PER_ITER} x max_num_iter "
+                                         "steps)")
+            return state, _fail(used, reason + _zero_modes_at(classify_at, state)), \
+                unknown_info(f"not classified: not at an equilibrium ({reason})"), ""
         info = classify_at(state)
+
+
+def _zero_modes_at(classify_at, state) -> str:
+    """``"; the point reached has N zero-stiffness modes (...)"`` when it has any: the neutral
+    directions a descent cannot resolve by energy (their energy does not change)."""
+    try:
+        info = classify_at(state)
+    except (EvaluationError, SingularMatrix, ValueError, ArithmeticError):
+        return ""
+    if info.n_zero > 0:
+        return (f"; the point reached has {plural(info.n_zero, 'zero-stiffness mode')} "
+                f"({info.modes})")
+    return ""
 
 
 def _ic_step(model, state, cnt, sigma, like=None):
@@ -264,13 +288,14 @@ class _Chord:
         return sol[:P.nq] * P.dq / P.d
 
 
-def descend(model, state, settings, history, frame, cnt, budget, pe=None):
+def descend(model, state, settings, history, frame, cnt, budget, pe=None, why=None):
     """Inertia-controlled Newton from ``state`` down to an equilibrium (:func:`_ic_step`
     directions limited to ``STEP_ROT`` rad / ``STEP_TRANS`` x L, an Armijo backtracking on the
     potential energy of the trial projected onto the constraints by :func:`_project`, starting
     at twice the last accepted step; the Newton polish once a full step with ``sigma = 0`` was
     taken, its point kept only if its energy is not higher). The potential energy never
-    increases. Returns ``(state, outcome or None, pe, steps)``."""
+    increases. Returns ``(state, outcome or None, pe, steps)``; on None, the reason is
+    appended to the list ``why`` when one is given (:func:`_stalled`)."""
     sc = Scales(model, settings)
     if pe is None:
         pe = potential_energy(model, state)
@@ -279,16 +304,21 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     polish_fail = 0
     alpha0 = 1.0                       # first trial: twice the last accepted step (<= 1)
     like = None                        # the last step's pencil (order and scaling reused)
+    why = [] if why is None else why
+    failed = 0                         # line searches failed in a row
+    imb = np.nan
     while steps < budget:
         try:
             dq, sigma, ev, dlam, chord = _ic_step(model, state, cnt, sigma, like)
-        except EvaluationError:
+        except EvaluationError as e:
+            why.append(f"an element could not be evaluated during the descent ({e})")
             return state, None, pe, steps
         steps += 1
         imb, cerr, zinf, worst = measures(model, ev, sc)
         if dq is None:
             history.add(frame, steps, imb, cerr, np.nan, np.nan, worst,
                         "stable-descent: no valid factorisation", pos=state.pos, rot=state.rot)
+            why.append(_stalled(imb, sigma, failed))
             return state, None, pe, steps
         like = chord.P
         # step limits (a trust region on the linearisation of the constraints)
@@ -299,6 +329,7 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
         slope = float(np.asarray(ev.r, float)[:model.nq] @ dq)
         proj = _Projector(model, cnt, chord)
         work = _violation_work(model, ev, state)
+        lagrange = _LagrangeTest(model, ev, state, cnt) if np.isfinite(pe) else None
         alpha = alpha0
         accepted = None
         for _ in range(12):
@@ -308,7 +339,11 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
                 if ok:
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                     tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
-                    if dv + proj.err * work <= 1e-4 * alpha * min(slope, 0.0) + tol:
+                    goal = 1e-4 * alpha * min(slope, 0.0) + tol
+                    if dv + proj.err * work <= goal or (
+                            lagrange is not None and
+                            lagrange.decrease(dv, proj, state.lam + min(alpha, 1.0) * dlam)
+                            <= goal):
                         accepted = (x, pe_x if np.isfinite(pe_x) else pe + dv)
                         break
             except EvaluationError:
@@ -324,10 +359,13 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
             break                      # at an equilibrium already (no step lowers the energy
             #                            either): the polish certifies it, the caller classifies
         if accepted is None:
+            failed += 1
             sigma = max(8.0 * sigma, 1.0) if sigma > 0 else 0.0
             if sigma == 0.0:
+                why.append(_stalled(imb, sigma, failed))
                 return state, None, pe, steps
             continue
+        failed = 0
         state, pe = accepted
         alpha0 = min(1.0, 2.0 * alpha)
         state.lam = state.lam + min(alpha, 1.0) * dlam     # the KKT step's multiplier update
@@ -343,7 +381,25 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None):
     st, o = newton(model, state, replace(settings, fallback=False), history, frame, cnt,
                    max_iter=min(settings.max_num_iter, 20), event="stable-polish")
     steps += o.iterations
-    return (st, o, pe, steps) if o.ok else (state, None, pe, steps)
+    if o.ok:
+        return st, o, pe, steps
+    why.append(f"not at an equilibrium after {plural(steps, 'descent step')} (imbalance {imb:.3g}; "
+               f"budget {budget}), and Newton's polish from there failed ({o.message})"
+               if steps >= budget else
+               f"the descent stopped at imbalance {imb:.3g} and Newton's polish from there "
+               f"failed ({o.message})")
+    return state, None, pe, steps
+
+
+def _stalled(imb, sigma, failed):
+    """Why the descent stopped without a step (not the budget: it was not used up)."""
+    if failed:
+        return (f"the descent stalled at imbalance {imb:.3g}: no trial along "
+                f"{plural(failed, 'successively shifted direction')} (shift up to {sigma:.3g}) "
+                "lowered the potential energy measurably")
+    return (f"the descent stalled at imbalance {imb:.3g}: no shift of the stiffness (up to "
+            f"{sigma:.3g}) gave a positive definite reduced matrix with a reliable "
+            "factorisation")
 
 
 def _violation_work(model, ev, state):
@@ -355,6 +411,34 @@ def _violation_work(model, ev, state):
     rs = np.where(model.row_kind == 1, 1.0, model.L)
     r = np.abs(np.asarray(ev.r, float)[:model.nq])
     return float(np.sum(r * ql) + np.sum(np.abs(state.lam) * rs))
+
+
+class _LagrangeTest:
+    """The energy test of a trial that sees through its constraint violation.
+
+    A trial ``x`` violating the constraints by ``phi(x)`` has, at its exact projection ``x*``,
+    the energy ``V(x*) = V(x) + lam . phi(x) + r . (x* - x) + O(|x* - x|^2)`` (``r`` the
+    residual, ``lam`` the multipliers: ``grad V = r - G^T lam``). The plain test bounds the
+    whole violation term by ``e W`` (:func:`_violation_work`), which near the rest position of
+    a heavy mechanism (``W`` ~ multipliers x L) exceeds the energy the remaining steps gain:
+    the descent then stalls short of the tolerances. Here ``lam . phi`` is added to the energy
+    change (at both ends of the step) and only the residual part is bounded, which vanishes
+    at an equilibrium. ``decrease(dv, proj, lam)`` -> the certified energy change."""
+
+    def __init__(self, model, ev, state, cnt):
+        self.model, self.cnt = model, cnt
+        ql = np.where(model.q_kind == 1, 1.0, model.L)
+        self.work_r = float(np.sum(np.abs(np.asarray(ev.r, float)[:model.nq]) * ql))
+        self.phi_s = np.asarray(cnt.evaluate(model, state, "phi"), float)
+        scale = np.where(model.row_kind == 1, 1.0, model.L)
+        self.err_s = float(np.max(np.abs(self.phi_s) / scale, initial=0.0))
+
+    def decrease(self, dv, proj, lam):
+        phi_x = getattr(proj, "phi", None)
+        if phi_x is None:
+            return np.inf
+        dvc = dv + float(np.asarray(lam, float) @ (phi_x - self.phi_s))
+        return dvc + (proj.err + self.err_s) * self.work_r
 
 
 def _trial_tol(alpha, slope, work):
@@ -412,6 +496,7 @@ class _Projector:
     def __call__(self, x, tol=PROJECT_TOL):
         m = self.model
         self.err = 0.0
+        self.phi = np.zeros(m.nc) if m.nc == 0 else None
         if m.nc == 0:
             return x, True
         refreshed, prev, fresh = 0, np.inf, False
@@ -421,6 +506,7 @@ class _Projector:
             err = float(np.max(np.abs(phi) / self.scale))
             self.err = err
             if err <= tol:
+                self.phi = np.asarray(phi, float)
                 return x, True
             if err > prev and fresh:
                 return x, False            # diverging after a fresh factorisation: too far

@@ -123,15 +123,21 @@ class _State:
         self.current: dict[tuple, dict] = {}        # (tag, id) -> attributes now in force
         self.dynamic_warned = False
         self.skipped: dict[str, list] = {}
+        self.ignored_kw: dict[tuple, list] = {}    # (command, keyword) -> commands
 
 
 def commands(ctx: Ctx, cmds: list[Statement]) -> None:
     st = _State()
     ctx.acf_skipped = st.skipped
+    ctx.acf_ignored_kw = st.ignored_kw
     for c in cmds:
         name = c.name
         if name == "FILE":
             continue
+        for v in c.values.values():
+            kw = (c.defn.keywords if v.kind != "flag" else c.defn.flags).get(v.name)
+            if kw is not None and kw.ignored:
+                st.ignored_kw.setdefault((name, v.name), []).append(c)
         if name == "STOP":
             ctx.recs.append(Rec("Stop", {}, c.file, c.line, "STOP", "command", None, c.comments))
             return
@@ -159,6 +165,10 @@ def summarize_commands(ctx: Ctx) -> None:
         n = len(sts)
         ctx.warnings.append(Problem(Ctx.loc(sts[0]), f"{n} {name} command{'s' * (n > 1)} "
                                     f"skipped ({ACF[name].why}: no effect on statics)"))
+    for (name, key), sts in getattr(ctx, "acf_ignored_kw", {}).items():
+        n = len(sts)
+        ctx.warnings.append(Problem(Ctx.loc(sts[0]), f"{key} ignored in {n} {name} "
+                                    f"command{'s' * (n > 1)} (no effect on statics)"))
 
 
 def _simulate(ctx: Ctx, c: Statement, st: _State) -> None:

@@ -16,7 +16,7 @@ import math
 import re
 from dataclasses import dataclass, field
 
-from poise.deck.adm.vocab import StatementDef
+from poise.deck.adm.vocab import STATEMENTS, StatementDef
 
 CONT = "\x1e"            # a continuation-line boundary inside a statement's joined text
 _NUM = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][+-]?\d+)?(D)?$", re.IGNORECASE)
@@ -80,6 +80,12 @@ class Chunk:
     label: str | None
 
 
+def _commented_statement(comment: str) -> bool:
+    """``!MOTION/3`` and the like: a statement commented out (Adams View keeps them)."""
+    m = _HEAD.match(comment)
+    return bool(m and m.group(2) and m.group(1).upper() in STATEMENTS)
+
+
 def split_lines(text: str, title: bool) -> tuple[str, list[Chunk], list[tuple[int, str]]]:
     """(title, statement chunks, located problems) of a dataset's text."""
     lines = text.split("\n")
@@ -92,6 +98,8 @@ def split_lines(text: str, title: bool) -> tuple[str, list[Chunk], list[tuple[in
     problems: list[tuple[int, str]] = []
     pending: list[str] = []
     label = None
+    named = ""                       # the comment line that gave ``label``
+    amp = False                      # the line before ended with '&': this one continues it
     cur: list | None = None          # [head, pieces, line, comments, label]
 
     def close():
@@ -119,16 +127,26 @@ def split_lines(text: str, title: bool) -> tuple[str, list[Chunk], list[tuple[in
             if bang:
                 m = _VIEW_NAME.search(comment)
                 if m:
-                    label = m.group(1)
+                    label, named = m.group(1), comment.strip()
                 elif comment.strip():
+                    if label is not None and _commented_statement(comment):
+                        pending.append(named)   # the name was the commented-out statement's
+                        label = None
                     pending.append(comment.strip())
             continue
-        if stripped.startswith(","):
+        joined, amp = amp, stripped.endswith("&")
+        if amp:                             # Adams command language: '&' ends a line that
+            stripped = stripped[:-1].rstrip()       # the next one continues
+            if stripped.endswith(","):
+                stripped = stripped[:-1].rstrip()
+            if not stripped:
+                continue
+        if stripped.startswith(",") or (joined and cur is not None):
             if cur is None:
                 problems.append((ln, "a continuation line (starting with ',') with no "
                                      "statement before it"))
                 continue
-            cur[1].append((stripped[1:], ln))
+            cur[1].append((stripped[1:] if stripped.startswith(",") else stripped, ln))
         else:
             close()
             m = _HEAD.match(stripped)

@@ -13,8 +13,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from poise.core.errors import Problem, SourceLoc
+from poise.deck.schema import element_schema
 
 _USER = re.compile(r"\s*USER\s*\(", re.IGNORECASE)
+
+
+def takes_label(tag: str) -> bool:
+    """Whether the XML element has a ``label`` attribute (Force_Gravity, Param_* have none)."""
+    hit = _LABELLED.get(tag)
+    if hit is None:
+        sch = element_schema(tag)
+        hit = _LABELLED[tag] = sch is not None and "label" in sch.attrs
+    return hit
+
+
+_LABELLED: dict[str, bool] = {}
 
 
 def num(x) -> str:
@@ -101,12 +114,15 @@ class Ctx:
     def add(self, stmt, tag: str, attrs: dict, text: str | None = None,
             section: str = "model", first: bool = True) -> Rec:
         a = {"id": num(stmt.id)} if stmt.id is not None and "id" not in attrs else {}
+        comments = list(stmt.comments) if first else []
         if stmt.label is not None and "label" not in attrs:
-            a["label"] = stmt.label
+            if takes_label(tag):
+                a["label"] = stmt.label
+            elif first:                 # kept where the XML has room for it: a comment
+                comments.append(f"label '{stmt.label}'")
         a.update({k: (v if isinstance(v, str) else num(v)) for k, v in attrs.items()
                   if v is not None})
-        r = Rec(tag, a, stmt.file, stmt.line, stmt.who, section, text,
-                list(stmt.comments) if first else [])
+        r = Rec(tag, a, stmt.file, stmt.line, stmt.who, section, text, comments)
         self.recs.append(r)
         self.by_stmt.setdefault(id(stmt), []).append(r)
         return r
@@ -189,7 +205,7 @@ class Ctx:
             self.warn(stmt, f"left out (--ignore {kind}): {what}")
             return
         self.refused[(stmt.name, stmt.id)] = Problem(
-            self.loc(stmt), f"{what} is not supported by poise; `--ignore {kind}` solves "
+            self.loc(stmt), f"poise does not support {what}; `--ignore {kind}` solves "
                             "without it (recorded in the results)")
 
     def all_problems(self) -> list[Problem]:

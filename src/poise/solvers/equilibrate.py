@@ -1,0 +1,127 @@
+"""Symmetric equilibration of the stability KKT matrix ``[[K_s, G^T], [G, 0]]`` with a
+round-off-aware cap: sparse (one configuration) and dense (a stack of frames).
+
+Both classification paths and the descent's pencils count the eigenvalues of the reduced
+stiffness after a diagonal congruence ``D`` (Sylvester: the inertia is unchanged) that gives
+every row of ``D |KKT| D`` a largest entry of about 1 (Ruiz): a stiff/soft mix (1e9 N/m next to
+1 N/m) is then judged per direction, not against the stiffest. A coordinate whose row holds
+only rounding errors (a free spin: its diagonal and couplings are 1e-16 x its neighbours', of
+either sign) must not be scaled up to unit size, or the sign of that rounding decides its
+label. So coordinate ``i`` is never scaled beyond ``1 / sqrt(DIAG_FLOOR R_i)``, ``R_i`` the
+largest absolute row sum of ``K_s`` among ``i`` and the coordinates it is coupled to: the
+round-off of an entry (``NOISE_REL`` x the larger of its rows' sums) stays below a tenth of the
+zero threshold ``ZERO_REL``. The cap is local: a part of the model decoupled from a stiff one
+keeps its own scale. docs/stability.md.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.solvers.stability_modes import DIAG_FLOOR, NOISE_REL
+
+
+def prune_noise(Ks):
+    """Drop the entries of sparse Ks at round-off level of both rows they couple (``|K_ij| <=
+    NOISE_REL max(max_k |K_ik|, max_k |K_jk|)``): a perturbation of the size of the rounding in
+    those rows, but equilibration would otherwise scale a 1e-19-relative coupling next to a
+    zero diagonal (a box's yaw on a plane) up to unit size and count a negative eigenvalue."""
+    a = np.abs(Ks.data)
+    cnt = np.diff(Ks.indptr)
+    nz = cnt > 0
+    if not a.size:
+        return Ks
+    rmax = np.zeros(Ks.shape[0])
+    rmax[nz] = np.maximum.reduceat(a, Ks.indptr[:-1][nz])
+    rows = np.repeat(np.arange(Ks.shape[0]), cnt)
+    keep = a > NOISE_REL * np.maximum(rmax[rows], rmax[Ks.indices])
+    if keep.all():
+        return Ks
+    Ks = Ks.copy()
+    Ks.data[~keep] = 0.0
+    Ks.eliminate_zeros()
+    return Ks
+
+
+def prune_noise_dense(Ks):
+    """:func:`prune_noise` of a stack of dense symmetric matrices (F, n, n)."""
+    A = np.abs(Ks)
+    rmax = A.max(axis=2)
+    keep = A > NOISE_REL * np.maximum(rmax[:, :, None], rmax[:, None, :])
+    return np.where(keep, Ks, 0.0)
+
+
+def _cap(R, nbr):
+    return np.where(nbr > 0.0, 1.0 / np.sqrt(DIAG_FLOOR * np.where(nbr > 0.0, nbr, 1.0)), np.inf)
+
+
+def coordinate_caps(Ks) -> np.ndarray:
+    """Largest scaling of each coordinate of sparse Ks (module docstring): ``1 / sqrt(DIAG_FLOOR
+    max(R_i, max_{K_ij != 0} R_j))``, ``R`` the absolute row sums; inf for an all-zero row."""
+    A = abs(Ks).tocsr()
+    R = np.asarray(A.sum(axis=1)).ravel()
+    nbr = R.copy()
+    cnt = np.diff(A.indptr)
+    nz = cnt > 0
+    if A.nnz:
+        nbr[nz] = np.maximum(nbr[nz], np.maximum.reduceat(R[A.indices], A.indptr[:-1][nz]))
+    return _cap(R, nbr)
+
+
+def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
+    """Symmetric Ruiz scaling ``D`` of the sparse KKT matrix ``[[Ks, G^T], [G, 0]]``: every row
+    of ``D |KKT| D`` has a largest entry in ``[1 - tol, 1 + tol]``, except that coordinate
+    ``i`` is never scaled beyond :func:`coordinate_caps`. Returns the coordinate and row
+    factors (``start``: the factors to start from, e.g. a nearby configuration's)."""
+    import scipy.sparse as sp
+    nq = Ks.shape[0]
+    cap = coordinate_caps(Ks)
+    B = sp.bmat([[Ks, G.T], [G, None]], format="csr") if G.shape[0] else Ks.tocsr()
+    n = B.shape[0]
+    a = np.abs(B.data)
+    cnt = np.diff(B.indptr)
+    rows = np.repeat(np.arange(n), cnt)
+    nz = cnt > 0
+    starts = B.indptr[:-1][nz]
+    D = np.ones(n) if start is None else np.concatenate(start)
+    np.minimum(D[:nq], cap, out=D[:nq])
+    for _ in range(iters):
+        r = np.ones(n)
+        if a.size:
+            r[nz] = np.maximum.reduceat(a * D[rows] * D[B.indices], starts)
+        r[r <= 0.0] = 1.0                              # an all-zero row keeps its scale
+        r[:nq][(D[:nq] >= cap) & (r[:nq] < 1.0)] = 1.0   # at its cap: as far as it goes
+        if np.all(np.abs(r - 1.0) <= tol):
+            break
+        D /= np.sqrt(r)
+        np.minimum(D[:nq], cap, out=D[:nq])
+    return D[:nq], D[nq:]
+
+
+def equilibrate_dense(Ks, G, iters=12, tol=0.1):
+    """:func:`equilibrate` of a stack of dense KKT matrices, ``Ks`` (F, n, n) and ``G``
+    (F, m, n), each frame iterated as it would be alone (a frame whose rows are within ``tol``
+    keeps its factors). Returns ``Dq`` (F, n), ``Dl`` (F, m)."""
+    F, n = Ks.shape[:2]
+    m = G.shape[1]
+    A, B = np.abs(Ks), np.abs(G)
+    R = A.sum(axis=2)
+    nbr = np.maximum(R, np.where(A > 0.0, R[:, None, :], 0.0).max(axis=2, initial=0.0))
+    cap = _cap(R, nbr)
+    Dq, Dl = np.minimum(np.ones((F, n)), cap), np.ones((F, m))
+    bufA, bufB = np.empty_like(A), np.empty_like(B)
+    go = np.ones(F, bool)
+    for _ in range(iters):
+        rq = np.multiply(A, Dq[:, None, :], out=bufA).max(axis=2, initial=0.0)
+        if m:
+            rq = np.maximum(rq, np.multiply(B, Dl[:, :, None], out=bufB).max(axis=1, initial=0.0))
+        rq *= Dq
+        rl = np.multiply(B, Dq[:, None, :], out=bufB).max(axis=2, initial=0.0) * Dl
+        rq[(rq <= 0.0) | ((Dq >= cap) & (rq < 1.0))] = 1.0   # all-zero row, or at its cap
+        rl[rl <= 0.0] = 1.0
+        go &= ~(np.all(np.abs(rq - 1.0) <= tol, axis=1) & np.all(np.abs(rl - 1.0) <= tol, axis=1))
+        if not go.any():
+            break
+        rq[~go], rl[~go] = 1.0, 1.0
+        Dq = np.minimum(Dq / np.sqrt(rq), cap)
+        Dl = Dl / np.sqrt(rl)
+    return Dq, Dl
