@@ -103,7 +103,7 @@ def test_included_angle_at_the_middle_marker():
                     ([1.0 + math.sqrt(3.0), 2.0, 0.0], math.pi / 6),
                     ([0.0, 1.0, -1.0], 3 * math.pi / 4)):
         P[2] = k
-        ctx = EvalContext(P=P, A=A, scalars=np.zeros(50), reactions=np.zeros(10))
+        ctx = EvalContext(P=P, A=A, extra=np.zeros(50), reactions=np.zeros(10))
         assert b.evaluate(ctx).value[0] == pytest.approx(want, abs=1e-14)
 
 
