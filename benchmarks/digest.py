@@ -39,6 +39,7 @@ def decks(root: Path) -> list[Path]:
 
 def solve(src: Path, out: Path, only: str | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
+    (out / "ROOT").write_text(str(ROOT))       # the decks' tree: written into messages
     env = dict(os.environ, PYTHONPATH=f"{src}{os.pathsep}{src.parent / 'cli'}",
                POISE_QUIET="1")
     for deck in decks(ROOT):
@@ -62,17 +63,22 @@ def _attrs(obj) -> dict:
             if k not in SKIP_ATTRS and not k.endswith(("_wall_time", "_seconds"))}
 
 
-def _plain(v, f):
+def _plain(v, f, root=None):
     """``v`` with HDF5 object references (dimension scales) replaced by the names they point to
-    in file ``f`` (references are file addresses, equal files have different ones)."""
+    in file ``f`` (references are file addresses, equal files have different ones) and the
+    decks' tree ``root`` in text by ``ROOT`` (two checkouts solve the same decks)."""
     import h5py
     if isinstance(v, h5py.Reference):
         return f[v].name if v else None
+    if isinstance(v, bytes):
+        v = v.decode("utf-8", "replace")
+    if isinstance(v, str):
+        return v.replace(root, "ROOT") if root else v
     a = np.asarray(v)
     if a.dtype.names:                                    # REFERENCE_LIST: (dataset, dimension)
-        return [tuple(_plain(x[n], f) for n in a.dtype.names) for x in a.ravel()]
-    if a.dtype == object:
-        return [_plain(x, f) for x in a.ravel()]
+        return [tuple(_plain(x[n], f, root) for n in a.dtype.names) for x in a.ravel()]
+    if a.dtype == object or a.dtype.kind in "SU":
+        return [_plain(x, f, root) for x in a.ravel()] + [a.shape]
     return v
 
 
@@ -87,8 +93,9 @@ def _same(a, b) -> bool:
     return np.array_equal(a, b)
 
 
-def compare_files(pa: Path, pb: Path) -> list[str]:
+def compare_files(pa: Path, pb: Path, roots=(None, None)) -> list[str]:
     import h5py
+    root_a, root_b = roots
     diffs = []
     with h5py.File(pa, "r") as fa, h5py.File(pb, "r") as fb:
         names_a, names_b = [], []
@@ -104,17 +111,18 @@ def compare_files(pa: Path, pb: Path) -> list[str]:
             if sorted(aa) != sorted(ab):
                 diffs.append(f"/{name}: attributes differ {sorted(set(aa) ^ set(ab))}")
             for k in set(aa) & set(ab):
-                va, vb = _plain(aa[k], fa), _plain(ab[k], fb)
+                va, vb = _plain(aa[k], fa, root_a), _plain(ab[k], fb, root_b)
                 if not _same(va, vb):
                     diffs.append(f"/{name} attr {k}: {str(va)[:80]} != {str(vb)[:80]}")
-            if isinstance(oa, h5py.Dataset) and not _same(_plain(oa[()], fa),
-                                                          _plain(ob[()], fb)):
+            if isinstance(oa, h5py.Dataset) and not _same(_plain(oa[()], fa, root_a),
+                                                          _plain(ob[()], fb, root_b)):
                 diffs.append(f"/{name}: values differ")
     return diffs
 
 
 def compare(a: Path, b: Path) -> int:
     names = sorted({p.stem for p in a.glob("*.rc")} | {p.stem for p in b.glob("*.rc")})
+    roots = tuple((p / "ROOT").read_text() if (p / "ROOT").exists() else None for p in (a, b))
     bad = 0
     for n in names:
         d = []
@@ -124,13 +132,14 @@ def compare(a: Path, b: Path) -> int:
         elif ra.read_text() != rb.read_text():
             d.append(f"exit {ra.read_text().strip()} != {rb.read_text().strip()}")
         ea, eb = a / f"{n}.err", b / f"{n}.err"
-        if ea.exists() != eb.exists() or (ea.exists() and ea.read_text() != eb.read_text()):
+        if ea.exists() != eb.exists() or (ea.exists() and _plain(ea.read_text(), None, roots[0])
+                                          != _plain(eb.read_text(), None, roots[1])):
             d.append("stderr differs")
         ha, hb = a / f"{n}.h5", b / f"{n}.h5"
         if ha.exists() != hb.exists():
             d.append("results file in one run only")
         elif ha.exists():
-            d += compare_files(ha, hb)
+            d += compare_files(ha, hb, roots)
         if d:
             bad += 1
             print(f"{n}: " + "; ".join(d[:4]) + (f" (+{len(d) - 4})" if len(d) > 4 else ""))
@@ -150,7 +159,7 @@ def main(argv=None) -> int:
     c.add_argument("b", type=Path)
     args = ap.parse_args(argv)
     if args.cmd == "solve":
-        solve(args.src.resolve(), args.out)
+        solve(args.src.resolve(), args.out, args.only)
         return 0
     return compare(args.a, args.b)
 

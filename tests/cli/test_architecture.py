@@ -132,6 +132,28 @@ def test_no_private_names_across_modules():
     assert bad == []
 
 
+def _path_literals(path: Path) -> list[str]:
+    """String constants of ``path`` (docstrings aside; f-string pieces too) that name a results
+    file path: ``group/name`` or ``group/`` (``frames/status``, ``f"steps/{k}"``)."""
+    import re
+    tree = ast.parse(path.read_text())
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+            and n.body and isinstance(n.body[0], ast.Expr)
+            and isinstance(n.body[0].value, ast.Constant)}
+    return [f"{path.name}:{n.lineno}: {n.value!r}" for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docs
+            and re.match(r"[a-z][a-z0-9_]*/([a-z_]|$)", n.value)]
+
+
+def test_only_the_results_layout_knows_file_paths():
+    """The solvers hand on typed records; poise.results.layout maps them onto the file: no
+    results path literal under src/poise/solvers (issue 24)."""
+    bad = [u for p in sorted((PACKAGES[0] / "solvers").rglob("*.py")) for u in _path_literals(p)]
+    assert bad == []
+    assert _path_literals(PACKAGES[0] / "results" / "layout.py")      # the check sees them
+
+
 def test_no_test_group_imports_another():
     """Test modules import shared helpers from ``tests/support`` only, never from another test
     module or group (tests/README.md)."""

@@ -65,13 +65,15 @@ class Strategy:
     * ``init(ctx, state)``: solve frame 0 (after :func:`prologue`) and set up.
     * ``step(ctx)``: advance (append frames/outcomes to ``ctx``); called while not
       ``terminate(ctx)``.
-    * ``postprocess(ctx) -> (datasets, attrs)``: after the last step, before the result is
-      built: the strategy's own datasets and analysis attributes (and message notes).
-    * ``strategy_attrs``: write the per-strategy iteration totals (``iterations_<stage>``).
+    * ``postprocess(ctx) -> (method_data, attrs)``: after the last step, before the result is
+      built: the method's own record (:class:`~poise.solvers.record.IdaSteps`,
+      :class:`~poise.solvers.record.MkeamRun` or None) and analysis attributes (and message
+      notes).
+    * ``stage_totals``: write the per-stage iteration totals (``iterations_<stage>``).
     """
 
     name = ""
-    strategy_attrs = True
+    stage_totals = True
 
     def init(self, ctx: Context, state) -> None:
         raise NotImplementedError
@@ -82,8 +84,8 @@ class Strategy:
     def terminate(self, ctx: Context) -> bool:
         return True
 
-    def postprocess(self, ctx: Context) -> tuple[dict, dict]:
-        return {}, {}
+    def postprocess(self, ctx: Context) -> tuple:
+        return None, {}
 
 
 def prologue(ctx: Context, state, multipliers: bool = True):

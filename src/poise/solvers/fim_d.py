@@ -22,6 +22,7 @@ from poise.solvers import ida
 from poise.solvers.ida import IdaStats, SparseJacobian, TransientSettings, _ida  # noqa: F401
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.quasistatic import MIN_SUBSTEP_FRACTION, fims_step, first_frame
+from poise.solvers.record import IdaSteps
 from poise.solvers.status import Status
 
 REBASE_ANGLE = 1.0        # rad
@@ -227,7 +228,7 @@ class IdaContinuation(Strategy):
 
     def postprocess(self, ctx):
         if not hasattr(self, "steps"):        # frame 0 failed or nothing to integrate
-            return {}, {}
+            return None, {}
         model, notes, fallbacks = ctx.model, ctx.notes, self.fallbacks
         if fallbacks:
             notes.append(f"{len(fallbacks)} FIM_S fallbacks: " + "; ".join(fallbacks[:3])
@@ -241,16 +242,13 @@ class IdaContinuation(Strategy):
         if self.conv_coef_off:
             notes.append(f"IDA corrector coefficient left at IDA's default 0.33 (not "
                          f"{ida.NONLIN_CONV_COEF:g}): " + "; ".join(self.conv_coef_off))
-        datasets = {f"steps/{k}": np.asarray(v, dtype=float if k in ("time", "step_size")
-                                             else np.int64)
-                    for k, v in self.steps.items()}
         attrs = {"ida_steps": nsteps}
         for k, v in self.correct.stats.items():
             attrs[f"correction_{k}"] = v
         attrs["fim_s_fallbacks"] = len(fallbacks)
         attrs["dae_tol"] = self.tol
         attrs["ida_linear_solver"] = "sparse" if self.sparse is not None else "dense"
-        return datasets, attrs
+        return IdaSteps(columns=dict(self.steps)), attrs
 
 
 def _over_budget(n_steps, max_steps, y, model, t):

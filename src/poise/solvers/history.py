@@ -1,12 +1,11 @@
-"""Per-iteration history, recorded as data (written to ``iterations/...``).
+"""Per-iteration history, recorded as data: a table with the declared :data:`COLUMNS`.
 
-Rows may carry the body poses of the iterate (``pos`` (B, 3), ``rot`` (B, 3, 3)): they are
-written as ``iterations/position`` / ``iterations/orientation`` (one row per history row; a row
-recorded without a pose repeats the previous recorded pose, NaN before the first). Memory is
-bounded: once ``B x 12 x stored rows`` would exceed :attr:`History.MAX_POSE_VALUES`, only every
-``k``-th pose-bearing row (k doubling as needed) and the last one are kept, and the datasets then
-hold only those rows, with ``iterations/pose_row`` naming their history rows and
-``attrs()["iterations_poses_stride"] = k``.
+Rows may carry the body poses of the iterate (``pos`` (B, 3), ``rot`` (B, 3, 3)):
+:meth:`History.poses` gives one per history row (a row recorded without a pose repeats the
+previous recorded pose, NaN before the first). Memory is bounded: once ``B x 12 x stored rows``
+would exceed :attr:`History.MAX_POSE_VALUES`, only every ``k``-th pose-bearing row (k doubling
+as needed) and the last one are kept, with the history rows they belong to and
+``pose_stride = k``. :mod:`poise.results.layout` writes the table (``iterations/*``).
 
 A row is a :class:`Row`. The frame-level strategies return theirs from their steps and the
 loop (:func:`poise.solvers.iterate.iterate`) appends them; the fallback chain labels the rows
@@ -109,15 +108,13 @@ class History(_Rows):
     def __len__(self):
         return len(self.rows)
 
-    def attrs(self) -> dict:
-        """Analysis attributes describing the recorded poses (empty when none were recorded)."""
+    def poses(self):
+        """The recorded poses: ``(rows, position (R, B, 3), orientation (R, B, 3, 3))``, one
+        per history row when every pose is kept (a row without a pose repeats the previous
+        one, NaN before the first), else only the kept rows (``rows`` names them); None when
+        no row carried a pose."""
         if self._last_pose is None:
-            return {}
-        return {"iterations_poses_stride": int(self.pose_stride)}
-
-    def pose_datasets(self, prefix="iterations/") -> dict:
-        if self._last_pose is None:
-            return {}
+            return None
         poses = {rw: (p, r) for rw, (_, p, r) in self._poses.items()}
         lr, lp, lrot = self._last_pose
         poses[lr] = (lp, lrot)
@@ -136,20 +133,19 @@ class History(_Rows):
             rows = sorted(poses)
             P = np.stack([poses[i][0] for i in rows])
             R = np.stack([poses[i][1] for i in rows])
-        return {prefix + "position": P, prefix + "orientation": R,
-                prefix + "pose_row": np.asarray(rows, dtype=np.int64)}
+        return np.asarray(rows, dtype=np.int64), P, R
 
-    def datasets(self, prefix="iterations/") -> dict:
+    def columns(self) -> dict:
+        """The table: one array per :data:`COLUMNS` name (int, float or str, as declared)."""
         cols = list(zip(*self.rows)) if self.rows else [[] for _ in COLUMNS]
         out = {}
         for name, col in zip(COLUMNS, cols):
             if name in ("frame", "iteration"):
-                out[prefix + name] = np.asarray(col, dtype=np.int64)
+                out[name] = np.asarray(col, dtype=np.int64)
             elif name in ("worst_equation", "event", "strategy"):
-                out[prefix + name] = np.asarray(col, dtype=str) if len(col) else np.zeros(0, dtype=str)
+                out[name] = np.asarray(col, dtype=str) if len(col) else np.zeros(0, dtype=str)
             else:
-                out[prefix + name] = np.asarray(col, dtype=float)
-        out.update(self.pose_datasets(prefix))
+                out[name] = np.asarray(col, dtype=float)
         return out
 
 

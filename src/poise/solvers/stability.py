@@ -28,7 +28,6 @@ from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the pub
     _info,
     _unknown,
     sign_normalised,
-    stability_datasets,
     unknown_info,
 )
 from poise.solvers.stability_scalars import eliminate_dense, eliminate_sparse

@@ -149,30 +149,6 @@ def _body_motion(model, q):
     return t, r
 
 
-def stability_datasets(infos: list[StabilityInfo]) -> dict:
-    """Per-frame datasets (F frames): ``frames/stability``, ``frames/n_negative``,
-    ``frames/n_zero``, ``frames/stability_modes`` (text), ``frames/min_stiffness_eigenvalue``,
-    ``frames/n_modes``; and the described modes as numbers, flat in frame order (K = the sum of
-    ``n_modes``; the frame of mode ``j`` is ``np.repeat(np.arange(F), n_modes)[j]``, so frames
-    and runs concatenate along their axes): ``modes/class``, ``modes/kind`` (K,) strings,
-    ``modes/body`` (K,) ids, ``modes/direction`` (K, 3) unit vectors, ``modes/eigenvalue``
-    (K,). Frame ``f``'s modes are the :class:`Mode` records ``infos[f].mode_list``."""
-    ml = [mo for info in infos for mo in info.mode_list]
-    return {
-        "frames/stability": np.array([i.klass for i in infos], dtype=str),
-        "frames/n_negative": np.array([i.n_negative for i in infos], dtype=np.int64),
-        "frames/n_zero": np.array([i.n_zero for i in infos], dtype=np.int64),
-        "frames/stability_modes": np.array([i.modes for i in infos], dtype=str),
-        "frames/min_stiffness_eigenvalue": np.array([i.min_eigenvalue for i in infos]),
-        "frames/n_modes": np.array([len(i.mode_list) for i in infos], dtype=np.int64),
-        "modes/class": np.array([mo.klass for mo in ml], dtype=str),
-        "modes/kind": np.array([mo.kind for mo in ml], dtype=str),
-        "modes/body": np.array([mo.body for mo in ml], dtype=np.int64),
-        "modes/direction": np.array([mo.direction for mo in ml], float).reshape(len(ml), 3),
-        "modes/eigenvalue": np.array([mo.eigenvalue for mo in ml], float),
-    }
-
-
 def unknown_info(why: str = "") -> StabilityInfo:
     """A frame that was not classified (not converged, or no trustworthy inertia)."""
     return StabilityInfo("unknown", -1, -1, why, np.nan)

@@ -61,27 +61,26 @@ def acceptable(info, settings) -> bool:
     return info.klass == "stable" or (info.klass == "neutral" and settings.allow_neutral)
 
 
-def require_stable_check(ar, out, settings):
-    """After a static analysis' datasets are written: with ``require_stable``, a converged
-    frame whose classification is not :func:`acceptable` fails (status ``unstable``, exit 1;
-    the results are written as they are)."""
+def require_stable_check(frames, message: str, settings) -> tuple:
+    """The driver's step after a static frame is measured: with ``require_stable``, a
+    converged frame whose classification is not :func:`acceptable` fails (status
+    ``unstable``, exit 1; the results are written as they are). ``frames``: the analysis'
+    :class:`~poise.solvers.record.FrameSet`. Returns ``(frames, message, failed)``."""
+    out = frames.outcomes[0]
     if not settings.require_stable or not out.ok:
-        return
-    klass = str(ar.datasets["frames/stability"][0])
+        return frames, message, False
+    klass = frames.stability[0].klass
     if klass == "stable" or (klass == "neutral" and settings.allow_neutral):
-        return
+        return frames, message, False
     why = f"the equilibrium found is {klass}"
     if klass == "neutral":
         why += " and --no-allow-neutral was given"
     elif klass == "unknown":
         why += " (its stability could not be established)"
-    out.status = Status.UNSTABLE
-    ar.datasets["frames/converged"] = np.array([False])
-    ar.datasets["frames/status"] = np.array([Status.UNSTABLE.value], dtype=str)
-    ar.status = "failed"
-    rest = "; ".join(m for m in ar.message.split("; ") if m and m != "converged")
-    ar.message = "no stable equilibrium reached (--require-stable): " + why + \
-        (f"; {rest}" if rest else "")
+    rest = "; ".join(m for m in message.split("; ") if m and m != "converged")
+    return (frames.with_outcome(0, replace(out, status=Status.UNSTABLE)),
+            "no stable equilibrium reached (--require-stable): " + why
+            + (f"; {rest}" if rest else ""), True)
 
 
 def _energy_drop(model, a, b, cnt, pa=None):
