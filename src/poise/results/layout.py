@@ -16,9 +16,6 @@ from poise.elements.rotation import euler_313, euler_parameters
 from poise.solvers.history import STRATEGIES
 from poise.solvers.record import AnalysisRecord, ComplianceRecord, FrameSet, IdaSteps, MkeamRun
 
-#: the MKEAM columns of ``iterations/*`` (NaN on the rows MKEAM did not write)
-MKEAM_COLUMNS = ("kinetic_energy", "peak_time", "max_dq", "potential_energy")
-
 
 def analysis_datasets(rec: AnalysisRecord) -> tuple[dict, dict]:
     """``(datasets, attrs)`` of the analysis group of ``rec``."""
@@ -31,14 +28,14 @@ def analysis_datasets(rec: AnalysisRecord) -> tuple[dict, dict]:
     if rec.compliance is not None:
         d.update(compliance_datasets(rec.compliance))
     if rec.history is not None:
-        d.update(history_datasets(rec.history))
+        d.update(history_datasets(rec.history, rec.frames))
         if rec.analysis_type == "static" and rec.history.poses() is not None:
             attrs["iterations_poses_stride"] = int(rec.history.pose_stride)
     d.update(redundant_datasets(rec.redundant))
     if isinstance(rec.method_data, IdaSteps):
         d.update(steps_datasets(rec.method_data))
     elif isinstance(rec.method_data, MkeamRun):
-        d.update(mkeam_datasets(rec.method_data, len(rec.history)))
+        d.update(mkeam_datasets(rec.method_data, rec.history))
     return d, attrs
 
 
@@ -102,10 +99,12 @@ def stage_totals(fs: FrameSet) -> dict:
     return out
 
 
-def history_datasets(history) -> dict:
-    """``iterations/<column>`` and, when rows carried poses, ``iterations/position``,
+def history_datasets(history, frames: FrameSet | None = None) -> dict:
+    """``iterations/<column>`` (rows measured at an output frame show the measures of
+    ``frames``) and, when rows carried poses, ``iterations/position``,
     ``iterations/orientation``, ``iterations/pose_row``."""
-    d = {f"iterations/{k}": v for k, v in history.columns().items()}
+    cols = history.columns(None if frames is None else frames.measures)
+    d = {f"iterations/{k}": v for k, v in cols.items()}
     poses = history.poses()
     if poses is not None:
         rows, P, R = poses
@@ -137,15 +136,10 @@ def steps_datasets(s: IdaSteps) -> dict:
             for k, v in s.columns.items()}
 
 
-def mkeam_datasets(run: MkeamRun, n_rows: int) -> dict:
-    """The MKEAM columns of ``iterations/*`` (``n_rows`` history rows; NaN, and -1 integrator
-    steps, on the rows MKEAM did not write) and ``mkeam/*``."""
-    d = {f"iterations/{k}": np.full(n_rows, np.nan) for k in MKEAM_COLUMNS}
-    d["iterations/integrator_steps"] = np.full(n_rows, -1, dtype=np.int64)
-    for row, vals in run.rows:
-        for k in MKEAM_COLUMNS:
-            d[f"iterations/{k}"][row] = vals[k]
-        d["iterations/integrator_steps"][row] = vals["integrator_steps"]
+def mkeam_datasets(run: MkeamRun, history) -> dict:
+    """The MKEAM columns of ``iterations/*`` (NaN, and -1 integrator steps, on the rows of
+    other solvers) and ``mkeam/*``."""
+    d = {f"iterations/{k}": v for k, v in history.mkeam_columns().items()}
     if run.iterates:
         d["mkeam/iterate_position"] = np.stack([p for p, _ in run.iterates])
         d["mkeam/iterate_orientation"] = np.stack([r for _, r in run.iterates])

@@ -29,7 +29,6 @@ class Context:
     ``arrays``); ``data``: active rows and counters; ``redundancy``: redundant rows (None until
     detected; detection runs once per model and is handed on to later analyses); ``frames`` /
     ``outcomes``: the solved frames; ``times``: the output times; ``notes``: message parts;
-    ``measured``: ``{frame: history row}`` whose measures the output evaluation fills in;
     ``progress``: ``progress(label, done, total)`` or None (``done`` None: finished).
     """
 
@@ -45,7 +44,6 @@ class Context:
     notes: list = field(default_factory=list)
     moved: bool = False
     time_independent: bool = False
-    measured: dict = field(default_factory=dict)
     progress: Callable | None = None
     start: Any = None        # frame 0's assembled input (require_stable descends from it)
 

@@ -14,12 +14,11 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.model.evaluate import Evaluation
 from poise.solvers.compliance import compliance_step
 from poise.solvers.context import Context
 from poise.solvers.data import SolveData
 from poise.solvers.frames import frame_outputs, measure_frame, measure_frames, stack_frames
-from poise.solvers.newton import FrameOutcome, Scales, measures
+from poise.solvers.newton import FrameOutcome
 from poise.solvers.quasistatic import NewtonFrames
 from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord, FrameSet
 from poise.solvers.stable import require_stable_check
@@ -116,9 +115,9 @@ class Driver:
 def build_result(ctx, strategy, index, method_data=None, method_attrs=None) -> AnalysisRecord:
     """The record of an analysis, in explicit steps: the frames are measured (one output
     evaluation each: every outcome certified there, :func:`~poise.solvers.certify.certify`;
-    ``ctx.measured`` frames take their history row's imbalance / constraint error / worst
-    equation from it: FIM_D's interpolated frames), the verdict (``require_stable`` of a
-    static frame), the compliance matrices; then the record."""
+    history rows recorded ``measured_at`` a frame show its measures: FIM_D's interpolated
+    frames), the verdict (``require_stable`` of a static frame), the compliance matrices;
+    then the record."""
     model, s = ctx.model, ctx.settings
     static = ctx.kind == "static"
     frames = _measured_frames(ctx, static)
@@ -156,28 +155,10 @@ def build_result(ctx, strategy, index, method_data=None, method_attrs=None) -> A
 def _measured_frames(ctx, static: bool):
     """The :class:`~poise.solvers.record.FrameSet` of every frame: all at once where the
     model allows it (quasi-static), else frame by frame."""
-    model, measured = ctx.model, ctx.measured
-    sc = Scales(model, ctx.settings) if measured else None
-
-    def measure_row(k, imb, cerr, worst):
-        if k not in measured:
-            return
-        row = list(ctx.history.rows[measured[k]])
-        row[2], row[3], row[6] = imb, cerr, worst
-        ctx.history.rows[measured[k]] = tuple(row)
-
-    def measure(k):
-        def on_eval(ev, active):
-            ms = measures(model, Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0),
-                                            J=None), sc)
-            measure_row(k, ms[0], ms[1], ms[3])
-        return on_eval
-
     if static:
         return measure_frame(ctx, ctx.frames[0], ctx.outcomes)
-    fs = measure_frames(ctx, ctx.frames, ctx.outcomes, measure_row if measured else None)
+    fs = measure_frames(ctx, ctx.frames, ctx.outcomes)
     if fs is not None:
         return fs
-    return FrameSet.concatenate([
-        measure_frame(ctx, st, [o], on_eval=measure(k) if k in measured else None)
-        for k, (st, o) in enumerate(zip(ctx.frames, ctx.outcomes))])
+    return FrameSet.concatenate([measure_frame(ctx, st, [o])
+                                 for st, o in zip(ctx.frames, ctx.outcomes)])

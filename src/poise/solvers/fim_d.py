@@ -195,8 +195,8 @@ class IdaContinuation(Strategy):
             Yc, n_c, errs, ok_c = self.correct.batch(chart, np.array([p[2] for p in pend]), Tp)
             sts = chart.states(Yc, Tp)
             for j, (k, tk, yk) in enumerate(pend):
-                ctx.measured[len(ctx.frames)] = len(hist.rows)
-                hist.add(k, n_c[j], np.nan, np.nan, errs[j], np.nan, "", "ida")
+                hist.add(k, n_c[j], np.nan, np.nan, errs[j], np.nan, "", "ida",
+                         measured_at=len(ctx.frames))
                 if ok_c[j]:
                     st, o = sts[j], FrameOutcome(Status.CONVERGED, int(n_c[j]), np.nan, errs[j],
                                                  "ida")

@@ -31,13 +31,11 @@ from poise.solvers.stability import (
 )
 
 
-def measure_frame(ctx, state, outcomes, on_eval=None) -> FrameSet:
-    """The :class:`~poise.solvers.record.FrameSet` of one frame. ``on_eval(ev, active)``, if
-    given, is called with the output evaluation (all rows active) and the analysis' active-row
-    mask before the outcomes are certified (FIM_D records its interpolated frames' measures
-    from it: no second evaluation). The outcomes are certified on that evaluation
-    (:func:`~poise.solvers.certify.certify`: measured imbalance / error; demoted if the
-    tolerances are not met): the set holds the certified ones."""
+def measure_frame(ctx, state, outcomes) -> FrameSet:
+    """The :class:`~poise.solvers.record.FrameSet` of one frame. The outcomes are certified
+    on its output evaluation (:func:`~poise.solvers.certify.certify`: measured imbalance /
+    error; demoted if the tolerances are not met): the set holds the certified ones and the
+    frame's measures (None if it could not be evaluated)."""
     model = ctx.model
     # one evaluation (all rows active, slot data kept) serves the minimum-norm reactions,
     # the element loads and the stability classification
@@ -45,13 +43,13 @@ def measure_frame(ctx, state, outcomes, on_eval=None) -> FrameSet:
     J = None
     dep = np.asarray(ctx.redundancy, int)
     outcomes = list(outcomes)
+    measured = None
     try:
         ev = model.evaluate(state, need_jac=True, keep=True)
         J = ev.J
-        if on_eval is not None:
-            on_eval(ev, saved)
-        outcomes = [certify(model, ctx.settings, o, ev.r, np.where(saved, ev.phi, 0.0))[0]
-                    for o in outcomes]
+        phi = np.where(saved, ev.phi, 0.0)
+        for i, o in enumerate(outcomes):
+            outcomes[i], measured = certify(model, ctx.settings, o, ev.r, phi)
         lam = state.lam
         if len(ctx.redundancy) and model.nc:
             Pfull = J[model.nq:, :model.nq]
@@ -71,13 +69,14 @@ def measure_frame(ctx, state, outcomes, on_eval=None) -> FrameSet:
     else:   # the same records either way: frames of a sequence are concatenated
         infos = [unknown_info()] * len(outcomes)
     return frame_set(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
-                     dep, outcomes, infos)
+                     dep, outcomes, infos, [measured])
 
 
-def frame_set(model, frames, loads, dep, outcomes, stability) -> FrameSet:
+def frame_set(model, frames, loads, dep, outcomes, stability, measures) -> FrameSet:
     """The :class:`~poise.solvers.record.FrameSet` of ``frames`` (one or many): times, body
     poses, per output group the element loads and (joints, jprims) reaction uniqueness, the
-    ``outcomes`` and their ``stability``.
+    ``outcomes``, their ``stability`` and ``measures`` (per frame ``(imbalance, constraint
+    error, worst equation)`` of its output evaluation, or None).
 
     ``loads``: ``{group: (F, T)}`` with arrays (n_frames, n_group, 3); groups missing are
     zero. ``dep``: constraint rows taking part in a dependency (not unique).
@@ -106,7 +105,7 @@ def frame_set(model, frames, loads, dep, outcomes, stability) -> FrameSet:
                     body_id=model.body_id,
                     position=np.stack([s.pos for s in frames]), orientation=rot,
                     rotation_from_input=rv, groups=groups, outcomes=tuple(outcomes),
-                    stability=tuple(stability))
+                    stability=tuple(stability), measures=tuple(measures))
 
 
 def frame_outputs(model, state) -> dict:
@@ -134,7 +133,7 @@ def stack_frames(per_frame: list[dict]) -> dict:
     return out
 
 
-def measure_frames(ctx, frames, outcomes, measure=None) -> FrameSet | None:
+def measure_frames(ctx, frames, outcomes) -> FrameSet | None:
     """The :class:`~poise.solvers.record.FrameSet` of all ``frames``, as the frame-by-frame
     path (:func:`measure_frame` per frame, concatenated) makes it.
 
@@ -144,11 +143,10 @@ def measure_frames(ctx, frames, outcomes, measure=None) -> FrameSet | None:
         Provides the model, the settings, the active and the redundant rows.
     frames : list of State
     outcomes : list of FrameOutcome (one per frame)
-    measure : callable or None
-        ``measure(k, imbalance, constraint_error, worst_equation)`` for every frame ``k``, as
-        measured on its evaluation (inactive, redundant rows excluded) by
-        :func:`poise.solvers.certify.certify`, which also certifies every outcome (the set
-        holds the certified ones).
+
+    Every outcome is certified on its frame's evaluation (inactive, redundant rows excluded) by
+    :func:`poise.solvers.certify.certify`: the set holds the certified outcomes and the
+    measures.
     """
     model = ctx.model
     outcomes = list(outcomes)
@@ -162,7 +160,7 @@ def measure_frames(ctx, frames, outcomes, measure=None) -> FrameSet | None:
     dep = red
     w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
     loads = {}
-    infos = []
+    infos, measured = [], []
     C = chunk_size(model)
     try:
         for a in range(0, F, C):
@@ -171,8 +169,7 @@ def measure_frames(ctx, frames, outcomes, measure=None) -> FrameSet | None:
             for j in range(len(chunk)):
                 outcomes[a + j], got = certify(model, ctx.settings, outcomes[a + j], ev.r[j],
                                                np.where(saved, ev.phi[j], 0.0), sc)
-                if measure is not None:
-                    measure(a + j, *got)
+                measured.append(got)
             lam = np.stack([s.lam for s in chunk]) if nc else np.zeros((len(chunk), 0))
             if len(red) and nc:
                 lam = lam.copy()
@@ -197,4 +194,5 @@ def measure_frames(ctx, frames, outcomes, measure=None) -> FrameSet | None:
         return None
     return frame_set(model, frames, {g: (np.concatenate([x[0] for x in parts]),
                                          np.concatenate([x[1] for x in parts]))
-                                     for g, parts in loads.items()}, dep, outcomes, infos)
+                                     for g, parts in loads.items()}, dep, outcomes, infos,
+                     measured)

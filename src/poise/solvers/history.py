@@ -20,6 +20,10 @@ import numpy as np
 COLUMNS = ("frame", "iteration", "imbalance", "error", "step_norm", "step_length",
            "worst_equation", "event", "strategy")
 
+#: MKEAM's own columns (an MKEAM analysis writes them: NaN / -1 on the rows of other solvers)
+MKEAM_COLUMNS = ("kinetic_energy", "peak_time", "max_dq", "potential_energy",
+                 "integrator_steps")
+
 #: ``iterations/strategy`` values: the recovery stage a row belongs to (``plain``: the method as
 #: requested, no recovery; the others are the fallback chain's strategies, solvers/fallback.py)
 STRATEGIES = ("plain", "stability", "continuation", "mkeam", "polish")
@@ -35,6 +39,9 @@ class Row:
     ``event``: what the row is (``newton``, ``assembly``, ``continuation mu=...``,
     ``fallback: ...``); ``strategy``: the recovery stage (:data:`STRATEGIES`). ``pos`` /
     ``rot``: the pose of the iterate the row measured (optional, not kept on the row).
+    ``mkeam``: an MKEAM iteration's :data:`MKEAM_COLUMNS` values. ``measured_at``: output
+    frame whose output evaluation gives the row's imbalance, error and worst equation (FIM_D's
+    interpolated frames: the frame is certified there; :meth:`History.columns`).
     """
 
     frame: int
@@ -48,6 +55,8 @@ class Row:
     strategy: str = "plain"
     pos: np.ndarray | None = None
     rot: np.ndarray | None = None
+    mkeam: tuple | None = None
+    measured_at: int | None = None
 
     def columns(self) -> tuple:
         """The row's :data:`COLUMNS` values, typed as they are stored."""
@@ -63,10 +72,12 @@ class _Rows:
         raise NotImplementedError
 
     def add(self, frame, iteration, imbalance, error, step_norm=np.nan, step_length=np.nan,
-            worst_equation="", event="newton", pos=None, rot=None):
+            worst_equation="", event="newton", pos=None, rot=None, mkeam=None,
+            measured_at=None):
         """Record a row given by its fields (the driver-level rows: sub-steps, FIM_D, MKEAM)."""
         self.append(Row(frame, iteration, imbalance, error, step_norm, step_length,
-                        worst_equation, event, pos=pos, rot=rot))
+                        worst_equation, event, pos=pos, rot=rot, mkeam=mkeam,
+                        measured_at=measured_at))
 
     def stage(self, name: str) -> "Staged":
         """A view that labels every row recorded through it ``name`` (a fallback stage)."""
@@ -84,10 +95,16 @@ class History(_Rows):
         self._last_pose: tuple | None = None   # (row, pos, rot) of the newest pose, always kept
         self._n_posed = 0                      # pose-bearing rows seen
         self.pose_stride = 1
+        self._mkeam: dict[int, tuple] = {}     # history row -> its MKEAM columns
+        self._measured: dict[int, int] = {}    # history row -> output frame measuring it
 
     def append(self, row: Row) -> None:
         """Record ``row`` (its pose, if any, subsampled as the module says)."""
         self.rows.append(row.columns())
+        if row.mkeam is not None:
+            self._mkeam[len(self.rows) - 1] = tuple(row.mkeam)
+        if row.measured_at is not None:
+            self._measured[len(self.rows) - 1] = int(row.measured_at)
         if row.pos is not None and row.rot is not None:
             self._add_pose(len(self.rows) - 1, row.pos, row.rot)
 
@@ -135,9 +152,20 @@ class History(_Rows):
             R = np.stack([poses[i][1] for i in rows])
         return np.asarray(rows, dtype=np.int64), P, R
 
-    def columns(self) -> dict:
-        """The table: one array per :data:`COLUMNS` name (int, float or str, as declared)."""
-        cols = list(zip(*self.rows)) if self.rows else [[] for _ in COLUMNS]
+    def columns(self, measures=None) -> dict:
+        """The table: one array per :data:`COLUMNS` name (int, float or str, as declared).
+        ``measures``: per output frame ``(imbalance, constraint error, worst equation)`` as
+        its output evaluation measured it (None where it was not): the rows recorded
+        ``measured_at`` a frame show those."""
+        rows = self.rows
+        if measures is not None and self._measured:
+            rows = list(rows)
+            for i, k in self._measured.items():
+                if k < len(measures) and measures[k] is not None:
+                    imb, cerr, worst = measures[k]
+                    r = rows[i]
+                    rows[i] = r[:2] + (float(imb), float(cerr)) + r[4:6] + (str(worst),) + r[7:]
+        cols = list(zip(*rows)) if rows else [[] for _ in COLUMNS]
         out = {}
         for name, col in zip(COLUMNS, cols):
             if name in ("frame", "iteration"):
@@ -146,6 +174,18 @@ class History(_Rows):
                 out[name] = np.asarray(col, dtype=str) if len(col) else np.zeros(0, dtype=str)
             else:
                 out[name] = np.asarray(col, dtype=float)
+        return out
+
+
+    def mkeam_columns(self) -> dict:
+        """One array per :data:`MKEAM_COLUMNS` name over every row (NaN, and -1 integrator
+        steps, on the rows that are not MKEAM iterations)."""
+        n = len(self.rows)
+        out = {k: np.full(n, np.nan) for k in MKEAM_COLUMNS[:-1]}
+        out["integrator_steps"] = np.full(n, -1, dtype=np.int64)
+        for row, vals in self._mkeam.items():
+            for k, v in zip(MKEAM_COLUMNS, vals):
+                out[k][row] = v
         return out
 
 

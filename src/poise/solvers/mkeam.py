@@ -43,7 +43,7 @@ class MkeamMethod(Strategy):
         attrs = {"mkeam_wall_time": time.perf_counter() - self.t_start}
         if self.rx is not None:
             return self.rx.record(self.mk_state), attrs
-        return mkeam_run([], [], self.mk_state, np.nan), attrs
+        return mkeam_run([], self.mk_state, np.nan), attrs
 
     def _solve(self, ctx, state):
         """Redundancy, assembly, MKEAM iterations, Newton polish. Returns ``(outcome, reported

@@ -41,8 +41,10 @@ class FrameSet:
     ``position`` (F, B, 3), ``orientation`` (F, B, 3, 3) and ``rotation_from_input``
     (F, B, 3) (turns counted); per output group its :class:`GroupLoads`; the certified
     outcomes (:class:`~poise.solvers.newton.FrameOutcome`, one per frame, not changed once
-    here: :meth:`with_outcome` makes a new set) and the numeric stability of each frame
-    (:class:`~poise.solvers.stability_modes.StabilityInfo`)."""
+    here: :meth:`with_outcome` makes a new set), the numeric stability of each frame
+    (:class:`~poise.solvers.stability_modes.StabilityInfo`) and its ``measures``
+    (``(imbalance, constraint error, worst equation)`` of its output evaluation, None if it
+    could not be evaluated)."""
 
     states: tuple
     time: np.ndarray
@@ -53,6 +55,7 @@ class FrameSet:
     groups: dict
     outcomes: tuple
     stability: tuple
+    measures: tuple
 
     def __len__(self) -> int:
         return len(self.time)
@@ -91,7 +94,8 @@ class FrameSet:
                         orientation=cat([s.orientation for s in sets]),
                         rotation_from_input=cat([s.rotation_from_input for s in sets]),
                         groups=groups, outcomes=sum((s.outcomes for s in sets), ()),
-                        stability=sum((s.stability for s in sets), ()))
+                        stability=sum((s.stability for s in sets), ()),
+                        measures=sum((s.measures for s in sets), ()))
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,12 +120,10 @@ class IdaSteps:
 
 @dataclass(frozen=True, eq=False)
 class MkeamRun:
-    """An MKEAM analysis: ``rows`` ``(history row, values)`` of its iterations (values:
-    kinetic_energy, peak_time, max_dq, potential_energy, integrator_steps), the restart
-    points ``iterates`` (list of (pos, rot)), the MKEAM point's ``position`` / ``orientation``
-    and the potential energy where it started."""
+    """An MKEAM analysis (its iterations are history rows with MKEAM's columns): the restart
+    points ``iterates`` ((pos, rot) each), the MKEAM point's ``position`` / ``orientation`` and
+    the potential energy where it started."""
 
-    rows: tuple
     iterates: tuple
     position: np.ndarray
     orientation: np.ndarray

@@ -59,7 +59,7 @@ class Relaxation:
         self.settings = settings
         self.history = history
         self.counters = data
-        self.rows = []            # per-history-row MKEAM extras (row index, dict)
+        self.n_rows = 0           # MKEAM iteration rows recorded
         self.extras_free = False  # scalar unknowns MKEAM cannot determine (see _resolve_extras)
         self.iterates = []        # restart points (pos, rot)
         self.handover_tried = False
@@ -452,22 +452,22 @@ class Relaxation:
     @property
     def iterations(self) -> int:
         """MKEAM iterations recorded so far (one ``mkeam`` history row each)."""
-        return len(self.rows)
+        return self.n_rows
 
     def _row(self, it, ke, dq, worst, peak, steps, pe, event):
-        self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event)
-        self.rows.append((len(self.history) - 1, dict(kinetic_energy=ke, peak_time=peak.t,
-                                                      max_dq=dq, potential_energy=pe,
-                                                      integrator_steps=steps)))
+        # MKEAM_COLUMNS: kinetic_energy, peak_time, max_dq, potential_energy, integrator_steps
+        self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event,
+                         mkeam=(ke, peak.t, dq, pe, steps))
+        self.n_rows += 1
 
     def record(self, mk_state) -> MkeamRun:
-        """The run as a record: its iteration rows, restart points and the MKEAM point
-        ``mk_state``."""
-        return mkeam_run(self.rows, self.iterates, mk_state, self.pe_start)
+        """The run as a record: its restart points and the MKEAM point ``mk_state`` (its
+        iterations are history rows)."""
+        return mkeam_run(self.iterates, mk_state, self.pe_start)
 
 
-def mkeam_run(rows, iterates, mk_state, pe_start) -> MkeamRun:
+def mkeam_run(iterates, mk_state, pe_start) -> MkeamRun:
     """:class:`~poise.solvers.record.MkeamRun` of an MKEAM run ending at ``mk_state``."""
-    return MkeamRun(rows=tuple(rows), iterates=tuple(iterates),
+    return MkeamRun(iterates=tuple(iterates),
                     position=mk_state.pos[None].copy(), orientation=mk_state.rot[None].copy(),
                     initial_potential_energy=pe_start)
