@@ -248,7 +248,7 @@ class Model:
         dq[self.trans_idx] = dp.ravel()
         rb = self.rot_body
         if len(rb):
-            w = _log_so3(np.matmul(b.rot[rb], np.swapaxes(a.rot[rb], 1, 2)))
+            w = log_so3(np.matmul(b.rot[rb], np.swapaxes(a.rot[rb], 1, 2)))
             E = expm_so3(w)
             V = se3_left_jacobian(w)
             v0 = np.linalg.solve(V, (b.pos[rb] - np.einsum("nij,nj->ni", E, a.pos[rb]))[..., None])[..., 0]
@@ -307,7 +307,7 @@ class Model:
         return jacobian(self, ev)
 
 
-def _log_so3(R):
+def log_so3(R):
     """Rotation vectors (n, 3) of rotation matrices (n, 3, 3) (angle in [0, pi])."""
     tr = np.einsum("nii->n", R)
     c = np.clip(0.5 * (tr - 1.0), -1.0, 1.0)

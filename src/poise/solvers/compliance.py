@@ -16,7 +16,7 @@ from poise.core.errors import EvaluationError, UsageError
 from poise.core.wording import plural
 from poise.model.evaluate import evaluate
 from poise.model.frame_batch import batchable, chunk_size
-from poise.model.model import _log_so3
+from poise.model.model import log_so3
 from poise.solvers.data import SolveData
 from poise.solvers.history import History
 from poise.solvers.linalg import Factor, SingularMatrix
@@ -227,7 +227,7 @@ def _fd(model, state, active, G, rows, settings):
         P1, A1, _ = model.marker_kinematics(st)
         u = np.empty((len(rows), 6))
         u[:, :3] = P1[rows] - P0
-        u[:, 3:] = _log_so3(np.matmul(A1[rows], np.swapaxes(A0, 1, 2)))
+        u[:, 3:] = log_so3(np.matmul(A1[rows], np.swapaxes(A0, 1, 2)))
         C[:, c] = u.ravel() / h
     return C, ("fd_failed" if failed else "ok")
 

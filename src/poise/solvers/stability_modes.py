@@ -2,7 +2,7 @@
 
 :class:`StabilityInfo` (class, inertia counts, described :class:`Mode` s) is what both
 classification paths (:mod:`poise.solvers.stability` dense, :mod:`poise.solvers.stability_sparse`)
-return; :func:`_describe` names a mode by the body that moves most. Kept apart from the
+return; :func:`describe_mode` names a mode by the body that moves most. Kept apart from the
 eigen-solves so the results side needs neither. Method: docs/stability.md.
 """
 from __future__ import annotations
@@ -96,14 +96,14 @@ def sign_normalised(a) -> np.ndarray:
     return a + 0.0
 
 
-def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo:
+def classified_info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo:
     """StabilityInfo of a classified frame: ``unstable`` / ``neutral`` lists of ``(q, w)`` (mode
     in model coordinates, its Rayleigh quotient [force/length]), up to N_MODES described each;
     the text is built from the numeric modes."""
     modes, texts = [], []
     for label, found, count in (("unstable", unstable, n_neg), ("neutral", neutral, n_zero)):
         for q, w in found[:N_MODES]:
-            mo = _describe(model, q, label, w)
+            mo = describe_mode(model, q, label, w)
             modes.append(mo)
             texts.append(f"{label}: {mo.text()}")
         extra = count - min(len(found), N_MODES)
@@ -113,7 +113,7 @@ def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo
                          tuple(modes), tuple(np.asarray(q, float) for q, _ in unstable[:N_MODES]))
 
 
-def _describe(model, q, klass="", eigenvalue=np.nan) -> Mode:
+def describe_mode(model, q, klass="", eigenvalue=np.nan) -> Mode:
     """Body with the largest participation in mode ``q`` and its dominant motion, as a
     :class:`Mode` (vectorised over the bodies: cheap for 10 000 bodies); the scalar unknown
     that moves most (``coordinate``) when no body moves, or without bodies."""
@@ -155,6 +155,6 @@ def unknown_info(why: str = "") -> StabilityInfo:
 
 
 
-def _unknown(why: str) -> StabilityInfo:
+def not_classified(why: str) -> StabilityInfo:
     return unknown_info(f"not classified: {why}")
 
