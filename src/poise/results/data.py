@@ -19,30 +19,19 @@ import numpy as np
 from poise.elements import rotation as rot
 from poise.results.schema import declared_item, unit_string
 from poise.results.layout import analysis_datasets
-from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord
+from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisHeader, AnalysisRecord
 
 
-@dataclass
-class AnalysisResult:
-    """Result of one ``Simulate`` command: ``index`` (0-based), ``analysis_type`` (``static`` /
-    ``quasistatic``), ``method`` used, ``status`` (``converged`` / ``failed``), ``message``,
-    effective ``settings``, ``datasets`` (path relative to the analysis group -> array) and
-    group ``attrs``, with readers. String arrays in ``datasets`` are numpy ``str_`` arrays;
-    the writer stores them as variable-length UTF-8.
+@dataclass(frozen=True, eq=False)
+class AnalysisResult(AnalysisHeader):
+    """Result of one ``Simulate`` command: the :class:`~poise.solvers.record.AnalysisHeader`
+    (index, analysis_type, method, status, message, settings), ``datasets`` (path relative to
+    the analysis group -> array) and group ``attrs``, with readers. String arrays in
+    ``datasets`` are numpy ``str_`` arrays; the writer stores them as variable-length UTF-8.
     """
 
-    index: int
-    analysis_type: str
-    method: str
-    status: str = STATUS_FAILED
-    message: str = ""
-    settings: dict = field(default_factory=dict)
     datasets: dict[str, np.ndarray] = field(default_factory=dict)
     attrs: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def converged(self) -> bool:
-        return self.status == STATUS_CONVERGED
 
     @classmethod
     def of(cls, record: AnalysisRecord) -> "AnalysisResult":

@@ -131,14 +131,10 @@ class MkeamRun:
 
 
 @dataclass(frozen=True, eq=False)
-class AnalysisRecord:
-    """One ``Simulate`` command's outcome: ``index`` (0-based), ``analysis_type`` (``static`` /
-    ``quasistatic``), ``method`` used, ``status`` (``converged`` / ``failed``), ``message``,
-    effective ``settings`` and group ``attrs``; the data: ``frames`` (:class:`FrameSet`),
-    ``element_outputs`` (what the model's frame hooks give, stacked over the frames, named by
-    their element types), the ``history``, the ``redundant`` rows (``model.row_info``
-    entries), ``compliance``, ``method_data`` (:class:`IdaSteps` / :class:`MkeamRun`) and
-    ``stage_totals`` (write the per-stage iteration totals)."""
+class AnalysisHeader:
+    """What names and judges one ``Simulate`` command: ``index`` (0-based), ``analysis_type``
+    (``static`` / ``quasistatic``), ``method`` used, ``status`` (``converged`` / ``failed``),
+    ``message``, effective ``settings``."""
 
     index: int
     analysis_type: str
@@ -146,6 +142,21 @@ class AnalysisRecord:
     status: str = STATUS_FAILED
     message: str = ""
     settings: dict = field(default_factory=dict)
+
+    @property
+    def converged(self) -> bool:
+        return self.status == STATUS_CONVERGED
+
+
+@dataclass(frozen=True, eq=False)
+class AnalysisRecord(AnalysisHeader):
+    """One ``Simulate`` command's outcome: the :class:`AnalysisHeader`, group ``attrs`` and
+    the data: ``frames`` (:class:`FrameSet`),
+    ``element_outputs`` (what the model's frame hooks give, stacked over the frames, named by
+    their element types), the ``history``, the ``redundant`` rows (``model.row_info``
+    entries), ``compliance``, ``method_data`` (:class:`IdaSteps` / :class:`MkeamRun`) and
+    ``stage_totals`` (write the per-stage iteration totals)."""
+
     attrs: dict[str, Any] = field(default_factory=dict)
     frames: FrameSet | None = None
     element_outputs: dict = field(default_factory=dict)
@@ -154,7 +165,3 @@ class AnalysisRecord:
     compliance: ComplianceRecord | None = None
     method_data: Any = None
     stage_totals: bool = False
-
-    @property
-    def converged(self) -> bool:
-        return self.status == STATUS_CONVERGED
