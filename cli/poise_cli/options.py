@@ -100,9 +100,9 @@ def solver_options(f):
                           "MKEAM) when FIM_S fails."),
         click.option("--fallback-budget", type=click.IntRange(min=0), default=None,
                      expose_value=False, callback=_store_fallback_budget, metavar="N",
-                     help="Iterations (Newton, continuation, MKEAM together) the fallback chain "
-                          "may spend on one frame after plain Newton failed. Default: "
-                          "max_num_iter."),
+                     help="Units of work (Newton iterations, continuation steps, MKEAM "
+                          "integration and descent steps) the fallback chain may spend on one "
+                          "frame after plain Newton failed. Default: max_num_iter."),
         click.option("--require-stable", "require_stable", is_flag=True, default=None,
                      help="Static analyses succeed only at a stable equilibrium: FIM_S leaves "
                           "an unstable equilibrium along its negative modes and continues "

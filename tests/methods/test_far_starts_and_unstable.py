@@ -73,10 +73,14 @@ def test_far_start_plain_newton_stalls_fallback_converges(runner):
     off = runner.api(cubic_slider(0.0), "plain.xml", fallback=False)
     assert not off.converged
     assert off.datasets["frames/status"][0] == "max_iterations"
-    # stuck on the wrong side of the merit function's local minimum (F >= 0.911 N for u >= 0)
-    assert off.datasets["bodies/position"][0, 0, 0] > 0
+    # the merit function has a valley between the start and the root (F >= 0.911 N for u >= 0):
+    # Newton's line search stalls there and its steps go down the potential instead, towards
+    # the root, but one model size (L = 1 mm: every marker at the origin) per iteration
+    assert 100 * u < off.datasets["bodies/position"][0, 0, 0] < 0
+    assert "newton-downhill" in set(off.datasets["iterations/event"])
     assert off.datasets["frames/imbalance"][0] > 0.9
-    a = runner.api(cubic_slider(0.0), "fallback.xml")
+    # the chain's budget counts MKEAM's integration steps too: 1 mm steps need more than 30
+    a = runner.api(cubic_slider(0.0), "fallback.xml", fallback_max_num_iter=1000)
     assert a.converged, a.message
     assert abs(a.datasets["bodies/position"][0, 0, 0] - 100 * u) < 1e-7
     ev = list(a.datasets["iterations/event"])

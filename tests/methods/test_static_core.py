@@ -219,10 +219,11 @@ def test_smooth_decks_converge_within_six_iterations(deck):
 def test_fallback_chain_recorded_and_switchable(tmp_path):
     deck = str(DECKS / "pendulum_multiturn.xml")
     # the chain's budget defaults to max_num_iter (2 here: not enough); it is granted explicitly
-    res = run_deck(deck, overrides={"max_num_iter": 2, "fallback_max_num_iter": 50})
+    # (units of work: Newton iterations, continuation steps, MKEAM integration steps)
+    res = run_deck(deck, overrides={"max_num_iter": 2, "fallback_max_num_iter": 200})
     a = res.analyses[0]
     assert a.converged
-    assert a.datasets["frames/iterations"][0] <= 2 + 50
+    assert a.datasets["frames/iterations"][0] <= 2 + 200
     assert "fallback strategy" in a.message
     events = set(a.datasets["iterations/event"])
     assert any(e.startswith("fallback: stability") for e in events)

@@ -54,10 +54,10 @@ def test_missing_joint_stops_before_the_chain(tmp_path):
     a = run_deck(double_pendulum(False).write(tmp_path / "missing.xml")).analyses[0]
     assert not a.converged
     assert a.datasets["frames/status"][0] == "no_equilibrium"
-    assert "Body_Rigid id=3" in a.message and "nothing restrains" in a.message
-    # no fallback strategy ran: plain Newton's budget only
+    assert "Body_Rigid id=3" in a.message and "is free to translate" in a.message
+    # found before Newton spent any iteration, no fallback strategy ran
     assert set(a.datasets["iterations/strategy"]) == {"plain"}
-    assert a.datasets["frames/iterations"][0] <= 100
+    assert a.datasets["frames/iterations"][0] == 0
     # with the joint the same model converges (the check does not flag a sound model); the
     # answer from the potential in the two absolute link angles (N mm; m g in N = kg x 9.81)
     b = run_deck(double_pendulum(True).write(tmp_path / "sound.xml")).analyses[0]
@@ -194,9 +194,9 @@ def test_reliability_deck_ends_cleanly(tmp_path, name):
 
 @pytest.mark.skipif(not REL.is_dir(), reason="reliability decks not available")
 def test_user_routine_k200_matches_the_builtin_model(tmp_path):
-    """The k = 200 user-routine deck (plain Newton fails, the chain converges) against the same
-    model written with built-in elements (decks/elem_user_forces_builtin.xml, k 100 -> 200),
-    which plain Newton solves."""
+    """The k = 200 user-routine deck (plain Newton's line search stalls: it goes on down the
+    potential, or the chain converges) against the same model written with built-in elements
+    (decks/elem_user_forces_builtin.xml, k 100 -> 200), which plain Newton solves."""
     out = tmp_path / "u.h5"
     r, js = solve_cli(REL / "user_routine_k200_internal_error.xml", out, *_allow_user_code())
     assert r.returncode == 0, r.stderr
@@ -213,5 +213,6 @@ def test_user_routine_k200_matches_the_builtin_model(tmp_path):
                                    atol=1e-9)
         np.testing.assert_allclose(g["bodies/orientation"][()],
                                    ref.datasets["bodies/orientation"], atol=1e-9)
-        assert g["frames/strategy"][()][0] in (b"continuation", "continuation", b"stability",
-                                               "stability", b"mkeam", "mkeam")
+        ev = {e.decode() if isinstance(e, bytes) else e for e in g["iterations/event"][()]}
+        assert "newton-downhill" in ev or g["frames/strategy"][()][0] in (
+            b"continuation", "continuation", b"stability", "stability", b"mkeam", "mkeam")

@@ -36,7 +36,8 @@ def test_nan_along_the_path_names_element_and_line(runner):
         assert a["frames/status"].asstr()[0] == "nonfinite"
         assert not a["frames/converged"][0]
         ev = a["iterations/event"].asstr()[:]
-        assert len(ev) >= 2 and set(ev) == {"newton"}     # the full history, no fallback
+        # the full history (Newton's steps, downhill ones included), no fallback
+        assert len(ev) >= 2 and all(e.startswith("newton") for e in ev)
         assert np.all(np.isfinite(a["iterations/imbalance"][:]))
 
 

@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.solvers import freedom
 from poise.solvers.history import Row
 from poise.solvers.iterate import Iterative, Step, iterate
 from poise.solvers.newton import FrameOutcome, Scales, merit, newton
@@ -36,7 +37,8 @@ def solve_frame(model, state, settings, history, frame, cnt, event="newton"):
     strategy, ``strategy`` names the one that converged (``plain``: no recovery needed).
     """
     start = state.copy()
-    st, out = newton(model, state, settings, history, frame, cnt, event=event)
+    st, out = newton(model, state, settings, history, frame, cnt, event=event,
+                     probe=freedom.probe)
     out.counts = {"plain": out.iterations}
     if out.ok:
         return st, out
@@ -53,12 +55,17 @@ def recover(model, start, st, out, settings, history, frame, cnt):
     out.iterations = plain
     if out.ok or not settings.fallback or out.status in NO_RECOVERY:
         return st, out
+    if out.final:
+        out.message += ("; the fallback chain was not tried (continuation and MKEAM descend the "
+                        "same way)")
+        return st, out
     if not out.imbalance <= OVERFLOW:
         return st, FrameOutcome(Status.NONFINITE, plain, out.imbalance, out.error,
                                 f"{out.message}; the force imbalance ({out.imbalance:.3g}) is "
                                 "beyond any physical scale (floating-point overflow): check the "
                                 "loads; the fallback chain was not tried", out.counts)
-    why = unrestrained_load(model, settings, (start, st), cnt)
+    why = (freedom.candidate(model, start, settings, cnt)
+           or unrestrained_load(model, settings, (start, st), cnt))
     if why:
         return st, FrameOutcome(Status.NO_EQUILIBRIUM, plain, out.imbalance, out.error,
                                 MESSAGES[Status.NO_EQUILIBRIUM] + "; " + why, out.counts)
@@ -76,8 +83,8 @@ def recover(model, start, st, out, settings, history, frame, cnt):
         return st2, out2
     out.iterations, out.counts = total, counts
     out.message += (f"; fallback chain (stability, continuation, mkeam) did not converge "
-                    f"({total - plain} of its {budget} iterations used, raise --fallback-budget; last: "
-                    f"{out2.message})")
+                    f"({total - plain} of its {budget} units of work used, raise "
+                    f"--fallback-budget; last: {out2.message})")
     return st, out
 
 
@@ -160,9 +167,10 @@ class ContinuationStage:
 
 
 class MkeamStage:
-    """MKEAM relaxation (:meth:`poise.solvers.relaxation.Relaxation.relax`, stable equilibria only), a
-    quarter of the budget left kept for the Newton polish of its point (stage ``polish``).
-    The last stage: its outcome is final."""
+    """MKEAM relaxation (:meth:`poise.solvers.relaxation.Relaxation.relax`, stable equilibria
+    only) within the budget left in units of work (integration steps of the dynamics, steps of
+    its Newton descent), a quarter of it kept for the Newton polish of its point (stage
+    ``polish``). The last stage: its outcome is final."""
 
     name = "mkeam"
 
@@ -172,22 +180,23 @@ class MkeamStage:
     def run(self, model, start, settings, history, frame, cnt, left, counts, prev):
         st, out = prev
         polish = min(int(settings.max_num_iter), max(1, left // 4))
-        n_mk = max(1, left - polish)
+        units = max(1, left - polish)
         rx = None
         try:
             # lazy: MKEAM needs scipy, which the small-deck path never loads
             from poise.solvers.relaxation import Relaxation
-            rx = Relaxation(model, replace(settings, max_num_iter=n_mk), history, cnt)
-            st2, ok = rx.relax(start.copy())
+            rx = Relaxation(model, replace(settings, max_num_iter=units), history, cnt,
+                            units=units)
+            st2, ok, why = rx.relax(start.copy())
         except Exception as e:   # noqa: BLE001 - any MKEAM failure just ends the chain
-            counts["mkeam"] = 0 if rx is None else rx.iterations
+            counts["mkeam"] = 0 if rx is None else rx.used
             why = Row(frame, 0, event=f"fallback: mkeam failed: {e}", strategy=self.name)
             return st, replace(out, message=f"MKEAM failed: {e}"), True, (why,)
-        counts["mkeam"] = rx.iterations
+        counts["mkeam"] = rx.used
         left -= counts["mkeam"]
         if not ok:
-            return st, replace(out, message="MKEAM did not converge within its share of the "
-                                            "fallback budget"), True, ()
+            return st, replace(out, message=f"MKEAM did not converge within its share of the "
+                                            f"fallback budget ({units} units): {why}"), True, ()
         if left <= 0:
             return st2, FrameOutcome(Status.MAX_ITERATIONS, 0, np.nan, np.nan,
                                      "no budget left for the Newton polish of the MKEAM point"

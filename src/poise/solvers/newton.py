@@ -22,24 +22,33 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.elements.context import row_where
 from poise.solvers.data import SolveData
+from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.history import History, Row
 from poise.solvers.iterate import Iterative, Step, iterate
 from poise.solvers.linalg import SingularMatrix
+from poise.solvers.reach import PROJECT_ABOVE, project, violation
+from poise.solvers.reach import coord_weights as _coord_weights
+from poise.solvers.reach import weighted_kkt as _weighted_kkt
 from poise.solvers.status import MESSAGES, Status
+from poise.solvers.steps import limit_step as _limit_step_trial
+from poise.solvers.steps import mass_times as _mass_times
+from poise.solvers.steps import neutral_filtered as _neutral_filtered
 
 ASSEMBLY_MAX_ITER = 50
 ASSEMBLY_TOL = 1e-10          # relative constraint violation after assembly
 LINE_SEARCH_MAX = 8
-NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
-TAIL_SHARE = 1e-6             # eps M dx above this share of the residual: filter the step
 ARMIJO = 1e-4
+ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step)
+CRAWL = 6                     # ... as has one whose merit did not halve in this many iterations
 
 
 @dataclass
 class FrameOutcome:
     """One frame's solve. ``iterations`` counts all the work of the frame (every strategy);
     ``counts``: iterations per strategy (history.STRATEGIES) when the recovery ran;
-    ``strategy``: the one that produced the frame (``plain``: no recovery needed)."""
+    ``strategy``: the one that produced the frame (``plain``: no recovery needed); ``final``:
+    the fallback chain is not tried (Newton's steps down the potential ran away: continuation
+    and MKEAM descend the same way)."""
     status: Status
     iterations: int
     imbalance: float
@@ -47,6 +56,7 @@ class FrameOutcome:
     message: str = ""
     counts: dict = field(default_factory=dict)
     strategy: str = "plain"
+    final: bool = False           # nothing the fallback chain does can change it (a runaway)
 
     @property
     def ok(self):
@@ -92,25 +102,6 @@ def merit(ev, sc):
     z = np.concatenate([ev.r / sc.r_tol, ev.phi / sc.phi_tol])
     with np.errstate(over="ignore", invalid="ignore"):     # inf: a residual beyond any scale
         return 0.5 * float(z @ z)
-
-
-def _weighted_kkt(model, ev, W):
-    """KKT matrix with ``diag(W)`` in the coordinate block and the constraint Jacobian."""
-    nq = model.nq
-    J = ev.J
-    if hasattr(J, "tocsc"):
-        import scipy.sparse as sp
-        B = J[:nq, nq:]
-        Cm = J[nq:, :nq]
-        D = J[nq:, nq:]
-        return sp.bmat([[sp.diags(W), B], [Cm, D]], format="csc")
-    K = np.array(J, copy=True)
-    K[:nq, :nq] = np.diag(W)
-    return K
-
-
-def _coord_weights(model):
-    return model.q_scale ** 2
 
 
 def singular_message(model, row):
@@ -214,14 +205,15 @@ class Assembly(Iterative):
                             s["v"], sn, 1.0, "", "assembly", pos=prev.pos, rot=prev.rot),))
 
 
-def initial_multipliers(model, state, cnt: Counters):
-    """Least-squares multipliers ``argmin ||Phi_q^T lam - Q||_{W^-1}`` at the current state."""
+def initial_multipliers(model, state, cnt: Counters, weights=None):
+    """Least-squares multipliers ``argmin ||Phi_q^T lam - Q||_{W^-1}`` at the current state
+    (``weights``: ``W``, default the squared coordinate scales)."""
     if model.nc == 0:
         return state
     st = state.copy()
     st.lam[:] = 0.0
     ev = cnt.evaluate(model, st, "jacobian")
-    W = _coord_weights(model)
+    W = _coord_weights(model) if weights is None else weights
     K = _weighted_kkt(model, ev, W)
     try:
         f = cnt.factor(K)
@@ -236,79 +228,6 @@ def initial_multipliers(model, state, cnt: Counters):
     return st
 
 
-def _limit_step_trial(model, state, dq, settings):
-    """Uniform step factor so that no body moves (actual screw displacement of its CG) more than
-    ``max_translation_step * L`` nor rotates more than ``max_rotation_step``, and the
-    configuration it accepted: ``(factor, retract(state, factor * dq))``, or ``(factor, None)``
-    when the last retraction tried another factor. The line search starts from that
-    configuration instead of retracting again."""
-    fac = 1.0
-    if len(model.rot_idx):
-        r = dq[model.rot_idx].reshape(-1, 3)
-        mr = float(np.max(np.linalg.norm(r, axis=1)))
-        if mr > settings.max_rotation_step:
-            fac = settings.max_rotation_step / mr
-    lim = settings.max_translation_step * model.L
-    for _ in range(4):
-        trial = model.retract(state, fac * dq)
-        disp = float(np.max(np.linalg.norm(trial.pos - state.pos, axis=1))) if model.nb else 0.0
-        if disp <= lim * 1.0001:
-            return fac, trial
-        fac *= 0.9 * lim / disp
-    return fac, None
-
-
-def _mass_times(model, state, v):
-    """``M v`` for a tangent vector ``v`` (nq,): body masses on translations, world inertia on
-    rotations, zero on scalar unknowns."""
-    out = np.zeros(model.nq)
-    out[model.trans_idx] = np.repeat(model.body_mass, 3) * v[model.trans_idx]
-    if len(model.rot_idx):
-        _, Jg = model.mass_blocks(state)
-        out[model.rot_idx] = np.einsum("nij,nj->ni", Jg,
-                                       v[model.rot_idx].reshape(-1, 3)).ravel()
-    return out
-
-
-def _neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
-    """The Newton step ``x = A^-1 (-F)`` (``A = K + eps M``) with near-neutral directions filtered
-    out, or None when the regularisation does not dominate it.
-
-    Along a direction of zero stiffness (the spin of a slender rod about its axis) a residual
-    that is consistent only to second order still has a component ``O(e^2)`` there, which ``A``
-    divides by ``eps`` times that direction's (possibly tiny) inertia: a huge spurious step that
-    the step limits then cut down to nothing, so Newton stalls. With ``S = eps A^-1 M``
-    (eigenvalues ``eps / (lambda + eps)`` for the generalised stiffness ``lambda``), the step
-    ``(I - S)(I + 2 S) x`` scales each direction by ``lambda (lambda + 3 eps) / (lambda + eps)^3``:
-    zero along neutral directions (the minimum-norm step) and ``1/lambda (1 - 3 (eps/lambda)^2)``
-    along stiff ones (Newton's step, quadratic convergence for ``eps << lambda``). Two extra
-    solves with the same factorisation, only when ``eps M x`` carries more than ``TAIL_SHARE``
-    of the residual (then the regularisation would slow Newton down to a linear rate
-    ``eps/lambda``), or when the step limits cut ``x`` (``limited``) and ``S x`` is more than
-    ``NEUTRAL_SHARE`` of ``x`` (scaled).
-    """
-    if not eps > 0 or model.nq == 0:
-        return None
-    nq = model.nq
-    reg = eps * _mass_times(model, state, x[:nq])
-    share = float(np.max(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
-    if not (limited or share > TAIL_SHARE):
-        return None
-    pad = np.zeros(len(x) - nq)
-    try:
-        Sx = f.solve(np.concatenate([reg, pad]))
-        size = np.max(np.abs(x[:nq]) / sc.q_len)
-        if share <= TAIL_SHARE and \
-                not float(np.max(np.abs(Sx[:nq]) / sc.q_len)) > NEUTRAL_SHARE * size:
-            return None
-        z = x + 2.0 * Sx
-        Sz = f.solve(np.concatenate([eps * _mass_times(model, state, z[:nq]), pad]))
-    except SingularMatrix:
-        return None
-    xf = z - Sz
-    return xf if np.all(np.isfinite(xf)) else None
-
-
 class NewtonIteration(Iterative):
     """Frame-level Newton as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step``
     is one Newton iteration (factorise, solve, limit, line search) and returns its history
@@ -317,9 +236,10 @@ class NewtonIteration(Iterative):
     (:class:`~poise.solvers.linalg.Factor`)."""
 
     def __init__(self, model, settings, frame: int, cnt: Counters, event: str = "newton",
-                 equilibrate: bool = False):
+                 equilibrate: bool = False, probe=None):
         self.model, self.settings = model, settings
         self.frame, self.cnt, self.event, self.equilibrate = frame, cnt, event, equilibrate
+        self.probe = probe
         self.sc = Scales(model, settings)
         self.eps = float(np.sqrt(settings.stability))
 
@@ -328,10 +248,34 @@ class NewtonIteration(Iterative):
         # assembles its Jacobian when it is factorised (never at the converged point)
         return self.cnt.evaluate(self.model, st, "defer", eps=self.eps)
 
-    def _row(self, s, it, step=np.nan, alpha=np.nan, worst=None, pose=None):
+    def _measure(self, trial, reach=True):
+        """``(trial, evaluation, merit)`` of a line-search trial. With ``reach`` (after a
+        stall), a trial Newton's linearised constraints left by more than ``PROJECT_ABOVE`` is
+        first projected back onto them (:func:`~poise.solvers.reach.project`; beyond the
+        assembly's reach ``(None, None, inf)``: the line search shortens the step), and its
+        multipliers are those that minimise the merit there (the linearised step's do not fit
+        a point off its line), so the merit measures the imbalance itself."""
+        if reach and self.model.nc:
+            ev = self._ev_at(trial)
+            if violation(self.model, ev.phi) > PROJECT_ABOVE:
+                trial = project(self.model, trial, self.cnt, ev)
+                if trial is None:
+                    return None, None, np.inf
+            trial = initial_multipliers(self.model, trial, self.cnt, self._merit_weights())
+        ev = self._ev_at(trial)
+        return trial, ev, merit(ev, self.sc)
+
+    def _merit_weights(self):
+        """Least-squares weights whose multipliers minimise the merit (squared tolerances,
+        scaled to a unit force row so the weighted KKT matrix keeps the usual scale)."""
+        rt = self.sc.r_tol
+        return (rt / float(np.min(rt))) ** 2 if rt.size else rt
+
+    def _row(self, s, it, step=np.nan, alpha=np.nan, worst=None, pose=None, event=None):
         pose = s.state if pose is None else pose
+        ev = self.event if event is None else f"{self.event}-{event}"
         return Row(self.frame, it, s.imb, s.err, step, alpha,
-                   s.worst if worst is None else worst, self.event, pos=pose.pos, rot=pose.rot)
+                   s.worst if worst is None else worst, ev, pos=pose.pos, rot=pose.rot)
 
     def _converged(self, s, it, err):
         # within tolerance: unless a removed redundant equation contradicts the others
@@ -354,6 +298,9 @@ class NewtonIteration(Iterative):
             s.ev = self._ev_at(state)
         except EvaluationError as e:
             s.outcome = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
+            return s
+        if violation(self.model, s.ev.phi) <= PROJECT_ABOVE:
+            s.feasible = (state, s.ev)
         return s
 
     def terminate(self, s, used):
@@ -389,8 +336,20 @@ class NewtonIteration(Iterative):
                               MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
         if not np.all(np.isfinite(x)):
             return self._fail(s, it, Status.SINGULAR_JACOBIAN, MESSAGES[Status.SINGULAR_JACOBIAN])
+        if it == 0 and self.probe is not None:
+            # before Newton spends its budget: a free direction a constant load pushes along
+            why = self.probe(model, state, settings, self.cnt, f, x, eps, s.zinf)
+            if why:
+                return self._fail(s, it, Status.NO_EQUILIBRIUM,
+                                  MESSAGES[Status.NO_EQUILIBRIUM] + "; " + why)
         dq, dl = x[:model.nq], x[model.nq:]
         m0 = merit(ev, sc)
+        if s.stall is not None and not m0 < s.stall:
+            # still above the merit where it stalled: on down the potential energy
+            down = self._downhill(state, ev, dq)
+            if down is not None:
+                return self._down(s, it, state, down)
+        s.stall = None
         best = None
         eval_error = ""
         alpha, first = _limit_step_trial(model, state, dq, settings)
@@ -403,8 +362,7 @@ class NewtonIteration(Iterative):
                 tf = model.retract(state, af * xf[:model.nq])
             tf.lam = tf.lam + af * xf[model.nq:]
             try:
-                ev_f = self._ev_at(tf)
-                mf = merit(ev_f, sc)
+                tf, ev_f, mf = self._measure(tf, s.robust)
                 if mf <= (1.0 - ARMIJO * af) * m0:
                     best = (mf, af, tf, ev_f)
                     dq = xf[:model.nq]
@@ -417,14 +375,16 @@ class NewtonIteration(Iterative):
             else:
                 trial = model.retract(state, alpha * dq, alpha * dl)
             try:
-                ev_t = self._ev_at(trial)
-                m1 = merit(ev_t, sc)
+                trial, ev_t, m1 = self._measure(trial, s.robust)
             except EvaluationError as e:
                 ev_t, m1 = None, np.inf
                 eval_error = str(e)
             if ev_t is not None and (best is None or m1 < best[0]):
                 best = (m1, alpha, trial, ev_t)
-            if not settings.line_search or m1 <= (1.0 - ARMIJO * alpha) * m0:
+            if ev_t is None and not eval_error:
+                eval_error = "every trial left the reach of the constraints"
+            if (not settings.line_search and ev_t is not None) \
+                    or m1 <= (1.0 - ARMIJO * alpha) * m0:
                 break
             alpha *= 0.5
         if best is None:
@@ -437,10 +397,63 @@ class NewtonIteration(Iterative):
             nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
             s.outcome = self._converged(s, it, max(s.cerr, nxt))
             return Step(0)
-        m1, alpha, s.state, s.ev = best
-        s.last_step = float(np.max(np.abs(alpha * dq) / sc.q_len)) if dq.size else 0.0
+        s.merits.append(m0)
+        crawl = len(s.merits) > CRAWL and not m0 <= 0.5 * s.merits[-1 - CRAWL]
+        if settings.line_search and not s.res_ok and (
+                crawl or best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
+            # the merit stalls: from now on every trial is kept on the constraints (the
+            # iterate first, if Newton's linearisation left them), and where the merit has a
+            # valley that is no equilibrium, steps go down the potential energy instead until
+            # the merit is below this one (docs/solvers.md, "Newton on mechanisms")
+            if not s.robust:
+                s.robust = True
+                if violation(model, ev.phi) > PROJECT_ABOVE:
+                    return self._onto(s, it, state)
+            down = self._downhill(state, ev, dq)
+            if down is not None:
+                s.stall = m0
+                s.runaway = Runaway(model, ev.r)
+                return self._down(s, it, state, down)
+        return self._take(s, it, state, (best[2], best[3], best[0], best[1]), dq)
+
+    def _onto(self, s, it, state):
+        """The iterate projected back onto its constraints or, beyond their reach, the last
+        iterate that was on them: the iteration's row (``reach``)."""
+        p = project(self.model, state, self.cnt, s.ev)
+        if p is not None:
+            p = initial_multipliers(self.model, p, self.cnt, self._merit_weights())
+            s.state, s.ev = p, self._ev_at(p)
+        elif s.feasible is not None:
+            s.state, s.ev = s.feasible
+        s.last_step = np.inf
+        return Step(1, (self._row(s, it, np.nan, np.nan, pose=state, event="reach"),))
+
+    def _downhill(self, state, ev, dq):
+        """:func:`~poise.solvers.downhill.downhill_step` with Newton's step limits and
+        trials."""
+        model, settings = self.model, self.settings
+        return downhill_step(model, state, ev, dq, self.cnt,
+                             lambda st, d: _limit_step_trial(model, st, d, settings),
+                             self._measure, lambda st, v: _mass_times(model, st, v), self.eps)
+
+    def _down(self, s, it, state, down):
+        """Accept the downhill step ``down`` (:func:`~poise.solvers.downhill.downhill_step`),
+        or end Newton when the steps down have gone beyond reach (:class:`Runaway`)."""
+        row = self._take(s, it, state, down[:4], down[4], "downhill")
+        why = s.runaway.add(down[3] * down[4], down[5])
+        if why:
+            s.outcome = FrameOutcome(Status.DIVERGED, it + 1, s.imb, s.err, why, final=True)
+        return row
+
+    def _take(self, s, it, state, trial, dq, event=None):
+        """Accept ``trial`` = ``(state, evaluation, merit, alpha)`` reached from ``state`` by
+        ``alpha * dq``: the iteration's history row."""
+        s.state, s.ev, _, alpha = trial
+        s.last_step = float(np.max(np.abs(alpha * dq) / self.sc.q_len)) if dq.size else 0.0
+        if violation(self.model, s.ev.phi) <= PROJECT_ABOVE:
+            s.feasible = (s.state, s.ev)
         # the row of the iterate it measured (``state``), with the step taken from it
-        return Step(1, (self._row(s, it, s.last_step, alpha, pose=state),))
+        return Step(1, (self._row(s, it, s.last_step, alpha, pose=state, event=event),))
 
 
 class _NewtonState:
@@ -455,14 +468,22 @@ class _NewtonState:
         self.worst = ""
         self.res_ok = False
         self.last_row = None          # the closing row (converged or why not)
+        self.stall = None             # merit where the line search stalled (downhill steps)
+        self.robust = False           # it stalled once: trials kept on the constraints
+        self.runaway = None           # the steps down since the stall (downhill.Runaway)
+        self.feasible = None          # (state, evaluation) of the last iterate on them
+        self.merits = []              # merit at each iteration (progress)
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
-           max_iter: int | None = None, event: str = "newton", equilibrate: bool = False):
+           max_iter: int | None = None, event: str = "newton", equilibrate: bool = False,
+           probe=None):
     """Newton iterations from ``state`` (:class:`NewtonIteration` run by
     :func:`~poise.solvers.iterate.iterate`, ``max_iter`` default ``max_num_iter``). Returns
     ``(state, FrameOutcome)``. ``history``: where the loop appends the rows (a
-    :class:`~poise.solvers.history.History`, a stage view of one, or a list)."""
+    :class:`~poise.solvers.history.History`, a stage view of one, or a list). ``probe``:
+    ``probe(model, state, settings, cnt, f, x, eps, zinf) -> message`` called with the first
+    step (factorisation ``f``, step ``x``); a message ends Newton as ``no_equilibrium``."""
     max_iter = settings.max_num_iter if max_iter is None else max_iter
-    return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate),
+    return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate, probe),
                    max_iter, history, state)

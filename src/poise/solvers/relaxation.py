@@ -48,18 +48,20 @@ HANDOVER_STEPS = 2           # its budget: this many x max_num_iter Newton steps
 SPARSE_CHECK_NQ = 300        # above: stability sign by sparse inertia, not dense eigenvalues
 
 
-
 class Relaxation:
     """MKEAM iterations on ``model`` from a state (the MKEAM method's solve and the last stage
     of the fallback chain). Rows go to ``history``, counts to ``data`` (:class:`SolveData`,
     whose active rows the integration keeps)."""
 
-    def __init__(self, model, settings, history, data):
+    def __init__(self, model, settings, history, data, units=None):
         self.model = model
+        # units of work (integration and descent steps): the fallback chain's share, else
+        # MAX_TOTAL_STEPS; ``used``: spent so far
+        self.limited = units is not None
+        self.units, self.used = max(1, min(int(units or MAX_TOTAL_STEPS), MAX_TOTAL_STEPS)), 0
         self.settings = settings
         self.history = history
         self.counters = data
-        self.n_rows = 0           # MKEAM iteration rows recorded
         self.extras_free = False  # scalar unknowns MKEAM cannot determine (see _resolve_extras)
         self.iterates = []        # restart points (pos, rot)
         self.handover_tried = False
@@ -171,7 +173,7 @@ class Relaxation:
             if b.power <= 0.0:
                 if a.power <= 0.0:                 # never accelerated: at rest already
                     return (a if a.ke >= b.ke else b), steps, h, ""
-                peak, n = self._locate_peak(dyn, a, b, h)
+                peak, n = self._locate_peak(dyn, a, b, h, min(12, budget - steps))
                 return peak, steps + n, h, ""
             a = b
         return a, steps, h, ""
@@ -198,13 +200,13 @@ class Relaxation:
                     "input configuration (nothing holds it: no equilibrium within reach)")
         return ""
 
-    def _locate_peak(self, dyn, a, b, h):
+    def _locate_peak(self, dyn, a, b, h, most=12):
         lo, hi = 0.0, h
         plo, phi_ = a.power, b.power
         best = b
         n = 0
         side = 0
-        while hi - lo > PEAK_TOL * h and n < 12:
+        while hi - lo > PEAK_TOL * h and n < most:
             tau = (lo * phi_ - hi * plo) / (phi_ - plo)
             if not (lo < tau < hi):
                 tau = 0.5 * (lo + hi)
@@ -347,20 +349,22 @@ class Relaxation:
         perturbs = 0
         self.last_dq = np.nan
         t_total = 0.0
-        used = 0
         for it in range(1, s.max_num_iter + 1):
             if self.report is not None:
                 self.report("MKEAM", it - 1, s.max_num_iter)
-            if used >= MAX_TOTAL_STEPS:
+            used = self.used
+            if used >= self.units:
                 return state, Status.MAX_ITERATIONS, (
-                    f"MKEAM used its integration budget ({MAX_TOTAL_STEPS} steps) in "
+                    f"MKEAM used its integration budget ({self.units} steps) in "
                     f"{plural(it - 1, 'iteration')} without meeting max_ke_tol / max_dq_tol"), it - 1
             cap = MAX_STEPS_PER_ITER
             if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
                 cap = HANDOVER_CAP       # a large model: restart early, then hand over
+            if it <= HANDOVER_ITER and self.limited and not m.n_extra:
+                cap = max(1, min(cap, self.units // 4))   # leave the hand-over most of it
             peak, steps, h, msg = self._iteration(dyn, state, h,
-                                                  min(cap, MAX_TOTAL_STEPS - used))
-            used += steps
+                                                  min(cap, self.units - used))
+            self.used += steps
             if msg and "already at rest" not in msg:
                 self._row(it, np.nan, np.nan, msg, peak, steps, np.nan, "mkeam")
                 status = (Status.NONFINITE if "non-finite" in msg else
@@ -409,26 +413,38 @@ class Relaxation:
         iterations continue from ``state`` as if nothing happened)."""
         m, s = self.model, self.settings
         s_any = replace(s, allow_neutral=True)
+        budget = HANDOVER_STEPS * s.max_num_iter
+        if self.limited:   # the descent gets half the units left, its polishes and escapes half
+            budget = self._left() // 2
+            s_any = replace(s_any, max_num_iter=max(1, self._left() // 8))
+            if budget < 1:
+                return None
         pe0 = self.potential_energy(state)
         try:
             st = initial_multipliers(m, state, self.counters)
             self.history.add(0, 0, np.nan, np.nan, event="mkeam: handover to the "
                              "inertia-controlled Newton descent")
-            st, out, _, _ = descend(m, st, s_any, self.history, 0, self.counters,
-                                    HANDOVER_STEPS * s.max_num_iter)
+            st, out, _, steps = descend(m, st, s_any, self.history, 0, self.counters, budget)
+            self.used += steps
             if out is None:
                 return None
             info = classify(m, st, active=self.counters.active)
             if info.klass == "unstable":
                 act = self.counters.active
+                rows = len(self.history)
                 st, out, info, _ = seek_stable(m, st, s_any, self.history, 0, self.counters,
                                                info, lambda x: classify(m, x, active=act))
+                self.used += len(self.history) - rows       # its escape and descent steps
             if not out.ok or info.klass not in ("stable", "neutral"):
                 return None
             pe1 = self.potential_energy(st)
             if np.isfinite(pe0) and np.isfinite(pe1) and pe1 > pe0 + 1e-9 * max(abs(pe0), 1.0):
                 return None
-            peak, steps, _, msg = self._iteration(self.dyn, st, h, MAX_STEPS_PER_ITER)
+            if self._left() <= 0:
+                return None
+            peak, steps, _, msg = self._iteration(self.dyn, st, h, min(MAX_STEPS_PER_ITER,
+                                                                       self._left()))
+            self.used += steps
             ke, dq = peak.ke, self._dq(st, peak.state)
             self.history.add(0, 0, np.nan, dq, dq, np.nan, msg, "mkeam-verify")
             if msg and "already at rest" not in msg:
@@ -439,26 +455,23 @@ class Relaxation:
         except (EvaluationError, SingularMatrix, ValueError, ArithmeticError):
             return None
 
+    def _left(self) -> int:
+        return max(0, self.units - self.used)     # units not spent yet
+
     def relax(self, state):
         """MKEAM iterations from ``state`` (the fallback chain's ``mkeam`` stage). Returns
-        ``(state, ok)``; ``ok`` when the MKEAM tolerances were met; :attr:`iterations`: the
-        MKEAM iterations it recorded."""
+        ``(state, ok, message)``; ``ok`` when the MKEAM tolerances were met, else why not;
+        :attr:`used`: the units of work spent (integration and descent steps)."""
         if not np.isfinite(self.model.L):
-            return state, False
+            return state, False, "the model size L is not finite"
         st = initial_multipliers(self.model, state, self.counters)
-        st, status, _msg, _n = self.iterate(st)
-        return st, status.ok
-
-    @property
-    def iterations(self) -> int:
-        """MKEAM iterations recorded so far (one ``mkeam`` history row each)."""
-        return self.n_rows
+        st, status, msg, _n = self.iterate(st)
+        return st, status.ok, msg
 
     def _row(self, it, ke, dq, worst, peak, steps, pe, event):
         # MKEAM_COLUMNS: kinetic_energy, peak_time, max_dq, potential_energy, integrator_steps
         self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event,
                          mkeam=(ke, peak.t, dq, pe, steps))
-        self.n_rows += 1
 
     def record(self, mk_state) -> MkeamRun:
         """The run as a record: its restart points and the MKEAM point ``mk_state`` (its

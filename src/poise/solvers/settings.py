@@ -67,9 +67,9 @@ class StaticSettings:
     fallback : bool
         Run the fallback chain (solvers/fallback.py) when FIM_S fails (``--no-fallback``).
     fallback_max_num_iter : int or None
-        Iterations (Newton, continuation and MKEAM iterations together) the fallback chain may
-        spend on one frame after plain Newton used its ``max_num_iter``; None: ``max_num_iter``
-        (``--fallback-budget``). A frame costs at most ``max_num_iter + fallback_max_num_iter``.
+        Units of work the fallback chain may spend on one frame after plain Newton failed
+        (Newton iterations, continuation steps, MKEAM integration and descent steps: each about
+        one evaluation and factorisation); None: ``max_num_iter`` (``--fallback-budget``). A frame costs at most ``max_num_iter + fallback_max_num_iter``.
     require_stable : bool
         A static analysis succeeds only at a stable equilibrium (``--require-stable``): FIM_S
         leaves an unstable equilibrium along its negative modes and continues downhill
@@ -126,7 +126,7 @@ class StaticSettings:
 
     @property
     def fallback_budget(self) -> int:
-        """Iterations the fallback chain may spend on one frame."""
+        """Units of work the fallback chain may spend on one frame."""
         b = self.fallback_max_num_iter
         return int(self.max_num_iter if b is None else b)
 

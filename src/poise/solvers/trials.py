@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.newton import _coord_weights, _weighted_kkt
+from poise.solvers.reach import coord_weights, weighted_kkt
 
 PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial, at most ...
 PROJECT_TOL_MAX = 1e-5    # ... and at least: the trial's energy error bound within
@@ -136,7 +136,7 @@ class Projector:
         m = self.model
         ev = self.cnt.evaluate(m, x, "jacobian")
         try:
-            F = self.cnt.factor(_weighted_kkt(m, ev, _coord_weights(m)))
+            F = self.cnt.factor(weighted_kkt(m, ev, coord_weights(m)))
         except SingularMatrix:
             return False
         nq = m.nq

@@ -1,0 +1,78 @@
+"""Least-change projection onto the constraints, and the reach of an assembly.
+
+The weighted KKT system ``[[W, G^T], [G, 0]]`` (``W`` the squared coordinate scales) gives the
+smallest move (lengths, rotations weighted by the body's size) that corrects the constraint
+values to first order; iterated, it is Gauss-Newton on ``Phi(q) = 0``. It assembles an input
+onto its constraints (:class:`~poise.solvers.newton.Assembly`) and keeps Newton's trial points
+where the loop can close (:func:`project`): a trial Newton's linearised constraints put far off
+the constraints (a slider-crank's slider pushed past ``r + l``) is brought back onto them, and
+one whose Gauss-Newton stops converging lies beyond the assembly's reach, so Newton shortens
+its step instead of iterating from an unassemblable point. Details: docs/solvers.md.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.core.errors import EvaluationError
+from poise.solvers.linalg import SingularMatrix
+
+PROJECT_ABOVE = 1e-3     # a Newton trial violating its constraints by more (x L, rad) is projected
+PROJECT_TOL = 1e-10      # projection accuracy (x L, rad), that of the input's assembly
+PROJECT_MAX_ITER = 12
+PROJECT_RATE = 0.5       # Gauss-Newton must at least halve the violation per iteration
+
+
+def weighted_kkt(model, ev, W):
+    """KKT matrix with ``diag(W)`` in the coordinate block and the constraint Jacobian."""
+    nq = model.nq
+    J = ev.J
+    if hasattr(J, "tocsc"):
+        import scipy.sparse as sp  # lazy: sparse systems only
+        B = J[:nq, nq:]
+        Cm = J[nq:, :nq]
+        D = J[nq:, nq:]
+        return sp.bmat([[sp.diags(W), B], [Cm, D]], format="csc")
+    K = np.array(J, copy=True)
+    K[:nq, :nq] = np.diag(W)
+    return K
+
+
+def coord_weights(model):
+    """Squared length per unit of each coordinate (rotations weighted by the body's size)."""
+    return model.q_scale ** 2
+
+
+def violation(model, phi) -> float:
+    """Largest constraint violation, translations relative to L, rotations in radians."""
+    if not phi.size:
+        return 0.0
+    return float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L)))
+
+
+def project(model, state, cnt, ev=None):
+    """``state`` moved onto its active constraints by least-change Gauss-Newton, or None when
+    that does not converge at ``PROJECT_RATE`` (the constraints cannot be met near it: beyond
+    the assembly's reach, or a singular configuration). ``ev``: an evaluation at ``state``
+    (saves one). Evaluations and factorisations are counted in ``cnt``."""
+    W = coord_weights(model)
+    prev = np.inf
+    try:
+        for _ in range(PROJECT_MAX_ITER + 1):
+            if ev is None:
+                ev = cnt.evaluate(model, state, "defer")
+            v = violation(model, ev.phi)
+            if v <= PROJECT_TOL:
+                return state
+            if not v <= PROJECT_RATE * prev:
+                return None
+            prev = v
+            cnt.jacobian(model, ev)
+            x = cnt.factor(weighted_kkt(model, ev, W)).solve(
+                np.concatenate([np.zeros(model.nq), -ev.phi]))
+            if not np.all(np.isfinite(x)):
+                return None
+            state = model.retract(state, x[:model.nq])
+            ev = None
+    except (SingularMatrix, EvaluationError):
+        return None
+    return None

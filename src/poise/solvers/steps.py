@@ -1,0 +1,89 @@
+"""Newton's step, shaped: the step limits, the mass product and the neutral-direction filter.
+
+:func:`limit_step` scales a step so that no body moves more than ``max_translation_step * L``
+nor turns more than ``max_rotation_step``; :func:`neutral_filtered` removes from a regularised
+Newton step the part only the ``stability`` mass term carries (zero-stiffness directions), so
+that Newton converges quadratically next to neutral directions (docs/solvers.md, "Neutral
+directions in Newton"); :func:`mass_times` is the tangent mass matrix times a vector.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.solvers.linalg import SingularMatrix
+
+NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
+TAIL_SHARE = 1e-6             # eps M dx above this share of the residual: filter the step
+
+
+def limit_step(model, state, dq, settings):
+    """Uniform step factor so that no body moves (actual screw displacement of its CG) more than
+    ``max_translation_step * L`` nor rotates more than ``max_rotation_step``, and the
+    configuration it accepted: ``(factor, retract(state, factor * dq))``, or ``(factor, None)``
+    when the last retraction tried another factor. The line search starts from that
+    configuration instead of retracting again."""
+    fac = 1.0
+    if len(model.rot_idx):
+        r = dq[model.rot_idx].reshape(-1, 3)
+        mr = float(np.max(np.linalg.norm(r, axis=1)))
+        if mr > settings.max_rotation_step:
+            fac = settings.max_rotation_step / mr
+    lim = settings.max_translation_step * model.L
+    for _ in range(4):
+        trial = model.retract(state, fac * dq)
+        disp = float(np.max(np.linalg.norm(trial.pos - state.pos, axis=1))) if model.nb else 0.0
+        if disp <= lim * 1.0001:
+            return fac, trial
+        fac *= 0.9 * lim / disp
+    return fac, None
+
+
+def mass_times(model, state, v):
+    """``M v`` for a tangent vector ``v`` (nq,): body masses on translations, world inertia on
+    rotations, zero on scalar unknowns."""
+    out = np.zeros(model.nq)
+    out[model.trans_idx] = np.repeat(model.body_mass, 3) * v[model.trans_idx]
+    if len(model.rot_idx):
+        _, Jg = model.mass_blocks(state)
+        out[model.rot_idx] = np.einsum("nij,nj->ni", Jg,
+                                       v[model.rot_idx].reshape(-1, 3)).ravel()
+    return out
+
+
+def neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
+    """The Newton step ``x = A^-1 (-F)`` (``A = K + eps M``) with near-neutral directions filtered
+    out, or None when the regularisation does not dominate it.
+
+    Along a direction of zero stiffness (the spin of a slender rod about its axis) a residual
+    that is consistent only to second order still has a component ``O(e^2)`` there, which ``A``
+    divides by ``eps`` times that direction's (possibly tiny) inertia: a huge spurious step that
+    the step limits then cut down to nothing, so Newton stalls. With ``S = eps A^-1 M``
+    (eigenvalues ``eps / (lambda + eps)`` for the generalised stiffness ``lambda``), the step
+    ``(I - S)(I + 2 S) x`` scales each direction by ``lambda (lambda + 3 eps) / (lambda + eps)^3``:
+    zero along neutral directions (the minimum-norm step) and ``1/lambda (1 - 3 (eps/lambda)^2)``
+    along stiff ones (Newton's step, quadratic convergence for ``eps << lambda``). Two extra
+    solves with the same factorisation, only when ``eps M x`` carries more than ``TAIL_SHARE``
+    of the residual (then the regularisation would slow Newton down to a linear rate
+    ``eps/lambda``), or when the step limits cut ``x`` (``limited``) and ``S x`` is more than
+    ``NEUTRAL_SHARE`` of ``x`` (scaled).
+    """
+    if not eps > 0 or model.nq == 0:
+        return None
+    nq = model.nq
+    reg = eps * mass_times(model, state, x[:nq])
+    share = float(np.max(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
+    if not (limited or share > TAIL_SHARE):
+        return None
+    pad = np.zeros(len(x) - nq)
+    try:
+        Sx = f.solve(np.concatenate([reg, pad]))
+        size = np.max(np.abs(x[:nq]) / sc.q_len)
+        if share <= TAIL_SHARE and \
+                not float(np.max(np.abs(Sx[:nq]) / sc.q_len)) > NEUTRAL_SHARE * size:
+            return None
+        z = x + 2.0 * Sx
+        Sz = f.solve(np.concatenate([eps * mass_times(model, state, z[:nq]), pad]))
+    except SingularMatrix:
+        return None
+    xf = z - Sz
+    return xf if np.all(np.isfinite(xf)) else None
