@@ -5,9 +5,10 @@
 
 Runs the hanging-chain and command-line benchmarks (:mod:`benchmarks.chain`), the expression
 benchmark (:mod:`benchmarks.expr`), the work-precision, peer and scaling suites
-(:mod:`benchmarks.suite`), the time-to-fail table (:mod:`benchmarks.failfast`) and the
-stable-equilibria table (:mod:`benchmarks.stable`), then writes the JSON lines and the markdown
-report.
+(:mod:`benchmarks.suite`), the time-to-fail table (:mod:`benchmarks.failfast`), the
+stable-equilibria table (:mod:`benchmarks.stable`) and the quasi-static path tables
+(:mod:`benchmarks.singular`, :mod:`benchmarks.frame_error`), then writes the JSON lines and the
+markdown report.
 The benchmarks are not part of the installed package.
 """
 from __future__ import annotations
@@ -21,6 +22,8 @@ from pathlib import Path
 from benchmarks import adm as bench_adm
 from benchmarks import expr as bench_expr
 from benchmarks import failfast as bench_failfast
+from benchmarks import frame_error as bench_frame_error
+from benchmarks import singular as bench_singular
 from benchmarks import stable as bench_stable
 from benchmarks.chain import (SIZES, SMALL_DECK, _pf, _s, bench_chain, bench_cli,
                               machine_info, render_markdown, targets)
@@ -53,11 +56,18 @@ def main(argv=None) -> int:
                     help="skip the time-to-fail table (failing decks vs healthy ones)")
     ap.add_argument("--failfast-only", action="store_true",
                     help="run only the time-to-fail table")
+    ap.add_argument("--no-path", action="store_true",
+                    help="skip the quasi-static path tables (issue 22: time to a singular "
+                         "configuration, reported vs true frame error; also skipped with "
+                         "--no-wp)")
+    ap.add_argument("--path-only", action="store_true",
+                    help="run only the quasi-static path tables")
     args = ap.parse_args(argv)
     root = Path(__file__).resolve().parents[1]
     machine = machine_info()
     results = []
-    if args.stable_only or args.failfast_only:
+    only = args.stable_only or args.failfast_only or args.path_only
+    if only:
         args.sizes, args.no_cli, args.no_expr, args.no_wp = "", True, True, True
         args.no_adm = True
     with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
@@ -95,15 +105,22 @@ def main(argv=None) -> int:
             wp_md += md7
             wp_targets += t7
         st_rows = []
-        if not (args.no_failfast or args.stable_only):
+        if not args.no_failfast and (args.failfast_only or not only):
             # time to fail: failing decks against their healthy counterparts
             ff_rows, ff_md, ff_t = bench_failfast.run(
                 tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
             st_rows += ff_rows
             wp_md += ff_md
             wp_targets += ff_t
-        if args.stable_only or (not args.failfast_only
-                                and not (args.no_stable or args.no_wp)):
+        if args.path_only or not (only or args.no_path or args.no_wp):
+            # issue 22: singular configurations, frame error bounds (long suites, like wp)
+            for table in (bench_singular, bench_frame_error):
+                rows_p, p_md, p_t = table.run(
+                    tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
+                st_rows += rows_p
+                wp_md += p_md
+                wp_targets += p_t
+        if args.stable_only or not (only or args.no_stable or args.no_wp):
             # stable equilibria: MKEAM and --require-stable vs FIM_S (a long suite, like wp)
             rows_s, st_md, st_t = bench_stable.run(
                 tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)

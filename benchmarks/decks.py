@@ -16,6 +16,17 @@ from poise.gen.deck import Deck
 ROOT = Path(__file__).resolve().parents[1]
 BENCH_DIR = ROOT / "decks" / "bench"
 
+
+def support_module(name: str):
+    """``tests/support/<name>.py`` (independent references and deck builders of the tests),
+    imported by path: the benchmarks run without the test tree on ``sys.path``."""
+    import importlib.util  # lazy: only the tables that need a support module
+    p = ROOT / "tests" / "support" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"poise_bench_{name}", p)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
 def _qs_slider_crank(src: str, interval: float) -> str:
     """slider_crank_load with the slider load ramped fx = -60 TIME over 0..1 s."""
     s = src.replace('fx_expression="-60.0"', 'fx_expression="-60.0*TIME"')

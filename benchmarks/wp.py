@@ -9,7 +9,6 @@ closed forms from ``tests/support/reference.py`` (numpy/scipy only, never poise)
 """
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
 import tempfile
@@ -18,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.decks import BENCH_DIR, ROOT
+from benchmarks.decks import BENCH_DIR, support_module
 from poise.app import ladder as ladder_mod
 from poise.app.ladder import method_settings, with_settings  # noqa: F401 (re-exported)
 
@@ -32,11 +31,7 @@ QUICK_RUNGS = [10.0 ** -k for k in (2, 6, 10)]
 
 # --------------------------------------------------------------------------- references
 def _reference_module():
-    p = ROOT / "tests" / "support" / "reference.py"
-    spec = importlib.util.spec_from_file_location("poise_bench_reference", p)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return support_module("reference")
 
 
 def _ref_pendulum(ref, times):

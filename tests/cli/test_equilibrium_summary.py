@@ -4,7 +4,8 @@
   (closed form) within tolerance, sign-normalised (largest component positive, no -0);
 * ``poise solve`` (stderr line and ``--json``), ``poise show`` (text and ``--json``) and the
   ``batch`` / ``sweep`` rows report the same summary (``poise.results.summary``): the worst frame
-  of a quasi-static run whose stability changes at a known time, named by frame and time.
+  of a quasi-static run whose stability changes at a known time (where it ends: a bifurcation),
+  named by frame and time.
 
 Every number is compared as a number (parsed JSON, datasets), never as formatted text.
 """
@@ -64,7 +65,8 @@ def ball_on_table():
 def softening_slider(tmp_path):
     """Block on a TRANSLATIONAL joint along X at x = 0, force fx = -K0 (1 - 2 TIME) x: x = 0 is
     the equilibrium of every frame, with stiffness k(t) = K0 (1 - 2 t): stable for t < 0.5,
-    neutral at t = 0.5, unstable after. Quasi-static FIM_S over [0, 1], frames every 0.1."""
+    neutral at t = 0.5 (a bifurcation), unstable after. Quasi-static FIM_S over [0, 1], frames
+    every 0.1."""
     ax = 'a00="0" a10="1" a20="0" a01="0" a11="0" a21="1" a02="1" a12="0" a22="0"'   # z = +X
     eye = 'a00="1" a10="0" a20="0" a01="0" a11="1" a21="0" a02="0" a12="0" a22="1"'
     txt = f"""<MotionSolve>
@@ -137,43 +139,41 @@ def test_sign_normalisation_rules():
 
 # ------------------------------------------------------------------ quasi-static summary
 def test_quasistatic_summary_names_the_worst_frame(tmp_path):
+    """k(t) = K0 (1 - 2 t) crosses zero at t = 0.5: the run follows the stable branch to that
+    bifurcation and ends there (a singular configuration); its last frame is the state just
+    past it, unstable, and the summary names it."""
     res = run_deck(softening_slider(tmp_path))
     a = res.analyses[0]
-    assert a.converged, a.message
+    assert a.status == "failed" and a.attrs["singular_kind"] == "bifurcation", a.message
+    assert a.attrs["singular_time"] == pytest.approx(0.5, abs=1e-6)
     d = a.datasets
     t = d["time"]
-    np.testing.assert_allclose(t, np.linspace(0, 1, 11), atol=1e-12)
-    k = K0 * (1 - 2 * t)
+    np.testing.assert_allclose(t[:6], np.linspace(0, 0.5, 6), atol=1e-12)
+    assert len(t) == 7 and t[6] == pytest.approx(0.5, abs=1e-6) and t[6] > 0.5
+    k = K0 * (1 - 2 * t[:6])
     np.testing.assert_allclose(d["bodies/position"][:, 0, 0], 0.0, atol=1e-12)
-    want = np.where(k > 1e-6, "stable", np.where(k < -1e-6, "unstable", "neutral"))
-    assert list(d["frames/stability"]) == list(want)
+    assert list(d["frames/stability"]) == ["stable"] * 5 + ["neutral", "unstable"]
+    assert list(d["frames/status"]) == ["converged"] * 6 + ["singular_configuration"]
     # stiffness along the slide [N/m] = k(t) (translation: length coordinates = metres)
-    off = np.abs(k) > 1e-6
-    np.testing.assert_allclose(d["frames/min_stiffness_eigenvalue"][off], k[off], rtol=1e-8)
-    uns = np.flatnonzero(k < -1e-6)
-    neu = np.flatnonzero(np.abs(k) <= 1e-6)
-    # one mode per unstable or neutral frame, flat in frame order
-    n = d["frames/n_modes"]
-    assert n.tolist() == [1 if abs(x) <= 1e-6 or x < 0 else 0 for x in k]
-    frame = np.repeat(np.arange(len(t)), n)
-    assert frame.tolist() == sorted(neu.tolist() + uns.tolist())
-    assert d["modes/class"].tolist() == ["neutral"] * len(neu) + ["unstable"] * len(uns)
-    np.testing.assert_allclose(d["modes/eigenvalue"][frame > neu[0]], k[uns], rtol=1e-8)
-    np.testing.assert_allclose(d["modes/direction"], [[1, 0, 0]] * len(frame), atol=1e-12)
+    np.testing.assert_allclose(d["frames/min_stiffness_eigenvalue"][:5], k[:5], rtol=1e-8)
+    # one mode per neutral or unstable frame, flat in frame order
+    assert d["frames/n_modes"].tolist() == [0] * 5 + [1, 1]
+    assert d["modes/class"].tolist() == ["neutral", "unstable"]
+    assert d["modes/eigenvalue"][1] < 0
+    np.testing.assert_allclose(d["modes/direction"], [[1, 0, 0]] * 2, atol=1e-12)
 
     s = summarize(a)
-    first_unstable = int(uns[0])                  # all have one negative mode: the first
     assert (s.stability_class, s.stability_frame, s.n_negative, s.n_zero) == \
-        ("unstable", first_unstable, 1, 0)
-    assert s.stability_time == pytest.approx(t[first_unstable])
-    assert (s.unstable_frames, s.neutral_frames) == (len(uns), 1)
-    assert dict(s.stability_counts) == {"stable": int(np.sum(k > 1e-6)), "neutral": 1,
-                                        "unstable": len(uns)}
+        ("unstable", 6, 1, 0)
+    assert s.stability_time == pytest.approx(0.5, abs=1e-6)
+    assert (s.unstable_frames, s.neutral_frames) == (1, 1)
+    assert dict(s.stability_counts) == {"stable": 5, "neutral": 1, "unstable": 1}
     assert [(m.klass, m.body, m.kind) for m in s.modes] == [("unstable", 2, "translation")]
     np.testing.assert_allclose(s.modes[0].direction, [1, 0, 0], atol=1e-12)
     assert s.iterations == int(np.sum(d["frames/iterations"]))
-    assert s.imbalance == pytest.approx(float(np.max(d["frames/imbalance"])))
-    assert s.frames == 11 and s.frame_status == "converged"
+    assert s.imbalance == pytest.approx(float(np.nanmax(d["frames/imbalance"])))
+    assert s.frames == 7 and s.frame_status == "singular_configuration"
+    assert s.singular["kind"] == "bifurcation"
 
 
 def test_summary_worst_frame_definitions():
@@ -266,17 +266,14 @@ def test_cli_neutral_and_quasistatic(tmp_path):
     qs = softening_slider(tmp_path)
     out = tmp_path / "qs.h5"
     r = _cli("solve", qs, "-o", str(out), "--json")
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 1, r.stderr          # the path ends at the bifurcation at t = 0.5
     a = json.loads(r.stdout)["analyses"][0]
-    t = np.linspace(0, 1, 11)
-    first_unstable = int(np.flatnonzero(1 - 2 * t < -1e-9)[0])
-    assert (a["stability_class"], a["stability_frame"], a["frames"]) == \
-        ("unstable", first_unstable, 11)
-    assert a["stability_time"] == pytest.approx(t[first_unstable])
-    assert a["stability_counts"] == {"stable": 5, "neutral": 1, "unstable": 5}
+    assert (a["stability_class"], a["stability_frame"], a["frames"]) == ("unstable", 6, 7)
+    assert a["stability_time"] == pytest.approx(0.5, abs=1e-6)
+    assert a["stability_counts"] == {"stable": 5, "neutral": 1, "unstable": 1}
+    assert a["singular"]["time"] == pytest.approx(0.5, abs=1e-6)
     line = next(x for x in r.stderr.splitlines() if x.startswith("analysis 0:"))
-    assert "converged to an UNSTABLE equilibrium at 5 of 11 frames" in line
-    assert f"worst frame {first_unstable}" in line
+    assert "singular configuration at t = 0.5: at a bifurcation" in line
     b = json.loads(_cli("show", str(out), "--json").stdout)["analyses"][0]
     assert _analysis_fields(b) == _analysis_fields(a)
     assert b["stability_counts"] == a["stability_counts"]

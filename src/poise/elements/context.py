@@ -395,4 +395,5 @@ def row_where(ri: dict) -> str:
 
 def _row(el: Element, equation: str, kind: str, group: str, owner: int) -> dict:
     return dict(tag=el.tag, id=el.id, equation=equation, line=el.loc.line, file=el.loc.file,
-                kind=kind, group=group, owner=owner, where=el.loc.prefix()[:-1])
+                kind=kind, group=group, owner=owner, label=str(el.attrs.get("label") or ""),
+                where=el.loc.prefix()[:-1])

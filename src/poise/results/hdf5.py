@@ -401,7 +401,7 @@ def read_summary(path: str) -> dict:
             summ = summarize(AnalysisResult(
                 index=index, analysis_type=ga.get("analysis_type", ""),
                 method=ga.get("method", ""), status=ga.get("status", ""),
-                message=ga.get("message", ""), datasets=ds)).as_dict()
+                message=ga.get("message", ""), datasets=ds, attrs=ga)).as_dict()
             analyses.append({
                 **summ,
                 "group": g.name,

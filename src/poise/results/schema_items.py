@@ -183,6 +183,17 @@ for n, t, m in (
         ("dae_tol", "float", "FIM_D: IDA's relative/absolute tolerance"),
         ("ida_linear_solver", "str", "FIM_D: `dense` (up to 200 unknowns) or `sparse`")):
     _a(A, n, t, m, "quasistatic-attrs", optional=True)
+for n, t, m in (
+        ("singular_time", "float", "quasi-static run that ended at a singular configuration "
+         "(status `singular_configuration`): its time, located by bisection"),
+        ("singular_kind", "str", "`dead_point` (the constraint equations lose rank: a toggle, "
+         "a dead centre, a motion beyond the linkage's reach) or `limit_point` (the reduced "
+         "stiffness reaches zero) or `bifurcation` (it changes sign along the path)"),
+        ("singular_elements", "json", "JSON list of the constraints that lock there (the "
+         "self-stress), largest share first: `tag`, `id`, `label`, `line`, `share`"),
+        ("singular_mode", "str", "the motion at the singular point, named by the body that "
+         "moves most, e.g. `body 2 rotation about z`")):
+    _a(A, n, t, m, "quasistatic-attrs", optional=True, unit="time" if n == "singular_time" else "")
 for n, t, m in (("frames", "int", "output frames corrected onto the equilibrium"),
                 ("corrections", "int", "Newton corrections of those frames"),
                 ("residuals", "int", "residual evaluations of the corrections"),
@@ -227,11 +238,14 @@ for n, t, sh, u, m in (
         ("status", "str", ("F",), "", "solver status of the frame: `converged`, "
          "`max_iterations`, `singular_jacobian`, `nonfinite`, `assembly_failed`, "
          "`inconsistent_constraints`, `tolerance_not_met` (see `frames/converged`), "
-         "`no_equilibrium`, `diverged`, `step_too_small`, `unstable` (`--require-stable`), …"),
+         "`no_equilibrium`, `diverged`, `step_too_small`, `unstable` (`--require-stable`), "
+         "`singular_configuration` (a quasi-static run's last frame: the state where the "
+         "branch ends, at the time `singular_time`), …"),
         ("stability", "str", ("F",), "", "stability class of the converged equilibrium: "
          "`stable`, `neutral`, `unstable`, or `unknown` (frame not converged, or the sparse "
          "inertia computation could not be trusted — the reason is in "
-         "`frames/stability_modes`)"),
+         "`frames/stability_modes`); the last frame of a path that ended at a singular "
+         "configuration or lost stability is classified too (the state past the event)"),
         ("n_negative", "int", ("F",), "1", "number of negative eigenvalues of the tangent "
          "stiffness reduced to the constraint manifold (−1 when not classified)"),
         ("n_zero", "int", ("F",), "1", "number of zero eigenvalues (neutral directions; "

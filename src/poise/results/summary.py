@@ -8,6 +8,9 @@ back from a results file): the *worst frame* of each measure, with the frame nam
 * ``imbalance`` / ``error``: the largest over the frames (NaN frames ignored), with its frame
   index and time;
 * ``frame_status``: ``converged``, or the status of the first frame that did not converge;
+* ``singular``: where a quasi-static run ended at a singular configuration (``time``,
+  ``kind``, ``elements`` (the constraints that lock: ``tag``, ``id``, ``label``, ``line``,
+  ``share``), ``mode``), from the analysis attributes ``singular_*``; None otherwise;
 * ``stability_class``: the worst class over the frames, ``stable < neutral < unknown < unstable``
   (``unknown``: not classified, so the run proved neither), at the frame with the most negative
   (unstable) or zero (neutral) modes among those of that class (the first on ties), with that
@@ -17,6 +20,7 @@ A run (``batch`` / ``sweep`` rows) takes the same worst over its analyses.
 """
 from __future__ import annotations
 
+import json
 import math
 from collections import Counter
 from dataclasses import asdict, dataclass, field
@@ -83,6 +87,7 @@ class AnalysisSummary:
     stability_counts: tuple = ()          # ((class, number of frames), ...) sorted by class
     unstable_frames: int = 0
     neutral_frames: int = 0
+    singular: dict | None = None          # where a quasi-static run met a singular configuration
 
     @property
     def converged(self) -> bool:
@@ -230,7 +235,20 @@ def summarize(a) -> AnalysisSummary:
         imbalance=imb, imbalance_frame=kimb, imbalance_time=_time(t, kimb),
         error=err, error_frame=kerr, error_time=_time(t, kerr),
         frame_status=fs, frame_status_frame=kfs, stability_counts=counts,
-        unstable_frames=n_uns, neutral_frames=n_neu, **stab)
+        unstable_frames=n_uns, neutral_frames=n_neu, singular=_singular(attrs), **stab)
+
+
+def _singular(attrs) -> dict | None:
+    """The ``singular`` summary entry from the analysis attributes ``singular_*``."""
+    t = _finite(attrs.get("singular_time"))
+    if t is None:
+        return None
+    try:
+        elements = json.loads(attrs.get("singular_elements") or "[]")
+    except (TypeError, ValueError):
+        elements = []
+    return {"time": t, "kind": str(attrs.get("singular_kind", "")), "elements": elements,
+            "mode": str(attrs.get("singular_mode", "") or "")}
 
 
 def _modes(ds, k) -> tuple:

@@ -211,7 +211,8 @@ class Corrector:
     stacked back-substitution per further correction. A frame is accepted when its residual
     meets the FIM_S scales (force rows ``max_imbalance``, moment rows ``max_imbalance * L``,
     constraint rows ``max_error`` (x L)) and the next correction — its error estimate — is
-    ``<= max_error`` (translations / L, rotations in rad). Frames still off after
+    ``<= max_error`` (translations / L, rotations in rad); that correction is applied, so the
+    error reported bounds the error of the point written. Frames still off after
     ``CORRECT_MAX_ITER`` corrections, or models that are not batched, go through :meth:`one`:
     simplified Newton with a factorisation held per chart (refactorised at the frame when the
     contraction is slower than ``CORRECT_RATE``); the caller runs a full Newton (FIM_S) on a
@@ -276,6 +277,11 @@ class Corrector:
                     e = self._err(dy)
                     good = (self._z(Fv[live]) <= 1.0) & (e <= self.max_error)
                     errs[live], its[live], ok[live[good]] = e, it, True
+                    # the last correction is applied too: its size, the error reported,
+                    # bounds the error of the point written (Newton: second order smaller)
+                    Y[live[good]] += dy[good]
+                    its[live[good]] += 1
+                    st["corrections"] += int(good.sum())
                     live, dy = live[~good], dy[~good]
                     if not live.size or it == CORRECT_MAX_ITER:
                         break
@@ -344,6 +350,8 @@ class Corrector:
                 dy, err = step(F)
                 if z <= 1.0 and err <= self.max_error:
                     ok = True
+                    y = y + dy          # applied: the error reported bounds the point's
+                    it += 1
                     break
                 if it >= CORRECT_MAX_ITER:
                     break

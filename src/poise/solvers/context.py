@@ -29,7 +29,9 @@ class Context:
     ``arrays``); ``data``: active rows and counters; ``redundancy``: redundant rows (None until
     detected; detection runs once per model and is handed on to later analyses); ``frames`` /
     ``outcomes``: the solved frames; ``times``: the output times; ``notes``: message parts;
-    ``progress``: ``progress(label, done, total)`` or None (``done`` None: finished).
+    ``progress``: ``progress(label, done, total)`` or None (``done`` None: finished);
+    ``infos``: classifications made during the solve (:mod:`poise.solvers.path`), reused by
+    the output.
     """
 
     model: Any
@@ -46,6 +48,7 @@ class Context:
     time_independent: bool = False
     progress: Callable | None = None
     start: Any = None        # frame 0's assembled input (require_stable descends from it)
+    infos: dict = field(default_factory=dict)   # id(state) -> (state, StabilityInfo) classified
 
     @property
     def kind(self) -> str:

@@ -20,26 +20,50 @@ import numpy as np
 from poise.solvers.stability_modes import DIAG_FLOOR, NOISE_REL
 
 
+def _row_max(M):
+    """``(|entries|, largest |entry| of each row, row of each entry)`` of csr matrix ``M``."""
+    a = np.abs(M.data)
+    cnt = np.diff(M.indptr)
+    nz = cnt > 0
+    rmax = np.zeros(M.shape[0])
+    if a.size:
+        rmax[nz] = np.maximum.reduceat(a, M.indptr[:-1][nz])
+    return a, rmax, np.repeat(np.arange(M.shape[0]), cnt)
+
+
+def _kept(M, keep):
+    """``M`` without its entries where ``keep`` is False (a copy only when one goes)."""
+    if keep.all():
+        return M
+    M = M.copy()
+    M.data[~keep] = 0.0
+    M.eliminate_zeros()
+    return M
+
+
 def prune_noise(Ks):
     """Drop the entries of sparse Ks at round-off level of both rows they couple (``|K_ij| <=
     NOISE_REL max(max_k |K_ik|, max_k |K_jk|)``): a perturbation of the size of the rounding in
     those rows, but equilibration would otherwise scale a 1e-19-relative coupling next to a
     zero diagonal (a box's yaw on a plane) up to unit size and count a negative eigenvalue."""
-    a = np.abs(Ks.data)
-    cnt = np.diff(Ks.indptr)
-    nz = cnt > 0
-    if not a.size:
-        return Ks
-    rmax = np.zeros(Ks.shape[0])
-    rmax[nz] = np.maximum.reduceat(a, Ks.indptr[:-1][nz])
-    rows = np.repeat(np.arange(Ks.shape[0]), cnt)
-    keep = a > NOISE_REL * np.maximum(rmax[rows], rmax[Ks.indices])
-    if keep.all():
-        return Ks
-    Ks = Ks.copy()
-    Ks.data[~keep] = 0.0
-    Ks.eliminate_zeros()
-    return Ks
+    a, rmax, rows = _row_max(Ks)
+    return _kept(Ks, a > NOISE_REL * np.maximum(rmax[rows], rmax[Ks.indices]))
+
+
+def prune_rows(G):
+    """Drop the entries of sparse constraint rows ``G`` at round-off level of their row
+    (``|G_ij| <= NOISE_REL max_k |G_ik|``): a coordinate that no constraint really involves
+    and no stiffness couples (a free spin about a link's own axis) would otherwise be scaled
+    until that rounding is of unit size, and the SVD would count it as constrained."""
+    G = G.tocsr()
+    a, rmax, rows = _row_max(G)
+    return _kept(G, a > NOISE_REL * rmax[rows])
+
+
+def prune_rows_dense(G):
+    """:func:`prune_rows` of a stack of dense constraint rows (F, m, n)."""
+    B = np.abs(G)
+    return np.where(B > NOISE_REL * B.max(axis=2, keepdims=True, initial=0.0), G, 0.0)
 
 
 def prune_noise_dense(Ks):

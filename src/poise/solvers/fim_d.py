@@ -18,10 +18,16 @@ import numpy as np
 from poise.solvers.chart import Corrector, _Chart
 from poise.solvers.context import Strategy, replicate
 from poise.solvers.fallback import solve_frame
-from poise.solvers import ida
+from poise.solvers import ida, path, singular
 from poise.solvers.ida import IdaStats, SparseJacobian, TransientSettings, _ida  # noqa: F401
 from poise.solvers.newton import FrameOutcome
-from poise.solvers.quasistatic import MIN_SUBSTEP_FRACTION, fims_step, first_frame
+from poise.solvers.quasistatic import (
+    MIN_SUBSTEP_FRACTION,
+    _Path,
+    fims_step,
+    first_frame,
+    require_stable,
+)
 from poise.solvers.record import IdaSteps
 from poise.solvers.status import Status
 
@@ -31,6 +37,8 @@ SPARSE_MIN = 200          # unknowns: above this IDA uses the sparse (SuperLU_MT
 IDA_MAX_STEPS = 2000      # accepted IDA steps per run, plus IDA_STEPS_PER_FRAME per output frame
 IDA_STEPS_PER_FRAME = 20
 ESCAPE = 1e6              # a body this many model sizes from its chart's reference: no bounded path
+SHRINK = 1e-2             # IDA steps below this fraction of the print interval: near a singularity?
+SHRINK_CHECK = 0.25       # ... checked again each time the step shrinks by this factor
 
 
 class IdaContinuation(Strategy):
@@ -43,6 +51,8 @@ class IdaContinuation(Strategy):
     def init(self, ctx, state):
         model, s, ts = ctx.model, ctx.settings, ctx.times
         st, out = first_frame(ctx, state)
+        if out.ok and s.require_stable:
+            st, out = require_stable(ctx, st, out)
         ctx.frames, ctx.outcomes = [st], [out]
         self.done = not out.ok or len(ts) == 1
         if self.done:
@@ -72,6 +82,7 @@ class IdaContinuation(Strategy):
         self.rebased = 1
         self.chart = self.solver = None
         self.t_last, self.y_last = st.t, None
+        self.h_checked = np.inf          # step size at the last singularity check
 
     def terminate(self, ctx):
         return self.done or self.k_out >= len(ctx.times)
@@ -202,18 +213,28 @@ class IdaContinuation(Strategy):
                                                  "ida")
                 else:
                     self.correct.stats["newton"] += 1
-                    st, o = solve_frame(model, chart.state(yk, tk), s, hist, k, ctx.data,
-                                        event="ida_newton")
+                    start = chart.state(yk, tk)
+                    st, o = solve_frame(model, start, s, hist, k, ctx.data, event="ida_newton")
+                    why = _off_branch(ctx, start, st, o)
+                    if why:         # Newton left the branch IDA was on: continuation instead
+                        hist.add(k, 0, o.imbalance, o.error, np.nan, np.nan, why, "substep_retry")
+                        st, o, _ = fims_step(model, ctx.frames, tk, s, hist, ctx.data, k,
+                                             MIN_SUBSTEP_FRACTION * (tk - ctx.frames[-1].t))
                     o.iterations += int(n_c[j])
                 ctx.frames.append(st)
                 ctx.outcomes.append(o)
                 ctx.report("FIM_D", k + 1, len(ts))
+                if not o.ok:
+                    self.done = True
+                    return
         if self.k_out == len(ts) - 1 and t_last >= T_end - tol_t:
             # last frame: FIM_S polish of IDA's end state
-            st = chart.state(y_last, T_end)
-            st, o = solve_frame(model, st, s, hist, self.k_out, ctx.data, event="final_fim_s")
-            if not o.ok:
-                reason = f"Newton polish of the last frame failed ({o.status.value})"
+            start = chart.state(y_last, T_end)
+            st, o = solve_frame(model, start, s, hist, self.k_out, ctx.data, event="final_fim_s")
+            why = _off_branch(ctx, start, st, o)
+            if not o.ok or why:
+                reason = (f"Newton polish of the last frame failed ({o.status.value})" if not o.ok
+                          else f"Newton polish of the last frame left the branch: {why}")
                 _fallback(ctx, self.k_out, reason, self.fallbacks, chart.state(y_last, t_last))
             else:
                 ctx.frames.append(st)
@@ -221,14 +242,35 @@ class IdaContinuation(Strategy):
             self.k_out += 1
             self.done = True
             return
+        if self._towards_singular(ctx, chart, y_last, t_last):
+            self.solver = None
+            self._fall_back(ctx, f"IDA's steps shrink to {self.steps['step_size'][-1]:.3g} "
+                            f"at t={t_last:.9g}, next to a singular configuration",
+                            chart.state(y_last, t_last))
+            self.rebased = 1
+            return
         if chart.max_rotation(y_last) > REBASE_ANGLE:
             self.ref = chart.state(y_last, t_last)
             self.solver = None
             self.rebased = 1
 
+    def _towards_singular(self, ctx, chart, y, t) -> bool:
+        """IDA's steps shrinking below ``SHRINK`` of the print interval (every further factor
+        ``SHRINK_CHECK``): is the path approaching a singular configuration
+        (:meth:`~poise.solvers.quasistatic._Path.near_singular`)? IDA would otherwise creep
+        towards a fold in ever smaller steps until its step-size floor."""
+        h = self.steps["step_size"][-1] if self.steps["step_size"] else np.inf
+        if not h < SHRINK * self.interval or not h < self.h_checked * SHRINK_CHECK:
+            return False
+        self.h_checked = h
+        path = _Path(ctx.model, ctx.frames + [chart.state(y, t)], ctx.settings, ctx.data,
+                     self.interval)
+        return path.near_singular(ctx.frames)
+
     def postprocess(self, ctx):
+        path.check(ctx, fims_step)
         if not hasattr(self, "steps"):        # frame 0 failed or nothing to integrate
-            return None, {}
+            return None, singular.located_attrs(ctx.outcomes)
         model, notes, fallbacks = ctx.model, ctx.notes, self.fallbacks
         if fallbacks:
             notes.append(f"{len(fallbacks)} FIM_S fallbacks: " + "; ".join(fallbacks[:3])
@@ -248,6 +290,7 @@ class IdaContinuation(Strategy):
         attrs["fim_s_fallbacks"] = len(fallbacks)
         attrs["dae_tol"] = self.tol
         attrs["ida_linear_solver"] = "sparse" if self.sparse is not None else "dense"
+        attrs.update(singular.located_attrs(ctx.outcomes))
         return IdaSteps(columns=dict(self.steps)), attrs
 
 
@@ -264,6 +307,15 @@ def _over_budget(n_steps, max_steps, y, model, t):
                             f"(a body moved {d / model.L:.3g} model sizes, more than {ESCAPE:g}: is a load "
                             "unbounded?)")
     return None
+
+
+def _off_branch(ctx, start, st, out) -> str:
+    """Why the Newton solution ``st`` from IDA's point ``start`` is not on the branch of the
+    frames before (:meth:`~poise.solvers.quasistatic._Path.jump`), or ``""``."""
+    if not out.ok or not ctx.frames:
+        return ""
+    interval = max(start.t - ctx.frames[-1].t, 1e-300)
+    return _Path(ctx.model, ctx.frames, ctx.settings, ctx.data, interval).jump(start, st, True)
 
 
 def _fallback(ctx, k_out, reason, fallbacks, last_state):

@@ -21,6 +21,7 @@ from poise.model.frame_batch import batchable, chunk_size
 from poise.solvers.certify import certify
 from poise.solvers.newton import Scales
 from poise.solvers.outputs import element_loads, loads_of
+from poise.solvers.path import cached_info
 from poise.solvers.record import FrameSet, GroupLoads
 from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
 from poise.solvers.stability import (
@@ -61,9 +62,11 @@ def measure_frame(ctx, state, outcomes) -> FrameSet:
     except EvaluationError:
         loads = {}
     done = ctx.data.classified
-    if done is not None and done[0] is state and len(outcomes) == 1:
-        # classified by the solve: also an equilibrium --require-stable refused (neutral)
-        infos = [done[1]]
+    known = done[1] if done is not None and done[0] is state else cached_info(ctx, state)
+    if known is not None and (len(outcomes) == 1 or all(o.ok for o in outcomes)):
+        # classified by the solve: also an equilibrium --require-stable refused (neutral),
+        # or a path's located end
+        infos = [known]
     elif all(o.ok for o in outcomes) and J is not None:
         infos = [classify(model, state, J=J, active=saved)]
     else:   # the same records either way: frames of a sequence are concatenated
@@ -167,9 +170,9 @@ def measure_frames(ctx, frames, outcomes) -> FrameSet | None:
             chunk = frames[a:a + C]
             ev = evaluate(model, chunk, "jacobian")
             for j in range(len(chunk)):
-                outcomes[a + j], got = certify(model, ctx.settings, outcomes[a + j], ev.r[j],
-                                               np.where(saved, ev.phi[j], 0.0), sc)
-                measured.append(got)
+                outcomes[a + j], ms = certify(model, ctx.settings, outcomes[a + j], ev.r[j],
+                                              np.where(saved, ev.phi[j], 0.0), sc)
+                measured.append(ms)
             lam = np.stack([s.lam for s in chunk]) if nc else np.zeros((len(chunk), 0))
             if len(red) and nc:
                 lam = lam.copy()
@@ -184,7 +187,10 @@ def measure_frames(ctx, frames, outcomes) -> FrameSet | None:
                 loads.setdefault(g, []).append((Fg.reshape(-1, n_out, 3),
                                                 Tg.reshape(-1, n_out, 3)))
             ok = np.array([o.ok for o in outcomes[a:a + C]])
-            if model.nq <= DENSE_LIMIT:
+            got = [cached_info(ctx, st) for st in chunk]    # classified by the solve (also
+            if all(g is not None for g, k in zip(got, ok) if k):   # a path's located end)
+                infos += [g if g is not None else unknown_info() for g in got]
+            elif model.nq <= DENSE_LIMIT:
                 infos += classify_dense_frames(model, ev.J, saved, ok)
             else:                                     # sparse inertia, frame by frame
                 infos += [classify(model, None, J=ev.J[j], active=saved) if ok[j] else

@@ -152,6 +152,11 @@ class History(_Rows):
             R = np.stack([poses[i][1] for i in rows])
         return np.asarray(rows, dtype=np.int64), P, R
 
+    def drop_frames_after(self, k: int) -> None:
+        """Output frames after ``k`` were dropped (a path cut at a singular configuration):
+        rows recorded ``measured_at`` them keep what they recorded."""
+        self._measured = {i: f for i, f in self._measured.items() if f <= k}
+
     def columns(self, measures=None) -> dict:
         """The table: one array per :data:`COLUMNS` name (int, float or str, as declared).
         ``measures``: per output frame ``(imbalance, constraint error, worst equation)`` as

@@ -236,8 +236,9 @@ class NewtonIteration(Iterative):
     (:class:`~poise.solvers.linalg.Factor`)."""
 
     def __init__(self, model, settings, frame: int, cnt: Counters, event: str = "newton",
-                 equilibrate: bool = False, probe=None):
+                 equilibrate: bool = False, probe=None, downhill: bool = True):
         self.model, self.settings = model, settings
+        self.downhill = downhill      # False: a continuation step (no walk down a stall)
         self.frame, self.cnt, self.event, self.equilibrate = frame, cnt, event, equilibrate
         self.probe = probe
         self.sc = Scales(model, settings)
@@ -309,7 +310,9 @@ class NewtonIteration(Iterative):
         s.imb, s.cerr, s.zinf, s.worst = measures(self.model, s.ev, self.sc)
         s.err = max(s.cerr, s.last_step if np.isfinite(s.last_step) else 0.0)
         s.res_ok = s.zinf <= 1.0
-        step_ok = (not np.isfinite(s.last_step)) or s.last_step <= self.settings.max_error
+        # converged needs an error estimate: a Newton step measured at (or taken to) the point;
+        # a residual within tolerance alone says nothing about the distance to the solution
+        step_ok = np.isfinite(s.last_step) and s.last_step <= self.settings.max_error
         if s.res_ok and step_ok:
             s.outcome = self._converged(s, used, s.err)
             return True
@@ -399,7 +402,7 @@ class NewtonIteration(Iterative):
             return Step(0)
         s.merits.append(m0)
         crawl = len(s.merits) > CRAWL and not m0 <= 0.5 * s.merits[-1 - CRAWL]
-        if settings.line_search and not s.res_ok and (
+        if settings.line_search and self.downhill and not s.res_ok and (
                 crawl or best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
             # the merit stalls: from now on every trial is kept on the constraints (the
             # iterate first, if Newton's linearisation left them), and where the merit has a
@@ -477,13 +480,16 @@ class _NewtonState:
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
            max_iter: int | None = None, event: str = "newton", equilibrate: bool = False,
-           probe=None):
+           probe=None, downhill: bool = True):
     """Newton iterations from ``state`` (:class:`NewtonIteration` run by
     :func:`~poise.solvers.iterate.iterate`, ``max_iter`` default ``max_num_iter``). Returns
     ``(state, FrameOutcome)``. ``history``: where the loop appends the rows (a
     :class:`~poise.solvers.history.History`, a stage view of one, or a list). ``probe``:
     ``probe(model, state, settings, cnt, f, x, eps, zinf) -> message`` called with the first
-    step (factorisation ``f``, step ``x``); a message ends Newton as ``no_equilibrium``."""
+    step (factorisation ``f``, step ``x``); a message ends Newton as ``no_equilibrium``.
+    ``downhill`` False: a continuation step, which wants the root next to its prediction (a
+    stalled line search ends it; no projection or steps down the potential to another one)."""
     max_iter = settings.max_num_iter if max_iter is None else max_iter
-    return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate, probe),
+    return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate, probe,
+                                   downhill),
                    max_iter, history, state)

@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from poise.solvers.equilibrate import equilibrate_dense, prune_noise_dense
+from poise.solvers.equilibrate import equilibrate_dense, prune_noise_dense, prune_rows_dense
 from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the public names
     AUG_RHO,
     DENSE_LIMIT,
@@ -111,6 +111,7 @@ def _dense_frames(model, J, active, ok) -> list[StabilityInfo]:
     if G.shape[1]:        # a numerically empty row constrains nothing (as on the sparse path)
         rn = np.linalg.norm(G, axis=2)
         G = np.where((rn > 1e-10 * rn.max(axis=1, keepdims=True))[:, :, None], G, 0.0)
+        G = prune_rows_dense(G)     # entries at round-off of their row (as the sparse path)
     Ks = prune_noise_dense(Ku)
     Dq, Dl = equilibrate_dense(Ks, G)
     Kt = Ks * Dq[:, :, None] * Dq[:, None, :]

@@ -11,6 +11,7 @@ import numpy as np
 
 from poise.solvers.equilibrate import equilibrate as _equilibrate
 from poise.solvers.equilibrate import prune_noise as _prune_noise
+from poise.solvers.equilibrate import prune_rows as _prune_rows
 from poise.solvers.redundancy import redundant_rows
 from poise.solvers.stability_modes import (
     AUG_RHO,
@@ -174,7 +175,7 @@ class SparsePencil:
             rn = np.sqrt(np.asarray(G.multiply(G).sum(axis=1)).ravel())
             keep = rn > 1e-10 * rn.max()
             keep[np.asarray(drop, np.int64)] = False
-            G = G[keep]
+            G = _prune_rows(G[keep])    # entries at round-off of their row
             self.rows = self.rows[keep]
         same = like is not None and like.nq == nq and np.array_equal(like.rows, self.rows)
         dq, dl = _equilibrate(Ks, G, start=(like.dq, like.dl) if same else None)

@@ -16,6 +16,7 @@ class Status(str, Enum):
     TOLERANCE_NOT_MET = "tolerance_not_met"
     NO_EQUILIBRIUM = "no_equilibrium"
     UNSTABLE = "unstable"
+    SINGULAR_CONFIGURATION = "singular_configuration"
 
     @property
     def ok(self) -> bool:
@@ -39,4 +40,7 @@ MESSAGES = {
     Status.NO_EQUILIBRIUM: "no equilibrium exists (a direction without stiffness carries a "
                            "load); the fallback chain was not tried",
     Status.UNSTABLE: "no stable equilibrium reached (--require-stable)",
+    Status.SINGULAR_CONFIGURATION: "the path reaches a singular configuration (the constraints "
+                                   "lose rank or the reduced stiffness reaches zero): no "
+                                   "equilibrium continues the branch beyond it",
 }

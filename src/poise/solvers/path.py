@@ -1,0 +1,161 @@
+"""Verdicts across the frames of a quasi-static path: stiffness sign changes, --require-stable.
+
+Once a run's frames are solved, every converged frame is classified (the classification the
+output reuses: :func:`classify_frames`). Two events end the path where they happen:
+
+* the number of negative eigenvalues of the reduced stiffness changes between two frames: the
+  path crossed a singular configuration (a bifurcation under load), status
+  ``singular_configuration``;
+* with ``require_stable``, a frame is not stable enough (:func:`~poise.solvers.stable.
+  acceptable`): the run follows the stable branch and ends where it stops being stable, status
+  ``unstable``.
+
+The time is located by bisection between the two frames, each midpoint solved by continuation
+from the frame before (:func:`~poise.solvers.quasistatic.fims_step`) and classified; the frames
+after the event are dropped and the state just past it is the last frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.model.evaluate import evaluate
+from poise.model.frame_batch import batchable, chunk_size
+from poise.solvers import singular
+from poise.solvers.stability import DENSE_LIMIT, classify, classify_dense_frames
+from poise.solvers.stable import acceptable
+from poise.solvers.status import Status
+
+LOCATE_REL = 1e-9       # bisection width, relative to max(1, |t|)
+MIN_SUBSTEP = 2.0 ** -10   # a midpoint's sub-steps, down to this fraction of its interval
+
+
+def cached_info(ctx, state):
+    """The classification of ``state`` made during the solve, or None."""
+    got = ctx.infos.get(id(state))
+    return got[1] if got is not None and got[0] is state else None
+
+
+def classify_frames(ctx, frames) -> list:
+    """Classify ``frames`` (converged states) with the solve's active rows, all at once where
+    the model allows it; the results are cached on ``ctx`` for the output."""
+    model = ctx.model
+    saved = ctx.data.mask(model)
+    todo = [st for st in frames if cached_info(ctx, st) is None]
+    if todo and model.nq <= DENSE_LIMIT and batchable(model):
+        C = chunk_size(model)
+        for a in range(0, len(todo), C):
+            chunk = todo[a:a + C]
+            for st, info in zip(chunk, classify_dense_frames(
+                    model, evaluate(model, chunk, "jacobian").J, saved)):
+                ctx.infos[id(st)] = (st, info)
+    for st in todo:
+        if cached_info(ctx, st) is None:
+            ctx.infos[id(st)] = (st, classify(model, st, active=saved))
+    return [cached_info(ctx, st) for st in frames]
+
+
+def check(ctx, step) -> None:
+    """Apply the module's two rules to ``ctx.frames`` (in place): classify the converged
+    frames, find the first event, locate it and end the path there. ``step``: the
+    continuation step, :func:`~poise.solvers.quasistatic.fims_step`'s signature."""
+    frames, outcomes, s = ctx.frames, ctx.outcomes, ctx.settings
+    n = next((k for k, o in enumerate(outcomes) if not o.ok), len(outcomes))
+    if n == 0 or (ctx.time_independent and not s.require_stable):
+        return
+    infos = classify_frames(ctx, frames[:n] if not ctx.time_independent else frames[:1])
+    prev, start = None, 0
+    while True:
+        event = _first_event(infos, s, prev, start)
+        if event is None:
+            return
+        k, kind, prev = event
+        if k == 0:               # --require-stable and the start is not stable enough
+            outcomes[0].status = Status.UNSTABLE
+            outcomes[0].message = (f"no stable equilibrium reached (--require-stable): the "
+                                   f"start of the path is {infos[0].klass}")
+            del frames[1:], outcomes[1:]
+            return
+        lo = k - 1 if kind == "unstable" else prev
+        if kind == "unstable":
+            same = lambda i: acceptable(i, s)                                       # noqa: E731
+        else:
+            same = lambda i, n0=infos[lo].n_negative: (i.klass != "unknown"          # noqa: E731
+                                                      and i.n_negative == n0)
+        st, info, t = _locate(ctx, step, lo, k, infos[k], same)
+        crossed = _crossed(info, infos[lo], infos[k])
+        if kind == "unstable" or crossed:
+            break
+        prev, start = k, k + 1   # the stiffness jumped (a discontinuous load): no singular point
+    del frames[lo + 1:], outcomes[lo + 1:]
+    ctx.history.drop_frames_after(lo)
+    ctx.infos[id(st)] = (st, info)
+    where = singular.SingularInfo(t, "bifurcation", (), _mode(info, infos[lo]))
+    if kind == "unstable":
+        modes = "; ".join(m.text(short=True) for m in info.mode_list)
+        out = singular.SingularOutcome(
+            Status.UNSTABLE, 0, np.nan, np.nan,
+            f"stability lost at t = {t:.6g} (--require-stable: the path ends where its branch "
+            f"stops being stable; there it is {info.klass}" + (f": {modes})" if modes else ")"),
+            {}, "plain", where=where if crossed else None)
+    else:
+        out = singular.singular_outcome(where, 0)
+    ctx.history.add(len(frames), 0, np.nan, np.nan, np.nan, np.nan, out.message, "singular")
+    frames.append(st)
+    outcomes.append(out)
+
+
+def _first_event(infos, s, prev, start):
+    """``(frame, kind, previous known frame)`` of the first event from frame ``start`` on
+    (``prev``: the last classified frame before it), or None."""
+    for k in range(start, len(infos)):
+        info = infos[k]
+        if s.require_stable and not acceptable(info, s):
+            return k, "unstable", prev
+        if info.klass == "unknown":
+            continue
+        if prev is not None and info.n_negative != infos[prev].n_negative:
+            return k, "bifurcation", prev
+        prev = k
+    return None
+
+
+def _crossed(info, a, b) -> bool:
+    """Did an eigenvalue of the reduced stiffness cross zero where the classification changed
+    (``info``: just past the change), rather than jump (a discontinuous load or stiffness)?
+    Its smallest eigenvalue there is at most ``singular.DROP`` of the smallest eigenvalues of
+    the frames ``a`` and ``b`` on either side."""
+    scale = max(abs(a.min_eigenvalue), abs(b.min_eigenvalue))
+    lam = abs(info.min_eigenvalue)
+    return bool(info.klass != "unknown" and np.isfinite(lam) and np.isfinite(scale)
+                and lam <= singular.DROP * scale)
+
+
+def _mode(a, b) -> str:
+    """The unstable mode gained or lost between classifications ``a`` and ``b``."""
+    more = a if a.n_negative > b.n_negative else b
+    ms = [m for m in more.mode_list if m.klass == "unstable"]
+    return ms[0].text(short=True) if ms else ""
+
+
+def _locate(ctx, step, lo, hi, hi_info, same):
+    """Bisection between frames ``lo`` (``same`` holds) and ``hi`` (it does not): each midpoint
+    solved by continuation (``step``) from the states before and classified. Returns the first
+    state found past the event, its classification and the located time."""
+    model, s, data = ctx.model, ctx.settings, ctx.data
+    frames = ctx.frames
+    hist = list(frames[max(0, lo - 2):lo + 1])
+    t_lo, t_hi = frames[lo].t, frames[hi].t
+    st_hi, info_hi = frames[hi], hi_info
+    tol = LOCATE_REL * max(1.0, abs(t_hi))
+    while t_hi - t_lo > tol:
+        t = 0.5 * (t_lo + t_hi)
+        st, o, _ = step(model, hist, t, s, ctx.history, data, hi, MIN_SUBSTEP * (t - t_lo))
+        if not o.ok:
+            break
+        info = classify(model, st, active=data.mask(model))
+        if same(info):
+            hist = (hist + [st])[-3:]
+            t_lo = t
+        else:
+            st_hi, info_hi, t_hi = st, info, t
+    return st_hi, info_hi, 0.5 * (t_lo + t_hi)
