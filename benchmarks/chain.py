@@ -94,6 +94,7 @@ def _worker(deck: str, n: int) -> dict:
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
     from poise.app.runner import model_datasets, plan
+    from poise.results.data import AnalysisResult
     from poise.solvers.driver import Driver
     t_import = time.perf_counter() - t
 
@@ -127,7 +128,8 @@ def _worker(deck: str, n: int) -> dict:
     model_datasets(model)
     state = model.initial_state()
     drv = Driver(model, reqs[0], redundancy=None)
-    state, ar = drv.run(state, index=0)
+    state, rec = drv.run(state, index=0)
+    ar = AnalysisResult.of(rec)          # laid out, as runner.run does
     t3 = time.perf_counter()
     iters = int(np.sum(ar.datasets["frames/iterations"]))
 

@@ -61,7 +61,7 @@ def bench_expressions(n: int = N_EXPR, repeat: int = 3) -> dict:
         comp.append(time.perf_counter() - t0)
     P = rng.normal(scale=100.0, size=(2 * n, 3))
     A = np.broadcast_to(np.eye(3), (2 * n, 3, 3)).copy()
-    ctx = EvalContext(time=0.4, P=P, A=A, angle_ref=np.zeros(0), static=True)
+    ctx = EvalContext(t=0.4, P=P, A=A, angle=np.zeros(0), static=True)
     batch.evaluate(ctx)
     ev = []
     for _ in range(20):

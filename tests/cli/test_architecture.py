@@ -96,3 +96,79 @@ def test_import_contracts_are_kept():
         lint_imports = pytest.importorskip("importlinter.cli").lint_imports
     rc = lint_imports(config_filename=str(ROOT / "pyproject.toml"), no_cache=True, no_logo=True)
     assert rc == 0, "import contracts broken: run `make lint` (lint-imports) for the report"
+
+
+#: packages whose modules import no private name (``_name``) of another module (the solvers
+#: follow; see docs/DESIGN.md)
+NO_PRIVATE_IMPORTS = ("deck", "expr", "elements", "model")
+
+
+def _private_uses(path: Path) -> list[str]:
+    """``from X import _name`` and ``module._name`` of another poise module in ``path``."""
+    tree = ast.parse(path.read_text())
+    modules, out = set(), []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").startswith(
+                "poise")):
+            for a in node.names:
+                if a.name.startswith("_") and not a.name.startswith("__"):
+                    out.append(f"{path.name}:{node.lineno}: imports {a.name}")
+                else:
+                    modules.add(a.asname or a.name)
+        elif isinstance(node, ast.Import):
+            modules |= {a.asname or a.name.split(".")[0] for a in node.names
+                        if a.name.startswith("poise")}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and \
+                node.value.id in modules and node.attr.startswith("_") and \
+                not node.attr.startswith("__"):
+            out.append(f"{path.name}:{node.lineno}: {node.value.id}.{node.attr}")
+    return out
+
+
+def test_no_private_names_across_modules():
+    bad = [u for pkg in NO_PRIVATE_IMPORTS for p in sorted((PACKAGES[0] / pkg).rglob("*.py"))
+           for u in _private_uses(p)]
+    assert bad == []
+
+
+def _path_literals(path: Path) -> list[str]:
+    """String constants of ``path`` (docstrings aside; f-string pieces too) that name a results
+    file path: ``group/name`` or ``group/`` (``frames/status``, ``f"steps/{k}"``)."""
+    import re
+    tree = ast.parse(path.read_text())
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+            and n.body and isinstance(n.body[0], ast.Expr)
+            and isinstance(n.body[0].value, ast.Constant)}
+    return [f"{path.name}:{n.lineno}: {n.value!r}" for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docs
+            and re.match(r"[a-z][a-z0-9_]*/([a-z_]|$)", n.value)]
+
+
+def test_only_the_results_layout_knows_file_paths():
+    """The solvers hand on typed records; poise.results.layout maps them onto the file: no
+    results path literal under src/poise/solvers (issue 24)."""
+    bad = [u for p in sorted((PACKAGES[0] / "solvers").rglob("*.py")) for u in _path_literals(p)]
+    assert bad == []
+    assert _path_literals(PACKAGES[0] / "results" / "layout.py")      # the check sees them
+
+
+def test_no_test_group_imports_another():
+    """Test modules import shared helpers from ``tests/support`` only, never from another test
+    module or group (tests/README.md)."""
+    tests = ROOT / "tests"
+    groups = {p.name for p in tests.iterdir() if p.is_dir() and p.name not in ("support", "data")}
+    stems = {p.stem for p in tests.rglob("test_*.py")}
+    bad = []
+    for p in sorted(tests.rglob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text())):
+            names = ([node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level
+                     else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+            if isinstance(node, ast.ImportFrom) and node.level:
+                names = ["." + (node.module or "")]
+            for n in names:
+                top = n.split(".")[0]
+                if n.startswith(".") or top in groups or top in stems or top == "tests":
+                    bad.append(f"{p.relative_to(tests)}:{node.lineno}: {n}")
+    assert bad == []

@@ -191,3 +191,22 @@ def test_no_counted_noun_with_parenthesised_plural():
             for k, line in enumerate(p.read_text().splitlines(), 1):
                 if ('f"' in line or "f'" in line) and pat.search(line):
                     pytest.fail(f"{p.relative_to(ROOT)}:{k}: {line.strip()}")
+
+
+def test_one_declaration_of_the_methods_and_settings():
+    """The equilibrium methods are the deck schema's ``Param_Static method`` choices: the CLI
+    offers them (it does not import the schema at start-up, so it lists them) and the driver's
+    one ``METHODS`` table dispatches each for both analysis kinds; the settings' defaults and
+    bounds are the schema row's."""
+    from poise_cli.options import METHODS as CLI_METHODS
+    from poise.solvers.driver import METHODS
+    from poise.solvers.settings import PARAM_STATIC, StaticSettings
+    choices = PARAM_STATIC["method"].choices
+    assert sorted(CLI_METHODS) == sorted(choices)
+    assert set(METHODS) == {(k, m) for k in ("static", "quasistatic") for m in choices}
+    s = StaticSettings()
+    for name, a in PARAM_STATIC.items():
+        if a.default is not None and hasattr(s, name):
+            assert getattr(s, name) == a.default, name
+    with pytest.raises(ValueError, match=r"> 0"):
+        StaticSettings(compliance_delta=0.0)

@@ -21,7 +21,7 @@ from poise.app.api import run_deck
 from poise.results.data import AnalysisResult, RunResult
 from poise.results.summary import summarize, summarize_run
 
-from hard.deckgen import Deck
+from poise.gen.deck import Deck
 
 POISE = str(Path(sys.executable).parent / "poise")
 L = 400.0                                   # pendulum length [mm]

@@ -110,22 +110,23 @@ def test_fims_iterate_poses_one_frame_per_iterate(results, tmp_path):
 
 
 def test_history_pose_rows_and_memory_bound():
+    from poise.results.layout import history_datasets
     from poise.solvers.history import History
     h = History()
     h.add(0, 0, 1.0, 1.0, event="fallback: x")                  # no pose yet -> NaN
     h.add(0, 0, 1.0, 1.0, pos=np.zeros((2, 3)), rot=np.tile(np.eye(3), (2, 1, 1)))
     h.add(0, 1, 1.0, 1.0, event="fallback: y")                  # repeats the previous pose
-    d = h.datasets()
+    d = history_datasets(h)
     assert d["iterations/position"].shape == (3, 2, 3)
     assert np.isnan(d["iterations/position"][0]).all() and (d["iterations/position"][2] == 0).all()
-    assert h.attrs() == {"iterations_poses_stride": 1}
-    assert "iterations/position" not in History().datasets()     # no poses: nothing emitted
+    assert h.pose_stride == 1
+    assert "iterations/position" not in history_datasets(History())   # no poses: none emitted
     h = History()
     h.MAX_POSE_VALUES = 12 * 2 * 10                             # room for 10 poses of 2 bodies
     for k in range(101):
         h.add(0, k, 0.0, 0.0, pos=np.full((2, 3), k), rot=np.tile(np.eye(3), (2, 1, 1)))
-    d = h.datasets()
-    k = h.attrs()["iterations_poses_stride"]
+    d = history_datasets(h)
+    k = h.pose_stride
     assert k > 1 and len(d["iterations/position"]) <= 11
     rows = d["iterations/pose_row"]
     assert rows[-1] == 100 and all(r % k == 0 for r in rows[:-1])

@@ -28,7 +28,7 @@ def test_grouping_and_order():
         d = min(max((x - x0) / (x1 - x0), 0), 1)
         return h0 + (h1 - h0) * d * d * (3 - 2 * d)
 
-    t = ctx.time
+    t = ctx.t
     expect = [-1000 * (np.linalg.norm(P[0] - P[1]) - 50) + step(t, 0, 0, 1, 100), 3.5,
               math.sin(t), -20 * (np.linalg.norm(P[2] - P[3]) - 5) + step(t, .5, 0, 2, 10),
               -7 * (np.linalg.norm(P[1] - P[0]) - 1) + step(t, 0, 1, 1, 3), 2.25]
@@ -171,7 +171,7 @@ def test_many_instances_vectorised():
     res = b.evaluate(ctx)
     i = 1234
     d = np.linalg.norm(ctx.P[i % 5] - ctx.P[i % 5 + 1])
-    t = ctx.time
+    t = ctx.t
     assert res.value[i] == pytest.approx(-(1000 + i) * (d - (50 + i % 7))
                                          + (100 + i) * t * t * (3 - 2 * t))
 

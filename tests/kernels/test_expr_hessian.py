@@ -37,7 +37,7 @@ EXPRS = [
 
 def _grad(b, P, A, sc):
     """Dense d value / d (slot components, scalars) of instance 0, the Hessian's layout."""
-    r = b.evaluate(EvalContext(time=0.3, P=P, A=A, scalars=sc, reactions=np.zeros(10)))
+    r = b.evaluate(EvalContext(t=0.3, P=P, A=A, extra=sc, reactions=np.zeros(10)))
     g = np.zeros(3 * b.S + b.U)
     g[:3 * b.S] = r.d_slot[0].ravel()
     g[3 * b.S:] = r.d_scalar[0]
@@ -52,7 +52,7 @@ def test_hessian_against_differences_of_the_gradient(text):
     sc = np.zeros(50)
     sc[:3] = [0.7, -1.3, 2.1]
     b = compile_batch([mkexpr(text)], FakeResolver())
-    H = b.hessian(EvalContext(time=0.3, P=P, A=A, scalars=sc))[0]
+    H = b.hessian(EvalContext(t=0.3, P=P, A=A, extra=sc))[0]
     D = 3 * b.S + b.U
     fd = np.zeros((D, D))
     h = 1e-6
@@ -87,10 +87,10 @@ def test_hessian_of_many_instances_in_groups():
     P, A = random_frames(rng)
     sc = np.linspace(0.5, 1.5, 50)
     b = compile_batch([mkexpr(t) for t in texts], FakeResolver())
-    H = b.hessian(EvalContext(P=P, A=A, scalars=sc))
+    H = b.hessian(EvalContext(P=P, A=A, extra=sc))
     for i, t in enumerate(texts):
         bi = compile_batch([mkexpr(t)], FakeResolver())
-        Hi = bi.hessian(EvalContext(P=P, A=A, scalars=sc))[0]
+        Hi = bi.hessian(EvalContext(P=P, A=A, extra=sc))[0]
         Di = 3 * bi.S
         np.testing.assert_allclose(H[i, :Di, :Di], Hi[:Di, :Di], atol=1e-13)
         if bi.U:
@@ -105,4 +105,4 @@ def test_no_hessian_for_reactions_and_force_laws(text, what):
     P, A = random_frames(rng)
     b = compile_batch([mkexpr(text)], FakeResolver())
     with pytest.raises(NoHessian, match=what):
-        b.hessian(EvalContext(P=P, A=A, scalars=np.zeros(50), reactions=np.zeros(10)))
+        b.hessian(EvalContext(P=P, A=A, extra=np.zeros(50), reactions=np.zeros(10)))

@@ -57,7 +57,7 @@ def fd_markers(text, seed=3, h=1e-6, rtol=1e-5, atol=1e-7, ctx_kw=None):
     """Compare d_slot with central differences w.r.t. every marker origin/axis component."""
     rng = np.random.default_rng(seed)
     P, A = random_frames(rng)
-    kw = dict(time=0.3, scalars=np.zeros(50), reactions=np.zeros(10), **(ctx_kw or {}))
+    kw = dict(t=0.3, extra=np.zeros(50), reactions=np.zeros(10), **(ctx_kw or {}))
     b = compile_batch([mkexpr(text)], FakeResolver())
     res = b.evaluate(EvalContext(P=P, A=A, **kw))
     # analytic dense gradient: (markers, 4 kinds, 3)
@@ -103,7 +103,7 @@ def test_included_angle_at_the_middle_marker():
                     ([1.0 + math.sqrt(3.0), 2.0, 0.0], math.pi / 6),
                     ([0.0, 1.0, -1.0], 3 * math.pi / 4)):
         P[2] = k
-        ctx = EvalContext(P=P, A=A, scalars=np.zeros(50), reactions=np.zeros(10))
+        ctx = EvalContext(P=P, A=A, extra=np.zeros(50), reactions=np.zeros(10))
         assert b.evaluate(ctx).value[0] == pytest.approx(want, abs=1e-14)
 
 
@@ -126,7 +126,7 @@ def test_yaw_pitch_roll_sense():
     P = np.zeros((6, 3))
     A = np.tile(np.eye(3), (6, 1, 1))
     A[0] = Ry(-0.3)
-    ctx = EvalContext(P=P, A=A, scalars=np.zeros(50), reactions=np.zeros(10))
+    ctx = EvalContext(P=P, A=A, extra=np.zeros(50), reactions=np.zeros(10))
     b = compile_batch([mkexpr("PITCH(1)"), mkexpr("YAW(1)"), mkexpr("ROLL(1)")], FakeResolver())
     np.testing.assert_allclose(b.evaluate(ctx).value, [0.3, 0.0, 0.0], atol=1e-14)
 
@@ -143,8 +143,8 @@ def test_angle_continuity_through_turns(name, axis):
     for th in np.linspace(0.0, 4.5 * 2 * math.pi, 200):
         A2 = A.copy()
         A2[0] = A[1] @ rot(th)          # I = J rotated by th about J's axis
-        ctx = EvalContext(P=P, A=A2, scalars=np.zeros(50), reactions=np.zeros(10),
-                          angle_ref=ref)
+        ctx = EvalContext(P=P, A=A2, extra=np.zeros(50), reactions=np.zeros(10),
+                          angle=ref)
         v = b.evaluate(ctx).value[0]
         assert v == pytest.approx(th, abs=1e-9)
         ref = np.array([v])
@@ -152,8 +152,8 @@ def test_angle_continuity_through_turns(name, axis):
     for th in np.linspace(-0.1, -3 * 2 * math.pi, 150):
         A2 = A.copy()
         A2[0] = A[1] @ rot(th)
-        ctx = EvalContext(P=P, A=A2, scalars=np.zeros(50), reactions=np.zeros(10),
-                          angle_ref=np.array([ref[0] if th < -0.2 else 0.0]))
+        ctx = EvalContext(P=P, A=A2, extra=np.zeros(50), reactions=np.zeros(10),
+                          angle=np.array([ref[0] if th < -0.2 else 0.0]))
         v = b.evaluate(ctx).value[0]
         assert v == pytest.approx(th, abs=1e-9)
         ref = np.array([v])

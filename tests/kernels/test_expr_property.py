@@ -120,7 +120,7 @@ def test_random_expressions_match_reference(tree, t):
         assume(False)
     assume(math.isfinite(expect) and abs(expect) < 1e30)
     b = compile_batch([mkexpr(text)], FakeResolver())
-    ctx = EvalContext(time=t)
+    ctx = EvalContext(t=t)
     try:
         res = b.evaluate(ctx)
     except EvaluationError as e:       # only acceptable for overflowing derivatives
@@ -150,7 +150,7 @@ def test_structure_sharing_across_constants():
     exprs = [mkexpr(f"STEP(TIME, {a}, 1, {a + 1}, 2)*SIN({a}D*TIME)") for a in range(1, 40)]
     b = compile_batch(exprs, FakeResolver())
     assert len(b.groups) == 1
-    res = b.evaluate(EvalContext(time=1.7))
+    res = b.evaluate(EvalContext(t=1.7))
     for a, v in zip(range(1, 40), res.value, strict=True):
         assert math.isclose(v, step(1.7, a, 1, a + 1, 2) * math.sin(math.radians(a) * 1.7),
                             rel_tol=1e-12, abs_tol=1e-12)

@@ -153,19 +153,19 @@ def _state(m, seed):
 
 def _captured(m, st):
     """Evaluate with the Jacobian; returns the evaluation and the arguments ``Model.evaluate``
-    passed to ``ReactionFeed.coupling`` ``(model, kept, P, A, row_active, tangents)``."""
-    feed = m.reaction_feed
+    passed to ``ReactionFeed.coupling`` ``(model, kept, P, A, row_active, tangents, Dg)``."""
+    from poise.elements.reaction_feed import ReactionFeed
     cap = {}
-    orig = feed.coupling
+    orig = ReactionFeed.coupling
 
-    def spy(*a):
+    def spy(self, *a):
         cap["args"] = a
-        return orig(*a)
-    feed.coupling = spy
+        return orig(self, *a)
+    ReactionFeed.coupling = spy
     try:
         ev = m.evaluate(st)
     finally:
-        del feed.coupling
+        ReactionFeed.coupling = orig
     return ev, cap["args"]
 
 
@@ -211,27 +211,27 @@ def _matches(ch, g, key, ei, ej):
     return None
 
 
-def _reference_coupling(m, kept, P, A, vecs, row_active):
+def _reference_coupling(m, kept, P, A, vecs, row_active, tangents):
     """Dense (N, N) d r / d lambda of the reader families, one Python iteration per (reader
     instance, channel, constraint instance) as ReactionFeed.coupling did before it was batched
     (``vecs`` (C, 6): every channel's (F, T), see :func:`_reference_values`)."""
     from poise.elements.kernel import local_residual_tangent
-    from poise.elements.expr_forces import apply_two_body_w
+    from poise.elements.forces import apply_two_body
     feed = m.reaction_feed
-    owners = feed.info.owner_maps(m)
+    owners = feed.info.owners
     inv = {g: {o: key for key, o in om.items()} for g, om in owners.items()}
     out = np.zeros((m.N, m.N))
     for ri, f in enumerate(m.families):
         if not getattr(f, "reads_reactions", False):
             continue
         kin = kept[ri][1]
-        dFs, dTs = f.scalar_chain(kin.Y, f._rgrads)
+        dFs, dTs = f.scalar_chain(kin.Y, tangents[ri][5]["d_reaction"])
         for i in range(f.n):
             for u, c in enumerate(f.rcols[i]):
                 if c < 0:
                     continue
-                drho = apply_two_body_w(kin.Y, dFs[:, :, u], dTs[:, :, u], None, None,
-                                        f.action_only, False)[0]
+                drho = apply_two_body(kin.Y, dFs[:, :, u], dTs[:, :, u], None, None,
+                                      f.action_only, False)[0]
                 rl = local_residual_tangent(kin, drho, None, f.slot_ml, f.K, False, None,
                                             0)[0][i]
                 rows = f.gcol[i, :6 * f.K]
@@ -258,7 +258,7 @@ def _reference_values(m, channels, info, loads, P, A):
     """Channel values and (C, 6) (F, T) vectors, one channel (and, for resultants, one element)
     at a time."""
     from poise.model.compile import GLOBAL
-    owners = info.owner_maps(m)
+    owners = info.owners
     out = np.zeros(len(channels))
     vecs = np.zeros((len(channels), 6))
     for k, ch in enumerate(channels):
@@ -326,17 +326,17 @@ def test_many_readers_grouped_and_equal_to_per_entry_reference(many):
     assert len(feed.groups) <= n_pairs
 
     ev, args = _captured(m, st)
-    _, kept, P, A, row_active = args[:5]
+    _, kept, P, A, row_active, tangents = args[:6]
     loads = loads_of(m, kept.values())
-    vals = feed.values(m, kept.values(), P, A)
+    vals, _ = feed.values(m, kept.values(), P, A)
     ref_v, vecs = _reference_values(m, chans, feed.info, loads, P, A)
     np.testing.assert_allclose(vals, ref_v, rtol=0, atol=1e-13 * np.abs(ref_v).max())
 
     new = feed.coupling(*args)
-    blocks = feed.setup(m)                      # same pattern again (idempotent)
+    blocks = feed.blocks                        # the pattern registered with the model
     assert len(new) == len(blocks)
     got = _dense_blocks(m.N, blocks, new)
-    ref = _reference_coupling(m, kept, P, A, vecs, row_active)
+    ref = _reference_coupling(m, kept, P, A, vecs, row_active, tangents)
     scale = np.abs(ref).max()
     assert scale > 1e-3
     # the multiplier columns (the coordinate columns: central differences below)

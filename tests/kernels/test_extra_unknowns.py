@@ -34,18 +34,17 @@ class PointOnLine(ConstraintFamily):
 
 
 def _compiler(spec, ctx):
-    I = ctx.b.marker_index[21]
-    J = ctx.b.marker_index[11]
+    I = ctx.geometry.marker_index[21]
+    J = ctx.geometry.marker_index[11]
     u = ctx.add_extra("<test> u", 0.3)
-    f = PointOnLine(name="test:line", markers=np.array([[I, J]]), slot_ml=np.array([0, 1, 1]),
-                    slot_kind=np.array([[0, 0, 1]]), owner=np.array([0]), m=3)
-    f.crow = np.array([[ctx.add_row(spec.model[0], e, "trans", "test", 0) for e in "xyz"]])
-    f.scols = np.array([[u]])
-    ctx.families.append(f)
+    crow = np.array([[ctx.add_row(spec.model[0], e, "trans", "test", 0) for e in "xyz"]])
+    ctx.add_family(PointOnLine(name="test:line", markers=np.array([[I, J]]),
+                               slot_ml=np.array([0, 1, 1]), slot_kind=np.array([[0, 0, 1]]),
+                               owner=np.array([0]), m=3, crow=crow, scols=np.array([[u]])))
 
 
 #: the synthetic element type (its kernel and capabilities declared, as every type's are)
-TEST_TYPE = ElementType("test", (), _compiler, kernels=lambda: (PointOnLine,),
+TEST_TYPE = ElementType("test", (), _compiler, rank=1000, kernels=lambda: (PointOnLine,),
                         potential_energy=workless, time_dependent=static)
 
 

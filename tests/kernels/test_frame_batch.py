@@ -10,7 +10,9 @@ from poise.deck.parser import load_deck
 from poise.model.compile import compile_model
 from poise.app.runner import plan
 from poise.solvers.driver import Driver
-from poise.solvers.frames import frame_datasets, frames_datasets
+from poise.results.layout import frame_datasets
+from poise.solvers.frames import measure_frame, measure_frames
+from poise.solvers.record import FrameSet
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.status import Status
 
@@ -46,21 +48,20 @@ def _frames(path, n=4, seed=0):
 
 
 def _per_frame(sa, frames, outs):
-    per = [frame_datasets(sa, s, [o]) for s, o in zip(frames, outs)]
-    d = {}
-    for key in per[0]:
-        if key.endswith(("/id", "/tag", "/unique", "/label")):
-            d[key] = per[0][key]
-        else:
-            d[key] = np.concatenate([np.asarray(p[key]) for p in per])
-    return d
+    return frame_datasets(FrameSet.concatenate([measure_frame(sa, s, [o])
+                                                for s, o in zip(frames, outs)]))
+
+
+def _batched(sa, frames, outs):
+    got = measure_frames(sa, frames, outs)
+    return None if got is None else frame_datasets(got)
 
 
 @pytest.mark.parametrize("path", [p for p in DECKS if p.name not in SKIP | NOT_BATCHED],
                          ids=lambda p: p.name)
 def test_batched_frames_equal_frame_by_frame(path):
     sa, frames, outs = _frames(path)
-    got = frames_datasets(sa, frames, [replace(o) for o in outs])
+    got = _batched(sa, frames, outs)
     assert got is not None
     ref = _per_frame(sa, frames, outs)
     assert set(ref) <= set(got)
@@ -87,7 +88,7 @@ def test_batched_frames_equal_frame_by_frame(path):
 
 def test_reaction_reading_forces_are_not_batched():
     sa, frames, outs = _frames(ROOT / "decks" / "expr_reaction_load.xml", n=2)
-    assert frames_datasets(sa, frames, outs) is None
+    assert measure_frames(sa, frames, outs) is None
 
 
 def test_time_dependent_expression_force_per_frame_time():
@@ -96,7 +97,7 @@ def test_time_dependent_expression_force_per_frame_time():
     sa, frames, outs = _frames(ROOT / "decks" / "bench" / "slider_crank_qs.xml", n=3)
     for k, s in enumerate(frames):
         s.t = 0.25 * (k + 1)
-    d = frames_datasets(sa, frames, outs)
+    d = _batched(sa, frames, outs)
     k = list(d["forces/tag"]).index("Force_Vector_OneBody")
     fx = d["forces/force"][:, k, 0]
     assert np.allclose(fx, [-60.0 * 0.25, -60.0 * 0.5, -60.0 * 0.75], rtol=0, atol=1e-12)

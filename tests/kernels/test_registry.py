@@ -17,8 +17,24 @@ from support.paths import DECKS
 def test_compile_order_respects_declared_dependencies():
     seen = set()
     for et in element_types():
-        assert set(et.after) <= seen, f"{et.name} compiled before {set(et.after) - seen}"
+        assert set(et.needs) <= seen, f"{et.name} compiled before {set(et.needs) - seen}"
         seen.add(et.name)
+    ranks = [et.rank for et in element_types()]
+    assert ranks == sorted(ranks) and len(set(ranks)) == len(ranks)
+
+
+def test_layout_rank_must_follow_data_dependencies():
+    """Compile order is the layout rank; a rank before a type it needs, a shared rank or an
+    unknown dependency is refused instead of silently reordering the model's layout."""
+    from dataclasses import replace
+    from poise.elements.registry import compile_order
+    types = {et.name: et for et in element_types()}
+    assert [et.name for et in compile_order(types)] == list(types)
+    for bad, match in ((replace(types["expressions"], rank=15), "needs 'forces'"),
+                       (replace(types["expressions"], rank=20), "same layout rank"),
+                       (replace(types["expressions"], needs=("nothing",)), "unknown")):
+        with pytest.raises(RuntimeError, match=match):
+            compile_order(dict(types, expressions=bad))
 
 
 def test_every_deck_tag_compiled_once():

@@ -221,8 +221,9 @@ def test_certify_demotes_a_frame_that_misses_the_tolerances():
 
     def run(r, phi, error=np.nan):
         o = FrameOutcome(Status.CONVERGED, 1, np.nan, error, "converged")
-        certify(model, s, o, np.asarray(r, float), np.asarray(phi, float))
-        return o
+        c, _ = certify(model, s, o, np.asarray(r, float), np.asarray(phi, float))
+        assert o.status is Status.CONVERGED and np.isnan(o.imbalance)   # a new outcome
+        return c
 
     ok = run([1e-7, 0, 0, 4e-5, 0, 0], [1e-5, 1e-7])          # moment 4e-5 <= 1e-6 * 50
     assert ok.ok and ok.imbalance == pytest.approx(4e-5) and ok.error == pytest.approx(2e-7)
@@ -235,5 +236,5 @@ def test_certify_demotes_a_frame_that_misses_the_tolerances():
     bad_err = run([0] * 6, [0, 0], error=1e-3)                 # the method's own estimate
     assert bad_err.status is Status.TOLERANCE_NOT_MET
     failed = FrameOutcome(Status.MAX_ITERATIONS, 1, np.nan, np.nan, "m")
-    certify(model, s, failed, np.zeros(6), np.zeros(2))
+    failed, _ = certify(model, s, failed, np.zeros(6), np.zeros(2))
     assert failed.status is Status.MAX_ITERATIONS and failed.imbalance == 0.0

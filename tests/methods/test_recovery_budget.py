@@ -169,10 +169,10 @@ def test_the_loop_appends_every_row_and_owns_the_budget():
     h = History()
     assert iterate(Count(), 10, h, 3) == (3, "")
     assert iterate(Count(), 2, h.stage("continuation"), 5) == (2, "budget")
-    d = h.datasets()
-    assert list(d["iterations/event"]) == ["step"] * 3 + ["close"] + ["step"] * 2 + ["close"]
-    assert list(d["iterations/iteration"]) == [0, 1, 2, 3, 0, 1, 2]
-    assert list(d["iterations/strategy"]) == ["plain"] * 4 + ["continuation"] * 3
+    d = h.columns()
+    assert list(d["event"]) == ["step"] * 3 + ["close"] + ["step"] * 2 + ["close"]
+    assert list(d["iteration"]) == [0, 1, 2, 3, 0, 1, 2]
+    assert list(d["strategy"]) == ["plain"] * 4 + ["continuation"] * 3
 
 
 def test_solve_data_counts_every_evaluation_and_factorisation():

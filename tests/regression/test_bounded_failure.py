@@ -22,7 +22,7 @@ from poise.app.api import run_deck
 from poise.solvers.fallback import continuation
 from poise.solvers.history import History
 from poise.solvers.newton import Counters
-from hard.deckgen import Deck, rot_y
+from poise.gen.deck import Deck, rot_y
 
 from support.paths import DECKS
 

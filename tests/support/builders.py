@@ -43,3 +43,21 @@ def random_rotation(rng):
 def stable_seed(*parts) -> int:
     """Deterministic seed from strings/numbers (Python's hash() of str varies per process)."""
     return zlib.crc32(repr(parts).encode())
+
+
+def stiff_soft_deck(m=1e-3, k1=1e9, k2=1.0, kb=1e9):
+    """Masses ``m`` [kg] on springs ``k1`` and ``k2`` [N/m] in series below ground, and a rigid
+    body on a ``kb`` N/m bushing, in N-kg-m-s; the springs start at their free lengths."""
+    # max_error 1e-9: with max_imbalance 1e-8 N a 1 N/m spring pins its body only to ~1e-8 m
+    # (Newton's remaining step ~6e-10 x L); 1e-12 could not be proved and is now reported so
+    d = Deck(units="m", static=dict(max_imbalance=1e-8, max_error=1e-9))
+    d.ground()
+    d.marker(101, 1, (0, 0, 0))
+    d.marker(102, 1, (300, 0, 0))
+    d.point(2, 20, (0, -10, 0), mass=m)
+    d.point(3, 30, (0, -510, 0), mass=m)
+    d.spring(1, 20, 101, k1 * 1e-3, 10.0)          # Deck takes N/mm
+    d.spring(2, 30, 20, k2 * 1e-3, 500.0)
+    d.body(4, 40, (300, 0, 0), mass=m, inertia=(1e-2, 1e-2, 1e-2))
+    d.bushing(1, 40, 102, (kb * 1e-3,) * 3, (1e12,) * 3)
+    return d

@@ -102,7 +102,7 @@ def make_ctx(rng=None, time=0.3, scalars=None, **kw):
     rng = rng or np.random.default_rng(1)
     P, A = random_frames(rng)
     sc = np.zeros(50) if scalars is None else np.asarray(scalars, dtype=float)
-    return EvalContext(time=time, P=P, A=A, scalars=sc, reactions=np.arange(10.0) + 1.0, **kw)
+    return EvalContext(t=time, P=P, A=A, extra=sc, reactions=np.arange(10.0) + 1.0, **kw)
 
 
 def ev(text, ctx=None, resolver=None):

@@ -15,35 +15,26 @@ is ``Phi_q^T lam - Q`` (internal minus applied), so a stable spring has a positi
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import FrozenInstanceError, dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
-# slot kinds and the slot kinematics the contract is written in (also re-exported)
-from poise.elements.kernel import AX_X, AX_Y, AX_Z, POINT, SlotKinematics, _cross  # noqa: F401
+from poise.elements.kernel import SlotKinematics, cross3
 from poise.elements.rotation import skew
 
 GLOBAL = 0  # compiled marker index of the global frame (marker id 0)
 
 
-@dataclass
-class EvalContext:
-    """What element kernels may read besides slot vectors."""
-
-    t: float
-    angle: np.ndarray
-    static: bool = True
-    extra: np.ndarray | None = None  # (ne,) scalar unknowns
-    P: np.ndarray | None = None      # (nm, 3) marker origins (expression families)
-    A: np.ndarray | None = None      # (nm, 3, 3) marker axes as columns
-    reactions: np.ndarray | None = None  # reaction channels read by expression forces
-
-@dataclass
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Family:
-    """Base class of element families (vectorised over ``n`` instances).
+    """Base class of element families (vectorised over ``n`` instances), immutable.
 
-    Subclasses set the class attributes and implement :meth:`forces` (force families) or
-    :meth:`constraints` (constraint families).
+    A family is built once, with every field its class declares (scikit-fem style: a kernel's
+    parameters are dataclass fields of its class, never attributes added later); the model
+    compiler completes the layout fields with :func:`dataclasses.replace`. Subclasses declare
+    their parameters and implement :meth:`forces` (force families) or :meth:`constraints`
+    (constraint families).
 
     Attributes
     ----------
@@ -59,13 +50,23 @@ class Family:
         Index of the owning deck element in its output group (joints, forces, ...).
     m : int
         Constraint rows per instance (0 for force families).
-    gcol : (n, 6K + U) int
-        Global coordinate index of each local coordinate, -1 where the body has none (set by the
-        compiler); the last U columns are the scalar unknowns of ``scols``.
+    crow : (n, m) int
+        Global constraint row of each instance row.
     scols : (n, U) int or None
         Indices (into ``State.extra``) of the scalar unknowns each instance reads (-1 = none).
-    crow : (n, m) int
-        Global constraint row of each instance row (set by the compiler).
+    row_names : tuple
+        Names of the rows (user constraints).
+    group : str or None
+        The output group ``owner`` indexes (``joints``, ``forces``, ...).
+    element_locs : tuple of SourceLoc
+        The deck element of each instance (messages).
+    reads_reactions : bool
+        The family's expressions read reaction channels (:mod:`poise.elements.reaction_feed`).
+    gcol : (n, 6K + U) int
+        Global coordinate index of each local coordinate, -1 where the body has none (model
+        layout); the last U columns are the scalar unknowns of ``scols``.
+    pattern : poise.elements.kernel.LocalPattern
+        Static structure of the local tangent (model layout).
     """
 
     name: str
@@ -74,13 +75,17 @@ class Family:
     slot_kind: np.ndarray
     owner: np.ndarray
     m: int = 0
-    gcol: np.ndarray = field(default=None, repr=False)
-    crow: np.ndarray = field(default=None, repr=False)
+    crow: np.ndarray | None = field(default=None, repr=False)
+    scols: np.ndarray | None = field(default=None, repr=False)
     row_names: tuple = ()
-    scols: np.ndarray = field(default=None, repr=False)
+    group: str | None = None
+    element_locs: tuple = field(default=(), repr=False)
+    reads_reactions: bool = False
+    gcol: np.ndarray | None = field(default=None, repr=False)
+    pattern: object = field(default=None, repr=False)
 
     #: evaluated after every other family (``Model.eval_order``; gravity's uniform load)
-    eval_last = False
+    eval_last: ClassVar[bool] = False
 
     @property
     def U(self) -> int:
@@ -111,6 +116,26 @@ class Family:
         """Static structure of ``phi_y`` (constraint families): (m, 3S) bool array of the entries
         that can be non-zero, or None (the default): dense."""
         return None
+
+    def tile_fields(self, F: int, model) -> dict:
+        """Fields of the copy covering ``F`` frames besides the per-instance arrays the frame
+        tiler repeats (:mod:`poise.model.frame_batch`; tileable kernels only)."""
+        return {}
+
+
+def _refuse_set(self, name, value):
+    raise FrozenInstanceError(f"cannot assign to {name!r}: element families are immutable "
+                              "(build a new one with dataclasses.replace)")
+
+
+def _refuse_del(self, name):
+    raise FrozenInstanceError(f"cannot delete {name!r}: element families are immutable")
+
+
+# A frozen dataclass refuses only its declared fields on instances of undecorated subclasses
+# (e.g. ``Gear(Coupler)``): every other assignment ends here and is refused too.
+Family.__setattr__ = _refuse_set
+Family.__delattr__ = _refuse_del
 
 
 class ForceFamily(Family):
@@ -160,7 +185,7 @@ def add_torque_via_axes(rho, G, axis_slots, T, dT, Y):
     for s in axis_slots:
         a = Y[:, s]
         rows = slice(3 * s, 3 * s + 3)
-        rho[:, rows] += 0.5 * _cross(a, T)
+        rho[:, rows] += 0.5 * cross3(a, T)
         if G is not None:
             if dT is not None:
                 G[:, rows, :] += 0.5 * np.matmul(skew(a), dT)

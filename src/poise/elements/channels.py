@@ -14,23 +14,22 @@ from poise.elements.base import GLOBAL
 from poise.elements.loads import element_loads
 from poise.core.errors import EvaluationError
 
-def channel_values(model, state, channels, info, loads=None, P=None, A=None):
-    """Values of reaction channels at ``state`` (exact, from ``state.lam``).
+def channel_values(model, state, plan, loads=None, P=None, A=None):
+    """Values of the reaction channels of ``plan`` (a :class:`ChannelPlan`) at ``state``
+    (exact, from ``state.lam``).
 
-    ``info`` is the :class:`ExprInfo` holding element marker indices. Loads come from
-    :func:`poise.elements.loads.element_loads` (force/torque on I at the I origin, global);
-    ``jflag=1`` gives the equal and opposite action on J about the J origin; components are
-    resolved in marker RM's axes (0 = global). ``loads``/``P``/``A`` given (inside
-    ``Model.evaluate``): used instead of evaluating the model at ``state``. Evaluated by the
-    :class:`ChannelPlan` of ``channels`` (built once, kept by ``info``).
+    Loads come from :func:`poise.elements.loads.element_loads` (force/torque on I at the I
+    origin, global); ``jflag=1`` gives the equal and opposite action on J about the J origin;
+    components are resolved in marker RM's axes (0 = global). ``loads``/``P``/``A`` given:
+    used instead of evaluating the model at ``state``.
     """
-    if not channels:
+    if not plan.n:
         return np.zeros(0)
     if loads is None:
         loads = element_loads(model, state)
     if P is None:
         P, A, _ = model.marker_kinematics(state)
-    return info.plan(model, channels).evaluate(loads, P, A)
+    return plan.evaluate(loads, P, A)
 
 
 def _component_picks(comps):
@@ -46,7 +45,7 @@ def _component_picks(comps):
     return ck, crow, mk, mcols
 
 
-def _resultant_side(mi, mj, ei, ej):
+def resultant_side(mi, mj, ei, ej):
     """Whether the element with markers ``(ei, ej)`` is in the resultant FX..TM at marker ``mi``
     (towards ``mj``, < 0: any): 0 taken on its I, 1 on its J (flipped), None if not in it."""
     if ei == mi and (mj < 0 or ej == mj):
@@ -65,7 +64,7 @@ class ChannelPlan:
     :meth:`evaluate` does O(groups) Python work."""
 
     def __init__(self, model, channels, info):
-        owners = info.owner_maps(model)
+        owners = info.owners
         self.channels = list(channels)
         n = self.n = len(self.channels)
         elems, by_mk = [], {}                         # every output element, group order
@@ -94,7 +93,7 @@ class ChannelPlan:
                 _, mi, mj, comp[k], rm[k], _ = ch
                 for e in by_mk.get(mi, ()):
                     group, o, ei, ej = elems[e]
-                    side = _resultant_side(mi, mj, ei, ej)
+                    side = resultant_side(mi, mj, ei, ej)
                     if side is not None:
                         con[group].append((k, o, side, ei, ej))
         self.groups = []
@@ -155,35 +154,27 @@ class ChannelPlan:
 
 
 class ExprInfo:
-    """Element marker indices for reaction channels (built at compile time)."""
+    """Per output group the owner row of every element, ``owners[group][(tag, id)]``, and the
+    compiled (I, J) markers of every output element, ``markers[(tag, id)]``: built once with
+    the model from its output groups and ``element_markers(tag, id)``."""
 
-    def __init__(self, resolver, outputs):
-        self.markers = {}
-        self._outputs = outputs
-        self._res = resolver
-        self._owners = None
-        self._plans = {}
+    __slots__ = ("owners", "markers")
+
+    def __init__(self, outputs, element_markers):
+        om, markers = {}, {}
+        for group, o in outputs.items():
+            ids = np.asarray(o["ids"])
+            tags = o.get("tag")
+            if tags is None or np.ndim(tags) == 0:
+                tags = [str(tags) if tags is not None else ""] * len(ids)
+            om[group] = {}
+            for k, (t, i) in enumerate(zip(tags, ids)):
+                key = (str(t), int(i))
+                om[group][key] = k
+                if key not in markers:
+                    markers[key] = element_markers(*key)
+        self.owners, self.markers = om, markers
 
     def plan(self, model, channels) -> ChannelPlan:
-        """The :class:`ChannelPlan` of ``channels`` (built on first use, then kept)."""
-        key = tuple(channels)
-        if key not in self._plans:
-            self._plans[key] = ChannelPlan(model, key, self)
-        return self._plans[key]
-
-    def owner_maps(self, model):
-        if self._owners is None:
-            om = {}
-            for group, o in model.outputs.items():
-                ids = np.asarray(o["ids"])
-                tags = o.get("tag")
-                if tags is None or np.ndim(tags) == 0:
-                    tags = [str(tags) if tags is not None else ""] * len(ids)
-                om[group] = {}
-                for k, (t, i) in enumerate(zip(tags, ids)):
-                    key = (str(t), int(i))
-                    om[group][key] = k
-                    if key not in self.markers:
-                        self.markers[key] = self._res.element_markers(*key)
-            self._owners = om
-        return self._owners
+        """The :class:`ChannelPlan` of ``channels`` (build it once and keep it)."""
+        return ChannelPlan(model, tuple(channels), self)

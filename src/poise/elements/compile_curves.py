@@ -20,7 +20,7 @@ from poise.deck.spec import Expr
 from poise.core.errors import EvaluationError, ProblemCollector
 from poise.elements import curves as F
 from poise.elements import curve_data as CD
-from poise.elements.registry import ElementType, static, workless
+from poise.elements.registry import ElementType, OutputGroup, static, workless
 from poise.elements.kernel import slot_kinematics
 
 TAGS = ("Constraint_PTCV", "Constraint_CVCV", "Constraint_PTSF", "Constraint_CVSF",
@@ -118,7 +118,7 @@ def _geometry(spec, ctx, tag):
                 else:
                     obj = CD.AnalyticCurve(el, ex, u0, u1, closed)
                     obj.derivs(np.array([u0]), 0)        # compile now: located syntax errors
-                if any(bt.depends_on_time for bt in obj._batches.values()):
+                if obj.batch.depends_on_time:
                     # geometry is evaluated without a time: TIME would silently read 0
                     pc.error(el.loc, "curve/surface expressions may only use U, V and "
                              "constants; expected no TIME (a moving curve is not supported)",
@@ -219,12 +219,13 @@ def compile_curves(spec, ctx):
     els = [(t, el) for t in TAGS for el in spec.elements(t)]
     if not els:
         return
-    b, pc = ctx.b, ctx.pc
+    pc = ctx.pc
     curves = _geometry(spec, ctx, "Reference_ParamCurve")
     surfs = _geometry(spec, ctx, "Reference_ParamSurface")
     P0, A0 = {}, {}
-    for mid, (p, R) in b.marker_glob.items():
-        P0[b.marker_index[mid]], A0[b.marker_index[mid]] = p, R
+    index = ctx.geometry.marker_index
+    for mid, (p, R) in ctx.geometry.poses.items():
+        P0[index[mid]], A0[index[mid]] = p, R
     P0[0], A0[0] = np.zeros(3), np.eye(3)
 
     def geo_ref(el, attr, table, what):
@@ -273,31 +274,28 @@ def compile_curves(spec, ctx):
         acc[kind].append((I, J, owner, crow, scols, geo, el))
         ctx.effect(tag)
     pc.raise_if_any()
-    ctx.outputs["curves"] = dict(tag=np.array(tags, dtype=str), ids=np.array(ids, int))
-    fams = []
+    ctx.output("curves", np.array(tags, dtype=str), ids)
     for kind, lst in acc.items():
         if not lst:
             continue
         cls, (sml, skind), m, U = F.FAMILIES[kind]
         n = len(lst)
-        fam = cls(name=f"curves:{kind.lower()}", markers=np.array([[x[0], x[1]] for x in lst], int),
-                  slot_ml=sml, slot_kind=np.tile(skind, (n, 1)), owner=np.array([x[2] for x in lst]),
-                  m=m)
-        fam.crow = np.array([x[3] for x in lst], int)
-        fam.scols = np.array([x[4] for x in lst], int)
-        fam.geo = [x[5] for x in lst]
-        fam.group = "curves"
-        fam.element_locs = [x[6].loc for x in lst]
+        plane = None
         if kind == "CVCV":
             try:
-                fam.plane = np.array([_plane_basis(x[5][1], x[6].loc, pc) for x in lst])
+                plane = np.array([_plane_basis(x[5][1], x[6].loc, pc) for x in lst])
             except EvaluationError as e:
                 _eval_problem(pc, lst[0][6], e, "sampling curve J of a Constraint_CVCV")
                 continue
-        ctx.families.append(fam)
-        fams.append(fam)
+        geo = tuple(x[5] for x in lst)
+        ctx.add_family(cls(
+            name=f"curves:{kind.lower()}", markers=np.array([[x[0], x[1]] for x in lst], int),
+            slot_ml=sml, slot_kind=np.tile(skind, (n, 1)), owner=np.array([x[2] for x in lst]),
+            m=m, crow=np.array([x[3] for x in lst], int),
+            scols=np.array([x[4] for x in lst], int), geo=geo, geo_groups=F.geometry_groups(geo),
+            plane=plane, group="curves", element_locs=tuple(x[6].loc for x in lst)))
     pc.raise_if_any()
-    ctx.frame_hooks.append(curves_frame_hook)
+    ctx.add_frame_hook(curves_frame_hook)
 
 
 def _seed(kind, el, geo, PI, AI, PJ, AJ):
@@ -364,12 +362,13 @@ def curves_frame_hook(model, state):
 
 ELEMENTS = (ElementType(
     "curves", TAGS, compile_curves,
-    after=("user",),            # curve rows and parameters after the user constraints
+    rank=140,                   # curve rows and parameters after the user constraints
     kernels=lambda: (F.PointOnCurve, F.PointOnSurface, F.CurveOnCurve, F.CurveOnSurface,
                      F.SurfaceOnSurface), potential_energy=workless,
     time_dependent=static,      # TIME in curve geometry is a located error (compile_curves)
-    outputs={"curves": TAGS},
-    datasets=("id", "tag", "parameters", "point"),
+    outputs=(OutputGroup("curves", "Cv", "curve", "curve constraint",
+                         "`Constraint_PTCV/CVCV/PTSF/CVSF/SFSF`", TAGS,
+                         ("id", "tag", "label", "parameters", "point", "force", "torque")),),
     reactions={"PTCV": ("curves", ("Constraint_PTCV",)), "CVCV": ("curves", ("Constraint_CVCV",))},
     reaction_aliases={"CONSTRAINT_PTCV": "PTCV", "CONSTRAINT_CVCV": "CVCV"},
     fd_tests="tests/reference/test_curves.py"),)

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 from poise.deck.spec import Expr
 from poise.elements import expr_forces as XF
-from poise.elements.channels import ExprInfo
-from poise.elements.reaction_feed import ReactionFeed
-from poise.elements.registry import ElementType, expressions_of_time, not_conservative
+from poise.elements.forces import FORCES
+from poise.elements.reaction_feed import ReactionChannels
+from poise.elements.registry import (ElementType, OutputGroup, expressions_of_time,
+                                     not_conservative)
 from poise.elements.requests import build_request_hook, computed_requests
-from poise.elements.resolver import ground_markers
 
 
 def _is_null(v):
@@ -26,13 +26,11 @@ def _is_null(v):
 def compile_expressions(spec, ctx):
     """Element compiler: expression forces, Post_Request hooks."""
     pc = ctx.pc
-    res = ctx.resolver()
-    ground = ground_markers(ctx.b)
+    ground = ctx.geometry.marker_on_ground
 
     # ------------------------------------------------------------ forces
-    items = list(getattr(ctx, "expr_forces", []))
-    res.where = "force expressions"
-    res.allow_reactions = True
+    items = ctx.routed("expressions")
+    res = ctx.resolver("force expressions", reactions=True)
     vec = [(o, el) for o, el in items if el.tag.startswith("Force_Vector")]
     sca = [(o, el) for o, el in items if el.tag == "Force_Scalar_TwoBody"]
     built = []
@@ -45,30 +43,26 @@ def compile_expressions(spec, ctx):
         if fam is not None:
             built.append((fam, sca, ["val_expression"]))
     for fam, _, _ in built:
-        ctx.families.append(fam)
-    res.allow_reactions = False
-    if res.channels:
-        _reaction_feed(ctx, res, built, pc)
+        ctx.add_family(fam)
+    if ctx.channels:
+        _reaction_feed(ctx, built, pc)
 
     # ------------------------------------------------------------ requests
     reqs = computed_requests(spec.elements("Post_Request"), pc)
     if reqs:
-        res.allow_reactions = True
-        res.where = "requests"
-        hook = build_request_hook(reqs, ctx, res)   # outputs only: no family, no time source
-        if hook is not None:
-            ctx.frame_hooks = getattr(ctx, "frame_hooks", []) + [hook]
+        hook = build_request_hook(reqs, ctx, ctx.resolver("requests", reactions=True))
+        if hook is not None:                        # outputs only: no family, no time source
+            ctx.add_frame_hook(hook)
 
 
-def _reaction_feed(ctx, res, built, pc):
-    """Mark the expression families that read reaction channels, reject order-dependent reads
+def _reaction_feed(ctx, built, pc):
+    """Reject order-dependent reads of the expression families that read reaction channels
     (an element-force function of an expression force that itself reads reactions, or a
-    resultant FX..TM that would include one) and attach the :class:`ReactionFeed`."""
+    resultant FX..TM that would include one) and register the :class:`ReactionChannels`."""
     readers, reading_els, reading_mk = [], set(), set()
+    channels = ctx.channels
     for fam, its, _ in built:
-        reads = any(b.C and (b.reaction_index >= 0).any() for b in fam.batches)
-        fam.reads_reactions = bool(reads)
-        if reads:
+        if fam.reads_reactions:
             readers.append(fam)
             for k, (_, el) in enumerate(its):
                 reading_els.add((el.tag, el.id))
@@ -86,7 +80,7 @@ def _reaction_feed(ctx, res, built, pc):
                 for c in row:
                     if c < 0:
                         continue
-                    ch = res.channels[int(c)]
+                    ch = channels[int(c)]
                     if ch[0] == "EL":
                         cyc = (ch[2], ch[3]) in reading_els
                         what = f"<{ch[2]} id={ch[3]}>"
@@ -103,13 +97,17 @@ def _reaction_feed(ctx, res, built, pc):
                                  "forces that read no reaction", attr)
     if bad:
         return
-    ctx.reaction_feed = ReactionFeed(res.channels, ExprInfo(res, ctx.outputs), readers)
+    ctx.set_reaction_channels(ReactionChannels(channels))
 
 
 ELEMENTS = (ElementType(
     "expressions", ("Post_Request",), compile_expressions,
-    after=("forces", "field_beam"),   # compiles the expression forces compile_forces routed here
+    rank=70, needs=("forces",),   # compiles the expression forces compile_forces routed here
     kernels=lambda: (XF.ExprVectorForce, XF.ExprScalarForce),
+    tileable=lambda: (XF.ExprVectorForce, XF.ExprScalarForce),
     potential_energy=not_conservative, time_dependent=expressions_of_time,
-    outputs={"forces": None, "requests": ("Post_Request",)},
-    datasets=("id", "values", "message"), fd_tests="tests/kernels/test_expr_families.py"),)
+    outputs=(FORCES, OutputGroup("requests", "R", "request", "request",
+                                 "`Post_Request`", ("Post_Request",),
+                                 ("id", "label", "type", "channel", "channel_units", "values",
+                                  "message"), model_ids=False)),
+    fd_tests="tests/kernels/test_expr_families.py"),)

@@ -15,10 +15,14 @@ rows forces.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from poise.elements.base import POINT, ConstraintFamily
-from poise.elements.registry import ElementType, FDCase, claimed_types, static, workless
+from poise.elements.base import ConstraintFamily
+from poise.elements.kernel import POINT
+from poise.elements.registry import (ElementType, FDCase, OutputGroup, claimed_types, static,
+                                     workless)
 
 
 _I3 = np.eye(3)
@@ -72,10 +76,10 @@ class Coincident(ConstraintFamily):
     """``P_I - P_J = 0``. Slots: P_I, P_J."""
 
     @classmethod
-    def build(cls, name, I, J, owner):
+    def build(cls, name, I, J, owner, **layout):
         n = len(I)
         return cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=np.array([0, 1]),
-                   slot_kind=np.zeros((n, 2), int), owner=np.asarray(owner, int), m=3)
+                   slot_kind=np.zeros((n, 2), int), owner=np.asarray(owner, int), m=3, **layout)
 
     def values(self, kin, ctx):
         return kin.Y[:, 0] - kin.Y[:, 1]
@@ -95,17 +99,19 @@ class Coincident(ConstraintFamily):
         return np.hstack([_I3, _I3]).astype(bool)
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Perpendicular(ConstraintFamily):
-    """``a_I . b_J + c (a2_I . b2_J) = 0``. Slots: a_I, b_J, a2_I, b2_J; c in {0, 1}."""
+    """``a_I . b_J + c (a2_I . b2_J) = 0``. Slots: a_I, b_J, a2_I, b2_J; c in {0, 1}
+    (``coef2`` (n,))."""
+
+    coef2: np.ndarray
 
     @classmethod
-    def build(cls, name, I, J, ci, cj, ci2, cj2, coef2, owner):
+    def build(cls, name, I, J, ci, cj, ci2, cj2, coef2, owner, **layout):
         kinds = np.stack([ci, cj, ci2, cj2], 1).astype(int)
-        fam = cls(name=name, markers=np.stack([I, J], 1).astype(int),
-                  slot_ml=np.array([0, 1, 0, 1]), slot_kind=kinds,
-                  owner=np.asarray(owner, int), m=1)
-        fam.coef2 = np.asarray(coef2, float)
-        return fam
+        return cls(name=name, markers=np.stack([I, J], 1).astype(int),
+                   slot_ml=np.array([0, 1, 0, 1]), slot_kind=kinds,
+                   owner=np.asarray(owner, int), m=1, coef2=np.asarray(coef2, float), **layout)
 
     def values(self, kin, ctx):
         Y = kin.Y
@@ -145,12 +151,12 @@ class InPlane(ConstraintFamily):
     """``(P_I - P_J) . b_J = 0``. Slots: P_I, P_J, b_J."""
 
     @classmethod
-    def build(cls, name, I, J, cj, owner):
+    def build(cls, name, I, J, cj, owner, **layout):
         n = len(I)
         kinds = np.stack([np.zeros(n, int), np.zeros(n, int), np.asarray(cj, int)], 1)
         return cls(name=name, markers=np.stack([I, J], 1).astype(int),
                    slot_ml=np.array([0, 1, 1]), slot_kind=kinds,
-                   owner=np.asarray(owner, int), m=1)
+                   owner=np.asarray(owner, int), m=1, **layout)
 
     def values(self, kin, ctx):
         Y = kin.Y
@@ -211,9 +217,7 @@ def compile_joints(spec, ctx):
 
     Compile ``Constraint_Joint`` and ``Constraint_Jprim`` into constraint primitive families.
     """
-    b = ctx.b
-    rows, fams, outputs = ctx.rows, ctx.families, ctx.outputs
-    mindex = b.marker_index
+    mindex = ctx.geometry.marker_index
     for tag, group in (("Constraint_Joint", "joints"), ("Constraint_Jprim", "jprims")):
         els = spec.elements(tag)
         if not els:
@@ -228,68 +232,63 @@ def compile_joints(spec, ctx):
             if jt in claimed:
                 continue
             if jt not in JOINT_EQUATIONS:
-                b.pc.error(el.loc, f"joint type {jt} is not supported yet; supported: "
+                ctx.pc.error(el.loc, f"joint type {jt} is not supported yet; supported: "
                            + ", ".join(sorted({*JOINT_EQUATIONS, *claimed})), "type")
                 continue
             I = mindex.get(a.get("i_marker_id"), -1) if "i_marker_id" in a else -1
             if I < 0:
-                I = b.mk(el, "i_marker_id")
+                I = ctx.marker(el, "i_marker_id")
             J = mindex.get(a.get("j_marker_id"), -1) if "j_marker_id" in a else -1
             if J < 0:
-                J = b.mk(el, "j_marker_id")
+                J = ctx.marker(el, "j_marker_id")
             if jt == "CONSTANT_VELOCITY":
-                _check_cv_axes(b, el)
+                _check_cv_axes(ctx, el)
             owner = len(ids)
             ids.append(el.id)
-            r0 = len(rows)
+            r0 = None
             for kind, e, off, names, rkinds in _template(jt):
-                acc[kind].append((I, J, owner, r0 + off, e))
                 for nm, rk in zip(names, rkinds):
-                    ctx.add_row(el, nm, rk, group, owner)
+                    r = ctx.add_row(el, nm, rk, group, owner)
+                    r0 = r if r0 is None else r0        # the element's first row (off 0)
+                acc[kind].append((I, J, owner, r0 + off, e))
             if jt not in seen:
                 seen.add(jt)
-                b.effects.append(f"{tag}:{jt}")
-        outputs[group] = dict(tag=tag, ids=np.array(ids, int))
+                ctx.effect(f"{tag}:{jt}")
+        ctx.output(group, tag, ids)
         if acc["point"]:
             I, J, own, r0 = _columns(acc["point"])
-            f = Coincident.build(f"{group}:coincident", I, J, own.tolist())
-            f.crow = r0[:, None] + np.arange(3)
-            f.group = group
-            fams.append(f)
+            ctx.add_family(Coincident.build(f"{group}:coincident", I, J, own.tolist(),
+                                            crow=r0[:, None] + np.arange(3), group=group))
         if acc["perp"]:
             a = acc["perp"]
             I, J, own, r0 = _columns(a)
             e4 = [x[4] for x in a]
-            f = Perpendicular.build(
+            ctx.add_family(Perpendicular.build(
                 f"{group}:perpendicular", I, J,
                 [e[1] for e in e4], [e[2] for e in e4],
                 [e[3] if len(e) > 3 else 1 for e in e4], [e[4] if len(e) > 3 else 1 for e in e4],
-                [1.0 if len(e) > 3 else 0.0 for e in e4], own.tolist())
-            f.crow = r0[:, None]
-            f.group = group
-            fams.append(f)
+                [1.0 if len(e) > 3 else 0.0 for e in e4], own.tolist(),
+                crow=r0[:, None], group=group))
         if acc["plane"]:
             a = acc["plane"]
             I, J, own, r0 = _columns(a)
-            f = InPlane.build(f"{group}:inplane", I, J, [x[4][1] for x in a], own.tolist())
-            f.crow = r0[:, None]
-            f.group = group
-            fams.append(f)
+            ctx.add_family(InPlane.build(f"{group}:inplane", I, J, [x[4][1] for x in a],
+                                         own.tolist(), crow=r0[:, None], group=group))
 
 
-def _check_cv_axes(b, el):
+def _check_cv_axes(ctx, el):
     """CONSTANT_VELOCITY: each marker's z axis runs down its own shaft away from the joint
     centre (MotionSolve/Adams convention; coaxial shafts have opposite z axes). With z axes
     pointing the same way the twist row ``x_I.y_J + y_I.x_J`` vanishes identically for coaxial
     shafts (the output shaft stays still) and makes bent shafts counter-rotate, so such a set-up
     (a bend beyond 90 degrees in the convention) is an error."""
-    gi = b.marker_glob.get(el.attrs.get("i_marker_id"))
-    gj = b.marker_glob.get(el.attrs.get("j_marker_id"))
+    gi = ctx.marker_pose(el.attrs.get("i_marker_id"))
+    gj = ctx.marker_pose(el.attrs.get("j_marker_id"))
     if gi is None or gj is None:
         return
     c = float(gi[1][:, 2] @ gj[1][:, 2])
     if c > 0.0:
-        b.pc.error(el.loc, f"CONSTANT_VELOCITY joint whose I and J marker z axes point the same "
+        ctx.pc.error(el.loc, f"CONSTANT_VELOCITY joint whose I and J marker z axes point the same "
                    f"way (z_I.z_J = {c:.3g}): its twist equation degenerates and the output "
                    "shaft would not turn with the input; expected the MotionSolve/Adams "
                    "convention, each marker's z axis along its own shaft pointing away from the "
@@ -309,13 +308,22 @@ def _fd_cases():
                          point_b=(False,), seed=(jt, tag), opposite_z=jt == "CONSTANT_VELOCITY")
 
 
+#: the output groups of joints and joint primitives (the results schema's, too)
+_WITH_UNIQUE = ("id", "label", "force", "torque", "unique")
+JOINTS = OutputGroup("joints", "J", "joint", "joint",
+                     "`Constraint_Joint`", ("Constraint_Joint",), _WITH_UNIQUE,
+                     load="force on the I body at the I marker, global axes")
+JPRIMS = OutputGroup("jprims", "P", "jprim", "joint primitive",
+                     "`Constraint_Jprim`", ("Constraint_Jprim",), _WITH_UNIQUE,
+                     load="as for joints")
+
 ELEMENTS = (ElementType(
     "joints", ("Constraint_Joint", "Constraint_Jprim"), compile_joints,
+    rank=10,                    # the joints' rows lead the constraint rows
     kernels=lambda: (Coincident, Perpendicular, InPlane),
     tileable=lambda: (Coincident, Perpendicular, InPlane),
     potential_energy=workless, time_dependent=static,
-    outputs={"joints": ("Constraint_Joint",), "jprims": ("Constraint_Jprim",)},
-    datasets=("id", "force", "torque"),
+    outputs=(JOINTS, JPRIMS),
     reactions={"JOINT": ("joints", ("Constraint_Joint",)),
                "JPRIM": ("jprims", ("Constraint_Jprim",))},
     reaction_aliases={"CONSTRAINT_JOINT": "JOINT", "CONSTRAINT_JPRIM": "JPRIM"},

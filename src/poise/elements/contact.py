@@ -10,14 +10,15 @@ normal law and the complex-step Jacobian: :class:`ContactForce`.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from poise.elements.base import EvalContext
 from poise.elements.context import GLOBAL
 from poise.elements.forces import N_SLOTS, S_PI, S_PJ, S_XI, S_XJ, S_YI, S_YJ, S_ZI, S_ZJ, \
     TwoBodyForce
 from poise.elements.kernel import slot_kinematics
-from poise.elements.registry import ElementType, kernel_potential, static
+from poise.elements.registry import ElementType, OutputGroup, kernel_potential, static
 
 
 SPHERE_PLANE, SPHERE_SPHERE, SPHERE_BOX, CORNER_PLANE = 0, 1, 2, 3
@@ -66,9 +67,11 @@ def law_energy(delta, k, e, ds):
     return V
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ContactForce(TwoBodyForce):
     """Parameters (n,): ``kind``, ``rI``, ``rJ``, ``k``, ``e``, ``ds``; (n,3): ``oI``, ``oJ``,
-    ``half`` (box half lengths on J for SPHERE_BOX).
+    ``half`` (box half lengths on J for SPHERE_BOX); ``contact_ids`` (n,) the Force_Contact id
+    of each contact point.
 
     * ``SPHERE_PLANE`` (0): sphere (radius ``rI``) on I, plane = J's x-y plane, outward normal +z_J,
       material on the -z side. ``delta = rI - (cI - P_J) . z_J``, ``F = f z_J`` through the centre.
@@ -89,6 +92,17 @@ class ContactForce(TwoBodyForce):
     components (``h = 1e-30``), exact to rounding (no truncation error); branch decisions use real
     parts. Only instances in contact are differentiated.
     """
+
+    kind: np.ndarray
+    rI: np.ndarray
+    rJ: np.ndarray
+    k: np.ndarray
+    e: np.ndarray
+    ds: np.ndarray
+    oI: np.ndarray
+    oJ: np.ndarray
+    half: np.ndarray
+    contact_ids: np.ndarray
 
     def geometry(self, Y, idx):
         """(delta (m,), direction n (m,3), application point (m,3)) for instances ``idx``.
@@ -148,8 +162,6 @@ class ContactForce(TwoBodyForce):
         idx = np.arange(nI)
         F, T, delta = self._ft(Yf, idx)
         F, T = np.real(F), np.real(T)
-        self.last_delta = delta
-        self.last_force = F
         dF = dT = None
         if need_jac:
             W = 3 * N_SLOTS
@@ -165,6 +177,12 @@ class ContactForce(TwoBodyForce):
                 dF[act] = np.swapaxes(np.imag(Fc).reshape(m, W, 3), 1, 2) / _CS
                 dT[act] = np.swapaxes(np.imag(Tc).reshape(m, W, 3), 1, 2) / _CS
         return F, T, dF, dT
+
+    def contact_state(self, Y):
+        """Force on the I geometry's body (n, 3) and penetration (n,) (negative: a gap)."""
+        nI = Y.shape[0]
+        F, _, delta = self._ft(Y.reshape(nI, -1), np.arange(nI))
+        return np.real(F), delta
 
     def potential_energy(self, kin, ctx):
         Y = kin.Y
@@ -243,11 +261,11 @@ def compile_contacts(spec, ctx):
     els = list(spec.elements("Force_Contact"))
     if not els:
         return
-    b = ctx.b
+    marker = ctx.marker
     pc = ctx.pc
     graphics = {e.id: e for e in spec.elements("Post_Graphic")}
     rows = []          # dict per instance
-    L = getattr(b, "L", 1.0)
+    L = ctx.L
 
     def geom(gid, el, attr):
         g = graphics.get(gid)
@@ -257,7 +275,7 @@ def compile_contacts(spec, ctx):
         t = str(_get(g, "type", default="")).upper()
         if t == "SPHERE":
             mk = _get(g, "center_marker_id", "cm_id", "marker_id")
-            return dict(kind="sphere", m=b.mk(g, _key(g, mk, "center_marker_id", "cm_id", "marker_id")),
+            return dict(kind="sphere", m=marker(g, _key(g, mk, "center_marker_id", "cm_id", "marker_id")),
                         r=_real(g, ("radius",), 0.0, pc), o=np.zeros(3))
         if t in ("BOX", "BOXDEFINEDFROMCENTER", "BOXDEFINEDFROMCORNER"):
             lens = np.array([_real(g, (f"length_{c}",), 0.0, pc) for c in "xyz"])
@@ -267,10 +285,10 @@ def compile_contacts(spec, ctx):
             else:
                 mk = _key(g, None, "center_marker_id", "cm_id", "marker_id")
                 o = np.zeros(3)
-            return dict(kind="box", m=b.mk(g, mk), half=lens / 2, o=o)
+            return dict(kind="box", m=marker(g, mk), half=lens / 2, o=o)
         if t == "PLANE":
             mk = _key(g, None, "ref_marker_id", "rm_id", "marker_id", "center_marker_id")
-            return dict(kind="plane", m=b.mk(g, mk), o=np.zeros(3))
+            return dict(kind="plane", m=marker(g, mk), o=np.zeros(3))
         pc.error(g.loc, f"Post_Graphic type {t or '?'} is not supported for contact; expected "
                  "Sphere, BoxDefinedFromCenter, BoxDefinedFromCorner or Plane", "type")
         return None
@@ -326,18 +344,15 @@ def compile_contacts(spec, ctx):
     if not rows:
         return
     n = len(rows)
-    fam = ContactForce.build(
+    ctx.add_family(ContactForce.build(
         "contact:IMPACT", np.array([r["I"] for r in rows]), np.array([r["J"] for r in rows]),
-        np.full(n, GLOBAL), np.arange(n),
-        kind=[r["kind"] for r in rows], rI=[r["rI"] for r in rows], rJ=[r["rJ"] for r in rows],
-        k=[r["k"] for r in rows], e=[r["e"] for r in rows], ds=[r["ds"] for r in rows],
-        oI=np.array([r["oI"] for r in rows]), oJ=np.array([r["oJ"] for r in rows]),
-        half=np.array([r["half"] for r in rows]))
-    fam.kind = fam.kind.astype(int)
-    fam.element_locs = [r["el"].loc for r in rows]
-    fam.contact_ids = np.array([r["cid"] for r in rows], int)
-    ctx.families.append(fam)
-    ctx.frame_hooks.append(contact_frame_hook)
+        np.full(n, GLOBAL), np.arange(n), element_locs=[r["el"].loc for r in rows],
+        kind=np.array([r["kind"] for r in rows]).astype(int), rI=[r["rI"] for r in rows],
+        rJ=[r["rJ"] for r in rows], k=[r["k"] for r in rows], e=[r["e"] for r in rows],
+        ds=[r["ds"] for r in rows], oI=np.array([r["oI"] for r in rows]),
+        oJ=np.array([r["oJ"] for r in rows]), half=np.array([r["half"] for r in rows]),
+        contact_ids=np.array([r["cid"] for r in rows], int)))
+    ctx.add_frame_hook(contact_frame_hook)
 
 
 def _key(g, _unused, *names):
@@ -356,16 +371,18 @@ def contact_frame_hook(model, state):
     fam = next(f for f in model.families if isinstance(f, ContactForce))
     P, A, pos = model.marker_kinematics(state)
     kin = slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, P, A, model.marker_body, pos)
-    F, _, _, _ = fam.compute(kin.Y, EvalContext(t=state.t, angle=state.angle), False)
+    F, delta = fam.contact_state(kin.Y)
     return {"contacts/id": fam.contact_ids,
             "contacts/kind": np.array([KIND_NAMES[k] for k in fam.kind], dtype=str),
-            "contacts/force": F, "contacts/penetration": fam.last_delta.copy()}
+            "contacts/force": F, "contacts/penetration": delta}
 
 
 ELEMENTS = (ElementType(
     "contacts", ("Force_Contact",), compile_contacts,
-    after=("expressions",),     # contact families after the expression forces (model layout)
+    rank=80,                    # contact families after the expression forces
     kernels=lambda: (ContactForce,), tileable=lambda: (ContactForce,),
     potential_energy=kernel_potential, time_dependent=static,
-    outputs={"contacts": ("Force_Contact",)},
-    datasets=("id", "kind", "force", "penetration"), fd_tests="tests/reference/test_contact.py"),)
+    outputs=(OutputGroup("contacts", "Ct", "contact", "contact point",
+                         "`Force_Contact`", ("Force_Contact",),
+                         ("id", "label", "kind", "force", "penetration"), model_ids=False),),
+    fd_tests="tests/reference/test_contact.py"),)

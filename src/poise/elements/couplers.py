@@ -11,12 +11,14 @@ input configuration. The coordinates, the two-joint form and the slot layout: :c
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from poise.elements.base import ConstraintFamily
 from poise.elements.context import GLOBAL
-from poise.elements.motions import measure
-from poise.elements.registry import ElementType, static, workless
+from poise.elements.measures import measure
+from poise.elements.registry import ElementType, OutputGroup, static, workless
 
 
 N_JOINTS = 3
@@ -26,10 +28,11 @@ SLOT_ML = np.repeat(np.arange(2 * N_JOINTS), 4)
 SLOT_KIND = np.tile(np.array([0, 1, 2, 3]), 2 * N_JOINTS)
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Coupler(ConstraintFamily):
     """``sum_k c_k (q_k - q0_k) = 0``.
 
-    Attributes (set by :meth:`build`)
+    Attributes
     ----------
     coef : (n, 3) coefficients c_k (0 for an absent third joint)
     rot : (n, 3) bool, freedom R (True) or T (False) per joint
@@ -51,18 +54,23 @@ class Coupler(ConstraintFamily):
     (:func:`poise.elements.motions.measure`), placed in joint k's block.
     """
 
+    coef: np.ndarray
+    rot: np.ndarray
+    q0: np.ndarray
+    angle_index: np.ndarray
+
     @classmethod
-    def build(cls, name, markers, coef, rot, q0, owner):
+    def build(cls, name, markers, coef, rot, q0, owner, angle_index=None, **layout):
         markers = np.asarray(markers, int).reshape(-1, 2 * N_JOINTS)
         n = markers.shape[0]
-        fam = cls(name=name, markers=markers, slot_ml=SLOT_ML,
-                  slot_kind=np.broadcast_to(SLOT_KIND, (n, N_SLOTS)).copy(),
-                  owner=np.asarray(owner, int), m=1)
-        fam.coef = np.asarray(coef, float).reshape(n, N_JOINTS)
-        fam.rot = np.asarray(rot, bool).reshape(n, N_JOINTS)
-        fam.q0 = np.asarray(q0, float).reshape(n, N_JOINTS)
-        fam.angle_index = -np.ones((n, N_JOINTS), int)
-        return fam
+        return cls(name=name, markers=markers, slot_ml=SLOT_ML,
+                   slot_kind=np.broadcast_to(SLOT_KIND, (n, N_SLOTS)).copy(),
+                   owner=np.asarray(owner, int), m=1,
+                   coef=np.asarray(coef, float).reshape(n, N_JOINTS),
+                   rot=np.asarray(rot, bool).reshape(n, N_JOINTS),
+                   q0=np.asarray(q0, float).reshape(n, N_JOINTS),
+                   angle_index=(-np.ones((n, N_JOINTS), int) if angle_index is None
+                                else np.asarray(angle_index, int)), **layout)
 
     def joint_values(self, kin, ctx):
         """Current q_k, (n, 3)."""
@@ -106,19 +114,18 @@ class Coupler(ConstraintFamily):
 _FREEDOMS = {"REVOLUTE": ("R",), "TRANSLATIONAL": ("T",), "CYLINDRICAL": ("R", "T")}
 
 
-def marker_pose(b, el, attr):
+def marker_pose(ctx, el, attr):
     """Input-configuration origin and axes (columns) of the marker ``el.attrs[attr]``."""
-    mid = el.attrs.get(attr)
-    if mid in b.marker_glob:
-        return b.marker_glob[mid]
-    return np.zeros(3), np.eye(3)
+    pose = ctx.marker_pose(el.attrs.get(attr))
+    return (np.zeros(3), np.eye(3)) if pose is None else pose
 
 
-def joint_coordinate(b, pc, owner_el, jid, freedom, attr_j, attr_f):
+def joint_coordinate(ctx, owner_el, jid, freedom, attr_j, attr_f):
     """Resolve one coupled joint: (I, J, rot, q0, jel) or None (problem reported).
 
     ``freedom`` may be None (derived from the joint type)."""
-    jel = b.element("Constraint_Joint", jid)
+    pc = ctx.pc
+    jel = ctx.element("Constraint_Joint", jid)
     if jel is None:
         pc.error(owner_el.loc, f"joint {jid} does not exist; expected the id of a "
                  "Constraint_Joint", attr_j)
@@ -135,9 +142,9 @@ def joint_coordinate(b, pc, owner_el, jid, freedom, attr_j, attr_f):
                  + " or ".join(ok) + (" (required for a CYLINDRICAL joint)" if jt == "CYLINDRICAL"
                                       else ""), attr_f)
         return None
-    I, J = b.mk(jel, "i_marker_id"), b.mk(jel, "j_marker_id")
-    pI, RI = marker_pose(b, jel, "i_marker_id")
-    pJ, RJ = marker_pose(b, jel, "j_marker_id")
+    I, J = ctx.marker(jel, "i_marker_id"), ctx.marker(jel, "j_marker_id")
+    pI, RI = marker_pose(ctx, jel, "i_marker_id")
+    pJ, RJ = marker_pose(ctx, jel, "j_marker_id")
     if fr == "R":
         q0 = float(np.arctan2(RI[:, 0] @ RJ[:, 1], RI[:, 0] @ RJ[:, 0]))
     else:
@@ -173,19 +180,15 @@ def add_coupler_family(ctx, group, tag, items, cls=Coupler):
         q0.append([js[j]["q0"] if j < len(js) else 0.0 for j in range(N_JOINTS)])
         rows.append([ctx.add_row(el, "sum c_k (q_k - q0_k)", kind, group, k)])
         owners.append(k)
-    f = cls.build(f"{group}:{cls.__name__.lower()}", mk, coef, rot, q0, owners)
     ai = -np.ones((len(items), N_JOINTS), int)
     for k, it in enumerate(items):
         for j, jd in enumerate(it[1]):
             if jd["rot"]:
                 ai[k, j] = ctx.angle(jd["I"], jd["J"], 2)
-    f.angle_index = ai
-    f.crow = np.array(rows, int)
-    f.group = group
-    f.element_locs = [it[0].loc for it in items]
-    ctx.families.append(f)
-    ctx.outputs[group] = dict(tag=np.array([tag] * len(items)),
-                              ids=np.array([it[0].id for it in items], int))
+    ctx.add_family(cls.build(f"{group}:{cls.__name__.lower()}", mk, coef, rot, q0, owners,
+                             angle_index=ai, crow=np.array(rows, int), group=group,
+                             element_locs=tuple(it[0].loc for it in items)))
+    ctx.output(group, np.array([tag] * len(items)), [it[0].id for it in items])
 
 
 def compile_couplers(spec, ctx):
@@ -202,7 +205,7 @@ def compile_couplers(spec, ctx):
     els = spec.elements("Constraint_Coupler")
     if not els:
         return
-    b, pc = ctx.b, ctx.pc
+    pc = ctx.pc
     items = []
     for el in els:
         if user_routine_error(pc, el, "coupler (COUSUB)"):
@@ -218,7 +221,7 @@ def compile_couplers(spec, ctx):
             continue
         js = []
         for j in range(1, nj + 1):
-            jd = joint_coordinate(b, pc, el, el.attrs.get(f"joint{j}_id"),
+            jd = joint_coordinate(ctx, el, el.attrs.get(f"joint{j}_id"),
                                   el.attrs.get(f"freedom_{j}"), f"joint{j}_id", f"freedom_{j}")
             if jd is None:
                 break
@@ -227,15 +230,19 @@ def compile_couplers(spec, ctx):
             continue
         kind = "rot" if all(jd["rot"] for jd in js) else "trans"
         items.append((el, js, coef, kind))
-        b.effects.append("Constraint_Coupler")
+        ctx.effect("Constraint_Coupler")
     pc.raise_if_any()
     add_coupler_family(ctx, "couplers", "Constraint_Coupler", items)
 
 
 ELEMENTS = (ElementType(
     "couplers", ("Constraint_Coupler",), compile_couplers,
-    after=("motions",),         # coupler rows after the motion rows (model layout)
+    rank=40,                    # coupler rows after the motion rows
     kernels=lambda: (Coupler,), potential_energy=workless,
     time_dependent=static,      # displacements from the input configuration: no time
-    outputs={"couplers": ("Constraint_Coupler",)},
-    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)
+    outputs=(OutputGroup("couplers", "Cp", "coupler", "coupler",
+                         "`Constraint_Coupler`", ("Constraint_Coupler",),
+                         load="load the coupler's multiplier applies **through joint 1's I "
+                         "marker** to that marker's body (e.g. the coupling torque on shaft "
+                         "1)"),),
+    fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

@@ -82,25 +82,26 @@ class _AnalyticBase:
     def __init__(self, el, exprs):
         self.el = el
         self.exprs = exprs             # 3 Expr or float
-        self._batches = {}
+        self.batch = compile_batch(list(exprs), _ParamResolver(self.npar))   # DeckError: located
 
-    def _batch(self, k):
-        """The three expressions compiled once, repeated for k parameter points."""
-        b = self._batches.get(k)
+    def _batch(self, k, memo):
+        """The three expressions repeated for k parameter points (kept in ``memo``, a dict of
+        the solve's workspace, when given)."""
+        if k == 1:
+            return self.batch
+        b = None if memo is None else memo.get(k)
         if b is None:
-            base = self._batches.get(1)
-            if base is None:
-                base = self._batches[1] = compile_batch(list(self.exprs),
-                                                        _ParamResolver(self.npar))
-            b = self._batches[k] = base.tiled(k, 0, 0, self.npar)
+            b = self.batch.tiled(k, 0, 0, self.npar)
+            if memo is not None:
+                memo[k] = b
         return b
 
-    def _eval(self, params):
+    def _eval(self, params, memo=None):
         """params (k, npar) -> value (k, 3), d (k, 3, npar)."""
         k = params.shape[0]
-        b = self._batch(k)
+        b = self._batch(k, memo)
         try:
-            out = b.evaluate(EvalContext(scalars=np.asarray(params, float).ravel()))
+            out = b.evaluate(EvalContext(extra=np.asarray(params, float).ravel()))
         except EvaluationError as e:
             i = getattr(e, "instance", None)
             if i is None:
@@ -123,12 +124,12 @@ class AnalyticCurve(_AnalyticBase):
         self.u0, self.u1, self.closed = u0, u1, closed
         self.h = 1e-4 * max(1.0, abs(u1 - u0))
 
-    def derivs(self, u, order=2):
+    def derivs(self, u, order=2, memo=None):
         u = np.atleast_1d(np.asarray(u, float))
         k = len(u)
         h = self.h
         P = np.stack([u, u + h, u - h])[..., None].reshape(3 * k, 1)
-        v, d = self._eval(P)
+        v, d = self._eval(P, memo)
         v = v.reshape(3, k, 3)
         d = d[..., 0].reshape(3, k, 3)
         out = [v[0], d[0], (d[1] - d[2]) / (2 * h), (d[1] - 2 * d[0] + d[2]) / h / h]
@@ -143,14 +144,14 @@ class AnalyticSurface(_AnalyticBase):
         self.u0, self.u1, self.v0, self.v1 = u0, u1, v0, v1
         self.h = 1e-4 * max(1.0, abs(u1 - u0), abs(v1 - v0))
 
-    def derivs(self, u, v, order=2):
+    def derivs(self, u, v, order=2, memo=None):
         u = np.atleast_1d(np.asarray(u, float))
         v = np.atleast_1d(np.asarray(v, float))
         k = len(u)
         h = self.h
         us = np.stack([u, u + h, u - h, u, u])
         vs = np.stack([v, v, v, v + h, v - h])
-        val, d = self._eval(np.stack([us.ravel(), vs.ravel()], 1))
+        val, d = self._eval(np.stack([us.ravel(), vs.ravel()], 1), memo)
         val = val.reshape(5, k, 3)
         du = d[..., 0].reshape(5, k, 3)
         dv = d[..., 1].reshape(5, k, 3)
@@ -183,7 +184,7 @@ class SplineCurve:
         self.u0, self.u1, self.closed = u0, u1, closed
         self.sp = CubicSpline(self.knots, pts, bc_type="periodic" if closed else "not-a-knot")
 
-    def derivs(self, u, order=2):
+    def derivs(self, u, order=2, memo=None):
         u = np.atleast_1d(np.asarray(u, float))
         if self.closed:
             u = self.u0 + np.mod(u - self.u0, self.u1 - self.u0)
@@ -201,7 +202,7 @@ class SplineSurface:
         kx, ky = min(3, nu - 1), min(3, nv - 1)
         self.sp = [RectBivariateSpline(ug, vg, pts[:, :, c], kx=kx, ky=ky, s=0) for c in range(3)]
 
-    def derivs(self, u, v, order=2):
+    def derivs(self, u, v, order=2, memo=None):
         u = np.atleast_1d(np.asarray(u, float))
         v = np.atleast_1d(np.asarray(v, float))
         o = {}

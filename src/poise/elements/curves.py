@@ -12,6 +12,8 @@ Notation, the equations of each kind and friction: :class:`CurveFamily`.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from poise.elements.base import ConstraintFamily
@@ -114,12 +116,14 @@ def rotate(ax, c):
     return ax[0] * c[:, 0:1] + ax[1] * c[:, 1:2] + ax[2] * c[:, 2:3]
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class CurveFamily(ConstraintFamily):
     """Common machinery: slot/scalar jets, row jets -> kernel blocks.
 
-    Subclasses set ``kind`` and implement ``rows(Y, s, N, ctx) -> list of scalar Jets``.
-    Attributes set by the compiler: ``geo`` (per instance: tuple of curve/surface objects),
-    ``plane`` (CVCV: (n, 3, 3) columns e1, e2, n in J axes), ``elem_ids``.
+    Subclasses set ``kind`` and implement ``rows(Y, s, N, memo) -> list of scalar Jets``.
+    Fields: ``geo`` (per instance: tuple of curve/surface objects), ``plane`` (CVCV: (n, 3, 3)
+    columns e1, e2, n in J axes; else None); ``geo_groups`` per geometry slot the instances
+    sharing each object (:func:`geometry_groups`).
 
     Notation: ``A_K c = c_1 x_K + c_2 y_K + c_3 z_K`` for a marker K with axes ``x_K, y_K, z_K``;
     curve on body of marker K: ``r(u) = P_K + A_K c(u)``, tangent ``t = A_K c'(u)``; surface:
@@ -146,6 +150,10 @@ class CurveFamily(ConstraintFamily):
     kind = ""
     inertial_extras = True     # MKEAM carries the parameters with a fictitious mass
 
+    geo: tuple
+    geo_groups: tuple
+    plane: np.ndarray | None = None
+
     def constraints(self, kin, lam, ctx):
         n = self.n
         S = kin.Y.shape[1]
@@ -153,7 +161,7 @@ class CurveFamily(ConstraintFamily):
         N = 3 * S + U
         Y = [variable(kin.Y[:, k], 3 * k, N) for k in range(S)]
         s = ctx.extra[self.scols]
-        rows = self.rows(Y, s, N)
+        rows = self.rows(Y, s, N, ctx.workspace)
         phi = np.stack([r.v for r in rows], 1)
         g = np.stack([r.g for r in rows], 1)               # (n, m, N)
         H = np.einsum("nm,nmab->nab", lam, np.stack([r.H for r in rows], 1))
@@ -161,28 +169,20 @@ class CurveFamily(ConstraintFamily):
         assert phi.shape == (n, self.m)
         return phi, g[:, :, :3 * S], H[:, :3 * S, :3 * S], ext
 
-    # geometry helpers: grouped evaluation over instances sharing a curve/surface object
-    def _groups(self, which):
-        """``[(geometry object, instance indices)]`` for slot ``which``, computed once."""
-        cache = self.__dict__.setdefault("_group_cache", {})
-        if which not in cache:
-            objs = [g[which] for g in self.geo]
-            cache[which] = [(obj, np.array([i for i, o in enumerate(objs) if o is obj]))
-                            for obj in dict.fromkeys(objs)]
-        return cache[which]
-
-    def curve_derivs(self, which, u, order):
+    # geometry helpers: grouped evaluation over instances sharing a curve/surface object;
+    # ``ws`` the solve's workspace (analytic geometry keeps its tiled programs there) or None
+    def curve_derivs(self, which, u, order, ws=None):
         n = len(u)
         out = np.zeros((order + 1, n, 3))
-        for obj, idx in self._groups(which):
-            out[:, idx] = obj.derivs(u[idx], order)
+        for obj, idx in self.geo_groups[which]:
+            out[:, idx] = obj.derivs(u[idx], order, _memo(ws, obj))
         return out
 
-    def surface_derivs(self, which, u, v, order):
+    def surface_derivs(self, which, u, v, order, ws=None):
         n = len(u)
         out = {(i, j): np.zeros((n, 3)) for i in range(order + 1) for j in range(order + 1 - i)}
-        for obj, idx in self._groups(which):
-            d = obj.derivs(u[idx], v[idx], order)
+        for obj, idx in self.geo_groups[which]:
+            d = obj.derivs(u[idx], v[idx], order, _memo(ws, obj))
             for k in out:
                 out[k][idx] = d[k]
         return out
@@ -190,6 +190,21 @@ class CurveFamily(ConstraintFamily):
     def contact(self, kin, extra):
         """Global contact points (n, 3) (for outputs)."""
         raise NotImplementedError
+
+
+def _memo(ws, obj):
+    return None if ws is None else ws.scratch(obj, dict)
+
+
+def geometry_groups(geo) -> tuple:
+    """Per geometry slot ``which`` of ``geo`` (per instance a tuple of curve/surface objects):
+    ``((object, instance indices), ...)`` of the instances sharing each object."""
+    out = []
+    for which in range(len(geo[0]) if geo else 0):
+        objs = [g[which] for g in geo]
+        out.append(tuple((obj, np.array([i for i, o in enumerate(objs) if o is obj]))
+                         for obj in dict.fromkeys(objs)))
+    return tuple(out)
 
 
 # slots: PTCV/PTSF: P_I, P_J, x_J, y_J, z_J (S=5); CV*/SF*: P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J
@@ -200,8 +215,8 @@ SLOTS_2 = (np.array([0, 0, 0, 0, 1, 1, 1, 1]), np.array([0, 1, 2, 3, 0, 1, 2, 3]
 class PointOnCurve(CurveFamily):
     kind = "PTCV"
 
-    def rows(self, Y, s, N):
-        c = curve_jet(self.curve_derivs(0, s[:, 0], 2), 15, N)[0]
+    def rows(self, Y, s, N, ws=None):
+        c = curve_jet(self.curve_derivs(0, s[:, 0], 2, ws), 15, N)[0]
         d = Y[0] - Y[1] - rotate(Y[2:5], c)
         return [d[0], d[1], d[2]]
 
@@ -214,8 +229,8 @@ class PointOnCurve(CurveFamily):
 class PointOnSurface(CurveFamily):
     kind = "PTSF"
 
-    def rows(self, Y, s, N):
-        d = self.surface_derivs(0, s[:, 0], s[:, 1], 2)
+    def rows(self, Y, s, N, ws=None):
+        d = self.surface_derivs(0, s[:, 0], s[:, 1], 2, ws)
         sj = surface_jet(d, 15, 16, N, which=((0, 0),))[(0, 0)]
         r = Y[0] - Y[1] - rotate(Y[2:5], sj)
         return [r[0], r[1], r[2]]
@@ -229,9 +244,9 @@ class PointOnSurface(CurveFamily):
 class CurveOnCurve(CurveFamily):
     kind = "CVCV"
 
-    def rows(self, Y, s, N):
-        ci, ti = curve_jet(self.curve_derivs(0, s[:, 0], 3), 24, N)
-        cj, tj = curve_jet(self.curve_derivs(1, s[:, 1], 3), 25, N)
+    def rows(self, Y, s, N, ws=None):
+        ci, ti = curve_jet(self.curve_derivs(0, s[:, 0], 3, ws), 24, N)
+        cj, tj = curve_jet(self.curve_derivs(1, s[:, 1], 3, ws), 25, N)
         AI, AJ = Y[1:4], Y[5:8]
         d = Y[0] + rotate(AI, ci) - Y[4] - rotate(AJ, cj)
         e1 = rotate(AJ, self.plane[:, :, 0])
@@ -249,9 +264,9 @@ class CurveOnCurve(CurveFamily):
 class CurveOnSurface(CurveFamily):
     kind = "CVSF"
 
-    def rows(self, Y, s, N):
-        cc, tc = curve_jet(self.curve_derivs(0, s[:, 0], 3), 24, N)
-        d = self.surface_derivs(1, s[:, 1], s[:, 2], 3)
+    def rows(self, Y, s, N, ws=None):
+        cc, tc = curve_jet(self.curve_derivs(0, s[:, 0], 3, ws), 24, N)
+        d = self.surface_derivs(1, s[:, 1], s[:, 2], 3, ws)
         sj = surface_jet(d, 25, 26, N)
         AI, AJ = Y[1:4], Y[5:8]
         r = Y[0] + rotate(AI, cc) - Y[4] - rotate(AJ, sj[(0, 0)])
@@ -267,9 +282,9 @@ class CurveOnSurface(CurveFamily):
 class SurfaceOnSurface(CurveFamily):
     kind = "SFSF"
 
-    def rows(self, Y, s, N):
-        di = self.surface_derivs(0, s[:, 0], s[:, 1], 3)
-        dj = self.surface_derivs(1, s[:, 2], s[:, 3], 3)
+    def rows(self, Y, s, N, ws=None):
+        di = self.surface_derivs(0, s[:, 0], s[:, 1], 3, ws)
+        dj = self.surface_derivs(1, s[:, 2], s[:, 3], 3, ws)
         si = surface_jet(di, 24, 25, N)
         sj = surface_jet(dj, 26, 27, N)
         AI, AJ = Y[1:4], Y[5:8]

@@ -10,17 +10,19 @@ The equation of each kind and the marker layout: :class:`ScalarEquation`.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from poise.deck.spec import Expr
 from poise.elements.base import ForceFamily, column_map, columns_array
-from poise.elements.registry import ElementType, batch_time_sources, not_conservative
-from poise.elements.resolver import (compile_batch_located, ground_markers, held, is_user,
-                                     scalar_unknown)
+from poise.elements.registry import (ElementType, OutputGroup, batch_time_sources,
+                                     not_conservative)
+from poise.elements.resolver import compile_batch_located, held, is_user, scalar_unknown
 from poise.elements.user import compile_user_variables
-from poise.expr import EvalContext as XC
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ScalarEquation(ForceFamily):
     """Residual rows of scalar unknowns from one expression batch (see module doc).
 
@@ -36,15 +38,13 @@ class ScalarEquation(ForceFamily):
     frame, index 0, whose slots carry no coordinates); slots ``P x y z`` per marker.
     """
 
-    batch = None
-    slot_map = None          # (rows, batch_slot, family_slot)
-    sc_map = None            # (rows, batch_col, family_col)
+    batch: object                    # poise.expr.Batch
+    slot_map: tuple                  # (rows, batch_slot, family_slot)
+    sc_map: tuple                    # (rows, batch_col, family_col)
 
     def forces(self, kin, ctx, need_jac=True):
         n, S, U = self.n, len(self.slot_ml), self.U
-        xc = XC(time=float(ctx.t), P=ctx.P, A=ctx.A, angle_ref=ctx.angle,
-                scalars=ctx.extra, static=True)
-        out = self.batch.evaluate(xc)
+        out = self.batch.evaluate(ctx)
         rho = np.zeros((n, 3 * S))
         rs = np.zeros((n, U))
         rs[:, 0] = out.value
@@ -97,15 +97,10 @@ def layout(batch, own, ground, first=None):
 def build_scalar_equations(batch, own, ground, owner, locs, name="control:ScalarEquation"):
     markers, scols, smap, cmap = layout(batch, own, ground)
     n, X = markers.shape
-    fam = ScalarEquation(name=name, markers=markers, slot_ml=np.repeat(np.arange(X), 4),
-                         slot_kind=np.tile(np.tile([0, 1, 2, 3], X), (n, 1)),
-                         owner=np.asarray(owner, int))
-    fam.scols = scols
-    fam.batch = batch
-    fam.slot_map = smap
-    fam.sc_map = cmap
-    fam.element_locs = locs
-    return fam
+    return ScalarEquation(name=name, markers=markers, slot_ml=np.repeat(np.arange(X), 4),
+                          slot_kind=np.tile(np.tile([0, 1, 2, 3], X), (n, 1)),
+                          owner=np.asarray(owner, int), scols=scols, batch=batch,
+                          slot_map=smap, sc_map=cmap, element_locs=tuple(locs))
 
 
 # ----------------------------------- compile
@@ -143,10 +138,8 @@ def compile_diff_vars(spec, ctx):
     if not diffs and not vars_:
         return
     pc = ctx.pc
-    res = ctx.resolver()
-    res.allow_reactions = False
-    res.where = "Control_Diff / Reference_Variable expressions"
-    ground = ground_markers(ctx.b)
+    res = ctx.resolver("Control_Diff / Reference_Variable expressions")
+    ground = ctx.geometry.marker_on_ground
     items = []             # (el, unknown, expression) with expression equations
     user_items = []
     for el in diffs:
@@ -182,12 +175,12 @@ def compile_diff_vars(spec, ctx):
     if items:
         batch = compile_batch_located([it[2] for it in items], res, pc)
         if batch is not None:
-            fam = build_scalar_equations(batch, np.array([it[1] for it in items], int), ground,
-                                         np.arange(len(items)), [it[0].loc for it in items])
-            ctx.families.append(fam)
+            ctx.add_family(build_scalar_equations(
+                batch, np.array([it[1] for it in items], int), ground, np.arange(len(items)),
+                [it[0].loc for it in items]))
     if user_items:
         compile_user_variables(spec, ctx, user_items)
-    ctx.frame_hooks.append(_output_hook(ctx, diffs, spec.elements("Reference_Variable")))
+    ctx.add_frame_hook(_output_hook(ctx, diffs, spec.elements("Reference_Variable")))
 
 
 def _output_hook(ctx, diffs, all_vars):
@@ -195,29 +188,35 @@ def _output_hook(ctx, diffs, all_vars):
 
     def spec_of(kind, els):
         ids = np.array([e.id for e in els], np.int64)
-        src = []
-        for e in els:
-            k = scalar_unknown(ctx, kind, e.id)
-            src.append(k)
-        return ids, src
+        return ids, tuple(scalar_unknown(ctx, kind, e.id) for e in els)
 
-    d_ids, d_src = spec_of("diff", diffs)
-    v_ids, v_src = spec_of("var", vars_)
+    return StateOutputs(*spec_of("diff", diffs), *spec_of("var", vars_))
 
-    def values(src, extra):
+
+@dataclass(frozen=True, eq=False)
+class StateOutputs:
+    """Frame hook: ``diffs/id|value`` and ``variables/id|value`` of every Control_Diff and
+    implicit / user variable; ``*_src`` per element its index into ``State.extra`` or
+    ``("const", value)`` (held states)."""
+
+    d_ids: np.ndarray
+    d_src: tuple
+    v_ids: np.ndarray
+    v_src: tuple
+
+    @staticmethod
+    def _values(src, extra):
         return np.array([s[1] if isinstance(s, tuple) else float(extra[s]) for s in src], float)
 
-    def hook(model, state):
+    def __call__(self, model, state):
         out = {}
-        if len(d_ids):
-            out["diffs/id"] = d_ids
-            out["diffs/value"] = values(d_src, state.extra)
-        if len(v_ids):
-            out["variables/id"] = v_ids
-            out["variables/value"] = values(v_src, state.extra)
+        if len(self.d_ids):
+            out["diffs/id"] = self.d_ids
+            out["diffs/value"] = self._values(self.d_src, state.extra)
+        if len(self.v_ids):
+            out["variables/id"] = self.v_ids
+            out["variables/value"] = self._values(self.v_src, state.extra)
         return out
-
-    return hook
 
 
 def _time_sources(fam) -> list:
@@ -227,9 +226,13 @@ def _time_sources(fam) -> list:
 
 ELEMENTS = (ElementType(
     "diff_vars", ("Control_Diff", "Reference_Variable"), compile_diff_vars,
-    after=("expressions", "contacts"),  # scalar unknowns the expressions registered come first
+    rank=90,                    # after the scalar unknowns expression forces registered
     kernels=lambda: (ScalarEquation,),
     potential_energy=not_conservative,  # its rows are no force of a potential: energy NaN
     time_dependent=_time_sources,
-    outputs={"diffs": ("Control_Diff",), "variables": ("Reference_Variable",)},
-    datasets=("id", "value"), fd_tests="tests/kernels/test_extra_unknowns.py"),)
+    outputs=(OutputGroup("diffs", "Dd", "diff", "Control_Diff", "`Control_Diff`", ("Control_Diff",),
+                         ("id", "label", "value"), model_ids=False),
+             OutputGroup("variables", "V", "reference_variable", "variable",
+                         "implicit and user (`USERSUB`) `Reference_Variable`",
+                         ("Reference_Variable",), ("id", "label", "value"), model_ids=False)),
+    fd_tests="tests/kernels/test_extra_unknowns.py"),)

@@ -7,6 +7,8 @@ Marker and slot layout, and the force laws of vector and scalar forces: :class:`
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
 from poise.core.errors import EvaluationError
@@ -14,7 +16,6 @@ from poise.elements.base import ForceFamily, column_map, columns_array
 from poise.elements.forces import N_SLOTS, S_PI, apply_two_body, S_PJ, S_XR, S_YR
 from poise.elements.forces import S_ZJ, S_ZR, SLOT_KIND, SLOT_ML
 from poise.elements.resolver import compile_batch_located
-from poise.expr import EvalContext as XC
 
 _I3 = np.eye(3)
 VEC_ATTRS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -25,10 +26,7 @@ def sl(s):
     return slice(3 * s, 3 * s + 3)
 
 
-# the generic two-body application works for any slot count
-apply_two_body_w = apply_two_body
-
-
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ExprForce(ForceFamily):
     """Common part: expression batches, slot maps, evaluation of values and slot gradients.
 
@@ -52,23 +50,27 @@ class ExprForce(ForceFamily):
       (action-only when ``is_action_only``).
     """
 
-    batches: list
-    slot_maps: list          # per batch: (rows, batch_slot, family_slot) index arrays
+    action_only: np.ndarray
+    batches: tuple
+    slot_maps: tuple                 # per batch: (rows, batch_slot, family_slot) index arrays
+    scalar_maps: tuple | None = None     # per batch: (rows, batch_col, family_col) of scols
+    reaction_maps: tuple | None = None   # per batch: (rows, batch_col, local_col) of rcols
+    rcols: np.ndarray | None = None      # (n, Cr) reaction channels each instance reads
 
-    def _expr_values(self, ctx, need_jac):
-        """Values (n, nb) and slot gradients (n, nb, 3S) of all batches."""
+    def expr_values(self, ctx, need_jac):
+        """Values (n, nb), slot gradients (n, nb, 3S), scalar gradients (n, nb, U) (None
+        without scalar columns) and reaction-channel gradients (n, nb, Cr) (None unless the
+        family reads reactions) of all batches."""
         t = ctx.t
         # one time per frame (frames evaluated together, model/frame_batch): one per instance
         t = np.repeat(np.asarray(t, float), self.n // len(t)) if np.ndim(t) else float(t)
-        xc = XC(time=t, P=getattr(ctx, "P", None), A=getattr(ctx, "A", None),
-                angle_ref=ctx.angle, static=bool(getattr(ctx, "static", True)),
-                scalars=getattr(ctx, "extra", None), reactions=getattr(ctx, "reactions", None))
+        xc = replace(ctx, t=t)
         n, S = self.n, len(self.slot_ml)
         vals = np.zeros((n, len(self.batches)))
         grads = np.zeros((n, len(self.batches), S, 3)) if need_jac else None
         U = self.U
         sgrads = np.zeros((n, len(self.batches), U)) if (need_jac and U) else None
-        smaps = getattr(self, "scalar_maps", None) or [None] * len(self.batches)
+        smaps = self.scalar_maps or [None] * len(self.batches)
         dreac = []
         for k, (b, (r, bs, fs), sm) in enumerate(zip(self.batches, self.slot_maps, smaps)):
             out = b.evaluate(xc)
@@ -80,51 +82,57 @@ class ExprForce(ForceFamily):
                 np.add.at(sgrads, (sm[0], k, sm[2]), out.d_scalar[sm[0], sm[1]])
         if need_jac:
             grads = grads.reshape(n, len(self.batches), 3 * S)
-        self._sgrads = sgrads
-        rm = getattr(self, "reaction_maps", None)
-        if need_jac and rm is not None:
+        rg = None
+        if need_jac and self.reaction_maps is not None:
             # d value / d reaction channel per local channel column (ReactionFeed coupling)
             rg = np.zeros((n, len(self.batches), self.rcols.shape[1]))
-            for k, (rows, bc, fc) in enumerate(rm):
+            for k, (rows, bc, fc) in enumerate(self.reaction_maps):
                 if len(rows):
                     np.add.at(rg, (rows, k, fc), dreac[k][rows, bc])
-            self._rgrads = rg
-        return vals, grads
+        return vals, grads, sgrads, rg
 
-    def tile_frames(self, t, F, model):
-        """Complete the frame-tiled copy ``t`` (:mod:`poise.model.frame_batch`): expression
-        batches and their slot / scalar maps repeated for ``F`` frames."""
+    def tile_fields(self, F, model) -> dict:
+        """Expression batches and their slot / scalar maps repeated for ``F`` frames
+        (:mod:`poise.model.frame_batch`)."""
         n = self.n
 
         def rows(a):
             return (a[None] + (n * np.arange(F))[:, None]).ravel()
-        t.batches = [b.tiled(F, len(model.marker_id), len(model.angle_I), model.n_extra)
-                     for b in self.batches]
-        t.slot_maps = [(rows(r), np.tile(bs, F), np.tile(fs, F)) for r, bs, fs in self.slot_maps]
-        sm = getattr(self, "scalar_maps", None)
-        if sm is not None:
-            t.scalar_maps = [(rows(a), np.tile(b, F), np.tile(c, F)) for a, b, c in sm]
+        out = dict(
+            batches=tuple(b.tiled(F, len(model.marker_id), len(model.angle_I), model.n_extra)
+                          for b in self.batches),
+            slot_maps=tuple((rows(r), np.tile(bs, F), np.tile(fs, F))
+                            for r, bs, fs in self.slot_maps))
+        if self.scalar_maps is not None:
+            out["scalar_maps"] = tuple((rows(a), np.tile(b, F), np.tile(c, F))
+                                       for a, b, c in self.scalar_maps)
+        return out
 
     def forces(self, kin, ctx, need_jac=True):
-        F, T, dF, dT = self.compute(kin.Y, ctx, need_jac)
-        rho, G = apply_two_body_w(kin.Y, F, T, dF, dT, self.action_only, need_jac)
-        if not self.U:
-            return rho, G
+        """``(rho, G[, ext])``; ``ext`` holds ``G_ys`` (scalar columns) and ``d_reaction``
+        (n, nb, Cr), the values' derivatives w.r.t. the reaction channels read (reaction
+        readers, :mod:`poise.elements.reaction_feed`)."""
+        vals, grads, sgrads, rgrads = self.expr_values(ctx, need_jac)
+        F, T, dF, dT = self.compute(kin.Y, vals, grads, need_jac)
+        rho, G = apply_two_body(kin.Y, F, T, dF, dT, self.action_only, need_jac)
         ext = {}
-        if need_jac:
+        if rgrads is not None:
+            ext["d_reaction"] = rgrads
+        if self.U and need_jac:
             # rho is linear in (F, T) at fixed slots: d rho / d s_u = rho(dF/ds_u, dT/ds_u)
-            dFs, dTs = self.scalar_chain(kin.Y, self._sgrads)          # (n, 3, U) each
+            dFs, dTs = self.scalar_chain(kin.Y, sgrads)                # (n, 3, U) each
             ext["G_ys"] = np.stack(
-                [apply_two_body_w(kin.Y, dFs[:, :, u], dTs[:, :, u], None, None,
-                                  self.action_only, False)[0] for u in range(self.U)], axis=2)
-        return rho, G, ext
+                [apply_two_body(kin.Y, dFs[:, :, u], dTs[:, :, u], None, None,
+                                self.action_only, False)[0] for u in range(self.U)], axis=2)
+        return (rho, G, ext) if (ext or self.U) else (rho, G)
 
 
 class ExprVectorForce(ExprForce):
     """Vector force/torque with expression components along R's axes (see module doc)."""
 
-    def compute(self, Y, ctx, need_jac):
-        c, dc = self._expr_values(ctx, need_jac)          # (n,6), (n,6,W)
+    def compute(self, Y, c, dc, need_jac):
+        """F, T (n, 3) and dF, dT (n, 3, W) from the component values ``c`` (n, 6) and
+        their slot gradients ``dc`` (n, 6, W)."""
         AR = np.stack([Y[:, S_XR], Y[:, S_YR], Y[:, S_ZR]], axis=2)
         F = np.einsum("nik,nk->ni", AR, c[:, :3])
         T = np.einsum("nik,nk->ni", AR, c[:, 3:])
@@ -143,11 +151,15 @@ class ExprVectorForce(ExprForce):
         return np.matmul(AR, sg[:, :3]), np.matmul(AR, sg[:, 3:])
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ExprScalarForce(ExprForce):
-    """Scalar force along J->I / along z_J (action-only) or torque about z_J (module doc)."""
+    """Scalar force along J->I / along z_J (action-only) or torque about z_J (module doc);
+    ``stype`` (n,): ST_LINE, ST_AXIS or ST_TORQUE."""
 
-    def compute(self, Y, ctx, need_jac):
-        v, dv = self._expr_values(ctx, need_jac)
+    stype: np.ndarray
+
+    def compute(self, Y, v, dv, need_jac):
+        """F, T and their slot gradients from the magnitude ``v`` (n, 1), ``dv`` (n, 1, W)."""
         f = v[:, 0]
         n = Y.shape[0]
         W = Y.shape[1] * 3
@@ -193,7 +205,7 @@ class ExprScalarForce(ExprForce):
 
 
 # ====================================================================================== build
-def _layout(batches, I, J, ground):
+def layout_slots(batches, I, J, ground):
     """Extra marker columns and per-batch slot maps.
 
     Returns ``(extra (n, X) marker indices, slot_maps)``.
@@ -229,34 +241,41 @@ def _layout(batches, I, J, ground):
     return extra, maps
 
 
-def _build(cls, name, I, J, R, owner, action_only, batches, ground, locs):
+def slot_layout(slots, I, J, R, ground):
+    """``(markers (n, 3 + X), slot_ml, slot_kind (n, S), maps)`` of instances with markers
+    ``I, J, R`` reading the slots of ``slots`` (expression batches, or objects with their
+    ``slot_marker`` / ``slot_kind``, e.g. a user routine's): see :func:`layout_slots`."""
     I, J, R = (np.asarray(a, int) for a in (I, J, R))
-    extra, maps = _layout(batches, I, J, ground)
+    extra, maps = layout_slots(slots, I, J, ground)
     X = extra.shape[1]
     n = len(I)
     slot_ml = np.concatenate([SLOT_ML, np.repeat(3 + np.arange(X), 4)]).astype(int)
     slot_kind = np.concatenate([SLOT_KIND, np.tile([0, 1, 2, 3], X)]).astype(int)
-    fam = cls(name=name, markers=np.concatenate([np.stack([I, J, R], 1), extra], 1),
-              slot_ml=slot_ml, slot_kind=np.broadcast_to(slot_kind, (n, len(slot_kind))).copy(),
-              owner=np.asarray(owner, int))
-    fam.action_only = np.asarray(action_only, bool)
-    fam.batches = batches
-    fam.slot_maps = maps
-    _scalar_layout(fam, batches)
-    fam.element_locs = locs
-    fam.group = "forces"
-    return fam
+    return (np.concatenate([np.stack([I, J, R], 1), extra], 1), slot_ml,
+            np.broadcast_to(slot_kind, (n, len(slot_kind))).copy(), tuple(maps))
 
 
-def build_vector_family(items, ctx, res, ground):
-    """Family for expression ``Force_Vector_OneBody/TwoBody`` elements ``[(owner, el), ...]``."""
-    b = ctx.b
+def build_family(cls, name, I, J, R, owner, action_only, batches, ground, locs, **fields):
+    """A family of ``cls`` for the elements ``locs`` with markers ``I, J, R`` reading the
+    expression ``batches``, in output group ``forces``."""
+    markers, slot_ml, slot_kind, maps = slot_layout(batches, I, J, R, ground)
+    scols, smaps = _scalar_layout(batches, len(markers))
+    return cls(name=name, markers=markers, slot_ml=slot_ml, slot_kind=slot_kind,
+               owner=np.asarray(owner, int), action_only=np.asarray(action_only, bool),
+               batches=tuple(batches), slot_maps=maps, scols=scols, scalar_maps=smaps,
+               element_locs=tuple(locs), group="forces", **fields)
+
+
+def build_vector_family(items, ctx, res, ground, **fields):
+    """Family for expression ``Force_Vector_OneBody/TwoBody`` elements ``[(owner, el), ...]``
+    (the batches compiled; ``fields``: e.g. the reaction layout), or None (problems)."""
+    mk = ctx.marker
     I, J, R, ao, comps = [], [], [], [], []
     for _, el in items:
         one = el.tag.endswith("OneBody")
-        I.append(b.mk(el, "marker_id" if one else "i_marker_id"))
-        J.append(0 if one else b.mk(el, "j_floating_marker_id"))
-        R.append(b.mk(el, "ref_marker_id", required=False))
+        I.append(mk(el, "marker_id" if one else "i_marker_id"))
+        J.append(0 if one else mk(el, "j_floating_marker_id"))
+        R.append(mk(el, "ref_marker_id", required=False))
         ao.append(one)
         t = str(el.attrs.get("type", "FORCEANDTORQUE")).upper()
         row = []
@@ -269,17 +288,17 @@ def build_vector_family(items, ctx, res, ground):
     batches = [compile_batch_located([c[k] for c in comps], res, ctx.pc) for k in range(6)]
     if any(bt is None for bt in batches):
         return None
-    return _build(ExprVectorForce, "forces:ExprVectorForce", I, J, R, [o for o, _ in items], ao,
-                  batches, ground, [el.loc for _, el in items])
+    return build_family(ExprVectorForce, "forces:ExprVectorForce", I, J, R,
+                        [o for o, _ in items], ao, batches, ground, [el.loc for _, el in items],
+                        **reaction_layout(batches, len(items)))
 
 
 def build_scalar_family(items, ctx, res, ground):
-    """Family for ``Force_Scalar_TwoBody`` elements with ``val_expression``."""
-    b = ctx.b
+    """Family for ``Force_Scalar_TwoBody`` elements with ``val_expression``, or None."""
     I, J, ao, st, vals = [], [], [], [], []
     for _, el in items:
-        I.append(b.mk(el, "i_marker_id"))
-        J.append(b.mk(el, "j_marker_id"))
+        I.append(ctx.marker(el, "i_marker_id"))
+        J.append(ctx.marker(el, "j_marker_id"))
         a_o = bool(el.attrs.get("is_action_only", False))
         t = str(el.attrs.get("type", "FORCE")).upper()
         ao.append(a_o)
@@ -288,22 +307,32 @@ def build_scalar_family(items, ctx, res, ground):
     batch = compile_batch_located(vals, res, ctx.pc)
     if batch is None:
         return None
-    fam = _build(ExprScalarForce, "forces:ExprScalarForce", I, J, [0] * len(I),
-                 [o for o, _ in items], ao, [batch], ground, [el.loc for _, el in items])
-    fam.stype = np.asarray(st, int)
-    return fam
+    return build_family(ExprScalarForce, "forces:ExprScalarForce", I, J, [0] * len(I),
+                        [o for o, _ in items], ao, [batch], ground, [el.loc for _, el in items],
+                        stype=np.asarray(st, int), **reaction_layout([batch], len(items)))
 
 
-def _scalar_layout(fam, batches):
-    """``fam.scols`` (n, U): the scalar unknowns (Control_Diff states, implicit variables) the
-    instance's expressions read, and per batch the map (rows, batch_col, family_col)."""
-    n = fam.n
+def _scalar_layout(batches, n):
+    """``(scols (n, U), maps)``: the scalar unknowns (Control_Diff states, implicit variables)
+    the instances' expressions read and per batch the map (rows, batch_col, family_col);
+    ``(None, None)`` when they read none."""
     cols = [dict() for _ in range(n)]
     empty = (np.zeros(0, np.intp),) * 3
     maps = [column_map(b.scalar_index, cols) if getattr(b, "scalar_index", None) is not None
             else empty for b in batches]
     U = max((len(c) for c in cols), default=0)
-    if U:
-        sc = columns_array(cols)
-        fam.scols = sc
-        fam.scalar_maps = maps
+    if not U:
+        return None, None
+    return columns_array(cols), tuple(maps)
+
+
+def reaction_layout(batches, n) -> dict:
+    """``reads_reactions``, and for a family reading reaction channels ``rcols`` (n, Cr) (the
+    channels each instance reads) and per batch the map ``reaction_maps`` (rows, batch_col,
+    local_col) gathering ``d_reaction`` (:mod:`poise.elements.reaction_feed`)."""
+    if not any(b.C and (b.reaction_index >= 0).any() for b in batches):
+        return {}
+    cols = [dict() for _ in range(n)]
+    empty = (np.zeros(0, np.intp),) * 3
+    maps = tuple(column_map(b.reaction_index, cols) if b.C else empty for b in batches)
+    return dict(reads_reactions=True, reaction_maps=maps, rcols=columns_array(cols))

@@ -15,11 +15,13 @@ F0 = the preloads. The Jacobian with respect to the slot vectors is exact (FD-ch
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from poise.elements.context import GLOBAL, num as _num
 from poise.elements.couplers import user_routine_error
-from poise.elements.forces import (N_SLOTS, S_PI, S_PJ, S_XJ, S_YJ, S_ZJ, TwoBodyForce,
+from poise.elements.forces import (FORCES, N_SLOTS, S_PI, S_PJ, S_XJ, S_YJ, S_ZJ, TwoBodyForce,
                                    angle_gradient, sl)
 from poise.elements.registry import ElementType, kernel_potential, static
 
@@ -58,11 +60,16 @@ def beam_stiffness(length, E, G, area, ixx, iyy, izz, asy, asz) -> np.ndarray:
     return K
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class FieldForce(TwoBodyForce):
     """``[F; T]_J = -K (X - L) + F0`` (see module doc).
 
     Parameters: ``K6`` (n,6,6), ``L6`` (n,6), ``F06`` (n,6), ``angle_index`` (n,3).
     """
+
+    K6: np.ndarray
+    L6: np.ndarray
+    F06: np.ndarray
 
     def _X(self, Y, ctx):
         AJ = np.stack([Y[:, S_XJ], Y[:, S_YJ], Y[:, S_ZJ]], axis=2)
@@ -125,7 +132,7 @@ def compile_field_beam(spec, ctx):
     els = spec.elements("Force_Field") + spec.elements("Force_Beam")
     if not els:
         return
-    b, pc = ctx.b, ctx.pc
+    pc = ctx.pc
     items = []
     for el in els:
         def g(name, default=0.0, el=el):
@@ -153,39 +160,33 @@ def compile_field_beam(spec, ctx):
                                vals["iyy"], vals["izz"], vals["asy"] or 0.0, vals["asz"] or 0.0)
             L = np.array([vals["length"], 0, 0, 0, 0, 0], float)
         F0 = np.array([g(f"preload_{c}") for c in _C6])
-        I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
+        I, J = ctx.marker(el, "i_marker_id"), ctx.marker(el, "j_marker_id")
         items.append((el, I, J, K, L, F0))
-        b.effects.append(el.tag)
+        ctx.effect(el.tag)
     pc.raise_if_any()
     if not items:
         return
     # owners in the shared "forces" output group (after compile_forces' elements)
-    fo = ctx.outputs.get("forces")
-    tags = [] if fo is None else list(fo["tag"])
-    ids = [] if fo is None else list(fo["ids"])
-    owners = []
-    for el, *_ in items:
-        owners.append(len(ids))
-        tags.append(el.tag)
-        ids.append(el.id)
-    ctx.outputs["forces"] = dict(tag=np.array(tags), ids=np.array(ids, int))
+    first = ctx.extend_output("forces", np.array([it[0].tag for it in items]),
+                              [it[0].id for it in items])
     n = len(items)
+    owners = list(range(first, first + n))
     f = FieldForce.build("forces:Field", np.array([it[1] for it in items]),
                          np.array([it[2] for it in items]), np.full(n, GLOBAL), owners,
+                         group="forces", element_locs=[it[0].loc for it in items],
                          K6=np.array([it[3] for it in items]), L6=np.array([it[4] for it in items]),
-                         F06=np.array([it[5] for it in items]))
-    f.angle_index = np.array([[ctx.angle(it[1], it[2], a) for a in range(3)] for it in items], int)
-    f.element_locs = [it[0].loc for it in items]
-    f.group = "forces"
-    ctx.families.append(f)
+                         F06=np.array([it[5] for it in items]),
+                         angle_index=np.array([[ctx.angle(it[1], it[2], a) for a in range(3)]
+                                               for it in items], int))
+    ctx.add_family(f)
 
 
 ELEMENTS = (ElementType(
     "field_beam", ("Force_Field", "Force_Beam"), compile_field_beam,
-    after=("forces", "gears"),  # extends the "forces" output group after compile_forces
+    rank=60,                    # extends the "forces" output group after compile_forces
     kernels=lambda: (FieldForce,), tileable=lambda: (FieldForce,),
     potential_energy=kernel_potential, time_dependent=static,
-    outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
+    outputs=(FORCES,),
     reactions={"BEAM": ("forces", ("Force_Beam",)), "FIELD": ("forces", ("Force_Field",))},
     reaction_aliases={"FORCE_BEAM": "BEAM", "FORCE_FIELD": "FIELD"},
     fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)

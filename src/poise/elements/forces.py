@@ -12,14 +12,17 @@ Laws follow ``conventions.md`` (statics: velocities are zero, damping vanishes).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.core.user_routines import uses_user_routine
 from poise.deck.spec import Expr
-from poise.elements.base import ForceFamily, _cross, add_force_at_point, add_torque_via_axes
+from poise.elements.base import ForceFamily, add_force_at_point, add_torque_via_axes
 from poise.elements.context import GLOBAL, num as _num
-from poise.elements.registry import ElementType, FDCase, kernel_potential, static
+from poise.elements.registry import ElementType, FDCase, OutputGroup, kernel_potential, static
+from poise.elements.kernel import cross3
 from poise.elements.rotation import skew
 
 
@@ -71,7 +74,7 @@ def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
     if react.any():
         d = Y[:, S_PI] - Y[:, S_PJ]
         Fj = -F * react[:, None]
-        Tj = (-T - _cross(d, F)) * react[:, None]
+        Tj = (-T - cross3(d, F)) * react[:, None]
         dFj = dTj = None
         if need_jac:
             dFj = -dF * react[:, None, None]
@@ -86,20 +89,28 @@ def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
     return rho, G
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class TwoBodyForce(ForceFamily):
-    """Common constructor for the marker-pair force families."""
+    """Common part of the marker-pair force families: ``action_only`` (n,) bool (no reaction
+    on J), ``angle_index`` (n,) or (n, 3) continuous-angle table entries of the laws that read
+    angles (None otherwise)."""
+
+    action_only: np.ndarray
+    angle_index: np.ndarray | None = None
 
     @classmethod
-    def build(cls, name, I, J, R, owner, action_only=None, **params):
+    def build(cls, name, I, J, R, owner, action_only=None, *, group=None, element_locs=(),
+              angle_index=None, **params):
+        """The family of instances with markers ``I, J, R`` (n,); ``params``: the class's
+        numeric parameters, one entry (or row) per instance."""
         n = len(I)
-        fam = cls(name=name, markers=np.stack([I, J, R], 1).astype(int), slot_ml=SLOT_ML,
-                  slot_kind=np.broadcast_to(SLOT_KIND, (n, N_SLOTS)).copy(),
-                  owner=np.asarray(owner, int))
-        fam.action_only = np.zeros(n, bool) if action_only is None else np.asarray(action_only, bool)
-        for k, v in params.items():
-            setattr(fam, k, np.asarray(v))
-        fam.locs = params.get("locs", None)
-        return fam
+        return cls(name=name, markers=np.stack([I, J, R], 1).astype(int), slot_ml=SLOT_ML,
+                   slot_kind=np.broadcast_to(SLOT_KIND, (n, N_SLOTS)).copy(),
+                   owner=np.asarray(owner, int), group=group, element_locs=tuple(element_locs),
+                   action_only=(np.zeros(n, bool) if action_only is None
+                                else np.asarray(action_only, bool)),
+                   angle_index=None if angle_index is None else np.asarray(angle_index, int),
+                   **{k: np.asarray(v) for k, v in params.items()})
 
     def compute(self, Y, ctx, need_jac):
         """Return F, T (n,3) and dF, dT (n,3,33)."""
@@ -110,13 +121,18 @@ class TwoBodyForce(ForceFamily):
         return apply_two_body(kin.Y, F, T, dF, dT, self.action_only, need_jac)
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class LineForce(TwoBodyForce):
     """Force of magnitude ``f = -k (L - length) + preload`` along J->I (positive repels).
 
     Covers ``Force_SpringDamper TRANSLATIONAL`` (k, length, preload) and
     ``Force_Scalar_TwoBody FORCE`` (k = 0, preload = value). Parameters: ``k``, ``length``,
-    ``preload`` (n,), ``element_locs`` list for error messages.
+    ``preload`` (n,).
     """
+
+    k: np.ndarray
+    length: np.ndarray
+    preload: np.ndarray
 
     def compute(self, Y, ctx, need_jac):
         # F = f u = -k d + c u with c = k length + preload: the first term is smooth everywhere,
@@ -151,9 +167,12 @@ class LineForce(TwoBodyForce):
         return 0.5 * self.k * (L - self.length) ** 2 - self.preload * L
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class AxisForce(TwoBodyForce):
     """Action-only force of constant magnitude along J's z axis (``Force_Scalar_TwoBody``
     ``FORCE`` with ``is_action_only``). Parameter ``value`` (n,)."""
+
+    value: np.ndarray
 
     def compute(self, Y, ctx, need_jac):
         z = Y[:, S_ZJ]
@@ -168,12 +187,17 @@ class AxisForce(TwoBodyForce):
         return F, T, dF, dT
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class AxisTorque(TwoBodyForce):
     """Torque ``tau = -k (AZ(I,J) - length) + preload`` about J's z axis.
 
     ``Force_SpringDamper ROTATIONAL`` and ``Force_Scalar_TwoBody TORQUE`` (k = 0). AZ is the
     continuous angle (full turns counted) held in ``ctx.angle[self.angle_index]``.
     """
+
+    k: np.ndarray
+    length: np.ndarray
+    preload: np.ndarray
 
     def compute(self, Y, ctx, need_jac):
         theta = ctx.angle[self.angle_index]
@@ -198,6 +222,7 @@ class AxisTorque(TwoBodyForce):
         return 0.5 * self.k * (theta - self.length) ** 2 - self.preload * theta
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Bushing(TwoBodyForce):
     """``Force_Bushing``: ``F_J = -K (DX,DY,DZ)(I,J,J) + preload``, ``T_J = -Kt (AX,AY,AZ)(I,J)
     + preload_t`` in J's axes, applied at I; reaction on J with the offset moment.
@@ -205,6 +230,11 @@ class Bushing(TwoBodyForce):
     Parameters: ``kt3`` (n,3) translational stiffness, ``kr3`` (n,3) rotational, ``f0`` (n,3),
     ``t0`` (n,3), ``angle_index`` (n,3) into ``ctx.angle``.
     """
+
+    kt3: np.ndarray
+    kr3: np.ndarray
+    f0: np.ndarray
+    t0: np.ndarray
 
     def compute(self, Y, ctx, need_jac):
         n = Y.shape[0]
@@ -246,12 +276,16 @@ class Bushing(TwoBodyForce):
         return np.sum(0.5 * self.kt3 * D * D - self.f0 * D, axis=1)
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class VectorForce(TwoBodyForce):
     """Constant force and torque components along the reference marker R's axes, applied at I.
 
     ``Force_Vector_OneBody`` (action-only; reaction to ground) and ``Force_Vector_TwoBody``
     (reaction on the floating marker's body). Parameters ``fc`` (n,3), ``tc`` (n,3).
     """
+
+    fc: np.ndarray
+    tc: np.ndarray
 
     def compute(self, Y, ctx, need_jac):
         AR = np.stack([Y[:, S_XR], Y[:, S_YR], Y[:, S_ZR]], axis=2)
@@ -288,8 +322,7 @@ class VectorForce(TwoBodyForce):
 def compile_forces(spec, ctx):
     """Compile force elements (springs, bushings, vector and scalar forces) into force families.
     """
-    b = ctx.b
-    fams, outputs = ctx.families, ctx.outputs
+    mk = ctx.marker
     angle = ctx.angle
     pc = ctx.pc
     force_rows = []   # (tag, id, loc) per force element, output group "forces"
@@ -299,17 +332,16 @@ def compile_forces(spec, ctx):
         force_rows.append(el)
         per_type.setdefault(kind, []).append(dict(owner=len(force_rows) - 1, el=el, **kw))
 
-    def defer(el, routed, effect):
-        """Its force row now, its kernel from a later compiler (``routed``: ``ctx.user_forces``
-        or ``ctx.expr_forces``)."""
+    def defer(el, to, effect):
+        """Its force row now, its kernel from the later compiler ``to`` (``user`` or
+        ``expressions``)."""
         force_rows.append(el)
-        routed.append((len(force_rows) - 1, el))
-        b.effects.append(effect)
+        ctx.route(to, (len(force_rows) - 1, el))
+        ctx.effect(effect)
 
-    pc = b.pc
     for el in spec.elements("Force_SpringDamper"):
         t = str(el.attrs.get("type", "TRANSLATIONAL")).upper()
-        I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
+        I, J = mk(el, "i_marker_id"), mk(el, "j_marker_id")
         k = _num(el, "stiffness", 0.0, pc)
         pre = _num(el, "preload", 0.0, pc)
         if t == "ROTATIONAL":
@@ -321,16 +353,16 @@ def compile_forces(spec, ctx):
         else:
             add("LineForce", el, I=I, J=J, R=GLOBAL, k=k, length=_num(el, "length", 0.0, pc),
                 preload=pre, ax=False)
-        b.effects.append(f"Force_SpringDamper:{t}")
+        ctx.effect(f"Force_SpringDamper:{t}")
     for el in spec.elements("Force_Scalar_TwoBody"):
         t = str(el.attrs.get("type", "FORCE")).upper()
         if uses_user_routine(el):          # Python SFOSUB: compiled by compile_user
-            defer(el, ctx.user_forces, f"Force_Scalar_TwoBody:{t}:python")
+            defer(el, "user", f"Force_Scalar_TwoBody:{t}:python")
             continue
-        I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
+        I, J = mk(el, "i_marker_id"), mk(el, "j_marker_id")
         val = el.attrs.get("val", el.attrs.get("val_expression", 0.0))
         if isinstance(val, Expr):          # expression force: compiled by compile_expr
-            defer(el, ctx.expr_forces, f"Force_Scalar_TwoBody:{t}")
+            defer(el, "expressions", f"Force_Scalar_TwoBody:{t}")
             continue
         ao = bool(el.attrs.get("is_action_only", False))
         if t == "TORQUE":
@@ -340,9 +372,9 @@ def compile_forces(spec, ctx):
             add("AxisForce", el, I=I, J=J, R=GLOBAL, value=val, ax=True)
         else:
             add("LineForce", el, I=I, J=J, R=GLOBAL, k=0.0, length=0.0, preload=val, ax=False)
-        b.effects.append(f"Force_Scalar_TwoBody:{t}")
+        ctx.effect(f"Force_Scalar_TwoBody:{t}")
     for el in spec.elements("Force_Bushing"):
-        I, J = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id")
+        I, J = mk(el, "i_marker_id"), mk(el, "j_marker_id")
         def g(n, el=el):
             return float(_num(el, n, 0.0, pc) or 0.0)
         add("Bushing", el, I=I, J=J, R=GLOBAL, ax=False,
@@ -350,20 +382,20 @@ def compile_forces(spec, ctx):
             f0=[g("preload_x"), g("preload_y"), g("preload_z")],
             t0=[g("preload_tx"), g("preload_ty"), g("preload_tz")],
             ang=[angle(I, J, 0), angle(I, J, 1), angle(I, J, 2)])
-        b.effects.append("Force_Bushing")
+        ctx.effect("Force_Bushing")
     for tag in ("Force_Vector_OneBody", "Force_Vector_TwoBody"):
         for el in spec.elements(tag):
             one = tag.endswith("OneBody")
-            I = b.mk(el, "marker_id" if one else "i_marker_id")
-            J = GLOBAL if one else b.mk(el, "j_floating_marker_id")
-            R = b.mk(el, "ref_marker_id", required=False)
+            I = mk(el, "marker_id" if one else "i_marker_id")
+            J = GLOBAL if one else mk(el, "j_floating_marker_id")
+            R = mk(el, "ref_marker_id", required=False)
             t = str(el.attrs.get("type", "FORCEANDTORQUE")).upper()
             if uses_user_routine(el):      # Python GFOSUB: compiled by compile_user
-                defer(el, ctx.user_forces, f"{tag}:python")
+                defer(el, "user", f"{tag}:python")
                 continue
             if any(isinstance(el.attrs.get(f"{nm}_expression"), Expr)
                    for nm in ("fx", "fy", "fz", "tx", "ty", "tz")):
-                defer(el, ctx.expr_forces, tag)   # expression force: compiled by compile_expr
+                defer(el, "expressions", tag)   # expression force: compiled by compile_expr
                 continue
             comp = []
             for nm in ("fx", "fy", "fz", "tx", "ty", "tz"):
@@ -378,7 +410,7 @@ def compile_forces(spec, ctx):
             elif t == "TORQUEONLY":
                 comp[:3] = [0.0] * 3
             add("VectorForce", el, I=I, J=J, R=R, fc=comp[:3], tc=comp[3:], ax=one)
-            b.effects.append(tag)
+            ctx.effect(tag)
 
     classes = {"LineForce": LineForce, "AxisForce": AxisForce, "AxisTorque": AxisTorque,
                "Bushing": Bushing, "VectorForce": VectorForce}
@@ -389,18 +421,16 @@ def compile_forces(spec, ctx):
             if key in ("owner", "el", "I", "J", "R", "ax", "ang"):
                 continue
             params[key] = np.array([it[key] for it in items], float)
-        f = cls.build(f"forces:{kind}", np.array([it["I"] for it in items]),
-                      np.array([it["J"] for it in items]), np.array([it["R"] for it in items]),
-                      [it["owner"] for it in items], action_only=[it["ax"] for it in items],
-                      **params)
-        if "ang" in items[0]:
-            f.angle_index = np.array([it["ang"] for it in items], int)
-        f.element_locs = [it["el"].loc for it in items]
-        f.group = "forces"
-        fams.append(f)
+        ctx.add_family(cls.build(
+            f"forces:{kind}", np.array([it["I"] for it in items]),
+            np.array([it["J"] for it in items]), np.array([it["R"] for it in items]),
+            [it["owner"] for it in items], action_only=[it["ax"] for it in items],
+            group="forces", element_locs=[it["el"].loc for it in items],
+            angle_index=(np.array([it["ang"] for it in items], int) if "ang" in items[0]
+                         else None), **params))
     if force_rows:
-        outputs["forces"] = dict(tag=np.array([e.tag for e in force_rows]),
-                                 ids=np.array([e.id for e in force_rows], int))
+        ctx.output("forces", np.array([e.tag for e in force_rows]),
+                   [e.id for e in force_rows])
 
 
 _VEC = ("Force_Vector_TwoBody", "Force_Vector_OneBody")
@@ -428,13 +458,19 @@ def _fd_cases():
 
 _KERNELS = lambda: (LineForce, AxisForce, AxisTorque, Bushing,  # noqa: E731
                     VectorForce)
+#: the output group of every force element (the results schema's, too)
+FORCES = OutputGroup("forces", "E", "force_element", "force element", "force element", None,
+                     ("id", "label", "tag", "force", "torque"),
+                     load="force the element applies to the body of its I marker, at the I "
+                     "marker origin, global axes")
+
 ELEMENTS = (ElementType(
     "forces", ("Force_SpringDamper", "Force_Scalar_TwoBody", "Force_Bushing") + _VEC,
     compile_forces,
-    after=("joints",),          # force families after the joint families (model layout)
+    rank=20,                    # force families after the joint families
     kernels=_KERNELS, tileable=_KERNELS, potential_energy=kernel_potential,
     time_dependent=static,      # constant parameters (expression forces: "expressions")
-    outputs={"forces": None}, datasets=("id", "tag", "force", "torque"),
+    outputs=(FORCES,),
     reactions={"SFORCE": ("forces", ("Force_Scalar_TwoBody",)), "VFORCE": ("forces", _VEC),
                "VTORQ": ("forces", _VEC), "GFORCE": ("forces", _VEC),
                "BUSH": ("forces", ("Force_Bushing",)), "SPDP": ("forces", ("Force_SpringDamper",))},

@@ -17,7 +17,7 @@ import numpy as np
 from poise.elements.couplers import (add_coupler_family, joint_coordinate, marker_pose,
                                              user_routine_error)
 from poise.elements.couplers import Coupler
-from poise.elements.registry import ElementType, static, workless
+from poise.elements.registry import ElementType, OutputGroup, static, workless
 
 
 def signed_lever(rot: bool, sigma: float, zJ, pJ, c, w) -> float:
@@ -55,11 +55,6 @@ class Gear(Coupler):
 
 
 # ----------------------------------- compile
-def _marker_body(b, mid):
-    el = b.element("Reference_Marker", mid)
-    return None if el is None else el.attrs.get("body_id")
-
-
 def compile_gears(spec, ctx):
     """Compile ``Constraint_Gear`` into one coupler row per gear (see :mod:`poise.elements.gears`).
 
@@ -74,32 +69,32 @@ def compile_gears(spec, ctx):
     els = spec.elements("Constraint_Gear")
     if not els:
         return
-    b, pc = ctx.b, ctx.pc
+    pc = ctx.pc
     items = []
     for el in els:
         if user_routine_error(pc, el, "gear"):
             continue
         cv = el.attrs.get("cv_marker_id")
-        if cv not in b.marker_glob:
+        if ctx.marker_pose(cv) is None:
             pc.error(el.loc, f"cv_marker_id {cv} is not a Reference_Marker; expected the "
                      "contact-point marker on the carrier", "cv_marker_id")
             continue
-        c, Rc = marker_pose(b, el, "cv_marker_id")
+        c, Rc = marker_pose(ctx, el, "cv_marker_id")
         w = Rc[:, 2]
-        carrier = _marker_body(b, cv)
+        carrier = ctx.marker_body(cv)
         js = []
         for j in (1, 2):
             jid = el.attrs.get(f"joint{j}_id")
-            jel0 = b.element("Constraint_Joint", jid)
+            jel0 = ctx.element("Constraint_Joint", jid)
             # a gear on a CYLINDRICAL joint turns with it (rotational freedom), as in Adams GEAR
             fr = "R" if (jel0 is not None and
                          str(jel0.attrs.get("type", "")).upper() == "CYLINDRICAL") else None
-            jd = joint_coordinate(b, pc, el, jid, fr, f"joint{j}_id", "joint")
+            jd = joint_coordinate(ctx, el, jid, fr, f"joint{j}_id", "joint")
             if jd is None:
                 break
             jel = jd["jel"]
-            bi = _marker_body(b, jel.attrs.get("i_marker_id"))
-            bj = _marker_body(b, jel.attrs.get("j_marker_id"))
+            bi = ctx.marker_body(jel.attrs.get("i_marker_id"))
+            bj = ctx.marker_body(jel.attrs.get("j_marker_id"))
             if bj == carrier:
                 sigma = 1.0
             elif bi == carrier:
@@ -110,7 +105,7 @@ def compile_gears(spec, ctx):
                          "joints)", "cv_marker_id")
                 break
             jd["s"] = signed_lever(jd["rot"], sigma, jd["RJ"][:, 2], jd["pJ"], c, w)
-            if abs(jd["s"]) <= 1e-12 * max(1.0, b.L):
+            if abs(jd["s"]) <= 1e-12 * max(1.0, ctx.L):
                 pc.error(el.loc, f"joint {jel.id} gives no velocity at the contact point along "
                          "the cv marker's z axis (zero lever); expected z tangential to the "
                          "pitch circle", "cv_marker_id")
@@ -120,7 +115,7 @@ def compile_gears(spec, ctx):
             continue
         coef = [js[0]["s"], -js[1]["s"]]
         items.append((el, js, coef, "trans"))
-        b.effects.append("Constraint_Gear")
+        ctx.effect("Constraint_Gear")
     pc.raise_if_any()
     if not items:
         return
@@ -129,7 +124,9 @@ def compile_gears(spec, ctx):
 
 ELEMENTS = (ElementType(
     "gears", ("Constraint_Gear",), compile_gears,
-    after=("couplers",),        # gear rows after the coupler rows (model layout)
+    rank=50,                    # gear rows after the coupler rows
     kernels=lambda: (Gear,), potential_energy=workless, time_dependent=static,
-    outputs={"gears": ("Constraint_Gear",)},
-    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)
+    outputs=(OutputGroup("gears", "G", "gear", "gear", "`Constraint_Gear`", ("Constraint_Gear",),
+                         load="as for couplers: the mesh load on joint 1's I body through its "
+                         "I marker"),),
+    fd_tests="tests/kernels/test_couplers_gears_fields_beams.py"),)

@@ -16,44 +16,57 @@ origin (a ground marker: minus the load on the moving bodies, as Adams reports i
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from poise.deck.spec import Expr
-from poise.elements.base import GLOBAL, ConstraintFamily, _cross
+from poise.elements.base import GLOBAL, ConstraintFamily
+from poise.elements.kernel import cross3
 from poise.elements.diff_vars import layout
-from poise.elements.registry import ElementType, expressions_of_time, workless
-from poise.elements.resolver import compile_batch_located, ground_markers
-from poise.expr import EvalContext as XC
+from poise.elements.registry import ElementType, OutputGroup, expressions_of_time, workless
+from poise.elements.resolver import compile_batch_located
 
 TAG = "Constraint_General"
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class GeneralConstraint(ConstraintFamily):
     """``e = 0`` for one expression batch. Marker layout per instance ``[I, E_1, ..., E_X]``:
     the reaction marker (the global frame when absent) then the moving markers the expression
-    reads; slots ``P x y z`` per marker; scalar columns ``scols`` for the scalar unknowns."""
+    reads; slots ``P x y z`` per marker; scalar columns ``scols`` for the scalar unknowns.
+    ``yy``, ``ys``, ``ss``: index pairs moving the batch Hessian into ``G``, ``G_ys``, ``G_ss``
+    (:func:`hessian_pairs`); ``has_i`` (n,) the element names a reaction marker, ``i_ground``
+    (n,) that marker is on ground, ``on_i_body`` (n, S) the slot's marker is on that marker's
+    body."""
 
-    batch = None
-    slot_map = None          # (rows, batch slot, family slot)
-    sc_map = None            # (rows, batch column, family column)
+    batch: object                    # poise.expr.Batch
+    slot_map: tuple                  # (rows, batch slot, family slot)
+    sc_map: tuple                    # (rows, batch column, family column)
+    yy: tuple
+    ys: tuple
+    ss: tuple
+    has_i: np.ndarray
+    i_ground: np.ndarray
+    on_i_body: np.ndarray
 
-    def _xc(self, ctx):
-        return XC(time=float(ctx.t), P=ctx.P, A=ctx.A, angle_ref=ctx.angle, scalars=ctx.extra,
-                  static=True)
+    @property
+    def batches(self) -> tuple:
+        """The expression batches (``registry.expressions_of_time``)."""
+        return (self.batch,)
 
     def values(self, kin, ctx):
-        return self.batch.evaluate(self._xc(ctx)).value[:, None]
+        return self.batch.evaluate(ctx).value[:, None]
 
     def phi_t(self, kin, ctx):
         if not self.batch.depends_on_time:
             return None
-        return self.batch.evaluate(self._xc(ctx)).d_time[:, None]
+        return self.batch.evaluate(ctx).d_time[:, None]
 
     def constraints(self, kin, lam, ctx):
         n, S, U = self.n, len(self.slot_ml), self.U
-        xc = self._xc(ctx)
-        out = self.batch.evaluate(xc)
-        H = self.batch.hessian(xc)
+        out = self.batch.evaluate(ctx)
+        H = self.batch.hessian(ctx)
         r, bs, fs = self.slot_map
         gy = np.zeros((n, S, 3))
         gy[r, fs] = out.d_slot[r, bs]
@@ -63,7 +76,7 @@ class GeneralConstraint(ConstraintFamily):
         lam0 = lam[:, 0]
         Hl = H * lam0[:, None, None]
         G = np.zeros((n, 3 * S, 3 * S))
-        i, sa, sb, da, db = self._yy
+        i, sa, sb, da, db = self.yy
         G[i, da, db] = Hl[i, sa, sb]
         if not U:
             return out.value[:, None], phi_y, G
@@ -72,9 +85,9 @@ class GeneralConstraint(ConstraintFamily):
         phi_s[cr, 0, cf] = out.d_scalar[cr, cb]
         Gys = np.zeros((n, 3 * S, U))
         Gss = np.zeros((n, U, U))
-        i, sa, sb, da, db = self._ys
+        i, sa, sb, da, db = self.ys
         Gys[i, da, db] = Hl[i, sa, sb]
-        i, sa, sb, da, db = self._ss
+        i, sa, sb, da, db = self.ss
         Gss[i, da, db] = Hl[i, sa, sb]
         return out.value[:, None], phi_y, G, {"phi_s": phi_s, "G_ys": Gys, "G_ss": Gss}
 
@@ -99,8 +112,8 @@ class GeneralConstraint(ConstraintFamily):
             pt = m & (kind[:, s] == 0)
             ax = m & (kind[:, s] != 0)
             F[pt] -= r3[pt, s]
-            T[pt] -= _cross(Y[pt, s] - Y[pt, 0], r3[pt, s])
-            T[ax] -= _cross(Y[ax, s], r3[ax, s])
+            T[pt] -= cross3(Y[pt, s] - Y[pt, 0], r3[pt, s])
+            T[ax] -= cross3(Y[ax, s], r3[ax, s])
         F[on_ground] *= -1.0
         T[on_ground] *= -1.0
         none = np.tile(~self.has_i, reps)
@@ -113,10 +126,8 @@ def compile_general(spec, ctx):
     els = spec.elements(TAG)
     if not els:
         return
-    pc, b = ctx.pc, ctx.b
-    res = ctx.resolver()
-    res.allow_reactions = False
-    res.where = "Constraint_General expressions"
+    pc = ctx.pc
+    res = ctx.resolver("Constraint_General expressions")
     keep, exprs = [], []
     for el in els:
         a = el.attrs
@@ -161,7 +172,7 @@ def compile_general(spec, ctx):
         batch = compile_batch_located([exprs[i] for i in sel], res, pc)
         if batch is None:
             return
-    _build(ctx, keep, batch, ground_markers(b))
+    _build(ctx, keep, batch.with_second_order(), ctx.geometry.marker_on_ground)
 
 
 def _build(ctx, els, batch, ground):
@@ -170,32 +181,25 @@ def _build(ctx, els, batch, ground):
                       else GLOBAL for el in els], int)
     markers, scols, smap, cmap = layout(batch, None, ground, first)
     K = markers.shape[1]
-    fam = GeneralConstraint(name="gcons:expression", markers=markers,
-                            slot_ml=np.repeat(np.arange(K), 4),
-                            slot_kind=np.tile(np.tile([0, 1, 2, 3], K), (n, 1)),
-                            owner=np.arange(n), m=1)
-    fam.scols = scols if scols.shape[1] else None
-    fam.batch = batch
-    fam.batches = [batch]
-    fam.slot_map = smap
-    fam.sc_map = cmap
-    fam._yy, fam._ys, fam._ss = _pairs(batch, smap, cmap, n)
-    fam.has_i = np.array([el.attrs.get("i_marker_id") is not None for el in els])
-    fam.i_ground = fam.has_i & ground[first]
+    yy, ys, ss = hessian_pairs(batch, smap, cmap, n)
+    has_i = np.array([el.attrs.get("i_marker_id") is not None for el in els])
     body = _marker_bodies(ctx)
-    fam.on_i_body = np.array([[fam.has_i[i] and body.get(int(m), -1) == body.get(int(first[i]),
-                                                                                   -2)
-                               for m in np.repeat(markers[i], 4)] for i in range(n)], bool)
-    fam.crow = np.array([[ctx.add_row(el, "expr", "trans", "gcons", k)]
-                         for k, el in enumerate(els)], int)
-    fam.group = "gcons"
-    fam.element_locs = [el.loc for el in els]
-    ctx.families.append(fam)
-    ctx.outputs["gcons"] = dict(tag=TAG, ids=np.array([el.id for el in els], int))
+    on_i_body = np.array([[has_i[i] and body.get(int(m), -1) == body.get(int(first[i]), -2)
+                           for m in np.repeat(markers[i], 4)] for i in range(n)], bool)
+    crow = np.array([[ctx.add_row(el, "expr", "trans", "gcons", k)]
+                     for k, el in enumerate(els)], int)
+    ctx.add_family(GeneralConstraint(
+        name="gcons:expression", markers=markers, slot_ml=np.repeat(np.arange(K), 4),
+        slot_kind=np.tile(np.tile([0, 1, 2, 3], K), (n, 1)), owner=np.arange(n), m=1,
+        scols=scols if scols.shape[1] else None, batch=batch, slot_map=smap, sc_map=cmap,
+        yy=yy, ys=ys, ss=ss, has_i=has_i, i_ground=has_i & ground[first], on_i_body=on_i_body,
+        crow=crow, group="gcons",
+        element_locs=tuple(el.loc for el in els)))
+    ctx.output("gcons", TAG, [el.id for el in els])
     ctx.effect(f"{TAG}:EXPRESSION")
 
 
-def _pairs(batch, smap, cmap, n):
+def hessian_pairs(batch, smap, cmap, n):
     """Index arrays ``(instance, batch row, batch column, family row, family column)`` that move
     the batch Hessian's slot-slot, slot-scalar and scalar-scalar entries into the family's
     ``G``, ``G_ys`` and ``G_ss`` (compile time)."""
@@ -223,15 +227,19 @@ def _pairs(batch, smap, cmap, n):
 
 def _marker_bodies(ctx):
     """Compiled marker index -> body id (ground markers share the ground's id)."""
-    b = ctx.b
-    return {b.marker_index[e.attrs.get("id")]: e.attrs.get("body_id") for e in b.marker_els
-            if e.attrs.get("id") in b.marker_index}
+    g = ctx.geometry
+    return {g.marker_index[e.attrs.get("id")]: e.attrs.get("body_id")
+            for e in g.marker_elements if e.attrs.get("id") in g.marker_index}
 
 
 ELEMENTS = (ElementType(
     "gcons", (TAG,), compile_general,
-    after=("rack_pinion", "diff_vars"),   # rows after the joints'; scalar unknowns registered
+    rank=120,                             # rows after the joints', unknowns after the states'
     kernels=lambda: (GeneralConstraint,), potential_energy=workless,
     time_dependent=expressions_of_time,
-    outputs={"gcons": (TAG,)}, datasets=("id", "force", "torque"),
+    outputs=(OutputGroup("gcons", "Gc", "gcon", "general constraint",
+                         "`Constraint_General`", (TAG,),
+                         load="the constraint's load on the body of its `i_marker_id`, reduced "
+                         "to that marker's origin, global axes; NaN when the element names no "
+                         "`i_marker_id` (MotionSolve gives no reaction then)"),),
     fd_tests="tests/reference/test_general_constraint.py"),)

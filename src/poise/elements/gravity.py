@@ -11,6 +11,8 @@ when gravity was a special case of the evaluation, which keeps results files byt
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from poise.deck.spec import Expr
@@ -19,19 +21,21 @@ from poise.elements.context import num
 from poise.elements.registry import (ElementType, FDCase, batch_time_sources,
                                      kernel_potential)
 from poise.elements.resolver import compile_batch_located
-from poise.expr import EvalContext as XC
+from poise.expr import EvalContext
 
 ATTRS = ("grav_x", "grav_y", "grav_z")
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class GravityLoad(ForceFamily):
     """``rho = -m g`` at each body's CG marker. ``mass`` (n,) effective body masses; ``g``
     (1, 3) constant acceleration (one row: the frame tiler repeats only per-instance arrays),
     or ``batch``: the three components as TIME-only expressions."""
 
     eval_last = True
-    g = None
-    batch = None
+    mass: np.ndarray
+    g: np.ndarray | None = None
+    batch: object = None
 
     def g_blocks(self):
         return np.zeros((1, 1), bool)        # a constant load: no tangent
@@ -42,7 +46,7 @@ class GravityLoad(ForceFamily):
         if self.batch is None:
             return self.g
         ts = np.atleast_1d(np.asarray(t, float))
-        gs = np.array([np.asarray(self.batch.evaluate(XC(time=float(x))).value, float)
+        gs = np.array([np.asarray(self.batch.evaluate(EvalContext(t=float(x))).value, float)
                        for x in ts]).reshape(len(ts), 3)
         return np.repeat(gs, self.n // len(ts), axis=0)
 
@@ -65,9 +69,7 @@ def compile_gravity(spec, ctx):
     comps = [el.attrs.get(k, 0.0) for k in ATTRS]
     g, batch = None, None
     if any(isinstance(c, Expr) for c in comps):
-        res = ctx.resolver()
-        res.where = "gravity"
-        batch = compile_batch_located(comps, res, ctx.pc)
+        batch = compile_batch_located(comps, ctx.resolver("gravity"), ctx.pc)
         if batch is None:
             return
         if batch.depends_on_state:
@@ -79,15 +81,12 @@ def compile_gravity(spec, ctx):
         g = np.array([num(el, k, 0.0) for k in ATTRS], float).reshape(1, 3)
         if not np.any(g != 0):
             return
-    cg, mass = ctx.body_centres()
+    cg, mass = ctx.geometry.body_cg, ctx.geometry.body_mass
     n = len(cg)
-    fam = GravityLoad(name="gravity", markers=np.asarray(cg, int).reshape(n, 1),
-                      slot_ml=np.zeros(1, int), slot_kind=np.zeros((n, 1), int),
-                      owner=np.arange(n))
-    fam.mass = np.asarray(mass, float)
-    fam.g, fam.batch = g, batch
-    fam.element_locs = [el.loc] * n
-    ctx.families.append(fam)
+    ctx.add_family(GravityLoad(name="gravity", markers=np.asarray(cg, int).reshape(n, 1),
+                               slot_ml=np.zeros(1, int), slot_kind=np.zeros((n, 1), int),
+                               owner=np.arange(n), mass=np.asarray(mass, float), g=g,
+                               batch=batch, element_locs=(el.loc,) * n))
 
 
 def _time_sources(fam) -> list:
@@ -97,8 +96,9 @@ def _time_sources(fam) -> list:
 
 ELEMENTS = (ElementType(
     "gravity", ("Force_Gravity",), compile_gravity,
-    # no compile dependency: compiled first, its family leads the model's families (the order
-    # in which the potential energy is summed)
+    # first: its family leads the model's families (the order in which the potential energy
+    # is summed)
+    rank=0,
     kernels=lambda: (GravityLoad,), tileable=lambda: (GravityLoad,),
     potential_energy=kernel_potential, time_dependent=_time_sources,
     fd_cases=lambda: (FDCase("Force_Gravity", (("Force_Gravity", {

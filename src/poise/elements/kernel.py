@@ -107,7 +107,7 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) ->
     return SlotKinematics(Y=Y, V=V, pt=pt, slot_ml=np.asarray(slot_ml), K=K)
 
 
-def _cross(a, b):
+def cross3(a, b):
     """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
@@ -119,7 +119,7 @@ def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     ``v_s x rho_s`` on its rotation."""
     n, S = kin.pt.shape
     rho3 = rho.reshape(n, S, 3)
-    vr = _cross(kin.V, rho3)                                   # (n, S, 3)
+    vr = cross3(kin.V, rho3)                                   # (n, S, 3)
     r = np.zeros((n, 2 * K, 3))
     pt = kin.pt
     for s in range(S):
@@ -224,12 +224,10 @@ class LocalPattern:
 
 
 def local_pattern(fam) -> LocalPattern:
-    """The (cached) :class:`LocalPattern` of a family."""
-    pat = getattr(fam, "_local_pattern", None)
-    if pat is None:
-        pat = LocalPattern(fam)
-        fam._local_pattern = pat
-    return pat
+    """The :class:`LocalPattern` of a family: the one of its model layout (``fam.pattern``), or
+    built now for a family outside a model."""
+    pat = fam.pattern
+    return LocalPattern(fam) if pat is None else pat
 
 
 def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | None):
@@ -314,7 +312,7 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
     m = phi_y.shape[1]
     py = phi_y.reshape(n, m, S, 3)
     # rotation columns: p^T (-Sk_s) = (v_s x p)^T
-    rot = _cross(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
+    rot = cross3(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
     Pq = np.zeros((n, m, 2 * K, 3))
     pt = kin.pt
     for s in range(S):

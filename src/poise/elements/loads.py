@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.elements.base import _cross
+from poise.elements.kernel import cross3
 
 
 def element_loads(model, state, lam=None, ev=None):
@@ -36,7 +36,7 @@ def loads_of(model, items, lam=None, frames: int = 1):
     for fam, kin, rho, phy in items:
         if phy is not None and lam is not None:
             rho = np.einsum("nmy,nm->ny", phy, lam[fam.crow])
-        group = getattr(fam, "group", None)
+        group = fam.group
         if group is None or group not in model.outputs:
             continue
         n_out = len(model.outputs[group]["ids"]) * frames
@@ -58,7 +58,7 @@ def loads_of(model, items, lam=None, frames: int = 1):
             pt = kind == 0
             Fi[pt] -= rho3[pt, s]
             ax = ~pt
-            Ti[ax] -= _cross(kin.Y[ax, s], rho3[ax, s])
+            Ti[ax] -= cross3(kin.Y[ax, s], rho3[ax, s])
         np.add.at(F, fam.owner, Fi)
         np.add.at(T, fam.owner, Ti)
     return out

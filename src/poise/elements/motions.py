@@ -1,156 +1,68 @@
 """Motion constraints: ``measure(I, J) - target(t) = 0`` (Motion_Joint, Motion_Marker).
 
-Slot layout (markers I, J): ``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J]`` (slots 0..7).
-Every measure is built from *dot terms* ``a . b`` of two slot vectors, whose gradient and
-Hessian with respect to the slots are exact and cheap.
-
-The measures X, Y, Z, AZ and B1..B3: :func:`measure`. The time-dependent target is supplied by
-a :class:`MotionTargets` object (values and d/dt of all motions at a time).
+The measures X, Y, Z, AZ and B1..B3 between the markers I and J (slots and exact derivatives:
+:mod:`poise.elements.measures`). The time-dependent target is supplied by a
+:class:`MotionTargets` object (values and d/dt of all motions at a time).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from poise.core.errors import DeckError, Problem
 from poise.deck.spec import Expr
 from poise.elements.base import ConstraintFamily
-from poise.elements.registry import ElementType, workless
+from poise.elements.measures import N_SLOTS, SLOT_KIND, SLOT_ML, measure
+from poise.elements.registry import ElementType, OutputGroup, workless
 from poise.expr import EvalContext, compile_batch
 
 
-S_PI, S_XI, S_YI, S_ZI, S_PJ, S_XJ, S_YJ, S_ZJ = range(8)
-N_SLOTS = 8
-W = 3 * N_SLOTS
-SLOT_ML = np.array([0, 0, 0, 0, 1, 1, 1, 1])
-SLOT_KIND = np.array([0, 1, 2, 3, 0, 1, 2, 3])
-_I3 = np.eye(3)
 MEASURES = ("X", "Y", "Z", "AZ", "B1", "B2", "B3")
 ROTATIONAL = ("AZ", "B1", "B2", "B3")
-_AXJ = {"X": S_XJ, "Y": S_YJ, "Z": S_ZJ}
-_AXI = (S_XI, S_YI, S_ZI)
-_AXJL = (S_XJ, S_YJ, S_ZJ)
 
 
-def _sl(s):
-    return slice(3 * s, 3 * s + 3)
-
-
-def dot_term(Y, a, b, sign=1.0, need_hess=True):
-    """``sign * (y_a . y_b)``: value (n,), gradient (n, W), Hessian (n, W, W) or None."""
-    n = Y.shape[0]
-    v = sign * np.einsum("ni,ni->n", Y[:, a], Y[:, b])
-    g = np.zeros((n, W))
-    g[:, _sl(a)] += sign * Y[:, b]
-    g[:, _sl(b)] += sign * Y[:, a]
-    H = None
-    if need_hess:
-        H = np.zeros((W, W))
-        H[_sl(a), _sl(b)] += sign * _I3
-        H[_sl(b), _sl(a)] += sign * _I3
-        H = np.broadcast_to(H, (n, W, W))
-    return v, g, H
-
-
-def _sum(*terms):
-    v = sum(t[0] for t in terms)
-    g = sum(t[1] for t in terms)
-    H = None if terms[0][2] is None else sum(t[2] for t in terms)
-    return v, g, H
-
-
-def atan2_term(s, c):
-    """``atan2(s, c)`` of two dot-term expressions, with exact gradient and Hessian."""
-    (sv, gs, Hs), (cv, gc, Hc) = s, c
-    r2 = sv * sv + cv * cv
-    num = cv[:, None] * gs - sv[:, None] * gc
-    g = num / r2[:, None]
-    H = None
-    if Hs is not None:
-        A = (gs[:, :, None] * gc[:, None, :] - gc[:, :, None] * gs[:, None, :]
-             + cv[:, None, None] * Hs - sv[:, None, None] * Hc)
-        dr2 = 2.0 * (cv[:, None] * gc + sv[:, None] * gs)
-        H = A / r2[:, None, None] - num[:, :, None] * dr2[:, None, :] / (r2 ** 2)[:, None, None]
-    return np.arctan2(sv, cv), g, H
-
-
-def asin_term(u):
-    uv, gu, Hu = u
-    uc = np.clip(uv, -1.0, 1.0)
-    q = np.sqrt(np.maximum(1.0 - uc * uc, 1e-300))
-    g = gu / q[:, None]
-    H = None
-    if Hu is not None:
-        H = Hu / q[:, None, None] + (uc / q ** 3)[:, None, None] * gu[:, :, None] * gu[:, None, :]
-    return np.arcsin(uc), g, H
-
-
-def measure(Y, name, need_hess=True):
-    """Value (n,), gradient (n, W), Hessian (n, W, W) of a motion measure (principal angles).
-
-    * ``X``, ``Y``, ``Z``: ``DX/DY/DZ(I,J,J) = (P_I - P_J) . a_J`` (a_J = x_J, y_J, z_J);
-    * ``AZ``: continuous ``AZ(I,J)`` (angle table, turns counted); derivatives of
-      ``atan2(x_I . y_J, x_I . x_J)``;
-    * ``B1, B2, B3``: the angles of a **body-fixed 1-2-3 sequence** of I relative to J,
-      ``R = A_J^T A_I = Rx(b1) Ry(b2) Rz(b3)``: ``b2 = asin(R_02)``,
-      ``b1 = atan2(-R_12, R_22)``, ``b3 = atan2(-R_01, R_00)`` with ``R_ij = a_J,i . a_I,j``
-      (principal values; b2 in [-pi/2, pi/2]).
-
-    The multiplier-weighted Hessian ``G = lam d2 phi / dy2`` is exact (FD-checked in
-    ``tests/reference/test_motions.py``).
-    """
-    if name in _AXJ:
-        a = _AXJ[name]
-        return _sum(dot_term(Y, S_PI, a, 1.0, need_hess), dot_term(Y, S_PJ, a, -1.0, need_hess))
-    if name == "AZ":
-        return atan2_term(dot_term(Y, S_XI, S_YJ, 1.0, need_hess),
-                          dot_term(Y, S_XI, S_XJ, 1.0, need_hess))
-
-    def R(i, j, sign=1.0):        # R_ij = a_J,i . a_I,j
-        return dot_term(Y, _AXJL[i], _AXI[j], sign, need_hess)
-    if name == "B1":
-        return atan2_term(R(1, 2, -1.0), R(2, 2))
-    if name == "B2":
-        return asin_term(R(0, 2))
-    if name == "B3":
-        return atan2_term(R(0, 1, -1.0), R(0, 0))
-    raise ValueError(name)
-
-
+@dataclass(frozen=True, eq=False, kw_only=True)
 class MotionConstraint(ConstraintFamily):
-    """``measure(I, J) - target_k(t) = 0`` for one measure kind (attribute ``measure``).
+    """``measure(I, J) - target_k(t) = 0`` for one measure kind.
 
-    Attributes (set by :meth:`build`)
+    Attributes
     ----------
     measure : str
         One of :data:`MEASURES`.
     targets : MotionTargets
-        Shared target provider; ``self.tidx`` (n,) selects this family's motions.
+        Shared target provider; ``tidx`` (n,) selects this family's motions.
     angle_index : (n,) int or None
         Continuous-angle table entries for ``AZ``.
+
+    Tileable across frames (:mod:`poise.model.frame_batch`): the per-instance arrays tiled by
+    the generic tiler suffice; :meth:`constraints` then reads one time per frame.
     """
 
+    measure: str
+    targets: "MotionTargets"
+    tidx: np.ndarray
+    angle_index: np.ndarray | None = None
+
     @classmethod
-    def build(cls, name, I, J, measure_name, targets, tidx, owner):
+    def build(cls, name, I, J, measure_name, targets, tidx, owner, **layout):
         n = len(I)
-        fam = cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=SLOT_ML,
-                  slot_kind=np.broadcast_to(SLOT_KIND, (n, N_SLOTS)).copy(),
-                  owner=np.asarray(owner, int), m=1)
-        fam.measure = measure_name
-        fam.targets = targets
-        fam.tidx = np.asarray(tidx, int)
-        fam.angle_index = None
-        return fam
+        return cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=SLOT_ML,
+                   slot_kind=np.broadcast_to(SLOT_KIND, (n, N_SLOTS)).copy(),
+                   owner=np.asarray(owner, int), m=1, measure=measure_name, targets=targets,
+                   tidx=np.asarray(tidx, int), **layout)
 
-    def tile_frames(self, t, F, model):
-        """Frame tiling (:mod:`poise.model.frame_batch`): the per-instance arrays tiled by the
-        generic tiler suffice; :meth:`constraints` then reads one time per frame."""
+    def _values(self, t, ctx):
+        memo = None if ctx.workspace is None else ctx.workspace.scratch(self.targets, TargetMemo)
+        return self.targets.values(t, memo)
 
-    def _targets(self, tt):
-        """Target of each instance at time ``tt`` (scalar), or at one time per frame (array
+    def _targets(self, ctx):
+        """Target of each instance at time ``ctx.t`` (scalar), or at one time per frame (array
         of F times; instances frame-major)."""
+        tt = ctx.t
         if np.ndim(tt) == 0:
-            return self.targets.values(tt)[0][self.tidx]
-        vals = np.stack([self.targets.values(float(x))[0] for x in tt])     # (F, n_targets)
+            return self._values(tt, ctx)[0][self.tidx]
+        vals = np.stack([self._values(float(x), ctx)[0] for x in tt])     # (F, n_targets)
         return vals[np.arange(self.n) // (self.n // len(tt)), self.tidx]
 
     def constraints(self, kin, lam, ctx):
@@ -158,13 +70,13 @@ class MotionConstraint(ConstraintFamily):
         v, g, H = measure(kin.Y, self.measure, need_hess)
         if self.measure == "AZ" and self.angle_index is not None:
             v = ctx.angle[self.angle_index]
-        phi = (v - self._targets(ctx.t))[:, None]
+        phi = (v - self._targets(ctx))[:, None]
         phi_y = g[:, None, :]
         G = lam[:, 0][:, None, None] * H
         return phi, phi_y, G
 
     def phi_t(self, kin, ctx):
-        _, df = self.targets.values(ctx.t)
+        _, df = self._values(ctx.t, ctx)
         return -df[self.tidx][:, None]
 
 
@@ -184,15 +96,15 @@ def _gauss_legendre():
 class _Resolver:
     """Minimal resolver: markers and explicit variables; anything state-like is flagged later."""
 
-    def __init__(self, spec, b):
+    def __init__(self, spec, marker_index):
         self.spec = spec
-        self.b = b
+        self.index = marker_index
         self._angles = 0
 
     def marker_index(self, id):
         if id == 0:
             raise KeyError(id)
-        return self.b.marker_index[id]
+        return self.index[id]
 
     def variable(self, id):
         for e in self.spec.elements("Reference_Variable"):
@@ -224,6 +136,17 @@ class _Resolver:
         return self._angles - 1
 
 
+class TargetMemo:
+    """What evaluating motion targets keeps within one solve (the solve's workspace): values
+    per time and the cumulative integrals of V/A motions at ``t0 + k * INTEGRATION_PANEL``."""
+
+    __slots__ = ("values", "grid")
+
+    def __init__(self):
+        self.values: dict = {}
+        self.grid: list = []
+
+
 class MotionTargets:
     """Target displacements of all motions of a model and their time derivatives.
 
@@ -236,6 +159,8 @@ class MotionTargets:
         Start of the numerical integration of V/A motions.
     """
 
+    __slots__ = ("batch", "consts", "val_type", "ic_disp", "ic_vel", "t0", "n", "time_dep")
+
     def __init__(self, batch, consts, val_type, ic_disp, ic_vel, t0=0.0):
         self.batch = batch
         self.consts = np.asarray(consts, float)
@@ -244,9 +169,7 @@ class MotionTargets:
         self.ic_vel = np.asarray(ic_vel, float)
         self.t0 = float(t0)
         self.n = len(self.val_type)
-        self._cache: dict = {}
-        self._grid = [np.zeros((2, self.n))]     # cumulative (int f, int tau f) at t0 + k*panel
-        self._time_dep = self._compute_time_dep()
+        self.time_dep = self._compute_time_dep()
 
     def _compute_time_dep(self):
         dep = np.zeros(self.n, bool)
@@ -259,13 +182,13 @@ class MotionTargets:
     def time_dependent(self, idx) -> np.ndarray:
         """(len(idx),) bool: the targets ``idx`` that move with time (an expression of TIME, or
         a velocity / acceleration motion, integrated from the start time)."""
-        return self._time_dep[np.asarray(idx, int)]
+        return self.time_dep[np.asarray(idx, int)]
 
     def f(self, t):
         """Expression values and d/dTIME, (n,) each."""
         if self.batch is None:
             return self.consts.copy(), np.zeros(self.n)
-        out = self.batch.evaluate(EvalContext(time=float(t)))
+        out = self.batch.evaluate(EvalContext(t=float(t)))
         return out.value, out.d_time
 
     def _panel(self, a, b):
@@ -282,7 +205,7 @@ class MotionTargets:
             acc[1] += w * h * tau * fv
         return acc
 
-    def _integrals(self, t):
+    def _integrals(self, t, memo):
         t0, P = self.t0, INTEGRATION_PANEL
         if t < t0:
             acc = np.zeros((2, self.n))
@@ -292,15 +215,20 @@ class MotionTargets:
                 acc -= self._panel(a, b)
             return acc
         k = int(np.floor((t - t0) / P))
-        while len(self._grid) <= k:
-            j = len(self._grid) - 1
-            self._grid.append(self._grid[-1] + self._panel(t0 + j * P, t0 + (j + 1) * P))
-        return self._grid[k] + self._panel(t0 + k * P, t)
+        grid = memo.grid
+        if not grid:
+            grid.append(np.zeros((2, self.n)))   # cumulative (int f, int tau f) at t0 + k*panel
+        while len(grid) <= k:
+            j = len(grid) - 1
+            grid.append(grid[-1] + self._panel(t0 + j * P, t0 + (j + 1) * P))
+        return grid[k] + self._panel(t0 + k * P, t)
 
-    def values(self, t):
-        """Targets and their time derivatives at ``t``, (n,) each (cached per t)."""
+    def values(self, t, memo: TargetMemo | None = None):
+        """Targets and their time derivatives at ``t``, (n,) each; ``memo`` (the solve's,
+        else a fresh one) keeps them per t and the integrals of V/A motions."""
+        memo = TargetMemo() if memo is None else memo
         t = float(t)
-        hit = self._cache.get(t)
+        hit = memo.values.get(t)
         if hit is not None:
             return hit
         fv, df = self.f(t)
@@ -311,16 +239,16 @@ class MotionTargets:
             dtg = df.copy()
             isv = self.val_type == "V"
             isa = self.val_type == "A"
-            I = self._integrals(t)
+            I = self._integrals(t, memo)
             tgt[isv] = self.ic_disp[isv] + I[0, isv]
             dtg[isv] = fv[isv]
             dt = t - self.t0
             tgt[isa] = (self.ic_disp[isa] + self.ic_vel[isa] * dt + t * I[0, isa] - I[1, isa])
             dtg[isa] = self.ic_vel[isa] + I[0, isa]
             res = (tgt, dtg)
-        if len(self._cache) > 256:
-            self._cache.clear()
-        self._cache[t] = res
+        if len(memo.values) > 256:
+            memo.values.clear()
+        memo.values[t] = res
         return res
 
 
@@ -341,7 +269,7 @@ def compile_motions(spec, ctx):
     :func:`poise.expr.compile_batch`; an expression that reads the state (markers, reactions,
     variables with unknowns) is rejected ("state-dependent motion not supported yet").
     """
-    b = ctx.b
+    mk = ctx.marker
     pc = ctx.pc
     els = spec.elements("Motion_Joint") + spec.elements("Motion_Marker")
     if not els:
@@ -364,7 +292,7 @@ def compile_motions(spec, ctx):
                          "expected R on REVOLUTE/CYLINDRICAL, T on TRANSLATIONAL/CYLINDRICAL",
                          "joint_type")
                 continue
-            I, J = b.mk(jel, "i_marker_id"), b.mk(jel, "j_marker_id")
+            I, J = mk(jel, "i_marker_id"), mk(jel, "j_marker_id")
             items.append((el, I, J, "AZ" if fr == "R" else "Z"))
         else:
             d = str(el.attrs.get("direction", "")).upper()
@@ -372,7 +300,7 @@ def compile_motions(spec, ctx):
                 pc.error(el.loc, f"direction {d} is not supported; expected X, Y, Z, B1, B2, B3",
                          "direction")
                 continue
-            items.append((el, b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id"), d))
+            items.append((el, mk(el, "i_marker_id"), mk(el, "j_marker_id"), d))
     exprs, vt, icd, icv = [], [], [], []
     for el, *_ in items:
         if str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB":
@@ -390,7 +318,7 @@ def compile_motions(spec, ctx):
     batch = None
     if any(isinstance(e, Expr) for e in exprs):
         try:
-            batch = compile_batch(exprs, _Resolver(spec, b))
+            batch = compile_batch(exprs, _Resolver(spec, ctx.geometry.marker_index))
         except DeckError as err:
             if "state-dependent" in str(err):
                 raise
@@ -408,20 +336,16 @@ def compile_motions(spec, ctx):
         kind = "rot" if meas in ROTATIONAL else "trans"
         row = ctx.add_row(el, f"{meas}-f(t)", kind, group, k)
         by_measure.setdefault(meas, []).append((k, I, J, row))
-        b.effects.append(f"{el.tag}:{meas}")
+        ctx.effect(f"{el.tag}:{meas}")
     for meas, lst in by_measure.items():
-        f = MotionConstraint.build(f"motions:{meas}", np.array([x[1] for x in lst]),
-                                      np.array([x[2] for x in lst]), meas, targets,
-                                      [x[0] for x in lst], [x[0] for x in lst])
-        if meas == "AZ":
-            f.angle_index = np.array([ctx.angle(x[1], x[2], 2) for x in lst], int)
-        f.crow = np.array([[x[3]] for x in lst], int)
-        f.group = group
-        f.element_locs = [items[x[0]][0].loc for x in lst]
-        ctx.families.append(f)
-    ctx.outputs[group] = dict(tag=np.array([it[0].tag for it in items]),
-                              ids=np.array([it[0].id for it in items], int))
-    ctx.motion_targets = targets
+        ang = (np.array([ctx.angle(x[1], x[2], 2) for x in lst], int) if meas == "AZ"
+               else None)
+        ctx.add_family(MotionConstraint.build(
+            f"motions:{meas}", np.array([x[1] for x in lst]), np.array([x[2] for x in lst]),
+            meas, targets, [x[0] for x in lst], [x[0] for x in lst], angle_index=ang,
+            crow=np.array([[x[3]] for x in lst], int), group=group,
+            element_locs=tuple(items[x[0]][0].loc for x in lst)))
+    ctx.output(group, np.array([it[0].tag for it in items]), [it[0].id for it in items])
 
 
 def motion_time_sources(fam) -> list:
@@ -438,10 +362,14 @@ def motion_time_sources(fam) -> list:
 
 ELEMENTS = (ElementType(
     "motions", ("Motion_Joint", "Motion_Marker"), compile_motions,
-    after=("forces",),          # motion rows after the joint rows, families after forces
-    kernels=lambda: (MotionConstraint,), potential_energy=workless,
+    rank=30,                    # motion rows after the joint rows, families after forces
+    kernels=lambda: (MotionConstraint,), tileable=lambda: (MotionConstraint,),
+    potential_energy=workless,
     time_dependent=motion_time_sources,
-    outputs={"motions": ("Motion_Joint", "Motion_Marker")}, datasets=("id", "force", "torque"),
+    outputs=(OutputGroup("motions", "Mo", "motion", "motion", "`Motion_Joint` / `Motion_Marker`",
+                         ("Motion_Joint", "Motion_Marker"),
+                         load="driving force the motion applies to the body of its I marker, "
+                         "at the I origin, global axes"),),
     reactions={"MOTION": ("motions", ("Motion_Joint", "Motion_Marker"))},
     reaction_aliases={"MOTION_JOINT": "MOTION"},
     fd_tests="tests/reference/test_motions.py"),)

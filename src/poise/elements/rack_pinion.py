@@ -16,14 +16,17 @@ pinion and the rack. Its reaction joins the ``joints`` output group (``JOINT(id,
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from poise.elements.base import ConstraintFamily
+from poise.elements.constraints import JOINTS
 from poise.elements.context import num
-from poise.elements.motions import (S_PI, S_PJ, S_XI, S_YI, S_ZJ, SLOT_KIND, SLOT_ML,
+from poise.elements.measures import (S_PI, S_PJ, S_XI, S_YI, S_ZJ, SLOT_KIND, SLOT_ML,
                                     atan2_term, dot_term)
 from poise.elements.registry import ElementType, FDCase, static, workless
-from poise.elements.screw import add_joint_family
+from poise.elements.screw import joint_layout
 
 #: smallest |sin| of the angle between the pinion axis z_I and the rack direction z_J
 AXIS_SIN_MIN = 1e-3
@@ -39,20 +42,23 @@ def _rows(Y, need_hess=True):
     return (zi + zj, gzi + gzj, ph, gph, H)
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class RackPinion(ConstraintFamily):
-    """``d . z_J - r (phi - phi0) - c0 = 0`` with ``r = PD/2``. Slots: the 8 slots of
-    :mod:`poise.elements.motions` ``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J]``."""
+    """``d . z_J - r (phi - phi0) - c0 = 0`` with ``r = PD/2``, ``c0`` (n,) and ``angle_index``
+    (n,) the angle table's phi. Slots: the 8 slots of :mod:`poise.elements.motions`
+    ``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J]``."""
+
+    r: np.ndarray
+    c0: np.ndarray
+    angle_index: np.ndarray
 
     @classmethod
-    def build(cls, name, I, J, r, c0, angle_index, owner):
+    def build(cls, name, I, J, r, c0, angle_index, owner, **layout):
         n = len(I)
-        fam = cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=SLOT_ML,
-                  slot_kind=np.broadcast_to(SLOT_KIND, (n, len(SLOT_KIND))).copy(),
-                  owner=np.asarray(owner, int), m=1)
-        fam.r = np.asarray(r, float)
-        fam.c0 = np.asarray(c0, float)
-        fam.angle_index = np.asarray(angle_index, int)
-        return fam
+        return cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=SLOT_ML,
+                   slot_kind=np.broadcast_to(SLOT_KIND, (n, len(SLOT_KIND))).copy(),
+                   owner=np.asarray(owner, int), m=1, r=np.asarray(r, float),
+                   c0=np.asarray(c0, float), angle_index=np.asarray(angle_index, int), **layout)
 
     def values(self, kin, ctx):
         z, _, _, _, _ = _rows(kin.Y, need_hess=False)
@@ -72,14 +78,13 @@ def compile_rack_pinions(spec, ctx):
            if str(e.attrs.get("type", "")).upper() == "RACK_PINION"]
     if not els:
         return
-    out = ctx.outputs.setdefault("joints", dict(tag="Constraint_Joint", ids=np.zeros(0, int)))
-    first = len(out["ids"])
+    first = ctx.extend_output("joints", "Constraint_Joint", [e.id for e in els])
     I, J, r, c0, ang, rows = [], [], [], [], [], []
-    glob = ctx.b.marker_glob
     for k, el in enumerate(els):
         i, j = ctx.marker(el, "i_marker_id"), ctx.marker(el, "j_marker_id")
         rk = 0.5 * float(num(el, "pitch_diameter", 0.0, ctx.pc) or 0.0)
-        gi, gj = glob.get(el.attrs.get("i_marker_id")), glob.get(el.attrs.get("j_marker_id"))
+        gi = ctx.marker_pose(el.attrs.get("i_marker_id"))
+        gj = ctx.marker_pose(el.attrs.get("j_marker_id"))
         z0 = phi0 = 0.0
         if gi is not None and gj is not None:
             (pi, Ai), (pj, Aj) = gi, gj
@@ -99,17 +104,17 @@ def compile_rack_pinions(spec, ctx):
         c0.append(z0 - rk * phi0)
         ang.append(ctx.angle(j, i, 3))          # direction of z_J in I's x-y plane
         rows.append([ctx.add_row(el, "rack-r*pinion", "trans", "joints", first + k)])
-    f = RackPinion.build("joints:rack_pinion", np.array(I), np.array(J), r, c0, ang,
-                         np.arange(first, first + len(els)))
-    add_joint_family(ctx, out, els, f, rows, "RACK_PINION")
+    ctx.effect("Constraint_Joint:RACK_PINION")
+    ctx.add_family(RackPinion.build("joints:rack_pinion", np.array(I), np.array(J), r, c0, ang,
+                                    np.arange(first, first + len(els)),
+                                    **joint_layout(els, rows)))
 
 
 ELEMENTS = (ElementType(
     "rack_pinion", ("Constraint_Joint",), compile_rack_pinions, types=("RACK_PINION",),
-    after=("screw",),                     # its row and reaction follow the other joints'
+    rank=110,                             # its row and reaction follow the screws'
     kernels=lambda: (RackPinion,), potential_energy=workless, time_dependent=static,
-    outputs={"joints": ("Constraint_Joint",)},
-    datasets=("id", "force", "torque"),
+    outputs=(JOINTS,),
     fd_cases=lambda: (FDCase("Constraint_Joint:RACK_PINION",
                              (("Constraint_Joint", {"type": "RACK_PINION",
                                                     "pitch_diameter": 0.7}),),

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.elements.base import GLOBAL, column_map, columns_array
-from poise.elements.kernel import SlotKinematics, _cross, local_residual_tangent
-from poise.elements.channels import _resultant_side
-from poise.elements.expr_forces import apply_two_body_w
+from poise.elements.base import GLOBAL
+from poise.elements.channels import ExprInfo, resultant_side
+from poise.elements.forces import apply_two_body
+from poise.elements.kernel import SlotKinematics, cross3, local_residual_tangent
 from poise.elements.loads import loads_of
 from poise.elements.rotation import skew
 
@@ -59,7 +59,7 @@ class _Weights:
         if len(self.fl):
             d = P[self.fei] - P[self.fej]
             b = w[self.fl, 3:]
-            w[self.fl, :3] = -w[self.fl, :3] - _cross(b, d)
+            w[self.fl, :3] = -w[self.fl, :3] - cross3(b, d)
             w[self.fl, 3:] = -b
         return w
 
@@ -85,6 +85,17 @@ class _RMBlock:
     __slots__ = ("ri", "sel", "ch", "rm", "axis", "off")
 
 
+class ReactionChannels:
+    """What the compiler registers (:meth:`poise.elements.context.CompileContext.
+    set_reaction_channels`): the reaction channels forces read. The model compiler builds the
+    :class:`ReactionFeed` from it once the families are laid out."""
+
+    __slots__ = ("channels",)
+
+    def __init__(self, channels):
+        self.channels = tuple(channels)
+
+
 class ReactionFeed:
     """Reaction channels read by expression forces, evaluated inside ``Model.evaluate``.
 
@@ -97,32 +108,33 @@ class ReactionFeed:
     multipliers.
 
     Both :meth:`values` and :meth:`coupling` are vectorised over channels and entries: their
-    index arrays are built once (:class:`ChannelPlan`, :meth:`setup`), the per-evaluation Python
-    work is O(groups), not O(channels) or O(entries).
+    index arrays are built once, with the model (:class:`ChannelPlan`, :meth:`_setup`), the
+    per-evaluation Python work is O(groups), not O(channels) or O(entries). ``model`` is the
+    model being built (its families laid out); ``element_markers`` ``(tag, id) -> (I, J)``.
+    :attr:`blocks`: the coupling pattern the model's assembler registers.
     """
 
-    def __init__(self, channels, info, readers):
-        self.channels = list(channels)
-        self.info = info
-        self.readers = list(readers)
-        self.plan = None
-        self.groups = []
-        self.rm_blocks = []
-        self._last = None
+    __slots__ = ("channels", "info", "plan", "blocks", "entries", "groups", "rm_blocks",
+                 "_mlever", "_pairs", "_inst", "_qcols", "_need_f")
+
+    def __init__(self, model, reaction_channels, element_markers):
+        self.channels = tuple(reaction_channels.channels)
+        self.info = ExprInfo(model.outputs, element_markers)
+        self.plan = self.info.plan(model, self.channels)
+        self.blocks = tuple(self._setup(model))
 
     def values(self, model, items, P, A):
+        """``(channel values, Dg)``: the channels at the evaluation's families ``items``
+        (kept ``(fam, kin, rho, phi_y)``) and their (F, T) in global axes (:meth:`coupling`)."""
         D, Dg = self._vectors(model, items, P, A)
-        self._last = (P, D, Dg)
-        return self.plan.pick(D)
+        return self.plan.pick(D), Dg
 
     def _vectors(self, model, items, P, A):
-        if self.plan is None:
-            self.plan = self.info.plan(model, self.channels)
         return self.plan.vectors(loads_of(model, items), P, A, glob=True)
 
     # ------------------------------------------------------------------ Jacobian blocks
-    def setup(self, model):
-        """Coupling pattern (called by ``Model.finalize``). Per (reader instance, channel,
+    def _setup(self, model):
+        """Coupling pattern (with the model). Per (reader instance, channel,
         contributing instance the channel sums: a constraint-family instance of a joint, jprim
         or motion, or a force-family instance of a force element) one ``(12, m + Lq)`` block
         of the KKT Jacobian: the reader's I and J coordinates x the contributor's multipliers (m,
@@ -136,11 +148,11 @@ class ReactionFeed:
         :attr:`entries` (E, 9) lists the entries in reader order: ``(reader family, instance,
         local column u, channel, contributing family, instance j, flip, I, J)``."""
         fams = model.families
-        owners = self.info.owner_maps(model)
+        owners = self.info.owners
         inv = {g: {o: key for key, o in om.items()} for g, om in owners.items()}
         by_key, by_mk = {}, {}              # contributing instances with a reaction output
         for fi, f in enumerate(fams):
-            if getattr(f, "reads_reactions", False) or getattr(f, "group", None) not in inv:
+            if f.reads_reactions or f.group not in inv:
                 continue
             for j, o in enumerate(np.asarray(f.owner).ravel().tolist()):
                 key = inv[f.group].get(o)
@@ -159,14 +171,13 @@ class ReactionFeed:
                                 for fi, j, ei, ej in by_key.get(tuple(ch[1:4]), ())])
                 continue
             mi, mj = ch[1], ch[2]
-            sides = [(r, _resultant_side(mi, mj, r[2], r[3])) for r in by_mk.get(mi, ())]
+            sides = [(r, resultant_side(mi, mj, r[2], r[3])) for r in by_mk.get(mi, ())]
             contrib.append([(fi, j, side, ei, ej) for (fi, j, ei, ej), side in sides
                             if side is not None])
         rows = []
         for ri, f in enumerate(fams):
-            if not getattr(f, "reads_reactions", False):
+            if not f.reads_reactions:
                 continue
-            _reader_layout(f)
             for i, cs in enumerate(f.rcols.tolist()):
                 for u, c in enumerate(cs):
                     if c >= 0:
@@ -253,7 +264,7 @@ class ReactionFeed:
                            np.broadcast_to(mcols[rb.rm, 3:][:, None, :], shape)))
         return blocks
 
-    def coupling(self, model, kept, P, A, row_active, tangents):
+    def coupling(self, model, kept, P, A, row_active, tangents, Dg=None):
         """Values of the :meth:`setup` blocks, exact: ``d r_reader / d (lambda, q)`` through
         the channels. A channel sums, per contributing instance, its action on I (``F = -sum
         rho_s`` over I's point slots, ``T = -sum y_s x rho_s`` over I's axis slots; ``rho =
@@ -268,13 +279,14 @@ class ReactionFeed:
 
         ``kept``: ``{family index: (fam, kin, rho, phi_y)}`` of the families evaluated before
         the readers; ``tangents``: per family index ``Model.evaluate``'s pending tuple ``(fam,
-        kin, rho, G, phi_y, ext)`` (``G``, ``ext`` used). One batched kernel per group."""
+        kin, rho, G, phi_y, ext)`` (``G``, ``ext`` used; a reader's ``ext["d_reaction"]``);
+        ``Dg``: :meth:`values`' second result at this iterate (computed again when None).
+        One batched kernel per group."""
         fams = model.families
-        if self._last is not None and self._last[0] is P:               # same iterate
-            Dg = self._last[2]
-        else:
+        if Dg is None:
             Dg = self._vectors(model, kept.values(), P, A)[1]
-        rl = {ri: _reader_dreaction(fams[ri], kept[ri][1], pi, pu)
+        rl = {ri: _reader_dreaction(fams[ri], kept[ri][1], pi, pu,
+                                    tangents[ri][5]["d_reaction"])
               for ri, (pi, pu) in self._pairs.items()}
         base = {}
         for fi, js in self._inst.items():
@@ -298,17 +310,17 @@ class ReactionFeed:
             if gp.ft is not None:
                 # w_T . (F x dP) = dP . z, z = w_T x F, w_T = -w[3:] (flipped entries);
                 # dP = dr + dtheta x v: columns [z, v x z] on I, [-z, -v x z] on J
-                z = _cross(-w[gp.ft, 0, 3:], F[gp.pos[gp.ft]])
+                z = cross3(-w[gp.ft, 0, 3:], F[gp.pos[gp.ft]])
                 dch = np.empty((len(gp.ft), 12))
                 dch[:, 0:3] = z
-                dch[:, 3:6] = _cross(self._lever(gp.ftei, A), z)
+                dch[:, 3:6] = cross3(self._lever(gp.ftei, A), z)
                 dch[:, 6:9] = -z
-                dch[:, 9:12] = -_cross(self._lever(gp.ftej, A), z)
+                dch[:, 9:12] = -cross3(self._lever(gp.ftej, A), z)
                 out.append(np.einsum("ei,el->eil", r[gp.ft], dch))
         for rb in self.rm_blocks:
             a = A[rb.rm, :, rb.axis]                                         # (Np, 3)
             V = Dg[rb.ch[:, None], rb.off[:, None] + np.arange(3)]
-            out.append(np.einsum("ei,el->eil", rl[rb.ri][rb.sel], _cross(a, V)))
+            out.append(np.einsum("ei,el->eil", rl[rb.ri][rb.sel], cross3(a, V)))
         return out
 
     def _lever(self, mk, A):
@@ -368,14 +380,15 @@ def _pair_index(pi, pu, C, i, u):
 _READER_ROWS = 12
 
 
-def _reader_dreaction(f, kin, pi, pu):
+def _reader_dreaction(f, kin, pi, pu, rgrads):
     """(P, 12) local residual (I and J rows, :data:`_READER_ROWS`) of reader family ``f``'s
     instance ``pi[p]`` per unit change of the reaction channel in its local column ``pu[p]``
-    (the force law is linear in (F, T) at fixed slots: rho(dF/dc, dT/dc))."""
-    dFs, dTs = f.scalar_chain(kin.Y, f._rgrads)                     # (n, 3, C) each
+    (the force law is linear in (F, T) at fixed slots: rho(dF/dc, dT/dc)); ``rgrads`` the
+    family's ``d_reaction`` at this iterate."""
+    dFs, dTs = f.scalar_chain(kin.Y, rgrads)                        # (n, 3, C) each
     sub = SlotKinematics(kin.Y[pi], kin.V[pi], kin.pt[pi], kin.slot_ml, kin.K)
-    drho = apply_two_body_w(sub.Y, dFs[pi, :, pu], dTs[pi, :, pu], None, None,
-                            f.action_only[pi], False)[0]
+    drho = apply_two_body(sub.Y, dFs[pi, :, pu], dTs[pi, :, pu], None, None,
+                          f.action_only[pi], False)[0]
     r = local_residual_tangent(sub, drho, None, f.slot_ml, f.K, False, None, 0)[0]
     return r[:, :_READER_ROWS]
 
@@ -451,13 +464,3 @@ def _constraint_dlam(g, kin, phy, js):
         if ax.any():
             dT[ax] -= np.cross(Y[ax, s][:, :, None], blk[ax], axis=1)
     return dF, dT
-
-
-def _reader_layout(fam):
-    """``fam.rcols`` (n, Cr): reaction channels each instance reads; per batch the map
-    (rows, batch_col, local_col) used to gather ``d_reaction`` (compile time)."""
-    cols = [dict() for _ in range(fam.n)]
-    empty = (np.zeros(0, np.intp),) * 3
-    fam.reaction_maps = [column_map(b.reaction_index, cols) if b.C else empty
-                         for b in fam.batches]
-    fam.rcols = columns_array(cols)

@@ -4,11 +4,11 @@ An element module of this package declares ``ELEMENTS = (ElementType(...), ...)`
 tags, its ``compile(spec, ctx)``, the kernel families it builds and its capabilities (tileable
 across frames, potential energy, output groups, reaction channels exposed to expressions, time
 dependence, finite-difference Jacobian cases). Modules are found by walking the package, so a new
-element type is one new module. Derived here: the compile order (a topological sort of the
-declared ``after`` dependencies), the batching whitelist, the reaction tables of expressions, the
-output groups of ``poise sweep --output``, the supported joint types, the FD test cases, which
-compiled families make the solution depend on time (:func:`time_sources`) and which add
-potential energy (:func:`energy_terms`).
+element type is one new module. Derived here: the compile order (the declared layout ``rank``,
+checked against the declared data dependencies ``needs``), the batching whitelist, the reaction
+tables of expressions, the output groups of ``poise sweep --output`` and of the results schema,
+the supported joint types, the FD test cases, which compiled families make the solution depend
+on time (:func:`time_sources`) and which add potential energy (:func:`energy_terms`).
 """
 from __future__ import annotations
 
@@ -96,12 +96,42 @@ def batch_time_sources(batches) -> list:
 
 
 @dataclass(frozen=True)
+class OutputGroup:
+    """An element group of the results file (``<analysis>/<name>/*``, and ``/model/<name>/id``
+    and ``label`` when ``model_ids``), declared once by the element types that fill it: the
+    results schema derives the group's datasets from it (:mod:`poise.results.schema_items`).
+
+    ``symbol``: its shape symbol (``results_format.md``, *Conventions*); ``dimension``: the
+    netCDF dimension of that symbol, ``noun``: one element of the group (long names,
+    :mod:`poise.results.schema_dims`); ``what``: the elements it holds (documentation);
+    ``tags``: deck tags whose ids it holds (None: several, by element); ``datasets``: its
+    per-analysis datasets; ``load``: for a reaction group (``force``/``torque`` from the
+    element loads), what ``force`` is.
+    """
+
+    name: str
+    symbol: str
+    dimension: str
+    noun: str
+    what: str
+    tags: tuple | None = None
+    datasets: tuple = ("id", "label", "force", "torque")
+    load: str = ""
+    model_ids: bool = True
+
+
+@dataclass(frozen=True)
 class ElementType:
     """One registered element type (see the module docstring).
 
     ``types``: values of the ``type`` attribute this entry claims inside a tag another entry
     compiles (e.g. ``SCREW`` of ``Constraint_Joint``); the owner of the tag skips them.
-    ``outputs``: output group -> deck tags whose ids it holds (None: several, by element).
+    ``rank``: the type's place in the model layout (its constraint rows, families, scalar
+    unknowns and the owners it adds to shared output groups follow those of lower ranks);
+    ``needs``: the types whose compile results it reads (elements routed to it,
+    :meth:`poise.elements.context.CompileContext.route`): a data dependency, which the rank
+    must respect. Types compile in rank order.
+    ``outputs``: the :class:`OutputGroup` s it fills.
     ``reactions``: element-force function (``BUSH``) -> (output group, deck tags);
     ``reaction_aliases``: ``ELEMENTAL_FORCE`` ``elem_type`` spellings -> function.
     ``fd_tests``: where the FD Jacobian check lives when it needs more than :class:`FDCase`.
@@ -112,14 +142,14 @@ class ElementType:
     name: str
     tags: tuple
     compile: Callable
-    after: tuple = ()
+    rank: int = field(kw_only=True)
+    needs: tuple = ()
     types: tuple = ()
     kernels: Callable = tuple            # () -> family classes (lazy: kernels import late)
     tileable: Callable = tuple           # () -> the kernels batched across frames
     potential_energy: Callable = field(kw_only=True)
     time_dependent: Callable = field(kw_only=True)
-    outputs: dict = field(default_factory=dict)
-    datasets: tuple = ()
+    outputs: tuple = ()
     reactions: dict = field(default_factory=dict)
     reaction_aliases: dict = field(default_factory=dict)
     fd_cases: Callable = tuple           # () -> FDCase instances
@@ -128,7 +158,7 @@ class ElementType:
 
 @cache
 def element_types() -> tuple[ElementType, ...]:
-    """All registered element types in compile order (dependencies first)."""
+    """All registered element types in compile order (layout rank)."""
     found: dict[str, ElementType] = {}
     for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
         mod = importlib.import_module(f"{pkg.__name__}.{info.name}")
@@ -136,29 +166,28 @@ def element_types() -> tuple[ElementType, ...]:
             if et.name in found:
                 raise RuntimeError(f"element type {et.name!r} registered twice")
             found[et.name] = et
-    return tuple(_topological(found))
+    return compile_order(found)
 
 
-def _topological(found: dict) -> list:
-    """Kahn's algorithm; among ready types the one named first alphabetically goes first, so
-    the order is fully determined by the declared dependencies."""
-    deps = {}
-    for n, et in found.items():
-        missing = [a for a in et.after if a not in found]
-        if missing:
-            raise RuntimeError(f"element type {n!r} depends on unknown {missing}")
-        deps[n] = set(et.after)
-    out = []
-    while deps:
-        ready = sorted(n for n, d in deps.items() if not d)
-        if not ready:
-            raise RuntimeError(f"cyclic compile dependencies among {sorted(deps)}")
-        n = ready[0]
-        out.append(found[n])
-        del deps[n]
-        for d in deps.values():
-            d.discard(n)
-    return out
+def compile_order(found: dict) -> tuple:
+    """The types of ``found`` (name -> type) by layout rank; a data dependency on an unknown
+    type, two types of one rank, or a type whose rank does not follow the types it needs
+    raise (the layout would otherwise depend on how compilers happen to be ordered)."""
+    order = sorted(found.values(), key=lambda et: et.rank)
+    ranks: dict = {}
+    for et in order:
+        if et.rank in ranks:
+            raise RuntimeError(f"element types {ranks[et.rank]!r} and {et.name!r} have the "
+                               f"same layout rank {et.rank}")
+        ranks[et.rank] = et.name
+        for n in et.needs:
+            if n not in found:
+                raise RuntimeError(f"element type {et.name!r} needs unknown {n!r}")
+            if found[n].rank >= et.rank:
+                raise RuntimeError(f"element type {et.name!r} (rank {et.rank}) needs "
+                                   f"{n!r} (rank {found[n].rank}): a type's rank must follow "
+                                   "the ranks of the types it needs")
+    return tuple(order)
 
 
 def get(name: str) -> ElementType:
@@ -191,14 +220,19 @@ def reaction_aliases() -> dict:
 @cache
 def output_groups() -> dict:
     """Output group -> deck tags whose ids it holds (None: any tag of the group)."""
+    return {g.name: g.tags for g in group_declarations().values()}
+
+
+@cache
+def group_declarations() -> dict:
+    """Output group name -> its :class:`OutputGroup` (types sharing a group declare the same
+    one), in compile order."""
     out: dict = {}
     for et in element_types():
-        for g, tags in et.outputs.items():
-            if g in out and out[g] != tags:
-                out[g] = None if out[g] is None or tags is None else tuple(
-                    dict.fromkeys(out[g] + tags))
-            else:
-                out.setdefault(g, tags)
+        for g in et.outputs:
+            if out.setdefault(g.name, g) != g:
+                raise RuntimeError(f"output group {g.name!r} declared twice differently "
+                                   f"({et.name!r})")
     return out
 
 

@@ -18,10 +18,12 @@ import numpy as np
 from poise.deck.spec import Expr
 from poise.core.errors import EvaluationError
 
+from dataclasses import dataclass, replace
+
 from poise.elements.channels import ExprInfo, channel_values
 from poise.elements.registry import reaction_aliases
 from poise.elements.resolver import compile_batch_located
-from poise.expr import EvalContext as XC
+from poise.expr import EvalContext
 
 
 def _channels(el, pc):
@@ -121,21 +123,42 @@ def build_request_hook(reqs, ctx, res):
     if any(b is None for b in batches):
         return None
     ids = np.array([el.id if el.id is not None else -1 for el in reqs], np.int64)
-    info = ExprInfo(res, ctx.outputs)
-    channels = res.channels
+    return RequestOutputs(ids, null, tuple(batches), res.channels, ctx.element_markers)
 
-    def hook(model, state):
+
+@dataclass(frozen=True, eq=False)
+class RequestOutputs:
+    """Frame hook of the requests: ``requests/id``, ``requests/values`` (R, 8), ``requests/
+    message``. ``null`` (R, 8) marks NULL channels, ``batches`` the 8 channel batches,
+    ``channels`` the reaction channels they read; :meth:`bind` builds the channel plan with
+    the model (``plan``)."""
+
+    ids: np.ndarray
+    null: np.ndarray
+    batches: tuple
+    channels: tuple
+    element_markers: object
+    plan: object = None
+
+    def bind(self, model) -> "RequestOutputs":
+        """This hook with its reaction-channel plan for ``model`` (being built)."""
+        info = ExprInfo(model.outputs, self.element_markers)
+        return replace(self, plan=info.plan(model, self.channels), element_markers=None)
+
+    def __call__(self, model, state):
+        R = len(self.ids)
         vals = np.full((R, 8), np.nan)
         msgs = []
         rx = None
         try:
-            rx = channel_values(model, state, channels, info)
+            rx = channel_values(model, state, self.plan)
         except EvaluationError as e:
             msgs.append(f"reactions: {e}")
         P, A, _ = model.marker_kinematics(state)
-        xc = XC(time=float(state.t), P=P, A=A, angle_ref=state.angle, scalars=state.extra,
-                reactions=rx if rx is not None else np.full(len(channels), np.nan))
-        for k, b in enumerate(batches):
+        xc = EvalContext(t=float(state.t), P=P, A=A, angle=state.angle, extra=state.extra,
+                         reactions=rx if rx is not None else np.full(len(self.channels),
+                                                                     np.nan))
+        for k, b in enumerate(self.batches):
             uses_rx = b.reaction_index.shape[1] > 0 and bool((b.reaction_index >= 0).any())
             if rx is None and uses_rx:
                 continue
@@ -144,8 +167,6 @@ def build_request_hook(reqs, ctx, res):
             except EvaluationError as e:
                 msgs.append(str(e))
                 continue
-            vals[:, k] = np.where(null[:, k], np.nan, v)
-        return {"requests/id": ids, "requests/values": vals,
+            vals[:, k] = np.where(self.null[:, k], np.nan, v)
+        return {"requests/id": self.ids, "requests/values": vals,
                 "requests/message": np.array("; ".join(msgs))}
-
-    return hook

@@ -5,12 +5,13 @@
 ``Reference_Spline`` / ``Reference_Array`` -> data parsed from the element text, ``AX/AY/AZ`` ->
 the continuous-angle table, element-force functions (the registry's reaction kinds) and
 resultants (FM, FX, ..., TZ) -> *reaction channels*. One resolver lives on the compile context
-(:meth:`poise.elements.context.CompileContext.resolver`); implicit and user
-``Reference_Variable`` and ``Control_Diff`` states are scalar unknowns registered on demand
-(:func:`scalar_unknown`).
+(:meth:`poise.elements.context.CompileContext.resolver`, one per use: where the expressions are
+and whether they may read reactions); implicit and user ``Reference_Variable`` and
+``Control_Diff`` states are scalar unknowns registered on demand (:func:`scalar_unknown`).
 """
 from __future__ import annotations
 
+import copy
 import re
 
 import numpy as np
@@ -40,40 +41,38 @@ def _numbers(el):
 class ModelResolver:
     """Model-side resolver for :func:`poise.expr.compile_batch` (see ``poise/expr/CONTRACT.md``).
 
-    ``allow_reactions`` False makes element-force functions a located DeckError (forces,
-    gravity); True registers reaction channels (requests).
+    ``allow_reactions`` False makes element-force functions a located DeckError (gravity,
+    states, constraints); True registers reaction channels on the compile context (forces,
+    requests). ``where`` names the expressions in messages. :meth:`use` gives the resolver of
+    another use, sharing the parsed data.
     """
 
-    def __init__(self, spec, ctx):
+    def __init__(self, spec, ctx, where: str = "forces", allow_reactions: bool = False):
         self.spec = spec
         self.ctx = ctx
-        self.b = ctx.b
-        self.allow_reactions = False
-        self.where = "forces"
-        self.channels: list[tuple] = []
-        self._chan_index: dict = {}
+        self.allow_reactions = allow_reactions
+        self.where = where
         self.vars = {e.id: e for e in spec.elements("Reference_Variable")}
         self.splines = {e.id: e for e in spec.elements("Reference_Spline")}
         self.arrays = {e.id: e for e in spec.elements("Reference_Array")}
         self._spline_cache: dict = {}
-        self._elements_d: dict | None = None
+
+    def use(self, where: str, reactions: bool) -> "ModelResolver":
+        """This resolver for expressions of ``where``, reading reactions or not."""
+        if where == self.where and reactions == self.allow_reactions:
+            return self
+        r = copy.copy(self)
+        r.where, r.allow_reactions = where, reactions
+        return r
 
     @property
-    def _elements(self) -> dict:
-        """(tag, id) -> first model element; built on first use (expressions reading element
-        functions), not for every deck."""
-        if self._elements_d is None:
-            d: dict = {}
-            for e in self.spec.model:
-                eid = e.attrs.get("id")
-                if eid is not None:
-                    d.setdefault((e.tag, eid), e)
-            self._elements_d = d
-        return self._elements_d
+    def channels(self) -> tuple:
+        """The reaction channels registered so far (on the compile context)."""
+        return self.ctx.channels
 
     # ------------------------------------------------------------------ contract
     def marker_index(self, id: int) -> int:
-        return self.b.marker_index[int(id)]          # 0 -> 0: the global frame; KeyError else
+        return self.ctx.geometry.marker_index[int(id)]   # 0 -> 0: the global frame; KeyError else
 
     def variable(self, id: int):
         el = self.vars[int(id)]
@@ -89,8 +88,8 @@ class ModelResolver:
         return scalar_unknown(self.ctx, "diff", int(id))
 
     def diff_derivative(self, id: int):
-        _els(self.ctx, "Control_Diff")[int(id)]     # KeyError for unknown ids
-        return None                                  # DIF1 = 0 in statics
+        self.ctx.elements_by_id("Control_Diff")[int(id)]     # KeyError for unknown ids
+        return None                                           # DIF1 = 0 in statics
 
     def spline(self, id: int):
         id = int(id)
@@ -134,7 +133,7 @@ class ModelResolver:
 
     def plant_variables(self, tag: str, id: int) -> list:
         """Variable ids of a ``Control_PlantInput`` / ``Control_PlantOutput`` (PINVAL/POUVAL)."""
-        el = self._elements.get((tag, int(id)))
+        el = self.ctx.element(tag, int(id))
         if el is None:
             raise KeyError(id)
         v = el.attrs.get("variable_id_list")
@@ -142,11 +141,7 @@ class ModelResolver:
         return [int(x) for x in v]
 
     def reaction(self, kind: str, id: int, jflag: int, comp: int, rm: int) -> int:
-        key = self._reaction_key(kind, id, jflag, comp, rm)
-        if key not in self._chan_index:
-            self._chan_index[key] = len(self.channels)
-            self.channels.append(key)
-        return self._chan_index[key]
+        return self.ctx.register_channel(self._reaction_key(kind, id, jflag, comp, rm))
 
     def _reaction_key(self, kind: str, id: int, jflag: int, comp: int, rm: int) -> tuple:
         """The channel key of an element-force function or resultant (raises
@@ -168,7 +163,8 @@ class ModelResolver:
             if jflag not in (0, 1):
                 raise NotImplementedError(f"{kind}: jflag {jflag}; expected 0 or 1")
             group, tags = reaction_kinds()[kind]
-            el = next((self._elements[(t, id)] for t in tags if (t, id) in self._elements), None)
+            el = next((e for e in (self.ctx.element(t, id) for t in tags) if e is not None),
+                      None)
             if el is None:
                 raise KeyError(id)
             key = ("EL", group, el.tag, int(id), int(jflag), int(comp),
@@ -181,29 +177,12 @@ class ModelResolver:
         return self.ctx.angle(int(i_idx) if i_idx >= 0 else GLOBAL,
                               int(j_idx) if j_idx >= 0 else GLOBAL, int(axis))
 
-    # ------------------------------------------------------------------ element markers
-    def element_markers(self, tag, id):
-        """(I, J) compiled marker indices of a deck element (J = global frame when absent)."""
-        el = self._elements.get((tag, id))
-        if el is None:
-            return GLOBAL, GLOBAL
-        a = el.attrs
-        if "joint_id" in a and "i_marker_id" not in a:
-            return self.element_markers("Constraint_Joint", a["joint_id"])
-        i = a.get("i_marker_id", a.get("marker_id"))
-        j = a.get("j_marker_id", a.get("j_floating_marker_id"))
-        mi = self.b.marker_index.get(i, GLOBAL) if i is not None else GLOBAL
-        mj = self.b.marker_index.get(j, GLOBAL) if j is not None else GLOBAL
-        return mi, mj
-
-
 class CheckingResolver(ModelResolver):
     """A resolver that checks names and ids but registers nothing (no scalar unknown, angle or
     reaction channel): for expressions nothing evaluates, e.g. a variable no element reads."""
 
     def __init__(self, spec, ctx):
-        super().__init__(spec, ctx)
-        self.allow_reactions = True
+        super().__init__(spec, ctx, "variables", True)
 
     def variable(self, id: int):
         el = self.vars[int(id)]
@@ -212,7 +191,7 @@ class CheckingResolver(ModelResolver):
         return ("explicit", el.attrs.get("expr", 0.0))
 
     def diff_state(self, id: int):
-        _els(self.ctx, "Control_Diff")[int(id)]      # KeyError for unknown ids
+        self.ctx.elements_by_id("Control_Diff")[int(id)]      # KeyError for unknown ids
         return ("const", 0.0)
 
     def reaction(self, kind, id, jflag, comp, rm):
@@ -261,27 +240,6 @@ def compile_batch_located(exprs, resolver, pc):
         return None
 
 
-def ground_markers(b):
-    """(nm,) bool: compiled marker index on ground (index 0 = global frame)."""
-    return np.concatenate([[True], b.marker_on_ground])
-
-
-def _reg(ctx):
-    r = getattr(ctx, "scalar_registry", None)
-    if r is None:
-        r = ctx.scalar_registry = {}
-    return r
-
-
-def _els(ctx, tag):
-    cache = getattr(ctx, "_dv_els", None)
-    if cache is None:
-        cache = ctx._dv_els = {}
-    if tag not in cache:
-        cache[tag] = {e.id: e for e in ctx.b.spec.elements(tag)}
-    return cache[tag]
-
-
 def is_user(el) -> bool:
     return str(el.attrs.get("type", "EXPRESSION")).upper() == "USERSUB"
 
@@ -295,12 +253,9 @@ def scalar_unknown(ctx, kind: str, id: int):
     ``Reference_Variable`` (kind ``"var"``) ``id``, or ``("const", value)`` for held states.
     Raises KeyError for unknown ids."""
     tag = "Control_Diff" if kind == "diff" else "Reference_Variable"
-    el = _els(ctx, tag)[int(id)]
+    el = ctx.elements_by_id(tag)[int(id)]
     ic = float(el.attrs.get("ic", 0.0) or 0.0)
     if held(el):
         return ("const", ic)
-    reg = _reg(ctx)
-    key = (kind, int(id))
-    if key not in reg:
-        reg[key] = ctx.add_extra(f"{el.loc.prefix()[:-1]} {'y' if kind == 'diff' else 'v'}", ic)
-    return reg[key]
+    return ctx.scalar_unknown((kind, int(id)),
+                              f"{el.loc.prefix()[:-1]} {'y' if kind == 'diff' else 'v'}", ic)

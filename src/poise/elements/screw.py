@@ -10,27 +10,33 @@ the other joints) and ``JOINT(id, ...)`` reads it.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from poise.elements.base import ConstraintFamily
+from poise.elements.constraints import JOINTS
 from poise.elements.context import num
-from poise.elements.motions import SLOT_KIND, SLOT_ML, measure
+from poise.elements.measures import SLOT_KIND, SLOT_ML, measure
 from poise.elements.registry import ElementType, FDCase, static, workless
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Screw(ConstraintFamily):
-    """``d . z_J - c AZ(I, J) = 0`` with ``c = pitch / (2 pi)``. Slots: the 8 slots of
-    :mod:`poise.elements.motions` ``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J]``."""
+    """``d . z_J - c AZ(I, J) = 0`` with ``c = pitch / (2 pi)`` (n,), ``angle_index`` (n,) the
+    angle table's AZ(I, J). Slots: the 8 slots of :mod:`poise.elements.motions`
+    ``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J]``."""
+
+    c: np.ndarray
+    angle_index: np.ndarray
 
     @classmethod
-    def build(cls, name, I, J, c, angle_index, owner):
+    def build(cls, name, I, J, c, angle_index, owner, **layout):
         n = len(I)
-        fam = cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=SLOT_ML,
-                  slot_kind=np.broadcast_to(SLOT_KIND, (n, len(SLOT_KIND))).copy(),
-                  owner=np.asarray(owner, int), m=1)
-        fam.c = np.asarray(c, float)
-        fam.angle_index = np.asarray(angle_index, int)
-        return fam
+        return cls(name=name, markers=np.stack([I, J], 1).astype(int), slot_ml=SLOT_ML,
+                   slot_kind=np.broadcast_to(SLOT_KIND, (n, len(SLOT_KIND))).copy(),
+                   owner=np.asarray(owner, int), m=1, c=np.asarray(c, float),
+                   angle_index=np.asarray(angle_index, int), **layout)
 
     def constraints(self, kin, lam, ctx):
         c = self.c
@@ -47,8 +53,7 @@ def compile_screws(spec, ctx):
            if str(e.attrs.get("type", "")).upper() == "SCREW"]
     if not els:
         return
-    out = ctx.outputs.setdefault("joints", dict(tag="Constraint_Joint", ids=np.zeros(0, int)))
-    first = len(out["ids"])
+    first = ctx.extend_output("joints", "Constraint_Joint", [e.id for e in els])
     I, J, c, ang, rows = [], [], [], [], []
     for k, el in enumerate(els):
         i, j = ctx.marker(el, "i_marker_id"), ctx.marker(el, "j_marker_id")
@@ -57,28 +62,23 @@ def compile_screws(spec, ctx):
         c.append(float(num(el, "pitch", 0.0, ctx.pc) or 0.0) / (2.0 * np.pi))
         ang.append(ctx.angle(i, j, 2))
         rows.append([ctx.add_row(el, "d.zJ-pitch*AZ/2pi", "trans", "joints", first + k)])
-    f = Screw.build("joints:screw", np.array(I), np.array(J), c, ang,
-                    np.arange(first, first + len(els)))
-    add_joint_family(ctx, out, els, f, rows, "SCREW")
+    ctx.effect("Constraint_Joint:SCREW")
+    ctx.add_family(Screw.build("joints:screw", np.array(I), np.array(J), c, ang,
+                               np.arange(first, first + len(els)),
+                               **joint_layout(els, rows)))
 
 
-def add_joint_family(ctx, out, els, f, rows, jtype):
-    """Append a one-row-per-joint family of ``Constraint_Joint`` elements ``els`` (rows
-    ``rows``) after the other joints: ids, rows, output group, effect."""
-    ctx.effect(f"Constraint_Joint:{jtype}")
-    out["ids"] = np.concatenate([out["ids"], [e.id for e in els]]).astype(int)
-    f.crow = np.array(rows, int)
-    f.group = "joints"
-    f.element_locs = [e.loc for e in els]
-    ctx.families.append(f)
+def joint_layout(els, rows) -> dict:
+    """Layout fields of a one-row-per-joint family of ``Constraint_Joint`` elements ``els``
+    (rows ``rows``) after the other joints: its rows, the ``joints`` group, the elements."""
+    return dict(crow=np.array(rows, int), group="joints", element_locs=tuple(e.loc for e in els))
 
 
 ELEMENTS = (ElementType(
     "screw", ("Constraint_Joint",), compile_screws, types=("SCREW",),
-    after=("joints",),                    # its row and reaction follow the other joints'
+    rank=100,                             # its row and reaction follow the other joints'
     kernels=lambda: (Screw,), potential_energy=workless, time_dependent=static,
-    outputs={"joints": ("Constraint_Joint",)},
-    datasets=("id", "force", "torque"),
+    outputs=(JOINTS,),
     fd_cases=lambda: (FDCase("Constraint_Joint:SCREW",
                              (("Constraint_Joint", {"type": "SCREW", "pitch": 0.3}),),
                              pairs=((21, 31), (22, 11)), point_b=(False,)),)),)

@@ -13,17 +13,20 @@
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 import numpy as np
 
 from poise.core.errors import DeckError, EvaluationError
 from poise.core.user_routines import UserRoutine, describe, load
 from poise.elements import expr_forces as XF
 from poise.elements.base import ConstraintFamily, ForceFamily
-from poise.elements.base import POINT
+from poise.elements.kernel import POINT
 from poise.elements.context import GLOBAL
 from poise.elements.expr_forces import ExprScalarForce, ExprVectorForce
-from poise.elements.registry import ElementType, not_conservative
-from poise.elements.resolver import ground_markers
+from poise.elements.forces import FORCES
+from poise.elements.registry import ElementType, OutputGroup, not_conservative
 
 
 def _vectors_from_slots(routine, Y, slot_of):
@@ -36,9 +39,15 @@ def _vectors_from_slots(routine, Y, slot_of):
     return vec
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class UserConstraint(ConstraintFamily):
-    routine = None
-    slot_of = None            # (marker_id, kind) -> family slot
+    """Rows ``phi`` = the user function's values (see the module doc): ``routine`` the probed
+    :class:`~poise.core.user_routines.UserRoutine`, ``slot_of`` (marker_id, kind) -> family
+    slot of the moving-marker vectors it reads, ``const_vec`` the constant (ground) ones."""
+
+    routine: UserRoutine
+    slot_of: dict
+    const_vec: dict
 
     def _vec(self, kin, ctx):
         vec = _vectors_from_slots(self.routine, kin.Y, self.slot_of)
@@ -73,17 +82,19 @@ class UserConstraint(ConstraintFamily):
         return v[None, :], phy, G
 
 
-class _UserForceMixin:
-    """Replaces the expression batches of an expression-force family by a user function."""
+@dataclass(frozen=True, eq=False, kw_only=True)
+class UserForceValues:
+    """Replaces the expression batches of an expression-force family by a user function
+    (called per frame: user force families are not tileable). ``comp_index``: positions of the
+    user's values among the family components; ``user_map``: (user slot index, family slot)
+    pairs of moving-marker vectors."""
 
-    tile_frames = None          # a user routine is called per frame (model/frame_batch.py)
+    routine: UserRoutine
+    comp_index: np.ndarray
+    user_map: tuple
+    n_comp: ClassVar[int] = 1
 
-    routine = None
-    n_comp = 1
-    comp_index = None          # positions of the user's values among the family components
-    user_map = None            # (user slot index, family slot) pairs of moving-marker vectors
-
-    def _expr_values(self, ctx, need_jac):
+    def expr_values(self, ctx, need_jac):
         r = self.routine
         vec = {key: (ctx.P[r.mi[key[0]]] if key[1] == 0 else ctx.A[r.mi[key[0]]][:, key[1] - 1])
                for key in r.slots}
@@ -97,23 +108,27 @@ class _UserForceMixin:
             for us, fs in self.user_map:
                 g[0, self.comp_index, fs] = D[:, us]
             grads = g.reshape(1, self.n_comp, 3 * S)
-        self._sgrads = None
-        return vals, grads
+        return vals, grads, None, None
 
 
-class UserScalarForce(_UserForceMixin, ExprScalarForce):
+@dataclass(frozen=True, eq=False, kw_only=True)
+class UserScalarForce(UserForceValues, ExprScalarForce):
     n_comp = 1
 
 
-class UserVectorForce(_UserForceMixin, ExprVectorForce):
+@dataclass(frozen=True, eq=False, kw_only=True)
+class UserVectorForce(UserForceValues, ExprVectorForce):
     n_comp = 6
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class UserScalarEquation(ForceFamily):
-    """Residual ``v - f(q, t)`` of a user-defined variable v (VARSUB)."""
+    """Residual ``v - f(q, t)`` of a user-defined variable v (VARSUB); fields as
+    :class:`UserConstraint`'s."""
 
-    routine = None
-    slot_of = None
+    routine: UserRoutine
+    slot_of: dict
+    const_vec: dict
 
     def forces(self, kin, ctx, need_jac=True):
         r = self.routine
@@ -141,34 +156,20 @@ class UserScalarEquation(ForceFamily):
 USER_CONSTRAINT_TAGS = ("Constraint_UserConstr", "Constraint_Usrconstr")
 
 
-def _initial_kinematics(ctx):
-    """Marker origins and axes at the input configuration (nm, 3), (nm, 3, 3)."""
-    b = ctx.b
-    nm = len(b.marker_els) + 1
-    P = np.zeros((nm, 3))
-    A = np.tile(np.eye(3), (nm, 1, 1))
-    for k, e in enumerate(b.marker_els):
-        p, R = b.marker_glob[e.id]
-        P[k + 1] = p
-        A[k + 1] = R
-    return P, A
-
-
 def _routine(el, ctx, P, A):
     """The element's probed :class:`UserRoutine`, or None (problem collected, or user code not
-    run: ``ctx.b.user_code`` is ``"refuse"`` or ``"skip"``, see ``poise.core.user_routines.load``)."""
-    b = ctx.b
+    run: ``ctx.user_code`` is ``"refuse"`` or ``"skip"``, see ``poise.core.user_routines.load``)."""
     try:
-        got = load(el, b.user_code)
+        got = load(el, ctx.user_code)
     except DeckError as e:
         ctx.pc.problems.extend(e.problems)
         return None
-    b.user_routines.append(describe(el))
     if got is None:                      # poise check: the reference is valid, nothing ran
+        ctx.user_routine(describe(el))
         return None
     fn, path, par, digest = got
-    b.input_files[str(path)] = digest
-    r = UserRoutine(el, fn, path, par, ctx.b.marker_index, ctx.b.L)
+    ctx.user_routine(describe(el), path, digest)
+    r = UserRoutine(el, fn, path, par, ctx.geometry.marker_index, ctx.L)
     try:
         r.probe(0.0, P, A)
     except EvaluationError as e:
@@ -182,37 +183,31 @@ def _routine(el, ctx, P, A):
     return r
 
 
-def _moving(ctx, mid):
-    b = ctx.b
-    e = b.element("Reference_Marker", mid)
-    return e is not None and e.attrs.get("body_id") in b.body_index
-
-
 def _slot_layout(r, ctx, first=()):
     """Markers (1, K) (``first`` then the other moving markers read), slot lists and the map
     (marker_id, kind) -> slot for the recorded vectors of moving markers; constant vectors
     (ground / global) are returned separately."""
     mids = list(first)
     for mid, _ in r.slots:
-        if mid not in mids and _moving(ctx, mid):
+        if mid not in mids and ctx.moving_marker(mid):
             mids.append(mid)
     if not mids:
         mids = [0]
     slot_ml, slot_kind, slot_of = [], [], {}
     for mid, kind in r.slots:
-        if not _moving(ctx, mid):
+        if not ctx.moving_marker(mid):
             continue
         slot_of[(mid, kind)] = len(slot_ml)
         slot_ml.append(mids.index(mid))
         slot_kind.append(kind)
-    markers = np.array([[ctx.b.marker_index.get(m, GLOBAL) for m in mids]], int)
+    markers = np.array([[ctx.geometry.marker_index.get(m, GLOBAL) for m in mids]], int)
     return markers, np.array(slot_ml, int), np.array([slot_kind], int).reshape(1, -1), slot_of
 
 
 def _const_vectors(r, ctx, P, A):
     return {k: (P[r.mi[k[0]]] if k[1] == POINT else A[r.mi[k[0]]][:, k[1] - 1]).copy()
             if k[0] != 0 else (np.zeros(3) if k[1] == 0 else np.eye(3)[:, k[1] - 1])
-            for k in r.slots if not _moving(ctx, k[0])}
+            for k in r.slots if not ctx.moving_marker(k[0])}
 
 
 def compile_user(spec, ctx):
@@ -225,15 +220,16 @@ def compile_user(spec, ctx):
       ``userconstrs`` (reaction force/torque on the body of the first marker the function reads, at
       its origin, like joints).
     * ``Force_Scalar_TwoBody`` / ``Force_Vector_OneBody`` / ``Force_Vector_TwoBody`` with a user
-      routine: routed here by ``compile_forces`` (``ctx.user_forces``); output group ``forces``.
+      routine: routed here by ``compile_forces`` (``ctx.route("user", ...)``); output group
+      ``forces``.
     * ``Reference_Variable type="USERSUB"``: called by ``compile_diff_vars`` with the variable's
       scalar unknown.
     """
     els = [e for t in USER_CONSTRAINT_TAGS for e in spec.elements(t)]
-    uf = list(ctx.user_forces)
+    uf = ctx.routed("user")
     if not els and not uf:
         return
-    P, A = _initial_kinematics(ctx)
+    P, A = ctx.geometry.initial_kinematics()
     ids = []
     for el in els:
         r = _routine(el, ctx, P, A)
@@ -247,19 +243,15 @@ def compile_user(spec, ctx):
         owner = len(ids) - 1
         rows = [ctx.add_row(el, f"user{k + 1}", "trans", "userconstrs", owner)
                 for k in range(r.m)]
-        fam = UserConstraint(name=f"userconstrs:{el.id}", markers=markers, slot_ml=slot_ml,
-                             slot_kind=slot_kind, owner=np.array([owner]), m=r.m,
-                             row_names=tuple(f"user{k + 1}" for k in range(r.m)))
-        fam.crow = np.array([rows], int)
-        fam.routine = r
-        fam.slot_of = slot_of
-        fam.const_vec = _const_vectors(r, ctx, P, A)
-        fam.group = "userconstrs"
-        fam.element_locs = [el.loc]
-        ctx.families.append(fam)
+        ctx.add_family(UserConstraint(
+            name=f"userconstrs:{el.id}", markers=markers, slot_ml=slot_ml, slot_kind=slot_kind,
+            owner=np.array([owner]), m=r.m, row_names=tuple(f"user{k + 1}" for k in range(r.m)),
+            crow=np.array([rows], int), routine=r, slot_of=slot_of,
+            const_vec=_const_vectors(r, ctx, P, A), group="userconstrs",
+            element_locs=(el.loc,)))
         ctx.effect(f"{el.tag}:python")
     if ids:
-        ctx.outputs["userconstrs"] = dict(tag="Constraint_UserConstr", ids=np.array(ids, int))
+        ctx.output("userconstrs", "Constraint_UserConstr", ids)
     for owner, el in uf:
         _user_force(el, owner, ctx, P, A)
 
@@ -268,10 +260,11 @@ def _user_force(el, owner, ctx, P, A):
     r = _routine(el, ctx, P, A)
     if r is None:
         return
-    b = ctx.b
-    ground = ground_markers(b)
+    mk = ctx.marker
+    index = ctx.geometry.marker_index
+    ground = ctx.geometry.marker_on_ground
     if el.tag == "Force_Scalar_TwoBody":
-        I, J, R = b.mk(el, "i_marker_id"), b.mk(el, "j_marker_id"), GLOBAL
+        I, J, R = mk(el, "i_marker_id"), mk(el, "j_marker_id"), GLOBAL
         ao = bool(el.attrs.get("is_action_only", False))
         t = str(el.attrs.get("type", "FORCE")).upper()
         cls, comp = UserScalarForce, [0]
@@ -280,9 +273,9 @@ def _user_force(el, owner, ctx, P, A):
             return
     else:
         one = el.tag.endswith("OneBody")
-        I = b.mk(el, "marker_id" if one else "i_marker_id")
-        J = GLOBAL if one else b.mk(el, "j_floating_marker_id")
-        R = b.mk(el, "ref_marker_id", required=False)
+        I = mk(el, "marker_id" if one else "i_marker_id")
+        J = GLOBAL if one else mk(el, "j_floating_marker_id")
+        R = mk(el, "ref_marker_id", required=False)
         ao = one
         t = str(el.attrs.get("type", "FORCEANDTORQUE")).upper()
         cls = UserVectorForce
@@ -295,26 +288,26 @@ def _user_force(el, owner, ctx, P, A):
                          "(fx fy fz tx ty tz), or 3 for FORCEONLY / TORQUEONLY (GFOSUB)")
             return
 
-    class _Shim:                                     # slot list in expr_forces' batch format
-        slot_marker = np.array([[b.marker_index[m] if m else -1 for m, _ in r.slots]], int)
+    class _Slots:                                    # slot list in expr_forces' batch format
+        slot_marker = np.array([[index[m] if m else -1 for m, _ in r.slots]], int)
         slot_kind = np.array([[k for _, k in r.slots]], int)
-    fam = XF._build(cls, f"forces:{cls.__name__}:{el.id}", [I], [J], [R], [owner], [ao],
-                    [_Shim()], ground, [el.loc])
-    fam.batches = []
-    _, bs, fs = fam.slot_maps[0]
-    fam.user_map = list(zip(bs.tolist(), fs.tolist()))
-    fam.slot_maps = []
-    fam.routine = r
-    fam.comp_index = np.array(comp, int)
+    markers, slot_ml, slot_kind, maps = XF.slot_layout([_Slots()], [I], [J], [R], ground)
+    _, bs, fs = maps[0]
+    extra = {}
     if cls is UserScalarForce:
-        fam.stype = np.array([XF.ST_TORQUE if t == "TORQUE" else
-                              (XF.ST_AXIS if ao else XF.ST_LINE)], int)
-    ctx.families.append(fam)
+        extra["stype"] = np.array([XF.ST_TORQUE if t == "TORQUE" else
+                                   (XF.ST_AXIS if ao else XF.ST_LINE)], int)
+    ctx.add_family(cls(
+        name=f"forces:{cls.__name__}:{el.id}", markers=markers, slot_ml=slot_ml,
+        slot_kind=slot_kind, owner=np.array([owner], int), action_only=np.array([ao], bool),
+        batches=(), slot_maps=(), element_locs=(el.loc,), group="forces", routine=r,
+        comp_index=np.array(comp, int), user_map=tuple(zip(bs.tolist(), fs.tolist())),
+        **extra))
 
 
 def compile_user_variables(spec, ctx, items):
     """``Reference_Variable type="USERSUB"``: residual ``v - varsub(...)`` per variable."""
-    P, A = _initial_kinematics(ctx)
+    P, A = ctx.geometry.initial_kinematics()
     for el, k in items:
         r = _routine(el, ctx, P, A)
         if r is None:
@@ -323,14 +316,10 @@ def compile_user_variables(spec, ctx, items):
             ctx.pc.error(el.loc, f"the user routine returned {r.m} values; expected 1 (VARSUB)")
             continue
         markers, slot_ml, slot_kind, slot_of = _slot_layout(r, ctx)
-        fam = UserScalarEquation(name=f"control:UserVariable:{el.id}", markers=markers,
-                                 slot_ml=slot_ml, slot_kind=slot_kind, owner=np.array([0]))
-        fam.scols = np.array([[k]], int)
-        fam.routine = r
-        fam.slot_of = slot_of
-        fam.const_vec = _const_vectors(r, ctx, P, A)
-        fam.element_locs = [el.loc]
-        ctx.families.append(fam)
+        ctx.add_family(UserScalarEquation(
+            name=f"control:UserVariable:{el.id}", markers=markers, slot_ml=slot_ml,
+            slot_kind=slot_kind, owner=np.array([0]), scols=np.array([[k]], int), routine=r,
+            slot_of=slot_of, const_vec=_const_vectors(r, ctx, P, A), element_locs=(el.loc,)))
 
 
 def opaque_code(fam) -> list:
@@ -341,8 +330,13 @@ def opaque_code(fam) -> list:
 
 ELEMENTS = (ElementType(
     "user", USER_CONSTRAINT_TAGS, compile_user,
-    after=("forces", "diff_vars"),    # compiles the user forces compile_forces routed here
+    rank=130, needs=("forces",),      # compiles the user forces compile_forces routed here
     kernels=lambda: (UserConstraint, UserScalarForce, UserVectorForce, UserScalarEquation),
     potential_energy=not_conservative,   # user forces and VARSUB rows (constraints: none)
-    time_dependent=opaque_code, outputs={"userconstrs": USER_CONSTRAINT_TAGS, "forces": None},
-    datasets=("id", "force", "torque"), fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)
+    time_dependent=opaque_code,
+    outputs=(OutputGroup("userconstrs", "U", "userconstr", "user constraint",
+                         "`Constraint_UserConstr` (Python UCOSUB)",
+                         USER_CONSTRAINT_TAGS,
+                         load="reaction on the body of the first marker the user routine "
+                         "reads, at its origin, global axes"), FORCES),
+    fd_tests="tests/kernels/test_diffs_variables_user_routines.py"),)

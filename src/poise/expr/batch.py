@@ -1,6 +1,7 @@
 """Batch compiler: many expressions -> grouped vectorised programs (see CONTRACT.md)."""
 from __future__ import annotations
 
+import copy
 import gc
 from dataclasses import dataclass
 
@@ -19,32 +20,40 @@ __all__ = ["compile_batch", "Batch", "EvalContext", "EvalResult"]
 
 @dataclass
 class EvalContext:
-    """State in which a batch is evaluated (global components, deck units, radians).
+    """What is evaluated at: the one evaluation context of expressions and element kernels
+    (global components, deck units, radians).
 
     Attributes
     ----------
-    time : float
+    t : float, or (n,) ndarray
+        Analysis time; one per instance when frames are evaluated together
+        (:meth:`Batch.tiled`).
     P : (n_markers, 3) ndarray
         Marker origins.
     A : (n_markers, 3, 3) ndarray
         Marker axes as columns.
-    scalars : (n_scalars,) ndarray
-        Scalar unknowns (implicit variables, Control_Diff states).
+    angle : (n_angles,) ndarray or None
+        Continuous value of each registered AX/AY/AZ angle (the model's angle table; None:
+        principal values).
+    extra : (n_scalars,) ndarray
+        Scalar unknowns (implicit variables, Control_Diff states, curve parameters).
     reactions : (n_channels,) ndarray
         Reaction channel values.
-    angle_ref : (n_angles,) ndarray or None
-        Continuity reference of each registered AX/AY/AZ angle (None: principal values).
     static : bool
         Static / quasi-static analysis: velocity measures and IMPACT/BISTOP velocities are 0.
+    workspace : object or None
+        The solve's scratch (``poise.model.workspace.Workspace``): caches an evaluation may
+        fill (motion targets, tiled curve programs); None: nothing is kept.
     """
 
-    time: float = 0.0
+    t: float = 0.0
     P: np.ndarray | None = None
     A: np.ndarray | None = None
-    scalars: np.ndarray | None = None
+    angle: np.ndarray | None = None
+    extra: np.ndarray | None = None
     reactions: np.ndarray | None = None
-    angle_ref: np.ndarray | None = None
     static: bool = True
+    workspace: object = None
 
 
 @dataclass
@@ -110,7 +119,7 @@ class _Group:
                 self.spl.append([(splines[u], np.nonzero(ids == u)[0]) for u in uniq])
         self.uses_time = "time" in repr(key)
         self.fn = build(key)
-        self.hfn = None           # second-order program, built on first use (hessian.py)
+        self.hfn = None           # second-order program (:meth:`second_order`, hessian.py)
 
     def evaluate(self, ctx, P_ext, A_ext):
         v, g = self.fn(self.env(ctx, P_ext, A_ext))
@@ -119,26 +128,32 @@ class _Group:
         return v, g
 
     def hessian(self, ctx, P_ext, A_ext):
-        """``(m, D, D)`` second derivatives over the group's ``D = 3 S + U`` local variables."""
-        if self.hfn is None:
-            self.hfn = build_hessian(self.key, self.S, self.U)
-        return self.hfn(self.env(ctx, P_ext, A_ext))[2]
+        """``(m, D, D)`` second derivatives over the group's ``D = 3 S + U`` local variables
+        (the second-order program built now when the batch was compiled without it)."""
+        hfn = self.hfn if self.hfn is not None else build_hessian(self.key, self.S, self.U)
+        return hfn(self.env(ctx, P_ext, A_ext))[2]
+
+    def second_order(self) -> "_Group":
+        """A copy of this group with its second-order program built."""
+        h = copy.copy(self)
+        h.hfn = build_hessian(self.key, self.S, self.U)
+        return h
 
     def env(self, ctx, P_ext, A_ext):
         env = GroupEnv()
         m = self.m
         env.params = self.params
         env.ones = np.ones(m)
-        tm = ctx.time
+        tm = ctx.t
         # one time for all instances, or one per batch instance (frames evaluated together)
         env.t = np.full(m, float(tm)) if np.ndim(tm) == 0 else np.asarray(tm, float)[self.rows_idx]
         env.vecs = [np.take(P_ext, self.slot_marker[:, s], axis=0) if kind == 0
                     else np.take(A_ext[kind - 1], self.slot_marker[:, s], axis=0)
                     for s, kind in enumerate(self.kinds)]
-        env.sc = np.asarray(ctx.scalars, dtype=float)[self.scalars] if self.U else None
+        env.sc = np.asarray(ctx.extra, dtype=float)[self.scalars] if self.U else None
         env.rx = np.asarray(ctx.reactions, dtype=float)[self.reactions] if self.C else None
-        if self.angles.shape[1] and ctx.angle_ref is not None and len(ctx.angle_ref):
-            env.ang = np.asarray(ctx.angle_ref, dtype=float)[self.angles]
+        if self.angles.shape[1] and ctx.angle is not None and len(ctx.angle):
+            env.ang = np.asarray(ctx.angle, dtype=float)[self.angles]
         else:
             env.ang = None
         env.spl = self.spl
@@ -256,6 +271,11 @@ class Batch:
         self._global_slots = self.slot_marker < 0
         self._has_global = bool(self._global_slots[:, :S].any()) if S else False
 
+    def with_second_order(self) -> "Batch":
+        """This batch with the second-order programs of its groups built (:meth:`hessian`
+        then evaluates without building them: batches of a compiled model never change)."""
+        return Batch(self.exprs, [g.second_order() for g in self.groups])
+
     @property
     def depends_on_time(self) -> bool:
         """True if any instance reads TIME."""
@@ -372,9 +392,8 @@ class Batch:
         """This batch repeated for ``F`` frames (instance ``f * n + i``), for evaluating many
         frames in one call (:mod:`poise.model.frame_batch`): marker slots are shifted by
         ``n_markers`` per frame, continuous angles by ``n_angles``, scalar unknowns by
-        ``n_scalars``; ``EvalContext.time`` may then be one time per tiled instance. Batches
+        ``n_scalars``; ``EvalContext.t`` may then be one time per tiled instance. Batches
         reading reaction channels are not tiled (their models are evaluated frame by frame)."""
-        import copy
         if self.C:
             raise ValueError("batches reading reaction channels are not tiled")
         n = self.n

@@ -159,16 +159,19 @@ def _if(a, need):
 
 # --- smooth steps ------------------------------------------------------------------------
 
-def _p_step(u):
+def profile_step(u):
+    """STEP's cubic profile on [0, 1] and its derivative."""
     return u * u * (3.0 - 2.0 * u), 6.0 * u * (1.0 - u)
 
 
-def _p_step5(u):
+def profile_step5(u):
+    """STEP5's quintic profile on [0, 1] and its derivative."""
     u2 = u * u
     return u2 * u * (10.0 - 15.0 * u + 6.0 * u2), 30.0 * u2 * (1.0 - u) ** 2
 
 
-def _p_havsin(u):
+def profile_havsin(u):
+    """HAVSIN's haversine profile on [0, 1] and its derivative."""
     return 0.5 * (1.0 - np.cos(np.pi * u)), 0.5 * np.pi * np.sin(np.pi * u)
 
 
@@ -196,15 +199,15 @@ def step_profile(a, need, prof, name="STEP"):
 
 
 def _step(a, need):
-    return step_profile(a, need, _p_step, "STEP")
+    return step_profile(a, need, profile_step, "STEP")
 
 
 def _step5(a, need):
-    return step_profile(a, need, _p_step5, "STEP5")
+    return step_profile(a, need, profile_step5, "STEP5")
 
 
 def _havsin(a, need):
-    return step_profile(a, need, _p_havsin, "HAVSIN")
+    return step_profile(a, need, profile_havsin, "HAVSIN")
 
 
 def _shf(a, need):
@@ -290,12 +293,12 @@ def _impact_side(x, xd, xb, k, e, cmax, d, lower: bool, moving: bool):
     zero = np.zeros_like(x)
     if moving:
         if lower:
-            s, sp = step_profile([x, xb - d, cmax, xb, zero], [True] * 5, _p_step)
+            s, sp = step_profile([x, xb - d, cmax, xb, zero], [True] * 5, profile_step)
             ds_dxb = sp[1] + sp[3]
             ds_dd = -sp[1]
             ds_dc = sp[2]
         else:
-            s, sp = step_profile([x, xb, zero, xb + d, cmax], [True] * 5, _p_step)
+            s, sp = step_profile([x, xb, zero, xb + d, cmax], [True] * 5, profile_step)
             ds_dxb = sp[1] + sp[3]
             ds_dd = sp[3]
             ds_dc = sp[4]

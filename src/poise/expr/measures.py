@@ -42,7 +42,7 @@ MEASURE_ARITY = {"DX": (1, 3), "DY": (1, 3), "DZ": (1, 3), "DM": (1, 3), "INCANG
 MEASURE_ARITY.update({k: (1, 2) for k in ("AX", "AY", "AZ", "AXU", "AYU", "AZU", "YAW", "PSI",
                                           "PHI", "ROLL", "THETA", "PITCH")})
 CONTINUOUS = {"AX": 0, "AY": 1, "AZ": 2, "AXU": 0, "AYU": 1, "AZU": 2}
-"""Angle measures made continuous through ``ctx.angle_ref``; value = axis code for angle_key."""
+"""Angle measures made continuous through ``ctx.angle``; value = axis code for angle_key."""
 
 VELOCITY_MEASURES = {}
 for _n in ("VX", "VY", "VZ", "ACCX", "ACCY", "ACCZ", "WDTX", "WDTY", "WDTZ"):

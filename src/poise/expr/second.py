@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .functions import _p_havsin, _p_step, _p_step5
+from .functions import profile_havsin, profile_step, profile_step5
 
 __all__ = ["SECOND", "NO_SECOND"]
 
@@ -61,15 +61,15 @@ def _step_family(pp):
 
 
 def _pp_step(u):
-    return _p_step(u)[1], 6.0 - 12.0 * u
+    return profile_step(u)[1], 6.0 - 12.0 * u
 
 
 def _pp_step5(u):
-    return _p_step5(u)[1], 60.0 * u * (1.0 - u) * (1.0 - 2.0 * u)
+    return profile_step5(u)[1], 60.0 * u * (1.0 - u) * (1.0 - 2.0 * u)
 
 
 def _pp_havsin(u):
-    return _p_havsin(u)[1], 0.5 * np.pi ** 2 * np.cos(np.pi * u)
+    return profile_havsin(u)[1], 0.5 * np.pi ** 2 * np.cos(np.pi * u)
 
 
 def _shf(a):

@@ -3,9 +3,14 @@
 Blocks of (row, col) index arrays are registered at compile time (``-1`` marks an entry that
 does not exist, e.g. a ground coordinate). The union pattern is sorted once; every later
 assembly is one ``np.bincount`` of the concatenated values into the CSR data array (or into a
-dense array for small systems).
+dense array for small systems). The assembler is part of the immutable model: the value buffer
+and the fill-reducing column order live in the solve's workspace
+(:class:`poise.model.workspace.Workspace`); a sparse matrix carries its order as a
+:class:`KKTMatrix`.
 """
 from __future__ import annotations
+
+from functools import cache, partial
 
 import numpy as np
 
@@ -25,11 +30,14 @@ class Assembler:
         Produce dense ``ndarray`` instead of CSR.
     """
 
+    __slots__ = ("N", "dense", "groups", "sizes", "valid", "nnz", "indices", "indptr", "slot",
+                 "slot_all")
+
     def __init__(self, N: int, blocks, dense: bool = False, groups=None):
         self.N = N
         self.dense = dense
         self.groups = groups
-        self._order = None
+        self.indices = self.indptr = None
         self.sizes = []
         valids = []
         keys = []
@@ -57,23 +65,36 @@ class Assembler:
         # one slot per registered entry (valid or not): invalid entries go to the extra bin
         # ``nnz``, so assembly needs no boolean gather of the values
         self.slot = slot
-        self.slot_all = np.full(self.valid.size, self.nnz, dtype=np.intp)
-        self.slot_all[self.valid] = slot
+        slot_all = np.full(self.valid.size, self.nnz, dtype=np.intp)
+        slot_all[self.valid] = slot
+        self.slot_all = slot_all
+        self.sizes = tuple(self.sizes)
 
-    def assemble(self, values):
-        """Assemble the matrix from a list of value arrays (same order/shapes as the blocks)."""
-        buf = getattr(self, "_values", None)    # reused: no fresh pages for every assembly
-        if buf is None:
-            buf = self._values = np.empty(self.slot_all.size)
+    def assemble(self, values, workspace=None):
+        """Assemble the matrix from a list of value arrays (same order/shapes as the blocks);
+        ``workspace``: the solve's (its value buffer is reused: no fresh pages for every
+        assembly; its column order is the sparse matrix's)."""
+        if workspace is None:
+            buf = np.empty(self.slot_all.size)
+        else:
+            buf = workspace.scratch(self, _Scratch).values(self.slot_all.size)
         vals = np.concatenate([np.asarray(v, float).ravel() for v in values], out=buf)
         data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
         if self.dense:
             return data.reshape(self.N, self.N)
-        import scipy.sparse as sp
-        M = sp.csr_matrix((data, self.indices, self.indptr), shape=(self.N, self.N))
+        M = _kkt_class()((data, self.indices, self.indptr), shape=(self.N, self.N))
         if self.groups is not None:
-            M.poise_column_order = self.column_order   # used by linalg.Factor
+            M.poise_column_order = partial(self.ordered, workspace)   # used by linalg.Factor
         return M
+
+    def ordered(self, workspace=None) -> np.ndarray:
+        """:meth:`column_order`, computed once per solve (kept in ``workspace``)."""
+        if workspace is None:
+            return self.column_order()
+        sc = workspace.scratch(self, _Scratch)
+        if sc.order is None:
+            sc.order = self.column_order()
+        return sc.order
 
     def pattern(self):
         """Structural pattern: ``(rows, cols)`` of every entry an assembly can fill, unique and
@@ -93,24 +114,58 @@ class Assembler:
         quotient keeps each group contiguous, costs a fraction of one factorisation, and gives
         SuperLU the same fill as COLAMD on the element-dense pattern (structural zeros inside
         element blocks — which the fixed pattern omits — otherwise mislead COLAMD into a worse
-        order). Reused by every factorisation of matrices with this pattern.
+        order). Reused by every factorisation of the solve (:meth:`ordered`).
         """
-        if self._order is None:
-            import scipy.sparse as sp
-            import scipy.sparse.linalg as spla
-            grp = np.asarray(self.groups, np.int64)
-            G = int(grp.max()) + 1 if grp.size else 0
-            N = self.N
-            E = sp.csr_matrix((np.ones(N), (np.arange(N), grp)), shape=(N, G))
-            S = sp.csr_matrix((np.ones(self.nnz), self.indices, self.indptr), shape=(N, N))
-            Q = (E.T @ S @ E).tocsc()
-            Q.data[:] = 1.0
-            Q = (Q + sp.identity(G, format="csc") * (G + 1.0)).tocsc()   # diagonally dominant
-            pc = spla.splu(Q, permc_spec="COLAMD").perm_c
-            rank = np.empty(G, np.int64)
-            rank[np.argsort(pc)] = np.arange(G)
-            self._order = np.argsort(rank[grp], kind="stable")
-        return self._order
+        import scipy.sparse as sp             # lazy: sparse models only
+        import scipy.sparse.linalg as spla    # lazy
+        grp = np.asarray(self.groups, np.int64)
+        G = int(grp.max()) + 1 if grp.size else 0
+        N = self.N
+        E = sp.csr_matrix((np.ones(N), (np.arange(N), grp)), shape=(N, G))
+        S = sp.csr_matrix((np.ones(self.nnz), self.indices, self.indptr), shape=(N, N))
+        Q = (E.T @ S @ E).tocsc()
+        Q.data[:] = 1.0
+        Q = (Q + sp.identity(G, format="csc") * (G + 1.0)).tocsc()   # diagonally dominant
+        pc = spla.splu(Q, permc_spec="COLAMD").perm_c
+        rank = np.empty(G, np.int64)
+        rank[np.argsort(pc)] = np.arange(G)
+        return np.argsort(rank[grp], kind="stable")
+
+
+class _Scratch:
+    """An assembler's scratch in a solve's workspace: the value buffer and the column order."""
+
+    __slots__ = ("buf", "order")
+
+    def __init__(self):
+        self.buf = None
+        self.order = None
+
+    def values(self, n: int) -> np.ndarray:
+        if self.buf is None:
+            self.buf = np.empty(n)
+        return self.buf
+
+
+@cache
+def _kkt_class():
+    import scipy.sparse as sp             # lazy: sparse models only
+
+    class KKTMatrix(sp.csr_matrix):
+        """A CSR matrix of a model's fixed KKT pattern: ``poise_column_order()`` gives its
+        fill-reducing column order (computed once per solve, :meth:`Assembler.ordered`);
+        None for matrices derived from it."""
+
+        poise_column_order = None
+
+    KKTMatrix.__module__ = __name__
+    return KKTMatrix
+
+
+def __getattr__(name):
+    if name == "KKTMatrix":               # the class is made on first use (scipy is lazy)
+        return _kkt_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _unique_inverse(keys: np.ndarray):

@@ -17,10 +17,11 @@ import numpy as np
 from poise.deck.schema import element_schema
 from poise.deck.spec import DeckSpec, Element
 from poise.core.errors import ProblemCollector
-from poise.elements.context import GLOBAL, CompileContext, num as _num
-from poise.elements.registry import element_types, energy_terms, kernel_types, time_sources
+from poise.elements.context import GLOBAL, CompileContext, Geometry, MarkerPoses, num as _num
+from poise.elements.registry import element_types
 from poise.elements.resolver import check_variables
 from poise.model import units as U
+from poise.model.layout import build_model
 from poise.model.model import Model
 from poise.elements.rotation import from_313, from_euler_parameters, from_ypr, orthonormalize
 
@@ -91,58 +92,22 @@ _INERTIA = ("inertia_xx", "inertia_yy", "inertia_zz", "inertia_xy", "inertia_yz"
 _BODY_TAGS = ("Body_Rigid", "Body_Point")
 
 
-class MarkerPoses:
-    """Marker id -> (origin (3,), axes (3, 3)) at the input configuration, global components
-    (a read-only mapping over the arrays of all markers, ``P[row[id]]``, ``R[row[id]]``)."""
-
-    def __init__(self, row: dict, P: np.ndarray, R: np.ndarray):
-        self.row, self.P, self.R = row, P, R
-
-    def __getitem__(self, mid):
-        k = self.row[mid]
-        return self.P[k], self.R[k]
-
-    def get(self, mid, default=None):
-        k = self.row.get(mid)
-        return default if k is None else (self.P[k], self.R[k])
-
-    def __contains__(self, mid) -> bool:
-        return mid in self.row
-
-    def __iter__(self):
-        return iter(self.row)
-
-    def __len__(self) -> int:
-        return len(self.row)
-
-    def keys(self):
-        return self.row.keys()
-
-    def items(self):
-        return ((mid, (self.P[k], self.R[k])) for mid, k in self.row.items())
-
-
 class _Builder:
+    """Resolves markers and bodies (the :class:`Geometry` element compilers read)."""
+
     def __init__(self, spec: DeckSpec):
         self.spec = spec
         self.pc = ProblemCollector()
-        self.effects: list[str] = []
-        self._by_id: dict = {}
-        self.user_code = "refuse"          # see compile_model
-        self.user_routines: list[dict] = []
-        self.input_files: dict[str, str] = {}
-
-    def element(self, tag: str, eid):
-        """First model element ``tag`` with id ``eid`` (None if there is none); one dict per tag."""
-        d = self._by_id.get(tag)
-        if d is None:
-            d = self._by_id[tag] = {}
-            for e in self.spec.elements(tag):
-                d.setdefault(e.id, e)
-        try:
-            return d.get(eid)
-        except TypeError:          # unhashable id value
-            return None
+        self.marker_els: list = []
+        self.marker_glob: MarkerPoses | None = None
+        self.marker_index: dict = {}
+        self.marker_on_ground = np.zeros(0, bool)
+        self.moving: list = []
+        self.body_index: dict = {}
+        self.ground_ids: set = set()
+        self.needs_default_inertia: list = []
+        self.nq = 0
+        self.L = 1.0
 
     # ---------------------------------------------------------------- markers
     def markers(self):
@@ -282,8 +247,7 @@ class _Builder:
                 if a.keys().isdisjoint(_INERTIA):
                     pc.warn(e.loc, "no inertia given; using m*(0.1*L)^2 (only the stability "
                             "regularisation and MKEAM use it)")
-                    self._needs_default_inertia = getattr(self, "_needs_default_inertia",
-                                                          []) + [e.id]
+                    self.needs_default_inertia.append(e.id)
                     continue
                 vals = [a.get(k, 0.0) for k in _INERTIA]
                 if not all(type(v) is float for v in vals):
@@ -353,22 +317,14 @@ class _Builder:
                     marker_s0=np.concatenate([np.zeros((1, 3)), s0]),
                     marker_A0=np.concatenate([np.eye(3)[None], A0]))
 
-    def body_centres(self):
-        """CG marker index (nb,) and effective mass (nb,) of the moving bodies (gravity)."""
-        cg = [self.marker_index.get(e.attrs.get("cg_id"), GLOBAL) for e in self.moving]
-        return cg, self.body_mass
-
-    def mk(self, el, attr, required=True):
-        mid = el.attrs.get(attr)
-        if mid is None:
-            if required:
-                self.pc.error(el.loc, "missing marker reference; expected a marker id", attr)
-            return GLOBAL
-        if mid not in self.marker_index:
-            self.pc.error(el.loc, f"marker {mid} does not exist; expected a Reference_Marker id",
-                          attr)
-            return GLOBAL
-        return self.marker_index[mid]
+    def geometry(self, body_mass) -> Geometry:
+        """What element compilers read (effective masses ``body_mass``)."""
+        cg = np.array([self.marker_index.get(e.attrs.get("cg_id"), GLOBAL) for e in self.moving],
+                      int)
+        return Geometry(marker_index=self.marker_index, poses=self.marker_glob,
+                        marker_elements=tuple(self.marker_els),
+                        marker_on_ground=np.concatenate([[True], self.marker_on_ground]),
+                        body_index=self.body_index, body_cg=cg, body_mass=body_mass, L=self.L)
 
 
 def _extent(P) -> float:
@@ -455,72 +411,27 @@ def compile_model(spec: DeckSpec, user_code: str = "refuse") -> Model:
 
 def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     b = _Builder(spec)
-    b.user_code = user_code
     mfac, udesc = unit_info(spec)
     b.markers()
     bodies = b.bodies(mfac)
     markers = b.marker_arrays(bodies["init_pos"], bodies["init_rot"])
-    b.body_mass = bodies["body_mass"]
 
-    ctx = CompileContext(b)
+    ctx = CompileContext(spec, b.geometry(bodies["body_mass"]), b.pc, user_code)
     types = element_types()
     for et in types:                      # dependency order (poise.elements.registry)
         et.compile(spec, ctx)
     check_variables(spec, ctx)            # variables no element reads: problems located too
-    rows, fams, outputs, angles = ctx.rows, ctx.families, ctx.outputs, ctx.angles
-    pc = b.pc
-    pc.raise_if_any()
+    result = ctx.result()                 # raises the problems collected
     # L from the markers that play a part (unknown when a user routine was not run: which
     # markers it reads is learnt by running it; all markers then, as poise check needs no more)
-    if not (b.user_routines and user_code != "run"):
-        b.L = _participating_extent(spec, b, markers, fams)
-    for f in fams:                        # user routines' finite-difference steps scale with L
+    L = b.L
+    if not (result.user_routines and user_code != "run"):
+        L = _participating_extent(spec, b, markers, result.families)
+    for f in result.families:             # user routines' finite-difference steps scale with L
         if getattr(f, "routine", None) is not None:
-            f.routine.L = b.L
-    for bid in getattr(b, "_needs_default_inertia", []):
+            f.routine.L = L               # before the model is built and sealed
+    for bid in b.needs_default_inertia:
         i = b.body_index[bid]
-        bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * b.L) ** 2 * np.eye(3)
-
-    # ------------------------------------------------------------ layout
-    nb = len(b.moving)
-    kinds = bodies["body_kind"]
-    off = bodies["body_off"]
-    mb = markers["marker_body"]
-    for f in fams:
-        cols = []
-        for k in range(f.K):
-            bi = mb[f.markers[:, k]]
-            ground = bi >= nb
-            bsafe = np.minimum(bi, max(nb - 1, 0))
-            base = off[bsafe] if nb else np.zeros_like(bi)
-            c = base[:, None] + np.arange(6)[None, :]
-            c[ground] = -1
-            if nb:
-                point = (kinds[bsafe] == 1) & ~ground
-                c[point, 3:] = -1
-            cols.append(c)
-        if f.scols is not None and f.U:
-            cols.append(np.where(f.scols >= 0, b.nq + f.scols, -1))
-        f.gcol = np.concatenate(cols, axis=1)
-    nc = len(rows)
-    ne = len(ctx.extra_names)
-    bodies["coord_info"] = list(bodies["coord_info"]) + [f"{nm}" for nm in ctx.extra_names]
-    effects = list(dict.fromkeys(b.effects))
-    model = Model(
-        **bodies, **markers, families=fams, nq=b.nq + ne, nc=nc, row_info=rows,
-        angle_I=np.array([a[0] for a in angles], int), angle_J=np.array([a[1] for a in angles], int),
-        angle_axis=np.array([a[2] for a in angles], int), L=b.L,
-        active_effects=effects, outputs=outputs, units=udesc,
-        n_extra=ne, extra0=np.array(ctx.extra0, float), extra_names=list(ctx.extra_names),
-        mass_factor=float(mfac),
-    )
-    owners = kernel_types(types)          # family class -> its element type
-    model.time_sources = time_sources(fams, owners)
-    model.energy_terms = energy_terms(fams, owners)
-    model.frame_hooks.extend(ctx.frame_hooks)
-    model.reaction_feed = getattr(ctx, "reaction_feed", None)
-    model.spec_warnings = list(pc.warnings)
-    model.user_routines = list(b.user_routines)
-    model.input_files = dict(b.input_files)
-    model.finalize()
-    return model
+        bodies["body_inertia"][i] = bodies["body_mass"][i] * (0.1 * L) ** 2 * np.eye(3)
+    return build_model(bodies=bodies, markers=markers, result=result, nq_bodies=b.nq, L=L,
+                       units=udesc, mass_factor=mfac, types=types, warnings=b.pc.warnings)

@@ -12,6 +12,8 @@ outputs are reduced; the energy sums what the element types declare (``Model.ene
 :mod:`poise.elements.registry`). Active rows come from the caller's solve data (``active``);
 element loads of the kept slot data: :mod:`poise.elements.loads`; forces reading constraint
 reactions: the model's ``reaction_feed`` (:mod:`poise.elements.reaction_feed`), single frames.
+What an evaluation keeps between calls (assembly buffer, tiled families, kernels' caches) is in
+the caller's :class:`~poise.model.workspace.Workspace`, never on the model.
 """
 from __future__ import annotations
 
@@ -22,11 +24,12 @@ import numpy as np
 from poise.core import phases
 from poise.core.errors import EvaluationError
 from poise.elements.context import row_where
-from poise.elements.base import EvalContext
+from poise.expr import EvalContext
 from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, local_pattern,
                                    local_residual_tangent, slot_kinematics, tangent_compact)
 from poise.model.assembly import scatter_add
-from poise.model.frame_batch import tile_cache
+from poise.model.frame_batch import tiles
+from poise.model.workspace import Workspace
 
 WHAT = ("residual", "jacobian", "defer", "phi", "energy")
 
@@ -46,6 +49,7 @@ class Evaluation:
     phi: np.ndarray
     J: object = None
     _pending: object = field(default=None, repr=False)   # deferred Jacobian (:func:`jacobian`)
+    workspace: object = field(default=None, repr=False)  # the solve's (assembly)
     _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
     items: list = field(default=None, repr=False)   # per-family slot data (keep=True)
 
@@ -71,7 +75,7 @@ class FrameEvaluation:
 
 
 def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool = False,
-             eps_mass: float = 0.0):
+             eps_mass: float = 0.0, workspace: Workspace | None = None):
     """Evaluate one frame (``states`` a State) or ``F`` frames (a sequence of States).
 
     what : ``"residual"``, ``"jacobian"``, ``"defer"`` (residual now, element data kept so that
@@ -82,6 +86,8 @@ def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool =
     keep : keep per-family slot data (``ev.items``: ``(family, kin, rho, phi_y)``, ``phi_y``
         None for force families) for element loads (always kept for frames).
     eps_mass : multiple of the mass matrix added to the coordinate block of the Jacobian only.
+    workspace : the solve's :class:`~poise.model.workspace.Workspace` (a fresh one when None:
+        nothing is kept between calls).
 
     Returns an :class:`Evaluation` (one frame) or :class:`FrameEvaluation` (frames); ``"phi"``:
     ``(nc,)`` or ``(F, nc)``; ``"energy"``: a float (NaN when a force element is not
@@ -90,13 +96,14 @@ def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool =
     if what not in WHAT:
         raise ValueError(f"evaluate: what={what!r}, expected one of {WHAT}")
     single = hasattr(states, "pos")
+    ws = Workspace() if workspace is None else workspace
     if what == "energy":             # summed per frame: one frame at a time
         if single:
-            return _energy(model, _Frames(model, [states], True))
-        return np.array([_energy(model, _Frames(model, [s], True)) for s in states])
+            return _energy(model, _Frames(model, [states], True, ws))
+        return np.array([_energy(model, _Frames(model, [s], True, ws)) for s in states])
     t_start = phases.now()
     try:
-        fr = _Frames(model, [states] if single else list(states), single)
+        fr = _Frames(model, [states] if single else list(states), single, ws)
         if what == "phi":
             return _phi(model, fr, active)
         if not single:
@@ -112,15 +119,18 @@ def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool =
 class _Frames:
     """Marker kinematics of the frames and the kernel call of one family over all of them."""
 
-    def __init__(self, model, states, single):
+    def __init__(self, model, states, single, workspace):
         self.model, self.states, self.single = model, states, single
+        self.ws = workspace
         self.F = F = len(states)
+        self.dg = None                    # reaction channels' (F, T), global (reaction feed)
         nb = model.nb
         if single:
             s = states[0]
             self.P, self.A, self.pos = model.marker_kinematics(s)
             self.mb = model.marker_body
-            self.ctx = EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra)
+            self.ctx = EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
+                                   workspace=workspace)
             self.lam = s.lam
             return
         nm = len(model.marker_id)
@@ -143,9 +153,9 @@ class _Frames:
         ext = np.concatenate([s.extra for s in states]) if model.n_extra else None
         # tiled families see every frame at once: one time per frame, stacked marker tables
         self.ctx = EvalContext(t=np.array([s.t for s in states], float), angle=ang, P=self.P,
-                               A=self.A, extra=ext)
+                               A=self.A, extra=ext, workspace=workspace)
         self.ctxs = None
-        self.tiles = tile_cache(model, F)
+        self.tiles = tiles(model, F, workspace)
 
     def call(self, fi, need_jac):
         """``(t, kin, lam, out)`` of family ``fi``: ``t`` the family (tiled copy for frames),
@@ -163,7 +173,8 @@ class _Frames:
         # a family that is not tileable: once per frame with that frame's context
         if self.ctxs is None:
             self.ctxs = [EvalContext(t=s.t, angle=s.angle, P=self.Pfr[f], A=self.Afr[f],
-                                     extra=s.extra) for f, s in enumerate(self.states)]
+                                     extra=s.extra, workspace=self.ws)
+                         for f, s in enumerate(self.states)]
         n = fam.n
         outs = [_kernel(fam, _slice_kin(kin, f * n, (f + 1) * n),
                         self.lam2[f][fam.crow] if fam.is_constraint else None, self.ctxs[f],
@@ -197,10 +208,10 @@ def _family_pass(model, fr, need_jac, only=None, done=None):
         fam = model.families[fi]
         if only == "phi" and not fam.is_constraint:
             continue
-        if done is not None and fr.ctx.reactions is None and \
-                getattr(fam, "reads_reactions", False):
+        if done is not None and fr.ctx.reactions is None and fam.reads_reactions:
             # reaction channels from every family evaluated so far (exact at this iterate)
-            fr.ctx.reactions = model.reaction_feed.values(model, done.values(), fr.P, fr.A)
+            fr.ctx.reactions, fr.dg = model.reaction_feed.values(model, done.values(), fr.P,
+                                                                 fr.A)
         t, kin, lam, out = fr.call(fi, need_jac)
         if fam.is_constraint:
             ph, phy, G = out[:3]
@@ -260,10 +271,10 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
         phi = np.where(mask, phi, 0.0)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(phi))):
         raise EvaluationError(_nonfinite_message(model, r, phi))
-    ev = Evaluation(r=r, phi=phi, J=None, items=last if keep else None)
+    ev = Evaluation(r=r, phi=phi, J=None, items=last if keep else None, workspace=fr.ws)
     if need_jac:
         if feed is not None:       # d r_reader / d (lambda, q) through the channels
-            ev._coupling = feed.coupling(model, done, fr.P, fr.A, mask, pend)
+            ev._coupling = feed.coupling(model, done, fr.P, fr.A, mask, pend, fr.dg)
         pend = [p for p in pend if p is not None]     # assembly order: model.families
         ev._pending = (state, pend, eps_mass, mask.copy())
     return ev
@@ -300,7 +311,7 @@ def jacobian(model, ev: Evaluation):
     vals += [eps_mass * np.repeat(model.body_mass, 3), eps_mass * Jg,
              (~row_active).astype(float)]
     vals += ev._coupling
-    ev.J = model.assembler.assemble(vals)
+    ev.J = model.assembler.assemble(vals, ev.workspace)
     ev._pending = None
     phases.add("assemble", phases.now() - t_start)
     return ev.J
@@ -382,7 +393,7 @@ class _EnergyView:
 
     def __init__(self, model, fr):
         self.model, self.fr = model, fr
-        self.ctx = EvalContext(t=fr.ctx.t, angle=fr.ctx.angle)
+        self.ctx = EvalContext(t=fr.ctx.t, angle=fr.ctx.angle, workspace=fr.ws)
 
     def kinematics(self, fam):
         fr = self.fr
@@ -446,7 +457,7 @@ def _constraint_ext(ext, lam, n, m, U):
 def _family_nonfinite(fam, rl) -> str:
     """Message naming the deck element whose kernel produced NaN/Inf."""
     k = int(np.nonzero(~np.isfinite(rl).all(axis=1))[0][0])
-    locs = getattr(fam, "element_locs", None)
+    locs = fam.element_locs
     if locs:
         return f"{locs[k].prefix()} produced a non-finite force (NaN/Inf)"
     return f"element family {fam.name} (instance {k}) produced a non-finite value (NaN/Inf)"

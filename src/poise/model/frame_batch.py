@@ -5,14 +5,15 @@ A quasi-static run writes per output frame the reactions, element loads, stabili
 far more than the numerical work on small models. The evaluation engine
 (:func:`poise.model.evaluate.evaluate` with a list of states) therefore calls the families whose
 element type declares them tileable (:func:`poise.elements.registry.tileable_kernels`) once for
-all frames, on the tiled copies built here (:func:`tile_cache`), and any other once per frame.
+all frames, on the tiled copies built here (:func:`tiles`, kept in the solve's workspace), and
+any other once per frame.
 The result equals ``F`` one-frame evaluations with all rows active (tests compare every deck's
 frames); models whose forces read constraint reactions or with ``N > MAX_N`` unknowns are not
 batched (:func:`batchable`).
 """
 from __future__ import annotations
 
-import copy
+from dataclasses import fields, replace
 
 import numpy as np
 
@@ -43,45 +44,50 @@ def chunk_size(model) -> int:
 
 
 def _tile_family(fam, F, model, exact: bool):
-    """Shallow copy of ``fam`` covering ``F`` frames (instance ``f * n + i``)."""
+    """Copy of ``fam`` covering ``F`` frames (instance ``f * n + i``)."""
     n = fam.n
-    t = copy.copy(fam)
     fo = np.arange(F)
     nm = len(model.marker_id)
-    t.markers = (fam.markers[None] + (nm * fo)[:, None, None]).reshape(F * n, -1)
-    t.slot_kind = np.tile(fam.slot_kind, (F, 1))
-    group = getattr(fam, "group", None)
+    ch = {}
+    ch["markers"] = (fam.markers[None] + (nm * fo)[:, None, None]).reshape(F * n, -1)
+    ch["slot_kind"] = np.tile(fam.slot_kind, (F, 1))
+    group = fam.group
     n_out = len(model.outputs[group]["ids"]) if group in model.outputs else 0
-    t.owner = (fam.owner[None] + (n_out * fo)[:, None]).ravel()
+    ch["owner"] = (fam.owner[None] + (n_out * fo)[:, None]).ravel()
     if fam.is_constraint:
-        t.crow = (fam.crow[None] + (model.nc * fo)[:, None, None]).reshape(F * n, -1)
+        ch["crow"] = (fam.crow[None] + (model.nc * fo)[:, None, None]).reshape(F * n, -1)
     if exact:
         skip = {"markers", "slot_kind", "owner", "crow", "gcol", "scols", "slot_ml"}
         na = len(model.angle_I)
-        for k, v in vars(fam).items():
+        for fd in fields(fam):
+            k, v = fd.name, getattr(fam, fd.name)
             if k in skip or not isinstance(v, np.ndarray) or v.ndim == 0 or v.shape[0] != n:
                 continue
             rep = np.tile(v, (F,) + (1,) * (v.ndim - 1))
             if k in OFFSET_ARRAYS:
                 off = (na * fo).reshape((F,) + (1,) * v.ndim)
                 rep = np.where(v[None] >= 0, v[None] + off, v[None]).reshape(rep.shape)
-            setattr(t, k, rep)
-    return t
+            ch[k] = rep
+        ch.update(fam.tile_fields(F, model))
+    return replace(fam, **ch)
 
 
-def tile_cache(model, F):
-    """Tiled families for ``F`` frames, cached on the model (same F reused across chunks)."""
-    cache = getattr(model, "_frame_tiles", None)
-    if cache is None or cache[0] != F:
+class _Tiles:
+    """The tiled families of the last frame count ``F`` (one entry: same F reused across
+    chunks; a model's scratch in the solve's workspace)."""
+
+    __slots__ = ("F", "tiles")
+
+    def __init__(self):
+        self.F, self.tiles = None, None
+
+
+def tiles(model, F, workspace):
+    """``[(family for F frames, tileable), ...]`` of ``model`` (kept in ``workspace``)."""
+    cache = workspace.scratch(model, _Tiles)
+    if cache.F != F:
         exact_types = _tileable()
-        tiles = []
-        for fam in model.families:
-            hook = getattr(fam, "tile_frames", None)          # None: not tileable
-            exact = type(fam) in exact_types or hook is not None   # readers: not batchable()
-            t = _tile_family(fam, F, model, exact)
-            if exact and hook is not None:
-                hook(t, F, model)
-            tiles.append((t, exact))
-        cache = (F, tiles)
-        model._frame_tiles = cache
-    return cache[1]
+        cache.tiles = [(_tile_family(fam, F, model, type(fam) in exact_types), type(fam) in
+                        exact_types) for fam in model.families]
+        cache.F = F
+    return cache.tiles

@@ -10,12 +10,10 @@ Evaluation (residual, Jacobian, constraints, energy; one or many frames) is the 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from poise.elements.base import EvalContext  # noqa: F401  (re-exported: kernels' context)
-from poise.elements.kernel import local_pattern
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.rotation import (expm_so3, lift_rotation_vector, rotation_vector,
@@ -57,9 +55,12 @@ class State:
                      None if self.rotvec is None else self.rotvec.copy(), self.rotvec_drift)
 
 
-@dataclass
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Model:
-    """Compiled model. Built by :func:`poise.model.compile.compile_model`.
+    """Compiled model, immutable: built in one step by :func:`poise.model.layout.build_model`
+    (from :func:`poise.model.compile.compile_model`), every array read-only (MuJoCo's
+    ``mjModel``/``mjData`` split: what a solve changes lives in the solve's data and workspace,
+    :class:`poise.model.workspace.Workspace`).
 
     Attributes (n* sizes: nb moving bodies, nm markers (index 0 = global frame), nc rows)
     ----------
@@ -72,19 +73,23 @@ class Model:
     marker_id : (nm,); marker_body : (nm,) moving-body index or nb for ground
     marker_s0 : (nm, 3) origin in the body frame (ground: global)
     marker_A0 : (nm, 3, 3) axes in the body frame (ground: global)
-    families : list of Family
-    nq, nc : sizes
-    row_info : list of dict per constraint row (tag, id, equation, line, kind 'trans'|'rot')
+    families : tuple of Family (laid out: ``gcol``, ``pattern``)
+    nq, nc, nb, N : sizes (N = nq + nc, the KKT size)
+    row_info : tuple of dict per constraint row (tag, id, equation, line, kind 'trans'|'rot')
     angle_I, angle_J, angle_axis : (na,) continuous-angle table
     L : model length scale [length]
     time_sources : deck places through which the solution depends on time (from the element
         types' ``time_dependent``, :func:`poise.elements.registry.time_sources`)
     energy_terms : ``(family index, potential_energy)`` the energy pass sums (the element
         types' declarations, :func:`poise.elements.registry.energy_terms`)
+    assembler : the fixed-pattern KKT assembler; dense : N <= DENSE_MAX
+    trans_idx, rot_idx, rot_body, extra_idx, extra_off, q_kind, q_scale, body_scale, row_kind :
+        coordinate and row index maps (:func:`poise.model.layout.build_model`)
+    eval_order : family evaluation order (reaction readers after the others, gravity last)
     """
 
     body_id: np.ndarray
-    body_label: list
+    body_label: tuple
     body_kind: np.ndarray
     body_mass: np.ndarray
     body_inertia: np.ndarray
@@ -93,130 +98,46 @@ class Model:
     marker_body: np.ndarray
     marker_s0: np.ndarray
     marker_A0: np.ndarray
-    families: list
+    families: tuple
     nq: int
     nc: int
-    row_info: list
+    row_info: tuple
     angle_I: np.ndarray
     angle_J: np.ndarray
     angle_axis: np.ndarray
     L: float
     init_pos: np.ndarray
     init_rot: np.ndarray
-    active_effects: list = field(default_factory=list)
-    outputs: dict = field(default_factory=dict)
-    coord_info: list = field(default_factory=list)
+    active_effects: tuple = ()
+    outputs: dict
+    coord_info: tuple = ()
     units: str = ""
-    dense: bool = True
-    frame_hooks: list = field(default_factory=list)
+    frame_hooks: tuple = ()
     n_extra: int = 0
-    extra0: np.ndarray = None
-    extra_names: list = field(default_factory=list)
+    extra0: np.ndarray
+    extra_names: tuple = ()
     reaction_feed: object = None     # ReactionFeed: reaction channels read by forces, else None
-    time_sources: list = field(default_factory=list)   # what reads TIME (see above)
+    time_sources: tuple = ()         # what reads TIME (see above)
     energy_terms: tuple = ()         # (family index, declared potential_energy) (registry)
     mass_factor: float = 1.0         # body_mass = deck mass x mass_factor (poise.model.units)
-
-    # ------------------------------------------------------------------ setup
-    def finalize(self):
-        """Build index maps and the fixed sparsity pattern (called once by the compiler)."""
-        nb = len(self.body_id)
-        self.nb = nb
-        self.N = self.nq + self.nc
-        self.dense = self.N <= DENSE_MAX
-        rigid = self.body_kind == 0
-        self.trans_idx = (self.body_off[:, None] + np.arange(3)).ravel()
-        self.rot_body = np.nonzero(rigid)[0]
-        self.rot_idx = (self.body_off[rigid][:, None] + 3 + np.arange(3)).ravel()
-        # per-coordinate kind (0 force row, 1 moment row, 2 scalar unknown)
-        self.extra_off = self.nq - self.n_extra
-        self.extra_idx = np.arange(self.extra_off, self.nq)
-        if self.extra0 is None:
-            self.extra0 = np.zeros(self.n_extra)
-        kind = np.zeros(self.nq, int)
-        kind[self.rot_idx] = 1
-        kind[self.extra_idx] = 2
-        self.q_kind = kind
-        blocks = []
-        for fam in self.families:
-            # only the entries that can be non-zero (family slot structure, see LocalPattern)
-            g = fam.gcol
-            pat = local_pattern(fam)
-            L = g.shape[1]
-            li, lj = ((pat.order // L, pat.order % L) if pat.order is not None
-                      else np.nonzero(pat.kmask))
-            if pat.compact:            # entry-major, as tangent_compact fills them
-                blocks.append((g[:, li].T, g[:, lj].T))
-            else:
-                blocks.append((g[:, li], g[:, lj]))
-            if fam.is_constraint:
-                rows = self.nq + fam.crow
-                pr, pc = np.nonzero(pat.pmask)
-                blocks.append((rows[:, pr], g[:, pc]))
-                blocks.append((g[:, pc], rows[:, pr]))
-        # mass blocks (regularisation): translational diagonal, rotational 3x3
-        tb = self.body_off[:, None] + np.arange(3)
-        blocks.append((tb, tb))
-        rb = self.body_off[rigid][:, None] + 3 + np.arange(3)
-        blocks.append((np.repeat(rb[:, :, None], 3, 2), np.repeat(rb[:, None, :], 3, 1)))
-        # diagonal of the multiplier block (removed / redundant rows)
-        lr = self.nq + np.arange(self.nc)
-        blocks.append((lr, lr))
-        # forces reading constraint reactions: d r / d lambda (ReactionFeed, after all others)
-        if self.reaction_feed is not None:
-            blocks += self.reaction_feed.setup(self)
-        self.assembler = Assembler(self.N, blocks, dense=self.dense, groups=self._order_groups())
-        # per-body length scale: largest marker lever of the body (>= 1e-3 L); used to weight
-        # rotations against translations in least-squares problems and rank tests
-        lever = np.linalg.norm(self.marker_s0, axis=1)
-        ell = np.zeros(nb)
-        mb = self.marker_body
-        on = mb < nb
-        np.maximum.at(ell, mb[on], lever[on])
-        self.body_scale = np.maximum(ell, 1e-3 * self.L)
-        qs = np.ones(self.nq)
-        qs[self.rot_idx] = np.repeat(self.body_scale[rigid], 3)
-        self.q_scale = qs            # length per unit of each coordinate (rad -> length)
-        self.row_kind = np.array([1 if ri["kind"] == "rot" else 0 for ri in self.row_info], int)
-        # evaluation order: families reading reaction channels after every other (they read
-        # the constraint reactions), then those declaring ``eval_last`` (gravity: the residual
-        # sums in the order of earlier releases)
-        rank = [2 if f.eval_last else
-                1 if getattr(f, "reads_reactions", False) else 0 for f in self.families]
-        self.eval_order = sorted(range(len(self.families)), key=rank.__getitem__)
-        self.freeze()
-
-    def freeze(self):
-        """Make the compiled model read-only (the MuJoCo model/data split): its public
-        attributes cannot be rebound and its arrays are not writeable. What a solve changes
-        (active constraint rows, counters, caches) lives in the solver's data
-        (:class:`poise.solvers.data.SolveData`). Private ``_name`` attributes stay settable:
-        lazily built caches derived from the model (``frame_batch``'s tiles)."""
-        for v in vars(self).values():
-            if isinstance(v, np.ndarray):
-                v.flags.writeable = False
-        object.__setattr__(self, "_frozen", True)
-
-    def __setattr__(self, name, value):
-        if not name.startswith("_") and self.__dict__.get("_frozen", False):
-            raise AttributeError(f"the compiled model is read-only (setting {name!r}); per-solve "
-                                 "data belongs in poise.solvers.data.SolveData")
-        object.__setattr__(self, name, value)
-
-    def _order_groups(self) -> np.ndarray:
-        """Group of each KKT unknown for the fill-reducing ordering: one group per body's
-        coordinates, per scalar unknown and per element instance's constraint rows."""
-        grp = np.arange(self.N, dtype=np.int64)          # default: every unknown on its own
-        size = np.where(self.body_kind == 0, 6, 3)
-        bid = np.repeat(np.arange(len(size)), size)
-        start = np.repeat(self.body_off, size)
-        within = np.arange(bid.size) - np.repeat(np.cumsum(size) - size, size)
-        grp[start + within] = bid
-        for fam in self.families:
-            if fam.is_constraint and fam.n:
-                grp[self.nq + fam.crow] = (self.N + fam.crow[:, :1])
-        _, grp = np.unique(grp, return_inverse=True)
-        return grp.ravel()
+    spec_warnings: tuple = ()        # compile warnings (poise.core.errors.Problem)
+    user_routines: tuple = ()        # Python user routines the deck names (described)
+    input_files: dict                # script path -> SHA-256
+    # derived (poise.model.layout.build_model)
+    nb: int
+    N: int
+    dense: bool
+    trans_idx: np.ndarray
+    rot_body: np.ndarray
+    rot_idx: np.ndarray
+    extra_off: int
+    extra_idx: np.ndarray
+    q_kind: np.ndarray
+    assembler: Assembler
+    body_scale: np.ndarray
+    q_scale: np.ndarray
+    row_kind: np.ndarray
+    eval_order: tuple
 
     # ------------------------------------------------------------------ state
     def initial_state(self, t: float = 0.0) -> State:
@@ -327,7 +248,7 @@ class Model:
         dq[self.trans_idx] = dp.ravel()
         rb = self.rot_body
         if len(rb):
-            w = _log_so3(np.matmul(b.rot[rb], np.swapaxes(a.rot[rb], 1, 2)))
+            w = log_so3(np.matmul(b.rot[rb], np.swapaxes(a.rot[rb], 1, 2)))
             E = expm_so3(w)
             V = se3_left_jacobian(w)
             v0 = np.linalg.solve(V, (b.pos[rb] - np.einsum("nij,nj->ni", E, a.pos[rb]))[..., None])[..., 0]
@@ -370,20 +291,23 @@ class Model:
 
     # ------------------------------------------------------------------ evaluate
     def evaluate(self, state: State, need_jac=True, eps_mass: float = 0.0,
-                 keep: bool = False, active: np.ndarray | None = None) -> Evaluation:
+                 keep: bool = False, active: np.ndarray | None = None,
+                 workspace=None) -> Evaluation:
         """Residual and (``need_jac``: True, False or ``"defer"``) the KKT Jacobian of one
         frame: :func:`poise.model.evaluate.evaluate` (the evaluation engine), kept as a
-        method for the solvers' many one-frame calls."""
+        method for the solvers' many one-frame calls. ``workspace``: the solve's (a fresh one
+        when None: nothing is kept between calls)."""
         what = ("defer" if isinstance(need_jac, str) and need_jac == "defer"
                 else "jacobian" if need_jac else "residual")
-        return evaluate(self, state, what, active=active, keep=keep, eps_mass=eps_mass)
+        return evaluate(self, state, what, active=active, keep=keep, eps_mass=eps_mass,
+                        workspace=workspace)
 
     def jacobian(self, ev: Evaluation):
         """The KKT Jacobian of an evaluation (assembled now if it was deferred); sets ``ev.J``."""
         return jacobian(self, ev)
 
 
-def _log_so3(R):
+def log_so3(R):
     """Rotation vectors (n, 3) of rotation matrices (n, 3, 3) (angle in [0, pi])."""
     tr = np.einsum("nii->n", R)
     c = np.clip(0.5 * (tr - 1.0), -1.0, 1.0)

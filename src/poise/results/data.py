@@ -11,30 +11,37 @@ torques are in the deck's units; angles in radians.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from poise.elements import rotation as rot
 from poise.results.schema import declared_item, unit_string
-from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord
+from poise.results.layout import analysis_datasets
+from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisHeader, AnalysisRecord
 
 
-@dataclass
-class AnalysisResult(AnalysisRecord):
-    """Result of one ``Simulate`` command: the solver's :class:`~poise.solvers.record.
-    AnalysisRecord` (index, analysis_type, method, status, message, settings, datasets, attrs)
-    with readers. String arrays in ``datasets`` are numpy ``str_`` arrays; the writer stores
-    them as variable-length UTF-8.
+@dataclass(frozen=True, eq=False)
+class AnalysisResult(AnalysisHeader):
+    """Result of one ``Simulate`` command: the :class:`~poise.solvers.record.AnalysisHeader`
+    (index, analysis_type, method, status, message, settings), ``datasets`` (path relative to
+    the analysis group -> array) and group ``attrs``, with readers. String arrays in
+    ``datasets`` are numpy ``str_`` arrays; the writer stores them as variable-length UTF-8.
     """
+
+    datasets: dict[str, np.ndarray] = field(default_factory=dict)
+    attrs: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def of(cls, record: AnalysisRecord) -> "AnalysisResult":
-        """The result of a solver's record (the same data, not copied)."""
+        """The result of a solver's record, laid out by :mod:`poise.results.layout`."""
         if isinstance(record, cls):
             return record
-        return cls(**{f.name: getattr(record, f.name) for f in fields(AnalysisRecord)})
+        datasets, attrs = analysis_datasets(record)
+        return cls(index=record.index, analysis_type=record.analysis_type,
+                   method=record.method, status=record.status, message=record.message,
+                   settings=record.settings, datasets=datasets, attrs=attrs)
 
     @property
     def n_frames(self) -> int:

@@ -379,7 +379,7 @@ def table(kind: str, section: str) -> str:
 def dimension_table() -> str:
     """The netCDF dimensions: name, where it is defined, its size and coordinate values."""
     out = ["| dimension | defined in | size | coordinate values / meaning |", "|---|---|---|---|"]
-    for sym, name in sd.DIMENSIONS.items():
+    for sym, name in sd.symbol_dimensions().items():
         where = sorted({it.scope for it in items() if it.kind == "dataset"
                         and name in dims(it)})
         place = ", ".join("`/`" if w == "root" else "`/model`" if w == "model"

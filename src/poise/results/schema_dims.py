@@ -9,20 +9,19 @@ their scope (``/model``, each ``/analysis_NNN``); fixed-size ones at the root, w
 values (:data:`COMPONENTS`). ``case`` (symbol ``C``) is the root dimension of sweep files
 (:mod:`poise.results.schema_sweep`).
 Adding a dataset: give it a long name in :data:`LONG_NAMES` (patterns ``<group>``: any element
-group); a new shape symbol needs a :data:`DIMENSIONS` entry.
+group); a new shape symbol needs a :data:`DIMENSIONS` entry. An element group's symbol, dimension
+and noun are declared with the group (:class:`poise.elements.registry.OutputGroup`).
 """
 from __future__ import annotations
 
 import functools
 
-#: shape symbol -> dimension name (one per symbol; sizes per scope instance)
+#: shape symbol -> dimension name (one per symbol; sizes per scope instance), besides the
+#: element groups' (:func:`symbol_dimensions`)
 DIMENSIONS = {
-    "F": "frame", "B": "body", "W": "warning", "J": "joint", "P": "jprim", "Mo": "motion",
-    "E": "force_element", "Cp": "coupler", "G": "gear", "U": "userconstr", "Cv": "curve",
-    "Mk": "marker", "Gr": "graphic", "K": "mode", "N": "iteration", "Np": "pose",
-    "I1": "mkeam_iterate", "Ct": "contact", "D": "redundant_equation", "R": "request",
-    "Dd": "diff", "V": "reference_variable", "Mc": "compliance_marker", "S": "step",
-    "Gc": "gcon", "C": "case",
+    "F": "frame", "B": "body", "W": "warning", "Mk": "marker", "Gr": "graphic", "K": "mode",
+    "N": "iteration", "Np": "pose", "I1": "mkeam_iterate", "D": "redundant_equation",
+    "Mc": "compliance_marker", "S": "step", "C": "case",
 }
 RESERVED = ("case",)
 #: meanings of the symbol dimensions in the format document
@@ -77,12 +76,8 @@ DERIVED = {
 #: that share their dimension
 COORDINATE_NAMES = ("id", "label", "tag", "type", "channel", "channel_units", "frame")
 
-_E = {"joints": "joint", "jprims": "joint primitive", "motions": "motion",
-      "forces": "force element", "couplers": "coupler", "gears": "gear",
-      "userconstrs": "user constraint", "curves": "curve constraint", "contacts": "contact point",
-      "requests": "request", "diffs": "Control_Diff", "variables": "variable",
-      "bodies": "body", "markers": "marker", "graphics": "graphic",
-      "gcons": "general constraint"}
+#: singular nouns of the groups that are not element groups (those declare theirs)
+_E = {"bodies": "body", "markers": "marker", "graphics": "graphic"}
 
 #: long names (``<group>``: any group of :data:`_E`); "scope/name" or "<any>/name"
 LONG_NAMES = {
@@ -189,9 +184,27 @@ LONG_NAMES = {
 }
 
 
+@functools.cache
+def _groups() -> dict:
+    from poise.elements.registry import group_declarations   # lazy: every element type
+    return group_declarations()
+
+
+@functools.cache
+def symbol_dimensions() -> dict:
+    """Shape symbol -> dimension name: :data:`DIMENSIONS` and the element groups'."""
+    out = dict(DIMENSIONS)
+    for g in _groups().values():
+        if out.setdefault(g.symbol, g.dimension) != g.dimension or not g.dimension:
+            raise AssertionError(f"element group {g.name!r}: symbol {g.symbol!r} needs its own "
+                                 "dimension name (OutputGroup.dimension)")
+    return out
+
+
 def element_name(group: str) -> str | None:
-    """The singular noun of an element group (``joints`` -> ``joint``), or None."""
-    return _E.get(group)
+    """The singular noun of a group (``joints`` -> ``joint``), or None."""
+    g = _groups().get(group)
+    return _E.get(group) if g is None else g.noun
 
 
 def dims(it) -> tuple[str, ...]:
@@ -215,8 +228,8 @@ def _dims(scope: str, name: str, shape: tuple) -> tuple[str, ...]:
             else:
                 raise AssertionError(f"{scope}/{name}: axis {k} of size {s} needs a dimension "
                                      f"name (poise.results.ITEM_DIMS)")
-        elif s in DIMENSIONS:
-            out.append(DIMENSIONS[s])
+        elif s in symbol_dimensions():
+            out.append(symbol_dimensions()[s])
         else:
             raise AssertionError(f"{scope}/{name}: shape symbol {s!r} has no dimension name "
                                  f"(poise.results.DIMENSIONS)")
@@ -227,7 +240,7 @@ def _dims(scope: str, name: str, shape: tuple) -> tuple[str, ...]:
 def dimension_names() -> frozenset[str]:
     """Every dimension name a results file may hold (the names of its dimension-scale
     datasets, which readers skip: they are not declared datasets)."""
-    return frozenset((*DIMENSIONS.values(), *COMPONENTS,
+    return frozenset((*symbol_dimensions().values(), *COMPONENTS,
                       *DERIVED, *RESERVED))
 
 

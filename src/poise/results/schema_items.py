@@ -1,8 +1,9 @@
 """The declarations of :mod:`poise.results.schema`: one row per dataset or attribute.
 
 Long by nature (a table of the whole file format; split it by section past ~500 lines).
-Shape symbols: F frames, B bodies, N iteration rows, and one symbol per element group (listed
-in ``results_format.md``, *Conventions*); ``6Mc`` is six times Mc. Unit expressions: ``length force mass time`` and
+Shape symbols: F frames, B bodies, N iteration rows, and one symbol per element group (declared
+with the group by its element types, :class:`poise.elements.registry.OutputGroup`, listed in
+``results_format.md``, *Conventions*); ``6Mc`` is six times Mc. Unit expressions: ``length force mass time`` and
 ``rad``; ``"1"`` dimensionless; ``""`` text; ``"mixed"`` components of different units (the
 meaning says which). Adding a capability: declare its datasets here, in a section of
 ``results_format.md`` (or a new ``{{datasets:SECTION}}`` line there), then regenerate the
@@ -116,18 +117,6 @@ _d(M, "length_scale", "float", (), "length", "the model size L that scales momen
 _d(M, "n_coordinates", "int", (), "1", "number of generalised coordinates", "model")
 _d(M, "n_equations", "int", (), "1", "number of constraint equations (before redundancy "
    "removal)", "model")
-_MODEL_GROUPS = {"joints": ("J", "`Constraint_Joint`"), "jprims": ("P", "`Constraint_Jprim`"),
-                 "motions": ("Mo", "`Motion_Joint` / `Motion_Marker`"),
-                 "forces": ("E", "force element"), "couplers": ("Cp", "`Constraint_Coupler`"),
-                 "gears": ("G", "`Constraint_Gear`"),
-                 "userconstrs": ("U", "`Constraint_UserConstr`"),
-                 "curves": ("Cv", "`Constraint_PTCV/CVCV/PTSF/CVSF/SFSF`"),
-                 "gcons": ("Gc", "`Constraint_General`")}
-for g, (s, what) in _MODEL_GROUPS.items():
-    _d(M, f"{g}/id", "int", (s,), "1", f"{what} ids, in the order of the analyses' `{g}/*`",
-       "model", optional=True)
-    _d(M, f"{g}/label", "str", (s,), "", "their `label` attributes (empty if none)", "model",
-       optional=True)
 _d(M, "markers/id", "int", ("Mk",), "1", "marker ids in compiled order (id 0 = the global "
    "frame)", "model-markers")
 _d(M, "markers/body_id", "int", ("Mk",), "1", "id of the moving body the marker is on; `-1` "
@@ -302,40 +291,6 @@ for n, t, sh, u, m in (
          "from the body's input orientation, full turns counted (`|v|` may exceed pi)")):
     _d(A, f"bodies/{n}", t, sh, u, m, "bodies")
 
-# element reactions
-_REACT = {
-    "joints": ("J", "`Constraint_Joint`", "force on the I body at the I marker, global axes"),
-    "jprims": ("P", "`Constraint_Jprim`", "as for joints"),
-    "motions": ("Mo", "`Motion_Joint` / `Motion_Marker`", "driving force the motion applies "
-                "to the body of its I marker, at the I origin, global axes"),
-    "forces": ("E", "force element", "force the element applies to the body of its I marker, "
-               "at the I marker origin, global axes"),
-    "couplers": ("Cp", "`Constraint_Coupler`", "load the coupler's multiplier applies "
-                 "**through joint 1's I marker** to that marker's body (e.g. the coupling "
-                 "torque on shaft 1)"),
-    "gears": ("G", "`Constraint_Gear`", "as for couplers: the mesh load on joint 1's I body "
-              "through its I marker"),
-    "userconstrs": ("U", "`Constraint_UserConstr` (Python UCOSUB)", "reaction on the body of "
-                    "the first marker the user routine reads, at its origin, global axes"),
-    "gcons": ("Gc", "`Constraint_General`", "the constraint's load on the body of its "
-              "`i_marker_id`, reduced to that marker's origin, global axes; NaN when the "
-              "element names no `i_marker_id` (MotionSolve gives no reaction then)"),
-}
-for g, (s, what, fm) in _REACT.items():
-    opt = True
-    _d(A, f"{g}/id", "int", (s,), "1", f"{what} ids", "reactions", opt)
-    _d(A, f"{g}/label", "str", (s,), "", "their `label` attributes (empty if none)",
-       "reactions", opt)
-    if g == "forces":
-        _d(A, "forces/tag", "str", ("E",), "", "element tag of each force element "
-           "(`Force_SpringDamper`, …; `(tag, id)` identifies an element)", "reactions", opt)
-    _d(A, f"{g}/force", "float", ("F", s, 3), "force", fm, "reactions", opt)
-    _d(A, f"{g}/torque", "float", ("F", s, 3), "force*length", "torque on the same body about "
-       "the same marker origin, global axes", "reactions", opt)
-    if g in ("joints", "jprims"):
-        _d(A, f"{g}/unique", "bool", (s,), "1", "the element's reaction is uniquely "
-           "determined (no removed redundant equation depends on its rows)", "reactions", opt)
-
 # iterations
 for n, t, u, m in (
         ("frame", "int", "1", "frame index (0-based) the iteration belongs to"),
@@ -381,62 +336,12 @@ _d(A, "mkeam/orientation", "float", (1, "B", 3, 3), "1", "its orientations", "mk
 _d(A, "mkeam/initial_potential_energy", "float", (), "force*length", "potential of the start",
    "mkeam", True)
 
-# contacts, curves
-for n, t, sh, u, m in (
-        ("id", "int", ("Ct",), "1", "`Force_Contact` id of each contact point (a box-plane pair "
-         "has 8)"),
-        ("label", "str", ("Ct",), "", "that element's `label` (empty if none)"),
-        ("kind", "str", ("F", "Ct"), "", "sphere-plane, sphere-sphere, sphere-box, corner-plane "
-         "(repeated per frame)"),
-        ("force", "float", ("F", "Ct", 3), "force", "force on the I geometry's body, global"),
-        ("penetration", "float", ("F", "Ct"), "length", "penetration (negative = gap)")):
-    _d(A, f"contacts/{n}", t, sh, u, m, "contacts", True)
-for n, t, sh, u, m in (
-        ("id", "int", ("Cv",), "1", "constraint id"),
-        ("tag", "str", ("Cv",), "", "element tag (`Constraint_PTCV`, ...)"),
-        ("label", "str", ("Cv",), "", "its `label` (empty if none)"),
-        ("parameters", "float", ("F", "Cv", 4), "mixed", "curve/surface parameters (their own "
-         "units), padded with NaN: PTCV (u), CVCV (u_i, u_j), PTSF (u, v), CVSF (u, s, t), "
-         "SFSF (u_i, v_i, u_j, v_j)"),
-        ("point", "float", ("F", "Cv", 3), "length", "global contact point: PTCV/PTSF the point "
-         "on J's curve/surface; CVCV/CVSF/SFSF the point of I's curve/surface"),
-        ("force", "float", ("F", "Cv", 3), "force", "reaction on the I marker's body, global"),
-        ("torque", "float", ("F", "Cv", 3), "force*length", "its torque about the I marker "
-         "origin, global")):
-    _d(A, f"curves/{n}", t, sh, u, m, "curves", True)
-
 # redundancy
 for n, t, m in (("tag", "str", "element tag of each removed equation"),
                 ("id", "int", "element id"),
                 ("equation", "str", "which equation of the element (e.g. `rot_x`, `trans_z`)"),
                 ("line", "int", "deck line of the element")):
     _d(A, f"redundant/{n}", t, ("D",), "" if t == "str" else "1", m, "redundant")
-
-# requests, diffs, variables
-for n, t, sh, u, m in (
-        ("id", "int", ("R",), "1", "`Post_Request` ids"),
-        ("label", "str", ("R",), "", "their `label` attributes (empty if none)"),
-        ("type", "str", ("R",), "", "request type (`EXPRESSION`, `MARKER_DISPLACEMENT`, "
-         "`MARKER_FORCE`, `ELEMENTAL_FORCE`, …)"),
-        ("channel", "str", ("R", 8), "", "name of each channel (`DM DX DY DZ` … `ROLL`, "
-         "`FM` … `TZ`, `expr1` … `expr8`; empty for an unused one): "
-         "`RunResult.request(id, name)` reads a channel by it"),
-        ("channel_units", "str", ("R", 8), "", "unit of each channel in the deck's units "
-         "(empty: an expression of unknown unit, or unused)"),
-        ("values", "float", ("F", "R", 8), "mixed", "the request's 8 channels in MotionSolve "
-         "order, units per channel in `requests/channel_units`"),
-        ("message", "str", ("F",), "", "empty, or why channels of that frame are NaN "
-         "(evaluation error at the frame's state)")):
-    _d(A, f"requests/{n}", t, sh, u, m, "requests", True)
-for g, s, what, val in (("diffs", "Dd", "`Control_Diff`", "state value y (held states: their "
-                         "constant `ic`)"),
-                        ("variables", "V", "implicit and user (`USERSUB`) `Reference_Variable`",
-                         "variable value v (held: `ic`)")):
-    _d(A, f"{g}/id", "int", (s,), "1", f"{what} ids", "requests", True)
-    _d(A, f"{g}/label", "str", (s,), "", "their `label` attributes (empty if none)", "requests",
-       True)
-    _d(A, f"{g}/value", "float", ("F", s), "mixed", val + " (units of its expression)",
-       "requests", True)
 
 # compliance
 _d(A, "compliance/marker_id", "int", ("Mc",), "1", "the markers, in matrix order",
@@ -469,4 +374,8 @@ for n, t, u, m in (
 
 
 def declared() -> list[Item]:
-    return list(_ROWS)
+    """Every declaration: this table, then the element groups' datasets, derived from the
+    element registry's :class:`~poise.elements.registry.OutputGroup` declarations
+    (:mod:`poise.results.schema_groups`)."""
+    from poise.results.schema_groups import element_items     # lazy: imports every element type
+    return list(_ROWS) + element_items(Item)

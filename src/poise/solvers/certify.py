@@ -11,6 +11,8 @@ demoted to ``Status.TOLERANCE_NOT_MET`` and the message says which tolerance it 
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from poise.model.evaluate import Evaluation
@@ -20,18 +22,19 @@ from poise.solvers.status import Status
 
 def certify(model, settings, outcome, r, phi, sc=None) -> tuple:
     """Measure ``outcome``'s frame from its residual ``r`` (nq,) and constraint values ``phi``
-    (nc,, inactive rows zeroed) and apply the rule above, in place: ``imbalance`` becomes the
-    measured infinity norm of ``r``; ``error`` the larger of the measured constraint error and
-    the method's own estimate (if finite). Returns the measures ``(imbalance, constraint
+    (nc,, inactive rows zeroed) and apply the rule above. Returns ``(certified outcome,
+    measures)``: a new outcome whose ``imbalance`` is the measured infinity norm of ``r`` and
+    ``error`` the larger of the measured constraint error and the method's own estimate (if
+    finite), demoted if it misses a tolerance; the measures are ``(imbalance, constraint
     error, worst equation)``."""
     sc = sc if sc is not None else Scales(model, settings)
     imb, cerr, zinf, worst = measures(model, Evaluation(r=r, phi=phi, J=None), sc)
     own = outcome.error
-    outcome.imbalance = imb
-    outcome.error = max(cerr, float(own)) if np.isfinite(own) else cerr
+    outcome = replace(outcome, imbalance=imb,
+                      error=max(cerr, float(own)) if np.isfinite(own) else cerr)
     measured = (imb, cerr, worst)
     if not outcome.ok:
-        return measured
+        return outcome, measured
     zr = np.abs(r) / sc.r_tol if len(r) else np.zeros(1)
     k = int(np.argmax(zr))
     if not (np.all(np.isfinite(zr)) and zr[k] <= 1.0):
@@ -45,8 +48,7 @@ def certify(model, settings, outcome, r, phi, sc=None) -> tuple:
     elif not outcome.error <= settings.max_error:
         what = f"error {outcome.error:.3g} > max_error {settings.max_error:g}"
     else:
-        return measured
-    outcome.status = Status.TOLERANCE_NOT_MET
-    outcome.message = (f"not converged: {what} at the reported state"
-                       + (f"; worst equation: {worst}" if worst else ""))
-    return measured
+        return outcome, measured
+    return replace(outcome, status=Status.TOLERANCE_NOT_MET,
+                   message=(f"not converged: {what} at the reported state"
+                            + (f"; worst equation: {worst}" if worst else ""))), measured

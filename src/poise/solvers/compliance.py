@@ -16,13 +16,13 @@ from poise.core.errors import EvaluationError, UsageError
 from poise.core.wording import plural
 from poise.model.evaluate import evaluate
 from poise.model.frame_batch import batchable, chunk_size
-from poise.model.model import _log_so3
+from poise.model.model import log_so3
 from poise.solvers.data import SolveData
 from poise.solvers.history import History
 from poise.solvers.linalg import Factor, SingularMatrix
 from poise.solvers.newton import newton
+from poise.solvers.record import ComplianceRecord
 
-METHODS = ("exact", "fd")
 AUTO_MAX_BODIES = 100
 AUTO_MAX_ENTRIES = 4_000_000   # auto: F x (6M)^2 above this (32 MB) is skipped with a note
 REDUCED_MAX_NQ = 3000          # singular frames: dense reduced stiffness up to this size
@@ -227,7 +227,7 @@ def _fd(model, state, active, G, rows, settings):
         P1, A1, _ = model.marker_kinematics(st)
         u = np.empty((len(rows), 6))
         u[:, :3] = P1[rows] - P0
-        u[:, 3:] = _log_so3(np.matmul(A1[rows], np.swapaxes(A0, 1, 2)))
+        u[:, 3:] = log_so3(np.matmul(A1[rows], np.swapaxes(A0, 1, 2)))
         C[:, c] = u.ravel() / h
     return C, ("fd_failed" if failed else "ok")
 
@@ -287,8 +287,12 @@ def _exact_frames(model, frames, active, rows, classes):
     return out
 
 
-def attach(ar, model, frames, outcomes, redundancy, settings):
-    """Add the compliance datasets/attributes of ``frames`` to the AnalysisResult ``ar``."""
+def compliance_step(model, frame_set, redundancy, settings) -> tuple:
+    """The driver's compliance step after the frames are measured: ``(ComplianceRecord or
+    None, analysis attributes)`` of the frames of ``frame_set`` (its certified outcomes and
+    stability classes decide what is computed)."""
+    frames, outcomes = list(frame_set.states), frame_set.outcomes
+    attrs = {}
     rows, note = select(model, settings)
     n = 6 * (len(rows) if rows is not None else 0)
     if rows is not None and getattr(settings, "compliance_markers", "auto") == "auto" \
@@ -298,17 +302,16 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
                             "--compliance-markers all (or marker ids), or Param_Static "
                             "compliance_markers=\"all\"")
     if rows is None:
-        ar.attrs["compliance_note"] = note
-        return
+        attrs["compliance_note"] = note
+        return None, attrs
     method = getattr(settings, "compliance_method", "exact")
     active = np.ones(model.nc, bool)
     active[np.asarray(redundancy, int)] = False
-    stab = ar.datasets.get("frames/stability")
+    stab = frame_set.stability
     Cs, flags = [], []
     cache = {}
     t_dep = model.depends_on_time()
-    classes = [str(stab[k]) if stab is not None and k < len(stab) else ""
-               for k in range(len(frames))]
+    classes = [str(stab[k].klass) if k < len(stab) else "" for k in range(len(frames))]
     if method == "exact" and model.nq and len(frames) > 1:
         ok = [k for k, o in enumerate(outcomes) if o.ok]
         try:
@@ -333,14 +336,13 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
         C, flag = cache[key]
         Cs.append(C)
         flags.append(flag)
-    ar.datasets["frames/compliance"] = np.stack(Cs) if Cs else np.zeros((0, n, n))
-    ar.datasets["frames/compliance_flag"] = np.array(flags, dtype=str)
-    ar.datasets["compliance/marker_id"] = np.asarray(model.marker_id)[rows].astype(np.int64)
-    ar.datasets["compliance/method"] = np.array(method, dtype=str)
-    ar.attrs["compliance_method"] = method
-    ar.attrs["compliance_units"] = UNITS
+    rec = ComplianceRecord(matrices=np.stack(Cs) if Cs else np.zeros((0, n, n)),
+                           flags=tuple(flags), method=method,
+                           marker_id=np.asarray(model.marker_id)[rows].astype(np.int64))
+    attrs["compliance_method"] = method
+    attrs["compliance_units"] = UNITS
     if method == "fd":
-        ar.attrs["compliance_delta"] = float(settings.compliance_delta)
+        attrs["compliance_delta"] = float(settings.compliance_delta)
     said = {"singular": "free mechanism direction: NaN where it enters",
             "unstable": "unstable equilibrium: written as the KKT solve gives it",
             "fd_failed": "fd re-solve did not converge: NaN columns",
@@ -348,4 +350,5 @@ def attach(ar, model, frames, outcomes, redundancy, settings):
     parts = [f"{plural(sum(f == k for f in flags), 'frame')} {k} ({v})" for k, v in said.items()
              if k in flags]
     if note or parts:
-        ar.attrs["compliance_note"] = "; ".join([note] * bool(note) + parts)
+        attrs["compliance_note"] = "; ".join([note] * bool(note) + parts)
+    return rec, attrs

@@ -29,7 +29,6 @@ class Context:
     ``arrays``); ``data``: active rows and counters; ``redundancy``: redundant rows (None until
     detected; detection runs once per model and is handed on to later analyses); ``frames`` /
     ``outcomes``: the solved frames; ``times``: the output times; ``notes``: message parts;
-    ``measured``: ``{frame: history row}`` whose measures the output evaluation fills in;
     ``progress``: ``progress(label, done, total)`` or None (``done`` None: finished);
     ``infos``: classifications made during the solve (:mod:`poise.solvers.path`), reused by
     the output.
@@ -47,7 +46,6 @@ class Context:
     notes: list = field(default_factory=list)
     moved: bool = False
     time_independent: bool = False
-    measured: dict = field(default_factory=dict)
     progress: Callable | None = None
     start: Any = None        # frame 0's assembled input (require_stable descends from it)
     infos: dict = field(default_factory=dict)   # id(state) -> (state, StabilityInfo) classified
@@ -68,13 +66,15 @@ class Strategy:
     * ``init(ctx, state)``: solve frame 0 (after :func:`prologue`) and set up.
     * ``step(ctx)``: advance (append frames/outcomes to ``ctx``); called while not
       ``terminate(ctx)``.
-    * ``postprocess(ctx) -> (datasets, attrs)``: after the last step, before the result is
-      built: the strategy's own datasets and analysis attributes (and message notes).
-    * ``strategy_attrs``: write the per-strategy iteration totals (``iterations_<stage>``).
+    * ``postprocess(ctx) -> (method_data, attrs)``: after the last step, before the result is
+      built: the method's own record (:class:`~poise.solvers.record.IdaSteps`,
+      :class:`~poise.solvers.record.MkeamRun` or None) and analysis attributes (and message
+      notes).
+    * ``stage_totals``: write the per-stage iteration totals (``iterations_<stage>``).
     """
 
     name = ""
-    strategy_attrs = True
+    stage_totals = True
 
     def init(self, ctx: Context, state) -> None:
         raise NotImplementedError
@@ -85,8 +85,8 @@ class Strategy:
     def terminate(self, ctx: Context) -> bool:
         return True
 
-    def postprocess(self, ctx: Context) -> tuple[dict, dict]:
-        return {}, {}
+    def postprocess(self, ctx: Context) -> tuple:
+        return None, {}
 
 
 def prologue(ctx: Context, state, multipliers: bool = True):

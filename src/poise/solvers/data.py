@@ -1,9 +1,11 @@
 """Per-solve data: what a solve changes, kept off the read-only compiled model.
 
-The compiled :class:`~poise.model.model.Model` is frozen after compile (MuJoCo's
-``mjModel``/``mjData`` split). A :class:`SolveData` carries the mutable part of one analysis:
-the active constraint-row mask (redundant rows removed) and the counters, and it is the one
-counted way to evaluate and to factorise: :meth:`SolveData.evaluate` (residual, Jacobian,
+The compiled :class:`~poise.model.model.Model` is immutable (MuJoCo's ``mjModel``/``mjData``
+split). A :class:`SolveData` carries the mutable part of one analysis: the active constraint-row
+mask (redundant rows removed), the counters and the solve's
+:class:`~poise.model.workspace.Workspace` (what evaluations keep between calls: assembly buffer,
+column order, tiled families, kernels' caches), and it is the one counted way to evaluate and
+to factorise: :meth:`SolveData.evaluate` (residual, Jacobian,
 deferred Jacobian, constraint values; one frame or many), :meth:`SolveData.jacobian` (a
 deferred Jacobian assembled) and :meth:`SolveData.factor`. Every solver strategy (Newton,
 continuation, the fallback chain, MKEAM, FIM_D, ``--require-stable``) goes through them, so
@@ -14,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.model.evaluate import evaluate as _engine
+from poise.model.workspace import Workspace
 from poise.solvers.linalg import Factor
 
 
@@ -22,11 +25,13 @@ class SolveData:
 
     ``active``: (nc,) bool, or None (every row active). Counters: ``residuals``,
     ``jacobians``, ``factorizations`` (``as_dict()``), incremented only by :meth:`evaluate`,
-    :meth:`jacobian` and :meth:`factor`.
+    :meth:`jacobian` and :meth:`factor`. ``workspace``: the solve's, passed to every
+    evaluation.
     """
 
     def __init__(self, active=None):
         self.active = None if active is None else np.array(active, bool)
+        self.workspace = Workspace()
         self.residuals = 0
         self.jacobians = 0
         self.factorizations = 0
@@ -69,7 +74,8 @@ class SolveData:
         if what == "jacobian":
             self.jacobians += n
         active = None if every_row else (self.mask(model) if what == "phi" else self.active)
-        return _engine(model, states, what, active=active, eps_mass=eps)
+        return _engine(model, states, what, active=active, eps_mass=eps,
+                       workspace=self.workspace)
 
     def jacobian(self, model, ev):
         """The Jacobian of an evaluation made with ``what="defer"`` (assembled and counted on

@@ -1,10 +1,11 @@
-"""One solver driver for every analysis: context, strategy loop, one result construction.
+"""One solver driver for every analysis: context, strategy loop, one typed record.
 
 A static analysis is a quasi-static one with one frame. :class:`Driver` builds the
 :class:`~poise.solvers.context.Context` (model, per-solve data, settings, history, counters),
 runs the strategy :data:`METHODS` maps the request to (``init``, ``step`` until
 ``terminate``, ``postprocess``: :class:`~poise.solvers.context.Strategy`) and builds the one
-result (:func:`build_result`). Every frame a strategy solves by Newton gets the fallback chain
+record (:func:`build_result`: measurement and certification of the frames, the verdict, the
+compliance matrices, explicit steps; :mod:`poise.results.layout` writes the record). Every frame a strategy solves by Newton gets the fallback chain
 (:func:`poise.solvers.fallback.solve_frame`). An element that cannot be evaluated ends the
 analysis as a ``nonfinite`` frame, never an exception.
 """
@@ -13,21 +14,13 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.model.evaluate import Evaluation
-from poise.solvers.compliance import attach
+from poise.solvers.compliance import compliance_step
 from poise.solvers.context import Context
 from poise.solvers.data import SolveData
-from poise.solvers.frames import (
-    frame_datasets,
-    frame_outputs,
-    frames_datasets,
-    redundancy_datasets,
-    stack_frames,
-    strategy_attrs,
-)
-from poise.solvers.newton import FrameOutcome, Scales, measures
+from poise.solvers.frames import frame_outputs, measure_frame, measure_frames, stack_frames
+from poise.solvers.newton import FrameOutcome
 from poise.solvers.quasistatic import NewtonFrames
-from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord
+from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord, FrameSet
 from poise.solvers.stable import require_stable_check
 from poise.solvers.status import Status
 
@@ -115,88 +108,57 @@ class Driver:
         finally:
             if ctx.kind == "quasistatic":
                 ctx.report(label, None, len(ctx.times))
-        extra, attrs = strategy.postprocess(ctx)
-        ar = build_result(ctx, strategy, index, extra)
-        ar.attrs.update(attrs)
-        return ctx.frames[-1], ar
+        method_data, attrs = strategy.postprocess(ctx)
+        return ctx.frames[-1], build_result(ctx, strategy, index, method_data, attrs)
 
 
-def build_result(ctx, strategy, index, extra=None) -> AnalysisRecord:
-    """The result of an analysis: every frame's outcome is certified on its output evaluation
-    (:func:`~poise.solvers.certify.certify`); ``ctx.measured`` frames take their history row's
-    imbalance / constraint error / worst equation from it (FIM_D's interpolated frames)."""
+def build_result(ctx, strategy, index, method_data=None, method_attrs=None) -> AnalysisRecord:
+    """The record of an analysis, in explicit steps: the frames are measured (one output
+    evaluation each: every outcome certified there, :func:`~poise.solvers.certify.certify`;
+    history rows recorded ``measured_at`` a frame show its measures: FIM_D's interpolated
+    frames), the verdict (``require_stable`` of a static frame), the compliance matrices;
+    then the record."""
     model, s = ctx.model, ctx.settings
-    frames, outcomes = ctx.frames, ctx.outcomes
     static = ctx.kind == "static"
-    ar = AnalysisRecord(index=index, analysis_type=ctx.kind, method=strategy.name,
-                        settings=dict(s.as_dict(), method_requested=s.method))
-    ar.attrs["reactions_unique"] = bool(len(ctx.redundancy) == 0)
-    ar.attrs["assembled"] = bool(ctx.moved)
-    if not static:
-        ar.attrs["time_independent"] = bool(ctx.time_independent)
-        ar.attrs["n_frames"] = len(frames)
-    ar.datasets.update(_frame_set_datasets(ctx, static))
+    frames = _measured_frames(ctx, static)
+    outcomes = frames.outcomes
     if static:
         out = outcomes[0]
-        ar.status = STATUS_CONVERGED if out.ok else STATUS_FAILED
-        ar.message = "; ".join([m for m in [out.message] + ctx.notes if m])
-        require_stable_check(ar, out, s)          # every static method (MKEAM too)
+        status = STATUS_CONVERGED if out.ok else STATUS_FAILED
+        message = "; ".join([m for m in [out.message] + ctx.notes if m])
+        frames, message, refused = require_stable_check(frames, message, s)  # every method
+        if refused:
+            status = STATUS_FAILED
     else:
-        ok = all(o.ok for o in outcomes) and len(frames) == len(ctx.times)
-        ar.status = STATUS_CONVERGED if ok else STATUS_FAILED
+        ok = all(o.ok for o in outcomes) and len(ctx.frames) == len(ctx.times)
+        status = STATUS_CONVERGED if ok else STATUS_FAILED
         failed = next((o for o in outcomes if not o.ok), None)
         first = "converged"
         if failed is not None:
             k = outcomes.index(failed)
-            first = f"frame {k} (t={frames[k].t:.9g}) failed: {failed.message}"
-        ar.message = "; ".join([first] + ctx.notes)
-    ar.datasets.update(stack_frames([frame_outputs(model, st) for st in frames]))
-    attach(ar, model, frames, outcomes, ctx.redundancy, s)    # after the stability datasets
-    ar.datasets.update(ctx.history.datasets())
+            first = f"frame {k} (t={ctx.frames[k].t:.9g}) failed: {failed.message}"
+        message = "; ".join([first] + ctx.notes)
+    compliance, attrs = compliance_step(model, frames, ctx.redundancy, s)
+    attrs = {"reactions_unique": bool(len(ctx.redundancy) == 0), "assembled": bool(ctx.moved),
+             **({} if static else {"time_independent": bool(ctx.time_independent),
+                                   "n_frames": len(ctx.frames)}),
+             **attrs, **(method_attrs or {})}
+    return AnalysisRecord(
+        index=index, analysis_type=ctx.kind, method=strategy.name, status=status,
+        message=message, settings=dict(s.as_dict(), method_requested=s.method), attrs=attrs,
+        frames=frames,
+        element_outputs=stack_frames([frame_outputs(model, st) for st in ctx.frames]),
+        history=ctx.history, redundant=tuple(model.row_info[r] for r in ctx.redundancy),
+        compliance=compliance, method_data=method_data, stage_totals=strategy.stage_totals)
+
+
+def _measured_frames(ctx, static: bool):
+    """The :class:`~poise.solvers.record.FrameSet` of every frame: all at once where the
+    model allows it (quasi-static), else frame by frame."""
     if static:
-        ar.attrs.update(ctx.history.attrs())
-    if strategy.strategy_attrs:
-        ar.attrs.update(strategy_attrs(ar.datasets))
-    ar.datasets.update(redundancy_datasets(model, ctx.redundancy))
-    if extra:
-        ar.datasets.update(extra)
-    return ar
-
-
-def _frame_set_datasets(ctx, static: bool) -> dict:
-    """Output datasets of every frame: all at once where the model allows it (quasi-static),
-    else frame by frame."""
-    model, measured = ctx.model, ctx.measured
-    sc = Scales(model, ctx.settings) if measured else None
-
-    def measure_row(k, imb, cerr, worst):
-        if k not in measured:
-            return
-        row = list(ctx.history.rows[measured[k]])
-        row[2], row[3], row[6] = imb, cerr, worst
-        ctx.history.rows[measured[k]] = tuple(row)
-
-    def measure(k):
-        def on_eval(ev, active):
-            ms = measures(model, Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0),
-                                            J=None), sc)
-            measure_row(k, ms[0], ms[1], ms[3])
-        return on_eval
-
-    if static:
-        return frame_datasets(ctx, ctx.frames[0], ctx.outcomes)
-    d = frames_datasets(ctx, ctx.frames, ctx.outcomes, measure_row if measured else None)
-    if d is not None:
-        return d
-    per = [frame_datasets(ctx, st, [o], on_eval=measure(k) if k in measured else None)
-           for k, (st, o) in enumerate(zip(ctx.frames, ctx.outcomes))]
-    d = {}
-    # keys every frame has (a failed frame has no stability classification)
-    for key in [k for k in per[0] if all(k in p for p in per[1:])]:
-        if key.endswith(("/id", "/tag", "/unique", "/label")):
-            d[key] = per[0][key]
-        else:
-            d[key] = np.concatenate([np.asarray(p[key]) for p in per])
-    return d
-
-
+        return measure_frame(ctx, ctx.frames[0], ctx.outcomes)
+    fs = measure_frames(ctx, ctx.frames, ctx.outcomes)
+    if fs is not None:
+        return fs
+    return FrameSet.concatenate([measure_frame(ctx, st, [o])
+                                 for st, o in zip(ctx.frames, ctx.outcomes)])

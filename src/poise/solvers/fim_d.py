@@ -28,6 +28,7 @@ from poise.solvers.quasistatic import (
     first_frame,
     require_stable,
 )
+from poise.solvers.record import IdaSteps
 from poise.solvers.status import Status
 
 REBASE_ANGLE = 1.0        # rad
@@ -205,8 +206,8 @@ class IdaContinuation(Strategy):
             Yc, n_c, errs, ok_c = self.correct.batch(chart, np.array([p[2] for p in pend]), Tp)
             sts = chart.states(Yc, Tp)
             for j, (k, tk, yk) in enumerate(pend):
-                ctx.measured[len(ctx.frames)] = len(hist.rows)
-                hist.add(k, n_c[j], np.nan, np.nan, errs[j], np.nan, "", "ida")
+                hist.add(k, n_c[j], np.nan, np.nan, errs[j], np.nan, "", "ida",
+                         measured_at=len(ctx.frames))
                 if ok_c[j]:
                     st, o = sts[j], FrameOutcome(Status.CONVERGED, int(n_c[j]), np.nan, errs[j],
                                                  "ida")
@@ -269,7 +270,7 @@ class IdaContinuation(Strategy):
     def postprocess(self, ctx):
         path.check(ctx, fims_step)
         if not hasattr(self, "steps"):        # frame 0 failed or nothing to integrate
-            return {}, singular.located_attrs(ctx.outcomes)
+            return None, singular.located_attrs(ctx.outcomes)
         model, notes, fallbacks = ctx.model, ctx.notes, self.fallbacks
         if fallbacks:
             notes.append(f"{len(fallbacks)} FIM_S fallbacks: " + "; ".join(fallbacks[:3])
@@ -283,9 +284,6 @@ class IdaContinuation(Strategy):
         if self.conv_coef_off:
             notes.append(f"IDA corrector coefficient left at IDA's default 0.33 (not "
                          f"{ida.NONLIN_CONV_COEF:g}): " + "; ".join(self.conv_coef_off))
-        datasets = {f"steps/{k}": np.asarray(v, dtype=float if k in ("time", "step_size")
-                                             else np.int64)
-                    for k, v in self.steps.items()}
         attrs = {"ida_steps": nsteps}
         for k, v in self.correct.stats.items():
             attrs[f"correction_{k}"] = v
@@ -293,7 +291,7 @@ class IdaContinuation(Strategy):
         attrs["dae_tol"] = self.tol
         attrs["ida_linear_solver"] = "sparse" if self.sparse is not None else "dense"
         attrs.update(singular.located_attrs(ctx.outcomes))
-        return datasets, attrs
+        return IdaSteps(columns=dict(self.steps)), attrs
 
 
 def _over_budget(n_steps, max_steps, y, model, t):

@@ -1,14 +1,15 @@
-"""Per-frame output datasets, one frame or all frames at once.
+"""The output frames measured: one frame or all frames at once, as a typed record.
 
-:func:`frame_datasets` computes one frame's outputs from one residual + Jacobian evaluation:
-reactions (minimum-norm where constraints are redundant), element loads, the stability class,
-and for FIM_D's interpolated frames the imbalance and constraint error; it certifies the
-frame's outcome on that evaluation. :func:`frames_datasets` produces the same datasets for a
-whole list of frames from :func:`poise.model.evaluate.evaluate` (chunks of frames,
-one kernel call per tileable family per chunk) and a batched stability classification, so the
-per-frame cost is array work; it returns ``None`` where batching does not apply or a frame does
-not evaluate to finite values (the caller then uses the frame-by-frame path, which names the
-failing element). :func:`output_datasets` holds the datasets common to every analysis.
+:func:`measure_frame` measures one frame from one residual + Jacobian evaluation: it certifies
+the frame's outcome there, computes reactions (minimum-norm where constraints are redundant),
+element loads, the stability class, and for FIM_D's interpolated frames the imbalance and
+constraint error. :func:`measure_frames` does the same for a whole list of frames from
+:func:`poise.model.evaluate.evaluate` (chunks of frames, one kernel call per tileable family
+per chunk) and a batched stability classification, so the per-frame cost is array work; it
+returns ``None`` where batching does not apply or a frame does not evaluate to finite values
+(the caller then measures frame by frame, which names the failing element). Both give a
+:class:`~poise.solvers.record.FrameSet` (:func:`frame_set`); :mod:`poise.results.layout`
+lays it out in the file.
 """
 from __future__ import annotations
 
@@ -17,41 +18,39 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.model.evaluate import evaluate
 from poise.model.frame_batch import batchable, chunk_size
-from poise.elements.rotation import euler_313, euler_parameters
 from poise.solvers.certify import certify
-from poise.solvers.history import STRATEGIES
 from poise.solvers.newton import Scales
 from poise.solvers.outputs import element_loads, loads_of
 from poise.solvers.path import cached_info
+from poise.solvers.record import FrameSet, GroupLoads
 from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
 from poise.solvers.stability import (
     DENSE_LIMIT,
     classify,
     classify_dense_frames,
-    stability_datasets,
     unknown_info,
 )
 
 
-def frame_datasets(ctx, state, outcomes, on_eval=None):
-    """Datasets of one frame. ``on_eval(ev, active)``, if given, is called with the output
-    evaluation (all rows active) and the analysis' active-row mask before the outcomes are
-    read (FIM_D records its interpolated frames' measures from it: no second evaluation).
-    The outcomes are certified on that evaluation (:func:`~poise.solvers.certify.certify`:
-    measured imbalance / error; demoted if the tolerances are not met)."""
+def measure_frame(ctx, state, outcomes) -> FrameSet:
+    """The :class:`~poise.solvers.record.FrameSet` of one frame. The outcomes are certified
+    on its output evaluation (:func:`~poise.solvers.certify.certify`: measured imbalance /
+    error; demoted if the tolerances are not met): the set holds the certified ones and the
+    frame's measures (None if it could not be evaluated)."""
     model = ctx.model
     # one evaluation (all rows active, slot data kept) serves the minimum-norm reactions,
     # the element loads and the stability classification
     saved = ctx.data.mask(model)
     J = None
     dep = np.asarray(ctx.redundancy, int)
+    outcomes = list(outcomes)
+    measured = None
     try:
         ev = model.evaluate(state, need_jac=True, keep=True)
         J = ev.J
-        if on_eval is not None:
-            on_eval(ev, saved)
-        for o in outcomes:
-            certify(model, ctx.settings, o, ev.r, np.where(saved, ev.phi, 0.0))
+        phi = np.where(saved, ev.phi, 0.0)
+        for i, o in enumerate(outcomes):
+            outcomes[i], measured = certify(model, ctx.settings, o, ev.r, phi)
         lam = state.lam
         if len(ctx.redundancy) and model.nc:
             Pfull = J[model.nq:, :model.nq]
@@ -62,107 +61,54 @@ def frame_datasets(ctx, state, outcomes, on_eval=None):
         loads = element_loads(model, state, lam=lam, ev=ev)
     except EvaluationError:
         loads = {}
-    d = output_datasets(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
-                        dep, outcomes)
     done = ctx.data.classified
     known = done[1] if done is not None and done[0] is state else cached_info(ctx, state)
     if known is not None and (len(outcomes) == 1 or all(o.ok for o in outcomes)):
         # classified by the solve: also an equilibrium --require-stable refused (neutral),
         # or a path's located end
-        d.update(stability_datasets([known]))
+        infos = [known]
     elif all(o.ok for o in outcomes) and J is not None:
-        d.update(stability_datasets([classify(model, state, J=J, active=saved)]))
-    else:   # the same datasets either way: frames of a sequence are concatenated by key
-        d.update(stability_datasets([unknown_info()] * len(outcomes)))
-    return d
+        infos = [classify(model, state, J=J, active=saved)]
+    else:   # the same records either way: frames of a sequence are concatenated
+        infos = [unknown_info()] * len(outcomes)
+    return frame_set(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
+                     dep, outcomes, infos, [measured])
 
 
-def redundancy_datasets(model, redundancy) -> dict:
-    """``redundant/*``: the deck element and equation of every redundant constraint row."""
-    rows = [model.row_info[r] for r in redundancy]
-    return {
-        "redundant/tag": np.array([r["tag"] for r in rows], dtype=str),
-        "redundant/id": np.array([r["id"] for r in rows], dtype=np.int64),
-        "redundant/equation": np.array([r["equation"] for r in rows], dtype=str),
-        "redundant/line": np.array([r["line"] for r in rows], dtype=np.int64),
-    }
-
-
-def output_datasets(model, frames, loads, dep, outcomes) -> dict:
-    """Datasets of ``frames`` (one or many) common to every analysis: ``time``, ``bodies/*``,
-    per output group the ids, tags, element loads and (joints, jprims) reaction-uniqueness
-    flags, and ``frames/*`` of the ``outcomes``.
+def frame_set(model, frames, loads, dep, outcomes, stability, measures) -> FrameSet:
+    """The :class:`~poise.solvers.record.FrameSet` of ``frames`` (one or many): times, body
+    poses, per output group the element loads and (joints, jprims) reaction uniqueness, the
+    ``outcomes``, their ``stability`` and ``measures`` (per frame ``(imbalance, constraint
+    error, worst equation)`` of its output evaluation, or None).
 
     ``loads``: ``{group: (F, T)}`` with arrays (n_frames, n_group, 3); groups missing are
     zero. ``dep``: constraint rows taking part in a dependency (not unique).
     """
     nf = len(frames)
-    d = {"time": np.array([s.t for s in frames])}
-    d["bodies/id"] = model.body_id
-    d["bodies/position"] = np.stack([s.pos for s in frames])
-    d["bodies/orientation"] = np.stack([s.rot for s in frames])
-    d.update(orientation_datasets(model, frames, d["bodies/orientation"]))
+    rot = np.stack([s.rot for s in frames])
+    groups = {}
     for g, o in model.outputs.items():
         n_out = len(o["ids"])
         zero = np.zeros((nf, n_out, 3))
         F, T = loads.get(g, (zero, zero))
-        d[f"{g}/id"] = np.asarray(o["ids"])
-        if g == "forces":
-            d["forces/tag"] = np.asarray(o["tag"], dtype=str)
-        d[f"{g}/force"] = F
-        d[f"{g}/torque"] = T
+        uniq = None
         if g in ("joints", "jprims"):
             uniq = np.ones(n_out, bool)
             for r in dep:
                 ri = model.row_info[r]
                 if ri["group"] == g:
                     uniq[ri["owner"]] = False
-            d[f"{g}/unique"] = uniq
-    d["frames/converged"] = np.array([o.ok for o in outcomes])
-    d["frames/iterations"] = np.array([o.iterations for o in outcomes], dtype=np.int64)
-    d["frames/imbalance"] = np.array([o.imbalance for o in outcomes])
-    d["frames/error"] = np.array([o.error for o in outcomes])
-    d["frames/status"] = np.array([o.status.value for o in outcomes], dtype=str)
-    d.update(strategy_datasets(outcomes))
-    return d
-
-
-def orientation_datasets(model, frames, rot) -> dict:
-    """``bodies/euler_parameters`` (F,B,4), ``bodies/euler_313`` (F,B,3) of the orientations
-    ``rot`` (F,B,3,3) and ``bodies/rotation_from_input`` (F,B,3): each state's continuous
-    rotation vector (turns counted by State.rotvec; principal, |v| <= pi, for a state without
-    it). docs/results-format.md defines them."""
+        groups[g] = GroupLoads(ids=np.asarray(o["ids"]), force=F, torque=T, unique=uniq,
+                               tag=np.asarray(o["tag"], dtype=str) if g == "forces" else None)
     if all(s.rotvec is not None for s in frames):       # every frame at once
         rv = model.rotation_from_input(None, rot, np.stack([s.rotvec for s in frames]))
     else:
         rv = np.stack([model.rotation_from_input(s) for s in frames])
-    return {"bodies/euler_parameters": euler_parameters(rot), "bodies/euler_313": euler_313(rot),
-            "bodies/rotation_from_input": rv}
-
-
-def strategy_datasets(outcomes) -> dict:
-    """``frames/strategy`` (the recovery stage that produced each frame, ``plain`` without
-    recovery) and ``frames/strategy_iterations`` (F, len(STRATEGIES)): each frame's iterations
-    split by stage (columns in :data:`~poise.solvers.history.STRATEGIES` order; they sum to
-    ``frames/iterations``)."""
-    it = np.zeros((len(outcomes), len(STRATEGIES)), np.int64)
-    for k, o in enumerate(outcomes):
-        c = o.counts or {"plain": o.iterations}
-        for j, name in enumerate(STRATEGIES):
-            it[k, j] = int(c.get(name, 0))
-        it[k, 0] += int(o.iterations) - int(it[k].sum())   # work not split: plain
-    return {"frames/strategy": np.array([o.strategy for o in outcomes], dtype=str),
-            "frames/strategy_iterations": it}
-
-
-def strategy_attrs(datasets) -> dict:
-    """Analysis attributes ``iterations_<strategy>``: totals over the frames, and
-    ``iterations_total``."""
-    it = np.asarray(datasets.get("frames/strategy_iterations", np.zeros((0, len(STRATEGIES)))))
-    tot = it.sum(axis=0) if it.size else np.zeros(len(STRATEGIES), np.int64)
-    out = {f"iterations_{n}": int(v) for n, v in zip(STRATEGIES, tot)}
-    out["iterations_total"] = int(tot.sum())
-    return out
+    return FrameSet(states=tuple(frames), time=np.array([s.t for s in frames]),
+                    body_id=model.body_id,
+                    position=np.stack([s.pos for s in frames]), orientation=rot,
+                    rotation_from_input=rv, groups=groups, outcomes=tuple(outcomes),
+                    stability=tuple(stability), measures=tuple(measures))
 
 
 def frame_outputs(model, state) -> dict:
@@ -190,9 +136,9 @@ def stack_frames(per_frame: list[dict]) -> dict:
     return out
 
 
-def frames_datasets(ctx, frames, outcomes, measure=None) -> dict | None:
-    """Datasets of all ``frames`` (concatenated along the frame axis), as the frame-by-frame
-    path writes them.
+def measure_frames(ctx, frames, outcomes) -> FrameSet | None:
+    """The :class:`~poise.solvers.record.FrameSet` of all ``frames``, as the frame-by-frame
+    path (:func:`measure_frame` per frame, concatenated) makes it.
 
     Parameters
     ----------
@@ -200,12 +146,13 @@ def frames_datasets(ctx, frames, outcomes, measure=None) -> dict | None:
         Provides the model, the settings, the active and the redundant rows.
     frames : list of State
     outcomes : list of FrameOutcome (one per frame)
-    measure : callable or None
-        ``measure(k, imbalance, constraint_error, worst_equation)`` for every frame ``k``, as
-        measured on its evaluation (inactive, redundant rows excluded) by
-        :func:`poise.solvers.certify.certify`, which also certifies every outcome.
+
+    Every outcome is certified on its frame's evaluation (inactive, redundant rows excluded) by
+    :func:`poise.solvers.certify.certify`: the set holds the certified outcomes and the
+    measures.
     """
     model = ctx.model
+    outcomes = list(outcomes)
     if not frames or not batchable(model):
         return None
     sc = Scales(model, ctx.settings)
@@ -216,17 +163,16 @@ def frames_datasets(ctx, frames, outcomes, measure=None) -> dict | None:
     dep = red
     w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
     loads = {}
-    infos = []
+    infos, measured = [], []
     C = chunk_size(model)
     try:
         for a in range(0, F, C):
             chunk = frames[a:a + C]
             ev = evaluate(model, chunk, "jacobian")
             for j in range(len(chunk)):
-                got = certify(model, ctx.settings, outcomes[a + j], ev.r[j],
-                              np.where(saved, ev.phi[j], 0.0), sc)
-                if measure is not None:
-                    measure(a + j, *got)
+                outcomes[a + j], ms = certify(model, ctx.settings, outcomes[a + j], ev.r[j],
+                                              np.where(saved, ev.phi[j], 0.0), sc)
+                measured.append(ms)
             lam = np.stack([s.lam for s in chunk]) if nc else np.zeros((len(chunk), 0))
             if len(red) and nc:
                 lam = lam.copy()
@@ -252,8 +198,7 @@ def frames_datasets(ctx, frames, outcomes, measure=None) -> dict | None:
                           for j in range(len(chunk))]
     except EvaluationError:
         return None
-    d = output_datasets(model, frames, {g: (np.concatenate([x[0] for x in parts]),
-                                            np.concatenate([x[1] for x in parts]))
-                                        for g, parts in loads.items()}, dep, outcomes)
-    d.update(stability_datasets(infos))
-    return d
+    return frame_set(model, frames, {g: (np.concatenate([x[0] for x in parts]),
+                                         np.concatenate([x[1] for x in parts]))
+                                     for g, parts in loads.items()}, dep, outcomes, infos,
+                     measured)

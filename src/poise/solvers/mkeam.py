@@ -18,7 +18,7 @@ from poise.solvers.context import Strategy, prologue
 from poise.solvers.history import History
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import FrameOutcome, Scales, assemble, initial_multipliers, merit, newton
-from poise.solvers.relaxation import Relaxation, relaxation_datasets
+from poise.solvers.relaxation import Relaxation, mkeam_run
 from poise.solvers.status import Status
 
 POLISH_MAX_DQ = 0.05         # polished point must stay this close (x L / rad)
@@ -28,7 +28,7 @@ class MkeamMethod(Strategy):
     """A static analysis by MKEAM: one frame, relaxed downhill then polished by Newton."""
 
     name = "MKEAM"
-    strategy_attrs = False
+    stage_totals = False
 
     def init(self, ctx, state):
         self.t_start = time.perf_counter()
@@ -42,8 +42,8 @@ class MkeamMethod(Strategy):
     def postprocess(self, ctx):
         attrs = {"mkeam_wall_time": time.perf_counter() - self.t_start}
         if self.rx is not None:
-            return self.rx.datasets(self.mk_state), attrs
-        return relaxation_datasets(len(ctx.history), [], [], self.mk_state, np.nan), attrs
+            return self.rx.record(self.mk_state), attrs
+        return mkeam_run([], self.mk_state, np.nan), attrs
 
     def _solve(self, ctx, state):
         """Redundancy, assembly, MKEAM iterations, Newton polish. Returns ``(outcome, reported

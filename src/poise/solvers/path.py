@@ -87,8 +87,7 @@ def check(ctx, step) -> None:
             break
         prev, start = k, k + 1   # the stiffness jumped (a discontinuous load): no singular point
     del frames[lo + 1:], outcomes[lo + 1:]
-    for key in [j for j in ctx.measured if j > lo]:
-        del ctx.measured[key]
+    ctx.history.drop_frames_after(lo)
     ctx.infos[id(st)] = (st, info)
     where = singular.SingularInfo(t, "bifurcation", (), _mode(info, infos[lo]))
     if kind == "unstable":

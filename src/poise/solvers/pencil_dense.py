@@ -1,6 +1,6 @@
 """The descent's shifted-stiffness pencil for small models, dense.
 
-:class:`poise.solvers.stability_sparse._SparsePencil` (equilibration, elimination order,
+:class:`poise.solvers.stability_sparse.SparsePencil` (equilibration, elimination order,
 sparse ``L D L^T``) costs a few milliseconds of Python per step whatever the size; below
 ``DENSE_PENCIL`` unknowns the same matrices are built dense and "factorised" by a symmetric
 eigendecomposition, whose eigenvalue signs are the inertia exactly (no pivoting question) and

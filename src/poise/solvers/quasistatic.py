@@ -437,7 +437,7 @@ class NewtonFrames(Strategy):
     def postprocess(self, ctx):
         if ctx.kind == "quasistatic":
             path.check(ctx, fims_step)
-        return {}, singular.located_attrs(ctx.outcomes)
+        return None, singular.located_attrs(ctx.outcomes)
 
     def step(self, ctx):
         k, ts = len(ctx.frames), ctx.times

@@ -24,6 +24,7 @@ from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import assemble, initial_multipliers
 from poise.solvers.rattle import CONSTRAINT_TOL, _Dyn, _Point, retract_flat
+from poise.solvers.record import MkeamRun
 from poise.solvers.stability import classify
 from poise.solvers.stable import descend, seek_stable
 from poise.solvers.status import Status
@@ -61,7 +62,6 @@ class Relaxation:
         self.settings = settings
         self.history = history
         self.counters = data
-        self.rows = []            # per-history-row MKEAM extras (row index, dict)
         self.extras_free = False  # scalar unknowns MKEAM cannot determine (see _resolve_extras)
         self.iterates = []        # restart points (pos, rot)
         self.handover_tried = False
@@ -469,31 +469,18 @@ class Relaxation:
         return st, status.ok, msg
 
     def _row(self, it, ke, dq, worst, peak, steps, pe, event):
-        self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event)
-        self.rows.append((len(self.history) - 1, dict(kinetic_energy=ke, peak_time=peak.t,
-                                                      max_dq=dq, potential_energy=pe,
-                                                      integrator_steps=steps)))
+        # MKEAM_COLUMNS: kinetic_energy, peak_time, max_dq, potential_energy, integrator_steps
+        self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event,
+                         mkeam=(ke, peak.t, dq, pe, steps))
 
-    def datasets(self, mk_state):
-        """``iterations/*`` MKEAM columns and ``mkeam/*`` of the run (restart points, the
-        MKEAM point ``mk_state``)."""
-        return relaxation_datasets(len(self.history), self.rows, self.iterates, mk_state,
-                                   self.pe_start)
+    def record(self, mk_state) -> MkeamRun:
+        """The run as a record: its restart points and the MKEAM point ``mk_state`` (its
+        iterations are history rows)."""
+        return mkeam_run(self.iterates, mk_state, self.pe_start)
 
 
-def relaxation_datasets(n, rows, iterates, mk_state, pe_start) -> dict:
-    """Datasets of an MKEAM run (:meth:`Relaxation.datasets`); ``n`` history rows."""
-    keys = ("kinetic_energy", "peak_time", "max_dq", "potential_energy")
-    d = {f"iterations/{k}": np.full(n, np.nan) for k in keys}
-    d["iterations/integrator_steps"] = np.full(n, -1, dtype=np.int64)
-    for row, vals in rows:
-        for k in keys:
-            d[f"iterations/{k}"][row] = vals[k]
-        d["iterations/integrator_steps"][row] = vals["integrator_steps"]
-    if iterates:
-        d["mkeam/iterate_position"] = np.stack([p for p, _ in iterates])
-        d["mkeam/iterate_orientation"] = np.stack([r for _, r in iterates])
-    d["mkeam/position"] = mk_state.pos[None].copy()
-    d["mkeam/orientation"] = mk_state.rot[None].copy()
-    d["mkeam/initial_potential_energy"] = np.array(pe_start)
-    return d
+def mkeam_run(iterates, mk_state, pe_start) -> MkeamRun:
+    """:class:`~poise.solvers.record.MkeamRun` of an MKEAM run ending at ``mk_state``."""
+    return MkeamRun(iterates=tuple(iterates),
+                    position=mk_state.pos[None].copy(), orientation=mk_state.rot[None].copy(),
+                    initial_potential_energy=pe_start)

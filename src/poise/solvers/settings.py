@@ -1,8 +1,10 @@
 """Solver settings: frozen, validated dataclasses; precedence defaults < deck < CLI.
 
-Defaults follow the specification (static_methods.md): method FIM_D, max_ke_tol 1e-5,
-max_dq_tol 1e-3, max_num_iter 100, max_imbalance 1e-4, max_error 1e-4, stability 1e-10,
-compliance_delta 1e-3.
+The settings a deck can write take their names, defaults (static_methods.md: method FIM_D,
+max_ke_tol 1e-5, max_dq_tol 1e-3, max_num_iter 100, max_imbalance 1e-4, max_error 1e-4,
+stability 1e-10, compliance_delta 1e-3), bounds and choices from the ``Param_Static`` row of
+the deck schema (:data:`PARAM_STATIC`, one declaration for the deck, the CLI and the API); the
+others (steps, line search, fallback, stability requirements) are poise's own and declared here.
 """
 from __future__ import annotations
 
@@ -10,11 +12,22 @@ import math
 from dataclasses import asdict, dataclass, fields, replace
 
 from poise.core.errors import UnknownOptionError
-from poise.solvers.compliance import METHODS as CM
+from poise.deck.schema import element_schema
 from poise.solvers.compliance import parse_markers
 
-METHODS = ("MKEAM", "FIM_S", "FIM_D")
-TOL_MIN = 1e-100     # smallest tolerance (poise.deck.schema.TOL_MIN)
+#: The ``Param_Static`` row of the deck schema: attribute name -> its declaration
+PARAM_STATIC = dict(element_schema("Param_Static").attrs)
+TOL_MIN = PARAM_STATIC["max_error"].lo      # smallest tolerance (poise.deck.schema.TOL_MIN)
+
+
+def _deck(name: str):
+    """The default the deck schema declares for ``Param_Static`` attribute ``name``."""
+    return PARAM_STATIC[name].default
+
+
+def compliance_methods() -> tuple:
+    """The compliance methods (``Param_Static compliance_method``'s choices, lower case)."""
+    return tuple(c.lower() for c in PARAM_STATIC["compliance_method"].choices)
 
 
 @dataclass(frozen=True)
@@ -66,15 +79,15 @@ class StaticSettings:
         as stable enough (``--allow-neutral`` / ``--no-allow-neutral``; default allowed).
     """
 
-    method: str = "FIM_D"
-    max_ke_tol: float = 1e-5
-    max_dq_tol: float = 1e-3
-    max_num_iter: int = 100
-    max_imbalance: float = 1e-4
-    max_error: float = 1e-4
-    stability: float = 1e-10
-    compliance_delta: float = 1e-3
-    compliance_markers: str = "none"
+    method: str = _deck("method")
+    max_ke_tol: float = _deck("max_ke_tol")
+    max_dq_tol: float = _deck("max_dq_tol")
+    max_num_iter: int = _deck("max_num_iter")
+    max_imbalance: float = _deck("max_imbalance")
+    max_error: float = _deck("max_error")
+    stability: float = _deck("stability")
+    compliance_delta: float = _deck("compliance_delta")
+    compliance_markers: str = "none"       # the deck schema has no default for these two
     compliance_method: str = "exact"
     max_translation_step: float = 1.0
     max_rotation_step: float = 6.283185307179586 * 4
@@ -85,29 +98,28 @@ class StaticSettings:
     allow_neutral: bool = True
 
     def __post_init__(self):
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        for name in ("max_ke_tol", "max_dq_tol", "max_imbalance", "max_error"):
-            v = getattr(self, name)
-            if not (v >= TOL_MIN and math.isfinite(v)):
-                raise ValueError(f"{name} must be a finite number >= {TOL_MIN:g}, got {v!r}")
-        if not (self.stability >= 0 and math.isfinite(self.stability)):
-            raise ValueError(f"stability must be a finite number >= 0, got {self.stability!r}")
-        if not (self.compliance_delta > 0 and math.isfinite(self.compliance_delta)):
-            raise ValueError(f"compliance_delta must be a finite number > 0, got "
-                             f"{self.compliance_delta!r}")
+        choices = PARAM_STATIC["method"].choices
+        if self.method not in choices:
+            raise ValueError(f"method must be one of {', '.join(choices)}, got {self.method!r}")
+        for name in ("max_ke_tol", "max_dq_tol", "max_imbalance", "max_error", "stability",
+                     "compliance_delta"):
+            v, a = getattr(self, name), PARAM_STATIC[name]
+            if not (math.isfinite(v) and _within(v, a)):
+                raise ValueError(f"{name} must be a finite number {a.bounds_text()}, got {v!r}")
         object.__setattr__(self, "compliance_markers", parse_markers(self.compliance_markers))
-        cm = str(self.compliance_method).lower()
-        if cm not in CM:
-            raise ValueError(f"compliance_method must be one of {', '.join(CM)}, "
+        cm, cms = str(self.compliance_method).lower(), compliance_methods()
+        if cm not in cms:
+            raise ValueError(f"compliance_method must be one of {', '.join(cms)}, "
                              f"got {self.compliance_method!r}")
         object.__setattr__(self, "compliance_method", cm)
         for name in ("require_stable", "allow_neutral", "line_search", "fallback"):
             if not isinstance(getattr(self, name), (bool, int)) or isinstance(
                     getattr(self, name), float):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
-        if int(self.max_num_iter) < 1:
-            raise ValueError(f"max_num_iter must be >= 1, got {self.max_num_iter!r}")
+        a = PARAM_STATIC["max_num_iter"]
+        if not _within(int(self.max_num_iter), a):
+            raise ValueError(f"max_num_iter must be {a.bounds_text()}, got "
+                             f"{self.max_num_iter!r}")
         if self.fallback_max_num_iter is not None and int(self.fallback_max_num_iter) < 0:
             raise ValueError(f"fallback_max_num_iter must be >= 0, got "
                              f"{self.fallback_max_num_iter!r}")
@@ -124,8 +136,7 @@ class StaticSettings:
         v = {}
         for k, val in values.items():
             k = k.lower()
-            if k == "max_residual":
-                k = "max_error"
+            k = OVERRIDE_ALIASES.get(k, k)
             if k in names and val is not None:
                 if k == "method":
                     val = str(val).upper()
@@ -143,8 +154,15 @@ class StaticSettings:
         return asdict(self)
 
 
+def _within(v, a) -> bool:
+    """``v`` satisfies the bounds of the schema attribute ``a``."""
+    if a.lo is not None and not (v > a.lo if a.lo_open else v >= a.lo):
+        return False
+    return a.hi is None or (v < a.hi if a.hi_open else v <= a.hi)
+
+
 #: Override names accepted besides the field names (deck attribute aliases).
-OVERRIDE_ALIASES = {"max_residual": "max_error"}
+OVERRIDE_ALIASES = {alias: a.name for a in PARAM_STATIC.values() for alias in a.aliases}
 
 
 def check_override_names(overrides, where: str = "solver option", also=()) -> None:

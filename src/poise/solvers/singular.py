@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.solvers.newton import FrameOutcome
-from poise.solvers.stability import DENSE_LIMIT, _describe, classify
+from poise.solvers.stability import DENSE_LIMIT, classify, describe_mode
 from poise.solvers.status import Status
 
 DROP = 0.05          # a measure this fraction of its value on the path before: singular there
@@ -277,7 +277,7 @@ def path_mode(model, a, b) -> str:
     q = model.local_difference(a, b)
     if not np.any(q):
         return ""
-    return _describe(model, q, "singular").text(short=True)
+    return describe_mode(model, q, "singular").text(short=True)
 
 
 def diagnose(model, data, near, before, refs, t, threshold=DROP) -> SingularInfo | None:
@@ -291,7 +291,7 @@ def diagnose(model, data, near, before, refs, t, threshold=DROP) -> SingularInfo
     mr = [r if isinstance(r, Measures) else measure(model, data, r) for r in refs]
     s_ref = max([r.sigma for r in mr if np.isfinite(r.sigma)], default=np.nan)
     if np.isfinite(mn.sigma) and s_ref > 0 and mn.sigma <= threshold * s_ref:
-        mode = _describe(model, mn.v, "singular").text(short=True) \
+        mode = describe_mode(model, mn.v, "singular").text(short=True) \
             if mn.v is not None and model.nb else ""
         return SingularInfo(t, "dead_point",
                             fold_joint(model, mn.v, self_stress_elements(model, mn.u)), mode)

@@ -24,19 +24,18 @@ from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the pub
     ZERO_REL,
     Mode,
     StabilityInfo,
-    _describe,
-    _info,
-    _unknown,
+    classified_info,
+    describe_mode,
+    not_classified,
     sign_normalised,
-    stability_datasets,
     unknown_info,
 )
 from poise.solvers.stability_scalars import eliminate_dense, eliminate_sparse
 from poise.solvers.stability_sparse import (  # noqa: F401 - re-exported
+    SparsePencil,
     SymmetricLDL,
-    _classify_pencil,
-    _classify_sparse,
-    _SparsePencil,
+    classify_pencil,
+    classify_sparse,
 )
 
 
@@ -57,9 +56,9 @@ def classify(model, state, J=None, active=None) -> StabilityInfo:
     if nq > DENSE_LIMIT:
         red = eliminate_sparse(model, J)
         if red is None:
-            return _classify_sparse(model, J, active)
+            return classify_sparse(model, J, active)
         view, Jr, lift = red
-        return _lifted(_classify_sparse(view, Jr, active), lift)
+        return _lifted(classify_sparse(view, Jr, active), lift)
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
     return classify_dense_frames(model, J[None], active)[0]
 
@@ -153,6 +152,6 @@ def _dense_frames(model, J, active, ok) -> list[StabilityInfo]:
                 wk = np.einsum("ik,ij,jk->k", xs, Kg[j], xs)        # Rayleigh [force/length]
                 found.append([(xs[:, c] / d, float(wk[c])) for c in range(len(ks))])
             klass = "unstable" if neg[j].any() else "neutral" if zero[j].any() else "stable"
-            out[sel[i]] = _info(model, klass, int(neg[j].sum()), int(zero[j].sum()),
+            out[sel[i]] = classified_info(model, klass, int(neg[j].sum()), int(zero[j].sum()),
                                 found[0], found[1], wmin[j])
     return out

@@ -2,7 +2,7 @@
 
 :class:`StabilityInfo` (class, inertia counts, described :class:`Mode` s) is what both
 classification paths (:mod:`poise.solvers.stability` dense, :mod:`poise.solvers.stability_sparse`)
-return; :func:`_describe` names a mode by the body that moves most. Kept apart from the
+return; :func:`describe_mode` names a mode by the body that moves most. Kept apart from the
 eigen-solves so the results side needs neither. Method: docs/stability.md.
 """
 from __future__ import annotations
@@ -96,14 +96,14 @@ def sign_normalised(a) -> np.ndarray:
     return a + 0.0
 
 
-def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo:
+def classified_info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo:
     """StabilityInfo of a classified frame: ``unstable`` / ``neutral`` lists of ``(q, w)`` (mode
     in model coordinates, its Rayleigh quotient [force/length]), up to N_MODES described each;
     the text is built from the numeric modes."""
     modes, texts = [], []
     for label, found, count in (("unstable", unstable, n_neg), ("neutral", neutral, n_zero)):
         for q, w in found[:N_MODES]:
-            mo = _describe(model, q, label, w)
+            mo = describe_mode(model, q, label, w)
             modes.append(mo)
             texts.append(f"{label}: {mo.text()}")
         extra = count - min(len(found), N_MODES)
@@ -113,7 +113,7 @@ def _info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> StabilityInfo
                          tuple(modes), tuple(np.asarray(q, float) for q, _ in unstable[:N_MODES]))
 
 
-def _describe(model, q, klass="", eigenvalue=np.nan) -> Mode:
+def describe_mode(model, q, klass="", eigenvalue=np.nan) -> Mode:
     """Body with the largest participation in mode ``q`` and its dominant motion, as a
     :class:`Mode` (vectorised over the bodies: cheap for 10 000 bodies); the scalar unknown
     that moves most (``coordinate``) when no body moves, or without bodies."""
@@ -149,36 +149,12 @@ def _body_motion(model, q):
     return t, r
 
 
-def stability_datasets(infos: list[StabilityInfo]) -> dict:
-    """Per-frame datasets (F frames): ``frames/stability``, ``frames/n_negative``,
-    ``frames/n_zero``, ``frames/stability_modes`` (text), ``frames/min_stiffness_eigenvalue``,
-    ``frames/n_modes``; and the described modes as numbers, flat in frame order (K = the sum of
-    ``n_modes``; the frame of mode ``j`` is ``np.repeat(np.arange(F), n_modes)[j]``, so frames
-    and runs concatenate along their axes): ``modes/class``, ``modes/kind`` (K,) strings,
-    ``modes/body`` (K,) ids, ``modes/direction`` (K, 3) unit vectors, ``modes/eigenvalue``
-    (K,). Frame ``f``'s modes are the :class:`Mode` records ``infos[f].mode_list``."""
-    ml = [mo for info in infos for mo in info.mode_list]
-    return {
-        "frames/stability": np.array([i.klass for i in infos], dtype=str),
-        "frames/n_negative": np.array([i.n_negative for i in infos], dtype=np.int64),
-        "frames/n_zero": np.array([i.n_zero for i in infos], dtype=np.int64),
-        "frames/stability_modes": np.array([i.modes for i in infos], dtype=str),
-        "frames/min_stiffness_eigenvalue": np.array([i.min_eigenvalue for i in infos]),
-        "frames/n_modes": np.array([len(i.mode_list) for i in infos], dtype=np.int64),
-        "modes/class": np.array([mo.klass for mo in ml], dtype=str),
-        "modes/kind": np.array([mo.kind for mo in ml], dtype=str),
-        "modes/body": np.array([mo.body for mo in ml], dtype=np.int64),
-        "modes/direction": np.array([mo.direction for mo in ml], float).reshape(len(ml), 3),
-        "modes/eigenvalue": np.array([mo.eigenvalue for mo in ml], float),
-    }
-
-
 def unknown_info(why: str = "") -> StabilityInfo:
     """A frame that was not classified (not converged, or no trustworthy inertia)."""
     return StabilityInfo("unknown", -1, -1, why, np.nan)
 
 
 
-def _unknown(why: str) -> StabilityInfo:
+def not_classified(why: str) -> StabilityInfo:
     return unknown_info(f"not classified: {why}")
 

@@ -1,7 +1,7 @@
 """Stability of large models (``nq > DENSE_LIMIT``): inertia by spectrum slicing.
 
 ``K_red`` is never formed: the inertia is counted from sparse ``L D L^T`` factorisations of the
-equilibrated, augmented KKT matrix (:class:`SymmetricLDL`, :class:`_SparsePencil`), and the
+equilibrated, augmented KKT matrix (:class:`SymmetricLDL`, :class:`SparsePencil`), and the
 unstable/neutral modes come from operators applied with those factorisations. Why and how
 (the equilibration, the augmentation, the trust tests, the mode iterations): docs/stability.md.
 """
@@ -22,37 +22,37 @@ from poise.solvers.stability_modes import (
     WEAK_DIAG,
     ZERO_REL,
     StabilityInfo,
-    _info,
-    _unknown,
+    classified_info,
+    not_classified,
 )
 
 
-def _classify_sparse(model, J, active=None) -> StabilityInfo:
+def classify_sparse(model, J, active=None) -> StabilityInfo:
     """Inertia by spectrum slicing with sparse LDL^T factorisations of the equilibrated KKT
     matrix (module docstring, "Large models"). Active constraint rows that have become
     dependent at this configuration (a tiny pivot at a constraint row) are found by the
     redundancy test of the static driver and dropped (the null space is unchanged), once."""
     try:
-        P = _SparsePencil(model, J, active=active)
-        info = _classify_pencil(model, P)
+        P = SparsePencil(model, J, active=active)
+        info = classify_pencil(model, P)
         if info.klass == "unknown" and P.singular:
             red = redundant_rows(P.G_active, np.ones(model.nq))
             if len(red):
-                info = _classify_pencil(model, _SparsePencil(model, J, drop=red, active=active))
+                info = classify_pencil(model, SparsePencil(model, J, drop=red, active=active))
         return info
     except (RuntimeError, ValueError, ArithmeticError, MemoryError,
             np.linalg.LinAlgError) as e:
-        return _unknown(f"sparse classification failed ({type(e).__name__}: {e})")
+        return not_classified(f"sparse classification failed ({type(e).__name__}: {e})")
 
 
-def _classify_pencil(model, P) -> StabilityInfo:
+def classify_pencil(model, P) -> StabilityInfo:
     m, eps = P.m, P.eps
     up, why = P.factor(+eps)
     if up is None:
-        return _unknown(why)
+        return not_classified(why)
     below = up.n_negative - m                       # eigenvalues < +eps
     if below < 0:
-        return _unknown("KKT inertia has fewer negative pivots than active constraint rows "
+        return not_classified("KKT inertia has fewer negative pivots than active constraint rows "
                         "(dependent constraint rows?)")
     if below == 0:
         if P.nq == m:                    # valid factorisation: Gt square and non-singular
@@ -61,17 +61,17 @@ def _classify_pencil(model, P) -> StabilityInfo:
         return StabilityInfo("stable", 0, 0, "", low[0][1] if low else np.nan)
     dn, why = P.factor(-eps)
     if dn is None:
-        return _unknown(why)
+        return not_classified(why)
     n_neg = dn.n_negative - m                       # eigenvalues < -eps
     if not 0 <= n_neg <= below:
-        return _unknown(f"inconsistent inertia at the two shifts ({below} eigenvalues below "
+        return not_classified(f"inconsistent inertia at the two shifts ({below} eigenvalues below "
                         f"+{eps:.1e}, {n_neg} below -{eps:.1e})")
     n_zero = below - n_neg
     unstable = _negative_modes(P, dn, -eps, n_neg) if n_neg else []
     neutral = _zero_modes(P, dn, -eps, n_zero) if n_zero else []
     ws = [w for _, w in unstable + neutral]
     klass = "unstable" if n_neg else "neutral"
-    return _info(model, klass, n_neg, n_zero, unstable, neutral, min(ws) if ws else np.nan)
+    return classified_info(model, klass, n_neg, n_zero, unstable, neutral, min(ws) if ws else np.nan)
 
 
 class SymmetricLDL:
@@ -148,7 +148,7 @@ class SymmetricLDL:
         return x
 
 
-class _SparsePencil:
+class SparsePencil:
     """The reduced-stiffness eigenproblem of a large model, never formed: the length-scaled
     symmetric stiffness ``Kt`` and active constraint Jacobian ``Gt`` after a symmetric
     equilibration of the KKT matrix, the KKT elimination order, and factorisations at shifts."""

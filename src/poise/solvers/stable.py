@@ -3,7 +3,7 @@
 :func:`descend` is an inertia-controlled Newton: the tangent stiffness is shifted by the
 smallest ``sigma`` whose ``L D L^T`` inertia says the reduced matrix is positive definite, so
 every step is a descent direction; steps are limited and backtracked (Armijo) on the potential
-energy of trials projected onto the constraints (:class:`_Projector`). The energy never
+energy of trials projected onto the constraints (:mod:`poise.solvers.trials`). The energy never
 increases; the end point is Newton-polished. :func:`seek_stable` runs it first from the input
 Newton started from (the rest position downhill from the input), then, if that does not end
 stable, leaves Newton's equilibrium along its unstable modes (escape: the trial of lowest
@@ -26,16 +26,15 @@ from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import (
     FrameOutcome,
     Scales,
-    _coord_weights,
-    _weighted_kkt,
     assemble,
     initial_multipliers,
     measures,
     newton,
 )
 from poise.solvers.pencil_dense import DENSE_PENCIL, DensePencil
-from poise.solvers.stability import AUG_RHO, _SparsePencil, unknown_info
+from poise.solvers.stability import AUG_RHO, SparsePencil, unknown_info
 from poise.solvers.status import Status
+from poise.solvers.trials import Chord, LagrangeTest, Projector, project, trial_tol, violation_work
 
 ESCAPE_ROT = 0.3          # rad: largest rotation of the first escape trial
 ESCAPE_TRANS = 0.05       # x L: largest translation of the first escape trial
@@ -43,12 +42,6 @@ ESCAPE_SHRINK = (1.0, 0.3, 0.1, 0.03, 0.01)
 MAX_ESCAPES = 20
 STEPS_PER_ITER = 2        # descent budget: this many x max_num_iter Newton steps in all
 STEP_TRANS = 0.4          # x L: largest translation of one descent step
-PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial, at most ...
-PROJECT_TOL_MAX = 1e-5    # ... and at least: the trial's energy error bound within
-ENERGY_MARGIN = 0.01      # this fraction of the step's predicted decrease
-STEP_CHORD_RATE = 0.6     # the projection refactorises when its error falls slower than this
-PROJECT_MAX_ITER = 30     # projection iterations of one trial ...
-MAX_REFRESH = 4           # ... and factorisations
 STEP_ROT = 1.0            # rad: largest rotation of one descent step
 EXTEND = 2.0              # a shifted full step accepted at once is tried this much longer ...
 MAX_EXTEND = 3            # ... at most this many times (within the step limits)
@@ -61,27 +54,26 @@ def acceptable(info, settings) -> bool:
     return info.klass == "stable" or (info.klass == "neutral" and settings.allow_neutral)
 
 
-def require_stable_check(ar, out, settings):
-    """After a static analysis' datasets are written: with ``require_stable``, a converged
-    frame whose classification is not :func:`acceptable` fails (status ``unstable``, exit 1;
-    the results are written as they are)."""
+def require_stable_check(frames, message: str, settings) -> tuple:
+    """The driver's step after a static frame is measured: with ``require_stable``, a
+    converged frame whose classification is not :func:`acceptable` fails (status
+    ``unstable``, exit 1; the results are written as they are). ``frames``: the analysis'
+    :class:`~poise.solvers.record.FrameSet`. Returns ``(frames, message, failed)``."""
+    out = frames.outcomes[0]
     if not settings.require_stable or not out.ok:
-        return
-    klass = str(ar.datasets["frames/stability"][0])
+        return frames, message, False
+    klass = frames.stability[0].klass
     if klass == "stable" or (klass == "neutral" and settings.allow_neutral):
-        return
+        return frames, message, False
     why = f"the equilibrium found is {klass}"
     if klass == "neutral":
         why += " and --no-allow-neutral was given"
     elif klass == "unknown":
         why += " (its stability could not be established)"
-    out.status = Status.UNSTABLE
-    ar.datasets["frames/converged"] = np.array([False])
-    ar.datasets["frames/status"] = np.array([Status.UNSTABLE.value], dtype=str)
-    ar.status = "failed"
-    rest = "; ".join(m for m in ar.message.split("; ") if m and m != "converged")
-    ar.message = "no stable equilibrium reached (--require-stable): " + why + \
-        (f"; {rest}" if rest else "")
+    rest = "; ".join(m for m in message.split("; ") if m and m != "converged")
+    return (frames.with_outcome(0, replace(out, status=Status.UNSTABLE)),
+            "no stable equilibrium reached (--require-stable): " + why
+            + (f"; {rest}" if rest else ""), True)
 
 
 def _energy_drop(model, a, b, cnt, pa=None):
@@ -182,7 +174,7 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
         for f in ESCAPE_SHRINK:
             for sgn in (1.0, -1.0):
                 try:
-                    x, ok = _project(model, model.retract(state, sgn * f * d), cnt)
+                    x, ok = project(model, model.retract(state, sgn * f * d), cnt)
                     if not ok:
                         x, _, ast = assemble(model, x, settings, history, frame, cnt)
                         if not ast.ok:
@@ -236,9 +228,10 @@ def _ic_step(model, state, cnt, sigma, like=None):
     ``like``: the previous step's pencil (its elimination order and scaling are reused; when
     no valid factorisation is found with them, a fresh pencil is tried).
     Returns ``(dq, sigma, ev, dlam, chord)``: ``dq`` None when no valid factorisation was
-    found; ``chord``: the factorised step (:class:`_Chord`) the line-search projections reuse."""
+    found; ``chord``: the factorised step (:class:`~poise.solvers.trials.Chord`) the
+    line-search projections reuse."""
     ev = cnt.evaluate(model, state, "jacobian")
-    pencil = DensePencil if model.nq + model.nc <= DENSE_PENCIL else _SparsePencil
+    pencil = DensePencil if model.nq + model.nc <= DENSE_PENCIL else SparsePencil
     P = pencil(model, ev.J, active=cnt.active, like=like)
     out = _ic_solve(model, P, ev, cnt, sigma)
     if out[0] is None and P.reused:
@@ -267,31 +260,15 @@ def _ic_solve(model, P, ev, cnt, sigma):
             if np.all(np.isfinite(sol)):
                 dlam = np.zeros(model.nc)
                 dlam[P.rows] = P.dl * sol[nq:]
-                return sol[:nq] * P.dq / P.d, sig, ev, dlam, _Chord(P, F, rho)
+                return sol[:nq] * P.dq / P.d, sig, ev, dlam, Chord(P, F, rho)
         sig = max(sigma / 4.0, 1e-6 * scale) if k == 0 else 8.0 * sig
     return None, sig, ev, None, None
-
-
-class _Chord:
-    """A descent step's factorised KKT matrix used as the projection's (chord) Jacobian:
-    ``correction(phi)`` is the ``dq`` of smallest ``K_s + sigma D`` norm with ``G dq = -phi``
-    (``G`` at the step's start point). A positive definite metric on the constraint
-    tangent space, so the system is the step's own (no new factorisation per trial)."""
-
-    def __init__(self, P, F, rho):
-        self.P, self.F, self.rho = P, F, rho
-
-    def correction(self, phi):
-        P = self.P
-        g = -P.dl * phi[P.rows]
-        sol = self.F.solve(np.concatenate([self.rho * (P.Gt.T @ g), g]))
-        return sol[:P.nq] * P.dq / P.d
 
 
 def descend(model, state, settings, history, frame, cnt, budget, pe=None, why=None):
     """Inertia-controlled Newton from ``state`` down to an equilibrium (:func:`_ic_step`
     directions limited to ``STEP_ROT`` rad / ``STEP_TRANS`` x L, an Armijo backtracking on the
-    potential energy of the trial projected onto the constraints by :func:`_project`, starting
+    potential energy of the trial projected onto the constraints by :func:`project`, starting
     at twice the last accepted step; the Newton polish once a full step with ``sigma = 0`` was
     taken, its point kept only if its energy is not higher). The potential energy never
     increases. Returns ``(state, outcome or None, pe, steps)``; on None, the reason is
@@ -327,15 +304,15 @@ def descend(model, state, settings, history, frame, cnt, budget, pe=None, why=No
                   float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L), 1.0)
         dq = dq / big
         slope = float(np.asarray(ev.r, float)[:model.nq] @ dq)
-        proj = _Projector(model, cnt, chord)
-        work = _violation_work(model, ev, state)
-        lagrange = _LagrangeTest(model, ev, state, cnt) if np.isfinite(pe) else None
+        proj = Projector(model, cnt, chord)
+        work = violation_work(model, ev, state)
+        lagrange = LagrangeTest(model, ev, state, cnt) if np.isfinite(pe) else None
         alpha = alpha0
         accepted = None
         for _ in range(12):
             try:
                 x = model.retract(state, alpha * dq)
-                x, ok = proj(x, _trial_tol(alpha, slope, work))   # not projected: shorter
+                x, ok = proj(x, trial_tol(alpha, slope, work))   # not projected: shorter
                 if ok:
                     dv, pe_x = _energy_drop(model, state, x, cnt, pe)
                     tol = 1e-13 * max(abs(pe) if np.isfinite(pe) else 0.0, 1.0)
@@ -402,54 +379,6 @@ def _stalled(imb, sigma, failed):
             "factorisation")
 
 
-def _violation_work(model, ev, state):
-    """``W``: a trial whose relative constraint violation is ``e`` has a potential energy
-    within about ``e W`` of its exact projection's (the correction moves each coordinate by
-    about ``e`` x its length, against the residual ``r``, and each constraint by ``e`` x its
-    scale, against its multiplier)."""
-    ql = np.where(model.q_kind == 1, 1.0, model.L)
-    rs = np.where(model.row_kind == 1, 1.0, model.L)
-    r = np.abs(np.asarray(ev.r, float)[:model.nq])
-    return float(np.sum(r * ql) + np.sum(np.abs(state.lam) * rs))
-
-
-class _LagrangeTest:
-    """The energy test of a trial that sees through its constraint violation.
-
-    A trial ``x`` violating the constraints by ``phi(x)`` has, at its exact projection ``x*``,
-    the energy ``V(x*) = V(x) + lam . phi(x) + r . (x* - x) + O(|x* - x|^2)`` (``r`` the
-    residual, ``lam`` the multipliers: ``grad V = r - G^T lam``). The plain test bounds the
-    whole violation term by ``e W`` (:func:`_violation_work`), which near the rest position of
-    a heavy mechanism (``W`` ~ multipliers x L) exceeds the energy the remaining steps gain:
-    the descent then stalls short of the tolerances. Here ``lam . phi`` is added to the energy
-    change (at both ends of the step) and only the residual part is bounded, which vanishes
-    at an equilibrium. ``decrease(dv, proj, lam)`` -> the certified energy change."""
-
-    def __init__(self, model, ev, state, cnt):
-        self.model, self.cnt = model, cnt
-        ql = np.where(model.q_kind == 1, 1.0, model.L)
-        self.work_r = float(np.sum(np.abs(np.asarray(ev.r, float)[:model.nq]) * ql))
-        self.phi_s = np.asarray(cnt.evaluate(model, state, "phi"), float)
-        scale = np.where(model.row_kind == 1, 1.0, model.L)
-        self.err_s = float(np.max(np.abs(self.phi_s) / scale, initial=0.0))
-
-    def decrease(self, dv, proj, lam):
-        phi_x = getattr(proj, "phi", None)
-        if phi_x is None:
-            return np.inf
-        dvc = dv + float(np.asarray(lam, float) @ (phi_x - self.phi_s))
-        return dvc + (proj.err + self.err_s) * self.work_r
-
-
-def _trial_tol(alpha, slope, work):
-    """Projection tolerance of a trial at ``alpha``: its energy error bound within
-    ``ENERGY_MARGIN`` of the predicted decrease, between ``PROJECT_TOL`` and
-    ``PROJECT_TOL_MAX`` (near the equilibrium the decrease is small and the trials exact)."""
-    if not np.isfinite(work) or work <= 0.0:
-        return PROJECT_TOL
-    return min(max(ENERGY_MARGIN * alpha * abs(slope) / work, PROJECT_TOL), PROJECT_TOL_MAX)
-
-
 def _extend(model, state, dq, proj, cnt, pe, slope, accepted, work):
     """A full shifted step that was accepted at once and stays inside the step limits: the
     shift made the quadratic model conservative, so try ``EXTEND`` x longer steps along it (up
@@ -464,7 +393,7 @@ def _extend(model, state, dq, proj, cnt, pe, slope, accepted, work):
         if a <= alpha * 1.01:
             break
         try:
-            x, ok = proj(model.retract(state, a * dq), _trial_tol(a, slope, work))
+            x, ok = proj(model.retract(state, a * dq), trial_tol(a, slope, work))
             if not ok:
                 break
             dv, pe_x = _energy_drop(model, state, x, cnt, pe)
@@ -476,69 +405,6 @@ def _extend(model, state, dq, proj, cnt, pe, slope, accepted, work):
             break
         alpha, best = a, (x, pe_new)
     return alpha, best
-
-
-class _Projector:
-    """Projection of a descent step's line-search trials onto the constraints, to
-    ``PROJECT_TOL`` (relative: looser than the assembly's; the end point is polished by Newton
-    to the deck's tolerances). Corrections ``dq`` with ``G dq = -phi`` come from one
-    factorised operator, first the descent step's own (``chord``, :class:`_Chord`: no new
-    factorisation per trial); when the constraint error falls slower than
-    ``STEP_CHORD_RATE`` per iteration, a Gauss-Newton KKT factorisation at the current point
-    replaces it and serves the step's later trials too (they lie along the same direction).
-    ``proj(x) -> (state, ok)``."""
-
-    def __init__(self, model, cnt, chord=None):
-        self.model, self.cnt = model, cnt
-        self.op = chord.correction if chord is not None else None
-        self.scale = np.where(model.row_kind == 1, 1.0, model.L)
-
-    def __call__(self, x, tol=PROJECT_TOL):
-        m = self.model
-        self.err = 0.0
-        self.phi = np.zeros(m.nc) if m.nc == 0 else None
-        if m.nc == 0:
-            return x, True
-        refreshed, prev, fresh = 0, np.inf, False
-        last = last_phi = None
-        for _ in range(PROJECT_MAX_ITER):
-            phi = self.cnt.evaluate(m, x, "phi")
-            err = float(np.max(np.abs(phi) / self.scale))
-            self.err = err
-            if err <= tol:
-                self.phi = np.asarray(phi, float)
-                return x, True
-            if err > prev and fresh:
-                return x, False            # diverging after a fresh factorisation: too far
-            fresh = False
-            if self.op is None or err > STEP_CHORD_RATE * prev:
-                if refreshed == MAX_REFRESH:
-                    return x, False
-                if err > prev:             # back to the better point
-                    x, phi, err = last, last_phi, prev
-                if not self._refresh(x):
-                    return x, False
-                refreshed, fresh = refreshed + 1, True
-            last, last_phi, prev = x, phi, err
-            x = m.retract(x, self.op(phi))
-        return x, False
-
-    def _refresh(self, x):
-        """A Gauss-Newton operator at ``x`` (coordinate metric ``q_scale^2``)."""
-        m = self.model
-        ev = self.cnt.evaluate(m, x, "jacobian")
-        try:
-            F = self.cnt.factor(_weighted_kkt(m, ev, _coord_weights(m)))
-        except SingularMatrix:
-            return False
-        nq = m.nq
-        self.op = lambda phi: F.solve(np.concatenate([np.zeros(nq), -phi]))[:nq]
-        return True
-
-
-def _project(model, x, cnt, chord=None):
-    """Project one trial (:class:`_Projector`)."""
-    return _Projector(model, cnt, chord)(x)
 
 
 def _fail(used, why):

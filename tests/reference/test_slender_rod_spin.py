@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from .deckgen import Deck
+from poise.gen.deck import Deck
 
 M, LEN, K, L0, G = 1.2, 0.6, 50.0, 0.1, 9.81         # kg, m, N/m, m, m/s^2 (N-kg-m-s)
 ANCHOR = np.array([0.2, -0.5, 0.4])                  # spring anchor on ground [m]

@@ -18,7 +18,8 @@ import poise.solvers.stability_sparse as stab_sparse
 from poise.app.api import run_deck
 from poise.gen.chain import build_chain_deck
 
-from .deckgen import Deck, rot_y, rot_z, stiff_soft_deck
+from poise.gen.deck import Deck, rot_y, rot_z
+from support.builders import stiff_soft_deck
 
 from support.paths import DECKS
 
@@ -202,16 +203,16 @@ def test_dependent_active_rows_are_dropped(name):
     assert len(drv.redundancy) == 3
     J = model.evaluate(state, need_jac=True).J
     dense = stab.classify(model, state, J=J)
-    P = stab._SparsePencil(model, J)
-    raw = stab._classify_pencil(model, P)
+    P = stab.SparsePencil(model, J)
+    raw = stab.classify_pencil(model, P)
     assert raw.klass == "unknown" and P.singular
-    sparse = stab._classify_sparse(model, J)
+    sparse = stab.classify_sparse(model, J)
     assert (sparse.klass, sparse.n_negative, sparse.n_zero) == \
         (dense.klass, dense.n_negative, dense.n_zero) == ("stable", 0, 0)
 
 
 def test_describe_vectorised_matches_per_body_loop():
-    """``_describe`` (vectorised) names the same body and motion as the per-body loop it
+    """``describe_mode`` (vectorised) names the same body and motion as the per-body loop it
     replaced, on rigid and point bodies."""
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
@@ -230,7 +231,7 @@ def test_describe_vectorised_matches_per_body_loop():
         model = compile_model(load_deck(str(DECKS / name)))
         for _ in range(50):
             q = rng.normal(size=model.nq) * rng.choice([1e-3, 1.0, 1e3], size=model.nq)
-            assert stab._describe(model, q).body == loop(model, q)
+            assert stab.describe_mode(model, q).body == loop(model, q)
 
 
 # ------------------------------------------------------------------ real large models
@@ -303,7 +304,7 @@ def test_dense_pencil_inertia_matches_sparse_pencil(name):
     active = np.ones(model.nc, bool)
     active[np.asarray(drv.redundancy, int)] = False
     J = model.evaluate(state, need_jac=True, active=active).J
-    Pd, Ps = DensePencil(model, J, active=active), stab._SparsePencil(model, J, active=active)
+    Pd, Ps = DensePencil(model, J, active=active), stab.SparsePencil(model, J, active=active)
     assert Pd.m == Ps.m and np.array_equal(Pd.rows, Ps.rows)
     Kr = Pd.Kt                                   # scaled stiffness: its spread sets the shifts
     top = float(np.max(np.abs(np.linalg.eigvalsh(Kr))))

@@ -2,7 +2,7 @@
 import numpy as np
 from scipy.optimize import brentq
 
-from .deckgen import Deck, rot_y, rot_z
+from poise.gen.deck import Deck, rot_y, rot_z
 
 G = 9.81
 

@@ -1,11 +1,11 @@
-"""Fixtures of the hard-case suite: run a deck in-process or through the CLI."""
+"""Run a :class:`poise.gen.deck.Deck` in-process or through the CLI (the ``runner`` fixture of
+``tests/conftest.py``), and open its results file."""
 import json
 import subprocess
 import sys
 from pathlib import Path
 
 import h5py
-import pytest
 
 from poise.app.api import run_deck
 
@@ -30,11 +30,6 @@ class Runner:
         assert "Traceback" not in r.stderr, r.stderr
         summary = json.loads(r.stdout) if r.stdout.strip() else {}
         return r, summary, out
-
-
-@pytest.fixture
-def runner(tmp_path):
-    return Runner(tmp_path)
 
 
 def h5(path):

@@ -1,7 +1,8 @@
 """Scale-aware tolerances and stiff/soft mixes."""
 import numpy as np
 
-from .deckgen import Deck, rot_x, rot_y, rot_z, stiff_soft_deck
+from poise.gen.deck import Deck, rot_x, rot_y, rot_z
+from support.builders import stiff_soft_deck
 
 G = 9.81
 

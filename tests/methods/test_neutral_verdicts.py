@@ -17,7 +17,7 @@ import pytest
 import poise.solvers.stability as stab
 from support.paths import DECKS
 
-from .deckgen import I3, Deck, rot_x, rot_y, rot_z
+from poise.gen.deck import I3, Deck, rot_x, rot_y, rot_z
 
 POISE = str(Path(sys.executable).parent / "poise")
 G = 9.81                      # m/s^2 (Deck scales the -9810 mm/s^2 of its gravity)

@@ -5,7 +5,7 @@ References are closed forms / 1-DOF root finds written here, independent of pois
 import numpy as np
 from scipy.optimize import brentq
 
-from .deckgen import Deck, rot_z
+from poise.gen.deck import Deck, rot_z
 
 G = 9.81          # N/kg (gravity 9810 mm/s^2 in N-kg-mm-s)
 
@@ -60,7 +60,7 @@ def test_door_contradicting_hinges_is_a_failure_not_a_wrong_answer(runner):
     assert a["status"] == "failed"
     assert f"offset_door.xml:{line2}: <Constraint_Joint id=2>" in a["message"]
     assert "violated by 1" in a["message"]
-    from .conftest import h5
+    from support.runner import h5
     with h5(out) as f:
         assert f["analysis_000/frames/status"].asstr()[0] == "inconsistent_constraints"
         assert f["analysis_000/frames/stability"].asstr()[0] == "unknown"

@@ -2,8 +2,8 @@
 never a ``converged`` flag on a wrong answer."""
 import numpy as np
 
-from .conftest import h5
-from .deckgen import Deck, rot_y
+from support.runner import h5
+from poise.gen.deck import Deck, rot_y
 
 ALONG_X = rot_y(np.pi / 2)          # marker z axis along global +X
 

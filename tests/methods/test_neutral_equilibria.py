@@ -2,7 +2,7 @@
 neutral directions do not drift, the frame is classified ``neutral`` with the right zero count."""
 import numpy as np
 
-from .deckgen import Deck, rot_x
+from poise.gen.deck import Deck, rot_x
 
 G = 9.81
 UP = rot_x(-np.pi / 2)          # marker z axis along global +Y (table normal)

@@ -1,0 +1,149 @@
+"""Line-search trials of the stable descent (:mod:`poise.solvers.stable`) projected onto the
+constraints, and the energy test that sees through their remaining violation.
+
+A trial ``x = retract(state, alpha dq)`` leaves the constraints by ``O(alpha^2)``:
+:class:`Projector` brings it back to a relative violation ``trial_tol`` (looser than the
+assembly's; the end point is Newton-polished), first with the descent step's own factorised
+KKT matrix (:class:`Chord`), else a Gauss-Newton one. :class:`LagrangeTest` certifies the
+trial's energy change up to its violation (``violation_work``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.solvers.linalg import SingularMatrix
+from poise.solvers.reach import coord_weights, weighted_kkt
+
+PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial, at most ...
+PROJECT_TOL_MAX = 1e-5    # ... and at least: the trial's energy error bound within
+ENERGY_MARGIN = 0.01      # this fraction of the step's predicted decrease
+STEP_CHORD_RATE = 0.6     # the projection refactorises when its error falls slower than this
+PROJECT_MAX_ITER = 30     # projection iterations of one trial ...
+MAX_REFRESH = 4           # ... and factorisations
+
+
+class Chord:
+    """A descent step's factorised KKT matrix used as the projection's (chord) Jacobian:
+    ``correction(phi)`` is the ``dq`` of smallest ``K_s + sigma D`` norm with ``G dq = -phi``
+    (``G`` at the step's start point). A positive definite metric on the constraint
+    tangent space, so the system is the step's own (no new factorisation per trial)."""
+
+    def __init__(self, P, F, rho):
+        self.P, self.F, self.rho = P, F, rho
+
+    def correction(self, phi):
+        P = self.P
+        g = -P.dl * phi[P.rows]
+        sol = self.F.solve(np.concatenate([self.rho * (P.Gt.T @ g), g]))
+        return sol[:P.nq] * P.dq / P.d
+
+
+def violation_work(model, ev, state):
+    """``W``: a trial whose relative constraint violation is ``e`` has a potential energy
+    within about ``e W`` of its exact projection's (the correction moves each coordinate by
+    about ``e`` x its length, against the residual ``r``, and each constraint by ``e`` x its
+    scale, against its multiplier)."""
+    ql = np.where(model.q_kind == 1, 1.0, model.L)
+    rs = np.where(model.row_kind == 1, 1.0, model.L)
+    r = np.abs(np.asarray(ev.r, float)[:model.nq])
+    return float(np.sum(r * ql) + np.sum(np.abs(state.lam) * rs))
+
+
+class LagrangeTest:
+    """The energy test of a trial that sees through its constraint violation.
+
+    A trial ``x`` violating the constraints by ``phi(x)`` has, at its exact projection ``x*``,
+    the energy ``V(x*) = V(x) + lam . phi(x) + r . (x* - x) + O(|x* - x|^2)`` (``r`` the
+    residual, ``lam`` the multipliers: ``grad V = r - G^T lam``). The plain test bounds the
+    whole violation term by ``e W`` (:func:`violation_work`), which near the rest position of
+    a heavy mechanism (``W`` ~ multipliers x L) exceeds the energy the remaining steps gain:
+    the descent then stalls short of the tolerances. Here ``lam . phi`` is added to the energy
+    change (at both ends of the step) and only the residual part is bounded, which vanishes
+    at an equilibrium. ``decrease(dv, proj, lam)`` -> the certified energy change."""
+
+    def __init__(self, model, ev, state, cnt):
+        self.model, self.cnt = model, cnt
+        ql = np.where(model.q_kind == 1, 1.0, model.L)
+        self.work_r = float(np.sum(np.abs(np.asarray(ev.r, float)[:model.nq]) * ql))
+        self.phi_s = np.asarray(cnt.evaluate(model, state, "phi"), float)
+        scale = np.where(model.row_kind == 1, 1.0, model.L)
+        self.err_s = float(np.max(np.abs(self.phi_s) / scale, initial=0.0))
+
+    def decrease(self, dv, proj, lam):
+        phi_x = getattr(proj, "phi", None)
+        if phi_x is None:
+            return np.inf
+        dvc = dv + float(np.asarray(lam, float) @ (phi_x - self.phi_s))
+        return dvc + (proj.err + self.err_s) * self.work_r
+
+
+def trial_tol(alpha, slope, work):
+    """Projection tolerance of a trial at ``alpha``: its energy error bound within
+    ``ENERGY_MARGIN`` of the predicted decrease, between ``PROJECT_TOL`` and
+    ``PROJECT_TOL_MAX`` (near the equilibrium the decrease is small and the trials exact)."""
+    if not np.isfinite(work) or work <= 0.0:
+        return PROJECT_TOL
+    return min(max(ENERGY_MARGIN * alpha * abs(slope) / work, PROJECT_TOL), PROJECT_TOL_MAX)
+
+
+class Projector:
+    """Projection of a descent step's line-search trials onto the constraints, to
+    ``PROJECT_TOL`` (relative: looser than the assembly's; the end point is polished by Newton
+    to the deck's tolerances). Corrections ``dq`` with ``G dq = -phi`` come from one
+    factorised operator, first the descent step's own (``chord``, :class:`Chord`: no new
+    factorisation per trial); when the constraint error falls slower than
+    ``STEP_CHORD_RATE`` per iteration, a Gauss-Newton KKT factorisation at the current point
+    replaces it and serves the step's later trials too (they lie along the same direction).
+    ``proj(x) -> (state, ok)``."""
+
+    def __init__(self, model, cnt, chord=None):
+        self.model, self.cnt = model, cnt
+        self.op = chord.correction if chord is not None else None
+        self.scale = np.where(model.row_kind == 1, 1.0, model.L)
+
+    def __call__(self, x, tol=PROJECT_TOL):
+        m = self.model
+        self.err = 0.0
+        self.phi = np.zeros(m.nc) if m.nc == 0 else None
+        if m.nc == 0:
+            return x, True
+        refreshed, prev, fresh = 0, np.inf, False
+        last = last_phi = None
+        for _ in range(PROJECT_MAX_ITER):
+            phi = self.cnt.evaluate(m, x, "phi")
+            err = float(np.max(np.abs(phi) / self.scale))
+            self.err = err
+            if err <= tol:
+                self.phi = np.asarray(phi, float)
+                return x, True
+            if err > prev and fresh:
+                return x, False            # diverging after a fresh factorisation: too far
+            fresh = False
+            if self.op is None or err > STEP_CHORD_RATE * prev:
+                if refreshed == MAX_REFRESH:
+                    return x, False
+                if err > prev:             # back to the better point
+                    x, phi, err = last, last_phi, prev
+                if not self._refresh(x):
+                    return x, False
+                refreshed, fresh = refreshed + 1, True
+            last, last_phi, prev = x, phi, err
+            x = m.retract(x, self.op(phi))
+        return x, False
+
+    def _refresh(self, x):
+        """A Gauss-Newton operator at ``x`` (coordinate metric ``q_scale^2``)."""
+        m = self.model
+        ev = self.cnt.evaluate(m, x, "jacobian")
+        try:
+            F = self.cnt.factor(weighted_kkt(m, ev, coord_weights(m)))
+        except SingularMatrix:
+            return False
+        nq = m.nq
+        self.op = lambda phi: F.solve(np.concatenate([np.zeros(nq), -phi]))[:nq]
+        return True
+
+
+def project(model, x, cnt, chord=None):
+    """Project one trial (:class:`Projector`)."""
+    return Projector(model, cnt, chord)(x)
