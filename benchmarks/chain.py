@@ -94,6 +94,7 @@ def _worker(deck: str, n: int) -> dict:
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
     from poise.app.runner import model_datasets, plan
+    from poise.results.data import AnalysisResult
     from poise.solvers.driver import Driver
     t_import = time.perf_counter() - t
 
@@ -128,10 +129,11 @@ def _worker(deck: str, n: int) -> dict:
     state = model.initial_state()
     drv = Driver(model, reqs[0], redundancy=None)
     c2 = time.process_time()
-    state, ar = drv.run(state, index=0)
+    state, rec = drv.run(state, index=0)
+    ar = AnalysisResult.of(rec)          # laid out, as runner.run does
     t3 = time.perf_counter()
     solve_cpu = time.process_time() - c2
-    iters = int(sum(o.iterations for o in ar.frames.outcomes))
+    iters = int(np.sum(ar.datasets["frames/iterations"]))
     newton_lu, newton_lu_cpu = _newton_lu(model, state, reqs[0].settings, drv.data.active)
 
     # one Jacobian evaluation and one sparse LU of the same KKT matrix at the solution
