@@ -80,8 +80,8 @@ def section(chains) -> list[str]:
          "it (`linalg.Factor`, the assembler's column order). Ratios of CPU seconds of one "
          "worker process (wall-time ratio in brackets). *Outside Newton*: redundancy detection, "
          "least-squares multipliers, output measures and stability classification.", "",
-         "| N | iterations | solve CPU [s] | Newton's LU CPU [s] | floor [s] | solve / floor | "
-         "Newton [s] | outside Newton [s] | peak RSS [MiB] |",
+         "| N | iterations | solve CPU [s] | Newton's LU CPU [s] | floor CPU [s] | solve / floor | "
+         "Newton wall [s] | outside Newton wall [s] | peak RSS [MiB] |",
          "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lu = _med(r, "newton_lu_cpu_s")
