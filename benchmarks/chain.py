@@ -128,10 +128,13 @@ def _worker(deck: str, n: int) -> dict:
     model_datasets(model)
     state = model.initial_state()
     drv = Driver(model, reqs[0], redundancy=None)
+    c2 = time.process_time()
     state, rec = drv.run(state, index=0)
     ar = AnalysisResult.of(rec)          # laid out, as runner.run does
     t3 = time.perf_counter()
+    solve_cpu = time.process_time() - c2
     iters = int(np.sum(ar.datasets["frames/iterations"]))
+    newton_lu, newton_lu_cpu = _newton_lu(model, state, reqs[0].settings, drv.data.active)
 
     # one Jacobian evaluation and one sparse LU of the same KKT matrix at the solution
     eps = float(np.sqrt(reqs[0].settings.stability))
@@ -155,9 +158,30 @@ def _worker(deck: str, n: int) -> dict:
                 iterations=iters, newton_s=newton_s,
                 iteration_s=newton_s / iters if iters else None,
                 lu_s=statistics.median(lu_times), evaluate_s=statistics.median(ev_times),
+                solve_cpu_s=solve_cpu, newton_lu_s=newton_lu, newton_lu_cpu_s=newton_lu_cpu,
                 phases=phases, counters=drv.data.as_dict(),
                 redundant=int(len(drv.redundancy)), status=ar.status,
                 peak_rss_bytes=int(peak))
+
+
+def _newton_lu(model, state, settings, active, repeat: int = 5):
+    """Median wall and CPU seconds of the factorisation Newton performs at ``state``:
+    :class:`poise.solvers.linalg.Factor` of the KKT Jacobian as Newton assembles it (mass
+    shift, active rows), with the column order its solve computed once (not timed)."""
+    import numpy as np
+    from poise.model.workspace import Workspace
+    from poise.solvers.linalg import Factor
+    ws = Workspace()
+    eps = float(np.sqrt(settings.stability))
+    J = model.evaluate(state, need_jac=True, eps_mass=eps, active=active, workspace=ws).J
+    Factor(J)                              # the solve's column order, computed once
+    wall, cpu = [], []
+    for _ in range(repeat):
+        t0, c0 = time.perf_counter(), time.process_time()
+        Factor(J)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return statistics.median(wall), statistics.median(cpu)
 
 
 # --------------------------------------------------------------------------- parent
@@ -175,7 +199,7 @@ def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
     deck.write_text(build_chain_deck(n, "revolute"))
     runs = [_run_worker(deck, n) for _ in range(repeat)]
     keys = ("import_s", "parse_s", "compile_s", "solve_s", "newton_s", "iteration_s", "lu_s",
-            "evaluate_s", "peak_rss_bytes")
+            "evaluate_s", "peak_rss_bytes", "solve_cpu_s", "newton_lu_s", "newton_lu_cpu_s")
     out = dict(bench="chain", n=n, joint="revolute", repeat=repeat)
     for k in ("nq", "nc", "nnz", "kkt_size", "iterations", "redundant", "status", "counters"):
         out[k] = runs[0][k]

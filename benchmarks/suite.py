@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from benchmarks import report, scaling, wp
+from benchmarks import floor, report, scaling, wp
 
 IMG = "docs/img"
 SMOOTH = ("pendulum_multiturn", "fourbar_spring", "slider_crank_static", "chain_20", "chain_1000")
@@ -54,7 +54,7 @@ def run(root: Path, tmp: Path, chain_rows: list[dict], peer_small: dict | None =
     except ImportError as e:
         plots_ok = False
         _log(f"[issue 7] no plots: {e} (install the 'bench' extra)")
-    tg = targets(wprows, qs, peers, chains, grids, fits, decade)
+    tg = targets(wprows, qs, peers, chains, grids, fits, decade) + floor.targets(chains)
     md = ["## Issue 7 targets", "",
           f"Measured by `make bench`{' (quick mode: reduced ladder and sizes)' if quick else ''}; "
           f"load average at the end {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} (1/5/15 min; "
@@ -68,6 +68,7 @@ def run(root: Path, tmp: Path, chain_rows: list[dict], peer_small: dict | None =
                             {k: v[4] for k, v in wp.DECKS.items() if k in decks}) + [""]
     md += report.peer_section(peers) + [""]
     md += report.scaling_section(chains, grids, skips, fits) + [""]
+    md += floor.section(chains) + [""]
     if not plots_ok:
         md += ["*Plots not generated: matplotlib missing (`pip install -e '.[bench]'`).*", ""]
     md += [f"Issue-7 suites took {time.perf_counter() - t0:.0f} s.", ""]

@@ -149,7 +149,9 @@ class ForceFamily(Family):
 class ConstraintFamily(Family):
     """Constraint families implement ``constraints(kin, lam, ctx) -> (phi, phi_y, G[, ext])``.
 
-    ``lam`` has shape (n, m); ``phi`` (n, m); ``phi_y`` (n, m, 3S); ``G`` (n, 3S, 3S) or None.
+    ``lam`` has shape (n, m); ``phi`` (n, m); ``phi_y`` (n, m, 3S); ``G`` (n, 3S, 3S), a
+    compact :class:`~poise.elements.kernel.PairBlocks` (identity-multiple slot-pair blocks:
+    nothing dense is built for a residual-only evaluation) or None.
     Families with scalar columns may return ``ext`` with ``phi_s`` (n, m, U) = d phi / d s and
     the multiplier-weighted Hessian blocks ``G_ys`` (n, 3S, U) and ``G_ss`` (n, U, U)
     (``G_sy`` defaults to the transpose of ``G_ys``); ``rho_s = phi_s^T lam`` is added by the

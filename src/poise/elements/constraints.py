@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.elements.base import ConstraintFamily
-from poise.elements.kernel import POINT
+from poise.elements.kernel import POINT, PairBlocks
 from poise.elements.registry import (ElementType, FDCase, OutputGroup, claimed_types, static,
                                      workless)
 
@@ -129,15 +129,10 @@ class Perpendicular(ConstraintFamily):
         phi_y[:, 0, 3:6] = Y[:, 0]
         phi_y[:, 0, 6:9] = c[:, None] * Y[:, 3]
         phi_y[:, 0, 9:12] = c[:, None] * Y[:, 2]
-        G = np.zeros((n, 12, 12))
+        # G: lam I on the (a_I, b_J) blocks, lam c I on (a2_I, b2_J); compact (PairBlocks)
         l = lam[:, 0]
-        blk = l[:, None, None] * _I3
-        G[:, 0:3, 3:6] = blk
-        G[:, 3:6, 0:3] = blk
-        blk2 = (l * c)[:, None, None] * _I3
-        G[:, 6:9, 9:12] = blk2
-        G[:, 9:12, 6:9] = blk2
-        return phi, phi_y, G
+        l2 = l * c
+        return phi, phi_y, PairBlocks(n, 4, {(0, 1): l, (1, 0): l, (2, 3): l2, (3, 2): l2})
 
     def g_blocks(self):
         gb = np.zeros((4, 4), bool)
@@ -172,13 +167,10 @@ class InPlane(ConstraintFamily):
         phi_y[:, 0, 0:3] = b
         phi_y[:, 0, 3:6] = -b
         phi_y[:, 0, 6:9] = d
-        G = np.zeros((n, 9, 9))
-        blk = lam[:, 0][:, None, None] * _I3
-        G[:, 0:3, 6:9] = blk
-        G[:, 6:9, 0:3] = blk
-        G[:, 3:6, 6:9] = -blk
-        G[:, 6:9, 3:6] = -blk
-        return phi, phi_y, G
+        # G: lam I on the (P_I, b_J) blocks, -lam I on (P_J, b_J); compact (PairBlocks)
+        l = lam[:, 0]
+        m = -l
+        return phi, phi_y, PairBlocks(n, 3, {(0, 2): l, (2, 0): l, (1, 2): m, (2, 1): m})
 
     def g_blocks(self):
         gb = np.zeros((3, 3), bool)

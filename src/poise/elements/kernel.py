@@ -67,6 +67,46 @@ class SlotKinematics:
         return self._B
 
 
+class PairBlocks:
+    """A compact ``G`` (n, 3S, 3S) whose only non-zero 3x3 slot-pair blocks are multiples of
+    the identity: block ``(s, t)`` is ``coef[(s, t)] * I`` (``coef`` values (n,)). This is the
+    multiplier-weighted Hessian of the bilinear constraint rows (``Perpendicular``,
+    ``InPlane``): a residual evaluation makes it for the price of the multipliers' view, and
+    only a Jacobian expands its blocks (:meth:`block`; :func:`dense_g` for the generic
+    consumers), never an (n, 3S, 3S) array per trial."""
+
+    __slots__ = ("n", "S", "coef")
+
+    def __init__(self, n: int, S: int, coef: dict):
+        self.n, self.S, self.coef = n, S, coef
+
+    def block(self, s: int, t: int) -> np.ndarray:
+        """Block ``(s, t)`` component-major (3, 3, n) (zeros when it has no coefficient)."""
+        c = self.coef.get((s, t))
+        if c is None:
+            return np.zeros((3, 3, self.n))
+        return _I3[:, :, None] * c[None, None, :]
+
+    def dense(self, rows=None) -> np.ndarray:
+        """The (n, 3S, 3S) array (only the instances ``rows`` when given)."""
+        n = self.n if rows is None else len(rows)
+        G = np.zeros((n, 3 * self.S, 3 * self.S))
+        for (s, t), c in self.coef.items():
+            c = c if rows is None else c[rows]
+            G[:, 3 * s:3 * s + 3, 3 * t:3 * t + 3] = c[:, None, None] * _I3
+        return G
+
+
+def dense_g(G, rows=None):
+    """``G`` as an (n, 3S, 3S) array (or None), a :class:`PairBlocks` expanded; ``rows``: only
+    those instances."""
+    if isinstance(G, PairBlocks):
+        return G.dense(rows)
+    if G is None or rows is None:
+        return G
+    return G[rows]
+
+
 def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) -> SlotKinematics:
     """Evaluate slot vectors (the B-matrices are implicit, see :class:`SlotKinematics`).
 
@@ -283,10 +323,15 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> n
         for i in range(3):
             blk[i, i] -= d
     if G is not None and len(pat.s_idx):
+        compact_g = isinstance(G, PairBlocks)
         pt = kin.pt
         for s, t in zip(pat.s_idx.tolist(), pat.t_idx.tolist()):
             k, l = ml[s], ml[t]
-            Gp = np.ascontiguousarray(G[:, 3 * s:3 * s + 3, 3 * t:3 * t + 3].transpose(1, 2, 0))
+            if compact_g:
+                Gp = G.block(s, t)
+            else:
+                Gp = np.ascontiguousarray(G[:, 3 * s:3 * s + 3, 3 * t:3 * t + 3]
+                                          .transpose(1, 2, 0))
             RT = _cross_cols(V[s], Gp)                          # Sk_s G_st
             Kb[bpos[2 * k + 1, 2 * l + 1]] -= _cross_rows(RT, V[t])
             ws = None if pat.pt_all[s] else pt[:, s]
@@ -354,7 +399,7 @@ def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray |
         if G is None:
             Kl = np.zeros((n, 6 * K, 6 * K))
         else:
-            Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(G, B))
+            Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(dense_g(G), B))
         S = kin.V.shape[1]
         rho3 = rho.reshape(n, S, 3)
         for s in range(S):

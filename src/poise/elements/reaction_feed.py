@@ -12,7 +12,7 @@ import numpy as np
 from poise.elements.base import GLOBAL
 from poise.elements.channels import ExprInfo, resultant_side
 from poise.elements.forces import apply_two_body
-from poise.elements.kernel import SlotKinematics, cross3, local_residual_tangent
+from poise.elements.kernel import SlotKinematics, cross3, dense_g, local_residual_tangent
 from poise.elements.loads import loads_of
 from poise.elements.rotation import skew
 
@@ -426,7 +426,7 @@ def _action_derivatives(g, kin, rho, phy, G, ext, js, qc, need_f):
         rows = (3 * on_i[:, None] + np.arange(3)).ravel()
         GB = np.zeros((n, len(rows), L))                                 # (G B)_s, s on I
         if G is not None:
-            GB[:, :, :K6] = np.matmul(G[js[:, None], rows], B)
+            GB[:, :, :K6] = np.matmul(dense_g(G, js)[:, rows], B)
         gys = None if ext is None else ext.get("G_ys")
         if gys is not None and g.U:
             GB[:, :, K6:] = gys[js[:, None], rows]

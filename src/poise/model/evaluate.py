@@ -25,8 +25,9 @@ from poise.core import phases
 from poise.core.errors import EvaluationError
 from poise.elements.context import row_where
 from poise.expr import EvalContext
-from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, local_pattern,
-                                   local_residual_tangent, slot_kinematics, tangent_compact)
+from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, dense_g,
+                                   local_pattern, local_residual_tangent, slot_kinematics,
+                                   tangent_compact)
 from poise.model.assembly import scatter_add
 from poise.model.frame_batch import tiles
 from poise.model.workspace import Workspace
@@ -180,7 +181,7 @@ class _Frames:
                         self.lam2[f][fam.crow] if fam.is_constraint else None, self.ctxs[f],
                         need_jac) for f in range(self.F)]
         k = 3 if fam.is_constraint else 2
-        out = [None if outs[0][j] is None else np.concatenate([o[j] for o in outs])
+        out = [None if outs[0][j] is None else np.concatenate([dense_g(o[j]) for o in outs])
                for j in range(k)]
         ext = _stack_ext(outs, k)
         if ext is not None:

@@ -31,7 +31,10 @@ def weighted_kkt(model, ev, W):
         B = J[:nq, nq:]
         Cm = J[nq:, :nq]
         D = J[nq:, nq:]
-        return sp.bmat([[sp.diags(W), B], [Cm, D]], format="csc")
+        K = sp.bmat([[sp.diags(W), B], [Cm, D]], format="csc")
+        # its pattern is within the KKT pattern: the assembler's column order serves it too
+        K.poise_column_order = getattr(J, "poise_column_order", None)
+        return K
     K = np.array(J, copy=True)
     K[:nq, :nq] = np.diag(W)
     return K

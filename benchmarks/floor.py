@@ -1,0 +1,94 @@
+"""Big static solves against the floor of the method (issue 25 §2), from the chain rows.
+
+For a static FIM_S solve the floor is *iterations × the LU Newton performs*: the worker
+(:func:`benchmarks.chain._newton_lu`) times :class:`poise.solvers.linalg.Factor` of the KKT
+matrix at the solution exactly as Newton factorises it (its column order computed once per
+solve, not timed). Ratios are of CPU seconds (``time.process_time``, one BLAS thread) of the
+same worker process, so that the load of this shared machine, which stretches wall times
+unevenly, cancels; wall-time ratios are shown next to them.
+"""
+from __future__ import annotations
+
+import math
+
+SIZES = (1000, 10000, 100000)
+FLOOR_RATIO = 2.0            # solve <= 2 x iterations x Newton's LU
+EXPONENT = 1.03              # solve time 10^4 -> 10^5 links
+PEAK_BYTES = 1.5e9           # peak RSS at 10^5 links (GB = 10^9 bytes)
+
+
+def _med(r, key):
+    st = r.get(key)
+    return st["median"] if st else None
+
+
+def floor_ratio(r, cpu: bool = True):
+    """``solve / (iterations x Newton's LU)`` of a chain row (None if not measured)."""
+    sk, lk = ("solve_cpu_s", "newton_lu_cpu_s") if cpu else ("solve_s", "newton_lu_s")
+    t, lu, it = _med(r, sk), _med(r, lk), r.get("iterations")
+    if not (t and lu and it):
+        return None
+    return t / (it * lu)
+
+
+def exponent(chains, key="solve_cpu_s"):
+    """Solve-time exponent from 10^4 to 10^5 links (None unless both were measured)."""
+    by = {r["n"]: r for r in chains}
+    a, b = by.get(10000), by.get(100000)
+    if not (a and b and _med(a, key) and _med(b, key)):
+        return None
+    return math.log(_med(b, key) / _med(a, key)) / math.log(10.0)
+
+
+def targets(chains) -> list[tuple]:
+    from benchmarks.report import _s
+    by = {r["n"]: r for r in chains}
+    out = []
+    for n in SIZES:
+        r = by.get(n)
+        v = floor_ratio(r) if r else None
+        if v is None:
+            out.append((f"{n}-link chain: solve / (iterations × Newton's LU), CPU",
+                        f"≤ {FLOOR_RATIO:g}", "not measured", None))
+            continue
+        out.append((f"{n}-link chain: solve / (iterations × Newton's LU), CPU",
+                    f"≤ {FLOOR_RATIO:g}",
+                    f"{v:.2f} ({_s(_med(r, 'solve_cpu_s'))} s / {r['iterations']} × "
+                    f"{_s(_med(r, 'newton_lu_cpu_s') * 1e3)} ms; wall {_s(floor_ratio(r, False))})",
+                    v <= FLOOR_RATIO and r["status"] == "converged"))
+    e = exponent(chains)
+    ew = exponent(chains, "solve_s")
+    out.append(("chain solve-time exponent 10^4 → 10^5 links, CPU", f"≤ {EXPONENT:g}",
+                "not measured" if e is None else f"{e:.3f} (wall {_s(ew)})",
+                None if e is None else e <= EXPONENT))
+    r = by.get(100000)
+    m = r["peak_rss_bytes"]["max"] if r else None
+    out.append(("100 000-link chain peak memory (RSS)", "≤ 1.5 GB",
+                "not measured" if m is None else f"{m / 1e9:.2f} GB",
+                None if m is None else m <= PEAK_BYTES))
+    return out
+
+
+def section(chains) -> list[str]:
+    """Markdown: per chain size the solve, Newton's LU, the floor and the ratios."""
+    from benchmarks.report import _s
+    rows = sorted([r for r in chains if r.get("newton_lu_s")], key=lambda r: r["n"])
+    if not rows:
+        return []
+    L = ["### Static solve vs its floor (issue 25 §2)", "",
+         "*Floor* = iterations × one factorisation of the KKT matrix exactly as Newton performs "
+         "it (`linalg.Factor`, the assembler's column order). Ratios of CPU seconds of one "
+         "worker process (wall-time ratio in brackets). *Outside Newton*: redundancy detection, "
+         "least-squares multipliers, output measures and stability classification.", "",
+         "| N | iterations | solve CPU [s] | Newton's LU CPU [s] | floor CPU [s] | solve / floor | "
+         "Newton wall [s] | outside Newton wall [s] | peak RSS [MiB] |",
+         "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lu = _med(r, "newton_lu_cpu_s")
+        nw = _med(r, "newton_s")
+        L.append(f"| {r['n']} | {r['iterations']} | {_s(_med(r, 'solve_cpu_s'))} | {_s(lu)} | "
+                 f"{_s(lu * r['iterations'])} | {_s(floor_ratio(r))} "
+                 f"({_s(floor_ratio(r, False))}) | {_s(nw)} | "
+                 f"{_s(_med(r, 'solve_s') - nw if nw is not None else None)} | "
+                 f"{r['peak_rss_bytes']['max'] / 2**20:.0f} |")
+    return L
