@@ -31,8 +31,8 @@ def results_or_usage(path: str) -> None:
     """Exit 2 when PATH is not a poise results file."""
     # lazy: keeps the command module light (poise CMD --help imports no numpy/h5py)
     from poise.core.errors import UsageError
-    from poise.results.hdf5 import ResultsFormatError, _open_checked
+    from poise.results.hdf5 import ResultsFormatError, open_checked
     try:
-        _open_checked(path).close()
+        open_checked(path).close()
     except ResultsFormatError as e:
         raise UsageError(str(e)) from None

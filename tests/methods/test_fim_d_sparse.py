@@ -155,13 +155,13 @@ def test_every_ida_start_is_consistent(monkeypatch):
     Without the polish a rebase restarted from IDA's last corrector, 0.03-1.2 tolerance units
     off here (4.5 with a 0.1 corrector coefficient, where IDA then failed at h_min)."""
     starts = []
-    real = fd._ida
+    real = fd.run_ida
 
     def ida(chart, tsd, atol, t0, y0, yp0, first_step):
         starts.append((chart, t0, np.array(y0), np.array(atol), tsd.tol, first_step))
         return real(chart, tsd, atol, t0, y0, yp0, first_step)
 
-    monkeypatch.setattr(fd, "_ida", ida)
+    monkeypatch.setattr(fd, "run_ida", ida)
     ar = run_deck(os.path.join(DECKS, "qs_slider_crank_rev.xml"), {"method": "FIM_D"},
                   quiet=True).analyses[0]
     assert ar.status == "converged" and ar.attrs["fim_s_fallbacks"] == 0
@@ -182,13 +182,13 @@ def test_written_h0_max_caps_the_first_step_only(monkeypatch, tmp_path):
     schema has no h0_max default (the reference's 1e-8 is marked unsure, and it cost
     slider_crank_qs_1000 10 of its 27 IDA steps)."""
     firsts = []
-    real = fd._ida
+    real = fd.run_ida
 
     def ida(chart, tsd, atol, t0, y0, yp0, first_step):
         firsts.append(first_step)
         return real(chart, tsd, atol, t0, y0, yp0, first_step)
 
-    monkeypatch.setattr(fd, "_ida", ida)
+    monkeypatch.setattr(fd, "run_ida", ida)
     src = open(os.path.join(DECKS, "qs_slider_crank_rev.xml")).read()
     deck = tmp_path / "h0.xml"
     deck.write_text(src.replace('<Param_Transient dae_constr_tol="1.0E-8"/>',
@@ -204,7 +204,7 @@ class _Capture:
 
     def __init__(self, monkeypatch):
         self.calls, self.patterns = [], []
-        real_jac, real_ida = fd._Chart.jacfn_sparse, fd._ida
+        real_jac, real_ida = fd.Chart.jacfn_sparse, fd.run_ida
         cap = self
 
         def jacfn_sparse(chart, t, y, yp, res, cj, JJ):
@@ -215,8 +215,8 @@ class _Capture:
             cap.patterns.append(chart.sparse.pattern())
             return real_ida(chart, *a, **k)
 
-        monkeypatch.setattr(fd._Chart, "jacfn_sparse", jacfn_sparse)
-        monkeypatch.setattr(fd, "_ida", ida)
+        monkeypatch.setattr(fd.Chart, "jacfn_sparse", jacfn_sparse)
+        monkeypatch.setattr(fd, "run_ida", ida)
 
 
 def _fd_jacobian(chart, t, y):
@@ -290,13 +290,13 @@ def test_sparse_jacobian_equals_finite_differences(tmp_path, monkeypatch, case):
 
 def _residual_calls(monkeypatch):
     calls = []
-    real = fd._Chart.resfn
+    real = fd.Chart.resfn
 
     def resfn(chart, t, y, yp, res):
         calls.append((float(t), np.array(y), np.array(yp)))
         return real(chart, t, y, yp, res)
 
-    monkeypatch.setattr(fd._Chart, "resfn", resfn)
+    monkeypatch.setattr(fd.Chart, "resfn", resfn)
     return calls
 
 

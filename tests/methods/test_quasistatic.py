@@ -202,7 +202,7 @@ def test_fim_d_fallbacks_recorded(monkeypatch):
     """Every FIM_S fallback of FIM_D is an ``iterations`` row (event fallback_fim_s, the frame,
     the reason) and counted in the attributes and the message; the path stays correct."""
     import poise.solvers.fim_d as fd
-    real = fd._ida
+    real = fd.run_ida
     calls = {"start": 0, "step": 0}
 
     class FailingOnce:
@@ -222,7 +222,7 @@ def test_fim_d_fallbacks_recorded(monkeypatch):
             raise RuntimeError("injected start failure")
         return FailingOnce(real(*a, **k))
 
-    monkeypatch.setattr(fd, "_ida", fake_ida)
+    monkeypatch.setattr(fd, "run_ida", fake_ida)
     ar = _run(_deck("qs_spring_ramp.xml"), "FIM_D").analyses[0]
     assert ar.status == "converged", ar.message
     ev, fr, why = _events(ar)
@@ -236,7 +236,7 @@ def test_fim_d_fallbacks_recorded(monkeypatch):
     np.testing.assert_allclose(ar.datasets["bodies/position"][:, 0, 0], 1.0 + 50 * t / 200.0,
                                atol=1e-7)
     # no size limit any more: a model on IDA's sparse solver is integrated, no fallback
-    monkeypatch.setattr(fd, "_ida", real)
+    monkeypatch.setattr(fd, "run_ida", real)
     monkeypatch.setattr(fd, "SPARSE_MIN", 0)
     ar = _run(_deck("qs_spring_ramp.xml"), "FIM_D").analyses[0]
     ev, fr, why = _events(ar)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from poise.app.runner import _load, plan
+from poise.app.runner import load_input, plan
 from poise.model.compile import compile_model
 from poise.elements.user import USER_CONSTRAINT_TAGS
 from poise.solvers.redundancy import detect_redundancy
@@ -68,7 +68,7 @@ class CheckReport:
 
 
 def check(path: str, ignore=()):
-    spec = _load(path, ignore)
+    spec = load_input(path, ignore)
     model = compile_model(spec, user_code="skip")      # check never runs deck code
     rep = CheckReport(deck=spec.path)
     mass = model.deck_mass()

@@ -25,7 +25,7 @@ from poise.deck.spec import DeckSpec, Element
 from poise.deck.validate import validate
 from poise.model import commands as model_commands
 from poise.model.compile import compile_model
-from poise.elements.contact import _get
+from poise.elements.contact import attr_of
 from poise.results.data import STATUS_FAILED, AnalysisResult, RunResult
 from poise.results.labels import Labeller
 from poise.results.summary import summarize
@@ -34,7 +34,7 @@ from poise.solvers.driver import Driver, strategy_for
 from poise.solvers.settings import StaticSettings, check_override_names
 
 
-def _load(path, ignore=()):
+def load_input(path, ignore=()):
     if isinstance(path, DeckSpec):  # already parsed (run_spec: sweeps, poise.solve(spec))
         return revalidated(path)
     check_ignore(path, ignore)
@@ -271,7 +271,7 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=(),
     phases.reset()
     now = phases.now            # a clock that stops while modules are imported
     t0 = now()
-    spec = _load(path, ignore)
+    spec = load_input(path, ignore)
     path = spec.path
     t1 = now()
     user_code = "run" if allow_user_code else "refuse"
@@ -453,14 +453,14 @@ def graphics_datasets(spec: DeckSpec, model) -> dict:
     rows = []
 
     def num(el, name, default=None):
-        v = _get(el, name, default=default)
+        v = attr_of(el, name, default=default)
         f = float(v)
         if not np.isfinite(f):
             raise ValueError(name)
         return f
 
     for el in els:
-        t = str(_get(el, "type", default="")).upper()
+        t = str(attr_of(el, "type", default="")).upper()
         try:
             if t == "SPHERE":
                 kind, names = "sphere", ("center_marker_id", "cm_id", "marker_id")
@@ -472,7 +472,7 @@ def graphics_datasets(spec: DeckSpec, model) -> dict:
                 kind, names = "plane", ("ref_marker_id", "rm_id", "marker_id", "center_marker_id")
             else:
                 continue
-            mid = int(float(_get(el, *names)))
+            mid = int(float(attr_of(el, *names)))
             k = mindex[mid]
             radius = num(el, "radius") if kind == "sphere" else np.nan
             half = (np.array([num(el, f"length_{c}") for c in "xyz"]) / 2 if kind == "box"

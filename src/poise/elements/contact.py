@@ -192,7 +192,7 @@ class ContactForce(TwoBodyForce):
 
 
 # ----------------------------------- compile
-def _get(el, *names, default=None):
+def attr_of(el, *names, default=None):
     low = {str(k).lower(): v for k, v in el.attrs.items()}
     for n in names:
         if n in low and low[n] is not None:
@@ -221,7 +221,7 @@ def _ids(v, el=None, attr=None, pc=None):
 
 def _real(el, names, default, pc, what=None):
     """A finite number from the first present attribute of ``names`` (located error otherwise)."""
-    v = _get(el, *names, default=default)
+    v = attr_of(el, *names, default=default)
     try:
         f = float(v)
         if not np.isfinite(f):
@@ -272,9 +272,9 @@ def compile_contacts(spec, ctx):
         if g is None:
             pc.error(el.loc, f"Post_Graphic {gid} does not exist; expected a Post_Graphic id", attr)
             return None
-        t = str(_get(g, "type", default="")).upper()
+        t = str(attr_of(g, "type", default="")).upper()
         if t == "SPHERE":
-            mk = _get(g, "center_marker_id", "cm_id", "marker_id")
+            mk = attr_of(g, "center_marker_id", "cm_id", "marker_id")
             return dict(kind="sphere", m=marker(g, _key(g, mk, "center_marker_id", "cm_id", "marker_id")),
                         r=_real(g, ("radius",), 0.0, pc), o=np.zeros(3))
         if t in ("BOX", "BOXDEFINEDFROMCENTER", "BOXDEFINEDFROMCORNER"):
@@ -294,7 +294,7 @@ def compile_contacts(spec, ctx):
         return None
 
     for el in els:
-        law = str(_get(el, "cnf_type", default="IMPACT")).upper()
+        law = str(attr_of(el, "cnf_type", default="IMPACT")).upper()
         if law != "IMPACT":
             pc.error(el.loc, f"cnf_type {law} is not supported; expected IMPACT", "cnf_type")
             continue
@@ -303,9 +303,9 @@ def compile_contacts(spec, ctx):
         dmax = _real(el, ("dmax",), 0.0, pc)
         ds = dmax if dmax > 0 else 1e-3 * L
         gi = [geom(g, el, "i_graphics_id")
-              for g in _ids(_get(el, "i_graphics_id"), el, "i_graphics_id", pc)]
+              for g in _ids(attr_of(el, "i_graphics_id"), el, "i_graphics_id", pc)]
         gj = [geom(g, el, "j_graphics_id")
-              for g in _ids(_get(el, "j_graphics_id"), el, "j_graphics_id", pc)]
+              for g in _ids(attr_of(el, "j_graphics_id"), el, "j_graphics_id", pc)]
         if not gi or not gj:
             pc.error(el.loc, "contact needs i_graphics_id and j_graphics_id; expected "
                      "Post_Graphic ids", "i_graphics_id")

@@ -124,7 +124,7 @@ class Dimensions:
         for name in used:
             values = schema.component_values(name)
             if isinstance(values, int):
-                self.scales[("", name)] = self._pure(f, name, values)
+                self.scales[("", name)] = self.pure_dimension(f, name, values)
             else:
                 arr = to_array(np.asarray(values), name)
                 dsid = create_dataset(f, name, arr, "" if arr.dtype.kind == "O" else "1",
@@ -134,7 +134,7 @@ class Dimensions:
                 self.scales[("", name)] = dsid
 
     @staticmethod
-    def _pure(group: h5py.Group, name: str, n: int):
+    def pure_dimension(group: h5py.Group, name: str, n: int):
         """A netCDF dimension that is not a variable (as netCDF-C writes it: float32, no data
         stored)."""
         from h5py import h5d, h5ds, h5s, h5t
@@ -150,7 +150,7 @@ class Dimensions:
         sizes = {d: n for ds, shape in self.dims[where].values() for d, n in zip(ds, shape)
                  if not schema.component_dim(d)}
         for d in sorted(sizes):
-            self.scales[(where, d)] = self._pure(group, d, sizes[d])
+            self.scales[(where, d)] = self.pure_dimension(group, d, sizes[d])
 
     def attach(self, dsid, where: str, key: str) -> None:
         from h5py import h5ds

@@ -274,7 +274,7 @@ def _collect(group: h5py.Group) -> dict[str, np.ndarray]:
     return out
 
 
-def _open_checked(path: str) -> h5py.File:
+def open_checked(path: str) -> h5py.File:
     require_file(path, "results file")       # FileNotFoundError (exit 2 on the command line)
     try:
         f = h5py.File(path, "r")
@@ -317,7 +317,7 @@ _ROOT_RESERVED = ("format", "format_version", "poise_version", "deck", "deck_sha
 
 def read_results(path: str) -> RunResult:
     """Read a whole results file back into a :class:`RunResult` (inverse of write_results)."""
-    with _open_checked(path) as f:
+    with open_checked(path) as f:
         attrs = {k: _py(v) for k, v in f.attrs.items()}
         analyses = []
         for index, g in _analysis_groups(f):
@@ -364,7 +364,7 @@ def read_summary(path: str) -> dict:
 
     Raises :class:`ResultsFormatError` when ``path`` is not a poise results file.
     """
-    with _open_checked(path) as f:
+    with open_checked(path) as f:
         out: dict[str, Any] = {"file": os.fspath(path)}
         for k in ("format", "format_version", "poise_version", "deck", "deck_sha256", "status",
                   "units", "active_effects", "command"):

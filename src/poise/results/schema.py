@@ -35,7 +35,7 @@ from poise.results import schema_sweep
 from poise.results.schema_items import Item, declared
 
 SCOPES = ("root", "model", "analysis", "timings", "counts", schema_sweep.SCOPE)
-_DTYPES = {"float": "f", "int": "iu", "bool": "b", "str": "OSUT", "json": "OSUT"}
+DTYPE_KINDS = {"float": "f", "int": "iu", "bool": "b", "str": "OSUT", "json": "OSUT"}
 
 
 class UndeclaredError(AssertionError):
@@ -48,7 +48,7 @@ def items() -> tuple[Item, ...]:
     out = tuple(declared()) + tuple(schema_sweep.declared())
     seen = set()
     for it in out:
-        assert it.scope in SCOPES and it.dtype in _DTYPES, it
+        assert it.scope in SCOPES and it.dtype in DTYPE_KINDS, it
         assert (it.scope, it.kind, it.name) not in seen, f"declared twice: {it.path}"
         seen.add((it.scope, it.kind, it.name))
         if it.kind == "dataset":
@@ -102,7 +102,7 @@ def declared_item(scope: str, kind: str, name: str, where: str) -> Item:
 
 def check_array(it: Item, arr: np.ndarray, where: str) -> None:
     """dtype kind and rank of ``arr`` against the declaration (cheap: no per-element work)."""
-    if arr.dtype.kind not in _DTYPES[it.dtype] and not (it.dtype == "float" and arr.size == 0):
+    if arr.dtype.kind not in DTYPE_KINDS[it.dtype] and not (it.dtype == "float" and arr.size == 0):
         raise UndeclaredError(f"{where}: dtype {arr.dtype} does not match the declared "
                               f"{it.dtype} (results schema)")
     if arr.ndim != len(it.shape):
@@ -239,7 +239,7 @@ def conformance(path) -> list[str]:
             return
         seen.add((inst, it))
         kind = "O" if h5py.check_string_dtype(ds.dtype) is not None else ds.dtype.kind
-        if kind not in _DTYPES[it.dtype]:
+        if kind not in DTYPE_KINDS[it.dtype]:
             problems.append(f"{where}: dtype {ds.dtype}, declared {it.dtype}")
         if len(ds.shape) != len(it.shape):
             problems.append(f"{where}: shape {ds.shape}, declared {shape_text(it.shape)}")

@@ -55,7 +55,7 @@ class SweepWriter:
         scale = f.create_dataset("case", data=np.arange(self.n, dtype=np.int64))
         scale.make_scale("case")
         self._describe(scale, fixed[("dataset", "case")])
-        Dimensions._pure(f, "frame", len(time))
+        Dimensions.pure_dimension(f, "frame", len(time))
         self.scales = {"case": scale, "frame": f["frame"]}
         self.long = {text: schema.long_name(source) for text, source in outputs}
         coords = []
@@ -116,7 +116,7 @@ class SweepWriter:
         if s is None:                       # a fixed-size dimension (axis, channel, ...)
             values = schema.component_values(d)
             if isinstance(values, int):
-                Dimensions._pure(self.f, d, values)
+                Dimensions.pure_dimension(self.f, d, values)
                 s = self.f[d]
             else:
                 arr = np.asarray(values)

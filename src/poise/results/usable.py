@@ -27,7 +27,7 @@ import re
 import h5py
 
 from poise.core.errors import UsageError
-from poise.results.schema import _DTYPES, lookup, shape_text
+from poise.results.schema import DTYPE_KINDS, lookup, shape_text
 
 #: datasets every analysis group of a poise file has, whatever its method or age
 _REQUIRED = ("time", "bodies/position")
@@ -129,7 +129,7 @@ class _Walk:
         if it is None:
             return
         kind = "O" if h5py.check_string_dtype(ds.dtype) is not None else ds.dtype.kind
-        if kind not in _DTYPES[it.dtype]:
+        if kind not in DTYPE_KINDS[it.dtype]:
             raise _Unusable(where, f"dtype {ds.dtype}, declared {it.dtype}")
         if len(ds.shape) != len(it.shape):
             raise _Unusable(where, f"shape {ds.shape}, declared {shape_text(it.shape)}")

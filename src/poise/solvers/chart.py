@@ -1,6 +1,6 @@
 """FIM_D's chart (unknowns relative to a reference state) and the output-frame corrector.
 
-:class:`_Chart` maps IDA's unknowns ``y`` (CG translations and rotation vectors relative to a
+:class:`Chart` maps IDA's unknowns ``y`` (CG translations and rotation vectors relative to a
 reference state, then the multipliers) to states, provides IDA's residual and Jacobian
 callbacks and a consistent start; :class:`Corrector` brings IDA's output points onto the
 equilibrium to the ``Param_Static`` tolerances. Notes: docs/fim_d.md.
@@ -23,7 +23,7 @@ CORRECT_MAX_ITER = 4      # simplified-Newton corrections of an output frame, at
 CORRECT_RATE = 0.25       # contraction slower than this: refactorise at the frame (once a frame)
 
 
-class _Chart:
+class Chart:
     """The map y -> State around a reference state, its Jacobian factor, and IDA callbacks."""
 
     def __init__(self, model, ref, eps, counters, sparse=None, tol=1e-6):
@@ -33,8 +33,8 @@ class _Chart:
         self.eps = eps
         self.cnt = counters
         self.sparse = sparse            # SparseJacobian, or None: dense
-        self.stats = None               # IdaStats of the current IDA instance (set by _ida)
-        self.conv_coef_set = False      # NONLIN_CONV_COEF applied to that instance (by _ida)
+        self.stats = None               # IdaStats of the current IDA instance (set by run_ida)
+        self.conv_coef_set = False      # NONLIN_CONV_COEF applied to that instance (by run_ida)
         self.trial_times = set()
         self.held = None                # a factorisation of dF/dy in this chart (Corrector)
 
@@ -304,7 +304,7 @@ class Corrector:
 
     def _chart_jacobian(self, J, Y, inact):
         """``dF/dy`` of each frame from its KKT Jacobian (F, N, N) at the chart point: the
-        rotation columns times the left Jacobian of SO(3) (as :meth:`_Chart.jac`), redundant
+        rotation columns times the left Jacobian of SO(3) (as :meth:`Chart.jac`), redundant
         rows as in :meth:`Model.jacobian` (identity on their multiplier, no coupling)."""
         m = self.model
         J = np.array(J, float)

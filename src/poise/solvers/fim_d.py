@@ -15,15 +15,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.solvers.chart import Corrector, _Chart
+from poise.solvers.chart import Corrector, Chart
 from poise.solvers.context import Strategy, replicate
 from poise.solvers.fallback import solve_frame
 from poise.solvers import ida, path, singular
-from poise.solvers.ida import IdaStats, SparseJacobian, TransientSettings, _ida  # noqa: F401
+from poise.solvers.ida import IdaStats, SparseJacobian, TransientSettings, run_ida  # noqa: F401
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.quasistatic import (
     MIN_SUBSTEP_FRACTION,
-    _Path,
+    BranchPath,
     fims_step,
     first_frame,
     require_stable,
@@ -100,7 +100,7 @@ class IdaContinuation(Strategy):
 
     def _start(self, ctx, ref, first):
         model, tsd = ctx.model, self.tsd
-        chart = _Chart(model, ref, self.eps, ctx.data, self.sparse, self.tol)
+        chart = Chart(model, ref, self.eps, ctx.data, self.sparse, self.tol)
         y0 = np.concatenate([np.zeros(model.nq), ref.lam])
         atol = self._atol(model, ref)
         capped = first and tsd.h0 > 0       # the user's (or the deck schema's) h0_max
@@ -109,7 +109,7 @@ class IdaContinuation(Strategy):
                                   want_h0=not capped)
         # no first step beyond the output resolution
         h0 = min(tsd.h0, self.interval) if capped else min(h0, self.interval)
-        solver = _ida(chart, tsd, atol, ref.t, y0, yp0, h0)
+        solver = run_ida(chart, tsd, atol, ref.t, y0, yp0, h0)
         return chart, solver, y0
 
     def _fall_back(self, ctx, reason, last_state):
@@ -257,13 +257,13 @@ class IdaContinuation(Strategy):
     def _towards_singular(self, ctx, chart, y, t) -> bool:
         """IDA's steps shrinking below ``SHRINK`` of the print interval (every further factor
         ``SHRINK_CHECK``): is the path approaching a singular configuration
-        (:meth:`~poise.solvers.quasistatic._Path.near_singular`)? IDA would otherwise creep
+        (:meth:`~poise.solvers.quasistatic.BranchPath.near_singular`)? IDA would otherwise creep
         towards a fold in ever smaller steps until its step-size floor."""
         h = self.steps["step_size"][-1] if self.steps["step_size"] else np.inf
         if not h < SHRINK * self.interval or not h < self.h_checked * SHRINK_CHECK:
             return False
         self.h_checked = h
-        path = _Path(ctx.model, ctx.frames + [chart.state(y, t)], ctx.settings, ctx.data,
+        path = BranchPath(ctx.model, ctx.frames + [chart.state(y, t)], ctx.settings, ctx.data,
                      self.interval)
         return path.near_singular(ctx.frames)
 
@@ -311,11 +311,11 @@ def _over_budget(n_steps, max_steps, y, model, t):
 
 def _off_branch(ctx, start, st, out) -> str:
     """Why the Newton solution ``st`` from IDA's point ``start`` is not on the branch of the
-    frames before (:meth:`~poise.solvers.quasistatic._Path.jump`), or ``""``."""
+    frames before (:meth:`~poise.solvers.quasistatic.BranchPath.jump`), or ``""``."""
     if not out.ok or not ctx.frames:
         return ""
     interval = max(start.t - ctx.frames[-1].t, 1e-300)
-    return _Path(ctx.model, ctx.frames, ctx.settings, ctx.data, interval).jump(start, st, True)
+    return BranchPath(ctx.model, ctx.frames, ctx.settings, ctx.data, interval).jump(start, st, True)
 
 
 def _fallback(ctx, k_out, reason, fallbacks, last_state):

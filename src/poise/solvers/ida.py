@@ -2,13 +2,13 @@
 
 :class:`TransientSettings` (``Param_Transient``), :class:`SparseJacobian` (``dF/dy`` on a
 pattern fixed per model, filled by gathers), :class:`IdaStats` (IDA's own per-step counters
-read through ctypes: scikit-sundae exposes only ``nfev``/``njev``) and :func:`_ida` (one IDA
+read through ctypes: scikit-sundae exposes only ``nfev``/``njev``) and :func:`run_ida` (one IDA
 instance). Design notes and measurements: docs/fim_d.md.
 
 scikit-sundae's public API has no per-step order or counters and no way to set IDA's corrector
 coefficient, which FIM_D's results depend on; :class:`IdaStats` therefore reads the solver
 object's C layout, which only the releases in :data:`SUPPORTED` are known to have (tested:
-:data:`TESTED`; pyproject pins the same range). :func:`_ida` refuses any other release with a
+:data:`TESTED`; pyproject pins the same range). :func:`run_ida` refuses any other release with a
 clear message (:class:`UnsupportedSundae`, exit 2) instead of running with other numbers.
 """
 from __future__ import annotations
@@ -294,7 +294,7 @@ class IdaStats:
         return d
 
 
-def _ida(chart, ts_settings, atol, t0, y0, yp0, first_step):
+def run_ida(chart, ts_settings, atol, t0, y0, yp0, first_step):
     check_supported()                 # another release: a clear error, not other numbers
     from sksundae.ida import IDA      # lazy: SUNDIALS loads only for FIM_D runs
     n = len(y0)

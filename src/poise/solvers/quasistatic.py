@@ -125,7 +125,7 @@ def tangent(model, state, settings, data):
     return y[:model.nq], y[model.nq:]
 
 
-class _Path:
+class BranchPath:
     """The branch being followed in one :func:`fims_step`: the last (up to 3) accepted states,
     predictions from them (a tangent from the first when it is alone) and the continuity test
     of a corrected point against its prediction."""
@@ -302,7 +302,7 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
     A step whose prediction moves a body more than ``MAX_PATH_STEP`` (a path sampled too
     coarsely may pass a singular configuration and come back on the other branch within one
     output interval), whose Newton fails, or whose corrected point jumped off the branch
-    (:meth:`_Path.jump`), is halved; after a success the step doubles again (up to what is
+    (:meth:`BranchPath.jump`), is halved; after a success the step doubles again (up to what is
     left). When halving reaches ``min_dt``: if the last point reached approaches a singular
     configuration (:func:`~poise.solvers.singular.diagnose`), the end of the branch is located
     by bisection and the frame is ``singular_configuration`` at that time (the state written
@@ -316,7 +316,7 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
     ``frames`` is not modified. The outcome's iterations count every sub-step, probe and
     strategy.
     """
-    branch = _Path(model, frames, settings, counters, t_target - frames[-1].t, orient,
+    branch = BranchPath(model, frames, settings, counters, t_target - frames[-1].t, orient,
                    history, frame)
     t_prev = frames[-1].t
     dt = t_target - t_prev

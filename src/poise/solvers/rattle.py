@@ -1,8 +1,8 @@
 """RATTLE pieces of MKEAM's integration: forces, mass and constraints at a state.
 
-:class:`_Dyn` evaluates ``(Q, G, K, M^-1)`` and the constraint values (the active rows of the
+:class:`Dynamics` evaluates ``(Q, G, K, M^-1)`` and the constraint values (the active rows of the
 solve's data), :func:`retract_flat` moves a state on R^3 x SO(3) (the update for which RATTLE
-is symplectic), :class:`_Point` is one integrator state. The method: docs/mkeam.md.
+is symplectic), :class:`RattlePoint` is one integrator state. The method: docs/mkeam.md.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from poise.elements.rotation import expm_so3, wrap_angle
 CONSTRAINT_TOL = 1e-11       # relative position-constraint tolerance in the RATTLE solve
 
 
-class _Dyn:
+class Dynamics:
     """Mass matrix, forces and constraint Jacobian of a model at a state."""
 
     def __init__(self, model, cnt):
@@ -151,7 +151,7 @@ def retract_flat(model, state, dq):
     return new
 
 
-class _Point:
+class RattlePoint:
     """Integrator state: configuration, momenta and cached quantities at the configuration."""
 
     __slots__ = ("state", "p", "Q", "G", "K", "Minv", "S", "v", "ke", "power", "t", "lam")

@@ -23,7 +23,7 @@ from poise.core.wording import plural
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import assemble, initial_multipliers
-from poise.solvers.rattle import CONSTRAINT_TOL, _Dyn, _Point, retract_flat
+from poise.solvers.rattle import CONSTRAINT_TOL, Dynamics, RattlePoint, retract_flat
 from poise.solvers.record import MkeamRun
 from poise.solvers.stability import classify
 from poise.solvers.stable import descend, seek_stable
@@ -68,10 +68,10 @@ class Relaxation:
         self.report = None        # progress(label, done, total) of the iterations, or None
         self.pe_start = np.nan
         self.last_dq = np.nan
-        self.dyn = _Dyn(model, data)
+        self.dyn = Dynamics(model, data)
 
-    def _step(self, dyn, a: _Point, h):
-        """One RATTLE step of size h from ``a``; returns the new _Point or None (no convergence)."""
+    def _step(self, dyn, a: RattlePoint, h):
+        """One RATTLE step of size h from ``a``; returns the new RattlePoint or None (no convergence)."""
         m = self.model
         p_half = a.p + 0.5 * h * a.Q
         lam = a.lam.copy() if a.lam is not None else np.zeros(m.nc)
@@ -94,7 +94,7 @@ class Relaxation:
         else:
             state1 = retract_flat(m, a.state, h * (a.Minv @ p_half))
         state1.lam = np.where(self.counters.mask(m), a.state.lam, 0.0)
-        b = _Point(dyn, state1, p_half, a.t + h)     # forces at q1 (lam for stiffness only)
+        b = RattlePoint(dyn, state1, p_half, a.t + h)     # forces at q1 (lam for stiffness only)
         p1 = p_half + 0.5 * h * b.Q
         if m.nc:
             try:
@@ -111,7 +111,7 @@ class Relaxation:
         b.power = float(b.v @ b.Q)
         return b
 
-    def _h_limit(self, a: _Point):
+    def _h_limit(self, a: RattlePoint):
         m = self.model
         # Gershgorin bound of the largest eigenvalue of M^-1/2 K M^-1/2 (mass-scaled rows)
         md = m.mass_diagonal(a.state)
@@ -140,7 +140,7 @@ class Relaxation:
         the iteration restarts where it stands, still descending: a mode so soft that its
         peak is out of reach is left to the Newton polish). Returns (point, steps, h, msg);
         ``msg`` non-empty: the integration failed."""
-        a = _Point(dyn, state, np.zeros(self.model.nq), 0.0)
+        a = RattlePoint(dyn, state, np.zeros(self.model.nq), 0.0)
         h = min(h0, self._h_limit(a)) if np.isfinite(h0) else self._h_limit(a)
         if not np.isfinite(h):
             return a, 0, h, "no force acts (already at rest in equilibrium)"
@@ -258,7 +258,7 @@ class Relaxation:
         G = J[m.nq:, :m.nq][self.counters.mask(m)] @ D
         keep = np.arange(m.nq)
         if m.n_extra:
-            # massless scalar unknowns (see _Dyn.solve_algebraic) are eliminated: reduced
+            # massless scalar unknowns (see Dynamics.solve_algebraic) are eliminated: reduced
             # stiffness K_cc - K_ca K_aa^-1 K_ac when K_aa is regular, else they are held
             a = np.setdiff1d(m.extra_idx, getattr(getattr(self, "dyn", None), "x_idx", []))
             keep = np.setdiff1d(keep, a)

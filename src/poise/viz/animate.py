@@ -26,7 +26,7 @@ from poise.core.errors import UsageError
 from poise.core.extras import require
 from poise.core.progress import Bar
 from poise.results.hdf5 import read_results
-from poise.viz.plot import _agg, pick_analysis, units_of
+from poise.viz.plot import agg_pyplot, pick_analysis, units_of
 
 
 def _frames(a):
@@ -242,7 +242,7 @@ def animate_results(path: str, out: str, analysis: int | None = None, frame: int
     lo, hi = np.nanmin(allp[:, ax2], axis=0), np.nanmax(allp[:, ax2], axis=0)
     pad = 0.08 * max(float(np.max(hi - lo)), 1e-9)
     span = 2.0 * float(np.max(hi - lo)) + 20 * pad + float(np.max(np.abs(np.r_[lo, hi])))
-    plt = _agg()
+    plt = agg_pyplot()
     fig, ax = plt.subplots(figsize=(6, 6))
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)

@@ -23,7 +23,9 @@ from poise.viz.figure import LogFloor, legend_outside, new_figure, readable_tick
 units_of = unit_symbols
 
 
-def _agg():
+def agg_pyplot():
+    """pyplot on the Agg backend (pictures to files, no display needed); exit 2 with the pip
+    command when matplotlib is not installed."""
     require("plot")             # exit 2 with the pip command in a lean install
     import matplotlib
     matplotlib.use("Agg", force=True)
@@ -186,7 +188,7 @@ def plot_results(result_or_path, analysis: int | None = None, bodies=None, joint
     quasi-static runs). ``fig.poise_panels`` names the panels. Legends are right of their
     panel; log axes show exact zeros at a marked floor (poise.viz.figure).
     """
-    plt = _agg()
+    plt = agg_pyplot()
     from matplotlib.ticker import MaxNLocator
     if isinstance(result_or_path, (str, bytes)) or hasattr(result_or_path, "__fspath__"):
         res = read_results(str(result_or_path))
@@ -350,7 +352,7 @@ def write_plot(path: str, out: str, analysis: int | None = None, bodies=None, jo
     with atomic_output(out, (path,), keep_suffix=True) as tmp:
         fig.savefig(tmp, dpi=dpi)
     w, h = fig.get_size_inches() * dpi
-    _agg().close(fig)
+    agg_pyplot().close(fig)
     return {"output": out, "panels": fig.poise_panels, "width": int(round(w)),
             "height": int(round(h))}
 

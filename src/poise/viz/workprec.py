@@ -12,7 +12,7 @@ import numpy as np
 from poise.core.atomic import atomic_output
 from poise.core.errors import UsageError
 from poise.viz.figure import LogFloor, legend_outside, new_figure, readable_ticks
-from poise.viz.plot import _agg
+from poise.viz.plot import agg_pyplot
 
 MARKS = {"FIM_S": "o-", "MKEAM": "s-", "FIM_D": "^-"}
 #: figure size [in]: the data area stays about 6.4 x 4.8 in beside the legend
@@ -25,7 +25,7 @@ def work_precision_figure(rows: list[dict], length_unit: str, title: str = "",
     ``solve_s['median']``, ``error_abs``, ``status``). The legend is right of the data; rungs
     that land on the same spot share one label (``1e-04, 1e-06``); errors of exactly 0 are drawn
     at a floor (poise.viz.figure.LogFloor); tick labels do not overlap."""
-    plt = _agg()
+    plt = agg_pyplot()
     fig, (ax,) = new_figure(plt, WIDTH, [HEIGHT])
     floor = LogFloor([r["error_abs"] for r in rows if r.get("error_abs") is not None])
     marks = []
@@ -83,7 +83,7 @@ def check_picture_format(out: str, option: str = "--plot") -> None:
     """Refuse, before any work, a picture path whose extension matplotlib cannot write
     (:class:`UsageError`, exit 2); no extension means PNG. PGF is refused (it needs LaTeX)."""
     import os
-    _agg()
+    agg_pyplot()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     ext = os.path.splitext(os.fspath(out))[1].lower().lstrip(".")
     formats = sorted(set(FigureCanvasAgg.get_supported_filetypes()) - {"pgf"})
@@ -98,4 +98,4 @@ def write_work_precision(rows: list[dict], out: str, length_unit: str, title: st
     fig = work_precision_figure(rows, length_unit, title, reference)
     with atomic_output(out, keep_suffix=True) as tmp:
         fig.savefig(tmp, dpi=dpi)
-    _agg().close(fig)
+    agg_pyplot().close(fig)
