@@ -1,21 +1,27 @@
-"""The one iteration loop of the frame-level solvers (assembly, Newton, continuation, the
-fallback chain).
+"""The one iteration loop of poise's solvers, and its contract.
 
-A strategy has the shape of optimistix's iterative solvers: ``init`` builds the iteration
-state, ``step`` does one iteration and returns a :class:`Step` (the budget it spent and the
-history rows it produced), ``terminate`` says whether to stop (the strategy keeps why in its
-state), ``close`` gives the row that ends the run (Newton's last measured point),
-``postprocess`` builds the result. The loop, :func:`iterate`, owns the iteration budget, the
-count of iterations spent and the history: it is the one place that appends the rows of
-these strategies, so a strategy never touches the :class:`~poise.solvers.history.History`.
+A solver has the shape of optimistix's iterative solvers (``_iterate.py``): ``init`` builds a
+frozen, typed state; ``step(state, left)`` does one iteration and returns a :class:`Step` (the
+next state, the budget it spent and the history rows it produced); ``terminate(state)`` is
+pure and says whether to stop and with which :class:`~poise.solvers.status.Status`; ``close``
+gives the rows that end the run; ``postprocess`` builds the result. The loop, :func:`iterate`,
+owns the budget, the count of work spent and the history: it is the one place that appends
+rows, and it turns a spent budget into the solver's declared ``out_of_budget`` status.
 Evaluation and factorisation counts are the per-solve data's
-(:class:`~poise.solvers.data.SolveData`), through which every strategy evaluates.
+(:class:`~poise.solvers.data.SolveData`), through which every solver evaluates.
+
+:class:`Iterative` is the older contract (mutable state, ``exhausted``); :func:`iterate` runs
+both while the solvers move to :class:`Solver` (issue 24).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 from poise.solvers.history import Row
+from poise.solvers.status import Status
+
+S = TypeVar("S")
 
 
 @dataclass(frozen=True)
@@ -57,10 +63,74 @@ class Iterative:
         raise NotImplementedError
 
 
-def iterate(strategy: Iterative, budget: int, history, *args):
-    """Run ``strategy`` from ``init(*args)`` within ``budget`` iterations, appending the rows
-    of every step and of ``close`` to ``history`` (anything with ``append(row)``); its
-    result."""
+@dataclass(frozen=True)
+class Next(Generic[S]):
+    """What one :meth:`Solver.step` did: the next ``state``, ``spent`` units of the budget
+    (0 when the step only decided the end; ``terminate`` then says so) and the history
+    ``rows`` it produced, in order."""
+
+    state: S
+    spent: int = 1
+    rows: tuple[Row, ...] = ()
+
+
+class Solver(Generic[S]):
+    """The contract :func:`iterate` runs. States are frozen (``dataclasses.replace`` makes the
+    next one); nothing but the loop appends history rows.
+
+    * ``init(*args) -> S``: the first state.
+    * ``terminate(state) -> (done, status)``: pure (no evaluation, no mutation): stop now, and
+      why (``status`` None while not done).
+    * ``step(state, left) -> Next[S]``: one iteration; ``left``: budget still available.
+    * ``out_of_budget``: the status the loop gives when the budget runs out first.
+    * ``close(state, status, used) -> rows``: rows that end the run (default none).
+    * ``postprocess(state, status, used)``: the result.
+    """
+
+    out_of_budget: Status = Status.MAX_ITERATIONS
+
+    def init(self, *args) -> S:
+        raise NotImplementedError
+
+    def terminate(self, state: S) -> tuple[bool, Status | None]:
+        raise NotImplementedError
+
+    def step(self, state: S, left: int) -> Next[S]:
+        raise NotImplementedError
+
+    def close(self, state: S, status: Status, used: int) -> tuple[Row, ...]:
+        return ()
+
+    def postprocess(self, state: S, status: Status, used: int) -> Any:
+        raise NotImplementedError
+
+
+def _run(solver: Solver, budget: int, history, args):
+    state = solver.init(*args)
+    used = 0
+    while True:
+        done, status = solver.terminate(state)
+        if done:
+            break
+        if used >= budget:
+            status = solver.out_of_budget
+            break
+        nxt = solver.step(state, budget - used)
+        state = nxt.state
+        for row in nxt.rows:
+            history.append(row)
+        used += nxt.spent
+    for row in solver.close(state, status, used):
+        history.append(row)
+    return solver.postprocess(state, status, used)
+
+
+def iterate(strategy, budget: int, history, *args):
+    """Run ``strategy`` (a :class:`Solver`, or an :class:`Iterative` not yet moved) from
+    ``init(*args)`` within ``budget`` units of work, appending the rows of every step and of
+    ``close`` to ``history`` (anything with ``append(row)``); its result."""
+    if isinstance(strategy, Solver):
+        return _run(strategy, int(budget), history, args)
     s = strategy.init(*args)
     used = 0
     while not strategy.terminate(s, used):
