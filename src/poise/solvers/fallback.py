@@ -22,7 +22,6 @@ from poise.solvers.newton import FrameOutcome, Scales, merit, newton
 from poise.solvers.status import MESSAGES, Status
 
 FALLBACK_STABILITY = 1e-2
-PTC_MAX_ITER = 200
 PTC_MU_MIN = 1e-12
 PTC_MU_GROWTH = 1e8       # mu above this multiple of its start: the pseudo-time flow diverges
 NO_RECOVERY = (Status.NONFINITE, Status.INCONSISTENT_CONSTRAINTS, Status.NO_EQUILIBRIUM)
@@ -160,7 +159,7 @@ class ContinuationStage:
         return f"fallback: continuation: {reason}"
 
     def run(self, model, start, settings, history, frame, cnt, left, counts, prev):
-        n = min(PTC_MAX_ITER, max(1, (2 * left) // 3))
+        n = min(settings.limits.ptc_max_iter, max(1, (2 * left) // 3))
         st, out = continuation(model, start.copy(), settings, history, frame, cnt, max_steps=n)
         counts[self.name] = out.iterations
         return st, out, False, ()
@@ -277,7 +276,7 @@ def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome, 
                    first)
 
 
-def continuation(model, state, settings, history, frame, cnt, max_steps=PTC_MAX_ITER):
+def continuation(model, state, settings, history, frame, cnt, max_steps=None):
     """Pseudo-transient continuation (PTC): Newton steps on ``(K + mu M) dx = -F``.
 
     ``mu`` (units 1/time^2) starts comparable to the largest stiffness/mass ratio (over the
@@ -285,9 +284,11 @@ def continuation(model, state, settings, history, frame, cnt, max_steps=PTC_MAX_
     ``M dx/dtau = -F`` towards a *stable* equilibrium, and is relaxed by switched evolution
     relaxation ``mu <- mu * |F_new| / |F_old|`` so the last iterations are plain Newton
     (quadratic). Only the Jacobian changes; the residual, and hence the equilibrium found, does
-    not. At most ``max_steps`` steps; a residual that keeps growing (``mu`` beyond
+    not. At most ``max_steps`` steps (default ``Limits.ptc_max_iter``); a residual that keeps growing (``mu`` beyond
     ``PTC_MU_GROWTH`` times its start) or turns non-finite ends it as ``diverged``.
     """
+    if max_steps is None:
+        max_steps = settings.limits.ptc_max_iter
     return iterate(Continuation(model, settings, frame, cnt), int(max_steps), history, state)
 
 

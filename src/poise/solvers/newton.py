@@ -34,12 +34,10 @@ from poise.solvers.steps import limit_step as _limit_step_trial
 from poise.solvers.steps import mass_times as _mass_times
 from poise.solvers.steps import neutral_filtered as _neutral_filtered
 
-ASSEMBLY_MAX_ITER = 50
 ASSEMBLY_TOL = 1e-10          # relative constraint violation after assembly
-LINE_SEARCH_MAX = 8
 ARMIJO = 1e-4
-ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step)
-CRAWL = 6                     # ... as has one whose merit did not halve in this many iterations
+ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step);
+                              # so has one whose merit did not halve in Limits.crawl_window its
 
 
 @dataclass
@@ -155,7 +153,8 @@ def assemble(model, state, settings, history: History, frame: int, cnt: Counters
     """
     if model.nc == 0:
         return state, False, Status.CONVERGED
-    return iterate(Assembly(model, settings, frame, cnt), ASSEMBLY_MAX_ITER, history, state)
+    return iterate(Assembly(model, settings, frame, cnt), settings.limits.assembly_max_iter,
+                   history, state)
 
 
 class Assembly(Iterative):
@@ -371,7 +370,7 @@ class NewtonIteration(Iterative):
                     dq = xf[:model.nq]
             except EvaluationError:
                 pass
-        for _ in range(LINE_SEARCH_MAX + 1 if best is None else 0):
+        for _ in range(settings.limits.line_search_max + 1 if best is None else 0):
             if first is not None:      # the full (limited) step: already retracted
                 trial, first = first, None
                 trial.lam = trial.lam + alpha * dl
@@ -401,7 +400,8 @@ class NewtonIteration(Iterative):
             s.outcome = self._converged(s, it, max(s.cerr, nxt))
             return Step(0)
         s.merits.append(m0)
-        crawl = len(s.merits) > CRAWL and not m0 <= 0.5 * s.merits[-1 - CRAWL]
+        cw = settings.limits.crawl_window
+        crawl = len(s.merits) > cw and not m0 <= 0.5 * s.merits[-1 - cw]
         if settings.line_search and self.downhill and not s.res_ok and (
                 crawl or best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
             # the merit stalls: from now on every trial is kept on the constraints (the

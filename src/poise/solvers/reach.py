@@ -14,11 +14,11 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.solvers.limits import LIMITS, Limits
 from poise.solvers.linalg import SingularMatrix
 
 PROJECT_ABOVE = 1e-3     # a Newton trial violating its constraints by more (x L, rad) is projected
 PROJECT_TOL = 1e-10      # projection accuracy (x L, rad), that of the input's assembly
-PROJECT_MAX_ITER = 12
 PROJECT_RATE = 0.5       # Gauss-Newton must at least halve the violation per iteration
 
 
@@ -52,15 +52,15 @@ def violation(model, phi) -> float:
     return float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L)))
 
 
-def project(model, state, cnt, ev=None):
+def project(model, state, cnt, ev=None, limits: Limits = LIMITS):
     """``state`` moved onto its active constraints by least-change Gauss-Newton, or None when
     that does not converge at ``PROJECT_RATE`` (the constraints cannot be met near it: beyond
     the assembly's reach, or a singular configuration). ``ev``: an evaluation at ``state``
-    (saves one). Evaluations and factorisations are counted in ``cnt``."""
+    (saves one); at most ``limits.project_max_iter`` steps. Evaluations and factorisations are counted in ``cnt``."""
     W = coord_weights(model)
     prev = np.inf
     try:
-        for _ in range(PROJECT_MAX_ITER + 1):
+        for _ in range(limits.project_max_iter + 1):
             if ev is None:
                 ev = cnt.evaluate(model, state, "defer")
             v = violation(model, ev.phi)
