@@ -23,7 +23,8 @@ from poise.solvers.data import SolveData
 from poise.core.errors import EvaluationError
 from poise.solvers.history import History
 from poise.solvers.iterate import Next, Solver
-from poise.solvers.newton import FrameOutcome, assemble, initial_multipliers
+from poise.solvers.newton import FrameOutcome, initial_multipliers
+from poise.solvers.reach import assemble
 from poise.solvers.redundancy import detect_redundancy
 from poise.solvers.status import MESSAGES, Status
 

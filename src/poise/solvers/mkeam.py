@@ -17,7 +17,8 @@ from poise.core.wording import plural
 from poise.solvers.context import Strategy, prologue
 from poise.solvers.history import History
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.newton import FrameOutcome, Scales, assemble, initial_multipliers, merit, newton
+from poise.solvers.newton import FrameOutcome, Scales, initial_multipliers, merit, newton
+from poise.solvers.reach import assemble
 from poise.solvers.relaxation import Relaxation, mkeam_run
 from poise.solvers.status import Status
 

@@ -23,7 +23,7 @@ from poise.solvers import path, singular
 from poise.solvers.context import Strategy, prologue, replicate
 from poise.solvers.fallback import NO_RECOVERY, recover, solve_frame
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.newton import FrameOutcome, newton
+from poise.solvers.newton import FrameOutcome, branch_newton
 from poise.solvers.status import Status
 from poise.solvers.stability import classify
 from poise.solvers.stable import acceptable, seek_stable
@@ -220,9 +220,9 @@ class BranchPath:
         last = self.hist[-1]
         back = st.copy()
         back.t = last.t
-        b, out = newton(self.model, back, self.settings, self.history, self.frame, self.data,
-                        max_iter=min(self.settings.max_num_iter, self.settings.limits.return_max_iter),
-                        event="return", downhill=False)
+        b, out = branch_newton(self.model, back, self.settings, self.history, self.frame,
+                               self.data, min(self.settings.max_num_iter,
+                                              self.settings.limits.return_max_iter), "return")
         if not out.ok:          # inconclusive (Newton is slow next to a fold): no verdict
             return ""
         d = distance(self.model, b, last)
@@ -276,8 +276,8 @@ class BranchPath:
             last.t = t
             ok = False
             for start in (pred, last):
-                st, out = newton(self.model, start, self.settings, history, frame, self.data,
-                                 max_iter=self.settings.limits.probe_max_iter, event="locate", downhill=False)
+                st, out = branch_newton(self.model, start, self.settings, history, frame,
+                                        self.data, self.settings.limits.probe_max_iter, "locate")
                 its += out.iterations
                 ok = out.ok and not self.jump(start, st, known and start is pred, probe=True)
                 if ok or (not out.ok and out.iterations > 2):   # no second start when Newton
@@ -329,8 +329,8 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
             n_sub += 1
             continue
         full = n_sub == 0 and t == t_target
-        st, out = newton(model, pred, settings, history, frame, counters, max_iter=max_iter,
-                         event="newton" if full else "substep", downhill=False)
+        st, out = branch_newton(model, pred, settings, history, frame, counters, max_iter,
+                                "newton" if full else "substep")
         total_it += out.iterations
         why = branch.jump(pred, st, known) if out.ok else out.status.value
         if not why:

@@ -22,7 +22,8 @@ from poise.core.errors import EvaluationError
 from poise.core.wording import plural
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.newton import assemble, initial_multipliers
+from poise.solvers.newton import initial_multipliers
+from poise.solvers.reach import assemble
 from poise.solvers.rattle import CONSTRAINT_TOL, Dynamics, RattlePoint, retract_flat
 from poise.solvers.record import MkeamRun
 from poise.solvers.stability import classify

@@ -26,12 +26,12 @@ from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import (
     FrameOutcome,
     Scales,
-    assemble,
     initial_multipliers,
     measures,
     newton,
 )
 from poise.solvers.pencil_dense import DENSE_PENCIL, DensePencil
+from poise.solvers.reach import assemble
 from poise.solvers.stability import AUG_RHO, SparsePencil, unknown_info
 from poise.solvers.status import Status
 from poise.solvers.trials import Chord, LagrangeTest, Projector, project, trial_tol, violation_work
