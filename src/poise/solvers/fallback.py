@@ -38,7 +38,7 @@ def solve_frame(model, state, settings, history, frame, cnt, event="newton"):
     start = state.copy()
     st, out = newton(model, state, settings, history, frame, cnt, event=event,
                      probe=freedom.probe)
-    out.counts = {"plain": out.iterations}
+    out = replace(out, counts={"plain": out.iterations})
     if out.ok:
         return st, out
     return recover(model, start, st, out, settings, history, frame, cnt)
@@ -50,14 +50,12 @@ def recover(model, start, st, out, settings, history, frame, cnt):
     ``(state, outcome)`` with the frame's total iterations; the failed plain result when the
     chain does not converge or is not to be tried."""
     plain = int(out.counts.get("plain", out.iterations)) if out.counts else int(out.iterations)
-    out.counts = {"plain": plain}
-    out.iterations = plain
+    out = replace(out, counts={"plain": plain}, iterations=plain)
     if out.ok or not settings.fallback or out.status in NO_RECOVERY:
         return st, out
     if out.final:
-        out.message += ("; the fallback chain was not tried (continuation and MKEAM descend the "
-                        "same way)")
-        return st, out
+        return st, replace(out, message=out.message + (
+            "; the fallback chain was not tried (continuation and MKEAM descend the same way)"))
     if not out.imbalance <= OVERFLOW:
         return st, FrameOutcome(Status.NONFINITE, plain, out.imbalance, out.error,
                                 f"{out.message}; the force imbalance ({out.imbalance:.3g}) is "
@@ -70,21 +68,17 @@ def recover(model, start, st, out, settings, history, frame, cnt):
                                 MESSAGES[Status.NO_EQUILIBRIUM] + "; " + why, out.counts)
     budget = settings.fallback_budget
     if budget <= 0:
-        out.message += "; fallback chain not run (fallback budget 0)"
-        return st, out
+        return st, replace(out, message=out.message + "; fallback chain not run (fallback budget 0)")
     st2, out2, used, counts = run_chain(model, start, settings, history, frame, cnt, out, budget)
     counts["plain"] = plain
     total = int(sum(counts.values()))
     if out2.ok:
-        out2.iterations, out2.counts, out2.strategy = total, counts, used
-        out2.message = (f"converged; plain Newton failed ({out.status.value}): converged with "
-                        f"the fallback strategy '{used}'")
-        return st2, out2
-    out.iterations, out.counts = total, counts
-    out.message += (f"; fallback chain (stability, continuation, mkeam) did not converge "
-                    f"({total - plain} of its {budget} units of work used, raise "
-                    f"--fallback-budget; last: {out2.message})")
-    return st, out
+        return st2, replace(out2, iterations=total, counts=counts, strategy=used, message=(
+            f"converged; plain Newton failed ({out.status.value}): converged with the fallback "
+            f"strategy '{used}'"))
+    return st, replace(out, iterations=total, counts=counts, message=out.message + (
+        f"; fallback chain (stability, continuation, mkeam) did not converge ({total - plain} "
+        f"of its {budget} units of work used, raise --fallback-budget; last: {out2.message})"))
 
 
 def unrestrained_load(model, settings, states, cnt) -> str:

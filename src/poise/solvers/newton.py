@@ -40,9 +40,9 @@ ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see do
                               # so has one whose merit did not halve in Limits.crawl_window its
 
 
-@dataclass
+@dataclass(frozen=True)
 class FrameOutcome:
-    """One frame's solve. ``iterations`` counts all the work of the frame (every strategy);
+    """One frame's solve (frozen: ``dataclasses.replace`` makes a changed one). ``iterations`` counts all the work of the frame (every strategy);
     ``counts``: iterations per strategy (history.STRATEGIES) when the recovery ran;
     ``strategy``: the one that produced the frame (``plain``: no recovery needed); ``final``:
     the fallback chain is not tried (Newton's steps down the potential ran away: continuation

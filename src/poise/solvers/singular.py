@@ -62,7 +62,7 @@ class SingularInfo:
                 "singular_mode": self.mode}
 
 
-@dataclass
+@dataclass(frozen=True)
 class SingularOutcome(FrameOutcome):
     """A frame outcome at a located singular configuration (status ``singular_configuration``
     or, with ``--require-stable``, ``unstable``)."""
