@@ -30,10 +30,12 @@ def _frames(path, n=4, seed=0):
     model = compile_model(spec, user_code="run")   # the decks are ours
     drv = Driver(model, plan(spec, None)[0])
     st, _ = drv.run(model.initial_state())
-    sa = drv.ctx                    # the solve context: model, settings, active rows
-    # the frames below are off equilibrium on purpose; tolerances no frame misses keep them
-    # labelled converged (certify), so the stability outputs are exercised too
-    sa.settings = replace(sa.settings, max_imbalance=1e30, max_error=1e30)
+    # what the frames are measured with: model, settings, active rows; the frames below are
+    # off equilibrium on purpose; tolerances no frame misses keep them labelled converged
+    # (certify), so the stability outputs are exercised too
+    env = drv.env
+    sa = (replace(env, settings=replace(env.settings, max_imbalance=1e30, max_error=1e30)),
+          drv.redundancy)
     rng = np.random.default_rng(seed)
     frames = []
     for k in range(n):
@@ -48,12 +50,12 @@ def _frames(path, n=4, seed=0):
 
 
 def _per_frame(sa, frames, outs):
-    return frame_datasets(FrameSet.concatenate([measure_frame(sa, s, [o])
+    return frame_datasets(FrameSet.concatenate([measure_frame(*sa, s, [o])
                                                 for s, o in zip(frames, outs)]))
 
 
 def _batched(sa, frames, outs):
-    got = measure_frames(sa, frames, outs)
+    got = measure_frames(*sa, frames, outs)
     return None if got is None else frame_datasets(got)
 
 
@@ -88,7 +90,7 @@ def test_batched_frames_equal_frame_by_frame(path):
 
 def test_reaction_reading_forces_are_not_batched():
     sa, frames, outs = _frames(ROOT / "decks" / "expr_reaction_load.xml", n=2)
-    assert measure_frames(sa, frames, outs) is None
+    assert measure_frames(*sa, frames, outs) is None
 
 
 def test_time_dependent_expression_force_per_frame_time():

@@ -14,19 +14,20 @@ the older :class:`~poise.solvers.context.Strategy` contract runs in the driver's
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.solvers.compliance import compliance_step
-from poise.solvers.context import Analysis, AnalysisSolver, Context, Env
+from poise.solvers.context import Analysis, AnalysisSolver, Context, Env, Finished
 from poise.solvers.data import SolveData
 from poise.solvers.frames import frame_outputs, measure_frame, measure_frames, stack_frames
+from poise.solvers.history import History
 from poise.solvers.iterate import iterate
-from poise.solvers.newton import FrameOutcome
 from poise.solvers.quasistatic import NewtonFrames
 from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord, FrameSet
 from poise.solvers.stable import require_stable_check
-from poise.solvers.status import Status
 
 #: (analysis kind, Param_Static method) -> strategy (``module:Class`` for the ones imported
 #: only when used: MKEAM and FIM_D need scipy / SUNDIALS, which the small-deck FIM_S path never
@@ -71,125 +72,114 @@ class Driver:
         self.strategy_cls, why = strategy_for(request)
         if self.strategy_cls is None:
             raise ValueError(why)
-        self.ctx = Context(model=model, request=request, settings=request.settings,
-                           data=SolveData.for_model(model, () if redundancy is None
-                                                    else redundancy),
-                           redundancy=redundancy, progress=progress)
-
-    @property
-    def env(self) -> Env:
-        """What an :class:`~poise.solvers.context.AnalysisSolver` runs with."""
-        ctx = self.ctx
-        return Env(ctx.model, ctx.request, ctx.settings, ctx.data, ctx.history, ctx.progress)
+        self.env = Env(model, request, request.settings,
+                       SolveData.for_model(model, () if redundancy is None else redundancy),
+                       History(), progress)
+        self.redundancy = redundancy
 
     @property
     def data(self) -> SolveData:
-        return self.ctx.data
-
-    @property
-    def redundancy(self):
-        return self.ctx.redundancy
+        return self.env.data
 
     def run(self, state, index: int = 0):
-        ctx = self.ctx
-        cls = self.strategy_cls
-        strategy = cls(self.env) if issubclass(cls, AnalysisSolver) else cls()
+        env, cls = self.env, self.strategy_cls
         state = state.copy()
-        if ctx.kind == "quasistatic":
-            ctx.times = np.asarray(self.request.output_times(state.t), float)
-            state.t = float(ctx.times[0])
-            ctx.time_independent = not self.model.depends_on_time()
+        if env.kind == "quasistatic":
+            times = np.asarray(self.request.output_times(state.t), float)
+            state.t = float(times[0])
+            independent = not self.model.depends_on_time()
         else:
-            ctx.times = np.array([state.t])
-        if isinstance(strategy, AnalysisSolver):
-            method_data, attrs = self._run(strategy, state)
-            return ctx.frames[-1], build_result(ctx, strategy, index, method_data, attrs)
-        label = strategy.name
+            times, independent = np.array([state.t]), False
+        a = Analysis(times=times, redundancy=self.redundancy, time_independent=independent)
+        if issubclass(cls, AnalysisSolver):
+            strategy = cls(env)
+            try:
+                done = iterate(strategy, len(times), env.history, a, state)
+            finally:
+                if env.kind == "quasistatic":
+                    env.report(strategy.name, None, len(times))
+        else:
+            strategy = cls()
+            done = self._run_strategy(strategy, a, state)
+        a = done.analysis
+        self.redundancy = a.redundancy
+        return a.frames[-1], build_result(env, a, strategy, index, done.method_data, done.attrs)
+
+    def _run_strategy(self, strategy, a, state) -> Finished:
+        """A strategy on the older :class:`~poise.solvers.context.Strategy` contract (mutable
+        :class:`~poise.solvers.context.Context`), in the driver's own loop (issue 24: until
+        MKEAM's moved)."""
+        env = self.env
+        ctx = Context(model=env.model, request=env.request, settings=env.settings,
+                      data=env.data, history=env.history, redundancy=a.redundancy,
+                      times=a.times, time_independent=a.time_independent,
+                      progress=env.progress)
         try:
             strategy.init(ctx, state)
             while not strategy.terminate(ctx):
                 strategy.step(ctx)
         except EvaluationError as e:      # an element or expression that cannot be evaluated
-            if ctx.redundancy is None:
-                ctx.redundancy = np.zeros(0, int)
-            if not ctx.frames:
-                ctx.frames, ctx.outcomes = [state], []
-            if len(ctx.outcomes) < len(ctx.frames):
-                ctx.outcomes.append(FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)))
-            else:
-                ctx.frames.append(ctx.frames[-1])
-                ctx.outcomes.append(FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)))
-        finally:
-            if ctx.kind == "quasistatic":
-                ctx.report(label, None, len(ctx.times))
-        method_data, attrs = strategy.postprocess(ctx)
-        return ctx.frames[-1], build_result(ctx, strategy, index, method_data, attrs)
-
-    def _run(self, strategy, state):
-        """An :class:`~poise.solvers.context.AnalysisSolver` run by the one loop over the
-        output times; the final :class:`~poise.solvers.context.Analysis` is handed to the
-        record. Returns ``(method_data, attrs)``."""
-        ctx = self.ctx
-        a = Analysis(times=ctx.times, redundancy=ctx.redundancy,
-                     time_independent=ctx.time_independent)
-        try:
-            done = iterate(strategy, len(ctx.times), ctx.history, a, state)
+            done = replace(a, frames=tuple(ctx.frames), outcomes=tuple(ctx.outcomes),
+                           redundancy=ctx.redundancy).nonfinite(state, str(e))
+            ctx.frames, ctx.outcomes = list(done.frames), list(done.outcomes)
+            ctx.redundancy = done.redundancy
         finally:
             if ctx.kind == "quasistatic":
                 ctx.report(strategy.name, None, len(ctx.times))
-        a = done.analysis
-        ctx.frames, ctx.outcomes, ctx.notes = list(a.frames), list(a.outcomes), list(a.notes)
-        ctx.redundancy, ctx.moved, ctx.start = a.redundancy, a.moved, a.start
-        return done.method_data, done.attrs
+        method_data, attrs = strategy.postprocess(ctx)
+        return Finished(replace(a, frames=tuple(ctx.frames), outcomes=tuple(ctx.outcomes),
+                                notes=tuple(ctx.notes), redundancy=ctx.redundancy,
+                                moved=ctx.moved, start=ctx.start), method_data, attrs)
 
 
-def build_result(ctx, strategy, index, method_data=None, method_attrs=None) -> AnalysisRecord:
-    """The record of an analysis, in explicit steps: the frames are measured (one output
+def build_result(env, a, strategy, index, method_data=None, method_attrs=None) -> AnalysisRecord:
+    """The record of the analysis ``a``, in explicit steps: the frames are measured (one output
     evaluation each: every outcome certified there, :func:`~poise.solvers.certify.certify`;
     history rows recorded ``measured_at`` a frame show its measures: FIM_D's interpolated
     frames), the verdict (``require_stable`` of a static frame), the compliance matrices;
     then the record."""
-    model, s = ctx.model, ctx.settings
-    static = ctx.kind == "static"
-    frames = _measured_frames(ctx, static)
+    model, s = env.model, env.settings
+    static = env.kind == "static"
+    frames = _measured_frames(env, a, static)
     outcomes = frames.outcomes
+    notes = list(a.notes)
     if static:
         out = outcomes[0]
         status = STATUS_CONVERGED if out.ok else STATUS_FAILED
-        message = "; ".join([m for m in [out.message] + ctx.notes if m])
+        message = "; ".join([m for m in [out.message] + notes if m])
         frames, message, refused = require_stable_check(frames, message, s)  # every method
         if refused:
             status = STATUS_FAILED
     else:
-        ok = all(o.ok for o in outcomes) and len(ctx.frames) == len(ctx.times)
+        ok = all(o.ok for o in outcomes) and len(a.frames) == len(a.times)
         status = STATUS_CONVERGED if ok else STATUS_FAILED
         failed = next((o for o in outcomes if not o.ok), None)
         first = "converged"
         if failed is not None:
             k = outcomes.index(failed)
-            first = f"frame {k} (t={ctx.frames[k].t:.9g}) failed: {failed.message}"
-        message = "; ".join([first] + ctx.notes)
-    compliance, attrs = compliance_step(model, frames, ctx.redundancy, s)
-    attrs = {"reactions_unique": bool(len(ctx.redundancy) == 0), "assembled": bool(ctx.moved),
-             **({} if static else {"time_independent": bool(ctx.time_independent),
-                                   "n_frames": len(ctx.frames)}),
+            first = f"frame {k} (t={a.frames[k].t:.9g}) failed: {failed.message}"
+        message = "; ".join([first] + notes)
+    compliance, attrs = compliance_step(model, frames, a.redundancy, s)
+    attrs = {"reactions_unique": bool(len(a.redundancy) == 0), "assembled": bool(a.moved),
+             **({} if static else {"time_independent": bool(a.time_independent),
+                                   "n_frames": len(a.frames)}),
              **attrs, **(method_attrs or {})}
     return AnalysisRecord(
-        index=index, analysis_type=ctx.kind, method=strategy.name, status=status,
+        index=index, analysis_type=env.kind, method=strategy.name, status=status,
         message=message, settings=dict(s.as_dict(), method_requested=s.method), attrs=attrs,
         frames=frames,
-        element_outputs=stack_frames([frame_outputs(model, st) for st in ctx.frames]),
-        history=ctx.history, redundant=tuple(model.row_info[r] for r in ctx.redundancy),
+        element_outputs=stack_frames([frame_outputs(model, st) for st in a.frames]),
+        history=env.history, redundant=tuple(model.row_info[r] for r in a.redundancy),
         compliance=compliance, method_data=method_data, stage_totals=strategy.stage_totals)
 
 
-def _measured_frames(ctx, static: bool):
+def _measured_frames(env, a, static: bool):
     """The :class:`~poise.solvers.record.FrameSet` of every frame: all at once where the
     model allows it (quasi-static), else frame by frame."""
     if static:
-        return measure_frame(ctx, ctx.frames[0], ctx.outcomes)
-    fs = measure_frames(ctx, ctx.frames, ctx.outcomes)
+        return measure_frame(env, a.redundancy, a.frames[0], a.outcomes)
+    fs = measure_frames(env, a.redundancy, a.frames, a.outcomes)
     if fs is not None:
         return fs
-    return FrameSet.concatenate([measure_frame(ctx, st, [o])
-                                 for st, o in zip(ctx.frames, ctx.outcomes)])
+    return FrameSet.concatenate([measure_frame(env, a.redundancy, st, [o])
+                                 for st, o in zip(a.frames, a.outcomes)])

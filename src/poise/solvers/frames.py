@@ -32,17 +32,17 @@ from poise.solvers.stability import (
 )
 
 
-def measure_frame(ctx, state, outcomes) -> FrameSet:
+def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
     """The :class:`~poise.solvers.record.FrameSet` of one frame. The outcomes are certified
     on its output evaluation (:func:`~poise.solvers.certify.certify`: measured imbalance /
     error; demoted if the tolerances are not met): the set holds the certified ones and the
     frame's measures (None if it could not be evaluated)."""
-    model = ctx.model
+    model = env.model
     # one evaluation (all rows active, slot data kept) serves the minimum-norm reactions,
     # the element loads and the stability classification
-    saved = ctx.data.mask(model)
+    saved = env.data.mask(model)
     J = None
-    dep = np.asarray(ctx.redundancy, int)
+    dep = np.asarray(redundancy, int)
     outcomes = list(outcomes)
     measured = None
     try:
@@ -50,9 +50,9 @@ def measure_frame(ctx, state, outcomes) -> FrameSet:
         J = ev.J
         phi = np.where(saved, ev.phi, 0.0)
         for i, o in enumerate(outcomes):
-            outcomes[i], measured = certify(model, ctx.settings, o, ev.r, phi)
+            outcomes[i], measured = certify(model, env.settings, o, ev.r, phi)
         lam = state.lam
-        if len(ctx.redundancy) and model.nc:
+        if len(redundancy) and model.nc:
             Pfull = J[model.nq:, :model.nq]
             Y = left_null_basis(Pfull, saved)       # one factorisation serves both
             w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
@@ -61,9 +61,9 @@ def measure_frame(ctx, state, outcomes) -> FrameSet:
         loads = element_loads(model, state, lam=lam, ev=ev)
     except EvaluationError:
         loads = {}
-    done = ctx.data.classified
+    done = env.data.classified
     known = (done[1] if done is not None and done[0] is state
-             else cached_info(ctx.data, state))
+             else cached_info(env.data, state))
     if known is not None and (len(outcomes) == 1 or all(o.ok for o in outcomes)):
         # classified by the solve: also an equilibrium --require-stable refused (neutral),
         # or a path's located end
@@ -137,14 +137,16 @@ def stack_frames(per_frame: list[dict]) -> dict:
     return out
 
 
-def measure_frames(ctx, frames, outcomes) -> FrameSet | None:
+def measure_frames(env, redundancy, frames, outcomes) -> FrameSet | None:
     """The :class:`~poise.solvers.record.FrameSet` of all ``frames``, as the frame-by-frame
     path (:func:`measure_frame` per frame, concatenated) makes it.
 
     Parameters
     ----------
-    ctx : Context
-        Provides the model, the settings, the active and the redundant rows.
+    env : Env
+        Provides the model, the settings and the active rows (:class:`~poise.solvers.context.Env`).
+    redundancy : array of int
+        The redundant rows.
     frames : list of State
     outcomes : list of FrameOutcome (one per frame)
 
@@ -152,15 +154,15 @@ def measure_frames(ctx, frames, outcomes) -> FrameSet | None:
     :func:`poise.solvers.certify.certify`: the set holds the certified outcomes and the
     measures.
     """
-    model = ctx.model
+    model = env.model
     outcomes = list(outcomes)
     if not frames or not batchable(model):
         return None
-    sc = Scales(model, ctx.settings)
+    sc = Scales(model, env.settings)
     F = len(frames)
     nq, nc = model.nq, model.nc
-    saved = ctx.data.mask(model)
-    red = np.asarray(ctx.redundancy, int)
+    saved = env.data.mask(model)
+    red = np.asarray(redundancy, int)
     dep = red
     w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
     loads = {}
@@ -171,7 +173,7 @@ def measure_frames(ctx, frames, outcomes) -> FrameSet | None:
             chunk = frames[a:a + C]
             ev = evaluate(model, chunk, "jacobian")
             for j in range(len(chunk)):
-                outcomes[a + j], ms = certify(model, ctx.settings, outcomes[a + j], ev.r[j],
+                outcomes[a + j], ms = certify(model, env.settings, outcomes[a + j], ev.r[j],
                                               np.where(saved, ev.phi[j], 0.0), sc)
                 measured.append(ms)
             lam = np.stack([s.lam for s in chunk]) if nc else np.zeros((len(chunk), 0))
@@ -188,7 +190,7 @@ def measure_frames(ctx, frames, outcomes) -> FrameSet | None:
                 loads.setdefault(g, []).append((Fg.reshape(-1, n_out, 3),
                                                 Tg.reshape(-1, n_out, 3)))
             ok = np.array([o.ok for o in outcomes[a:a + C]])
-            got = [cached_info(ctx.data, st) for st in chunk]    # classified by the solve (also
+            got = [cached_info(env.data, st) for st in chunk]    # classified by the solve (also
             if all(g is not None for g, k in zip(got, ok) if k):   # a path's located end)
                 infos += [g if g is not None else unknown_info() for g in got]
             elif model.nq <= DENSE_LIMIT:
