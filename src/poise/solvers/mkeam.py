@@ -17,6 +17,7 @@ from poise.core.wording import plural
 from poise.solvers.context import Strategy, prologue
 from poise.solvers.history import History
 from poise.solvers.linalg import SingularMatrix
+from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
 from poise.solvers.newton import FrameOutcome, Scales, assemble, initial_multipliers, merit, newton
 from poise.solvers.relaxation import Relaxation, mkeam_run
 from poise.solvers.status import Status
@@ -64,7 +65,7 @@ class MkeamMethod(Strategy):
         state = initial_multipliers(model, state, self.counters)
         self.rx.report = ctx.report
         try:
-            mk_state, status, msg, n_it = self.rx.iterate(state)
+            mk_state, status, msg, n_it = self.rx.run(state)
         except EvaluationError as e:
             mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(self.rx.iterates)
         except SingularMatrix as e:     # constraints that cannot be solved for the momenta
@@ -109,7 +110,7 @@ class MkeamMethod(Strategy):
         if not out.ok and not self._lower(trial, st):
             return st, mk_out, (f"Newton polish did not converge ({out.message}); MKEAM point "
                                 "reported")
-        d = self.rx._dq(st, trial)
+        d = self.rx.max_dq(st, trial)
         far = d > POLISH_MAX_DQ and not (self.rx.extras_free or self.rx.dyn.extras_free)
         if far:
             why = self._downhill(st, trial)
@@ -146,7 +147,7 @@ class MkeamMethod(Strategy):
         mb = merit(self.model.evaluate(b, need_jac=False, active=act), sc)
         return ma < mb
 
-    def _downhill(self, a, b, n=16):
+    def _downhill(self, a, b, n=LIMITS.polish_path_samples):
         """"" if the potential energy does not increase along the path from ``a`` to ``b`` (the
         tangent line at ``a``, ``n`` samples, each assembled onto the constraints), else why."""
         m, s = self.model, self.settings
