@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.solvers.chart import Corrector, Chart
+from poise.solvers.chart import Chart
+from poise.solvers.correct import Corrector
 from poise.solvers.context import Strategy, replicate
 from poise.solvers.fallback import solve_frame
 from poise.solvers import ida, path, singular

@@ -40,7 +40,7 @@ class Dynamics:
                                      np.repeat(rb[:, None, :], 3, 1).ravel()]).astype(int)
         # curve/surface parameters (families with ``inertial_extras``) move with a fictitious
         # mass so RATTLE carries them with the bodies (see extra_mass); other scalar unknowns
-        # stay massless (held per iteration, Relaxation._resolve_extras)
+        # stay massless (held per iteration, relaxation.HeldExtras)
         xi = [model.extra_off + fam.scols[fam.scols >= 0] for fam in model.families
               if getattr(fam, "inertial_extras", False)]
         self.x_idx = np.unique(np.concatenate(xi)).astype(int) if xi else np.zeros(0, int)
