@@ -1,6 +1,6 @@
 """The one loop's contract (solvers/iterate.py): the loop owns the budget and the history,
 terminate is pure, a spent budget becomes the solver's declared status."""
-from dataclasses import dataclass, replace
+from dataclasses import FrozenInstanceError, dataclass, replace
 
 import pytest
 
@@ -56,5 +56,42 @@ def test_budget_becomes_the_declared_status():
 
 def test_states_are_frozen():
     s = Halve(1.0).init(4.0)
-    with pytest.raises(Exception):
+    with pytest.raises(FrozenInstanceError):
         s.x = 1.0
+
+
+def test_frame_solvers_have_frozen_states_and_a_pure_terminate():
+    """Newton, the assembly, pseudo-transient continuation: frozen states, and ``terminate``
+    evaluates nothing (the per-solve counters do not move), however often it is asked; the
+    loop's answer is the one of the function running it."""
+    from dataclasses import fields
+
+    import numpy as np
+
+    from poise.deck.parser import load_deck
+    from poise.model.compile import compile_model
+    from poise.solvers.data import SolveData
+    from poise.solvers.fallback import Continuation
+    from poise.solvers.newton import NewtonIteration, newton
+    from poise.solvers.reach import Assembly
+    from poise.solvers.settings import StaticSettings
+    from support.paths import DECKS
+
+    model = compile_model(load_deck(DECKS / "double_pendulum.xml"))
+    settings = StaticSettings()
+    data = SolveData.for_model(model)
+    st = model.initial_state()
+    for solver in (NewtonIteration(model, settings, 0, data), Assembly(model, settings, 0, data),
+                   Continuation(model, settings, 0, data)):
+        s = solver.init(st)
+        with pytest.raises(FrozenInstanceError):
+            setattr(s, fields(s)[0].name, None)
+        before = data.as_dict()
+        for _ in range(3):
+            solver.terminate(s)
+        assert data.as_dict() == before
+    rows = []
+    s, out = iterate(NewtonIteration(model, settings, 0, data), 100, rows, st)
+    s2, out2 = newton(model, st, settings, [], 0, SolveData.for_model(model))
+    assert out.ok and out2.ok and out.iterations == out2.iterations == len(rows) - 1
+    assert np.allclose(s.pos, s2.pos) and np.allclose(s.lam, s2.lam)

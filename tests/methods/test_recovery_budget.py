@@ -10,6 +10,7 @@
 import json
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -140,31 +141,38 @@ def test_quasistatic_frame_zero_gets_the_recovery(tmp_path, method):
     assert not off.converged
 
 
+@dataclass(frozen=True)
+class Counted:
+    n: int
+    it: int = 0
+
+
 def test_the_loop_appends_every_row_and_owns_the_budget():
     """``iterate`` appends each step's rows, then the closing rows, and stops at the budget;
     a ``History.stage`` view labels the rows recorded through it."""
     from poise.solvers.history import History, Row
-    from poise.solvers.iterate import Iterative, Step, iterate
+    from dataclasses import replace
 
-    class Count(Iterative):
+    from poise.solvers.iterate import Next, Solver, iterate
+    from poise.solvers.status import Status
+
+    class Count(Solver):
+        out_of_budget = Status.STEP_TOO_SMALL
+
         def init(self, n):
-            return {"n": n, "why": ""}
+            return Counted(n)
 
-        def terminate(self, s, used):
-            return s["n"] == 0
+        def terminate(self, s):
+            return (True, Status.CONVERGED) if s.n == 0 else (False, None)
 
-        def step(self, s, used, left):
-            s["n"] -= 1
-            return Step(1, (Row(0, used, event="step"),))
+        def step(self, s, left):
+            return Next(replace(s, n=s.n - 1, it=s.it + 1), 1, (Row(0, s.it, event="step"),))
 
-        def exhausted(self, s, used):
-            s["why"] = "budget"
-
-        def close(self, s, used):
+        def close(self, s, status, used):
             return (Row(0, used, event="close"),)
 
-        def postprocess(self, s, used):
-            return used, s["why"]
+        def postprocess(self, s, status, used):
+            return used, "" if status is Status.CONVERGED else "budget"
 
     h = History()
     assert iterate(Count(), 10, h, 3) == (3, "")

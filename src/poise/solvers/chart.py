@@ -16,7 +16,7 @@ from poise.core.errors import EvaluationError
 from poise.elements.rotation import expm_so3, se3_left_jacobian, wrap_angle
 from poise.model.model import State, principal_angles
 from poise.solvers.iterate import Next, Solver, iterate
-from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
+from poise.solvers.limits import LIMITS
 from poise.solvers.status import Status
 
 START_POLISH = 1e-3       # a (re)start's correction below this (weighted RMS norm): polished
@@ -146,9 +146,9 @@ class Chart:
     def start(self, y, t, dt_scale, weight, span, want_h0=True):
         """Consistent start of an IDA run at (y, t): ``(y0, y0', h0)``.
 
-        * ``y0``: ``y`` polished by chord-Newton on ``F(y, t) = 0`` (at most ``LIMITS.ida_start_newton``
-          corrections (:class:`StartPolish`), until the correction is below ``START_POLISH`` in the weighted RMS norm
-          ``weight`` = IDA's error weights). A rebase restarts from IDA's last corrector, which
+        * ``y0``: ``y`` polished by chord-Newton on ``F(y, t) = 0`` (:class:`StartPolish`: at
+          most ``limits.start_newton`` corrections, until the correction is below
+          ``START_POLISH`` in the weighted RMS norm ``weight`` = IDA's error weights). A rebase restarts from IDA's last corrector, which
           met IDA's convergence test in the old chart's weights only; left as it is, that
           remainder is the first step's local error (see the module notes).
         * ``y0' = -F_y^{-1} F_t`` (``F_t`` by central differences in t).
@@ -163,7 +163,7 @@ class Chart:
         try:
             solve = self.factor(y, t)
             self.held = solve                   # kept for the output-frame corrections
-            y, status = iterate(StartPolish(self, solve, t, weight), LIMITS.ida_start_newton,
+            y, status = iterate(StartPolish(self, solve, t, weight), LIMITS.start_newton,
                                 (), np.array(y, float))
             if status is Status.NONFINITE:
                 raise np.linalg.LinAlgError

@@ -2,8 +2,8 @@
 
 :class:`Corrector` corrects the output points of one IDA step together
 (:class:`BatchCorrection`), then any frame still off alone (:class:`FrameCorrection`), both
-:class:`~poise.solvers.iterate.Solver` runs within ``LIMITS.correct_iter`` corrections, to the
-``Param_Static`` tolerances. Notes: docs/fim_d.md.
+:class:`~poise.solvers.iterate.Solver` runs within ``limits.correct_max_iter`` corrections, to
+the ``Param_Static`` tolerances. Notes: docs/fim_d.md.
 """
 from __future__ import annotations
 
@@ -16,7 +16,6 @@ from poise.core.errors import EvaluationError
 from poise.elements.rotation import se3_left_jacobian
 from poise.model.frame_batch import batchable
 from poise.solvers.iterate import Next, Solver, iterate
-from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
 from poise.solvers.newton import Scales
 from poise.solvers.status import Status
 
@@ -29,8 +28,8 @@ class Corrector:
     IDA's interpolant (or corrector, with ``dae_interpolation`` FALSE) meets IDA's local error
     test, not ``max_imbalance`` / ``max_error``: on ``decks/bench/slider_crank_qs_1000.xml`` the
     output frames were up to 0.013 N off against 1e-8. The output points passed by one IDA step
-    are corrected together (:meth:`batch`, a :class:`BatchCorrection`): Newton corrections in the chart's coordinates,
-    ``y <- y - F_y(y_0)^{-1} F(y, t)``, with each frame's Jacobian taken once at its
+    are corrected together (:meth:`batch`, a :class:`BatchCorrection`): Newton corrections in
+    the chart's coordinates, ``y <- y - F_y(y_0)^{-1} F(y, t)``, with each frame's Jacobian taken once at its
     interpolated point (one batched residual + Jacobian evaluation,
     :func:`~poise.model.evaluate.evaluate`), then one batched residual and one
     stacked back-substitution per further correction. A frame is accepted when its residual
@@ -38,9 +37,10 @@ class Corrector:
     constraint rows ``max_error`` (x L)) and the next correction — its error estimate — is
     ``<= max_error`` (translations / L, rotations in rad); that correction is applied, so the
     error reported bounds the error of the point written. Frames still off after
-    ``LIMITS.correct_iter`` corrections, or models that are not batched, go through :meth:`one` (a
-    :class:`FrameCorrection`): simplified Newton with a factorisation held per chart (refactorised at the frame when the
-    contraction is slower than ``CORRECT_RATE``); the caller runs a full Newton (FIM_S) on a
+    ``limits.correct_max_iter`` corrections, or models that are not batched, go through
+    :meth:`one` (a :class:`FrameCorrection`): simplified Newton with a factorisation held per
+    chart (refactorised at the frame when the contraction is slower than ``CORRECT_RATE``);
+    the caller runs a full Newton (FIM_S) on a
     frame that still fails. ``stats``: frames, corrections, residual evaluations,
     factorisations, full-Newton fallbacks and the wall time spent here; its residuals and
     factorisations are the part of the solve's counters (``data``, through which every
@@ -53,6 +53,7 @@ class Corrector:
         self.active = np.asarray(data.mask(model), bool)   # the solve's active constraint rows
         self.sc = Scales(model, settings)
         self.max_error = settings.max_error
+        self.limits = settings.limits
         self.chart = None
         self.solve = None
         self.stats = dict(frames=0, corrections=0, residuals=0, factorisations=0, newton=0,
@@ -90,7 +91,8 @@ class Corrector:
         if batchable(m):
             counted = data.residuals, data.factorizations
             try:
-                run = iterate(BatchCorrection(self, chart, T), LIMITS.correct_iter + 1, (), Y)
+                run = iterate(BatchCorrection(self, chart, T), self.limits.correct_max_iter + 1,
+                              (), Y)
                 Y = run.Y
                 st["corrections"] += run.corrections
                 if run.failed is None:
@@ -135,7 +137,7 @@ class Corrector:
         counted = self.data.residuals, self.data.factorizations
         if chart is not self.chart:
             self.chart, self.solve = chart, chart.held
-        run = iterate(FrameCorrection(self, chart, t), LIMITS.correct_iter + 1, (),
+        run = iterate(FrameCorrection(self, chart, t), self.limits.correct_max_iter + 1, (),
                       np.array(y, float))
         self.solve = run.solve
         st["corrections"] += run.it
@@ -169,7 +171,7 @@ class BatchCorrection(Solver):
     """Newton corrections of the output points of one IDA step together
     (:meth:`Corrector.batch`): each step tests every live frame (accepted: its last
     correction applied, so the error reported bounds the point's) and corrects the others
-    when the budget allows testing them again. Budget: tests (``LIMITS.correct_iter`` + 1).
+    when the budget allows testing them again. Budget: tests (``limits.correct_max_iter`` + 1).
     Result: the last :class:`Batch`."""
 
     def __init__(self, corrector, chart, T):
@@ -248,7 +250,7 @@ class FrameCorrection(Solver):
     factorisation, refactorised at the point (once) when the residual contracts slower than
     ``CORRECT_RATE``. Each step tests the point (accepted: the correction applied) and
     corrects it when the budget allows testing it again. Budget: tests
-    (``LIMITS.correct_iter`` + 1). Result: the last :class:`Correcting`; a linear-algebra or
+    (``limits.correct_max_iter`` + 1). Result: the last :class:`Correcting`; a linear-algebra or
     evaluation failure ends it ``nonfinite`` where it got."""
 
     def __init__(self, corrector, chart, t):

@@ -21,7 +21,7 @@ from poise.core.wording import plural
 from poise.solvers.energy import potential_energy
 from poise.solvers.history import Row
 from poise.solvers.iterate import Next, Solver, iterate
-from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
+from poise.solvers.limits import LIMITS
 from poise.solvers.newton import Scales, measures, newton
 from poise.solvers.pencil_dense import DENSE_PENCIL, DensePencil
 from poise.solvers.stability import AUG_RHO, SparsePencil
@@ -85,7 +85,7 @@ def _ic_solve(model, P, ev, cnt, sigma):
     # shift, start from a quarter of it (the zero-shift factorisation would almost surely fail)
     k0 = 1 if sigma > SKIP_ZERO_SHIFT * scale else 0
     sig = max(sigma / 4.0, 1e-6 * scale) if k0 else 0.0
-    for k in range(k0, LIMITS.stable_shift_tries):
+    for k in range(k0, LIMITS.shift_tries):
         for rho in AUG_RHO:
             F = cnt.factor((-sig, rho), lambda at: P.ldl(*at))      # the pencil at (shift, rho)
             if F.ok and np.all(np.abs(F.pivots) > 1e-14 * scale):
@@ -166,7 +166,7 @@ class Descent(Solver):
         lagrange = LagrangeTest(model, ev, state, cnt) if np.isfinite(pe) else None
         alpha = s.alpha0
         accepted = None
-        for _ in range(LIMITS.stable_backtrack):
+        for _ in range(self.settings.limits.descent_backtrack):
             try:
                 x = model.retract(state, alpha * dq)
                 x, ok = proj(x, trial_tol(alpha, slope, work))   # not projected: shorter
@@ -204,7 +204,7 @@ class Descent(Solver):
         state.lam = state.lam + min(alpha, 1.0) * dlam     # the KKT step's multiplier update
         s = replace(s, state=state, pe=pe, failed=0, alpha0=min(1.0, 2.0 * alpha))
         if not (sigma == 0.0 and alpha == 1.0 and big == 1.0
-                and s.polish_fail < LIMITS.stable_polish_tries):
+                and s.polish_fail < self.settings.limits.polish_fails):
             return Next(s, 1, (row,))
         rows = [row]
         st, o = self.polish(state, rows)
@@ -220,7 +220,7 @@ class Descent(Solver):
         """Newton (no fallback chain) from ``state``, its rows to ``history``."""
         s = self.settings
         return newton(self.model, state, replace(s, fallback=False), history, self.frame,
-                      self.cnt, max_iter=min(s.max_num_iter, LIMITS.stable_polish_iter),
+                      self.cnt, max_iter=min(s.max_num_iter, s.limits.polish_max_iter),
                       event="stable-polish")
 
     def postprocess(self, s, status, used):
@@ -276,7 +276,7 @@ def _extend(model, state, dq, proj, cnt, pe, slope, accepted, work):
                      float(np.max(np.abs(dq[~rot]), initial=0.0)) / (STEP_TRANS * model.L),
                      1e-300)
     alpha, best = 1.0, accepted
-    for _ in range(LIMITS.stable_extend):
+    for _ in range(LIMITS.max_extend):
         a = min(EXTEND * alpha, room)
         if a <= alpha * 1.01:
             break

@@ -15,9 +15,10 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.solvers.compliance import compliance_step
-from poise.solvers.context import Context
+from poise.solvers.context import Analysis, AnalysisSolver, Context, Env
 from poise.solvers.data import SolveData
 from poise.solvers.frames import frame_outputs, measure_frame, measure_frames, stack_frames
+from poise.solvers.iterate import iterate
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.quasistatic import NewtonFrames
 from poise.solvers.record import STATUS_CONVERGED, STATUS_FAILED, AnalysisRecord, FrameSet
@@ -73,6 +74,12 @@ class Driver:
                            redundancy=redundancy, progress=progress)
 
     @property
+    def env(self) -> Env:
+        """What an :class:`~poise.solvers.context.AnalysisSolver` runs with."""
+        ctx = self.ctx
+        return Env(ctx.model, ctx.request, ctx.settings, ctx.data, ctx.history, ctx.progress)
+
+    @property
     def data(self) -> SolveData:
         return self.ctx.data
 
@@ -82,7 +89,8 @@ class Driver:
 
     def run(self, state, index: int = 0):
         ctx = self.ctx
-        strategy = self.strategy_cls()
+        cls = self.strategy_cls
+        strategy = cls(self.env) if issubclass(cls, AnalysisSolver) else cls()
         state = state.copy()
         if ctx.kind == "quasistatic":
             ctx.times = np.asarray(self.request.output_times(state.t), float)
@@ -90,6 +98,9 @@ class Driver:
             ctx.time_independent = not self.model.depends_on_time()
         else:
             ctx.times = np.array([state.t])
+        if isinstance(strategy, AnalysisSolver):
+            method_data, attrs = self._run(strategy, state)
+            return ctx.frames[-1], build_result(ctx, strategy, index, method_data, attrs)
         label = strategy.name
         try:
             strategy.init(ctx, state)
@@ -110,6 +121,23 @@ class Driver:
                 ctx.report(label, None, len(ctx.times))
         method_data, attrs = strategy.postprocess(ctx)
         return ctx.frames[-1], build_result(ctx, strategy, index, method_data, attrs)
+
+    def _run(self, strategy, state):
+        """An :class:`~poise.solvers.context.AnalysisSolver` run by the one loop over the
+        output times; the final :class:`~poise.solvers.context.Analysis` is handed to the
+        record. Returns ``(method_data, attrs)``."""
+        ctx = self.ctx
+        a = Analysis(times=ctx.times, redundancy=ctx.redundancy,
+                     time_independent=ctx.time_independent)
+        try:
+            done = iterate(strategy, len(ctx.times), ctx.history, a, state)
+        finally:
+            if ctx.kind == "quasistatic":
+                ctx.report(strategy.name, None, len(ctx.times))
+        a = done.analysis
+        ctx.frames, ctx.outcomes, ctx.notes = list(a.frames), list(a.outcomes), list(a.notes)
+        ctx.redundancy, ctx.moved, ctx.start = a.redundancy, a.moved, a.start
+        return done.method_data, done.attrs
 
 
 def build_result(ctx, strategy, index, method_data=None, method_attrs=None) -> AnalysisRecord:

@@ -4,25 +4,24 @@
 ``max_num_iter`` iterations; when it fails with a failure a strategy can fix, the :data:`CHAIN`
 stages (``stability``, ``continuation``, ``mkeam``) are tried in order from the frame's input
 configuration within the fallback budget (``fallback_max_num_iter``), each switch a history row.
-The stages are :class:`~poise.solvers.iterate.Iterative` strategies run by the one loop
-:func:`~poise.solvers.iterate.iterate`, as are Newton and :func:`continuation`. Stages,
+The chain and :func:`continuation` are :class:`~poise.solvers.iterate.Solver` s run by the one
+loop :func:`~poise.solvers.iterate.iterate`, as is Newton. Stages,
 budget and what is not tried: docs/solvers.md, "Fallback chain".
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.solvers import freedom
 from poise.solvers.history import Row
-from poise.solvers.iterate import Iterative, Step, iterate
+from poise.solvers.iterate import Next, Solver, iterate
 from poise.solvers.newton import FrameOutcome, Scales, merit, newton
 from poise.solvers.status import MESSAGES, Status
 
 FALLBACK_STABILITY = 1e-2
-PTC_MAX_ITER = 200
 PTC_MU_MIN = 1e-12
 PTC_MU_GROWTH = 1e8       # mu above this multiple of its start: the pseudo-time flow diverges
 NO_RECOVERY = (Status.NONFINITE, Status.INCONSISTENT_CONSTRAINTS, Status.NO_EQUILIBRIUM)
@@ -142,13 +141,12 @@ class StabilityStage:
     def event(self, settings, reason):
         return f"fallback: stability={max(settings.stability, FALLBACK_STABILITY):g}: {reason}"
 
-    def run(self, model, start, settings, history, frame, cnt, left, counts, prev):
+    def run(self, model, start, settings, history, frame, cnt, left, prev):
         n = min(int(settings.max_num_iter), max(1, left // 4), left)
         s1 = replace(settings, stability=max(settings.stability, FALLBACK_STABILITY))
         st, out = newton(model, start.copy(), s1, history, frame, cnt, max_iter=n,
                          event="fallback-stability")
-        counts[self.name] = out.iterations
-        return st, out, False, ()
+        return st, out, False, (), {self.name: out.iterations}
 
 
 class ContinuationStage:
@@ -159,11 +157,10 @@ class ContinuationStage:
     def event(self, settings, reason):
         return f"fallback: continuation: {reason}"
 
-    def run(self, model, start, settings, history, frame, cnt, left, counts, prev):
-        n = min(PTC_MAX_ITER, max(1, (2 * left) // 3))
+    def run(self, model, start, settings, history, frame, cnt, left, prev):
+        n = min(settings.limits.ptc_max_iter, max(1, (2 * left) // 3))
         st, out = continuation(model, start.copy(), settings, history, frame, cnt, max_steps=n)
-        counts[self.name] = out.iterations
-        return st, out, False, ()
+        return st, out, False, (), {self.name: out.iterations}
 
 
 class MkeamStage:
@@ -177,7 +174,7 @@ class MkeamStage:
     def event(self, settings, reason):
         return f"fallback: mkeam: {reason}"
 
-    def run(self, model, start, settings, history, frame, cnt, left, counts, prev):
+    def run(self, model, start, settings, history, frame, cnt, left, prev):
         st, out = prev
         polish = min(int(settings.max_num_iter), max(1, left // 4))
         units = max(1, left - polish)
@@ -189,22 +186,22 @@ class MkeamStage:
                             units=units)
             st2, ok, why = rx.relax(start.copy())
         except Exception as e:   # noqa: BLE001 - any MKEAM failure just ends the chain
-            counts["mkeam"] = 0 if rx is None else rx.used
             why = Row(frame, 0, event=f"fallback: mkeam failed: {e}", strategy=self.name)
-            return st, replace(out, message=f"MKEAM failed: {e}"), True, (why,)
-        counts["mkeam"] = rx.used
-        left -= counts["mkeam"]
+            return (st, replace(out, message=f"MKEAM failed: {e}"), True, (why,),
+                    {"mkeam": 0 if rx is None else rx.used})
+        counts = {"mkeam": rx.used}
+        left -= rx.used
         if not ok:
             return st, replace(out, message=f"MKEAM did not converge within its share of the "
-                                            f"fallback budget ({units} units): {why}"), True, ()
+                                            f"fallback budget ({units} units): {why}"), True, (
+                                                ), counts
         if left <= 0:
             return st2, FrameOutcome(Status.MAX_ITERATIONS, 0, np.nan, np.nan,
                                      "no budget left for the Newton polish of the MKEAM point"
-                                     ), True, ()
+                                     ), True, (), counts
         st3, out3 = newton(model, st2, settings, history.stage("polish"), frame, cnt,
                            max_iter=left, event="fallback-polish")
-        counts["polish"] = out3.iterations
-        return st3, out3, True, ()
+        return st3, out3, True, (), {**counts, "polish": out3.iterations}
 
 
 #: The fallback chain: tried in this order after plain Newton failed, each from the frame's
@@ -212,18 +209,33 @@ class MkeamStage:
 CHAIN = (StabilityStage(), ContinuationStage(), MkeamStage())
 
 
-class Chain(Iterative):
-    """The :data:`CHAIN` stages as an :class:`~poise.solvers.iterate.Iterative` strategy; the
-    budget is the fallback budget. A stage takes two steps: the switch (its ``fallback:``
-    event row, no budget spent), then the stage's run from the frame's input configuration on
+@dataclass(frozen=True)
+class _Chaining:
+    """:class:`Chain`'s state: the last failed ``(st, out)`` and why (``reason``), the next
+    stage, whether its switch row was given, the iterations per strategy, the result once
+    decided (``(state, outcome, strategy name or "")``)."""
+
+    st: object
+    out: FrameOutcome
+    reason: str
+    next: int = 0
+    switched: bool = False
+    counts: tuple = (("stability", 0), ("continuation", 0), ("mkeam", 0), ("polish", 0))
+    result: tuple | None = None
+
+
+class Chain(Solver[_Chaining]):
+    """The :data:`CHAIN` stages as a :class:`~poise.solvers.iterate.Solver`; the budget is the
+    fallback budget. A stage takes two steps: the switch (its ``fallback:`` event row, no
+    budget spent), then the stage's run from the frame's input configuration on
     ``history.stage(name)`` (its rows labelled with the stage; the stage's own loops append
     them), spending the stage's iterations; rows a stage returns (why MKEAM failed) follow.
     Two steps, so that the switch row is returned like every other row and still precedes
     the stage's rows.
 
     A stage: ``name``, ``event(settings, reason)`` (the switch row's text) and
-    ``run(model, start, settings, history, frame, cnt, left, counts, prev) -> (state, outcome,
-    final, rows)``."""
+    ``run(model, start, settings, history, frame, cnt, left, prev) -> (state, outcome,
+    final, rows, counts)`` (``counts``: its iterations by strategy name)."""
 
     def __init__(self, model, start, settings, history, frame, cnt, stages=None):
         self.model, self.start, self.settings = model, start, settings
@@ -231,42 +243,39 @@ class Chain(Iterative):
         self.stages = CHAIN if stages is None else stages
 
     def init(self, first):
-        return {"counts": {"stability": 0, "continuation": 0, "mkeam": 0, "polish": 0},
-                "reason": first.status.value, "st": self.start, "out": first, "next": 0,
-                "switched": False, "result": None}
+        return _Chaining(self.start, first, first.status.value)
 
-    def terminate(self, s, used):
-        if s["result"] is None and s["next"] == len(self.stages):
-            s["result"] = (s["st"], s["out"], "")
-        return s["result"] is not None
+    def terminate(self, s):
+        if s.result is not None:
+            return True, s.result[1].status
+        if s.next == len(self.stages):
+            return True, s.out.status
+        return False, None
 
-    def exhausted(self, s, used):
-        s["result"] = (s["st"], s["out"], "")
-
-    def step(self, s, used, left):
-        stage = self.stages[s["next"]]
-        if not s["switched"]:
-            s["switched"] = True
-            return Step(0, (Row(self.frame, 0, event=stage.event(self.settings, s["reason"]),
-                                strategy=stage.name),))
-        s["next"] += 1
-        s["switched"] = False
-        st2, out2, final, rows = stage.run(self.model, self.start, self.settings,
-                                           self.history.stage(stage.name), self.frame,
-                                           self.cnt, left, s["counts"], (s["st"], s["out"]))
+    def step(self, s, left):
+        stage = self.stages[s.next]
+        if not s.switched:
+            return Next(replace(s, switched=True), 0, (
+                Row(self.frame, 0, event=stage.event(self.settings, s.reason),
+                    strategy=stage.name),))
+        st2, out2, final, rows, got = stage.run(self.model, self.start, self.settings,
+                                                self.history.stage(stage.name), self.frame,
+                                                self.cnt, left, (s.st, s.out))
+        s = replace(s, next=s.next + 1, switched=False,
+                    counts=tuple((k, got.get(k, n)) for k, n in s.counts))
         if out2.ok:
-            s["result"] = (st2, out2, stage.name)
+            s = replace(s, result=(st2, out2, stage.name))
         elif final:
-            s["result"] = (st2, out2, "")
+            s = replace(s, result=(st2, out2, ""))
         else:
-            s["st"], s["out"], s["reason"] = st2, out2, out2.status.value
+            s = replace(s, st=st2, out=out2, reason=out2.status.value)
             if out2.status in NO_RECOVERY[:2]:
-                s["result"] = (st2, out2, "")
-        return Step(s["counts"][stage.name], rows)
+                s = replace(s, result=(st2, out2, ""))
+        return Next(s, got.get(stage.name, 0), rows)
 
-    def postprocess(self, s, used):
-        st, out, name = s["result"]
-        return st, out, name, s["counts"]
+    def postprocess(self, s, status, used):
+        st, out, name = s.result if s.result is not None else (s.st, s.out, "")
+        return st, out, name, dict(s.counts)
 
 
 def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome, budget: int):
@@ -277,7 +286,7 @@ def run_chain(model, start, settings, history, frame, cnt, first: FrameOutcome, 
                    first)
 
 
-def continuation(model, state, settings, history, frame, cnt, max_steps=PTC_MAX_ITER):
+def continuation(model, state, settings, history, frame, cnt, max_steps=None):
     """Pseudo-transient continuation (PTC): Newton steps on ``(K + mu M) dx = -F``.
 
     ``mu`` (units 1/time^2) starts comparable to the largest stiffness/mass ratio (over the
@@ -285,16 +294,34 @@ def continuation(model, state, settings, history, frame, cnt, max_steps=PTC_MAX_
     ``M dx/dtau = -F`` towards a *stable* equilibrium, and is relaxed by switched evolution
     relaxation ``mu <- mu * |F_new| / |F_old|`` so the last iterations are plain Newton
     (quadratic). Only the Jacobian changes; the residual, and hence the equilibrium found, does
-    not. At most ``max_steps`` steps; a residual that keeps growing (``mu`` beyond
-    ``PTC_MU_GROWTH`` times its start) or turns non-finite ends it as ``diverged``.
+    not. At most ``max_steps`` steps (default ``Limits.ptc_max_iter``); a residual that keeps
+    growing (``mu`` beyond ``PTC_MU_GROWTH`` times its start) or turns non-finite ends it as ``diverged``.
     """
+    if max_steps is None:
+        max_steps = settings.limits.ptc_max_iter
     return iterate(Continuation(model, settings, frame, cnt), int(max_steps), history, state)
 
 
-class Continuation(Iterative):
-    """:func:`continuation` as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step``
-    is one Newton step on ``(K + mu M) dx = -F`` and the ``mu`` update; the budget counts
-    steps, the outcome the Newton iterations.
+@dataclass(frozen=True)
+class _Flowing:
+    """:class:`Continuation`'s state: the iterate, its outcome once decided, Newton iterations
+    so far (``total``), the last step's outcome, ``mu`` (its start, now, bound) and the merit
+    the next ``mu`` update compares with."""
+
+    state: object
+    outcome: FrameOutcome | None = None
+    total: int = 0
+    last: FrameOutcome | None = None
+    mu0: float = 1.0
+    mu: float = 1.0
+    mu_max: float = np.inf
+    m_old: float = np.nan
+
+
+class Continuation(Solver[_Flowing]):
+    """:func:`continuation` as a :class:`~poise.solvers.iterate.Solver`: ``step`` is one Newton
+    step on ``(K + mu M) dx = -F`` and the ``mu`` update; the budget counts steps, the
+    outcome the Newton iterations.
 
     A step returns the rows of its one-iteration Newton, collected and handed to the loop:
     the step row (the point it started from, the step taken) and Newton's closing row (the
@@ -309,69 +336,61 @@ class Continuation(Iterative):
 
     def init(self, state):
         model = self.model
-        s = {"state": state, "outcome": None, "total": 0, "last": None}
         try:
             ev = self.cnt.evaluate(model, state, "jacobian")
         except EvaluationError as e:
-            s["outcome"] = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
-            return s
+            return _Flowing(state, FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)))
         kd = np.abs(np.asarray(ev.J.diagonal()).ravel()[:model.nq])  # dense or CSR, never densified
         md = model.mass_diagonal(state)
         has = (md > 0) & np.isfinite(kd)
         mu0 = float(np.max(kd[has] / md[has])) if has.any() else 0.0
         if not (np.isfinite(mu0) and mu0 > 0):
             mu0 = 1.0
-        s.update(mu0=mu0, mu=mu0, mu_max=min(mu0 * PTC_MU_GROWTH, 1e150),  # mu**2 stays finite
-                 m_old=merit(ev, self.sc))
-        return s
+        return _Flowing(state, mu0=mu0, mu=mu0, mu_max=min(mu0 * PTC_MU_GROWTH, 1e150),
+                        m_old=merit(ev, self.sc))               # mu**2 stays finite
 
-    def terminate(self, s, used):
-        return s["outcome"] is not None
+    def terminate(self, s):
+        return s.outcome is not None, None if s.outcome is None else s.outcome.status
 
-    def exhausted(self, s, used):
-        total, last = s["total"], s["last"]
-        imb = last.imbalance if last is not None else np.nan
-        s["outcome"] = FrameOutcome(Status.MAX_ITERATIONS, total, imb, np.nan,
-                                    f"pseudo-transient continuation did not converge in {total} "
-                                    "steps")
+    def postprocess(self, s, status, used):
+        if s.outcome is not None:
+            return s.state, s.outcome
+        imb = s.last.imbalance if s.last is not None else np.nan
+        return s.state, FrameOutcome(Status.MAX_ITERATIONS, s.total, imb, np.nan,
+                                     f"pseudo-transient continuation did not converge in "
+                                     f"{s.total} steps")
 
-    def postprocess(self, s, used):
-        return s["state"], s["outcome"]
-
-    def step(self, s, used, left):
-        mu = s["mu"]
+    def step(self, s, left):
+        mu = s.mu
         s_mu = replace(self.settings, stability=mu * mu, fallback=False, line_search=False)
         rows = []
-        st, o = newton(self.model, s["state"], s_mu, rows, self.frame, self.cnt, max_iter=1,
+        st, o = newton(self.model, s.state, s_mu, rows, self.frame, self.cnt, max_iter=1,
                        event=f"continuation mu={mu:.3g}")
-        rec = Step(1, tuple(rows))
-        s["total"] += o.iterations
-        s["last"] = o
-        s["state"] = st
-        total = s["total"]
+        total = s.total + o.iterations
+        s = replace(s, total=total, last=o, state=st)
+        return Next(self._next(s, o, st, total), 1, tuple(rows))
+
+    def _next(self, s, o, st, total):
+        """After the step to ``st`` (Newton's outcome ``o``): the outcome, or the next ``mu``."""
         if o.ok:
-            s["outcome"] = FrameOutcome(Status.CONVERGED, total, o.imbalance, o.error, "converged")
-            return rec
+            return replace(s, outcome=FrameOutcome(Status.CONVERGED, total, o.imbalance, o.error,
+                                                   "converged"))
         if o.status is Status.NONFINITE:
-            o.iterations = total
-            s["outcome"] = o
-            return rec
+            return replace(s, outcome=replace(o, iterations=total))
         if o.iterations == 0:          # singular even with mu M: the flow cannot move
-            s["outcome"] = FrameOutcome(o.status, total, o.imbalance, o.error, o.message)
-            return rec
+            return replace(s, outcome=FrameOutcome(o.status, total, o.imbalance, o.error,
+                                                   o.message))
         try:
             ev = self.cnt.evaluate(self.model, st, "residual")
         except EvaluationError as e:
-            s["outcome"] = FrameOutcome(Status.NONFINITE, total, np.nan, np.nan, str(e))
-            return rec
+            return replace(s, outcome=FrameOutcome(Status.NONFINITE, total, np.nan, np.nan,
+                                                   str(e)))
         m_new = merit(ev, self.sc)
-        mu = mu * np.sqrt(m_new / max(s["m_old"], 1e-300)) if np.isfinite(m_new) else np.inf
-        if not (np.isfinite(mu) and mu <= s["mu_max"]):
-            s["outcome"] = FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,
-                                        "pseudo-transient continuation diverged (the residual "
-                                        "kept growing)")
-            return rec
-        if mu < PTC_MU_MIN * s["mu0"]:
+        mu = s.mu * np.sqrt(m_new / max(s.m_old, 1e-300)) if np.isfinite(m_new) else np.inf
+        if not (np.isfinite(mu) and mu <= s.mu_max):
+            return replace(s, outcome=FrameOutcome(Status.DIVERGED, total, o.imbalance, o.error,
+                                                   "pseudo-transient continuation diverged "
+                                                   "(the residual kept growing)"))
+        if mu < PTC_MU_MIN * s.mu0:
             mu = 0.0
-        s["mu"], s["m_old"] = mu, m_new
-        return rec
+        return replace(s, mu=mu, m_old=m_new)

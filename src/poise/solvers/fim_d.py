@@ -6,8 +6,8 @@ when a rotation exceeds ``REBASE_ANGLE``; IDA runs dense up to ``SPARSE_MIN`` un
 (SuperLU_MT) above (solvers/ida.py). Frame 0 and the last frame are solved by FIM_S, every
 output point IDA passes is corrected onto the equilibrium to the ``Param_Static`` tolerances
 (``Corrector``), and a step IDA cannot take falls back to FIM_S for the next output frame (then
-IDA restarts). Budgets are deterministic: ``IDA_MAX_STEPS + IDA_STEPS_PER_FRAME`` x frames
-accepted steps, a step-size floor, and a body ``ESCAPE`` model sizes away ends the run. The
+IDA restarts). Budgets are deterministic (:class:`~poise.solvers.limits.Limits`):
+``ida_max_steps + ida_steps_per_frame`` x frames accepted steps, a step-size floor, and a body ``ESCAPE`` model sizes away ends the run. The
 per-step table ``steps/*`` comes from IDA's own counters. Design notes, tolerances and the
 measurements behind the constants: docs/fim_d.md.
 """
@@ -23,7 +23,6 @@ from poise.solvers import ida, path, singular
 from poise.solvers.ida import IdaStats, SparseJacobian, TransientSettings, run_ida  # noqa: F401
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.quasistatic import (
-    MIN_SUBSTEP_FRACTION,
     BranchPath,
     fims_step,
     first_frame,
@@ -34,9 +33,6 @@ from poise.solvers.status import Status
 
 REBASE_ANGLE = 1.0        # rad
 SPARSE_MIN = 200          # unknowns: above this IDA uses the sparse (SuperLU_MT) linear solver
-# deterministic budgets (a run whose load explodes must end, not integrate forever)
-IDA_MAX_STEPS = 2000      # accepted IDA steps per run, plus IDA_STEPS_PER_FRAME per output frame
-IDA_STEPS_PER_FRAME = 20
 ESCAPE = 1e6              # a body this many model sizes from its chart's reference: no bounded path
 SHRINK = 1e-2             # IDA steps below this fraction of the print interval: near a singularity?
 SHRINK_CHECK = 0.25       # ... checked again each time the step shrinks by this factor
@@ -78,7 +74,9 @@ class IdaContinuation(Strategy):
         self.correct = Corrector(model, s, ctx.data)
         self.k_out = 1
         self.n_starts = 0
-        self.max_steps = IDA_MAX_STEPS + IDA_STEPS_PER_FRAME * len(ts)
+        # deterministic budget (a run whose load explodes must end, not integrate forever)
+        lim = s.limits
+        self.max_steps = lim.ida_max_steps + lim.ida_steps_per_frame * len(ts)
         self.ref = st
         self.rebased = 1
         self.chart = self.solver = None
@@ -220,7 +218,7 @@ class IdaContinuation(Strategy):
                     if why:         # Newton left the branch IDA was on: continuation instead
                         hist.add(k, 0, o.imbalance, o.error, np.nan, np.nan, why, "substep_retry")
                         st, o, _ = fims_step(model, ctx.frames, tk, s, hist, ctx.data, k,
-                                             MIN_SUBSTEP_FRACTION * (tk - ctx.frames[-1].t))
+                                             s.limits.min_substep_fraction * (tk - ctx.frames[-1].t))
                     o.iterations += int(n_c[j])
                 ctx.frames.append(st)
                 ctx.outcomes.append(o)
@@ -327,7 +325,7 @@ def _fallback(ctx, k_out, reason, fallbacks, last_state):
     hist = list(frames[-2:])
     if last_state.t > hist[-1].t:
         hist.append(last_state)
-    min_dt = MIN_SUBSTEP_FRACTION * (ts[k_out] - ts[k_out - 1])
+    min_dt = ctx.settings.limits.min_substep_fraction * (ts[k_out] - ts[k_out - 1])
     st, o, _ = fims_step(ctx.model, hist, float(ts[k_out]), ctx.settings, ctx.history, ctx.data,
                          k_out, min_dt)
     frames.append(st)

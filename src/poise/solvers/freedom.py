@@ -20,7 +20,8 @@ from poise.elements.registry import kernel_types
 from poise.solvers.history import History
 from poise.solvers.downhill import unit_name
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.newton import Scales, assemble
+from poise.solvers.newton import Scales
+from poise.solvers.reach import assemble
 from poise.solvers.steps import mass_times
 
 #: Element types whose laws are polynomial or analytic in the marker poses and never switch on

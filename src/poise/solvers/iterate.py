@@ -1,7 +1,7 @@
 """The one iteration loop of poise's solvers, and its contract.
 
 A solver has the shape of optimistix's iterative solvers (``_iterate.py``): ``init`` builds a
-frozen, typed state; ``step(state, left)`` does one iteration and returns a :class:`Step` (the
+frozen, typed state; ``step(state, left)`` does one iteration and returns a :class:`Next` (the
 next state, the budget it spent and the history rows it produced); ``terminate(state)`` is
 pure and says whether to stop and with which :class:`~poise.solvers.status.Status`; ``close``
 gives the rows that end the run; ``postprocess`` builds the result. The loop, :func:`iterate`,
@@ -9,9 +9,6 @@ owns the budget, the count of work spent and the history: it is the one place th
 rows, and it turns a spent budget into the solver's declared ``out_of_budget`` status.
 Evaluation and factorisation counts are the per-solve data's
 (:class:`~poise.solvers.data.SolveData`), through which every solver evaluates.
-
-:class:`Iterative` is the older contract (mutable state, ``exhausted``); :func:`iterate` runs
-both while the solvers move to :class:`Solver` (issue 24).
 """
 from __future__ import annotations
 
@@ -22,45 +19,6 @@ from poise.solvers.history import Row
 from poise.solvers.status import Status
 
 S = TypeVar("S")
-
-
-@dataclass(frozen=True)
-class Step:
-    """What one ``step`` did: ``spent`` iterations of the budget (0 when it ended the solve
-    instead; ``terminate`` then says so) and the history ``rows`` it produced, in order."""
-
-    spent: int
-    rows: tuple[Row, ...] = ()
-
-
-class Iterative:
-    """The contract :func:`iterate` runs.
-
-    * ``init(*args) -> s``: the iteration state.
-    * ``terminate(s, used) -> bool``: stop now (converged, failed); ``used``: iterations spent.
-    * ``step(s, used, left) -> Step``: one iteration.
-    * ``exhausted(s, used)``: the budget ran out before ``terminate`` said stop.
-    * ``close(s, used) -> tuple[Row, ...]``: rows that end the run (default none).
-    * ``postprocess(s, used)``: the result.
-    """
-
-    def init(self, *args):
-        raise NotImplementedError
-
-    def terminate(self, s, used: int) -> bool:
-        raise NotImplementedError
-
-    def step(self, s, used: int, left: int) -> Step:
-        raise NotImplementedError
-
-    def exhausted(self, s, used: int) -> None:
-        raise NotImplementedError
-
-    def close(self, s, used: int) -> tuple[Row, ...]:
-        return ()
-
-    def postprocess(self, s, used: int):
-        raise NotImplementedError
 
 
 @dataclass(frozen=True)
@@ -105,7 +63,11 @@ class Solver(Generic[S]):
         raise NotImplementedError
 
 
-def _run(solver: Solver, budget: int, history, args):
+def iterate(solver: Solver, budget: int, history, *args):
+    """Run ``solver`` from ``init(*args)`` within ``budget`` units of work, appending the rows
+    of every step and of ``close`` to ``history`` (anything with ``append(row)``); its
+    ``postprocess``. A spent budget ends the run with ``solver.out_of_budget``."""
+    budget = int(budget)
     state = solver.init(*args)
     used = 0
     while True:
@@ -123,24 +85,3 @@ def _run(solver: Solver, budget: int, history, args):
     for row in solver.close(state, status, used):
         history.append(row)
     return solver.postprocess(state, status, used)
-
-
-def iterate(strategy, budget: int, history, *args):
-    """Run ``strategy`` (a :class:`Solver`, or an :class:`Iterative` not yet moved) from
-    ``init(*args)`` within ``budget`` units of work, appending the rows of every step and of
-    ``close`` to ``history`` (anything with ``append(row)``); its result."""
-    if isinstance(strategy, Solver):
-        return _run(strategy, int(budget), history, args)
-    s = strategy.init(*args)
-    used = 0
-    while not strategy.terminate(s, used):
-        if used >= budget:
-            strategy.exhausted(s, used)
-            break
-        rec = strategy.step(s, used, budget - used)
-        for row in rec.rows:
-            history.append(row)
-        used += rec.spent
-    for row in strategy.close(s, used):
-        history.append(row)
-    return strategy.postprocess(s, used)

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from poise.solvers.iterate import Next, Solver, iterate
-from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
+from poise.solvers.limits import LIMITS
 from poise.solvers.rattle import CONSTRAINT_TOL, RattlePoint, rattle_step
 from poise.solvers.status import Status
 
@@ -24,7 +24,6 @@ STEPS_PER_PERIOD = 20.0
 MAX_TRANS_STEP = 0.1         # x L per integration step
 MAX_ROT_STEP = 0.1           # rad per integration step
 ENERGY_TOL = 1e-3            # relative energy error per step
-REST_STEPS = 50              # steps with only noise-level energies: the iteration is at rest
 NOISE_FACTOR = 10.0          # energy resolution: x work over the constraint tolerance
 MAX_TRAVEL = 1e4             # x L: an iterate farther than this from the start is divergence
 PEAK_TOL = 1e-3              # bracket of the peak relative to the step
@@ -114,7 +113,7 @@ class KeIteration(Solver):
         bad, status = self.absurd(b)
         if bad:
             return Next(replace(s, end=b, message=bad, done=status))
-        if s.steps >= REST_STEPS and s.escale <= s.noise:
+        if s.steps >= LIMITS.rest_steps and s.escale <= s.noise:
             return Next(replace(s, end=b, done=Status.CONVERGED))   # at rest (resolution)
         if b.power <= 0.0:
             if a.power <= 0.0:                 # never accelerated: at rest already

@@ -17,8 +17,8 @@ from poise.core.wording import plural
 from poise.solvers.context import Strategy, prologue
 from poise.solvers.history import History
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
-from poise.solvers.newton import FrameOutcome, Scales, assemble, initial_multipliers, merit, newton
+from poise.solvers.newton import FrameOutcome, Scales, initial_multipliers, merit, newton
+from poise.solvers.reach import assemble
 from poise.solvers.relaxation import Relaxation, mkeam_run
 from poise.solvers.status import Status
 
@@ -147,10 +147,12 @@ class MkeamMethod(Strategy):
         mb = merit(self.model.evaluate(b, need_jac=False, active=act), sc)
         return ma < mb
 
-    def _downhill(self, a, b, n=LIMITS.polish_path_samples):
+    def _downhill(self, a, b):
         """"" if the potential energy does not increase along the path from ``a`` to ``b`` (the
-        tangent line at ``a``, ``n`` samples, each assembled onto the constraints), else why."""
+        tangent line at ``a``, ``limits.polish_path_samples`` samples, each assembled onto the
+        constraints), else why."""
         m, s = self.model, self.settings
+        n = s.limits.polish_path_samples
         dq = m.local_difference(a, b)
         pes = [self.rx.potential_energy(a)]
         scratch = History()

@@ -15,7 +15,8 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import copy
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -24,7 +25,7 @@ from poise.elements.context import row_where
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.history import History, Row
-from poise.solvers.iterate import Iterative, Step, iterate
+from poise.solvers.iterate import Next, Solver, iterate
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.reach import PROJECT_ABOVE, project, violation
 from poise.solvers.reach import coord_weights as _coord_weights
@@ -34,12 +35,9 @@ from poise.solvers.steps import limit_step as _limit_step_trial
 from poise.solvers.steps import mass_times as _mass_times
 from poise.solvers.steps import neutral_filtered as _neutral_filtered
 
-ASSEMBLY_MAX_ITER = 50
-ASSEMBLY_TOL = 1e-10          # relative constraint violation after assembly
-LINE_SEARCH_MAX = 8
 ARMIJO = 1e-4
-ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step)
-CRAWL = 6                     # ... as has one whose merit did not halve in this many iterations
+ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step);
+                              # so has one whose merit did not halve in Limits.crawl_window its
 
 
 @dataclass
@@ -147,64 +145,6 @@ def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
             f"(tolerance {sc.phi_tol[k]:.3g})")
 
 
-def assemble(model, state, settings, history: History, frame: int, cnt: Counters):
-    """Least-change projection onto the constraints (Gauss-Newton on the KKT system,
-    :class:`Assembly` run by :func:`~poise.solvers.iterate.iterate`).
-
-    Returns ``(state, assembled: bool, status)``; ``assembled`` says whether anything moved.
-    """
-    if model.nc == 0:
-        return state, False, Status.CONVERGED
-    return iterate(Assembly(model, settings, frame, cnt), ASSEMBLY_MAX_ITER, history, state)
-
-
-class Assembly(Iterative):
-    """:func:`assemble` as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step`` is
-    one weighted least-change Gauss-Newton step and its ``assembly`` history row."""
-
-    def __init__(self, model, settings, frame, cnt):
-        self.model, self.frame, self.cnt = model, frame, cnt
-        self.sc = Scales(model, settings)
-        self.W = _coord_weights(model)
-
-    def init(self, state):
-        return {"state": state, "moved": False, "status": None, "ev": None, "v": np.nan}
-
-    def terminate(self, s, used):
-        if s["status"] is not None:
-            return True
-        model = self.model
-        ev = self.cnt.evaluate(model, s["state"], "defer")   # Jacobian only if violated
-        viol = np.abs(ev.phi) / np.where(model.row_kind == 1, 1.0, model.L)
-        s["ev"], s["v"] = ev, float(viol.max())
-        if s["v"] <= ASSEMBLY_TOL:
-            s["status"] = Status.CONVERGED
-        return s["status"] is not None
-
-    def exhausted(self, s, used):
-        s["status"] = Status.ASSEMBLY_FAILED
-
-    def postprocess(self, s, used):
-        return s["state"], s["moved"], s["status"]
-
-    def step(self, s, used, left):
-        model, ev = self.model, s["ev"]
-        self.cnt.jacobian(model, ev)
-        K = _weighted_kkt(model, ev, self.W)
-        try:
-            x = self.cnt.factor(K).solve(np.concatenate([np.zeros(model.nq), -ev.phi]))
-        except SingularMatrix:
-            s["status"] = Status.ASSEMBLY_FAILED
-            return Step(0)
-        dq = x[:model.nq]
-        prev = s["state"]                 # the row's pose: the configuration it measured
-        s["state"] = model.retract(prev, dq)
-        s["moved"] = True
-        sn = float(np.max(np.abs(dq) / self.sc.q_len))
-        return Step(1, (Row(self.frame, used, float(np.max(np.abs(ev.r))) if ev.r.size else 0.0,
-                            s["v"], sn, 1.0, "", "assembly", pos=prev.pos, rot=prev.rot),))
-
-
 def initial_multipliers(model, state, cnt: Counters, weights=None):
     """Least-squares multipliers ``argmin ||Phi_q^T lam - Q||_{W^-1}`` at the current state
     (``weights``: ``W``, default the squared coordinate scales)."""
@@ -228,17 +168,43 @@ def initial_multipliers(model, state, cnt: Counters, weights=None):
     return st
 
 
-class NewtonIteration(Iterative):
-    """Frame-level Newton as an :class:`~poise.solvers.iterate.Iterative` strategy: ``step``
-    is one Newton iteration (factorise, solve, limit, line search) and returns its history
-    row; ``terminate`` checks convergence; ``close`` gives the row of the last measured point
-    (converged or why not). ``equilibrate``: factorise the row/column-equilibrated Jacobian
-    (:class:`~poise.solvers.linalg.Factor`)."""
+@dataclass(frozen=True)
+class _Newtoning:
+    """Newton's iteration state: the iterate ``state``, its evaluation and measures (made where
+    the iterate is, so ``terminate`` only reads ``outcome``), the last step, the closing row."""
+
+    state: object
+    ev: object = None
+    it: int = 0
+    outcome: FrameOutcome | None = None
+    last_step: float = np.inf
+    imb: float = np.nan
+    cerr: float = np.nan
+    zinf: float = np.nan
+    err: float = np.nan
+    worst: str = ""
+    res_ok: bool = False
+    last_row: Row | None = None       # the closing row (converged or why not)
+    stall: float | None = None        # merit where the line search stalled (downhill steps)
+    robust: bool = False              # it stalled once: trials kept on the constraints
+    runaway: Runaway | None = None    # the steps down since the stall (downhill.Runaway)
+    feasible: tuple | None = None     # (state, evaluation) of the last iterate on them
+    merits: tuple = ()                # merit at each iteration (progress)
+
+
+class NewtonIteration(Solver[_Newtoning]):
+    """Frame-level Newton as a :class:`~poise.solvers.iterate.Solver`: ``step`` is one Newton
+    iteration (factorise, solve, limit, line search) and returns its history row, the next
+    iterate evaluated and measured (converged or not); ``close`` gives the row of the last
+    measured point (converged or why not). ``equilibrate``: factorise the row/column-equilibrated
+    Jacobian (:class:`~poise.solvers.linalg.Factor`). ``walks_down``: a stalled line search goes
+    on down the potential energy (:class:`BranchNewton`, a continuation's corrector, does not)."""
+
+    walks_down = True
 
     def __init__(self, model, settings, frame: int, cnt: Counters, event: str = "newton",
-                 equilibrate: bool = False, probe=None, downhill: bool = True):
+                 equilibrate: bool = False, probe=None):
         self.model, self.settings = model, settings
-        self.downhill = downhill      # False: a continuation step (no walk down a stall)
         self.frame, self.cnt, self.event, self.equilibrate = frame, cnt, event, equilibrate
         self.probe = probe
         self.sc = Scales(model, settings)
@@ -259,7 +225,7 @@ class NewtonIteration(Iterative):
         if reach and self.model.nc:
             ev = self._ev_at(trial)
             if violation(self.model, ev.phi) > PROJECT_ABOVE:
-                trial = project(self.model, trial, self.cnt, ev)
+                trial = project(self.model, trial, self.cnt, ev, self.settings.limits)
                 if trial is None:
                     return None, None, np.inf
             trial = initial_multipliers(self.model, trial, self.cnt, self._merit_weights())
@@ -278,72 +244,79 @@ class NewtonIteration(Iterative):
         return Row(self.frame, it, s.imb, s.err, step, alpha,
                    s.worst if worst is None else worst, ev, pos=pose.pos, rot=pose.rot)
 
-    def _converged(self, s, it, err):
+    def _converged(self, s, err):
         # within tolerance: unless a removed redundant equation contradicts the others
         bad = inconsistent_redundant(self.model, s.state, self.sc, self.cnt)
-        s.err = err
-        s.last_row = self._row(s, it, worst=bad or s.worst)
+        s = replace(s, err=err)
+        s = replace(s, last_row=self._row(s, s.it, worst=bad or s.worst))
         if bad:
-            return FrameOutcome(Status.INCONSISTENT_CONSTRAINTS, it, s.imb, err,
-                                MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad)
-        return FrameOutcome(Status.CONVERGED, it, s.imb, err, "converged")
+            return replace(s, outcome=FrameOutcome(
+                Status.INCONSISTENT_CONSTRAINTS, s.it, s.imb, err,
+                MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad))
+        return replace(s, outcome=FrameOutcome(Status.CONVERGED, s.it, s.imb, err, "converged"))
 
-    def _fail(self, s, it, status, message):
-        s.last_row = self._row(s, it)
-        s.outcome = FrameOutcome(status, it, s.imb, s.err, message)
-        return Step(0)
+    def _fail(self, s, status, message):
+        return Next(replace(s, last_row=self._row(s, s.it),
+                            outcome=FrameOutcome(status, s.it, s.imb, s.err, message)), 0)
 
-    def init(self, state):
-        s = _NewtonState(state)
-        try:
-            s.ev = self._ev_at(state)
-        except EvaluationError as e:
-            s.outcome = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e))
-            return s
-        if violation(self.model, s.ev.phi) <= PROJECT_ABOVE:
-            s.feasible = (state, s.ev)
-        return s
-
-    def terminate(self, s, used):
-        if s.outcome is not None:
-            return True
-        s.imb, s.cerr, s.zinf, s.worst = measures(self.model, s.ev, self.sc)
-        s.err = max(s.cerr, s.last_step if np.isfinite(s.last_step) else 0.0)
-        s.res_ok = s.zinf <= 1.0
+    def _measured(self, s):
+        """``s`` with the measures of its iterate, converged when they are within tolerance."""
+        imb, cerr, zinf, worst = measures(self.model, s.ev, self.sc)
+        err = max(cerr, s.last_step if np.isfinite(s.last_step) else 0.0)
+        s = replace(s, imb=imb, cerr=cerr, zinf=zinf, worst=worst, err=err, res_ok=zinf <= 1.0)
         # converged needs an error estimate: a Newton step measured at (or taken to) the point;
         # a residual within tolerance alone says nothing about the distance to the solution
-        step_ok = np.isfinite(s.last_step) and s.last_step <= self.settings.max_error
-        if s.res_ok and step_ok:
-            s.outcome = self._converged(s, used, s.err)
-            return True
-        return False
+        if s.res_ok and np.isfinite(s.last_step) and s.last_step <= self.settings.max_error:
+            return self._converged(s, err)
+        return s
 
-    def exhausted(self, s, used):
-        self._fail(s, used, Status.MAX_ITERATIONS,
-                   MESSAGES[Status.MAX_ITERATIONS] + f"; worst equation: {s.worst}")
+    def init(self, state):
+        try:
+            ev = self._ev_at(state)
+        except EvaluationError as e:
+            return _Newtoning(state, outcome=FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan,
+                                                          str(e)))
+        feasible = (state, ev) if violation(self.model, ev.phi) <= PROJECT_ABOVE else None
+        return self._measured(_Newtoning(state, ev, feasible=feasible))
 
-    def close(self, s, used):
+    def terminate(self, s):
+        return s.outcome is not None, None if s.outcome is None else s.outcome.status
+
+    def close(self, s, status, used):
+        if s.outcome is None:               # the budget ran out
+            return (self._row(s, used),)
         return () if s.last_row is None else (s.last_row,)
 
-    def postprocess(self, s, used):
+    def postprocess(self, s, status, used):
+        if s.outcome is None:
+            return s.state, FrameOutcome(Status.MAX_ITERATIONS, used, s.imb, s.err,
+                                         MESSAGES[Status.MAX_ITERATIONS]
+                                         + f"; worst equation: {s.worst}")
         return s.state, s.outcome
 
-    def step(self, s, it, left):
+    def step(self, s, left):
+        nxt = self._iteration(s)
+        if not nxt.spent:
+            return nxt
+        s2 = replace(nxt.state, it=s.it + nxt.spent)
+        return Next(s2 if s2.outcome is not None else self._measured(s2), nxt.spent, nxt.rows)
+
+    def _iteration(self, s):
         model, settings, sc, eps, state, ev = (self.model, self.settings, self.sc, self.eps,
                                                s.state, s.ev)
         try:
             f = self.cnt.factor(self.cnt.jacobian(model, ev), equilibrate=self.equilibrate)
             x = f.solve(-np.concatenate([ev.r, ev.phi]))
         except SingularMatrix as e:
-            return self._fail(s, it, Status.SINGULAR_JACOBIAN,
+            return self._fail(s, Status.SINGULAR_JACOBIAN,
                               MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
         if not np.all(np.isfinite(x)):
-            return self._fail(s, it, Status.SINGULAR_JACOBIAN, MESSAGES[Status.SINGULAR_JACOBIAN])
-        if it == 0 and self.probe is not None:
+            return self._fail(s, Status.SINGULAR_JACOBIAN, MESSAGES[Status.SINGULAR_JACOBIAN])
+        if s.it == 0 and self.probe is not None:
             # before Newton spends its budget: a free direction a constant load pushes along
             why = self.probe(model, state, settings, self.cnt, f, x, eps, s.zinf)
             if why:
-                return self._fail(s, it, Status.NO_EQUILIBRIUM,
+                return self._fail(s, Status.NO_EQUILIBRIUM,
                                   MESSAGES[Status.NO_EQUILIBRIUM] + "; " + why)
         dq, dl = x[:model.nq], x[model.nq:]
         m0 = merit(ev, sc)
@@ -351,8 +324,8 @@ class NewtonIteration(Iterative):
             # still above the merit where it stalled: on down the potential energy
             down = self._downhill(state, ev, dq)
             if down is not None:
-                return self._down(s, it, state, down)
-        s.stall = None
+                return self._down(s, state, down)
+        s = replace(s, stall=None)
         best = None
         eval_error = ""
         alpha, first = _limit_step_trial(model, state, dq, settings)
@@ -371,7 +344,7 @@ class NewtonIteration(Iterative):
                     dq = xf[:model.nq]
             except EvaluationError:
                 pass
-        for _ in range(LINE_SEARCH_MAX + 1 if best is None else 0):
+        for _ in range(settings.limits.line_search_max + 1 if best is None else 0):
             if first is not None:      # the full (limited) step: already retracted
                 trial, first = first, None
                 trial.lam = trial.lam + alpha * dl
@@ -391,45 +364,44 @@ class NewtonIteration(Iterative):
                 break
             alpha *= 0.5
         if best is None:
-            return self._fail(s, it, Status.NONFINITE, MESSAGES[Status.NONFINITE]
+            return self._fail(s, Status.NONFINITE, MESSAGES[Status.NONFINITE]
                               + "; every trial step failed: " + eval_error)
         if s.res_ok and not best[0] < m0:
             # every equation within tolerance and no step along Newton's direction improves
             # them: the residual is at its round-off floor, the step is noise. The error is the
             # step not taken (the distance Newton still sees), not the last one taken
             nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
-            s.outcome = self._converged(s, it, max(s.cerr, nxt))
-            return Step(0)
-        s.merits.append(m0)
-        crawl = len(s.merits) > CRAWL and not m0 <= 0.5 * s.merits[-1 - CRAWL]
-        if settings.line_search and self.downhill and not s.res_ok and (
+            return Next(self._converged(s, max(s.cerr, nxt)), 0)
+        s = replace(s, merits=s.merits + (m0,))
+        cw = settings.limits.crawl_window
+        crawl = len(s.merits) > cw and not m0 <= 0.5 * s.merits[-1 - cw]
+        if settings.line_search and self.walks_down and not s.res_ok and (
                 crawl or best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
             # the merit stalls: from now on every trial is kept on the constraints (the
             # iterate first, if Newton's linearisation left them), and where the merit has a
             # valley that is no equilibrium, steps go down the potential energy instead until
             # the merit is below this one (docs/solvers.md, "Newton on mechanisms")
             if not s.robust:
-                s.robust = True
+                s = replace(s, robust=True)
                 if violation(model, ev.phi) > PROJECT_ABOVE:
-                    return self._onto(s, it, state)
+                    return self._onto(s, state)
             down = self._downhill(state, ev, dq)
             if down is not None:
-                s.stall = m0
-                s.runaway = Runaway(model, ev.r)
-                return self._down(s, it, state, down)
-        return self._take(s, it, state, (best[2], best[3], best[0], best[1]), dq)
+                return self._down(replace(s, stall=m0, runaway=Runaway(model, ev.r)), state,
+                                  down)
+        return self._take(s, state, (best[2], best[3], best[0], best[1]), dq)
 
-    def _onto(self, s, it, state):
+    def _onto(self, s, state):
         """The iterate projected back onto its constraints or, beyond their reach, the last
         iterate that was on them: the iteration's row (``reach``)."""
-        p = project(self.model, state, self.cnt, s.ev)
+        p = project(self.model, state, self.cnt, s.ev, self.settings.limits)
         if p is not None:
             p = initial_multipliers(self.model, p, self.cnt, self._merit_weights())
-            s.state, s.ev = p, self._ev_at(p)
+            s = replace(s, state=p, ev=self._ev_at(p))
         elif s.feasible is not None:
-            s.state, s.ev = s.feasible
-        s.last_step = np.inf
-        return Step(1, (self._row(s, it, np.nan, np.nan, pose=state, event="reach"),))
+            s = replace(s, state=s.feasible[0], ev=s.feasible[1])
+        s = replace(s, last_step=np.inf)
+        return Next(s, 1, (self._row(s, s.it, np.nan, np.nan, pose=state, event="reach"),))
 
     def _downhill(self, state, ev, dq):
         """:func:`~poise.solvers.downhill.downhill_step` with Newton's step limits and
@@ -439,57 +411,53 @@ class NewtonIteration(Iterative):
                              lambda st, d: _limit_step_trial(model, st, d, settings),
                              self._measure, lambda st, v: _mass_times(model, st, v), self.eps)
 
-    def _down(self, s, it, state, down):
+    def _down(self, s, state, down):
         """Accept the downhill step ``down`` (:func:`~poise.solvers.downhill.downhill_step`),
         or end Newton when the steps down have gone beyond reach (:class:`Runaway`)."""
-        row = self._take(s, it, state, down[:4], down[4], "downhill")
-        why = s.runaway.add(down[3] * down[4], down[5])
+        nxt = self._take(s, state, down[:4], down[4], "downhill")
+        runaway = copy.copy(s.runaway)           # the state's stays as it was
+        runaway.turn = runaway.turn.copy()
+        why = runaway.add(down[3] * down[4], down[5])
+        s2 = replace(nxt.state, runaway=runaway)
         if why:
-            s.outcome = FrameOutcome(Status.DIVERGED, it + 1, s.imb, s.err, why, final=True)
-        return row
+            s2 = replace(s2, outcome=FrameOutcome(Status.DIVERGED, s.it + 1, s.imb, s.err, why,
+                                                  final=True))
+        return Next(s2, nxt.spent, nxt.rows)
 
-    def _take(self, s, it, state, trial, dq, event=None):
+    def _take(self, s, state, trial, dq, event=None):
         """Accept ``trial`` = ``(state, evaluation, merit, alpha)`` reached from ``state`` by
         ``alpha * dq``: the iteration's history row."""
-        s.state, s.ev, _, alpha = trial
-        s.last_step = float(np.max(np.abs(alpha * dq) / self.sc.q_len)) if dq.size else 0.0
-        if violation(self.model, s.ev.phi) <= PROJECT_ABOVE:
-            s.feasible = (s.state, s.ev)
-        # the row of the iterate it measured (``state``), with the step taken from it
-        return Step(1, (self._row(s, it, s.last_step, alpha, pose=state, event=event),))
+        st, ev, _, alpha = trial
+        last_step = float(np.max(np.abs(alpha * dq) / self.sc.q_len)) if dq.size else 0.0
+        s2 = replace(s, state=st, ev=ev, last_step=last_step,
+                     feasible=(st, ev) if violation(self.model, ev.phi) <= PROJECT_ABOVE
+                     else s.feasible)
+        # the row of the iterate it measured (``state``: its measures), with the step taken
+        return Next(s2, 1, (self._row(s2, s.it, last_step, alpha, pose=state, event=event),))
 
 
-class _NewtonState:
-    """Newton's iteration state: the iterate, its evaluation and measures, the last step."""
+class BranchNewton(NewtonIteration):
+    """Newton as a continuation's corrector: it wants the root next to its prediction, so a
+    stalled line search ends it (no projection, no steps down the potential to another one)."""
 
-    def __init__(self, state):
-        self.state = state
-        self.ev = None
-        self.outcome = None
-        self.last_step = np.inf
-        self.imb = self.cerr = self.zinf = self.err = np.nan
-        self.worst = ""
-        self.res_ok = False
-        self.last_row = None          # the closing row (converged or why not)
-        self.stall = None             # merit where the line search stalled (downhill steps)
-        self.robust = False           # it stalled once: trials kept on the constraints
-        self.runaway = None           # the steps down since the stall (downhill.Runaway)
-        self.feasible = None          # (state, evaluation) of the last iterate on them
-        self.merits = []              # merit at each iteration (progress)
+    walks_down = False
 
 
 def newton(model, state, settings, history: History, frame: int, cnt: Counters,
            max_iter: int | None = None, event: str = "newton", equilibrate: bool = False,
-           probe=None, downhill: bool = True):
+           probe=None):
     """Newton iterations from ``state`` (:class:`NewtonIteration` run by
     :func:`~poise.solvers.iterate.iterate`, ``max_iter`` default ``max_num_iter``). Returns
     ``(state, FrameOutcome)``. ``history``: where the loop appends the rows (a
     :class:`~poise.solvers.history.History`, a stage view of one, or a list). ``probe``:
     ``probe(model, state, settings, cnt, f, x, eps, zinf) -> message`` called with the first
-    step (factorisation ``f``, step ``x``); a message ends Newton as ``no_equilibrium``.
-    ``downhill`` False: a continuation step, which wants the root next to its prediction (a
-    stalled line search ends it; no projection or steps down the potential to another one)."""
+    step (factorisation ``f``, step ``x``); a message ends Newton as ``no_equilibrium``."""
     max_iter = settings.max_num_iter if max_iter is None else max_iter
-    return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate, probe,
-                                   downhill),
+    return iterate(NewtonIteration(model, settings, frame, cnt, event, equilibrate, probe),
                    max_iter, history, state)
+
+
+def branch_newton(model, state, settings, history: History, frame: int, cnt: Counters,
+                  max_iter: int, event: str):
+    """:func:`newton` as a continuation's corrector (:class:`BranchNewton`)."""
+    return iterate(BranchNewton(model, settings, frame, cnt, event), max_iter, history, state)

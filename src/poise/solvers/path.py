@@ -26,7 +26,6 @@ from poise.solvers.stable import acceptable
 from poise.solvers.status import Status
 
 LOCATE_REL = 1e-9       # bisection width, relative to max(1, |t|)
-MIN_SUBSTEP = 2.0 ** -10   # a midpoint's sub-steps, down to this fraction of its interval
 
 
 def cached_info(ctx, state):
@@ -149,7 +148,8 @@ def _locate(ctx, step, lo, hi, hi_info, same):
     tol = LOCATE_REL * max(1.0, abs(t_hi))
     while t_hi - t_lo > tol:
         t = 0.5 * (t_lo + t_hi)
-        st, o, _ = step(model, hist, t, s, ctx.history, data, hi, MIN_SUBSTEP * (t - t_lo))
+        st, o, _ = step(model, hist, t, s, ctx.history, data, hi,
+                        s.limits.path_min_substep * (t - t_lo))
         if not o.ok:
             break
         info = classify(model, st, active=data.mask(model))

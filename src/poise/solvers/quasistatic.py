@@ -5,7 +5,7 @@
   least-squares multipliers) + Newton with the fallback chain; every later frame starts from a predictor
   extrapolated in the tangent space of the previous frame (``Model.local_difference`` /
   ``Model.retract``; linear from 2 frames, quadratic from 3) and runs Newton. A failed step is
-  retried with sub-steps (interval halved, down to ``MIN_SUBSTEP_FRACTION`` of the output
+  retried with sub-steps (interval halved, down to ``Limits.min_substep_fraction`` of the output
   interval), each sub-step solved from its own predictor; failures are recorded in
   ``iterations/event``.
 * Nothing in the scene depends on time (``Model.depends_on_time()``): one solve, the frame is
@@ -23,12 +23,11 @@ from poise.solvers import path, singular
 from poise.solvers.context import Strategy, prologue, replicate
 from poise.solvers.fallback import NO_RECOVERY, recover, solve_frame
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.newton import FrameOutcome, newton
+from poise.solvers.newton import FrameOutcome, branch_newton
 from poise.solvers.status import Status
 from poise.solvers.stability import classify
 from poise.solvers.stable import acceptable, seek_stable
 
-MIN_SUBSTEP_FRACTION = 2.0 ** -10
 PREDICT_SPACING = 1e-2    # extrapolation nodes closer than this fraction of the step: dropped
 MAX_PATH_STEP = 0.25      # predicted motion per step at most (translations / L, rotations in rad)
 JUMP_RATIO = 1.0          # correction / predicted step above this: a suspected jump (sub-step)
@@ -36,9 +35,6 @@ JUMP_RATIO_SUB = 3.0      # ... on sub-steps <= JUMP_SUB of the interval (a kink
 JUMP_SUB = 1.0 / 8.0
 JUMP_FLOOR = 10.0         # x max_error: a correction this small is never a jump
 JUMP_SHRINK = 0.6         # ... nor one that shrank this much when the sub-step was halved
-SUBSTEP_MAX_ITER = 15     # Newton iterations of a continuation step (at most max_num_iter)
-PROBE_MAX_ITER = 8        # ... of a bisection probe locating where a branch ends
-RETURN_MAX_ITER = 30      # ... of the return test next to a singular point (Newton is slow there)
 LOCATE_REL = 1e-7         # bisection width, relative to max(1, |t|) (then the fold law)
 
 
@@ -217,16 +213,16 @@ class BranchPath:
         """Next to a singular configuration (:meth:`~poise.solvers.singular.Orientation.near`)
         branches meet, and neither the distance nor the orientation tells them apart: the step
         must come back. Newton at the last state's time from ``st`` (at most
-        ``RETURN_MAX_ITER`` iterations) must land on the last state (within ``JUMP_FLOOR`` x
+        ``Limits.return_max_iter`` iterations) must land on the last state (within ``JUMP_FLOOR`` x
         ``max_error``) when it converges; from the mirrored branch it lands on its mirror."""
         if self.history is None or not self.orient.near():
             return ""
         last = self.hist[-1]
         back = st.copy()
         back.t = last.t
-        b, out = newton(self.model, back, self.settings, self.history, self.frame, self.data,
-                        max_iter=min(self.settings.max_num_iter, RETURN_MAX_ITER),
-                        event="return", downhill=False)
+        b, out = branch_newton(self.model, back, self.settings, self.history, self.frame,
+                               self.data, min(self.settings.max_num_iter,
+                                              self.settings.limits.return_max_iter), "return")
         if not out.ok:          # inconclusive (Newton is slow next to a fold): no verdict
             return ""
         d = distance(self.model, b, last)
@@ -259,7 +255,7 @@ class BranchPath:
 
     def locate(self, history, frame, t_hi):
         """Bisection of ``(last accepted time, t_hi]`` for where the branch ends, to
-        ``LOCATE_REL``. A probe is Newton (at most ``PROBE_MAX_ITER`` iterations, continuity
+        ``LOCATE_REL``. A probe is Newton (at most ``Limits.probe_max_iter`` iterations, continuity
         tested) from the prediction, and when that stops at once or lands off the branch, from
         the last state reached (next to a fold the extrapolation lands where the Jacobian is
         singular, or past a turning point of the drive on the other branch). After the first probe that goes on, one probe at
@@ -280,8 +276,8 @@ class BranchPath:
             last.t = t
             ok = False
             for start in (pred, last):
-                st, out = newton(self.model, start, self.settings, history, frame, self.data,
-                                 max_iter=PROBE_MAX_ITER, event="locate", downhill=False)
+                st, out = branch_newton(self.model, start, self.settings, history, frame,
+                                        self.data, self.settings.limits.probe_max_iter, "locate")
                 its += out.iterations
                 ok = out.ok and not self.jump(start, st, known and start is pred, probe=True)
                 if ok or (not out.ok and out.iterations > 2):   # no second start when Newton
@@ -321,7 +317,7 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
     t_prev = frames[-1].t
     dt = t_target - t_prev
     n_sub = total_it = 0
-    max_iter = min(settings.max_num_iter, SUBSTEP_MAX_ITER)
+    max_iter = min(settings.max_num_iter, settings.limits.substep_max_iter)
     ended = False                       # the branch's end was looked for (not singular)
     while True:
         t = t_prev + dt
@@ -333,8 +329,8 @@ def fims_step(model, frames, t_target, settings, history, counters, frame, min_d
             n_sub += 1
             continue
         full = n_sub == 0 and t == t_target
-        st, out = newton(model, pred, settings, history, frame, counters, max_iter=max_iter,
-                         event="newton" if full else "substep", downhill=False)
+        st, out = branch_newton(model, pred, settings, history, frame, counters, max_iter,
+                                "newton" if full else "substep")
         total_it += out.iterations
         why = branch.jump(pred, st, known) if out.ok else out.status.value
         if not why:
@@ -441,7 +437,7 @@ class NewtonFrames(Strategy):
 
     def step(self, ctx):
         k, ts = len(ctx.frames), ctx.times
-        min_dt = MIN_SUBSTEP_FRACTION * (ts[k] - ts[k - 1])
+        min_dt = ctx.settings.limits.min_substep_fraction * (ts[k] - ts[k - 1])
         if getattr(self, "orient", None) is None:
             self.orient = singular.Orientation(ctx.model, ctx.data)
         st, o, nsub = fims_step(ctx.model, ctx.frames, float(ts[k]), ctx.settings, ctx.history,

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 from poise.elements.rotation import expm_so3, wrap_angle
 from poise.solvers.iterate import Next, Solver, iterate
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
+from poise.solvers.limits import LIMITS
 from poise.solvers.status import Status
 
 CONSTRAINT_TOL = 1e-11       # relative position-constraint tolerance in the RATTLE solve
@@ -93,7 +93,7 @@ class Dynamics:
         ix = np.setdiff1d(self.m.extra_idx, self.x_idx)
         if not len(ix):
             return ev
-        extra, ev, status = iterate(AlgebraicSolve(self, state, ix), LIMITS.algebraic_iter,
+        extra, ev, status = iterate(AlgebraicSolve(self, state, ix), LIMITS.extras_max_iter,
                                     (), ev)
         if status is Status.SINGULAR_JACOBIAN:
             self.extras_free = True
@@ -263,7 +263,7 @@ def rattle_step(dyn, a: RattlePoint, h):
     lam = a.lam.copy() if a.lam is not None else np.zeros(m.nc)
     if m.nc:
         lam, state1, status = iterate(ConstraintSolve(dyn, a, h, p_half),
-                                      LIMITS.rattle_constraint_iter, (), lam)
+                                      LIMITS.rattle_max_iter, (), lam)
         if not status.ok:
             return None
         p_half = p_half - 0.5 * h * (a.G.T @ lam)

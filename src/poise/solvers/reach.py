@@ -3,7 +3,7 @@
 The weighted KKT system ``[[W, G^T], [G, 0]]`` (``W`` the squared coordinate scales) gives the
 smallest move (lengths, rotations weighted by the body's size) that corrects the constraint
 values to first order; iterated, it is Gauss-Newton on ``Phi(q) = 0``. It assembles an input
-onto its constraints (:class:`~poise.solvers.newton.Assembly`) and keeps Newton's trial points
+onto its constraints (:class:`Assembly`) and keeps Newton's trial points
 where the loop can close (:func:`project`): a trial Newton's linearised constraints put far off
 the constraints (a slider-crank's slider pushed past ``r + l``) is brought back onto them, and
 one whose Gauss-Newton stops converging lies beyond the assembly's reach, so Newton shortens
@@ -11,15 +11,21 @@ its step instead of iterating from an unassemblable point. Details: docs/solvers
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.solvers.history import Row
+from poise.solvers.iterate import Next, Solver, iterate
+from poise.solvers.limits import LIMITS, Limits
 from poise.solvers.linalg import SingularMatrix
+from poise.solvers.status import Status
 
 PROJECT_ABOVE = 1e-3     # a Newton trial violating its constraints by more (x L, rad) is projected
 PROJECT_TOL = 1e-10      # projection accuracy (x L, rad), that of the input's assembly
-PROJECT_MAX_ITER = 12
 PROJECT_RATE = 0.5       # Gauss-Newton must at least halve the violation per iteration
+ASSEMBLY_TOL = 1e-10     # relative constraint violation after assembly
 
 
 def weighted_kkt(model, ev, W):
@@ -52,15 +58,15 @@ def violation(model, phi) -> float:
     return float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L)))
 
 
-def project(model, state, cnt, ev=None):
+def project(model, state, cnt, ev=None, limits: Limits = LIMITS):
     """``state`` moved onto its active constraints by least-change Gauss-Newton, or None when
     that does not converge at ``PROJECT_RATE`` (the constraints cannot be met near it: beyond
     the assembly's reach, or a singular configuration). ``ev``: an evaluation at ``state``
-    (saves one). Evaluations and factorisations are counted in ``cnt``."""
+    (saves one); at most ``limits.project_max_iter`` steps. Evaluations and factorisations are counted in ``cnt``."""
     W = coord_weights(model)
     prev = np.inf
     try:
-        for _ in range(PROJECT_MAX_ITER + 1):
+        for _ in range(limits.project_max_iter + 1):
             if ev is None:
                 ev = cnt.evaluate(model, state, "defer")
             v = violation(model, ev.phi)
@@ -79,3 +85,71 @@ def project(model, state, cnt, ev=None):
     except (SingularMatrix, EvaluationError):
         return None
     return None
+
+
+def assemble(model, state, settings, history, frame: int, cnt):
+    """Least-change projection onto the constraints (Gauss-Newton on the KKT system,
+    :class:`Assembly` run by :func:`~poise.solvers.iterate.iterate` within
+    ``Limits.assembly_max_iter`` steps).
+
+    Returns ``(state, assembled: bool, status)``; ``assembled`` says whether anything moved.
+    """
+    if model.nc == 0:
+        return state, False, Status.CONVERGED
+    return iterate(Assembly(model, settings, frame, cnt), settings.limits.assembly_max_iter,
+                   history, state)
+
+
+@dataclass(frozen=True)
+class _Assembling:
+    """:class:`Assembly`'s state: the configuration, its evaluation and violation ``v``."""
+
+    state: object
+    ev: object
+    v: float
+    it: int = 0
+    moved: bool = False
+    status: Status | None = None
+
+
+class Assembly(Solver[_Assembling]):
+    """:func:`assemble` as a :class:`~poise.solvers.iterate.Solver`: ``step`` is one weighted
+    least-change Gauss-Newton step and its ``assembly`` history row; each configuration is
+    evaluated (and its violation measured) where it is made, so ``terminate`` only reads."""
+
+    out_of_budget = Status.ASSEMBLY_FAILED
+
+    def __init__(self, model, settings, frame, cnt):
+        self.model, self.frame, self.cnt = model, frame, cnt
+        self.q_len = np.where(model.q_kind == 0, model.L, 1.0)   # trans / L, rad, scalars
+        self.W = coord_weights(model)
+
+    def _at(self, state, it, moved):
+        model = self.model
+        ev = self.cnt.evaluate(model, state, "defer")   # Jacobian only if violated
+        v = float((np.abs(ev.phi) / np.where(model.row_kind == 1, 1.0, model.L)).max())
+        return _Assembling(state, ev, v, it, moved, Status.CONVERGED if v <= ASSEMBLY_TOL else None)
+
+    def init(self, state):
+        return self._at(state, 0, False)
+
+    def terminate(self, s):
+        return s.status is not None, s.status
+
+    def postprocess(self, s, status, used):
+        return s.state, s.moved, status
+
+    def step(self, s, left):
+        model, ev = self.model, s.ev
+        self.cnt.jacobian(model, ev)
+        K = weighted_kkt(model, ev, self.W)
+        try:
+            x = self.cnt.factor(K).solve(np.concatenate([np.zeros(model.nq), -ev.phi]))
+        except SingularMatrix:
+            return Next(replace(s, status=Status.ASSEMBLY_FAILED), 0)
+        dq = x[:model.nq]
+        prev = s.state                    # the row's pose: the configuration it measured
+        sn = float(np.max(np.abs(dq) / self.q_len))
+        row = Row(self.frame, s.it, float(np.max(np.abs(ev.r))) if ev.r.size else 0.0, s.v, sn,
+                  1.0, "", "assembly", pos=prev.pos, rot=prev.rot)
+        return Next(self._at(model.retract(prev, dq), s.it + 1, True), 1, (row,))

@@ -28,8 +28,8 @@ from poise.solvers.history import Row
 from poise.solvers.iterate import Next, Solver, iterate
 from poise.solvers.ke_peak import KeIteration
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
-from poise.solvers.newton import assemble, initial_multipliers
+from poise.solvers.newton import initial_multipliers
+from poise.solvers.reach import assemble
 from poise.solvers.rattle import Dynamics
 from poise.solvers.record import MkeamRun
 from poise.solvers.stability import classify
@@ -75,9 +75,10 @@ class Relaxation(Solver):
     def __init__(self, model, settings, history, data, units=None):
         self.model = model
         # units of work (integration and descent steps): the fallback chain's share, else
-        # LIMITS.mkeam_total_steps; ``used``: spent so far
+        # limits.max_total_steps; ``used``: spent so far
         self.limited = units is not None
-        cap = LIMITS.mkeam_total_steps
+        self.limits = settings.limits
+        cap = self.limits.max_total_steps
         self.units, self.used = max(1, min(int(units or cap), cap)), 0
         self.settings = settings
         self.history = history
@@ -174,7 +175,7 @@ class Relaxation(Solver):
         ix = np.setdiff1d(m.extra_idx, self.dyn.x_idx)    # curve parameters move with RATTLE
         if not len(ix):
             return state, False
-        return iterate(HeldExtras(m, self.settings, self.counters, ix), LIMITS.algebraic_iter,
+        return iterate(HeldExtras(m, self.settings, self.counters, ix), self.limits.extras_max_iter,
                        (), state)
 
     def _integrate(self, state, h, budget, origin):
@@ -221,9 +222,9 @@ class Relaxation(Solver):
                 f"MKEAM used its integration budget ({self.units} steps) in "
                 f"{plural(it - 1, 'iteration')} without meeting max_ke_tol / max_dq_tol"),
                 it - 1)), 0)
-        cap = LIMITS.mkeam_steps_per_iter
+        cap = self.limits.max_steps_per_iter
         if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
-            cap = LIMITS.handover_cap     # a large model: restart early, then hand over
+            cap = self.limits.handover_cap     # a large model: restart early, then hand over
         if it <= HANDOVER_ITER and self.limited and not m.n_extra:
             cap = max(1, min(cap, self.units // 4))   # leave the hand-over most of it
         origin = s.iterates[0][0]
@@ -254,7 +255,7 @@ class Relaxation(Solver):
         lam_state = initial_multipliers(m, new, self.counters)
         wmin, vec = self.projected_stiffness_min(lam_state)
         if wmin is not None and vec is not None and wmin < -1e-6 \
-                and s.perturbs < LIMITS.mkeam_perturbs:
+                and s.perturbs < self.limits.max_perturb:
             vs = vec * m.q_scale
             kick = PERTURB * m.L / max(float(np.max(np.abs(vs))), 1e-300)
             kicked = m.retract(new, kick * vec)
@@ -286,7 +287,7 @@ class Relaxation(Solver):
         MKEAM iterations continue from ``state`` as if nothing happened)."""
         m, s = self.model, self.settings
         s_any = replace(s, allow_neutral=True)
-        budget = LIMITS.handover_steps * s.max_num_iter
+        budget = self.limits.handover_steps * s.max_num_iter
         if self.limited:   # the descent gets half the units left, its polishes and escapes half
             left = max(0, self.units - used)
             budget = left // 2
@@ -317,7 +318,7 @@ class Relaxation(Solver):
             left = max(0, self.units - used)
             if left <= 0:
                 return None, used
-            land = self._integrate(st, h, min(LIMITS.mkeam_steps_per_iter, left),
+            land = self._integrate(st, h, min(self.limits.max_steps_per_iter, left),
                                    origin)
             used += land.steps
             ke, dq = land.point.ke, self.max_dq(st, land.point.state)

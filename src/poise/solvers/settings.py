@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields, replace
+from typing import ClassVar
 
 from poise.core.errors import UnknownOptionError
 from poise.deck.schema import element_schema
 from poise.solvers.compliance import parse_markers
+from poise.solvers.limits import LIMITS, Limits
 
 #: The ``Param_Static`` row of the deck schema: attribute name -> its declaration
 PARAM_STATIC = dict(element_schema("Param_Static").attrs)
@@ -96,6 +98,9 @@ class StaticSettings:
     fallback_max_num_iter: int | None = None
     require_stable: bool = False
     allow_neutral: bool = True
+    #: the internal iteration caps (:mod:`poise.solvers.limits`): poise's own, not deck
+    #: settings, so not a field (not written, not an override name)
+    limits: ClassVar[Limits] = LIMITS
 
     def __post_init__(self):
         choices = PARAM_STATIC["method"].choices

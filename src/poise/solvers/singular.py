@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poise.solvers.limits import LIMITS
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.stability import DENSE_LIMIT, classify, describe_mode
 from poise.solvers.status import Status
@@ -25,7 +26,6 @@ DROP = 0.05          # a measure this fraction of its value on the path before: 
 NEAR = 0.3           # ... this fraction: approaching a singularity (worth locating)
 NEAR_HISTORY = 6     # accepted states whose measure the current one is compared with
 SHARE_MIN = 0.05     # constraints with this share of the largest share of the self-stress named
-INVERSE_STEPS = 12   # inverse iterations for the smallest singular value (large models)
 KINDS = {"dead_point": "at a dead point (the constraint equations lose rank: a toggle, a dead "
                        "centre or a motion beyond the linkage's reach)",
          "limit_point": "at a limit point (the reduced stiffness reaches zero: the load cannot "
@@ -212,7 +212,7 @@ def _smallest_sparse(A):
         lu = spla.splu(M)
     except RuntimeError:                    # exactly singular
         return 0.0, x
-    for _ in range(INVERSE_STEPS):
+    for _ in range(LIMITS.inverse_steps):
         y = lu.solve(x)
         n = float(np.linalg.norm(y))
         if not np.isfinite(n) or n == 0.0:

@@ -5,8 +5,8 @@ inertia-controlled Newton descent (:func:`~poise.solvers.descent.descend`) first
 Newton started from (the rest position downhill from the input), then, if that does not end
 stable, leaves Newton's equilibrium along its unstable modes (escape: the trial of lowest
 energy, both signs, shrinking) and descends again (unstable end point -> escape again). Every
-escape and descent step is a history row; past the budget (``stable_steps_per_iter x
-max_num_iter`` steps, ``stable_escapes`` escapes: :mod:`~poise.solvers.method_limits`) the
+escape and descent step is a history row; past the budget (``descent_steps_per_iter x
+max_num_iter`` steps, ``max_escapes`` escapes: :mod:`~poise.solvers.limits`) the
 analysis fails with status ``unstable``.
 """
 from __future__ import annotations
@@ -22,9 +22,9 @@ from poise.solvers.energy import potential_energy
 from poise.solvers.history import Row
 from poise.solvers.iterate import Next, Solver, iterate
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
 from poise.solvers.descent import descend, energy_drop
-from poise.solvers.newton import FrameOutcome, assemble, initial_multipliers
+from poise.solvers.newton import FrameOutcome, initial_multipliers
+from poise.solvers.reach import assemble
 from poise.solvers.stability import unknown_info
 from poise.solvers.status import Status
 from poise.solvers.trials import project
@@ -97,8 +97,8 @@ class Seeking:
 class Escapes(Solver):
     """From the unstable equilibrium ``state`` (classification ``info``) to a stable one:
     the descent from the input first (when given), then escapes along the unstable modes,
-    each followed by a descent (:func:`descend`). Budget: ``LIMITS.stable_escapes`` escapes,
-    and ``LIMITS.stable_steps_per_iter`` x max_num_iter descent steps in all. Result:
+    each followed by a descent (:func:`descend`). Budget: ``limits.max_escapes`` escapes,
+    and ``limits.descent_steps_per_iter`` x max_num_iter descent steps in all. Result:
     ``(state, outcome, info, note)`` (:func:`seek_stable`)."""
 
     out_of_budget = Status.UNSTABLE
@@ -106,7 +106,8 @@ class Escapes(Solver):
     def __init__(self, model, settings, frame, cnt, classify_at):
         self.model, self.settings, self.frame, self.cnt = model, settings, frame, cnt
         self.classify_at = classify_at
-        self.budget = LIMITS.stable_steps_per_iter * settings.max_num_iter
+        self.limits = settings.limits
+        self.budget = self.limits.descent_steps_per_iter * settings.max_num_iter
 
     def init(self, state, info, start):
         pe = potential_energy(self.model, state) if start is None else np.nan
@@ -173,7 +174,7 @@ class Escapes(Solver):
         if out is None:
             reason = why[0] if why else (f"the descent did not reach an equilibrium within its "
                                          f"budget ({self.budget} = "
-                                         f"{LIMITS.stable_steps_per_iter} x max_num_iter "
+                                         f"{self.limits.descent_steps_per_iter} x max_num_iter "
                                          "steps)")
             return Next(replace(s, end=(state, _fail(used, reason + _zero_modes_at(
                 self.classify_at, state)), unknown_info(
@@ -227,7 +228,7 @@ class Escapes(Solver):
         return s.state, _fail(n, f"still unstable ({plural(info.n_negative, 'negative mode')}) "
                               f"after {plural(s.escapes, 'escape')} and "
                               f"{plural(n, 'descent step')} (budget "
-                              f"{self.budget} = {LIMITS.stable_steps_per_iter} x "
+                              f"{self.budget} = {self.limits.descent_steps_per_iter} x "
                               "max_num_iter)"), info, ""
 
 
@@ -245,7 +246,8 @@ def seek_stable(model, state, settings, history, frame, cnt, info, classify_at, 
     model in a shape far from any minimum (a chain released as a V converges to a kinked V;
     the descent from there is several times longer: docs/mkeam.md). If that does not end at an
     acceptable equilibrium, Newton's point is left along its unstable modes."""
-    return iterate(Escapes(model, settings, frame, cnt, classify_at), LIMITS.stable_escapes,
+    return iterate(Escapes(model, settings, frame, cnt, classify_at),
+                   settings.limits.max_escapes,
                    history, state, info, start)
 
 

@@ -21,7 +21,7 @@ def limit_step(model, state, dq, settings):
     ``max_translation_step * L`` nor rotates more than ``max_rotation_step``, and the
     configuration it accepted: ``(factor, retract(state, factor * dq))``, or ``(factor, None)``
     when the last retraction tried another factor. The line search starts from that
-    configuration instead of retracting again."""
+    configuration instead of retracting again (at most ``limits.limit_step_tries`` retractions)."""
     fac = 1.0
     if len(model.rot_idx):
         r = dq[model.rot_idx].reshape(-1, 3)
@@ -29,7 +29,7 @@ def limit_step(model, state, dq, settings):
         if mr > settings.max_rotation_step:
             fac = settings.max_rotation_step / mr
     lim = settings.max_translation_step * model.L
-    for _ in range(4):
+    for _ in range(settings.limits.limit_step_tries):
         trial = model.retract(state, fac * dq)
         disp = float(np.max(np.linalg.norm(trial.pos - state.pos, axis=1))) if model.nb else 0.0
         if disp <= lim * 1.0001:

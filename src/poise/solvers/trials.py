@@ -16,7 +16,7 @@ import numpy as np
 
 from poise.solvers.iterate import Next, Solver, iterate
 from poise.solvers.linalg import SingularMatrix
-from poise.solvers.method_limits import METHOD_LIMITS as LIMITS
+from poise.solvers.limits import LIMITS
 from poise.solvers.reach import coord_weights, weighted_kkt
 from poise.solvers.status import Status
 
@@ -112,7 +112,7 @@ class Projector:
         self.phi = np.zeros(m.nc) if m.nc == 0 else None
         if m.nc == 0:
             return x, True
-        end = iterate(Projection(self, tol), LIMITS.project_iter, (), x)
+        end = iterate(Projection(self, tol), LIMITS.trial_project_max_iter, (), x)
         self.op, self.err = end.op, end.err
         if end.phi is not None:
             self.phi = end.phi
@@ -152,7 +152,7 @@ class Projecting:
 
 class Projection(Solver):
     """One trial's projection (:class:`Projector`): corrections by the held operator,
-    refreshed at most ``LIMITS.project_refresh`` times. Budget: correction iterations.
+    refreshed at most ``LIMITS.trial_max_refresh`` times. Budget: correction iterations.
     Result: the last :class:`Projecting`."""
 
     def __init__(self, proj, tol):
@@ -177,7 +177,7 @@ class Projection(Solver):
             return Next(replace(s, done=Status.DIVERGED))   # diverging after a fresh factor
         op, refreshed, fresh = s.op, s.refreshed, False
         if op is None or err > STEP_CHORD_RATE * s.prev:
-            if refreshed == LIMITS.project_refresh:
+            if refreshed == LIMITS.trial_max_refresh:
                 return Next(replace(s, done=Status.MAX_ITERATIONS))
             if err > s.prev:             # back to the better point
                 x, phi, err = s.last, s.last_phi, s.prev
