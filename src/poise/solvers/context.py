@@ -213,9 +213,7 @@ class Context:
     ``arrays``); ``data``: active rows and counters; ``redundancy``: redundant rows (None until
     detected; detection runs once per model and is handed on to later analyses); ``frames`` /
     ``outcomes``: the solved frames; ``times``: the output times; ``notes``: message parts;
-    ``progress``: ``progress(label, done, total)`` or None (``done`` None: finished);
-    ``infos``: classifications made during the solve (:mod:`poise.solvers.path`), reused by
-    the output.
+    ``progress``: ``progress(label, done, total)`` or None (``done`` None: finished).
     """
 
     model: Any
@@ -232,7 +230,6 @@ class Context:
     time_independent: bool = False
     progress: Callable | None = None
     start: Any = None        # frame 0's assembled input (require_stable descends from it)
-    infos: dict = field(default_factory=dict)   # id(state) -> (state, StabilityInfo) classified
 
     @property
     def kind(self) -> str:
@@ -292,14 +289,3 @@ def prologue(ctx: Context, state, multipliers: bool = True):
     if multipliers:
         state = initial_multipliers(model, state, ctx.data)
     return state, None
-
-
-def replicate(ctx: Context) -> None:
-    """Nothing in the scene depends on time: frame 0 stands for every output time."""
-    state, out = ctx.frames[0], ctx.outcomes[0]
-    ctx.notes.append("nothing in the scene depends on time: solved once, frame replicated")
-    for t in ctx.times[1:]:
-        st = state.copy()
-        st.t = float(t)
-        ctx.frames.append(st)
-        ctx.outcomes.append(FrameOutcome(out.status, 0, out.imbalance, out.error, "replicated"))

@@ -38,6 +38,8 @@ class SolveData:
         # (state, StabilityInfo): a solution the solve has classified already (the output
         # reuses it for that very state object instead of classifying it again)
         self.classified = None
+        # id(state) -> (state, StabilityInfo): the frames a path check classified (solvers/path)
+        self.infos = {}
 
     @classmethod
     def for_model(cls, model, redundancy=()) -> "SolveData":

@@ -1,13 +1,16 @@
-"""One solver driver for every analysis: context, strategy loop, one typed record.
+"""One solver driver for every analysis: the strategy run by the one loop, one typed record.
 
-A static analysis is a quasi-static one with one frame. :class:`Driver` builds the
-:class:`~poise.solvers.context.Context` (model, per-solve data, settings, history, counters),
-runs the strategy :data:`METHODS` maps the request to (``init``, ``step`` until
-``terminate``, ``postprocess``: :class:`~poise.solvers.context.Strategy`) and builds the one
-record (:func:`build_result`: measurement and certification of the frames, the verdict, the
-compliance matrices, explicit steps; :mod:`poise.results.layout` writes the record). Every frame a strategy solves by Newton gets the fallback chain
-(:func:`poise.solvers.fallback.solve_frame`). An element that cannot be evaluated ends the
-analysis as a ``nonfinite`` frame, never an exception.
+A static analysis is a quasi-static one with one frame. :class:`Driver` builds what the
+analysis runs with (:class:`~poise.solvers.context.Env`: model, settings, the per-solve data,
+the history) and runs the strategy :data:`METHODS` maps the request to, an
+:class:`~poise.solvers.context.AnalysisSolver`, by :func:`~poise.solvers.iterate.iterate`
+over the output times (frozen :class:`~poise.solvers.context.Analysis` states; the loop
+appends every history row). Then it builds the one record (:func:`build_result`: measurement
+and certification of the frames, the verdict, the compliance matrices, explicit steps;
+:mod:`poise.results.layout` writes the record). Every frame a strategy solves by Newton gets
+the fallback chain (:func:`poise.solvers.fallback.solve_frame`). An element that cannot be
+evaluated ends the analysis as a ``nonfinite`` frame, never an exception. A strategy still on
+the older :class:`~poise.solvers.context.Strategy` contract runs in the driver's own loop.
 """
 from __future__ import annotations
 

@@ -62,7 +62,8 @@ def measure_frame(ctx, state, outcomes) -> FrameSet:
     except EvaluationError:
         loads = {}
     done = ctx.data.classified
-    known = done[1] if done is not None and done[0] is state else cached_info(ctx, state)
+    known = (done[1] if done is not None and done[0] is state
+             else cached_info(ctx.data, state))
     if known is not None and (len(outcomes) == 1 or all(o.ok for o in outcomes)):
         # classified by the solve: also an equilibrium --require-stable refused (neutral),
         # or a path's located end
@@ -187,7 +188,7 @@ def measure_frames(ctx, frames, outcomes) -> FrameSet | None:
                 loads.setdefault(g, []).append((Fg.reshape(-1, n_out, 3),
                                                 Tg.reshape(-1, n_out, 3)))
             ok = np.array([o.ok for o in outcomes[a:a + C]])
-            got = [cached_info(ctx, st) for st in chunk]    # classified by the solve (also
+            got = [cached_info(ctx.data, st) for st in chunk]    # classified by the solve (also
             if all(g is not None for g, k in zip(got, ok) if k):   # a path's located end)
                 infos += [g if g is not None else unknown_info() for g in got]
             elif model.nq <= DENSE_LIMIT:

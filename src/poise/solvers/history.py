@@ -214,3 +214,17 @@ class Staged(_Rows):
 
     def stage(self, name: str) -> "Staged":
         return Staged(self.base, name)
+
+
+class Buffer(_Rows):
+    """Rows collected in order (``rows``) for a solver's step to hand to the loop: the nested
+    loops of the step append here, the step returns ``tuple(buffer.rows)``."""
+
+    def __init__(self):
+        self.rows: list[Row] = []
+
+    def __len__(self):
+        return len(self.rows)
+
+    def append(self, row: Row) -> None:
+        self.rows.append(row)

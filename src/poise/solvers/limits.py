@@ -47,6 +47,13 @@ class Limits:
     min_substep_fraction: float = 2.0 ** -10
     #: the same for the midpoint re-solves of the path check (solvers/path.py)
     path_min_substep: float = 2.0 ** -10
+    #: bisection probes locating where a branch ends (each halves the bracket: 100 reach
+    #: any ``LOCATE_REL`` in double precision, so it never cuts a bisection short)
+    locate_max_probes: int = 100
+    #: sub-steps of one continuation step (each forward sub-step is at least
+    #: ``min_substep_fraction`` of the interval, halvings between): never reached by a path
+    #: that sub-steps as designed; reached, the step fails as ``step_too_small``
+    max_substeps: int = 8192
     #: inverse iterations for the smallest singular value of a large model's Jacobian
     #: (solvers/singular.py): converged to the few digits a diagnosis needs
     inverse_steps: int = 12

@@ -12,15 +12,20 @@ output reuses: :func:`classify_frames`). Two events end the path where they happ
 
 The time is located by bisection between the two frames, each midpoint solved by continuation
 from the frame before (:func:`~poise.solvers.quasistatic.fims_step`) and classified; the frames
-after the event are dropped and the state just past it is the last frame.
+after the event are dropped and the state just past it is the last frame. :func:`check` gives
+the new :class:`~poise.solvers.context.Analysis` and the row it ends with (the strategy's last
+step returns it to the loop).
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
 from poise.model.evaluate import evaluate
 from poise.model.frame_batch import batchable, chunk_size
 from poise.solvers import singular
+from poise.solvers.history import Row
 from poise.solvers.stability import DENSE_LIMIT, classify, classify_dense_frames
 from poise.solvers.stable import acceptable
 from poise.solvers.status import Status
@@ -28,66 +33,66 @@ from poise.solvers.status import Status
 LOCATE_REL = 1e-9       # bisection width, relative to max(1, |t|)
 
 
-def cached_info(ctx, state):
-    """The classification of ``state`` made during the solve, or None."""
-    got = ctx.infos.get(id(state))
+def cached_info(data, state):
+    """The classification of ``state`` made during the solve (``data.infos``), or None."""
+    got = data.infos.get(id(state))
     return got[1] if got is not None and got[0] is state else None
 
 
-def classify_frames(ctx, frames) -> list:
+def classify_frames(model, data, frames) -> list:
     """Classify ``frames`` (converged states) with the solve's active rows, all at once where
-    the model allows it; the results are cached on ``ctx`` for the output."""
-    model = ctx.model
-    saved = ctx.data.mask(model)
-    todo = [st for st in frames if cached_info(ctx, st) is None]
+    the model allows it; the results are cached in the per-solve ``data`` for the output."""
+    saved = data.mask(model)
+    todo = [st for st in frames if cached_info(data, st) is None]
     if todo and model.nq <= DENSE_LIMIT and batchable(model):
         C = chunk_size(model)
         for a in range(0, len(todo), C):
             chunk = todo[a:a + C]
             for st, info in zip(chunk, classify_dense_frames(
                     model, evaluate(model, chunk, "jacobian").J, saved)):
-                ctx.infos[id(st)] = (st, info)
+                data.infos[id(st)] = (st, info)
     for st in todo:
-        if cached_info(ctx, st) is None:
-            ctx.infos[id(st)] = (st, classify(model, st, active=saved))
-    return [cached_info(ctx, st) for st in frames]
+        if cached_info(data, st) is None:
+            data.infos[id(st)] = (st, classify(model, st, active=saved))
+    return [cached_info(data, st) for st in frames]
 
 
-def check(ctx, step) -> None:
-    """Apply the module's two rules to ``ctx.frames`` (in place): classify the converged
-    frames, find the first event, locate it and end the path there. ``step``: the
-    continuation step, :func:`~poise.solvers.quasistatic.fims_step`'s signature."""
-    frames, outcomes, s = ctx.frames, ctx.outcomes, ctx.settings
+def check(env, a, step):
+    """Apply the module's two rules to the frames of the analysis ``a``: classify the
+    converged frames, find the first event, locate it and end the path there. ``step``: the
+    continuation step, :func:`~poise.solvers.quasistatic.fims_step`'s signature. Returns
+    ``(analysis, rows)``."""
+    frames, outcomes, s = list(a.frames), list(a.outcomes), env.settings
     n = next((k for k, o in enumerate(outcomes) if not o.ok), len(outcomes))
-    if n == 0 or (ctx.time_independent and not s.require_stable):
-        return
-    infos = classify_frames(ctx, frames[:n] if not ctx.time_independent else frames[:1])
+    if n == 0 or (a.time_independent and not s.require_stable):
+        return a, ()
+    infos = classify_frames(env.model, env.data,
+                            frames[:n] if not a.time_independent else frames[:1])
     prev, start = None, 0
     while True:
         event = _first_event(infos, s, prev, start)
         if event is None:
-            return
+            return a, ()
         k, kind, prev = event
         if k == 0:               # --require-stable and the start is not stable enough
-            outcomes[0].status = Status.UNSTABLE
-            outcomes[0].message = (f"no stable equilibrium reached (--require-stable): the "
-                                   f"start of the path is {infos[0].klass}")
-            del frames[1:], outcomes[1:]
-            return
+            first = replace(outcomes[0], status=Status.UNSTABLE, message=(
+                f"no stable equilibrium reached (--require-stable): the start of the path is "
+                f"{infos[0].klass}"))
+            return replace(a, frames=a.frames[:1], outcomes=(first,)), ()
         lo = k - 1 if kind == "unstable" else prev
         if kind == "unstable":
             same = lambda i: acceptable(i, s)                                       # noqa: E731
         else:
             same = lambda i, n0=infos[lo].n_negative: (i.klass != "unknown"          # noqa: E731
                                                       and i.n_negative == n0)
-        st, info, t = _locate(ctx, step, lo, k, infos[k], same)
+        st, info, t = _locate(env, frames, step, lo, k, infos[k], same)
         crossed = _crossed(info, infos[lo], infos[k])
         if kind == "unstable" or crossed:
             break
         prev, start = k, k + 1   # the stiffness jumped (a discontinuous load): no singular point
     del frames[lo + 1:], outcomes[lo + 1:]
-    ctx.history.drop_frames_after(lo)
-    ctx.infos[id(st)] = (st, info)
+    env.history.drop_frames_after(lo)
+    env.data.infos[id(st)] = (st, info)
     where = singular.SingularInfo(t, "bifurcation", (), _mode(info, infos[lo]))
     if kind == "unstable":
         modes = "; ".join(m.text(short=True) for m in info.mode_list)
@@ -98,9 +103,8 @@ def check(ctx, step) -> None:
             {}, "plain", where=where if crossed else None)
     else:
         out = singular.singular_outcome(where, 0)
-    ctx.history.add(len(frames), 0, np.nan, np.nan, np.nan, np.nan, out.message, "singular")
-    frames.append(st)
-    outcomes.append(out)
+    row = Row(len(frames), 0, np.nan, np.nan, np.nan, np.nan, out.message, "singular")
+    return replace(a, frames=(*frames, st), outcomes=(*outcomes, out)), (row,)
 
 
 def _first_event(infos, s, prev, start):
@@ -136,19 +140,18 @@ def _mode(a, b) -> str:
     return ms[0].text(short=True) if ms else ""
 
 
-def _locate(ctx, step, lo, hi, hi_info, same):
-    """Bisection between frames ``lo`` (``same`` holds) and ``hi`` (it does not): each midpoint
-    solved by continuation (``step``) from the states before and classified. Returns the first
-    state found past the event, its classification and the located time."""
-    model, s, data = ctx.model, ctx.settings, ctx.data
-    frames = ctx.frames
+def _locate(env, frames, step, lo, hi, hi_info, same):
+    """Bisection between ``frames`` ``lo`` (``same`` holds) and ``hi`` (it does not): each
+    midpoint solved by continuation (``step``) from the states before and classified. Returns
+    the first state found past the event, its classification and the located time."""
+    model, s, data = env.model, env.settings, env.data
     hist = list(frames[max(0, lo - 2):lo + 1])
     t_lo, t_hi = frames[lo].t, frames[hi].t
     st_hi, info_hi = frames[hi], hi_info
     tol = LOCATE_REL * max(1.0, abs(t_hi))
     while t_hi - t_lo > tol:
         t = 0.5 * (t_lo + t_hi)
-        st, o, _ = step(model, hist, t, s, ctx.history, data, hi,
+        st, o, _ = step(model, hist, t, s, env.history, data, hi,
                         s.limits.path_min_substep * (t - t_lo))
         if not o.ok:
             break

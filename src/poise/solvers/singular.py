@@ -13,10 +13,11 @@ the frames' classification (:mod:`poise.solvers.path`). Method: docs/quasistatic
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from poise.solvers.iterate import Next, Solver, iterate
 from poise.solvers.limits import LIMITS
 from poise.solvers.newton import FrameOutcome
 from poise.solvers.stability import DENSE_LIMIT, classify, describe_mode
@@ -203,7 +204,7 @@ class Orientation:
 
 def _smallest_sparse(A):
     """``(sigma_min, left vector)`` of a sparse ``A`` (m <= n rows) by inverse iteration on
-    ``A A^T`` (one sparse LU)."""
+    ``A A^T`` (one sparse LU; :class:`InverseIteration`, ``Limits.inverse_steps`` steps)."""
     import scipy.sparse.linalg as spla  # lazy: large models only
     M = (A @ A.T).tocsc()
     x = np.random.default_rng(0).standard_normal(M.shape[0])
@@ -212,13 +213,42 @@ def _smallest_sparse(A):
         lu = spla.splu(M)
     except RuntimeError:                    # exactly singular
         return 0.0, x
-    for _ in range(LIMITS.inverse_steps):
-        y = lu.solve(x)
+    return iterate(InverseIteration(M, lu), LIMITS.inverse_steps, [], x)
+
+
+@dataclass(frozen=True)
+class _Inverse:
+    x: np.ndarray
+    zero: bool = False          # the iterate vanished or overflowed: sigma_min 0
+
+
+class InverseIteration(Solver[_Inverse]):
+    """Inverse iteration on ``M = A A^T`` (factorised ``lu``) for its smallest eigenvalue: a
+    fixed number of steps (the budget; converged to the few digits a diagnosis needs), unless
+    the iterate stops being finite (``M`` numerically singular: ``sigma_min`` 0)."""
+
+    out_of_budget = Status.CONVERGED
+
+    def __init__(self, M, lu):
+        self.M, self.lu = M, lu
+
+    def init(self, x):
+        return _Inverse(x)
+
+    def terminate(self, s):
+        return (True, Status.CONVERGED) if s.zero else (False, None)
+
+    def step(self, s, left):
+        y = self.lu.solve(s.x)
         n = float(np.linalg.norm(y))
         if not np.isfinite(n) or n == 0.0:
-            return 0.0, x
-        x = y / n
-    return float(np.sqrt(max(float(x @ (M @ x)), 0.0))), x
+            return Next(replace(s, zero=True))
+        return Next(_Inverse(y / n))
+
+    def postprocess(self, s, status, used):
+        if s.zero:
+            return 0.0, s.x
+        return float(np.sqrt(max(float(s.x @ (self.M @ s.x)), 0.0))), s.x
 
 
 def self_stress_elements(model, u) -> tuple:
