@@ -90,11 +90,14 @@ def test_slider_crank_1000_frames_all_meet_tolerances():
 
 
 def test_frames_the_correction_cannot_finish_get_a_full_newton(tmp_path, monkeypatch):
-    """No correction allowed (CORRECT_MAX_ITER = 0): every IDA point off the tolerances goes
+    """No correction allowed (``correct_max_iter`` = 0): every IDA point off the tolerances goes
     through a full Newton (event ``ida_newton``), and the frames still meet 1e-9 at the closed
     form."""
-    from poise.solvers import chart     # the output-frame corrector (split from fim_d)
-    monkeypatch.setattr(chart, "CORRECT_MAX_ITER", 0)
+    from dataclasses import replace
+
+    from poise.solvers.limits import LIMITS
+    from poise.solvers.settings import StaticSettings
+    monkeypatch.setattr(StaticSettings, "limits", replace(LIMITS, correct_max_iter=0))
     res = run_deck(str(_pendulum_deck(tmp_path)), overrides=dict(method="FIM_D"))
     a = res.analyses[0]
     assert a.status == "converged", a.message

@@ -19,10 +19,9 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.solvers.energy import potential_energy
 from poise.solvers.linalg import SingularMatrix
+from poise.solvers.limits import LIMITS
 
 ARMIJO = 1e-4
-BACKTRACK = 8             # energy line-search halvings
-MU_TRIES = 6              # shifts tried, each x 10
 MU_FIRST = 2.0            # first shift: this x the negative curvature along Newton's step
 RUNAWAY = 2 * np.pi       # a body turned a full turn: no equilibrium within reach
 WORK_TURN = 0.5           # rad: largest turn of a step whose drop is measured by the work
@@ -71,7 +70,7 @@ def downhill_step(model, state, ev, dq, cnt, limit, measure, mass_times, eps):
             d = d * (WORK_TURN / big)
             slope = float(r @ d)
     alpha, first = limit(state, d)
-    for _ in range(BACKTRACK + 1):
+    for _ in range(LIMITS.backtrack + 1):
         trial = first if first is not None else model.retract(state, alpha * d)
         first = None
         try:
@@ -98,12 +97,12 @@ def _drop(model, r0, v0, trial, ev1, dq) -> float:
 
 def _shifted(model, state, ev, cnt, eps, mu, cap=np.inf):
     """The step of ``K + (eps + mu) M`` with the constraints, ``mu`` raised x 10 up to
-    ``MU_TRIES`` times until it descends and turns no body more than ``cap`` rad (a
+    ``LIMITS.mu_tries`` times until it descends and turns no body more than ``cap`` rad (a
     pseudo-time step, not a leap along a direction only the shift bounds): ``(step, slope)``
     (the last descending one if none turns that little), or ``(None, nan)``."""
     nq = model.nq
     out = (None, np.nan)
-    for _ in range(MU_TRIES):
+    for _ in range(LIMITS.mu_tries):
         try:
             evm = cnt.evaluate(model, state, "jacobian", eps=eps + mu)
             x = cnt.factor(evm.J).solve(-np.concatenate([evm.r, evm.phi]))

@@ -22,8 +22,9 @@ from typing import Any
 
 from poise.solvers import ida, path, singular
 from poise.solvers.branch import BranchPath
-from poise.solvers.chart import Chart, Corrector
+from poise.solvers.chart import Chart
 from poise.solvers.context import AnalysisSolver, Finished, replicated
+from poise.solvers.correct import Corrector
 from poise.solvers.fallback import solve_frame
 from poise.solvers.history import Buffer, Row
 from poise.solvers.ida import IdaStats, SparseJacobian, TransientSettings, run_ida  # noqa: F401

@@ -86,10 +86,20 @@ class Limits:
     extras_max_iter: int = 20
     #: samples of the path from the MKEAM point to its Newton polish (downhill check)
     polish_path_samples: int = 16
+    #: RATTLE steps of the kinetic-energy peak search (regula falsi on the power: a few)
+    peak_search_steps: int = 12
+    #: integrator steps of a large model's first KE iterations before the hand-over
+    handover_cap: int = 20
+    #: the hand-over descent's budget: this many x max_num_iter steps
+    handover_steps: int = 2
 
     # ---- the stable descent and its escapes (solvers/stable.py, downhill.py, trials.py)
     #: escape trials off an unstable point
     max_escapes: int = 20
+    #: descent budget of --require-stable: this many x max_num_iter steps in all
+    descent_steps_per_iter: int = 2
+    #: stiffness shifts tried (each x 8) for a positive definite pencil of one descent step
+    shift_tries: int = 40
     #: halvings of one descent step's energy line search
     descent_backtrack: int = 12
     #: lengthenings of a shifted full step accepted at once

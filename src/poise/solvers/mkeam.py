@@ -8,13 +8,14 @@ otherwise the MKEAM point itself. Either way the result is converged only if it 
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.core.wording import plural
-from poise.solvers.context import Strategy, prologue
+from poise.solvers.context import AnalysisSolver, Finished, begin
 from poise.solvers.history import History
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import FrameOutcome, Scales, initial_multipliers, merit, newton
@@ -25,62 +26,87 @@ from poise.solvers.status import Status
 POLISH_MAX_DQ = 0.05         # polished point must stay this close (x L / rad)
 
 
-class MkeamMethod(Strategy):
+@dataclass(frozen=True)
+class MkeamRunState:
+    """The MKEAM method's own state in its :class:`~poise.solvers.context.Analysis`: when it
+    started (wall clock), the MKEAM point, the relaxation's restart points and the potential
+    energy it started from (its record, :func:`~poise.solvers.relaxation.mkeam_run`)."""
+
+    t_start: float
+    mk_state: Any
+    iterates: tuple = ()
+    pe_start: float = np.nan
+
+
+class MkeamMethod(AnalysisSolver):
     """A static analysis by MKEAM: one frame, relaxed downhill then polished by Newton."""
 
     name = "MKEAM"
     stage_totals = False
 
-    def init(self, ctx, state):
-        self.t_start = time.perf_counter()
-        self.model, self.settings = ctx.model, ctx.settings
-        self.history, self.counters = ctx.history, ctx.data
-        self.rx = None
-        self.mk_state = state
-        out, st, self.mk_state = self._solve(ctx, state)
-        ctx.frames, ctx.outcomes = [st], [out]
+    def __init__(self, env):
+        super().__init__(env)
+        self.model, self.settings = env.model, env.settings
+        self.history, self.counters = env.history, env.data
 
-    def postprocess(self, ctx):
-        attrs = {"mkeam_wall_time": time.perf_counter() - self.t_start}
-        if self.rx is not None:
-            return self.rx.record(self.mk_state), attrs
-        return mkeam_run([], self.mk_state, np.nan), attrs
+    def start(self, a, state):
+        t0 = time.perf_counter()
+        at = [a, None]           # the analysis and the Relaxation as far as they got
+        try:
+            out, st, mk_state = self._solve(at, state)
+        except EvaluationError as e:   # nonfinite, with what the prologue found
+            return replace(at[0].nonfinite(state, str(e)),
+                           method=self._run_state(t0, state, at[1]))
+        return replace(at[0].added(st, out), method=self._run_state(t0, mk_state, at[1]))
 
-    def _solve(self, ctx, state):
-        """Redundancy, assembly, MKEAM iterations, Newton polish. Returns ``(outcome, reported
-        state, MKEAM point)``; the outcome is certified at output, at the reported state."""
-        model = self.model
+    @staticmethod
+    def _run_state(t0, mk_state, rx):
+        if rx is None:
+            return MkeamRunState(t0, mk_state)
+        return MkeamRunState(t0, mk_state, tuple(rx.iterates), rx.pe_start)
+
+    def finish(self, a, status, used):
+        m = a.method
+        attrs = {"mkeam_wall_time": time.perf_counter() - m.t_start}
+        return Finished(a, mkeam_run(m.iterates, m.mk_state, m.pe_start), attrs)
+
+    def _solve(self, at, state):
+        """Redundancy, assembly, MKEAM iterations, Newton polish (``at``: ``[analysis,
+        relaxation]``, updated as they are made). Returns ``(outcome, reported state, MKEAM
+        point)``; the outcome is certified at output, at the reported state."""
+        model, env = self.model, self.env
         if not np.isfinite(model.L):
-            ctx.redundancy = np.zeros(0, int) if ctx.redundancy is None else ctx.redundancy
+            if at[0].redundancy is None:
+                at[0] = replace(at[0], redundancy=np.zeros(0, int))
             return FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan,
                                 "the model size L is not finite (a marker or body lies too far "
                                 "out): MKEAM's step and tolerance scales are undefined"), state, state
-        state, failed = prologue(ctx, state, multipliers=False)
+        at[0], state, failed = begin(env, at[0], state, multipliers=False)
         if failed is not None:
             return failed, state, state
         try:
-            self.rx = Relaxation(model, self.settings, self.history, self.counters)
+            rx = at[1] = Relaxation(model, self.settings, self.history, self.counters)
         except ValueError as e:
             return FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, str(e)), state, state
         state = initial_multipliers(model, state, self.counters)
-        self.rx.report = ctx.report
+        rx.report = env.report
         try:
-            mk_state, status, msg, n_it = self.rx.iterate(state)
+            mk_state, status, msg, n_it = rx.run(state)
         except EvaluationError as e:
-            mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(self.rx.iterates)
+            mk_state, status, msg, n_it = state, Status.NONFINITE, str(e), len(rx.iterates)
         except SingularMatrix as e:     # constraints that cannot be solved for the momenta
-            mk_state, status, n_it = state, Status.SINGULAR_JACOBIAN, len(self.rx.iterates)
+            mk_state, status, n_it = state, Status.SINGULAR_JACOBIAN, len(rx.iterates)
             msg = (f"MKEAM: the constraint matrix G M^-1 G^T is singular ({e}): the constraints "
                    "lock a direction, or masses and inertias span too many decades")
         finally:
-            ctx.report("MKEAM", None, self.settings.max_num_iter)
+            env.report("MKEAM", None, self.settings.max_num_iter)
         if not status.ok:
             return FrameOutcome(status, n_it, np.nan, np.nan, msg), mk_state, mk_state
-        state, out, note = self._polish(mk_state, n_it)
-        ctx.notes.append(note)
+        state, out, note = self._polish(rx, mk_state, n_it)
+        at[0] = at[0].noted(note)
         return out, state, mk_state
 
-    def _polish(self, mk_state, n_it):
+    def _polish(self, rx, mk_state, n_it):
         """Newton polish of the MKEAM point. Returns ``(state, outcome, note)``.
 
         Newton with the deck's settings first. If it fails, once more without the ``stability``
@@ -94,33 +120,31 @@ class MkeamMethod(Strategy):
         Newton's. Otherwise the MKEAM point is reported (outcome certified at output)."""
         m, s = self.model, self.settings
         st = initial_multipliers(m, mk_state, self.counters)
-        self.mk_point = st
         mk_out = FrameOutcome(Status.CONVERGED, n_it, np.nan, np.nan, "converged")
         trial, out = newton(m, st, s, self.history, 0, self.counters, event="polish")
         if not out.ok and out.status not in (Status.NONFINITE, Status.INCONSISTENT_CONSTRAINTS):
             s0 = replace(s, stability=0.0, line_search=False)
             t2, o2 = newton(m, st, s0, self.history, 0, self.counters, event="polish-soft",
                             equilibrate=True)
-            if o2.ok or (o2.status is not Status.NONFINITE and self._lower(t2, trial)):
+            if o2.ok or (o2.status is not Status.NONFINITE and self._lower(rx, t2, trial)):
                 trial, out = t2, o2
         if out.status is Status.INCONSISTENT_CONSTRAINTS:
             return trial, replace(out, iterations=n_it), "Newton polish of the MKEAM point"
         if out.status is Status.NONFINITE:
             return st, mk_out, f"Newton polish failed ({out.message}); MKEAM point reported"
-        if not out.ok and not self._lower(trial, st):
+        if not out.ok and not self._lower(rx, trial, st):
             return st, mk_out, (f"Newton polish did not converge ({out.message}); MKEAM point "
                                 "reported")
-        d = self.rx._dq(st, trial)
-        far = d > POLISH_MAX_DQ and not (self.rx.extras_free or self.rx.dyn.extras_free)
+        d = rx.max_dq(st, trial)
+        far = d > POLISH_MAX_DQ and not (rx.extras_free or rx.dyn.extras_free)
         if far:
-            why = self._downhill(st, trial)
+            why = self._downhill(rx, st, trial)
             if why:
                 return st, mk_out, (f"Newton polish moved {d:.3g} (> {POLISH_MAX_DQ}) {why}; "
                                     "MKEAM point reported")
-        wmin, _ = self.rx.projected_stiffness_min(trial)
+        wmin, _ = rx.projected_stiffness_min(trial)
         if wmin is not None and wmin < -1e-6:
             return st, mk_out, "Newton polish reached an unstable point; MKEAM point reported"
-        self.polished = True
         note = "Newton-polished MKEAM point reported"
         if far:
             note += (f" (the polish moved {d:.3g} downhill from the MKEAM point: a mode too soft "
@@ -135,10 +159,10 @@ class MkeamMethod(Strategy):
             f"{out.error:.3g} (max_imbalance {s.max_imbalance:g}, max_error {s.max_error:g})"
             + (f"; worst equation: {worst}" if worst else ""))), note
 
-    def _lower(self, a, b):
+    def _lower(self, rx, a, b):
         """Is state ``a`` closer to equilibrium than ``b``: lower potential energy when the model
         has one, else a smaller tolerance-scaled residual."""
-        pa, pb = self.rx.potential_energy(a), self.rx.potential_energy(b)
+        pa, pb = rx.potential_energy(a), rx.potential_energy(b)
         if np.isfinite(pa) and np.isfinite(pb):
             return pa < pb
         sc = Scales(self.model, self.settings)
@@ -147,20 +171,22 @@ class MkeamMethod(Strategy):
         mb = merit(self.model.evaluate(b, need_jac=False, active=act), sc)
         return ma < mb
 
-    def _downhill(self, a, b, n=16):
+    def _downhill(self, rx, a, b):
         """"" if the potential energy does not increase along the path from ``a`` to ``b`` (the
-        tangent line at ``a``, ``n`` samples, each assembled onto the constraints), else why."""
+        tangent line at ``a``, ``limits.polish_path_samples`` samples, each assembled onto the
+        constraints), else why."""
         m, s = self.model, self.settings
+        n = s.limits.polish_path_samples
         dq = m.local_difference(a, b)
-        pes = [self.rx.potential_energy(a)]
+        pes = [rx.potential_energy(a)]
         scratch = History()
         for k in range(1, n):
             x = m.retract(a, (k / n) * dq)
             x, _, ast = assemble(m, x, s, scratch, 0, self.counters)
             if not ast.ok:
                 return "along a path that leaves the constraints"
-            pes.append(self.rx.potential_energy(x))
-        pes.append(self.rx.potential_energy(b))
+            pes.append(rx.potential_energy(x))
+        pes.append(rx.potential_energy(b))
         pes = np.asarray(pes)
         if not np.all(np.isfinite(pes)):
             return "and the model has no potential energy to check that the path is downhill"

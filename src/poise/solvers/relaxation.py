@@ -2,17 +2,20 @@
 
 The model is made conservative and its constrained dynamics integrated from rest by RATTLE
 (solvers/rattle.py); at every peak of the kinetic energy the velocities are zeroed and the
-integration restarts (one peak = one iteration), so the iterates descend the potential and can
-only settle in a stable equilibrium. After ``HANDOVER_ITER`` iterations the descent continues by
-the inertia-controlled Newton of solvers/stable.py when that verifiably reaches a stable point.
-Budgets end every run with a status. :class:`Relaxation` is the MKEAM method's solve
-(solvers/mkeam.py) and the fallback chain's last stage (:meth:`Relaxation.relax`). The method in detail,
-step-size control and convergence: docs/mkeam.md.
+integration restarts (one peak = one iteration, :class:`~poise.solvers.ke_peak.KeIteration`),
+so the iterates descend the potential and can only settle in a stable equilibrium. After
+``HANDOVER_ITER`` iterations the descent continues by the inertia-controlled Newton of
+solvers/descent.py when that verifiably reaches a stable point. :class:`Relaxation` is the
+iterations' :class:`~poise.solvers.iterate.Solver` (budget ``max_num_iter`` iterations, and
+``units`` integrator and descent steps), the MKEAM method's solve (solvers/mkeam.py) and the
+fallback chain's last stage (:meth:`Relaxation.relax`). The method in detail, step-size
+control and convergence: docs/mkeam.md.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -21,215 +24,71 @@ import scipy.sparse as sp
 from poise.core.errors import EvaluationError
 from poise.core.wording import plural
 from poise.solvers.energy import potential_energy
+from poise.solvers.history import Row
+from poise.solvers.iterate import Next, Solver, iterate
+from poise.solvers.ke_peak import KeIteration
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.newton import initial_multipliers
 from poise.solvers.reach import assemble
-from poise.solvers.rattle import CONSTRAINT_TOL, Dynamics, RattlePoint, retract_flat
+from poise.solvers.rattle import Dynamics
 from poise.solvers.record import MkeamRun
 from poise.solvers.stability import classify
-from poise.solvers.stable import descend, seek_stable
+from poise.solvers.descent import descend
+from poise.solvers.stable import seek_stable
 from poise.solvers.status import Status
 
-STEPS_PER_PERIOD = 20.0
-MAX_TRANS_STEP = 0.1         # x L per integration step
-MAX_ROT_STEP = 0.1           # rad per integration step
-ENERGY_TOL = 1e-3            # relative energy error per step
-MAX_STEPS_PER_ITER = 1000    # an iteration still accelerating after this many steps restarts
-MAX_TOTAL_STEPS = 5000       # integration budget of one MKEAM run (all iterations)
-REST_STEPS = 50              # steps with only noise-level energies: the iteration is at rest
-NOISE_FACTOR = 10.0          # energy resolution: x work over the constraint tolerance
-MAX_TRAVEL = 1e4             # x L: an iterate farther than this from the start is divergence
-PEAK_TOL = 1e-3              # bracket of the peak relative to the step
 PERTURB = 1e-3               # size of the kick off an unstable MKEAM point (x L / rad)
-MAX_PERTURB = 3
 HANDOVER_ITER = 1            # KE iterations before the hand-over to the Newton descent
 HANDOVER_NQ = 300            # models with more coordinates cut their first iterations ...
-HANDOVER_CAP = 20            # ... at this many integrator steps before the hand-over
-HANDOVER_STEPS = 2           # its budget: this many x max_num_iter Newton steps
 SPARSE_CHECK_NQ = 300        # above: stability sign by sparse inertia, not dense eigenvalues
 
 
-class Relaxation:
+@dataclass(frozen=True)
+class Relaxing:
+    """Where the MKEAM iterations stand: the last restart point ``state``, iterations done
+    ``it``, the integrator step ``h``, kicks off unstable points, units of work spent,
+    the restart points (pos, rot), whether the hand-over was tried, whether scalar unknowns
+    were left free, the last ``max_dq``; ``end``: ``(state, status, message, iterations)``
+    once decided; ``error``: an exception a step raised (its rows are kept)."""
+
+    state: Any
+    it: int = 0
+    h: float = np.inf
+    perturbs: int = 0
+    used: int = 0
+    iterates: tuple = ()
+    handover_tried: bool = False
+    extras_free: bool = False
+    last_dq: float = np.nan
+    end: tuple | None = None
+    error: BaseException | None = None
+
+
+class Relaxation(Solver):
     """MKEAM iterations on ``model`` from a state (the MKEAM method's solve and the last stage
-    of the fallback chain). Rows go to ``history``, counts to ``data`` (:class:`SolveData`,
-    whose active rows the integration keeps)."""
+    of the fallback chain). Rows go to ``history`` (through the loop), counts to ``data``
+    (:class:`SolveData`, whose active rows the integration keeps). After a run:
+    ``iterates``, ``used``, ``extras_free``, ``last_dq``, ``pe_start`` describe it."""
+
+    out_of_budget = Status.MAX_ITERATIONS
 
     def __init__(self, model, settings, history, data, units=None):
         self.model = model
         # units of work (integration and descent steps): the fallback chain's share, else
-        # MAX_TOTAL_STEPS; ``used``: spent so far
+        # limits.max_total_steps; ``used``: spent so far
         self.limited = units is not None
-        self.units, self.used = max(1, min(int(units or MAX_TOTAL_STEPS), MAX_TOTAL_STEPS)), 0
+        self.limits = settings.limits
+        cap = self.limits.max_total_steps
+        self.units, self.used = max(1, min(int(units or cap), cap)), 0
         self.settings = settings
         self.history = history
         self.counters = data
-        self.extras_free = False  # scalar unknowns MKEAM cannot determine (see _resolve_extras)
+        self.extras_free = False  # scalar unknowns MKEAM cannot determine (see HeldExtras)
         self.iterates = []        # restart points (pos, rot)
-        self.handover_tried = False
         self.report = None        # progress(label, done, total) of the iterations, or None
         self.pe_start = np.nan
         self.last_dq = np.nan
         self.dyn = Dynamics(model, data)
-
-    def _step(self, dyn, a: RattlePoint, h):
-        """One RATTLE step of size h from ``a``; returns the new RattlePoint or None (no convergence)."""
-        m = self.model
-        p_half = a.p + 0.5 * h * a.Q
-        lam = a.lam.copy() if a.lam is not None else np.zeros(m.nc)
-        state1 = None
-        if m.nc:
-            GT = a.G.T
-            for _ in range(30):
-                dq = h * (a.Minv @ (p_half - 0.5 * h * (GT @ lam)))
-                state1 = retract_flat(m, a.state, dq)
-                phi = dyn.phi(state1)
-                if np.all(np.abs(phi) <= self.dyn.phi_tol):
-                    break
-                try:
-                    lam = lam + (2.0 / (h * h)) * a.S.solve(phi)
-                except SingularMatrix:
-                    return None
-            else:
-                return None
-            p_half = p_half - 0.5 * h * (GT @ lam)
-        else:
-            state1 = retract_flat(m, a.state, h * (a.Minv @ p_half))
-        state1.lam = np.where(self.counters.mask(m), a.state.lam, 0.0)
-        b = RattlePoint(dyn, state1, p_half, a.t + h)     # forces at q1 (lam for stiffness only)
-        p1 = p_half + 0.5 * h * b.Q
-        if m.nc:
-            try:
-                mu = b.S.solve(b.G @ (b.Minv @ p1))
-            except SingularMatrix:
-                return None
-            p1 = p1 - b.G.T @ mu
-            # reaction estimate for the geometric stiffness of the next step
-            b.state.lam = np.where(self.counters.mask(m), (2.0 / h) * mu, 0.0)
-        b.lam = lam
-        b.p = p1
-        b.v = b.Minv @ p1
-        b.ke = 0.5 * float(p1 @ b.v)
-        b.power = float(b.v @ b.Q)
-        return b
-
-    def _h_limit(self, a: RattlePoint):
-        m = self.model
-        # Gershgorin bound of the largest eigenvalue of M^-1/2 K M^-1/2 (mass-scaled rows)
-        md = m.mass_diagonal(a.state)
-        if len(self.dyn.x_idx):
-            md[self.dyn.x_idx] = self.dyn.extra_mass(a.state)
-        d = np.where(md > 0, 1.0 / np.sqrt(np.where(md > 0, md, 1.0)), 0.0)   # scalars: no mass
-        K = a.K
-        if sp.issparse(K):
-            rs = np.asarray(abs(K) @ d).ravel() * d
-        else:
-            rs = (np.abs(K) @ d) * d
-        w2 = float(np.max(rs)) if m.nq else 0.0
-        h = np.inf
-        if w2 > 0:
-            h = 2 * np.pi / np.sqrt(w2) / STEPS_PER_PERIOD
-        acc = a.Minv @ a.Q
-        lim = np.where(m.q_kind == 1, MAX_ROT_STEP, MAX_TRANS_STEP * m.L)
-        vel = np.abs(a.v)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            hv = np.where(vel > 0, lim / vel, np.inf)
-            ha = np.where(np.abs(acc) > 0, np.sqrt(2 * lim / np.abs(acc)), np.inf)
-        return float(min(h, hv.min(initial=np.inf), ha.min(initial=np.inf)))
-
-    def _iteration(self, dyn, state, h0, budget=MAX_STEPS_PER_ITER):
-        """Integrate from rest until the first KE peak, or for at most ``budget`` steps (then
-        the iteration restarts where it stands, still descending: a mode so soft that its
-        peak is out of reach is left to the Newton polish). Returns (point, steps, h, msg);
-        ``msg`` non-empty: the integration failed."""
-        a = RattlePoint(dyn, state, np.zeros(self.model.nq), 0.0)
-        h = min(h0, self._h_limit(a)) if np.isfinite(h0) else self._h_limit(a)
-        if not np.isfinite(h):
-            return a, 0, h, "no force acts (already at rest in equilibrium)"
-        steps = 0
-        escale = 0.0
-        noise = self._energy_noise(a)
-        while steps < budget:
-            hl = self._h_limit(a)
-            h = min(2.0 * h, hl) if np.isfinite(hl) else 2.0 * h
-            while True:
-                b = self._step(dyn, a, h)
-                steps += 1
-                if b is not None:
-                    work = 0.5 * h * (a.power + b.power)
-                    err = abs(b.ke - a.ke - work)
-                    escale = max(escale, a.ke, b.ke, abs(work))
-                    noise = max(noise, self._energy_noise(b))
-                    if err <= max(ENERGY_TOL * escale, noise) or h < 1e-14 * max(1.0, a.t):
-                        break
-                h *= 0.5
-                if h < 1e-300:
-                    return a, steps, h, "integration step became too small"
-                if steps >= budget:
-                    return a, steps, h, ""
-            bad = self._absurd(b)
-            if bad:
-                return b, steps, h, bad
-            if steps >= REST_STEPS and escale <= noise:
-                return b, steps, h, ""            # at rest within the integrator's resolution
-            if b.power <= 0.0:
-                if a.power <= 0.0:                 # never accelerated: at rest already
-                    return (a if a.ke >= b.ke else b), steps, h, ""
-                peak, n = self._locate_peak(dyn, a, b, h, min(12, budget - steps))
-                return peak, steps + n, h, ""
-            a = b
-        return a, steps, h, ""
-
-    def _energy_noise(self, a):
-        """Energy the integrator cannot resolve at ``a``: the work of the applied forces over the
-        position-constraint tolerance of a step (``CONSTRAINT_TOL`` x L per translation, x 1 rad
-        per rotation), times ``NOISE_FACTOR``. Energy errors below it are accepted (halving the
-        step does not reduce them), and an iteration whose energies all stay below it is at
-        rest as far as the integration can tell."""
-        m = self.model
-        ql = np.where(m.q_kind == 0, m.L, 1.0)
-        return NOISE_FACTOR * CONSTRAINT_TOL * float(np.sum(np.abs(a.Q) * ql))
-
-    def _absurd(self, b):
-        """Why the integrated point ``b`` cannot be a step towards an equilibrium ("" if it can):
-        non-finite energy or pose, or a body farther than ``MAX_TRAVEL * L`` from the start."""
-        m = self.model
-        if not (np.isfinite(b.ke) and np.all(np.isfinite(b.state.pos))
-                and np.all(np.isfinite(b.state.rot))):
-            return "the integration produced a non-finite state (NaN/Inf)"
-        if m.nb and float(np.max(np.abs(b.state.pos - self.iterates[0][0]))) > MAX_TRAVEL * m.L:
-            return (f"a body moved more than {MAX_TRAVEL:g} L = {MAX_TRAVEL * m.L:.3g} from the "
-                    "input configuration (nothing holds it: no equilibrium within reach)")
-        return ""
-
-    def _locate_peak(self, dyn, a, b, h, most=12):
-        lo, hi = 0.0, h
-        plo, phi_ = a.power, b.power
-        best = b
-        n = 0
-        side = 0
-        while hi - lo > PEAK_TOL * h and n < most:
-            tau = (lo * phi_ - hi * plo) / (phi_ - plo)
-            if not (lo < tau < hi):
-                tau = 0.5 * (lo + hi)
-            c = self._step(dyn, a, tau)
-            n += 1
-            if c is None:
-                break
-            best = c if c.ke >= best.ke or c.power > 0 else best
-            if c.power > 0:
-                lo, plo = tau, c.power
-                if side == 1:
-                    phi_ *= 0.5
-                side = 1
-            else:
-                hi, phi_ = tau, c.power
-                if side == -1:
-                    plo *= 0.5
-                side = -1
-            if abs(c.power) <= 1e-12 * max(abs(a.power), abs(b.power)):
-                best = c
-                break
-        return best, n
 
     def potential_energy(self, state):
         """Total potential energy, NaN when a force element is not conservative."""
@@ -285,7 +144,9 @@ class Relaxation:
         vec[keep] = D @ (N @ V[:, k])
         return w[k] / scale, vec
 
-    def _dq(self, s0, s1):
+    def max_dq(self, s0, s1):
+        """Largest change from ``s0`` to ``s1``: translations / L, rotations and angles in rad,
+        scalar unknowns relative."""
         m = self.model
         dt = float(np.max(np.linalg.norm(s1.pos - s0.pos, axis=1))) / m.L if m.nb else 0.0
         dr = 0.0
@@ -305,159 +166,170 @@ class Relaxation:
 
     def _resolve_extras(self, state):
         """Scalar unknowns (Control_Diff states, implicit variables, ...) have no mass: MKEAM
-        holds them during each KE-attrition iteration and re-solves them at each restart by
-        Newton on their own equations with the bodies fixed. When those equations do not
-        determine them (``d e / d s`` singular, e.g. an integrator state ``y' = target - DX``
-        whose equation does not contain y) they stay held and are found by the final Newton
-        polish (``self.extras_free``)."""
+        holds them during each KE-attrition iteration and re-solves them at each restart
+        (:class:`HeldExtras`). Returns ``(state, free)``; ``free``: their equations do not
+        determine them, they stay held and are found by the final Newton polish."""
         m = self.model
         if not m.n_extra:
-            return state
+            return state, False
         ix = np.setdiff1d(m.extra_idx, self.dyn.x_idx)    # curve parameters move with RATTLE
         if not len(ix):
-            return state
-        st = state
-        for _ in range(20):
-            ev = self.counters.evaluate(m, st, "jacobian")
-            J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
-            Jss = J[np.ix_(ix, ix)]
-            rs = ev.r[ix]
-            sv = np.linalg.svd(Jss, compute_uv=False)
-            if sv.min() <= 1e-10 * max(sv.max(), 1e-300):
-                self.extras_free = True
-                return state
-            if np.max(np.abs(rs)) <= self.settings.max_imbalance:
-                return st
-            dq = np.zeros(m.nq)
-            dq[ix] = np.linalg.solve(Jss, -rs)
-            st = m.retract(st, dq)
-        return st
+            return state, False
+        return iterate(HeldExtras(m, self.settings, self.counters, ix), self.limits.extras_max_iter,
+                       (), state)
 
-    def iterate(self, state):
+    def _integrate(self, state, h, budget, origin):
+        """One KE iteration from ``state`` within ``budget`` integrator steps
+        (:class:`~poise.solvers.ke_peak.KeIteration`)."""
+        return iterate(KeIteration(self.dyn, origin), budget, (), state, h)
+
+    def run(self, state):
         """MKEAM iterations from ``state``. Returns ``(state, status, message, iterations)``:
         the last restart point and ``Status.CONVERGED`` when ``max_ke_tol`` / ``max_dq_tol``
-        were met; otherwise why not (``max_num_iter`` or the ``MAX_TOTAL_STEPS`` integration
-        budget: ``MAX_ITERATIONS``; a non-finite state: ``NONFINITE``; a body running away:
+        were met; otherwise why not (``max_num_iter`` or the integration budget:
+        ``MAX_ITERATIONS``; a non-finite state: ``NONFINITE``; a body running away:
         ``DIVERGED``)."""
-        m, s = self.model, self.settings
-        dyn = self.dyn
-        state = state.copy()
-        state.lam = np.where(self.counters.mask(m), state.lam, 0.0)
-        self.iterates = [(state.pos.copy(), state.rot.copy())]
-        pe0 = self.potential_energy(state)
-        self.pe_start = pe0
-        h = np.inf
-        perturbs = 0
-        self.last_dq = np.nan
-        t_total = 0.0
-        for it in range(1, s.max_num_iter + 1):
-            if self.report is not None:
-                self.report("MKEAM", it - 1, s.max_num_iter)
-            used = self.used
-            if used >= self.units:
-                return state, Status.MAX_ITERATIONS, (
-                    f"MKEAM used its integration budget ({self.units} steps) in "
-                    f"{plural(it - 1, 'iteration')} without meeting max_ke_tol / max_dq_tol"), it - 1
-            cap = MAX_STEPS_PER_ITER
-            if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
-                cap = HANDOVER_CAP       # a large model: restart early, then hand over
-            if it <= HANDOVER_ITER and self.limited and not m.n_extra:
-                cap = max(1, min(cap, self.units // 4))   # leave the hand-over most of it
-            peak, steps, h, msg = self._iteration(dyn, state, h,
-                                                  min(cap, self.units - used))
-            self.used += steps
-            if msg and "already at rest" not in msg:
-                self._row(it, np.nan, np.nan, msg, peak, steps, np.nan, "mkeam")
-                status = (Status.NONFINITE if "non-finite" in msg else
-                          Status.DIVERGED if "moved more than" in msg else Status.MAX_ITERATIONS)
-                return state, status, f"MKEAM iteration {it}: {msg}", it
-            new = self._resolve_extras(peak.state.copy())
-            dq = self._dq(state, new)
-            t_total += peak.t
-            pe = self.potential_energy(new)
-            ke = peak.ke
-            self.last_dq = dq
-            self._row(it, ke, dq, "", peak, steps, pe, "mkeam")
-            self.iterates.append((new.pos.copy(), new.rot.copy()))
-            state = new
-            if (it >= HANDOVER_ITER and not (ke <= s.max_ke_tol and dq <= s.max_dq_tol)
-                    and not self.handover_tried and not m.n_extra):
-                self.handover_tried = True
-                fast = self._handover(state, h)
-                if fast is not None:
-                    return fast, Status.CONVERGED, "", it
-            if ke <= s.max_ke_tol and dq <= s.max_dq_tol:
-                lam_state = initial_multipliers(m, state, self.counters)
-                wmin, vec = self.projected_stiffness_min(lam_state)
-                if wmin is not None and vec is not None and wmin < -1e-6 and perturbs < MAX_PERTURB:
-                    perturbs += 1
-                    vs = vec * m.q_scale
-                    kick = PERTURB * m.L / max(float(np.max(np.abs(vs))), 1e-300)
-                    state = m.retract(state, kick * vec)
-                    st2, _, _ = assemble(m, state, s, self.history, 0, self.counters)
-                    state = st2
-                    continue
-                return state, Status.CONVERGED, "", it
-            h = h if np.isfinite(h) else np.inf
-        return state, Status.MAX_ITERATIONS, (
-            "MKEAM did not converge within max_num_iter iterations (raise max_num_iter or loosen "
-            "max_ke_tol / max_dq_tol)"), s.max_num_iter
+        return iterate(self, self.settings.max_num_iter, self.history, state)
 
-    def _handover(self, state, h):
-        """Newton-speed continuation of the descent from the restart point ``state``: the
-        inertia-controlled Newton of :func:`poise.solvers.stable.descend` (potential energy
-        non-increasing, steps on a positive-definite reduced stiffness), unstable end points left
-        along their negative modes (:func:`~poise.solvers.stable.seek_stable`). The point is
-        taken only if it is stable (neutral allowed) by the classification, its potential energy
-        is not above ``state``'s, and one KE-attrition iteration from it (event
-        ``mkeam-verify``) meets ``max_ke_tol`` and ``max_dq_tol``. Returns it or None (MKEAM
-        iterations continue from ``state`` as if nothing happened)."""
+    def init(self, state):
+        state = state.copy()
+        state.lam = np.where(self.counters.mask(self.model), state.lam, 0.0)
+        self.iterates = [(state.pos.copy(), state.rot.copy())]
+        self.pe_start = self.potential_energy(state)
+        return Relaxing(state, iterates=tuple(self.iterates))
+
+    def terminate(self, s):
+        if s.error is not None:
+            return True, Status.NONFINITE
+        return s.end is not None, None if s.end is None else s.end[1]
+
+    def step(self, s, left):
+        rows, at = [], [s]
+        try:
+            return self._iteration(s, rows, at)
+        except Exception as e:      # noqa: BLE001 - re-raised by postprocess, after its rows
+            return Next(replace(at[0], error=e), 0, tuple(rows))
+
+    def _iteration(self, s, rows, at):
+        """One MKEAM iteration (``rows``: where its rows are collected; ``at[0]``: the state
+        as far as it got, should a step raise)."""
+        m, st = self.model, self.settings
+        it = s.it + 1
+        if self.report is not None:
+            self.report("MKEAM", it - 1, st.max_num_iter)
+        if s.used >= self.units:
+            return Next(replace(s, end=(s.state, Status.MAX_ITERATIONS, (
+                f"MKEAM used its integration budget ({self.units} steps) in "
+                f"{plural(it - 1, 'iteration')} without meeting max_ke_tol / max_dq_tol"),
+                it - 1)), 0)
+        cap = self.limits.max_steps_per_iter
+        if it <= HANDOVER_ITER and m.nq > HANDOVER_NQ and not m.n_extra:
+            cap = self.limits.handover_cap     # a large model: restart early, then hand over
+        if it <= HANDOVER_ITER and self.limited and not m.n_extra:
+            cap = max(1, min(cap, self.units // 4))   # leave the hand-over most of it
+        origin = s.iterates[0][0]
+        land = self._integrate(s.state, s.h, min(cap, self.units - s.used), origin)
+        peak, h = land.point, land.h
+        s = at[0] = replace(s, it=it, h=h, used=s.used + land.steps)
+        if land.failed:
+            rows.append(self._row(it, np.nan, np.nan, land.message, peak, land.steps, np.nan))
+            status = Status.MAX_ITERATIONS if land.status is Status.STEP_TOO_SMALL \
+                else land.status
+            return Next(replace(s, end=(s.state, status, f"MKEAM iteration {it}: "
+                                        f"{land.message}", it)), 1, tuple(rows))
+        new, free = self._resolve_extras(peak.state.copy())
+        dq = self.max_dq(s.state, new)
+        pe = self.potential_energy(new)
+        ke = peak.ke
+        rows.append(self._row(it, ke, dq, "", peak, land.steps, pe))
+        s = at[0] = replace(s, state=new, last_dq=dq, extras_free=s.extras_free or free,
+                            iterates=s.iterates + ((new.pos.copy(), new.rot.copy()),))
+        met = ke <= st.max_ke_tol and dq <= st.max_dq_tol
+        if it >= HANDOVER_ITER and not met and not s.handover_tried and not m.n_extra:
+            fast, used = self._handover(new, h, s.used, rows, origin)
+            s = at[0] = replace(s, handover_tried=True, used=used)
+            if fast is not None:
+                return Next(replace(s, end=(fast, Status.CONVERGED, "", it)), 1, tuple(rows))
+        if not met:
+            return Next(s, 1, tuple(rows))
+        lam_state = initial_multipliers(m, new, self.counters)
+        wmin, vec = self.projected_stiffness_min(lam_state)
+        if wmin is not None and vec is not None and wmin < -1e-6 \
+                and s.perturbs < self.limits.max_perturb:
+            vs = vec * m.q_scale
+            kick = PERTURB * m.L / max(float(np.max(np.abs(vs))), 1e-300)
+            kicked = m.retract(new, kick * vec)
+            kicked, _, _ = assemble(m, kicked, st, rows, 0, self.counters)
+            return Next(replace(s, state=kicked, perturbs=s.perturbs + 1), 1, tuple(rows))
+        return Next(replace(s, end=(new, Status.CONVERGED, "", it)), 1, tuple(rows))
+
+    def postprocess(self, s, status, used):
+        self.iterates = list(s.iterates)
+        self.used, self.extras_free, self.last_dq = s.used, s.extras_free, s.last_dq
+        if s.error is not None:
+            raise s.error
+        if s.end is not None:
+            return s.end
+        return s.state, status, (
+            "MKEAM did not converge within max_num_iter iterations (raise max_num_iter or "
+            "loosen max_ke_tol / max_dq_tol)"), self.settings.max_num_iter
+
+    def _handover(self, state, h, used, rows, origin):
+        """Newton-speed continuation of the descent from the restart point ``state`` (``used``
+        units spent so far, rows collected in ``rows``, ``origin``: the run's start
+        positions): the inertia-controlled Newton of
+        :func:`poise.solvers.descent.descend` (potential energy non-increasing, steps on a
+        positive-definite reduced stiffness), unstable end points left along their negative
+        modes (:func:`~poise.solvers.stable.seek_stable`). The point is taken only if it is
+        stable (neutral allowed) by the classification, its potential energy is not above
+        ``state``'s, and one KE-attrition iteration from it (event ``mkeam-verify``) meets
+        ``max_ke_tol`` and ``max_dq_tol``. Returns ``(point or None, units used)`` (None:
+        MKEAM iterations continue from ``state`` as if nothing happened)."""
         m, s = self.model, self.settings
         s_any = replace(s, allow_neutral=True)
-        budget = HANDOVER_STEPS * s.max_num_iter
+        budget = self.limits.handover_steps * s.max_num_iter
         if self.limited:   # the descent gets half the units left, its polishes and escapes half
-            budget = self._left() // 2
-            s_any = replace(s_any, max_num_iter=max(1, self._left() // 8))
+            left = max(0, self.units - used)
+            budget = left // 2
+            s_any = replace(s_any, max_num_iter=max(1, left // 8))
             if budget < 1:
-                return None
+                return None, used
         pe0 = self.potential_energy(state)
         try:
             st = initial_multipliers(m, state, self.counters)
-            self.history.add(0, 0, np.nan, np.nan, event="mkeam: handover to the "
-                             "inertia-controlled Newton descent")
-            st, out, _, steps = descend(m, st, s_any, self.history, 0, self.counters, budget)
-            self.used += steps
+            rows.append(Row(0, 0, event="mkeam: handover to the inertia-controlled Newton "
+                            "descent"))
+            st, out, _, steps = descend(m, st, s_any, rows, 0, self.counters, budget)
+            used += steps
             if out is None:
-                return None
+                return None, used
             info = classify(m, st, active=self.counters.active)
             if info.klass == "unstable":
                 act = self.counters.active
-                rows = len(self.history)
-                st, out, info, _ = seek_stable(m, st, s_any, self.history, 0, self.counters,
+                n = len(rows)
+                st, out, info, _ = seek_stable(m, st, s_any, rows, 0, self.counters,
                                                info, lambda x: classify(m, x, active=act))
-                self.used += len(self.history) - rows       # its escape and descent steps
+                used += len(rows) - n       # its escape and descent steps
             if not out.ok or info.klass not in ("stable", "neutral"):
-                return None
+                return None, used
             pe1 = self.potential_energy(st)
             if np.isfinite(pe0) and np.isfinite(pe1) and pe1 > pe0 + 1e-9 * max(abs(pe0), 1.0):
-                return None
-            if self._left() <= 0:
-                return None
-            peak, steps, _, msg = self._iteration(self.dyn, st, h, min(MAX_STEPS_PER_ITER,
-                                                                       self._left()))
-            self.used += steps
-            ke, dq = peak.ke, self._dq(st, peak.state)
-            self.history.add(0, 0, np.nan, dq, dq, np.nan, msg, "mkeam-verify")
-            if msg and "already at rest" not in msg:
-                return None
+                return None, used
+            left = max(0, self.units - used)
+            if left <= 0:
+                return None, used
+            land = self._integrate(st, h, min(self.limits.max_steps_per_iter, left),
+                                   origin)
+            used += land.steps
+            ke, dq = land.point.ke, self.max_dq(st, land.point.state)
+            rows.append(Row(0, 0, np.nan, dq, dq, np.nan, land.message, "mkeam-verify"))
+            if land.failed:
+                return None, used
             if not (ke <= s.max_ke_tol and dq <= s.max_dq_tol):
-                return None
-            return st
+                return None, used
+            return st, used
         except (EvaluationError, SingularMatrix, ValueError, ArithmeticError):
-            return None
-
-    def _left(self) -> int:
-        return max(0, self.units - self.used)     # units not spent yet
+            return None, used
 
     def relax(self, state):
         """MKEAM iterations from ``state`` (the fallback chain's ``mkeam`` stage). Returns
@@ -466,13 +338,13 @@ class Relaxation:
         if not np.isfinite(self.model.L):
             return state, False, "the model size L is not finite"
         st = initial_multipliers(self.model, state, self.counters)
-        st, status, msg, _n = self.iterate(st)
+        st, status, msg, _n = self.run(st)
         return st, status.ok, msg
 
-    def _row(self, it, ke, dq, worst, peak, steps, pe, event):
+    def _row(self, it, ke, dq, worst, peak, steps, pe):
         # MKEAM_COLUMNS: kinetic_energy, peak_time, max_dq, potential_energy, integrator_steps
-        self.history.add(0, it, np.nan, dq, dq, np.nan, worst, event,
-                         mkeam=(ke, peak.t, dq, pe, steps))
+        return Row(0, it, np.nan, dq, dq, np.nan, worst, "mkeam",
+                   mkeam=(ke, peak.t, dq, pe, steps))
 
     def record(self, mk_state) -> MkeamRun:
         """The run as a record: its restart points and the MKEAM point ``mk_state`` (its
@@ -485,3 +357,48 @@ def mkeam_run(iterates, mk_state, pe_start) -> MkeamRun:
     return MkeamRun(iterates=tuple(iterates),
                     position=mk_state.pos[None].copy(), orientation=mk_state.rot[None].copy(),
                     initial_potential_energy=pe_start)
+
+
+@dataclass(frozen=True)
+class Holding:
+    """Where :class:`HeldExtras` stands: the point, and once it ended the point it gives
+    and whether the unknowns were left free."""
+
+    point: Any
+    end: Any = None
+    free: bool = False
+
+
+class HeldExtras(Solver):
+    """Newton on the massless scalar unknowns ``ix`` of a restart point with the bodies held,
+    until their residual meets ``max_imbalance``; when ``d e / d s`` is singular (e.g. an
+    integrator state ``y' = target - DX`` whose equation does not contain y) the point is
+    returned unchanged and the unknowns reported free. Result: ``(point, free)``."""
+
+    def __init__(self, model, settings, data, ix):
+        self.model, self.settings, self.data, self.ix = model, settings, data, ix
+
+    def init(self, state):
+        self.start = state
+        return Holding(state)
+
+    def terminate(self, s):
+        return s.end is not None, None if s.end is None else Status.CONVERGED
+
+    def step(self, s, left):
+        m, ix = self.model, self.ix
+        ev = self.data.evaluate(m, s.point, "jacobian")
+        J = ev.J.toarray() if sp.issparse(ev.J) else np.asarray(ev.J)
+        Jss = J[np.ix_(ix, ix)]
+        rs = ev.r[ix]
+        sv = np.linalg.svd(Jss, compute_uv=False)
+        if sv.min() <= 1e-10 * max(sv.max(), 1e-300):
+            return Next(replace(s, end=self.start, free=True))
+        if np.max(np.abs(rs)) <= self.settings.max_imbalance:
+            return Next(replace(s, end=s.point))
+        dq = np.zeros(m.nq)
+        dq[ix] = np.linalg.solve(Jss, -rs)
+        return Next(replace(s, point=m.retract(s.point, dq)))
+
+    def postprocess(self, s, status, used):
+        return (s.point if s.end is None else s.end), s.free

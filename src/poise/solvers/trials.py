@@ -9,17 +9,21 @@ trial's energy change up to its violation (``violation_work``).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+from typing import Any
+
 import numpy as np
 
+from poise.solvers.iterate import Next, Solver, iterate
 from poise.solvers.linalg import SingularMatrix
+from poise.solvers.limits import LIMITS
 from poise.solvers.reach import coord_weights, weighted_kkt
+from poise.solvers.status import Status
 
 PROJECT_TOL = 1e-8        # relative constraint violation of a line-search trial, at most ...
 PROJECT_TOL_MAX = 1e-5    # ... and at least: the trial's energy error bound within
 ENERGY_MARGIN = 0.01      # this fraction of the step's predicted decrease
 STEP_CHORD_RATE = 0.6     # the projection refactorises when its error falls slower than this
-PROJECT_MAX_ITER = 30     # projection iterations of one trial ...
-MAX_REFRESH = 4           # ... and factorisations
 
 
 class Chord:
@@ -94,7 +98,8 @@ class Projector:
     factorisation per trial); when the constraint error falls slower than
     ``STEP_CHORD_RATE`` per iteration, a Gauss-Newton KKT factorisation at the current point
     replaces it and serves the step's later trials too (they lie along the same direction).
-    ``proj(x) -> (state, ok)``."""
+    ``proj(x) -> (state, ok)`` (a :class:`Projection` run); ``err``: the last trial's
+    relative violation, ``phi``: its constraint values when it met the tolerance."""
 
     def __init__(self, model, cnt, chord=None):
         self.model, self.cnt = model, cnt
@@ -107,41 +112,84 @@ class Projector:
         self.phi = np.zeros(m.nc) if m.nc == 0 else None
         if m.nc == 0:
             return x, True
-        refreshed, prev, fresh = 0, np.inf, False
-        last = last_phi = None
-        for _ in range(PROJECT_MAX_ITER):
-            phi = self.cnt.evaluate(m, x, "phi")
-            err = float(np.max(np.abs(phi) / self.scale))
-            self.err = err
-            if err <= tol:
-                self.phi = np.asarray(phi, float)
-                return x, True
-            if err > prev and fresh:
-                return x, False            # diverging after a fresh factorisation: too far
-            fresh = False
-            if self.op is None or err > STEP_CHORD_RATE * prev:
-                if refreshed == MAX_REFRESH:
-                    return x, False
-                if err > prev:             # back to the better point
-                    x, phi, err = last, last_phi, prev
-                if not self._refresh(x):
-                    return x, False
-                refreshed, fresh = refreshed + 1, True
-            last, last_phi, prev = x, phi, err
-            x = m.retract(x, self.op(phi))
-        return x, False
+        end = iterate(Projection(self, tol), LIMITS.trial_project_max_iter, (), x)
+        self.op, self.err = end.op, end.err
+        if end.phi is not None:
+            self.phi = end.phi
+        return end.x, end.done is Status.CONVERGED
 
-    def _refresh(self, x):
-        """A Gauss-Newton operator at ``x`` (coordinate metric ``q_scale^2``)."""
+    def refresh(self, x):
+        """A Gauss-Newton operator at ``x`` (coordinate metric ``q_scale^2``), or None."""
         m = self.model
         ev = self.cnt.evaluate(m, x, "jacobian")
         try:
             F = self.cnt.factor(weighted_kkt(m, ev, coord_weights(m)))
         except SingularMatrix:
-            return False
+            return None
         nq = m.nq
-        self.op = lambda phi: F.solve(np.concatenate([np.zeros(nq), -phi]))[:nq]
-        return True
+        return lambda phi: F.solve(np.concatenate([np.zeros(nq), -phi]))[:nq]
+
+
+@dataclass(frozen=True)
+class Projecting:
+    """Where a :class:`Projection` stands: the trial ``x``, the correction operator,
+    factorisations made, the previous error, whether the operator is fresh, the last point
+    (and its constraint values) before the correction; ``err`` the last relative violation,
+    ``phi`` the constraint values once met; ``done``: converged, or failed (diverging, no
+    operator)."""
+
+    x: Any
+    op: Any
+    refreshed: int = 0
+    prev: float = np.inf
+    fresh: bool = False
+    last: Any = None
+    last_phi: Any = None
+    err: float = 0.0
+    phi: Any = None
+    done: Status | None = None
+
+
+class Projection(Solver):
+    """One trial's projection (:class:`Projector`): corrections by the held operator,
+    refreshed at most ``LIMITS.trial_max_refresh`` times. Budget: correction iterations.
+    Result: the last :class:`Projecting`."""
+
+    def __init__(self, proj, tol):
+        self.proj, self.tol = proj, tol
+
+    def init(self, x):
+        return Projecting(x, self.proj.op)
+
+    def terminate(self, s):
+        return s.done is not None, s.done
+
+    def step(self, s, left):
+        p = self.proj
+        m = p.model
+        x = s.x
+        phi = p.cnt.evaluate(m, x, "phi")
+        err = float(np.max(np.abs(phi) / p.scale))
+        s = replace(s, err=err)
+        if err <= self.tol:
+            return Next(replace(s, phi=np.asarray(phi, float), done=Status.CONVERGED))
+        if err > s.prev and s.fresh:
+            return Next(replace(s, done=Status.DIVERGED))   # diverging after a fresh factor
+        op, refreshed, fresh = s.op, s.refreshed, False
+        if op is None or err > STEP_CHORD_RATE * s.prev:
+            if refreshed == LIMITS.trial_max_refresh:
+                return Next(replace(s, done=Status.MAX_ITERATIONS))
+            if err > s.prev:             # back to the better point
+                x, phi, err = s.last, s.last_phi, s.prev
+            op = p.refresh(x)
+            if op is None:
+                return Next(replace(s, x=x, done=Status.SINGULAR_JACOBIAN))
+            refreshed, fresh = refreshed + 1, True
+        return Next(replace(s, x=m.retract(x, op(phi)), op=op, refreshed=refreshed,
+                            fresh=fresh, last=x, last_phi=phi, prev=err))
+
+    def postprocess(self, s, status, used):
+        return s
 
 
 def project(model, x, cnt, chord=None):
