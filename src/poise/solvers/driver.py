@@ -9,18 +9,15 @@ appends every history row). Then it builds the one record (:func:`build_result`:
 and certification of the frames, the verdict, the compliance matrices, explicit steps;
 :mod:`poise.results.layout` writes the record). Every frame a strategy solves by Newton gets
 the fallback chain (:func:`poise.solvers.fallback.solve_frame`). An element that cannot be
-evaluated ends the analysis as a ``nonfinite`` frame, never an exception. A strategy still on
-the older :class:`~poise.solvers.context.Strategy` contract runs in the driver's own loop.
+evaluated ends the analysis as a ``nonfinite`` frame, never an exception.
 """
 from __future__ import annotations
 
-from dataclasses import replace
 
 import numpy as np
 
-from poise.core.errors import EvaluationError
 from poise.solvers.compliance import compliance_step
-from poise.solvers.context import Analysis, AnalysisSolver, Context, Env, Finished
+from poise.solvers.context import Analysis, Env
 from poise.solvers.data import SolveData
 from poise.solvers.frames import frame_outputs, measure_frame, measure_frames, stack_frames
 from poise.solvers.history import History
@@ -91,45 +88,15 @@ class Driver:
         else:
             times, independent = np.array([state.t]), False
         a = Analysis(times=times, redundancy=self.redundancy, time_independent=independent)
-        if issubclass(cls, AnalysisSolver):
-            strategy = cls(env)
-            try:
-                done = iterate(strategy, len(times), env.history, a, state)
-            finally:
-                if env.kind == "quasistatic":
-                    env.report(strategy.name, None, len(times))
-        else:
-            strategy = cls()
-            done = self._run_strategy(strategy, a, state)
+        strategy = cls(env)
+        try:
+            done = iterate(strategy, len(times), env.history, a, state)
+        finally:
+            if env.kind == "quasistatic":
+                env.report(strategy.name, None, len(times))
         a = done.analysis
         self.redundancy = a.redundancy
         return a.frames[-1], build_result(env, a, strategy, index, done.method_data, done.attrs)
-
-    def _run_strategy(self, strategy, a, state) -> Finished:
-        """A strategy on the older :class:`~poise.solvers.context.Strategy` contract (mutable
-        :class:`~poise.solvers.context.Context`), in the driver's own loop (issue 24: until
-        MKEAM's moved)."""
-        env = self.env
-        ctx = Context(model=env.model, request=env.request, settings=env.settings,
-                      data=env.data, history=env.history, redundancy=a.redundancy,
-                      times=a.times, time_independent=a.time_independent,
-                      progress=env.progress)
-        try:
-            strategy.init(ctx, state)
-            while not strategy.terminate(ctx):
-                strategy.step(ctx)
-        except EvaluationError as e:      # an element or expression that cannot be evaluated
-            done = replace(a, frames=tuple(ctx.frames), outcomes=tuple(ctx.outcomes),
-                           redundancy=ctx.redundancy).nonfinite(state, str(e))
-            ctx.frames, ctx.outcomes = list(done.frames), list(done.outcomes)
-            ctx.redundancy = done.redundancy
-        finally:
-            if ctx.kind == "quasistatic":
-                ctx.report(strategy.name, None, len(ctx.times))
-        method_data, attrs = strategy.postprocess(ctx)
-        return Finished(replace(a, frames=tuple(ctx.frames), outcomes=tuple(ctx.outcomes),
-                                notes=tuple(ctx.notes), redundancy=ctx.redundancy,
-                                moved=ctx.moved, start=ctx.start), method_data, attrs)
 
 
 def build_result(env, a, strategy, index, method_data=None, method_attrs=None) -> AnalysisRecord:
