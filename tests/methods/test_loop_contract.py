@@ -64,8 +64,6 @@ def test_frame_solvers_have_frozen_states_and_a_pure_terminate():
     """Newton, the assembly, pseudo-transient continuation: frozen states, and ``terminate``
     evaluates nothing (the per-solve counters do not move), however often it is asked; the
     loop's answer is the one of the function running it."""
-    from dataclasses import fields
-
     import numpy as np
 
     from poise.deck.parser import load_deck
@@ -75,6 +73,7 @@ def test_frame_solvers_have_frozen_states_and_a_pure_terminate():
     from poise.solvers.newton import NewtonIteration, newton
     from poise.solvers.reach import Assembly
     from poise.solvers.settings import StaticSettings
+    from support.loops import assert_frozen_and_pure
     from support.paths import DECKS
 
     model = compile_model(load_deck(DECKS / "double_pendulum.xml"))
@@ -83,13 +82,7 @@ def test_frame_solvers_have_frozen_states_and_a_pure_terminate():
     st = model.initial_state()
     for solver in (NewtonIteration(model, settings, 0, data), Assembly(model, settings, 0, data),
                    Continuation(model, settings, 0, data)):
-        s = solver.init(st)
-        with pytest.raises(FrozenInstanceError):
-            setattr(s, fields(s)[0].name, None)
-        before = data.as_dict()
-        for _ in range(3):
-            solver.terminate(s)
-        assert data.as_dict() == before
+        assert_frozen_and_pure(solver, solver.init(st), data)
     rows = []
     s, out = iterate(NewtonIteration(model, settings, 0, data), 100, rows, st)
     s2, out2 = newton(model, st, settings, [], 0, SolveData.for_model(model))

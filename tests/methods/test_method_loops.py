@@ -2,7 +2,7 @@
 the stable descent are Solvers with frozen states and a pure terminate; the loop appends their
 rows and turns a spent budget into the declared status. References: the closed-form rest pose
 of the inverted pendulum (k phi = m g l sin phi), independent of the solver."""
-from dataclasses import FrozenInstanceError, fields, replace
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -18,6 +18,7 @@ from poise.solvers.newton import initial_multipliers
 from poise.solvers.relaxation import Relaxation
 from poise.solvers.settings import StaticSettings
 from poise.solvers.status import Status
+from support.loops import assert_frozen_and_pure
 from support.paths import DECKS
 
 K, MGL, L_CG = 2000.0, 2.0 * 9.81 * 200.0, 200.0    # N mm/rad, N mm (kg mm/s^2 = mN), mm
@@ -36,21 +37,12 @@ def _start(model):
     return data, initial_multipliers(model, model.initial_state(), data)
 
 
-def _frozen_and_pure(solver, s, data):
-    with pytest.raises(FrozenInstanceError):
-        setattr(s, fields(s)[0].name, None)
-    before = data.as_dict()
-    for _ in range(3):
-        solver.terminate(s)
-    assert data.as_dict() == before
-
-
 def test_mkeam_iterations_reach_the_closed_form_rest_with_rows_from_the_loop(pendulum):
     model, settings = pendulum
     data, st = _start(model)
     rows = []
     rx = Relaxation(model, settings, rows, data)
-    _frozen_and_pure(rx, rx.init(st), data)
+    assert_frozen_and_pure(rx, rx.init(st), data)
     mk, status, msg, n = rx.run(st)
     assert status is Status.CONVERGED, msg
     mkeam_rows = [r for r in rows if r.event == "mkeam"]
@@ -85,7 +77,7 @@ def test_ke_iteration_spends_its_budget_in_integrator_steps(pendulum):
     data, st = _start(model)
     dyn = Relaxation(model, settings, [], data).dyn
     solver = KeIteration(dyn, st.pos.copy())
-    _frozen_and_pure(solver, solver.init(st, np.inf), data)
+    assert_frozen_and_pure(solver, solver.init(st, np.inf), data)
     land = iterate(solver, 3, [], st, np.inf)
     assert land.steps == 3 and land.status is Status.MAX_ITERATIONS and not land.failed
     full = iterate(KeIteration(dyn, st.pos.copy()), 1000, [], st, np.inf)
@@ -97,7 +89,7 @@ def test_descent_state_frozen_and_its_rows_appended_by_the_loop(pendulum):
     model, settings = pendulum
     data, st = _start(model)
     solver = Descent(model, settings, 0, data)
-    _frozen_and_pure(solver, solver.init(st, None), data)
+    assert_frozen_and_pure(solver, solver.init(st, None), data)
     rows = []
     end = iterate(solver, 40, rows, st, None)
     assert end.stop in ("polished", "equilibrium") and end.pe < solver.init(st, None).pe
