@@ -10,7 +10,8 @@ output reuses: :func:`classify_frames`). Two events end the path where they happ
   acceptable`): the run follows the stable branch and ends where it stops being stable, status
   ``unstable``.
 
-The time is located by bisection between the two frames, each midpoint solved by continuation
+The time is located by bisection (:class:`Bisection`, run by the one loop) between the two
+frames, each midpoint solved by continuation
 from the frame before (:func:`~poise.solvers.quasistatic.fims_step`) and classified; the frames
 after the event are dropped and the state just past it is the last frame. :func:`check` gives
 the new :class:`~poise.solvers.context.Analysis` and the row it ends with (the strategy's last
@@ -18,7 +19,7 @@ step returns it to the loop).
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -26,6 +27,7 @@ from poise.model.evaluate import evaluate
 from poise.model.frame_batch import batchable, chunk_size
 from poise.solvers import singular
 from poise.solvers.history import Row
+from poise.solvers.iterate import Next, Solver, iterate
 from poise.solvers.stability import DENSE_LIMIT, classify, classify_dense_frames
 from poise.solvers.stable import acceptable
 from poise.solvers.status import Status
@@ -141,24 +143,60 @@ def _mode(a, b) -> str:
 
 
 def _locate(env, frames, step, lo, hi, hi_info, same):
-    """Bisection between ``frames`` ``lo`` (``same`` holds) and ``hi`` (it does not): each
-    midpoint solved by continuation (``step``) from the states before and classified. Returns
-    the first state found past the event, its classification and the located time."""
-    model, s, data = env.model, env.settings, env.data
-    hist = list(frames[max(0, lo - 2):lo + 1])
-    t_lo, t_hi = frames[lo].t, frames[hi].t
-    st_hi, info_hi = frames[hi], hi_info
-    tol = LOCATE_REL * max(1.0, abs(t_hi))
-    while t_hi - t_lo > tol:
-        t = 0.5 * (t_lo + t_hi)
-        st, o, _ = step(model, hist, t, s, env.history, data, hi,
-                        s.limits.path_min_substep * (t - t_lo))
+    """Bisection between ``frames`` ``lo`` (``same`` holds) and ``hi`` (it does not)
+    (:class:`Bisection` run by the one loop, within ``Limits.locate_max_probes`` midpoints).
+    Returns the first state found past the event, its classification and the located time."""
+    t_hi = frames[hi].t
+    return iterate(Bisection(env, step, hi, same), env.settings.limits.locate_max_probes,
+                   env.history, _Bracket(tuple(frames[max(0, lo - 2):lo + 1]), frames[lo].t,
+                                         t_hi, frames[hi], hi_info,
+                                         LOCATE_REL * max(1.0, abs(t_hi))))
+
+
+@dataclass(frozen=True)
+class _Bracket:
+    """:class:`Bisection`'s state: the last (up to 3) states on this side of the event
+    (``hist``), the bracket, the first state found past the event and its classification."""
+
+    hist: tuple
+    t_lo: float
+    t_hi: float
+    st_hi: object
+    info_hi: object
+    tol: float
+    stopped: bool = False       # a midpoint could not be solved: the bracket as it is
+
+
+class Bisection(Solver[_Bracket]):
+    """Where a classification changes between two frames: each midpoint solved by
+    continuation (``step``, :func:`~poise.solvers.quasistatic.fims_step`'s signature; its rows
+    appended by its own loop) from the states before and classified; ``same(info)``: still on
+    this side. A spent budget leaves the bracket as far as it got (as a stopped one)."""
+
+    out_of_budget = Status.CONVERGED
+
+    def __init__(self, env, step, hi, same):
+        self.env, self.step_to, self.hi, self.same = env, step, hi, same
+
+    def init(self, bracket):
+        return bracket
+
+    def terminate(self, s):
+        return (True, Status.CONVERGED) if s.stopped or not s.t_hi - s.t_lo > s.tol else (
+            False, None)
+
+    def step(self, s, left):
+        env = self.env
+        model, st_s, data = env.model, env.settings, env.data
+        t = 0.5 * (s.t_lo + s.t_hi)
+        st, o, _ = self.step_to(model, list(s.hist), t, st_s, env.history, data, self.hi,
+                                st_s.limits.path_min_substep * (t - s.t_lo))
         if not o.ok:
-            break
+            return Next(replace(s, stopped=True))
         info = classify(model, st, active=data.mask(model))
-        if same(info):
-            hist = (hist + [st])[-3:]
-            t_lo = t
-        else:
-            st_hi, info_hi, t_hi = st, info, t
-    return st_hi, info_hi, 0.5 * (t_lo + t_hi)
+        if self.same(info):
+            return Next(replace(s, hist=(*s.hist, st)[-3:], t_lo=t))
+        return Next(replace(s, st_hi=st, info_hi=info, t_hi=t))
+
+    def postprocess(self, s, status, used):
+        return s.st_hi, s.info_hi, 0.5 * (s.t_lo + s.t_hi)
