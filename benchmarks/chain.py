@@ -99,14 +99,16 @@ def _worker(deck: str, n: int) -> dict:
     t_import = time.perf_counter() - t
 
     phases: dict[str, float] = {}
+    phases_cpu: dict[str, float] = {}
 
     def timed(name, fn):
         def wrapper(*a, **kw):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             try:
                 return fn(*a, **kw)
             finally:
                 phases[name] = phases.get(name, 0.0) + time.perf_counter() - t0
+                phases_cpu[name] = phases_cpu.get(name, 0.0) + time.process_time() - c0
         return wrapper
 
     # phase timers around the static driver's steps (module globals, no source change)
@@ -118,11 +120,17 @@ def _worker(deck: str, n: int) -> dict:
     # the stability classification of the frame
     frames_mod.classify = timed("stability", frames_mod.classify)
 
+    def rss_now():
+        r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return r if sys.platform == "darwin" else r * 1024
+
     t0 = time.perf_counter()
     spec = load_deck(deck)
     t1 = time.perf_counter()
+    peak_parse = rss_now()
     model = compile_model(spec)
     t2 = time.perf_counter()
+    peak_compile = rss_now()
     # the solve exactly as runner.run sequences it (one static analysis)
     reqs = plan(spec, None)
     model_datasets(model)
@@ -159,9 +167,10 @@ def _worker(deck: str, n: int) -> dict:
                 iteration_s=newton_s / iters if iters else None,
                 lu_s=statistics.median(lu_times), evaluate_s=statistics.median(ev_times),
                 solve_cpu_s=solve_cpu, newton_lu_s=newton_lu, newton_lu_cpu_s=newton_lu_cpu,
-                phases=phases, counters=drv.data.as_dict(),
+                phases=phases, phases_cpu=phases_cpu, counters=drv.data.as_dict(),
                 redundant=int(len(drv.redundancy)), status=ar.status,
-                peak_rss_bytes=int(peak))
+                peak_rss_bytes=int(peak), peak_parse_bytes=int(peak_parse),
+                peak_compile_bytes=int(peak_compile))
 
 
 def _newton_lu(model, state, settings, active, repeat: int = 5):

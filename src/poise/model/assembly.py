@@ -52,21 +52,29 @@ class Assembler:
             else:
                 keys.append(rows[v].astype(np.int64, copy=False) * N + cols[v])
         self.valid = np.concatenate(valids) if valids else np.zeros(0, bool)
+        del valids
         allkeys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+        del keys                            # the per-block keys: one copy of them at a time
         if dense:
             slot = allkeys
             self.nnz = N * N
         else:
             uniq, slot = _unique_inverse(allkeys)
+            del allkeys
             self.nnz = uniq.size
-            r = uniq // N
             self.indices = (uniq % N).astype(np.int32)
-            self.indptr = np.searchsorted(r, np.arange(N + 1)).astype(np.int32)
+            uniq //= N                      # the row of each entry
+            self.indptr = np.searchsorted(uniq, np.arange(N + 1)).astype(np.int32)
+            del uniq
         # one slot per registered entry (valid or not): invalid entries go to the extra bin
-        # ``nnz``, so assembly needs no boolean gather of the values
-        self.slot = slot
-        slot_all = np.full(self.valid.size, self.nnz, dtype=np.intp)
-        slot_all[self.valid] = slot
+        # ``nnz``, so assembly needs no boolean gather of the values. A sparse assembler keeps
+        # only ``slot_all`` (``slot`` is its valid part; the same array when all are valid)
+        if self.valid.all():
+            slot_all = np.asarray(slot, np.intp)
+        else:
+            slot_all = np.full(self.valid.size, self.nnz, dtype=np.intp)
+            slot_all[self.valid] = slot
+        self.slot = slot if dense else None
         self.slot_all = slot_all
         self.sizes = tuple(self.sizes)
 
@@ -180,10 +188,14 @@ def _unique_inverse(keys: np.ndarray):
     new = np.empty(n, bool)
     new[0] = True
     np.not_equal(sk[1:], sk[:-1], out=new[1:])
-    starts = np.flatnonzero(new)
+    uniq = sk[new]
+    del sk
+    rank = np.cumsum(new, dtype=np.intp)     # 1 + the unique key of each sorted entry
+    del new
+    rank -= 1
     inv = np.empty(n, np.intp)
-    inv[perm] = np.repeat(np.arange(starts.size), np.diff(np.append(starts, n)))
-    return sk[starts], inv
+    inv[perm] = rank
+    return uniq, inv
 
 
 def scatter_add(n: int, idx: np.ndarray, vals: np.ndarray) -> np.ndarray:

@@ -59,7 +59,9 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
     if 0 < len(amb) <= AMBIGUOUS_MAX:
         dep = _resolve_ambiguous(P, np.nonzero(~empty & (ratio < RATIO_MAX))[0], perm)
         if dep is not None:
-            red = np.union1d(np.nonzero(empty)[0], dep)
+            out = empty.copy()                  # (np.union1d: a hash of every row)
+            out[dep] = True
+            red = np.nonzero(out)[0]
     return red
 
 
@@ -77,7 +79,9 @@ def _resolve_ambiguous(P, cand, perm):
     """
     import scipy.sparse.linalg as spla
     nc = P.shape[0]
-    keep = np.setdiff1d(np.arange(nc), cand)
+    keep = np.ones(nc, bool)                # (np.setdiff1d: a hash of every row)
+    keep[cand] = False
+    keep = np.nonzero(keep)[0]
     PI = P[keep]
     PC = P[cand].toarray()                                          # (c, nq)
     try:

@@ -129,7 +129,14 @@ class SymmetricLDL:
     @property
     def backward_error(self) -> float:
         if self._berr is None:
-            g = abs(self.lu.L) @ (abs(self.lu.U) @ np.ones(self.n))
+            # (|L| |U|) 1 as two scatter-adds over the factors' entries in storage order: the
+            # sums of the sparse products, term for term, without copying either factor
+            U, L = self.lu.U, self.lu.L
+            n = self.n
+            g = np.bincount(U.indices, weights=np.abs(U.data), minlength=n)
+            w = np.abs(L.data)
+            w *= g[np.repeat(np.arange(n), np.diff(L.indptr))]
+            g = np.bincount(L.indices, weights=w, minlength=n)
             self._berr = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
         return self._berr
 
