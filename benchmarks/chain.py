@@ -100,6 +100,11 @@ def _worker(deck: str, n: int) -> dict:
 
     phases: dict[str, float] = {}
     phases_cpu: dict[str, float] = {}
+    phases_peak: dict[str, int] = {}
+
+    def rss_now():
+        r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return r if sys.platform == "darwin" else r * 1024
 
     def timed(name, fn):
         def wrapper(*a, **kw):
@@ -109,6 +114,7 @@ def _worker(deck: str, n: int) -> dict:
             finally:
                 phases[name] = phases.get(name, 0.0) + time.perf_counter() - t0
                 phases_cpu[name] = phases_cpu.get(name, 0.0) + time.process_time() - c0
+                phases_peak[name] = rss_now()      # the process's peak RSS after the phase
         return wrapper
 
     # phase timers around the static driver's steps (module globals, no source change)
@@ -119,10 +125,6 @@ def _worker(deck: str, n: int) -> dict:
     frames_mod.min_norm_multipliers = timed("min_norm_reactions", frames_mod.min_norm_multipliers)
     # the stability classification of the frame
     frames_mod.classify = timed("stability", frames_mod.classify)
-
-    def rss_now():
-        r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        return r if sys.platform == "darwin" else r * 1024
 
     t0 = time.perf_counter()
     spec = load_deck(deck)
@@ -167,7 +169,8 @@ def _worker(deck: str, n: int) -> dict:
                 iteration_s=newton_s / iters if iters else None,
                 lu_s=statistics.median(lu_times), evaluate_s=statistics.median(ev_times),
                 solve_cpu_s=solve_cpu, newton_lu_s=newton_lu, newton_lu_cpu_s=newton_lu_cpu,
-                phases=phases, phases_cpu=phases_cpu, counters=drv.data.as_dict(),
+                phases=phases, phases_cpu=phases_cpu,
+                phases_peak=phases_peak, counters=drv.data.as_dict(),
                 redundant=int(len(drv.redundancy)), status=ar.status,
                 peak_rss_bytes=int(peak), peak_parse_bytes=int(peak_parse),
                 peak_compile_bytes=int(peak_compile))

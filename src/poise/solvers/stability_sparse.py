@@ -90,14 +90,15 @@ class SymmetricLDL:
     inertia is A's when this is below A's smallest |eigenvalue| (Weyl).
     """
 
-    def __init__(self, A, order=None):
+    def __init__(self, A, order=None, permuted: bool = False):
+        """``permuted``: ``A`` is ``A[order][:, order]`` already (:func:`symmetric_permutation`)."""
         import scipy.sparse as sp
         import scipy.sparse.linalg as spla
         A = sp.csc_matrix(A)
         self.n = n = A.shape[0]
         self.order = None if order is None else np.asarray(order)
-        if self.order is not None:
-            A = A[self.order][:, self.order].tocsc()
+        if self.order is not None and not permuted:
+            A = symmetric_permutation(A, self.order)
         self.ok = False
         self.reason = ""
         self._berr = np.inf
@@ -155,6 +156,12 @@ class SymmetricLDL:
         return x
 
 
+def symmetric_permutation(A, order):
+    """``A[order][:, order]`` in CSC (a fresh matrix: the caller's ``A`` can go before the
+    factorisation, which then holds one copy of the matrix, not two)."""
+    return A[order][:, order].tocsc()
+
+
 class SparsePencil:
     """The reduced-stiffness eigenproblem of a large model, never formed: the length-scaled
     symmetric stiffness ``Kt`` and active constraint Jacobian ``Gt`` after a symmetric
@@ -208,7 +215,8 @@ class SparsePencil:
 
     def ldl(self, s, rho):
         """The :class:`SymmetricLDL` of ``kkt(s, rho)`` in the pencil's elimination order."""
-        return SymmetricLDL(self.kkt(s, rho), self.order)
+        return SymmetricLDL(symmetric_permutation(self.kkt(s, rho), self.order), self.order,
+                            permuted=True)
 
     def factor(self, s):
         """A valid LDL^T of ``kkt(s, rho)`` for the first ``rho`` of AUG_RHO whose backward
@@ -217,7 +225,7 @@ class SparsePencil:
         typically dependent constraint rows at this configuration); else ``(None, reason)``."""
         why = []
         for rho in AUG_RHO:
-            F = SymmetricLDL(self.kkt(s, rho), self.order)
+            F = self.ldl(s, rho)
             if not F.ok:                  # a zero pivot (exactly dependent rows?)
                 self.singular = True
                 why.append(F.reason)
