@@ -25,7 +25,8 @@ class Assembler:
     blocks : list of (rows, cols)
         Integer arrays of equal shape; flattened in C order. Entries with a negative row or
         column are ignored. Values passed to :meth:`assemble` must follow the same order and
-        shapes.
+        shapes. A list is consumed (its items are released as they are read: the pattern of
+        a large model is not held twice).
     dense : bool
         Produce dense ``ndarray`` instead of CSR.
     """
@@ -41,7 +42,10 @@ class Assembler:
         self.sizes = []
         valids = []
         keys = []
-        for rows, cols in blocks:
+        for k in range(len(blocks)):
+            rows, cols = blocks[k]
+            if isinstance(blocks, list):
+                blocks[k] = None            # consumed: each block released once keyed
             rows = np.asarray(rows).ravel()
             cols = np.asarray(cols).ravel()
             v = (rows >= 0) & (cols >= 0)
@@ -53,14 +57,13 @@ class Assembler:
                 keys.append(rows[v].astype(np.int64, copy=False) * N + cols[v])
         self.valid = np.concatenate(valids) if valids else np.zeros(0, bool)
         del valids
-        allkeys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+        box = [np.concatenate(keys) if keys else np.zeros(0, np.int64)]
         del keys                            # the per-block keys: one copy of them at a time
         if dense:
-            slot = allkeys
+            slot = box.pop()
             self.nnz = N * N
         else:
-            uniq, slot = _unique_inverse(allkeys)
-            del allkeys
+            uniq, slot = _unique_inverse(box)
             self.nnz = uniq.size
             self.indices = (uniq % N).astype(np.int32)
             uniq //= N                      # the row of each entry
@@ -176,21 +179,24 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def _unique_inverse(keys: np.ndarray):
-    """``np.unique(keys, return_inverse=True)`` with a stable sort: the registered keys come in
-    long ascending runs (element blocks in instance order), which timsort merges in near-linear
-    time where the default introsort pays the full ``n log n``."""
+def _unique_inverse(box: list):
+    """``np.unique(keys, return_inverse=True)`` with a stable sort, ``box = [keys]`` (emptied:
+    the keys array is released as soon as its sorted copy exists, so that at most three arrays
+    of the keys' length are alive at a time). The registered keys come in long ascending runs
+    (element blocks in instance order), which timsort merges in near-linear time where the
+    default introsort pays the full ``n log n``."""
+    keys = box.pop()
     n = keys.size
     if n == 0:
         return keys.copy(), np.zeros(0, np.intp)
     perm = np.argsort(keys, kind="stable")
-    sk = keys[perm]
+    keys = keys[perm]                         # sorted (the caller's array is released)
     new = np.empty(n, bool)
     new[0] = True
-    np.not_equal(sk[1:], sk[:-1], out=new[1:])
-    uniq = sk[new]
-    del sk
-    rank = np.cumsum(new, dtype=np.intp)     # 1 + the unique key of each sorted entry
+    np.not_equal(keys[1:], keys[:-1], out=new[1:])
+    uniq = keys[new]
+    del keys
+    rank = np.cumsum(new, dtype=np.intp)      # 1 + the unique key of each sorted entry
     del new
     rank -= 1
     inv = np.empty(n, np.intp)
