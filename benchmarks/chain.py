@@ -211,7 +211,8 @@ def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
     deck.write_text(build_chain_deck(n, "revolute"))
     runs = [_run_worker(deck, n) for _ in range(repeat)]
     keys = ("import_s", "parse_s", "compile_s", "solve_s", "newton_s", "iteration_s", "lu_s",
-            "evaluate_s", "peak_rss_bytes", "solve_cpu_s", "newton_lu_s", "newton_lu_cpu_s")
+            "evaluate_s", "peak_rss_bytes", "solve_cpu_s", "newton_lu_s", "newton_lu_cpu_s",
+            "peak_parse_bytes", "peak_compile_bytes")
     out = dict(bench="chain", n=n, joint="revolute", repeat=repeat)
     for k in ("nq", "nc", "nnz", "kkt_size", "iterations", "redundant", "status", "counters"):
         out[k] = runs[0][k]
@@ -220,6 +221,10 @@ def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
         out[k] = _stats([r[k] for r in runs])
     phase_names = sorted({p for r in runs for p in r["phases"]})
     out["phases"] = {p: _stats([r["phases"].get(p, 0.0) for r in runs]) for p in phase_names}
+    out["phases_cpu"] = {p: _stats([r.get("phases_cpu", {}).get(p) for r in runs])
+                         for p in phase_names}
+    out["phases_peak"] = {p: _stats([r.get("phases_peak", {}).get(p) for r in runs])
+                          for p in phase_names}
     it = out["iteration_s"]
     out["iteration_per_lu"] = (it["median"] / out["lu_s"]["median"]
                                if it and out["lu_s"]["median"] > 0 else None)

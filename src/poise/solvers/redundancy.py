@@ -216,11 +216,12 @@ def left_null_basis(Phi_q, active):
     return Y
 
 
-def detect_redundancy(model, state) -> np.ndarray:
-    """Redundant constraint rows of ``model`` at ``state`` (all rows evaluated)."""
+def detect_redundancy(model, state, workspace=None) -> np.ndarray:
+    """Redundant constraint rows of ``model`` at ``state`` (all rows evaluated); ``workspace``:
+    the solve's (the evaluation fills the assembly buffer the solve reuses)."""
     if model.nc == 0:
         return np.zeros(0, int)
-    J = model.evaluate(state, need_jac=True).J
+    J = model.evaluate(state, need_jac=True, workspace=workspace).J
     Pq = J[model.nq:, :model.nq]
     col = np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
     return redundant_rows(Pq, col)
