@@ -393,6 +393,17 @@ classification of the converged state and the Gram factorisations of redundancy 
 (neither goes through `Factor`, so neither counts as *factorise*), then the linear solves with
 iterative refinement.
 
+**Floor (issue 25 §2).** In Newton's LUs (the floor's unit, one per iteration), a 10⁴-link
+static solve spends ≈ 9 in Newton itself (5 factorisations plus evaluations, solves with
+refinement, step limits, line search), ≈ 1.1 in redundancy detection, 1.5 in the least-squares
+multipliers, 2.7 in the stability classification and 1.1 in the rest of the output
+measurement: Newton alone is ≈ 1.8× the floor. The classification needs its own sparse LDLᵀ
+(inertia: an LU with partial pivoting has none), a power/subspace iteration for the lowest
+mode (5 block solves) and SuperLU's CSC copies of L and U for the pivots and the backward
+error (at 10⁵ links ≈ 140 MB and 0.5 s of fresh pages on first access). Peak memory at 10⁵ links
+is reached in the classification, after Newton; parse leaves ≈ 1 GB of per-element Python
+objects (`DeckSpec`, kept by the runner for labels and messages), compile ≈ 1.2 GB more.
+
 **BLAS threads.** numpy's OpenBLAS defaulted to 2 threads; on vectors and 3×3 blocks they
 only busy-wait, and with another process on the machine a 1000-link solve took 1.8× longer
 (0.73 s vs 0.41 s). `import poise` now sets `OPENBLAS_NUM_THREADS=1` unless the environment
