@@ -122,3 +122,41 @@ class RowTable(Sequence):
         """Boolean array: the rows whose ``kind`` is ``kind`` (no dictionary built)."""
         codes = self._codes["kind"]
         return self._kind == (codes.index(kind) if kind in codes else -1)
+
+
+class CoordNames(Sequence):
+    """The name of every coordinate (``Model.coord_info``): ``FILE:LINE: <Body_Rigid id=2> Fx``
+    for the 6 (rigid) or 3 (point) coordinates of each body, then the scalar unknowns' names.
+    Stored as one location prefix per body; ``names[k]`` builds the string on access."""
+
+    __slots__ = ("_prefix", "_off", "_nq_bodies", "_extra")
+    SUFFIX = (" Fx", " Fy", " Fz", " Tx", " Ty", " Tz")
+
+    def __init__(self, prefixes, offsets, nq_bodies: int, extra=()):
+        self._prefix = tuple(prefixes)
+        self._off = np.asarray(offsets, np.int64)
+        self._nq_bodies = int(nq_bodies)
+        self._extra = tuple(extra)
+
+    def with_extra(self, extra) -> "CoordNames":
+        """The same names followed by ``extra``."""
+        return CoordNames(self._prefix, self._off, self._nq_bodies, self._extra + tuple(extra))
+
+    def __len__(self) -> int:
+        return self._nq_bodies + len(self._extra)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return tuple(self[i] for i in range(*k.indices(len(self))))
+        k = int(k)
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError("coordinate index out of range")
+        if k >= self._nq_bodies:
+            return self._extra[k - self._nq_bodies]
+        b = int(np.searchsorted(self._off, k, side="right")) - 1
+        return self._prefix[b] + self.SUFFIX[k - int(self._off[b])]
+
+    def __iter__(self):
+        return (self[k] for k in range(len(self)))

@@ -64,7 +64,7 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
     rigid = kinds == 0
     f = dict(bodies, **markers)
     f["body_label"] = tuple(bodies["body_label"])
-    f["coord_info"] = tuple(bodies["coord_info"]) + tuple(res.extra_names)
+    f["coord_info"] = bodies["coord_info"].with_extra(res.extra_names)
     rows = RowTable.of(res.rows)              # one entry per element, codes per row
     f.update(families=fams, nq=nq, nc=nc, row_info=rows, nb=nb, N=N, dense=N <= DENSE_MAX,
              angle_I=np.array([a[0] for a in res.angles], int),
@@ -115,7 +115,7 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
     model = Model(**f)
     # the tables of text and numbers (one entry per row, coordinate, ...) hold no array: not
     # walked (tests/methods/test_model_frozen.py checks every array of the model is sealed)
-    return seal(model, skip=(model.coord_info, model.extra_names,
+    return seal(model, skip=(model.extra_names,
                              model.spec_warnings, model.user_routines, model.input_files,
                              model.active_effects, model.time_sources))
 
