@@ -59,6 +59,7 @@ def classify_pencil(model, P) -> StabilityInfo:
             return StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
         low = _lowest_mode(P, up, +eps)
         return StabilityInfo("stable", 0, 0, "", low[0][1] if low else np.nan)
+    del up                       # its factors (and SuperLU's copies of L and U) go first
     dn, why = P.factor(-eps)
     if dn is None:
         return not_classified(why)
@@ -224,7 +225,9 @@ class SparsePencil:
         (a pivot at round-off level has no reliable sign: the matrix is numerically singular,
         typically dependent constraint rows at this configuration); else ``(None, reason)``."""
         why = []
+        F = None
         for rho in AUG_RHO:
+            F = None                      # a failed attempt's factors go before the next
             F = self.ldl(s, rho)
             if not F.ok:                  # a zero pivot (exactly dependent rows?)
                 self.singular = True
