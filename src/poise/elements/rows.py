@@ -160,3 +160,16 @@ class CoordNames(Sequence):
 
     def __iter__(self):
         return (self[k] for k in range(len(self)))
+
+
+def group_owner(row_info, rows) -> tuple[np.ndarray, np.ndarray]:
+    """``(group, owner)`` of the constraint rows ``rows`` (object and int arrays), from a
+    :class:`RowTable` without building a dictionary per row (or from any sequence of row
+    dicts)."""
+    rows = np.asarray(rows, np.int64).ravel()
+    if isinstance(row_info, RowTable):
+        return (np.asarray(row_info._codes["group"] + ("",), object)[row_info._group[rows]],
+                row_info._owner[rows].astype(np.int64))
+    ris = [row_info[int(r)] for r in rows]
+    return (np.array([ri["group"] for ri in ris], object),
+            np.array([ri["owner"] for ri in ris], np.int64))
