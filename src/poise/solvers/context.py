@@ -171,7 +171,7 @@ def begin(env: Env, a: Analysis, state, multipliers: bool = True):
     model, data = env.model, env.data
     red = a.redundancy
     if red is None:
-        red = detect_redundancy(model, state)
+        red = detect_redundancy(model, state, data.workspace)
     data.set_redundancy(red)
     a = replace(a, redundancy=red)
     if len(red):
