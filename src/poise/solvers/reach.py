@@ -62,29 +62,62 @@ def project(model, state, cnt, ev=None, limits: Limits = LIMITS):
     """``state`` moved onto its active constraints by least-change Gauss-Newton, or None when
     that does not converge at ``PROJECT_RATE`` (the constraints cannot be met near it: beyond
     the assembly's reach, or a singular configuration). ``ev``: an evaluation at ``state``
-    (saves one); at most ``limits.project_max_iter`` steps. Evaluations and factorisations are counted in ``cnt``."""
-    W = coord_weights(model)
-    prev = np.inf
-    try:
-        for _ in range(limits.project_max_iter + 1):
-            if ev is None:
-                ev = cnt.evaluate(model, state, "defer")
+    (saves one); at most ``limits.project_max_iter`` steps (:class:`OntoConstraints` run by
+    the one loop). Evaluations and factorisations are counted in ``cnt``."""
+    return iterate(OntoConstraints(model, cnt), limits.project_max_iter + 1, [], state, ev)
+
+
+@dataclass(frozen=True)
+class _Projecting:
+    """:class:`OntoConstraints`' state: the configuration, its evaluation (None: not yet), the
+    violation before and the verdict once known (True: on the constraints)."""
+
+    state: object
+    ev: object = None
+    prev: float = np.inf
+    on: bool | None = None
+
+
+class OntoConstraints(Solver[_Projecting]):
+    """:func:`project` as a :class:`~poise.solvers.iterate.Solver`: one step evaluates the
+    configuration (when not yet), decides (within ``PROJECT_TOL``: on; not converging at
+    ``PROJECT_RATE``: beyond reach) or takes one weighted least-change Gauss-Newton step. A
+    spent budget, a singular system or an element that cannot be evaluated: beyond reach."""
+
+    out_of_budget = Status.ASSEMBLY_FAILED
+
+    def __init__(self, model, cnt):
+        self.model, self.cnt = model, cnt
+        self.W = coord_weights(model)
+
+    def init(self, state, ev=None):
+        return _Projecting(state, ev)
+
+    def terminate(self, s):
+        if s.on is None:
+            return False, None
+        return True, Status.CONVERGED if s.on else Status.ASSEMBLY_FAILED
+
+    def step(self, s, left):
+        model, cnt = self.model, self.cnt
+        try:
+            ev = s.ev if s.ev is not None else cnt.evaluate(model, s.state, "defer")
             v = violation(model, ev.phi)
             if v <= PROJECT_TOL:
-                return state
-            if not v <= PROJECT_RATE * prev:
-                return None
-            prev = v
+                return Next(replace(s, ev=ev, on=True))
+            if not v <= PROJECT_RATE * s.prev:
+                return Next(replace(s, on=False))
             cnt.jacobian(model, ev)
-            x = cnt.factor(weighted_kkt(model, ev, W)).solve(
+            x = cnt.factor(weighted_kkt(model, ev, self.W)).solve(
                 np.concatenate([np.zeros(model.nq), -ev.phi]))
             if not np.all(np.isfinite(x)):
-                return None
-            state = model.retract(state, x[:model.nq])
-            ev = None
-    except (SingularMatrix, EvaluationError):
-        return None
-    return None
+                return Next(replace(s, on=False))
+            return Next(_Projecting(model.retract(s.state, x[:model.nq]), None, v))
+        except (SingularMatrix, EvaluationError):
+            return Next(replace(s, on=False))
+
+    def postprocess(self, s, status, used):
+        return s.state if s.on else None
 
 
 def assemble(model, state, settings, history, frame: int, cnt):
