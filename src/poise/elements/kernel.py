@@ -151,7 +151,11 @@ def cross3(a, b):
     """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))   # no stack
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
@@ -283,14 +287,20 @@ def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | Non
 def _cross_cols(v, M):
     """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
     ``M`` crossed with ``v`` from the left."""
-    return np.stack([v[1] * M[2] - v[2] * M[1], v[2] * M[0] - v[0] * M[2],
-                     v[0] * M[1] - v[1] * M[0]])
+    out = np.empty(M.shape, np.result_type(v, M))
+    out[0] = v[1] * M[2] - v[2] * M[1]
+    out[1] = v[2] * M[0] - v[0] * M[2]
+    out[2] = v[0] * M[1] - v[1] * M[0]
+    return out
 
 
 def _cross_rows(M, u):
     """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
-    return np.stack([M[:, 1] * u[2] - M[:, 2] * u[1], M[:, 2] * u[0] - M[:, 0] * u[2],
-                     M[:, 0] * u[1] - M[:, 1] * u[0]], axis=1)
+    out = np.empty(M.shape, np.result_type(M, u))
+    out[:, 0] = M[:, 1] * u[2] - M[:, 2] * u[1]
+    out[:, 1] = M[:, 2] * u[0] - M[:, 0] * u[2]
+    out[:, 2] = M[:, 0] * u[1] - M[:, 1] * u[0]
+    return out
 
 
 def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> np.ndarray:

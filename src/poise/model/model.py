@@ -167,8 +167,15 @@ class Model:
         return P, A, pos
 
     def _principal_angles(self, state):
-        _, A, _ = self.marker_kinematics(state)
-        return principal_angles(A, self.angle_I, self.angle_J, self.angle_axis)
+        """The angle table's principal angles from the axes of its own markers only (the
+        same products as :meth:`marker_kinematics` for those markers)."""
+        I, J = self.angle_I, self.angle_J
+        na = len(I)
+        mk = np.concatenate([I, J])
+        mb = self.marker_body[mk]
+        rot = np.concatenate([state.rot, np.eye(3)[None]])[mb]
+        A = np.matmul(rot, self.marker_A0[mk])
+        return principal_angles(A, np.arange(na), np.arange(na, 2 * na), self.angle_axis)
 
     def retract(self, state: State, dq: np.ndarray, dlam: np.ndarray | None = None) -> State:
         """New state ``state (+) dq`` on the configuration manifold.
