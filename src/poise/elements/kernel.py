@@ -56,11 +56,12 @@ class SlotKinematics:
             K = self.K
             B = np.zeros((n, 3 * S, 6 * K))
             sk = -self.Sk
+            p_any = self.pt.any(axis=0)
             for s in range(S):
                 k = self.slot_ml[s]
                 rows = slice(3 * s, 3 * s + 3)
                 pt = self.pt[:, s]
-                if pt.any():
+                if p_any[s]:
                     B[pt, rows, 6 * k:6 * k + 3] = _I3
                 B[:, rows, 6 * k + 3:6 * k + 6] = sk[:, s]
             self._B = B
@@ -166,14 +167,14 @@ def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     vr = cross3(kin.V, rho3)                                   # (n, S, 3)
     r = np.zeros((n, 2 * K, 3))
     pt = kin.pt
+    p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
     for s in range(S):
         k = kin.slot_ml[s]
         r[:, 2 * k + 1] += vr[:, s]
-        ps = pt[:, s]
-        if ps.all():
+        if p_all[s]:
             r[:, 2 * k] += rho3[:, s]
-        elif ps.any():
-            r[:, 2 * k] += rho3[:, s] * ps[:, None]
+        elif p_any[s]:
+            r[:, 2 * k] += rho3[:, s] * pt[:, s][:, None]
     return r.reshape(n, 6 * K)
 
 
@@ -370,14 +371,14 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
     rot = cross3(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
     Pq = np.zeros((n, m, 2 * K, 3))
     pt = kin.pt
+    p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
     for s in range(S):
         k = kin.slot_ml[s]
         Pq[:, :, 2 * k + 1] += rot[:, :, s]
-        ps = pt[:, s]
-        if ps.all():
+        if p_all[s]:
             Pq[:, :, 2 * k] += py[:, :, s]
-        elif ps.any():
-            Pq[:, :, 2 * k] += py[:, :, s] * ps[:, None, None]
+        elif p_any[s]:
+            Pq[:, :, 2 * k] += py[:, :, s] * pt[:, s][:, None, None]
     return Pq.reshape(n, m, 6 * K)
 
 

@@ -356,6 +356,8 @@ def principal_angles(A, I, J, axis):
     axis = np.asarray(axis)
 
     def col(idx, c):
+        if not lead:                     # one frame: plain indexing, (na, 3)
+            return A[idx, :, c[axis]]
         k = c[axis].reshape((1,) * len(lead) + (-1, 1, 1))
         return np.take_along_axis(A[..., idx, :, :], k, axis=-1)[..., 0]
     u, e1, e2 = col(I, ANGLE_U_COL), col(J, ANGLE_E1_COL), col(J, ANGLE_E2_COL)
