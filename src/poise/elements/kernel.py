@@ -403,6 +403,15 @@ def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray |
         r = np.concatenate([r, np.zeros((n, U)) if rs is None else rs], axis=1)
     if not need_jac:
         return r, None
+    return r, local_tangent(kin, rho, G, slot_ml, K, ext, U, pat)
+
+
+def local_tangent(kin: SlotKinematics, rho: np.ndarray, G, slot_ml, K: int,
+                  ext: dict | None = None, U: int = 0, pat: LocalPattern | None = None):
+    """The tangent of :func:`local_residual_tangent` alone (a Jacobian assembled after its
+    residual: the residual is not formed again)."""
+    n = rho.shape[0]
+    ext = ext or {}
     if pat is not None and pat.declared:
         Kl = _tangent_blocks(kin, rho, G, K, pat)
     else:
@@ -434,4 +443,4 @@ def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray |
         if ext.get("G_ss") is not None:
             full[:, 6 * K:, 6 * K:] = ext["G_ss"]
         Kl = full
-    return r, Kl
+    return Kl

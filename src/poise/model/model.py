@@ -167,14 +167,18 @@ class Model:
         return P, A, pos
 
     def _principal_angles(self, state):
-        """The angle table's principal angles from the axes of its own markers only (the
-        same products as :meth:`marker_kinematics` for those markers)."""
+        return self._angles_of(state.rot)
+
+    def _angles_of(self, rot):
+        """The angle table's principal angles (..., na) for body rotations ``rot`` (..., nb,
+        3, 3), from the axes of its own markers only (the same products as
+        :meth:`marker_kinematics` for those markers)."""
         I, J = self.angle_I, self.angle_J
         na = len(I)
         mk = np.concatenate([I, J])
         mb = self.marker_body[mk]
-        rot = np.concatenate([state.rot, np.eye(3)[None]])[mb]
-        A = np.matmul(rot, self.marker_A0[mk])
+        ground = np.broadcast_to(np.eye(3), rot.shape[:-3] + (1, 3, 3))
+        A = np.matmul(np.concatenate([rot, ground], axis=-3)[..., mb, :, :], self.marker_A0[mk])
         return principal_angles(A, np.arange(na), np.arange(na, 2 * na), self.angle_axis)
 
     def retract(self, state: State, dq: np.ndarray, dlam: np.ndarray | None = None) -> State:
@@ -199,15 +203,22 @@ class Model:
         Vv = np.einsum("nij,nj->ni", V, v0)
         pt = np.ones(self.nb, bool)
         pt[rb] = False
-        for _ in range(nsub):
-            if pt.any():
+        move_pt = bool(pt.any())
+        na = len(self.angle_I)
+        rots = np.empty((nsub,) + new.rot.shape) if na else None
+        for k in range(nsub):
+            if move_pt:
                 new.pos[pt] += dt[pt] / nsub
             if len(rb):
                 new.pos[rb] = np.einsum("nij,nj->ni", E, new.pos[rb]) + Vv
                 new.rot[rb] = np.matmul(E, new.rot[rb])
-            if len(self.angle_I):
-                p = self._principal_angles(new)
-                new.angle = new.angle + wrap_angle(p - new.angle)
+            if na:
+                rots[k] = new.rot
+        if na:             # principal angles of every sub-step at once, unwrapped in turn
+            ang = new.angle
+            for p in self._angles_of(rots):
+                ang = ang + wrap_angle(p - ang)
+            new.angle = ang
         if self.n_extra:
             new.extra = new.extra + dq[self.extra_idx]
         if dlam is not None:
