@@ -152,7 +152,8 @@ def cross3(a, b):
     """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))   # no stack
+    shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
+    out = np.empty(shape, a.dtype if a.dtype == b.dtype else np.result_type(a, b))
     out[..., 0] = a1 * b2 - a2 * b1
     out[..., 1] = a2 * b0 - a0 * b2
     out[..., 2] = a0 * b1 - a1 * b0
@@ -288,7 +289,7 @@ def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | Non
 def _cross_cols(v, M):
     """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
     ``M`` crossed with ``v`` from the left."""
-    out = np.empty(M.shape, np.result_type(v, M))
+    out = np.empty(M.shape, M.dtype if M.dtype == v.dtype else np.result_type(v, M))
     out[0] = v[1] * M[2] - v[2] * M[1]
     out[1] = v[2] * M[0] - v[0] * M[2]
     out[2] = v[0] * M[1] - v[1] * M[0]
@@ -297,7 +298,7 @@ def _cross_cols(v, M):
 
 def _cross_rows(M, u):
     """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
-    out = np.empty(M.shape, np.result_type(M, u))
+    out = np.empty(M.shape, M.dtype if M.dtype == u.dtype else np.result_type(M, u))
     out[:, 0] = M[:, 1] * u[2] - M[:, 2] * u[1]
     out[:, 1] = M[:, 2] * u[0] - M[:, 0] * u[2]
     out[:, 2] = M[:, 0] * u[1] - M[:, 1] * u[0]
@@ -420,18 +421,17 @@ def local_tangent(kin: SlotKinematics, rho: np.ndarray, G, slot_ml, K: int,
             Kl = np.zeros((n, 6 * K, 6 * K))
         else:
             Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(dense_g(G), B))
+        # connection term v w^T - (v . w) I per slot, formed for every slot at once
         S = kin.V.shape[1]
         rho3 = rho.reshape(n, S, 3)
+        blk = kin.V[:, :, :, None] * rho3[:, :, None, :]           # (n, S, 3, 3)
+        d = np.einsum("nsi,nsi->ns", kin.V, rho3)
+        blk[:, :, 0, 0] -= d
+        blk[:, :, 1, 1] -= d
+        blk[:, :, 2, 2] -= d
         for s in range(S):
             k = slot_ml[s]
-            v = kin.V[:, s]
-            w = rho3[:, s]
-            blk = v[:, :, None] * w[:, None, :]
-            d = np.einsum("ni,ni->n", v, w)
-            blk[:, 0, 0] -= d
-            blk[:, 1, 1] -= d
-            blk[:, 2, 2] -= d
-            Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk
+            Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
     if U:
         B = kin.B
         full = np.zeros((n, 6 * K + U, 6 * K + U))
