@@ -16,6 +16,7 @@ import numpy as np
 
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
+from poise.elements.kernel import cross3
 from poise.elements.rotation import (expm_so3, lift_rotation_vector, rotation_vector,
                                      se3_left_jacobian, wrap_angle)
 
@@ -197,7 +198,7 @@ class Model:
         # rigid bodies move along the screw of the spatial twist (w, v0), v0 = dr_cg - w x r_cg:
         # a rotation about any fixed point (a hinge) is then followed exactly, for any angle.
         w = dr / nsub
-        v0 = (dt[rb] - np.cross(dr, state.pos[rb])) / nsub if len(rb) else np.zeros((0, 3))
+        v0 = (dt[rb] - cross3(dr, state.pos[rb])) / nsub if len(rb) else np.zeros((0, 3))
         E = expm_so3(w)
         V = se3_left_jacobian(w)
         Vv = np.einsum("nij,nj->ni", V, v0)
@@ -366,10 +367,9 @@ def principal_angles(A, I, J, axis):
         return np.zeros(lead + (0,))
     axis = np.asarray(axis)
 
+    At = np.swapaxes(A, -1, -2)          # (..., nm, column, component): plain indexing
+
     def col(idx, c):
-        if not lead:                     # one frame: plain indexing, (na, 3)
-            return A[idx, :, c[axis]]
-        k = c[axis].reshape((1,) * len(lead) + (-1, 1, 1))
-        return np.take_along_axis(A[..., idx, :, :], k, axis=-1)[..., 0]
+        return At[..., idx, c[axis], :]
     u, e1, e2 = col(I, ANGLE_U_COL), col(J, ANGLE_E1_COL), col(J, ANGLE_E2_COL)
     return np.arctan2(np.sum(u * e2, axis=-1), np.sum(u * e1, axis=-1))
