@@ -1,0 +1,361 @@
+"""FIM_S for many cases of one model at once: a sweep's chunk solved vectorised over cases.
+
+The cases share the model's structure and differ in per-instance parameters of its tileable
+force families (``CaseFields``: per family, ``{field: (C, n, ...)}``). Each evaluation is one
+call of the evaluation engine over the cases as frames (their families tiled with each case's
+parameters, :func:`poise.model.frame_batch.set_tiles`), each factorisation one batched LAPACK
+call on the dense ``(C, N, N)`` KKT matrices. Per case, masks carry FIM_S's plain Newton
+(:mod:`poise.solvers.newton`): least-squares initial multipliers, ``sqrt(stability) M`` on the
+coordinate block, the singular-value test of the dense factorisation, the step limits
+(:func:`~poise.solvers.steps.limit_step`), the backtracking line search with its Armijo test,
+the convergence test (scaled residual and last step) and its round-off-floor exit; then the
+certification at the written state (all rows evaluated, as :func:`~poise.solvers.certify.certify`)
+and the dense stability classification. Whatever the plain path would leave (a stalled line
+search, the neutral-direction filter, a singular or non-finite step, the iteration limit, a
+removed equation violated, a frame not certified, a class other than stable) marks the case
+``alone``: the caller solves it by the single-case path, so no verdict is weaker than its own.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from poise.core.errors import EvaluationError
+from poise.model.evaluate import evaluate
+from poise.model.frame_batch import set_tiles, tiles
+from poise.model.workspace import Workspace
+from poise.solvers.newton import ARMIJO, ALPHA_STALL, CRAWL, LINE_SEARCH_MAX, Scales
+from poise.solvers.reach import coord_weights
+from poise.solvers.stability import classify_dense_frames
+from poise.solvers.steps import limit_step, neutral_filtered
+
+SINGULAR_REL = 1e-15          # the dense Factor's singular-value test (solvers/linalg.py)
+
+
+@dataclass
+class CaseResult:
+    """One case of a batch: ``alone`` (solve it by the single-case path, ``why``) or its
+    converged ``state`` with Newton's ``iterations``, the certified ``imbalance`` and
+    ``error``, the per-iteration ``rows`` ``(imbalance, error, step, alpha)`` (the Newton rows
+    a single solve records) and its stability ``info``."""
+
+    alone: bool = True
+    why: str = ""
+    state: object = None
+    iterations: int = 0
+    imbalance: float = np.nan
+    error: float = np.nan
+    info: object = None
+    rows: list = field(default_factory=list)
+
+
+class _Dense:
+    """One case's dense factorisation for :func:`neutral_filtered` (``solve(b)``)."""
+
+    def __init__(self, J):
+        self.J = J
+
+    def solve(self, b):
+        return np.linalg.solve(self.J, b)
+
+
+class CaseBatch:
+    """The cases of one model: ``fields[fi]`` = ``{name: (C, n, ...)}`` per family index,
+    ``active``: the solve's active constraint rows (redundant rows removed)."""
+
+    def __init__(self, model, settings, fields: dict, active):
+        self.model, self.settings, self.fields = model, settings, fields
+        self.active = np.asarray(active, bool)
+        self.sc = Scales(model, settings)
+        self.eps = float(np.sqrt(settings.stability))
+        self.ws = Workspace()
+
+    # ------------------------------------------------------------------ evaluation
+    def evaluate(self, idx, states, jac: bool):
+        """Residuals ``(F, nq)``, constraint values ``(F, nc)`` (inactive rows zeroed) and
+        with ``jac`` the KKT Jacobians ``(F, N, N)`` (inactive rows as a single solve has
+        them, without regularisation) of cases ``idx`` at ``states``."""
+        model, F = self.model, len(idx)
+        base = tiles(model, F, Workspace())
+        out = []
+        for fi, (fam, exact) in enumerate(base):
+            ch = self.fields.get(fi)
+            if ch:
+                fam = replace(fam, **{k: v[idx].reshape(F * v.shape[1], *v.shape[2:])
+                                      for k, v in ch.items()})
+            out.append((fam, exact))
+        set_tiles(model, F, self.ws, out)
+        ev = evaluate(model, states, "jacobian" if jac else "residual", workspace=self.ws)
+        phi = np.where(self.active[None], ev.phi, 0.0)
+        J = ev.J
+        if jac and not self.active.all():
+            nq = model.nq
+            off = nq + np.nonzero(~self.active)[0]
+            J[:, off, :] = 0.0
+            J[:, :, off] = 0.0
+            J[:, off, off] = 1.0
+        return ev.r, phi, J
+
+    def regularised(self, J, states):
+        """``J`` with ``sqrt(stability) M`` added to the coordinate block (Newton's matrix)."""
+        model, eps = self.model, self.eps
+        if not eps > 0:
+            return J
+        A = J.copy()
+        ti = model.trans_idx
+        A[:, ti, ti] += eps * np.repeat(model.body_mass, 3)[None]
+        if len(model.rot_idx):
+            ri = np.asarray(model.rot_idx).reshape(-1, 3)
+            R = np.stack([s.rot for s in states])[:, model.rot_body]       # (F, nr, 3, 3)
+            Jg = np.matmul(R, np.matmul(model.body_inertia[model.rot_body][None],
+                                        np.swapaxes(R, 2, 3)))
+            for b in range(len(ri)):
+                A[:, ri[b][:, None], ri[b][None, :]] += eps * Jg[:, b]
+        return A
+
+    def scaled(self, r, phi):
+        """``(imbalance, constraint error, zinf, merit)`` per case (Newton's measures)."""
+        sc = self.sc
+        zr = np.abs(r) / sc.r_tol[None]
+        zp = np.abs(phi) / sc.phi_tol[None] if phi.shape[1] else np.zeros((len(r), 0))
+        imb = np.max(np.abs(r), axis=1) if r.shape[1] else np.zeros(len(r))
+        cerr = np.max(zp, axis=1) * sc.max_error if zp.shape[1] else np.zeros(len(r))
+        z = np.concatenate([zr, zp], axis=1)
+        zinf = z.max(axis=1) if z.shape[1] else np.zeros(len(r))
+        zs = np.concatenate([r / sc.r_tol[None], phi / sc.phi_tol[None]], axis=1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            m = 0.5 * np.einsum("fi,fi->f", zs, zs)
+        return imb, cerr, zinf, m
+
+    # ------------------------------------------------------------------ the solve
+    def solve(self, state0, C: int, max_iter: int | None = None) -> list[CaseResult]:
+        """Plain FIM_S from ``state0`` (on the constraints) for the ``C`` cases."""
+        model, settings, sc = self.model, self.settings, self.sc
+        max_iter = settings.max_num_iter if max_iter is None else max_iter
+        res = [CaseResult() for _ in range(C)]
+        nq = model.nq
+        states = [state0.copy() for _ in range(C)]
+        for s in states:
+            s.lam[:] = 0.0
+        idx = np.arange(C)
+        try:
+            states = self._multipliers(idx, states, res)
+        except EvaluationError as e:
+            return [CaseResult(why=f"evaluation: {e}") for _ in range(C)]
+        last = np.full(C, np.inf)
+        merits: list[list] = [[] for _ in range(C)]
+        live = np.array([not r.why for r in res])
+        it = 0
+        while live.any():
+            idx = np.nonzero(live)[0]
+            cur = [states[i] for i in idx]
+            try:
+                r, phi, J = self.evaluate(idx, cur, True)
+            except EvaluationError as e:
+                self._give_up(res, idx, f"evaluation: {e}")
+                break
+            imb, cerr, zinf, m0 = self.scaled(r, phi)
+            err = np.maximum(cerr, np.where(np.isfinite(last[idx]), last[idx], 0.0))
+            done = (zinf <= 1.0) & (last[idx] <= settings.max_error)
+            for j in np.nonzero(done)[0]:
+                i = idx[j]
+                rows = res[i].rows + [(float(imb[j]), float(err[j]), np.nan, np.nan)]
+                res[i] = CaseResult(alone=False, iterations=it, error=float(err[j]), rows=rows)
+                live[i] = False
+            go = ~done
+            if not go.any():
+                break
+            if it >= max_iter:
+                self._give_up(res, idx[go], "iteration limit")
+                break
+            idx, r, phi, J = idx[go], r[go], phi[go], J[go]
+            cur = [states[i] for i in idx]
+            imb, cerr, zinf, m0, err = imb[go], cerr[go], zinf[go], m0[go], err[go]
+            A = self.regularised(J, cur)
+            x, bad = self._solve(A, -np.concatenate([r, phi], axis=1))
+            self._give_up(res, idx[bad], "singular or ill-conditioned Newton matrix")
+            live[idx[bad]] = False
+            ok = ~bad
+            idx, x, A, cur = idx[ok], x[ok], A[ok], [c for c, k in zip(cur, ok) if k]
+            imb, cerr, zinf, m0, err = imb[ok], cerr[ok], zinf[ok], m0[ok], err[ok]
+            dq, dl = x[:, :nq], x[:, nq:]
+            # step limits and the neutral-direction filter, per case (the plain path's)
+            alpha = np.ones(len(idx))
+            trials = []
+            for j, i in enumerate(idx):
+                a, first = limit_step(model, cur[j], dq[j], settings)
+                if neutral_filtered(model, cur[j], _Dense(A[j]), x[j], self.eps, sc,
+                                    float(zinf[j]), a < 1.0) is not None:
+                    self._give_up(res, [i], "near-neutral directions (filtered step)")
+                    live[i] = False
+                alpha[j] = a
+                trials.append(first)
+            keep = live[idx]
+            idx, dq, dl, alpha, cur = idx[keep], dq[keep], dl[keep], alpha[keep], \
+                [c for c, k in zip(cur, keep) if k]
+            trials = [t for t, k in zip(trials, keep) if k]
+            imb, cerr, zinf, m0, err = imb[keep], cerr[keep], zinf[keep], m0[keep], err[keep]
+            if not len(idx):
+                it += 1
+                continue
+            best = self._line_search(idx, cur, trials, dq, dl, alpha, m0, res, live)
+            for j, i in enumerate(idx):
+                if not live[i]:
+                    continue
+                bm, ba, bs = best[j]
+                if zinf[j] <= 1.0 and not bm < m0[j]:
+                    # round-off floor: the error is the step not taken (newton.py)
+                    nxt = float(np.max(np.abs(dq[j]) / sc.q_len)) if nq else 0.0
+                    e = float(max(cerr[j], nxt))
+                    res[i] = CaseResult(alone=False, iterations=it, error=e,
+                                        rows=res[i].rows + [(float(imb[j]), e, np.nan, np.nan)])
+                    live[i] = False
+                    continue
+                merits[i].append(m0[j])
+                ms = merits[i]
+                crawl = len(ms) > CRAWL and not m0[j] <= 0.5 * ms[-1 - CRAWL]
+                if settings.line_search and zinf[j] > 1.0 and (
+                        crawl or ba < ALPHA_STALL or not bm <= (1 - ARMIJO * ba) * m0[j]):
+                    self._give_up(res, [i], "stalled line search")
+                    live[i] = False
+                    continue
+                last[i] = float(np.max(np.abs(ba * dq[j]) / sc.q_len)) if nq else 0.0
+                res[i].rows.append((float(imb[j]), float(err[j]), last[i], ba))
+                states[i] = bs
+            it += 1
+        self._certify(res, states)
+        return res
+
+    def _multipliers(self, idx, states, res):
+        """Least-squares initial multipliers of every case (``initial_multipliers``)."""
+        model = self.model
+        if not model.nc:
+            return states
+        nq = model.nq
+        r, _, J = self.evaluate(idx, states, True)
+        K = J.copy()
+        K[:, :nq, :nq] = np.diag(coord_weights(model))[None]
+        x, bad = self._solve(K, np.concatenate([-r, np.zeros((len(idx), model.nc))], axis=1))
+        for j, i in enumerate(idx):
+            if bad[j]:
+                res[i].why = "singular least-squares multipliers"
+                continue
+            states[i].lam = np.where(self.active, x[j, nq:], 0.0)
+        return states
+
+    def _solve(self, A, b):
+        """Batched dense solve with the single-case factorisation's tests: ``(x, bad)``."""
+        bad = ~np.isfinite(A).all(axis=(1, 2))
+        x = np.zeros_like(b)
+        good = np.nonzero(~bad)[0]
+        if not len(good):
+            return x, bad
+        sv = np.linalg.svd(A[good], compute_uv=False)
+        sing = sv[:, -1] <= SINGULAR_REL * np.maximum(sv[:, 0], 1e-300)
+        bad[good[sing]] = True
+        good = good[~sing]
+        if not len(good):
+            return x, bad
+        Ag, bg = A[good], b[good]
+        xg = np.linalg.solve(Ag, bg[..., None])[..., 0]
+        for _ in range(3):                    # iterative refinement (linalg.Factor)
+            res = bg - np.einsum("fij,fj->fi", Ag, xg)
+            if (np.linalg.norm(res, axis=1) <= 1e-8 * np.linalg.norm(bg, axis=1)).all():
+                break
+            xg = xg + np.linalg.solve(Ag, res[..., None])[..., 0]
+        res = bg - np.einsum("fij,fj->fi", Ag, xg)
+        off = ~(np.isfinite(xg).all(axis=1)
+                & (np.linalg.norm(res, axis=1) <= 1e-8 * np.linalg.norm(bg, axis=1)))
+        bad[good[off]] = True
+        x[good] = xg
+        return x, bad
+
+    def _line_search(self, idx, cur, trials, dq, dl, alpha, m0, res, live):
+        """Backtracking per case on the scaled residual (Armijo), trials evaluated together:
+        ``[(merit, alpha, state)]`` of the best trial per case."""
+        model, settings = self.model, self.settings
+        n = len(idx)
+        best = [(np.inf, np.nan, None)] * n
+        pend = np.ones(n, bool)
+        for _ in range(LINE_SEARCH_MAX + 1):
+            js = np.nonzero(pend)[0]
+            if not len(js):
+                break
+            tr = []
+            for j in js:
+                if trials[j] is not None:
+                    t, trials[j] = trials[j], None
+                    t.lam = t.lam + alpha[j] * dl[j]
+                else:
+                    t = model.retract(cur[j], alpha[j] * dq[j], alpha[j] * dl[j])
+                tr.append(t)
+            try:
+                r, phi, _ = self.evaluate(idx[js], tr, False)
+            except EvaluationError as e:
+                self._give_up(res, idx[js], f"trial evaluation: {e}")
+                live[idx[js]] = False
+                return best
+            m1 = self.scaled(r, phi)[3]
+            for k, j in enumerate(js):
+                if m1[k] < best[j][0]:
+                    best[j] = (float(m1[k]), float(alpha[j]), tr[k])
+                if not settings.line_search or m1[k] <= (1.0 - ARMIJO * alpha[j]) * m0[j]:
+                    pend[j] = False
+                else:
+                    alpha[j] *= 0.5
+        for j in range(n):
+            if best[j][2] is None and live[idx[j]]:
+                self._give_up(res, [idx[j]], "no finite trial")
+                live[idx[j]] = False
+        return best
+
+    def _certify(self, res, states):
+        """Certify the converged cases at their written states (every row evaluated, removed
+        rows excluded; imbalance and error measured there) and classify their stability."""
+        model, settings = self.model, self.settings
+        idx = np.array([i for i, c in enumerate(res) if not c.alone], int)
+        if not len(idx):
+            return
+        st = [states[i] for i in idx]
+        try:
+            r, phi, J = self._all_rows(idx, st)
+        except EvaluationError as e:
+            self._give_up(res, idx, f"output evaluation: {e}")
+            return
+        imb, cerr, zinf, _ = self.scaled(r, np.where(self.active[None], phi, 0.0))
+        removed = ~self.active
+        broken = (np.abs(phi[:, removed]) / self.sc.phi_tol[removed][None] > 1.0).any(axis=1) \
+            if removed.any() else np.zeros(len(idx), bool)
+        infos = classify_dense_frames(model, J, self.active)
+        for j, i in enumerate(idx):
+            c = res[i]
+            own = c.error
+            error = max(float(cerr[j]), own) if np.isfinite(own) else float(cerr[j])
+            if broken[j]:
+                why = "a removed redundant equation is violated"
+            elif not (zinf[j] <= 1.0 and error <= settings.max_error):
+                why = "not certified at the written state"
+            elif infos[j].klass != "stable" or infos[j].n_negative or infos[j].n_zero:
+                why = f"stability {infos[j].klass}"
+            else:
+                res[i] = replace(c, state=st[j], imbalance=float(imb[j]), error=error,
+                                 info=infos[j])
+                continue
+            res[i] = CaseResult(why=why)
+
+    def _all_rows(self, idx, st):
+        """Residuals, every constraint value and the unregularised Jacobians (all rows)."""
+        active, self.active = self.active, np.ones_like(self.active)
+        try:
+            return self.evaluate(idx, st, True)
+        finally:
+            self.active = active
+
+    @staticmethod
+    def _give_up(res, idx, why):
+        for i in idx:
+            res[i] = CaseResult(why=why)
+
+
+__all__ = ["CaseBatch", "CaseResult"]
