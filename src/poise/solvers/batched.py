@@ -28,7 +28,8 @@ from poise.model.workspace import Workspace
 from poise.solvers.newton import ARMIJO, ALPHA_STALL, CRAWL, LINE_SEARCH_MAX, Scales
 from poise.solvers.reach import coord_weights
 from poise.solvers.stability import classify_dense_frames
-from poise.solvers.steps import limit_step, neutral_filtered
+from poise.model.retract_many import limit_many, retract_many
+from poise.solvers.steps import TAIL_SHARE, neutral_filtered
 
 SINGULAR_REL = 1e-15          # the dense Factor's singular-value test (solvers/linalg.py)
 
@@ -181,16 +182,12 @@ class CaseBatch:
             imb, cerr, zinf, m0, err = imb[ok], cerr[ok], zinf[ok], m0[ok], err[ok]
             dq, dl = x[:, :nq], x[:, nq:]
             # step limits and the neutral-direction filter, per case (the plain path's)
-            alpha = np.ones(len(idx))
-            trials = []
-            for j, i in enumerate(idx):
-                a, first = limit_step(model, cur[j], dq[j], settings)
+            alpha, trials = limit_many(model, cur, dq, settings)
+            for j in np.nonzero(self._may_filter(cur, x, zinf, alpha < 1.0))[0]:
                 if neutral_filtered(model, cur[j], _Dense(A[j]), x[j], self.eps, sc,
-                                    float(zinf[j]), a < 1.0) is not None:
-                    self._give_up(res, [i], "near-neutral directions (filtered step)")
-                    live[i] = False
-                alpha[j] = a
-                trials.append(first)
+                                    float(zinf[j]), alpha[j] < 1.0) is not None:
+                    self._give_up(res, [idx[j]], "near-neutral directions (filtered step)")
+                    live[idx[j]] = False
             keep = live[idx]
             idx, dq, dl, alpha, cur = idx[keep], dq[keep], dl[keep], alpha[keep], \
                 [c for c, k in zip(cur, keep) if k]
@@ -226,6 +223,23 @@ class CaseBatch:
             it += 1
         self._certify(res, states)
         return res
+
+    def _may_filter(self, states, x, zinf, limited):
+        """Cases whose step :func:`neutral_filtered` would examine (its first test)."""
+        model, eps = self.model, self.eps
+        if not eps > 0 or model.nq == 0:
+            return np.zeros(len(states), bool)
+        nq = model.nq
+        reg = np.zeros((len(states), nq))
+        reg[:, model.trans_idx] = np.repeat(model.body_mass, 3)[None] * x[:, model.trans_idx]
+        if len(model.rot_idx):
+            R = np.stack([s.rot for s in states])[:, model.rot_body]
+            Jg = np.matmul(R, np.matmul(model.body_inertia[model.rot_body][None],
+                                        np.swapaxes(R, 2, 3)))
+            v = x[:, model.rot_idx].reshape(len(states), -1, 3)
+            reg[:, model.rot_idx] = np.einsum("cnij,cnj->cni", Jg, v).reshape(len(states), -1)
+        share = np.max(np.abs(eps * reg) / self.sc.r_tol[None], axis=1) / np.maximum(zinf, 1e-300)
+        return limited | (share > TAIL_SHARE)
 
     def _multipliers(self, idx, states, res):
         """Least-squares initial multipliers of every case (``initial_multipliers``)."""
@@ -282,14 +296,21 @@ class CaseBatch:
             js = np.nonzero(pend)[0]
             if not len(js):
                 break
-            tr = []
-            for j in js:
+            tr: list = [None] * len(js)
+            fresh = []
+            for k, j in enumerate(js):
                 if trials[j] is not None:
                     t, trials[j] = trials[j], None
                     t.lam = t.lam + alpha[j] * dl[j]
+                    tr[k] = t
                 else:
-                    t = model.retract(cur[j], alpha[j] * dq[j], alpha[j] * dl[j])
-                tr.append(t)
+                    fresh.append(k)
+            if fresh:
+                fj = js[fresh]
+                moved = retract_many(model, [cur[j] for j in fj], alpha[fj, None] * dq[fj],
+                                     alpha[fj, None] * dl[fj])
+                for k, t in zip(fresh, moved):
+                    tr[k] = t
             try:
                 r, phi, _ = self.evaluate(idx[js], tr, False)
             except EvaluationError as e:
