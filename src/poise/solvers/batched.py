@@ -273,14 +273,19 @@ class CaseBatch:
             return x, bad
         Ag, bg = A[good], b[good]
         xg = np.linalg.solve(Ag, bg[..., None])[..., 0]
-        for _ in range(3):                    # iterative refinement (linalg.Factor)
-            res = bg - np.einsum("fij,fj->fi", Ag, xg)
-            if (np.linalg.norm(res, axis=1) <= 1e-8 * np.linalg.norm(bg, axis=1)).all():
+        nb = np.linalg.norm(bg, axis=1)
+        todo = nb > 0
+        for _ in range(3):                    # iterative refinement, per case (linalg.Factor)
+            if not todo.any():
                 break
-            xg = xg + np.linalg.solve(Ag, res[..., None])[..., 0]
-        res = bg - np.einsum("fij,fj->fi", Ag, xg)
-        off = ~(np.isfinite(xg).all(axis=1)
-                & (np.linalg.norm(res, axis=1) <= 1e-8 * np.linalg.norm(bg, axis=1)))
+            res = bg[todo] - np.matmul(Ag[todo], xg[todo][..., None])[..., 0]
+            fine = np.linalg.norm(res, axis=1) <= 1e-8 * nb[todo]
+            more = np.nonzero(todo)[0][~fine]
+            todo[np.nonzero(todo)[0][fine]] = False
+            if len(more):
+                xg[more] = xg[more] + np.linalg.solve(Ag[more], res[~fine][..., None])[..., 0]
+        res = bg - np.matmul(Ag, xg[..., None])[..., 0]
+        off = ~(np.isfinite(xg).all(axis=1) & (np.linalg.norm(res, axis=1) <= 1e-4 * nb))
         bad[good[off]] = True
         x[good] = xg
         return x, bad
