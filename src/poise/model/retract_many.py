@@ -78,16 +78,21 @@ def _track(model, new: list, old: list, w: np.ndarray) -> None:
     rb = model.rot_body
     if not len(rb):
         return
-    again = []
-    for c, (n, o) in enumerate(zip(new, old)):
+    have = [c for c, o in enumerate(old) if o.rotvec is not None]
+    for c, o in enumerate(old):
         if o.rotvec is None:
-            n.rotvec = None
-            continue
-        rv = o.rotvec.copy()
-        rv[rb] += w[c]
-        n.rotvec = rv
-        n.rotvec_drift = o.rotvec_drift + float(np.sqrt((w[c] * w[c]).sum(1).max()))
-        if n.rotvec_drift > np.pi / 2:
+            new[c].rotvec = None
+    if not have:
+        return
+    rv = np.stack([old[c].rotvec for c in have])
+    rv[:, rb] += w[have]
+    drift = np.array([old[c].rotvec_drift for c in have]) + np.sqrt(
+        (w[have] * w[have]).sum(2).max(axis=1))
+    again = []
+    for k, c in enumerate(have):
+        new[c].rotvec = rv[k]
+        new[c].rotvec_drift = float(drift[k])
+        if drift[k] > np.pi / 2:
             again.append(c)
     if again:
         rot = np.stack([new[c].rot for c in again])
@@ -114,16 +119,17 @@ def limit_many(model, states: list, dq: np.ndarray, settings):
         if not len(todo):
             break
         trial = retract_many(model, [states[c] for c in todo], fac[todo, None] * dq[todo])
-        left = []
-        for k, c in enumerate(todo):
-            disp = float(np.max(np.linalg.norm(trial[k].pos - states[c].pos, axis=1))) \
-                if model.nb else 0.0
-            if disp <= lim * 1.0001:
-                out[c] = trial[k]
-            else:
-                fac[c] *= 0.9 * lim / disp
-                left.append(c)
-        todo = np.asarray(left, int)
+        if model.nb:
+            moved = np.stack([t.pos for t in trial]) - np.stack([states[c].pos for c in todo])
+            disp = np.linalg.norm(moved, axis=2).max(axis=1)
+        else:
+            disp = np.zeros(len(todo))
+        fine = disp <= lim * 1.0001
+        for k in np.nonzero(fine)[0]:
+            out[todo[k]] = trial[k]
+        over = todo[~fine]
+        fac[over] *= 0.9 * lim / disp[~fine]
+        todo = over
     return fac, out
 
 
