@@ -160,3 +160,16 @@ def test_swept_pendulum_stiffness_against_the_closed_form():
         cg = rec.outputs["bodies[2].position"][0]
         assert math.isclose(math.atan2(cg[1], cg[0]) % (2 * math.pi),
                             ref["theta"] % (2 * math.pi), abs_tol=1e-9)
+
+
+def test_an_invalid_case_is_reported_as_its_single_solve_reports_it():
+    """A translational spring's free length < 0 is valid as a number but not for that type:
+    the validator's element rule, as ``poise solve`` would say it (``invalid_deck``)."""
+    deck, params, cases, job = _setup("fourbar_spring.xml",
+                                      {"Force_SpringDamper[1].length": "-50,150,200"})
+    template = make_template(job, {})
+    together = solve_chunk(template, list(enumerate(cases)))
+    alone = solve_chunk(template, list(enumerate(cases)), batched=False)
+    assert together[0].status == "invalid_deck" and "length" in together[0].message
+    for a, b in zip(together, alone):
+        _same_verdict(a, b, 400.0)

@@ -18,13 +18,15 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
 from poise.app.cases import apply_case
 from poise.app.runner import plan
-from poise.core.errors import DeckError, UsageError
+from poise.core.errors import DeckError, ProblemCollector, UsageError
+from poise.deck.checks import check_element, check_specific
+from poise.deck.schema import element_schema
 from poise.model.compile import compile_model
 from poise.model.frame_batch import batchable
 from poise.elements.registry import tileable_kernels
@@ -229,6 +231,31 @@ def _input_files(spec, model) -> str:
     return json.dumps(inputs, sort_keys=True) if inputs else ""
 
 
+class CaseChecks:
+    """The per-element checks the validator runs on the elements a case changes (schema
+    values, element-specific rules such as a translational spring's length >= 0): a case
+    with any problem or warning is solved alone, which reports it as the single solve does."""
+
+    def __init__(self, template):
+        spec = template.spec
+        self.params = list(template.job.numeric)
+        self.markers = {e.id: e for e in spec.model if e.tag == "Reference_Marker"}
+        self.elements = {}
+        for p in self.params:
+            el = next((e for e in spec.model if e.tag == p.tag and (p.id is None or e.id == p.id)),
+                      None)
+            if el is not None:
+                self.elements.setdefault(id(el), (el, []))[1].append(p)
+
+    def ok(self, values: dict) -> bool:
+        pc = ProblemCollector()
+        for el, params in self.elements.values():
+            case = replace(el, attrs={**el.attrs, **{p.attr: values[p.key] for p in params}})
+            check_element(pc, case, element_schema(el.tag))
+            check_specific(pc, case, self.markers)
+        return not (pc.problems or pc.warnings)
+
+
 def solve_batched(template, cases, record, alone) -> list:
     """Records of ``cases`` (``[(case number, values)]``): the batch's where it converged
     cleanly, ``alone(index, values)`` (the single-case path) for the others. ``record``
@@ -238,6 +265,13 @@ def solve_batched(template, cases, record, alone) -> list:
     bp = plan_for(template, cases[0][1])
     if bp is None:
         return [alone(i, v) for i, v in cases]
+    checks = CaseChecks(template)
+    ok = [checks.ok(v) for _, v in cases]
+    if not all(ok):                    # problems: those cases alone, the others together
+        good = [c for c, k in zip(cases, ok) if k]
+        done = {i: r for (i, _), r in zip(good, solve_batched(template, good, record, alone)
+                                          if len(good) > 1 else [alone(*c) for c in good])}
+        return [done[i] if i in done else alone(i, v) for i, v in cases]
     t0 = time.perf_counter()
     vals = np.array([[float(v[k]) for k in bp.keys] for _, v in cases], float).reshape(
         len(cases), len(bp.keys))
