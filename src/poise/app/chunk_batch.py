@@ -33,6 +33,7 @@ from poise.elements.registry import tileable_kernels
 from poise.solvers.batched import CaseBatch
 from poise.solvers.newton import ASSEMBLY_TOL
 from poise.solvers.redundancy import detect_redundancy
+from poise.solvers.stability import DENSE_LIMIT
 
 AFFINE_REL = 1e-12            # affine prediction of a probe's arrays, relative
 EVAL_REL = 1e-10              # batched vs own evaluation of a probe, relative
@@ -112,8 +113,8 @@ def plan_batch(template, anchor: dict) -> BatchPlan | None:
         return None
     v0 = np.array([float(anchor[k]) for k in keys], float)
     model = _compile(template, keys, v0)
-    if model is None or not batchable(model):
-        return None
+    if model is None or not batchable(model) or model.nq > DENSE_LIMIT:
+        return None                  # (the dense stability classification, as a single solve)
     probes = []
     for p in range(len(keys)):
         h = 0.25 * abs(v0[p]) or 1.0
