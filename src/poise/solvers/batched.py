@@ -108,12 +108,17 @@ class CaseBatch:
         A[:, ti, ti] += eps * np.repeat(model.body_mass, 3)[None]
         if len(model.rot_idx):
             ri = np.asarray(model.rot_idx).reshape(-1, 3)
-            R = np.stack([s.rot for s in states])[:, model.rot_body]       # (F, nr, 3, 3)
-            Jg = np.matmul(R, np.matmul(model.body_inertia[model.rot_body][None],
-                                        np.swapaxes(R, 2, 3)))
+            Jg = self._inertia(states)
             for b in range(len(ri)):
                 A[:, ri[b][:, None], ri[b][None, :]] += eps * Jg[:, b]
         return A
+
+    def _inertia(self, states):
+        """World inertia of the rigid bodies per case, (F, nr, 3, 3) (``Model.mass_blocks``)."""
+        model = self.model
+        R = np.stack([s.rot for s in states])[:, model.rot_body]
+        return np.matmul(R, np.matmul(model.body_inertia[model.rot_body][None],
+                                      np.swapaxes(R, 2, 3)))
 
     def scaled(self, r, phi):
         """``(imbalance, constraint error, zinf, merit)`` per case (Newton's measures)."""
@@ -233,9 +238,7 @@ class CaseBatch:
         reg = np.zeros((len(states), nq))
         reg[:, model.trans_idx] = np.repeat(model.body_mass, 3)[None] * x[:, model.trans_idx]
         if len(model.rot_idx):
-            R = np.stack([s.rot for s in states])[:, model.rot_body]
-            Jg = np.matmul(R, np.matmul(model.body_inertia[model.rot_body][None],
-                                        np.swapaxes(R, 2, 3)))
+            Jg = self._inertia(states)
             v = x[:, model.rot_idx].reshape(len(states), -1, 3)
             reg[:, model.rot_idx] = np.einsum("cnij,cnj->cni", Jg, v).reshape(len(states), -1)
         share = np.max(np.abs(eps * reg) / self.sc.r_tol[None], axis=1) / np.maximum(zinf, 1e-300)
