@@ -1,15 +1,14 @@
-"""``make bench`` / ``make bench-quick``: every benchmark suite, from the repository root.
+"""``make bench`` / ``make bench-quick``: every benchmark table, from the repository root.
 
     python -m benchmarks [--out bench/results.jsonl] [--markdown docs/performance.md]
-                         [--sizes 10,100,1000,10000] [--repeat 3] [--cli-repeat 7] [--quick]
+                         [--only TABLE,...] [--skip TABLE,...] [--sizes 10,100,1000,10000]
+                         [--repeat 3] [--cli-repeat 7] [--quick]
 
-Runs the hanging-chain and command-line benchmarks (:mod:`benchmarks.chain`), the expression
-benchmark (:mod:`benchmarks.expr`), the work-precision, peer and scaling suites
-(:mod:`benchmarks.suite`), the time-to-fail table (:mod:`benchmarks.failfast`), the
-stable-equilibria table (:mod:`benchmarks.stable`) and the quasi-static path tables
-(:mod:`benchmarks.singular`, :mod:`benchmarks.frame_error`), then writes the JSON lines and the
-markdown report.
-The benchmarks are not part of the installed package.
+The tables are declared once, in :data:`TABLES` (name, what it measures, how to run it); every
+table runs unless ``--only`` names others or ``--skip`` names it. A table's run returns a
+:class:`Out`: summary records (rendered by :func:`benchmarks.chain.render_markdown`), extra JSON
+rows, markdown sections and PASS/MISS targets. The JSON lines and the markdown report are
+written at the end. The benchmarks are not part of the installed package.
 """
 from __future__ import annotations
 
@@ -17,143 +16,177 @@ import argparse
 import json
 import sys
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
-from benchmarks import adm as bench_adm
-from benchmarks import expr as bench_expr
-from benchmarks import failfast as bench_failfast
-from benchmarks import frame_error as bench_frame_error
-from benchmarks import singular as bench_singular
-from benchmarks import stable as bench_stable
-from benchmarks import sweep as bench_sweep
 from benchmarks.chain import (SIZES, SMALL_DECK, _pf, _s, bench_chain, bench_cli,
                               machine_info, render_markdown, targets)
-from benchmarks.suite import run as run_issue7
+
+
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+@dataclass
+class Out:
+    """What one table produced: ``results`` (summary records, also read by later tables),
+    ``rows`` (more JSON lines), ``md`` (markdown sections), ``targets`` ((name, limit,
+    measured, ok) tuples)."""
+
+    results: list = field(default_factory=list)
+    rows: list = field(default_factory=list)
+    md: list = field(default_factory=list)
+    targets: list = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Run:
+    """What a table's run gets: the options, a scratch directory, the repository root and the
+    summary records of the tables that ran before it."""
+
+    args: argparse.Namespace
+    tmp: Path
+    root: Path
+    results: list
+
+
+def _chain(r: Run) -> Out:
+    out = Out()
+    for n in [int(x) for x in r.args.sizes.split(",") if x.strip()]:
+        c = bench_chain(n, max(1, r.args.repeat), r.tmp)
+        _log(f"chain N={n}: parse {_s(c['parse_s']['median'])} s, compile "
+             f"{_s(c['compile_s']['median'])} s, solve {_s(c['solve_s']['median'])} s, "
+             f"{c['iterations']} iterations, {c['status']}")
+        out.results.append(c)
+    return out
+
+
+def _cli(r: Run) -> Out:
+    out = Out()
+    if (r.root / SMALL_DECK).exists():
+        for c in bench_cli(max(1, r.args.cli_repeat), r.tmp, r.root):
+            _log(f"{c['command']}: {_s(c['wall_s']['median'])} s")
+            out.results.append(c)
+    return out
+
+
+def _expr(r: Run) -> Out:
+    from benchmarks import expr
+    rx = expr.bench_expressions()
+    _log(f"expressions n={rx['n']}: compile {_s(rx['compile_s']['median'])} s, "
+         f"evaluate {1e3 * rx['eval_s']['median']:.2f} ms")
+    return Out([rx], [], [expr.markdown(rx)], expr.targets(rx))
+
+
+def _adm(r: Run) -> Out:
+    from benchmarks import adm
+    ra = adm.bench_adm(r.tmp)
+    _log(f"adm {ra['statements']} statements: check {_s(ra['check_s']['median'])} s")
+    return Out([ra], [], [adm.markdown(ra)], adm.targets(ra))
+
+
+def _sweep(r: Run) -> Out:
+    from benchmarks import sweep
+    sw = sweep.run(r.tmp, r.root, (1000, 10_000) if r.args.quick else (1000, 100_000), log=_log)
+    return Out(sw, [], sweep.markdown(sw), sweep.targets(sw))
+
+
+def _wp(r: Run) -> Out:
+    from benchmarks.suite import run as run_issue7
+    other = ("expressions", "adm_read_check", "sweep", "solve_process", "inprocess_solve")
+    rows, md, t = run_issue7(r.root, r.tmp, [x for x in r.results if x.get("bench") not in other],
+                             quick=r.args.quick)
+    return Out([], rows, md, t)
+
+
+def _rows_table(*modules: str) -> Callable[[Run], Out]:
+    """A table made of modules whose ``run(tmp, log=, quick=)`` gives (rows, md, targets)."""
+    def run(r: Run) -> Out:
+        import importlib
+        out = Out()
+        for name in modules:
+            rows, md, t = importlib.import_module(f"benchmarks.{name}").run(
+                r.tmp, log=_log, quick=r.args.quick)
+            out.rows += rows
+            out.md += md
+            out.targets += t
+        return out
+    return run
+
+
+@dataclass(frozen=True)
+class Table:
+    name: str
+    help: str
+    run: Callable[[Run], Out]
+
+
+TABLES = (
+    Table("chain", "hanging chain: parse, compile, solve per size (--sizes)", _chain),
+    Table("cli", "command-line runs of the small deck", _cli),
+    Table("expr", "10,000 expression-based forces (issue 3)", _expr),
+    Table("adm", "a 2,500-statement Adams dataset read and checked (issue 23)", _adm),
+    Table("sweep", "sweeps of a small model, in-process solve (issue 25 §1)", _sweep),
+    Table("wp", "work-precision, peers, scaling, the §2 floor (issue 7; reads chain's records)",
+          _wp),
+    Table("failfast", "time to fail: failing decks against healthy ones (issue 22)",
+          _rows_table("failfast")),
+    Table("path", "singular configurations and frame error of quasi-static paths (issue 22)",
+          _rows_table("singular", "frame_error")),
+    Table("stable", "stable equilibria: MKEAM and --require-stable against FIM_S",
+          _rows_table("stable")),
+)
+NAMES = tuple(t.name for t in TABLES)
+
+
+def _names(text: str | None, ap: argparse.ArgumentParser, option: str) -> set[str]:
+    names = {x.strip() for x in (text or "").split(",") if x.strip()}
+    bad = sorted(names - set(NAMES))
+    if bad:
+        ap.error(f"{option}: unknown table(s) {', '.join(bad)} (tables: {', '.join(NAMES)})")
+    return names
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks",
-                                 description="Run the poise benchmarks (make bench).")
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks", description="Run the poise benchmarks (make bench).",
+        epilog="tables: " + "; ".join(f"{t.name}: {t.help}" for t in TABLES))
     ap.add_argument("--out", default="bench/results.jsonl", help="JSON lines output")
     ap.add_argument("--markdown", default=None, help="markdown report (docs/performance.md)")
+    ap.add_argument("--only", default=None, metavar="TABLE,...",
+                    help=f"run only these tables (of: {', '.join(NAMES)})")
+    ap.add_argument("--skip", default=None, metavar="TABLE,...", help="skip these tables")
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)), help="chain sizes, comma-separated")
     ap.add_argument("--repeat", type=int, default=3, help="runs per chain size (fresh processes)")
     ap.add_argument("--cli-repeat", type=int, default=7, help="runs per command-line benchmark")
-    ap.add_argument("--no-cli", action="store_true", help="skip the command-line benchmarks")
     ap.add_argument("--quick", action="store_true",
-                    help="issue-7 suites with a reduced ladder and sizes (make bench-quick)")
-    ap.add_argument("--no-adm", action="store_true",
-                    help="skip the Adams dataset reading benchmark (issue 23)")
-    ap.add_argument("--no-expr", action="store_true",
-                    help="skip the expression benchmark (issue 3)")
-    ap.add_argument("--no-wp", action="store_true",
-                    help="skip the issue-7 suites (work-precision, peer, scaling)")
-    ap.add_argument("--no-stable", action="store_true",
-                    help="skip the stable-equilibria table (MKEAM, --require-stable; also "
-                         "skipped with --no-wp)")
-    ap.add_argument("--stable-only", action="store_true",
-                    help="run only the stable-equilibria table")
-    ap.add_argument("--no-sweep", action="store_true",
-                    help="skip the sweep table (issue 25 §1: 1000 and 100,000 cases)")
-    ap.add_argument("--sweep-only", action="store_true", help="run only the sweep table")
-    ap.add_argument("--no-failfast", action="store_true",
-                    help="skip the time-to-fail table (failing decks vs healthy ones)")
-    ap.add_argument("--failfast-only", action="store_true",
-                    help="run only the time-to-fail table")
-    ap.add_argument("--no-path", action="store_true",
-                    help="skip the quasi-static path tables (issue 22: time to a singular "
-                         "configuration, reported vs true frame error; also skipped with "
-                         "--no-wp)")
-    ap.add_argument("--path-only", action="store_true",
-                    help="run only the quasi-static path tables")
+                    help="reduced ladders, sizes and sweeps (make bench-quick)")
     args = ap.parse_args(argv)
+    only, skip = _names(args.only, ap, "--only"), _names(args.skip, ap, "--skip")
+    chosen = [t for t in TABLES if (not only or t.name in only) and t.name not in skip]
     root = Path(__file__).resolve().parents[1]
     machine = machine_info()
-    results = []
-    only = args.stable_only or args.failfast_only or args.path_only or args.sweep_only
-    if only:
-        args.sizes, args.no_cli, args.no_expr, args.no_wp = "", True, True, True
-        args.no_adm = True
-        args.no_sweep = not args.sweep_only
+    total = Out()
     with tempfile.TemporaryDirectory(prefix="poise-bench-") as td:
-        tmp = Path(td)
-        for n in [int(x) for x in args.sizes.split(",") if x.strip()]:
-            r = bench_chain(n, max(1, args.repeat), tmp)
-            print(f"chain N={n}: parse {_s(r['parse_s']['median'])} s, compile "
-                  f"{_s(r['compile_s']['median'])} s, solve {_s(r['solve_s']['median'])} s, "
-                  f"{r['iterations']} iterations, {r['status']}", file=sys.stderr)
-            results.append(r)
-        if not args.no_cli and (root / SMALL_DECK).exists():
-            for r in bench_cli(max(1, args.cli_repeat), tmp, root):
-                print(f"{r['command']}: {_s(r['wall_s']['median'])} s", file=sys.stderr)
-                results.append(r)
-        wp_md, wp_targets = [], []
-        if not args.no_expr:    # issue 3: 10 000 expression-based forces
-            rx = bench_expr.bench_expressions()
-            print(f"expressions n={rx['n']}: compile {_s(rx['compile_s']['median'])} s, "
-                  f"evaluate {1e3 * rx['eval_s']['median']:.2f} ms", file=sys.stderr)
-            results.append(rx)
-            wp_md.append(bench_expr.markdown(rx))
-            wp_targets += bench_expr.targets(rx)
-        if not args.no_adm:     # issue 23: a 2,500-statement Adams dataset read and checked
-            ra = bench_adm.bench_adm(tmp)
-            print(f"adm {ra['statements']} statements: check {_s(ra['check_s']['median'])} s",
-                  file=sys.stderr)
-            results.append(ra)
-            wp_md.append(bench_adm.markdown(ra))
-            wp_targets += bench_adm.targets(ra)
-        if not args.no_sweep:   # issue 25 §1: sweeps of a small model, in-process solve
-            sw = bench_sweep.run(tmp, root, (1000, 10_000) if args.quick else (1000, 100_000),
-                                 log=lambda m: print(m, file=sys.stderr, flush=True))
-            results += sw
-            wp_md += bench_sweep.markdown(sw)
-            wp_targets += bench_sweep.targets(sw)
-        if not args.no_wp:      # issue 7: work-precision, peer, scaling (benchmarks)
-            other = ("expressions", "adm_read_check", "sweep", "solve_process",
-                     "inprocess_solve")
-            wp_rows, md7, t7 = run_issue7(root, tmp, [r for r in results
-                                                       if r.get("bench") not in other],
-                                          quick=args.quick)
-            wp_md += md7
-            wp_targets += t7
-        st_rows = []
-        if not args.no_failfast and (args.failfast_only or not only):
-            # time to fail: failing decks against their healthy counterparts
-            ff_rows, ff_md, ff_t = bench_failfast.run(
-                tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
-            st_rows += ff_rows
-            wp_md += ff_md
-            wp_targets += ff_t
-        if args.path_only or not (only or args.no_path or args.no_wp):
-            # issue 22: singular configurations, frame error bounds (long suites, like wp)
-            for table in (bench_singular, bench_frame_error):
-                rows_p, p_md, p_t = table.run(
-                    tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
-                st_rows += rows_p
-                wp_md += p_md
-                wp_targets += p_t
-        if args.stable_only or not (only or args.no_stable or args.no_wp):
-            # stable equilibria: MKEAM and --require-stable vs FIM_S (a long suite, like wp)
-            rows_s, st_md, st_t = bench_stable.run(
-                tmp, log=lambda m: print(m, file=sys.stderr, flush=True), quick=args.quick)
-            st_rows += rows_s
-            wp_md += st_md
-            wp_targets += st_t
+        for table in chosen:
+            out = table.run(Run(args, Path(td), root, list(total.results)))
+            total.results += out.results
+            total.rows += out.rows
+            total.md += out.md
+            total.targets += out.targets
     if args.out:
         p = Path(args.out)
         p.parent.mkdir(parents=True, exist_ok=True)
         with p.open("w") as f:
-            for r in results:
-                f.write(json.dumps(dict(r, machine=machine), sort_keys=True) + "\n")
-            for r in st_rows:
-                f.write(json.dumps(dict(r, machine=machine), sort_keys=True, default=float) + "\n")
-            for r in wp_rows if not args.no_wp else []:
-                f.write(json.dumps(dict(r, machine=machine), sort_keys=True, default=float) + "\n")
+            for r in total.results + total.rows:
+                f.write(json.dumps(dict(r, machine=machine), sort_keys=True, default=float)
+                        + "\n")
     if args.markdown:
         p = Path(args.markdown)
         p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(render_markdown(results, machine) + "\n" + "\n".join(wp_md))
-    for name, lim, meas, ok in targets(results) + wp_targets:
+        p.write_text(render_markdown(total.results, machine) + "\n" + "\n".join(total.md))
+    for name, lim, meas, ok in targets(total.results) + total.targets:
         print(f"{_pf(ok):4s} {name}: {meas} (target {lim})", file=sys.stderr)
     return 0
 

@@ -10,7 +10,7 @@ turning a free pinion, a slider-crank whose crank torque no slider load position
 joint, gear or coupler removed or a bushing re-routed (the mutations the fuzzer makes), and
 hanging chains of 200 and 1000 links with two pins removed (``poise.gen.chain``). Each pair
 runs round-robin after one warm-up run each (``benchmarks.chain._walls``).
-``python -m benchmarks --failfast-only`` runs this table alone.
+``python -m benchmarks --only failfast`` runs this table alone.
 """
 from __future__ import annotations
 

@@ -8,7 +8,7 @@ frame's true error is measured against a tight FIM_S solve of the same deck (``m
 ``max_error`` = 1e-12): the largest CG displacement / L and the largest rotation [rad] between
 the two states, the measure ``max_error`` and ``frames/error`` use. A row passes when no frame's
 true error exceeds its reported error (plus 1e-12 of round-off).
-``python -m benchmarks --path-only`` runs this table and the singular-configuration table
+``python -m benchmarks --only path`` runs this table and the singular-configuration table
 alone.
 """
 from __future__ import annotations

@@ -11,7 +11,7 @@ path up to there, without the singular point). Whole ``poise solve`` processes (
 solve, results file written), round-robin after one warm-up run each
 (``benchmarks.chain._walls``). A row passes when the run ends ``singular_configuration`` of
 the expected kind, exit 1, at the closed-form time (within ``TIME_TOL``), in at most
-``LIMIT_S`` seconds. ``python -m benchmarks --path-only`` runs this table and the frame-error
+``LIMIT_S`` seconds. ``python -m benchmarks --only path`` runs this table and the frame-error
 table alone.
 """
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The "stable equilibria" table of ``make bench``: MKEAM and ``--require-stable`` against plain
 FIM_S on hanging chains (``poise.gen.chain``), each answer checked against the discrete
 catenary (closed form up to one scalar root, :func:`catenary_cgs`), every time a ratio to FIM_S
-in the same run. ``python -m benchmarks --stable-only`` runs this table alone.
+in the same run. ``python -m benchmarks --only stable`` runs this table alone.
 
 Decks: ``arc`` = the generator's default start (a circular arc near the catenary, span
 0.8 N a); ``V`` = two straight legs (``start="v"``), span 0.6 N a (at 0.8 N a plain FIM_S from

@@ -13,7 +13,7 @@ from support.paths import ROOT
 def test_bench_smoke(tmp_path):
     out = tmp_path / "results.jsonl"
     md = tmp_path / "performance.md"
-    r = subprocess.run([sys.executable, "-m", "benchmarks", "--no-wp", "--no-sweep", "--sizes", "10", "--repeat", "1",
+    r = subprocess.run([sys.executable, "-m", "benchmarks", "--only", "chain,cli", "--sizes", "10", "--repeat", "1",
                         "--cli-repeat", "1", "--out", str(out), "--markdown", str(md)],
                        capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert r.returncode == 0, r.stderr
@@ -33,6 +33,15 @@ def test_bench_smoke(tmp_path):
             assert x["returncode"] == 0 and set(x["wall_s"]) >= {"median", "min", "max"}
     text = md.read_text()
     assert "## Targets" in text and "## Machine" in text and "| 10 |" in text
+
+
+def test_unknown_table_is_a_usage_error(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "benchmarks", "--only", "chain,nosuch",
+                        "--out", str(tmp_path / "r.jsonl")],
+                       capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 2
+    assert "nosuch" in r.stderr and "failfast" in r.stderr     # names the known tables
+    assert not (tmp_path / "r.jsonl").exists()
 
 
 @pytest.mark.slow
