@@ -37,7 +37,7 @@ INPROCESS_TARGET_MS = 3.0
 def _values(n: int) -> str:
     """``n`` stiffness values 10000, 10000 + step, ... (a range string of exactly n values)."""
     step = 20000.0 / n
-    return f"10000:{10000 + step * (n - 1):.10g}:{step:.10g}"
+    return f"10000:{10000 + step * (n - 0.5):.10g}:{step:.10g}"     # (n - 1/2: no rounding loss)
 
 
 def _run_measured(cmd: list[str]) -> tuple[float, int, float]:
@@ -141,7 +141,7 @@ def bench_chunk(root: Path, n: int = 1000, alone: int = 100) -> dict:
 
 
 def run(tmp: Path, root: Path, cases=(1000, 100_000), repeat: int = 5, log=None,
-        inprocess_repeat: int = 50) -> list[dict]:
+        inprocess_repeat: int = 50, chunk: int = 1000) -> list[dict]:
     say = log or (lambda m: None)
     rows = []
     st, rc = _wall(_poise_cmd() + ["solve", str(root / DECK), "-o", str(tmp / "one.h5"),
@@ -151,8 +151,8 @@ def run(tmp: Path, root: Path, cases=(1000, 100_000), repeat: int = 5, log=None,
     for name in (DECK, THREE_BODIES):
         rows.append(bench_inprocess(root, name, inprocess_repeat))
         say(f"poise.solve({name}) in process: {rows[-1]['ms']['median']:.2f} ms")
-    rows.append(bench_chunk(root))
-    say(f"a chunk of 1000 cases in process: {rows[-1]['together_ms']:.2f} ms per case "
+    rows.append(bench_chunk(root, chunk, min(100, chunk)))
+    say(f"a chunk of {chunk} cases in process: {rows[-1]['together_ms']:.2f} ms per case "
         f"together, {rows[-1]['alone_ms']:.2f} ms alone")
     for n in cases:
         rows.append(bench_sweep(n, tmp, root))
