@@ -28,7 +28,7 @@ from poise.core.errors import DeckError, ProblemCollector, UsageError
 from poise.deck.checks import check_element, check_specific
 from poise.deck.schema import element_schema
 from poise.model.compile import compile_model
-from poise.model.frame_batch import batchable
+from poise.model.frame_batch import batchable, chunk_size
 from poise.elements.registry import tileable_kernels
 from poise.solvers.batched import CaseBatch
 from poise.solvers.newton import ASSEMBLY_TOL
@@ -276,8 +276,11 @@ def solve_batched(template, cases, record, alone) -> list:
     t0 = time.perf_counter()
     vals = np.array([[float(v[k]) for k in bp.keys] for _, v in cases], float).reshape(
         len(cases), len(bp.keys))
-    batch = CaseBatch(bp.model, bp.settings, bp.fields(vals), bp.active)
-    res = batch.solve(bp.state0, len(cases))
+    res = []
+    step = chunk_size(bp.model)            # dense (C, N, N) Jacobians: bounded memory
+    for a in range(0, len(cases), step):
+        batch = CaseBatch(bp.model, bp.settings, bp.fields(vals[a:a + step]), bp.active)
+        res += batch.solve(bp.state0, len(vals[a:a + step]))
     wall = (time.perf_counter() - t0) / len(cases)
     out = []
     job = template.job

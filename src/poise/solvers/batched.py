@@ -88,15 +88,21 @@ class CaseBatch:
             out.append((fam, exact))
         set_tiles(model, F, self.ws, out)
         ev = evaluate(model, states, "jacobian" if jac else "residual", workspace=self.ws)
-        phi = np.where(self.active[None], ev.phi, 0.0)
-        J = ev.J
-        if jac and not self.active.all():
-            nq = model.nq
-            off = nq + np.nonzero(~self.active)[0]
+        return ev.r, ev.phi, ev.J
+
+    def masked(self, phi, J=None):
+        """``phi`` with the inactive rows zeroed and ``J`` as a single solve has it (inactive
+        rows and columns replaced by the identity; a copy when there are any)."""
+        if self.active.all():
+            return phi, J
+        phi = np.where(self.active[None], phi, 0.0)
+        if J is not None:
+            J = J.copy()
+            off = self.model.nq + np.nonzero(~self.active)[0]
             J[:, off, :] = 0.0
             J[:, :, off] = 0.0
             J[:, off, off] = 1.0
-        return ev.r, phi, J
+        return phi, J
 
     def regularised(self, J, states):
         """``J`` with ``sqrt(stability) M`` added to the coordinate block (Newton's matrix)."""
@@ -152,15 +158,17 @@ class CaseBatch:
         last = np.full(C, np.inf)
         merits: list[list] = [[] for _ in range(C)]
         live = np.array([not r.why for r in res])
+        self.cache = {}           # case -> (r, phi, J) at its current state, every row
         it = 0
         while live.any():
             idx = np.nonzero(live)[0]
             cur = [states[i] for i in idx]
             try:
-                r, phi, J = self.evaluate(idx, cur, True)
+                r, phi_all, J_all = self._at(idx, cur)
             except EvaluationError as e:
                 self._give_up(res, idx, f"evaluation: {e}")
                 break
+            phi, J = self.masked(phi_all, J_all)
             imb, cerr, zinf, m0 = self.scaled(r, phi)
             err = np.maximum(cerr, np.where(np.isfinite(last[idx]), last[idx], 0.0))
             done = (zinf <= 1.0) & (last[idx] <= settings.max_error)
@@ -205,7 +213,7 @@ class CaseBatch:
             for j, i in enumerate(idx):
                 if not live[i]:
                     continue
-                bm, ba, bs = best[j]
+                bm, ba, bs, bev = best[j]
                 if zinf[j] <= 1.0 and not bm < m0[j]:
                     # round-off floor: the error is the step not taken (newton.py)
                     nxt = float(np.max(np.abs(dq[j]) / sc.q_len)) if nq else 0.0
@@ -225,6 +233,7 @@ class CaseBatch:
                 last[i] = float(np.max(np.abs(ba * dq[j]) / sc.q_len)) if nq else 0.0
                 res[i].rows.append((float(imb[j]), float(err[j]), last[i], ba))
                 states[i] = bs
+                self.cache[i] = bev
             it += 1
         self._certify(res, states)
         return res
@@ -244,14 +253,26 @@ class CaseBatch:
         share = np.max(np.abs(eps * reg) / self.sc.r_tol[None], axis=1) / np.maximum(zinf, 1e-300)
         return limited | (share > TAIL_SHARE)
 
+    def _at(self, idx, states):
+        """``(r, phi, J)`` of cases ``idx`` at their current ``states`` (every row): kept
+        from the line search's trial where it was accepted, else evaluated now."""
+        miss = [k for k, i in enumerate(idx) if i not in self.cache]
+        if miss:
+            r, phi, J = self.evaluate(idx[miss], [states[k] for k in miss], True)
+            for k, i in enumerate(idx[miss]):
+                self.cache[i] = (r[k], phi[k], J[k])
+        got = [self.cache[i] for i in idx]
+        return (np.stack([g[0] for g in got]), np.stack([g[1] for g in got]),
+                np.stack([g[2] for g in got]))
+
     def _multipliers(self, idx, states, res):
         """Least-squares initial multipliers of every case (``initial_multipliers``)."""
         model = self.model
         if not model.nc:
             return states
         nq = model.nq
-        r, _, J = self.evaluate(idx, states, True)
-        K = J.copy()
+        r, phi, J = self.evaluate(idx, states, True)
+        K = self.masked(phi, J)[1].copy()
         K[:, :nq, :nq] = np.diag(coord_weights(model))[None]
         x, bad = self._solve(K, np.concatenate([-r, np.zeros((len(idx), model.nc))], axis=1))
         for j, i in enumerate(idx):
@@ -295,10 +316,10 @@ class CaseBatch:
 
     def _line_search(self, idx, cur, trials, dq, dl, alpha, m0, res, live):
         """Backtracking per case on the scaled residual (Armijo), trials evaluated together:
-        ``[(merit, alpha, state)]`` of the best trial per case."""
+        ``[(merit, alpha, state, its evaluation)]`` of the best trial per case."""
         model, settings = self.model, self.settings
         n = len(idx)
-        best = [(np.inf, np.nan, None)] * n
+        best = [(np.inf, np.nan, None, None)] * n
         pend = np.ones(n, bool)
         for _ in range(LINE_SEARCH_MAX + 1):
             js = np.nonzero(pend)[0]
@@ -319,16 +340,16 @@ class CaseBatch:
                                      alpha[fj, None] * dl[fj])
                 for k, t in zip(fresh, moved):
                     tr[k] = t
-            try:
-                r, phi, _ = self.evaluate(idx[js], tr, False)
+            try:        # with its Jacobian: the accepted trial's serves the next iteration
+                r, phi_all, J = self.evaluate(idx[js], tr, True)
             except EvaluationError as e:
                 self._give_up(res, idx[js], f"trial evaluation: {e}")
                 live[idx[js]] = False
                 return best
-            m1 = self.scaled(r, phi)[3]
+            m1 = self.scaled(r, self.masked(phi_all)[0])[3]
             for k, j in enumerate(js):
                 if m1[k] < best[j][0]:
-                    best[j] = (float(m1[k]), float(alpha[j]), tr[k])
+                    best[j] = (float(m1[k]), float(alpha[j]), tr[k], (r[k], phi_all[k], J[k]))
                 if not settings.line_search or m1[k] <= (1.0 - ARMIJO * alpha[j]) * m0[j]:
                     pend[j] = False
                 else:
@@ -347,11 +368,8 @@ class CaseBatch:
         if not len(idx):
             return
         st = [states[i] for i in idx]
-        try:
-            r, phi, J = self._all_rows(idx, st)
-        except EvaluationError as e:
-            self._give_up(res, idx, f"output evaluation: {e}")
-            return
+        r, phi, J = self._at(idx, st)          # the written states' evaluations, every row
+        self.cache = {}
         imb, cerr, zinf, _ = self.scaled(r, np.where(self.active[None], phi, 0.0))
         removed = ~self.active
         broken = (np.abs(phi[:, removed]) / self.sc.phi_tol[removed][None] > 1.0).any(axis=1) \
@@ -372,14 +390,6 @@ class CaseBatch:
                                  info=infos[j])
                 continue
             res[i] = CaseResult(why=why)
-
-    def _all_rows(self, idx, st):
-        """Residuals, every constraint value and the unregularised Jacobians (all rows)."""
-        active, self.active = self.active, np.ones_like(self.active)
-        try:
-            return self.evaluate(idx, st, True)
-        finally:
-            self.active = active
 
     @staticmethod
     def _give_up(res, idx, why):
