@@ -1,19 +1,17 @@
 """FIM_S for many cases of one model at once: a sweep's chunk solved vectorised over cases.
 
 The cases share the model's structure and differ in per-instance parameters of its tileable
-force families (``CaseFields``: per family, ``{field: (C, n, ...)}``). Each evaluation is one
-call of the evaluation engine over the cases as frames (their families tiled with each case's
-parameters, :func:`poise.model.frame_batch.set_tiles`), each factorisation one batched LAPACK
-call on the dense ``(C, N, N)`` KKT matrices. Per case, masks carry FIM_S's plain Newton
-(:mod:`poise.solvers.newton`): least-squares initial multipliers, ``sqrt(stability) M`` on the
-coordinate block, the singular-value test of the dense factorisation, the step limits
-(:func:`~poise.solvers.steps.limit_step`), the backtracking line search with its Armijo test,
-the convergence test (scaled residual and last step) and its round-off-floor exit; then the
-certification at the written state (all rows evaluated, as :func:`~poise.solvers.certify.certify`)
-and the dense stability classification. Whatever the plain path would leave (a stalled line
-search, the neutral-direction filter, a singular or non-finite step, the iteration limit, a
-removed equation violated, a frame not certified, a class other than stable) marks the case
-``alone``: the caller solves it by the single-case path, so no verdict is weaker than its own.
+force families (per family ``{field: (C, n, ...)}``). Each evaluation is one call of the
+evaluation engine with the cases as frames (families tiled with each case's parameters,
+:func:`poise.model.frame_batch.set_tiles`), each factorisation one batched LAPACK call on the
+dense ``(C, N, N)`` KKT matrices. Per case, masks carry FIM_S's plain Newton
+(:mod:`poise.solvers.newton`): least-squares initial multipliers, the ``stability`` mass term,
+the dense factorisation's singular-value test, the step limits, the neutral-direction filter,
+the Armijo line search, the convergence test and its round-off-floor exit; then certification
+at the written state and the dense stability classification. Whatever the plain path would
+leave (a stalled line search, a singular step, the iteration limit, a removed equation
+violated, a frame not certified, a class other than stable) marks the case ``alone``: the
+caller solves it by the single-case path, so no verdict is weaker than its own.
 """
 from __future__ import annotations
 
@@ -196,20 +194,19 @@ class CaseBatch:
             dq, dl = x[:, :nq], x[:, nq:]
             # step limits and the neutral-direction filter, per case (the plain path's)
             alpha, trials = limit_many(model, cur, dq, settings)
+            filt = {}
             for j in np.nonzero(self._may_filter(cur, x, zinf, alpha < 1.0))[0]:
-                if neutral_filtered(model, cur[j], _Dense(A[j]), x[j], self.eps, sc,
-                                    float(zinf[j]), alpha[j] < 1.0) is not None:
-                    self._give_up(res, [idx[j]], "near-neutral directions (filtered step)")
-                    live[idx[j]] = False
-            keep = live[idx]
-            idx, dq, dl, alpha, cur = idx[keep], dq[keep], dl[keep], alpha[keep], \
-                [c for c, k in zip(cur, keep) if k]
-            trials = [t for t, k in zip(trials, keep) if k]
-            imb, cerr, zinf, m0, err = imb[keep], cerr[keep], zinf[keep], m0[keep], err[keep]
-            if not len(idx):
-                it += 1
-                continue
-            best = self._line_search(idx, cur, trials, dq, dl, alpha, m0, res, live)
+                xf = neutral_filtered(model, cur[j], _Dense(A[j]), x[j], self.eps, sc,
+                                      float(zinf[j]), alpha[j] < 1.0)
+                if xf is not None:
+                    filt[j] = xf
+            try:
+                first = self._filtered(idx, cur, filt, m0)
+            except EvaluationError:
+                first = {}
+            for j in first:                 # the filtered step decreases the merit: taken
+                dq[j] = filt[j][:nq]
+            best = self._line_search(idx, cur, trials, dq, dl, alpha, m0, res, live, first)
             for j, i in enumerate(idx):
                 if not live[i]:
                     continue
@@ -314,13 +311,39 @@ class CaseBatch:
         x[good] = xg
         return x, bad
 
-    def _line_search(self, idx, cur, trials, dq, dl, alpha, m0, res, live):
-        """Backtracking per case on the scaled residual (Armijo), trials evaluated together:
+    def _filtered(self, idx, cur, filt, m0) -> dict:
+        """Newton's filtered steps ``filt`` (``{j: xf}``, :func:`neutral_filtered`) tried
+        first, as the plain path does: ``{j: best}`` of those that decrease the merit."""
+        if not filt:
+            return {}
+        model, nq = self.model, self.model.nq
+        js = np.array(sorted(filt))
+        xf = np.stack([filt[j] for j in js])
+        af, tf = limit_many(model, [cur[j] for j in js], xf[:, :nq], self.settings)
+        miss = [k for k, t in enumerate(tf) if t is None]
+        if miss:
+            moved = retract_many(model, [cur[js[k]] for k in miss], af[miss, None] *
+                                 xf[miss, :nq])
+            for k, t in zip(miss, moved):
+                tf[k] = t
+        for k, t in enumerate(tf):
+            t.lam = t.lam + af[k] * xf[k, nq:]
+        r, phi_all, J = self.evaluate(idx[js], tf, True)
+        mf = self.scaled(r, self.masked(phi_all)[0])[3]
+        return {j: (float(mf[k]), float(af[k]), tf[k], (r[k], phi_all[k], J[k]))
+                for k, j in enumerate(js) if mf[k] <= (1.0 - ARMIJO * af[k]) * m0[j]}
+
+    def _line_search(self, idx, cur, trials, dq, dl, alpha, m0, res, live, first=None):
+        """Backtracking per case on the scaled residual (Armijo), trials evaluated together
+        (not for the cases in ``first``, whose filtered step was taken):
         ``[(merit, alpha, state, its evaluation)]`` of the best trial per case."""
         model, settings = self.model, self.settings
         n = len(idx)
         best = [(np.inf, np.nan, None, None)] * n
         pend = np.ones(n, bool)
+        for j, b in (first or {}).items():      # a filtered step taken: no line search
+            best[j] = b
+            pend[j] = False
         for _ in range(LINE_SEARCH_MAX + 1):
             js = np.nonzero(pend)[0]
             if not len(js):
