@@ -175,3 +175,24 @@ def test_an_invalid_case_is_reported_as_its_single_solve_reports_it():
     assert together[0].status == "invalid_deck" and "length" in together[0].message
     for a, b in zip(together, alone):
         _same_verdict(a, b, 400.0)
+
+
+def test_each_case_takes_its_single_solves_iterates():
+    """Per case the batch records the rows a single solve records (imbalance, error, step and
+    line-search length per Newton iteration, then the converged row): the same iterates."""
+    from poise.app.cases import apply_case
+    deck, params, cases, job = _setup("fourbar_spring.xml",
+                                      {"Force_SpringDamper[1].stiffness": "0.5,2,6"})
+    template = make_template(job, {})
+    plan = plan_batch(template, cases[0])
+    vals = np.array([[c[p.key] for p in params] for c in cases])
+    res = batched.CaseBatch(plan.model, plan.settings, plan.fields(vals),
+                            plan.active).solve(plan.state0, len(cases))
+    spec = poise.load_deck(str(deck))
+    for c, r in zip(cases, res):
+        assert not r.alone and len(r.rows) == r.iterations + 1
+        one = poise.solve(apply_case(spec, params, c)[0], quiet=True).analyses[0].datasets
+        rows = np.array(r.rows, float)
+        for k, name in enumerate(("imbalance", "error", "step_norm", "step_length")):
+            ref = np.asarray(one[f"iterations/{name}"], float)
+            assert np.allclose(rows[:, k], ref, rtol=1e-9, atol=1e-12, equal_nan=True), name
