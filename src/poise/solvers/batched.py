@@ -69,6 +69,7 @@ class CaseBatch:
         self.sc = Scales(model, settings)
         self.eps = float(np.sqrt(settings.stability))
         self.ws = Workspace()
+        self.base: dict = {}
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, idx, states, jac: bool):
@@ -76,7 +77,9 @@ class CaseBatch:
         with ``jac`` the KKT Jacobians ``(F, N, N)`` (inactive rows as a single solve has
         them, without regularisation) of cases ``idx`` at ``states``."""
         model, F = self.model, len(idx)
-        base = tiles(model, F, Workspace())
+        base = self.base.get(F)
+        if base is None:                # the families tiled for F cases (kept: F repeats)
+            base = self.base[F] = tiles(model, F, Workspace())
         out = []
         for fi, (fam, exact) in enumerate(base):
             ch = self.fields.get(fi)
