@@ -99,14 +99,22 @@ def _worker(deck: str, n: int) -> dict:
     t_import = time.perf_counter() - t
 
     phases: dict[str, float] = {}
+    phases_cpu: dict[str, float] = {}
+    phases_peak: dict[str, int] = {}
+
+    def rss_now():
+        r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return r if sys.platform == "darwin" else r * 1024
 
     def timed(name, fn):
         def wrapper(*a, **kw):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             try:
                 return fn(*a, **kw)
             finally:
                 phases[name] = phases.get(name, 0.0) + time.perf_counter() - t0
+                phases_cpu[name] = phases_cpu.get(name, 0.0) + time.process_time() - c0
+                phases_peak[name] = rss_now()      # the process's peak RSS after the phase
         return wrapper
 
     # phase timers around the static driver's steps (module globals, no source change)
@@ -121,8 +129,10 @@ def _worker(deck: str, n: int) -> dict:
     t0 = time.perf_counter()
     spec = load_deck(deck)
     t1 = time.perf_counter()
+    peak_parse = rss_now()
     model = compile_model(spec)
     t2 = time.perf_counter()
+    peak_compile = rss_now()
     # the solve exactly as runner.run sequences it (one static analysis)
     reqs = plan(spec, None)
     model_datasets(model)
@@ -159,9 +169,11 @@ def _worker(deck: str, n: int) -> dict:
                 iteration_s=newton_s / iters if iters else None,
                 lu_s=statistics.median(lu_times), evaluate_s=statistics.median(ev_times),
                 solve_cpu_s=solve_cpu, newton_lu_s=newton_lu, newton_lu_cpu_s=newton_lu_cpu,
-                phases=phases, counters=drv.data.as_dict(),
+                phases=phases, phases_cpu=phases_cpu,
+                phases_peak=phases_peak, counters=drv.data.as_dict(),
                 redundant=int(len(drv.redundancy)), status=ar.status,
-                peak_rss_bytes=int(peak))
+                peak_rss_bytes=int(peak), peak_parse_bytes=int(peak_parse),
+                peak_compile_bytes=int(peak_compile))
 
 
 def _newton_lu(model, state, settings, active, repeat: int = 5):
@@ -199,7 +211,8 @@ def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
     deck.write_text(build_chain_deck(n, "revolute"))
     runs = [_run_worker(deck, n) for _ in range(repeat)]
     keys = ("import_s", "parse_s", "compile_s", "solve_s", "newton_s", "iteration_s", "lu_s",
-            "evaluate_s", "peak_rss_bytes", "solve_cpu_s", "newton_lu_s", "newton_lu_cpu_s")
+            "evaluate_s", "peak_rss_bytes", "solve_cpu_s", "newton_lu_s", "newton_lu_cpu_s",
+            "peak_parse_bytes", "peak_compile_bytes")
     out = dict(bench="chain", n=n, joint="revolute", repeat=repeat)
     for k in ("nq", "nc", "nnz", "kkt_size", "iterations", "redundant", "status", "counters"):
         out[k] = runs[0][k]
@@ -208,6 +221,10 @@ def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
         out[k] = _stats([r[k] for r in runs])
     phase_names = sorted({p for r in runs for p in r["phases"]})
     out["phases"] = {p: _stats([r["phases"].get(p, 0.0) for r in runs]) for p in phase_names}
+    out["phases_cpu"] = {p: _stats([r.get("phases_cpu", {}).get(p) for r in runs])
+                         for p in phase_names}
+    out["phases_peak"] = {p: _stats([r.get("phases_peak", {}).get(p) for r in runs])
+                          for p in phase_names}
     it = out["iteration_s"]
     out["iteration_per_lu"] = (it["median"] / out["lu_s"]["median"]
                                if it and out["lu_s"]["median"] > 0 else None)
@@ -375,6 +392,17 @@ trial. What is left of “other” at 30 000–100 000 links is mostly outside N
 classification of the converged state and the Gram factorisations of redundancy detection
 (neither goes through `Factor`, so neither counts as *factorise*), then the linear solves with
 iterative refinement.
+
+**Floor (issue 25 §2).** In Newton's LUs (the floor's unit, one per iteration), a 10⁴-link
+static solve spends ≈ 9 in Newton itself (5 factorisations plus evaluations, solves with
+refinement, step limits, line search), ≈ 1.1 in redundancy detection, 1.5 in the least-squares
+multipliers, 2.7 in the stability classification and 1.1 in the rest of the output
+measurement: Newton alone is ≈ 1.8× the floor. The classification needs its own sparse LDLᵀ
+(inertia: an LU with partial pivoting has none), a power/subspace iteration for the lowest
+mode (5 block solves) and SuperLU's CSC copies of L and U for the pivots and the backward
+error (at 10⁵ links ≈ 140 MB and 0.5 s of fresh pages on first access). Peak memory at 10⁵ links
+is reached in the classification, after Newton; parse leaves ≈ 1 GB of per-element Python
+objects (`DeckSpec`, kept by the runner for labels and messages), compile ≈ 1.2 GB more.
 
 **BLAS threads.** numpy's OpenBLAS defaulted to 2 threads; on vectors and 3×3 blocks they
 only busy-wait, and with another process on the machine a 1000-link solve took 1.8× longer

@@ -91,4 +91,34 @@ def section(chains) -> list[str]:
                  f"({_s(floor_ratio(r, False))}) | {_s(nw)} | "
                  f"{_s(_med(r, 'solve_s') - nw if nw is not None else None)} | "
                  f"{r['peak_rss_bytes']['max'] / 2**20:.0f} |")
+    L += _phases(rows)
+    return L
+
+
+PHASES = ("redundancy", "multipliers", "newton", "stability")
+
+
+def _phases(rows) -> list[str]:
+    """Markdown: CPU seconds of the solve's phases in Newton's LUs, and where the peak RSS is
+    reached (after parse, compile, each phase; MiB)."""
+    from benchmarks.report import _s
+    rows = [r for r in rows if r.get("phases_cpu") and r.get("peak_parse_bytes")]
+    if not rows:
+        return []
+    L = ["", "Phases of the same solves: CPU seconds, and in brackets in Newton's LUs (the "
+         "floor's unit); *peak after* is the worker's peak RSS once parse, compile and each "
+         "phase have run (MiB).", "",
+         "| N | " + " | ".join(PHASES) + " | other | peak after parse | after compile | "
+         + " | ".join(f"after {p}" for p in PHASES) + " |",
+         "|---" * (2 * len(PHASES) + 4) + "|"]
+    for r in rows:
+        lu = _med(r, "newton_lu_cpu_s")
+        cpu = {p: (r["phases_cpu"].get(p) or {}).get("median") for p in PHASES}
+        other = _med(r, "solve_cpu_s") - sum(v for v in cpu.values() if v)
+        cells = [f"{_s(v)} ({v / lu:.1f})" if v is not None else "—" for v in cpu.values()]
+        peaks = [(r["phases_peak"].get(p) or {}).get("max") for p in PHASES]
+        L.append(f"| {r['n']} | " + " | ".join(cells) + f" | {_s(other)} ({other / lu:.1f}) | "
+                 f"{r['peak_parse_bytes']['max'] / 2**20:.0f} | "
+                 f"{r['peak_compile_bytes']['max'] / 2**20:.0f} | "
+                 + " | ".join("—" if v is None else f"{v / 2**20:.0f}" for v in peaks) + " |")
     return L

@@ -39,7 +39,7 @@ class Expr:
     attr: str
 
 
-@dataclass
+@dataclass(slots=True)
 class Element:
     """One deck element (model element or command).
 

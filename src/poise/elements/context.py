@@ -18,6 +18,7 @@ import numpy as np
 from poise.core.errors import ProblemCollector
 from poise.deck.spec import DeckSpec, Element, Expr
 from poise.elements.base import GLOBAL
+from poise.elements.rows import RowTable
 
 __all__ = ["GLOBAL", "CompileContext", "CompileResult", "Geometry", "MarkerPoses", "num"]
 
@@ -141,7 +142,7 @@ class CompileContext:
         self.geometry = geometry
         self.pc = pc
         self.user_code = user_code          # "run" | "refuse" | "skip" (compile_model)
-        self._rows: list[dict] = []
+        self._rows = RowTable()      # one entry per element, codes per row (no dict per row)
         self._families: list = []
         self._outputs: dict = {}
         self._angles: list[tuple[int, int, int]] = []
@@ -221,8 +222,7 @@ class CompileContext:
     def add_row(self, el, equation: str, kind: str, group: str, owner: int) -> int:
         """A constraint row (``kind`` ``trans`` | ``rot``) of deck element ``el``, owned by
         instance ``owner`` of output group ``group``; returns its global index."""
-        self._rows.append(_row(el, equation, kind, group, owner))
-        return len(self._rows) - 1
+        return self._rows.append(el, equation, kind, group, owner)
 
     def add_family(self, fam) -> None:
         self._families.append(fam)
@@ -347,7 +347,7 @@ class CompileContext:
             raise RuntimeError(f"items routed to {sorted(unknown)}, which no element type "
                                "compiles")
         return CompileResult(
-            rows=tuple(self._rows), families=tuple(self._families), outputs=dict(self._outputs),
+            rows=self._rows.freeze(), families=tuple(self._families), outputs=dict(self._outputs),
             angles=tuple(self._angles), extra_names=tuple(self._extra_names),
             extra0=tuple(self._extra0), frame_hooks=tuple(self._frame_hooks),
             reaction_channels=self._feed, effects=tuple(dict.fromkeys(self._effects)),
@@ -391,9 +391,3 @@ def row_where(ri: dict) -> str:
     constraint row's element."""
     w = ri.get("where")
     return w if w else f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}>"
-
-
-def _row(el: Element, equation: str, kind: str, group: str, owner: int) -> dict:
-    return dict(tag=el.tag, id=el.id, equation=equation, line=el.loc.line, file=el.loc.file,
-                kind=kind, group=group, owner=owner, label=str(el.attrs.get("label") or ""),
-                where=el.loc.prefix()[:-1])

@@ -25,7 +25,8 @@ class Assembler:
     blocks : list of (rows, cols)
         Integer arrays of equal shape; flattened in C order. Entries with a negative row or
         column are ignored. Values passed to :meth:`assemble` must follow the same order and
-        shapes.
+        shapes. A list is consumed (its items are released as they are read: the pattern of
+        a large model is not held twice).
     dense : bool
         Produce dense ``ndarray`` instead of CSR.
     """
@@ -41,7 +42,10 @@ class Assembler:
         self.sizes = []
         valids = []
         keys = []
-        for rows, cols in blocks:
+        for k in range(len(blocks)):
+            rows, cols = blocks[k]
+            if isinstance(blocks, list):
+                blocks[k] = None            # consumed: each block released once keyed
             rows = np.asarray(rows).ravel()
             cols = np.asarray(cols).ravel()
             v = (rows >= 0) & (cols >= 0)
@@ -52,21 +56,28 @@ class Assembler:
             else:
                 keys.append(rows[v].astype(np.int64, copy=False) * N + cols[v])
         self.valid = np.concatenate(valids) if valids else np.zeros(0, bool)
-        allkeys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+        del valids
+        box = [np.concatenate(keys) if keys else np.zeros(0, np.int64)]
+        del keys                            # the per-block keys: one copy of them at a time
         if dense:
-            slot = allkeys
+            slot = box.pop()
             self.nnz = N * N
         else:
-            uniq, slot = _unique_inverse(allkeys)
+            uniq, slot = _unique_inverse(box)
             self.nnz = uniq.size
-            r = uniq // N
             self.indices = (uniq % N).astype(np.int32)
-            self.indptr = np.searchsorted(r, np.arange(N + 1)).astype(np.int32)
+            uniq //= N                      # the row of each entry
+            self.indptr = np.searchsorted(uniq, np.arange(N + 1)).astype(np.int32)
+            del uniq
         # one slot per registered entry (valid or not): invalid entries go to the extra bin
-        # ``nnz``, so assembly needs no boolean gather of the values
-        self.slot = slot
-        slot_all = np.full(self.valid.size, self.nnz, dtype=np.intp)
-        slot_all[self.valid] = slot
+        # ``nnz``, so assembly needs no boolean gather of the values. A sparse assembler keeps
+        # only ``slot_all`` (``slot`` is its valid part; the same array when all are valid)
+        if self.valid.all():
+            slot_all = np.asarray(slot, np.intp)
+        else:
+            slot_all = np.full(self.valid.size, self.nnz, dtype=np.intp)
+            slot_all[self.valid] = slot
+        self.slot = slot if dense else None
         self.slot_all = slot_all
         self.sizes = tuple(self.sizes)
 
@@ -168,22 +179,29 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def _unique_inverse(keys: np.ndarray):
-    """``np.unique(keys, return_inverse=True)`` with a stable sort: the registered keys come in
-    long ascending runs (element blocks in instance order), which timsort merges in near-linear
-    time where the default introsort pays the full ``n log n``."""
+def _unique_inverse(box: list):
+    """``np.unique(keys, return_inverse=True)`` with a stable sort, ``box = [keys]`` (emptied:
+    the keys array is released as soon as its sorted copy exists, so that at most three arrays
+    of the keys' length are alive at a time). The registered keys come in long ascending runs
+    (element blocks in instance order), which timsort merges in near-linear time where the
+    default introsort pays the full ``n log n``."""
+    keys = box.pop()
     n = keys.size
     if n == 0:
         return keys.copy(), np.zeros(0, np.intp)
     perm = np.argsort(keys, kind="stable")
-    sk = keys[perm]
+    keys = keys[perm]                         # sorted (the caller's array is released)
     new = np.empty(n, bool)
     new[0] = True
-    np.not_equal(sk[1:], sk[:-1], out=new[1:])
-    starts = np.flatnonzero(new)
+    np.not_equal(keys[1:], keys[:-1], out=new[1:])
+    uniq = keys[new]
+    del keys
+    rank = np.cumsum(new, dtype=np.intp)      # 1 + the unique key of each sorted entry
+    del new
+    rank -= 1
     inv = np.empty(n, np.intp)
-    inv[perm] = np.repeat(np.arange(starts.size), np.diff(np.append(starts, n)))
-    return sk[starts], inv
+    inv[perm] = rank
+    return uniq, inv
 
 
 def scatter_add(n: int, idx: np.ndarray, vals: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ from poise.deck.spec import DeckSpec, Element
 from poise.core.errors import ProblemCollector
 from poise.elements.context import GLOBAL, CompileContext, Geometry, MarkerPoses, num as _num
 from poise.elements.registry import element_types
+from poise.elements.rows import CoordNames
 from poise.elements.resolver import check_variables
 from poise.model import units as U
 from poise.model.layout import build_model
@@ -223,8 +224,7 @@ class _Builder:
         inert = np.zeros((nb, 6))
         has_in = np.zeros(nb, bool)
         off = np.zeros(nb, int)
-        coord: list[str] = []
-        names6 = (" Fx", " Fy", " Fz", " Tx", " Ty", " Tz")
+        prefixes: list[str] = []
         o = 0
         for i, e in enumerate(moving):
             a = e.attrs
@@ -240,8 +240,7 @@ class _Builder:
             if type(m) is not float:
                 m = float(_num(e, "mass", 0.0, pc) or 0.0)
             mass[i] = m
-            pre = e.loc.prefix()[:-1]
-            coord += [pre + nm for nm in (names6 if rigid[i] else names6[:3])]
+            prefixes.append(e.loc.prefix()[:-1])       # its coordinates' names (CoordNames)
             o += 6 if rigid[i] else 3
             if rigid[i]:
                 if a.keys().isdisjoint(_INERTIA):
@@ -284,7 +283,7 @@ class _Builder:
         return dict(body_id=np.array([e.id for e in moving], int),
                     body_label=[str(e.attrs.get("label", "")) for e in moving],
                     body_kind=kind, body_mass=mass * mfac, body_inertia=inertia, body_off=off,
-                    init_pos=pos, init_rot=rot, coord_info=coord)
+                    init_pos=pos, init_rot=rot, coord_info=CoordNames(prefixes, off, o))
 
     def marker_arrays(self, body_pos, body_rot):
         els = self.marker_els

@@ -20,6 +20,7 @@ from poise.core.readonly import seal
 from poise.elements.kernel import LocalPattern
 from poise.elements.reaction_feed import ReactionFeed
 from poise.elements.registry import energy_terms, kernel_types, time_sources
+from poise.elements.rows import RowTable
 from poise.model.assembly import Assembler
 from poise.model.model import DENSE_MAX, Model
 
@@ -63,8 +64,9 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
     rigid = kinds == 0
     f = dict(bodies, **markers)
     f["body_label"] = tuple(bodies["body_label"])
-    f["coord_info"] = tuple(bodies["coord_info"]) + tuple(res.extra_names)
-    f.update(families=fams, nq=nq, nc=nc, row_info=res.rows, nb=nb, N=N, dense=N <= DENSE_MAX,
+    f["coord_info"] = bodies["coord_info"].with_extra(res.extra_names)
+    rows = RowTable.of(res.rows)              # one entry per element, codes per row
+    f.update(families=fams, nq=nq, nc=nc, row_info=rows, nb=nb, N=N, dense=N <= DENSE_MAX,
              angle_I=np.array([a[0] for a in res.angles], int),
              angle_J=np.array([a[1] for a in res.angles], int),
              angle_axis=np.array([a[2] for a in res.angles], int), L=L,
@@ -92,7 +94,8 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
     qs = np.ones(nq)
     qs[f["rot_idx"]] = np.repeat(f["body_scale"][rigid], 3)
     f["q_scale"] = qs                         # length per unit of each coordinate (rad -> length)
-    f["row_kind"] = np.array([1 if ri["kind"] == "rot" else 0 for ri in res.rows], int)
+    f["row_kind"] = (rows.kind_is("rot").astype(int) if isinstance(rows, RowTable) else
+                     np.array([1 if ri["kind"] == "rot" else 0 for ri in rows], int))
     # evaluation order: families reading reaction channels after every other (they read the
     # constraint reactions), then those declaring ``eval_last`` (gravity: the residual sums in
     # the order of earlier releases)
@@ -112,7 +115,7 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
     model = Model(**f)
     # the tables of text and numbers (one entry per row, coordinate, ...) hold no array: not
     # walked (tests/methods/test_model_frozen.py checks every array of the model is sealed)
-    return seal(model, skip=(model.row_info, model.coord_info, model.extra_names,
+    return seal(model, skip=(model.extra_names,
                              model.spec_warnings, model.user_routines, model.input_files,
                              model.active_effects, model.time_sources))
 

@@ -76,6 +76,7 @@ class Model:
     families : tuple of Family (laid out: ``gcol``, ``pattern``)
     nq, nc, nb, N : sizes (N = nq + nc, the KKT size)
     row_info : tuple of dict per constraint row (tag, id, equation, line, kind 'trans'|'rot')
+        (a :class:`poise.elements.rows.RowTable`: a sequence of those dicts, made on access)
     angle_I, angle_J, angle_axis : (na,) continuous-angle table
     L : model length scale [length]
     time_sources : deck places through which the solution depends on time (from the element

@@ -95,7 +95,7 @@ def prologue(ctx: Context, state, multipliers: bool = True):
     the frame can be solved, else why not (assembly failed)."""
     model = ctx.model
     if ctx.redundancy is None:
-        ctx.redundancy = detect_redundancy(model, state)
+        ctx.redundancy = detect_redundancy(model, state, ctx.data.workspace)
     ctx.data.set_redundancy(ctx.redundancy)
     if len(ctx.redundancy):
         ctx.notes.append(f"{len(ctx.redundancy)} redundant constraint equations removed")

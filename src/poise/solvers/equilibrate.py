@@ -95,23 +95,27 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
     """Symmetric Ruiz scaling ``D`` of the sparse KKT matrix ``[[Ks, G^T], [G, 0]]``: every row
     of ``D |KKT| D`` has a largest entry in ``[1 - tol, 1 + tol]``, except that coordinate
     ``i`` is never scaled beyond :func:`coordinate_caps`. Returns the coordinate and row
-    factors (``start``: the factors to start from, e.g. a nearby configuration's)."""
-    import scipy.sparse as sp
+    factors (``start``: the factors to start from, e.g. a nearby configuration's).
+
+    The KKT matrix is never assembled: its row maxima are those of ``Ks``, ``G^T`` (``G`` by
+    columns) and ``G``, each taken over preallocated buffers (a maximum is exact, so the
+    factors are those of the assembled matrix)."""
     nq = Ks.shape[0]
     cap = coordinate_caps(Ks)
-    B = sp.bmat([[Ks, G.T], [G, None]], format="csr") if G.shape[0] else Ks.tocsr()
-    n = B.shape[0]
-    a = np.abs(B.data)
-    cnt = np.diff(B.indptr)
-    rows = np.repeat(np.arange(n), cnt)
-    nz = cnt > 0
-    starts = B.indptr[:-1][nz]
+    Ks = Ks.tocsr()
+    parts = [_RowMaxima(Ks.indptr, Ks.indices, Ks.data, 0, 0)]
+    if G.shape[0]:
+        Gr, Gc = G.tocsr(), G.tocsc()
+        parts += [_RowMaxima(Gc.indptr, Gc.indices, Gc.data, 0, nq),   # rows of G^T
+                  _RowMaxima(Gr.indptr, Gr.indices, Gr.data, nq, 0)]
+    n = nq + G.shape[0]
     D = np.ones(n) if start is None else np.concatenate(start)
     np.minimum(D[:nq], cap, out=D[:nq])
+    r = np.empty(n)
     for _ in range(iters):
-        r = np.ones(n)
-        if a.size:
-            r[nz] = np.maximum.reduceat(a * D[rows] * D[B.indices], starts)
+        r[:] = 0.0
+        for pt in parts:
+            pt.into(r, D)
         r[r <= 0.0] = 1.0                              # an all-zero row keeps its scale
         r[:nq][(D[:nq] >= cap) & (r[:nq] < 1.0)] = 1.0   # at its cap: as far as it goes
         if np.all(np.abs(r - 1.0) <= tol):
@@ -119,6 +123,34 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
         D /= np.sqrt(r)
         np.minimum(D[:nq], cap, out=D[:nq])
     return D[:nq], D[nq:]
+
+
+class _RowMaxima:
+    """Row maxima of ``|M| * D[row] * D[col]`` for a compressed block ``M`` of the KKT matrix
+    at row offset ``r0`` and column offset ``c0`` (the same products, in the same order, as on
+    the assembled matrix)."""
+
+    def __init__(self, indptr, indices, data, r0, c0):
+        cnt = np.diff(indptr)
+        nz = cnt > 0
+        self.a = np.abs(data)
+        self.rows = np.repeat(np.arange(r0, r0 + len(cnt)), cnt)
+        self.cols = indices + c0 if c0 else indices
+        self.starts = indptr[:-1][nz]
+        self.target = np.nonzero(nz)[0] + r0
+        self.buf = np.empty(self.a.size)
+        self.tmp = np.empty(self.a.size)
+
+    def into(self, r, D):
+        if not self.a.size:
+            return
+        np.take(D, self.rows, out=self.buf)
+        np.multiply(self.a, self.buf, out=self.buf)
+        np.take(D, self.cols, out=self.tmp)
+        np.multiply(self.buf, self.tmp, out=self.buf)
+        m = np.maximum.reduceat(self.buf, self.starts)
+        np.maximum(r[self.target], m, out=m)
+        r[self.target] = m
 
 
 def equilibrate_dense(Ks, G, iters=12, tol=0.1):

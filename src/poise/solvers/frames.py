@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.elements.rows import group_owner
 from poise.model.evaluate import evaluate
 from poise.model.frame_batch import batchable, chunk_size
 from poise.solvers.certify import certify
@@ -94,10 +95,8 @@ def frame_set(model, frames, loads, dep, outcomes, stability, measures) -> Frame
         uniq = None
         if g in ("joints", "jprims"):
             uniq = np.ones(n_out, bool)
-            for r in dep:
-                ri = model.row_info[r]
-                if ri["group"] == g:
-                    uniq[ri["owner"]] = False
+            grp, own = group_owner(model.row_info, dep)
+            uniq[own[grp == g]] = False
         groups[g] = GroupLoads(ids=np.asarray(o["ids"]), force=F, torque=T, unique=uniq,
                                tag=np.asarray(o["tag"], dtype=str) if g == "forces" else None)
     if all(s.rotvec is not None for s in frames):       # every frame at once

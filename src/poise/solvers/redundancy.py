@@ -59,7 +59,9 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
     if 0 < len(amb) <= AMBIGUOUS_MAX:
         dep = _resolve_ambiguous(P, np.nonzero(~empty & (ratio < RATIO_MAX))[0], perm)
         if dep is not None:
-            red = np.union1d(np.nonzero(empty)[0], dep)
+            out = empty.copy()                  # (np.union1d: a hash of every row)
+            out[dep] = True
+            red = np.nonzero(out)[0]
     return red
 
 
@@ -77,7 +79,9 @@ def _resolve_ambiguous(P, cand, perm):
     """
     import scipy.sparse.linalg as spla
     nc = P.shape[0]
-    keep = np.setdiff1d(np.arange(nc), cand)
+    keep = np.ones(nc, bool)                # (np.setdiff1d: a hash of every row)
+    keep[cand] = False
+    keep = np.nonzero(keep)[0]
     PI = P[keep]
     PC = P[cand].toarray()                                          # (c, nq)
     try:
@@ -212,11 +216,12 @@ def left_null_basis(Phi_q, active):
     return Y
 
 
-def detect_redundancy(model, state) -> np.ndarray:
-    """Redundant constraint rows of ``model`` at ``state`` (all rows evaluated)."""
+def detect_redundancy(model, state, workspace=None) -> np.ndarray:
+    """Redundant constraint rows of ``model`` at ``state`` (all rows evaluated); ``workspace``:
+    the solve's (the evaluation fills the assembly buffer the solve reuses)."""
     if model.nc == 0:
         return np.zeros(0, int)
-    J = model.evaluate(state, need_jac=True).J
+    J = model.evaluate(state, need_jac=True, workspace=workspace).J
     Pq = J[model.nq:, :model.nq]
     col = np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
     return redundant_rows(Pq, col)

@@ -59,6 +59,7 @@ def classify_pencil(model, P) -> StabilityInfo:
             return StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
         low = _lowest_mode(P, up, +eps)
         return StabilityInfo("stable", 0, 0, "", low[0][1] if low else np.nan)
+    del up                       # its factors (and SuperLU's copies of L and U) go first
     dn, why = P.factor(-eps)
     if dn is None:
         return not_classified(why)
@@ -90,14 +91,15 @@ class SymmetricLDL:
     inertia is A's when this is below A's smallest |eigenvalue| (Weyl).
     """
 
-    def __init__(self, A, order=None):
+    def __init__(self, A, order=None, permuted: bool = False):
+        """``permuted``: ``A`` is ``A[order][:, order]`` already (:func:`symmetric_permutation`)."""
         import scipy.sparse as sp
         import scipy.sparse.linalg as spla
         A = sp.csc_matrix(A)
         self.n = n = A.shape[0]
         self.order = None if order is None else np.asarray(order)
-        if self.order is not None:
-            A = A[self.order][:, self.order].tocsc()
+        if self.order is not None and not permuted:
+            A = symmetric_permutation(A, self.order)
         self.ok = False
         self.reason = ""
         self._berr = np.inf
@@ -129,7 +131,14 @@ class SymmetricLDL:
     @property
     def backward_error(self) -> float:
         if self._berr is None:
-            g = abs(self.lu.L) @ (abs(self.lu.U) @ np.ones(self.n))
+            # (|L| |U|) 1 as two scatter-adds over the factors' entries in storage order: the
+            # sums of the sparse products, term for term, without copying either factor
+            U, L = self.lu.U, self.lu.L
+            n = self.n
+            g = np.bincount(U.indices, weights=np.abs(U.data), minlength=n)
+            w = np.abs(L.data)
+            w *= g[np.repeat(np.arange(n), np.diff(L.indptr))]
+            g = np.bincount(L.indices, weights=w, minlength=n)
             self._berr = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
         return self._berr
 
@@ -146,6 +155,12 @@ class SymmetricLDL:
         x = np.empty_like(y)
         x[self.order] = y
         return x
+
+
+def symmetric_permutation(A, order):
+    """``A[order][:, order]`` in CSC (a fresh matrix: the caller's ``A`` can go before the
+    factorisation, which then holds one copy of the matrix, not two)."""
+    return A[order][:, order].tocsc()
 
 
 class SparsePencil:
@@ -201,7 +216,8 @@ class SparsePencil:
 
     def ldl(self, s, rho):
         """The :class:`SymmetricLDL` of ``kkt(s, rho)`` in the pencil's elimination order."""
-        return SymmetricLDL(self.kkt(s, rho), self.order)
+        return SymmetricLDL(symmetric_permutation(self.kkt(s, rho), self.order), self.order,
+                            permuted=True)
 
     def factor(self, s):
         """A valid LDL^T of ``kkt(s, rho)`` for the first ``rho`` of AUG_RHO whose backward
@@ -209,8 +225,10 @@ class SparsePencil:
         (a pivot at round-off level has no reliable sign: the matrix is numerically singular,
         typically dependent constraint rows at this configuration); else ``(None, reason)``."""
         why = []
+        F = None
         for rho in AUG_RHO:
-            F = SymmetricLDL(self.kkt(s, rho), self.order)
+            F = None                      # a failed attempt's factors go before the next
+            F = self.ldl(s, rho)
             if not F.ok:                  # a zero pivot (exactly dependent rows?)
                 self.singular = True
                 why.append(F.reason)

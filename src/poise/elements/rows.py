@@ -1,0 +1,175 @@
+"""The description of every constraint row, stored per deck element (``Model.row_info``).
+
+Filled by the compilers (:meth:`poise.elements.context.CompileContext.add_row`), so the
+dictionaries are never all alive at once.
+
+A model with 10⁵ joints has 5·10⁵ constraint rows; one dictionary per row (ten keys, a location
+string each) held ≈ 200 MB for the model's lifetime. :class:`RowTable` keeps the per-element
+part (tag, id, line, file, label, location) once per element and the per-row part (equation,
+kind, output group, owner) as small integer codes; ``table[r]`` builds row ``r``'s dictionary
+on demand, with the same keys, in the same order, and the same values as before.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+#: keys of a row's dictionary, in order
+KEYS = ("tag", "id", "equation", "line", "file", "kind", "group", "owner", "label", "where")
+
+
+class RowTable(Sequence):
+    """Constraint rows: ``len(t)``, ``t[r]`` (a fresh dict per call: the model's table cannot
+    be changed through it), iteration, slices (tuples of dicts). Built row by row
+    (:meth:`append`, then :meth:`freeze`), or made by :meth:`of` from row dictionaries."""
+
+    __slots__ = ("_elements", "_el", "_eq", "_kind", "_group", "_owner", "_codes", "_n",
+                 "_build")
+
+    def __init__(self):
+        self._elements: tuple = ()        # (tag, id, line, file, label, where) per element
+        self._codes: dict = {"equation": (), "kind": (), "group": ()}
+        self._el = self._eq = self._kind = self._group = self._owner = np.zeros(0, np.int32)
+        self._n = 0
+        self._build = None
+
+    def append(self, el, equation: str, kind: str, group: str, owner: int) -> int:
+        """Add a row of deck element ``el`` (before :meth:`freeze`); returns its index."""
+        b = self._build
+        if b is None:
+            b = self._build = dict(elements=[], last=None, codes={w: {} for w in
+                                   ("equation", "kind", "group")},
+                                   cols={w: [] for w in ("el", "equation", "kind", "group",
+                                                         "owner")})
+        if el is not b["last"]:
+            loc = el.loc
+            b["elements"].append((el.tag, el.id, loc.line, loc.file,
+                                  str(el.attrs.get("label") or ""), loc.prefix()[:-1]))
+            b["last"] = el
+        cols, codes = b["cols"], b["codes"]
+        cols["el"].append(len(b["elements"]) - 1)
+        for w, v in (("equation", equation), ("kind", kind), ("group", group)):
+            cols[w].append(codes[w].setdefault(v, len(codes[w])))
+        cols["owner"].append(owner)
+        self._n += 1
+        return self._n - 1
+
+    def freeze(self) -> "RowTable":
+        """The rows appended, as int32 codes and tuples (no more :meth:`append`)."""
+        b, self._build = self._build, None
+        if b is not None:
+            self._set(b["elements"], b["codes"], b["cols"])
+        return self
+
+    def _set(self, elements, codes, cols):
+        self._elements = tuple(elements)
+        self._codes = {w: tuple(c) for w, c in codes.items()}
+        self._el, self._eq, self._kind, self._group, self._owner = (
+            np.asarray(cols[w], np.int64).astype(np.int32)
+            for w in ("el", "equation", "kind", "group", "owner"))
+
+    @classmethod
+    def of(cls, rows):
+        """The table of ``rows`` (dicts with the keys :data:`KEYS`, in order), or ``rows`` as a
+        tuple when one does not have exactly those keys."""
+        if isinstance(rows, RowTable):
+            return rows.freeze()
+        rows = tuple(rows)
+        if not all(tuple(d) == KEYS for d in rows):
+            return rows
+        t = cls()
+        elements, last = [], None
+        codes = {w: {} for w in ("equation", "kind", "group")}
+        cols = {w: [] for w in ("el", "equation", "kind", "group", "owner")}
+        for d in rows:
+            e = (d["tag"], d["id"], d["line"], d["file"], d["label"], d["where"])
+            if e != last:
+                elements.append(e)
+                last = e
+            cols["el"].append(len(elements) - 1)
+            for w in ("equation", "kind", "group"):
+                cols[w].append(codes[w].setdefault(d[w], len(codes[w])))
+            cols["owner"].append(d["owner"])
+        if any(type(d["owner"]) is not int for d in rows):
+            return rows
+        t._set(elements, codes, cols)
+        t._n = len(rows)
+        return t
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, r):
+        if isinstance(r, slice):
+            return tuple(self[i] for i in range(*r.indices(self._n)))
+        r = int(r)
+        if r < 0:
+            r += self._n
+        if not 0 <= r < self._n:
+            raise IndexError("constraint row index out of range")
+        tag, ident, line, file, label, where = self._elements[int(self._el[r])]
+        c = self._codes
+        return dict(tag=tag, id=ident, equation=c["equation"][int(self._eq[r])], line=line,
+                    file=file, kind=c["kind"][int(self._kind[r])],
+                    group=c["group"][int(self._group[r])], owner=int(self._owner[r]),
+                    label=label, where=where)
+
+    def __iter__(self):
+        return (self[r] for r in range(self._n))
+
+    def kind_is(self, kind: str) -> np.ndarray:
+        """Boolean array: the rows whose ``kind`` is ``kind`` (no dictionary built)."""
+        codes = self._codes["kind"]
+        return self._kind == (codes.index(kind) if kind in codes else -1)
+
+
+class CoordNames(Sequence):
+    """The name of every coordinate (``Model.coord_info``): ``FILE:LINE: <Body_Rigid id=2> Fx``
+    for the 6 (rigid) or 3 (point) coordinates of each body, then the scalar unknowns' names.
+    Stored as one location prefix per body; ``names[k]`` builds the string on access."""
+
+    __slots__ = ("_prefix", "_off", "_nq_bodies", "_extra")
+    SUFFIX = (" Fx", " Fy", " Fz", " Tx", " Ty", " Tz")
+
+    def __init__(self, prefixes, offsets, nq_bodies: int, extra=()):
+        self._prefix = tuple(prefixes)
+        self._off = np.asarray(offsets, np.int64)
+        self._nq_bodies = int(nq_bodies)
+        self._extra = tuple(extra)
+
+    def with_extra(self, extra) -> "CoordNames":
+        """The same names followed by ``extra``."""
+        return CoordNames(self._prefix, self._off, self._nq_bodies, self._extra + tuple(extra))
+
+    def __len__(self) -> int:
+        return self._nq_bodies + len(self._extra)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return tuple(self[i] for i in range(*k.indices(len(self))))
+        k = int(k)
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError("coordinate index out of range")
+        if k >= self._nq_bodies:
+            return self._extra[k - self._nq_bodies]
+        b = int(np.searchsorted(self._off, k, side="right")) - 1
+        return self._prefix[b] + self.SUFFIX[k - int(self._off[b])]
+
+    def __iter__(self):
+        return (self[k] for k in range(len(self)))
+
+
+def group_owner(row_info, rows) -> tuple[np.ndarray, np.ndarray]:
+    """``(group, owner)`` of the constraint rows ``rows`` (object and int arrays), from a
+    :class:`RowTable` without building a dictionary per row (or from any sequence of row
+    dicts)."""
+    rows = np.asarray(rows, np.int64).ravel()
+    if isinstance(row_info, RowTable):
+        return (np.asarray(row_info._codes["group"] + ("",), object)[row_info._group[rows]],
+                row_info._owner[rows].astype(np.int64))
+    ris = [row_info[int(r)] for r in rows]
+    return (np.array([ri["group"] for ri in ris], object),
+            np.array([ri["owner"] for ri in ris], np.int64))
