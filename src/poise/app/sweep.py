@@ -30,7 +30,8 @@ from poise.app.batch import check_outputs, ensure_out_dir, worst_exit_code
 from poise.app.cases import MAX_CASES, Param, apply_case, check_case_count, chunks
 from poise.app.cases import chunk_size as auto_chunk_size
 from poise.app.cases import group_cases, make_cases, parse_set, resolve_param
-from poise.app.chunks import (FrameLayout, SweepJob, overrides_with_ignore, run_chunk)
+from poise.app.chunks import (FrameLayout, SweepJob, overrides_with_ignore, run_chunk,
+                              template_for)
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
 from poise.app.runner import check_ignore, ignore_kinds, plan
 from poise.app.sweep_index import (INDEX_KEYS, INDEX_VERSION, index_keys, index_rows,  # noqa: F401
@@ -323,10 +324,22 @@ class _Run:
             self.workers = max(1, _threads(cl) or workers or os.cpu_count() or 1)
             per_case = 8 * self.job.layout.n * (1 + sum(int(np.prod(o.trailing, dtype=int))
                                                         for o in self.job.outputs)) + 512
-            self.size = int(size) if size else auto_chunk_size(len(todo), self.workers,
-                                                               per_case)
             groups = group_cases(self.params, self.cases, todo)
+            self.size = int(size) if size else auto_chunk_size(
+                len(todo), self.workers, per_case, per_worker=2 if self._together(groups) else 8)
             _run_chunks(cl, self, chunks(groups, self.size), worker_timeout)
+
+    def _together(self, groups) -> bool:
+        """Whether the largest group's cases are solved together (fewer, larger chunks then:
+        a chunk's fixed cost is a few single solves; :mod:`poise.app.chunk_batch`)."""
+        if not groups:
+            return False
+        group, idx = max(groups.values(), key=lambda g: len(g[1]))
+        from poise.app.chunk_batch import plan_for      # lazy: only sweeps that solve
+        try:
+            return plan_for(template_for(self.job, group), self.cases[idx[0]]) is not None
+        except Exception:  # noqa: BLE001 - the workers find out case by case
+            return False
 
     def close(self) -> None:
         left = np.nonzero(~self.done)[0]
