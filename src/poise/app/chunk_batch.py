@@ -31,7 +31,7 @@ from poise.model.compile import compile_model
 from poise.model.frame_batch import batchable, chunk_size
 from poise.elements.registry import tileable_kernels
 from poise.solvers.batched import CaseBatch
-from poise.solvers.newton import ASSEMBLY_TOL
+from poise.solvers.reach import ASSEMBLY_TOL
 from poise.solvers.redundancy import detect_redundancy
 from poise.solvers.stability import DENSE_LIMIT
 

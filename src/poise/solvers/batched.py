@@ -23,7 +23,7 @@ from poise.core.errors import EvaluationError
 from poise.model.evaluate import evaluate
 from poise.model.frame_batch import set_tiles, tiles
 from poise.model.workspace import Workspace
-from poise.solvers.newton import ARMIJO, ALPHA_STALL, CRAWL, LINE_SEARCH_MAX, Scales
+from poise.solvers.newton import ARMIJO, ALPHA_STALL, Scales
 from poise.solvers.reach import coord_weights
 from poise.solvers.stability import classify_dense_frames
 from poise.model.retract_many import limit_many, retract_many
@@ -224,7 +224,8 @@ class CaseBatch:
                     continue
                 merits[i].append(m0[j])
                 ms = merits[i]
-                crawl = len(ms) > CRAWL and not m0[j] <= 0.5 * ms[-1 - CRAWL]
+                cw = settings.limits.crawl_window
+                crawl = len(ms) > cw and not m0[j] <= 0.5 * ms[-1 - cw]
                 if settings.line_search and zinf[j] > 1.0 and (
                         crawl or ba < ALPHA_STALL or not bm <= (1 - ARMIJO * ba) * m0[j]):
                     self._give_up(res, [i], "stalled line search")
@@ -347,7 +348,7 @@ class CaseBatch:
         for j, b in (first or {}).items():      # a filtered step taken: no line search
             best[j] = b
             pend[j] = False
-        for _ in range(LINE_SEARCH_MAX + 1):
+        for _ in range(settings.limits.line_search_max + 1):
             js = np.nonzero(pend)[0]
             if not len(js):
                 break
