@@ -196,3 +196,28 @@ def test_each_case_takes_its_single_solves_iterates():
         for k, name in enumerate(("imbalance", "error", "step_norm", "step_length")):
             ref = np.asarray(one[f"iterations/{name}"], float)
             assert np.allclose(rows[:, k], ref, rtol=1e-9, atol=1e-12, equal_nan=True), name
+
+
+def test_a_small_batched_sweep_is_solved_in_the_sweeping_process(tmp_path):
+    """Cases solved together take less than a local cluster's start: the sweep solves them in
+    its own process (no worker started), and the file holds what the workers would write."""
+    sets = {"Force_SpringDamper[1].stiffness": "6000:40000:2000"}
+    deck = str(DECKS / "pendulum_multiturn.xml")
+    from poise.app.sweep import run_sweep
+    here = run_sweep(deck, sets, out_dir=str(tmp_path / "here"), workers=2,
+                     progress=False, outputs=("bodies[2].position",))
+    there = run_sweep(deck, sets, out_dir=str(tmp_path / "there"), workers=2,
+                      progress=False, outputs=("bodies[2].position",),
+                      chunk_size=4)                          # a chunk size: on the workers
+    assert here.timings["start"] == 0.0 and here.workers == 1
+    assert there.timings["start"] > 0.0
+    import h5py
+    with h5py.File(tmp_path / "here" / "sweep.h5") as a, \
+            h5py.File(tmp_path / "there" / "sweep.h5") as b:
+        assert a["status"].shape == (18,)
+        assert [s.decode() if isinstance(s, bytes) else s for s in a["status"][()]] == \
+            ["converged"] * 18
+        pa, pb = a["bodies[2].position"][()], b["bodies[2].position"][()]
+        assert np.array_equal(pa, pb)                 # the same bits, wherever solved
+        k = a["Force_SpringDamper[1].stiffness"][()]
+    assert k[0] == pytest.approx(6000.0) and k[-1] == pytest.approx(40000.0)
