@@ -198,12 +198,16 @@ def test_each_case_takes_its_single_solves_iterates():
             assert np.allclose(rows[:, k], ref, rtol=1e-9, atol=1e-12, equal_nan=True), name
 
 
-def test_a_small_batched_sweep_is_solved_in_the_sweeping_process(tmp_path):
-    """Cases solved together take less than a local cluster's start: the sweep solves them in
-    its own process (no worker started), and the file holds what the workers would write."""
+def test_a_small_batched_sweep_is_solved_in_the_sweeping_process(tmp_path, monkeypatch):
+    """Cases solved together estimated below a local cluster's start are solved in the
+    sweeping process (no worker started); the file holds what the workers would write. The
+    estimate is a measured time: the limit is set so that the decision does not depend on the
+    machine's load."""
+    import poise.app.sweep as sweep_mod
+    monkeypatch.setattr(sweep_mod, "HEAD_START_S", 1e9)
     sets = {"Force_SpringDamper[1].stiffness": "6000:40000:2000"}
     deck = str(DECKS / "pendulum_multiturn.xml")
-    from poise.app.sweep import run_sweep
+    run_sweep = sweep_mod.run_sweep
     here = run_sweep(deck, sets, out_dir=str(tmp_path / "here"), workers=2,
                      progress=False, outputs=("bodies[2].position",))
     there = run_sweep(deck, sets, out_dir=str(tmp_path / "there"), workers=2,
@@ -221,3 +225,25 @@ def test_a_small_batched_sweep_is_solved_in_the_sweeping_process(tmp_path):
         assert np.array_equal(pa, pb)                 # the same bits, wherever solved
         k = a["Force_SpringDamper[1].stiffness"][()]
     assert k[0] == pytest.approx(6000.0) and k[-1] == pytest.approx(40000.0)
+
+
+def test_a_batched_sweep_estimated_beyond_the_limit_goes_to_the_workers(tmp_path, monkeypatch):
+    """Only the timed first chunk is solved in the sweeping process when the rest would take
+    longer than HEAD_START_S; the rest is solved on the workers, with the same bits."""
+    import h5py
+
+    import poise.app.sweep as sweep_mod
+    monkeypatch.setattr(sweep_mod, "HEAD_START_S", 0.0)
+    sets = {"Force_SpringDamper[1].stiffness": "6000:40000:2000"}
+    deck = str(DECKS / "pendulum_multiturn.xml")
+    out = sweep_mod.run_sweep(deck, sets, out_dir=str(tmp_path / "s"), workers=2,
+                              progress=False, outputs=("bodies[2].position",))
+    assert out.timings["start"] > 0.0 and out.workers >= 1
+    monkeypatch.setattr(sweep_mod, "HEAD_START_S", 1e9)
+    ref = sweep_mod.run_sweep(deck, sets, out_dir=str(tmp_path / "r"), workers=2,
+                              progress=False, outputs=("bodies[2].position",))
+    assert ref.timings["start"] == 0.0
+    with h5py.File(tmp_path / "s" / "sweep.h5") as a, h5py.File(tmp_path / "r" / "sweep.h5") as b:
+        assert np.array_equal(a["bodies[2].position"][()], b["bodies[2].position"][()])
+        assert a["iterations"][()].tolist() == b["iterations"][()].tolist()
+        assert np.all(a["iterations"][()] > 0)
