@@ -94,7 +94,8 @@ def _sweep(r: Run) -> Out:
 
 def _wp(r: Run) -> Out:
     from benchmarks.suite import run as run_issue7
-    other = ("expressions", "adm_read_check", "sweep", "solve_process", "inprocess_solve")
+    other = ("expressions", "adm_read_check", "sweep", "sweep_chunk", "solve_process",
+             "inprocess_solve")
     rows, md, t = run_issue7(r.root, r.tmp, [x for x in r.results if x.get("bench") not in other],
                              quick=r.args.quick)
     return Out([], rows, md, t)

@@ -5,6 +5,8 @@
   whole-process ``poise solve`` runs of the same deck: target ≤ 10 solve runs.
 * The same sweep with 100,000 cases: target ≤ 60 s on 2 cores, with the peak memory of the
   largest process (``ru_maxrss`` of the command's process tree) reported to show it bounded.
+* One worker's chunk of 1000 cases in process, solved together (one batched evaluation and
+  factorisation per Newton iteration, :mod:`poise.app.chunk_batch`) against case by case.
 * ``poise.solve`` of a 3-body deck (``decks/fourbar_spring.xml``: three moving links) in one
   process (median after a warm-up): target ≤ 3 ms; the sweep's deck alongside.
 
@@ -35,7 +37,7 @@ INPROCESS_TARGET_MS = 3.0
 def _values(n: int) -> str:
     """``n`` stiffness values 10000, 10000 + step, ... (a range string of exactly n values)."""
     step = 20000.0 / n
-    return f"10000:{10000 + step * (n - 1):.10g}:{step:.10g}"
+    return f"10000:{10000 + step * (n - 0.5):.10g}:{step:.10g}"     # (n - 1/2: no rounding loss)
 
 
 def _run_measured(cmd: list[str]) -> tuple[float, int, float]:
@@ -101,8 +103,45 @@ def bench_inprocess(root: Path, name: str, repeat: int = 50) -> dict:
                 solve_ms=statistics.median(solve) * 1e3)
 
 
+def bench_chunk(root: Path, n: int = 1000, alone: int = 100) -> dict:
+    """One worker's chunk of ``n`` cases of the sweep in this process: solved together
+    (:mod:`poise.app.chunk_batch`) against the first ``alone`` of them solved case by case,
+    per case; and the largest difference of a body position between the two."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    import poise
+    from poise.app.cases import make_cases, resolve_param
+    from poise.app.chunk_batch import plan_batch
+    from poise.app.chunks import FrameLayout, Output, SweepJob, make_template, solve_chunk
+    deck = root / DECK
+    spec = poise.load_deck(str(deck))
+    p = resolve_param(spec, K, _values(n))
+    cases = list(enumerate(make_cases([p])))
+    out = Output("bodies[2].position", "bodies", 2, "position", (3,))
+    job = SweepJob(deck.read_bytes(), str(deck), (replace(p, values=[]),), {}, (out,),
+                   FrameLayout((0.0,), (0,)), key="bench")
+    template = make_template(job, {})
+    batched = plan_batch(template, cases[0][1]) is not None
+    solve_chunk(template, cases[:20])                  # warm-up (imports, the batch plan)
+    t0 = time.perf_counter()
+    together = solve_chunk(template, cases)
+    t1 = time.perf_counter()
+    single = solve_chunk(template, cases[:alone], batched=False)
+    t2 = time.perf_counter()
+    diff = max(float(np.max(np.abs(a.outputs[out.text] - b.outputs[out.text])))
+               for a, b in zip(together, single))
+    same = all((a.status, a.iterations, a.stability) == (b.status, b.iterations, b.stability)
+               for a, b in zip(together, single))
+    return dict(bench="sweep_chunk", deck=DECK, cases=n, batched=batched,
+                together_ms=(t1 - t0) / n * 1e3, alone_ms=(t2 - t1) / alone * 1e3,
+                max_position_difference=diff, same_verdicts=same,
+                converged=sum(r.status == "converged" for r in together))
+
+
 def run(tmp: Path, root: Path, cases=(1000, 100_000), repeat: int = 5, log=None,
-        inprocess_repeat: int = 50) -> list[dict]:
+        inprocess_repeat: int = 50, chunk: int = 1000) -> list[dict]:
     say = log or (lambda m: None)
     rows = []
     st, rc = _wall(_poise_cmd() + ["solve", str(root / DECK), "-o", str(tmp / "one.h5"),
@@ -112,6 +151,9 @@ def run(tmp: Path, root: Path, cases=(1000, 100_000), repeat: int = 5, log=None,
     for name in (DECK, THREE_BODIES):
         rows.append(bench_inprocess(root, name, inprocess_repeat))
         say(f"poise.solve({name}) in process: {rows[-1]['ms']['median']:.2f} ms")
+    rows.append(bench_chunk(root, chunk, min(100, chunk)))
+    say(f"a chunk of {chunk} cases in process: {rows[-1]['together_ms']:.2f} ms per case "
+        f"together, {rows[-1]['alone_ms']:.2f} ms alone")
     for n in cases:
         rows.append(bench_sweep(n, tmp, root))
         say(f"poise sweep {n} cases: {rows[-1]['wall_s']:.1f} s, "
@@ -155,7 +197,8 @@ def markdown(rows: list[dict]) -> list[str]:
           "(median), *solver* its `timings['solve']`; a sweep is the command `poise sweep "
           f"--workers {WORKERS} --output bodies[2].position` (cluster start, solving, the sweep "
           "file and the index); *per case* is a case's own wall time in its worker (parse, "
-          "compile, solve; median), *peak* the largest process's resident memory.", "",
+          "compile, solve; median; cases solved together share their chunk's solve time), "
+          "*peak* the largest process's resident memory.", "",
           "| | wall | per case | peak memory | in `poise solve` runs |", "|---|---|---|---|---|"]
     base = one["wall_s"]["median"] if one else None
     if one:
@@ -165,6 +208,14 @@ def markdown(rows: list[dict]) -> list[str]:
                   f"bodies) | {ip['ms']['median']:.2f} ms (solver {ip['solve_ms']:.2f} ms, "
                   f"{ip['iterations']} iterations) | | | "
                   + (f"{ip['ms']['median'] / 1e3 / base:.3f}" if base else "—") + " |")
+    ch = _get(rows, "sweep_chunk")
+    if ch:
+        md.append(f"| a worker's chunk of {ch['cases']:,} cases in process, solved "
+                  f"{'together' if ch['batched'] else 'case by case (not batchable)'} | "
+                  f"{ch['together_ms'] * ch['cases'] / 1e3:.2f} s | {ch['together_ms']:.2f} ms "
+                  f"(alone: {ch['alone_ms']:.1f} ms; positions within "
+                  f"{ch['max_position_difference']:.1e} mm, same verdicts: "
+                  f"{'yes' if ch['same_verdicts'] else 'NO'}) | | |")
     for r in rows:
         if r["bench"] != "sweep":
             continue

@@ -49,9 +49,12 @@ def test_sweep_bench_rows_and_targets(tmp_path):
     """The sweep table (issue 25 §1) on a 6-case sweep: its rows, the report and the ratios."""
     pytest.importorskip("distributed")
     from benchmarks import sweep as bs
-    rows = bs.run(tmp_path, ROOT, cases=(6,), repeat=1, inprocess_repeat=2)
+    rows = bs.run(tmp_path, ROOT, cases=(6,), repeat=1, inprocess_repeat=2, chunk=30)
     assert [r["bench"] for r in rows] == ["solve_process", "inprocess_solve", "inprocess_solve",
-                                          "sweep"]
+                                          "sweep_chunk", "sweep"]
+    ch = rows[3]
+    assert ch["batched"] and ch["same_verdicts"] and ch["converged"] == 30
+    assert ch["max_position_difference"] < 1e-9 and ch["together_ms"] > 0
     sw = rows[-1]
     assert sw["returncode"] == 0 and sw["converged"] == 6 and sw["case_ms_median"] > 0
     assert sw["peak_rss_mb"] > 0 and rows[2]["bodies"] == 3 and rows[2]["status"] == "converged"

@@ -282,11 +282,13 @@ def group_cases(params: list[Param], cases: list[dict], todo) -> dict[str, tuple
 MAX_CHUNK = 1000
 
 
-def chunk_size(n: int, workers: int, per_case_bytes: int = 0, limit: int = 64 << 20) -> int:
-    """Cases per chunk for ``n`` cases on ``workers``: about eight chunks per worker (load
-    balance, progress), at most :data:`MAX_CHUNK` and at most ``limit`` bytes of results per
-    chunk (``per_case_bytes`` each)."""
-    size = math.ceil(n / max(1, 8 * max(1, workers)))
+def chunk_size(n: int, workers: int, per_case_bytes: int = 0, limit: int = 64 << 20,
+               per_worker: int = 8) -> int:
+    """Cases per chunk for ``n`` cases on ``workers``: about ``per_worker`` chunks per worker
+    (load balance, progress; cases solved together want fewer, larger chunks), at most
+    :data:`MAX_CHUNK` and at most ``limit`` bytes of results per chunk (``per_case_bytes``
+    each)."""
+    size = math.ceil(n / max(1, per_worker * max(1, workers)))
     if per_case_bytes:
         size = min(size, max(1, limit // per_case_bytes))
     return max(1, min(MAX_CHUNK, size))

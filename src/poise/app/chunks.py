@@ -181,11 +181,27 @@ def template_for(job: SweepJob, group: dict) -> CaseTemplate:
 
 
 # ---------------------------------------------------------------------------- solving
-def solve_chunk(template: CaseTemplate, cases: list[tuple[int, dict]]) -> list[CaseRecord]:
+def solve_chunk(template: CaseTemplate, cases: list[tuple[int, dict]],
+                batched: bool = True) -> list[CaseRecord]:
     """Solve ``cases`` (``(case number, {parameter: value})``) of one template; one record
-    each, in order. The seam of a vectorised solver (module docstring): every case here is
-    solved on its own, exactly as ``poise solve`` solves its deck."""
-    return [solve_case(template, index, values) for index, values in cases]
+    each, in order: together where they may be (:mod:`poise.app.chunk_batch`), the others
+    each on its own exactly as ``poise solve`` solves its deck (also every case with
+    ``batched=False``)."""
+    if not batched or len(cases) < 2:
+        return [solve_case(template, index, values) for index, values in cases]
+    from poise.app.chunk_batch import solve_batched    # lazy: only sweeps import it
+    return solve_batched(template, cases, batch_record,
+                         lambda index, values: solve_case(template, index, values))
+
+
+def batch_record(index: int, c, wall: float, outputs: dict, input_files: str) -> CaseRecord:
+    """The record of a case the batch converged (:class:`poise.solvers.batched.CaseResult`):
+    what a single solve's record of that converged, stable, one-frame analysis holds."""
+    info = c.info
+    return CaseRecord(index, "converged", 0, int(c.iterations), wall, float(c.imbalance), 0, 0,
+                      float(c.error), info.klass, 0, 0, int(info.n_negative), int(info.n_zero),
+                      "", "[]", "", converged=np.ones(1, bool), outputs=outputs,
+                      input_files=input_files)
 
 
 def solve_case(template: CaseTemplate, index: int, values: dict) -> CaseRecord:

@@ -30,7 +30,8 @@ from poise.app.batch import check_outputs, ensure_out_dir, worst_exit_code
 from poise.app.cases import MAX_CASES, Param, apply_case, check_case_count, chunks
 from poise.app.cases import chunk_size as auto_chunk_size
 from poise.app.cases import group_cases, make_cases, parse_set, resolve_param
-from poise.app.chunks import (FrameLayout, SweepJob, overrides_with_ignore, run_chunk)
+from poise.app.chunks import (FrameLayout, SweepJob, overrides_with_ignore, run_chunk,
+                              template_for)
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
 from poise.app.runner import check_ignore, ignore_kinds, plan
 from poise.app.sweep_index import (INDEX_KEYS, INDEX_VERSION, index_keys, index_rows,  # noqa: F401
@@ -313,6 +314,8 @@ class _Run:
         self.timings["resume"] = time.perf_counter() - t0
 
     def solve(self, scheduler, workers, client, size, worker_timeout) -> None:
+        if scheduler is None and client is None and not size:
+            self.head_start()
         todo = np.nonzero(~self.done)[0].tolist()
         if not todo:
             return
@@ -323,10 +326,51 @@ class _Run:
             self.workers = max(1, _threads(cl) or workers or os.cpu_count() or 1)
             per_case = 8 * self.job.layout.n * (1 + sum(int(np.prod(o.trailing, dtype=int))
                                                         for o in self.job.outputs)) + 512
-            self.size = int(size) if size else auto_chunk_size(len(todo), self.workers,
-                                                               per_case)
             groups = group_cases(self.params, self.cases, todo)
+            self.size = int(size) if size else auto_chunk_size(
+                len(todo), self.workers, per_case, per_worker=2 if self._together(groups) else 8)
             _run_chunks(cl, self, chunks(groups, self.size), worker_timeout)
+
+    def head_start(self) -> None:
+        """Cases solved together are solved here, in this process, while that is quicker than
+        starting worker processes: a first chunk of the largest batched group is timed, and the
+        rest follows here only if it would take less than :data:`HEAD_START_S` (about what a
+        local cluster takes to start and close). Groups that are not solved together, and the
+        rest of a large sweep, go to the cluster as before."""
+        todo = np.nonzero(~self.done)[0].tolist()
+        groups = group_cases(self.params, self.cases, todo)
+        if not groups or not self._together(groups):
+            return
+        group, idx = max(groups.values(), key=lambda g: len(g[1]))
+        size = max(1, min(HEAD_CHUNK, -(-len(idx) // 10)))      # progress every 10 %
+        first = idx[:size]
+        t0 = time.perf_counter()
+        try:
+            self.write(run_chunk(self.job, group, [(i, self.cases[i]) for i in first]))
+        except Exception:  # noqa: BLE001 - such cases go to the workers, case by case
+            return
+        per_case = (time.perf_counter() - t0) / max(1, len(first))
+        rest = idx[size:]
+        if rest and per_case * len(rest) <= HEAD_START_S:
+            for k in range(0, len(rest), size):
+                part = rest[k:k + size]
+                try:
+                    self.write(run_chunk(self.job, group, [(i, self.cases[i]) for i in part]))
+                except Exception:  # noqa: BLE001 - such cases go to the workers
+                    return
+        self.workers = max(self.workers, 1)
+
+    def _together(self, groups) -> bool:
+        """Whether the largest group's cases are solved together (fewer, larger chunks then:
+        a chunk's fixed cost is a few single solves; :mod:`poise.app.chunk_batch`)."""
+        if not groups:
+            return False
+        group, idx = max(groups.values(), key=lambda g: len(g[1]))
+        from poise.app.chunk_batch import plan_for      # lazy: only sweeps that solve
+        try:
+            return plan_for(template_for(self.job, group), self.cases[idx[0]]) is not None
+        except Exception:  # noqa: BLE001 - the workers find out case by case
+            return False
 
     def close(self) -> None:
         left = np.nonzero(~self.done)[0]
@@ -337,6 +381,14 @@ class _Run:
         t0 = time.perf_counter()
         self.writer.close(int(self.done.sum()), extra)
         self.timings["write"] += time.perf_counter() - t0
+
+
+#: a sweep's cases solved together are solved in the sweeping process while they take less
+#: than this (seconds, estimated from a first chunk of at most HEAD_CHUNK cases, a tenth of
+#: the group for the progress line): about the start and close of a local cluster with its
+#: workers' imports on a 2-core machine
+HEAD_START_S = 2.0
+HEAD_CHUNK = 256
 
 
 def _threads(client) -> int:

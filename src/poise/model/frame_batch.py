@@ -91,3 +91,11 @@ def tiles(model, F, workspace):
                         exact_types) for fam in model.families]
         cache.F = F
     return cache.tiles
+
+
+def set_tiles(model, F, workspace, tiled) -> None:
+    """Use ``tiled`` (``[(family for F frames, tileable), ...]`` as :func:`tiles` gives) for
+    the next ``F``-frame evaluations of ``model`` in ``workspace``: families whose per-instance
+    parameters differ per frame (a sweep's cases solved together, :mod:`poise.solvers.batched`)."""
+    cache = workspace.scratch(model, _Tiles)
+    cache.F, cache.tiles = F, list(tiled)
