@@ -85,22 +85,40 @@ def bench_sweep(n: int, tmp: Path, root: Path) -> dict:
 
 def bench_inprocess(root: Path, name: str, repeat: int = 50) -> dict:
     """``poise.solve`` of deck ``name`` in this process: median/min over ``repeat`` runs after
-    three warm-ups, and the solver's own share (``timings['solve']``)."""
+    three warm-ups (the deck's parse and model kept between them, poise.app.deck_cache), the
+    solver's own share (``timings['solve']``), the median with the deck parsed and compiled
+    every time (``fresh_ms``) and the Python function calls of one solve (``calls``, cProfile:
+    independent of the machine's load)."""
+    import cProfile
+    import pstats
+
     import poise
+    from poise.app import deck_cache
     deck = str(root / name)
     for _ in range(3):
         r = poise.solve(deck, quiet=True)
-    times, solve = [], []
+    times, solve, fresh = [], [], []
     for _ in range(repeat):
         t0 = time.perf_counter()
         r = poise.solve(deck, quiet=True)
         times.append(time.perf_counter() - t0)
         solve.append(r.timings.get("solve", float("nan")))
+    for _ in range(repeat):
+        deck_cache.clear()
+        t0 = time.perf_counter()
+        poise.solve(deck, quiet=True)
+        fresh.append(time.perf_counter() - t0)
+    prof = cProfile.Profile()
+    prof.enable()
+    poise.solve(deck, quiet=True)
+    prof.disable()
     it = int(sum(int(x) for a in r.analyses for x in a.datasets["frames/iterations"]))
     return dict(bench="inprocess_solve", deck=name, repeat=repeat, status=r.status,
                 bodies=len(r.model_datasets.get("bodies/id", ())), iterations=it,
                 ms=dict(median=statistics.median(times) * 1e3, min=min(times) * 1e3),
-                solve_ms=statistics.median(solve) * 1e3)
+                solve_ms=statistics.median(solve) * 1e3,
+                fresh_ms=statistics.median(fresh) * 1e3,
+                calls=int(pstats.Stats(prof).total_calls))
 
 
 def bench_chunk(root: Path, n: int = 1000, alone: int = 100) -> dict:
@@ -206,7 +224,9 @@ def markdown(rows: list[dict]) -> list[str]:
     for ip in (r for r in rows if r["bench"] == "inprocess_solve"):
         md.append(f"| `poise.solve` in process, `{ip['deck']}` ({ip['bodies']} moving "
                   f"bodies) | {ip['ms']['median']:.2f} ms (solver {ip['solve_ms']:.2f} ms, "
-                  f"{ip['iterations']} iterations) | | | "
+                  f"{ip['iterations']} iterations; parsed and compiled each time "
+                  f"{ip.get('fresh_ms', float('nan')):.2f} ms; {ip.get('calls', 0):,} Python "
+                  "calls) | | | "
                   + (f"{ip['ms']['median'] / 1e3 / base:.3f}" if base else "—") + " |")
     ch = _get(rows, "sweep_chunk")
     if ch:

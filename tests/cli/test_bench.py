@@ -58,6 +58,7 @@ def test_sweep_bench_rows_and_targets(tmp_path):
     sw = rows[-1]
     assert sw["returncode"] == 0 and sw["converged"] == 6 and sw["case_ms_median"] > 0
     assert sw["peak_rss_mb"] > 0 and rows[2]["bodies"] == 3 and rows[2]["status"] == "converged"
+    assert rows[2]["calls"] > 1000 and rows[2]["fresh_ms"] > 0     # one solve's Python calls
     assert "| sweep, 6 cases |" in "\n".join(bs.markdown(rows))
     names = [t[0] for t in bs.targets(rows)]
     assert any("3-body deck" in n for n in names)        # 1000/100,000 rows: not run here

@@ -88,3 +88,40 @@ def test_frame_solvers_have_frozen_states_and_a_pure_terminate():
     s2, out2 = newton(model, st, settings, [], 0, SolveData.for_model(model))
     assert out.ok and out2.ok and out.iterations == out2.iterations == len(rows) - 1
     assert np.allclose(s.pos, s2.pos) and np.allclose(s.lam, s2.lam)
+
+
+def test_evolve_is_replace():
+    """``iterate.evolve`` gives what ``dataclasses.replace`` gives (also for a field named
+    like its argument), refuses unknown fields, and falls back for a ``__post_init__``."""
+    import dataclasses
+
+    import numpy as np
+
+    from poise.solvers.iterate import evolve
+
+    @dataclasses.dataclass(frozen=True)
+    class St:
+        state: object
+        it: int = 0
+        seen: tuple = ()
+
+    a = St(np.arange(3.0), 1, (1,))
+    b = evolve(a, state=np.ones(2), it=2)
+    assert np.array_equal(b.state, np.ones(2))
+    assert b.it == 2 and b.seen == (1,) and a.it == 1 and np.array_equal(a.state, np.arange(3.0))
+    assert vars(b).keys() == vars(dataclasses.replace(a, it=2)).keys()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        b.it = 3
+    with pytest.raises(TypeError):
+        evolve(a, nope=1)
+
+    @dataclasses.dataclass(frozen=True)
+    class Checked:
+        x: int
+
+        def __post_init__(self):
+            if self.x < 0:
+                raise ValueError("negative")
+
+    with pytest.raises(ValueError):
+        evolve(Checked(1), x=-1)

@@ -15,6 +15,7 @@ import pytest
 
 import poise.app.runner as runner_mod
 import poise.model.compile as compile_mod
+from poise.app import deck_cache
 from poise.app.api import run_deck
 
 from support.paths import DECKS
@@ -45,7 +46,8 @@ def _solve_and_check(deck, overrides, monkeypatch):
     opts = {"allow_user_code": True} if "user" in deck else {}
     if deck == "adm/adm_commands.adm":                # its CAD contact needs --ignore CONTACT
         opts["ignore"] = ("CONTACT",)
-    res = run_deck(str(DECKS / deck), overrides, quiet=True, **opts)
+    deck_cache.clear()     # compiled here (not reused from an earlier test): the model a later
+    res = run_deck(str(DECKS / deck), overrides, quiet=True, **opts)   # solve may reuse
     assert res.analyses and compiled
     for m, before in compiled:
         after = reachable(m)

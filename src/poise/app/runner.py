@@ -13,6 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from poise.app import deck_cache
 from poise.app.budget import check_memory
 from poise.app.times import output_times, print_arrays
 from poise.core import blas, phases
@@ -271,12 +272,12 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=(),
     phases.reset()
     now = phases.now            # a clock that stops while modules are imported
     t0 = now()
-    spec = load_input(path, ignore)
+    spec = deck_cache.load(path, ignore, load_input)     # kept while the file is unchanged
     path = spec.path
     t1 = now()
     user_code = "run" if allow_user_code else "refuse"
     if model is None:
-        model = compile_model(spec, user_code=user_code)
+        model = deck_cache.compiled(spec, user_code, compile_model)
     t2 = now()
     analyses = plan(spec, overrides)
     problems = []

@@ -184,6 +184,7 @@ def add_torque_via_axes(rho, G, axis_slots, T, dT, Y):
     Uses ``rho_c = -T x a_c / 2 = (a_c x T)/2`` so that ``sum_c a_c x w_c = T``.
     ``dT`` (n, 3, 3S) is dT/dy or None.
     """
+    hT = None if G is None else -0.5 * skew(T)              # the same for the three axes
     for s in axis_slots:
         a = Y[:, s]
         rows = slice(3 * s, 3 * s + 3)
@@ -191,7 +192,7 @@ def add_torque_via_axes(rho, G, axis_slots, T, dT, Y):
         if G is not None:
             if dT is not None:
                 G[:, rows, :] += 0.5 * np.matmul(skew(a), dT)
-            G[:, rows, rows] += -0.5 * skew(T)
+            G[:, rows, rows] += hT
 
 
 def column_map(index, cols):

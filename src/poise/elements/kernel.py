@@ -56,11 +56,12 @@ class SlotKinematics:
             K = self.K
             B = np.zeros((n, 3 * S, 6 * K))
             sk = -self.Sk
+            p_any = self.pt.any(axis=0)
             for s in range(S):
                 k = self.slot_ml[s]
                 rows = slice(3 * s, 3 * s + 3)
                 pt = self.pt[:, s]
-                if pt.any():
+                if p_any[s]:
                     B[pt, rows, 6 * k:6 * k + 3] = _I3
                 B[:, rows, 6 * k + 3:6 * k + 6] = sk[:, s]
             self._B = B
@@ -151,7 +152,12 @@ def cross3(a, b):
     """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
+    out = np.empty(shape, a.dtype if a.dtype == b.dtype else np.result_type(a, b))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
@@ -162,14 +168,14 @@ def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     vr = cross3(kin.V, rho3)                                   # (n, S, 3)
     r = np.zeros((n, 2 * K, 3))
     pt = kin.pt
+    p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
     for s in range(S):
         k = kin.slot_ml[s]
         r[:, 2 * k + 1] += vr[:, s]
-        ps = pt[:, s]
-        if ps.all():
+        if p_all[s]:
             r[:, 2 * k] += rho3[:, s]
-        elif ps.any():
-            r[:, 2 * k] += rho3[:, s] * ps[:, None]
+        elif p_any[s]:
+            r[:, 2 * k] += rho3[:, s] * pt[:, s][:, None]
     return r.reshape(n, 6 * K)
 
 
@@ -283,14 +289,20 @@ def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | Non
 def _cross_cols(v, M):
     """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
     ``M`` crossed with ``v`` from the left."""
-    return np.stack([v[1] * M[2] - v[2] * M[1], v[2] * M[0] - v[0] * M[2],
-                     v[0] * M[1] - v[1] * M[0]])
+    out = np.empty(M.shape, M.dtype if M.dtype == v.dtype else np.result_type(v, M))
+    out[0] = v[1] * M[2] - v[2] * M[1]
+    out[1] = v[2] * M[0] - v[0] * M[2]
+    out[2] = v[0] * M[1] - v[1] * M[0]
+    return out
 
 
 def _cross_rows(M, u):
     """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
-    return np.stack([M[:, 1] * u[2] - M[:, 2] * u[1], M[:, 2] * u[0] - M[:, 0] * u[2],
-                     M[:, 0] * u[1] - M[:, 1] * u[0]], axis=1)
+    out = np.empty(M.shape, M.dtype if M.dtype == u.dtype else np.result_type(M, u))
+    out[:, 0] = M[:, 1] * u[2] - M[:, 2] * u[1]
+    out[:, 1] = M[:, 2] * u[0] - M[:, 0] * u[2]
+    out[:, 2] = M[:, 0] * u[1] - M[:, 1] * u[0]
+    return out
 
 
 def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> np.ndarray:
@@ -360,14 +372,14 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
     rot = cross3(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
     Pq = np.zeros((n, m, 2 * K, 3))
     pt = kin.pt
+    p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
     for s in range(S):
         k = kin.slot_ml[s]
         Pq[:, :, 2 * k + 1] += rot[:, :, s]
-        ps = pt[:, s]
-        if ps.all():
+        if p_all[s]:
             Pq[:, :, 2 * k] += py[:, :, s]
-        elif ps.any():
-            Pq[:, :, 2 * k] += py[:, :, s] * ps[:, None, None]
+        elif p_any[s]:
+            Pq[:, :, 2 * k] += py[:, :, s] * pt[:, s][:, None, None]
     return Pq.reshape(n, m, 6 * K)
 
 
@@ -392,6 +404,15 @@ def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray |
         r = np.concatenate([r, np.zeros((n, U)) if rs is None else rs], axis=1)
     if not need_jac:
         return r, None
+    return r, local_tangent(kin, rho, G, slot_ml, K, ext, U, pat)
+
+
+def local_tangent(kin: SlotKinematics, rho: np.ndarray, G, slot_ml, K: int,
+                  ext: dict | None = None, U: int = 0, pat: LocalPattern | None = None):
+    """The tangent of :func:`local_residual_tangent` alone (a Jacobian assembled after its
+    residual: the residual is not formed again)."""
+    n = rho.shape[0]
+    ext = ext or {}
     if pat is not None and pat.declared:
         Kl = _tangent_blocks(kin, rho, G, K, pat)
     else:
@@ -400,18 +421,17 @@ def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray |
             Kl = np.zeros((n, 6 * K, 6 * K))
         else:
             Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(dense_g(G), B))
+        # connection term v w^T - (v . w) I per slot, formed for every slot at once
         S = kin.V.shape[1]
         rho3 = rho.reshape(n, S, 3)
+        blk = kin.V[:, :, :, None] * rho3[:, :, None, :]           # (n, S, 3, 3)
+        d = np.einsum("nsi,nsi->ns", kin.V, rho3)
+        blk[:, :, 0, 0] -= d
+        blk[:, :, 1, 1] -= d
+        blk[:, :, 2, 2] -= d
         for s in range(S):
             k = slot_ml[s]
-            v = kin.V[:, s]
-            w = rho3[:, s]
-            blk = v[:, :, None] * w[:, None, :]
-            d = np.einsum("ni,ni->n", v, w)
-            blk[:, 0, 0] -= d
-            blk[:, 1, 1] -= d
-            blk[:, 2, 2] -= d
-            Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk
+            Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
     if U:
         B = kin.B
         full = np.zeros((n, 6 * K + U, 6 * K + U))
@@ -423,4 +443,4 @@ def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray |
         if ext.get("G_ss") is not None:
             full[:, 6 * K:, 6 * K:] = ext["G_ss"]
         Kl = full
-    return r, Kl
+    return Kl

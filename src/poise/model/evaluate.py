@@ -26,7 +26,8 @@ from poise.core.errors import EvaluationError
 from poise.elements.context import row_where
 from poise.expr import EvalContext
 from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, dense_g,
-                                   local_pattern, local_residual_tangent, slot_kinematics,
+                                   local_pattern, local_residual_tangent, local_tangent,
+                                   slot_kinematics,
                                    tangent_compact)
 from poise.model.assembly import scatter_add
 from poise.model.frame_batch import tiles
@@ -295,7 +296,7 @@ def jacobian(model, ev: Evaluation):
         if pat.compact:    # straight into the registered (entry-major block) order
             Kl = tangent_compact(kin, rho, G, fam.K, pat)
         else:
-            _, Kl = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, True, ext, U, pat)
+            Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)
             Kl = _gather(Kl, pat.order)
         if fam.is_constraint:
             Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)

@@ -16,6 +16,7 @@ import numpy as np
 
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
+from poise.elements.kernel import cross3
 from poise.elements.rotation import (expm_so3, lift_rotation_vector, rotation_vector,
                                      se3_left_jacobian, wrap_angle)
 
@@ -167,8 +168,19 @@ class Model:
         return P, A, pos
 
     def _principal_angles(self, state):
-        _, A, _ = self.marker_kinematics(state)
-        return principal_angles(A, self.angle_I, self.angle_J, self.angle_axis)
+        return self._angles_of(state.rot)
+
+    def _angles_of(self, rot):
+        """The angle table's principal angles (..., na) for body rotations ``rot`` (..., nb,
+        3, 3), from the axes of its own markers only (the same products as
+        :meth:`marker_kinematics` for those markers)."""
+        I, J = self.angle_I, self.angle_J
+        na = len(I)
+        mk = np.concatenate([I, J])
+        mb = self.marker_body[mk]
+        ground = np.broadcast_to(np.eye(3), rot.shape[:-3] + (1, 3, 3))
+        A = np.matmul(np.concatenate([rot, ground], axis=-3)[..., mb, :, :], self.marker_A0[mk])
+        return principal_angles(A, np.arange(na), np.arange(na, 2 * na), self.angle_axis)
 
     def retract(self, state: State, dq: np.ndarray, dlam: np.ndarray | None = None) -> State:
         """New state ``state (+) dq`` on the configuration manifold.
@@ -186,21 +198,28 @@ class Model:
         # rigid bodies move along the screw of the spatial twist (w, v0), v0 = dr_cg - w x r_cg:
         # a rotation about any fixed point (a hinge) is then followed exactly, for any angle.
         w = dr / nsub
-        v0 = (dt[rb] - np.cross(dr, state.pos[rb])) / nsub if len(rb) else np.zeros((0, 3))
+        v0 = (dt[rb] - cross3(dr, state.pos[rb])) / nsub if len(rb) else np.zeros((0, 3))
         E = expm_so3(w)
         V = se3_left_jacobian(w)
         Vv = np.einsum("nij,nj->ni", V, v0)
         pt = np.ones(self.nb, bool)
         pt[rb] = False
-        for _ in range(nsub):
-            if pt.any():
+        move_pt = bool(pt.any())
+        na = len(self.angle_I)
+        rots = np.empty((nsub,) + new.rot.shape) if na else None
+        for k in range(nsub):
+            if move_pt:
                 new.pos[pt] += dt[pt] / nsub
             if len(rb):
                 new.pos[rb] = np.einsum("nij,nj->ni", E, new.pos[rb]) + Vv
                 new.rot[rb] = np.matmul(E, new.rot[rb])
-            if len(self.angle_I):
-                p = self._principal_angles(new)
-                new.angle = new.angle + wrap_angle(p - new.angle)
+            if na:
+                rots[k] = new.rot
+        if na:             # principal angles of every sub-step at once, unwrapped in turn
+            ang = new.angle
+            for p in self._angles_of(rots):
+                ang = ang + wrap_angle(p - ang)
+            new.angle = ang
         if self.n_extra:
             new.extra = new.extra + dq[self.extra_idx]
         if dlam is not None:
@@ -348,8 +367,9 @@ def principal_angles(A, I, J, axis):
         return np.zeros(lead + (0,))
     axis = np.asarray(axis)
 
+    At = np.swapaxes(A, -1, -2)          # (..., nm, column, component): plain indexing
+
     def col(idx, c):
-        k = c[axis].reshape((1,) * len(lead) + (-1, 1, 1))
-        return np.take_along_axis(A[..., idx, :, :], k, axis=-1)[..., 0]
+        return At[..., idx, c[axis], :]
     u, e1, e2 = col(I, ANGLE_U_COL), col(J, ANGLE_E1_COL), col(J, ANGLE_E2_COL)
     return np.arctan2(np.sum(u * e2, axis=-1), np.sum(u * e1, axis=-1))

@@ -12,6 +12,8 @@ Evaluation and factorisation counts are the per-solve data's
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -19,6 +21,33 @@ from poise.solvers.history import Row
 from poise.solvers.status import Status
 
 S = TypeVar("S")
+
+
+@functools.cache
+def _init_fields(cls):
+    """The field names of dataclass ``cls`` when :func:`evolve` may copy its instances (every
+    field set by ``__init__``, no ``__post_init__``, no slots), else None."""
+    fs = dataclasses.fields(cls)
+    if (hasattr(cls, "__post_init__") or hasattr(cls, "__slots__")
+            or not all(f.init for f in fs)):
+        return None
+    return frozenset(f.name for f in fs)
+
+
+def evolve(obj, /, **changes):
+    """``dataclasses.replace(obj, **changes)`` for a loop's frozen state, without running
+    ``__init__`` (``replace`` reads every field through ``getattr``: a few hundred Python calls
+    per Newton solve of a small model). The same new object: the old fields, then the changes;
+    a class ``replace`` would treat differently goes through ``replace``."""
+    cls = type(obj)
+    names = _init_fields(cls)
+    if names is None or not changes.keys() <= names:
+        return dataclasses.replace(obj, **changes)
+    new = object.__new__(cls)
+    d = new.__dict__
+    d.update(obj.__dict__)
+    d.update(changes)
+    return new
 
 
 @dataclass(frozen=True)

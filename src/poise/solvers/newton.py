@@ -16,7 +16,7 @@
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from poise.elements.context import row_where
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.history import History, Row
-from poise.solvers.iterate import Next, Solver, iterate
+from poise.solvers.iterate import Next, Solver, evolve, iterate
 from poise.solvers.linalg import SingularMatrix
 from poise.solvers.reach import PROJECT_ABOVE, project, violation
 from poise.solvers.reach import coord_weights as _coord_weights
@@ -248,23 +248,23 @@ class NewtonIteration(Solver[_Newtoning]):
     def _converged(self, s, err):
         # within tolerance: unless a removed redundant equation contradicts the others
         bad = inconsistent_redundant(self.model, s.state, self.sc, self.cnt)
-        s = replace(s, err=err)
-        s = replace(s, last_row=self._row(s, s.it, worst=bad or s.worst))
+        s = evolve(s, err=err)
+        s = evolve(s, last_row=self._row(s, s.it, worst=bad or s.worst))
         if bad:
-            return replace(s, outcome=FrameOutcome(
+            return evolve(s, outcome=FrameOutcome(
                 Status.INCONSISTENT_CONSTRAINTS, s.it, s.imb, err,
                 MESSAGES[Status.INCONSISTENT_CONSTRAINTS] + "; " + bad))
-        return replace(s, outcome=FrameOutcome(Status.CONVERGED, s.it, s.imb, err, "converged"))
+        return evolve(s, outcome=FrameOutcome(Status.CONVERGED, s.it, s.imb, err, "converged"))
 
     def _fail(self, s, status, message):
-        return Next(replace(s, last_row=self._row(s, s.it),
+        return Next(evolve(s, last_row=self._row(s, s.it),
                             outcome=FrameOutcome(status, s.it, s.imb, s.err, message)), 0)
 
     def _measured(self, s):
         """``s`` with the measures of its iterate, converged when they are within tolerance."""
         imb, cerr, zinf, worst = measures(self.model, s.ev, self.sc)
         err = max(cerr, s.last_step if np.isfinite(s.last_step) else 0.0)
-        s = replace(s, imb=imb, cerr=cerr, zinf=zinf, worst=worst, err=err, res_ok=zinf <= 1.0)
+        s = evolve(s, imb=imb, cerr=cerr, zinf=zinf, worst=worst, err=err, res_ok=zinf <= 1.0)
         # converged needs an error estimate: a Newton step measured at (or taken to) the point;
         # a residual within tolerance alone says nothing about the distance to the solution
         if s.res_ok and np.isfinite(s.last_step) and s.last_step <= self.settings.max_error:
@@ -299,7 +299,7 @@ class NewtonIteration(Solver[_Newtoning]):
         nxt = self._iteration(s)
         if not nxt.spent:
             return nxt
-        s2 = replace(nxt.state, it=s.it + nxt.spent)
+        s2 = evolve(nxt.state, it=s.it + nxt.spent)
         return Next(s2 if s2.outcome is not None else self._measured(s2), nxt.spent, nxt.rows)
 
     def _iteration(self, s):
@@ -326,7 +326,7 @@ class NewtonIteration(Solver[_Newtoning]):
             down = self._downhill(state, ev, dq)
             if down is not None:
                 return self._down(s, state, down)
-        s = replace(s, stall=None)
+        s = evolve(s, stall=None)
         best = None
         eval_error = ""
         alpha, first = _limit_step_trial(model, state, dq, settings)
@@ -373,7 +373,7 @@ class NewtonIteration(Solver[_Newtoning]):
             # step not taken (the distance Newton still sees), not the last one taken
             nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
             return Next(self._converged(s, max(s.cerr, nxt)), 0)
-        s = replace(s, merits=s.merits + (m0,))
+        s = evolve(s, merits=s.merits + (m0,))
         cw = settings.limits.crawl_window
         crawl = len(s.merits) > cw and not m0 <= 0.5 * s.merits[-1 - cw]
         if settings.line_search and self.walks_down and not s.res_ok and (
@@ -383,12 +383,12 @@ class NewtonIteration(Solver[_Newtoning]):
             # valley that is no equilibrium, steps go down the potential energy instead until
             # the merit is below this one (docs/solvers.md, "Newton on mechanisms")
             if not s.robust:
-                s = replace(s, robust=True)
+                s = evolve(s, robust=True)
                 if violation(model, ev.phi) > PROJECT_ABOVE:
                     return self._onto(s, state)
             down = self._downhill(state, ev, dq)
             if down is not None:
-                return self._down(replace(s, stall=m0, runaway=Runaway(model, ev.r)), state,
+                return self._down(evolve(s, stall=m0, runaway=Runaway(model, ev.r)), state,
                                   down)
         return self._take(s, state, (best[2], best[3], best[0], best[1]), dq)
 
@@ -398,10 +398,10 @@ class NewtonIteration(Solver[_Newtoning]):
         p = project(self.model, state, self.cnt, s.ev, self.settings.limits)
         if p is not None:
             p = initial_multipliers(self.model, p, self.cnt, self._merit_weights())
-            s = replace(s, state=p, ev=self._ev_at(p))
+            s = evolve(s, state=p, ev=self._ev_at(p))
         elif s.feasible is not None:
-            s = replace(s, state=s.feasible[0], ev=s.feasible[1])
-        s = replace(s, last_step=np.inf)
+            s = evolve(s, state=s.feasible[0], ev=s.feasible[1])
+        s = evolve(s, last_step=np.inf)
         return Next(s, 1, (self._row(s, s.it, np.nan, np.nan, pose=state, event="reach"),))
 
     def _downhill(self, state, ev, dq):
@@ -419,9 +419,9 @@ class NewtonIteration(Solver[_Newtoning]):
         runaway = copy.copy(s.runaway)           # the state's stays as it was
         runaway.turn = runaway.turn.copy()
         why = runaway.add(down[3] * down[4], down[5])
-        s2 = replace(nxt.state, runaway=runaway)
+        s2 = evolve(nxt.state, runaway=runaway)
         if why:
-            s2 = replace(s2, outcome=FrameOutcome(Status.DIVERGED, s.it + 1, s.imb, s.err, why,
+            s2 = evolve(s2, outcome=FrameOutcome(Status.DIVERGED, s.it + 1, s.imb, s.err, why,
                                                   final=True))
         return Next(s2, nxt.spent, nxt.rows)
 
@@ -430,7 +430,7 @@ class NewtonIteration(Solver[_Newtoning]):
         ``alpha * dq``: the iteration's history row."""
         st, ev, _, alpha = trial
         last_step = float(np.max(np.abs(alpha * dq) / self.sc.q_len)) if dq.size else 0.0
-        s2 = replace(s, state=st, ev=ev, last_step=last_step,
+        s2 = evolve(s, state=st, ev=ev, last_step=last_step,
                      feasible=(st, ev) if violation(self.model, ev.phi) <= PROJECT_ABOVE
                      else s.feasible)
         # the row of the iterate it measured (``state``: its measures), with the step taken
