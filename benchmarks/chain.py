@@ -135,6 +135,7 @@ def _worker(deck: str, n: int) -> dict:
     peak_compile = rss_now()
     # the solve exactly as runner.run sequences it (one static analysis)
     reqs = plan(spec, None)
+    del spec                             # as runner.run: the parsed deck is not held by the solve
     model_datasets(model)
     state = model.initial_state()
     drv = Driver(model, reqs[0], redundancy=None)

@@ -361,3 +361,16 @@ def test_schema_table_and_markdown():
     assert element_schema("Constraint_Joint").attr("i_marker_id").ref == "marker"
     assert element_schema("Body_Rigid").attr("mass").lo == 0
     assert re.search(r"\| `stiffness` \| real \| yes \|", md)
+
+
+def test_repeated_numbers_of_a_column_share_one_object():
+    """A big deck repeats its zeros, ones and ids: typed once per distinct text (memory), the
+    values exactly those of float()/int() of each text, in order."""
+    from poise.deck.values import ints, reals
+    col = ["0.", "1.5", "0.", "-2e3", "0.", "1.5"]
+    x = reals(col)
+    assert x == [0.0, 1.5, 0.0, -2000.0, 0.0, 1.5]
+    assert x[0] is x[2] is x[4] and x[1] is x[5]
+    assert reals(["1.0", "abc", "1.0"]) == [1.0, "abc", 1.0]     # non-numbers kept raw
+    k = ints(["100001", "7", "100001"])
+    assert k == [100001, 7, 100001] and k[0] is k[2]

@@ -312,6 +312,8 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=(),
                               lambda sp: compile_model(sp, user_code=user_code))
     for m in models[1:]:
         res.active_effects += [e for e in m.active_effects if e not in res.active_effects]
+    ignored = spec.ignored
+    del spec              # the parsed deck is not needed by the solve: not held meanwhile
     state = model.initial_state()
     counts = {}
     redundancy = None
@@ -328,7 +330,7 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=(),
         res.analyses.append(ar)
         if progress:
             line = summary_line(ar, res.timings[f"analysis_{k:03d}"])
-            progress(f"{line}; {ignored_text(spec.ignored)}" if spec.ignored else line)
+            progress(f"{line}; {ignored_text(ignored)}" if ignored else line)
     t3 = now()
     # solve = its phases (poise.core.phases: evaluate, assemble, factorise) + the rest
     res.timings = dict(parse=t1 - t0, compile=t2 - t1, solve=t3 - t2,

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)       # one per deck element: no __dict__
 class SourceLoc:
     """Where an object came from in a deck.
 

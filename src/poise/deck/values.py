@@ -95,13 +95,24 @@ def coerce(attr: Attr, raw: str, loc: SourceLoc) -> Any:
 _PLAIN_BYTES = b"0123456789.+-eE"
 
 
+def _shared(col: list, conv) -> list:
+    """``conv`` of every value, one object per distinct text: a big deck repeats its zeros,
+    ones and ids thousands of times (the parsed deck is held while the model compiles)."""
+    memo = dict.fromkeys(col)
+    if len(memo) == len(col):
+        return list(map(conv, col))
+    for k in memo:
+        memo[k] = conv(k)
+    return list(map(memo.__getitem__, col))
+
+
 def reals(col: list) -> list:
     """``parse_number`` of every value (the raw string where it is not a number)."""
     try:
         j = "".join(col)
         # over these characters float() accepts exactly what parse_number accepts
         if j.isascii() and not j.encode("ascii").translate(None, _PLAIN_BYTES):
-            return list(map(float, col))
+            return _shared(col, float)
     except ValueError:
         pass
     out = []
@@ -116,7 +127,7 @@ def ints(col: list, keep_raw: bool = True) -> list:
     not an integer). Plain digit strings of up to 15 digits (exact in a float) go through int()."""
     j = "".join(col)
     if j.isascii() and j.isdigit() and all(col) and max(map(len, col)) <= 15:
-        return list(map(int, col))
+        return _shared(col, int)
     out = []
     for v in col:
         x = parse_int(v)

@@ -26,6 +26,8 @@ class Labeller:
         self.by_key: dict[tuple, str] = {}
         self.requests: dict[int, object] = {}
         for e in spec.model:
+            if e.tag == "Reference_Marker":      # no output group: 3 per body, kept for nothing
+                continue
             lab = e.attrs.get("label", "") or ""
             if e.tag == "Post_Request":
                 lab = lab or e.attrs.get("comment", "") or ""     # a request's comment labels it

@@ -60,6 +60,7 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
             lam = min_norm_multipliers(Pfull, state.lam, saved, w, Y=Y)
             dep = dependent_rows(Pfull, saved, Y=Y)
         loads = element_loads(model, state, lam=lam, ev=ev)
+        ev = Pfull = Y = None     # the evaluation's kept slot data go before the classification
     except EvaluationError:
         loads = {}
     done = env.data.classified

@@ -84,10 +84,13 @@ class Factor:
                     self.lu = spla.splu(J.tocsc(), permc_spec="COLAMD")
             except RuntimeError as e:
                 raise SingularMatrix(str(e)) from None
-            u = np.abs(self.lu.U.diagonal())
-            self._pivot_row = int(np.nonzero(self.lu.perm_r == int(np.argmin(u)))[0][0])
-            if not np.all(np.isfinite(u)) or u.min() == 0.0:
-                raise SingularMatrix("singular matrix (zero pivot)", row=self._pivot_row)
+            # SuperLU refuses an exactly zero pivot (RuntimeError above); the pivots of a finite
+            # matrix are read only if a solve fails: ``lu.U`` copies both factors, kept as long
+            # as the factorisation
+            self._pivot_row = None
+            data = J.data if getattr(J, "format", "") in ("csr", "csc", "coo") else J.tocsr().data
+            if not np.all(np.isfinite(data)) and not np.all(np.isfinite(self.lu.U.diagonal())):
+                raise SingularMatrix("singular matrix (zero pivot)", row=self.pivot_row)
         elif np.asarray(J).shape[0] <= NUMPY_DENSE_MAX:
             J = np.asarray(J)
             if not np.all(np.isfinite(J)):
@@ -110,6 +113,14 @@ class Factor:
                 raise SingularMatrix("singular matrix (tiny pivot)", row=self._pivot_row)
             self.lu = (lu, piv)
         self.J = J
+
+    @property
+    def pivot_row(self):
+        """The row of the smallest pivot (the culprit a singular-matrix message names)."""
+        if self._pivot_row is None:
+            u = np.abs(self.lu.U.diagonal())
+            self._pivot_row = int(np.nonzero(self.lu.perm_r == int(np.argmin(u)))[0][0])
+        return self._pivot_row
 
     def _solve(self, b):
         if self.sparse:
@@ -138,7 +149,7 @@ class Factor:
             return x
         for _ in range(refine + 1):
             if not np.all(np.isfinite(x)):
-                raise SingularMatrix("singular matrix (non-finite solution)", row=self._pivot_row)
+                raise SingularMatrix("singular matrix (non-finite solution)", row=self.pivot_row)
             res = b - self.J @ x
             if np.linalg.norm(res) <= rtol * nb:
                 return x
@@ -146,5 +157,5 @@ class Factor:
         res = b - self.J @ x
         if not np.all(np.isfinite(x)) or np.linalg.norm(res) > 1e-4 * nb:
             raise SingularMatrix("singular matrix (linear solve residual "
-                                 f"{np.linalg.norm(res) / nb:.1e})", row=self._pivot_row)
+                                 f"{np.linalg.norm(res) / nb:.1e})", row=self.pivot_row)
         return x

@@ -155,11 +155,12 @@ def initial_multipliers(model, state, cnt: Counters, weights=None):
     ev = cnt.evaluate(model, st, "jacobian")
     W = _coord_weights(model) if weights is None else weights
     K = _weighted_kkt(model, ev, W)
+    Q = -ev.r                     # with lam = 0, r = -Q
+    ev = None                     # its Jacobian goes before the factorisation
     try:
         f = cnt.factor(K)
     except SingularMatrix:
         return state
-    Q = -ev.r                     # with lam = 0, r = -Q
     try:
         x = f.solve(np.concatenate([Q, np.zeros(model.nc)]))
     except SingularMatrix:

@@ -45,6 +45,7 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
     empty = d <= 1e-300
     dd = np.where(empty, 1.0, d)
     A2 = (A + sp.diags(np.where(empty, 1.0, SHIFT * d))).tocsc()
+    del A
     perm = "NATURAL" if nc <= ORDERING_NATURAL_MAX else "MMD_AT_PLUS_A"
     lu = spla.splu(A2, permc_spec=perm, diag_pivot_thresh=0.0,
                    options=dict(SymmetricMode=True))
@@ -223,5 +224,6 @@ def detect_redundancy(model, state, workspace=None) -> np.ndarray:
         return np.zeros(0, int)
     J = model.evaluate(state, need_jac=True, workspace=workspace).J
     Pq = J[model.nq:, :model.nq]
+    del J                 # the KKT matrix (the workspace keeps its buffer): only Phi_q is needed
     col = np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
     return redundant_rows(Pq, col)
