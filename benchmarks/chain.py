@@ -93,7 +93,8 @@ def _worker(deck: str, n: int) -> dict:
 
     from poise.deck.parser import load_deck
     from poise.model.compile import compile_model
-    from poise.app.runner import model_datasets, plan
+    from poise.app.model_outputs import model_datasets
+    from poise.app.runner import plan
     from poise.results.data import AnalysisResult
     from poise.solvers.driver import Driver
     t_import = time.perf_counter() - t

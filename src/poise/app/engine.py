@@ -90,6 +90,22 @@ def _children_ignore_interrupt():
 CONNECT_TIMEOUT = 20.0
 
 
+def check_scheduler(address: str) -> None:
+    """A Dask scheduler address (``tcp://host:8786``, ``host:8786``) or a ``UsageError``."""
+    where = f"--scheduler {address!r}"
+    text = str(address).strip()
+    try:
+        from distributed.comm.addressing import parse_address, parse_host_port
+        scheme, loc = parse_address(text if "://" in text else f"tcp://{text}", strict=False)
+        if scheme in ("tcp", "tls"):
+            host, port = parse_host_port(loc, default_port=8786)
+            if not host or not 0 < int(port) < 65536:
+                raise ValueError("no host or bad port")
+    except Exception as e:  # noqa: BLE001 - whatever the parser says, the address is unusable
+        raise UsageError(f"{where}: not a scheduler address (expected e.g. "
+                         f"tcp://host:8786): {' '.join(str(e).split())}") from None
+
+
 def probe_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
     """Ask ``address`` who it is (Dask's ``identity`` call) before a client connects to it.
 

@@ -32,7 +32,7 @@ from poise.app.cases import chunk_size as auto_chunk_size
 from poise.app.cases import group_cases, make_cases, parse_set, resolve_param
 from poise.app.chunks import (FrameLayout, SweepJob, overrides_with_ignore, run_chunk,
                               template_for)
-from poise.app.engine import WORKER_TIMEOUT, NoWorkers, dask_client, run_tasks
+from poise.app.engine import WORKER_TIMEOUT, NoWorkers, check_scheduler, dask_client, run_tasks
 from poise.app.runner import check_ignore, ignore_kinds, plan
 from poise.app.sweep_index import (INDEX_KEYS, INDEX_VERSION, index_keys, index_rows,  # noqa: F401
                                    output_groups, output_units, outputs_of, parse_outputs,
@@ -484,21 +484,5 @@ def _ignored_text(ignored) -> str:
     return ignored_counts(ignored or [])
 
 
-def check_scheduler(address: str) -> None:
-    """A Dask scheduler address (``tcp://host:8786``, ``host:8786``) or a ``UsageError``."""
-    where = f"--scheduler {address!r}"
-    text = str(address).strip()
-    try:
-        from distributed.comm.addressing import parse_address, parse_host_port
-        scheme, loc = parse_address(text if "://" in text else f"tcp://{text}", strict=False)
-        if scheme in ("tcp", "tls"):
-            host, port = parse_host_port(loc, default_port=8786)
-            if not host or not 0 < int(port) < 65536:
-                raise ValueError("no host or bad port")
-    except Exception as e:  # noqa: BLE001 - whatever the parser says, the address is unusable
-        raise UsageError(f"{where}: not a scheduler address (expected e.g. "
-                         f"tcp://host:8786): {' '.join(str(e).split())}") from None
-
-
 __all__ = ["run_sweep", "SweepOutcome", "Param", "SWEEP_FILE", "INDEX_KEYS", "INDEX_VERSION",
-           "output_groups", "parse_outputs", "output_units", "check_scheduler"]
+           "output_groups", "parse_outputs", "output_units"]
