@@ -152,9 +152,12 @@ def _base_spec(job: SweepJob):
     return spec
 
 
-def make_template(job: SweepJob, group: dict) -> CaseTemplate:
-    """The template of the cases with structural values ``group`` (compiled once)."""
-    base = _base_spec(job)
+def make_template(job: SweepJob, group: dict, fresh: bool = False) -> CaseTemplate:
+    """The template of the cases with structural values ``group`` (compiled once); ``fresh``:
+    from the deck parsed now, not the process's cache of parsed decks (the sweeping process
+    itself, whose other work may have filled that cache)."""
+    base = parse_deck_bytes(job.data, job.path, **({"ignore": job.ignore} if job.ignore else {})) \
+        if fresh else _base_spec(job)
     spec, extra = apply_case(base, list(job.structural), group)
     spec.warnings = list(base.warnings)
     settings_only = all(p.tag == "Param_Static" for p in job.numeric)

@@ -30,8 +30,8 @@ from poise.app.batch import check_outputs, ensure_out_dir, worst_exit_code
 from poise.app.cases import MAX_CASES, Param, apply_case, check_case_count, chunks
 from poise.app.cases import chunk_size as auto_chunk_size
 from poise.app.cases import group_cases, make_cases, parse_set, resolve_param
-from poise.app.chunks import (FrameLayout, SweepJob, overrides_with_ignore, run_chunk,
-                              template_for)
+from poise.app.chunks import (FrameLayout, SweepJob, make_template, overrides_with_ignore,
+                              pack, run_chunk, solve_chunk, template_for)
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, check_scheduler, dask_client, run_tasks
 from poise.app.runner import check_ignore, ignore_kinds, plan
 from poise.app.sweep_index import (INDEX_KEYS, INDEX_VERSION, index_keys, index_rows,  # noqa: F401
@@ -339,25 +339,29 @@ class _Run:
         rest of a large sweep, go to the cluster as before."""
         todo = np.nonzero(~self.done)[0].tolist()
         groups = group_cases(self.params, self.cases, todo)
-        if not groups or not self._together(groups):
+        if not groups:
             return
         group, idx = max(groups.values(), key=lambda g: len(g[1]))
-        size = max(1, min(HEAD_CHUNK, -(-len(idx) // 10)))      # progress every 10 %
-        first = idx[:size]
-        t0 = time.perf_counter()
+        from poise.app.chunk_batch import plan_for      # lazy: only sweeps that solve
         try:
-            self.write(run_chunk(self.job, group, [(i, self.cases[i]) for i in first]))
-        except Exception:  # noqa: BLE001 - such cases go to the workers, case by case
+            template = make_template(self.job, group, fresh=True)
+            if plan_for(template, self.cases[idx[0]]) is None:
+                return
+        except Exception:  # noqa: BLE001 - the workers find out case by case
             return
-        per_case = (time.perf_counter() - t0) / max(1, len(first))
-        rest = idx[size:]
-        if rest and per_case * len(rest) <= HEAD_START_S:
-            for k in range(0, len(rest), size):
-                part = rest[k:k + size]
-                try:
-                    self.write(run_chunk(self.job, group, [(i, self.cases[i]) for i in part]))
-                except Exception:  # noqa: BLE001 - such cases go to the workers
-                    return
+        size = max(1, min(HEAD_CHUNK, -(-len(idx) // 10)))      # progress every 10 %
+        t0 = time.perf_counter()
+        for k in range(0, len(idx), size):
+            part = idx[k:k + size]
+            if k == size:                # the first chunk timed: the rest here, or not
+                per_case = (time.perf_counter() - t0) / size
+                if per_case * (len(idx) - size) > HEAD_START_S:
+                    break
+            try:
+                self.write(pack(solve_chunk(template, [(i, self.cases[i]) for i in part]),
+                                self.job))
+            except Exception:  # noqa: BLE001 - such cases go to the workers, case by case
+                break
         self.workers = max(self.workers, 1)
 
     def _together(self, groups) -> bool:
