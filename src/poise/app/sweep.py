@@ -31,7 +31,7 @@ from poise.app.cases import MAX_CASES, Param, apply_case, check_case_count, chun
 from poise.app.cases import chunk_size as auto_chunk_size
 from poise.app.cases import group_cases, make_cases, parse_set, resolve_param
 from poise.app.chunks import (FrameLayout, SweepJob, make_template, overrides_with_ignore,
-                              pack, run_chunk, solve_chunk, template_for)
+                              pack, run_chunk, solve_chunk)
 from poise.app.engine import WORKER_TIMEOUT, NoWorkers, check_scheduler, dask_client, run_tasks
 from poise.app.runner import check_ignore, ignore_kinds, plan
 from poise.app.sweep_index import (INDEX_KEYS, INDEX_VERSION, index_keys, index_rows,  # noqa: F401
@@ -265,6 +265,7 @@ class _Run:
         self.writer: SweepWriter | None = None
         self.workers = 0
         self.size = 0
+        self._batch_template = False        # not decided yet (see _together)
 
     def open(self, tmp: str) -> None:
         layout = self.job.layout
@@ -328,7 +329,7 @@ class _Run:
                                                         for o in self.job.outputs)) + 512
             groups = group_cases(self.params, self.cases, todo)
             self.size = int(size) if size else auto_chunk_size(
-                len(todo), self.workers, per_case, per_worker=2 if self._together(groups) else 8)
+                len(todo), self.workers, per_case, per_worker=2 if self._together(groups) is not None else 8)
             _run_chunks(cl, self, chunks(groups, self.size), worker_timeout)
 
     def head_start(self) -> None:
@@ -339,16 +340,10 @@ class _Run:
         rest of a large sweep, go to the cluster as before."""
         todo = np.nonzero(~self.done)[0].tolist()
         groups = group_cases(self.params, self.cases, todo)
-        if not groups:
+        template = self._together(groups)
+        if template is None:
             return
         group, idx = max(groups.values(), key=lambda g: len(g[1]))
-        from poise.app.chunk_batch import plan_for      # lazy: only sweeps that solve
-        try:
-            template = make_template(self.job, group, fresh=True)
-            if plan_for(template, self.cases[idx[0]]) is None:
-                return
-        except Exception:  # noqa: BLE001 - the workers find out case by case
-            return
         size = max(1, min(HEAD_CHUNK, -(-len(idx) // 10)))      # progress every 10 %
         t0 = time.perf_counter()
         for k in range(0, len(idx), size):
@@ -364,17 +359,25 @@ class _Run:
                 break
         self.workers = max(self.workers, 1)
 
-    def _together(self, groups) -> bool:
-        """Whether the largest group's cases are solved together (fewer, larger chunks then:
-        a chunk's fixed cost is a few single solves; :mod:`poise.app.chunk_batch`)."""
-        if not groups:
-            return False
-        group, idx = max(groups.values(), key=lambda g: len(g[1]))
-        from poise.app.chunk_batch import plan_for      # lazy: only sweeps that solve
-        try:
-            return plan_for(template_for(self.job, group), self.cases[idx[0]]) is not None
-        except Exception:  # noqa: BLE001 - the workers find out case by case
-            return False
+    def _together(self, groups):
+        """The template of the largest group when its cases are solved together (None when
+        not), decided once per run: the head start solves with it, and such sweeps get fewer,
+        larger chunks (a chunk's fixed cost is a few single solves; :mod:`poise.app.chunk_batch`).
+        Made from the deck parsed now, not the process's cache of parsed decks (the sweeping
+        process itself, whose other work may have filled that cache)."""
+        if self._batch_template is not False:
+            return self._batch_template
+        self._batch_template = None
+        if groups:
+            group, idx = max(groups.values(), key=lambda g: len(g[1]))
+            from poise.app.chunk_batch import plan_for      # lazy: only sweeps that solve
+            try:
+                template = make_template(self.job, group, fresh=True)
+                if plan_for(template, self.cases[idx[0]]) is not None:
+                    self._batch_template = template
+            except Exception:  # noqa: BLE001 - the workers find out case by case
+                pass
+        return self._batch_template
 
     def close(self) -> None:
         left = np.nonzero(~self.done)[0]
