@@ -42,6 +42,20 @@ def equilibration(J):
     return r, c
 
 
+def _clearly_regular(J) -> bool:
+    """True when a small dense ``J`` is certainly far from the singularity threshold
+    (``sigma_min / sigma_max > 1e-15``): ``||J||_F ||J^-1||_F`` bounds the 2-norm condition
+    number from above, so a bound below 1e13 (100x margin over the inverse's own round-off)
+    decides like the SVD would, at a fraction of its cost; otherwise the SVD decides."""
+    with np.errstate(all="ignore"):
+        try:
+            Ji = np.linalg.inv(J)
+        except np.linalg.LinAlgError:        # an exactly zero pivot
+            return False
+        k = np.linalg.norm(J) * np.linalg.norm(Ji)
+    return bool(k < 1e13)          # False for NaN/Inf (overflowing inverse)
+
+
 class Factor:
     """Factorisation of a dense or CSR matrix; ``solve(b)``. Solvers factorise through
     :meth:`poise.solvers.data.SolveData.factor`, which counts.
@@ -96,11 +110,14 @@ class Factor:
             if not np.all(np.isfinite(J)):
                 raise SingularMatrix("matrix has non-finite entries")
             self.numpy = True
-            u_, sv, vh = np.linalg.svd(J)
-            # the coordinate/equation most involved in the weakest direction names the culprit
-            self._pivot_row = int(np.argmax(np.abs(vh[-1])))
-            if sv[-1] <= 1e-15 * max(sv[0], 1e-300):
-                raise SingularMatrix("singular matrix (tiny singular value)", row=self._pivot_row)
+            self._pivot_row = None
+            if not _clearly_regular(J):
+                _u, sv, vh = np.linalg.svd(J)
+                # the coordinate/equation most involved in the weakest direction: the culprit
+                self._pivot_row = int(np.argmax(np.abs(vh[-1])))
+                if sv[-1] <= 1e-15 * max(sv[0], 1e-300):
+                    raise SingularMatrix("singular matrix (tiny singular value)",
+                                         row=self._pivot_row)
         else:
             import scipy.linalg as sla
             J = np.asarray(J)
@@ -116,8 +133,11 @@ class Factor:
 
     @property
     def pivot_row(self):
-        """The row of the smallest pivot (the culprit a singular-matrix message names)."""
-        if self._pivot_row is None:
+        """The row of the smallest pivot (the culprit a singular-matrix message names; small
+        dense: the largest entry of the weakest right singular vector)."""
+        if self._pivot_row is None and self.numpy:
+            self._pivot_row = int(np.argmax(np.abs(np.linalg.svd(self.J)[2][-1])))
+        elif self._pivot_row is None:
             u = np.abs(self.lu.U.diagonal())
             self._pivot_row = int(np.nonzero(self.lu.perm_r == int(np.argmin(u)))[0][0])
         return self._pivot_row
