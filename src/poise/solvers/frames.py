@@ -47,7 +47,7 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
     outcomes = list(outcomes)
     measured = None
     try:
-        ev = model.evaluate(state, need_jac=True, keep=True)
+        ev = model.evaluate(state, need_jac=True, keep=True, workspace=env.data.workspace)
         J = ev.J
         phi = np.where(saved, ev.phi, 0.0)
         for i, o in enumerate(outcomes):

@@ -132,7 +132,7 @@ def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
     if model.nc == 0 or active is None or active.all():
         return ""
     try:
-        phi = model.evaluate(state, need_jac=False).phi      # every row
+        phi = model.evaluate(state, need_jac=False, workspace=data.workspace).phi   # every row
     except EvaluationError:
         return ""
     z = np.where(active, 0.0, np.abs(phi) / sc.phi_tol)
