@@ -253,8 +253,8 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     need_jac = what != "residual"
     feed = model.reaction_feed
     state = fr.states[0]
-    recent = (fr.ws.scratch(model, _Recent) if feed is None and model.assembler.dense
-              else None)
+    recent = (fr.ws.scratch(_Recent, _Recent).of(model)
+              if feed is None and model.assembler.dense else None)
     key = _Recent.key(state) if recent is not None else None
     hit = recent.get(key, need_jac) if recent is not None else None
     if hit is None:
@@ -303,17 +303,24 @@ def _family_outputs(model, fr, need_jac, done):
 
 class _Recent:
     """The family outputs of a small model's last evaluated states (a solve's workspace
-    keeps one per model): the solve evaluates the same state several times (redundancy,
+    keeps one): the solve evaluates the same state several times (redundancy,
     assembly and initial multipliers at the start; Newton's last iterate, the redundant-row
     check and the output measures at the end), and only the active-row mask, the mass shift
     and the assembly differ. Keyed by the bytes of everything a kernel reads (time, positions,
     axes, multipliers, angles, scalar unknowns), so a hit is bitwise the evaluation it skips."""
 
-    __slots__ = ("entries",)
+    __slots__ = ("entries", "model")
     SIZE = 2
 
     def __init__(self):
         self.entries = []
+        self.model = None
+
+    def of(self, model):
+        """This memo for ``model`` (emptied when the workspace evaluates another model)."""
+        if self.model is not model:
+            self.model, self.entries = model, []
+        return self
 
     @staticmethod
     def key(s):
