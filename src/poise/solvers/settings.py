@@ -9,7 +9,7 @@ others (steps, line search, fallback, stability requirements) are poise's own an
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import ClassVar
 
 from poise.core.errors import UnknownOptionError
@@ -137,7 +137,7 @@ class StaticSettings:
 
     def updated(self, values: dict) -> "StaticSettings":
         """A copy with ``values`` (Param_Static attribute names) applied; unknown keys ignored."""
-        names = {f.name for f in fields(self)}
+        names = _FIELD_SET
         v = {}
         for k, val in values.items():
             k = k.lower()
@@ -153,10 +153,15 @@ class StaticSettings:
                         raise ValueError(f"{k} must be true or false, got {val!r}")
                     val = low in ("true", "yes", "1")
                 v[k] = val
-        return replace(self, **v)
+        return replace(self, **v) if v else self      # frozen: nothing to apply, no copy
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """The fields by name (all plain values: no nested copies needed, unlike ``asdict``)."""
+        return {name: getattr(self, name) for name in _FIELD_NAMES}
+
+
+_FIELD_NAMES = tuple(f.name for f in fields(StaticSettings))
+_FIELD_SET = frozenset(_FIELD_NAMES)
 
 
 def _within(v, a) -> bool:
