@@ -198,14 +198,18 @@ def _kernel(fam, kin, lam, ctx, need_jac):
     return fam.forces(kin, ctx, need_jac)
 
 
-def _family_pass(model, fr, need_jac, only=None, done=None):
+def _family_pass(model, fr, need_jac, only=None, done=None, reuse=None, calls=None):
     """The one loop over the element families (``Model.eval_order``: reaction readers after
     the others, gravity last).
 
     Yields ``(fi, t, kin, rho, G, ph, phy, ext)`` per family (``ph``/``phy`` None for
     forces). ``only="phi"``: constraint families only, ``ph`` alone. ``done`` (a dict): the
     reaction feed's record of the families evaluated so far; the channels are computed before
-    the first family that reads them."""
+    the first family that reads them. ``reuse`` (one frame): ``fi -> (t, kin, lam, out)`` of
+    an evaluation at the same configuration, time, angles and scalar unknowns (only the
+    multipliers differ): force families' outputs and every family's slot kinematics are taken
+    from it, constraint kernels run again with the new multipliers; ``calls`` (a dict)
+    records ``fi -> (t, kin, lam, out)``."""
     for fi in model.eval_order:
         fam = model.families[fi]
         if only == "phi" and not fam.is_constraint:
@@ -214,7 +218,17 @@ def _family_pass(model, fr, need_jac, only=None, done=None):
             # reaction channels from every family evaluated so far (exact at this iterate)
             fr.ctx.reactions, fr.dg = model.reaction_feed.values(model, done.values(), fr.P,
                                                                  fr.A)
-        t, kin, lam, out = fr.call(fi, need_jac)
+        hit = None if reuse is None else reuse.get(fi)
+        if hit is None:
+            t, kin, lam, out = fr.call(fi, need_jac)
+        elif fam.is_constraint:
+            t, kin = hit[0], hit[1]
+            lam = fr.lam[t.crow]
+            out = _kernel(t, kin, lam, fr.ctx, need_jac)
+        else:
+            t, kin, lam, out = hit
+        if calls is not None:
+            calls[fi] = (t, kin, lam, out)
         if fam.is_constraint:
             ph, phy, G = out[:3]
             if only == "phi":
@@ -259,12 +273,14 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     hit = recent.get(key, need_jac) if recent is not None else None
     if hit is None:
         done = {} if feed is not None else None
-        r, phi, pend, last = _family_outputs(model, fr, need_jac, done)
+        calls = {} if recent is not None else None
+        reuse = recent.same_pose(key, need_jac) if recent is not None else None
+        r, phi, pend, last = _family_outputs(model, fr, need_jac, done, reuse, calls)
         if recent is not None:
-            recent.put(key, need_jac, r, phi, pend, last)
+            recent.put(key, need_jac, r, phi, pend, last, calls)
     else:
         done = None
-        r, phi, pend, last = hit
+        r, phi, pend, last = hit[:4]
         r, phi = r.copy(), phi.copy()
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
     if active is not None:
@@ -280,15 +296,16 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     return ev
 
 
-def _family_outputs(model, fr, need_jac, done):
+def _family_outputs(model, fr, need_jac, done, reuse=None, calls=None):
     """``(r, phi, pend, items)`` of one frame: the residual and all-row constraint values,
     the per-family kernel outputs the Jacobian is assembled from (``need_jac``) and the
-    per-family slot data (:attr:`Evaluation.items`)."""
+    per-family slot data (:attr:`Evaluation.items`); ``reuse``/``calls``: :func:`_family_pass`."""
     r = np.zeros(model.nq)
     phi = np.zeros(model.nc)
     pend = [None] * len(model.families)
     last = []
-    for fi, fam, kin, rho, G, ph, phy, ext in _family_pass(model, fr, need_jac, done=done):
+    for fi, fam, kin, rho, G, ph, phy, ext in _family_pass(model, fr, need_jac, done=done,
+                                                            reuse=reuse, calls=calls):
         if ph is not None:
             phi[fam.crow.ravel()] = ph.ravel()
         last.append((fam, kin, rho, phy))
@@ -331,6 +348,16 @@ class _Recent:
         for k, jac, out in self.entries:
             if (jac or not need_jac) and k == key:
                 return out
+        return None
+
+    def same_pose(self, key, need_jac):
+        """The kernel calls (``fi -> (t, kin, lam, out)``) of an entry that differs from
+        ``key`` only in the multipliers (Newton's first iterate after the initial multipliers:
+        forces and slot kinematics are the same), or None."""
+        pose = key[:3] + key[4:]
+        for k, jac, out in self.entries:
+            if (jac or not need_jac) and k[:3] + k[4:] == pose:
+                return out[4]
         return None
 
     def put(self, key, need_jac, *out):
