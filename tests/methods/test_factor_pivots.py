@@ -28,3 +28,40 @@ def test_exactly_singular_sparse_matrix_refused():
     A = sp.csr_matrix(np.array([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0], [0.0, 0.0, 1.0]]))
     with pytest.raises(SingularMatrix):
         Factor(A)
+
+
+# ---------------------------------------------------------------- small dense (numpy) path
+def _culprit(J):
+    return int(np.argmax(np.abs(np.linalg.svd(J)[2][-1])))
+
+
+def test_small_dense_factor_decides_like_the_singular_values():
+    """Regular, graded and (nearly) singular small matrices: refused exactly when
+    sigma_min <= 1e-15 sigma_max, naming the row of the weakest singular direction; a regular
+    one names that row too when asked (computed on demand)."""
+    rng = np.random.default_rng(7)
+    U, _ = np.linalg.qr(rng.standard_normal((12, 12)))
+    V, _ = np.linalg.qr(rng.standard_normal((12, 12)))
+    for smin in (1.0, 1e-8, 1e-12, 1e-14, 1e-16, 1e-18, 0.0):
+        J = U @ np.diag(np.r_[np.ones(11), smin]) @ V.T
+        sv = np.linalg.svd(J, compute_uv=False)
+        singular = sv[-1] <= 1e-15 * sv[0]
+        if singular:
+            with pytest.raises(SingularMatrix) as e:
+                Factor(J)
+            assert e.value.row == _culprit(J)
+        else:
+            f = Factor(J)
+            if smin >= 1e-8:
+                b = np.arange(12.0)
+                assert np.allclose(J @ f.solve(b), b, rtol=0, atol=1e-6)
+            assert f.pivot_row == _culprit(J)
+        assert singular == (smin <= 1e-16)
+
+
+def test_small_dense_factor_refuses_non_finite_and_exactly_singular():
+    with pytest.raises(SingularMatrix):
+        Factor(np.array([[1.0, np.nan], [0.0, 1.0]]))
+    with pytest.raises(SingularMatrix) as e:
+        Factor(np.array([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0], [0.0, 0.0, 1.0]]))
+    assert e.value.row in (0, 1)
