@@ -30,17 +30,34 @@ def skew(v: np.ndarray) -> np.ndarray:
     return S
 
 
-def expm_so3(w: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula: rotation matrices of rotation vectors ``w`` (..., 3) [rad]."""
-    w = np.asarray(w, dtype=float)
-    th = np.linalg.norm(w, axis=-1)
+_I3 = np.eye(3)
+
+
+def _axis_parts(w):
+    """``(|w|, K, K @ K)`` with ``K = skew(w)``: what Rodrigues' formulas share."""
+    K = skew(w)
+    return np.linalg.norm(w, axis=-1), K, K @ K
+
+
+def _expm(th, K, KK):
     small = th < 1e-8
     ths = np.where(small, 1.0, th)
     a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
     b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
-    K = skew(w)
-    I = np.broadcast_to(np.eye(3), K.shape)
-    return I + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return _I3 + a[..., None, None] * K + b[..., None, None] * KK
+
+
+def _left_jacobian(th, K, KK):
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    c = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
+    return _I3 + b[..., None, None] * K + c[..., None, None] * KK
+
+
+def expm_so3(w: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula: rotation matrices of rotation vectors ``w`` (..., 3) [rad]."""
+    return _expm(*_axis_parts(np.asarray(w, dtype=float)))
 
 
 def se3_left_jacobian(w: np.ndarray) -> np.ndarray:
@@ -48,15 +65,14 @@ def se3_left_jacobian(w: np.ndarray) -> np.ndarray:
 
     ``exp`` of a spatial twist (w, v0) moves a point p to ``expm(w) p + V(w) v0``.
     """
-    w = np.asarray(w, dtype=float)
-    th = np.linalg.norm(w, axis=-1)
-    small = th < 1e-6
-    ths = np.where(small, 1.0, th)
-    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
-    c = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
-    K = skew(w)
-    I = np.broadcast_to(np.eye(3), K.shape)
-    return I + b[..., None, None] * K + c[..., None, None] * (K @ K)
+    return _left_jacobian(*_axis_parts(np.asarray(w, dtype=float)))
+
+
+def screw_exp(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(expm_so3(w), se3_left_jacobian(w))`` (bitwise), sharing ``|w|``, ``skew(w)`` and its
+    square: the rotation and translation of a spatial twist's exponential."""
+    parts = _axis_parts(np.asarray(w, dtype=float))
+    return _expm(*parts), _left_jacobian(*parts)
 
 
 def orthonormalize(R: np.ndarray) -> np.ndarray:

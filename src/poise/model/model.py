@@ -17,8 +17,8 @@ import numpy as np
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.kernel import cross3
-from poise.elements.rotation import (expm_so3, lift_rotation_vector, rotation_vector,
-                                     se3_left_jacobian, wrap_angle)
+from poise.elements.rotation import (lift_rotation_vector, rotation_vector, screw_exp,
+                                     wrap_angle)
 
 MAX_SUBSTEP_ROTATION = np.pi / 4   # rad; larger rotation updates are applied in sub-steps
 DENSE_MAX = 600                    # KKT size up to which dense LU is used
@@ -199,8 +199,7 @@ class Model:
         # a rotation about any fixed point (a hinge) is then followed exactly, for any angle.
         w = dr / nsub
         v0 = (dt[rb] - cross3(dr, state.pos[rb])) / nsub if len(rb) else np.zeros((0, 3))
-        E = expm_so3(w)
-        V = se3_left_jacobian(w)
+        E, V = screw_exp(w)
         Vv = np.einsum("nij,nj->ni", V, v0)
         pt = np.ones(self.nb, bool)
         pt[rb] = False
@@ -269,8 +268,7 @@ class Model:
         rb = self.rot_body
         if len(rb):
             w = log_so3(np.matmul(b.rot[rb], np.swapaxes(a.rot[rb], 1, 2)))
-            E = expm_so3(w)
-            V = se3_left_jacobian(w)
+            E, V = screw_exp(w)
             v0 = np.linalg.solve(V, (b.pos[rb] - np.einsum("nij,nj->ni", E, a.pos[rb]))[..., None])[..., 0]
             dt = v0 + np.cross(w, a.pos[rb])
             ti = self.body_off[rb][:, None] + np.arange(3)
