@@ -54,7 +54,6 @@ class Evaluation:
     workspace: object = field(default=None, repr=False)  # the solve's (assembly)
     _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
     items: list = field(default=None, repr=False)   # per-family slot data (keep=True)
-    _memo: object = field(default=None, repr=False)  # (_Recent, key): Jacobians kept there
 
 
 @dataclass
@@ -278,7 +277,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
         reuse = recent.same_pose(key, need_jac) if recent is not None else None
         r, phi, pend, last = _family_outputs(model, fr, need_jac, done, reuse, calls)
         if recent is not None:
-            recent.put(key, need_jac, r, phi, pend, last, calls, {})
+            recent.put(key, need_jac, r, phi, pend, last, calls)
     else:
         done = None
         r, phi, pend, last = hit[:4]
@@ -294,8 +293,6 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
             ev._coupling = feed.coupling(model, done, fr.P, fr.A, mask, pend, fr.dg)
         pend = [p for p in pend if p is not None]     # assembly order: model.families
         ev._pending = (state, pend, eps_mass, mask.copy())
-        if recent is not None:
-            ev._memo = (recent, key)
     return ev
 
 
@@ -353,28 +350,6 @@ class _Recent:
                 return out
         return None
 
-    def keep_jacobian(self, key, eps_mass, J):
-        """Keep (a copy of) the every-row Jacobian assembled at ``key`` with ``eps_mass``."""
-        for e in self.entries:
-            if e[0] == key:
-                e[2][5][eps_mass] = J.copy()
-
-    def masked_jacobian(self, model, key, eps_mass, mask):
-        """The Jacobian with rows ``~mask`` inactive, from a kept every-row Jacobian at the
-        same state and mass shift, or None. Bitwise the assembled one: an inactive row's
-        constraint entries are sums of zeros there (+0.0), its multiplier diagonal 1, and
-        every other entry receives the same contributions in the same order."""
-        for k, _, out in self.entries:
-            J_all = out[5].get(eps_mass) if k == key else None
-            if J_all is not None:
-                J = J_all.copy()
-                rows = model.nq + np.flatnonzero(~mask)
-                J[rows, :model.nq] = 0.0
-                J[:model.nq, rows] = 0.0
-                J[rows, rows] = 1.0
-                return J
-        return None
-
     def same_pose(self, key, need_jac):
         """The kernel calls (``fi -> (t, kin, lam, out)``) of an entry that differs from
         ``key`` only in the multipliers (Newton's first iterate after the initial multipliers:
@@ -397,13 +372,6 @@ def jacobian(model, ev: Evaluation):
         return ev.J
     t_start = phases.now()
     state, pend, eps_mass, row_active = ev._pending
-    if ev._memo is not None:
-        recent, key = ev._memo
-        J = recent.masked_jacobian(model, key, eps_mass, row_active)
-        if J is not None:
-            ev.J, ev._pending = J, None
-            phases.add("assemble", phases.now() - t_start)
-            return J
     vals = []
     for fam, kin, rho, G, phy, ext in pend:
         pat = local_pattern(fam)
@@ -430,8 +398,6 @@ def jacobian(model, ev: Evaluation):
     vals += ev._coupling
     ev.J = model.assembler.assemble(vals, ev.workspace)
     ev._pending = None
-    if ev._memo is not None and row_active.all():
-        ev._memo[0].keep_jacobian(ev._memo[1], eps_mass, ev.J)
     phases.add("assemble", phases.now() - t_start)
     return ev.J
 
