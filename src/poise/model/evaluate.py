@@ -275,7 +275,8 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
         done = {} if feed is not None else None
         calls = {} if recent is not None else None
         reuse = recent.same_pose(key, need_jac) if recent is not None else None
-        r, phi, pend, last = _family_outputs(model, fr, need_jac, done, reuse, calls)
+        r, phi, pend, last = _family_outputs(model, fr, need_jac, done, reuse, calls,
+                                             None if recent is None else recent.residual_index())
         if recent is not None:
             recent.put(key, need_jac, r, phi, pend, last, calls)
     else:
@@ -296,10 +297,11 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     return ev
 
 
-def _family_outputs(model, fr, need_jac, done, reuse=None, calls=None):
+def _family_outputs(model, fr, need_jac, done, reuse=None, calls=None, index=None):
     """``(r, phi, pend, items)`` of one frame: the residual and all-row constraint values,
     the per-family kernel outputs the Jacobian is assembled from (``need_jac``) and the
-    per-family slot data (:attr:`Evaluation.items`); ``reuse``/``calls``: :func:`_family_pass`."""
+    per-family slot data (:attr:`Evaluation.items`); ``reuse``/``calls``: :func:`_family_pass`;
+    ``index``: :meth:`_Recent.residual_index` (the families' scatter indices, kept)."""
     r = np.zeros(model.nq)
     phi = np.zeros(model.nc)
     pend = [None] * len(model.families)
@@ -312,7 +314,12 @@ def _family_outputs(model, fr, need_jac, done, reuse=None, calls=None):
         rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
         if not np.isfinite(rl).all():
             raise EvaluationError(_family_nonfinite(fam, rl))
-        r += scatter_add(model.nq, fam.gcol, rl)
+        if index is None:
+            r += scatter_add(model.nq, fam.gcol, rl)
+        else:                                   # scatter_add with the index kept
+            idx, ok = index[fi]
+            rl = rl.ravel()
+            r += np.bincount(idx, weights=rl if ok is None else rl[ok], minlength=model.nq)
         if need_jac:
             pend[fi] = (fam, kin, rho, G, phy, ext)
     return r, phi, pend, last
@@ -326,18 +333,31 @@ class _Recent:
     and the assembly differ. Keyed by the bytes of everything a kernel reads (time, positions,
     axes, multipliers, angles, scalar unknowns), so a hit is bitwise the evaluation it skips."""
 
-    __slots__ = ("entries", "model")
+    __slots__ = ("entries", "model", "index")
     SIZE = 2
 
     def __init__(self):
         self.entries = []
         self.model = None
+        self.index = None
 
     def of(self, model):
         """This memo for ``model`` (emptied when the workspace evaluates another model)."""
         if self.model is not model:
-            self.model, self.entries = model, []
+            self.model, self.entries, self.index = model, [], None
         return self
+
+    def residual_index(self):
+        """Per family, ``(idx, ok)``: its flattened ``gcol`` without the unused (``< 0``)
+        entries, and ``ok`` the kept ones (None: all), as :func:`scatter_add` makes them."""
+        if self.index is None:
+            out = []
+            for fam in self.model.families:
+                g = np.asarray(fam.gcol).ravel()
+                ok = g >= 0
+                out.append((g, None) if ok.all() else (g[ok], ok))
+            self.index = out
+        return self.index
 
     @staticmethod
     def key(s):
