@@ -86,7 +86,8 @@ def bench_sweep(n: int, tmp: Path, root: Path) -> dict:
 def bench_inprocess(root: Path, name: str, repeat: int = 50) -> dict:
     """``poise.solve`` of deck ``name`` in this process: median/min over ``repeat`` runs after
     three warm-ups (the deck's parse and model kept between them, poise.app.deck_cache), the
-    solver's own share (``timings['solve']``), the median with the deck parsed and compiled
+    median CPU time of this thread per solve (``cpu_ms``: what other processes' load does not
+    add), the solver's own share (``timings['solve']``), the median with the deck parsed and compiled
     every time (``fresh_ms``) and the Python function calls of one solve (``calls``, cProfile:
     independent of the machine's load)."""
     import cProfile
@@ -97,11 +98,12 @@ def bench_inprocess(root: Path, name: str, repeat: int = 50) -> dict:
     deck = str(root / name)
     for _ in range(3):
         r = poise.solve(deck, quiet=True)
-    times, solve, fresh = [], [], []
+    times, solve, fresh, cpu = [], [], [], []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         r = poise.solve(deck, quiet=True)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
         solve.append(r.timings.get("solve", float("nan")))
     for _ in range(repeat):
         deck_cache.clear()
@@ -116,6 +118,7 @@ def bench_inprocess(root: Path, name: str, repeat: int = 50) -> dict:
     return dict(bench="inprocess_solve", deck=name, repeat=repeat, status=r.status,
                 bodies=len(r.model_datasets.get("bodies/id", ())), iterations=it,
                 ms=dict(median=statistics.median(times) * 1e3, min=min(times) * 1e3),
+                cpu_ms=statistics.median(cpu) * 1e3,
                 solve_ms=statistics.median(solve) * 1e3,
                 fresh_ms=statistics.median(fresh) * 1e3,
                 calls=int(pstats.Stats(prof).total_calls))
@@ -223,7 +226,8 @@ def markdown(rows: list[dict]) -> list[str]:
         md.append(f"| `poise solve` | {base:.3f} s | | | 1 |")
     for ip in (r for r in rows if r["bench"] == "inprocess_solve"):
         md.append(f"| `poise.solve` in process, `{ip['deck']}` ({ip['bodies']} moving "
-                  f"bodies) | {ip['ms']['median']:.2f} ms (solver {ip['solve_ms']:.2f} ms, "
+                  f"bodies) | {ip['ms']['median']:.2f} ms (CPU {ip.get('cpu_ms', float('nan')):.2f} ms, "
+                  f"solver {ip['solve_ms']:.2f} ms, "
                   f"{ip['iterations']} iterations; parsed and compiled each time "
                   f"{ip.get('fresh_ms', float('nan')):.2f} ms; {ip.get('calls', 0):,} Python "
                   "calls) | | | "
