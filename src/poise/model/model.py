@@ -206,14 +206,20 @@ class Model:
         move_pt = bool(pt.any())
         na = len(self.angle_I)
         rots = np.empty((nsub,) + new.rot.shape) if na else None
+        if na:
+            rots[:] = new.rot               # point bodies keep their axes; rows rb set below
+        dtp = dt[pt] / nsub if move_pt else None
+        p, R = new.pos[rb], new.rot[rb]     # the rigid bodies' CGs and axes, sub-step by step
         for k in range(nsub):
             if move_pt:
-                new.pos[pt] += dt[pt] / nsub
+                new.pos[pt] += dtp
             if len(rb):
-                new.pos[rb] = np.einsum("nij,nj->ni", E, new.pos[rb]) + Vv
-                new.rot[rb] = np.matmul(E, new.rot[rb])
-            if na:
-                rots[k] = new.rot
+                p = np.einsum("nij,nj->ni", E, p) + Vv
+                R = np.matmul(E, R)
+                if na:
+                    rots[k, rb] = R
+        if len(rb):
+            new.pos[rb], new.rot[rb] = p, R
         if na:             # principal angles of every sub-step at once, unwrapped in turn
             ang = new.angle
             for p in self._angles_of(rots):
