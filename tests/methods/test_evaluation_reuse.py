@@ -1,5 +1,5 @@
 """A small model's evaluations at a state already evaluated in the solve reuse its family
-outputs (model/evaluate.py ``_Recent``): every reused result is bitwise the evaluation it
+outputs (:mod:`poise.model.recent`): every reused result is bitwise the evaluation it
 replaces (residual, constraint values, Jacobian under any row mask and mass shift, and an
 evaluation that differs only in the multipliers)."""
 from __future__ import annotations

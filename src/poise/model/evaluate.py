@@ -31,6 +31,7 @@ from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, de
                                    tangent_compact)
 from poise.model.assembly import scatter_add
 from poise.model.frame_batch import tiles
+from poise.model.recent import RecentEvaluations
 from poise.model.workspace import Workspace
 
 WHAT = ("residual", "jacobian", "defer", "phi", "energy")
@@ -205,11 +206,9 @@ def _family_pass(model, fr, need_jac, only=None, done=None, reuse=None, calls=No
     Yields ``(fi, t, kin, rho, G, ph, phy, ext)`` per family (``ph``/``phy`` None for
     forces). ``only="phi"``: constraint families only, ``ph`` alone. ``done`` (a dict): the
     reaction feed's record of the families evaluated so far; the channels are computed before
-    the first family that reads them. ``reuse`` (one frame): ``fi -> (t, kin, lam, out)`` of
-    an evaluation at the same configuration, time, angles and scalar unknowns (only the
-    multipliers differ): force families' outputs and every family's slot kinematics are taken
-    from it, constraint kernels run again with the new multipliers; ``calls`` (a dict)
-    records ``fi -> (t, kin, lam, out)``."""
+    the first family that reads them. ``reuse``: ``fi -> (t, kin, lam, out)`` at the same
+    pose (only multipliers differ): forces and slot kinematics reused, constraint kernels run
+    again; ``calls`` (a dict) records ``fi -> (t, kin, lam, out)`` (:mod:`poise.model.recent`)."""
     for fi in model.eval_order:
         fam = model.families[fi]
         if only == "phi" and not fam.is_constraint:
@@ -221,9 +220,8 @@ def _family_pass(model, fr, need_jac, only=None, done=None, reuse=None, calls=No
         hit = None if reuse is None else reuse.get(fi)
         if hit is None:
             t, kin, lam, out = fr.call(fi, need_jac)
-        elif fam.is_constraint:
-            t, kin = hit[0], hit[1]
-            lam = fr.lam[t.crow]
+        elif fam.is_constraint:            # same slot kinematics, new multipliers
+            t, kin, lam = hit[0], hit[1], fr.lam[hit[0].crow]
             out = _kernel(t, kin, lam, fr.ctx, need_jac)
         else:
             t, kin, lam, out = hit
@@ -261,28 +259,16 @@ def _phi(model, fr, active):
 
 
 def _one_frame(model, fr, what, active, keep, eps_mass):
-    """Residual (and Jacobian, now or deferred) of one frame: each family's residual is added
-    in evaluation order, the Jacobian goes through the model's fixed-pattern assembler. The
-    family outputs at a state are reused from the workspace's :class:`_Recent` (small models)."""
+    """Residual (and Jacobian, now or deferred) of one frame (the Jacobian through the model's
+    fixed-pattern assembler); small models reuse kept outputs (:mod:`poise.model.recent`)."""
     need_jac = what != "residual"
     feed = model.reaction_feed
-    state = fr.states[0]
-    recent = (fr.ws.scratch(_Recent, _Recent).of(model)
-              if feed is None and model.assembler.dense else None)
-    key = _Recent.key(state) if recent is not None else None
-    hit = recent.get(key, need_jac) if recent is not None else None
-    if hit is None:
-        done = {} if feed is not None else None
-        calls = {} if recent is not None else None
-        reuse = recent.same_pose(key, need_jac) if recent is not None else None
-        r, phi, pend, last = _family_outputs(model, fr, need_jac, done, reuse, calls,
-                                             None if recent is None else recent.residual_index())
-        if recent is not None:
-            recent.put(key, need_jac, r, phi, pend, last, calls)
+    state, done = fr.states[0], ({} if feed is not None else None)
+    if feed is None and model.assembler.dense:
+        r, phi, pend, last = fr.ws.scratch(RecentEvaluations, RecentEvaluations).of(model).outputs(
+            state, need_jac, lambda *a: _family_outputs(model, fr, need_jac, None, *a))
     else:
-        done = None
-        r, phi, pend, last = hit[:4]
-        r, phi = r.copy(), phi.copy()
+        r, phi, pend, last = _family_outputs(model, fr, need_jac, done)
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
     if active is not None:
         phi = np.where(mask, phi, 0.0)
@@ -297,11 +283,10 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     return ev
 
 
-def _family_outputs(model, fr, need_jac, done, reuse=None, calls=None, index=None):
-    """``(r, phi, pend, items)`` of one frame: the residual and all-row constraint values,
-    the per-family kernel outputs the Jacobian is assembled from (``need_jac``) and the
-    per-family slot data (:attr:`Evaluation.items`); ``reuse``/``calls``: :func:`_family_pass`;
-    ``index``: :meth:`_Recent.residual_index` (the families' scatter indices, kept)."""
+def _family_outputs(model, fr, need_jac, done, reuse=None, calls=None, recent=None):
+    """``(r, phi, pend, items)`` of one frame: residual, all-row constraint values, the
+    families' outputs the Jacobian is assembled from (``need_jac``) and their slot data
+    (:attr:`Evaluation.items`); ``reuse``/``calls``/``recent``: :mod:`poise.model.recent`."""
     r = np.zeros(model.nq)
     phi = np.zeros(model.nc)
     pend = [None] * len(model.families)
@@ -314,75 +299,11 @@ def _family_outputs(model, fr, need_jac, done, reuse=None, calls=None, index=Non
         rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
         if not np.isfinite(rl).all():
             raise EvaluationError(_family_nonfinite(fam, rl))
-        if index is None:
-            r += scatter_add(model.nq, fam.gcol, rl)
-        else:                                   # scatter_add with the index kept
-            idx, ok = index[fi]
-            rl = rl.ravel()
-            r += np.bincount(idx, weights=rl if ok is None else rl[ok], minlength=model.nq)
+        r += (scatter_add(model.nq, fam.gcol, rl) if recent is None
+              else recent.scatter(fi, rl))
         if need_jac:
             pend[fi] = (fam, kin, rho, G, phy, ext)
     return r, phi, pend, last
-
-
-class _Recent:
-    """The family outputs of a small model's last evaluated states (a solve's workspace
-    keeps one): the solve evaluates the same state several times (redundancy,
-    assembly and initial multipliers at the start; Newton's last iterate, the redundant-row
-    check and the output measures at the end), and only the active-row mask, the mass shift
-    and the assembly differ. Keyed by the bytes of everything a kernel reads (time, positions,
-    axes, multipliers, angles, scalar unknowns), so a hit is bitwise the evaluation it skips."""
-
-    __slots__ = ("entries", "model", "index")
-    SIZE = 2
-
-    def __init__(self):
-        self.entries = []
-        self.model = None
-        self.index = None
-
-    def of(self, model):
-        """This memo for ``model`` (emptied when the workspace evaluates another model)."""
-        if self.model is not model:
-            self.model, self.entries, self.index = model, [], None
-        return self
-
-    def residual_index(self):
-        """Per family, ``(idx, ok)``: its flattened ``gcol`` without the unused (``< 0``)
-        entries, and ``ok`` the kept ones (None: all), as :func:`scatter_add` makes them."""
-        if self.index is None:
-            out = []
-            for fam in self.model.families:
-                g = np.asarray(fam.gcol).ravel()
-                ok = g >= 0
-                out.append((g, None) if ok.all() else (g[ok], ok))
-            self.index = out
-        return self.index
-
-    @staticmethod
-    def key(s):
-        return (float(s.t), s.pos.tobytes(), s.rot.tobytes(), s.lam.tobytes(),
-                s.angle.tobytes(), None if s.extra is None else s.extra.tobytes())
-
-    def get(self, key, need_jac):
-        for k, jac, out in self.entries:
-            if (jac or not need_jac) and k == key:
-                return out
-        return None
-
-    def same_pose(self, key, need_jac):
-        """The kernel calls (``fi -> (t, kin, lam, out)``) of an entry that differs from
-        ``key`` only in the multipliers (Newton's first iterate after the initial multipliers:
-        forces and slot kinematics are the same), or None."""
-        pose = key[:3] + key[4:]
-        for k, jac, out in self.entries:
-            if (jac or not need_jac) and k[:3] + k[4:] == pose:
-                return out[4]
-        return None
-
-    def put(self, key, need_jac, *out):
-        self.entries = [e for e in self.entries if e[0] != key][-(self.SIZE - 1):]
-        self.entries.append((key, need_jac, out))
 
 
 def jacobian(model, ev: Evaluation):

@@ -1,0 +1,86 @@
+"""The evaluations a small model's solve keeps for reuse: the family outputs of its last states.
+
+A solve evaluates some states more than once: Newton's last iterate again for the redundant-row
+check and the output measures (only the active-row mask, the mass shift and the assembly
+differ), Newton's first iterate at the start's configuration with new multipliers (the forces
+and slot kinematics are the same), the static prologue's start. For models assembled dense
+(``Model.assembler.dense``, no reaction feed) the solve's workspace keeps the kernel outputs of
+the last :attr:`RecentEvaluations.SIZE` states, keyed by the bytes of everything a kernel
+reads (time, positions, axes, multipliers, angles, scalar unknowns): a hit is bitwise the
+evaluation it skips. Big models keep nothing (their outputs are large and rarely repeated).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class RecentEvaluations:
+    """The family outputs of a small model's last evaluated states (a solve's workspace keeps
+    one, :func:`poise.model.evaluate.evaluate` fills and reads it; see the module doc)."""
+
+    __slots__ = ("entries", "model", "index")
+    SIZE = 2
+
+    def __init__(self):
+        self.entries = []
+        self.model = None
+        self.index = None
+
+    def of(self, model):
+        """This memo for ``model`` (emptied when the workspace evaluates another model)."""
+        if self.model is not model:
+            self.model, self.entries, self.index = model, [], None
+        return self
+
+    def scatter(self, fi, rl):
+        """Family ``fi``'s local residual ``rl`` scattered to the coordinates: bitwise
+        :func:`poise.model.assembly.scatter_add` with its index (``gcol`` without the unused,
+        ``< 0``, entries) built once per model."""
+        if self.index is None:
+            self.index = []
+            for fam in self.model.families:
+                g = np.asarray(fam.gcol).ravel()
+                ok = g >= 0
+                self.index.append((g, None) if ok.all() else (g[ok], ok))
+        idx, ok = self.index[fi]
+        rl = rl.ravel()
+        return np.bincount(idx, weights=rl if ok is None else rl[ok], minlength=self.model.nq)
+
+    def outputs(self, state, need_jac, compute):
+        """``(r, phi, pend, items)`` at ``state`` (``pend`` with the Jacobian's kernel
+        outputs when ``need_jac``): kept ones (``r``, ``phi`` copied), else
+        ``compute(reuse, calls, self)`` (:func:`poise.model.evaluate._family_outputs`), kept."""
+        key = self.key(state)
+        hit = self.get(key, need_jac)
+        if hit is not None:
+            r, phi, pend, last = hit[:4]
+            return r.copy(), phi.copy(), pend, last
+        calls = {}
+        out = compute(self.same_pose(key, need_jac), calls, self)
+        self.put(key, need_jac, *out, calls)
+        return out
+
+    @staticmethod
+    def key(s):
+        return (float(s.t), s.pos.tobytes(), s.rot.tobytes(), s.lam.tobytes(),
+                s.angle.tobytes(), None if s.extra is None else s.extra.tobytes())
+
+    def get(self, key, need_jac):
+        for k, jac, out in self.entries:
+            if (jac or not need_jac) and k == key:
+                return out
+        return None
+
+    def same_pose(self, key, need_jac):
+        """The kernel calls (``fi -> (t, kin, lam, out)``) of an entry that differs from
+        ``key`` only in the multipliers (Newton's first iterate after the initial multipliers:
+        forces and slot kinematics are the same), or None."""
+        pose = key[:3] + key[4:]
+        for k, jac, out in self.entries:
+            if (jac or not need_jac) and k[:3] + k[4:] == pose:
+                return out[4]
+        return None
+
+    def put(self, key, need_jac, *out):
+        self.entries = [e for e in self.entries if e[0] != key][-(self.SIZE - 1):]
+        self.entries.append((key, need_jac, out))
