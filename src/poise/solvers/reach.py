@@ -120,17 +120,18 @@ class OntoConstraints(Solver[_Projecting]):
         return s.state if s.on else None
 
 
-def assemble(model, state, settings, history, frame: int, cnt):
+def assemble(model, state, settings, history, frame: int, cnt, ev=None):
     """Least-change projection onto the constraints (Gauss-Newton on the KKT system,
     :class:`Assembly` run by :func:`~poise.solvers.iterate.iterate` within
-    ``Limits.assembly_max_iter`` steps).
+    ``Limits.assembly_max_iter`` steps). ``ev``: an evaluation at ``state`` with the solve's
+    active rows (the prologue's; saves the first evaluation).
 
     Returns ``(state, assembled: bool, status)``; ``assembled`` says whether anything moved.
     """
     if model.nc == 0:
         return state, False, Status.CONVERGED
     return iterate(Assembly(model, settings, frame, cnt), settings.limits.assembly_max_iter,
-                   history, state)
+                   history, state, ev)
 
 
 @dataclass(frozen=True)
@@ -157,14 +158,15 @@ class Assembly(Solver[_Assembling]):
         self.q_len = np.where(model.q_kind == 0, model.L, 1.0)   # trans / L, rad, scalars
         self.W = coord_weights(model)
 
-    def _at(self, state, it, moved):
+    def _at(self, state, it, moved, ev=None):
         model = self.model
-        ev = self.cnt.evaluate(model, state, "defer")   # Jacobian only if violated
+        if ev is None:
+            ev = self.cnt.evaluate(model, state, "defer")   # Jacobian only if violated
         v = float((np.abs(ev.phi) / np.where(model.row_kind == 1, 1.0, model.L)).max())
         return _Assembling(state, ev, v, it, moved, Status.CONVERGED if v <= ASSEMBLY_TOL else None)
 
-    def init(self, state):
-        return self._at(state, 0, False)
+    def init(self, state, ev=None):
+        return self._at(state, 0, False, ev)
 
     def terminate(self, s):
         return s.status is not None, s.status

@@ -217,13 +217,46 @@ def left_null_basis(Phi_q, active):
     return Y
 
 
-def detect_redundancy(model, state, workspace=None) -> np.ndarray:
+def detect_redundancy(model, state, workspace=None, evaluation=None) -> np.ndarray:
     """Redundant constraint rows of ``model`` at ``state`` (all rows evaluated); ``workspace``:
-    the solve's (the evaluation fills the assembly buffer the solve reuses)."""
+    the solve's (the evaluation fills the assembly buffer the solve reuses). ``evaluation``:
+    the Jacobian evaluation at ``state`` with every row active, if the caller made it (the
+    static prologue: it serves the assembly and the multipliers too, :func:`without_rows`)."""
     if model.nc == 0:
         return np.zeros(0, int)
-    J = model.evaluate(state, need_jac=True, workspace=workspace).J
+    J = (evaluation.J if evaluation is not None
+         else model.evaluate(state, need_jac=True, workspace=workspace).J)
     Pq = J[model.nq:, :model.nq]
     del J                 # the KKT matrix (the workspace keeps its buffer): only Phi_q is needed
     col = np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
     return redundant_rows(Pq, col)
+
+
+def without_rows(model, ev, active):
+    """The evaluation ``ev`` (every constraint row active, Jacobian assembled) as an evaluation
+    with only the ``active`` rows reads — bit for bit: the residual does not depend on the
+    rows' activity; inactive rows read 0 in ``phi``, have no constraint Jacobian (row and
+    transposed column zero) and 1 on their multiplier diagonal
+    (:func:`poise.model.evaluate.jacobian`). ``ev``'s Jacobian is changed in place (its
+    column order kept). None when the model has a reaction feed (its coupling block depends
+    on the rows) or ``ev`` has no Jacobian: the caller evaluates afresh."""
+    if model.reaction_feed is not None or ev.J is None:
+        return None
+    from poise.model.evaluate import Evaluation
+    active = np.asarray(active, bool)
+    off = np.nonzero(~active)[0] + model.nq
+    J = ev.J
+    if len(off):
+        if hasattr(J, "indptr"):                  # CSR of the fixed pattern, sorted rows
+            bad = np.zeros(J.shape[1], bool)
+            bad[off] = True
+            J.data[bad[J.indices]] = 0.0          # transposed columns (and the diagonals)
+            for k in off:
+                lo, hi = J.indptr[k], J.indptr[k + 1]
+                J.data[lo:hi] = 0.0
+                J.data[lo + np.searchsorted(J.indices[lo:hi], k)] = 1.0
+        else:
+            J[off, :] = 0.0
+            J[:, off] = 0.0
+            J[off, off] = 1.0
+    return Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0), J=J, workspace=ev.workspace)
