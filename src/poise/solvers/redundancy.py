@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.solvers.superlu import lean
+
 RATIO_TOL = 1e-9     # always redundant below this pivot ratio
 RATIO_MAX = 1e-5     # never redundant above this pivot ratio
 GAP_MIN = 1e3        # a gap of this factor between sorted ratios separates the two groups
@@ -48,7 +50,7 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
     del A
     perm = "NATURAL" if nc <= ORDERING_NATURAL_MAX else "MMD_AT_PLUS_A"
     lu = spla.splu(A2, permc_spec=perm, diag_pivot_thresh=0.0,
-                   options=dict(SymmetricMode=True))
+                   options=dict(SymmetricMode=True), **lean(nc))
     u = lu.U.diagonal()
     if not np.array_equal(lu.perm_r, lu.perm_c):
         # fall back to a dense rank-revealing QR (small systems only)
@@ -87,7 +89,7 @@ def _resolve_ambiguous(P, cand, perm):
     PC = P[cand].toarray()                                          # (c, nq)
     try:
         lu = spla.splu((PI @ PI.T).tocsc(), permc_spec=perm, diag_pivot_thresh=0.0,
-                       options=dict(SymmetricMode=True))
+                       options=dict(SymmetricMode=True), **lean(len(keep)))
     except RuntimeError:
         return None
     R = PC.T.copy()                                                 # (nq, c) residuals
@@ -207,7 +209,7 @@ def left_null_basis(Phi_q, active):
     ind = np.nonzero(active)[0]
     Pi = P[ind]
     G = (Pi @ Pi.T).tocsc()
-    lu = spla.splu(G)
+    lu = spla.splu(G, **lean(G.shape[0]))
     Y = np.zeros((P.shape[0], len(red)))
     for c, k in enumerate(red):
         rhs = Pi @ P[k].toarray().ravel()

@@ -13,6 +13,7 @@ from poise.solvers.equilibrate import equilibrate as _equilibrate
 from poise.solvers.equilibrate import prune_noise as _prune_noise
 from poise.solvers.equilibrate import prune_rows as _prune_rows
 from poise.solvers.redundancy import redundant_rows
+from poise.solvers.superlu import lean
 from poise.solvers.stability_modes import (
     AUG_RHO,
     BERR_MAX,
@@ -106,7 +107,7 @@ class SymmetricLDL:
         self.n_negative = self.n_positive = -1
         try:
             lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A" if order is None else "NATURAL",
-                           diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+                           diag_pivot_thresh=0.0, options=dict(SymmetricMode=True), **lean(n))
         except RuntimeError as e:
             self.reason = f"the LDL^T factorisation failed ({e})"
             return
