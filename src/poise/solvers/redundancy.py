@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.model.evaluate import Evaluation
 from poise.solvers.superlu import lean
 
 RATIO_TOL = 1e-9     # always redundant below this pivot ratio
@@ -244,7 +245,6 @@ def without_rows(model, ev, active):
     on the rows) or ``ev`` has no Jacobian: the caller evaluates afresh."""
     if model.reaction_feed is not None or ev.J is None:
         return None
-    from poise.model.evaluate import Evaluation
     active = np.asarray(active, bool)
     off = np.nonzero(~active)[0] + model.nq
     J = ev.J
