@@ -70,3 +70,19 @@ def test_static_solve_evaluates_once_for_redundancy_assembly_and_multipliers(tmp
     assert before_newton == [1]        # redundancy, assembly, multipliers: one evaluation
     c = drv.data.as_dict()
     assert c["jacobians"] == c["factorizations"]   # one per Newton iteration + the prologue's
+
+
+def test_weighted_kkt_is_the_block_matrix_of_its_four_blocks(tmp_path):
+    from poise.solvers.reach import coord_weights, weighted_kkt
+    model = _model(tmp_path, 120)
+    state = model.initial_state()
+    active = np.ones(model.nc, bool)
+    active[detect_redundancy(model, state)] = False
+    ev = model.evaluate(state, need_jac=True, active=active)
+    J, nq, W = ev.J, model.nq, coord_weights(model)
+    ref = sp.bmat([[sp.diags(W), J[:nq, nq:]], [J[nq:, :nq], J[nq:, nq:]]], format="csc")
+    ref.sort_indices()
+    K = weighted_kkt(model, ev, W)
+    assert K.format == "csc" and K.poise_column_order is not None
+    for a in ("indptr", "indices", "data"):              # the same matrix, stored zeros included
+        np.testing.assert_array_equal(getattr(K, a), getattr(ref, a))
