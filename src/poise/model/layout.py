@@ -20,7 +20,7 @@ from poise.core.readonly import seal
 from poise.elements.kernel import LocalPattern
 from poise.elements.reaction_feed import ReactionFeed
 from poise.elements.registry import energy_terms, kernel_types, time_sources
-from poise.elements.rows import RowTable
+from poise.elements.rows import RowTable, Texts
 from poise.model.assembly import Assembler
 from poise.model.model import DENSE_MAX, Model
 
@@ -63,7 +63,7 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
     N = nq + nc
     rigid = kinds == 0
     f = dict(bodies, **markers)
-    f["body_label"] = tuple(bodies["body_label"])
+    f["body_label"] = Texts(bodies["body_label"])   # one string: no object per body
     f["coord_info"] = bodies["coord_info"].with_extra(res.extra_names)
     rows = RowTable.of(res.rows)              # one entry per element, codes per row
     f.update(families=fams, nq=nq, nc=nc, row_info=rows, nb=nb, N=N, dense=N <= DENSE_MAX,
