@@ -412,8 +412,11 @@ measurement: Newton alone is ≈ 1.8× the floor. The classification needs its o
 (inertia: an LU with partial pivoting has none), a power/subspace iteration for the lowest
 mode (5 block solves) and SuperLU's CSC copies of L and U for the pivots and the backward
 error (at 10⁵ links ≈ 140 MB and 0.5 s of fresh pages on first access). Peak memory at 10⁵ links
-is reached in the classification, after Newton; parse leaves ≈ 1 GB of per-element Python
-objects (`DeckSpec`, kept by the runner for labels and messages), compile ≈ 1.2 GB more.
+is reached in the classification, after Newton. The parsed deck (≈ 0.5 GB of per-element Python
+objects) is dropped before the solve and its pages returned to the OS (nothing in the compiled
+model is a small object per element, so none pins them; `malloc_trim` after the drop): the solve
+starts from ≈ 0.5 GB resident (was 1.1 GB); compile peaks at ≈ 1.34 GB (was 1.61 GB), the
+assembler keying its pattern block by block.
 
 **BLAS threads.** numpy's OpenBLAS defaulted to 2 threads; on vectors and 3×3 blocks they
 only busy-wait, and with another process on the machine a 1000-link solve took 1.8× longer
