@@ -19,6 +19,16 @@ import numpy as np
 KEYS = ("tag", "id", "equation", "line", "file", "kind", "group", "owner", "label", "where")
 
 
+def _position(seq, k, what: str) -> int:
+    """``k`` as a position in ``seq`` (negative: from the end); IndexError naming ``what``."""
+    k = int(k)
+    if k < 0:
+        k += len(seq)
+    if not 0 <= k < len(seq):
+        raise IndexError(f"{what} index out of range")
+    return k
+
+
 class Texts(Sequence):
     """A sequence of strings stored as one string and their end offsets: ``t[k]`` is a fresh
     ``str`` equal to the k-th one given. A large model's per-element names (labels, locations)
@@ -39,11 +49,7 @@ class Texts(Sequence):
     def __getitem__(self, k):
         if isinstance(k, slice):
             return tuple(self[i] for i in range(*k.indices(len(self))))
-        k = int(k)
-        if k < 0:
-            k += len(self)
-        if not 0 <= k < len(self):
-            raise IndexError("string index out of range")
+        k = _position(self, k, "string")
         return self._text[int(self._ends[k - 1]) if k else 0:int(self._ends[k])]
 
     def __iter__(self):
@@ -173,11 +179,7 @@ class RowTable(Sequence):
     def __getitem__(self, r):
         if isinstance(r, slice):
             return tuple(self[i] for i in range(*r.indices(self._n)))
-        r = int(r)
-        if r < 0:
-            r += self._n
-        if not 0 <= r < self._n:
-            raise IndexError("constraint row index out of range")
+        r = _position(self, r, "constraint row")
         e = int(self._el[r])
         tag, ident, line, file, label, where = (col[e] for col in self._elements)
         c = self._codes
@@ -219,11 +221,7 @@ class CoordNames(Sequence):
     def __getitem__(self, k):
         if isinstance(k, slice):
             return tuple(self[i] for i in range(*k.indices(len(self))))
-        k = int(k)
-        if k < 0:
-            k += len(self)
-        if not 0 <= k < len(self):
-            raise IndexError("coordinate index out of range")
+        k = _position(self, k, "coordinate")
         if k >= self._nq_bodies:
             return self._extra[k - self._nq_bodies]
         b = int(np.searchsorted(self._off, k, side="right")) - 1
