@@ -22,11 +22,12 @@ class Assembler:
     ----------
     N : int
         Matrix size.
-    blocks : list of (rows, cols)
+    blocks : iterable of (rows, cols)
         Integer arrays of equal shape; flattened in C order. Entries with a negative row or
         column are ignored. Values passed to :meth:`assemble` must follow the same order and
-        shapes. A list is consumed (its items are released as they are read: the pattern of
-        a large model is not held twice).
+        shapes. Read once, in order: a generator (the model's layout) or a list, which is
+        consumed (its items are released as they are read: the pattern of a large model is
+        not held twice).
     dense : bool
         Produce dense ``ndarray`` instead of CSR.
     """
