@@ -107,10 +107,11 @@ def _phases(rows) -> list[str]:
         return []
     L = ["", "Phases of the same solves: CPU seconds, and in brackets in Newton's LUs (the "
          "floor's unit); *peak after* is the worker's peak RSS once parse, compile and each "
-         "phase have run (MiB).", "",
+         "phase have run, then the solve, then the whole worker with the bench's own LU and "
+         "evaluation timings (MiB).", "",
          "| N | " + " | ".join(PHASES) + " | other | peak after parse | after compile | "
-         + " | ".join(f"after {p}" for p in PHASES) + " |",
-         "|---" * (2 * len(PHASES) + 4) + "|"]
+         + " | ".join(f"after {p}" for p in PHASES) + " | after solve | whole worker |",
+         "|---" * (2 * len(PHASES) + 6) + "|"]
     for r in rows:
         lu = _med(r, "newton_lu_cpu_s")
         cpu = {p: (r["phases_cpu"].get(p) or {}).get("median") for p in PHASES}
@@ -120,5 +121,8 @@ def _phases(rows) -> list[str]:
         L.append(f"| {r['n']} | " + " | ".join(cells) + f" | {_s(other)} ({other / lu:.1f}) | "
                  f"{r['peak_parse_bytes']['max'] / 2**20:.0f} | "
                  f"{r['peak_compile_bytes']['max'] / 2**20:.0f} | "
-                 + " | ".join("—" if v is None else f"{v / 2**20:.0f}" for v in peaks) + " |")
+                 + " | ".join("—" if v is None else f"{v / 2**20:.0f}" for v in peaks) + " | "
+                 + " | ".join("—" if v is None else f"{v / 2**20:.0f}" for v in (
+                     (r.get("peak_solve_bytes") or {}).get("max"), r["peak_rss_bytes"]["max"]))
+                 + " |")
     return L

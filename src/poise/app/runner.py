@@ -16,7 +16,7 @@ from poise.app import deck_cache
 from poise.app.budget import check_memory
 from poise.app.model_outputs import graphics_datasets, joint_marker_datasets, model_datasets
 from poise.app.times import output_times, print_arrays
-from poise.core import blas, phases
+from poise.core import blas, memory, phases
 from poise.core.progress import installed, solver_progress
 from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
 from poise.core.version import __version__
@@ -266,6 +266,11 @@ def run(path: str, overrides=None, command: str = "", progress=None,
         return res
 
 
+#: Memory of one parsed deck element (its typed attributes, location, label), roughly: how much
+#: dropping the deck frees, for :func:`poise.core.memory.release`.
+_ELEMENT_BYTES = 1024
+
+
 def _run(path, overrides, command, progress, allow_user_code, ignore=(),
          model=None) -> RunResult:
     phases.reset()
@@ -312,7 +317,9 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=(),
     for m in models[1:]:
         res.active_effects += [e for e in m.active_effects if e not in res.active_effects]
     ignored = spec.ignored
+    dropped = len(spec.model) * _ELEMENT_BYTES
     del spec              # the parsed deck is not needed by the solve: not held meanwhile
+    memory.release(dropped)      # its pages back to the OS (large decks), before the solve
     state = model.initial_state()
     counts = {}
     redundancy = None

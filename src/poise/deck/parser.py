@@ -24,6 +24,7 @@ from poise.deck.scan import as_utf8, refuse_entities, start_tag_scan
 from poise.deck.spec import DeckSpec
 from poise.deck.validate import FileProblem, validate
 from poise.core.errors import DeckError, SourceLoc
+from poise.core.memory import release
 
 _SECTIONS = ("model", "command")
 _FEED = 1 << 16                       # bytes fed to lxml at a time
@@ -308,7 +309,11 @@ def load_deck(path, *, check: bool = True, ignore=()) -> DeckSpec:
     except OSError as e:
         raise DeckError(FileProblem(SourceLoc(path, 0, "xml"),
                                     f"cannot read deck: {e.strerror or e}")) from None
-    return parse_deck_bytes(data, path, check=check, ignore=ignore)
+    spec = parse_deck_bytes(data, path, check=check, ignore=ignore)
+    size = len(data)
+    del data
+    release(size)        # the parse's freed records and buffers back to the OS (large decks)
+    return spec
 
 
 #: Largest deck read (bytes). A 100 000-link chain deck is ~130 MB and needs ~3 GiB to solve;

@@ -354,6 +354,11 @@ class CompileContext:
             user_routines=tuple(self._user_routines), input_files=dict(self._input_files),
             element_markers=self._element_markers)
 
+    def close(self) -> None:
+        """Drop the expression resolver (it refers back to this context: a reference cycle
+        that would keep the parsed deck alive until a cyclic collection)."""
+        self._resolver = None
+
     def _routes_taken(self):
         from poise.elements.registry import element_types          # lazy: registry imports us
         return {et.name for et in element_types()}

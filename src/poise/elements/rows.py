@@ -19,6 +19,79 @@ import numpy as np
 KEYS = ("tag", "id", "equation", "line", "file", "kind", "group", "owner", "label", "where")
 
 
+def _position(seq, k, what: str) -> int:
+    """``k`` as a position in ``seq`` (negative: from the end); IndexError naming ``what``."""
+    k = int(k)
+    if k < 0:
+        k += len(seq)
+    if not 0 <= k < len(seq):
+        raise IndexError(f"{what} index out of range")
+    return k
+
+
+class Texts(Sequence):
+    """A sequence of strings stored as one string and their end offsets: ``t[k]`` is a fresh
+    ``str`` equal to the k-th one given. A large model's per-element names (labels, locations)
+    are then two objects instead of one small string each: small objects made while the
+    parsed deck is alive fill the holes the parse left between its elements, and would keep
+    the allocator's pages of the whole deck resident after the deck is dropped."""
+
+    __slots__ = ("_text", "_ends")
+
+    def __init__(self, strings=()):
+        strings = list(strings)
+        self._text = "".join(strings)
+        self._ends = np.fromiter(map(len, strings), np.int64, len(strings)).cumsum()
+
+    def __len__(self) -> int:
+        return self._ends.size
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return tuple(self[i] for i in range(*k.indices(len(self))))
+        k = _position(self, k, "string")
+        return self._text[int(self._ends[k - 1]) if k else 0:int(self._ends[k])]
+
+    def __iter__(self):
+        ends = self._ends.tolist()
+        text = self._text
+        return (text[a:b] for a, b in zip([0] + ends[:-1], ends))
+
+
+class _Column:
+    """One column of :class:`RowTable`'s per-element part: an int64 array when every value is
+    a Python ``int`` (ids, lines), else the values as a tuple; ``col[k]`` gives the value back
+    with its type."""
+
+    __slots__ = ("_v", "_ints")
+
+    def __init__(self, values):
+        values = list(values)
+        self._ints = all(type(v) is int for v in values)
+        try:
+            self._v = np.array(values, np.int64) if self._ints else tuple(values)
+        except OverflowError:                 # an int beyond 64 bits: kept as it is
+            self._ints, self._v = False, tuple(values)
+
+    def __getitem__(self, k):
+        return int(self._v[k]) if self._ints else self._v[k]
+
+
+class _Codes:
+    """One column of few distinct values (tags, files): a code per element."""
+
+    __slots__ = ("_values", "_code")
+
+    def __init__(self, values):
+        index: dict = {}
+        code = [index.setdefault(v, len(index)) for v in values]
+        self._values = tuple(index)
+        self._code = np.asarray(code, np.int32)
+
+    def __getitem__(self, k):
+        return self._values[int(self._code[k])]
+
+
 class RowTable(Sequence):
     """Constraint rows: ``len(t)``, ``t[r]`` (a fresh dict per call: the model's table cannot
     be changed through it), iteration, slices (tuples of dicts). Built row by row
@@ -28,7 +101,7 @@ class RowTable(Sequence):
                  "_build")
 
     def __init__(self):
-        self._elements: tuple = ()        # (tag, id, line, file, label, where) per element
+        self._elements: tuple = ()        # columns tag, id, line, file, label, where
         self._codes: dict = {"equation": (), "kind": (), "group": ()}
         self._el = self._eq = self._kind = self._group = self._owner = np.zeros(0, np.int32)
         self._n = 0
@@ -63,7 +136,10 @@ class RowTable(Sequence):
         return self
 
     def _set(self, elements, codes, cols):
-        self._elements = tuple(elements)
+        tag, ident, line, file, label, where = (zip(*elements) if elements
+                                                  else ((),) * 6)
+        self._elements = (_Codes(tag), _Column(ident), _Column(line), _Codes(file),
+                          Texts(label), Texts(where))
         self._codes = {w: tuple(c) for w, c in codes.items()}
         self._el, self._eq, self._kind, self._group, self._owner = (
             np.asarray(cols[w], np.int64).astype(np.int32)
@@ -103,12 +179,9 @@ class RowTable(Sequence):
     def __getitem__(self, r):
         if isinstance(r, slice):
             return tuple(self[i] for i in range(*r.indices(self._n)))
-        r = int(r)
-        if r < 0:
-            r += self._n
-        if not 0 <= r < self._n:
-            raise IndexError("constraint row index out of range")
-        tag, ident, line, file, label, where = self._elements[int(self._el[r])]
+        r = _position(self, r, "constraint row")
+        e = int(self._el[r])
+        tag, ident, line, file, label, where = (col[e] for col in self._elements)
         c = self._codes
         return dict(tag=tag, id=ident, equation=c["equation"][int(self._eq[r])], line=line,
                     file=file, kind=c["kind"][int(self._kind[r])],
@@ -133,7 +206,7 @@ class CoordNames(Sequence):
     SUFFIX = (" Fx", " Fy", " Fz", " Tx", " Ty", " Tz")
 
     def __init__(self, prefixes, offsets, nq_bodies: int, extra=()):
-        self._prefix = tuple(prefixes)
+        self._prefix = prefixes if isinstance(prefixes, Texts) else Texts(prefixes)
         self._off = np.asarray(offsets, np.int64)
         self._nq_bodies = int(nq_bodies)
         self._extra = tuple(extra)
@@ -148,11 +221,7 @@ class CoordNames(Sequence):
     def __getitem__(self, k):
         if isinstance(k, slice):
             return tuple(self[i] for i in range(*k.indices(len(self))))
-        k = int(k)
-        if k < 0:
-            k += len(self)
-        if not 0 <= k < len(self):
-            raise IndexError("coordinate index out of range")
+        k = _position(self, k, "coordinate")
         if k >= self._nq_bodies:
             return self._extra[k - self._nq_bodies]
         b = int(np.searchsorted(self._off, k, side="right")) - 1

@@ -22,16 +22,17 @@ class Assembler:
     ----------
     N : int
         Matrix size.
-    blocks : list of (rows, cols)
+    blocks : iterable of (rows, cols)
         Integer arrays of equal shape; flattened in C order. Entries with a negative row or
         column are ignored. Values passed to :meth:`assemble` must follow the same order and
-        shapes. A list is consumed (its items are released as they are read: the pattern of
-        a large model is not held twice).
+        shapes. Read once, in order: a generator (the model's layout) or a list, which is
+        consumed (its items are released as they are read: the pattern of a large model is
+        not held twice).
     dense : bool
         Produce dense ``ndarray`` instead of CSR.
     """
 
-    __slots__ = ("N", "dense", "groups", "sizes", "valid", "nnz", "indices", "indptr", "slot",
+    __slots__ = ("N", "dense", "groups", "sizes", "nnz", "indices", "indptr", "slot",
                  "slot_all")
 
     def __init__(self, N: int, blocks, dense: bool = False, groups=None):
@@ -39,47 +40,51 @@ class Assembler:
         self.dense = dense
         self.groups = groups
         self.indices = self.indptr = None
-        self.sizes = []
-        valids = []
-        keys = []
-        for k in range(len(blocks)):
-            rows, cols = blocks[k]
-            if isinstance(blocks, list):
-                blocks[k] = None            # consumed: each block released once keyed
+        sizes = []
+        keys = []                           # valid entries' keys row * N + col, per block
+        valids = []                         # per block: None (all valid) or the valid mask
+        for rows, cols in _consumed(blocks):
             rows = np.asarray(rows).ravel()
             cols = np.asarray(cols).ravel()
             v = (rows >= 0) & (cols >= 0)
-            self.sizes.append(rows.size)
-            valids.append(v)
+            sizes.append(rows.size)
             if v.all():
-                keys.append(rows.astype(np.int64, copy=False) * N + cols)
+                v = None
             else:
-                keys.append(rows[v].astype(np.int64, copy=False) * N + cols[v])
-        self.valid = np.concatenate(valids) if valids else np.zeros(0, bool)
-        del valids
-        box = [np.concatenate(keys) if keys else np.zeros(0, np.int64)]
-        del keys                            # the per-block keys: one copy of them at a time
+                rows, cols = rows[v], cols[v]
+            key = np.multiply(rows, N, dtype=np.int64)
+            key += cols
+            keys.append(key)
+            valids.append(v)
+            del rows, cols, key
+        self.sizes = tuple(sizes)
         if dense:
-            slot = box.pop()
             self.nnz = N * N
+            self.slot = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+            uniq = None
         else:
-            uniq, slot = _unique_inverse(box)
+            uniq = _sorted_union(keys)
             self.nnz = uniq.size
             self.indices = (uniq % N).astype(np.int32)
-            uniq //= N                      # the row of each entry
-            self.indptr = np.searchsorted(uniq, np.arange(N + 1)).astype(np.int32)
-            del uniq
+            self.indptr = np.searchsorted(uniq, np.arange(N + 1, dtype=np.int64) * N
+                                          ).astype(np.int32)
+            self.slot = None
         # one slot per registered entry (valid or not): invalid entries go to the extra bin
-        # ``nnz``, so assembly needs no boolean gather of the values. A sparse assembler keeps
-        # only ``slot_all`` (``slot`` is its valid part; the same array when all are valid)
-        if self.valid.all():
-            slot_all = np.asarray(slot, np.intp)
-        else:
-            slot_all = np.full(self.valid.size, self.nnz, dtype=np.intp)
-            slot_all[self.valid] = slot
-        self.slot = slot if dense else None
-        self.slot_all = slot_all
-        self.sizes = tuple(self.sizes)
+        # ``nnz``, so assembly needs no boolean gather of the values; block by block, so that
+        # the keys of one block at a time are alive beside the slots
+        self.slot_all = slot_all = np.empty(sum(sizes), np.intp)
+        at = 0
+        for k, (size, v) in enumerate(zip(sizes, valids)):
+            key, keys[k] = keys[k], None
+            part = slot_all[at:at + size]
+            at += size
+            s = key if dense else _positions(uniq, key)
+            if v is None:
+                part[:] = s
+            else:
+                part[:] = self.nnz
+                part[v] = s
+            del key, s
 
     def assemble(self, values, workspace=None):
         """Assemble the matrix from a list of value arrays (same order/shapes as the blocks);
@@ -179,29 +184,55 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def _unique_inverse(box: list):
-    """``np.unique(keys, return_inverse=True)`` with a stable sort, ``box = [keys]`` (emptied:
-    the keys array is released as soon as its sorted copy exists, so that at most three arrays
-    of the keys' length are alive at a time). The registered keys come in long ascending runs
-    (element blocks in instance order), which timsort merges in near-linear time where the
-    default introsort pays the full ``n log n``."""
-    keys = box.pop()
-    n = keys.size
-    if n == 0:
-        return keys.copy(), np.zeros(0, np.intp)
-    perm = np.argsort(keys, kind="stable")
-    keys = keys[perm]                         # sorted (the caller's array is released)
-    new = np.empty(n, bool)
+def _consumed(blocks):
+    """The items of ``blocks``; a list's items are released (set to None) as they are read, so
+    the pattern of a large model is not held twice (a generator holds one at a time anyway)."""
+    if isinstance(blocks, list):
+        for k in range(len(blocks)):
+            item, blocks[k] = blocks[k], None
+            yield item
+    else:
+        yield from blocks
+
+
+def _sorted_union(keys: list) -> np.ndarray:
+    """The sorted unique values of all arrays in ``keys``, merged one array at a time (the
+    temporaries are those of one block, not of all entries at once). The registered keys come
+    in long ascending runs (element blocks in instance order) and the union so far is one run:
+    the stable sort (timsort) merges them in near-linear time where introsort pays ``n log n``."""
+    uniq = np.zeros(0, np.int64)
+    for key in keys:
+        u = np.sort(key, kind="stable")
+        if uniq.size:
+            u = np.concatenate([uniq, _distinct(u)])
+            u.sort(kind="stable")
+        uniq = _distinct(u)
+        del u
+    return uniq
+
+
+_CHUNK = 1 << 20
+
+
+def _positions(uniq: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """``np.searchsorted(uniq, key)``, in chunks whose keys are sorted first (binary searches
+    for ascending keys share their bounds: twice as fast as on the keys' runs as they come)."""
+    out = np.empty(key.size, np.intp)
+    for i in range(0, key.size, _CHUNK):
+        c = key[i:i + _CHUNK]
+        p = np.argsort(c, kind="stable")
+        out[i:i + _CHUNK][p] = np.searchsorted(uniq, c[p])
+    return out
+
+
+def _distinct(u: np.ndarray) -> np.ndarray:
+    """The distinct values of the sorted array ``u``."""
+    if u.size < 2:
+        return u
+    new = np.empty(u.size, bool)
     new[0] = True
-    np.not_equal(keys[1:], keys[:-1], out=new[1:])
-    uniq = keys[new]
-    del keys
-    rank = np.cumsum(new, dtype=np.intp)      # 1 + the unique key of each sorted entry
-    del new
-    rank -= 1
-    inv = np.empty(n, np.intp)
-    inv[perm] = rank
-    return uniq, inv
+    np.not_equal(u[1:], u[:-1], out=new[1:])
+    return u[new]
 
 
 def scatter_add(n: int, idx: np.ndarray, vals: np.ndarray) -> np.ndarray:

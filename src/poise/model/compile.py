@@ -420,7 +420,10 @@ def _compile(spec: DeckSpec, user_code: str = "refuse") -> Model:
     for et in types:                      # dependency order (poise.elements.registry)
         et.compile(spec, ctx)
     check_variables(spec, ctx)            # variables no element reads: problems located too
-    result = ctx.result()                 # raises the problems collected
+    try:
+        result = ctx.result()             # raises the problems collected
+    finally:
+        ctx.close()                       # no cycle left holding the deck
     # L from the markers that play a part (unknown when a user routine was not run: which
     # markers it reads is learnt by running it; all markers then, as poise check needs no more)
     L = b.L

@@ -20,7 +20,7 @@ from poise.core.readonly import seal
 from poise.elements.kernel import LocalPattern
 from poise.elements.reaction_feed import ReactionFeed
 from poise.elements.registry import energy_terms, kernel_types, time_sources
-from poise.elements.rows import RowTable
+from poise.elements.rows import RowTable, Texts
 from poise.model.assembly import Assembler
 from poise.model.model import DENSE_MAX, Model
 
@@ -63,7 +63,7 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
     N = nq + nc
     rigid = kinds == 0
     f = dict(bodies, **markers)
-    f["body_label"] = tuple(bodies["body_label"])
+    f["body_label"] = Texts(bodies["body_label"])   # one string: no object per body
     f["coord_info"] = bodies["coord_info"].with_extra(res.extra_names)
     rows = RowTable.of(res.rows)              # one entry per element, codes per row
     f.update(families=fams, nq=nq, nc=nc, row_info=rows, nb=nb, N=N, dense=N <= DENSE_MAX,
@@ -120,9 +120,10 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
                              model.active_effects, model.time_sources))
 
 
-def _blocks(m, feed) -> list:
-    """The fixed sparsity pattern: ``(rows, cols)`` blocks in assembly order."""
-    blocks = []
+def _blocks(m, feed):
+    """The fixed sparsity pattern: ``(rows, cols)`` blocks in assembly order, generated one at
+    a time (the assembler keys each as it comes: a large model's index blocks are never all
+    alive at once)."""
     for fam in m.families:
         # only the entries that can be non-zero (family slot structure, see LocalPattern)
         g = fam.gcol
@@ -131,27 +132,26 @@ def _blocks(m, feed) -> list:
         li, lj = ((pat.order // L, pat.order % L) if pat.order is not None
                   else np.nonzero(pat.kmask))
         if pat.compact:            # entry-major, as tangent_compact fills them
-            blocks.append((g[:, li].T, g[:, lj].T))
+            yield g[:, li].T, g[:, lj].T
         else:
-            blocks.append((g[:, li], g[:, lj]))
+            yield g[:, li], g[:, lj]
         if fam.is_constraint:
             rows = m.nq + fam.crow
             pr, pc = np.nonzero(pat.pmask)
-            blocks.append((rows[:, pr], g[:, pc]))
-            blocks.append((g[:, pc], rows[:, pr]))
+            yield rows[:, pr], g[:, pc]
+            yield g[:, pc], rows[:, pr]
     # mass blocks (regularisation): translational diagonal, rotational 3x3
     rigid = m.body_kind == 0
     tb = m.body_off[:, None] + np.arange(3)
-    blocks.append((tb, tb))
+    yield tb, tb
     rb = m.body_off[rigid][:, None] + 3 + np.arange(3)
-    blocks.append((np.repeat(rb[:, :, None], 3, 2), np.repeat(rb[:, None, :], 3, 1)))
+    yield np.repeat(rb[:, :, None], 3, 2), np.repeat(rb[:, None, :], 3, 1)
     # diagonal of the multiplier block (removed / redundant rows)
     lr = m.nq + np.arange(m.nc)
-    blocks.append((lr, lr))
+    yield lr, lr
     # forces reading constraint reactions: d r / d lambda (ReactionFeed, after all others)
     if feed is not None:
-        blocks += list(feed.blocks)
-    return blocks
+        yield from feed.blocks
 
 
 def _order_groups(m) -> np.ndarray:

@@ -10,6 +10,7 @@ Evaluation (residual, Jacobian, constraints, energy; one or many frames) is the 
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,7 +66,8 @@ class Model:
 
     Attributes (n* sizes: nb moving bodies, nm markers (index 0 = global frame), nc rows)
     ----------
-    body_id, body_label : (nb,) deck ids and labels of moving bodies
+    body_id, body_label : (nb,) deck ids and labels of moving bodies (labels: a sequence of str,
+        :class:`poise.elements.rows.Texts`)
     body_kind : (nb,) 0 rigid, 1 point
     body_mass : (nb,) effective mass (deck mass x units factor) [force*time^2/length]
     body_inertia : (nb, 3, 3) inertia about the CG in the body (CG marker) frame, effective
@@ -91,7 +93,7 @@ class Model:
     """
 
     body_id: np.ndarray
-    body_label: tuple
+    body_label: Sequence
     body_kind: np.ndarray
     body_mass: np.ndarray
     body_inertia: np.ndarray

@@ -22,7 +22,7 @@ from poise.solvers.history import History
 from poise.solvers.iterate import Next, Solver
 from poise.solvers.newton import FrameOutcome, initial_multipliers
 from poise.solvers.reach import assemble
-from poise.solvers.redundancy import detect_redundancy
+from poise.solvers.redundancy import detect_redundancy, without_rows
 from poise.solvers.status import MESSAGES, Status
 
 
@@ -170,13 +170,19 @@ def begin(env: Env, a: Analysis, state, multipliers: bool = True):
     None when the frame can be solved, else why not (assembly failed)."""
     model, data = env.model, env.data
     red = a.redundancy
+    ev = None
     if red is None:
-        red = detect_redundancy(model, state, data.workspace)
+        # one evaluation (every row) for the redundancy test, the assembly's start and,
+        # where nothing moved and no multiplier is set, the least-squares multipliers
+        ev = data.evaluate(model, state, "jacobian", every_row=True) if model.nc else None
+        red = detect_redundancy(model, state, data.workspace, evaluation=ev)
     data.set_redundancy(red)
     a = replace(a, redundancy=red)
     if len(red):
         a = a.noted(f"{len(red)} redundant constraint equations removed")
-    state, moved, ast = assemble(model, state, env.settings, env.history, 0, data)
+    if ev is not None:
+        ev = without_rows(model, ev, data.mask(model))
+    state, moved, ast = assemble(model, state, env.settings, env.history, 0, data, ev=ev)
     a = replace(a, moved=moved)
     if moved:
         a = a.noted("initial configuration assembled onto the constraints")
@@ -184,7 +190,8 @@ def begin(env: Env, a: Analysis, state, multipliers: bool = True):
         return a, state, FrameOutcome(Status.ASSEMBLY_FAILED, 0, np.nan, np.nan,
                                       MESSAGES[Status.ASSEMBLY_FAILED])
     if multipliers:
-        state = initial_multipliers(model, state, data)
+        same = ev is not None and not moved and not np.any(state.lam)   # r at lam = 0
+        state = initial_multipliers(model, state, data, ev=ev if same else None)
     return a, state, None
 
 

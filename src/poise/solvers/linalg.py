@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 
 from poise.core import phases
+from poise.solvers.superlu import lean
 
 # Dense systems up to this size are solved with numpy's LAPACK (gesv) and checked with an SVD:
 # no scipy import on the small-deck path (scipy.linalg/sparse cost ~0.25 s of process start).
@@ -93,9 +94,10 @@ class Factor:
                 if order is not None:
                     # fill-reducing order computed once per pattern (model.assembly)
                     self.order = order()
-                    self.lu = spla.splu(J.tocsc()[:, self.order], permc_spec="NATURAL")
+                    self.lu = spla.splu(J.tocsc()[:, self.order], permc_spec="NATURAL",
+                                        **lean(J.shape[0]))
                 else:
-                    self.lu = spla.splu(J.tocsc(), permc_spec="COLAMD")
+                    self.lu = spla.splu(J.tocsc(), permc_spec="COLAMD", **lean(J.shape[0]))
             except RuntimeError as e:
                 raise SingularMatrix(str(e)) from None
             # SuperLU refuses an exactly zero pivot (RuntimeError above); the pivots of a finite

@@ -145,14 +145,17 @@ def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
             f"(tolerance {sc.phi_tol[k]:.3g})")
 
 
-def initial_multipliers(model, state, cnt: Counters, weights=None):
+def initial_multipliers(model, state, cnt: Counters, weights=None, ev=None):
     """Least-squares multipliers ``argmin ||Phi_q^T lam - Q||_{W^-1}`` at the current state
-    (``weights``: ``W``, default the squared coordinate scales)."""
+    (``weights``: ``W``, default the squared coordinate scales). ``ev``: the Jacobian
+    evaluation at ``state`` with zero multipliers and the solve's active rows, if the caller
+    has it (the static prologue's)."""
     if model.nc == 0:
         return state
     st = state.copy()
     st.lam[:] = 0.0
-    ev = cnt.evaluate(model, st, "jacobian")
+    if ev is None:
+        ev = cnt.evaluate(model, st, "jacobian")
     W = _coord_weights(model) if weights is None else weights
     K = _weighted_kkt(model, ev, W)
     Q = -ev.r                     # with lam = 0, r = -Q

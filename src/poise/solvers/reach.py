@@ -33,17 +33,39 @@ def weighted_kkt(model, ev, W):
     nq = model.nq
     J = ev.J
     if hasattr(J, "tocsc"):
-        import scipy.sparse as sp  # lazy: sparse systems only
-        B = J[:nq, nq:]
-        Cm = J[nq:, :nq]
-        D = J[nq:, nq:]
-        K = sp.bmat([[sp.diags(W), B], [Cm, D]], format="csc")
+        K = _weighted_sparse(J.tocsr(), nq, np.asarray(W, float))
         # its pattern is within the KKT pattern: the assembler's column order serves it too
         K.poise_column_order = getattr(J, "poise_column_order", None)
         return K
     K = np.array(J, copy=True)
     K[:nq, :nq] = np.diag(W)
     return K
+
+
+def _weighted_sparse(J, nq, W):
+    """``[[diag(W), B], [C, D]]`` from the CSR KKT matrix ``J = [[*, B], [C, D]]`` in one pass
+    over its index arrays (the coordinate rows keep their entries in multiplier columns behind
+    the diagonal ``W``, the constraint rows are copied): the CSC matrix ``scipy.sparse.bmat``
+    of the four blocks gives (same entries, stored zeros and sorted rows), without its four
+    intermediate matrices."""
+    import scipy.sparse as sp  # lazy: sparse systems only
+    J.sort_indices()
+    p = J.indptr[nq]
+    keep = J.indices[:p] >= nq                         # B's entries in the coordinate rows
+    kept = np.concatenate([[0], np.cumsum(keep)])[J.indptr[:nq + 1]]
+    ptr = np.concatenate([kept + np.arange(nq + 1), J.indptr[nq + 1:] - p + kept[-1] + nq])
+    top = ptr[:nq]                                     # each coordinate row: W first
+    n = int(ptr[-1])
+    idx = np.empty(n, J.indices.dtype)
+    val = np.empty(n)
+    idx[top], val[top] = np.arange(nq), W
+    rest = np.ones(n, bool)
+    rest[top] = False
+    nb = int(kept[-1])
+    pos = np.nonzero(rest)[0]
+    idx[pos[:nb]], val[pos[:nb]] = J.indices[:p][keep], J.data[:p][keep]
+    idx[pos[nb:]], val[pos[nb:]] = J.indices[p:], J.data[p:]
+    return sp.csr_matrix((val, idx, ptr), shape=J.shape).tocsc()
 
 
 def coord_weights(model):
@@ -120,17 +142,18 @@ class OntoConstraints(Solver[_Projecting]):
         return s.state if s.on else None
 
 
-def assemble(model, state, settings, history, frame: int, cnt):
+def assemble(model, state, settings, history, frame: int, cnt, ev=None):
     """Least-change projection onto the constraints (Gauss-Newton on the KKT system,
     :class:`Assembly` run by :func:`~poise.solvers.iterate.iterate` within
-    ``Limits.assembly_max_iter`` steps).
+    ``Limits.assembly_max_iter`` steps). ``ev``: an evaluation at ``state`` with the solve's
+    active rows (the prologue's; saves the first evaluation).
 
     Returns ``(state, assembled: bool, status)``; ``assembled`` says whether anything moved.
     """
     if model.nc == 0:
         return state, False, Status.CONVERGED
     return iterate(Assembly(model, settings, frame, cnt), settings.limits.assembly_max_iter,
-                   history, state)
+                   history, state, ev)
 
 
 @dataclass(frozen=True)
@@ -157,14 +180,15 @@ class Assembly(Solver[_Assembling]):
         self.q_len = np.where(model.q_kind == 0, model.L, 1.0)   # trans / L, rad, scalars
         self.W = coord_weights(model)
 
-    def _at(self, state, it, moved):
+    def _at(self, state, it, moved, ev=None):
         model = self.model
-        ev = self.cnt.evaluate(model, state, "defer")   # Jacobian only if violated
+        if ev is None:
+            ev = self.cnt.evaluate(model, state, "defer")   # Jacobian only if violated
         v = float((np.abs(ev.phi) / np.where(model.row_kind == 1, 1.0, model.L)).max())
         return _Assembling(state, ev, v, it, moved, Status.CONVERGED if v <= ASSEMBLY_TOL else None)
 
-    def init(self, state):
-        return self._at(state, 0, False)
+    def init(self, state, ev=None):
+        return self._at(state, 0, False, ev)
 
     def terminate(self, s):
         return s.status is not None, s.status

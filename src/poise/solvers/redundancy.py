@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.model.evaluate import Evaluation
+from poise.solvers.superlu import lean
+
 RATIO_TOL = 1e-9     # always redundant below this pivot ratio
 RATIO_MAX = 1e-5     # never redundant above this pivot ratio
 GAP_MIN = 1e3        # a gap of this factor between sorted ratios separates the two groups
@@ -48,7 +51,7 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
     del A
     perm = "NATURAL" if nc <= ORDERING_NATURAL_MAX else "MMD_AT_PLUS_A"
     lu = spla.splu(A2, permc_spec=perm, diag_pivot_thresh=0.0,
-                   options=dict(SymmetricMode=True))
+                   options=dict(SymmetricMode=True), **lean(nc))
     u = lu.U.diagonal()
     if not np.array_equal(lu.perm_r, lu.perm_c):
         # fall back to a dense rank-revealing QR (small systems only)
@@ -87,7 +90,7 @@ def _resolve_ambiguous(P, cand, perm):
     PC = P[cand].toarray()                                          # (c, nq)
     try:
         lu = spla.splu((PI @ PI.T).tocsc(), permc_spec=perm, diag_pivot_thresh=0.0,
-                       options=dict(SymmetricMode=True))
+                       options=dict(SymmetricMode=True), **lean(len(keep)))
     except RuntimeError:
         return None
     R = PC.T.copy()                                                 # (nq, c) residuals
@@ -207,7 +210,7 @@ def left_null_basis(Phi_q, active):
     ind = np.nonzero(active)[0]
     Pi = P[ind]
     G = (Pi @ Pi.T).tocsc()
-    lu = spla.splu(G)
+    lu = spla.splu(G, **lean(G.shape[0]))
     Y = np.zeros((P.shape[0], len(red)))
     for c, k in enumerate(red):
         rhs = Pi @ P[k].toarray().ravel()
@@ -217,13 +220,45 @@ def left_null_basis(Phi_q, active):
     return Y
 
 
-def detect_redundancy(model, state, workspace=None) -> np.ndarray:
+def detect_redundancy(model, state, workspace=None, evaluation=None) -> np.ndarray:
     """Redundant constraint rows of ``model`` at ``state`` (all rows evaluated); ``workspace``:
-    the solve's (the evaluation fills the assembly buffer the solve reuses)."""
+    the solve's (the evaluation fills the assembly buffer the solve reuses). ``evaluation``:
+    the Jacobian evaluation at ``state`` with every row active, if the caller made it (the
+    static prologue: it serves the assembly and the multipliers too, :func:`without_rows`)."""
     if model.nc == 0:
         return np.zeros(0, int)
-    J = model.evaluate(state, need_jac=True, workspace=workspace).J
+    J = (evaluation.J if evaluation is not None
+         else model.evaluate(state, need_jac=True, workspace=workspace).J)
     Pq = J[model.nq:, :model.nq]
     del J                 # the KKT matrix (the workspace keeps its buffer): only Phi_q is needed
     col = np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
     return redundant_rows(Pq, col)
+
+
+def without_rows(model, ev, active):
+    """The evaluation ``ev`` (every constraint row active, Jacobian assembled) as an evaluation
+    with only the ``active`` rows reads — bit for bit: the residual does not depend on the
+    rows' activity; inactive rows read 0 in ``phi``, have no constraint Jacobian (row and
+    transposed column zero) and 1 on their multiplier diagonal
+    (:func:`poise.model.evaluate.jacobian`). ``ev``'s Jacobian is changed in place (its
+    column order kept). None when the model has a reaction feed (its coupling block depends
+    on the rows) or ``ev`` has no Jacobian: the caller evaluates afresh."""
+    if model.reaction_feed is not None or ev.J is None:
+        return None
+    active = np.asarray(active, bool)
+    off = np.nonzero(~active)[0] + model.nq
+    J = ev.J
+    if len(off):
+        if hasattr(J, "indptr"):                  # CSR of the fixed pattern, sorted rows
+            bad = np.zeros(J.shape[1], bool)
+            bad[off] = True
+            J.data[bad[J.indices]] = 0.0          # transposed columns (and the diagonals)
+            for k in off:
+                lo, hi = J.indptr[k], J.indptr[k + 1]
+                J.data[lo:hi] = 0.0
+                J.data[lo + np.searchsorted(J.indices[lo:hi], k)] = 1.0
+        else:
+            J[off, :] = 0.0
+            J[:, off] = 0.0
+            J[off, off] = 1.0
+    return Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0), J=J, workspace=ev.workspace)

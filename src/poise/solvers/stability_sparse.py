@@ -13,6 +13,7 @@ from poise.solvers.equilibrate import equilibrate as _equilibrate
 from poise.solvers.equilibrate import prune_noise as _prune_noise
 from poise.solvers.equilibrate import prune_rows as _prune_rows
 from poise.solvers.redundancy import redundant_rows
+from poise.solvers.superlu import lean
 from poise.solvers.stability_modes import (
     AUG_RHO,
     BERR_MAX,
@@ -106,7 +107,7 @@ class SymmetricLDL:
         self.n_negative = self.n_positive = -1
         try:
             lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A" if order is None else "NATURAL",
-                           diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+                           diag_pivot_thresh=0.0, options=dict(SymmetricMode=True), **lean(n))
         except RuntimeError as e:
             self.reason = f"the LDL^T factorisation failed ({e})"
             return
@@ -131,14 +132,11 @@ class SymmetricLDL:
     @property
     def backward_error(self) -> float:
         if self._berr is None:
-            # (|L| |U|) 1 as two scatter-adds over the factors' entries in storage order: the
-            # sums of the sparse products, term for term, without copying either factor
+            # (|L| |U|) 1 as two sparse products with the factors' absolute values (compiled
+            # matrix-vector products over the factors' own index arrays)
             U, L = self.lu.U, self.lu.L
-            n = self.n
-            g = np.bincount(U.indices, weights=np.abs(U.data), minlength=n)
-            w = np.abs(L.data)
-            w *= g[np.repeat(np.arange(n), np.diff(L.indptr))]
-            g = np.bincount(L.indices, weights=w, minlength=n)
+            g = _abs_matvec(U, np.ones(self.n))
+            g = _abs_matvec(L, g)
             self._berr = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
         return self._berr
 
@@ -155,6 +153,14 @@ class SymmetricLDL:
         x = np.empty_like(y)
         x[self.order] = y
         return x
+
+
+def _abs_matvec(M, x):
+    """``|M| x`` for a CSC factor ``M`` (SuperLU's ``L`` / ``U``), one temporary array of its
+    entries."""
+    import scipy.sparse as sp
+    A = sp.csc_matrix((np.abs(M.data), M.indices, M.indptr), shape=M.shape)
+    return A @ x
 
 
 def symmetric_permutation(A, order):
