@@ -10,9 +10,15 @@ and the fill-reducing column order live in the solve's workspace
 """
 from __future__ import annotations
 
+import sys
 from functools import cache, partial
 
 import numpy as np
+
+
+# sums of more entries than this go into reused buffers (np.add.at), smaller ones into fresh
+# arrays (np.bincount: the same sums, no pool to look after)
+POOL_ABOVE = 1 << 15
 
 
 class Assembler:
@@ -90,7 +96,15 @@ class Assembler:
         else:
             buf = workspace.scratch(self, _Scratch).values(self.slot_all.size)
         vals = np.concatenate([np.asarray(v, float).ravel() for v in values], out=buf)
-        data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
+        if workspace is None or self.nnz < POOL_ABOVE:
+            data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
+        else:
+            # the same sums (each entry from 0, values added in registration order) into a
+            # buffer no live matrix uses any more: a fresh array per assembly costs its page
+            # faults again (at 10^5 links more than the sums themselves)
+            out = workspace.scratch(self, _Scratch).free_data(self.nnz + 1)
+            np.add.at(out, self.slot_all, vals)
+            data = out[:self.nnz]
         if self.dense:
             return data.reshape(self.N, self.N)
         M = _kkt_class()((data, self.indices, self.indptr), shape=(self.N, self.N))
@@ -144,18 +158,38 @@ class Assembler:
 
 
 class _Scratch:
-    """An assembler's scratch in a solve's workspace: the value buffer and the column order."""
+    """An assembler's scratch in a solve's workspace: the value buffer, the matrices' data
+    buffers and the column order."""
 
-    __slots__ = ("buf", "order")
+    __slots__ = ("buf", "order", "data")
+
+    DATA_BUFFERS = 2      # kept for reuse: the iterate's matrix and the one before it
 
     def __init__(self):
         self.buf = None
         self.order = None
+        self.data = []
 
     def values(self, n: int) -> np.ndarray:
         if self.buf is None:
             self.buf = np.empty(n)
         return self.buf
+
+    def free_data(self, n: int) -> np.ndarray:
+        """A zeroed data buffer of ``n`` values that no matrix refers to any more: a matrix
+        (and every view of its data) holds a reference to its buffer, so a kept buffer
+        referred to only by this pool is free (CPython reference counts); a new one when
+        every kept buffer is in use."""
+        pool = self.data
+        for i in range(len(pool)):
+            if sys.getrefcount(pool[i]) <= 2:      # the pool's reference and the call's
+                buf = pool[i]
+                buf[:] = 0.0
+                return buf
+        buf = np.zeros(n)
+        if len(pool) < self.DATA_BUFFERS:
+            pool.append(buf)
+        return buf
 
 
 @cache
@@ -210,3 +244,28 @@ def scatter_add(n: int, idx: np.ndarray, vals: np.ndarray) -> np.ndarray:
     vals = np.asarray(vals, float).ravel()
     v = idx >= 0
     return np.bincount(idx[v], weights=vals[v], minlength=n)
+
+
+class Scatter:
+    """:func:`scatter_add` of fixed indices, repeated (a family's residual rows at every
+    evaluation): the negative indices go to an extra bin once, and above ``POOL_ABOVE``
+    entries the sums are made in one reused buffer (``add(out, vals)`` adds them to ``out``;
+    the same sums in the same order as ``out += scatter_add(n, idx, vals)``)."""
+
+    __slots__ = ("n", "idx", "buf")
+
+    def __init__(self, n: int, idx):
+        idx = np.asarray(idx).ravel()
+        self.n = n
+        self.idx = np.where(idx >= 0, idx, n).astype(np.intp)
+        self.buf = np.zeros(n + 1) if idx.size >= POOL_ABOVE else None
+
+    def add(self, out: np.ndarray, vals) -> None:
+        vals = np.asarray(vals, float).ravel()
+        if self.buf is None:
+            out += np.bincount(self.idx, weights=vals, minlength=self.n + 1)[:self.n]
+            return
+        buf = self.buf
+        buf[:] = 0.0
+        np.add.at(buf, self.idx, vals)
+        out += buf[:self.n]
