@@ -112,6 +112,12 @@ class Assembler:
             M.poise_column_order = partial(self.ordered, workspace)   # used by linalg.Factor
         return M
 
+    def release(self, workspace) -> None:
+        """Drop the data buffers kept in ``workspace`` for reuse (a live matrix keeps its own):
+        after a solver's iterations, so that later phases do not carry them."""
+        sc = workspace.scratch(self, _Scratch)
+        sc.data = []
+
     def ordered(self, workspace=None) -> np.ndarray:
         """:meth:`column_order`, computed once per solve (kept in ``workspace``)."""
         if workspace is None:

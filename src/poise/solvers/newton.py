@@ -289,6 +289,9 @@ class NewtonIteration(Solver[_Newtoning]):
         return () if s.last_row is None else (s.last_row,)
 
     def postprocess(self, s, status, used):
+        ws = getattr(self.cnt, "workspace", None)
+        if ws is not None:
+            self.model.assembler.release(ws)       # its iterations' matrix buffers
         if s.outcome is None:
             return s.state, FrameOutcome(Status.MAX_ITERATIONS, used, s.imb, s.err,
                                          MESSAGES[Status.MAX_ITERATIONS]
