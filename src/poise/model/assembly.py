@@ -110,13 +110,30 @@ class Assembler:
         M = _kkt_class()((data, self.indices, self.indptr), shape=(self.N, self.N))
         if self.groups is not None:
             M.poise_column_order = partial(self.ordered, workspace)   # used by linalg.Factor
+            if workspace is not None:
+                M.poise_csc_layout = partial(self.csc_layout, workspace)
         return M
 
     def release(self, workspace) -> None:
-        """Drop the data buffers kept in ``workspace`` for reuse (a live matrix keeps its own):
-        after a solver's iterations, so that later phases do not carry them."""
+        """Drop the data buffers kept in ``workspace`` for reuse (a live matrix keeps its own)
+        and the column-ordered layout: after a solver's iterations, so that later phases do not
+        carry them."""
         sc = workspace.scratch(self, _Scratch)
         sc.data = []
+        sc.layout = None
+        sc.factorised = 0
+
+    def csc_layout(self, workspace) -> "CSCLayout | None":
+        """The :class:`CSCLayout` of this pattern in its column order (:meth:`ordered`), kept
+        in ``workspace`` until :meth:`release`; None at the first factorisation (a single one
+        does not pay for the layout, the iterations of a solver do)."""
+        sc = workspace.scratch(self, _Scratch)
+        if sc.layout is None:
+            sc.factorised += 1
+            if sc.factorised < 2:
+                return None
+            sc.layout = CSCLayout(self, self.ordered(workspace))
+        return sc.layout
 
     def ordered(self, workspace=None) -> np.ndarray:
         """:meth:`column_order`, computed once per solve (kept in ``workspace``)."""
@@ -163,11 +180,50 @@ class Assembler:
         return np.argsort(rank[grp], kind="stable")
 
 
+class CSCLayout:
+    """A sparse assembler's matrices as SuperLU factorises them: ``A[:, order]`` in CSC, the
+    pattern (row indices, column pointers) computed once and the values one gather of the CSR
+    data into a reused buffer (instead of a CSC conversion and a column selection, two fresh
+    copies of the matrix, per factorisation)."""
+
+    __slots__ = ("indices", "indptr", "take", "buf", "rows", "cols")
+
+    def __init__(self, asm: Assembler, order: np.ndarray):
+        import scipy.sparse as sp             # lazy: sparse models only
+        pos = np.arange(asm.nnz, dtype=float)   # CSR positions, exact as floats
+        A = sp.csr_matrix((pos, asm.indices, asm.indptr), shape=(asm.N, asm.N)).tocsc()[:, order]
+        A.sort_indices()
+        self.take = A.data.astype(np.intp)
+        self.indices = A.indices.astype(np.int32)
+        self.indptr = A.indptr.astype(np.int32)
+        self.rows, self.cols = asm.indices, asm.indptr      # the CSR pattern it maps from
+        self.buf = np.empty(asm.nnz)
+
+    def fits(self, J) -> bool:
+        """Whether ``J`` is a CSR matrix of this layout's pattern (its very index arrays)."""
+        return _same(J.indices, self.rows) and _same(J.indptr, self.cols)
+
+    def matrix(self, J):
+        """``J[:, order]`` as a CSC matrix whose values live in this layout's buffer (valid
+        until the next call: SuperLU copies what it keeps)."""
+        import scipy.sparse as sp             # lazy
+        np.take(J.data, self.take, out=self.buf)
+        A = sp.csc_matrix((self.buf, self.indices, self.indptr), shape=J.shape, copy=False)
+        A.has_canonical_format = True         # sorted rows, no duplicates: made so above
+        return A
+
+
+def _same(a, b) -> bool:
+    """``a`` is the array ``b`` or a view of it (a matrix built on the assembler's arrays)."""
+    return a is b or (a.base is b and a.shape == b.shape and a.dtype == b.dtype
+                      and a.__array_interface__["data"] == b.__array_interface__["data"])
+
+
 class _Scratch:
     """An assembler's scratch in a solve's workspace: the value buffer, the matrices' data
-    buffers and the column order."""
+    buffers, the column order and its CSC layout."""
 
-    __slots__ = ("buf", "order", "data")
+    __slots__ = ("buf", "order", "data", "layout", "factorised")
 
     DATA_BUFFERS = 2      # kept for reuse: the iterate's matrix and the one before it
 
@@ -175,6 +231,8 @@ class _Scratch:
         self.buf = None
         self.order = None
         self.data = []
+        self.layout = None
+        self.factorised = 0
 
     def values(self, n: int) -> np.ndarray:
         if self.buf is None:
