@@ -336,7 +336,9 @@ def jacobian(model, ev: Evaluation):
             Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
             if U:
                 Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
-            Pq = Pq * row_active[fam.crow][:, :, None]
+            act = row_active[fam.crow]
+            if not act.all():                  # x * 1.0 is x: only a family with removed rows
+                Pq = Pq * act[:, :, None]
             Pq = Pq.reshape(fam.n, -1)
             if pat.pidx is not None:
                 Pq = Pq[:, pat.pidx]
