@@ -337,6 +337,7 @@ class NewtonIteration(Solver[_Newtoning]):
         # for nothing)
         limit = _Lazy(lambda: _limit_step_trial(model, state, x[:model.nq], settings))
         xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, lambda: limit()[0] < 1.0)
+        del f                # the factorisation is not needed by the trials (memory at 10^5)
         if xf is not None:
             # the regularisation dominates the step (near-neutral directions): try the step with
             # those directions filtered out first, keep it if it decreases the merit
@@ -359,6 +360,7 @@ class NewtonIteration(Solver[_Newtoning]):
                 trial.lam = trial.lam + alpha * dl
             else:
                 trial = model.retract(state, alpha * dq, alpha * dl)
+            ev_t = None      # the last trial's evaluation goes (unless it is ``best``)
             try:
                 trial, ev_t, m1 = self._measure(trial, s.robust)
             except EvaluationError as e:
