@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 
 from poise.core import phases
+from poise.solvers.superlu import lean
 
 # Dense systems up to this size are solved with numpy's LAPACK (gesv) and checked with an SVD:
 # no scipy import on the small-deck path (scipy.linalg/sparse cost ~0.25 s of process start).
@@ -84,10 +85,10 @@ class Factor:
                     lay = None if lay is None else lay()
                     A = (lay.matrix(J) if lay is not None and lay.fits(J)
                          else J.tocsc()[:, self.order])
-                    self.lu = spla.splu(A, permc_spec="NATURAL")
+                    self.lu = spla.splu(A, permc_spec="NATURAL", **lean(J.shape[0]))
                     del A
                 else:
-                    self.lu = spla.splu(J.tocsc(), permc_spec="COLAMD")
+                    self.lu = spla.splu(J.tocsc(), permc_spec="COLAMD", **lean(J.shape[0]))
             except RuntimeError as e:
                 raise SingularMatrix(str(e)) from None
             # SuperLU refuses an exactly zero pivot (RuntimeError above); the pivots of a finite
