@@ -247,3 +247,20 @@ def test_a_batched_sweep_estimated_beyond_the_limit_goes_to_the_workers(tmp_path
         assert np.array_equal(a["bodies[2].position"][()], b["bodies[2].position"][()])
         assert a["iterations"][()].tolist() == b["iterations"][()].tolist()
         assert np.all(a["iterations"][()] > 0)
+
+
+def test_templates_do_not_share_the_cached_parse():
+    """Each template gets its own copy of the process's parsed deck: an element changed through
+    one template (or anything that holds its spec) reaches neither the cache nor the next
+    template of the same deck."""
+    deck, params, cases, job = _setup("pendulum_multiturn.xml",
+                                      {"Force_SpringDamper[1].stiffness": "10000,20000"})
+    first = make_template(job, {})
+    ps = next(e for e in first.spec.model if e.tag == "Param_Static")
+    ps.attrs["method"] = "MKEAM"
+    first.spec.model[0].attrs.clear()
+    again = make_template(job, {})
+    assert next(e for e in again.spec.model
+                if e.tag == "Param_Static").attrs["method"] == "FIM_S"
+    assert again.spec.model[0].attrs and again.spec.model[0] is not first.spec.model[0]
+    assert plan_batch(again, cases[0]) is not None

@@ -16,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -141,6 +141,9 @@ _TEMPLATES: dict[str, CaseTemplate] = {}
 
 
 def _base_spec(job: SweepJob):
+    """The parsed deck of ``job``, parsed once per process: a private copy each call (its own
+    elements and attribute dicts), so that nothing done with one template can reach the
+    cached parse or another template."""
     key = hashlib.sha256(job.data).hexdigest() + "\0" + job.path + "\0" + ",".join(job.ignore)
     spec = _SPECS.get(key)
     if spec is None:
@@ -149,15 +152,15 @@ def _base_spec(job: SweepJob):
         if len(_SPECS) > 8:
             _SPECS.clear()
         _SPECS[key] = spec
-    return spec
+    return replace(spec, model=[replace(e, attrs=dict(e.attrs)) for e in spec.model],
+                   commands=[replace(e, attrs=dict(e.attrs)) for e in spec.commands],
+                   warnings=list(spec.warnings), ignored=list(spec.ignored),
+                   input_files=dict(spec.input_files))
 
 
-def make_template(job: SweepJob, group: dict, fresh: bool = False) -> CaseTemplate:
-    """The template of the cases with structural values ``group`` (compiled once); ``fresh``:
-    from the deck parsed now, not the process's cache of parsed decks (the sweeping process
-    itself, whose other work may have filled that cache)."""
-    base = parse_deck_bytes(job.data, job.path, **({"ignore": job.ignore} if job.ignore else {})) \
-        if fresh else _base_spec(job)
+def make_template(job: SweepJob, group: dict) -> CaseTemplate:
+    """The template of the cases with structural values ``group`` (compiled once)."""
+    base = _base_spec(job)
     spec, extra = apply_case(base, list(job.structural), group)
     spec.warnings = list(base.warnings)
     settings_only = all(p.tag == "Param_Static" for p in job.numeric)

@@ -372,7 +372,7 @@ class _Run:
             group, idx = max(groups.values(), key=lambda g: len(g[1]))
             from poise.app.chunk_batch import plan_for      # lazy: only sweeps that solve
             try:
-                template = make_template(self.job, group, fresh=True)
+                template = make_template(self.job, group)
                 if plan_for(template, self.cases[idx[0]]) is not None:
                     self._batch_template = template
             except Exception:  # noqa: BLE001 - the workers find out case by case
