@@ -135,3 +135,17 @@ def test_kernels_with_buffers_give_the_bits_of_fresh_arrays(chain):
     got = cross3(a, b, np.empty((40, 3, 2, 3)), np.empty((2, 40, 3, 2)))
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-14)
     assert _bits(got, cross3(a, b))
+
+
+def test_a_matrix_no_longer_referred_to_lends_its_buffer_to_the_next(chain):
+    model, st = chain
+    data = SolveData(np.ones(model.nc, bool))
+    J = data.jacobian(model, data.evaluate(model, st, "defer", eps=1e-3))
+    where = J.data.__array_interface__["data"][0]
+    first = J.data.copy()
+    del J
+    J = data.jacobian(model, data.evaluate(model, st, "defer", eps=1e-3))
+    assert J.data.__array_interface__["data"][0] == where       # reused, not a fresh array
+    assert _bits(J.data, first)
+    model.assembler.release(data.workspace)                      # dropped: J keeps its own
+    assert _bits(J.data, first)

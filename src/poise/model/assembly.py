@@ -223,7 +223,7 @@ class _Scratch:
     """An assembler's scratch in a solve's workspace: the value buffer, the matrices' data
     buffers, the column order and its CSC layout."""
 
-    __slots__ = ("buf", "order", "data", "layout", "factorised")
+    __slots__ = ("buf", "order", "data", "layout", "factorised", "free_refs")
 
     DATA_BUFFERS = 2      # kept for reuse: the iterate's matrix and the one before it
 
@@ -233,6 +233,7 @@ class _Scratch:
         self.data = []
         self.layout = None
         self.factorised = 0
+        self.free_refs = -1
 
     def values(self, n: int) -> np.ndarray:
         if self.buf is None:
@@ -242,18 +243,24 @@ class _Scratch:
     def free_data(self, n: int) -> np.ndarray:
         """A zeroed data buffer of ``n`` values that no matrix refers to any more: a matrix
         (and every view of its data) holds a reference to its buffer, so a kept buffer
-        referred to only by this pool is free (CPython reference counts); a new one when
-        every kept buffer is in use."""
+        with no more references than when only this pool held it is free (CPython reference
+        counts, read the same way both times); a new one when every kept buffer is in use."""
         pool = self.data
         for i in range(len(pool)):
-            if sys.getrefcount(pool[i]) <= 2:      # the pool's reference and the call's
+            if _refs(pool, i) == self.free_refs:
                 buf = pool[i]
                 buf[:] = 0.0
                 return buf
-        buf = np.zeros(n)
-        if len(pool) < self.DATA_BUFFERS:
-            pool.append(buf)
-        return buf
+        if len(pool) >= self.DATA_BUFFERS:
+            return np.zeros(n)
+        pool.append(np.zeros(n))
+        self.free_refs = _refs(pool, len(pool) - 1)       # only the pool refers to it now
+        return pool[-1]
+
+
+def _refs(pool: list, i: int) -> int:
+    """References to ``pool[i]`` (one function for the free count and every check)."""
+    return sys.getrefcount(pool[i])
 
 
 @cache
