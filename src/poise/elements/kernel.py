@@ -81,16 +81,12 @@ class PairBlocks:
     def __init__(self, n: int, S: int, coef: dict):
         self.n, self.S, self.coef = n, S, coef
 
-    def block(self, s: int, t: int, out=None) -> np.ndarray:
-        """Block ``(s, t)`` component-major (3, 3, n) (zeros when it has no coefficient);
-        ``out``: the array to write it into."""
+    def block(self, s: int, t: int) -> np.ndarray:
+        """Block ``(s, t)`` component-major (3, 3, n) (zeros when it has no coefficient)."""
         c = self.coef.get((s, t))
-        if out is None:
-            out = np.empty((3, 3, self.n))
         if c is None:
-            out.fill(0.0)
-            return out
-        return np.multiply(_I3[:, :, None], c[None, None, :], out=out)
+            return np.zeros((3, 3, self.n))
+        return _I3[:, :, None] * c[None, None, :]
 
     def dense(self, rows=None) -> np.ndarray:
         """The (n, 3S, 3S) array (only the instances ``rows`` when given)."""
@@ -303,43 +299,26 @@ def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | Non
     return Km.reshape(n, 6 * K, 6 * K)
 
 
-def _fresh(name, shape):
-    """``buffer(name, shape)`` of the kernels when the caller keeps none: a new array."""
-    return np.empty(shape)
-
-
-def _diff_of_products(a, b, c, d, out, work):
-    """``out = a * b - c * d`` (the products rounded, then their difference) through the
-    (2, ...) scratch ``work``."""
-    t, u = work[0], work[1]
-    np.multiply(a, b, out=t)
-    np.multiply(c, d, out=u)
-    np.subtract(t, u, out=out)
-
-
-def _cross_cols(v, M, buffer=_fresh, name="cc"):
+def _cross_cols(v, M):
     """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
-    ``M`` crossed with ``v`` from the left. ``buffer``: the result's and scratch arrays."""
-    out = buffer(name, M.shape)
-    w = buffer(name + ".w", (2,) + M.shape[1:])
-    _diff_of_products(v[1], M[2], v[2], M[1], out[0], w)
-    _diff_of_products(v[2], M[0], v[0], M[2], out[1], w)
-    _diff_of_products(v[0], M[1], v[1], M[0], out[2], w)
+    ``M`` crossed with ``v`` from the left."""
+    out = np.empty(M.shape, M.dtype if M.dtype == v.dtype else np.result_type(v, M))
+    out[0] = v[1] * M[2] - v[2] * M[1]
+    out[1] = v[2] * M[0] - v[0] * M[2]
+    out[2] = v[0] * M[1] - v[1] * M[0]
     return out
 
 
-def _cross_rows(M, u, buffer=_fresh, name="cr"):
+def _cross_rows(M, u):
     """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
-    out = buffer(name, M.shape)
-    w = buffer(name + ".w", (2, M.shape[0]) + M.shape[2:])
-    _diff_of_products(M[:, 1], u[2], M[:, 2], u[1], out[:, 0], w)
-    _diff_of_products(M[:, 2], u[0], M[:, 0], u[2], out[:, 1], w)
-    _diff_of_products(M[:, 0], u[1], M[:, 1], u[0], out[:, 2], w)
+    out = np.empty(M.shape, M.dtype if M.dtype == u.dtype else np.result_type(M, u))
+    out[:, 0] = M[:, 1] * u[2] - M[:, 2] * u[1]
+    out[:, 1] = M[:, 2] * u[0] - M[:, 0] * u[2]
+    out[:, 2] = M[:, 0] * u[1] - M[:, 1] * u[0]
     return out
 
 
-def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
-                    buffer=None) -> np.ndarray:
+def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> np.ndarray:
     """``B^T G B + C`` of a family with a compact pattern (``pat.compact``), as
     ``(9 * nblocks, n)`` values (entry-major) in the order of ``pat.order``, built block-wise.
 
@@ -350,20 +329,13 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
     component-major, ``(nblocks, 3, 3, n)``: every operation runs over all instances at once
     (no per-instance 3x3 products) and the model registers the entries in this order (no
     transpose). Slots without a reaction (``rho_s = 0``) add no connection term.
-    ``buffer(name, shape)``: reused arrays for the result and the temporaries (the result is
-    then valid until the next call with the same buffers; default: fresh arrays).
     """
     n, S = kin.pt.shape
     ml = kin.slot_ml
     bpos = pat.bpos
-    buffer = _fresh if buffer is None else buffer
-    Kb = buffer("Kb", (int(bpos.max()) + 1 if bpos.size else 0, 3, 3, n))
-    Kb.fill(0.0)
-    V = buffer("V", (S, 3, n))                                  # (S, 3, n)
-    np.copyto(V, kin.V.transpose(1, 2, 0))
-    W = buffer("W", (S, 3, n))
-    np.copyto(W, rho.reshape(n, S, 3).transpose(1, 2, 0))
-    outer = buffer("outer", (3, 3, n))
+    Kb = np.zeros((int(bpos.max()) + 1 if bpos.size else 0, 3, 3, n))
+    V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))          # (S, 3, n)
+    W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))
     # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
     for s in range(S):
         v, w = V[s], W[s]
@@ -371,8 +343,7 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
             continue
         k = ml[s]
         blk = Kb[bpos[2 * k + 1, 2 * k + 1]]
-        np.multiply(v[:, None, :], w[None, :, :], out=outer)
-        blk += outer
+        blk += v[:, None, :] * w[None, :, :]
         d = v[0] * w[0] + v[1] * w[1] + v[2] * w[2]
         for i in range(3):
             blk[i, i] -= d
@@ -382,16 +353,16 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
         for s, t in zip(pat.s_idx.tolist(), pat.t_idx.tolist()):
             k, l = ml[s], ml[t]
             if compact_g:
-                Gp = G.block(s, t, buffer("Gp", (3, 3, n)))
+                Gp = G.block(s, t)
             else:
                 Gp = np.ascontiguousarray(G[:, 3 * s:3 * s + 3, 3 * t:3 * t + 3]
                                           .transpose(1, 2, 0))
-            RT = _cross_cols(V[s], Gp, buffer, "RT")             # Sk_s G_st
-            Kb[bpos[2 * k + 1, 2 * l + 1]] -= _cross_rows(RT, V[t], buffer, "RTS")
+            RT = _cross_cols(V[s], Gp)                          # Sk_s G_st
+            Kb[bpos[2 * k + 1, 2 * l + 1]] -= _cross_rows(RT, V[t])
             ws = None if pat.pt_all[s] else pt[:, s]
             wt = None if pat.pt_all[t] else pt[:, t]
             if pat.pt_any[s]:
-                blk = _cross_rows(Gp, V[t], buffer, "GS")       # G_st Sk_t
+                blk = _cross_rows(Gp, V[t])                     # G_st Sk_t
                 Kb[bpos[2 * k, 2 * l + 1]] -= blk if ws is None else blk * ws
             if pat.pt_any[t]:
                 Kb[bpos[2 * k + 1, 2 * l]] += RT if wt is None else RT * wt
@@ -405,22 +376,14 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
     return Kb.reshape(-1, n)
 
 
-def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int,
-                              buffer=None) -> np.ndarray:
-    """``phi_y B`` (n, m, 6K) from the slot structure (no dense B). ``buffer(name, shape)``:
-    reused arrays for the result and the temporaries (default: fresh arrays)."""
+def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) -> np.ndarray:
+    """``phi_y B`` (n, m, 6K) from the slot structure (no dense B)."""
     n, S = kin.pt.shape
     m = phi_y.shape[1]
     py = phi_y.reshape(n, m, S, 3)
     # rotation columns: p^T (-Sk_s) = (v_s x p)^T
-    if buffer is None:
-        rot = cross3(kin.V[:, None, :, :], py)                 # (n, m, S, 3)
-        Pq = np.zeros((n, m, 2 * K, 3))
-    else:
-        rot = cross3(kin.V[:, None, :, :], py, buffer("Pq.rot", (n, m, S, 3)),
-                     buffer("Pq.w", (2, n, m, S)))
-        Pq = buffer("Pq", (n, m, 2 * K, 3))
-        Pq.fill(0.0)
+    rot = cross3(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
+    Pq = np.zeros((n, m, 2 * K, 3))
     pt = kin.pt
     p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
     for s in range(S):

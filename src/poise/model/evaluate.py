@@ -324,19 +324,16 @@ def jacobian(model, ev: Evaluation):
     t_start = phases.now()
     state, pend, eps_mass, row_active = ev._pending
     vals = []
-    ws = ev.workspace
     for fam, kin, rho, G, phy, ext in pend:
         pat = local_pattern(fam)
         U = fam.U
-        # the family's arrays are reused (the assembly copies them): no fresh pages per Jacobian
-        buf = None if ws is None else ws.scratch(fam, _FamilyScratch).buffer
         if pat.compact:    # straight into the registered (entry-major block) order
-            Kl = tangent_compact(kin, rho, G, fam.K, pat, buf)
+            Kl = tangent_compact(kin, rho, G, fam.K, pat)
         else:
             Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)
             Kl = _gather(Kl, pat.order)
         if fam.is_constraint:
-            Pq = constraint_jacobian_local(kin, phy, fam.K, buf)    # (n, m, 6K)
+            Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
             if U:
                 Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
             act = row_active[fam.crow]
