@@ -148,38 +148,25 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) ->
     return SlotKinematics(Y=Y, V=V, pt=pt, slot_ml=np.asarray(slot_ml), K=K)
 
 
-def cross3(a, b, out=None, work=None):
-    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead. ``out``: the
-    result's array, ``work``: (2, ...) scratch of the products (reused buffers: no fresh
-    pages for a large evaluation); float64 then."""
+def cross3(a, b):
+    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
-    if out is None:
-        out = np.empty(shape, a.dtype if a.dtype == b.dtype else np.result_type(a, b))
-    if work is None:
-        work = np.empty((2,) + shape[:-1], out.dtype)
-    t, u = work[0], work[1]
-    for i, (p, q, r, w) in enumerate(((a1, b2, a2, b1), (a2, b0, a0, b2), (a0, b1, a1, b0))):
-        np.multiply(p, q, out=t)
-        np.multiply(r, w, out=u)
-        np.subtract(t, u, out=out[..., i])
+    out = np.empty(shape, a.dtype if a.dtype == b.dtype else np.result_type(a, b))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
     return out
 
 
-def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int, buffer=None) -> np.ndarray:
+def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     """``B^T rho`` (n, 6K): per slot ``pt_s rho_s`` on the marker's translation and
-    ``v_s x rho_s`` on its rotation. ``buffer(name, shape)``: reused float arrays for the
-    result and its temporaries (default: fresh ones)."""
+    ``v_s x rho_s`` on its rotation."""
     n, S = kin.pt.shape
     rho3 = rho.reshape(n, S, 3)
-    if buffer is None:
-        vr = cross3(kin.V, rho3)                               # (n, S, 3)
-        r = np.zeros((n, 2 * K, 3))
-    else:
-        vr = cross3(kin.V, rho3, buffer("vr", (n, S, 3)), buffer("cross", (2, n, S)))
-        r = buffer("r", (n, 2 * K, 3))
-        r.fill(0.0)
+    vr = cross3(kin.V, rho3)                                   # (n, S, 3)
+    r = np.zeros((n, 2 * K, 3))
     pt = kin.pt
     p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
     for s in range(S):
@@ -398,7 +385,7 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
 
 def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray | None,
                            slot_ml, K: int, need_jac: bool = True, ext: dict | None = None,
-                           U: int = 0, pat: LocalPattern | None = None, buffer=None):
+                           U: int = 0, pat: LocalPattern | None = None):
     """Local residual ``[B^T rho; rho_s]`` (n, 6K+U) and tangent (n, 6K+U, 6K+U).
 
     The marker block of the tangent is ``B^T G B + C``. With ``U`` scalar columns (extra unknowns
@@ -408,11 +395,9 @@ def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray |
 
     ``pat`` (the family's :class:`LocalPattern`) restricts ``G`` to its declared slot-pair
     blocks; without it (or for families declaring none) ``G`` is used as a dense matrix.
-    ``buffer``: reused arrays for the residual (:func:`_local_residual`; the residual is then
-    valid until the next call with the same buffers).
     """
     n = rho.shape[0]
-    r = _local_residual(kin, rho, K, buffer)
+    r = _local_residual(kin, rho, K)
     ext = ext or {}
     if U:
         rs = ext.get("rho_s")

@@ -162,11 +162,11 @@ class _Frames:
     def scatter(self, fam) -> Scatter:
         """The family's residual scatter (:class:`~poise.model.assembly.Scatter`), kept in
         the workspace."""
-        return self.ws.scratch(fam, _FamilyScratch).scatter(self.model.nq, fam.gcol)
-
-    def buffers(self, fam):
-        """``buffer(name, shape)``: the family's reused arrays of its residual (workspace)."""
-        return self.ws.scratch(fam, _FamilyScratch).buffer
+        sc = self.ws.scratch(fam, dict)
+        s = sc.get("residual_scatter")
+        if s is None:
+            s = sc["residual_scatter"] = Scatter(self.model.nq, fam.gcol)
+        return s
 
     def call(self, fi, need_jac):
         """``(t, kin, lam, out)`` of family ``fi``: ``t`` the family (tiled copy for frames),
@@ -197,29 +197,6 @@ class _Frames:
         if ext is not None:
             out.append(ext)
         return t, kin, lam, out
-
-
-class _FamilyScratch:
-    """A family's scratch in a solve's workspace: its residual scatter and the float arrays
-    its one-frame residual reuses (transient: consumed before the next evaluation)."""
-
-    __slots__ = ("_scatter", "_bufs")
-
-    def __init__(self):
-        self._scatter = None
-        self._bufs = {}
-
-    def scatter(self, nq, gcol) -> Scatter:
-        if self._scatter is None:
-            self._scatter = Scatter(nq, gcol)
-        return self._scatter
-
-    def buffer(self, name: str, shape: tuple) -> np.ndarray:
-        """An uninitialised float array ``shape`` kept under ``name``."""
-        b = self._bufs.get(name)
-        if b is None or b.shape != shape:
-            b = self._bufs[name] = np.empty(shape)
-        return b
 
 
 def _kernel(fam, kin, lam, ctx, need_jac):
@@ -293,10 +270,8 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
             phi[fam.crow.ravel()] = ph.ravel()
         if keep:
             last.append((fam, kin, rho, phy))
-        rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U,
-                                       buffer=fr.buffers(fam))
-        # a finite sum has finite terms (no temporary mask); an infinite one may be an overflow
-        if not np.isfinite(rl.sum()) and not np.isfinite(rl).all():
+        rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
+        if not np.isfinite(rl).all():
             raise EvaluationError(_family_nonfinite(fam, rl))
         fr.scatter(fam).add(r, rl)
         if need_jac:
