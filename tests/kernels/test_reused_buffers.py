@@ -1,7 +1,7 @@
 """Evaluation and factorisation through reused buffers give bitwise what fresh arrays give.
 
 Large models keep per-solve buffers in the workspace (the assembler's pooled data buffers, its
-column-ordered CSC layout, the families' residual scatter and kernel arrays); each must give
+column-ordered CSC layout, the families' residual scatter); each must give
 exactly the values of the plain computation, and a matrix still referred to must never see
 its data overwritten by a later assembly.
 """
@@ -12,8 +12,6 @@ import pytest
 import scipy.sparse as sp
 
 from poise.deck.parser import load_deck
-from poise.elements.kernel import (constraint_jacobian_local, cross3, local_pattern,
-                                   tangent_compact)
 from poise.gen.chain import build_chain_deck
 from poise.model.assembly import POOL_ABOVE, Assembler, Scatter, scatter_add
 from poise.model.compile import compile_model
@@ -106,35 +104,6 @@ def test_the_csc_layout_is_the_column_ordered_matrix_and_factorises_alike(chain)
     plain = sp.csr_matrix(J)
     plain.poise_column_order = lambda: order     # no layout: CSC conversion + selection
     assert _bits(x_layout, Factor(plain).solve(b))
-
-
-def test_kernels_with_buffers_give_the_bits_of_fresh_arrays(chain):
-    model, st = chain
-    data = SolveData(np.ones(model.nc, bool))
-    ev = data.evaluate(model, st, "defer", eps=1e-3)
-    kept = {}
-
-    def buffer(name, shape):
-        b = kept.get(name)
-        if b is None or b.shape != shape:
-            b = kept[name] = np.full(shape, np.nan)     # garbage: everything is written
-        return b
-
-    _, pend, _, _ = ev._pending
-    for fam, kin, rho, G, phy, _ in pend:
-        pat = local_pattern(fam)
-        if pat.compact:
-            assert _bits(tangent_compact(kin, rho, G, fam.K, pat, buffer),
-                         tangent_compact(kin, rho, G, fam.K, pat))
-        if fam.is_constraint:
-            assert _bits(constraint_jacobian_local(kin, phy, fam.K, buffer),
-                         constraint_jacobian_local(kin, phy, fam.K))
-    rng = np.random.default_rng(1)
-    a, b = rng.standard_normal((40, 1, 2, 3)), rng.standard_normal((40, 3, 2, 3))
-    ref = np.cross(a, b)
-    got = cross3(a, b, np.empty((40, 3, 2, 3)), np.empty((2, 40, 3, 2)))
-    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-14)
-    assert _bits(got, cross3(a, b))
 
 
 def test_a_matrix_no_longer_referred_to_lends_its_buffer_to_the_next(chain):
