@@ -29,7 +29,7 @@ from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, de
                                    local_pattern, local_residual_tangent, local_tangent,
                                    slot_kinematics,
                                    tangent_compact)
-from poise.model.assembly import scatter_add
+from poise.model.assembly import Scatter
 from poise.model.frame_batch import tiles
 from poise.model.workspace import Workspace
 
@@ -159,6 +159,15 @@ class _Frames:
         self.ctxs = None
         self.tiles = tiles(model, F, workspace)
 
+    def scatter(self, fam) -> Scatter:
+        """The family's residual scatter (:class:`~poise.model.assembly.Scatter`), kept in
+        the workspace."""
+        sc = self.ws.scratch(fam, dict)
+        s = sc.get("residual_scatter")
+        if s is None:
+            s = sc["residual_scatter"] = Scatter(self.model.nq, fam.gcol)
+        return s
+
     def call(self, fi, need_jac):
         """``(t, kin, lam, out)`` of family ``fi``: ``t`` the family (tiled copy for frames),
         ``lam`` its multipliers (constraints), ``out`` the kernel's output tuple."""
@@ -264,7 +273,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
         rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
         if not np.isfinite(rl).all():
             raise EvaluationError(_family_nonfinite(fam, rl))
-        r += scatter_add(model.nq, fam.gcol, rl)
+        fr.scatter(fam).add(r, rl)
         if need_jac:
             pend[fi] = (fam, kin, rho, G, phy, ext)
     state = fr.states[0]
@@ -302,7 +311,9 @@ def jacobian(model, ev: Evaluation):
             Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
             if U:
                 Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
-            Pq = Pq * row_active[fam.crow][:, :, None]
+            act = row_active[fam.crow]
+            if not act.all():                  # x * 1.0 is x: only a family with removed rows
+                Pq = Pq * act[:, :, None]
             Pq = Pq.reshape(fam.n, -1)
             if pat.pidx is not None:
                 Pq = Pq[:, pat.pidx]
