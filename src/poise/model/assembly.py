@@ -10,9 +10,15 @@ and the fill-reducing column order live in the solve's workspace
 """
 from __future__ import annotations
 
+import sys
 from functools import cache, partial
 
 import numpy as np
+
+
+# sums of more entries than this go into reused buffers (np.add.at), smaller ones into fresh
+# arrays (np.bincount: the same sums, no pool to look after)
+POOL_ABOVE = 1 << 15
 
 
 class Assembler:
@@ -95,13 +101,44 @@ class Assembler:
         else:
             buf = workspace.scratch(self, _Scratch).values(self.slot_all.size)
         vals = np.concatenate([np.asarray(v, float).ravel() for v in values], out=buf)
-        data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
+        if workspace is None or self.nnz < POOL_ABOVE:
+            data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
+        else:
+            # the same sums (each entry from 0, values added in registration order) into a
+            # buffer no live matrix uses any more: a fresh array per assembly costs its page
+            # faults again (at 10^5 links more than the sums themselves)
+            out = workspace.scratch(self, _Scratch).free_data(self.nnz + 1)
+            np.add.at(out, self.slot_all, vals)
+            data = out[:self.nnz]
         if self.dense:
             return data.reshape(self.N, self.N)
         M = _kkt_class()((data, self.indices, self.indptr), shape=(self.N, self.N))
         if self.groups is not None:
             M.poise_column_order = partial(self.ordered, workspace)   # used by linalg.Factor
+            if workspace is not None:
+                M.poise_csc_layout = partial(self.csc_layout, workspace)
         return M
+
+    def release(self, workspace) -> None:
+        """Drop the data buffers kept in ``workspace`` for reuse (a live matrix keeps its own)
+        and the column-ordered layout: after a solver's iterations, so that later phases do not
+        carry them."""
+        sc = workspace.scratch(self, _Scratch)
+        sc.data = []
+        sc.layout = None
+        sc.factorised = 0
+
+    def csc_layout(self, workspace) -> "CSCLayout | None":
+        """The :class:`CSCLayout` of this pattern in its column order (:meth:`ordered`), kept
+        in ``workspace`` until :meth:`release`; None at the first factorisation (a single one
+        does not pay for the layout, the iterations of a solver do)."""
+        sc = workspace.scratch(self, _Scratch)
+        if sc.layout is None:
+            sc.factorised += 1
+            if sc.factorised < 2:
+                return None
+            sc.layout = CSCLayout(self, self.ordered(workspace))
+        return sc.layout
 
     def ordered(self, workspace=None) -> np.ndarray:
         """:meth:`column_order`, computed once per solve (kept in ``workspace``)."""
@@ -148,19 +185,87 @@ class Assembler:
         return np.argsort(rank[grp], kind="stable")
 
 
-class _Scratch:
-    """An assembler's scratch in a solve's workspace: the value buffer and the column order."""
+class CSCLayout:
+    """A sparse assembler's matrices as SuperLU factorises them: ``A[:, order]`` in CSC, the
+    pattern (row indices, column pointers) computed once and the values one gather of the CSR
+    data into a reused buffer (instead of a CSC conversion and a column selection, two fresh
+    copies of the matrix, per factorisation)."""
 
-    __slots__ = ("buf", "order")
+    __slots__ = ("indices", "indptr", "take", "buf", "rows", "cols")
+
+    def __init__(self, asm: Assembler, order: np.ndarray):
+        import scipy.sparse as sp             # lazy: sparse models only
+        pos = np.arange(asm.nnz, dtype=float)   # CSR positions, exact as floats
+        A = sp.csr_matrix((pos, asm.indices, asm.indptr), shape=(asm.N, asm.N)).tocsc()[:, order]
+        A.sort_indices()
+        self.take = A.data.astype(np.intp)
+        self.indices = A.indices.astype(np.int32)
+        self.indptr = A.indptr.astype(np.int32)
+        self.rows, self.cols = asm.indices, asm.indptr      # the CSR pattern it maps from
+        self.buf = np.empty(asm.nnz)
+
+    def fits(self, J) -> bool:
+        """Whether ``J`` is a CSR matrix of this layout's pattern (its very index arrays)."""
+        return _same(J.indices, self.rows) and _same(J.indptr, self.cols)
+
+    def matrix(self, J):
+        """``J[:, order]`` as a CSC matrix whose values live in this layout's buffer (valid
+        until the next call: SuperLU copies what it keeps)."""
+        import scipy.sparse as sp             # lazy
+        np.take(J.data, self.take, out=self.buf)
+        A = sp.csc_matrix((self.buf, self.indices, self.indptr), shape=J.shape, copy=False)
+        A.has_canonical_format = True         # sorted rows, no duplicates: made so above
+        return A
+
+
+def _same(a, b) -> bool:
+    """``a`` is the array ``b`` or a view of it (a matrix built on the assembler's arrays)."""
+    return a is b or (a.base is b and a.shape == b.shape and a.dtype == b.dtype
+                      and a.__array_interface__["data"] == b.__array_interface__["data"])
+
+
+class _Scratch:
+    """An assembler's scratch in a solve's workspace: the value buffer, the matrices' data
+    buffers, the column order and its CSC layout."""
+
+    __slots__ = ("buf", "order", "data", "layout", "factorised", "free_refs")
+
+    DATA_BUFFERS = 2      # kept for reuse: the iterate's matrix and the one before it
 
     def __init__(self):
         self.buf = None
         self.order = None
+        self.data = []
+        self.layout = None
+        self.factorised = 0
+        self.free_refs = -1
 
     def values(self, n: int) -> np.ndarray:
         if self.buf is None:
             self.buf = np.empty(n)
         return self.buf
+
+    def free_data(self, n: int) -> np.ndarray:
+        """A zeroed data buffer of ``n`` values that no matrix refers to any more: a matrix
+        (and every view of its data) holds a reference to its buffer, so a kept buffer
+        with no more references than when only this pool held it is free (CPython reference
+        counts, read the same way both times); a new one when every kept buffer is in use."""
+        pool = self.data
+        for i in range(len(pool)):
+            if _refs(pool, i) == self.free_refs:
+                buf = pool[i]
+                buf[:] = 0.0
+                return buf
+        if len(pool) >= self.DATA_BUFFERS:
+            return np.zeros(n)
+        pool.append(np.zeros(n))
+        self.free_refs = _refs(pool, len(pool) - 1)       # only the pool refers to it now
+        return pool[-1]
+
+
+def _refs(pool: list, i: int) -> int:
+    """References to ``pool[i]`` (one function for the free count and every check)."""
+    return sys.getrefcount(pool[i])
 
 
 @cache
@@ -241,3 +346,28 @@ def scatter_add(n: int, idx: np.ndarray, vals: np.ndarray) -> np.ndarray:
     vals = np.asarray(vals, float).ravel()
     v = idx >= 0
     return np.bincount(idx[v], weights=vals[v], minlength=n)
+
+
+class Scatter:
+    """:func:`scatter_add` of fixed indices, repeated (a family's residual rows at every
+    evaluation): the negative indices go to an extra bin once, and above ``POOL_ABOVE``
+    entries the sums are made in one reused buffer (``add(out, vals)`` adds them to ``out``;
+    the same sums in the same order as ``out += scatter_add(n, idx, vals)``)."""
+
+    __slots__ = ("n", "idx", "buf")
+
+    def __init__(self, n: int, idx):
+        idx = np.asarray(idx).ravel()
+        self.n = n
+        self.idx = np.where(idx >= 0, idx, n).astype(np.intp)
+        self.buf = np.zeros(n + 1) if idx.size >= POOL_ABOVE else None
+
+    def add(self, out: np.ndarray, vals) -> None:
+        vals = np.asarray(vals, float).ravel()
+        if self.buf is None:
+            out += np.bincount(self.idx, weights=vals, minlength=self.n + 1)[:self.n]
+            return
+        buf = self.buf
+        buf[:] = 0.0
+        np.add.at(buf, self.idx, vals)
+        out += buf[:self.n]

@@ -29,7 +29,7 @@ from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, de
                                    local_pattern, local_residual_tangent, local_tangent,
                                    slot_kinematics,
                                    tangent_compact)
-from poise.model.assembly import scatter_add
+from poise.model.assembly import Scatter
 from poise.model.frame_batch import tiles
 from poise.model.recent import RecentEvaluations
 from poise.model.workspace import Workspace
@@ -160,6 +160,15 @@ class _Frames:
         self.ctxs = None
         self.tiles = tiles(model, F, workspace)
 
+    def scatter(self, fam) -> Scatter:
+        """The family's residual scatter (:class:`~poise.model.assembly.Scatter`), kept in
+        the workspace."""
+        sc = self.ws.scratch(fam, dict)
+        s = sc.get("residual_scatter")
+        if s is None:
+            s = sc["residual_scatter"] = Scatter(self.model.nq, fam.gcol)
+        return s
+
     def call(self, fi, need_jac):
         """``(t, kin, lam, out)`` of family ``fi``: ``t`` the family (tiled copy for frames),
         ``lam`` its multipliers (constraints), ``out`` the kernel's output tuple."""
@@ -199,16 +208,15 @@ def _kernel(fam, kin, lam, ctx, need_jac):
     return fam.forces(kin, ctx, need_jac)
 
 
-def _family_pass(model, fr, need_jac, only=None, done=None, reuse=None, calls=None):
+def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
     """The one loop over the element families (``Model.eval_order``: reaction readers after
     the others, gravity last).
 
     Yields ``(fi, t, kin, rho, G, ph, phy, ext)`` per family (``ph``/``phy`` None for
     forces). ``only="phi"``: constraint families only, ``ph`` alone. ``done`` (a dict): the
     reaction feed's record of the families evaluated so far; the channels are computed before
-    the first family that reads them. ``reuse``: ``fi -> (t, kin, lam, out)`` at the same
-    pose (only multipliers differ): forces and slot kinematics reused, constraint kernels run
-    again; ``calls`` (a dict) records ``fi -> (t, kin, lam, out)`` (:mod:`poise.model.recent`)."""
+    the first family that reads them. ``call``: used instead of ``fr.call``
+    (:mod:`poise.model.recent`)."""
     for fi in model.eval_order:
         fam = model.families[fi]
         if only == "phi" and not fam.is_constraint:
@@ -217,16 +225,7 @@ def _family_pass(model, fr, need_jac, only=None, done=None, reuse=None, calls=No
             # reaction channels from every family evaluated so far (exact at this iterate)
             fr.ctx.reactions, fr.dg = model.reaction_feed.values(model, done.values(), fr.P,
                                                                  fr.A)
-        hit = None if reuse is None else reuse.get(fi)
-        if hit is None:
-            t, kin, lam, out = fr.call(fi, need_jac)
-        elif fam.is_constraint:            # same slot kinematics, new multipliers
-            t, kin, lam = hit[0], hit[1], fr.lam[hit[0].crow]
-            out = _kernel(t, kin, lam, fr.ctx, need_jac)
-        else:
-            t, kin, lam, out = hit
-        if calls is not None:
-            calls[fi] = (t, kin, lam, out)
+        t, kin, lam, out = (fr.call if call is None else call)(fi, need_jac)
         if fam.is_constraint:
             ph, phy, G = out[:3]
             if only == "phi":
@@ -266,7 +265,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     state, done = fr.states[0], ({} if feed is not None else None)
     if feed is None and model.assembler.dense:
         r, phi, pend, last = fr.ws.scratch(RecentEvaluations, RecentEvaluations).of(model).outputs(
-            state, need_jac, lambda *a: _family_outputs(model, fr, need_jac, None, *a))
+            fr, need_jac, _kernel, lambda call: _family_outputs(model, fr, need_jac, None, call))
     else:
         r, phi, pend, last = _family_outputs(model, fr, need_jac, done)
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
@@ -283,24 +282,21 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     return ev
 
 
-def _family_outputs(model, fr, need_jac, done, reuse=None, calls=None, recent=None):
+def _family_outputs(model, fr, need_jac, done, call=None):
     """``(r, phi, pend, items)`` of one frame: residual, all-row constraint values, the
-    families' outputs the Jacobian is assembled from (``need_jac``) and their slot data
-    (:attr:`Evaluation.items`); ``reuse``/``calls``/``recent``: :mod:`poise.model.recent`."""
+    families' outputs the Jacobian is assembled from (``need_jac``) and their slot data."""
     r = np.zeros(model.nq)
     phi = np.zeros(model.nc)
     pend = [None] * len(model.families)
     last = []
-    for fi, fam, kin, rho, G, ph, phy, ext in _family_pass(model, fr, need_jac, done=done,
-                                                            reuse=reuse, calls=calls):
+    for fi, fam, kin, rho, G, ph, phy, ext in _family_pass(model, fr, need_jac, done, call=call):
         if ph is not None:
             phi[fam.crow.ravel()] = ph.ravel()
         last.append((fam, kin, rho, phy))
         rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
         if not np.isfinite(rl).all():
             raise EvaluationError(_family_nonfinite(fam, rl))
-        r += (scatter_add(model.nq, fam.gcol, rl) if recent is None
-              else recent.scatter(fi, rl))
+        fr.scatter(fam).add(r, rl)
         if need_jac:
             pend[fi] = (fam, kin, rho, G, phy, ext)
     return r, phi, pend, last
@@ -326,7 +322,9 @@ def jacobian(model, ev: Evaluation):
             Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
             if U:
                 Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
-            Pq = Pq * row_active[fam.crow][:, :, None]
+            act = row_active[fam.crow]
+            if not act.all():                  # x * 1.0 is x: only a family with removed rows
+                Pq = Pq * act[:, :, None]
             Pq = Pq.reshape(fam.n, -1)
             if pat.pidx is not None:
                 Pq = Pq[:, pat.pidx]

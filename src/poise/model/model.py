@@ -165,8 +165,9 @@ class Model:
         """Marker origins (nm,3) and axes (nm,3,3) in global components."""
         pos, rot = self._ext(state)
         mb = self.marker_body
-        P = pos[mb] + np.einsum("nij,nj->ni", rot[mb], self.marker_s0)
-        A = np.matmul(rot[mb], self.marker_A0)
+        R = rot[mb]                                      # gathered once for both products
+        P = pos[mb] + np.einsum("nij,nj->ni", R, self.marker_s0)
+        A = np.matmul(R, self.marker_A0)
         return P, A, pos
 
     def _principal_angles(self, state):

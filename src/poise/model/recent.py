@@ -11,54 +11,56 @@ evaluation it skips. Big models keep nothing (their outputs are large and rarely
 """
 from __future__ import annotations
 
-import numpy as np
-
 
 class RecentEvaluations:
     """The family outputs of a small model's last evaluated states (a solve's workspace keeps
     one, :func:`poise.model.evaluate.evaluate` fills and reads it; see the module doc)."""
 
-    __slots__ = ("entries", "model", "index")
+    __slots__ = ("entries", "model")
     SIZE = 2
 
     def __init__(self):
         self.entries = []
         self.model = None
-        self.index = None
 
     def of(self, model):
         """This memo for ``model`` (emptied when the workspace evaluates another model)."""
         if self.model is not model:
-            self.model, self.entries, self.index = model, [], None
+            self.model, self.entries = model, []
         return self
 
-    def scatter(self, fi, rl):
-        """Family ``fi``'s local residual ``rl`` scattered to the coordinates: bitwise
-        :func:`poise.model.assembly.scatter_add` with its index (``gcol`` without the unused,
-        ``< 0``, entries) built once per model."""
-        if self.index is None:
-            self.index = []
-            for fam in self.model.families:
-                g = np.asarray(fam.gcol).ravel()
-                ok = g >= 0
-                self.index.append((g, None) if ok.all() else (g[ok], ok))
-        idx, ok = self.index[fi]
-        rl = rl.ravel()
-        return np.bincount(idx, weights=rl if ok is None else rl[ok], minlength=self.model.nq)
-
-    def outputs(self, state, need_jac, compute):
-        """``(r, phi, pend, items)`` at ``state`` (``pend`` with the Jacobian's kernel
-        outputs when ``need_jac``): kept ones (``r``, ``phi`` copied), else
-        ``compute(reuse, calls, self)`` (:func:`poise.model.evaluate._family_outputs`), kept."""
-        key = self.key(state)
+    def outputs(self, fr, need_jac, kernel, compute):
+        """``(r, phi, pend, items)`` at the one state of ``fr`` (``pend`` with the Jacobian's
+        kernel outputs when ``need_jac``): kept ones (``r``, ``phi`` copied), else
+        ``compute(call)`` (:func:`poise.model.evaluate._family_outputs` with :meth:`caller`),
+        kept."""
+        key = self.key(fr.states[0])
         hit = self.get(key, need_jac)
         if hit is not None:
             r, phi, pend, last = hit[:4]
             return r.copy(), phi.copy(), pend, last
         calls = {}
-        out = compute(self.same_pose(key, need_jac), calls, self)
+        out = compute(self.caller(fr, kernel, self.same_pose(key, need_jac), calls))
         self.put(key, need_jac, *out, calls)
         return out
+
+    def caller(self, fr, kernel, reuse, calls):
+        """``fr.call`` that takes ``(t, kin, lam, out)`` from ``reuse`` (an evaluation at the
+        same pose, only the multipliers differ: forces as they are, constraint kernels run
+        again on the same slot kinematics) and records every call in ``calls``."""
+        def call(fi, need_jac):
+            hit = None if reuse is None else reuse.get(fi)
+            if hit is None:
+                got = fr.call(fi, need_jac)
+            elif self.model.families[fi].is_constraint:
+                t, kin = hit[0], hit[1]
+                lam = fr.lam[t.crow]
+                got = (t, kin, lam, kernel(t, kin, lam, fr.ctx, need_jac))
+            else:
+                got = hit
+            calls[fi] = got
+            return got
+        return call
 
     @staticmethod
     def key(s):

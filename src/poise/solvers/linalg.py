@@ -92,10 +92,15 @@ class Factor:
             order = getattr(J, "poise_column_order", None)
             try:
                 if order is not None:
-                    # fill-reducing order computed once per pattern (model.assembly)
+                    # fill-reducing order computed once per pattern (model.assembly), the
+                    # column-ordered CSC layout too when the matrix has the assembler's pattern
                     self.order = order()
-                    self.lu = spla.splu(J.tocsc()[:, self.order], permc_spec="NATURAL",
-                                        **lean(J.shape[0]))
+                    lay = getattr(J, "poise_csc_layout", None)
+                    lay = None if lay is None else lay()
+                    A = (lay.matrix(J) if lay is not None and lay.fits(J)
+                         else J.tocsc()[:, self.order])
+                    self.lu = spla.splu(A, permc_spec="NATURAL", **lean(J.shape[0]))
+                    del A
                 else:
                     self.lu = spla.splu(J.tocsc(), permc_spec="COLAMD", **lean(J.shape[0]))
             except RuntimeError as e:

@@ -292,6 +292,9 @@ class NewtonIteration(Solver[_Newtoning]):
         return () if s.last_row is None else (s.last_row,)
 
     def postprocess(self, s, status, used):
+        ws = getattr(self.cnt, "workspace", None)
+        if ws is not None:
+            self.model.assembler.release(ws)       # its iterations' matrix buffers
         if s.outcome is None:
             return s.state, FrameOutcome(Status.MAX_ITERATIONS, used, s.imb, s.err,
                                          MESSAGES[Status.MAX_ITERATIONS]
@@ -332,8 +335,12 @@ class NewtonIteration(Solver[_Newtoning]):
         s = evolve(s, stall=None)
         best = None
         eval_error = ""
-        alpha, first = _limit_step_trial(model, state, dq, settings)
-        xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, alpha < 1.0)
+        # the limited full step is retracted only when asked: by the filter's test, or by the
+        # line search when the filtered step is not taken (otherwise a retraction per iteration
+        # for nothing)
+        limit = _Lazy(lambda: _limit_step_trial(model, state, x[:model.nq], settings))
+        xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, lambda: limit()[0] < 1.0)
+        del f                # the factorisation is not needed by the trials (memory at 10^5)
         if xf is not None:
             # the regularisation dominates the step (near-neutral directions): try the step with
             # those directions filtered out first, keep it if it decreases the merit
@@ -348,12 +355,15 @@ class NewtonIteration(Solver[_Newtoning]):
                     dq = xf[:model.nq]
             except EvaluationError:
                 pass
+        if best is None:
+            alpha, first = limit()
         for _ in range(settings.limits.line_search_max + 1 if best is None else 0):
             if first is not None:      # the full (limited) step: already retracted
                 trial, first = first, None
                 trial.lam = trial.lam + alpha * dl
             else:
                 trial = model.retract(state, alpha * dq, alpha * dl)
+            ev_t = None      # the last trial's evaluation goes (unless it is ``best``)
             try:
                 trial, ev_t, m1 = self._measure(trial, s.robust)
             except EvaluationError as e:
@@ -438,6 +448,20 @@ class NewtonIteration(Solver[_Newtoning]):
                      else s.feasible)
         # the row of the iterate it measured (``state``: its measures), with the step taken
         return Next(s2, 1, (self._row(s2, s.it, last_step, alpha, pose=state, event=event),))
+
+
+class _Lazy:
+    """``fn()`` computed on the first call, then kept."""
+
+    __slots__ = ("fn", "value")
+
+    def __init__(self, fn):
+        self.fn, self.value = fn, None
+
+    def __call__(self):
+        if self.fn is not None:
+            self.value, self.fn = self.fn(), None
+        return self.value
 
 
 class BranchNewton(NewtonIteration):

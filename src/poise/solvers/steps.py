@@ -38,13 +38,15 @@ def limit_step(model, state, dq, settings):
     return fac, None
 
 
-def mass_times(model, state, v):
+def mass_times(model, state, v, Jg=None):
     """``M v`` for a tangent vector ``v`` (nq,): body masses on translations, world inertia on
-    rotations, zero on scalar unknowns."""
+    rotations, zero on scalar unknowns. ``Jg``: the world inertias at ``state``
+    (``model.mass_blocks(state)[1]``) when the caller has them already."""
     out = np.zeros(model.nq)
     out[model.trans_idx] = np.repeat(model.body_mass, 3) * v[model.trans_idx]
     if len(model.rot_idx):
-        _, Jg = model.mass_blocks(state)
+        if Jg is None:
+            _, Jg = model.mass_blocks(state)
         out[model.rot_idx] = np.einsum("nij,nj->ni", Jg,
                                        v[model.rot_idx].reshape(-1, 3)).ravel()
     return out
@@ -65,14 +67,16 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
     solves with the same factorisation, only when ``eps M x`` carries more than ``TAIL_SHARE``
     of the residual (then the regularisation would slow Newton down to a linear rate
     ``eps/lambda``), or when the step limits cut ``x`` (``limited``) and ``S x`` is more than
-    ``NEUTRAL_SHARE`` of ``x`` (scaled).
+    ``NEUTRAL_SHARE`` of ``x`` (scaled). ``limited`` may be a callable, asked only when the
+    tail share alone does not decide (the step limits cost a retraction).
     """
     if not eps > 0 or model.nq == 0:
         return None
     nq = model.nq
-    reg = eps * mass_times(model, state, x[:nq])
+    Jg = model.mass_blocks(state)[1] if len(model.rot_idx) else None   # both products' M
+    reg = eps * mass_times(model, state, x[:nq], Jg)
     share = float(np.max(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
-    if not (limited or share > TAIL_SHARE):
+    if not (share > TAIL_SHARE or (limited() if callable(limited) else limited)):
         return None
     pad = np.zeros(len(x) - nq)
     try:
@@ -82,7 +86,7 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
                 not float(np.max(np.abs(Sx[:nq]) / sc.q_len)) > NEUTRAL_SHARE * size:
             return None
         z = x + 2.0 * Sx
-        Sz = f.solve(np.concatenate([eps * mass_times(model, state, z[:nq]), pad]))
+        Sz = f.solve(np.concatenate([eps * mass_times(model, state, z[:nq], Jg), pad]))
     except SingularMatrix:
         return None
     xf = z - Sz
