@@ -289,7 +289,8 @@ def _family_outputs(model, fr, need_jac, done, call=None):
     phi = np.zeros(model.nc)
     pend = [None] * len(model.families)
     last = []
-    for fi, fam, kin, rho, G, ph, phy, ext in _family_pass(model, fr, need_jac, done, call=call):
+    for fi, fam, kin, rho, G, ph, phy, ext in _family_pass(model, fr, need_jac, done=done,
+                                                            call=call):
         if ph is not None:
             phi[fam.crow.ravel()] = ph.ravel()
         last.append((fam, kin, rho, phy))
