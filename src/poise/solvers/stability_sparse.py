@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core import memory
 from poise.solvers.equilibrate import equilibrate as _equilibrate
 from poise.solvers.equilibrate import prune_noise as _prune_noise
 from poise.solvers.equilibrate import prune_rows as _prune_rows
@@ -236,6 +237,7 @@ class SparsePencil:
         # matrix's), at least ZERO_REL (Kt has a unit-scale diagonal block after equilibration)
         self.eps = ZERO_REL * max(_spectral_radius(self.Kt), 1.0)
         self.singular = False             # a tiny pivot at a constraint row was met
+        memory.release(J.nnz * 16)        # the construction's temporaries' pages (large models)
 
     def kkt(self, s, rho):
         """``[[Kt - s I + rho Gt^T Gt, Gt^T], [Gt, 0]]`` (congruent to the rho = 0 matrix)."""
