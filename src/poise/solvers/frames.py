@@ -48,7 +48,8 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
     outcomes = list(outcomes)
     measured = None
     try:
-        ev = model.evaluate(state, need_jac=True, keep=True)
+        # in the solve's workspace: its buffers serve, no second set held by J till the end
+        ev = model.evaluate(state, need_jac=True, keep=True, workspace=env.data.workspace)
         J = ev.J
         phi = np.where(saved, ev.phi, 0.0)
         for i, o in enumerate(outcomes):
