@@ -69,7 +69,7 @@ def test_ldlt_released_factors_give_the_same_inertia_and_solves(monkeypatch):
     # ``release`` (large systems: the threshold patched down here): the factors and SuperLU's
     # copies of L and U go once the pivots and backward error are read; the first solve
     # factorises again, bit for bit the factorisation that was dropped
-    monkeypatch.setattr(stab_sparse, "COLUMNWISE_MIN", 1)
+    monkeypatch.setattr(stab_sparse, "RELEASE_MIN", 1)
     rng = np.random.default_rng(99)
     for _ in range(20):
         n = int(rng.integers(5, 60))

@@ -14,7 +14,7 @@ from poise.solvers.equilibrate import equilibrate as _equilibrate
 from poise.solvers.equilibrate import prune_noise as _prune_noise
 from poise.solvers.equilibrate import prune_rows as _prune_rows
 from poise.solvers.redundancy import redundant_rows
-from poise.solvers.superlu import COLUMNWISE_MIN, lean
+from poise.solvers.superlu import lean
 from poise.solvers.stability_modes import (
     AUG_RHO,
     BERR_MAX,
@@ -77,6 +77,11 @@ def classify_pencil(model, P) -> StabilityInfo:
     return classified_info(model, klass, n_neg, n_zero, unstable, neutral, min(ws) if ws else np.nan)
 
 
+#: ``SymmetricLDL(release=True)`` drops its factors from this many unknowns on (their copies
+#: are then hundreds of MB; one more factorisation costs a fraction of a second).
+RELEASE_MIN = 1 << 19
+
+
 class SymmetricLDL:
     """Sparse ``L D L^T`` of a symmetric matrix with 1x1 diagonal pivots only, and its inertia.
 
@@ -132,7 +137,7 @@ class SymmetricLDL:
         self.n_positive = n - self.n_negative
         self.lu = lu
         self.ok = True
-        if release and self._build is not None and n >= COLUMNWISE_MIN:
+        if release and self._build is not None and n >= RELEASE_MIN:
             self.backward_error           # noqa: B018  (from the factors, before they go)
             self.lu = lu = None
         else:
