@@ -65,6 +65,34 @@ def test_ldlt_indefinite_kkt_and_refusals():
     assert F.ok and F.backward_error > 1e-5
 
 
+def test_ldlt_released_factors_give_the_same_inertia_and_solves(monkeypatch):
+    # ``release`` (large systems: the threshold patched down here): the factors and SuperLU's
+    # copies of L and U go once the pivots and backward error are read; the first solve
+    # factorises again, bit for bit the factorisation that was dropped
+    monkeypatch.setattr(stab_sparse, "RELEASE_MIN", 1)
+    rng = np.random.default_rng(99)
+    for _ in range(20):
+        n = int(rng.integers(5, 60))
+        A = _random_symmetric(rng, n)
+        order = rng.permutation(n)
+        keep = stab.SymmetricLDL(A, order)
+        built = []
+        rel = stab.SymmetricLDL(lambda: built.append(1) or A, order, release=True)
+        assert keep.ok == rel.ok
+        if not keep.ok:
+            continue
+        assert rel.lu is None and len(built) == 1
+        assert rel.inertia == keep.inertia
+        assert np.array_equal(rel.pivots, keep.pivots) and np.array_equal(rel.index, keep.index)
+        assert rel.backward_error == keep.backward_error
+        b = rng.normal(size=(n, 3))
+        x = keep.solve(b)
+        assert np.array_equal(rel.solve(b), x) and len(built) == 2     # factorised again, once
+        assert np.array_equal(rel.solve(b.copy(), overwrite_b=True), x) and len(built) == 2
+        y = b.copy()
+        assert keep.solve(y, overwrite_b=True) is y and np.array_equal(y, x)
+
+
 # ------------------------------------------------------------------ sparse == dense
 def _both(monkeypatch, run):
     """Run twice: dense (default) and with every model on the sparse path."""

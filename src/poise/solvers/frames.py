@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core import memory
 from poise.core.errors import EvaluationError
 from poise.elements.rows import group_owner
 from poise.model.evaluate import evaluate
@@ -47,6 +48,7 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
     outcomes = list(outcomes)
     measured = None
     try:
+        # in the solve's workspace: its buffers serve, no second set held by J till the end
         ev = model.evaluate(state, need_jac=True, keep=True, workspace=env.data.workspace)
         J = ev.J
         phi = np.where(saved, ev.phi, 0.0)
@@ -61,6 +63,7 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
             dep = dependent_rows(Pfull, saved, Y=Y)
         loads = element_loads(model, state, lam=lam, ev=ev)
         ev = Pfull = Y = None     # the evaluation's kept slot data go before the classification
+        memory.release(model.nq * 1000)      # ... and their pages (large models)
     except EvaluationError:
         loads = {}
     done = env.data.classified

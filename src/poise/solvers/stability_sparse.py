@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core import memory
 from poise.solvers.equilibrate import equilibrate as _equilibrate
 from poise.solvers.equilibrate import prune_noise as _prune_noise
 from poise.solvers.equilibrate import prune_rows as _prune_rows
@@ -76,6 +77,11 @@ def classify_pencil(model, P) -> StabilityInfo:
     return classified_info(model, klass, n_neg, n_zero, unstable, neutral, min(ws) if ws else np.nan)
 
 
+#: ``SymmetricLDL(release=True)`` drops its factors from this many unknowns on (their copies
+#: are then hundreds of MB; one more factorisation costs a fraction of a second).
+RELEASE_MIN = 1 << 19
+
+
 class SymmetricLDL:
     """Sparse ``L D L^T`` of a symmetric matrix with 1x1 diagonal pivots only, and its inertia.
 
@@ -92,30 +98,33 @@ class SymmetricLDL:
     inertia is A's when this is below A's smallest |eigenvalue| (Weyl).
     """
 
-    def __init__(self, A, order=None, permuted: bool = False):
-        """``permuted``: ``A`` is ``A[order][:, order]`` already (:func:`symmetric_permutation`)."""
-        import scipy.sparse as sp
-        import scipy.sparse.linalg as spla
-        A = sp.csc_matrix(A)
-        self.n = n = A.shape[0]
+    def __init__(self, A, order=None, permuted: bool = False, release: bool = False):
+        """``permuted``: ``A`` is ``A[order][:, order]`` already (:func:`symmetric_permutation`).
+        ``A`` may be a zero-argument callable returning the matrix: then only this call holds
+        it, and it goes as soon as SuperLU has its copy (before the factors are read).
+        ``release`` (with a callable ``A``, large systems): the factorisation, and the copies
+        of L and U that reading the pivots makes, go once the pivots and the backward error are
+        known; the first :meth:`solve` factorises again (the same factors, bit for bit), so
+        the solves run with SuperLU's factors alone."""
+        self._build = A if callable(A) else None
         self.order = None if order is None else np.asarray(order)
-        if self.order is not None and not permuted:
-            A = symmetric_permutation(A, self.order)
+        self._permuted = permuted
+        A = self._matrix(A() if callable(A) else A)
+        self.n = n = A.shape[0]
         self.ok = False
         self.reason = ""
         self._berr = np.inf
         self.n_negative = self.n_positive = -1
         try:
-            lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A" if order is None else "NATURAL",
-                           diag_pivot_thresh=0.0, options=dict(SymmetricMode=True), **lean(n))
+            lu = self._splu(A)
         except RuntimeError as e:
             self.reason = f"the LDL^T factorisation failed ({e})"
             return
+        del A                             # SuperLU holds its own copy
         if not np.array_equal(lu.perm_r, lu.perm_c):
             self.reason = "the LDL^T factorisation needed an off-diagonal pivot"
             return
-        U = lu.U
-        d = U.diagonal()
+        d = lu.U.diagonal()               # (SuperLU makes and keeps CSC copies of L and U)
         if not np.all(np.isfinite(d)) or np.any(d == 0.0):
             self.reason = "the LDL^T factorisation has a zero or non-finite pivot"
             return
@@ -128,6 +137,24 @@ class SymmetricLDL:
         self.n_positive = n - self.n_negative
         self.lu = lu
         self.ok = True
+        if release and self._build is not None and n >= RELEASE_MIN:
+            self.backward_error           # noqa: B018  (from the factors, before they go)
+            self.lu = lu = None
+        else:
+            self._build = None
+
+    def _matrix(self, A):
+        import scipy.sparse as sp
+        A = sp.csc_matrix(A)
+        if self.order is not None and not self._permuted:
+            A = symmetric_permutation(A, self.order)
+        return A
+
+    def _splu(self, A):
+        import scipy.sparse.linalg as spla
+        return spla.splu(A, permc_spec="MMD_AT_PLUS_A" if self.order is None else "NATURAL",
+                         diag_pivot_thresh=0.0, options=dict(SymmetricMode=True),
+                         **lean(A.shape[0]))
 
     @property
     def backward_error(self) -> float:
@@ -145,12 +172,16 @@ class SymmetricLDL:
         """(negative, zero, positive) pivot counts (no zero pivot in a valid factorisation)."""
         return self.n_negative, 0, self.n_positive
 
-    def solve(self, b):
+    def solve(self, b, overwrite_b: bool = False):
+        """``A^-1 b``; ``overwrite_b``: the solution is written into ``b`` (one array of the
+        system's size fewer at a time)."""
         b = np.asarray(b, float)
+        if self.lu is None:               # released after the inertia (``release``)
+            self.lu, self._build = self._splu(self._matrix(self._build())), None
         if self.order is None:
             return self.lu.solve(b)
         y = self.lu.solve(np.ascontiguousarray(b[self.order]))
-        x = np.empty_like(y)
+        x = b if overwrite_b else np.empty_like(y)
         x[self.order] = y
         return x
 
@@ -211,6 +242,7 @@ class SparsePencil:
         # matrix's), at least ZERO_REL (Kt has a unit-scale diagonal block after equilibration)
         self.eps = ZERO_REL * max(_spectral_radius(self.Kt), 1.0)
         self.singular = False             # a tiny pivot at a constraint row was met
+        memory.release(J.nnz * 16)        # the construction's temporaries' pages (large models)
 
     def kkt(self, s, rho):
         """``[[Kt - s I + rho Gt^T Gt, Gt^T], [Gt, 0]]`` (congruent to the rho = 0 matrix)."""
@@ -220,10 +252,11 @@ class SparsePencil:
             return A.tocsc()
         return sp.bmat([[A, self.Gt.T], [self.Gt, None]], format="csc")
 
-    def ldl(self, s, rho):
-        """The :class:`SymmetricLDL` of ``kkt(s, rho)`` in the pencil's elimination order."""
-        return SymmetricLDL(symmetric_permutation(self.kkt(s, rho), self.order), self.order,
-                            permuted=True)
+    def ldl(self, s, rho, release: bool = False):
+        """The :class:`SymmetricLDL` of ``kkt(s, rho)`` in the pencil's elimination order
+        (``release``: see there; the classification's factorisations)."""
+        return SymmetricLDL(lambda: symmetric_permutation(self.kkt(s, rho), self.order),
+                            self.order, permuted=True, release=release)
 
     def factor(self, s):
         """A valid LDL^T of ``kkt(s, rho)`` for the first ``rho`` of AUG_RHO whose backward
@@ -234,7 +267,7 @@ class SparsePencil:
         F = None
         for rho in AUG_RHO:
             F = None                      # a failed attempt's factors go before the next
-            F = self.ldl(s, rho)
+            F = self.ldl(s, rho, release=True)
             if not F.ok:                  # a zero pivot (exactly dependent rows?)
                 self.singular = True
                 why.append(F.reason)
@@ -266,7 +299,7 @@ class SparsePencil:
             v = np.asarray(v, float)
             b = np.zeros((nq + m,) + v.shape[1:])
             b[:nq] = v
-            return F.solve(b)[:nq]
+            return F.solve(b, overwrite_b=True)[:nq]
         return LinearOperator((nq, nq), matvec=mv, matmat=mv, dtype=float)
 
     def modes(self, X):
