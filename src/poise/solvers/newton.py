@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import copy
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -338,7 +339,7 @@ class NewtonIteration(Solver[_Newtoning]):
         # the limited full step is retracted only when asked: by the filter's test, or by the
         # line search when the filtered step is not taken (otherwise a retraction per iteration
         # for nothing)
-        limit = _Lazy(lambda: _limit_step_trial(model, state, x[:model.nq], settings))
+        limit = functools.cache(lambda: _limit_step_trial(model, state, x[:model.nq], settings))
         xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, lambda: limit()[0] < 1.0)
         del f                # the factorisation is not needed by the trials (memory at 10^5)
         if xf is not None:
@@ -448,20 +449,6 @@ class NewtonIteration(Solver[_Newtoning]):
                      else s.feasible)
         # the row of the iterate it measured (``state``: its measures), with the step taken
         return Next(s2, 1, (self._row(s2, s.it, last_step, alpha, pose=state, event=event),))
-
-
-class _Lazy:
-    """``fn()`` computed on the first call, then kept."""
-
-    __slots__ = ("fn", "value")
-
-    def __init__(self, fn):
-        self.fn, self.value = fn, None
-
-    def __call__(self):
-        if self.fn is not None:
-            self.value, self.fn = self.fn(), None
-        return self.value
 
 
 class BranchNewton(NewtonIteration):
