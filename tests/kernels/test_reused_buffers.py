@@ -13,7 +13,7 @@ import scipy.sparse as sp
 
 from poise.deck.parser import load_deck
 from poise.gen.chain import build_chain_deck
-from poise.model.assembly import POOL_ABOVE, Assembler, Scatter, scatter_add
+from poise.model.assembly import POOL_ABOVE, Assembler, Scatter
 from poise.model.compile import compile_model
 from poise.model.workspace import Workspace
 from poise.solvers.data import SolveData
@@ -32,6 +32,14 @@ def chain(tmp_path_factory):
     assert model.assembler.nnz > POOL_ABOVE
     return model, st
 
+
+
+def scatter_add(n, idx, vals):
+    """The fresh-array scatter the evaluation used before :class:`Scatter` (the reference)."""
+    idx = np.asarray(idx).ravel()
+    vals = np.asarray(vals, float).ravel()
+    v = idx >= 0
+    return np.bincount(idx[v], weights=vals[v], minlength=n)
 
 def _bits(a, b):
     a, b = np.asarray(a), np.asarray(b)

@@ -340,19 +340,12 @@ def _distinct(u: np.ndarray) -> np.ndarray:
     return u[new]
 
 
-def scatter_add(n: int, idx: np.ndarray, vals: np.ndarray) -> np.ndarray:
-    """Dense vector of length ``n`` with ``vals`` added at ``idx`` (negative idx ignored)."""
-    idx = np.asarray(idx).ravel()
-    vals = np.asarray(vals, float).ravel()
-    v = idx >= 0
-    return np.bincount(idx[v], weights=vals[v], minlength=n)
-
-
 class Scatter:
-    """:func:`scatter_add` of fixed indices, repeated (a family's residual rows at every
-    evaluation): the negative indices go to an extra bin once, and above ``POOL_ABOVE``
-    entries the sums are made in one reused buffer (``add(out, vals)`` adds them to ``out``;
-    the same sums in the same order as ``out += scatter_add(n, idx, vals)``)."""
+    """``vals`` added at fixed indices ``idx`` of a length-``n`` vector (negative indices
+    ignored), repeated (a family's residual rows at every evaluation): the negative indices go
+    to an extra bin once, and above ``POOL_ABOVE`` entries the sums are made in one reused
+    buffer (``add(out, vals)`` adds them to ``out``; the same sums in the same order as
+    ``out += np.bincount(idx[idx >= 0], vals[idx >= 0], minlength=n)``)."""
 
     __slots__ = ("n", "idx", "buf")
 
