@@ -16,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -152,10 +152,7 @@ def _base_spec(job: SweepJob):
         if len(_SPECS) > 8:
             _SPECS.clear()
         _SPECS[key] = spec
-    return replace(spec, model=[replace(e, attrs=dict(e.attrs)) for e in spec.model],
-                   commands=[replace(e, attrs=dict(e.attrs)) for e in spec.commands],
-                   warnings=list(spec.warnings), ignored=list(spec.ignored),
-                   input_files=dict(spec.input_files))
+    return spec.copy(elements=True)
 
 
 def make_template(job: SweepJob, group: dict) -> CaseTemplate:

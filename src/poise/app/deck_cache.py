@@ -60,13 +60,6 @@ def _key_stamp(path):
                                      hashlib.sha256(data).hexdigest())
 
 
-def _copy(spec: DeckSpec) -> DeckSpec:
-    out = dataclasses.replace(spec, model=list(spec.model), commands=list(spec.commands),
-                              warnings=list(spec.warnings), ignored=list(spec.ignored),
-                              input_files=dict(spec.input_files))
-    return out
-
-
 def load(path, ignore, loader) -> DeckSpec:
     """The deck at ``path`` (``loader(path, ignore)`` parses it when no unchanged entry is
     kept): a fresh shallow copy each call."""
@@ -90,7 +83,7 @@ def load(path, ignore, loader) -> DeckSpec:
             _entries[key] = e
             while len(_entries) > ENTRIES:
                 _entries.popitem(last=False)
-    out = _copy(e.spec)
+    out = e.spec.copy()
     with _lock:
         if len(_handed) >= 4 * ENTRIES:     # copies whose model was given by the caller
             _handed.clear()

@@ -13,7 +13,7 @@ Attribute names are lower-cased; element tags are canonical (schema spelling, e.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from poise.core.errors import SourceLoc
@@ -106,6 +106,15 @@ class DeckSpec:
     warnings: list = field(default_factory=list)
     ignored: list = field(default_factory=list)
     input_files: dict = field(default_factory=dict)
+
+    def copy(self, elements: bool = False) -> "DeckSpec":
+        """A copy with its own lists (model, commands, warnings, ignored) and input-file
+        dict; ``elements``: its own elements and attribute dicts too, so that nothing done
+        to the copy's elements reaches this spec."""
+        own = (lambda els: [replace(e, attrs=dict(e.attrs)) for e in els]) if elements else list
+        return replace(self, model=own(self.model), commands=own(self.commands),
+                       warnings=list(self.warnings), ignored=list(self.ignored),
+                       input_files=dict(self.input_files))
 
     def elements(self, tag: str) -> list[Element]:
         """Model elements with canonical tag ``tag`` in document order."""
