@@ -77,7 +77,7 @@ def test_ldlt_released_factors_give_the_same_inertia_and_solves(monkeypatch):
         order = rng.permutation(n)
         keep = stab.SymmetricLDL(A, order)
         built = []
-        rel = stab.SymmetricLDL(lambda: built.append(1) or A, order, release=True)
+        rel = stab.SymmetricLDL(lambda A=A, built=built: built.append(1) or A, order, release=True)
         assert keep.ok == rel.ok
         if not keep.ok:
             continue
