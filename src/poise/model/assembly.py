@@ -96,19 +96,25 @@ class Assembler:
         """Assemble the matrix from a list of value arrays (same order/shapes as the blocks);
         ``workspace``: the solve's (its value buffer is reused: no fresh pages for every
         assembly; its column order is the sparse matrix's)."""
-        if workspace is None:
-            buf = np.empty(self.slot_all.size)
-        else:
-            buf = workspace.scratch(self, _Scratch).values(self.slot_all.size)
-        vals = np.concatenate([np.asarray(v, float).ravel() for v in values], out=buf)
         if workspace is None or self.nnz < POOL_ABOVE:
+            buf = (np.empty(self.slot_all.size) if workspace is None
+                   else workspace.scratch(self, _Scratch).values(self.slot_all.size))
+            vals = np.concatenate([np.asarray(v, float).ravel() for v in values], out=buf)
             data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
         else:
             # the same sums (each entry from 0, values added in registration order) into a
             # buffer no live matrix uses any more: a fresh array per assembly costs its page
-            # faults again (at 10^5 links more than the sums themselves)
+            # faults again (at 10^5 links more than the sums themselves); block by block, so
+            # that the values are never copied into one array of every entry (at 10^5 links
+            # 140 MB held for the solve)
             out = workspace.scratch(self, _Scratch).free_data(self.nnz + 1)
-            np.add.at(out, self.slot_all, vals)
+            at = 0
+            for v in values:
+                v = np.asarray(v, float).ravel()
+                np.add.at(out, self.slot_all[at:at + v.size], v)
+                at += v.size
+            if at != self.slot_all.size:
+                raise ValueError(f"assemble: {at} values for {self.slot_all.size} entries")
             data = out[:self.nnz]
         if self.dense:
             return data.reshape(self.N, self.N)

@@ -356,6 +356,7 @@ class NewtonIteration(Solver[_Newtoning]):
                     dq = xf[:model.nq]
             except EvaluationError:
                 pass
+            ev_f = None      # not kept beside the line search's trials unless it is ``best``
         if best is None:
             alpha, first = limit()
         for _ in range(settings.limits.line_search_max + 1 if best is None else 0):
