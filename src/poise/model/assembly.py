@@ -98,8 +98,9 @@ class Assembler:
 
     def assemble(self, values, workspace=None):
         """Assemble the matrix from a list of value arrays (same order/shapes as the blocks);
-        ``workspace``: the solve's (its value buffer is reused: no fresh pages for every
-        assembly; its column order is the sparse matrix's)."""
+        ``workspace``: the solve's (its value buffer, below ``POOL_ABOVE`` entries, or its data
+        buffers above, are reused: no fresh pages for every assembly; its column order is the
+        sparse matrix's)."""
         if workspace is None or self.nnz < POOL_ABOVE:
             buf = (np.empty(self.slot_all.size) if workspace is None
                    else workspace.scratch(self, _Scratch).values(self.slot_all.size))
