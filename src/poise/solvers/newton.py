@@ -23,6 +23,7 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.elements.context import row_where
+from poise.model.evaluate import evaluate as _evaluate
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.history import History, Row
@@ -133,7 +134,10 @@ def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
     if model.nc == 0 or active is None or active.all():
         return ""
     try:
-        phi = model.evaluate(state, need_jac=False, workspace=data.workspace).phi   # every row
+        if model.assembler.dense:      # small: the last evaluation's kept outputs serve
+            phi = model.evaluate(state, need_jac=False, workspace=data.workspace).phi
+        else:                          # large: the constraint values alone, every row
+            phi = _evaluate(model, state, "phi", workspace=data.workspace)
     except EvaluationError:
         return ""
     z = np.where(active, 0.0, np.abs(phi) / sc.phi_tol)
