@@ -344,7 +344,8 @@ class NewtonIteration(Solver[_Newtoning]):
         # line search when the filtered step is not taken (otherwise a retraction per iteration
         # for nothing)
         limit = functools.cache(lambda: _limit_step_trial(model, state, x[:model.nq], settings))
-        xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, lambda: limit()[0] < 1.0)
+        xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, lambda: limit()[0] < 1.0,
+                               Jg=ev.inertia)
         del f                # the factorisation is not needed by the trials (memory at 10^5)
         if xf is not None:
             # the regularisation dominates the step (near-neutral directions): try the step with
