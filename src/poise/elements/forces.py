@@ -13,6 +13,7 @@ Laws follow ``conventions.md`` (statics: velocities are zero, damping vanishes).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -63,27 +64,37 @@ def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
     """Assemble ``rho`` (n, 33) and ``G`` (n, 33, 33) from the action (F, T) on I.
 
     ``action_only`` (n,) bool (or None: all react): no reaction on J for those instances.
+    ``T`` (and ``dT``) None: no torque on I (the line forces): nothing is added for it, the
+    same values as a zero torque.
     """
     n, S = Y.shape[:2]              # any slot count >= 11: extra slots enter only through dF, dT
     W = 3 * S
     rho = np.zeros((n, W))
     G = np.zeros((n, W, W)) if need_jac else None
     add_force_at_point(rho, G, S_PI, F, dF)
-    add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
-    react = (np.ones(n, bool) if action_only is None else ~np.asarray(action_only, bool))
-    if react.any():
+    if T is not None:
+        add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
+    # x * 1.0 is x: every instance reacting multiplies by nothing
+    react = None if action_only is None or not action_only.any() else ~np.asarray(action_only,
+                                                                                   bool)
+    if react is None or react.any():
         d = Y[:, S_PI] - Y[:, S_PJ]
-        Fj = -F * react[:, None]
-        Tj = (-T - cross3(d, F)) * react[:, None]
+        # -0 - x is -x: a missing torque subtracts nothing
+        Tj = -cross3(d, F) if T is None else -T - cross3(d, F)
+        Fj = -F
         dFj = dTj = None
         if need_jac:
-            dFj = -dF * react[:, None, None]
+            dFj = -dF
             # d(d x F) = -[F]x dd + [d]x dF
             dd = np.zeros((n, 3, W))
             dd[:, :, sl(S_PI)] = _I3
             dd[:, :, sl(S_PJ)] = -_I3
             dcross = -np.matmul(skew(F), dd) + np.matmul(skew(d), dF)
-            dTj = (-dT - dcross) * react[:, None, None]
+            dTj = -dcross if dT is None else -dT - dcross
+        if react is not None:
+            Fj, Tj = Fj * react[:, None], Tj * react[:, None]
+            if need_jac:
+                dFj, dTj = dFj * react[:, None, None], dTj * react[:, None, None]
         add_force_at_point(rho, G, S_PJ, Fj, dFj)
         add_torque_via_axes(rho, G, (S_XJ, S_YJ, S_ZJ), Tj, dTj, Y)
     return rho, G
@@ -116,8 +127,13 @@ class TwoBodyForce(ForceFamily):
         """Return F, T (n,3) and dF, dT (n,3,33)."""
         raise NotImplementedError
 
+    #: the law never puts a torque on I (``compute``'s T and dT are zeros): none is applied
+    torque_free: ClassVar[bool] = False
+
     def forces(self, kin, ctx, need_jac=True):
         F, T, dF, dT = self.compute(kin.Y, ctx, need_jac)
+        if self.torque_free:
+            T = dT = None
         return apply_two_body(kin.Y, F, T, dF, dT, self.action_only, need_jac)
 
 
@@ -133,6 +149,7 @@ class LineForce(TwoBodyForce):
     k: np.ndarray
     length: np.ndarray
     preload: np.ndarray
+    torque_free: ClassVar[bool] = True
 
     def compute(self, Y, ctx, need_jac):
         # F = f u = -k d + c u with c = k length + preload: the first term is smooth everywhere,
@@ -173,6 +190,7 @@ class AxisForce(TwoBodyForce):
     ``FORCE`` with ``is_action_only``). Parameter ``value`` (n,)."""
 
     value: np.ndarray
+    torque_free: ClassVar[bool] = True
 
     def compute(self, Y, ctx, need_jac):
         z = Y[:, S_ZJ]
