@@ -31,9 +31,9 @@ class SlotKinematics:
         the kernels below use that structure instead of the dense matrix.
     """
 
-    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk")
+    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk", "_masks")
 
-    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None):
+    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None, masks=None):
         self.Y = Y
         self.V = V
         self.pt = pt
@@ -41,6 +41,15 @@ class SlotKinematics:
         self.K = K
         self._B = B
         self._Sk = None
+        self._masks = masks
+
+    @property
+    def masks(self):
+        """``(pt.all(axis=0), pt.any(axis=0))``: which slots are points in every / some
+        instance (kept by a :class:`SlotIndex`)."""
+        if self._masks is None:
+            self._masks = (self.pt.all(axis=0), self.pt.any(axis=0))
+        return self._masks
 
     @property
     def Sk(self) -> np.ndarray:
@@ -108,7 +117,26 @@ def dense_g(G, rows=None):
     return G[rows]
 
 
-def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) -> SlotKinematics:
+class SlotIndex:
+    """What :func:`slot_kinematics` derives from a family's markers and slot kinds alone (the
+    slots' markers, point masks, bodies, axis columns): a small family's pattern keeps one
+    (:class:`LocalPattern`), so that its evaluations only gather the marker kinematics."""
+
+    __slots__ = ("mk", "pt", "masks", "case", "body", "ax", "is_pt", "slot_ml")
+
+    def __init__(self, markers, slot_ml, slot_kind, marker_body):
+        self.slot_ml = np.asarray(slot_ml)
+        self.mk = markers[:, self.slot_ml]                       # (n, S)
+        self.pt = pt = slot_kind == POINT
+        self.masks = (pt.all(axis=0), pt.any(axis=0))
+        self.case = POINT if pt.all() else AX_X if not pt.any() else None
+        self.body = np.maximum(marker_body[self.mk], 0)
+        self.ax = slot_kind - 1 if self.case == AX_X else np.clip(slot_kind - 1, 0, 2)
+        self.is_pt = pt[..., None]
+
+
+def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
+                    index: SlotIndex | None = None) -> SlotKinematics:
     """Evaluate slot vectors (the B-matrices are implicit, see :class:`SlotKinematics`).
 
     Parameters
@@ -125,7 +153,24 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) ->
         Body index of each marker (-1 = ground).
     body_pos : (nb, 3)
         Body reference (CG) positions.
+    index : the family's :class:`SlotIndex` for these markers, kinds and marker bodies (the
+        same gathers, made once), or None.
     """
+    if index is not None:
+        mk, ix = index.mk, index
+        if ix.case == POINT:
+            Y = P[mk]
+            V = Y - body_pos[ix.body]
+        elif ix.case == AX_X:
+            Y = A[mk, :, ix.ax]
+            V = Y
+        else:
+            Pm = P[mk]
+            Am = A[mk, :, ix.ax]
+            Y = np.where(ix.is_pt, Pm, Am)
+            V = np.where(ix.is_pt, Pm - body_pos[ix.body], Am)
+        return SlotKinematics(Y=Y, V=V, pt=ix.pt, slot_ml=ix.slot_ml, K=markers.shape[1],
+                              masks=ix.masks)
     n, K = markers.shape
     mk = markers[:, slot_ml]                                   # (n, S)
     kind = slot_kind
@@ -168,7 +213,7 @@ def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     vr = cross3(kin.V, rho3)                                   # (n, S, 3)
     r = np.zeros((n, 2 * K, 3))
     pt = kin.pt
-    p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
+    p_all, p_any = kin.masks                                # per slot, once
     for s in range(S):
         k = kin.slot_ml[s]
         r[:, 2 * k + 1] += vr[:, s]
@@ -189,11 +234,17 @@ class LocalPattern:
     (C order), None when the mask is full. ``order`` is the order in which the model registers
     and fills the tangent entries: block-wise for ``compact`` patterns (declared ``G`` structure,
     no scalar columns; :func:`tangent_compact` fills them directly, entry-major: all instances
-    of one entry after the other), else ``kidx`` (instance-major).
+    of one entry after the other), else ``kidx`` (instance-major). ``slots``: the family's
+    :class:`SlotIndex` (small families of a model, ``marker_body`` given), else None.
     """
 
-    def __init__(self, fam):
+    #: families with at most this many slot instances (n * S) keep a :class:`SlotIndex`
+    SLOT_INDEX_MAX = 4096
+
+    def __init__(self, fam, marker_body=None):
         K, S, U, m = fam.K, len(fam.slot_ml), fam.U, fam.m
+        self.slots = (SlotIndex(fam.markers, fam.slot_ml, fam.slot_kind, marker_body)
+                      if marker_body is not None and fam.n * S <= self.SLOT_INDEX_MAX else None)
         ml = np.asarray(fam.slot_ml)
         L = 6 * K + U
         pt_any = (np.asarray(fam.slot_kind) == POINT).any(axis=0) if fam.n else np.zeros(S, bool)
@@ -372,7 +423,7 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
     rot = cross3(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
     Pq = np.zeros((n, m, 2 * K, 3))
     pt = kin.pt
-    p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
+    p_all, p_any = kin.masks                                # per slot, once
     for s in range(S):
         k = kin.slot_ml[s]
         Pq[:, :, 2 * k + 1] += rot[:, :, s]

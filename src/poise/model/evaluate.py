@@ -175,10 +175,11 @@ class _Frames:
         fam = self.model.families[fi]
         if self.single:
             t, exact = fam, True
+            index = None if fam.pattern is None else fam.pattern.slots
         else:
-            t, exact = self.tiles[fi]
+            (t, exact), index = self.tiles[fi], None
         kin = slot_kinematics(t.markers, fam.slot_ml, t.slot_kind, self.P, self.A, self.mb,
-                              self.pos)
+                              self.pos, index)
         lam = self.lam[t.crow] if fam.is_constraint else None
         if exact:
             return t, kin, lam, _kernel(t, kin, lam, self.ctx, need_jac)
