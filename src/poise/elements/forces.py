@@ -13,11 +13,11 @@ Laws follow ``conventions.md`` (statics: velocities are zero, damping vanishes).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.core.norms import row_norms
 from poise.core.user_routines import uses_user_routine
 from poise.deck.spec import Expr
 from poise.elements.base import ForceFamily, add_force_at_point, add_torque_via_axes
@@ -124,16 +124,12 @@ class TwoBodyForce(ForceFamily):
                    **{k: np.asarray(v) for k, v in params.items()})
 
     def compute(self, Y, ctx, need_jac):
-        """Return F, T (n,3) and dF, dT (n,3,33)."""
+        """Return F, T (n,3) and dF, dT (n,3,33); T and dT None: no torque on I (a law along a
+        line: nothing is applied for it)."""
         raise NotImplementedError
-
-    #: the law never puts a torque on I (``compute``'s T and dT are zeros): none is applied
-    torque_free: ClassVar[bool] = False
 
     def forces(self, kin, ctx, need_jac=True):
         F, T, dF, dT = self.compute(kin.Y, ctx, need_jac)
-        if self.torque_free:
-            T = dT = None
         return apply_two_body(kin.Y, F, T, dF, dT, self.action_only, need_jac)
 
 
@@ -149,13 +145,12 @@ class LineForce(TwoBodyForce):
     k: np.ndarray
     length: np.ndarray
     preload: np.ndarray
-    torque_free: ClassVar[bool] = True
 
     def compute(self, Y, ctx, need_jac):
         # F = f u = -k d + c u with c = k length + preload: the first term is smooth everywhere,
         # the second needs a defined direction (L > 0) unless c = 0.
         d = Y[:, S_PI] - Y[:, S_PJ]
-        L = np.linalg.norm(d, axis=1)
+        L = row_norms(d)
         c = self.k * self.length + self.preload
         bad = (L <= 1e-300) & (c != 0.0)
         if np.any(bad):
@@ -165,8 +160,7 @@ class LineForce(TwoBodyForce):
         Ls = np.where(L > 1e-300, L, 1.0)
         u = d / Ls[:, None]
         F = -self.k[:, None] * d + c[:, None] * u
-        T = np.zeros_like(F)
-        dF = dT = None
+        dF = None
         if need_jac:
             n = len(L)
             uu = u[:, :, None] * u[:, None, :]
@@ -174,8 +168,7 @@ class LineForce(TwoBodyForce):
             dF = np.zeros((n, 3, 3 * N_SLOTS))
             dF[:, :, sl(S_PI)] = dFdd
             dF[:, :, sl(S_PJ)] = -dFdd
-            dT = np.zeros_like(dF)
-        return F, T, dF, dT
+        return F, None, dF, None
 
     def potential_energy(self, kin, ctx):
         """``k/2 (L - length)^2 - preload L`` per instance (MKEAM history)."""
@@ -190,19 +183,16 @@ class AxisForce(TwoBodyForce):
     ``FORCE`` with ``is_action_only``). Parameter ``value`` (n,)."""
 
     value: np.ndarray
-    torque_free: ClassVar[bool] = True
 
     def compute(self, Y, ctx, need_jac):
         z = Y[:, S_ZJ]
         F = self.value[:, None] * z
-        T = np.zeros_like(F)
-        dF = dT = None
+        dF = None
         if need_jac:
             n = len(F)
             dF = np.zeros((n, 3, 3 * N_SLOTS))
             dF[:, :, sl(S_ZJ)] = self.value[:, None, None] * _I3
-            dT = np.zeros_like(dF)
-        return F, T, dF, dT
+        return F, None, dF, None
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

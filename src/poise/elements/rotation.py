@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.norms import row_norms
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix, ``skew(v) @ u == cross(v, u)``.
@@ -36,7 +37,7 @@ _I3 = np.eye(3)
 def _axis_parts(w):
     """``(|w|, K, K @ K)`` with ``K = skew(w)``: what Rodrigues' formulas share."""
     K = skew(w)
-    return np.linalg.norm(w, axis=-1), K, K @ K
+    return row_norms(w), K, K @ K
 
 
 def _expm(th, K, KK):

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poise.core.norms import row_norms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.kernel import cross3
@@ -195,7 +196,7 @@ class Model:
         dq = np.asarray(dq, float)
         dt = dq[self.trans_idx].reshape(-1, 3)
         dr = dq[self.rot_idx].reshape(-1, 3) if len(self.rot_idx) else np.zeros((0, 3))
-        big = float(np.max(np.linalg.norm(dr, axis=1))) if len(dr) else 0.0
+        big = float(np.max(row_norms(dr))) if len(dr) else 0.0
         nsub = max(1, int(np.ceil(big / MAX_SUBSTEP_ROTATION))) if len(self.angle_I) else 1
         rb = self.rot_body
         # rigid bodies move along the screw of the spatial twist (w, v0), v0 = dr_cg - w x r_cg:

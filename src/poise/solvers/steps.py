@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.norms import row_norms
 from poise.solvers.linalg import SingularMatrix
 
 NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
@@ -25,13 +26,13 @@ def limit_step(model, state, dq, settings):
     fac = 1.0
     if len(model.rot_idx):
         r = dq[model.rot_idx].reshape(-1, 3)
-        mr = float(np.max(np.linalg.norm(r, axis=1)))
+        mr = float(np.max(row_norms(r)))
         if mr > settings.max_rotation_step:
             fac = settings.max_rotation_step / mr
     lim = settings.max_translation_step * model.L
     for _ in range(settings.limits.limit_step_tries):
         trial = model.retract(state, fac * dq)
-        disp = float(np.max(np.linalg.norm(trial.pos - state.pos, axis=1))) if model.nb else 0.0
+        disp = float(np.max(row_norms(trial.pos - state.pos))) if model.nb else 0.0
         if disp <= lim * 1.0001:
             return fac, trial
         fac *= 0.9 * lim / disp
