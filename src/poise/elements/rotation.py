@@ -72,8 +72,16 @@ def se3_left_jacobian(w: np.ndarray) -> np.ndarray:
 def screw_exp(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(expm_so3(w), se3_left_jacobian(w))`` (bitwise), sharing ``|w|``, ``skew(w)`` and its
     square: the rotation and translation of a spatial twist's exponential."""
-    parts = _axis_parts(np.asarray(w, dtype=float))
-    return _expm(*parts), _left_jacobian(*parts)
+    th, K, KK = parts = _axis_parts(np.asarray(w, dtype=float))
+    if not np.all(th >= 1e-6):             # a small angle: the series where it is small
+        return _expm(*parts), _left_jacobian(*parts)
+    # no angle small (the usual step): the closed forms alone, sin and cos taken once
+    th = np.asarray(th)                   # an array like the series' (its powers, ufuncs)
+    s = np.sin(th)
+    a, b, c = s / th, (1.0 - np.cos(th)) / th**2, (th - s) / th**3
+    b = b[..., None, None]
+    return (_I3 + a[..., None, None] * K + b * KK,
+            _I3 + b * K + c[..., None, None] * KK)
 
 
 def orthonormalize(R: np.ndarray) -> np.ndarray:

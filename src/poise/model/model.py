@@ -196,18 +196,23 @@ class Model:
         dq = np.asarray(dq, float)
         dt = dq[self.trans_idx].reshape(-1, 3)
         dr = dq[self.rot_idx].reshape(-1, 3) if len(self.rot_idx) else np.zeros((0, 3))
-        big = float(np.max(row_norms(dr))) if len(dr) else 0.0
-        nsub = max(1, int(np.ceil(big / MAX_SUBSTEP_ROTATION))) if len(self.angle_I) else 1
+        nsub = 1
+        if len(self.angle_I) and len(dr):
+            nsub = max(1, int(np.ceil(float(np.max(row_norms(dr))) / MAX_SUBSTEP_ROTATION)))
         rb = self.rot_body
         # rigid bodies move along the screw of the spatial twist (w, v0), v0 = dr_cg - w x r_cg:
         # a rotation about any fixed point (a hinge) is then followed exactly, for any angle.
-        w = dr / nsub
-        v0 = (dt[rb] - cross3(dr, state.pos[rb])) / nsub if len(rb) else np.zeros((0, 3))
+        # (x / 1 is x: one step divides nothing)
+        w = dr / nsub if nsub > 1 else dr
+        v0 = dt[rb] - cross3(dr, state.pos[rb]) if len(rb) else np.zeros((0, 3))
+        if nsub > 1:
+            v0 = v0 / nsub
         E, V = screw_exp(w)
         Vv = np.einsum("nij,nj->ni", V, v0)
-        pt = np.ones(self.nb, bool)
-        pt[rb] = False
-        move_pt = bool(pt.any())
+        move_pt = len(rb) < self.nb          # rot_body: distinct bodies
+        if move_pt:
+            pt = np.ones(self.nb, bool)
+            pt[rb] = False
         na = len(self.angle_I)
         rots = np.empty((nsub,) + new.rot.shape) if na else None
         if na:
