@@ -383,8 +383,7 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> n
         blk = Kb[bpos[2 * k + 1, 2 * k + 1]]
         blk += v[:, None, :] * w[None, :, :]
         d = v[0] * w[0] + v[1] * w[1] + v[2] * w[2]
-        for i in range(3):
-            blk[i, i] -= d
+        blk.reshape(9, n)[::4] -= d                                # the diagonal (a view)
     if G is not None and len(pat.s_idx):
         compact_g = isinstance(G, PairBlocks)
         pt = kin.pt
@@ -477,9 +476,7 @@ def local_tangent(kin: SlotKinematics, rho: np.ndarray, G, slot_ml, K: int,
         rho3 = rho.reshape(n, S, 3)
         blk = kin.V[:, :, :, None] * rho3[:, :, None, :]           # (n, S, 3, 3)
         d = np.einsum("nsi,nsi->ns", kin.V, rho3)
-        blk[:, :, 0, 0] -= d
-        blk[:, :, 1, 1] -= d
-        blk[:, :, 2, 2] -= d
+        blk.reshape(n, S, 9)[:, :, ::4] -= d[:, :, None]           # the diagonals (a view)
         for s in range(S):
             k = slot_ml[s]
             Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
