@@ -276,6 +276,7 @@ class LocalPattern:
             km[6 * K:, :] = True
         self.s_idx = pairs[:, 0].copy()
         self.t_idx = pairs[:, 1].copy()
+        self.pairs = [(int(a), int(b)) for a, b in pairs]
         self.pt_any = pt_any
         self.pt_all = (np.asarray(fam.slot_kind) == POINT).all(axis=0) if fam.n else pt_any
         self.kmask = km
@@ -285,11 +286,13 @@ class LocalPattern:
         # (nblocks, 3, 3, n) and registered with the assembler in that order (``order``)
         self.compact = self.declared and not U
         self.bpos = None
+        self.nblocks = 0
         self.order = self.kidx
         if self.declared:
             bi, bj = np.nonzero(km[:6 * K:3, :6 * K:3])
             self.bpos = np.full((2 * K, 2 * K), -1, np.intp)
             self.bpos[bi, bj] = np.arange(bi.size)
+            self.nblocks = int(bi.size)
             if self.compact:
                 r = 3 * bi[:, None, None] + np.arange(3)[None, :, None]
                 c = 3 * bj[:, None, None] + np.arange(3)[None, None, :]
@@ -371,14 +374,15 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> n
     n, S = kin.pt.shape
     ml = kin.slot_ml
     bpos = pat.bpos
-    Kb = np.zeros((int(bpos.max()) + 1 if bpos.size else 0, 3, 3, n))
+    Kb = np.zeros((pat.nblocks, 3, 3, n))
     V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))          # (S, 3, n)
     W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))
+    live = W.reshape(S, -1).any(axis=1).tolist()                # slots with a reaction
     # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
     for s in range(S):
-        v, w = V[s], W[s]
-        if not w.any():
+        if not live[s]:
             continue
+        v, w = V[s], W[s]
         k = ml[s]
         blk = Kb[bpos[2 * k + 1, 2 * k + 1]]
         blk += v[:, None, :] * w[None, :, :]
@@ -387,7 +391,7 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> n
     if G is not None and len(pat.s_idx):
         compact_g = isinstance(G, PairBlocks)
         pt = kin.pt
-        for s, t in zip(pat.s_idx.tolist(), pat.t_idx.tolist()):
+        for s, t in pat.pairs:
             k, l = ml[s], ml[t]
             if compact_g:
                 Gp = G.block(s, t)
