@@ -16,6 +16,7 @@ from poise.elements.rotation import skew
 
 POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3    # slot kinds: the marker origin, its x, y, z axis
 _I3 = np.eye(3)
+_NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])   # component i: i+1, i+2
 
 
 class SlotKinematics:
@@ -194,14 +195,10 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
 
 
 def cross3(a, b):
-    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
-    out = np.empty(shape, a.dtype if a.dtype == b.dtype else np.result_type(a, b))
-    out[..., 0] = a1 * b2 - a2 * b1
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
+    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead: the same
+    products and differences, gathered with two index orders (fewer calls than per component)."""
+    out = np.take(a, _NEXT, -1) * np.take(b, _PREV, -1)
+    out -= np.take(a, _PREV, -1) * np.take(b, _NEXT, -1)
     return out
 
 
