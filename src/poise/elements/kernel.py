@@ -339,20 +339,16 @@ def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | Non
 
 def _cross_cols(v, M):
     """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
-    ``M`` crossed with ``v`` from the left."""
-    out = np.empty(M.shape, M.dtype if M.dtype == v.dtype else np.result_type(v, M))
-    out[0] = v[1] * M[2] - v[2] * M[1]
-    out[1] = v[2] * M[0] - v[0] * M[2]
-    out[2] = v[0] * M[1] - v[1] * M[0]
+    ``M`` crossed with ``v`` from the left (:func:`cross3`'s products, gathered by index)."""
+    out = np.take(v, _NEXT, 0)[:, None] * np.take(M, _PREV, 0)
+    out -= np.take(v, _PREV, 0)[:, None] * np.take(M, _NEXT, 0)
     return out
 
 
 def _cross_rows(M, u):
     """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
-    out = np.empty(M.shape, M.dtype if M.dtype == u.dtype else np.result_type(M, u))
-    out[:, 0] = M[:, 1] * u[2] - M[:, 2] * u[1]
-    out[:, 1] = M[:, 2] * u[0] - M[:, 0] * u[2]
-    out[:, 2] = M[:, 0] * u[1] - M[:, 1] * u[0]
+    out = np.take(M, _NEXT, 1) * np.take(u, _PREV, 0)[None]
+    out -= np.take(M, _PREV, 1) * np.take(u, _NEXT, 0)[None]
     return out
 
 
