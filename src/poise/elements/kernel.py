@@ -197,8 +197,9 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
 def cross3(a, b):
     """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead: the same
     products and differences, gathered with two index orders (fewer calls than per component)."""
-    out = np.take(a, _NEXT, -1) * np.take(b, _PREV, -1)
-    out -= np.take(a, _PREV, -1) * np.take(b, _NEXT, -1)
+    a, b = np.asarray(a), np.asarray(b)
+    out = a.take(_NEXT, -1) * b.take(_PREV, -1)
+    out -= a.take(_PREV, -1) * b.take(_NEXT, -1)
     return out
 
 
@@ -340,15 +341,15 @@ def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | Non
 def _cross_cols(v, M):
     """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
     ``M`` crossed with ``v`` from the left (:func:`cross3`'s products, gathered by index)."""
-    out = np.take(v, _NEXT, 0)[:, None] * np.take(M, _PREV, 0)
-    out -= np.take(v, _PREV, 0)[:, None] * np.take(M, _NEXT, 0)
+    out = v.take(_NEXT, 0)[:, None] * M.take(_PREV, 0)
+    out -= v.take(_PREV, 0)[:, None] * M.take(_NEXT, 0)
     return out
 
 
 def _cross_rows(M, u):
     """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
-    out = np.take(M, _NEXT, 1) * np.take(u, _PREV, 0)[None]
-    out -= np.take(M, _PREV, 1) * np.take(u, _NEXT, 0)[None]
+    out = M.take(_NEXT, 1) * u.take(_PREV, 0)[None]
+    out -= M.take(_PREV, 1) * u.take(_NEXT, 0)[None]
     return out
 
 
