@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.core.errors import EvaluationError
-from poise.core.norms import row_norms
+from poise.core.lean import row_norms
 from poise.core.user_routines import uses_user_routine
 from poise.deck.spec import Expr
 from poise.elements.base import ForceFamily, add_force_at_point, add_torque_via_axes

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core.norms import row_norms
+from poise.core.lean import row_norms
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix, ``skew(v) @ u == cross(v, u)``.
@@ -158,7 +158,7 @@ def euler_parameters(R: np.ndarray) -> np.ndarray:
     nz = q != 0
     lead = np.take_along_axis(q, np.argmax(nz, axis=-1)[..., None], -1)[..., 0]
     q = np.where((lead < 0)[..., None], -q, q)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return q / row_norms(q)[..., None]
 
 
 def euler_313(R: np.ndarray, singular_tol: float = 1e-14) -> np.ndarray:
@@ -191,7 +191,7 @@ def rotation_vector(R: np.ndarray) -> np.ndarray:
     """Principal rotation vectors (..., 3) of rotation matrices, ``|v|`` in [0, pi]
     (``expm_so3(v) == R``), from the Euler parameters (accurate at every angle)."""
     q = euler_parameters(R)
-    s = np.linalg.norm(q[..., 1:], axis=-1)
+    s = row_norms(q[..., 1:])
     th = 2.0 * np.arctan2(s, q[..., 0])
     f = np.where(s > 0, th / np.where(s > 0, s, 1.0), 2.0)
     return f[..., None] * q[..., 1:]
@@ -203,8 +203,8 @@ def lift_rotation_vector(v: np.ndarray, guess: np.ndarray) -> np.ndarray:
     (turns counted) given a prediction closer than pi to the answer."""
     v = np.asarray(v, float)
     g = np.asarray(guess, float)
-    a = np.linalg.norm(v, axis=-1)
-    gn = np.linalg.norm(g, axis=-1)
+    a = row_norms(v)
+    gn = row_norms(g)
     small = a < 1e-300
     n = np.where(small[..., None], g / np.where(gn > 0, gn, 1.0)[..., None],
                  v / np.where(small, 1.0, a)[..., None])

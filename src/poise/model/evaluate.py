@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from poise.core import phases
+from poise.core.lean import all_finite
 from poise.core.errors import EvaluationError
 from poise.elements.context import row_where
 from poise.expr import EvalContext
@@ -272,7 +273,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
     if active is not None:
         phi = np.where(mask, phi, 0.0)
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(phi))):
+    if not (all_finite(r) and all_finite(phi)):
         raise EvaluationError(_nonfinite_message(model, r, phi))
     ev = Evaluation(r=r, phi=phi, J=None, items=list(last) if keep else None, workspace=fr.ws)
     if need_jac:
@@ -296,7 +297,7 @@ def _family_outputs(model, fr, need_jac, done, call=None):
             phi[fam.crow.ravel()] = ph.ravel()
         last.append((fam, kin, rho, phy))
         rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
-        if not np.isfinite(rl).all():
+        if not all_finite(rl):
             raise EvaluationError(_family_nonfinite(fam, rl))
         fr.scatter(fam).add(r, rl)
         if need_jac:

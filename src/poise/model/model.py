@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from poise.core.norms import row_norms
+from poise.core.lean import row_norms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.kernel import cross3
@@ -25,6 +25,8 @@ from poise.elements.rotation import (lift_rotation_vector, rotation_vector, scre
 MAX_SUBSTEP_ROTATION = np.pi / 4   # rad; larger rotation updates are applied in sub-steps
 DENSE_MAX = 600                    # KKT size up to which dense LU is used
 
+_I3 = np.eye(3)
+_I3.flags.writeable = False
 
 @dataclass
 class State:
@@ -159,7 +161,7 @@ class Model:
         rot = np.zeros((nb + 1, 3, 3))
         pos[:nb] = state.pos
         rot[:nb] = state.rot
-        rot[nb] = np.eye(3)
+        rot[nb] = _I3
         return pos, rot
 
     def marker_kinematics(self, state):
@@ -308,7 +310,7 @@ class Model:
 
     def mass_blocks(self, state):
         """Translational (nb,3,3) and rotational (nr,3,3) mass blocks in global axes."""
-        mt = self.body_mass[:, None, None] * np.eye(3)
+        mt = self.body_mass[:, None, None] * _I3
         R = state.rot[self.rot_body]
         Jg = np.matmul(R, np.matmul(self.body_inertia[self.rot_body], np.swapaxes(R, 1, 2)))
         return mt, Jg

@@ -6,7 +6,7 @@ import warnings
 import numpy as np
 
 from poise.core import phases
-from poise.core.norms import norm
+from poise.core.lean import all_finite, norm
 from poise.solvers.superlu import lean
 
 # Dense systems up to this size are solved with numpy's LAPACK (gesv) and checked with an SVD:
@@ -115,7 +115,7 @@ class Factor:
                 raise SingularMatrix("singular matrix (zero pivot)", row=self.pivot_row)
         elif np.asarray(J).shape[0] <= NUMPY_DENSE_MAX:
             J = np.asarray(J)
-            if not np.all(np.isfinite(J)):
+            if not all_finite(J):
                 raise SingularMatrix("matrix has non-finite entries")
             self.numpy = True
             self._pivot_row = None
@@ -176,14 +176,14 @@ class Factor:
         if nb == 0:
             return x
         for _ in range(refine + 1):
-            if not np.all(np.isfinite(x)):
+            if not all_finite(x):
                 raise SingularMatrix("singular matrix (non-finite solution)", row=self.pivot_row)
             res = b - self.J @ x
             if norm(res) <= rtol * nb:
                 return x
             x = x + self._solve(res)
         res = b - self.J @ x
-        if not np.all(np.isfinite(x)) or norm(res) > 1e-4 * nb:
+        if not all_finite(x) or norm(res) > 1e-4 * nb:
             raise SingularMatrix("singular matrix (linear solve residual "
                                  f"{np.linalg.norm(res) / nb:.1e})", row=self.pivot_row)
         return x

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core.norms import row_norms
+from poise.core.lean import row_norms
 from poise.solvers.linalg import SingularMatrix
 
 NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
