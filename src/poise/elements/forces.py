@@ -75,9 +75,9 @@ def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
     if T is not None:
         add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
     # x * 1.0 is x: every instance reacting multiplies by nothing
-    react = None if action_only is None or not action_only.any() else ~np.asarray(action_only,
-                                                                                   bool)
-    if react is None or react.any():
+    react = (None if action_only is None or not np.logical_or.reduce(action_only, axis=None)
+             else ~np.asarray(action_only, bool))
+    if react is None or np.logical_or.reduce(react):
         d = Y[:, S_PI] - Y[:, S_PJ]
         # -0 - x is -x: a missing torque subtracts nothing
         Tj = -cross3(d, F) if T is None else -T - cross3(d, F)
@@ -153,7 +153,7 @@ class LineForce(TwoBodyForce):
         L = row_norms(d)
         c = self.k * self.length + self.preload
         bad = (L <= 1e-300) & (c != 0.0)
-        if np.any(bad):
+        if np.logical_or.reduce(bad):
             i = int(np.nonzero(bad)[0][0])
             raise EvaluationError("the I and J markers coincide: the line of action is undefined",
                                   self.element_locs[i] if self.element_locs else None)

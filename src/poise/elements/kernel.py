@@ -371,7 +371,7 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> n
     Kb = np.zeros((pat.nblocks, 3, 3, n))
     V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))          # (S, 3, n)
     W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))
-    live = W.reshape(S, -1).any(axis=1).tolist()                # slots with a reaction
+    live = np.logical_or.reduce(W.reshape(S, -1), axis=1).tolist()   # slots with a reaction
     # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
     for s in range(S):
         if not live[s]:
@@ -468,7 +468,7 @@ def local_tangent(kin: SlotKinematics, rho: np.ndarray, G, slot_ml, K: int,
         if G is None:
             Kl = np.zeros((n, 6 * K, 6 * K))
         else:
-            Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(dense_g(G), B))
+            Kl = np.matmul(B.swapaxes(1, 2), np.matmul(dense_g(G), B))
         # connection term v w^T - (v . w) I per slot, formed for every slot at once
         S = kin.V.shape[1]
         rho3 = rho.reshape(n, S, 3)

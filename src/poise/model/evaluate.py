@@ -335,7 +335,7 @@ def jacobian(model, ev: Evaluation):
         else:
             vals.append(Kl)
     _, Jg = model.mass_blocks(state)
-    vals += [eps_mass * np.repeat(model.body_mass, 3), eps_mass * Jg,
+    vals += [eps_mass * model.body_mass.repeat(3), eps_mass * Jg,
              (~row_active).astype(float)]
     vals += ev._coupling
     ev.J = model.assembler.assemble(vals, ev.workspace)

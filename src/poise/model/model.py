@@ -312,7 +312,7 @@ class Model:
         """Translational (nb,3,3) and rotational (nr,3,3) mass blocks in global axes."""
         mt = self.body_mass[:, None, None] * _I3
         R = state.rot[self.rot_body]
-        Jg = np.matmul(R, np.matmul(self.body_inertia[self.rot_body], np.swapaxes(R, 1, 2)))
+        Jg = np.matmul(R, np.matmul(self.body_inertia[self.rot_body], R.swapaxes(1, 2)))
         return mt, Jg
 
     def mass_diagonal(self, state) -> np.ndarray:
