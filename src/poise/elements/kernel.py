@@ -63,19 +63,56 @@ class SlotKinematics:
     def B(self) -> np.ndarray:
         if self._B is None:
             n, S = self.pt.shape
-            K = self.K
-            B = np.zeros((n, 3 * S, 6 * K))
+            B = np.zeros((n, 3 * S, 6 * self.K))
             sk = -self.Sk
-            p_any = self.pt.any(axis=0)
-            for s in range(S):
-                k = self.slot_ml[s]
-                rows = slice(3 * s, 3 * s + 3)
-                pt = self.pt[:, s]
-                if p_any[s]:
-                    B[pt, rows, 6 * k:6 * k + 3] = _I3
-                B[:, rows, 6 * k + 3:6 * k + 6] = sk[:, s]
+            for s0, s1, k in _runs(self.slot_ml):        # a marker's consecutive slots at once
+                B[:, 3 * s0:3 * s1, 6 * k + 3:6 * k + 6] = sk[:, s0:s1].reshape(n, 3 * (s1 - s0), 3)
+            p_all, p_any = self.masks
+            for s in np.flatnonzero(p_any).tolist():
+                k = int(self.slot_ml[s])
+                if p_all[s]:
+                    B[:, 3 * s:3 * s + 3, 6 * k:6 * k + 3] = _I3
+                else:
+                    B[self.pt[:, s], 3 * s:3 * s + 3, 6 * k:6 * k + 3] = _I3
             self._B = B
         return self._B
+
+
+def _slot_rounds(ml) -> list:
+    """The slots (markers ``ml``) in rounds of distinct markers, each marker's slots in order
+    round after round, as ``(marker slice, slot slice)`` pairs (a round whose markers or slots
+    are not evenly spaced goes slot by slot): the connection term's additions in the order of
+    a loop over the slots."""
+    seen: dict = {}
+    rounds: list = []
+    for s, k in enumerate(ml):
+        r = seen[k] = seen.get(k, -1) + 1
+        if r == len(rounds):
+            rounds.append([])
+        rounds[r].append((k, s))
+    out = []
+    for rnd in rounds:
+        rnd.sort()
+        ks, ss = [k for k, _ in rnd], [s for _, s in rnd]
+        dk = ks[1] - ks[0] if len(ks) > 1 else 1
+        ds = ss[1] - ss[0] if len(ss) > 1 else 1
+        if dk > 0 and ds > 0 and ks == list(range(ks[0], ks[-1] + 1, dk)) \
+                and ss == list(range(ss[0], ss[-1] + 1, ds)):
+            out.append((slice(ks[0], ks[-1] + 1, dk), slice(ss[0], ss[-1] + 1, ds)))
+        else:
+            out += [(slice(k, k + 1), slice(s, s + 1)) for k, s in rnd]
+    return out
+
+
+def _runs(slot_ml) -> list:
+    """``(first, end, marker)`` of each run of consecutive slots reading one marker."""
+    out = []
+    for s, k in enumerate(np.asarray(slot_ml).tolist()):
+        if out and out[-1][2] == k and out[-1][1] == s:
+            out[-1][1] = s + 1
+        else:
+            out.append([s, s + 1, k])
+    return out
 
 
 class PairBlocks:
@@ -272,6 +309,7 @@ class LocalPattern:
         if U:
             km[:, 6 * K:] = True
             km[6 * K:, :] = True
+        self.slot_rounds = _slot_rounds(ml.tolist())
         self.s_idx = pairs[:, 0].copy()
         self.t_idx = pairs[:, 1].copy()
         self.pairs = [(int(a), int(b)) for a, b in pairs]
@@ -475,9 +513,15 @@ def local_tangent(kin: SlotKinematics, rho: np.ndarray, G, slot_ml, K: int,
         blk = kin.V[:, :, :, None] * rho3[:, :, None, :]           # (n, S, 3, 3)
         d = np.einsum("nsi,nsi->ns", kin.V, rho3)
         blk.reshape(n, S, 9)[:, :, ::4] -= d[:, :, None]           # the diagonals (a view)
-        for s in range(S):
-            k = slot_ml[s]
-            Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
+        rounds = None if pat is None else pat.slot_rounds
+        if rounds is None:
+            for s in range(S):
+                k = slot_ml[s]
+                Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
+        else:       # the markers' (rot, rot) blocks as one view, slots added round by round
+            diag = np.einsum("nkikj->nkij", Kl.reshape(n, K, 6, K, 6)[:, :, 3:, :, 3:])
+            for ks, ss in rounds:
+                diag[:, ks] += blk[:, ss]
     if U:
         B = kin.B
         full = np.zeros((n, 6 * K + U, 6 * K + U))
