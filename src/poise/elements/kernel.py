@@ -32,9 +32,9 @@ class SlotKinematics:
         the kernels below use that structure instead of the dense matrix.
     """
 
-    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk", "_masks")
+    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk", "_masks", "rounds")
 
-    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None, masks=None):
+    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None, masks=None, rounds=None):
         self.Y = Y
         self.V = V
         self.pt = pt
@@ -43,6 +43,7 @@ class SlotKinematics:
         self._B = B
         self._Sk = None
         self._masks = masks
+        self.rounds = rounds      # a SlotIndex's (rotation, translation) slot rounds, or None
 
     @property
     def masks(self):
@@ -78,14 +79,15 @@ class SlotKinematics:
         return self._B
 
 
-def _slot_rounds(ml) -> list:
-    """The slots (markers ``ml``) in rounds of distinct markers, each marker's slots in order
-    round after round, as ``(marker slice, slot slice)`` pairs (a round whose markers or slots
-    are not evenly spaced goes slot by slot): the connection term's additions in the order of
-    a loop over the slots."""
+def _slot_rounds(ml, slots=None) -> list:
+    """The slots (markers ``ml``; only ``slots`` when given) in rounds of distinct markers,
+    each marker's slots in order round after round, as ``(marker slice, slot slice)`` pairs (a
+    round whose markers or slots are not evenly spaced goes slot by slot): a loop's additions
+    over the slots onto their markers' rows, in its order, a few slots at a time."""
     seen: dict = {}
     rounds: list = []
-    for s, k in enumerate(ml):
+    for s in (range(len(ml)) if slots is None else slots):
+        k = ml[s]
         r = seen[k] = seen.get(k, -1) + 1
         if r == len(rounds):
             rounds.append([])
@@ -160,7 +162,7 @@ class SlotIndex:
     slots' markers, point masks, bodies, axis columns): a small family's pattern keeps one
     (:class:`LocalPattern`), so that its evaluations only gather the marker kinematics."""
 
-    __slots__ = ("mk", "pt", "masks", "case", "body", "ax", "is_pt", "slot_ml")
+    __slots__ = ("mk", "pt", "masks", "case", "body", "ax", "is_pt", "slot_ml", "rounds")
 
     def __init__(self, markers, slot_ml, slot_kind, marker_body):
         self.slot_ml = np.asarray(slot_ml)
@@ -171,6 +173,13 @@ class SlotIndex:
         self.body = np.maximum(marker_body[self.mk], 0)
         self.ax = slot_kind - 1 if self.case == AX_X else np.clip(slot_kind - 1, 0, 2)
         self.is_pt = pt[..., None]
+        # the slots' sums on their markers' rows in rounds (:func:`_slot_rounds`): every slot
+        # on the rotation rows, the point slots on the translation rows (None: a slot that is
+        # a point in some instances only, summed slot by slot)
+        p_all, p_any = self.masks
+        ml = self.slot_ml.tolist()
+        self.rounds = (None if (p_any & ~p_all).any() else
+                       (_slot_rounds(ml), _slot_rounds(ml, np.flatnonzero(p_all).tolist())))
 
 
 def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
@@ -208,7 +217,7 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
             Y = np.where(ix.is_pt, Pm, Am)
             V = np.where(ix.is_pt, Pm - body_pos[ix.body], Am)
         return SlotKinematics(Y=Y, V=V, pt=ix.pt, slot_ml=ix.slot_ml, K=markers.shape[1],
-                              masks=ix.masks)
+                              masks=ix.masks, rounds=ix.rounds)
     n, K = markers.shape
     mk = markers[:, slot_ml]                                   # (n, S)
     kind = slot_kind
@@ -247,6 +256,9 @@ def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     rho3 = rho.reshape(n, S, 3)
     vr = cross3(kin.V, rho3)                                   # (n, S, 3)
     r = np.zeros((n, 2 * K, 3))
+    if kin.rounds is not None:
+        _round_sums(kin.rounds, r[:, 1::2], r[:, 0::2], vr, rho3)
+        return r.reshape(n, 6 * K)
     pt = kin.pt
     p_all, p_any = kin.masks                                # per slot, once
     for s in range(S):
@@ -257,6 +269,17 @@ def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
         elif p_any[s]:
             r[:, 2 * k] += rho3[:, s] * pt[:, s][:, None]
     return r.reshape(n, 6 * K)
+
+
+def _round_sums(rounds, rot_rows, trans_rows, rot, trans, lead=()):
+    """Slot sums onto the markers' rotation / translation rows (views ``(n, ..., K, 3)``) in
+    the rounds of a :class:`SlotIndex`: ``rot[:, ..., s]`` for every slot, ``trans`` for the
+    point slots (``lead``: index of the axes between the instance and the slot axes)."""
+    a = (slice(None),) + lead
+    for ks, ss in rounds[0]:
+        rot_rows[a + (ks,)] += rot[a + (ss,)]
+    for ks, ss in rounds[1]:
+        trans_rows[a + (ks,)] += trans[a + (ss,)]
 
 
 class LocalPattern:
@@ -457,6 +480,9 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
     # rotation columns: p^T (-Sk_s) = (v_s x p)^T
     rot = cross3(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
     Pq = np.zeros((n, m, 2 * K, 3))
+    if kin.rounds is not None:
+        _round_sums(kin.rounds, Pq[:, :, 1::2], Pq[:, :, 0::2], rot, py, (slice(None),))
+        return Pq.reshape(n, m, 6 * K)
     pt = kin.pt
     p_all, p_any = kin.masks                                # per slot, once
     for s in range(S):
