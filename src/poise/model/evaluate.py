@@ -326,7 +326,7 @@ def jacobian(model, ev: Evaluation):
             if U:
                 Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
             act = row_active[fam.crow]
-            if not act.all():                  # x * 1.0 is x: only a family with removed rows
+            if not np.logical_and.reduce(act, axis=None):                  # x * 1.0 is x: only a family with removed rows
                 Pq = Pq * act[:, :, None]
             Pq = Pq.reshape(fam.n, -1)
             if pat.pidx is not None:
@@ -334,7 +334,7 @@ def jacobian(model, ev: Evaluation):
             vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
         else:
             vals.append(Kl)
-    _, Jg = model.mass_blocks(state)
+    Jg = model.world_inertia(state)
     vals += [eps_mass * model.body_mass.repeat(3), eps_mass * Jg,
              (~row_active).astype(float)]
     vals += ev._coupling

@@ -310,14 +310,17 @@ class Model:
 
     def mass_blocks(self, state):
         """Translational (nb,3,3) and rotational (nr,3,3) mass blocks in global axes."""
-        mt = self.body_mass[:, None, None] * _I3
+        return self.body_mass[:, None, None] * _I3, self.world_inertia(state)
+
+    def world_inertia(self, state):
+        """The rigid bodies' inertias about their CGs in global axes (nr, 3, 3): the
+        rotational mass blocks alone."""
         R = state.rot[self.rot_body]
-        Jg = np.matmul(R, np.matmul(self.body_inertia[self.rot_body], R.swapaxes(1, 2)))
-        return mt, Jg
+        return np.matmul(R, np.matmul(self.body_inertia[self.rot_body], R.swapaxes(1, 2)))
 
     def mass_diagonal(self, state) -> np.ndarray:
         """Diagonal of the mass matrix in tangent coordinates, (nq,)."""
-        mt, Jg = self.mass_blocks(state)
+        Jg = self.world_inertia(state)
         d = np.zeros(self.nq)
         d[self.trans_idx] = np.repeat(self.body_mass, 3)
         if len(self.rot_idx):

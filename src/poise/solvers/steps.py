@@ -42,12 +42,12 @@ def limit_step(model, state, dq, settings):
 def mass_times(model, state, v, Jg=None):
     """``M v`` for a tangent vector ``v`` (nq,): body masses on translations, world inertia on
     rotations, zero on scalar unknowns. ``Jg``: the world inertias at ``state``
-    (``model.mass_blocks(state)[1]``) when the caller has them already."""
+    (``model.world_inertia(state)``) when the caller has them already."""
     out = np.zeros(model.nq)
     out[model.trans_idx] = model.body_mass.repeat(3) * v[model.trans_idx]
     if len(model.rot_idx):
         if Jg is None:
-            _, Jg = model.mass_blocks(state)
+            Jg = model.world_inertia(state)
         out[model.rot_idx] = np.einsum("nij,nj->ni", Jg,
                                        v[model.rot_idx].reshape(-1, 3)).ravel()
     return out
@@ -74,7 +74,7 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
     if not eps > 0 or model.nq == 0:
         return None
     nq = model.nq
-    Jg = model.mass_blocks(state)[1] if len(model.rot_idx) else None   # both products' M
+    Jg = model.world_inertia(state) if len(model.rot_idx) else None   # both products' M
     reg = eps * mass_times(model, state, x[:nq], Jg)
     share = float(np.maximum.reduce(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
     if not (share > TAIL_SHARE or (limited() if callable(limited) else limited)):
