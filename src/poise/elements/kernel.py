@@ -17,6 +17,7 @@ from poise.elements.rotation import skew
 POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3    # slot kinds: the marker origin, its x, y, z axis
 _I3 = np.eye(3)
 _NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])   # component i: i+1, i+2
+_GATHER_MAX = 1 << 14      # entries up to which cross products gather components by index
 
 
 class SlotKinematics:
@@ -241,11 +242,21 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
 
 
 def cross3(a, b):
-    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead: the same
-    products and differences, gathered with two index orders (fewer calls than per component)."""
+    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead. Small arrays:
+    the components gathered with two index orders (a few calls); large ones component by
+    component (no full-size gathered copies: memory)."""
     a, b = np.asarray(a), np.asarray(b)
-    out = a.take(_NEXT, -1) * b.take(_PREV, -1)
-    out -= a.take(_PREV, -1) * b.take(_NEXT, -1)
+    if a.size + b.size <= _GATHER_MAX:
+        out = a.take(_NEXT, -1) * b.take(_PREV, -1)
+        out -= a.take(_PREV, -1) * b.take(_NEXT, -1)
+        return out
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
+    out = np.empty(shape, a.dtype if a.dtype == b.dtype else np.result_type(a, b))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
     return out
 
 
@@ -401,16 +412,28 @@ def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | Non
 
 def _cross_cols(v, M):
     """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
-    ``M`` crossed with ``v`` from the left (:func:`cross3`'s products, gathered by index)."""
-    out = v.take(_NEXT, 0)[:, None] * M.take(_PREV, 0)
-    out -= v.take(_PREV, 0)[:, None] * M.take(_NEXT, 0)
+    ``M`` crossed with ``v`` from the left (small: gathered by index, as :func:`cross3`)."""
+    if M.size <= _GATHER_MAX:
+        out = v.take(_NEXT, 0)[:, None] * M.take(_PREV, 0)
+        out -= v.take(_PREV, 0)[:, None] * M.take(_NEXT, 0)
+        return out
+    out = np.empty(M.shape, M.dtype if M.dtype == v.dtype else np.result_type(v, M))
+    out[0] = v[1] * M[2] - v[2] * M[1]
+    out[1] = v[2] * M[0] - v[0] * M[2]
+    out[2] = v[0] * M[1] - v[1] * M[0]
     return out
 
 
 def _cross_rows(M, u):
     """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
-    out = M.take(_NEXT, 1) * u.take(_PREV, 0)[None]
-    out -= M.take(_PREV, 1) * u.take(_NEXT, 0)[None]
+    if M.size <= _GATHER_MAX:
+        out = M.take(_NEXT, 1) * u.take(_PREV, 0)[None]
+        out -= M.take(_PREV, 1) * u.take(_NEXT, 0)[None]
+        return out
+    out = np.empty(M.shape, M.dtype if M.dtype == u.dtype else np.result_type(M, u))
+    out[:, 0] = M[:, 1] * u[2] - M[:, 2] * u[1]
+    out[:, 1] = M[:, 2] * u[0] - M[:, 0] * u[2]
+    out[:, 2] = M[:, 0] * u[1] - M[:, 1] * u[0]
     return out
 
 

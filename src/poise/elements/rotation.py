@@ -21,9 +21,17 @@ def skew(v: np.ndarray) -> np.ndarray:
     (..., 3, 3) array
     """
     v = np.asarray(v, dtype=float)
-    # the nine entries gathered from (v, -v, 0) in one step
-    e = np.concatenate([v, -v, np.zeros(v.shape[:-1] + (1,))], axis=-1)
-    return e.take(_SKEW, -1).reshape(v.shape[:-1] + (3, 3))
+    if v.size <= 1 << 13:   # small: the nine entries gathered from (v, -v, 0) in one step
+        e = np.concatenate([v, -v, np.zeros(v.shape[:-1] + (1,))], axis=-1)
+        return e.take(_SKEW, -1).reshape(v.shape[:-1] + (3, 3))
+    S = np.zeros(v.shape[:-1] + (3, 3))      # large: entry by entry (no gathered copies)
+    S[..., 0, 1] = -v[..., 2]
+    S[..., 0, 2] = v[..., 1]
+    S[..., 1, 0] = v[..., 2]
+    S[..., 1, 2] = -v[..., 0]
+    S[..., 2, 0] = -v[..., 1]
+    S[..., 2, 1] = v[..., 0]
+    return S
 
 
 _SKEW = np.array([6, 5, 1, 2, 6, 3, 4, 0, 6])     # row-major entries: 0 -v2 v1 / v2 0 -v0 / ...
