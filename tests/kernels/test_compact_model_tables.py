@@ -75,7 +75,7 @@ def test_assembler_pattern_equals_one_unique_over_all_keys(dense):
         assert np.array_equal(a.indptr, np.searchsorted(uniq // N, np.arange(N + 1)))
     expect = np.full(rows.size, a.nnz)
     expect[valid] = expect_slot
-    assert np.array_equal(a.slot_all, expect) and a.slot_all.dtype == np.intp
+    assert np.array_equal(a.slot_all, expect) and a.slot_all.dtype == np.intp   # small: intp
     assert a.sizes == tuple(r.size for r, _ in blocks)
     # assembling puts each value at its entry (sums duplicates, drops invalid entries)
     vals = [rng.standard_normal(r.shape) for r, _ in blocks]

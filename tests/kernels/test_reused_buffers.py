@@ -114,6 +114,24 @@ def test_the_csc_layout_is_the_column_ordered_matrix_and_factorises_alike(chain)
     assert _bits(x_layout, Factor(plain).solve(b))
 
 
+def test_large_patterns_keep_int32_indices_and_assemble_alike(chain, monkeypatch):
+    import poise.model.assembly as assembly
+    model, st = chain
+    asm = model.assembler
+    assert asm.slot_all.dtype == np.int32        # pooled pattern: half the index memory
+    ws = Workspace()
+    J = model.evaluate(st, need_jac=True, eps_mass=1e-3, workspace=ws).J
+    fresh = model.evaluate(st, need_jac=True, eps_mass=1e-3).J    # bincount, no pool
+    assert _bits(J.data, fresh.data)
+    J.poise_csc_layout()
+    lay = J.poise_csc_layout()
+    assert lay.take.dtype == np.int32
+    whole = lay.matrix(J).data.copy()
+    monkeypatch.setattr(assembly, "_CHUNK", 1000)                # gathered in many chunks
+    assert _bits(lay.matrix(J).data, whole)
+    assert _bits(whole, J.tocsc()[:, J.poise_column_order()].data)
+
+
 def test_a_matrix_no_longer_referred_to_lends_its_buffer_to_the_next(chain):
     model, st = chain
     data = SolveData(np.ones(model.nc, bool))

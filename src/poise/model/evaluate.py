@@ -56,6 +56,7 @@ class Evaluation:
     workspace: object = field(default=None, repr=False)  # the solve's (assembly)
     _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
     items: list = field(default=None, repr=False)   # per-family slot data (keep=True)
+    inertia: object = field(default=None, repr=False)  # world inertias its Jacobian used
 
 
 @dataclass
@@ -339,6 +340,7 @@ def jacobian(model, ev: Evaluation):
              (~row_active).astype(float)]
     vals += ev._coupling
     ev.J = model.assembler.assemble(vals, ev.workspace)
+    ev.inertia = Jg                  # Newton's step filter multiplies by the same mass matrix
     ev._pending = None
     phases.add("assemble", phases.now() - t_start)
     return ev.J

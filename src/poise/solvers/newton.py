@@ -24,6 +24,7 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
 from poise.elements.context import row_where
+from poise.model.evaluate import evaluate as _evaluate
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.history import History, Row
@@ -136,7 +137,10 @@ def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
     if model.nc == 0 or active is None or active.all():
         return ""
     try:
-        phi = model.evaluate(state, need_jac=False, workspace=data.workspace).phi   # every row
+        if model.assembler.dense:      # small: the last evaluation's kept outputs serve
+            phi = model.evaluate(state, need_jac=False, workspace=data.workspace).phi
+        else:                          # large: the constraint values alone, every row
+            phi = _evaluate(model, state, "phi", workspace=data.workspace)
     except EvaluationError:
         return ""
     z = np.where(active, 0.0, np.abs(phi) / sc.phi_tol)
@@ -343,7 +347,8 @@ class NewtonIteration(Solver[_Newtoning]):
         # line search when the filtered step is not taken (otherwise a retraction per iteration
         # for nothing)
         limit = functools.cache(lambda: _limit_step_trial(model, state, x[:model.nq], settings))
-        xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, lambda: limit()[0] < 1.0)
+        xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, lambda: limit()[0] < 1.0,
+                               Jg=ev.inertia)
         del f                # the factorisation is not needed by the trials (memory at 10^5)
         if xf is not None:
             # the regularisation dominates the step (near-neutral directions): try the step with
@@ -359,6 +364,7 @@ class NewtonIteration(Solver[_Newtoning]):
                     dq = xf[:model.nq]
             except EvaluationError:
                 pass
+            ev_f = None      # not kept beside the line search's trials unless it is ``best``
         if best is None:
             alpha, first = limit()
         for _ in range(settings.limits.line_search_max + 1 if best is None else 0):

@@ -53,7 +53,7 @@ def mass_times(model, state, v, Jg=None):
     return out
 
 
-def neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
+def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
     """The Newton step ``x = A^-1 (-F)`` (``A = K + eps M``) with near-neutral directions filtered
     out, or None when the regularisation does not dominate it.
 
@@ -69,12 +69,14 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
     of the residual (then the regularisation would slow Newton down to a linear rate
     ``eps/lambda``), or when the step limits cut ``x`` (``limited``) and ``S x`` is more than
     ``NEUTRAL_SHARE`` of ``x`` (scaled). ``limited`` may be a callable, asked only when the
-    tail share alone does not decide (the step limits cost a retraction).
+    tail share alone does not decide (the step limits cost a retraction). ``Jg``: the world
+    inertias at ``state`` when the caller has them (``Evaluation.inertia``).
     """
     if not eps > 0 or model.nq == 0:
         return None
     nq = model.nq
-    Jg = model.world_inertia(state) if len(model.rot_idx) else None   # both products' M
+    if Jg is None and len(model.rot_idx):                               # both products' M
+        Jg = model.world_inertia(state)
     reg = eps * mass_times(model, state, x[:nq], Jg)
     share = float(np.maximum.reduce(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
     if not (share > TAIL_SHARE or (limited() if callable(limited) else limited)):
