@@ -65,32 +65,38 @@ def test_ldlt_indefinite_kkt_and_refusals():
     assert F.ok and F.backward_error > 1e-5
 
 
-def test_ldlt_released_factors_give_the_same_inertia_and_solves(monkeypatch):
-    # ``release`` (large systems: the threshold patched down here): the factors and SuperLU's
-    # copies of L and U go once the pivots and backward error are read; the first solve
-    # factorises again, bit for bit the factorisation that was dropped
-    monkeypatch.setattr(stab_sparse, "RELEASE_MIN", 1)
+def test_ldlt_head_solves_are_the_full_solves_bit_for_bit():
+    # ``solve_head`` (the mode operators): the right-hand side ``[v; 0]`` made in the
+    # factorisation's order and the head of the solution gathered back, in groups of columns,
+    # is ``solve`` of the zero-padded right-hand side to the last bit; so is the backward error
+    # with or without the pivots read before it
     rng = np.random.default_rng(99)
     for _ in range(20):
         n = int(rng.integers(5, 60))
         A = _random_symmetric(rng, n)
         order = rng.permutation(n)
-        keep = stab.SymmetricLDL(A, order)
+        F = stab.SymmetricLDL(A, order)
         built = []
-        rel = stab.SymmetricLDL(lambda A=A, built=built: built.append(1) or A, order, release=True)
-        assert keep.ok == rel.ok
-        if not keep.ok:
+        G = stab.SymmetricLDL(lambda A=A, built=built: built.append(1) or A, order)
+        assert len(built) == 1 and F.ok == G.ok
+        if not F.ok:
             continue
-        assert rel.lu is None and len(built) == 1
-        assert rel.inertia == keep.inertia
-        assert np.array_equal(rel.pivots, keep.pivots) and np.array_equal(rel.index, keep.index)
-        assert rel.backward_error == keep.backward_error
-        b = rng.normal(size=(n, 3))
-        x = keep.solve(b)
-        assert np.array_equal(rel.solve(b), x) and len(built) == 2     # factorised again, once
-        assert np.array_equal(rel.solve(b.copy(), overwrite_b=True), x) and len(built) == 2
-        y = b.copy()
-        assert keep.solve(y, overwrite_b=True) is y and np.array_equal(y, x)
+        assert G.inertia == F.inertia and np.array_equal(G.pivots, F.pivots)
+        assert G.backward_error == F.backward_error > 0.0
+        k = int(rng.integers(1, n + 1))
+        for cols in ((), (1,), (3,), (9,)):
+            v = rng.normal(size=(k,) + cols)
+            b = np.zeros((n,) + cols)
+            b[:k] = v
+            x = F.solve(b)[:k]
+            assert np.array_equal(F.solve_head(v, k), x)
+            assert np.array_equal(F.solve(b.copy(), overwrite_b=True)[:k], x)
+        P = stab.SymmetricLDL(A, None)
+        if P.ok:
+            v = rng.normal(size=(k, 5))
+            b = np.zeros((n, 5))
+            b[:k] = v
+            assert np.array_equal(P.solve_head(v, k), P.solve(b)[:k])
 
 
 # ------------------------------------------------------------------ sparse == dense
