@@ -99,6 +99,50 @@ def test_ldlt_head_solves_are_the_full_solves_bit_for_bit():
             assert np.array_equal(P.solve_head(v, k), P.solve(b)[:k])
 
 
+def _unsorted(M, rng):
+    """``M`` (CSR) with the entries of every row in a random order (as a sparse product gives)."""
+    M = M.tocsr()
+    idx, dat = M.indices.copy(), M.data.copy()
+    for r in range(M.shape[0]):
+        a, b = M.indptr[r], M.indptr[r + 1]
+        p = a + rng.permutation(b - a)
+        idx[a:b], dat[a:b] = M.indices[p], M.data[p]
+    out = sp.csr_matrix((dat, idx, M.indptr.copy()), shape=M.shape)
+    out.has_sorted_indices = False
+    return out
+
+
+def test_permuted_kkt_is_the_permuted_block_matrix_bit_for_bit():
+    # the pencil's KKT matrix written straight into its elimination order is the very CSC
+    # matrix (values, row indices in each column, column pointers) that the block matrix
+    # permuted by fancy indexing gives: unsorted constraint rows, entries that cancel (dropped
+    # by the sparse sum), a diagonal equal to the shift, no constraint rows at all
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        nq = int(rng.integers(1, 40))
+        m = 0 if trial % 5 == 0 else int(rng.integers(1, nq + 1))
+        Kt = _random_symmetric(rng, nq).tocsr()
+        Gt = sp.random(m, nq, density=rng.uniform(0.05, 0.5), format="csr",
+                       random_state=int(rng.integers(1 << 30)))
+        P = stab_sparse.SparsePencil.__new__(stab_sparse.SparsePencil)
+        P.nq, P.m, P._pos = nq, m, None
+        P.order = rng.permutation(nq + m)
+        P.Gt = _unsorted(Gt, rng) if trial % 2 else Gt
+        P._GtG, P.lean = (Gt.T @ Gt).tocsr(), bool(trial % 2)
+        s, rho = float(rng.normal()), float(rng.choice([1.0, 16.0, 1.0 / 16.0]))
+        if trial % 3 == 0 and P.GtG.nnz:             # cancellations: K = -rho GtG, diag = s
+            GtG = (Gt.T @ Gt).tocsr()
+            K = (-rho * GtG).tolil()
+            K[0, 0] = s + rho * GtG[0, 0]
+            Kt = K.tocsr()
+        P.Kt = Kt
+        ref = stab_sparse.symmetric_permutation(P.kkt(s, rho), P.order)
+        got = P.permuted_kkt(s, rho)                  # (a lean pencil makes Gt^T Gt again)
+        assert np.array_equal(P.permuted_kkt(s, rho).data, got.data)
+        for a in ("data", "indices", "indptr"):
+            assert np.array_equal(getattr(got, a), getattr(ref, a)), (trial, a)
+
+
 # ------------------------------------------------------------------ sparse == dense
 def _both(monkeypatch, run):
     """Run twice: dense (default) and with every model on the sparse path."""

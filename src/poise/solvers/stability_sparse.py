@@ -37,12 +37,15 @@ def classify_sparse(model, J, active=None) -> StabilityInfo:
     ``J`` may be a zero-argument callable returning the matrix (:class:`SparsePencil`)."""
     try:
         P = SparsePencil(model, J, active=active)
+        P.lean = True                     # a stable model needs Gt^T Gt for one matrix only
         J = None
         info = classify_pencil(model, P)
         if info.klass == "unknown" and P.singular:
             red = redundant_rows(P.G_active, np.ones(model.nq))
             if len(red):
-                info = classify_pencil(model, SparsePencil(model, P, drop=red, active=active))
+                P = SparsePencil(model, P, drop=red, active=active)
+                P.lean = True
+                info = classify_pencil(model, P)
         return info
     except (RuntimeError, ValueError, ArithmeticError, MemoryError,
             np.linalg.LinAlgError) as e:
@@ -267,7 +270,7 @@ class SparsePencil:
         dq, dl = _equilibrate(Ks, G, start=(like.dq, like.dl) if same else None)
         self.Kt = (sp.diags(dq) @ Ks @ sp.diags(dq)).tocsr()
         self.Gt = (sp.diags(dl) @ G @ sp.diags(dq)).tocsr()
-        self.GtG = (self.Gt.T @ self.Gt).tocsr()
+        self._GtG = None
         self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
         self.nq, self.m = nq, self.Gt.shape[0]
         self.reused = same
@@ -276,7 +279,17 @@ class SparsePencil:
         # matrix's), at least ZERO_REL (Kt has a unit-scale diagonal block after equilibration)
         self.eps = ZERO_REL * max(_spectral_radius(self.Kt), 1.0)
         self.singular = False             # a tiny pivot at a constraint row was met
+        self.lean = False                 # Gt^T Gt not kept beside a factorisation
+        self._pos = None                  # the permuted position of each unknown
         memory.release(nnz * 16)          # the construction's temporaries' pages (large models)
+
+    @property
+    def GtG(self):
+        """``Gt^T Gt`` (kept until a :attr:`lean` pencil's factorisation drops it, then made
+        again when needed: the same matrix)."""
+        if self._GtG is None:
+            self._GtG = (self.Gt.T @ self.Gt).tocsr()
+        return self._GtG
 
     def kkt(self, s, rho):
         """``[[Kt - s I + rho Gt^T Gt, Gt^T], [Gt, 0]]`` (congruent to the rho = 0 matrix)."""
@@ -286,10 +299,49 @@ class SparsePencil:
             return A.tocsc()
         return sp.bmat([[A, self.Gt.T], [self.Gt, None]], format="csc")
 
+    def permuted_kkt(self, s, rho):
+        """``kkt(s, rho)[order][:, order]`` in CSC, the very arrays :func:`symmetric_permutation`
+        gives (each column holds its entries in the unpermuted row order, relabelled), written
+        straight from the blocks: the upper-left block's columns, ``Gt``'s columns under them,
+        ``Gt``'s rows as the last columns (in sorted order, as the block matrix has them), each
+        segment put at its permuted column (no block matrix, no fancy-indexed copies)."""
+        import scipy.sparse as sp
+        nq, n = self.nq, self.nq + self.m
+        A = (self.Kt + rho * self.GtG - s * sp.identity(nq, format="csr")).tocsc()
+        if self.lean:
+            self._GtG = None
+        if self._pos is None:
+            self._pos = np.argsort(self.order)
+        pos = self._pos
+        parts = [(A, 0, 0)]                          # (CSC columns, first column, row offset)
+        if self.m:                                   # Gt's rows: the columns of Gt^T
+            Gr = self.Gt if self.Gt.has_sorted_indices else self.Gt.sorted_indices()
+            parts += [(self.Gt.tocsc(), 0, nq), (Gr, nq, 0)]
+        count = np.zeros(n, np.int64)
+        for M, c0, _ in parts:
+            count[c0:c0 + len(M.indptr) - 1] += np.diff(M.indptr)
+        indptr = np.zeros(n + 1, np.int64)
+        np.cumsum(count[self.order], out=indptr[1:])
+        start = indptr[:-1][pos]                     # where each unpermuted column begins
+        nnz = int(indptr[-1])
+        data = np.empty(nnz)
+        indices = np.empty(nnz, np.int32)
+        for M, c0, r0 in parts:
+            cnt = np.diff(M.indptr)
+            col = np.arange(c0, c0 + cnt.size)
+            at = np.repeat(start[col] - M.indptr[:-1], cnt)
+            at += np.arange(M.indptr[-1])
+            start[col] += cnt                        # the next block's segment goes after
+            data[at] = M.data
+            indices[at] = pos[M.indices + r0] if r0 else pos[M.indices]
+            at = None
+        A = sp.csc_matrix((data, indices, indptr.astype(np.int32)), shape=(n, n))
+        memory.release(nnz * 16)          # the temporaries' pages, before the factorisation
+        return A
+
     def ldl(self, s, rho):
         """The :class:`SymmetricLDL` of ``kkt(s, rho)`` in the pencil's elimination order."""
-        return SymmetricLDL(lambda: symmetric_permutation(self.kkt(s, rho), self.order),
-                            self.order, permuted=True)
+        return SymmetricLDL(lambda: self.permuted_kkt(s, rho), self.order, permuted=True)
 
     def factor(self, s):
         """A valid LDL^T of ``kkt(s, rho)`` for the first ``rho`` of AUG_RHO whose backward
