@@ -143,6 +143,40 @@ def test_permuted_kkt_is_the_permuted_block_matrix_bit_for_bit():
             assert np.array_equal(getattr(got, a), getattr(ref, a)), (trial, a)
 
 
+def test_equilibration_row_maxima_padded_or_by_segments_agree_bit_for_bit():
+    # the KKT blocks' scaled row maxima laid out padded (rows of a few entries) are those of
+    # the segmented reduction, to the last bit: empty rows, row and column offsets, one block
+    # with a long row (not padded)
+    from poise.solvers.equilibrate import _RowMaxima
+    rng = np.random.default_rng(3)
+    for trial in range(30):
+        nr, nc = int(rng.integers(1, 50)), int(rng.integers(1, 50))
+        M = sp.random(nr, nc, density=rng.uniform(0.02, 0.3), format="csr",
+                      random_state=int(rng.integers(1 << 30)))
+        if trial % 4 == 0:
+            M = sp.vstack([M, sp.csr_matrix(np.ones((1, nc)))]).tocsr()   # one long row
+        M.data *= rng.choice([-1.0, 1.0], size=M.nnz) * 10.0 ** rng.uniform(-8, 8, M.nnz)
+        r0, c0 = (0, nr) if trial % 2 else (nc, 0)
+        D = 10.0 ** rng.uniform(-4, 4, max(r0 + M.shape[0], c0 + nc))
+        got = []
+        for padded in (True, False):
+            pt = _RowMaxima(M.indptr, M.indices, M.data, r0, c0)
+            if padded != pt.padded:                  # the other layout, built for the check
+                if not padded:
+                    cnt = np.diff(M.indptr)
+                    pt.padded, pt.a, pt.cols = False, np.abs(M.data), (M.indices + c0)
+                    pt.rows = np.repeat(np.arange(r0, r0 + len(cnt)), cnt)
+                    pt.starts = M.indptr[:-1][cnt > 0]
+                    pt.buf, pt.tmp = np.empty(M.nnz), np.empty(M.nnz)
+                else:
+                    continue
+            r = np.zeros(len(D))
+            pt.into(r, D)
+            got.append(r)
+        if len(got) == 2:
+            assert np.array_equal(got[0], got[1]), trial
+
+
 # ------------------------------------------------------------------ sparse == dense
 def _both(monkeypatch, run):
     """Run twice: dense (default) and with every model on the sparse path."""
