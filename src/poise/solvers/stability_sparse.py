@@ -120,21 +120,11 @@ class SymmetricLDL:
         if not np.array_equal(lu.perm_r, lu.perm_c):
             self.reason = "the LDL^T factorisation needed an off-diagonal pivot"
             return
-        U = lu.U                          # SuperLU's CSC copy of U (made now, then kept)
-        d = U.diagonal()
+        d = lu.U.diagonal()               # (SuperLU makes and keeps a CSC copy of U)
         if not np.all(np.isfinite(d)) or np.any(d == 0.0):
             self.reason = "the LDL^T factorisation has a zero or non-finite pivot"
             return
-        # (|L| |U|) 1 as two compiled sparse products over the CSC copies of the factors, each
-        # made absolute in place, read, and emptied before the other is made (the solves use
-        # SuperLU's own factors): one copy alive at a time, none beyond this call
-        g = _abs_matvec(U, np.ones(n))
-        _empty(U)
-        U = lu.L
-        g = _abs_matvec(U, g)
-        _empty(U)
-        del U
-        self._berr = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
+        self._berr = None                 # computed on first use (the descent never asks)
         self.pivots = d
         # original index of each pivot (pivot k eliminates column perm_c^-1[k] of A[order])
         self.index = np.empty(n, np.int64)
@@ -160,6 +150,17 @@ class SymmetricLDL:
     @property
     def backward_error(self) -> float:
         """``32 u ||(|L| |U|) 1||_inf`` (inf when the factorisation is not valid)."""
+        if self._berr is None:
+            # two compiled sparse products over SuperLU's CSC copies of the factors, each made
+            # absolute in place, read, and emptied before the other is made (the solves use
+            # SuperLU's own factors): one copy alive at a time, none after this
+            U = self.lu.U
+            g = _abs_matvec(U, np.ones(self.n))
+            _empty(U)
+            L = self.lu.L
+            g = _abs_matvec(L, g)
+            _empty(L)
+            self._berr = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
         return self._berr
 
     @property
