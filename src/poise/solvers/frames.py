@@ -63,8 +63,11 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
             dep = dependent_rows(Pfull, saved, Y=Y)
         loads = element_loads(model, state, lam=lam, ev=ev)
         ev = Pfull = Y = None     # the evaluation's kept slot data go before the classification
-        if not model.assembler.dense:        # ... so do the assembly buffers (J keeps its data)
-            model.assembler.release(env.data.workspace, values=True)
+        if not model.assembler.dense:        # ... so do the assembly buffers (J keeps its data):
+            if env.kind == "static":         # the static solve's workspace has served (all of it)
+                env.data.workspace.clear()
+            else:                            # the next frames reuse its scatters and order
+                model.assembler.release(env.data.workspace, values=True)
         memory.release(model.nq * 1000)      # ... and their pages (large models)
     except EvaluationError:
         loads = {}
