@@ -182,17 +182,38 @@ def add_torque_via_axes(rho, G, axis_slots, T, dT, Y):
     """Apply torque ``T`` (n,3) to the body carrying the three axis slots ``axis_slots``.
 
     Uses ``rho_c = -T x a_c / 2 = (a_c x T)/2`` so that ``sum_c a_c x w_c = T``.
-    ``dT`` (n, 3, 3S) is dT/dy or None.
+    ``dT`` (n, 3, 3S) is dT/dy or None. Consecutive slots (the two-body layout) are done in
+    one product each (the same values as axis by axis).
     """
-    hT = None if G is None else -0.5 * skew(T)              # the same for the three axes
-    for s in axis_slots:
-        a = Y[:, s]
-        rows = slice(3 * s, 3 * s + 3)
-        rho[:, rows] += 0.5 * cross3(a, T)
-        if G is not None:
-            if dT is not None:
-                G[:, rows, :] += 0.5 * np.matmul(skew(a), dT)
-            G[:, rows, rows] += hT
+    s0 = axis_slots[0]
+    if tuple(axis_slots) != (s0, s0 + 1, s0 + 2):
+        for s in axis_slots:
+            _torque_rows(rho, G, slice(3 * s, 3 * s + 3), Y[:, s], T, dT)
+        return
+    n = len(T)
+    rows = slice(3 * s0, 3 * s0 + 9)
+    _torque_rows(rho, G, rows, Y[:, s0:s0 + 3], T[:, None], None if dT is None else dT[:, None],
+                 (n, 9))
+    if G is not None:
+        hT = -0.5 * skew(T)                                 # the same for the three axes
+        for k in range(3):
+            r = slice(3 * (s0 + k), 3 * (s0 + k) + 3)
+            G[:, r, r] += hT
+
+
+def _torque_rows(rho, G, rows, a, T, dT, shape=None):
+    """``a x T / 2`` on ``rho[:, rows]`` and ``skew(a) dT / 2`` on ``G[:, rows]`` (one axis
+    ``a`` (n, 3), or three stacked (n, 3, 3) with ``shape`` their flat rows); one axis alone
+    also adds its ``-skew(T) / 2`` block."""
+    c = 0.5 * cross3(a, T)
+    rho[:, rows] += c if shape is None else c.reshape(shape)
+    if G is None:
+        return
+    if dT is not None:
+        m = 0.5 * np.matmul(skew(a), dT)
+        G[:, rows, :] += m if shape is None else m.reshape(shape + (m.shape[-1],))
+    if shape is None:
+        G[:, rows, rows] += -0.5 * skew(T)
 
 
 def column_map(index, cols):

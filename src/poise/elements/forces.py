@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.core.lean import row_norms
 from poise.core.user_routines import uses_user_routine
 from poise.deck.spec import Expr
 from poise.elements.base import ForceFamily, add_force_at_point, add_torque_via_axes
@@ -63,27 +64,37 @@ def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
     """Assemble ``rho`` (n, 33) and ``G`` (n, 33, 33) from the action (F, T) on I.
 
     ``action_only`` (n,) bool (or None: all react): no reaction on J for those instances.
+    ``T`` (and ``dT``) None: no torque on I (the line forces): nothing is added for it, the
+    same values as a zero torque.
     """
     n, S = Y.shape[:2]              # any slot count >= 11: extra slots enter only through dF, dT
     W = 3 * S
     rho = np.zeros((n, W))
     G = np.zeros((n, W, W)) if need_jac else None
     add_force_at_point(rho, G, S_PI, F, dF)
-    add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
-    react = (np.ones(n, bool) if action_only is None else ~np.asarray(action_only, bool))
-    if react.any():
+    if T is not None:
+        add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
+    # x * 1.0 is x: every instance reacting multiplies by nothing
+    react = (None if action_only is None or not np.logical_or.reduce(action_only, axis=None)
+             else ~np.asarray(action_only, bool))
+    if react is None or np.logical_or.reduce(react):
         d = Y[:, S_PI] - Y[:, S_PJ]
-        Fj = -F * react[:, None]
-        Tj = (-T - cross3(d, F)) * react[:, None]
+        # -0 - x is -x: a missing torque subtracts nothing
+        Tj = -cross3(d, F) if T is None else -T - cross3(d, F)
+        Fj = -F
         dFj = dTj = None
         if need_jac:
-            dFj = -dF * react[:, None, None]
+            dFj = -dF
             # d(d x F) = -[F]x dd + [d]x dF
             dd = np.zeros((n, 3, W))
             dd[:, :, sl(S_PI)] = _I3
             dd[:, :, sl(S_PJ)] = -_I3
             dcross = -np.matmul(skew(F), dd) + np.matmul(skew(d), dF)
-            dTj = (-dT - dcross) * react[:, None, None]
+            dTj = -dcross if dT is None else -dT - dcross
+        if react is not None:
+            Fj, Tj = Fj * react[:, None], Tj * react[:, None]
+            if need_jac:
+                dFj, dTj = dFj * react[:, None, None], dTj * react[:, None, None]
         add_force_at_point(rho, G, S_PJ, Fj, dFj)
         add_torque_via_axes(rho, G, (S_XJ, S_YJ, S_ZJ), Tj, dTj, Y)
     return rho, G
@@ -113,7 +124,8 @@ class TwoBodyForce(ForceFamily):
                    **{k: np.asarray(v) for k, v in params.items()})
 
     def compute(self, Y, ctx, need_jac):
-        """Return F, T (n,3) and dF, dT (n,3,33)."""
+        """Return F, T (n,3) and dF, dT (n,3,33); T and dT None: no torque on I (a law along a
+        line: nothing is applied for it)."""
         raise NotImplementedError
 
     def forces(self, kin, ctx, need_jac=True):
@@ -138,18 +150,17 @@ class LineForce(TwoBodyForce):
         # F = f u = -k d + c u with c = k length + preload: the first term is smooth everywhere,
         # the second needs a defined direction (L > 0) unless c = 0.
         d = Y[:, S_PI] - Y[:, S_PJ]
-        L = np.linalg.norm(d, axis=1)
+        L = row_norms(d)
         c = self.k * self.length + self.preload
         bad = (L <= 1e-300) & (c != 0.0)
-        if np.any(bad):
+        if np.logical_or.reduce(bad):
             i = int(np.nonzero(bad)[0][0])
             raise EvaluationError("the I and J markers coincide: the line of action is undefined",
                                   self.element_locs[i] if self.element_locs else None)
         Ls = np.where(L > 1e-300, L, 1.0)
         u = d / Ls[:, None]
         F = -self.k[:, None] * d + c[:, None] * u
-        T = np.zeros_like(F)
-        dF = dT = None
+        dF = None
         if need_jac:
             n = len(L)
             uu = u[:, :, None] * u[:, None, :]
@@ -157,8 +168,7 @@ class LineForce(TwoBodyForce):
             dF = np.zeros((n, 3, 3 * N_SLOTS))
             dF[:, :, sl(S_PI)] = dFdd
             dF[:, :, sl(S_PJ)] = -dFdd
-            dT = np.zeros_like(dF)
-        return F, T, dF, dT
+        return F, None, dF, None
 
     def potential_energy(self, kin, ctx):
         """``k/2 (L - length)^2 - preload L`` per instance (MKEAM history)."""
@@ -177,14 +187,12 @@ class AxisForce(TwoBodyForce):
     def compute(self, Y, ctx, need_jac):
         z = Y[:, S_ZJ]
         F = self.value[:, None] * z
-        T = np.zeros_like(F)
-        dF = dT = None
+        dF = None
         if need_jac:
             n = len(F)
             dF = np.zeros((n, 3, 3 * N_SLOTS))
             dF[:, :, sl(S_ZJ)] = self.value[:, None, None] * _I3
-            dT = np.zeros_like(dF)
-        return F, T, dF, dT
+        return F, None, dF, None
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

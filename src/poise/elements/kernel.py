@@ -16,6 +16,8 @@ from poise.elements.rotation import skew
 
 POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3    # slot kinds: the marker origin, its x, y, z axis
 _I3 = np.eye(3)
+_NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])   # component i: i+1, i+2
+_GATHER_MAX = 1 << 14      # entries up to which cross products gather components by index
 
 
 class SlotKinematics:
@@ -31,9 +33,9 @@ class SlotKinematics:
         the kernels below use that structure instead of the dense matrix.
     """
 
-    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk")
+    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk", "_masks", "rounds")
 
-    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None):
+    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None, masks=None, rounds=None):
         self.Y = Y
         self.V = V
         self.pt = pt
@@ -41,6 +43,16 @@ class SlotKinematics:
         self.K = K
         self._B = B
         self._Sk = None
+        self._masks = masks
+        self.rounds = rounds      # a SlotIndex's (rotation, translation) slot rounds, or None
+
+    @property
+    def masks(self):
+        """``(pt.all(axis=0), pt.any(axis=0))``: which slots are points in every / some
+        instance (kept by a :class:`SlotIndex`)."""
+        if self._masks is None:
+            self._masks = (self.pt.all(axis=0), self.pt.any(axis=0))
+        return self._masks
 
     @property
     def Sk(self) -> np.ndarray:
@@ -53,19 +65,57 @@ class SlotKinematics:
     def B(self) -> np.ndarray:
         if self._B is None:
             n, S = self.pt.shape
-            K = self.K
-            B = np.zeros((n, 3 * S, 6 * K))
+            B = np.zeros((n, 3 * S, 6 * self.K))
             sk = -self.Sk
-            p_any = self.pt.any(axis=0)
-            for s in range(S):
-                k = self.slot_ml[s]
-                rows = slice(3 * s, 3 * s + 3)
-                pt = self.pt[:, s]
-                if p_any[s]:
-                    B[pt, rows, 6 * k:6 * k + 3] = _I3
-                B[:, rows, 6 * k + 3:6 * k + 6] = sk[:, s]
+            for s0, s1, k in _runs(self.slot_ml):        # a marker's consecutive slots at once
+                B[:, 3 * s0:3 * s1, 6 * k + 3:6 * k + 6] = sk[:, s0:s1].reshape(n, 3 * (s1 - s0), 3)
+            p_all, p_any = self.masks
+            for s in np.flatnonzero(p_any).tolist():
+                k = int(self.slot_ml[s])
+                if p_all[s]:
+                    B[:, 3 * s:3 * s + 3, 6 * k:6 * k + 3] = _I3
+                else:
+                    B[self.pt[:, s], 3 * s:3 * s + 3, 6 * k:6 * k + 3] = _I3
             self._B = B
         return self._B
+
+
+def _slot_rounds(ml, slots=None) -> list:
+    """The slots (markers ``ml``; only ``slots`` when given) in rounds of distinct markers,
+    each marker's slots in order round after round, as ``(marker slice, slot slice)`` pairs (a
+    round whose markers or slots are not evenly spaced goes slot by slot): a loop's additions
+    over the slots onto their markers' rows, in its order, a few slots at a time."""
+    seen: dict = {}
+    rounds: list = []
+    for s in (range(len(ml)) if slots is None else slots):
+        k = ml[s]
+        r = seen[k] = seen.get(k, -1) + 1
+        if r == len(rounds):
+            rounds.append([])
+        rounds[r].append((k, s))
+    out = []
+    for rnd in rounds:
+        rnd.sort()
+        ks, ss = [k for k, _ in rnd], [s for _, s in rnd]
+        dk = ks[1] - ks[0] if len(ks) > 1 else 1
+        ds = ss[1] - ss[0] if len(ss) > 1 else 1
+        if dk > 0 and ds > 0 and ks == list(range(ks[0], ks[-1] + 1, dk)) \
+                and ss == list(range(ss[0], ss[-1] + 1, ds)):
+            out.append((slice(ks[0], ks[-1] + 1, dk), slice(ss[0], ss[-1] + 1, ds)))
+        else:
+            out += [(slice(k, k + 1), slice(s, s + 1)) for k, s in rnd]
+    return out
+
+
+def _runs(slot_ml) -> list:
+    """``(first, end, marker)`` of each run of consecutive slots reading one marker."""
+    out = []
+    for s, k in enumerate(np.asarray(slot_ml).tolist()):
+        if out and out[-1][2] == k and out[-1][1] == s:
+            out[-1][1] = s + 1
+        else:
+            out.append([s, s + 1, k])
+    return out
 
 
 class PairBlocks:
@@ -108,7 +158,33 @@ def dense_g(G, rows=None):
     return G[rows]
 
 
-def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) -> SlotKinematics:
+class SlotIndex:
+    """What :func:`slot_kinematics` derives from a family's markers and slot kinds alone (the
+    slots' markers, point masks, bodies, axis columns): a small family's pattern keeps one
+    (:class:`LocalPattern`), so that its evaluations only gather the marker kinematics."""
+
+    __slots__ = ("mk", "pt", "masks", "case", "body", "ax", "is_pt", "slot_ml", "rounds")
+
+    def __init__(self, markers, slot_ml, slot_kind, marker_body):
+        self.slot_ml = np.asarray(slot_ml)
+        self.mk = markers[:, self.slot_ml]                       # (n, S)
+        self.pt = pt = slot_kind == POINT
+        self.masks = (pt.all(axis=0), pt.any(axis=0))
+        self.case = POINT if pt.all() else AX_X if not pt.any() else None
+        self.body = np.maximum(marker_body[self.mk], 0)
+        self.ax = slot_kind - 1 if self.case == AX_X else np.clip(slot_kind - 1, 0, 2)
+        self.is_pt = pt[..., None]
+        # the slots' sums on their markers' rows in rounds (:func:`_slot_rounds`): every slot
+        # on the rotation rows, the point slots on the translation rows (None: a slot that is
+        # a point in some instances only, summed slot by slot)
+        p_all, p_any = self.masks
+        ml = self.slot_ml.tolist()
+        self.rounds = (None if (p_any & ~p_all).any() else
+                       (_slot_rounds(ml), _slot_rounds(ml, np.flatnonzero(p_all).tolist())))
+
+
+def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
+                    index: SlotIndex | None = None) -> SlotKinematics:
     """Evaluate slot vectors (the B-matrices are implicit, see :class:`SlotKinematics`).
 
     Parameters
@@ -125,7 +201,24 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) ->
         Body index of each marker (-1 = ground).
     body_pos : (nb, 3)
         Body reference (CG) positions.
+    index : the family's :class:`SlotIndex` for these markers, kinds and marker bodies (the
+        same gathers, made once), or None.
     """
+    if index is not None:
+        mk, ix = index.mk, index
+        if ix.case == POINT:
+            Y = P[mk]
+            V = Y - body_pos[ix.body]
+        elif ix.case == AX_X:
+            Y = A[mk, :, ix.ax]
+            V = Y
+        else:
+            Pm = P[mk]
+            Am = A[mk, :, ix.ax]
+            Y = np.where(ix.is_pt, Pm, Am)
+            V = np.where(ix.is_pt, Pm - body_pos[ix.body], Am)
+        return SlotKinematics(Y=Y, V=V, pt=ix.pt, slot_ml=ix.slot_ml, K=markers.shape[1],
+                              masks=ix.masks, rounds=ix.rounds)
     n, K = markers.shape
     mk = markers[:, slot_ml]                                   # (n, S)
     kind = slot_kind
@@ -149,7 +242,14 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos) ->
 
 
 def cross3(a, b):
-    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead."""
+    """``a x b`` over the last axis (broadcasting), without ``np.cross`` overhead. Small arrays:
+    the components gathered with two index orders (a few calls); large ones component by
+    component (no full-size gathered copies: memory)."""
+    a, b = np.asarray(a), np.asarray(b)
+    if a.size + b.size <= _GATHER_MAX:
+        out = a.take(_NEXT, -1) * b.take(_PREV, -1)
+        out -= a.take(_PREV, -1) * b.take(_NEXT, -1)
+        return out
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
@@ -167,8 +267,11 @@ def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     rho3 = rho.reshape(n, S, 3)
     vr = cross3(kin.V, rho3)                                   # (n, S, 3)
     r = np.zeros((n, 2 * K, 3))
+    if kin.rounds is not None:
+        _round_sums(kin.rounds, r[:, 1::2], r[:, 0::2], vr, rho3)
+        return r.reshape(n, 6 * K)
     pt = kin.pt
-    p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
+    p_all, p_any = kin.masks                                # per slot, once
     for s in range(S):
         k = kin.slot_ml[s]
         r[:, 2 * k + 1] += vr[:, s]
@@ -177,6 +280,17 @@ def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
         elif p_any[s]:
             r[:, 2 * k] += rho3[:, s] * pt[:, s][:, None]
     return r.reshape(n, 6 * K)
+
+
+def _round_sums(rounds, rot_rows, trans_rows, rot, trans, lead=()):
+    """Slot sums onto the markers' rotation / translation rows (views ``(n, ..., K, 3)``) in
+    the rounds of a :class:`SlotIndex`: ``rot[:, ..., s]`` for every slot, ``trans`` for the
+    point slots (``lead``: index of the axes between the instance and the slot axes)."""
+    a = (slice(None),) + lead
+    for ks, ss in rounds[0]:
+        rot_rows[a + (ks,)] += rot[a + (ss,)]
+    for ks, ss in rounds[1]:
+        trans_rows[a + (ks,)] += trans[a + (ss,)]
 
 
 class LocalPattern:
@@ -189,11 +303,17 @@ class LocalPattern:
     (C order), None when the mask is full. ``order`` is the order in which the model registers
     and fills the tangent entries: block-wise for ``compact`` patterns (declared ``G`` structure,
     no scalar columns; :func:`tangent_compact` fills them directly, entry-major: all instances
-    of one entry after the other), else ``kidx`` (instance-major).
+    of one entry after the other), else ``kidx`` (instance-major). ``slots``: the family's
+    :class:`SlotIndex` (small families of a model, ``marker_body`` given), else None.
     """
 
-    def __init__(self, fam):
+    #: families with at most this many slot instances (n * S) keep a :class:`SlotIndex`
+    SLOT_INDEX_MAX = 4096
+
+    def __init__(self, fam, marker_body=None):
         K, S, U, m = fam.K, len(fam.slot_ml), fam.U, fam.m
+        self.slots = (SlotIndex(fam.markers, fam.slot_ml, fam.slot_kind, marker_body)
+                      if marker_body is not None and fam.n * S <= self.SLOT_INDEX_MAX else None)
         ml = np.asarray(fam.slot_ml)
         L = 6 * K + U
         pt_any = (np.asarray(fam.slot_kind) == POINT).any(axis=0) if fam.n else np.zeros(S, bool)
@@ -223,8 +343,10 @@ class LocalPattern:
         if U:
             km[:, 6 * K:] = True
             km[6 * K:, :] = True
+        self.slot_rounds = _slot_rounds(ml.tolist())
         self.s_idx = pairs[:, 0].copy()
         self.t_idx = pairs[:, 1].copy()
+        self.pairs = [(int(a), int(b)) for a, b in pairs]
         self.pt_any = pt_any
         self.pt_all = (np.asarray(fam.slot_kind) == POINT).all(axis=0) if fam.n else pt_any
         self.kmask = km
@@ -234,11 +356,13 @@ class LocalPattern:
         # (nblocks, 3, 3, n) and registered with the assembler in that order (``order``)
         self.compact = self.declared and not U
         self.bpos = None
+        self.nblocks = 0
         self.order = self.kidx
         if self.declared:
             bi, bj = np.nonzero(km[:6 * K:3, :6 * K:3])
             self.bpos = np.full((2 * K, 2 * K), -1, np.intp)
             self.bpos[bi, bj] = np.arange(bi.size)
+            self.nblocks = int(bi.size)
             if self.compact:
                 r = 3 * bi[:, None, None] + np.arange(3)[None, :, None]
                 c = 3 * bj[:, None, None] + np.arange(3)[None, None, :]
@@ -288,7 +412,11 @@ def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | Non
 
 def _cross_cols(v, M):
     """``skew(v) @ M`` for (3, n) ``v`` and (3, 3, n) ``M`` (component-major): each column of
-    ``M`` crossed with ``v`` from the left."""
+    ``M`` crossed with ``v`` from the left (small: gathered by index, as :func:`cross3`)."""
+    if M.size <= _GATHER_MAX:
+        out = v.take(_NEXT, 0)[:, None] * M.take(_PREV, 0)
+        out -= v.take(_PREV, 0)[:, None] * M.take(_NEXT, 0)
+        return out
     out = np.empty(M.shape, M.dtype if M.dtype == v.dtype else np.result_type(v, M))
     out[0] = v[1] * M[2] - v[2] * M[1]
     out[1] = v[2] * M[0] - v[0] * M[2]
@@ -298,6 +426,10 @@ def _cross_cols(v, M):
 
 def _cross_rows(M, u):
     """``M @ skew(u)`` for (3, 3, n) ``M`` and (3, n) ``u``: row ``i`` is ``M[i] x u``."""
+    if M.size <= _GATHER_MAX:
+        out = M.take(_NEXT, 1) * u.take(_PREV, 0)[None]
+        out -= M.take(_PREV, 1) * u.take(_NEXT, 0)[None]
+        return out
     out = np.empty(M.shape, M.dtype if M.dtype == u.dtype else np.result_type(M, u))
     out[:, 0] = M[:, 1] * u[2] - M[:, 2] * u[1]
     out[:, 1] = M[:, 2] * u[0] - M[:, 0] * u[2]
@@ -320,24 +452,24 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> n
     n, S = kin.pt.shape
     ml = kin.slot_ml
     bpos = pat.bpos
-    Kb = np.zeros((int(bpos.max()) + 1 if bpos.size else 0, 3, 3, n))
+    Kb = np.zeros((pat.nblocks, 3, 3, n))
     V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))          # (S, 3, n)
     W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))
+    live = np.logical_or.reduce(W.reshape(S, -1), axis=1).tolist()   # slots with a reaction
     # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
     for s in range(S):
-        v, w = V[s], W[s]
-        if not w.any():
+        if not live[s]:
             continue
+        v, w = V[s], W[s]
         k = ml[s]
         blk = Kb[bpos[2 * k + 1, 2 * k + 1]]
         blk += v[:, None, :] * w[None, :, :]
         d = v[0] * w[0] + v[1] * w[1] + v[2] * w[2]
-        for i in range(3):
-            blk[i, i] -= d
+        blk.reshape(9, n)[::4] -= d                                # the diagonal (a view)
     if G is not None and len(pat.s_idx):
         compact_g = isinstance(G, PairBlocks)
         pt = kin.pt
-        for s, t in zip(pat.s_idx.tolist(), pat.t_idx.tolist()):
+        for s, t in pat.pairs:
             k, l = ml[s], ml[t]
             if compact_g:
                 Gp = G.block(s, t)
@@ -371,8 +503,11 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
     # rotation columns: p^T (-Sk_s) = (v_s x p)^T
     rot = cross3(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
     Pq = np.zeros((n, m, 2 * K, 3))
+    if kin.rounds is not None:
+        _round_sums(kin.rounds, Pq[:, :, 1::2], Pq[:, :, 0::2], rot, py, (slice(None),))
+        return Pq.reshape(n, m, 6 * K)
     pt = kin.pt
-    p_all, p_any = pt.all(axis=0), pt.any(axis=0)           # per slot, once
+    p_all, p_any = kin.masks                                # per slot, once
     for s in range(S):
         k = kin.slot_ml[s]
         Pq[:, :, 2 * k + 1] += rot[:, :, s]
@@ -420,18 +555,22 @@ def local_tangent(kin: SlotKinematics, rho: np.ndarray, G, slot_ml, K: int,
         if G is None:
             Kl = np.zeros((n, 6 * K, 6 * K))
         else:
-            Kl = np.matmul(np.swapaxes(B, 1, 2), np.matmul(dense_g(G), B))
+            Kl = np.matmul(B.swapaxes(1, 2), np.matmul(dense_g(G), B))
         # connection term v w^T - (v . w) I per slot, formed for every slot at once
         S = kin.V.shape[1]
         rho3 = rho.reshape(n, S, 3)
         blk = kin.V[:, :, :, None] * rho3[:, :, None, :]           # (n, S, 3, 3)
         d = np.einsum("nsi,nsi->ns", kin.V, rho3)
-        blk[:, :, 0, 0] -= d
-        blk[:, :, 1, 1] -= d
-        blk[:, :, 2, 2] -= d
-        for s in range(S):
-            k = slot_ml[s]
-            Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
+        blk.reshape(n, S, 9)[:, :, ::4] -= d[:, :, None]           # the diagonals (a view)
+        rounds = None if pat is None else pat.slot_rounds
+        if rounds is None:
+            for s in range(S):
+                k = slot_ml[s]
+                Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
+        else:       # the markers' (rot, rot) blocks as one view, slots added round by round
+            diag = np.einsum("nkikj->nkij", Kl.reshape(n, K, 6, K, 6)[:, :, 3:, :, 3:])
+            for ks, ss in rounds:
+                diag[:, ks] += blk[:, ss]
     if U:
         B = kin.B
         full = np.zeros((n, 6 * K + U, 6 * K + U))

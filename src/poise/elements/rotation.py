@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.lean import row_norms
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix, ``skew(v) @ u == cross(v, u)``.
@@ -20,7 +21,10 @@ def skew(v: np.ndarray) -> np.ndarray:
     (..., 3, 3) array
     """
     v = np.asarray(v, dtype=float)
-    S = np.zeros(v.shape[:-1] + (3, 3))
+    if v.size <= 1 << 13:   # small: the nine entries gathered from (v, -v, 0) in one step
+        e = np.concatenate([v, -v, np.zeros(v.shape[:-1] + (1,))], axis=-1)
+        return e.take(_SKEW, -1).reshape(v.shape[:-1] + (3, 3))
+    S = np.zeros(v.shape[:-1] + (3, 3))      # large: entry by entry (no gathered copies)
     S[..., 0, 1] = -v[..., 2]
     S[..., 0, 2] = v[..., 1]
     S[..., 1, 0] = v[..., 2]
@@ -30,13 +34,16 @@ def skew(v: np.ndarray) -> np.ndarray:
     return S
 
 
+_SKEW = np.array([6, 5, 1, 2, 6, 3, 4, 0, 6])     # row-major entries: 0 -v2 v1 / v2 0 -v0 / ...
+
+
 _I3 = np.eye(3)
 
 
 def _axis_parts(w):
     """``(|w|, K, K @ K)`` with ``K = skew(w)``: what Rodrigues' formulas share."""
     K = skew(w)
-    return np.linalg.norm(w, axis=-1), K, K @ K
+    return row_norms(w), K, K @ K
 
 
 def _expm(th, K, KK):
@@ -71,8 +78,16 @@ def se3_left_jacobian(w: np.ndarray) -> np.ndarray:
 def screw_exp(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(expm_so3(w), se3_left_jacobian(w))`` (bitwise), sharing ``|w|``, ``skew(w)`` and its
     square: the rotation and translation of a spatial twist's exponential."""
-    parts = _axis_parts(np.asarray(w, dtype=float))
-    return _expm(*parts), _left_jacobian(*parts)
+    th, K, KK = parts = _axis_parts(np.asarray(w, dtype=float))
+    if not np.all(th >= 1e-6):             # a small angle: the series where it is small
+        return _expm(*parts), _left_jacobian(*parts)
+    # no angle small (the usual step): the closed forms alone, sin and cos taken once
+    th = np.asarray(th)                   # an array like the series' (its powers, ufuncs)
+    s = np.sin(th)
+    a, b, c = s / th, (1.0 - np.cos(th)) / th**2, (th - s) / th**3
+    b = b[..., None, None]
+    return (_I3 + a[..., None, None] * K + b * KK,
+            _I3 + b * K + c[..., None, None] * KK)
 
 
 def orthonormalize(R: np.ndarray) -> np.ndarray:
@@ -149,7 +164,7 @@ def euler_parameters(R: np.ndarray) -> np.ndarray:
     nz = q != 0
     lead = np.take_along_axis(q, np.argmax(nz, axis=-1)[..., None], -1)[..., 0]
     q = np.where((lead < 0)[..., None], -q, q)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return q / row_norms(q)[..., None]
 
 
 def euler_313(R: np.ndarray, singular_tol: float = 1e-14) -> np.ndarray:
@@ -182,7 +197,7 @@ def rotation_vector(R: np.ndarray) -> np.ndarray:
     """Principal rotation vectors (..., 3) of rotation matrices, ``|v|`` in [0, pi]
     (``expm_so3(v) == R``), from the Euler parameters (accurate at every angle)."""
     q = euler_parameters(R)
-    s = np.linalg.norm(q[..., 1:], axis=-1)
+    s = row_norms(q[..., 1:])
     th = 2.0 * np.arctan2(s, q[..., 0])
     f = np.where(s > 0, th / np.where(s > 0, s, 1.0), 2.0)
     return f[..., None] * q[..., 1:]
@@ -194,8 +209,8 @@ def lift_rotation_vector(v: np.ndarray, guess: np.ndarray) -> np.ndarray:
     (turns counted) given a prediction closer than pi to the answer."""
     v = np.asarray(v, float)
     g = np.asarray(guess, float)
-    a = np.linalg.norm(v, axis=-1)
-    gn = np.linalg.norm(g, axis=-1)
+    a = row_norms(v)
+    gn = row_norms(g)
     small = a < 1e-300
     n = np.where(small[..., None], g / np.where(gn > 0, gn, 1.0)[..., None],
                  v / np.where(small, 1.0, a)[..., None])

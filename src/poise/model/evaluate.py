@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from poise.core import phases
+from poise.core.lean import all_finite
 from poise.core.errors import EvaluationError
 from poise.elements.context import row_where
 from poise.expr import EvalContext
@@ -175,10 +176,11 @@ class _Frames:
         fam = self.model.families[fi]
         if self.single:
             t, exact = fam, True
+            index = None if fam.pattern is None else fam.pattern.slots
         else:
-            t, exact = self.tiles[fi]
+            (t, exact), index = self.tiles[fi], None
         kin = slot_kinematics(t.markers, fam.slot_ml, t.slot_kind, self.P, self.A, self.mb,
-                              self.pos)
+                              self.pos, index)
         lam = self.lam[t.crow] if fam.is_constraint else None
         if exact:
             return t, kin, lam, _kernel(t, kin, lam, self.ctx, need_jac)
@@ -271,7 +273,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
     if active is not None:
         phi = np.where(mask, phi, 0.0)
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(phi))):
+    if not (all_finite(r) and all_finite(phi)):
         raise EvaluationError(_nonfinite_message(model, r, phi))
     ev = Evaluation(r=r, phi=phi, J=None, items=list(last) if keep else None, workspace=fr.ws)
     if need_jac:
@@ -295,7 +297,7 @@ def _family_outputs(model, fr, need_jac, done, call=None):
             phi[fam.crow.ravel()] = ph.ravel()
         last.append((fam, kin, rho, phy))
         rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
-        if not np.isfinite(rl).all():
+        if not all_finite(rl):
             raise EvaluationError(_family_nonfinite(fam, rl))
         fr.scatter(fam).add(r, rl)
         if need_jac:
@@ -324,7 +326,7 @@ def jacobian(model, ev: Evaluation):
             if U:
                 Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
             act = row_active[fam.crow]
-            if not act.all():                  # x * 1.0 is x: only a family with removed rows
+            if not np.logical_and.reduce(act, axis=None):                  # x * 1.0 is x: only a family with removed rows
                 Pq = Pq * act[:, :, None]
             Pq = Pq.reshape(fam.n, -1)
             if pat.pidx is not None:
@@ -332,8 +334,8 @@ def jacobian(model, ev: Evaluation):
             vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
         else:
             vals.append(Kl)
-    _, Jg = model.mass_blocks(state)
-    vals += [eps_mass * np.repeat(model.body_mass, 3), eps_mass * Jg,
+    Jg = model.world_inertia(state)
+    vals += [eps_mass * model.body_mass.repeat(3), eps_mass * Jg,
              (~row_active).astype(float)]
     vals += ev._coupling
     ev.J = model.assembler.assemble(vals, ev.workspace)

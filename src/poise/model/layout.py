@@ -45,7 +45,7 @@ def lay_out(families, body_off, body_kind, marker_body, nb: int, nq_bodies: int)
         if f.scols is not None and f.U:
             cols.append(np.where(f.scols >= 0, nq_bodies + f.scols, -1))
         f = replace(f, gcol=np.concatenate(cols, axis=1))
-        out.append(replace(f, pattern=LocalPattern(f)))
+        out.append(replace(f, pattern=LocalPattern(f, marker_body)))
     return tuple(out)
 
 

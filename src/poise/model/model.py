@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poise.core.lean import row_norms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.kernel import cross3
@@ -24,6 +25,8 @@ from poise.elements.rotation import (lift_rotation_vector, rotation_vector, scre
 MAX_SUBSTEP_ROTATION = np.pi / 4   # rad; larger rotation updates are applied in sub-steps
 DENSE_MAX = 600                    # KKT size up to which dense LU is used
 
+_I3 = np.eye(3)
+_I3.flags.writeable = False
 
 @dataclass
 class State:
@@ -158,7 +161,7 @@ class Model:
         rot = np.zeros((nb + 1, 3, 3))
         pos[:nb] = state.pos
         rot[:nb] = state.rot
-        rot[nb] = np.eye(3)
+        rot[nb] = _I3
         return pos, rot
 
     def marker_kinematics(self, state):
@@ -195,18 +198,23 @@ class Model:
         dq = np.asarray(dq, float)
         dt = dq[self.trans_idx].reshape(-1, 3)
         dr = dq[self.rot_idx].reshape(-1, 3) if len(self.rot_idx) else np.zeros((0, 3))
-        big = float(np.max(np.linalg.norm(dr, axis=1))) if len(dr) else 0.0
-        nsub = max(1, int(np.ceil(big / MAX_SUBSTEP_ROTATION))) if len(self.angle_I) else 1
+        nsub = 1
+        if len(self.angle_I) and len(dr):
+            nsub = max(1, int(np.ceil(float(np.max(row_norms(dr))) / MAX_SUBSTEP_ROTATION)))
         rb = self.rot_body
         # rigid bodies move along the screw of the spatial twist (w, v0), v0 = dr_cg - w x r_cg:
         # a rotation about any fixed point (a hinge) is then followed exactly, for any angle.
-        w = dr / nsub
-        v0 = (dt[rb] - cross3(dr, state.pos[rb])) / nsub if len(rb) else np.zeros((0, 3))
+        # (x / 1 is x: one step divides nothing)
+        w = dr / nsub if nsub > 1 else dr
+        v0 = dt[rb] - cross3(dr, state.pos[rb]) if len(rb) else np.zeros((0, 3))
+        if nsub > 1:
+            v0 = v0 / nsub
         E, V = screw_exp(w)
         Vv = np.einsum("nij,nj->ni", V, v0)
-        pt = np.ones(self.nb, bool)
-        pt[rb] = False
-        move_pt = bool(pt.any())
+        move_pt = len(rb) < self.nb          # rot_body: distinct bodies
+        if move_pt:
+            pt = np.ones(self.nb, bool)
+            pt[rb] = False
         na = len(self.angle_I)
         rots = np.empty((nsub,) + new.rot.shape) if na else None
         if na:
@@ -302,14 +310,17 @@ class Model:
 
     def mass_blocks(self, state):
         """Translational (nb,3,3) and rotational (nr,3,3) mass blocks in global axes."""
-        mt = self.body_mass[:, None, None] * np.eye(3)
+        return self.body_mass[:, None, None] * _I3, self.world_inertia(state)
+
+    def world_inertia(self, state):
+        """The rigid bodies' inertias about their CGs in global axes (nr, 3, 3): the
+        rotational mass blocks alone."""
         R = state.rot[self.rot_body]
-        Jg = np.matmul(R, np.matmul(self.body_inertia[self.rot_body], np.swapaxes(R, 1, 2)))
-        return mt, Jg
+        return np.matmul(R, np.matmul(self.body_inertia[self.rot_body], R.swapaxes(1, 2)))
 
     def mass_diagonal(self, state) -> np.ndarray:
         """Diagonal of the mass matrix in tangent coordinates, (nq,)."""
-        mt, Jg = self.mass_blocks(state)
+        Jg = self.world_inertia(state)
         d = np.zeros(self.nq)
         d[self.trans_idx] = np.repeat(self.body_mass, 3)
         if len(self.rot_idx):

@@ -184,22 +184,24 @@ def equilibrate_dense(Ks, G, iters=12, tol=0.1):
     F, n = Ks.shape[:2]
     m = G.shape[1]
     A, B = np.abs(Ks), np.abs(G)
-    R = A.sum(axis=2)
-    nbr = np.maximum(R, np.where(A > 0.0, R[:, None, :], 0.0).max(axis=2, initial=0.0))
+    mx = np.maximum.reduce                   # the reductions without their Python wrappers
+    R = np.add.reduce(A, axis=2)
+    nbr = np.maximum(R, mx(np.where(A > 0.0, R[:, None, :], 0.0), axis=2, initial=0.0))
     cap = _cap(R, nbr)
     Dq, Dl = np.minimum(np.ones((F, n)), cap), np.ones((F, m))
     bufA, bufB = np.empty_like(A), np.empty_like(B)
     go = np.ones(F, bool)
     for _ in range(iters):
-        rq = np.multiply(A, Dq[:, None, :], out=bufA).max(axis=2, initial=0.0)
+        rq = mx(np.multiply(A, Dq[:, None, :], out=bufA), axis=2, initial=0.0)
         if m:
-            rq = np.maximum(rq, np.multiply(B, Dl[:, :, None], out=bufB).max(axis=1, initial=0.0))
+            rq = np.maximum(rq, mx(np.multiply(B, Dl[:, :, None], out=bufB), axis=1, initial=0.0))
         rq *= Dq
-        rl = np.multiply(B, Dq[:, None, :], out=bufB).max(axis=2, initial=0.0) * Dl
+        rl = mx(np.multiply(B, Dq[:, None, :], out=bufB), axis=2, initial=0.0) * Dl
         rq[(rq <= 0.0) | ((Dq >= cap) & (rq < 1.0))] = 1.0   # all-zero row, or at its cap
         rl[rl <= 0.0] = 1.0
-        go &= ~(np.all(np.abs(rq - 1.0) <= tol, axis=1) & np.all(np.abs(rl - 1.0) <= tol, axis=1))
-        if not go.any():
+        go &= ~(np.logical_and.reduce(np.abs(rq - 1.0) <= tol, axis=1)
+               & np.logical_and.reduce(np.abs(rl - 1.0) <= tol, axis=1))
+        if not np.logical_or.reduce(go):
             break
         rq[~go], rl[~go] = 1.0, 1.0
         Dq = np.minimum(Dq / np.sqrt(rq), cap)

@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 
 from poise.core import phases
+from poise.core.lean import all_finite, norm
 from poise.solvers.superlu import lean
 
 # Dense systems up to this size are solved with numpy's LAPACK (gesv) and checked with an SVD:
@@ -53,7 +54,7 @@ def _clearly_regular(J) -> bool:
             Ji = np.linalg.inv(J)
         except np.linalg.LinAlgError:        # an exactly zero pivot
             return False
-        k = np.linalg.norm(J) * np.linalg.norm(Ji)
+        k = norm(J) * norm(Ji)
     return bool(k < 1e13)          # False for NaN/Inf (overflowing inverse)
 
 
@@ -114,7 +115,7 @@ class Factor:
                 raise SingularMatrix("singular matrix (zero pivot)", row=self.pivot_row)
         elif np.asarray(J).shape[0] <= NUMPY_DENSE_MAX:
             J = np.asarray(J)
-            if not np.all(np.isfinite(J)):
+            if not all_finite(J):
                 raise SingularMatrix("matrix has non-finite entries")
             self.numpy = True
             self._pivot_row = None
@@ -171,18 +172,18 @@ class Factor:
 
     def _solve_refined(self, b, refine, rtol):
         x = self._solve(b)
-        nb = np.linalg.norm(b)
+        nb = norm(b)
         if nb == 0:
             return x
         for _ in range(refine + 1):
-            if not np.all(np.isfinite(x)):
+            if not all_finite(x):
                 raise SingularMatrix("singular matrix (non-finite solution)", row=self.pivot_row)
             res = b - self.J @ x
-            if np.linalg.norm(res) <= rtol * nb:
+            if norm(res) <= rtol * nb:
                 return x
             x = x + self._solve(res)
         res = b - self.J @ x
-        if not np.all(np.isfinite(x)) or np.linalg.norm(res) > 1e-4 * nb:
+        if not all_finite(x) or norm(res) > 1e-4 * nb:
             raise SingularMatrix("singular matrix (linear solve residual "
                                  f"{np.linalg.norm(res) / nb:.1e})", row=self.pivot_row)
         return x

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.core.lean import all_finite
 from poise.elements.context import row_where
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
@@ -81,12 +82,14 @@ class Scales:
 
 def measures(model, ev, sc: Scales):
     """(imbalance, constraint error (relative), scaled infinity norm, worst-equation name)."""
-    imb = float(np.max(np.abs(ev.r))) if ev.r.size else 0.0
-    zr = np.abs(ev.r) / sc.r_tol
+    mx = np.maximum.reduce              # (np.max without its Python wrapper)
+    ar = np.abs(ev.r)
+    imb = float(mx(ar)) if ev.r.size else 0.0
+    zr = ar / sc.r_tol
     zp = np.abs(ev.phi) / sc.phi_tol if ev.phi.size else np.zeros(0)
-    cerr = float(np.max(zp) * sc.max_error) if zp.size else 0.0
+    cerr = float(mx(zp) * sc.max_error) if zp.size else 0.0
     z = np.concatenate([zr, zp])
-    k = int(np.argmax(z)) if z.size else 0
+    k = int(z.argmax()) if z.size else 0
     worst = ""
     if z.size:
         if k < model.nq:
@@ -94,7 +97,7 @@ def measures(model, ev, sc: Scales):
         else:
             ri = model.row_info[k - model.nq]
             worst = f"{row_where(ri)} {ri['equation']}"
-    return imb, cerr, float(z.max()) if z.size else 0.0, worst
+    return imb, cerr, float(mx(z)) if z.size else 0.0, worst
 
 
 def merit(ev, sc):
@@ -318,7 +321,7 @@ class NewtonIteration(Solver[_Newtoning]):
         except SingularMatrix as e:
             return self._fail(s, Status.SINGULAR_JACOBIAN,
                               MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
-        if not np.all(np.isfinite(x)):
+        if not all_finite(x):
             return self._fail(s, Status.SINGULAR_JACOBIAN, MESSAGES[Status.SINGULAR_JACOBIAN])
         if s.it == 0 and self.probe is not None:
             # before Newton spends its budget: a free direction a constant load pushes along

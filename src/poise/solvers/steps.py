@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.lean import row_norms
 from poise.solvers.linalg import SingularMatrix
 
 NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
@@ -25,13 +26,13 @@ def limit_step(model, state, dq, settings):
     fac = 1.0
     if len(model.rot_idx):
         r = dq[model.rot_idx].reshape(-1, 3)
-        mr = float(np.max(np.linalg.norm(r, axis=1)))
+        mr = float(np.maximum.reduce(row_norms(r)))
         if mr > settings.max_rotation_step:
             fac = settings.max_rotation_step / mr
     lim = settings.max_translation_step * model.L
     for _ in range(settings.limits.limit_step_tries):
         trial = model.retract(state, fac * dq)
-        disp = float(np.max(np.linalg.norm(trial.pos - state.pos, axis=1))) if model.nb else 0.0
+        disp = float(np.maximum.reduce(row_norms(trial.pos - state.pos))) if model.nb else 0.0
         if disp <= lim * 1.0001:
             return fac, trial
         fac *= 0.9 * lim / disp
@@ -41,12 +42,12 @@ def limit_step(model, state, dq, settings):
 def mass_times(model, state, v, Jg=None):
     """``M v`` for a tangent vector ``v`` (nq,): body masses on translations, world inertia on
     rotations, zero on scalar unknowns. ``Jg``: the world inertias at ``state``
-    (``model.mass_blocks(state)[1]``) when the caller has them already."""
+    (``model.world_inertia(state)``) when the caller has them already."""
     out = np.zeros(model.nq)
-    out[model.trans_idx] = np.repeat(model.body_mass, 3) * v[model.trans_idx]
+    out[model.trans_idx] = model.body_mass.repeat(3) * v[model.trans_idx]
     if len(model.rot_idx):
         if Jg is None:
-            _, Jg = model.mass_blocks(state)
+            Jg = model.world_inertia(state)
         out[model.rot_idx] = np.einsum("nij,nj->ni", Jg,
                                        v[model.rot_idx].reshape(-1, 3)).ravel()
     return out
@@ -73,17 +74,17 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited):
     if not eps > 0 or model.nq == 0:
         return None
     nq = model.nq
-    Jg = model.mass_blocks(state)[1] if len(model.rot_idx) else None   # both products' M
+    Jg = model.world_inertia(state) if len(model.rot_idx) else None   # both products' M
     reg = eps * mass_times(model, state, x[:nq], Jg)
-    share = float(np.max(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
+    share = float(np.maximum.reduce(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
     if not (share > TAIL_SHARE or (limited() if callable(limited) else limited)):
         return None
     pad = np.zeros(len(x) - nq)
     try:
         Sx = f.solve(np.concatenate([reg, pad]))
-        size = np.max(np.abs(x[:nq]) / sc.q_len)
+        size = np.maximum.reduce(np.abs(x[:nq]) / sc.q_len)
         if share <= TAIL_SHARE and \
-                not float(np.max(np.abs(Sx[:nq]) / sc.q_len)) > NEUTRAL_SHARE * size:
+                not float(np.maximum.reduce(np.abs(Sx[:nq]) / sc.q_len)) > NEUTRAL_SHARE * size:
             return None
         z = x + 2.0 * Sx
         Sz = f.solve(np.concatenate([eps * mass_times(model, state, z[:nq], Jg), pad]))

@@ -1,0 +1,119 @@
+"""The small-model fast paths give the generic paths' numbers bit for bit.
+
+Small families keep a ``SlotIndex`` (slot gathers, masks, slot rounds); cross products, skew
+matrices and Rodrigues' formulas take shortcuts on small arrays or ordinary angles;
+``poise.core.lean`` replaces numpy's convenience wrappers. Each is compared here with the
+generic computation it stands for, on random layouts (equal bytes, not a tolerance: the
+digests of the example decks must not move).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from poise.core.lean import all_finite, norm, row_norms
+from poise.elements import kernel as K
+from poise.elements import rotation as R
+
+
+def _cross_ref(a, b):
+    a, b = np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float))
+    out = np.empty(a.shape)
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+@pytest.mark.parametrize("shape", [(3,), (1, 3), (4, 2, 3), (3000, 4, 3)])
+def test_cross_and_skew_small_and_large(shape):
+    rng = np.random.default_rng(1)
+    a, b = rng.standard_normal(shape), rng.standard_normal(shape)
+    a[rng.random(shape) < 0.2] = -0.0
+    assert K.cross3(a, b).tobytes() == _cross_ref(a, b).tobytes()
+    S = R.skew(a)
+    assert S.shape == shape + (3,)
+    u = rng.standard_normal(shape)
+    assert np.allclose(np.einsum("...ij,...j->...i", S, u), np.cross(a, u), rtol=1e-12, atol=1e-12)
+    assert np.array_equal(np.signbit(np.diagonal(S, axis1=-2, axis2=-1)), np.zeros(shape, bool))
+    assert np.array_equal(S, -np.swapaxes(S, -1, -2))
+
+
+@pytest.mark.parametrize("n", [1, 8, 3000])
+def test_column_and_row_products(n):
+    rng = np.random.default_rng(2)
+    v, M = rng.standard_normal((3, n)), rng.standard_normal((3, 3, n))
+    Mn = np.moveaxis(M, -1, 0)                      # (n, 3, 3)
+    sk = R.skew(v.T)                                # (n, 3, 3)
+    assert np.allclose(np.moveaxis(K._cross_cols(v, M), -1, 0), sk @ Mn)
+    assert np.allclose(np.moveaxis(K._cross_rows(M, v), -1, 0), Mn @ sk)
+    # small and large paths: the same products
+    cols = np.stack([_cross_ref(v[:, i], M[:, j, i]) for i in range(n) for j in range(3)])
+    assert K._cross_cols(v, M).transpose(2, 1, 0).reshape(-1, 3).tobytes() == cols.tobytes()
+
+
+def test_slot_rounds_are_the_slot_loop():
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        k_, s_, n = int(rng.integers(1, 5)), int(rng.integers(1, 13)), int(rng.integers(1, 3))
+        ml = rng.integers(0, k_, s_).tolist()
+        blk = rng.standard_normal((n, s_, 3, 3))
+        base = rng.standard_normal((n, 6 * k_, 6 * k_))
+        loop = base.copy()
+        for s in range(s_):
+            k = ml[s]
+            loop[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
+        rounds = base.copy()
+        diag = np.einsum("nkikj->nkij", rounds.reshape(n, k_, 6, k_, 6)[:, :, 3:, :, 3:])
+        for ks, ss in K._slot_rounds(ml):
+            diag[:, ks] += blk[:, ss]
+        assert rounds.tobytes() == loop.tobytes()
+
+
+def test_slot_index_sums_are_the_generic_ones():
+    rng = np.random.default_rng(4)
+    for t in range(300):
+        n, k_, s_ = int(rng.integers(1, 5)), int(rng.integers(1, 4)), int(rng.integers(1, 12))
+        ml = rng.integers(0, k_, s_)
+        kind = np.where(rng.random((1, s_)) < 0.4, 0, rng.integers(1, 4, (1, s_))).repeat(n, 0)
+        if t % 4 == 0:                  # a slot that is a point in some instances only
+            kind[0, 0], kind[-1, 0] = 0, 1
+        markers = rng.integers(0, 6, (n, k_))
+        body = rng.integers(0, 4, 6)
+        P, A, pos = rng.standard_normal((6, 3)), rng.standard_normal((6, 3, 3)), \
+            rng.standard_normal((4, 3))
+        ix = K.SlotIndex(markers, ml, kind, body)
+        fast = K.slot_kinematics(markers, ml, kind, P, A, body, pos, ix)
+        slow = K.slot_kinematics(markers, ml, kind, P, A, body, pos)
+        assert fast.Y.tobytes() == slow.Y.tobytes() and fast.V.tobytes() == slow.V.tobytes()
+        assert slow.rounds is None and (ix.rounds is None) == bool(t % 4 == 0 and n > 1)
+        rho, py = rng.standard_normal((n, 3 * s_)), rng.standard_normal((n, 2, 3 * s_))
+        assert K._local_residual(fast, rho, k_).tobytes() == \
+            K._local_residual(slow, rho, k_).tobytes()
+        assert K.constraint_jacobian_local(fast, py, k_).tobytes() == \
+            K.constraint_jacobian_local(slow, py, k_).tobytes()
+        assert fast.B.tobytes() == slow.B.tobytes()
+
+
+def test_screw_exp_closed_forms_are_the_series_path():
+    rng = np.random.default_rng(5)
+    for shape in [(3,), (4, 3), (2, 3, 3)]:
+        for scale in (1e-5, 0.3, 3.0):
+            w = rng.standard_normal(shape) * scale
+            th, Kw, KK = R._axis_parts(w)
+            E, V = R.screw_exp(w)
+            assert E.tobytes() == R._expm(th, Kw, KK).tobytes()
+            assert V.tobytes() == R._left_jacobian(th, Kw, KK).tobytes()
+    E, V = R.screw_exp(np.zeros((2, 3)))                # zero angle: the series
+    assert np.array_equal(E, np.broadcast_to(np.eye(3), (2, 3, 3)))
+    assert np.array_equal(V, np.broadcast_to(np.eye(3), (2, 3, 3)))
+
+
+def test_lean_is_numpy():
+    rng = np.random.default_rng(6)
+    for shape in [(3,), (20,), (20, 20), (5, 3)]:
+        x = rng.standard_normal(shape) * 10.0 ** rng.integers(-100, 100, shape)
+        assert norm(x).tobytes() == np.linalg.norm(x).tobytes()
+        assert row_norms(x).tobytes() == np.linalg.norm(x, axis=-1).tobytes()
+    assert all_finite(np.zeros(0)) and all_finite(np.ones((2, 3)))
+    assert not all_finite(np.array([1.0, np.nan])) and not all_finite(np.array([[np.inf]]))
