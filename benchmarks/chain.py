@@ -8,7 +8,8 @@
   times one sparse LU (``scipy.sparse.linalg.splu``, COLAMD, as the solver uses) of the KKT matrix
   ``model.evaluate(state).J`` at the solution, and one Jacobian evaluation. Peak memory is the
   worker's peak resident set size (``getrusage(RUSAGE_SELF).ru_maxrss``: whole process,
-  interpreter and libraries included).
+  interpreter and libraries included); per solve phase, the peak after it (``phases_peak``)
+  and on Linux its own peak (``phases_own_peak``: the high-water mark reset at its start).
 * **``poise --help``** and **``poise solve decks/pendulum_multiturn.xml``** (process start to HDF5
   written): wall time of the console script, median of ``--cli-repeat`` runs with min/max.
 
@@ -80,7 +81,6 @@ def _stats(xs):
 # --------------------------------------------------------------------------- worker (one case)
 def _worker(deck: str, n: int) -> dict:
     """Run one chain case in this process; return the measurements (called via ``--worker``)."""
-    import resource
 
     t = time.perf_counter()
     import poise  # noqa: F401  (first, as in `poise solve`: it configures BLAS threads)
@@ -105,19 +105,24 @@ def _worker(deck: str, n: int) -> dict:
     phases: dict[str, float] = {}
     phases_cpu: dict[str, float] = {}
     phases_peak: dict[str, int] = {}
+    phases_own_peak: dict[str, int] = {}
+    hwm = _HighWater()
 
     def rss_now():
-        r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        return r if sys.platform == "darwin" else r * 1024
+        return hwm.peak()
 
     def timed(name, fn):
         def wrapper(*a, **kw):
             t0, c0 = time.perf_counter(), time.process_time()
+            hwm.enter(name)
             try:
                 return fn(*a, **kw)
             finally:
                 phases[name] = phases.get(name, 0.0) + time.perf_counter() - t0
                 phases_cpu[name] = phases_cpu.get(name, 0.0) + time.process_time() - c0
+                own = hwm.leave(name)
+                if own is not None:                # the phase's own peak (Linux)
+                    phases_own_peak[name] = max(phases_own_peak.get(name, 0), own)
                 phases_peak[name] = rss_now()      # the process's peak RSS after the phase
         return wrapper
 
@@ -171,8 +176,7 @@ def _worker(deck: str, n: int) -> dict:
         tl = time.perf_counter()
         spla.splu(Jc, permc_spec="COLAMD", **lean(Jc.shape[0]))   # the solver's options
         lu_times.append(time.perf_counter() - tl)
-    ru = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    peak = ru if sys.platform == "darwin" else ru * 1024
+    peak = rss_now()
     newton_s = phases.get("newton", 0.0)
     return dict(n=n, nq=model.nq, nc=model.nc, nnz=int(Jc.nnz), kkt_size=int(Jc.shape[0]),
                 import_s=t_import, parse_s=t1 - t0, compile_s=t2 - t1, solve_s=t3 - t2,
@@ -181,10 +185,58 @@ def _worker(deck: str, n: int) -> dict:
                 lu_s=statistics.median(lu_times), evaluate_s=statistics.median(ev_times),
                 solve_cpu_s=solve_cpu, newton_lu_s=newton_lu, newton_lu_cpu_s=newton_lu_cpu,
                 phases=phases, phases_cpu=phases_cpu,
-                phases_peak=phases_peak, counters=counters,
+                phases_peak=phases_peak, phases_own_peak=phases_own_peak, counters=counters,
                 redundant=redundant, status=status,
                 peak_rss_bytes=int(peak), peak_parse_bytes=int(peak_parse),
                 peak_compile_bytes=int(peak_compile), peak_solve_bytes=int(peak_solve))
+
+
+class _HighWater:
+    """The worker's peak resident set size, and each timed phase's own peak (Linux: the
+    kernel's high-water mark is reset when a phase starts, ``/proc/self/clear_refs``; the
+    process's peak is the largest mark seen, so it stays what ``ru_maxrss`` would say).
+    Elsewhere only the process's peak (``ru_maxrss``), and no own peaks."""
+
+    def __init__(self):
+        import resource
+        self._resource = resource
+        self._seen = 0
+        self._open: dict[str, int] = {}        # phase -> its peak so far (nested phases)
+        self._reset = sys.platform.startswith("linux") and self._clear()
+
+    def _mark(self) -> int:
+        r = self._resource.getrusage(self._resource.RUSAGE_SELF).ru_maxrss
+        return r if sys.platform == "darwin" else r * 1024
+
+    def _clear(self) -> bool:
+        try:
+            with open("/proc/self/clear_refs", "w") as f:
+                f.write("5")
+            return True
+        except OSError:
+            return False
+
+    def peak(self) -> int:
+        return max(self._seen, self._mark())
+
+    def enter(self, name: str) -> None:
+        if not self._reset:
+            return
+        m = self._mark()                     # folded into the process's and open phases' peaks
+        self._seen = max(self._seen, m)
+        for k in self._open:
+            self._open[k] = max(self._open[k], m)
+        self._clear()
+        self._open[name] = 0
+
+    def leave(self, name: str) -> int | None:
+        if not self._reset or name not in self._open:
+            return None
+        m = self._mark()
+        self._seen = max(self._seen, m)
+        for k in self._open:
+            self._open[k] = max(self._open[k], m)
+        return self._open.pop(name)
 
 
 def _newton_lu(model, state, settings, active, repeat: int = 5):
@@ -236,6 +288,8 @@ def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
                          for p in phase_names}
     out["phases_peak"] = {p: _stats([r.get("phases_peak", {}).get(p) for r in runs])
                           for p in phase_names}
+    out["phases_own_peak"] = {p: _stats([r.get("phases_own_peak", {}).get(p) for r in runs])
+                              for p in phase_names}
     it = out["iteration_s"]
     out["iteration_per_lu"] = (it["median"] / out["lu_s"]["median"]
                                if it and out["lu_s"]["median"] > 0 else None)

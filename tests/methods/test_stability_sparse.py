@@ -65,32 +65,116 @@ def test_ldlt_indefinite_kkt_and_refusals():
     assert F.ok and F.backward_error > 1e-5
 
 
-def test_ldlt_released_factors_give_the_same_inertia_and_solves(monkeypatch):
-    # ``release`` (large systems: the threshold patched down here): the factors and SuperLU's
-    # copies of L and U go once the pivots and backward error are read; the first solve
-    # factorises again, bit for bit the factorisation that was dropped
-    monkeypatch.setattr(stab_sparse, "RELEASE_MIN", 1)
+def test_ldlt_head_solves_are_the_full_solves_bit_for_bit():
+    # ``solve_head`` (the mode operators): the right-hand side ``[v; 0]`` made in the
+    # factorisation's order and the head of the solution gathered back, in groups of columns,
+    # is ``solve`` of the zero-padded right-hand side to the last bit; so is the backward error
+    # with or without the pivots read before it
     rng = np.random.default_rng(99)
     for _ in range(20):
         n = int(rng.integers(5, 60))
         A = _random_symmetric(rng, n)
         order = rng.permutation(n)
-        keep = stab.SymmetricLDL(A, order)
+        F = stab.SymmetricLDL(A, order)
         built = []
-        rel = stab.SymmetricLDL(lambda A=A, built=built: built.append(1) or A, order, release=True)
-        assert keep.ok == rel.ok
-        if not keep.ok:
+        G = stab.SymmetricLDL(lambda A=A, built=built: built.append(1) or A, order)
+        assert len(built) == 1 and F.ok == G.ok
+        if not F.ok:
             continue
-        assert rel.lu is None and len(built) == 1
-        assert rel.inertia == keep.inertia
-        assert np.array_equal(rel.pivots, keep.pivots) and np.array_equal(rel.index, keep.index)
-        assert rel.backward_error == keep.backward_error
-        b = rng.normal(size=(n, 3))
-        x = keep.solve(b)
-        assert np.array_equal(rel.solve(b), x) and len(built) == 2     # factorised again, once
-        assert np.array_equal(rel.solve(b.copy(), overwrite_b=True), x) and len(built) == 2
-        y = b.copy()
-        assert keep.solve(y, overwrite_b=True) is y and np.array_equal(y, x)
+        assert G.inertia == F.inertia and np.array_equal(G.pivots, F.pivots)
+        assert G.backward_error == F.backward_error > 0.0
+        k = int(rng.integers(1, n + 1))
+        for cols in ((), (1,), (3,), (9,)):
+            v = rng.normal(size=(k,) + cols)
+            b = np.zeros((n,) + cols)
+            b[:k] = v
+            x = F.solve(b)[:k]
+            assert np.array_equal(F.solve_head(v, k), x)
+            assert np.array_equal(F.solve(b.copy(), overwrite_b=True)[:k], x)
+        P = stab.SymmetricLDL(A, None)
+        if P.ok:
+            v = rng.normal(size=(k, 5))
+            b = np.zeros((n, 5))
+            b[:k] = v
+            assert np.array_equal(P.solve_head(v, k), P.solve(b)[:k])
+
+
+def _unsorted(M, rng):
+    """``M`` (CSR) with the entries of every row in a random order (as a sparse product gives)."""
+    M = M.tocsr()
+    idx, dat = M.indices.copy(), M.data.copy()
+    for r in range(M.shape[0]):
+        a, b = M.indptr[r], M.indptr[r + 1]
+        p = a + rng.permutation(b - a)
+        idx[a:b], dat[a:b] = M.indices[p], M.data[p]
+    out = sp.csr_matrix((dat, idx, M.indptr.copy()), shape=M.shape)
+    out.has_sorted_indices = False
+    return out
+
+
+def test_permuted_kkt_is_the_permuted_block_matrix_bit_for_bit():
+    # the pencil's KKT matrix written straight into its elimination order is the very CSC
+    # matrix (values, row indices in each column, column pointers) that the block matrix
+    # permuted by fancy indexing gives: unsorted constraint rows, entries that cancel (dropped
+    # by the sparse sum), a diagonal equal to the shift, no constraint rows at all
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        nq = int(rng.integers(1, 40))
+        m = 0 if trial % 5 == 0 else int(rng.integers(1, nq + 1))
+        Kt = _random_symmetric(rng, nq).tocsr()
+        Gt = sp.random(m, nq, density=rng.uniform(0.05, 0.5), format="csr",
+                       random_state=int(rng.integers(1 << 30)))
+        P = stab_sparse.SparsePencil.__new__(stab_sparse.SparsePencil)
+        P.nq, P.m, P._pos = nq, m, None
+        P.order = rng.permutation(nq + m)
+        P.Gt = _unsorted(Gt, rng) if trial % 2 else Gt
+        P._GtG, P.lean = (Gt.T @ Gt).tocsr(), bool(trial % 2)
+        s, rho = float(rng.normal()), float(rng.choice([1.0, 16.0, 1.0 / 16.0]))
+        if trial % 3 == 0 and P.GtG.nnz:             # cancellations: K = -rho GtG, diag = s
+            GtG = (Gt.T @ Gt).tocsr()
+            K = (-rho * GtG).tolil()
+            K[0, 0] = s + rho * GtG[0, 0]
+            Kt = K.tocsr()
+        P.Kt = Kt
+        ref = stab_sparse.symmetric_permutation(P.kkt(s, rho), P.order)
+        got = P.permuted_kkt(s, rho)                  # (a lean pencil makes Gt^T Gt again)
+        assert np.array_equal(P.permuted_kkt(s, rho).data, got.data)
+        for a in ("data", "indices", "indptr"):
+            assert np.array_equal(getattr(got, a), getattr(ref, a)), (trial, a)
+
+
+def test_equilibration_row_maxima_padded_or_by_segments_agree_bit_for_bit():
+    # the KKT blocks' scaled row maxima laid out padded (rows of a few entries) are those of
+    # the segmented reduction, to the last bit: empty rows, row and column offsets, one block
+    # with a long row (not padded)
+    from poise.solvers.equilibrate import _RowMaxima
+    rng = np.random.default_rng(3)
+    for trial in range(30):
+        nr, nc = int(rng.integers(1, 50)), int(rng.integers(1, 50))
+        M = sp.random(nr, nc, density=rng.uniform(0.02, 0.3), format="csr",
+                      random_state=int(rng.integers(1 << 30)))
+        if trial % 4 == 0:
+            M = sp.vstack([M, sp.csr_matrix(np.ones((1, nc)))]).tocsr()   # one long row
+        M.data *= rng.choice([-1.0, 1.0], size=M.nnz) * 10.0 ** rng.uniform(-8, 8, M.nnz)
+        r0, c0 = (0, nr) if trial % 2 else (nc, 0)
+        D = 10.0 ** rng.uniform(-4, 4, max(r0 + M.shape[0], c0 + nc))
+        got = []
+        for padded in (True, False):
+            pt = _RowMaxima(M.indptr, M.indices, M.data, r0, c0)
+            if padded != pt.padded:                  # the other layout, built for the check
+                if not padded:
+                    cnt = np.diff(M.indptr)
+                    pt.padded, pt.a, pt.cols = False, np.abs(M.data), (M.indices + c0)
+                    pt.rows = np.repeat(np.arange(r0, r0 + len(cnt)), cnt)
+                    pt.starts = M.indptr[:-1][cnt > 0]
+                    pt.buf, pt.tmp = np.empty(M.nnz), np.empty(M.nnz)
+                else:
+                    continue
+            r = np.zeros(len(D))
+            pt.into(r, D)
+            got.append(r)
+        if len(got) == 2:
+            assert np.array_equal(got[0], got[1]), trial
 
 
 # ------------------------------------------------------------------ sparse == dense

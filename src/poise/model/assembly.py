@@ -130,14 +130,16 @@ class Assembler:
                 M.poise_csc_layout = partial(self.csc_layout, workspace)
         return M
 
-    def release(self, workspace) -> None:
+    def release(self, workspace, values: bool = False) -> None:
         """Drop the data buffers kept in ``workspace`` for reuse (a live matrix keeps its own)
         and the column-ordered layout: after a solver's iterations, so that later phases do not
-        carry them."""
+        carry them; ``values``: the value buffer too (no assembly is coming soon)."""
         sc = workspace.scratch(self, _Scratch)
         sc.data = []
         sc.layout = None
         sc.factorised = 0
+        if values:
+            sc.buf = None
 
     def csc_layout(self, workspace) -> "CSCLayout | None":
         """The :class:`CSCLayout` of this pattern in its column order (:meth:`ordered`), kept

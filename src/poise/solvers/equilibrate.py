@@ -128,27 +128,51 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
 class _RowMaxima:
     """Row maxima of ``|M| * D[row] * D[col]`` for a compressed block ``M`` of the KKT matrix
     at row offset ``r0`` and column offset ``c0`` (the same products, in the same order, as on
-    the assembled matrix)."""
+    the assembled matrix). Rows of a few entries (every row at most ``w``, ``w`` rows x the
+    non-empty rows no more than twice the entries) are laid out padded, ``(w, rows)``: the
+    row factor is then one broadcast and the maxima ``w - 1`` elementwise passes, instead of
+    a gather and a segmented reduction; other blocks are reduced by segments."""
 
     def __init__(self, indptr, indices, data, r0, c0):
         cnt = np.diff(indptr)
         nz = cnt > 0
-        self.a = np.abs(data)
-        self.rows = np.repeat(np.arange(r0, r0 + len(cnt)), cnt)
-        self.cols = indices + c0 if c0 else indices
-        self.starts = indptr[:-1][nz]
         self.target = np.nonzero(nz)[0] + r0
-        self.buf = np.empty(self.a.size)
-        self.tmp = np.empty(self.a.size)
+        a = np.abs(data)
+        cols = (indices + c0 if c0 else indices).astype(np.intp)
+        w = int(cnt.max(initial=0))
+        self.padded = a.size > 0 and w * self.target.size <= 2 * a.size
+        if self.padded:
+            # entry j of row i at [j, i] (rows without entries left out); padding: |0| at col 0
+            k = np.arange(a.size) - np.repeat(indptr[:-1], cnt)
+            at = k * self.target.size + np.repeat(np.arange(self.target.size), cnt[nz])
+            self.a = np.zeros(w * self.target.size)
+            self.a[at] = a
+            self.a = self.a.reshape(w, -1)
+            self.cols = np.zeros(self.a.size, np.intp)
+            self.cols[at] = cols
+            self.cols = self.cols.reshape(w, -1)
+        else:
+            self.a = a
+            self.rows = np.repeat(np.arange(r0, r0 + len(cnt)), cnt)
+            self.cols = cols
+            self.starts = indptr[:-1][nz]
+        self.buf = np.empty(self.a.shape)
+        self.tmp = np.empty(self.a.shape)
 
     def into(self, r, D):
         if not self.a.size:
             return
-        np.take(D, self.rows, out=self.buf)
-        np.multiply(self.a, self.buf, out=self.buf)
-        np.take(D, self.cols, out=self.tmp)
-        np.multiply(self.buf, self.tmp, out=self.buf)
-        m = np.maximum.reduceat(self.buf, self.starts)
+        if self.padded:
+            np.multiply(self.a, D[self.target], out=self.buf)
+            np.take(D, self.cols, out=self.tmp)
+            np.multiply(self.buf, self.tmp, out=self.buf)
+            m = self.buf.max(axis=0)
+        else:
+            np.take(D, self.rows, out=self.buf)
+            np.multiply(self.a, self.buf, out=self.buf)
+            np.take(D, self.cols, out=self.tmp)
+            np.multiply(self.buf, self.tmp, out=self.buf)
+            m = np.maximum.reduceat(self.buf, self.starts)
         np.maximum(r[self.target], m, out=m)
         r[self.target] = m
 

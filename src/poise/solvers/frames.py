@@ -63,6 +63,11 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
             dep = dependent_rows(Pfull, saved, Y=Y)
         loads = element_loads(model, state, lam=lam, ev=ev)
         ev = Pfull = Y = None     # the evaluation's kept slot data go before the classification
+        if not model.assembler.dense:        # ... so do the assembly buffers (J keeps its data):
+            if env.kind == "static":         # the static solve's workspace has served (all of it)
+                env.data.workspace.clear()
+            else:                            # the next frames reuse its scatters and order
+                model.assembler.release(env.data.workspace, values=True)
         memory.release(model.nq * 1000)      # ... and their pages (large models)
     except EvaluationError:
         loads = {}
@@ -74,7 +79,8 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
         # or a path's located end
         infos = [known]
     elif all(o.ok for o in outcomes) and J is not None:
-        infos = [classify(model, state, J=J, active=saved)]
+        jac, J = [J].pop, None    # handed over: the classification drops J once it is read
+        infos = [classify(model, state, J=jac, active=saved)]
     else:   # the same records either way: frames of a sequence are concatenated
         infos = [unknown_info()] * len(outcomes)
     return frame_set(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},

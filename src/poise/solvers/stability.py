@@ -44,21 +44,26 @@ def classify(model, state, J=None, active=None) -> StabilityInfo:
     constraint rows (None: all).
 
     ``J`` may be a KKT Jacobian already evaluated at ``state`` without regularisation (with
-    any active rows: inactive rows are dropped here).
+    any active rows: inactive rows are dropped here), or a zero-argument callable returning
+    it: then only the classification holds it, and a large model's goes once it is read.
     """
     nq = model.nq
     if nq == 0:
         return StabilityInfo("stable", 0, 0, "", np.nan)
     if J is None:
-        J = model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J
+        J = [model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J].pop
     if active is None:
         active = np.ones(model.nc, bool)
     if nq > DENSE_LIMIT:
-        red = eliminate_sparse(model, J)
-        if red is None:
-            return classify_sparse(model, J, active)
-        view, Jr, lift = red
-        return _lifted(classify_sparse(view, Jr, active), lift)
+        if model.n_extra:
+            J = J() if callable(J) else J
+            red = eliminate_sparse(model, J)
+            if red is not None:
+                view, Jr, lift = red
+                return _lifted(classify_sparse(view, Jr, active), lift)
+            J = [J].pop
+        return classify_sparse(model, J, active)
+    J = J() if callable(J) else J
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
     return classify_dense_frames(model, J[None], active)[0]
 

@@ -33,14 +33,19 @@ def classify_sparse(model, J, active=None) -> StabilityInfo:
     """Inertia by spectrum slicing with sparse LDL^T factorisations of the equilibrated KKT
     matrix (module docstring, "Large models"). Active constraint rows that have become
     dependent at this configuration (a tiny pivot at a constraint row) are found by the
-    redundancy test of the static driver and dropped (the null space is unchanged), once."""
+    redundancy test of the static driver and dropped (the null space is unchanged), once.
+    ``J`` may be a zero-argument callable returning the matrix (:class:`SparsePencil`)."""
     try:
         P = SparsePencil(model, J, active=active)
+        P.lean = True                     # a stable model needs Gt^T Gt for one matrix only
+        J = None
         info = classify_pencil(model, P)
         if info.klass == "unknown" and P.singular:
             red = redundant_rows(P.G_active, np.ones(model.nq))
             if len(red):
-                info = classify_pencil(model, SparsePencil(model, J, drop=red, active=active))
+                P = SparsePencil(model, P, drop=red, active=active)
+                P.lean = True
+                info = classify_pencil(model, P)
         return info
     except (RuntimeError, ValueError, ArithmeticError, MemoryError,
             np.linalg.LinAlgError) as e:
@@ -77,11 +82,6 @@ def classify_pencil(model, P) -> StabilityInfo:
     return classified_info(model, klass, n_neg, n_zero, unstable, neutral, min(ws) if ws else np.nan)
 
 
-#: ``SymmetricLDL(release=True)`` drops its factors from this many unknowns on (their copies
-#: are then hundreds of MB; one more factorisation costs a fraction of a second).
-RELEASE_MIN = 1 << 19
-
-
 class SymmetricLDL:
     """Sparse ``L D L^T`` of a symmetric matrix with 1x1 diagonal pivots only, and its inertia.
 
@@ -98,17 +98,13 @@ class SymmetricLDL:
     inertia is A's when this is below A's smallest |eigenvalue| (Weyl).
     """
 
-    def __init__(self, A, order=None, permuted: bool = False, release: bool = False):
+    def __init__(self, A, order=None, permuted: bool = False):
         """``permuted``: ``A`` is ``A[order][:, order]`` already (:func:`symmetric_permutation`).
         ``A`` may be a zero-argument callable returning the matrix: then only this call holds
-        it, and it goes as soon as SuperLU has its copy (before the factors are read).
-        ``release`` (with a callable ``A``, large systems): the factorisation, and the copies
-        of L and U that reading the pivots makes, go once the pivots and the backward error are
-        known; the first :meth:`solve` factorises again (the same factors, bit for bit), so
-        the solves run with SuperLU's factors alone."""
-        self._build = A if callable(A) else None
+        it, and it goes as soon as SuperLU has its copy (before the factors are read)."""
         self.order = None if order is None else np.asarray(order)
         self._permuted = permuted
+        self._pos = None
         A = self._matrix(A() if callable(A) else A)
         self.n = n = A.shape[0]
         self.ok = False
@@ -124,7 +120,7 @@ class SymmetricLDL:
         if not np.array_equal(lu.perm_r, lu.perm_c):
             self.reason = "the LDL^T factorisation needed an off-diagonal pivot"
             return
-        d = lu.U.diagonal()               # (SuperLU makes and keeps CSC copies of L and U)
+        d = lu.U.diagonal()               # (SuperLU makes and keeps a CSC copy of U)
         if not np.all(np.isfinite(d)) or np.any(d == 0.0):
             self.reason = "the LDL^T factorisation has a zero or non-finite pivot"
             return
@@ -137,11 +133,6 @@ class SymmetricLDL:
         self.n_positive = n - self.n_negative
         self.lu = lu
         self.ok = True
-        if release and self._build is not None and n >= RELEASE_MIN:
-            self.backward_error           # noqa: B018  (from the factors, before they go)
-            self.lu = lu = None
-        else:
-            self._build = None
 
     def _matrix(self, A):
         import scipy.sparse as sp
@@ -158,12 +149,17 @@ class SymmetricLDL:
 
     @property
     def backward_error(self) -> float:
+        """``32 u ||(|L| |U|) 1||_inf`` (inf when the factorisation is not valid)."""
         if self._berr is None:
-            # (|L| |U|) 1 as two sparse products with the factors' absolute values (compiled
-            # matrix-vector products over the factors' own index arrays)
-            U, L = self.lu.U, self.lu.L
+            # two compiled sparse products over SuperLU's CSC copies of the factors, each made
+            # absolute in place, read, and emptied before the other is made (the solves use
+            # SuperLU's own factors): one copy alive at a time, none after this
+            U = self.lu.U
             g = _abs_matvec(U, np.ones(self.n))
+            _empty(U)
+            L = self.lu.L
             g = _abs_matvec(L, g)
+            _empty(L)
             self._berr = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
         return self._berr
 
@@ -176,8 +172,6 @@ class SymmetricLDL:
         """``A^-1 b``; ``overwrite_b``: the solution is written into ``b`` (one array of the
         system's size fewer at a time)."""
         b = np.asarray(b, float)
-        if self.lu is None:               # released after the inertia (``release``)
-            self.lu, self._build = self._splu(self._matrix(self._build())), None
         if self.order is None:
             return self.lu.solve(b)
         y = self.lu.solve(np.ascontiguousarray(b[self.order]))
@@ -185,13 +179,47 @@ class SymmetricLDL:
         x[self.order] = y
         return x
 
+    #: right-hand sides solved together by :meth:`solve_head` (SuperLU solves every column
+    #: alone, so the grouping changes no bit; it bounds the temporaries of a wide block)
+    HEAD_COLUMNS = 4
+
+    def solve_head(self, v, k: int):
+        """``(A^-1 [v; 0])[:k]`` for ``v`` with ``k`` rows (a vector or a block of columns),
+        bit for bit :meth:`solve`'s, without its full-size reordered copies: the right-hand
+        side is made in the factorisation's order, and only the head of the solution is
+        gathered back."""
+        v = np.asarray(v, float)
+        if self._pos is None:
+            self._pos = np.arange(self.n) if self.order is None else np.argsort(self.order)
+        at = self._pos[:k]
+        if v.ndim == 1:
+            b = np.zeros(self.n)
+            b[at] = v
+            return self.lu.solve(b)[at]
+        out = np.empty(v.shape)
+        w = self.HEAD_COLUMNS
+        for c in range(0, v.shape[1], w):
+            b = np.zeros((self.n, min(w, v.shape[1] - c)), order="F")
+            b[at] = v[:, c:c + w]
+            out[:, c:c + w] = self.lu.solve(b)[at]
+            b = None
+        return out
+
 
 def _abs_matvec(M, x):
-    """``|M| x`` for a CSC factor ``M`` (SuperLU's ``L`` / ``U``), one temporary array of its
-    entries."""
-    import scipy.sparse as sp
-    A = sp.csc_matrix((np.abs(M.data), M.indices, M.indptr), shape=M.shape)
-    return A @ x
+    """``|M| x`` for a CSC factor copy ``M`` (SuperLU's ``L`` / ``U``), whose values are made
+    absolute in place."""
+    np.abs(M.data, out=M.data)
+    return M @ x
+
+
+def _empty(M):
+    """Free the arrays of SuperLU's cached CSC copy ``M`` of a factor: the SuperLU object keeps
+    the copy it made on the first read of ``lu.L`` / ``lu.U`` for later reads, which never come
+    (the solves use its own factors); ``M`` becomes the empty matrix of its shape."""
+    M.data = np.zeros(0)
+    M.indices = np.zeros(0, np.int32)
+    M.indptr = np.zeros(M.shape[1] + 1, np.int32)
 
 
 def symmetric_permutation(A, order):
@@ -206,19 +234,27 @@ class SparsePencil:
     equilibration of the KKT matrix, the KKT elimination order, and factorisations at shifts."""
 
     def __init__(self, model, J, drop=(), active=None, like=None):
-        """``like``: a pencil of the same model at a nearby configuration (a descent's previous
-        step): its elimination order is reused and its scaling starts the equilibration, when
-        it has the same constraint rows (an order is a permutation: any one gives the inertia;
-        a poor one shows as a failed factorisation, and the caller builds a fresh pencil)."""
+        """``J``: the KKT Jacobian, a zero-argument callable returning it (then it goes as soon
+        as its blocks are read) or a pencil of the same Jacobian (its stiffness and constraint
+        rows are taken, e.g. to ``drop`` rows). ``like``: a pencil of the same model at a
+        nearby configuration (a descent's previous step): its elimination order is reused and
+        its scaling starts the equilibration, when it has the same constraint rows (an order is
+        a permutation: any one gives the inertia; a poor one shows as a failed factorisation,
+        and the caller builds a fresh pencil)."""
         import scipy.sparse as sp
         nq = model.nq
-        J = sp.csr_matrix(J)
         d = np.asarray(model.q_scale, float)
-        Di = sp.diags(1.0 / d)
-        Ku = Di @ J[:nq, :nq] @ Di
-        Ks = _prune_noise(((Ku + Ku.T) * 0.5).tocsr())
         rows = np.arange(model.nc) if active is None else np.nonzero(active)[0]
-        G = (J[nq:, :nq][rows] @ Di).tocsr()
+        if isinstance(J, SparsePencil):
+            Ks, G, nnz = J.Ks, J.G_active, J.G_active.nnz
+        else:
+            J = sp.csr_matrix(J() if callable(J) else J)
+            nnz = J.nnz
+            Di = sp.diags(1.0 / d)
+            Ku = Di @ J[:nq, :nq] @ Di
+            Ks = _prune_noise(((Ku + Ku.T) * 0.5).tocsr())
+            G = (J[nq:, :nq][rows] @ Di).tocsr()
+            J = Ku = None                 # (a handed-over Jacobian goes here)
         self.G_active = G                 # active rows, length-scaled (dependent-row check)
         self.rows = rows                  # constraint rows of Gt (model indices)
         if G.shape[0]:
@@ -227,13 +263,15 @@ class SparsePencil:
             rn = np.sqrt(np.asarray(G.multiply(G).sum(axis=1)).ravel())
             keep = rn > 1e-10 * rn.max()
             keep[np.asarray(drop, np.int64)] = False
-            G = _prune_rows(G[keep])    # entries at round-off of their row
-            self.rows = self.rows[keep]
+            if not keep.all():
+                G = G[keep]
+                self.rows = self.rows[keep]
+            G = _prune_rows(G)          # entries at round-off of their row
         same = like is not None and like.nq == nq and np.array_equal(like.rows, self.rows)
         dq, dl = _equilibrate(Ks, G, start=(like.dq, like.dl) if same else None)
         self.Kt = (sp.diags(dq) @ Ks @ sp.diags(dq)).tocsr()
         self.Gt = (sp.diags(dl) @ G @ sp.diags(dq)).tocsr()
-        self.GtG = (self.Gt.T @ self.Gt).tocsr()
+        self._GtG = None
         self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
         self.nq, self.m = nq, self.Gt.shape[0]
         self.reused = same
@@ -242,7 +280,17 @@ class SparsePencil:
         # matrix's), at least ZERO_REL (Kt has a unit-scale diagonal block after equilibration)
         self.eps = ZERO_REL * max(_spectral_radius(self.Kt), 1.0)
         self.singular = False             # a tiny pivot at a constraint row was met
-        memory.release(J.nnz * 16)        # the construction's temporaries' pages (large models)
+        self.lean = False                 # Gt^T Gt not kept beside a factorisation
+        self._pos = None                  # the permuted position of each unknown
+        memory.release(nnz * 16)          # the construction's temporaries' pages (large models)
+
+    @property
+    def GtG(self):
+        """``Gt^T Gt`` (kept until a :attr:`lean` pencil's factorisation drops it, then made
+        again when needed: the same matrix)."""
+        if self._GtG is None:
+            self._GtG = (self.Gt.T @ self.Gt).tocsr()
+        return self._GtG
 
     def kkt(self, s, rho):
         """``[[Kt - s I + rho Gt^T Gt, Gt^T], [Gt, 0]]`` (congruent to the rho = 0 matrix)."""
@@ -252,11 +300,49 @@ class SparsePencil:
             return A.tocsc()
         return sp.bmat([[A, self.Gt.T], [self.Gt, None]], format="csc")
 
-    def ldl(self, s, rho, release: bool = False):
-        """The :class:`SymmetricLDL` of ``kkt(s, rho)`` in the pencil's elimination order
-        (``release``: see there; the classification's factorisations)."""
-        return SymmetricLDL(lambda: symmetric_permutation(self.kkt(s, rho), self.order),
-                            self.order, permuted=True, release=release)
+    def permuted_kkt(self, s, rho):
+        """``kkt(s, rho)[order][:, order]`` in CSC, the very arrays :func:`symmetric_permutation`
+        gives (each column holds its entries in the unpermuted row order, relabelled), written
+        straight from the blocks: the upper-left block's columns, ``Gt``'s columns under them,
+        ``Gt``'s rows as the last columns (in sorted order, as the block matrix has them), each
+        segment put at its permuted column (no block matrix, no fancy-indexed copies)."""
+        import scipy.sparse as sp
+        nq, n = self.nq, self.nq + self.m
+        A = (self.Kt + rho * self.GtG - s * sp.identity(nq, format="csr")).tocsc()
+        if self.lean:
+            self._GtG = None
+        if self._pos is None:
+            self._pos = np.argsort(self.order)
+        pos = self._pos
+        parts = [(A, 0, 0)]                          # (CSC columns, first column, row offset)
+        if self.m:                                   # Gt's rows: the columns of Gt^T
+            Gr = self.Gt if self.Gt.has_sorted_indices else self.Gt.sorted_indices()
+            parts += [(self.Gt.tocsc(), 0, nq), (Gr, nq, 0)]
+        count = np.zeros(n, np.int64)
+        for M, c0, _ in parts:
+            count[c0:c0 + len(M.indptr) - 1] += np.diff(M.indptr)
+        indptr = np.zeros(n + 1, np.int64)
+        np.cumsum(count[self.order], out=indptr[1:])
+        start = indptr[:-1][pos]                     # where each unpermuted column begins
+        nnz = int(indptr[-1])
+        data = np.empty(nnz)
+        indices = np.empty(nnz, np.int32)
+        for M, c0, r0 in parts:
+            cnt = np.diff(M.indptr)
+            col = np.arange(c0, c0 + cnt.size)
+            at = np.repeat(start[col] - M.indptr[:-1], cnt)
+            at += np.arange(M.indptr[-1])
+            start[col] += cnt                        # the next block's segment goes after
+            data[at] = M.data
+            indices[at] = pos[M.indices + r0] if r0 else pos[M.indices]
+            at = None
+        A = sp.csc_matrix((data, indices, indptr.astype(np.int32)), shape=(n, n))
+        memory.release(nnz * 16)          # the temporaries' pages, before the factorisation
+        return A
+
+    def ldl(self, s, rho):
+        """The :class:`SymmetricLDL` of ``kkt(s, rho)`` in the pencil's elimination order."""
+        return SymmetricLDL(lambda: self.permuted_kkt(s, rho), self.order, permuted=True)
 
     def factor(self, s):
         """A valid LDL^T of ``kkt(s, rho)`` for the first ``rho`` of AUG_RHO whose backward
@@ -267,7 +353,7 @@ class SparsePencil:
         F = None
         for rho in AUG_RHO:
             F = None                      # a failed attempt's factors go before the next
-            F = self.ldl(s, rho, release=True)
+            F = self.ldl(s, rho)
             if not F.ok:                  # a zero pivot (exactly dependent rows?)
                 self.singular = True
                 why.append(F.reason)
@@ -293,13 +379,10 @@ class SparsePencil:
         """``v -> x`` with ``kkt(s) [x; y] = [v; 0]``: ``Z (Z^T (Kt - s I) Z)^-1 Z^T v`` for an
         orthonormal null-space basis Z of Gt (symmetric; its range satisfies Gt x = 0)."""
         from scipy.sparse.linalg import LinearOperator
-        nq, m = self.nq, self.m
+        nq = self.nq
 
         def mv(v):
-            v = np.asarray(v, float)
-            b = np.zeros((nq + m,) + v.shape[1:])
-            b[:nq] = v
-            return F.solve(b, overwrite_b=True)[:nq]
+            return F.solve_head(v, nq)
         return LinearOperator((nq, nq), matvec=mv, matmat=mv, dtype=float)
 
     def modes(self, X):
