@@ -268,6 +268,30 @@ def _run_worker(deck: Path, n: int) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+#: chain sizes from which the peak RSS of a whole ``poise solve`` process is measured too (the
+#: worker's peak includes the bench's own reference LU, but not the runner's results and labels)
+CLI_PEAK_FROM = 100000
+
+
+def cli_peak(deck: Path, tmp: Path) -> int | None:
+    """Peak RSS in bytes of one ``poise solve DECK`` process (HDF5 written), or None if it
+    failed: read by an intermediate Python process whose only child it is
+    (``RUSAGE_CHILDREN``), so no earlier benchmark process enters the maximum."""
+    code = ("import resource, subprocess, sys\n"
+            "rc = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL,"
+            " stderr=subprocess.DEVNULL).returncode\n"
+            "r = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss\n"
+            "print(rc, r if sys.platform == 'darwin' else r * 1024)\n")
+    cmd = [sys.executable, "-c", code, sys.executable, "-m", "poise", "solve", str(deck),
+           "-o", str(tmp / "cli_peak.h5")]
+    out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    try:
+        rc, peak = (int(x) for x in out.stdout.split())
+    except ValueError:
+        return None
+    return peak if rc in (0, 1) else None
+
+
 def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
     from poise.gen.chain import build_chain_deck
     deck = tmp / f"chain_{n}.xml"
@@ -290,6 +314,8 @@ def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
                           for p in phase_names}
     out["phases_own_peak"] = {p: _stats([r.get("phases_own_peak", {}).get(p) for r in runs])
                               for p in phase_names}
+    if n >= CLI_PEAK_FROM:
+        out["cli_peak_rss_bytes"] = cli_peak(deck, tmp)
     it = out["iteration_s"]
     out["iteration_per_lu"] = (it["median"] / out["lu_s"]["median"]
                                if it and out["lu_s"]["median"] > 0 else None)
@@ -458,19 +484,22 @@ classification of the converged state and the Gram factorisations of redundancy 
 (neither goes through `Factor`, so neither counts as *factorise*), then the linear solves with
 iterative refinement.
 
-**Floor (issue 25 §2).** In Newton's LUs (the floor's unit, one per iteration), a 10⁴-link
-static solve spends ≈ 9 in Newton itself (5 factorisations plus evaluations, solves with
-refinement, step limits, line search), ≈ 1.1 in redundancy detection, 1.5 in the least-squares
-multipliers, 2.7 in the stability classification and 1.1 in the rest of the output
-measurement: Newton alone is ≈ 1.8× the floor. The classification needs its own sparse LDLᵀ
-(inertia: an LU with partial pivoting has none), a power/subspace iteration for the lowest
-mode (5 block solves) and SuperLU's CSC copies of L and U for the pivots and the backward
-error (at 10⁵ links ≈ 140 MB and 0.5 s of fresh pages on first access). Peak memory at 10⁵ links
-is reached in the classification, after Newton. The parsed deck (≈ 0.5 GB of per-element Python
-objects) is dropped before the solve and its pages returned to the OS (nothing in the compiled
-model is a small object per element, so none pins them; `malloc_trim` after the drop): the solve
-starts from ≈ 0.5 GB resident (was 1.1 GB); compile peaks at ≈ 1.34 GB (was 1.61 GB), the
-assembler keying its pattern block by block.
+**Floor (issue 25 §2).** The phase table of *Static solve vs its floor* gives each phase in
+Newton's LUs (the floor's unit, one per iteration). A Newton iteration costs ≈ 2.5 of them: the
+LU itself, one Jacobian evaluation and assembly (≈ 0.5), one or two residual evaluations, the
+step's solves with refinement and the neutral-direction filter's two extra solves. Outside
+Newton, redundancy detection factorises a Gram matrix (twice when a candidate row is
+ambiguous, as on these closed chains), the least-squares multipliers factorise a weighted KKT
+matrix with the same fill as Newton's, and the classification needs its own sparse LDLᵀ
+(inertia: an LU with partial pivoting has none) and a subspace iteration for the lowest mode
+(5 block solves). The classification factorises once: SuperLU's CSC copies of L and U, read for
+the pivots and the backward error, are made absolute in place and emptied one after the other.
+From 10⁴ to 10⁵ links, the memory-bound sparse utilities (scipy's sparse products, CSR→CSC
+conversions and fancy indexing, `np.add.at`) grow 20–60× as their data leave the caches, while
+Newton's LU grows 10×: they set the solve-time exponent. The solve's memory peaks in Newton
+(*after newton*); the *whole worker* column adds the bench's own reference LU (COLAMD, default
+options) and evaluations after the solve, which a `poise solve` does not run. The parsed deck is
+dropped before the solve and its pages returned to the OS (`malloc_trim`).
 
 **BLAS threads.** numpy's OpenBLAS defaulted to 2 threads; on vectors and 3×3 blocks they
 only busy-wait, and with another process on the machine a 1000-link solve took 1.8× longer
