@@ -7,7 +7,7 @@ tag and id (empty when it has none). Requests also get ``requests/type``,
 (each channel's unit in the deck's units), declared in :mod:`poise.results.schema_items`.
 Labels are kept per tag as two arrays (sorted ids, labels), not as one Python object per
 element: objects made while the parsed deck is alive fill the holes between its objects, and
-then hold its memory pages through the whole solve (≈ 0.2 GB at 10^5 links).
+then hold its memory pages through the whole solve.
 """
 from __future__ import annotations
 
