@@ -327,7 +327,7 @@ def jacobian(model, ev: Evaluation):
             if U:
                 Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
             act = row_active[fam.crow]
-            if not np.logical_and.reduce(act, axis=None):                  # x * 1.0 is x: only a family with removed rows
+            if not np.logical_and.reduce(act, axis=None):   # x * 1.0 is x: only with removed rows
                 Pq = Pq * act[:, :, None]
             Pq = Pq.reshape(fam.n, -1)
             if pat.pidx is not None:

@@ -36,15 +36,14 @@ def classify_sparse(model, J, active=None) -> StabilityInfo:
     redundancy test of the static driver and dropped (the null space is unchanged), once.
     ``J`` may be a zero-argument callable returning the matrix (:class:`SparsePencil`)."""
     try:
-        P = SparsePencil(model, J, active=active)
-        P.lean = True                     # a stable model needs Gt^T Gt for one matrix only
+        # lean: a stable model needs Gt^T Gt for one matrix only
+        P = SparsePencil(model, J, active=active, lean=True)
         J = None
         info = classify_pencil(model, P)
         if info.klass == "unknown" and P.singular:
             red = redundant_rows(P.G_active, np.ones(model.nq))
             if len(red):
-                P = SparsePencil(model, P, drop=red, active=active)
-                P.lean = True
+                P = SparsePencil(model, P, drop=red, active=active, lean=True)
                 info = classify_pencil(model, P)
         return info
     except (RuntimeError, ValueError, ArithmeticError, MemoryError,
@@ -233,14 +232,15 @@ class SparsePencil:
     symmetric stiffness ``Kt`` and active constraint Jacobian ``Gt`` after a symmetric
     equilibration of the KKT matrix, the KKT elimination order, and factorisations at shifts."""
 
-    def __init__(self, model, J, drop=(), active=None, like=None):
+    def __init__(self, model, J, drop=(), active=None, like=None, lean: bool = False):
         """``J``: the KKT Jacobian, a zero-argument callable returning it (then it goes as soon
         as its blocks are read) or a pencil of the same Jacobian (its stiffness and constraint
         rows are taken, e.g. to ``drop`` rows). ``like``: a pencil of the same model at a
         nearby configuration (a descent's previous step): its elimination order is reused and
         its scaling starts the equilibration, when it has the same constraint rows (an order is
         a permutation: any one gives the inertia; a poor one shows as a failed factorisation,
-        and the caller builds a fresh pencil)."""
+        and the caller builds a fresh pencil). ``lean``: ``Gt^T Gt`` is dropped once a matrix
+        is built from it (:attr:`GtG` makes it again when needed)."""
         import scipy.sparse as sp
         nq = model.nq
         d = np.asarray(model.q_scale, float)
@@ -280,7 +280,7 @@ class SparsePencil:
         # matrix's), at least ZERO_REL (Kt has a unit-scale diagonal block after equilibration)
         self.eps = ZERO_REL * max(_spectral_radius(self.Kt), 1.0)
         self.singular = False             # a tiny pivot at a constraint row was met
-        self.lean = False                 # Gt^T Gt not kept beside a factorisation
+        self.lean = lean                  # Gt^T Gt not kept beside a factorisation
         self._pos = None                  # the permuted position of each unknown
         memory.release(nnz * 16)          # the construction's temporaries' pages (large models)
 
