@@ -2,8 +2,8 @@
 
 :func:`evaluate` computes, by its ``what`` option, the residual ``[Phi_q^T lam - Q; Phi]``
 (``"residual"``), with the KKT Jacobian (``"jacobian"``, or ``"defer"``: assembled later by
-:func:`jacobian`), the constraint values only (``"phi"``: no force element is called) or the
-potential energy (``"energy"``). One state is one frame (the Jacobian goes through the model's
+:func:`jacobian`; ``"phi_q"``: its constraint blocks alone), the constraint values only
+(``"phi"``: no force element is called) or the potential energy (``"energy"``). One state is one frame (the Jacobian goes through the model's
 fixed-pattern assembler, sparse or dense); a list of states is ``F`` frames evaluated together
 (the tileable families tiled across frames by :mod:`poise.model.frame_batch` and called once,
 dense ``(F, N, N)`` Jacobians scattered with one ``bincount``). Every family goes through
@@ -35,7 +35,7 @@ from poise.model.frame_batch import tiles
 from poise.model.recent import RecentEvaluations
 from poise.model.workspace import Workspace
 
-WHAT = ("residual", "jacobian", "defer", "phi", "energy")
+WHAT = ("residual", "jacobian", "defer", "phi_q", "phi", "energy")
 
 
 @dataclass
@@ -85,7 +85,10 @@ def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool =
 
     what : ``"residual"``, ``"jacobian"``, ``"defer"`` (residual now, element data kept so that
         :func:`jacobian` assembles the Jacobian later without calling the kernels again:
-        line-search trials), ``"phi"`` or ``"energy"``.
+        line-search trials), ``"phi_q"`` (the Jacobian with no stiffness in its coordinate
+        block, only ``eps_mass`` there: for callers that read its constraint rows and columns
+        alone, the static prologue's redundancy test and least-squares multipliers; the other
+        blocks are bit for bit those of ``"jacobian"``), ``"phi"`` or ``"energy"``.
     active : (nc,) bool or None (all rows). Inactive (redundant) rows read 0 in ``phi``, have
         no constraint Jacobian and 1 on their multiplier diagonal. Frames: all rows active.
     keep : keep per-family slot data (``ev.items``: ``(family, kin, rho, phi_y)``, ``phi_y``
@@ -116,7 +119,7 @@ def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool =
         ev = _one_frame(model, fr, what, active, keep, eps_mass)
     finally:
         phases.add("evaluate", phases.now() - t_start)
-    if what == "jacobian":
+    if what in ("jacobian", "phi_q"):
         jacobian(model, ev)          # timed as "assemble"
     return ev
 
@@ -281,7 +284,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
         if feed is not None:       # d r_reader / d (lambda, q) through the channels
             ev._coupling = feed.coupling(model, done, fr.P, fr.A, mask, pend, fr.dg)
         pend = [p for p in pend if p is not None]     # assembly order: model.families
-        ev._pending = (state, pend, eps_mass, mask.copy())
+        ev._pending = (state, pend, eps_mass, mask.copy(), what != "phi_q")
     return ev
 
 
@@ -312,12 +315,15 @@ def jacobian(model, ev: Evaluation):
     if ev.J is not None:
         return ev.J
     t_start = phases.now()
-    state, pend, eps_mass, row_active = ev._pending
+    state, pend, eps_mass, row_active, stiffness = ev._pending
     vals = []
     for fam, kin, rho, G, phy, ext in pend:
         pat = local_pattern(fam)
         U = fam.U
-        if pat.compact:    # straight into the registered (entry-major block) order
+        if not stiffness:  # "phi_q": the tangent entries read zero (nothing else shares them)
+            L = 6 * fam.K + U
+            Kl = np.zeros(fam.n * (L * L if pat.order is None else pat.order.size))
+        elif pat.compact:  # straight into the registered (entry-major block) order
             Kl = tangent_compact(kin, rho, G, fam.K, pat)
         else:
             Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)

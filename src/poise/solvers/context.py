@@ -173,8 +173,9 @@ def begin(env: Env, a: Analysis, state, multipliers: bool = True):
     ev = None
     if red is None:
         # one evaluation (every row) for the redundancy test, the assembly's start and,
-        # where nothing moved and no multiplier is set, the least-squares multipliers
-        ev = data.evaluate(model, state, "jacobian", every_row=True) if model.nc else None
+        # where nothing moved and no multiplier is set, the least-squares multipliers: all of
+        # them read the constraint Jacobian alone (no stiffness tangents assembled)
+        ev = data.evaluate(model, state, "phi_q", every_row=True) if model.nc else None
         red = detect_redundancy(model, state, data.workspace, evaluation=ev)
     data.set_redundancy(red)
     a = replace(a, redundancy=red)

@@ -63,7 +63,8 @@ class SolveData:
         """Evaluate ``model`` at ``states`` (one State, or a sequence: frames) with the
         evaluation engine (:func:`poise.model.evaluate.evaluate`), counted per frame.
 
-        ``what``: ``"residual"``, ``"jacobian"``, ``"defer"`` (the Jacobian assembled later by
+        ``what``: ``"residual"``, ``"jacobian"``, ``"phi_q"`` (its constraint blocks alone:
+        counted as a Jacobian), ``"defer"`` (the Jacobian assembled later by
         :meth:`jacobian`, counted then) or ``"phi"`` (constraint values only, inactive rows 0;
         counted as a residual evaluation). ``eps``: mass multiple added to the Jacobian's
         coordinate block. ``every_row``: evaluate every constraint row, not only the active
@@ -73,7 +74,7 @@ class SolveData:
         n = 1 if hasattr(states, "pos") else len(states)
         if residual:
             self.residuals += n
-        if what == "jacobian":
+        if what in ("jacobian", "phi_q"):
             self.jacobians += n
         active = None if every_row else (self.mask(model) if what == "phi" else self.active)
         return _engine(model, states, what, active=active, eps_mass=eps,

@@ -162,8 +162,8 @@ def initial_multipliers(model, state, cnt: Counters, weights=None, ev=None):
         return state
     st = state.copy()
     st.lam[:] = 0.0
-    if ev is None:
-        ev = cnt.evaluate(model, st, "jacobian")
+    if ev is None:                # only Phi_q and r are read (the weighted KKT matrix)
+        ev = cnt.evaluate(model, st, "phi_q")
     W = _coord_weights(model) if weights is None else weights
     K = _weighted_kkt(model, ev, W)
     Q = -ev.r                     # with lam = 0, r = -Q
