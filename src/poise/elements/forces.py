@@ -85,11 +85,12 @@ def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
         dFj = dTj = None
         if need_jac:
             dFj = -dF
-            # d(d x F) = -[F]x dd + [d]x dF
-            dd = np.zeros((n, 3, W))
-            dd[:, :, sl(S_PI)] = _I3
-            dd[:, :, sl(S_PJ)] = -_I3
-            dcross = -np.matmul(skew(F), dd) + np.matmul(skew(d), dF)
+            # d(d x F) = -[F]x dd + [d]x dF, dd = I on P_I's columns, -I on P_J's: -[F]x dd is
+            # -[F]x and [F]x there (exactly: products with 1 and 0) and zero elsewhere
+            dcross = np.matmul(skew(d), dF)
+            sF = skew(F)
+            dcross[:, :, sl(S_PI)] -= sF
+            dcross[:, :, sl(S_PJ)] += sF
             dTj = -dcross if dT is None else -dT - dcross
         if react is not None:
             Fj, Tj = Fj * react[:, None], Tj * react[:, None]

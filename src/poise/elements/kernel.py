@@ -18,6 +18,8 @@ POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3    # slot kinds: the marker origin, its x, 
 _I3 = np.eye(3)
 _NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])   # component i: i+1, i+2
 _GATHER_MAX = 1 << 14      # entries up to which cross products gather components by index
+_SKEW_ROWS = np.array([6, 5, 1, 2, 6, 3, 4, 0, 6])   # skew's entries from (v, -v, 0), row-major
+_DIAG9 = np.array([0, 4, 8])                           # a 3x3 block's diagonal, flat
 
 
 class SlotKinematics:
@@ -107,6 +109,15 @@ def _slot_rounds(ml, slots=None) -> list:
     return out
 
 
+def _as_slice(idx):
+    """``idx`` (1-d, distinct) as an equivalent slice when evenly increasing, else as is."""
+    idx = np.asarray(idx)
+    step = int(idx[1] - idx[0]) if idx.size > 1 else 1
+    if step > 0 and np.array_equal(idx, np.arange(idx[0], idx[0] + step * idx.size, step)):
+        return slice(int(idx[0]), int(idx[-1]) + 1, step)
+    return idx
+
+
 def _runs(slot_ml) -> list:
     """``(first, end, marker)`` of each run of consecutive slots reading one marker."""
     out = []
@@ -137,6 +148,17 @@ class PairBlocks:
         if c is None:
             return np.zeros((3, 3, self.n))
         return _I3[:, :, None] * c[None, None, :]
+
+    def skew_times(self, s: int, t: int, v) -> np.ndarray:
+        """``skew(v) @ block(s, t)`` component-major (3, 3, n) for ``v`` (3, n): the block is
+        ``c I``, so the product is ``skew(c v)`` (the entries of the product, made from ``c v``
+        without the block: its zeros may differ in sign only)."""
+        c = self.coef.get((s, t))
+        if c is None:
+            return np.zeros((3, 3, self.n))
+        w = v * c
+        e = np.concatenate([w, -w, np.zeros((1, self.n))])
+        return e.take(_SKEW_ROWS, 0).reshape(3, 3, self.n)
 
     def dense(self, rows=None) -> np.ndarray:
         """The (n, 3S, 3S) array (only the instances ``rows`` when given)."""
@@ -358,11 +380,17 @@ class LocalPattern:
         self.bpos = None
         self.nblocks = 0
         self.order = self.kidx
+        self.conn_rounds = None
         if self.declared:
             bi, bj = np.nonzero(km[:6 * K:3, :6 * K:3])
             self.bpos = np.full((2 * K, 2 * K), -1, np.intp)
             self.bpos[bi, bj] = np.arange(bi.size)
             self.nblocks = int(bi.size)
+            # the connection term's (rot k, rot k) blocks of each slot round (tangent_compact):
+            # a slice when evenly spaced (views), else an index array
+            rot = 2 * np.arange(K) + 1
+            self.conn_rounds = [(_as_slice(self.bpos[rot[ks], rot[ks]]), ss)
+                                for ks, ss in self.slot_rounds]
             if self.compact:
                 r = 3 * bi[:, None, None] + np.arange(3)[None, :, None]
                 c = 3 * bj[:, None, None] + np.arange(3)[None, None, :]
@@ -455,28 +483,43 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> n
     Kb = np.zeros((pat.nblocks, 3, 3, n))
     V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))          # (S, 3, n)
     W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))
-    live = np.logical_or.reduce(W.reshape(S, -1), axis=1).tolist()   # slots with a reaction
     # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
-    for s in range(S):
-        if not live[s]:
-            continue
-        v, w = V[s], W[s]
-        k = ml[s]
-        blk = Kb[bpos[2 * k + 1, 2 * k + 1]]
-        blk += v[:, None, :] * w[None, :, :]
-        d = v[0] * w[0] + v[1] * w[1] + v[2] * w[2]
-        blk.reshape(9, n)[::4] -= d                                # the diagonal (a view)
+    if 1 < S and n * S <= LocalPattern.SLOT_INDEX_MAX:
+        # small: every slot's term at once, added in rounds of distinct markers (each block
+        # gets its slots' terms in slot order, as below; a slot without a reaction adds zeros)
+        VW = V[:, :, None, :] * W[:, None, :, :]                  # (S, 3, 3, n)
+        d = V[:, 0] * W[:, 0] + V[:, 1] * W[:, 1] + V[:, 2] * W[:, 2]
+        diag = Kb.reshape(-1, 9, n)
+        for blocks, ss in pat.conn_rounds:
+            if isinstance(blocks, slice):
+                Kb[blocks] += VW[ss]
+                diag[blocks, ::4] -= d[ss][:, None, :]
+            else:
+                Kb[blocks] += VW[ss]
+                diag[blocks[:, None], _DIAG9] -= d[ss][:, None, :]
+    else:
+        live = np.logical_or.reduce(W.reshape(S, -1), axis=1).tolist()   # with a reaction
+        for s in range(S):
+            if not live[s]:
+                continue
+            v, w = V[s], W[s]
+            k = ml[s]
+            blk = Kb[bpos[2 * k + 1, 2 * k + 1]]
+            blk += v[:, None, :] * w[None, :, :]
+            d = v[0] * w[0] + v[1] * w[1] + v[2] * w[2]
+            blk.reshape(9, n)[::4] -= d                            # the diagonal (a view)
     if G is not None and len(pat.s_idx):
         compact_g = isinstance(G, PairBlocks)
         pt = kin.pt
         for s, t in pat.pairs:
             k, l = ml[s], ml[t]
-            if compact_g:
-                Gp = G.block(s, t)
+            if compact_g:      # G_st = c I: Sk_s G_st = skew(c v_s), the block only if read
+                RT = G.skew_times(s, t, V[s])
+                Gp = G.block(s, t) if pat.pt_any[s] or pat.pt_any[t] else None
             else:
                 Gp = np.ascontiguousarray(G[:, 3 * s:3 * s + 3, 3 * t:3 * t + 3]
                                           .transpose(1, 2, 0))
-            RT = _cross_cols(V[s], Gp)                          # Sk_s G_st
+                RT = _cross_cols(V[s], Gp)                      # Sk_s G_st
             Kb[bpos[2 * k + 1, 2 * l + 1]] -= _cross_rows(RT, V[t])
             ws = None if pat.pt_all[s] else pt[:, s]
             wt = None if pat.pt_all[t] else pt[:, t]

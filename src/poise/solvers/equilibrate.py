@@ -199,11 +199,16 @@ def equilibrate_dense(Ks, G, iters=12, tol=0.1):
         rl = mx(np.multiply(B, Dq[:, None, :], out=bufB), axis=2, initial=0.0) * Dl
         rq[(rq <= 0.0) | ((Dq >= cap) & (rq < 1.0))] = 1.0   # all-zero row, or at its cap
         rl[rl <= 0.0] = 1.0
-        go &= ~(np.logical_and.reduce(np.abs(rq - 1.0) <= tol, axis=1)
-               & np.logical_and.reduce(np.abs(rl - 1.0) <= tol, axis=1))
-        if not np.logical_or.reduce(go):
-            break
-        rq[~go], rl[~go] = 1.0, 1.0
+        if F == 1:       # one frame (a static solve's): it stops when within tol (NaN: never)
+            if mx(np.abs(rq - 1.0), axis=None, initial=0.0) <= tol \
+                    and mx(np.abs(rl - 1.0), axis=None, initial=0.0) <= tol:
+                break
+        else:
+            go &= ~(np.logical_and.reduce(np.abs(rq - 1.0) <= tol, axis=1)
+                   & np.logical_and.reduce(np.abs(rl - 1.0) <= tol, axis=1))
+            if not np.logical_or.reduce(go):
+                break
+            rq[~go], rl[~go] = 1.0, 1.0
         Dq = np.minimum(Dq / np.sqrt(rq), cap)
         Dl = Dl / np.sqrt(rl)
     return Dq, Dl
