@@ -18,7 +18,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
+import stat
 import threading
+import weakref
 from collections import OrderedDict
 
 from poise.deck.spec import DeckSpec
@@ -30,6 +32,7 @@ ENTRIES = 16                 # decks kept, least recently used dropped first
 _lock = threading.Lock()
 _entries: OrderedDict = OrderedDict()    # key -> _Entry
 _handed: dict = {}                       # id(spec copy) -> key of the entry it came from
+_memos: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()   # kept model -> its memo
 
 
 @dataclasses.dataclass
@@ -46,12 +49,20 @@ def _key_stamp(path):
     p = str(path)
     if p.lower().endswith((".adm", ".acf")):
         return None
-    try:
-        st = os.stat(p)
-        if st.st_size > MAX_BYTES or not os.path.isfile(p):
-            return None
-        with open(p, "rb") as f:
-            data = f.read(MAX_BYTES + 1)
+    try:                                 # the file's status and bytes from one descriptor
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK)      # (a FIFO: no wait for a writer)
+        try:
+            st = os.fstat(fd)
+            if st.st_size > MAX_BYTES or not stat.S_ISREG(st.st_mode):
+                return None
+            data = b""
+            while len(data) <= MAX_BYTES:
+                chunk = os.read(fd, MAX_BYTES + 1 - len(data))
+                if not chunk:
+                    break
+                data += chunk
+        finally:
+            os.close(fd)
     except OSError:
         return None                      # the loader reports it
     if len(data) != st.st_size:
@@ -108,7 +119,16 @@ def compiled(spec: DeckSpec, user_code: str, compile_fn):
         with _lock:
             if _entries.get(key) is e:
                 e.models[user_code] = m
+                _memos[m] = {}
     return m
+
+
+def memo(model) -> dict | None:
+    """The dict kept beside ``model`` while it is a kept model (:func:`compiled`), else None:
+    what a run derives from a kept deck and its model alone (the results' model datasets and
+    labels, :mod:`poise.app.runner`) is made once there; it goes with the model."""
+    with _lock:
+        return _memos.get(model)
 
 
 def clear() -> None:
@@ -116,3 +136,4 @@ def clear() -> None:
     with _lock:
         _entries.clear()
         _handed.clear()
+        _memos.clear()

@@ -18,6 +18,7 @@ from poise.app.model_outputs import graphics_datasets, joint_marker_datasets, mo
 from poise.app.times import output_times, print_arrays
 from poise.core import blas, memory, phases
 from poise.core.progress import installed, solver_progress
+from poise.core.readonly import seal
 from poise.core.errors import DeckError, EvaluationError, Problem, SourceLoc, UsageError
 from poise.core.version import __version__
 from poise.deck.parser import load_deck
@@ -280,8 +281,10 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=(),
     path = spec.path
     t1 = now()
     user_code = "run" if allow_user_code else "refuse"
+    kept = None
     if model is None:
         model = deck_cache.compiled(spec, user_code, compile_model)
+        kept = deck_cache.memo(model)      # a kept deck's model: its model datasets made once
     t2 = now()
     analyses = plan(spec, overrides)
     problems = []
@@ -307,11 +310,17 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=(),
     if inputs:           # files read besides the deck (scripts): batch freshness covers them
         import json
         res.attrs["input_files"] = json.dumps(inputs, sort_keys=True)
-    res.model_datasets = model_datasets(model)
-    res.model_datasets.update(joint_marker_datasets(spec, model))
-    res.model_datasets.update(graphics_datasets(spec, model))
-    labeller = Labeller(spec, model.units)            # <group>/label, request channels
-    res.model_datasets.update(labeller.datasets(res.model_datasets, model))
+    if kept is not None and "labeller" in kept:
+        labeller = kept["labeller"]
+        res.model_datasets = dict(kept["model_datasets"])
+    else:
+        res.model_datasets = model_datasets(model)
+        res.model_datasets.update(joint_marker_datasets(spec, model))
+        res.model_datasets.update(graphics_datasets(spec, model))
+        labeller = Labeller(spec, model.units, memo=kept is not None)   # labels, request channels
+        res.model_datasets.update(labeller.datasets(res.model_datasets, model))
+        if kept is not None:       # shared by the runs of this deck: read-only
+            kept.update(model_datasets=seal(dict(res.model_datasets)), labeller=labeller)
     models = _analysis_models(spec, model, analyses,
                               lambda sp: compile_model(sp, user_code=user_code))
     for m in models[1:]:

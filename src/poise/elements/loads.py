@@ -54,11 +54,15 @@ def loads_of(model, items, lam=None, frames: int = 1):
         for s in range(S):
             if fam.slot_ml[s] != 0:
                 continue
-            kind = fam.slot_kind[:, s]
-            pt = kind == 0
-            Fi[pt] -= rho3[pt, s]
-            ax = ~pt
-            Ti[ax] -= cross3(kin.Y[ax, s], rho3[ax, s])
+            pt = fam.slot_kind[:, s] == 0
+            if np.logical_and.reduce(pt):             # a point in every instance
+                Fi -= rho3[:, s]
+            elif not np.logical_or.reduce(pt):        # an axis in every instance
+                Ti -= cross3(kin.Y[:, s], rho3[:, s])
+            else:
+                Fi[pt] -= rho3[pt, s]
+                ax = ~pt
+                Ti[ax] -= cross3(kin.Y[ax, s], rho3[ax, s])
         np.add.at(F, fam.owner, Fi)
         np.add.at(T, fam.owner, Ti)
     return out

@@ -142,6 +142,27 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
 
 
+_DIAG = np.array([0, 4, 8])
+_SG = np.array([[1.0, 1.0, -1.0, -1.0], [1.0, -1.0, 1.0, -1.0], [1.0, -1.0, -1.0, 1.0]])
+_OFF_A = np.array([7, 2, 3, 1, 2, 5])              # R21, R02, R10, R01, R02, R12
+_OFF_B = np.array([5, 6, 1, 3, 6, 7])              # R12, R20, R01, R10, R20, R21
+_OFF_SG = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
+# M row-major from (t0, t1, t2, t3, s21, s02, s10, p01, p02, p12)
+_M16 = np.array([0, 4, 5, 6, 4, 1, 7, 8, 5, 7, 2, 9, 6, 8, 9, 3])
+
+
+_ROWS = np.arange(16).reshape(4, 4)
+
+
+def _pick(a, idx):
+    """``a[..., idx[..., j]]`` per leading index (``np.take_along_axis`` on the last axis,
+    without its Python wrapper)."""
+    m, j = a.shape[-1], idx.shape[-1]
+    flat = a.reshape(-1, m)
+    rows = np.arange(flat.shape[0])[:, None]
+    return flat[rows, idx.reshape(-1, j)].reshape(idx.shape)
+
+
 def euler_parameters(R: np.ndarray) -> np.ndarray:
     """Euler parameters (unit quaternion ``e0, e1, e2, e3``) of rotation matrices (..., 3, 3).
 
@@ -150,19 +171,18 @@ def euler_parameters(R: np.ndarray) -> np.ndarray:
     ``e0 >= 0``; at exactly 180 deg (``e0 == 0``) the first non-zero of ``e1, e2, e3`` is > 0.
     """
     R = np.asarray(R, float)
-    d0, d1, d2 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    s21, s02, s10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
-    p01, p02, p12 = R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]
-    # M = 4 q q^T: its row with the largest diagonal is q times the largest |q_k|
-    M = np.stack([1 + d0 + d1 + d2, s21, s02, s10,
-                  s21, 1 + d0 - d1 - d2, p01, p02,
-                  s02, p01, 1 - d0 + d1 - d2, p12,
-                  s10, p02, p12, 1 - d0 - d1 + d2], -1).reshape(R.shape[:-2] + (4, 4))
-    k = np.argmax(np.diagonal(M, axis1=-2, axis2=-1), axis=-1)
-    q = np.take_along_axis(M, k[..., None, None], -2)[..., 0, :]
+    R9 = R.reshape(R.shape[:-2] + (9,))
+    D = R9.take(_DIAG, -1)
+    # the diagonal of M = 4 q q^T: 1 +- d0 +- d1 +- d2 (a sign times an entry is exact: the
+    # sums of the formulas, in their order); off the diagonal s21, s02, s10 (R_ij - R_ji) and
+    # p01, p02, p12 (R_ij + R_ji)
+    T = ((1 + D[..., 0:1] * _SG[0]) + D[..., 1:2] * _SG[1]) + D[..., 2:3] * _SG[2]
+    X = R9.take(_OFF_A, -1) + R9.take(_OFF_B, -1) * _OFF_SG
+    M = np.concatenate([T, X], -1).take(_M16, -1)            # (..., 16), row-major
+    # its row with the largest diagonal is q times the largest |q_k|
+    q = _pick(M, _ROWS[np.argmax(T, axis=-1)])
     # sign: e0 > 0, else the first non-zero vector component > 0 (deterministic at 180 deg)
-    nz = q != 0
-    lead = np.take_along_axis(q, np.argmax(nz, axis=-1)[..., None], -1)[..., 0]
+    lead = _pick(q, np.argmax(q != 0, axis=-1)[..., None])[..., 0]
     q = np.where((lead < 0)[..., None], -q, q)
     return q / row_norms(q)[..., None]
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.readonly import seal
 from poise.elements.registry import output_groups
 from poise.results.schema import REQUEST_CHANNELS, element_groups, unit_string
 
@@ -22,8 +23,11 @@ _BODY_TAGS = ("Body_Rigid", "Body_Point")
 class Labeller:
     """Labels of one deck (``spec``), built once, for ``model``'s output groups."""
 
-    def __init__(self, spec, units: str = ""):
+    def __init__(self, spec, units: str = "", memo: bool = False):
         self.units = units
+        # memo: the label datasets of each (group, ids, tags) kept, read-only (a labeller
+        # that serves many runs of one deck, :mod:`poise.app.deck_cache`)
+        self.memo = {} if memo else None
         self.group_tags = {"bodies": _BODY_TAGS, **output_groups()}   # element registry
         self.requests: dict[int, object] = {}
         rows: dict[str, tuple[list, list]] = {}
@@ -73,10 +77,20 @@ class Labeller:
                 continue
             ids = np.asarray(ids).ravel().astype(np.int64)
             tags = self._tags(g, datasets, model, len(ids))
-            labels = self._labels(ids, tags)
-            out[f"{g}/label"] = np.asarray(labels, dtype=str) if labels else np.zeros(0, str)
-            if g == "requests" and "requests/type" not in datasets:
-                out.update(self._request_datasets(ids.tolist()))
+            key = (g, ids.tobytes(), tuple(tags), "requests/type" not in datasets)
+            got = None if self.memo is None else self.memo.get(key)
+            if got is None:
+                got = self._group(g, ids, tags, key[3])
+                if self.memo is not None:
+                    self.memo[key] = seal(got)
+            out.update(got)
+        return out
+
+    def _group(self, g: str, ids: np.ndarray, tags: list, request_types: bool) -> dict:
+        labels = self._labels(ids, tags)
+        out = {f"{g}/label": np.asarray(labels, dtype=str) if labels else np.zeros(0, str)}
+        if g == "requests" and request_types:
+            out.update(self._request_datasets(ids.tolist()))
         return out
 
     def _labels(self, ids: np.ndarray, tags: list) -> list:
