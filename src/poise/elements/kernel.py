@@ -35,9 +35,10 @@ class SlotKinematics:
         the kernels below use that structure instead of the dense matrix.
     """
 
-    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk", "_masks", "rounds")
+    __slots__ = ("Y", "V", "pt", "slot_ml", "K", "_B", "_Sk", "_masks", "rounds", "index")
 
-    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None, masks=None, rounds=None):
+    def __init__(self, Y, V, pt=None, slot_ml=None, K=None, B=None, masks=None, rounds=None,
+                 index=None):
         self.Y = Y
         self.V = V
         self.pt = pt
@@ -47,6 +48,7 @@ class SlotKinematics:
         self._Sk = None
         self._masks = masks
         self.rounds = rounds      # a SlotIndex's (rotation, translation) slot rounds, or None
+        self.index = index        # that SlotIndex (its sums onto the markers' rows)
 
     @property
     def masks(self):
@@ -185,7 +187,8 @@ class SlotIndex:
     slots' markers, point masks, bodies, axis columns): a small family's pattern keeps one
     (:class:`LocalPattern`), so that its evaluations only gather the marker kinematics."""
 
-    __slots__ = ("mk", "pt", "masks", "case", "body", "ax", "is_pt", "slot_ml", "rounds")
+    __slots__ = ("mk", "pt", "masks", "case", "body", "ax", "is_pt", "slot_ml", "rounds",
+                 "p_slots", "_sums")
 
     def __init__(self, markers, slot_ml, slot_kind, marker_body):
         self.slot_ml = np.asarray(slot_ml)
@@ -203,6 +206,32 @@ class SlotIndex:
         ml = self.slot_ml.tolist()
         self.rounds = (None if (p_any & ~p_all).any() else
                        (_slot_rounds(ml), _slot_rounds(ml, np.flatnonzero(p_all).tolist())))
+        self.p_slots = np.flatnonzero(p_all)
+        self._sums: dict = {}
+
+    def slot_sums(self, rot, trans, K: int) -> np.ndarray:
+        """The sums of :func:`_round_sums` (``rounds`` not None) as one ``np.bincount``:
+        ``rot`` (..., S, 3) onto each marker's rotation rows, ``trans`` of the point slots onto
+        its translation rows; (N, 6K) for the N leading instances. bincount adds its inputs in
+        order onto zeros, every slot of a marker in slot order: the same sums, bit for bit."""
+        S = len(self.slot_ml)
+        N = rot.size // (3 * S)
+        got = self._sums.get((N, K))
+        if got is None:
+            got = self._sums[(N, K)] = _sum_index(N, K, self.slot_ml, self.p_slots)
+        w = np.concatenate([rot.reshape(-1), trans[..., self.p_slots, :].reshape(-1)])
+        return np.bincount(got, weights=w, minlength=N * 6 * K).reshape(N, 6 * K)
+
+
+def _sum_index(N: int, K: int, ml, p_slots) -> np.ndarray:
+    """:meth:`SlotIndex.slot_sums`' target of each value: ``(N, S, 3)`` rotation rows of the
+    slots' markers, then ``(N, P, 3)`` translation rows of the point slots' markers, in the
+    (N, 2K, 3) layout of a local residual."""
+    i = np.arange(N)[:, None, None] * (2 * K)
+    c = np.arange(3)[None, None, :]
+    rot = (i + 2 * np.asarray(ml)[None, :, None] + 1) * 3 + c
+    trans = (i + 2 * np.asarray(ml)[p_slots][None, :, None]) * 3 + c
+    return np.concatenate([rot.ravel(), trans.ravel()]).astype(np.intp)
 
 
 def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
@@ -240,7 +269,7 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
             Y = np.where(ix.is_pt, Pm, Am)
             V = np.where(ix.is_pt, Pm - body_pos[ix.body], Am)
         return SlotKinematics(Y=Y, V=V, pt=ix.pt, slot_ml=ix.slot_ml, K=markers.shape[1],
-                              masks=ix.masks, rounds=ix.rounds)
+                              masks=ix.masks, rounds=ix.rounds, index=ix)
     n, K = markers.shape
     mk = markers[:, slot_ml]                                   # (n, S)
     kind = slot_kind
@@ -288,6 +317,8 @@ def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     n, S = kin.pt.shape
     rho3 = rho.reshape(n, S, 3)
     vr = cross3(kin.V, rho3)                                   # (n, S, 3)
+    if kin.rounds is not None and kin.index is not None:
+        return kin.index.slot_sums(vr, rho3, K)
     r = np.zeros((n, 2 * K, 3))
     if kin.rounds is not None:
         _round_sums(kin.rounds, r[:, 1::2], r[:, 0::2], vr, rho3)
@@ -545,6 +576,8 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
     py = phi_y.reshape(n, m, S, 3)
     # rotation columns: p^T (-Sk_s) = (v_s x p)^T
     rot = cross3(kin.V[:, None, :, :], py)                     # (n, m, S, 3)
+    if kin.rounds is not None and kin.index is not None:
+        return kin.index.slot_sums(rot, py, K).reshape(n, m, 6 * K)
     Pq = np.zeros((n, m, 2 * K, 3))
     if kin.rounds is not None:
         _round_sums(kin.rounds, Pq[:, :, 1::2], Pq[:, :, 0::2], rot, py, (slice(None),))
