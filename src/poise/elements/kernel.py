@@ -594,6 +594,23 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
     return Pq.reshape(n, m, 6 * K)
 
 
+def _add_connection(Kl, blk, index: SlotIndex, K: int) -> np.ndarray:
+    """``Kl`` (n, 6K, 6K) plus each slot's connection block ``blk`` (n, S, 3, 3) on its
+    marker's (rot, rot) block, as one bincount of Kl's entries then the blocks in slot order:
+    the same sums as adding them slot by slot onto Kl (a zero may lose its sign)."""
+    n, S = blk.shape[:2]
+    key = ("connection", n, K)
+    idx = index._sums.get(key)
+    if idx is None:
+        L = 6 * K
+        r = 6 * np.asarray(index.slot_ml)[None, :, None, None] + 3 + np.arange(3)[:, None]
+        c = 6 * np.asarray(index.slot_ml)[None, :, None, None] + 3 + np.arange(3)[None, :]
+        at = (np.arange(n)[:, None, None, None] * L + r) * L + c          # (n, S, 3, 3)
+        idx = index._sums[key] = np.concatenate([np.arange(n * L * L), at.ravel()])
+    w = np.concatenate([Kl.reshape(-1), blk.reshape(-1)])
+    return np.bincount(idx, weights=w, minlength=Kl.size).reshape(Kl.shape)
+
+
 def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray | None,
                            slot_ml, K: int, need_jac: bool = True, ext: dict | None = None,
                            U: int = 0, pat: LocalPattern | None = None):
@@ -639,7 +656,10 @@ def local_tangent(kin: SlotKinematics, rho: np.ndarray, G, slot_ml, K: int,
         d = np.einsum("nsi,nsi->ns", kin.V, rho3)
         blk.reshape(n, S, 9)[:, :, ::4] -= d[:, :, None]           # the diagonals (a view)
         rounds = None if pat is None else pat.slot_rounds
-        if rounds is None:
+        if rounds is not None and kin.index is not None:
+            # small: one bincount adds each slot's block (in slot order) onto Kl's entries
+            Kl = _add_connection(Kl, blk, kin.index, K)
+        elif rounds is None:
             for s in range(S):
                 k = slot_ml[s]
                 Kl[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
