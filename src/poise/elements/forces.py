@@ -147,25 +147,38 @@ class LineForce(TwoBodyForce):
     length: np.ndarray
     preload: np.ndarray
 
+    def _law(self, ctx):
+        """The law's per-instance constants: ``c``, ``c != 0``, ``-k`` and ``c`` as columns,
+        ``-k I`` (the same values every evaluation: kept in the solve's workspace)."""
+        ws = getattr(ctx, "workspace", None)
+        sc = None if ws is None else ws.scratch(self, dict)    # the family's scratch dict
+        law = None if sc is None else sc.get("law")
+        if law is None:
+            c = self.k * self.length + self.preload
+            law = c, c != 0.0, -self.k[:, None], c[:, None], (-self.k)[:, None, None] * _I3
+            if sc is not None:
+                sc["law"] = law
+        return law
+
     def compute(self, Y, ctx, need_jac):
         # F = f u = -k d + c u with c = k length + preload: the first term is smooth everywhere,
         # the second needs a defined direction (L > 0) unless c = 0.
         d = Y[:, S_PI] - Y[:, S_PJ]
         L = row_norms(d)
-        c = self.k * self.length + self.preload
-        bad = (L <= 1e-300) & (c != 0.0)
+        c, live, nk, cc, nkI = self._law(ctx)
+        bad = (L <= 1e-300) & live
         if np.logical_or.reduce(bad):
             i = int(np.nonzero(bad)[0][0])
             raise EvaluationError("the I and J markers coincide: the line of action is undefined",
                                   self.element_locs[i] if self.element_locs else None)
         Ls = np.where(L > 1e-300, L, 1.0)
         u = d / Ls[:, None]
-        F = -self.k[:, None] * d + c[:, None] * u
+        F = nk * d + cc * u
         dF = None
         if need_jac:
             n = len(L)
             uu = u[:, :, None] * u[:, None, :]
-            dFdd = (-self.k)[:, None, None] * _I3 + (c / Ls)[:, None, None] * (_I3 - uu)
+            dFdd = nkI + (c / Ls)[:, None, None] * (_I3 - uu)
             dF = np.zeros((n, 3, 3 * N_SLOTS))
             dF[:, :, sl(S_PI)] = dFdd
             dF[:, :, sl(S_PJ)] = -dFdd

@@ -185,12 +185,16 @@ def dense_g(G, rows=None):
 class SlotIndex:
     """What :func:`slot_kinematics` derives from a family's markers and slot kinds alone (the
     slots' markers, point masks, bodies, axis columns): a small family's pattern keeps one
-    (:class:`LocalPattern`), so that its evaluations only gather the marker kinematics."""
+    (:class:`LocalPattern`), so that its evaluations only gather the marker kinematics. With
+    rounds, the targets of its slot sums (:meth:`slot_sums`: residual, ``m`` constraint rows;
+    ``connection``: the tangent's connection blocks, :func:`_add_connection`) are made here,
+    once: a solve adds nothing to the model."""
 
     __slots__ = ("mk", "pt", "masks", "case", "body", "ax", "is_pt", "slot_ml", "rounds",
                  "p_slots", "_sums")
 
-    def __init__(self, markers, slot_ml, slot_kind, marker_body):
+    def __init__(self, markers, slot_ml, slot_kind, marker_body, m: int = 0,
+                 connection: bool = False):
         self.slot_ml = np.asarray(slot_ml)
         self.mk = markers[:, self.slot_ml]                       # (n, S)
         self.pt = pt = slot_kind == POINT
@@ -208,6 +212,12 @@ class SlotIndex:
                        (_slot_rounds(ml), _slot_rounds(ml, np.flatnonzero(p_all).tolist())))
         self.p_slots = np.flatnonzero(p_all)
         self._sums: dict = {}
+        n, K = markers.shape
+        if self.rounds is not None:
+            for N in {n, n * m} - {0}:
+                self._sums[(N, K)] = _sum_index(N, K, self.slot_ml, self.p_slots)
+            if connection:
+                self._sums[("connection", n, K)] = _connection_index(n, K, self.slot_ml)
 
     def slot_sums(self, rot, trans, K: int) -> np.ndarray:
         """The sums of :func:`_round_sums` (``rounds`` not None) as one ``np.bincount``:
@@ -218,7 +228,7 @@ class SlotIndex:
         N = rot.size // (3 * S)
         got = self._sums.get((N, K))
         if got is None:
-            got = self._sums[(N, K)] = _sum_index(N, K, self.slot_ml, self.p_slots)
+            got = _sum_index(N, K, self.slot_ml, self.p_slots)
         w = np.concatenate([rot.reshape(-1), trans[..., self.p_slots, :].reshape(-1)])
         return np.bincount(got, weights=w, minlength=N * 6 * K).reshape(N, 6 * K)
 
@@ -365,13 +375,14 @@ class LocalPattern:
 
     def __init__(self, fam, marker_body=None):
         K, S, U, m = fam.K, len(fam.slot_ml), fam.U, fam.m
-        self.slots = (SlotIndex(fam.markers, fam.slot_ml, fam.slot_kind, marker_body)
+        gb = fam.g_blocks()
+        self.declared = gb is not None
+        self.slots = (SlotIndex(fam.markers, fam.slot_ml, fam.slot_kind, marker_body, m,
+                                connection=not self.declared)
                       if marker_body is not None and fam.n * S <= self.SLOT_INDEX_MAX else None)
         ml = np.asarray(fam.slot_ml)
         L = 6 * K + U
         pt_any = (np.asarray(fam.slot_kind) == POINT).any(axis=0) if fam.n else np.zeros(S, bool)
-        gb = fam.g_blocks()
-        self.declared = gb is not None
         gb = np.ones((S, S), bool) if gb is None else np.asarray(gb, bool)
         km = np.zeros((L, L), bool)
 
@@ -598,17 +609,22 @@ def _add_connection(Kl, blk, index: SlotIndex, K: int) -> np.ndarray:
     """``Kl`` (n, 6K, 6K) plus each slot's connection block ``blk`` (n, S, 3, 3) on its
     marker's (rot, rot) block, as one bincount of Kl's entries then the blocks in slot order:
     the same sums as adding them slot by slot onto Kl (a zero may lose its sign)."""
-    n, S = blk.shape[:2]
-    key = ("connection", n, K)
-    idx = index._sums.get(key)
+    n = blk.shape[0]
+    idx = index._sums.get(("connection", n, K))
     if idx is None:
-        L = 6 * K
-        r = 6 * np.asarray(index.slot_ml)[None, :, None, None] + 3 + np.arange(3)[:, None]
-        c = 6 * np.asarray(index.slot_ml)[None, :, None, None] + 3 + np.arange(3)[None, :]
-        at = (np.arange(n)[:, None, None, None] * L + r) * L + c          # (n, S, 3, 3)
-        idx = index._sums[key] = np.concatenate([np.arange(n * L * L), at.ravel()])
+        idx = _connection_index(n, K, index.slot_ml)
     w = np.concatenate([Kl.reshape(-1), blk.reshape(-1)])
     return np.bincount(idx, weights=w, minlength=Kl.size).reshape(Kl.shape)
+
+
+def _connection_index(n: int, K: int, ml) -> np.ndarray:
+    """:func:`_add_connection`'s target of each value: Kl's own entries, then each slot's
+    3x3 block on its marker's (rot, rot) block."""
+    L = 6 * K
+    r = 6 * np.asarray(ml)[None, :, None, None] + 3 + np.arange(3)[:, None]
+    c = 6 * np.asarray(ml)[None, :, None, None] + 3 + np.arange(3)[None, :]
+    at = (np.arange(n)[:, None, None, None] * L + r) * L + c              # (n, S, 3, 3)
+    return np.concatenate([np.arange(n * L * L), at.ravel()]).astype(np.intp)
 
 
 def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray | None,

@@ -29,7 +29,7 @@ def analysis_datasets(rec: AnalysisRecord) -> tuple[dict, dict]:
         d.update(compliance_datasets(rec.compliance))
     if rec.history is not None:
         d.update(history_datasets(rec.history, rec.frames))
-        if rec.analysis_type == "static" and rec.history.poses() is not None:
+        if rec.analysis_type == "static" and "iterations/pose_row" in d:     # rows with poses
             attrs["iterations_poses_stride"] = int(rec.history.pose_stride)
     d.update(redundant_datasets(rec.redundant))
     if isinstance(rec.method_data, IdaSteps):

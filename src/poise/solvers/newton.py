@@ -202,6 +202,7 @@ class _Newtoning:
     runaway: Runaway | None = None    # the steps down since the stall (downhill.Runaway)
     feasible: tuple | None = None     # (state, evaluation) of the last iterate on them
     merits: tuple = ()                # merit at each iteration (progress)
+    merit: float | None = None        # the merit of ``ev`` when the line search measured it
 
 
 class NewtonIteration(Solver[_Newtoning]):
@@ -334,7 +335,7 @@ class NewtonIteration(Solver[_Newtoning]):
                 return self._fail(s, Status.NO_EQUILIBRIUM,
                                   MESSAGES[Status.NO_EQUILIBRIUM] + "; " + why)
         dq, dl = x[:model.nq], x[model.nq:]
-        m0 = merit(ev, sc)
+        m0 = merit(ev, sc) if s.merit is None else s.merit
         if s.stall is not None and not m0 < s.stall:
             # still above the merit where it stalled: on down the potential energy
             down = self._downhill(state, ev, dq)
@@ -413,7 +414,7 @@ class NewtonIteration(Solver[_Newtoning]):
             if down is not None:
                 return self._down(evolve(s, stall=m0, runaway=Runaway(model, ev.r)), state,
                                   down)
-        return self._take(s, state, (best[2], best[3], best[0], best[1]), dq)
+        return self._take(s, state, (best[2], best[3], best[0], best[1]), dq, merit=best[0])
 
     def _onto(self, s, state):
         """The iterate projected back onto its constraints or, beyond their reach, the last
@@ -421,9 +422,9 @@ class NewtonIteration(Solver[_Newtoning]):
         p = project(self.model, state, self.cnt, s.ev, self.settings.limits)
         if p is not None:
             p = initial_multipliers(self.model, p, self.cnt, self._merit_weights())
-            s = evolve(s, state=p, ev=self._ev_at(p))
+            s = evolve(s, state=p, ev=self._ev_at(p), merit=None)
         elif s.feasible is not None:
-            s = evolve(s, state=s.feasible[0], ev=s.feasible[1])
+            s = evolve(s, state=s.feasible[0], ev=s.feasible[1], merit=None)
         s = evolve(s, last_step=np.inf)
         return Next(s, 1, (self._row(s, s.it, np.nan, np.nan, pose=state, event="reach"),))
 
@@ -448,12 +449,13 @@ class NewtonIteration(Solver[_Newtoning]):
                                                   final=True))
         return Next(s2, nxt.spent, nxt.rows)
 
-    def _take(self, s, state, trial, dq, event=None):
+    def _take(self, s, state, trial, dq, event=None, merit=None):
         """Accept ``trial`` = ``(state, evaluation, merit, alpha)`` reached from ``state`` by
-        ``alpha * dq``: the iteration's history row."""
+        ``alpha * dq``: the iteration's history row. ``merit``: the trial's merit when the
+        line search measured it (kept: the next iteration's starting merit)."""
         st, ev, _, alpha = trial
         last_step = float(np.max(np.abs(alpha * dq) / self.sc.q_len)) if dq.size else 0.0
-        s2 = evolve(s, state=st, ev=ev, last_step=last_step,
+        s2 = evolve(s, state=st, ev=ev, last_step=last_step, merit=merit,
                      feasible=(st, ev) if violation(self.model, ev.phi) <= PROJECT_ABOVE
                      else s.feasible)
         # the row of the iterate it measured (``state``: its measures), with the step taken
