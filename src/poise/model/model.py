@@ -206,7 +206,9 @@ class Model:
         # a rotation about any fixed point (a hinge) is then followed exactly, for any angle.
         # (x / 1 is x: one step divides nothing)
         w = dr / nsub if nsub > 1 else dr
-        v0 = dt[rb] - cross3(dr, state.pos[rb]) if len(rb) else np.zeros((0, 3))
+        every = len(rb) == self.nb           # every body rigid: rb is 0..nb-1, no gathers
+        v0 = ((dt if every else dt[rb]) - cross3(dr, state.pos if every else state.pos[rb])
+              if len(rb) else np.zeros((0, 3)))
         if nsub > 1:
             v0 = v0 / nsub
         E, V = screw_exp(w)
@@ -220,7 +222,8 @@ class Model:
         if na:
             rots[:] = new.rot               # point bodies keep their axes; rows rb set below
         dtp = dt[pt] / nsub if move_pt else None
-        p, R = new.pos[rb], new.rot[rb]     # the rigid bodies' CGs and axes, sub-step by step
+        # the rigid bodies' CGs and axes, sub-step by step (new arrays each step)
+        p, R = (new.pos, new.rot) if every else (new.pos[rb], new.rot[rb])
         for k in range(nsub):
             if move_pt:
                 new.pos[pt] += dtp
@@ -229,7 +232,9 @@ class Model:
                 R = np.matmul(E, R)
                 if na:
                     rots[k, rb] = R
-        if len(rb):
+        if every:
+            new.pos, new.rot = p, R
+        elif len(rb):
             new.pos[rb], new.rot[rb] = p, R
         if na:             # principal angles of every sub-step at once, unwrapped in turn
             ang = new.angle
@@ -253,10 +258,13 @@ class Model:
         if old.rotvec is None or not len(rb):
             return
         rv = old.rotvec.copy()
-        rv[rb] += w
+        if len(rb) == self.nb:
+            rv += w
+        else:
+            rv[rb] += w
         new.rotvec = rv
-        new.rotvec_drift = old.rotvec_drift + (float(np.sqrt((w * w).sum(1).max()))
-                                               if len(w) else 0.0)
+        new.rotvec_drift = old.rotvec_drift + (
+            float(np.sqrt(np.maximum.reduce(np.add.reduce(w * w, axis=1)))) if len(w) else 0.0)
         if new.rotvec_drift > np.pi / 2:
             new.rotvec = self.rotation_from_input(new)
             new.rotvec_drift = 0.0
