@@ -67,6 +67,8 @@ class SlotKinematics:
 
     @property
     def B(self) -> np.ndarray:
+        if self._B is None and self.index is not None and self.index.b_at is not None:
+            self._B = self.index.b_matrix(-self.Sk, self.K)
         if self._B is None:
             n, S = self.pt.shape
             B = np.zeros((n, 3 * S, 6 * self.K))
@@ -191,7 +193,7 @@ class SlotIndex:
     once: a solve adds nothing to the model."""
 
     __slots__ = ("mk", "pt", "masks", "case", "body", "ax", "is_pt", "slot_ml", "rounds",
-                 "p_slots", "_sums")
+                 "p_slots", "_sums", "b_at")
 
     def __init__(self, markers, slot_ml, slot_kind, marker_body, m: int = 0,
                  connection: bool = False):
@@ -218,6 +220,20 @@ class SlotIndex:
                 self._sums[(N, K)] = _sum_index(N, K, self.slot_ml, self.p_slots)
             if connection:
                 self._sums[("connection", n, K)] = _connection_index(n, K, self.slot_ml)
+        # where :meth:`b_matrix` puts -skew(v) and the point slots' I (families whose tangent
+        # is formed with B: no declared G structure)
+        self.b_at = _b_index(n, K, self.slot_ml, self.p_slots) if (
+            connection and self.rounds is not None) else None
+
+    def b_matrix(self, msk, K: int) -> np.ndarray:
+        """:attr:`SlotKinematics.B` (n, 3S, 6K) from ``-skew(V)`` (n, S, 3, 3): the same
+        entries placed by index (no slot loop)."""
+        n, S = msk.shape[:2]
+        rot_at, pt_at = self.b_at
+        B = np.zeros(n * 3 * S * 6 * K)
+        B[rot_at] = msk.reshape(-1)
+        B[pt_at] = 1.0
+        return B.reshape(n, 3 * S, 6 * K)
 
     def slot_sums(self, rot, trans, K: int) -> np.ndarray:
         """The sums of :func:`_round_sums` (``rounds`` not None) as one ``np.bincount``:
@@ -615,6 +631,21 @@ def _add_connection(Kl, blk, index: SlotIndex, K: int) -> np.ndarray:
         idx = _connection_index(n, K, index.slot_ml)
     w = np.concatenate([Kl.reshape(-1), blk.reshape(-1)])
     return np.bincount(idx, weights=w, minlength=Kl.size).reshape(Kl.shape)
+
+
+def _b_index(n: int, K: int, ml, p_slots) -> tuple:
+    """:meth:`SlotIndex.b_matrix`' positions: ``-skew(v_s)`` (n, S, 3, 3) on rows ``3s..3s+3``,
+    the rotation columns of the slot's marker; 1 on the diagonal of each point slot's
+    translation columns."""
+    ml = np.asarray(ml)
+    S, W = len(ml), 6 * K
+    a = np.arange(3)
+    row = np.arange(n)[:, None, None, None] * 3 * S + 3 * np.arange(S)[None, :, None, None] \
+        + a[:, None]
+    rot_at = row * W + 6 * ml[None, :, None, None] + 3 + a[None, :]
+    prow = np.arange(n)[:, None, None] * 3 * S + 3 * np.asarray(p_slots)[None, :, None] + a
+    pt_at = prow * W + 6 * ml[p_slots][None, :, None] + a
+    return rot_at.ravel().astype(np.intp), pt_at.ravel().astype(np.intp)
 
 
 def _connection_index(n: int, K: int, ml) -> np.ndarray:
