@@ -191,8 +191,9 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     """The analyses of a deck in command order."""
     check_override_names(overrides)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    try:      # an invalid override is the caller's error, not the deck's
-        StaticSettings().updated(overrides)
+    try:      # an invalid override is the caller's error, not the deck's (none: nothing to check)
+        if overrides:
+            StaticSettings().updated(overrides)
     except (ValueError, TypeError) as e:
         raise UsageError(f"invalid solver option: {e}") from None
     live = _static_settings([e for e in spec.model if e.tag == "Param_Static"])
