@@ -14,6 +14,7 @@ import pytest
 from poise.core.lean import all_finite, norm, row_norms
 from poise.elements import kernel as K
 from poise.elements import rotation as R
+from poise.elements.slot_index import SlotIndex, slot_rounds
 
 
 def _cross_ref(a, b):
@@ -65,9 +66,13 @@ def test_slot_rounds_are_the_slot_loop():
             loop[:, 6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += blk[:, s]
         rounds = base.copy()
         diag = np.einsum("nkikj->nkij", rounds.reshape(n, k_, 6, k_, 6)[:, :, 3:, :, 3:])
-        for ks, ss in K._slot_rounds(ml):
+        for ks, ss in slot_rounds(ml):
             diag[:, ks] += blk[:, ss]
         assert rounds.tobytes() == loop.tobytes()
+        # one bincount of the entries, then the blocks in slot order: the loop's sums
+        ix = SlotIndex(np.zeros((n, k_), int), ml, np.zeros((n, s_), int), np.zeros(1, int),
+                       connection=True)
+        assert ix.add_connection(base, blk, k_).tobytes() == loop.tobytes()
 
 
 def test_slot_index_sums_are_the_generic_ones():
@@ -82,7 +87,7 @@ def test_slot_index_sums_are_the_generic_ones():
         body = rng.integers(0, 4, 6)
         P, A, pos = rng.standard_normal((6, 3)), rng.standard_normal((6, 3, 3)), \
             rng.standard_normal((4, 3))
-        ix = K.SlotIndex(markers, ml, kind, body)
+        ix = K.SlotIndex(markers, ml, kind, body, 2, connection=True)   # sums' targets kept
         fast = K.slot_kinematics(markers, ml, kind, P, A, body, pos, ix)
         slow = K.slot_kinematics(markers, ml, kind, P, A, body, pos)
         assert fast.Y.tobytes() == slow.Y.tobytes() and fast.V.tobytes() == slow.V.tobytes()
@@ -117,3 +122,40 @@ def test_lean_is_numpy():
         assert row_norms(x).tobytes() == np.linalg.norm(x, axis=-1).tobytes()
     assert all_finite(np.zeros(0)) and all_finite(np.ones((2, 3)))
     assert not all_finite(np.array([1.0, np.nan])) and not all_finite(np.array([[np.inf]]))
+
+
+def test_phi_q_jacobian_is_the_jacobian_without_tangents():
+    """The static prologue's evaluation: the constraint blocks and the residual bit for bit
+    those of the full Jacobian, no stiffness in the coordinate block."""
+    from poise.app.api import solve
+    from poise.app import deck_cache
+    from poise.model.evaluate import evaluate
+    from support.paths import DECKS
+    deck_cache.clear()
+    solve(str(DECKS / "fourbar_spring.xml"), quiet=True)
+    model = next(iter(next(iter(deck_cache._entries.values())).models.values()))
+    st = model.initial_state()
+    st.lam = np.linspace(-2.0, 3.0, model.nc)
+    full, part = evaluate(model, st, "jacobian"), evaluate(model, st, "phi_q")
+    nq = model.nq
+    assert part.r.tobytes() == full.r.tobytes() and part.phi.tobytes() == full.phi.tobytes()
+    assert part.J[nq:].tobytes() == full.J[nq:].tobytes()
+    assert part.J[:nq, nq:].tobytes() == full.J[:nq, nq:].tobytes()
+    assert not np.any(part.J[:nq, :nq]) and np.abs(full.J[:nq, :nq]).max() > 0
+    deck_cache.clear()
+
+
+def test_euler_parameters_are_the_formula_sums():
+    """The gathered form adds the same entries in the same order as the written formula."""
+    rng = np.random.default_rng(7)
+    Rs = R.expm_so3(rng.standard_normal((50, 3)) * 3.0)
+    Rs = np.concatenate([Rs, R.expm_so3(np.array([[np.pi, 0, 0], [0, 0, np.pi]])), np.eye(3)[None]])
+    d0, d1, d2 = Rs[:, 0, 0], Rs[:, 1, 1], Rs[:, 2, 2]
+    diag = np.stack([1 + d0 + d1 + d2, 1 + d0 - d1 - d2, 1 - d0 + d1 - d2, 1 - d0 - d1 + d2], 1)
+    k = np.argmax(diag, axis=1)
+    q = R.euler_parameters(Rs)
+    # the largest |q_k| comes from its own diagonal entry: 4 q_k^2 = diag_k
+    qk = q[np.arange(len(Rs)), k]
+    assert np.allclose(4 * qk ** 2, diag[np.arange(len(Rs)), k], rtol=1e-12, atol=1e-15)
+    assert np.allclose(R.expm_so3(R.rotation_vector(Rs)), Rs, atol=1e-12)
+    assert np.all((q[:, 0] > 0) | ((q[:, 0] == 0) & (q[:, 1:] != 0).any(axis=1)))

@@ -85,8 +85,7 @@ def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
         dFj = dTj = None
         if need_jac:
             dFj = -dF
-            # d(d x F) = -[F]x dd + [d]x dF, dd = I on P_I's columns, -I on P_J's: -[F]x dd is
-            # -[F]x and [F]x there (exactly: products with 1 and 0) and zero elsewhere
+            # d(d x F) = -[F]x dd + [d]x dF, dd = I / -I on P_I / P_J: -[F]x dd added exactly
             dcross = np.matmul(skew(d), dF)
             sF = skew(F)
             dcross[:, :, sl(S_PI)] -= sF
@@ -148,16 +147,14 @@ class LineForce(TwoBodyForce):
     preload: np.ndarray
 
     def _law(self, ctx):
-        """The law's per-instance constants: ``c``, ``c != 0``, ``-k`` and ``c`` as columns,
-        ``-k I`` (the same values every evaluation: kept in the solve's workspace)."""
-        ws = getattr(ctx, "workspace", None)
-        sc = None if ws is None else ws.scratch(self, dict)    # the family's scratch dict
-        law = None if sc is None else sc.get("law")
+        """The law's per-instance constants (``c``, ``c != 0``, ``-k`` and ``c`` as columns,
+        ``-k I``): the same every evaluation, kept in the solve's workspace."""
+        sc = ctx.workspace.scratch(self, dict) if getattr(ctx, "workspace", None) else {}
+        law = sc.get("law")
         if law is None:
             c = self.k * self.length + self.preload
-            law = c, c != 0.0, -self.k[:, None], c[:, None], (-self.k)[:, None, None] * _I3
-            if sc is not None:
-                sc["law"] = law
+            law = sc["law"] = (c, c != 0.0, -self.k[:, None], c[:, None],
+                               (-self.k)[:, None, None] * _I3)
         return law
 
     def compute(self, Y, ctx, need_jac):

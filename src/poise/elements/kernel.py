@@ -13,8 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from poise.elements.rotation import skew
+from poise.elements.slot_index import AX_X, AX_Y, AX_Z, POINT, SlotIndex  # noqa: F401 (API)
+from poise.elements.local_pattern import LocalPattern, local_pattern  # noqa: F401 (API)
 
-POINT, AX_X, AX_Y, AX_Z = 0, 1, 2, 3    # slot kinds: the marker origin, its x, y, z axis
 _I3 = np.eye(3)
 _NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])   # component i: i+1, i+2
 _GATHER_MAX = 1 << 14      # entries up to which cross products gather components by index
@@ -86,42 +87,6 @@ class SlotKinematics:
         return self._B
 
 
-def _slot_rounds(ml, slots=None) -> list:
-    """The slots (markers ``ml``; only ``slots`` when given) in rounds of distinct markers,
-    each marker's slots in order round after round, as ``(marker slice, slot slice)`` pairs (a
-    round whose markers or slots are not evenly spaced goes slot by slot): a loop's additions
-    over the slots onto their markers' rows, in its order, a few slots at a time."""
-    seen: dict = {}
-    rounds: list = []
-    for s in (range(len(ml)) if slots is None else slots):
-        k = ml[s]
-        r = seen[k] = seen.get(k, -1) + 1
-        if r == len(rounds):
-            rounds.append([])
-        rounds[r].append((k, s))
-    out = []
-    for rnd in rounds:
-        rnd.sort()
-        ks, ss = [k for k, _ in rnd], [s for _, s in rnd]
-        dk = ks[1] - ks[0] if len(ks) > 1 else 1
-        ds = ss[1] - ss[0] if len(ss) > 1 else 1
-        if dk > 0 and ds > 0 and ks == list(range(ks[0], ks[-1] + 1, dk)) \
-                and ss == list(range(ss[0], ss[-1] + 1, ds)):
-            out.append((slice(ks[0], ks[-1] + 1, dk), slice(ss[0], ss[-1] + 1, ds)))
-        else:
-            out += [(slice(k, k + 1), slice(s, s + 1)) for k, s in rnd]
-    return out
-
-
-def _as_slice(idx):
-    """``idx`` (1-d, distinct) as an equivalent slice when evenly increasing, else as is."""
-    idx = np.asarray(idx)
-    step = int(idx[1] - idx[0]) if idx.size > 1 else 1
-    if step > 0 and np.array_equal(idx, np.arange(idx[0], idx[0] + step * idx.size, step)):
-        return slice(int(idx[0]), int(idx[-1]) + 1, step)
-    return idx
-
-
 def _runs(slot_ml) -> list:
     """``(first, end, marker)`` of each run of consecutive slots reading one marker."""
     out = []
@@ -182,82 +147,6 @@ def dense_g(G, rows=None):
     if G is None or rows is None:
         return G
     return G[rows]
-
-
-class SlotIndex:
-    """What :func:`slot_kinematics` derives from a family's markers and slot kinds alone (the
-    slots' markers, point masks, bodies, axis columns): a small family's pattern keeps one
-    (:class:`LocalPattern`), so that its evaluations only gather the marker kinematics. With
-    rounds, the targets of its slot sums (:meth:`slot_sums`: residual, ``m`` constraint rows;
-    ``connection``: the tangent's connection blocks, :func:`_add_connection`) are made here,
-    once: a solve adds nothing to the model."""
-
-    __slots__ = ("mk", "pt", "masks", "case", "body", "ax", "is_pt", "slot_ml", "rounds",
-                 "p_slots", "_sums", "b_at")
-
-    def __init__(self, markers, slot_ml, slot_kind, marker_body, m: int = 0,
-                 connection: bool = False):
-        self.slot_ml = np.asarray(slot_ml)
-        self.mk = markers[:, self.slot_ml]                       # (n, S)
-        self.pt = pt = slot_kind == POINT
-        self.masks = (pt.all(axis=0), pt.any(axis=0))
-        self.case = POINT if pt.all() else AX_X if not pt.any() else None
-        self.body = np.maximum(marker_body[self.mk], 0)
-        self.ax = slot_kind - 1 if self.case == AX_X else np.clip(slot_kind - 1, 0, 2)
-        self.is_pt = pt[..., None]
-        # the slots' sums on their markers' rows in rounds (:func:`_slot_rounds`): every slot
-        # on the rotation rows, the point slots on the translation rows (None: a slot that is
-        # a point in some instances only, summed slot by slot)
-        p_all, p_any = self.masks
-        ml = self.slot_ml.tolist()
-        self.rounds = (None if (p_any & ~p_all).any() else
-                       (_slot_rounds(ml), _slot_rounds(ml, np.flatnonzero(p_all).tolist())))
-        self.p_slots = np.flatnonzero(p_all)
-        self._sums: dict = {}
-        n, K = markers.shape
-        if self.rounds is not None:
-            for N in {n, n * m} - {0}:
-                self._sums[(N, K)] = _sum_index(N, K, self.slot_ml, self.p_slots)
-            if connection:
-                self._sums[("connection", n, K)] = _connection_index(n, K, self.slot_ml)
-        # where :meth:`b_matrix` puts -skew(v) and the point slots' I (families whose tangent
-        # is formed with B: no declared G structure)
-        self.b_at = _b_index(n, K, self.slot_ml, self.p_slots) if (
-            connection and self.rounds is not None) else None
-
-    def b_matrix(self, msk, K: int) -> np.ndarray:
-        """:attr:`SlotKinematics.B` (n, 3S, 6K) from ``-skew(V)`` (n, S, 3, 3): the same
-        entries placed by index (no slot loop)."""
-        n, S = msk.shape[:2]
-        rot_at, pt_at = self.b_at
-        B = np.zeros(n * 3 * S * 6 * K)
-        B[rot_at] = msk.reshape(-1)
-        B[pt_at] = 1.0
-        return B.reshape(n, 3 * S, 6 * K)
-
-    def slot_sums(self, rot, trans, K: int) -> np.ndarray:
-        """The sums of :func:`_round_sums` (``rounds`` not None) as one ``np.bincount``:
-        ``rot`` (..., S, 3) onto each marker's rotation rows, ``trans`` of the point slots onto
-        its translation rows; (N, 6K) for the N leading instances. bincount adds its inputs in
-        order onto zeros, every slot of a marker in slot order: the same sums, bit for bit."""
-        S = len(self.slot_ml)
-        N = rot.size // (3 * S)
-        got = self._sums.get((N, K))
-        if got is None:
-            got = _sum_index(N, K, self.slot_ml, self.p_slots)
-        w = np.concatenate([rot.reshape(-1), trans[..., self.p_slots, :].reshape(-1)])
-        return np.bincount(got, weights=w, minlength=N * 6 * K).reshape(N, 6 * K)
-
-
-def _sum_index(N: int, K: int, ml, p_slots) -> np.ndarray:
-    """:meth:`SlotIndex.slot_sums`' target of each value: ``(N, S, 3)`` rotation rows of the
-    slots' markers, then ``(N, P, 3)`` translation rows of the point slots' markers, in the
-    (N, 2K, 3) layout of a local residual."""
-    i = np.arange(N)[:, None, None] * (2 * K)
-    c = np.arange(3)[None, None, :]
-    rot = (i + 2 * np.asarray(ml)[None, :, None] + 1) * 3 + c
-    trans = (i + 2 * np.asarray(ml)[p_slots][None, :, None]) * 3 + c
-    return np.concatenate([rot.ravel(), trans.ravel()]).astype(np.intp)
 
 
 def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
@@ -370,120 +259,6 @@ def _round_sums(rounds, rot_rows, trans_rows, rot, trans, lead=()):
         rot_rows[a + (ks,)] += rot[a + (ss,)]
     for ks, ss in rounds[1]:
         trans_rows[a + (ks,)] += trans[a + (ss,)]
-
-
-class LocalPattern:
-    """Static structure of one family's local tangent and constraint Jacobian.
-
-    Built once per family (:func:`local_pattern`) from the slot layout and the family's optional
-    structure declarations (:meth:`Family.g_blocks`, :meth:`Family.phi_y_mask`). ``kmask``
-    (L, L) and ``pmask`` (m, L), L = 6K + U, mark the entries that can be non-zero; the model
-    registers only those with the sparse assembler. ``kidx`` / ``pidx`` are their flat indices
-    (C order), None when the mask is full. ``order`` is the order in which the model registers
-    and fills the tangent entries: block-wise for ``compact`` patterns (declared ``G`` structure,
-    no scalar columns; :func:`tangent_compact` fills them directly, entry-major: all instances
-    of one entry after the other), else ``kidx`` (instance-major). ``slots``: the family's
-    :class:`SlotIndex` (small families of a model, ``marker_body`` given), else None.
-    """
-
-    #: families with at most this many slot instances (n * S) keep a :class:`SlotIndex`
-    SLOT_INDEX_MAX = 4096
-
-    def __init__(self, fam, marker_body=None):
-        K, S, U, m = fam.K, len(fam.slot_ml), fam.U, fam.m
-        gb = fam.g_blocks()
-        self.declared = gb is not None
-        self.slots = (SlotIndex(fam.markers, fam.slot_ml, fam.slot_kind, marker_body, m,
-                                connection=not self.declared)
-                      if marker_body is not None and fam.n * S <= self.SLOT_INDEX_MAX else None)
-        ml = np.asarray(fam.slot_ml)
-        L = 6 * K + U
-        pt_any = (np.asarray(fam.slot_kind) == POINT).any(axis=0) if fam.n else np.zeros(S, bool)
-        gb = np.ones((S, S), bool) if gb is None else np.asarray(gb, bool)
-        km = np.zeros((L, L), bool)
-
-        def tr(k):
-            return slice(6 * k, 6 * k + 3)
-
-        def rt(k):
-            return slice(6 * k + 3, 6 * k + 6)
-
-        for s in range(S):                                     # connection term
-            km[rt(ml[s]), rt(ml[s])] = True
-        pairs = np.argwhere(gb)
-        for s, t in pairs:
-            k, l = ml[s], ml[t]
-            km[rt(k), rt(l)] = True
-            if pt_any[s]:
-                km[tr(k), rt(l)] = True
-            if pt_any[t]:
-                km[rt(k), tr(l)] = True
-            if pt_any[s] and pt_any[t]:
-                km[tr(k), tr(l)] = True
-        if U:
-            km[:, 6 * K:] = True
-            km[6 * K:, :] = True
-        self.slot_rounds = _slot_rounds(ml.tolist())
-        self.s_idx = pairs[:, 0].copy()
-        self.t_idx = pairs[:, 1].copy()
-        self.pairs = [(int(a), int(b)) for a, b in pairs]
-        self.pt_any = pt_any
-        self.pt_all = (np.asarray(fam.slot_kind) == POINT).all(axis=0) if fam.n else pt_any
-        self.kmask = km
-        self.kidx = None if km.all() else np.flatnonzero(km)
-        # compact layout (declared families without scalar columns): the non-zero 3x3 blocks
-        # of the (2K x 2K) block grid, row-major; the tangent is computed straight into
-        # (nblocks, 3, 3, n) and registered with the assembler in that order (``order``)
-        self.compact = self.declared and not U
-        self.bpos = None
-        self.nblocks = 0
-        self.order = self.kidx
-        self.conn_rounds = None
-        if self.declared:
-            bi, bj = np.nonzero(km[:6 * K:3, :6 * K:3])
-            self.bpos = np.full((2 * K, 2 * K), -1, np.intp)
-            self.bpos[bi, bj] = np.arange(bi.size)
-            self.nblocks = int(bi.size)
-            # the connection term's (rot k, rot k) blocks of each slot round (tangent_compact):
-            # a slice when evenly spaced (views), else an index array
-            rot = 2 * np.arange(K) + 1
-            self.conn_rounds = [(_as_slice(self.bpos[rot[ks], rot[ks]]), ss)
-                                for ks, ss in self.slot_rounds]
-            if self.compact:
-                r = 3 * bi[:, None, None] + np.arange(3)[None, :, None]
-                c = 3 * bj[:, None, None] + np.arange(3)[None, None, :]
-                self.order = (r * L + c).ravel()
-        self.pmask = None
-        self.pidx = None
-        if m:
-            pm = fam.phi_y_mask()
-            pm = np.ones((m, 3 * S), bool) if pm is None else np.asarray(pm, bool)
-            qm = np.zeros((m, L), bool)
-            for s in range(S):
-                k = ml[s]
-                blk = pm[:, 3 * s:3 * s + 3]                  # (m, 3)
-                if pt_any[s]:
-                    qm[:, 6 * k:6 * k + 3] |= blk
-                cnt = blk.sum(axis=1)
-                # row p^T (-skew v) = (v x p)^T: component j is structurally zero only when p
-                # has its single non-zero in component j
-                rot = (cnt[:, None] >= 2) | ((cnt[:, None] == 1) & ~blk)
-                qm[:, 6 * k + 3:6 * k + 6] |= rot
-            if U:
-                qm[:, 6 * K:] = True
-            self.pmask = qm
-            self.pidx = None if qm.all() else np.flatnonzero(qm)
-
-    @property
-    def nk(self) -> int:
-        return int(self.kmask.sum())
-
-
-def local_pattern(fam) -> LocalPattern:
-    """The :class:`LocalPattern` of a family: the one of its model layout (``fam.pattern``), or
-    built now for a family outside a model."""
-    pat = fam.pattern
-    return LocalPattern(fam) if pat is None else pat
 
 
 def _tangent_blocks(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern | None):
@@ -621,43 +396,6 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
     return Pq.reshape(n, m, 6 * K)
 
 
-def _add_connection(Kl, blk, index: SlotIndex, K: int) -> np.ndarray:
-    """``Kl`` (n, 6K, 6K) plus each slot's connection block ``blk`` (n, S, 3, 3) on its
-    marker's (rot, rot) block, as one bincount of Kl's entries then the blocks in slot order:
-    the same sums as adding them slot by slot onto Kl (a zero may lose its sign)."""
-    n = blk.shape[0]
-    idx = index._sums.get(("connection", n, K))
-    if idx is None:
-        idx = _connection_index(n, K, index.slot_ml)
-    w = np.concatenate([Kl.reshape(-1), blk.reshape(-1)])
-    return np.bincount(idx, weights=w, minlength=Kl.size).reshape(Kl.shape)
-
-
-def _b_index(n: int, K: int, ml, p_slots) -> tuple:
-    """:meth:`SlotIndex.b_matrix`' positions: ``-skew(v_s)`` (n, S, 3, 3) on rows ``3s..3s+3``,
-    the rotation columns of the slot's marker; 1 on the diagonal of each point slot's
-    translation columns."""
-    ml = np.asarray(ml)
-    S, W = len(ml), 6 * K
-    a = np.arange(3)
-    row = np.arange(n)[:, None, None, None] * 3 * S + 3 * np.arange(S)[None, :, None, None] \
-        + a[:, None]
-    rot_at = row * W + 6 * ml[None, :, None, None] + 3 + a[None, :]
-    prow = np.arange(n)[:, None, None] * 3 * S + 3 * np.asarray(p_slots)[None, :, None] + a
-    pt_at = prow * W + 6 * ml[p_slots][None, :, None] + a
-    return rot_at.ravel().astype(np.intp), pt_at.ravel().astype(np.intp)
-
-
-def _connection_index(n: int, K: int, ml) -> np.ndarray:
-    """:func:`_add_connection`'s target of each value: Kl's own entries, then each slot's
-    3x3 block on its marker's (rot, rot) block."""
-    L = 6 * K
-    r = 6 * np.asarray(ml)[None, :, None, None] + 3 + np.arange(3)[:, None]
-    c = 6 * np.asarray(ml)[None, :, None, None] + 3 + np.arange(3)[None, :]
-    at = (np.arange(n)[:, None, None, None] * L + r) * L + c              # (n, S, 3, 3)
-    return np.concatenate([np.arange(n * L * L), at.ravel()]).astype(np.intp)
-
-
 def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray | None,
                            slot_ml, K: int, need_jac: bool = True, ext: dict | None = None,
                            U: int = 0, pat: LocalPattern | None = None):
@@ -705,7 +443,7 @@ def local_tangent(kin: SlotKinematics, rho: np.ndarray, G, slot_ml, K: int,
         rounds = None if pat is None else pat.slot_rounds
         if rounds is not None and kin.index is not None:
             # small: one bincount adds each slot's block (in slot order) onto Kl's entries
-            Kl = _add_connection(Kl, blk, kin.index, K)
+            Kl = kin.index.add_connection(Kl, blk, K)
         elif rounds is None:
             for s in range(S):
                 k = slot_ml[s]

@@ -1,19 +1,20 @@
 """The evaluation engine: one pass over the element families for F >= 1 frames of a model.
 
 :func:`evaluate` computes, by its ``what`` option, the residual ``[Phi_q^T lam - Q; Phi]``
-(``"residual"``), with the KKT Jacobian (``"jacobian"``, or ``"defer"``: assembled later by
+(``"residual"``), with the KKT Jacobian (``"jacobian"``; ``"defer"``: assembled later by
 :func:`jacobian`; ``"phi_q"``: its constraint blocks alone), the constraint values only
-(``"phi"``: no force element is called) or the potential energy (``"energy"``). One state is one frame (the Jacobian goes through the model's
-fixed-pattern assembler, sparse or dense); a list of states is ``F`` frames evaluated together
-(the tileable families tiled across frames by :mod:`poise.model.frame_batch` and called once,
-dense ``(F, N, N)`` Jacobians scattered with one ``bincount``). Every family goes through
-:func:`_family_pass`, the only loop over the families; what differs per option is how its
-outputs are reduced; the energy sums what the element types declare (``Model.energy_terms``,
-:mod:`poise.elements.registry`). Active rows come from the caller's solve data (``active``);
-element loads of the kept slot data: :mod:`poise.elements.loads`; forces reading constraint
-reactions: the model's ``reaction_feed`` (:mod:`poise.elements.reaction_feed`), single frames.
-What an evaluation keeps between calls (assembly buffer, tiled families, kernels' caches) is in
-the caller's :class:`~poise.model.workspace.Workspace`, never on the model.
+(``"phi"``: no force element is called) or the potential energy (``"energy"``). One state is
+one frame (the Jacobian through the model's fixed-pattern assembler, sparse or dense); a list
+of states is ``F`` frames evaluated together (tileable families tiled across frames by
+:mod:`poise.model.frame_batch` and called once, dense ``(F, N, N)`` Jacobians scattered with
+one ``bincount``). Every family goes through :func:`_family_pass`, the only loop over the
+families; what differs per option is how its outputs are reduced; the energy sums what the
+element types declare (``Model.energy_terms``, :mod:`poise.elements.registry`). Active rows
+come from the caller's solve data (``active``); element loads of the kept slot data:
+:mod:`poise.elements.loads`; forces reading constraint reactions: the model's
+``reaction_feed`` (:mod:`poise.elements.reaction_feed`), single frames. What an evaluation
+keeps between calls (assembly buffer, tiled families, kernels' caches) is in the caller's
+:class:`~poise.model.workspace.Workspace`, never on the model.
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, de
                                    slot_kinematics,
                                    tangent_compact)
 from poise.model.assembly import Scatter
-from poise.model.frame_batch import tiles
+from poise.model.frame_batch import add_block, stack_ext, tiles
 from poise.model.recent import RecentEvaluations
 from poise.model.workspace import Workspace
 
@@ -85,10 +86,8 @@ def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool =
 
     what : ``"residual"``, ``"jacobian"``, ``"defer"`` (residual now, element data kept so that
         :func:`jacobian` assembles the Jacobian later without calling the kernels again:
-        line-search trials), ``"phi_q"`` (the Jacobian with no stiffness in its coordinate
-        block, only ``eps_mass`` there: for callers that read its constraint rows and columns
-        alone, the static prologue's redundancy test and least-squares multipliers; the other
-        blocks are bit for bit those of ``"jacobian"``), ``"phi"`` or ``"energy"``.
+        line-search trials), ``"phi_q"`` (no stiffness tangent in the coordinate block: for
+        readers of ``Phi_q`` alone; its other blocks are ``"jacobian"``'s), ``"phi"``, ``"energy"``.
     active : (nc,) bool or None (all rows). Inactive (redundant) rows read 0 in ``phi``, have
         no constraint Jacobian and 1 on their multiplier diagonal. Frames: all rows active.
     keep : keep per-family slot data (``ev.items``: ``(family, kin, rho, phi_y)``, ``phi_y``
@@ -200,7 +199,7 @@ class _Frames:
         k = 3 if fam.is_constraint else 2
         out = [None if outs[0][j] is None else np.concatenate([dense_g(o[j]) for o in outs])
                for j in range(k)]
-        ext = _stack_ext(outs, k)
+        ext = stack_ext(outs, k)
         if ext is not None:
             out.append(ext)
         return t, kin, lam, out
@@ -321,8 +320,7 @@ def jacobian(model, ev: Evaluation):
         pat = local_pattern(fam)
         U = fam.U
         if not stiffness:  # "phi_q": the tangent entries read zero (nothing else shares them)
-            L = 6 * fam.K + U
-            Kl = np.zeros(fam.n * (L * L if pat.order is None else pat.order.size))
+            Kl = np.zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
         elif pat.compact:  # straight into the registered (entry-major block) order
             Kl = tangent_compact(kin, rho, G, fam.K, pat)
         else:
@@ -378,7 +376,7 @@ def _many_frames(model, fr, need_jac):
         if need_jac:
             L = g.shape[1]
             li, lj = np.nonzero(pat.kmask)
-            _add_block(jidx, jval, g[:, li], g[:, lj], Kl.reshape(F * n, L * L)[:, li * L + lj],
+            add_block(jidx, jval, g[:, li], g[:, lj], Kl.reshape(F * n, L * L)[:, li * L + lj],
                        F, N)
             if fam.is_constraint:
                 Pq = constraint_jacobian_local(kin, phy, fam.K)
@@ -387,8 +385,8 @@ def _many_frames(model, fr, need_jac):
                 pr, pc = np.nonzero(pat.pmask)
                 rows = nq + fam.crow
                 vals = Pq[:, pr, pc]
-                _add_block(jidx, jval, rows[:, pr], g[:, pc], vals, F, N)
-                _add_block(jidx, jval, g[:, pc], rows[:, pr], vals, F, N)
+                add_block(jidx, jval, rows[:, pr], g[:, pc], vals, F, N)
+                add_block(jidx, jval, g[:, pc], rows[:, pr], vals, F, N)
     r = np.zeros(F * nq)
     if ridx:
         idx = np.concatenate([i.ravel() for i in ridx])
@@ -444,30 +442,6 @@ class _EnergyView:
 def _slice_kin(kin, a, b):
     return SlotKinematics(Y=kin.Y[a:b], V=kin.V[a:b], pt=kin.pt[a:b], slot_ml=kin.slot_ml,
                           K=kin.K)
-
-
-def _stack_ext(outs, at):
-    """Stack the optional ``ext`` dicts (item ``at``) of per-frame kernel outputs."""
-    exts = [o[at] if len(o) > at else None for o in outs]
-    if all(e is None for e in exts):
-        return None
-    keys = set().union(*[e.keys() for e in exts if e])
-    res = {}
-    for k in keys:
-        vals = [None if e is None else e.get(k) for e in exts]
-        res[k] = None if any(v is None for v in vals) else np.concatenate(vals)
-    return res
-
-
-def _add_block(jidx, jval, rows, cols, vals, F, N):
-    """Register dense-Jacobian entries ``(rows, cols)`` (n, E) of every frame: flat index
-    ``f N^2 + row N + col``; entries with a negative row or column are dropped."""
-    ok = (rows >= 0) & (cols >= 0)                                  # (n, E)
-    base = (rows * N + cols)[ok]                                    # (k,)
-    flat = (base[None, :] + (N * N * np.arange(F))[:, None]).ravel()
-    v = vals.reshape(F, *rows.shape)[:, ok].ravel()
-    jidx.append(flat.astype(np.int64))
-    jval.append(v)
 
 
 def _gather(Kl, idx):

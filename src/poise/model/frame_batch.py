@@ -99,3 +99,27 @@ def set_tiles(model, F, workspace, tiled) -> None:
     parameters differ per frame (a sweep's cases solved together, :mod:`poise.solvers.batched`)."""
     cache = workspace.scratch(model, _Tiles)
     cache.F, cache.tiles = F, list(tiled)
+
+
+def stack_ext(outs, at):
+    """Stack the optional ``ext`` dicts (item ``at``) of per-frame kernel outputs."""
+    exts = [o[at] if len(o) > at else None for o in outs]
+    if all(e is None for e in exts):
+        return None
+    keys = set().union(*[e.keys() for e in exts if e])
+    res = {}
+    for k in keys:
+        vals = [None if e is None else e.get(k) for e in exts]
+        res[k] = None if any(v is None for v in vals) else np.concatenate(vals)
+    return res
+
+
+def add_block(jidx, jval, rows, cols, vals, F, N):
+    """Register dense-Jacobian entries ``(rows, cols)`` (n, E) of every frame: flat index
+    ``f N^2 + row N + col``; entries with a negative row or column are dropped."""
+    ok = (rows >= 0) & (cols >= 0)                                  # (n, E)
+    base = (rows * N + cols)[ok]                                    # (k,)
+    flat = (base[None, :] + (N * N * np.arange(F))[:, None]).ravel()
+    v = vals.reshape(F, *rows.shape)[:, ok].ravel()
+    jidx.append(flat.astype(np.int64))
+    jval.append(v)
