@@ -76,6 +76,8 @@ def test_pooled_assembly_sums_like_bincount_and_spares_live_matrices(chain, monk
         return orig(self, values, workspace)
 
     monkeypatch.setattr(Assembler, "assemble", grab)
+    import poise.model.assembly as assembly
+    monkeypatch.setattr(assembly, "_CHUNK", 1000)            # each block summed in chunks
     J = data.jacobian(model, data.evaluate(model, st, "defer", eps=1e-3))
     ref = np.bincount(asm.slot_all, weights=np.concatenate(vals), minlength=asm.nnz + 1)
     assert _bits(J.data, ref[:asm.nnz]) and _bits(J.data, kept)

@@ -112,11 +112,15 @@ class Assembler:
             # faults again (at 10^5 links more than the sums themselves); block by block, so
             # that the values are never copied into one array of every entry (at 10^5 links
             # 140 MB held for the solve)
+            # in chunks of _CHUNK entries: np.add.at widens int32 slots to intp, and a block's
+            # widened slots in one piece would be fresh pages (above malloc's reuse) every time
             out = workspace.scratch(self, _Scratch).free_data(self.nnz + 1)
             at = 0
             for v in values:
                 v = np.asarray(v, float).ravel()
-                np.add.at(out, self.slot_all[at:at + v.size], v)
+                for i in range(0, v.size, _CHUNK):
+                    np.add.at(out, self.slot_all[at + i:at + min(i + _CHUNK, v.size)],
+                              v[i:i + _CHUNK])
                 at += v.size
             if at != self.slot_all.size:
                 raise ValueError(f"assemble: {at} values for {self.slot_all.size} entries")
