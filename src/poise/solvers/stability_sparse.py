@@ -282,7 +282,7 @@ class SparsePencil:
         self.singular = False             # a tiny pivot at a constraint row was met
         self.lean = lean                  # Gt^T Gt not kept beside a factorisation
         self._pos = None                  # the permuted position of each unknown
-        memory.release(nnz * 16)          # the construction's temporaries' pages (large models)
+        memory.release(nnz * 16, memory.SOLVE_LARGE)    # the temporaries' pages (large models)
 
     @property
     def GtG(self):
@@ -337,7 +337,7 @@ class SparsePencil:
             indices[at] = pos[M.indices + r0] if r0 else pos[M.indices]
             at = None
         A = sp.csc_matrix((data, indices, indptr.astype(np.int32)), shape=(n, n))
-        memory.release(nnz * 16)          # the temporaries' pages, before the factorisation
+        memory.release(nnz * 16, memory.SOLVE_LARGE)    # the temporaries' pages (large models)
         return A
 
     def ldl(self, s, rho):
