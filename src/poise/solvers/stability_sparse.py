@@ -221,6 +221,35 @@ def _empty(M):
     M.indptr = np.zeros(M.shape[1] + 1, np.int32)
 
 
+def _diag_scaled(M, r, c):
+    """``diags(r) @ M @ diags(c)`` for a CSR ``M`` (``r`` None: ``M @ diags(c)``), the very
+    arrays scipy's two (one) sparse products give, without them: each entry ``(r_i m_ij) c_j``,
+    exact zeros dropped, and every product of scipy's reverses the entries of each row (one
+    product: reversed rows; two: ``M``'s order). ``M`` with duplicate entries (which those
+    products would sum) takes scipy's products."""
+    import scipy.sparse as sp
+    if not M.has_canonical_format:
+        Dc = sp.diags(c)
+        return (M @ Dc if r is None else sp.diags(r) @ M @ Dc).tocsr()
+    cnt = np.diff(M.indptr)
+    data = M.data * np.repeat(r, cnt) if r is not None else M.data.copy()
+    data *= c[M.indices]
+    indices, indptr = M.indices, M.indptr
+    nz = data != 0.0
+    if not nz.all():                 # (scipy's products drop the entries that are 0)
+        data, indices = data[nz], indices[nz]
+        kept = np.zeros(len(nz) + 1, indptr.dtype)
+        np.cumsum(nz, out=kept[1:])
+        indptr = kept[indptr]
+        cnt = np.diff(indptr)
+    else:
+        indices, indptr = indices.copy(), indptr.copy()
+    if r is None and len(data):      # one product: each row reversed
+        at = np.repeat(indptr[1:] + indptr[:-1] - 1, cnt) - np.arange(len(data))
+        data, indices = data[at], indices[at]
+    return sp.csr_matrix((data, indices, indptr), shape=M.shape)
+
+
 def symmetric_permutation(A, order):
     """``A[order][:, order]`` in CSC (a fresh matrix: the caller's ``A`` can go before the
     factorisation, which then holds one copy of the matrix, not two)."""
@@ -250,10 +279,10 @@ class SparsePencil:
         else:
             J = sp.csr_matrix(J() if callable(J) else J)
             nnz = J.nnz
-            Di = sp.diags(1.0 / d)
-            Ku = Di @ J[:nq, :nq] @ Di
+            Di = 1.0 / d
+            Ku = _diag_scaled(J[:nq, :nq], Di, Di)
             Ks = _prune_noise(((Ku + Ku.T) * 0.5).tocsr())
-            G = (J[nq:, :nq][rows] @ Di).tocsr()
+            G = _diag_scaled(J[nq:, :nq][rows], None, Di)
             J = Ku = None                 # (a handed-over Jacobian goes here)
         self.G_active = G                 # active rows, length-scaled (dependent-row check)
         self.rows = rows                  # constraint rows of Gt (model indices)
@@ -269,8 +298,8 @@ class SparsePencil:
             G = _prune_rows(G)          # entries at round-off of their row
         same = like is not None and like.nq == nq and np.array_equal(like.rows, self.rows)
         dq, dl = _equilibrate(Ks, G, start=(like.dq, like.dl) if same else None)
-        self.Kt = (sp.diags(dq) @ Ks @ sp.diags(dq)).tocsr()
-        self.Gt = (sp.diags(dl) @ G @ sp.diags(dq)).tocsr()
+        self.Kt = _diag_scaled(Ks, dq, dq)
+        self.Gt = _diag_scaled(G, dl, dq)
         self._GtG = None
         self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
         self.nq, self.m = nq, self.Gt.shape[0]
@@ -440,7 +469,7 @@ def _kkt_order(model, K, G, GtG) -> np.ndarray:
         rank = np.zeros(1, np.int64)
     key = 3 * rank[grp]
     nzr = np.diff(S.indptr) > 0
-    weak = (np.abs((K + GtG).diagonal()) < WEAK_DIAG) & nzr
+    weak = (np.abs(K.diagonal() + GtG.diagonal()) < WEAK_DIAG) & nzr   # (K + GtG)'s
     if weak.any():
         last = np.zeros(nq, np.int64)
         last[nzr] = np.maximum.reduceat(rank[grp[S.indices]], S.indptr[:-1][nzr])
