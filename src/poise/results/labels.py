@@ -46,12 +46,18 @@ class Labeller:
 
     def label(self, tag: str, i: int) -> str | None:
         """The label of element ``(tag, i)`` ("" without one), or None: no such element."""
+        hit, labs = self._find(tag, np.asarray([i], np.int64))
+        return str(labs[0]) if hit[0] else None
+
+    def _find(self, tag: str, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which of ``ids`` are elements of ``tag`` (a mask) and their labels (masked rows)."""
         got = self.by_tag.get(tag)
-        if got is None:
-            return None
-        ids, labs = got
-        k = int(np.searchsorted(ids, i))
-        return str(labs[k]) if k < len(ids) and ids[k] == i else None
+        if got is None or not len(ids):
+            return np.zeros(len(ids), bool), np.zeros(0, str)
+        tid, tlab = got
+        pos = np.minimum(np.searchsorted(tid, ids), len(tid) - 1)
+        hit = tid[pos] == ids
+        return hit, tlab[pos[hit]]
 
     def _tags(self, g: str, datasets: dict, model, n: int) -> list:
         """Candidate tags of each of the ``n`` rows of group ``g``."""
@@ -89,14 +95,9 @@ class Labeller:
         for ts, at in rows.items():
             left = np.asarray(at, np.int64)
             for t in ts:
-                got = self.by_tag.get(t)
-                if got is None or not left.size:
-                    continue
-                tid, tlab = got
-                pos = np.minimum(np.searchsorted(tid, ids[left]), len(tid) - 1)
-                hit = tid[pos] == ids[left]
-                for k, p in zip(left[hit].tolist(), pos[hit].tolist()):
-                    labels[k] = str(tlab[p])
+                hit, labs = self._find(t, ids[left])
+                for k, lab in zip(left[hit].tolist(), labs.tolist()):
+                    labels[k] = lab
                 left = left[~hit]
         return labels
 
