@@ -143,6 +143,11 @@ def test_permuted_kkt_is_the_permuted_block_matrix_bit_for_bit():
             assert np.array_equal(getattr(got, a), getattr(ref, a)), (trial, a)
 
 
+def _random_csr(rng, nr, nc, lo, hi):
+    return sp.random(nr, nc, density=rng.uniform(lo, hi), format="csr",
+                     random_state=int(rng.integers(1 << 30)))
+
+
 def test_diagonal_scaling_is_scipys_products_bit_for_bit():
     # the pencil's scaled blocks (diag(r) M diag(c), M diag(c)) are the very CSR arrays that
     # scipy's sparse products give: entry order (reversed rows after one product), exact zeros
@@ -150,8 +155,7 @@ def test_diagonal_scaling_is_scipys_products_bit_for_bit():
     rng = np.random.default_rng(11)
     for trial in range(60):
         n, k = int(rng.integers(1, 30)), int(rng.integers(1, 30))
-        M = sp.random(n, k, density=rng.uniform(0.0, 0.6), format="csr",
-                      random_state=int(rng.integers(1 << 30)))
+        M = _random_csr(rng, n, k, 0.0, 0.6)
         if M.nnz and trial % 3 == 0:
             M.data[rng.random(M.nnz) < 0.3] = 0.0          # explicit zeros in the pattern
         if M.nnz and trial % 4 == 1:
@@ -175,8 +179,7 @@ def test_equilibration_row_maxima_padded_or_by_segments_agree_bit_for_bit():
     rng = np.random.default_rng(3)
     for trial in range(30):
         nr, nc = int(rng.integers(1, 50)), int(rng.integers(1, 50))
-        M = sp.random(nr, nc, density=rng.uniform(0.02, 0.3), format="csr",
-                      random_state=int(rng.integers(1 << 30)))
+        M = _random_csr(rng, nr, nc, 0.02, 0.3)
         if trial % 4 == 0:
             M = sp.vstack([M, sp.csr_matrix(np.ones((1, nc)))]).tocsr()   # one long row
         M.data *= rng.choice([-1.0, 1.0], size=M.nnz) * 10.0 ** rng.uniform(-8, 8, M.nnz)
