@@ -540,7 +540,9 @@ def _orthonormalize(X, rtol=1e-7):
     w, V = np.linalg.eigh(0.5 * (Gm + Gm.T))
     keep = w > (rtol ** 2) * max(float(w[-1]), 0.0) if w.size else w > 0
     keep &= w > 0
-    return (X @ V[:, keep]) / np.sqrt(w[keep])
+    Y = X @ V[:, keep]
+    Y /= np.sqrt(w[keep])                 # (in place: one tall temporary fewer)
+    return Y
 
 
 def _lowest_mode(P, F, s):
