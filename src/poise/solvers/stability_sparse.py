@@ -104,6 +104,7 @@ class SymmetricLDL:
         self.order = None if order is None else np.asarray(order)
         self._permuted = permuted
         self._pos = None
+        self._b = None                    # solve_head's right-hand side (:meth:`_rhs`)
         A = self._matrix(A() if callable(A) else A)
         self.n = n = A.shape[0]
         self.ok = False
@@ -198,11 +199,19 @@ class SymmetricLDL:
         out = np.empty(v.shape)
         w = self.HEAD_COLUMNS
         for c in range(0, v.shape[1], w):
-            b = np.zeros((self.n, min(w, v.shape[1] - c)), order="F")
+            b = self._rhs(min(w, v.shape[1] - c))
             b[at] = v[:, c:c + w]
-            out[:, c:c + w] = self.lu.solve(b)[at]
-            b = None
+            out[:, c:c + w] = self.lu.solve(b)[at]      # (SuperLU solves a copy of b)
         return out
+
+    def _rhs(self, w: int):
+        """A zero right-hand side of ``w`` columns in Fortran order, kept for the next block of
+        that width: :meth:`solve_head` writes the same head rows every time, the tail stays
+        zero (no fresh, page-faulted array per block of a subspace iteration)."""
+        b = self._b
+        if b is None or b.shape[1] != w:
+            b = self._b = np.zeros((self.n, w), order="F")
+        return b
 
 
 def _abs_matvec(M, x):
