@@ -494,9 +494,17 @@ matrix with the same fill as Newton's, and the classification needs its own spar
 (inertia: an LU with partial pivoting has none) and a subspace iteration for the lowest mode
 (5 block solves). The classification factorises once: SuperLU's CSC copies of L and U, read for
 the pivots and the backward error, are made absolute in place and emptied one after the other.
-From 10⁴ to 10⁵ links, the memory-bound sparse utilities (scipy's sparse products, CSR→CSC
-conversions and fancy indexing, `np.add.at`) grow 20–60× as their data leave the caches, while
-Newton's LU grows 10×: they set the solve-time exponent. The solve's memory peaks in Newton
+From 10⁴ to 10⁵ links the solve's *user* CPU time grows ≈ 9.5× but its *system* time ≈ 20×
+(0.13 → 2.9–3.4 s): at 10⁵ links every array above glibc's mmap threshold (32 MB at most; the KKT
+matrix's data are 140 MB, a family's tangent blocks 50–200 MB) is mapped afresh and its pages
+zeroed by the kernel at every allocation — ≈ 7 GB per solve — where at 10⁴ links the same arrays
+reuse freed heap memory. That, more than cache misses, sets the solve-time exponent. The
+assembler's column order and column-ordered CSC layout are built from index arrays (no sparse
+products, conversions or column selections) and pooled assembly widens its int32 slots a chunk
+at a time; what remains is SuperLU's own factor storage (≈ 1.7 GB per solve, inside the floor),
+the element kernels' fresh value arrays (≈ 1.9 GB) and the classification's (≈ 1.6 GB). Keeping
+them in the heap (a raised mmap threshold) cuts ≈ 1 s of system time at 10⁵ links but lifts the
+peak RSS to 1.50 GB (heap fragmentation). The solve's memory peaks in Newton
 (*after newton*); the *whole worker* column adds the bench's own reference LU (COLAMD, default
 options) and evaluations after the solve, which a `poise solve` does not run. The parsed deck is
 dropped before the solve and its pages returned to the OS (`malloc_trim`).

@@ -31,7 +31,10 @@ def fit_exponent(ns, ts, n_min: int = 0) -> float | None:
 def run(chain_rows: list[dict], tmp: Path, quick: bool = False, log=print,
         budget_s: float = 420.0) -> list[dict]:
     """Extra chain sizes and the grid family. Stops adding sizes when the next one would not fit
-    ``budget_s`` (the time is extrapolated from the previous size with exponent 1.3)."""
+    ``budget_s`` (the time is extrapolated from the previous size with exponent 1.3). Sizes
+    that enter the floor targets (:data:`benchmarks.floor.SIZES`: the 10^5-link chain) run
+    :data:`benchmarks.floor.REPEAT` times (medians), the others once."""
+    from benchmarks import floor
     from benchmarks.chain import _run_worker, bench_chain
     from benchmarks.decks import build_grid_deck
     rows = []
@@ -42,25 +45,27 @@ def run(chain_rows: list[dict], tmp: Path, quick: bool = False, log=print,
     for n in (CHAIN_QUICK if quick else CHAIN_FULL):
         if n in have:
             continue
+        reps = floor.REPEAT if n in floor.SIZES else 1
         if last is not None:
             n0, t0 = last
-            est = t0 * (n / n0) ** 1.3
+            est = reps * t0 * (n / n0) ** 1.3
             spent = time.perf_counter() - t_start
             if spent + est > budget_s:
                 rows.append(dict(bench="scaling_skip", family="chain", n=n,
-                                 reason=f"estimated {est:.0f} s for one run exceeds the remaining "
+                                 reason=f"estimated {est:.0f} s for {reps} run(s) exceeds the "
+                                        "remaining "
                                         f"budget ({budget_s - spent:.0f} s of {budget_s:.0f} s)"))
                 log(f"scaling chain N={n}: skipped (estimated {est:.0f} s)")
                 continue
         t0 = time.perf_counter()
         try:
-            r = bench_chain(n, 1, tmp)
+            r = bench_chain(n, reps, tmp)
         except Exception as e:           # out of memory etc.: record it, keep going
             rows.append(dict(bench="scaling_skip", family="chain", n=n, reason=str(e)[-300:]))
             log(f"scaling chain N={n}: failed {e!s:.200}")
             continue
         wall = time.perf_counter() - t0
-        last = (n, wall)
+        last = (n, wall / reps)
         r["bench"] = "chain_scaling"
         r["loadavg"] = os.getloadavg()
         rows.append(r)

@@ -33,7 +33,7 @@ def run(root: Path, tmp: Path, chain_rows: list[dict], peer_small: dict | None =
     from benchmarks import peer
     peers = peer.run(quick=quick, repeat=3 if quick else 5, log=_log)
     _log(f"[issue 7] peer done in {time.perf_counter() - t0:.0f} s")
-    sc = scaling.run(chain_rows, tmp, quick=quick, log=_log, budget_s=120 if quick else 420)
+    sc = scaling.run(chain_rows, tmp, quick=quick, log=_log, budget_s=120 if quick else 600)
     _log(f"[issue 7] scaling done in {time.perf_counter() - t0:.0f} s")
     chains = [r for r in chain_rows if r.get("bench") == "chain"] + \
              [r for r in sc if r["bench"] == "chain_scaling"]

@@ -76,6 +76,8 @@ def test_pooled_assembly_sums_like_bincount_and_spares_live_matrices(chain, monk
         return orig(self, values, workspace)
 
     monkeypatch.setattr(Assembler, "assemble", grab)
+    import poise.model.assembly as assembly
+    monkeypatch.setattr(assembly, "_CHUNK", 1000)            # each block summed in chunks
     J = data.jacobian(model, data.evaluate(model, st, "defer", eps=1e-3))
     ref = np.bincount(asm.slot_all, weights=np.concatenate(vals), minlength=asm.nnz + 1)
     assert _bits(J.data, ref[:asm.nnz]) and _bits(J.data, kept)
@@ -112,6 +114,37 @@ def test_the_csc_layout_is_the_column_ordered_matrix_and_factorises_alike(chain)
     plain = sp.csr_matrix(J)
     plain.poise_column_order = lambda: order     # no layout: CSC conversion + selection
     assert _bits(x_layout, Factor(plain).solve(b))
+
+
+def quotient_order(asm, groups):
+    """The column order from the quotient pattern made by sparse products ``E^T S E`` (the
+    reference for :meth:`Assembler.column_order`'s merged rows)."""
+    import scipy.sparse.linalg as spla
+    grp = np.asarray(groups, np.int64)
+    G, N = int(grp.max()) + 1, asm.N
+    E = sp.csr_matrix((np.ones(N), (np.arange(N), grp)), shape=(N, G))
+    S = sp.csr_matrix((np.ones(asm.nnz), asm.indices, asm.indptr), shape=(N, N))
+    Q = (E.T @ S @ E).tocsc()
+    Q.data[:] = 1.0
+    Q = (Q + sp.identity(G, format="csc") * (G + 1.0)).tocsc()
+    pc = spla.splu(Q, permc_spec="COLAMD", panel_size=1).perm_c
+    return np.argsort(pc[grp], kind="stable")
+
+
+def test_the_column_order_is_that_of_the_quotient_pattern_whatever_the_group_labels(chain):
+    model, _ = chain
+    asm = model.assembler
+    assert np.all(np.diff(asm.groups) >= 0)        # the model's groups: rows in group order
+    assert np.array_equal(asm.column_order(), quotient_order(asm, asm.groups))
+    rng = np.random.default_rng(5)
+    G = int(np.max(asm.groups)) + 1
+    for grp in (rng.permutation(G)[asm.groups],                # contiguous, labels shuffled
+                rng.integers(0, G // 3, asm.N)):              # interleaved rows
+        other = object.__new__(Assembler)
+        for name in Assembler.__slots__:
+            setattr(other, name, getattr(asm, name))
+        other.groups = grp
+        assert np.array_equal(other.column_order(), quotient_order(asm, grp))
 
 
 def test_large_patterns_keep_int32_indices_and_assemble_alike(chain, monkeypatch):

@@ -112,11 +112,15 @@ class Assembler:
             # faults again (at 10^5 links more than the sums themselves); block by block, so
             # that the values are never copied into one array of every entry (at 10^5 links
             # 140 MB held for the solve)
+            # in chunks of _CHUNK entries: np.add.at widens int32 slots to intp, and a block's
+            # widened slots in one piece would be fresh pages (above malloc's reuse) every time
             out = workspace.scratch(self, _Scratch).free_data(self.nnz + 1)
             at = 0
             for v in values:
                 v = np.asarray(v, float).ravel()
-                np.add.at(out, self.slot_all[at:at + v.size], v)
+                for i in range(0, v.size, _CHUNK):
+                    np.add.at(out, self.slot_all[at + i:at + min(i + _CHUNK, v.size)],
+                              v[i:i + _CHUNK])
                 at += v.size
             if at != self.slot_all.size:
                 raise ValueError(f"assemble: {at} values for {self.slot_all.size} entries")
@@ -187,9 +191,23 @@ class Assembler:
         grp = np.asarray(self.groups, np.int64)
         G = int(grp.max()) + 1 if grp.size else 0
         N = self.N
-        E = sp.csr_matrix((np.ones(N), (np.arange(N), grp)), shape=(N, G))
-        S = sp.csr_matrix((np.ones(self.nnz), self.indices, self.indptr), shape=(N, N))
-        Q = (E.T @ S @ E).tocsc()
+        # the quotient pattern E^T S E (E: unknown -> its group) without sparse products: the
+        # pattern's rows merged group by group (rows taken in group order), columns renamed
+        # to their group, duplicates summed (booleans: only the pattern counts)
+        indptr, indices = self.indptr, self.indices
+        if grp.size and not np.all(grp[1:] >= grp[:-1]):
+            rows = np.argsort(grp, kind="stable")
+            S = sp.csr_matrix((np.ones(self.nnz, bool), indices, indptr), shape=(N, N))[rows]
+            indptr, indices, grp_rows = S.indptr, S.indices, grp[rows]
+            del S
+        else:
+            grp_rows = grp
+        cols = grp.astype(np.int32 if G < np.iinfo(np.int32).max else np.intp)[indices]
+        qptr = indptr[np.searchsorted(grp_rows, np.arange(G + 1))]
+        Q = sp.csr_matrix((np.ones(cols.size, bool), cols, qptr), shape=(G, G))
+        del cols
+        Q.sum_duplicates()
+        Q = Q.tocsc().astype(float)
         Q.data[:] = 1.0
         Q = (Q + sp.identity(G, format="csc") * (G + 1.0)).tocsc()   # diagonally dominant
         # only the ordering is used: it is computed before the factorisation, whose panel
@@ -208,13 +226,23 @@ class CSCLayout:
 
     def __init__(self, asm: Assembler, order: np.ndarray):
         import scipy.sparse as sp             # lazy: sparse models only
-        pos = np.arange(asm.nnz, dtype=float)   # CSR positions, exact as floats
-        A = sp.csr_matrix((pos, asm.indices, asm.indptr), shape=(asm.N, asm.N)).tocsc()[:, order]
-        A.sort_indices()
+        # the CSR pattern with its columns renamed to their rank in ``order``, converted to CSC
+        # with the CSR positions as values: one counting sort (rows come out ascending in
+        # every column), no column selection and no float copy of the positions
+        small = asm.nnz < np.iinfo(np.int32).max and asm.N < np.iinfo(np.int32).max
+        idx = np.int32 if small else np.intp
+        rank = np.empty(asm.N, idx)
+        rank[order] = np.arange(asm.N, dtype=idx)
+        cols = rank[asm.indices]
+        del rank
+        A = sp.csr_matrix((np.arange(asm.nnz, dtype=idx), cols, asm.indptr),
+                          shape=(asm.N, asm.N)).tocsc()
+        del cols
         # int32 where it fits (half the memory); gathered in chunks, each widened on the fly
-        self.take = A.data.astype(np.int32 if asm.nnz < np.iinfo(np.int32).max else np.intp)
-        self.indices = A.indices.astype(np.int32)
-        self.indptr = A.indptr.astype(np.int32)
+        self.take = A.data.astype(idx, copy=False)
+        self.indices = A.indices.astype(np.int32, copy=False)
+        self.indptr = A.indptr.astype(np.int32, copy=False)
+        del A
         self.rows, self.cols = asm.indices, asm.indptr      # the CSR pattern it maps from
         self.buf = np.empty(asm.nnz)
 
