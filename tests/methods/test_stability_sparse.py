@@ -143,6 +143,34 @@ def test_permuted_kkt_is_the_permuted_block_matrix_bit_for_bit():
             assert np.array_equal(getattr(got, a), getattr(ref, a)), (trial, a)
 
 
+def _random_csr(rng, nr, nc, lo, hi):
+    return sp.random(nr, nc, density=rng.uniform(lo, hi), format="csr",
+                     random_state=int(rng.integers(1 << 30)))
+
+
+def test_diagonal_scaling_is_scipys_products_bit_for_bit():
+    # the pencil's scaled blocks (diag(r) M diag(c), M diag(c)) are the very CSR arrays that
+    # scipy's sparse products give: entry order (reversed rows after one product), exact zeros
+    # dropped (explicit zeros, products that underflow), empty first/last rows, int dtypes
+    rng = np.random.default_rng(11)
+    for trial in range(60):
+        n, k = int(rng.integers(1, 30)), int(rng.integers(1, 30))
+        M = _random_csr(rng, n, k, 0.0, 0.6)
+        if M.nnz and trial % 3 == 0:
+            M.data[rng.random(M.nnz) < 0.3] = 0.0          # explicit zeros in the pattern
+        if M.nnz and trial % 4 == 1:
+            M.data[0] = 1e-300                             # (1e-300 r) c underflows to 0
+        r = rng.uniform(0.1, 10.0, n) * (1e-20 if trial % 4 == 1 else 1.0)
+        c = rng.uniform(0.1, 10.0, k) * (1e-20 if trial % 4 == 1 else 1.0)
+        for rr in (r, None):
+            ref = (M @ sp.diags(c) if rr is None
+                   else sp.diags(rr) @ M @ sp.diags(c)).tocsr()
+            got = stab_sparse._diag_scaled(M, rr, c)
+            for a in ("data", "indices", "indptr"):
+                x, y = getattr(got, a), getattr(ref, a)
+                assert x.dtype == y.dtype and np.array_equal(x, y), (trial, rr is None, a)
+
+
 def test_equilibration_row_maxima_padded_or_by_segments_agree_bit_for_bit():
     # the KKT blocks' scaled row maxima laid out padded (rows of a few entries) are those of
     # the segmented reduction, to the last bit: empty rows, row and column offsets, one block
@@ -151,8 +179,7 @@ def test_equilibration_row_maxima_padded_or_by_segments_agree_bit_for_bit():
     rng = np.random.default_rng(3)
     for trial in range(30):
         nr, nc = int(rng.integers(1, 50)), int(rng.integers(1, 50))
-        M = sp.random(nr, nc, density=rng.uniform(0.02, 0.3), format="csr",
-                      random_state=int(rng.integers(1 << 30)))
+        M = _random_csr(rng, nr, nc, 0.02, 0.3)
         if trial % 4 == 0:
             M = sp.vstack([M, sp.csr_matrix(np.ones((1, nc)))]).tocsr()   # one long row
         M.data *= rng.choice([-1.0, 1.0], size=M.nnz) * 10.0 ** rng.uniform(-8, 8, M.nnz)

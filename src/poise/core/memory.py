@@ -15,15 +15,20 @@ import sys
 #: Stages smaller than this many bytes of input (or of model unknowns x 1000) are not followed
 #: by a trim: their freed memory is small and small runs stay free of the call.
 LARGE = 1 << 23
+#: The same inside a solve (between its stages): a trim also hands back the pages the next stage
+#: would reuse, and each of them is faulted in again (~2 us a page here); below this many bytes
+#: that costs more than the memory held (10^4 links: ~50 ms, for a peak the trim does not set).
+SOLVE_LARGE = 1 << 27
 
 _trim = None          # glibc's malloc_trim, False when unavailable
 
 
-def release(size: int = LARGE) -> bool:
+def release(size: int = LARGE, large: int = LARGE) -> bool:
     """Return freed heap memory to the OS when ``size`` (of what a stage dropped, in bytes)
-    is at least :data:`LARGE`; True when glibc trimmed something."""
+    is at least ``large`` (:data:`LARGE`, or :data:`SOLVE_LARGE` between a solve's stages);
+    True when glibc trimmed something."""
     global _trim
-    if size < LARGE or not sys.platform.startswith("linux"):
+    if size < large or not sys.platform.startswith("linux"):
         return False
     if _trim is None:
         try:

@@ -111,17 +111,19 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
     n = nq + G.shape[0]
     D = np.ones(n) if start is None else np.concatenate(start)
     np.minimum(D[:nq], cap, out=D[:nq])
-    r = np.empty(n)
+    r, e = np.empty(n), np.empty(n)
+    Dq, rq = D[:nq], r[:nq]
     for _ in range(iters):
         r[:] = 0.0
         for pt in parts:
             pt.into(r, D)
         r[r <= 0.0] = 1.0                              # an all-zero row keeps its scale
-        r[:nq][(D[:nq] >= cap) & (r[:nq] < 1.0)] = 1.0   # at its cap: as far as it goes
-        if np.all(np.abs(r - 1.0) <= tol):
+        rq[(Dq >= cap) & (rq < 1.0)] = 1.0             # at its cap: as far as it goes
+        np.subtract(r, 1.0, out=e)
+        if np.abs(e, out=e).max() <= tol:              # (NaN: not within)
             break
-        D /= np.sqrt(r)
-        np.minimum(D[:nq], cap, out=D[:nq])
+        D /= np.sqrt(r, out=r)
+        np.minimum(Dq, cap, out=Dq)
     return D[:nq], D[nq:]
 
 
@@ -158,23 +160,32 @@ class _RowMaxima:
             self.starts = indptr[:-1][nz]
         self.buf = np.empty(self.a.shape)
         self.tmp = np.empty(self.a.shape)
+        t = self.target             # every row of a range has entries: a slice (views, no copies)
+        if t.size and t[-1] - t[0] == t.size - 1:
+            self.target = slice(int(t[0]), int(t[-1]) + 1)
+            self.m = np.empty(t.size)
 
     def into(self, r, D):
         if not self.a.size:
             return
+        sliced = isinstance(self.target, slice)
         if self.padded:
             np.multiply(self.a, D[self.target], out=self.buf)
             np.take(D, self.cols, out=self.tmp)
             np.multiply(self.buf, self.tmp, out=self.buf)
-            m = self.buf.max(axis=0)
+            m = np.maximum.reduce(self.buf, axis=0, out=self.m) if sliced else self.buf.max(axis=0)
         else:
             np.take(D, self.rows, out=self.buf)
             np.multiply(self.a, self.buf, out=self.buf)
             np.take(D, self.cols, out=self.tmp)
             np.multiply(self.buf, self.tmp, out=self.buf)
             m = np.maximum.reduceat(self.buf, self.starts)
-        np.maximum(r[self.target], m, out=m)
-        r[self.target] = m
+        if sliced:
+            rt = r[self.target]
+            np.maximum(rt, m, out=rt)
+        else:
+            np.maximum(r[self.target], m, out=m)
+            r[self.target] = m
 
 
 def equilibrate_dense(Ks, G, iters=12, tol=0.1):

@@ -104,6 +104,7 @@ class SymmetricLDL:
         self.order = None if order is None else np.asarray(order)
         self._permuted = permuted
         self._pos = None
+        self._b = None                    # solve_head's right-hand side (:meth:`_rhs`)
         A = self._matrix(A() if callable(A) else A)
         self.n = n = A.shape[0]
         self.ok = False
@@ -198,11 +199,19 @@ class SymmetricLDL:
         out = np.empty(v.shape)
         w = self.HEAD_COLUMNS
         for c in range(0, v.shape[1], w):
-            b = np.zeros((self.n, min(w, v.shape[1] - c)), order="F")
+            b = self._rhs(min(w, v.shape[1] - c))
             b[at] = v[:, c:c + w]
-            out[:, c:c + w] = self.lu.solve(b)[at]
-            b = None
+            out[:, c:c + w] = self.lu.solve(b)[at]      # (SuperLU solves a copy of b)
         return out
+
+    def _rhs(self, w: int):
+        """A zero right-hand side of ``w`` columns in Fortran order, kept for the next block of
+        that width: :meth:`solve_head` writes the same head rows every time, the tail stays
+        zero (no fresh, page-faulted array per block of a subspace iteration)."""
+        b = self._b
+        if b is None or b.shape[1] != w:
+            b = self._b = np.zeros((self.n, w), order="F")
+        return b
 
 
 def _abs_matvec(M, x):
@@ -219,6 +228,35 @@ def _empty(M):
     M.data = np.zeros(0)
     M.indices = np.zeros(0, np.int32)
     M.indptr = np.zeros(M.shape[1] + 1, np.int32)
+
+
+def _diag_scaled(M, r, c):
+    """``diags(r) @ M @ diags(c)`` for a CSR ``M`` (``r`` None: ``M @ diags(c)``), the very
+    arrays scipy's two (one) sparse products give, without them: each entry ``(r_i m_ij) c_j``,
+    exact zeros dropped, and every product of scipy's reverses the entries of each row (one
+    product: reversed rows; two: ``M``'s order). ``M`` with duplicate entries (which those
+    products would sum) takes scipy's products."""
+    import scipy.sparse as sp
+    if not M.has_canonical_format:
+        Dc = sp.diags(c)
+        return (M @ Dc if r is None else sp.diags(r) @ M @ Dc).tocsr()
+    cnt = np.diff(M.indptr)
+    data = M.data * np.repeat(r, cnt) if r is not None else M.data.copy()
+    data *= c[M.indices]
+    indices, indptr = M.indices, M.indptr
+    nz = data != 0.0
+    if not nz.all():                 # (scipy's products drop the entries that are 0)
+        data, indices = data[nz], indices[nz]
+        kept = np.zeros(len(nz) + 1, indptr.dtype)
+        np.cumsum(nz, out=kept[1:])
+        indptr = kept[indptr]
+        cnt = np.diff(indptr)
+    else:
+        indices, indptr = indices.copy(), indptr.copy()
+    if r is None and len(data):      # one product: each row reversed
+        at = np.repeat(indptr[1:] + indptr[:-1] - 1, cnt) - np.arange(len(data))
+        data, indices = data[at], indices[at]
+    return sp.csr_matrix((data, indices, indptr), shape=M.shape)
 
 
 def symmetric_permutation(A, order):
@@ -250,10 +288,10 @@ class SparsePencil:
         else:
             J = sp.csr_matrix(J() if callable(J) else J)
             nnz = J.nnz
-            Di = sp.diags(1.0 / d)
-            Ku = Di @ J[:nq, :nq] @ Di
+            Di = 1.0 / d
+            Ku = _diag_scaled(J[:nq, :nq], Di, Di)
             Ks = _prune_noise(((Ku + Ku.T) * 0.5).tocsr())
-            G = (J[nq:, :nq][rows] @ Di).tocsr()
+            G = _diag_scaled(J[nq:, :nq][rows], None, Di)
             J = Ku = None                 # (a handed-over Jacobian goes here)
         self.G_active = G                 # active rows, length-scaled (dependent-row check)
         self.rows = rows                  # constraint rows of Gt (model indices)
@@ -269,8 +307,8 @@ class SparsePencil:
             G = _prune_rows(G)          # entries at round-off of their row
         same = like is not None and like.nq == nq and np.array_equal(like.rows, self.rows)
         dq, dl = _equilibrate(Ks, G, start=(like.dq, like.dl) if same else None)
-        self.Kt = (sp.diags(dq) @ Ks @ sp.diags(dq)).tocsr()
-        self.Gt = (sp.diags(dl) @ G @ sp.diags(dq)).tocsr()
+        self.Kt = _diag_scaled(Ks, dq, dq)
+        self.Gt = _diag_scaled(G, dl, dq)
         self._GtG = None
         self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
         self.nq, self.m = nq, self.Gt.shape[0]
@@ -282,7 +320,7 @@ class SparsePencil:
         self.singular = False             # a tiny pivot at a constraint row was met
         self.lean = lean                  # Gt^T Gt not kept beside a factorisation
         self._pos = None                  # the permuted position of each unknown
-        memory.release(nnz * 16)          # the construction's temporaries' pages (large models)
+        memory.release(nnz * 16, memory.SOLVE_LARGE)    # the temporaries' pages (large models)
 
     @property
     def GtG(self):
@@ -337,7 +375,7 @@ class SparsePencil:
             indices[at] = pos[M.indices + r0] if r0 else pos[M.indices]
             at = None
         A = sp.csc_matrix((data, indices, indptr.astype(np.int32)), shape=(n, n))
-        memory.release(nnz * 16)          # the temporaries' pages, before the factorisation
+        memory.release(nnz * 16, memory.SOLVE_LARGE)    # the temporaries' pages (large models)
         return A
 
     def ldl(self, s, rho):
@@ -440,7 +478,7 @@ def _kkt_order(model, K, G, GtG) -> np.ndarray:
         rank = np.zeros(1, np.int64)
     key = 3 * rank[grp]
     nzr = np.diff(S.indptr) > 0
-    weak = (np.abs((K + GtG).diagonal()) < WEAK_DIAG) & nzr
+    weak = (np.abs(K.diagonal() + GtG.diagonal()) < WEAK_DIAG) & nzr   # (K + GtG)'s
     if weak.any():
         last = np.zeros(nq, np.int64)
         last[nzr] = np.maximum.reduceat(rank[grp[S.indices]], S.indptr[:-1][nzr])
@@ -511,7 +549,9 @@ def _orthonormalize(X, rtol=1e-7):
     w, V = np.linalg.eigh(0.5 * (Gm + Gm.T))
     keep = w > (rtol ** 2) * max(float(w[-1]), 0.0) if w.size else w > 0
     keep &= w > 0
-    return (X @ V[:, keep]) / np.sqrt(w[keep])
+    Y = X @ V[:, keep]
+    Y /= np.sqrt(w[keep])                 # (in place: one tall temporary fewer)
+    return Y
 
 
 def _lowest_mode(P, F, s):
