@@ -12,6 +12,11 @@ the process itself the way an interrupt does: the temporary files being written 
 is printed and the exit code is 130. When the frame moves, the normal handler runs and unwinds
 (temporary files removed by their writers).
 
+A handler's KeyboardInterrupt that lands where Python cannot raise it (a weakref callback such
+as the import system's module-lock cleanup, a ``__del__``) would be printed as "Exception
+ignored ... Traceback" and lost, and the command would run on: :func:`start` also installs an
+unraisable-exception hook that delivers such an interrupt to the main thread again instead.
+
 Only the ``poise`` process installs this (:func:`start`), never a library or test process.
 """
 from __future__ import annotations
@@ -25,6 +30,8 @@ import time
 #: seconds a signal may wait for the main thread before the process is ended here
 GRACE = 2.0
 _POLL = 0.05
+#: seconds before an interrupt Python could not raise (see :func:`_unraisable_hook`) is sent again
+_AGAIN = 0.02
 _started = False
 
 
@@ -40,6 +47,7 @@ def start() -> None:
     except (OSError, ValueError):
         return
     _started = True
+    sys.unraisablehook = _unraisable_hook(sys.unraisablehook)
     threading.Thread(target=_watch, args=(r,), name="poise-interrupt-watchdog",
                      daemon=True).start()
 
@@ -56,6 +64,23 @@ def _watch(fd: int) -> None:
             return
         if wanted.intersection(data) and _stuck(main):
             _end_now()
+
+
+def _unraisable_hook(hook):
+    """``hook`` for every unraisable exception but an interrupt, which is signalled to the
+    process again (SIGINT, or SIGTERM when SIGINT has no Python handler) from a short-lived
+    thread: raised from the hook itself it would be ignored again, raised :data:`_AGAIN`
+    seconds later it lands in the main thread's own code (once more, in the rare case it lands
+    in a callback again)."""
+    def unraisable(args):
+        if not isinstance(args.exc_value, KeyboardInterrupt):
+            return hook(args)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if callable(signal.getsignal(sig)):
+                threading.Timer(_AGAIN, os.kill, (os.getpid(), sig)).start()
+                return None
+        return hook(args)
+    return unraisable
 
 
 def _where(ident):

@@ -142,3 +142,32 @@ def test_an_overflowing_curve_is_a_located_deck_error():
                             "x_expression: the geometry overflows"), p.stderr
     assert "1e+308" in first and "U = 0" in first
     assert "poise: invalid deck: 1 problem" in p.stderr     # not also "not a ParamCurve"
+
+
+_UNRAISABLE = """
+import signal, time
+from poise_cli import watchdog
+watchdog.start()
+signal.signal(signal.SIGINT, signal.default_int_handler)
+class Lock:          # like importlib's module-lock cleanup: a callback Python cannot raise from
+    def __del__(self):
+        signal.raise_signal(signal.SIGINT)
+try:
+    Lock()
+    end = time.monotonic() + 30
+    while time.monotonic() < end:       # the command going on
+        time.sleep(0.001)
+    print("ran on")
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+
+
+def test_an_interrupt_inside_a_callback_is_not_lost():
+    """A Ctrl-C whose KeyboardInterrupt lands in a ``__del__`` or weakref callback is not
+    printed as "Exception ignored ... Traceback" and lost: the console script's hook delivers it
+    to the main thread again, which unwinds."""
+    p = subprocess.run([sys.executable, "-c", _UNRAISABLE], capture_output=True, text=True,
+                       timeout=60, preexec_fn=_default_sigint)
+    assert p.stdout.strip() == "interrupted", p.stdout + p.stderr
+    assert "Traceback" not in p.stderr and "ignored" not in p.stderr, p.stderr
