@@ -408,3 +408,20 @@ class Scatter:
         buf[:] = 0.0
         np.add.at(buf, self.idx, vals)
         out += buf[:self.n]
+
+    def add_parts(self, out: np.ndarray, parts) -> None:
+        """:meth:`add` of values that come as consecutive pieces (an iterable of arrays, a big
+        family's chunks): the same sums in the same order, no array of all the values."""
+        if self.buf is None:
+            self.add(out, np.concatenate([np.asarray(v, float).ravel() for v in parts]))
+            return
+        buf = self.buf
+        buf[:] = 0.0
+        at = 0
+        for v in parts:
+            v = np.asarray(v, float).ravel()
+            np.add.at(buf, self.idx[at:at + v.size], v)
+            at += v.size
+        if at != self.idx.size:
+            raise ValueError(f"Scatter.add_parts: {at} values for {self.idx.size} entries")
+        out += buf[:self.n]

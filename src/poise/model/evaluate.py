@@ -25,6 +25,7 @@ import numpy as np
 from poise.core import phases
 from poise.core.lean import all_finite
 from poise.core.errors import EvaluationError
+from poise.elements.chunked import constraint_values, local_residuals, spans, tangent_values
 from poise.elements.context import row_where
 from poise.expr import EvalContext
 from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, dense_g,
@@ -299,10 +300,15 @@ def _family_outputs(model, fr, need_jac, done, call=None):
         if ph is not None:
             phi[fam.crow.ravel()] = ph.ravel()
         last.append((fam, kin, rho, phy))
-        rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
-        if not all_finite(rl):
-            raise EvaluationError(_family_nonfinite(fam, rl))
-        fr.scatter(fam).add(r, rl)
+        parts = None if fam.U else spans(kin)
+        if parts is None:
+            rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
+            if not all_finite(rl):
+                raise EvaluationError(_family_nonfinite(fam, rl))
+            fr.scatter(fam).add(r, rl)
+        else:          # big family: chunk by chunk (no full-size temporaries)
+            fr.scatter(fam).add_parts(r, _finite_parts(fam, local_residuals(kin, rho, fam.K,
+                                                                            parts)))
         if need_jac:
             pend[fi] = (fam, kin, rho, G, phy, ext)
     return r, phi, pend, last
@@ -319,14 +325,22 @@ def jacobian(model, ev: Evaluation):
     for fam, kin, rho, G, phy, ext in pend:
         pat = local_pattern(fam)
         U = fam.U
+        parts = None if U else spans(kin)
         if not stiffness:  # "phi_q": the tangent entries read zero (nothing else shares them)
             Kl = np.zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
         elif pat.compact:  # straight into the registered (entry-major block) order
-            Kl = tangent_compact(kin, rho, G, fam.K, pat)
+            Kl = (tangent_compact(kin, rho, G, fam.K, pat) if parts is None else
+                  tangent_values(kin, rho, G, fam.K, pat, parts))
         else:
             Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)
             Kl = _gather(Kl, pat.order)
-        if fam.is_constraint:
+        if fam.is_constraint and parts is not None:        # big family: chunk by chunk
+            act = row_active[fam.crow]
+            Pq = constraint_values(kin, phy, fam.K, None,
+                                   None if np.logical_and.reduce(act, axis=None) else act,
+                                   pat.pidx, parts)
+            vals += [Kl, Pq, Pq]
+        elif fam.is_constraint:
             Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
             if U:
                 Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
@@ -463,9 +477,18 @@ def _constraint_ext(ext, lam, n, m, U):
     return ext
 
 
-def _family_nonfinite(fam, rl) -> str:
-    """Message naming the deck element whose kernel produced NaN/Inf."""
-    k = int(np.nonzero(~np.isfinite(rl).all(axis=1))[0][0])
+def _finite_parts(fam, parts):
+    """The local residuals of :func:`~poise.elements.chunked.local_residuals`, each checked."""
+    for a, rl in parts:
+        if not all_finite(rl):
+            raise EvaluationError(_family_nonfinite(fam, rl, a))
+        yield rl
+
+
+def _family_nonfinite(fam, rl, first: int = 0) -> str:
+    """Message naming the deck element whose kernel produced NaN/Inf (``rl``: the local
+    residuals of the instances from ``first`` on)."""
+    k = first + int(np.nonzero(~np.isfinite(rl).all(axis=1))[0][0])
     locs = fam.element_locs
     if locs:
         return f"{locs[k].prefix()} produced a non-finite force (NaN/Inf)"

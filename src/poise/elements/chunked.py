@@ -1,0 +1,81 @@
+"""Kernel outputs of big families, made in chunks of instances.
+
+Every kernel of :mod:`poise.elements.kernel` works instance by instance (no sum across
+instances), so a family's local residual, compact tangent and constraint Jacobian can be made
+for a range of instances at a time with the same operations on the same values: bit for bit
+the whole family's. Above ``2 * CHUNK`` instances (a family with no kept
+:class:`~poise.elements.slot_index.SlotIndex`) the temporaries of a chunk stay in the cache and
+below malloc's mmap threshold, instead of being fresh pages the kernel zeroes at every
+evaluation (at 10^5 chain links ~2 GB per solve). Chunks are balanced (at least ``CHUNK / 2``
+instances), so a chunk takes the same code paths as its whole family (the small-array
+branches of the kernels are for fewer entries).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.elements.kernel import (PairBlocks, SlotKinematics, _local_residual,
+                                   constraint_jacobian_local, tangent_compact)
+
+CHUNK = 1 << 14
+
+
+def spans(kin: SlotKinematics) -> list | None:
+    """``(first, end)`` instance ranges of a big family's kinematics, or None (one piece)."""
+    n = kin.pt.shape[0]
+    if kin.index is not None or n <= 2 * CHUNK:
+        return None
+    k = -(-n // CHUNK)
+    cuts = [n * i // k for i in range(k + 1)]
+    return list(zip(cuts[:-1], cuts[1:]))
+
+
+def rows(kin: SlotKinematics, a: int, b: int) -> SlotKinematics:
+    """Instances ``a:b`` of ``kin`` (views; the family's slot masks, not the chunk's)."""
+    return SlotKinematics(Y=kin.Y[a:b], V=kin.V[a:b], pt=kin.pt[a:b], slot_ml=kin.slot_ml,
+                          K=kin.K, masks=kin.masks)
+
+
+def g_rows(G, a: int, b: int):
+    """Instances ``a:b`` of a constraint Hessian / force tangent ``G`` (dense, compact or None)."""
+    if G is None:
+        return None
+    if isinstance(G, PairBlocks):
+        return PairBlocks(b - a, G.S, {st: c[a:b] for st, c in G.coef.items()})
+    return G[a:b]
+
+
+def local_residuals(kin: SlotKinematics, rho: np.ndarray, K: int, parts: list):
+    """``(first, B^T rho)`` of each chunk ``parts`` (from :func:`spans`), in instance order."""
+    for a, b in parts:
+        yield a, _local_residual(rows(kin, a, b), rho[a:b], K)
+
+
+def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.ndarray:
+    """:func:`~poise.elements.kernel.tangent_compact` of the whole family, chunk by chunk."""
+    out = np.empty((9 * pat.nblocks, kin.pt.shape[0]))
+    for a, b in parts:
+        out[:, a:b] = tangent_compact(rows(kin, a, b), rho[a:b], g_rows(G, a, b), K, pat)
+    return out
+
+
+def constraint_values(kin: SlotKinematics, phy, K: int, phi_s, act, pidx,
+                      parts: list) -> np.ndarray:
+    """The constraint Jacobian's registered values (n, P) of the whole family, chunk by chunk:
+    ``phi_y B`` (with the scalar columns ``phi_s`` when not None), rows multiplied by ``act``
+    (None: every row active), entries ``pidx`` (None: all)."""
+    n = kin.pt.shape[0]
+    out = None
+    for a, b in parts:
+        Pq = constraint_jacobian_local(rows(kin, a, b), phy[a:b], K)
+        if phi_s is not None:
+            Pq = np.concatenate([Pq, phi_s[a:b]], axis=2)
+        if act is not None:
+            Pq = Pq * act[a:b, :, None]
+        Pq = Pq.reshape(b - a, -1)
+        if pidx is not None:
+            Pq = Pq[:, pidx]
+        if out is None:
+            out = np.empty((n, Pq.shape[1]))
+        out[a:b] = Pq
+    return out
