@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.errors import EvaluationError
+from poise.core.lean import all_finite
 from poise.elements.kernel import (PairBlocks, SlotKinematics, _local_residual,
                                    constraint_jacobian_local, tangent_compact)
 
@@ -45,10 +47,15 @@ def g_rows(G, a: int, b: int):
     return G[a:b]
 
 
-def local_residuals(kin: SlotKinematics, rho: np.ndarray, K: int, parts: list):
-    """``(first, B^T rho)`` of each chunk ``parts`` (from :func:`spans`), in instance order."""
+def local_residuals(kin: SlotKinematics, rho: np.ndarray, K: int, parts: list, message):
+    """``B^T rho`` of each chunk ``parts`` (from :func:`spans`), in instance order; a chunk
+    with a non-finite value raises ``EvaluationError(message(its values, its first
+    instance))``."""
     for a, b in parts:
-        yield a, _local_residual(rows(kin, a, b), rho[a:b], K)
+        rl = _local_residual(rows(kin, a, b), rho[a:b], K)
+        if not all_finite(rl):
+            raise EvaluationError(message(rl, a))
+        yield rl
 
 
 def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.ndarray:
@@ -59,17 +66,16 @@ def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.
     return out
 
 
-def constraint_values(kin: SlotKinematics, phy, K: int, phi_s, act, pidx,
-                      parts: list) -> np.ndarray:
-    """The constraint Jacobian's registered values (n, P) of the whole family, chunk by chunk:
-    ``phi_y B`` (with the scalar columns ``phi_s`` when not None), rows multiplied by ``act``
-    (None: every row active), entries ``pidx`` (None: all)."""
+def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list) -> np.ndarray:
+    """The constraint Jacobian's registered values (n, P) of the whole family (no scalar
+    columns), chunk by chunk: ``phi_y B``, rows multiplied by the active mask ``act`` (n, m)
+    when a row is removed (``x * 1.0`` is ``x``: only then), entries ``pidx`` (None: all)."""
     n = kin.pt.shape[0]
+    if np.logical_and.reduce(act, axis=None):
+        act = None
     out = None
     for a, b in parts:
         Pq = constraint_jacobian_local(rows(kin, a, b), phy[a:b], K)
-        if phi_s is not None:
-            Pq = np.concatenate([Pq, phi_s[a:b]], axis=2)
         if act is not None:
             Pq = Pq * act[a:b, :, None]
         Pq = Pq.reshape(b - a, -1)

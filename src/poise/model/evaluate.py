@@ -19,6 +19,7 @@ keeps between calls (assembly buffer, tiled families, kernels' caches) is in the
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -300,17 +301,17 @@ def _family_outputs(model, fr, need_jac, done, call=None):
         if ph is not None:
             phi[fam.crow.ravel()] = ph.ravel()
         last.append((fam, kin, rho, phy))
-        parts = None if fam.U else spans(kin)
-        if parts is None:
-            rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
-            if not all_finite(rl):
-                raise EvaluationError(_family_nonfinite(fam, rl))
-            fr.scatter(fam).add(r, rl)
-        else:          # big family: chunk by chunk (no full-size temporaries)
-            fr.scatter(fam).add_parts(r, _finite_parts(fam, local_residuals(kin, rho, fam.K,
-                                                                            parts)))
         if need_jac:
             pend[fi] = (fam, kin, rho, G, phy, ext)
+        parts = None if fam.U else spans(kin)
+        if parts is not None:      # big family: chunk by chunk (no full-size temporaries)
+            fr.scatter(fam).add_parts(r, local_residuals(kin, rho, fam.K, parts,
+                                                         partial(_family_nonfinite, fam)))
+            continue
+        rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
+        if not all_finite(rl):
+            raise EvaluationError(_family_nonfinite(fam, rl))
+        fr.scatter(fam).add(r, rl)
     return r, phi, pend, last
 
 
@@ -335,10 +336,7 @@ def jacobian(model, ev: Evaluation):
             Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)
             Kl = _gather(Kl, pat.order)
         if fam.is_constraint and parts is not None:        # big family: chunk by chunk
-            act = row_active[fam.crow]
-            Pq = constraint_values(kin, phy, fam.K, None,
-                                   None if np.logical_and.reduce(act, axis=None) else act,
-                                   pat.pidx, parts)
+            Pq = constraint_values(kin, phy, fam.K, row_active[fam.crow], pat.pidx, parts)
             vals += [Kl, Pq, Pq]
         elif fam.is_constraint:
             Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
@@ -475,14 +473,6 @@ def _constraint_ext(ext, lam, n, m, U):
     if ext.get("G_ys") is not None and ext.get("G_sy") is None:
         ext["G_sy"] = np.swapaxes(ext["G_ys"], 1, 2)
     return ext
-
-
-def _finite_parts(fam, parts):
-    """The local residuals of :func:`~poise.elements.chunked.local_residuals`, each checked."""
-    for a, rl in parts:
-        if not all_finite(rl):
-            raise EvaluationError(_family_nonfinite(fam, rl, a))
-        yield rl
 
 
 def _family_nonfinite(fam, rl, first: int = 0) -> str:

@@ -18,6 +18,7 @@ import numpy as np
 from poise.core.lean import row_norms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
+from poise.elements.chunked import CHUNK
 from poise.elements.kernel import cross3
 from poise.elements.rotation import (lift_rotation_vector, rotation_vector, screw_exp,
                                      wrap_angle)
@@ -168,9 +169,19 @@ class Model:
         """Marker origins (nm,3) and axes (nm,3,3) in global components."""
         pos, rot = self._ext(state)
         mb = self.marker_body
-        R = rot[mb]                                      # gathered once for both products
-        P = pos[mb] + np.einsum("nij,nj->ni", R, self.marker_s0)
-        A = np.matmul(R, self.marker_A0)
+        nm = len(mb)
+        if nm <= 2 * CHUNK:
+            R = rot[mb]                                  # gathered once for both products
+            P = pos[mb] + np.einsum("nij,nj->ni", R, self.marker_s0)
+            A = np.matmul(R, self.marker_A0)
+            return P, A, pos
+        # many markers: the same products chunk by chunk (no full-size temporaries)
+        P, A = np.empty((nm, 3)), np.empty((nm, 3, 3))
+        for a in range(0, nm, CHUNK):
+            b = min(a + CHUNK, nm)
+            R = rot[mb[a:b]]
+            P[a:b] = pos[mb[a:b]] + np.einsum("nij,nj->ni", R, self.marker_s0[a:b])
+            A[a:b] = np.matmul(R, self.marker_A0[a:b])
         return P, A, pos
 
     def _principal_angles(self, state):
