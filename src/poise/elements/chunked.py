@@ -16,7 +16,7 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
-from poise.elements.kernel import (PairBlocks, SlotKinematics, _local_residual,
+from poise.elements.kernel import (PairBlocks, SlotKinematics, local_residual,
                                    constraint_jacobian_local, tangent_compact)
 
 CHUNK = 1 << 14
@@ -52,7 +52,7 @@ def local_residuals(kin: SlotKinematics, rho: np.ndarray, K: int, parts: list, m
     with a non-finite value raises ``EvaluationError(message(its values, its first
     instance))``."""
     for a, b in parts:
-        rl = _local_residual(rows(kin, a, b), rho[a:b], K)
+        rl = local_residual(rows(kin, a, b), rho[a:b], K)
         if not all_finite(rl):
             raise EvaluationError(message(rl, a))
         yield rl

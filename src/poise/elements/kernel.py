@@ -226,7 +226,7 @@ def cross3(a, b):
     return out
 
 
-def _local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
+def local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     """``B^T rho`` (n, 6K): per slot ``pt_s rho_s`` on the marker's translation and
     ``v_s x rho_s`` on its rotation."""
     n, S = kin.pt.shape
@@ -410,7 +410,7 @@ def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray |
     blocks; without it (or for families declaring none) ``G`` is used as a dense matrix.
     """
     n = rho.shape[0]
-    r = _local_residual(kin, rho, K)
+    r = local_residual(kin, rho, K)
     ext = ext or {}
     if U:
         rs = ext.get("rho_s")
