@@ -58,12 +58,9 @@ def local_residuals(kin: SlotKinematics, rho: np.ndarray, K: int, parts: list, m
         yield rl
 
 
-def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list,
-                   out: np.ndarray | None = None) -> np.ndarray:
-    """:func:`~poise.elements.kernel.tangent_compact` of the whole family, chunk by chunk
-    (into ``out``, (9 nblocks, n), when given)."""
-    if out is None:
-        out = np.empty((9 * pat.nblocks, kin.pt.shape[0]))
+def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.ndarray:
+    """:func:`~poise.elements.kernel.tangent_compact` of the whole family, chunk by chunk."""
+    out = np.empty((9 * pat.nblocks, kin.pt.shape[0]))
     for a, b in parts:
         out[:, a:b] = tangent_compact(rows(kin, a, b), rho[a:b], g_rows(G, a, b), K, pat)
     return out

@@ -140,23 +140,10 @@ class Assembler:
         carry them; ``values``: the value buffer too (no assembly is coming soon)."""
         sc = workspace.scratch(self, _Scratch)
         sc.data = []
-        sc.kept = {}
         sc.layout = None
         sc.factorised = 0
         if values:
             sc.buf = None
-
-    def kept(self, workspace, key, shape) -> np.ndarray | None:
-        """An uninitialised value buffer of ``shape`` kept in ``workspace`` under ``key`` until
-        :meth:`release` (a big family's tangent values, remade at every Jacobian: no fresh
-        pages each time), or None without a workspace."""
-        if workspace is None:
-            return None
-        kept = workspace.scratch(self, _Scratch).kept
-        buf = kept.get(key)
-        if buf is None or buf.shape != shape:
-            buf = kept[key] = np.empty(shape)
-        return buf
 
     def csc_layout(self, workspace) -> "CSCLayout | None":
         """The :class:`CSCLayout` of this pattern in its column order (:meth:`ordered`), kept
@@ -283,9 +270,9 @@ def _same(a, b) -> bool:
 
 class _Scratch:
     """An assembler's scratch in a solve's workspace: the value buffer, the matrices' data
-    buffers, the column order and its CSC layout, kept value buffers (:meth:`Assembler.kept`)."""
+    buffers, the column order and its CSC layout."""
 
-    __slots__ = ("buf", "order", "data", "layout", "factorised", "free_refs", "kept")
+    __slots__ = ("buf", "order", "data", "layout", "factorised", "free_refs")
 
     DATA_BUFFERS = 2      # kept for reuse: the iterate's matrix and the one before it
 
@@ -296,7 +283,6 @@ class _Scratch:
         self.layout = None
         self.factorised = 0
         self.free_refs = -1
-        self.kept = {}
 
     def values(self, n: int) -> np.ndarray:
         if self.buf is None:

@@ -323,7 +323,7 @@ def jacobian(model, ev: Evaluation):
     t_start = phases.now()
     state, pend, eps_mass, row_active, stiffness = ev._pending
     vals = []
-    for k, (fam, kin, rho, G, phy, ext) in enumerate(pend):
+    for fam, kin, rho, G, phy, ext in pend:
         pat = local_pattern(fam)
         U = fam.U
         parts = None if U else spans(kin)
@@ -331,8 +331,7 @@ def jacobian(model, ev: Evaluation):
             Kl = np.zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
         elif pat.compact:  # straight into the registered (entry-major block) order
             Kl = (tangent_compact(kin, rho, G, fam.K, pat) if parts is None else
-                  tangent_values(kin, rho, G, fam.K, pat, parts, model.assembler.kept(
-                      ev.workspace, k, (9 * pat.nblocks, fam.n))))
+                  tangent_values(kin, rho, G, fam.K, pat, parts))
         else:
             Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)
             Kl = _gather(Kl, pat.order)
