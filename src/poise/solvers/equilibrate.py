@@ -113,10 +113,11 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
     np.minimum(D[:nq], cap, out=D[:nq])
     r, e = np.empty(n), np.empty(n)
     Dq, rq = D[:nq], r[:nq]
+    scratch = _Scratch()
     for _ in range(iters):
         r[:] = 0.0
         for pt in parts:
-            pt.into(r, D)
+            pt.into(r, D, scratch)
         r[r <= 0.0] = 1.0                              # an all-zero row keeps its scale
         rq[(Dq >= cap) & (rq < 1.0)] = 1.0             # at its cap: as far as it goes
         np.subtract(r, 1.0, out=e)
@@ -125,6 +126,28 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
         D /= np.sqrt(r, out=r)
         np.minimum(Dq, cap, out=Dq)
     return D[:nq], D[nq:]
+
+
+#: slots of a padded block (:class:`_RowMaxima`) per pass: the pass buffers, shared by the
+#: blocks and the sweeps, stay a few MB however large the model (no fresh pages per block)
+PASS_ENTRIES = 1 << 18
+
+
+class _Scratch:
+    """Two ``(w, k)`` buffers and a ``(k,)`` one, views of flat arrays kept across the blocks
+    and sweeps of one equilibration (grown, never shrunk)."""
+
+    def __init__(self):
+        self.flat = np.empty((2, 0))
+        self.mflat = np.empty(0)
+
+    def take(self, w, k):
+        if self.flat.shape[1] < w * k:
+            self.flat = np.empty((2, w * k))
+        if self.mflat.size < k:
+            self.mflat = np.empty(k)
+        return (self.flat[0, :w * k].reshape(w, k), self.flat[1, :w * k].reshape(w, k),
+                self.mflat[:k])
 
 
 class _RowMaxima:
@@ -158,29 +181,47 @@ class _RowMaxima:
             self.rows = np.repeat(np.arange(r0, r0 + len(cnt)), cnt)
             self.cols = cols
             self.starts = indptr[:-1][nz]
-        self.buf = np.empty(self.a.shape)
-        self.tmp = np.empty(self.a.shape)
+            self.buf = np.empty(self.a.shape)
+            self.tmp = np.empty(self.a.shape)
         t = self.target             # every row of a range has entries: a slice (views, no copies)
         if t.size and t[-1] - t[0] == t.size - 1:
             self.target = slice(int(t[0]), int(t[-1]) + 1)
-            self.m = np.empty(t.size)
 
-    def into(self, r, D):
+    def _padded_into(self, r, D, scratch):
+        """The padded block's maxima in passes of at most ``PASS_ENTRIES`` slots over
+        ``scratch``'s two buffers (the maxima are exact: the passes give the same factors)."""
+        w, rows = self.a.shape
+        step = max(1, PASS_ENTRIES // w)
+        t = self.target
+        for j0 in range(0, rows, step):
+            j1 = min(j0 + step, rows)
+            buf, tmp, m = scratch.take(w, j1 - j0)
+            if isinstance(t, slice):
+                np.multiply(self.a[:, j0:j1], D[t.start + j0:t.start + j1], out=buf)
+            else:
+                np.multiply(self.a[:, j0:j1], D[t[j0:j1]], out=buf)
+            np.take(D, self.cols[:, j0:j1], out=tmp)
+            np.multiply(buf, tmp, out=buf)
+            np.maximum.reduce(buf, axis=0, out=m)
+            if isinstance(t, slice):
+                rt = r[t.start + j0:t.start + j1]
+                np.maximum(rt, m, out=rt)
+            else:
+                np.maximum(r[t[j0:j1]], m, out=m)
+                r[t[j0:j1]] = m
+
+    def into(self, r, D, scratch=None):
         if not self.a.size:
             return
-        sliced = isinstance(self.target, slice)
         if self.padded:
-            np.multiply(self.a, D[self.target], out=self.buf)
-            np.take(D, self.cols, out=self.tmp)
-            np.multiply(self.buf, self.tmp, out=self.buf)
-            m = np.maximum.reduce(self.buf, axis=0, out=self.m) if sliced else self.buf.max(axis=0)
-        else:
-            np.take(D, self.rows, out=self.buf)
-            np.multiply(self.a, self.buf, out=self.buf)
-            np.take(D, self.cols, out=self.tmp)
-            np.multiply(self.buf, self.tmp, out=self.buf)
-            m = np.maximum.reduceat(self.buf, self.starts)
-        if sliced:
+            self._padded_into(r, D, _Scratch() if scratch is None else scratch)
+            return
+        np.take(D, self.rows, out=self.buf)
+        np.multiply(self.a, self.buf, out=self.buf)
+        np.take(D, self.cols, out=self.tmp)
+        np.multiply(self.buf, self.tmp, out=self.buf)
+        m = np.maximum.reduceat(self.buf, self.starts)
+        if isinstance(self.target, slice):
             rt = r[self.target]
             np.maximum(rt, m, out=rt)
         else:

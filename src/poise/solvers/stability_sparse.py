@@ -259,6 +259,23 @@ def _diag_scaled(M, r, c):
     return sp.csr_matrix((data, indices, indptr), shape=M.shape)
 
 
+#: entries scattered per pass by :meth:`SparsePencil.permuted_kkt`: its index temporaries
+#: (8 bytes per entry) stay below glibc's mmap threshold and reuse freed heap memory instead of
+#: fresh, kernel-zeroed pages at every factorisation of a large model
+SCATTER_ENTRIES = 1 << 20
+
+
+def _column_chunks(indptr, size=SCATTER_ENTRIES):
+    """``(a, b)`` column ranges of a compressed matrix holding about ``size`` entries each (a
+    column with more entries is a range of its own)."""
+    n = len(indptr) - 1
+    if int(indptr[-1]) <= size:
+        return [(0, n)] if n else []
+    cuts = np.searchsorted(indptr, np.arange(size, int(indptr[-1]), size), side="right") - 1
+    edges = np.unique(np.concatenate(([0], cuts, [n])))
+    return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
+
+
 def symmetric_permutation(A, order):
     """``A[order][:, order]`` in CSC (a fresh matrix: the caller's ``A`` can go before the
     factorisation, which then holds one copy of the matrix, not two)."""
@@ -366,14 +383,17 @@ class SparsePencil:
         data = np.empty(nnz)
         indices = np.empty(nnz, np.int32)
         for M, c0, r0 in parts:
-            cnt = np.diff(M.indptr)
-            col = np.arange(c0, c0 + cnt.size)
-            at = np.repeat(start[col] - M.indptr[:-1], cnt)
-            at += np.arange(M.indptr[-1])
-            start[col] += cnt                        # the next block's segment goes after
-            data[at] = M.data
-            indices[at] = pos[M.indices + r0] if r0 else pos[M.indices]
-            at = None
+            for a, b in _column_chunks(M.indptr):   # (temporaries of <= SCATTER_ENTRIES)
+                cnt = np.diff(M.indptr[a:b + 1])
+                col = np.arange(c0 + a, c0 + b)
+                e0, e1 = int(M.indptr[a]), int(M.indptr[b])
+                at = np.repeat(start[col] - M.indptr[a:b], cnt)
+                at += np.arange(e0, e1)
+                start[col] += cnt                    # the next block's segment goes after
+                data[at] = M.data[e0:e1]
+                ix = M.indices[e0:e1]
+                indices[at] = pos[ix + r0] if r0 else pos[ix]
+                at = ix = None
         A = sp.csc_matrix((data, indices, indptr.astype(np.int32)), shape=(n, n))
         memory.release(nnz * 16, memory.SOLVE_LARGE)    # the temporaries' pages (large models)
         return A
