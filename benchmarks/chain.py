@@ -501,10 +501,13 @@ zeroed by the kernel at every allocation — ≈ 7 GB per solve — where at 10�
 reuse freed heap memory. That, more than cache misses, sets the solve-time exponent. The
 assembler's column order and column-ordered CSC layout are built from index arrays (no sparse
 products, conversions or column selections) and pooled assembly widens its int32 slots a chunk
-at a time; what remains is SuperLU's own factor storage (≈ 1.7 GB per solve, inside the floor),
-the element kernels' fresh value arrays (≈ 1.9 GB) and the classification's (≈ 1.6 GB). Keeping
-them in the heap (a raised mmap threshold) cuts ≈ 1 s of system time at 10⁵ links but lifts the
-peak RSS to 1.50 GB (heap fragmentation). The solve's memory peaks in Newton
+at a time; families above 2¹⁵ instances make their kernel outputs in chunks of instances, and
+the classification's equilibration and permuted KKT scatter work in passes over small buffers,
+so their temporaries stay below the threshold (≈ 0.5–1 GB fewer fresh pages per 10⁵ solve).
+What remains is mostly SuperLU's: its factor storage (≈ 2 GB per solve, inside the floor), a copy
+of every right-hand-side block it solves, and scipy's full copies of the matrices it factorises.
+Keeping big arrays in the heap (a raised mmap threshold) cuts ≈ 1 s of system time at 10⁵ links
+but lifts the peak RSS to 1.50 GB (heap fragmentation). The solve's memory peaks in Newton
 (*after newton*); the *whole worker* column adds the bench's own reference LU (COLAMD, default
 options) and evaluations after the solve, which a `poise solve` does not run. The parsed deck is
 dropped before the solve and its pages returned to the OS (`malloc_trim`).
