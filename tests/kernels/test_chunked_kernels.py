@@ -15,22 +15,14 @@ import pytest
 import poise.elements.chunked as chunked
 import poise.model.model as model_mod
 from poise.core.errors import EvaluationError
-from poise.deck.parser import load_deck
-from poise.gen.chain import build_chain_deck
 from poise.model.assembly import Scatter
-from poise.model.compile import compile_model
 from poise.model.workspace import Workspace
+from support.builders import perturbed_chain
 
 
 @pytest.fixture(scope="module")
 def chain(tmp_path_factory):
-    p = tmp_path_factory.mktemp("chain") / "chain.xml"
-    p.write_text(build_chain_deck(700))
-    model = compile_model(load_deck(str(p)))
-    rng = np.random.default_rng(5)
-    st = model.retract(model.initial_state(), 1e-2 * rng.standard_normal(model.nq),
-                       rng.standard_normal(model.nc))
-    return model, st
+    return perturbed_chain(tmp_path_factory.mktemp("chain"), 700, 5)
 
 
 def _outputs(model, st):

@@ -11,11 +11,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from poise.deck.parser import load_deck
-from poise.gen.chain import build_chain_deck
 from poise.model.assembly import POOL_ABOVE, Assembler, Scatter
-from poise.model.compile import compile_model
 from poise.model.workspace import Workspace
+from support.builders import perturbed_chain
 from poise.solvers.data import SolveData
 from poise.solvers.linalg import Factor
 
@@ -23,12 +21,7 @@ from poise.solvers.linalg import Factor
 @pytest.fixture(scope="module")
 def chain(tmp_path_factory):
     """A 400-link chain (its KKT pattern above POOL_ABOVE entries) and a perturbed state."""
-    p = tmp_path_factory.mktemp("chain") / "chain.xml"
-    p.write_text(build_chain_deck(400))
-    model = compile_model(load_deck(str(p)))
-    rng = np.random.default_rng(3)
-    st = model.retract(model.initial_state(), 1e-2 * rng.standard_normal(model.nq),
-                       rng.standard_normal(model.nc))
+    model, st = perturbed_chain(tmp_path_factory.mktemp("chain"), 400, 3)
     assert model.assembler.nnz > POOL_ABOVE
     return model, st
 

@@ -61,3 +61,18 @@ def stiff_soft_deck(m=1e-3, k1=1e9, k2=1.0, kb=1e9):
     d.body(4, 40, (300, 0, 0), mass=m, inertia=(1e-2, 1e-2, 1e-2))
     d.bushing(1, 40, 102, (kb * 1e-3,) * 3, (1e12,) * 3)
     return d
+
+
+def perturbed_chain(directory, links: int, seed: int):
+    """A compiled ``links``-link hanging chain (``poise.gen.chain``, written to ``directory``)
+    and a state near its start: positions moved by 1e-2 and random multipliers."""
+    from poise.deck.parser import load_deck
+    from poise.gen.chain import build_chain_deck
+    from poise.model.compile import compile_model
+    p = directory / "chain.xml"
+    p.write_text(build_chain_deck(links))
+    model = compile_model(load_deck(str(p)))
+    rng = np.random.default_rng(seed)
+    st = model.retract(model.initial_state(), 1e-2 * rng.standard_normal(model.nq),
+                       rng.standard_normal(model.nc))
+    return model, st
