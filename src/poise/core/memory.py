@@ -41,3 +41,15 @@ def release(size: int = LARGE, large: int = LARGE) -> bool:
     if _trim is False:
         return False
     return bool(_trim(0))
+
+
+def hand_over(obj):
+    """A zero-argument callable giving ``obj``, once: the caller drops its own reference, so the
+    receiver holds the only one and a large object (a Jacobian) goes as soon as the receiver
+    is done with it, before its next big allocation. :func:`taken` reads either form."""
+    return [obj].pop
+
+
+def taken(obj):
+    """``obj`` itself, or what the :func:`hand_over` callable ``obj`` gives."""
+    return obj() if callable(obj) else obj

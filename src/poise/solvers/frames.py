@@ -79,7 +79,7 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
         # or a path's located end
         infos = [known]
     elif all(o.ok for o in outcomes) and J is not None:
-        jac, J = [J].pop, None    # handed over: the classification drops J once it is read
+        jac, J = memory.hand_over(J), None    # the classification drops J once it is read
         infos = [classify(model, state, J=jac, active=saved)]
     else:   # the same records either way: frames of a sequence are concatenated
         infos = [unknown_info()] * len(outcomes)

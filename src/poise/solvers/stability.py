@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from poise.core import memory
 from poise.solvers.equilibrate import equilibrate_dense, prune_noise_dense, prune_rows_dense
 from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the public names
     AUG_RHO,
@@ -44,26 +45,26 @@ def classify(model, state, J=None, active=None) -> StabilityInfo:
     constraint rows (None: all).
 
     ``J`` may be a KKT Jacobian already evaluated at ``state`` without regularisation (with
-    any active rows: inactive rows are dropped here), or a zero-argument callable returning
-    it: then only the classification holds it, and a large model's goes once it is read.
+    any active rows: inactive rows are dropped here), or handed over
+    (:func:`poise.core.memory.hand_over`): then a large model's goes once it is read.
     """
     nq = model.nq
     if nq == 0:
         return StabilityInfo("stable", 0, 0, "", np.nan)
     if J is None:
-        J = [model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J].pop
+        J = memory.hand_over(model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J)
     if active is None:
         active = np.ones(model.nc, bool)
     if nq > DENSE_LIMIT:
         if model.n_extra:
-            J = J() if callable(J) else J
+            J = memory.taken(J)
             red = eliminate_sparse(model, J)
             if red is not None:
                 view, Jr, lift = red
                 return _lifted(classify_sparse(view, Jr, active), lift)
-            J = [J].pop
+            J = memory.hand_over(J)
         return classify_sparse(model, J, active)
-    J = J() if callable(J) else J
+    J = memory.taken(J)
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
     return classify_dense_frames(model, J[None], active)[0]
 

@@ -303,7 +303,7 @@ class SparsePencil:
         if isinstance(J, SparsePencil):
             Ks, G, nnz = J.Ks, J.G_active, J.G_active.nnz
         else:
-            J = sp.csr_matrix(J() if callable(J) else J)
+            J = sp.csr_matrix(memory.taken(J))
             nnz = J.nnz
             Di = 1.0 / d
             Ku = _diag_scaled(J[:nq, :nq], Di, Di)
