@@ -195,20 +195,13 @@ class _RowMaxima:
         t = self.target
         for j0 in range(0, rows, step):
             j1 = min(j0 + step, rows)
+            tj = (slice(t.start + j0, t.start + j1) if isinstance(t, slice) else t[j0:j1])
             buf, tmp, m = scratch.take(w, j1 - j0)
-            if isinstance(t, slice):
-                np.multiply(self.a[:, j0:j1], D[t.start + j0:t.start + j1], out=buf)
-            else:
-                np.multiply(self.a[:, j0:j1], D[t[j0:j1]], out=buf)
+            np.multiply(self.a[:, j0:j1], D[tj], out=buf)
             np.take(D, self.cols[:, j0:j1], out=tmp)
             np.multiply(buf, tmp, out=buf)
             np.maximum.reduce(buf, axis=0, out=m)
-            if isinstance(t, slice):
-                rt = r[t.start + j0:t.start + j1]
-                np.maximum(rt, m, out=rt)
-            else:
-                np.maximum(r[t[j0:j1]], m, out=m)
-                r[t[j0:j1]] = m
+            _max_into(r, tj, m)
 
     def into(self, r, D, scratch=None):
         if not self.a.size:
@@ -220,13 +213,18 @@ class _RowMaxima:
         np.multiply(self.a, self.buf, out=self.buf)
         np.take(D, self.cols, out=self.tmp)
         np.multiply(self.buf, self.tmp, out=self.buf)
-        m = np.maximum.reduceat(self.buf, self.starts)
-        if isinstance(self.target, slice):
-            rt = r[self.target]
-            np.maximum(rt, m, out=rt)
-        else:
-            np.maximum(r[self.target], m, out=m)
-            r[self.target] = m
+        _max_into(r, self.target, np.maximum.reduceat(self.buf, self.starts))
+
+
+def _max_into(r, t, m):
+    """``r[t] = max(r[t], m)`` (``t`` a slice: in place on the view; else indices, ``m``
+    overwritten)."""
+    if isinstance(t, slice):
+        rt = r[t]
+        np.maximum(rt, m, out=rt)
+    else:
+        np.maximum(r[t], m, out=m)
+        r[t] = m
 
 
 def equilibrate_dense(Ks, G, iters=12, tol=0.1):
