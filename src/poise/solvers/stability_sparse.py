@@ -105,7 +105,7 @@ class SymmetricLDL:
         self._permuted = permuted
         self._pos = None
         self._b = None                    # solve_head's right-hand side (:meth:`_rhs`)
-        A = self._matrix(A() if callable(A) else A)
+        A = self._matrix(memory.taken(A))
         self.n = n = A.shape[0]
         self.ok = False
         self.reason = ""
