@@ -1,7 +1,7 @@
 """numpy's own arithmetic on small arrays without the Python argument handling of its
 convenience functions, which costs more than the work itself on the few-element arrays of a
 small model's solve: Euclidean norms (``np.linalg.norm``'s results, bit for bit, for real
-arrays) and the all-finite test."""
+arrays), the all-finite test and a gather along the last axis."""
 from __future__ import annotations
 
 import numpy as np
@@ -21,3 +21,11 @@ def row_norms(x: np.ndarray, axis: int = -1) -> np.ndarray:
 def all_finite(x) -> bool:
     """``np.all(np.isfinite(x))`` (for a real array)."""
     return bool(np.logical_and.reduce(np.isfinite(x), axis=None))
+
+
+def take_along_last(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``np.take_along_axis(a, idx, -1)`` (``a[..., idx[..., j]]`` per leading index)."""
+    m, j = a.shape[-1], idx.shape[-1]
+    flat = a.reshape(-1, m)
+    rows = np.arange(flat.shape[0])[:, None]
+    return flat[rows, idx.reshape(-1, j)].reshape(idx.shape)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core.lean import row_norms
+from poise.core.lean import row_norms, take_along_last
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix, ``skew(v) @ u == cross(v, u)``.
@@ -149,18 +149,7 @@ _OFF_B = np.array([5, 6, 1, 3, 6, 7])              # R12, R20, R01, R10, R20, R2
 _OFF_SG = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
 # M row-major from (t0, t1, t2, t3, s21, s02, s10, p01, p02, p12)
 _M16 = np.array([0, 4, 5, 6, 4, 1, 7, 8, 5, 7, 2, 9, 6, 8, 9, 3])
-
-
 _ROWS = np.arange(16).reshape(4, 4)
-
-
-def _pick(a, idx):
-    """``a[..., idx[..., j]]`` per leading index (``np.take_along_axis`` on the last axis,
-    without its Python wrapper)."""
-    m, j = a.shape[-1], idx.shape[-1]
-    flat = a.reshape(-1, m)
-    rows = np.arange(flat.shape[0])[:, None]
-    return flat[rows, idx.reshape(-1, j)].reshape(idx.shape)
 
 
 def euler_parameters(R: np.ndarray) -> np.ndarray:
@@ -180,9 +169,9 @@ def euler_parameters(R: np.ndarray) -> np.ndarray:
     X = R9.take(_OFF_A, -1) + R9.take(_OFF_B, -1) * _OFF_SG
     M = np.concatenate([T, X], -1).take(_M16, -1)            # (..., 16), row-major
     # its row with the largest diagonal is q times the largest |q_k|
-    q = _pick(M, _ROWS[np.argmax(T, axis=-1)])
+    q = take_along_last(M, _ROWS[np.argmax(T, axis=-1)])
     # sign: e0 > 0, else the first non-zero vector component > 0 (deterministic at 180 deg)
-    lead = _pick(q, np.argmax(q != 0, axis=-1)[..., None])[..., 0]
+    lead = take_along_last(q, np.argmax(q != 0, axis=-1)[..., None])[..., 0]
     q = np.where((lead < 0)[..., None], -q, q)
     return q / row_norms(q)[..., None]
 
