@@ -15,6 +15,8 @@ from poise.solvers.linalg import SingularMatrix
 
 NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
 TAIL_SHARE = 1e-6             # eps M dx above this share of the residual: filter the step
+SMALL_S = 1e-3                # <Sx, Sx>_M / <x, Sx>_M below this: one solve, (I + S) x
+SMALL_STEP = 1e-3             # step and eps M dx this far below their tolerances: as it is
 
 
 def limit_step(model, state, dq, settings):
@@ -64,33 +66,48 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
     (eigenvalues ``eps / (lambda + eps)`` for the generalised stiffness ``lambda``), the step
     ``(I - S)(I + 2 S) x`` scales each direction by ``lambda (lambda + 3 eps) / (lambda + eps)^3``:
     zero along neutral directions (the minimum-norm step) and ``1/lambda (1 - 3 (eps/lambda)^2)``
-    along stiff ones (Newton's step, quadratic convergence for ``eps << lambda``). Two extra
-    solves with the same factorisation, only when ``eps M x`` carries more than ``TAIL_SHARE``
-    of the residual (then the regularisation would slow Newton down to a linear rate
-    ``eps/lambda``), or when the step limits cut ``x`` (``limited``) and ``S x`` is more than
-    ``NEUTRAL_SHARE`` of ``x`` (scaled). ``limited`` may be a callable, asked only when the
-    tail share alone does not decide (the step limits cost a retraction). ``Jg``: the world
-    inertias at ``state`` when the caller has them (``Evaluation.inertia``).
+    along stiff ones (Newton's step, quadratic convergence for ``eps << lambda``). Examined only
+    when ``eps M x`` carries more than ``TAIL_SHARE`` of the residual (then the regularisation
+    would slow Newton down to a linear rate ``eps/lambda``), or when the step limits cut ``x``
+    (``limited``) and ``S x`` is more than ``NEUTRAL_SHARE`` of ``x`` (scaled); never for a step
+    ``SMALL_STEP`` below the convergence tolerance with a regularisation force as far below
+    the force tolerance (no step shape can matter there). ``S x`` costs a solve with the same
+    factorisation; ``S^2 x`` a second one, only when ``S`` is not small on ``x``
+    (``<Sx, Sx>_M > SMALL_S <x, Sx>_M``, the M-norm estimate of ``|S^2 x| / |S x|``, which
+    neutral content of ``x`` lifts towards 1); otherwise the step is ``(I + S) x``, Newton's
+    step to ``O((eps/lambda)^2)`` (it differs from the two-solve step by ``2 S^2 x``).
+    ``limited`` may be a callable, asked only when the tail share alone does not decide (the
+    step limits cost a retraction). ``Jg``: the world inertias at ``state`` when the caller has
+    them (``Evaluation.inertia``).
     """
     if not eps > 0 or model.nq == 0:
         return None
     nq = model.nq
-    if Jg is None and len(model.rot_idx):                               # both products' M
+    if Jg is None and len(model.rot_idx):                               # every product's M
         Jg = model.world_inertia(state)
-    reg = eps * mass_times(model, state, x[:nq], Jg)
-    share = float(np.maximum.reduce(np.abs(reg) / sc.r_tol)) / max(zinf, 1e-300)
+    Mx = mass_times(model, state, x[:nq], Jg)
+    reg = eps * Mx
+    rz = float(np.maximum.reduce(np.abs(reg) / sc.r_tol))
+    size = float(np.maximum.reduce(np.abs(x[:nq]) / sc.q_len))
+    if size <= SMALL_STEP * sc.max_error and rz <= SMALL_STEP:
+        return None
+    share = rz / max(zinf, 1e-300)
     if not (share > TAIL_SHARE or (limited() if callable(limited) else limited)):
         return None
     pad = np.zeros(len(x) - nq)
     try:
         Sx = f.solve(np.concatenate([reg, pad]))
-        size = np.maximum.reduce(np.abs(x[:nq]) / sc.q_len)
+        y = Sx[:nq]
         if share <= TAIL_SHARE and \
-                not float(np.maximum.reduce(np.abs(Sx[:nq]) / sc.q_len)) > NEUTRAL_SHARE * size:
+                not float(np.maximum.reduce(np.abs(y) / sc.q_len)) > NEUTRAL_SHARE * size:
             return None
-        z = x + 2.0 * Sx
-        Sz = f.solve(np.concatenate([eps * mass_times(model, state, z[:nq], Jg), pad]))
+        My = mass_times(model, state, y, Jg)
+        xy, yy = float(Mx @ y), float(My @ y)
+        if xy > 0.0 and yy <= SMALL_S * xy:
+            xf = x + Sx                          # S small on x: no neutral content to filter
+        else:
+            z = x + 2.0 * Sx
+            xf = z - f.solve(np.concatenate([reg + (2.0 * eps) * My, pad]))
     except SingularMatrix:
         return None
-    xf = z - Sz
     return xf if np.all(np.isfinite(xf)) else None
