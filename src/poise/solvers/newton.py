@@ -34,9 +34,7 @@ from poise.solvers.reach import PROJECT_ABOVE, project, violation
 from poise.solvers.reach import coord_weights as _coord_weights
 from poise.solvers.reach import weighted_kkt as _weighted_kkt
 from poise.solvers.status import MESSAGES, Status
-from poise.solvers.steps import limit_step as _limit_step_trial
-from poise.solvers.steps import mass_times as _mass_times
-from poise.solvers.steps import neutral_filtered as _neutral_filtered
+from poise.solvers import steps as _steps
 
 ARMIJO = 1e-4
 ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step);
@@ -222,6 +220,7 @@ class NewtonIteration(Solver[_Newtoning]):
         self.probe = probe
         self.sc = Scales(model, settings)
         self.eps = float(np.sqrt(settings.stability))
+        self._kept = None      # the last small step's factorisation (a cache: steps.chord_step)
 
     def _ev_at(self, st):
         # Jacobian deferred: line-search trials pay for the residual only, the accepted point
@@ -302,6 +301,7 @@ class NewtonIteration(Solver[_Newtoning]):
 
     def postprocess(self, s, status, used):
         ws = getattr(self.cnt, "workspace", None)
+        self._kept = None
         if ws is not None:
             self.model.assembler.release(ws)       # its iterations' matrix buffers
         if s.outcome is None:
@@ -320,9 +320,15 @@ class NewtonIteration(Solver[_Newtoning]):
     def _iteration(self, s):
         model, settings, sc, eps, state, ev = (self.model, self.settings, self.sc, self.eps,
                                                s.state, s.ev)
+        b = -np.concatenate([ev.r, ev.phi])
+        f, self._kept = self._kept, None
+        # within tolerance, a small step by the last factorisation certifies (steps.chord_step)
+        x = _steps.chord_step(f, b, sc) if s.res_ok and not s.robust else None
+        chord, f = x is not None, f if x is not None else None      # (one factorisation held)
         try:
-            f = self.cnt.factor(self.cnt.jacobian(model, ev), equilibrate=self.equilibrate)
-            x = f.solve(-np.concatenate([ev.r, ev.phi]))
+            if not chord:
+                f = self.cnt.factor(self.cnt.jacobian(model, ev), equilibrate=self.equilibrate)
+                x = f.solve(b)
         except SingularMatrix as e:
             return self._fail(s, Status.SINGULAR_JACOBIAN,
                               MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
@@ -347,14 +353,16 @@ class NewtonIteration(Solver[_Newtoning]):
         # the limited full step is retracted only when asked: by the filter's test, or by the
         # line search when the filtered step is not taken (otherwise a retraction per iteration
         # for nothing)
-        limit = functools.cache(lambda: _limit_step_trial(model, state, x[:model.nq], settings))
-        xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, lambda: limit()[0] < 1.0,
-                               Jg=ev.inertia)
-        del f                # the factorisation is not needed by the trials (memory at 10^5)
+        limit = functools.cache(lambda: _steps.limit_step(model, state, x[:model.nq], settings))
+        xf = _steps.neutral_filtered(model, state, f, x, eps, sc, s.zinf,
+                                     lambda: limit()[0] < 1.0, Jg=ev.inertia)
+        # the factorisation is not needed by the trials (memory at 10^5) unless kept for a chord
+        keep = f if not chord and _steps.keeps_factor(x, sc) else None
+        del f
         if xf is not None:
             # the regularisation dominates the step (near-neutral directions): try the step with
             # those directions filtered out first, keep it if it decreases the merit
-            af, tf = _limit_step_trial(model, state, xf[:model.nq], settings)
+            af, tf = _steps.limit_step(model, state, xf[:model.nq], settings)
             if tf is None:
                 tf = model.retract(state, af * xf[:model.nq])
             tf.lam = tf.lam + af * xf[model.nq:]
@@ -414,6 +422,7 @@ class NewtonIteration(Solver[_Newtoning]):
             if down is not None:
                 return self._down(evolve(s, stall=m0, runaway=Runaway(model, ev.r)), state,
                                   down)
+        self._kept = None if s.robust else keep
         return self._take(s, state, (best[2], best[3], best[0], best[1]), dq, merit=best[0])
 
     def _onto(self, s, state):
@@ -433,8 +442,8 @@ class NewtonIteration(Solver[_Newtoning]):
         trials."""
         model, settings = self.model, self.settings
         return downhill_step(model, state, ev, dq, self.cnt,
-                             lambda st, d: _limit_step_trial(model, st, d, settings),
-                             self._measure, lambda st, v: _mass_times(model, st, v), self.eps)
+                             lambda st, d: _steps.limit_step(model, st, d, settings),
+                             self._measure, lambda st, v: _steps.mass_times(model, st, v), self.eps)
 
     def _down(self, s, state, down):
         """Accept the downhill step ``down`` (:func:`~poise.solvers.downhill.downhill_step`),

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core.lean import row_norms
+from poise.core.lean import all_finite, row_norms
 from poise.solvers.linalg import SingularMatrix
 
 NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
 TAIL_SHARE = 1e-6             # eps M dx above this share of the residual: filter the step
 SMALL_S = 1e-3                # <Sx, Sx>_M / <x, Sx>_M below this: one solve, (I + S) x
 SMALL_STEP = 1e-3             # step and eps M dx this far below their tolerances: as it is
+CHORD_STEP = 1e-2             # a step by the kept factorisation this far below max_error: taken
 
 
 def limit_step(model, state, dq, settings):
@@ -39,6 +40,36 @@ def limit_step(model, state, dq, settings):
             return fac, trial
         fac *= 0.9 * lim / disp
     return fac, None
+
+
+def chord_step(f, b, sc):
+    """The step ``f^-1 b`` by ``f``, the factorisation of the previous iterate's Jacobian (or
+    None), when it is ``CHORD_STEP`` below the convergence tolerance (scaled like Newton's
+    steps), else None.
+
+    Newton's last iteration only certifies an iterate already within tolerance: its step,
+    ``max_error`` or less, is the error estimate. A Jacobian a step ``d`` old changes that step
+    by a relative ``O(d)`` (the contraction Newton's last step showed): a chord step this far
+    below the tolerance certifies as Newton's would, without a new Jacobian and factorisation.
+    """
+    if f is None:
+        return None
+    try:
+        x = f.solve(b)
+    except SingularMatrix:
+        return None
+    nq = len(sc.q_len)
+    if not all_finite(x) or (nq and not float(np.maximum.reduce(np.abs(x[:nq]) / sc.q_len))
+                             <= CHORD_STEP * sc.max_error):
+        return None
+    return x
+
+
+def keeps_factor(x, sc) -> bool:
+    """Whether a Newton step ``x`` is small enough (``sqrt(max_error)``, scaled) that the next
+    iterate is likely within tolerance: its factorisation is then kept for :func:`chord_step`."""
+    nq = len(sc.q_len)
+    return not nq or float(np.maximum.reduce(np.abs(x[:nq]) / sc.q_len)) <= np.sqrt(sc.max_error)
 
 
 def mass_times(model, state, v, Jg=None):
