@@ -4,6 +4,7 @@ its second solve only when ``S`` is not small on the step; the certifying chord 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from poise.deck.parser import load_deck
 from poise.gen.chain import build_chain_deck
@@ -80,35 +81,31 @@ class _Counted:
         return self.f.solve(b, **kw)
 
 
-def test_the_second_solve_only_when_s_is_not_small_on_the_step(tmp_path):
+@pytest.mark.parametrize("eps, solves", [(1e-2, 2), (1e-4, 1)])
+def test_the_second_solve_only_when_s_is_not_small_on_the_step(tmp_path, eps, solves):
     """On the 12-link chain (no neutral direction) <Sx,Sx>_M / <x,Sx>_M is about eps / 2: at
     eps 1e-2 the filter makes both solves and gives (I - S)(I + 2S) x; at 1e-4 one, and its
     (I + S) x is that step up to 2 S^2 x, and closer than x to Newton's step without the
     regularisation (second order in eps/lambda, x first order)."""
-    settings = StaticSettings()
-    for eps, solves in ((1e-2, 2), (1e-4, 1)):
-        model, st, f, x = _setup(tmp_path, eps)
-        nq, sc = model.nq, Scales(model, settings)
-        g = _Counted(f)
-        xf = neutral_filtered(model, st, g, x, eps, sc, 1e-12, False)   # tail share far above
-        assert g.n == solves
-
-        def S(v):
-            return f.solve(np.concatenate([eps * mass_times(model, st, v[:nq]),
-                                           np.zeros(model.nc)]))
-        Sx = S(x)
-        two = x + Sx - 2.0 * S(Sx)
-        scale = float(np.max(np.abs(x)))
-        if solves == 2:
-            np.testing.assert_allclose(xf, two, rtol=0, atol=1e-12 * scale)
-        else:
-            np.testing.assert_allclose(xf, x + Sx, rtol=0, atol=1e-15 * scale)
-            assert 0 < np.max(np.abs(xf - two)) <= 1e-6 * scale
-            # Newton's step of the unregularised KKT matrix (the chain has no neutral direction)
-            data = SolveData.for_model(model, detect_redundancy(model, st))
-            ev0 = data.evaluate(model, st, "jacobian", eps=0.0)
-            exact = data.factor(ev0.J).solve(-np.concatenate([ev0.r, ev0.phi]))
-            assert np.max(np.abs(xf - exact)) < 1e-3 * np.max(np.abs(x - exact))
+    model, st, f, x = _setup(tmp_path, eps)
+    nq, sc = model.nq, Scales(model, StaticSettings())
+    g = _Counted(f)
+    xf = neutral_filtered(model, st, g, x, eps, sc, 1e-12, False)   # tail share far above
+    assert g.n == solves
+    pad = np.zeros(model.nc)
+    Sx = f.solve(np.concatenate([eps * mass_times(model, st, x[:nq]), pad]))
+    two = x + Sx - 2.0 * f.solve(np.concatenate([eps * mass_times(model, st, Sx[:nq]), pad]))
+    scale = float(np.max(np.abs(x)))
+    if solves == 2:
+        np.testing.assert_allclose(xf, two, rtol=0, atol=1e-12 * scale)
+        return
+    np.testing.assert_allclose(xf, x + Sx, rtol=0, atol=1e-15 * scale)
+    assert 0 < np.max(np.abs(xf - two)) <= 1e-6 * scale
+    # Newton's step of the unregularised KKT matrix (the chain has no neutral direction)
+    data = SolveData.for_model(model, detect_redundancy(model, st))
+    ev0 = data.evaluate(model, st, "jacobian", eps=0.0)
+    exact = data.factor(ev0.J).solve(-np.concatenate([ev0.r, ev0.phi]))
+    assert np.max(np.abs(xf - exact)) < 1e-3 * np.max(np.abs(x - exact))
 
 
 def test_the_chord_step_is_taken_only_below_the_tolerance(tmp_path):
