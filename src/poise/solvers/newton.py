@@ -220,7 +220,7 @@ class NewtonIteration(Solver[_Newtoning]):
         self.probe = probe
         self.sc = Scales(model, settings)
         self.eps = float(np.sqrt(settings.stability))
-        self._kept = None      # the last small step's factorisation (a cache: steps.chord_step)
+        self._kept = None      # (factorisation, step since): a cache for steps.chord_step
 
     def _ev_at(self, st):
         # Jacobian deferred: line-search trials pay for the residual only, the accepted point
@@ -321,10 +321,10 @@ class NewtonIteration(Solver[_Newtoning]):
         model, settings, sc, eps, state, ev = (self.model, self.settings, self.sc, self.eps,
                                                s.state, s.ev)
         b = -np.concatenate([ev.r, ev.phi])
-        f, self._kept = self._kept, None
-        # within tolerance, a small step by the last factorisation certifies (steps.chord_step)
-        x = _steps.chord_step(f, b, sc) if s.res_ok and not s.robust else None
-        chord, f = x is not None, f if x is not None else None      # (one factorisation held)
+        kept, self._kept = self._kept, None
+        # in Newton's last, quadratic phase a step by a kept factorisation (steps.chord_step)
+        x = _steps.chord_step(kept, b, sc, s.zinf) if not s.robust else None
+        chord, f, kept = x is not None, kept[0] if x is not None else None, None
         try:
             if not chord:
                 f = self.cnt.factor(self.cnt.jacobian(model, ev), equilibrate=self.equilibrate)
@@ -357,7 +357,7 @@ class NewtonIteration(Solver[_Newtoning]):
         xf = _steps.neutral_filtered(model, state, f, x, eps, sc, s.zinf,
                                      lambda: limit()[0] < 1.0, Jg=ev.inertia)
         # the factorisation is not needed by the trials (memory at 10^5) unless kept for a chord
-        keep = f if not chord and _steps.keeps_factor(x, sc) else None
+        keep = f if _steps.keeps_factor(model, x, sc) else None
         del f
         if xf is not None:
             # the regularisation dominates the step (near-neutral directions): try the step with
@@ -422,7 +422,8 @@ class NewtonIteration(Solver[_Newtoning]):
             if down is not None:
                 return self._down(evolve(s, stall=m0, runaway=Runaway(model, ev.r)), state,
                                   down)
-        self._kept = None if s.robust else keep
+        if keep is not None and best[1] == 1.0 and not s.robust:      # a full step: kept
+            self._kept = (keep, _steps.step_size(dq, sc))
         return self._take(s, state, (best[2], best[3], best[0], best[1]), dq, merit=best[0])
 
     def _onto(self, s, state):

@@ -17,7 +17,9 @@ NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neut
 TAIL_SHARE = 1e-6             # eps M dx above this share of the residual: filter the step
 SMALL_S = 1e-3                # <Sx, Sx>_M / <x, Sx>_M below this: one solve, (I + S) x
 SMALL_STEP = 1e-3             # step and eps M dx this far below their tolerances: as it is
-CHORD_STEP = 1e-2             # a step by the kept factorisation this far below max_error: taken
+CHORD_STEP = 1e-2             # a chord step's share of the tolerances (steps.chord_step)
+CHORD_RATE = 1e-2             # a chord step contracting this much: Newton's quadratic phase
+KEEP_STEP = 1e-2              # a full step this small: its factorisation kept for a chord step
 
 
 def limit_step(model, state, dq, settings):
@@ -42,34 +44,51 @@ def limit_step(model, state, dq, settings):
     return fac, None
 
 
-def chord_step(f, b, sc):
-    """The step ``f^-1 b`` by ``f``, the factorisation of the previous iterate's Jacobian (or
-    None), when it is ``CHORD_STEP`` below the convergence tolerance (scaled like Newton's
-    steps), else None.
+def step_size(dq, sc) -> float:
+    """A coordinate step's size as Newton's convergence test measures it (translations relative
+    to the model size, rotations in radians; the largest)."""
+    return float(np.maximum.reduce(np.abs(dq) / sc.q_len)) if len(dq) else 0.0
 
-    Newton's last iteration only certifies an iterate already within tolerance: its step,
-    ``max_error`` or less, is the error estimate. A Jacobian a step ``d`` old changes that step
-    by a relative ``O(d)`` (the contraction Newton's last step showed): a chord step this far
-    below the tolerance certifies as Newton's would, without a new Jacobian and factorisation.
+
+def keeps_factor(model, x, sc) -> bool:
+    """Whether the factorisation that gave the step ``x`` is kept for :func:`chord_step`: a
+    sparse model's step of at most ``KEEP_STEP`` (scaled). Not for dense models (``N <= 600``):
+    their factorisation costs little, and the batched sweep solver
+    (:mod:`poise.solvers.batched`) takes Newton's own steps, as their single solves do."""
+    return not model.assembler.dense and step_size(x[:model.nq], sc) <= KEEP_STEP
+
+
+def chord_step(kept, b, sc, zinf):
+    """The step ``f^-1 b`` by a kept factorisation ``kept = (f, d)`` of an earlier iterate's
+    Jacobian (``d``: the size of the full step taken since it was used; or None) when it does
+    what Newton's step would, else None.
+
+    Its contraction ``delta = |f^-1 b| / d`` (scaled sizes) estimates the relative change a
+    Jacobian that old makes to the step, ``O(d)`` in Newton's quadratic phase. The chord step is
+    taken when it certifies an iterate already within tolerance (``zinf <= 1``) by a step
+    ``CHORD_STEP`` below ``max_error`` (its size is the error estimate; a ``delta`` up to 0.99
+    keeps it below the tolerance), or when the chord leaves at most ``CHORD_STEP`` of the
+    tolerances behind Newton's own next residual and step (``delta <= CHORD_RATE``,
+    ``delta * zinf <= CHORD_STEP``, ``delta * |step| <= CHORD_STEP * max_error``): the next
+    iterate is then measured and certified as after Newton's step.
     """
-    if f is None:
+    if kept is None:
         return None
+    f, d = kept
     try:
         x = f.solve(b)
     except SingularMatrix:
         return None
-    nq = len(sc.q_len)
-    if not all_finite(x) or (nq and not float(np.maximum.reduce(np.abs(x[:nq]) / sc.q_len))
-                             <= CHORD_STEP * sc.max_error):
+    if not all_finite(x):
         return None
-    return x
-
-
-def keeps_factor(x, sc) -> bool:
-    """Whether a Newton step ``x`` is small enough (``sqrt(max_error)``, scaled) that the next
-    iterate is likely within tolerance: its factorisation is then kept for :func:`chord_step`."""
-    nq = len(sc.q_len)
-    return not nq or float(np.maximum.reduce(np.abs(x[:nq]) / sc.q_len)) <= np.sqrt(sc.max_error)
+    size = step_size(x[:len(sc.q_len)], sc)
+    tol = CHORD_STEP * sc.max_error
+    if zinf <= 1.0 and size <= tol:
+        return x
+    delta = size / d if d > 0.0 else np.inf
+    if delta <= CHORD_RATE and delta * zinf <= CHORD_STEP and delta * size <= tol:
+        return x
+    return None
 
 
 def mass_times(model, state, v, Jg=None):
