@@ -357,7 +357,7 @@ class NewtonIteration(Solver[_Newtoning]):
         xf = _steps.neutral_filtered(model, state, f, x, eps, sc, s.zinf,
                                      lambda: limit()[0] < 1.0, Jg=ev.inertia)
         # the factorisation is not needed by the trials (memory at 10^5) unless kept for a chord
-        keep = f if _steps.keeps_factor(model, x, sc) else None
+        keep = _steps.keep_factor(model, f, x, sc, getattr(self.cnt, "workspace", None))
         del f
         if xf is not None:
             # the regularisation dominates the step (near-neutral directions): try the step with
