@@ -53,14 +53,16 @@ def step_size(dq, sc) -> float:
 def keep_factor(model, f, x, sc, workspace=None):
     """The factorisation ``f`` that gave the step ``x``, kept for :func:`chord_step` (or None):
     a sparse model's step of at most ``KEEP_STEP`` (scaled). Keeping it releases the
-    assembler's spare data buffer and column layout in ``workspace`` (a kept factorisation
-    takes their place: at 10^5 links 0.2 GB; rebuilt only if Newton factorises again). Not for
+    assembler's spare data buffer and column layout in ``workspace`` and its own matrix (a
+    kept factorisation takes their place: at 10^5 links 0.3 GB; the buffers are rebuilt only if
+    Newton factorises again, its solves are plain ones). Not for
     dense models (``N <= 600``): their factorisation costs little, and the batched sweep solver
     (:mod:`poise.solvers.batched`) takes Newton's own steps, as their single solves do."""
     if model.assembler.dense or step_size(x[:model.nq], sc) > KEEP_STEP:
         return None
     if workspace is not None:
         model.assembler.release(workspace)
+    f.drop_matrix()
     return f
 
 
