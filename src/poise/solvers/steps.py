@@ -1,10 +1,13 @@
-"""Newton's step, shaped: the step limits, the mass product and the neutral-direction filter.
+"""Newton's step, shaped: the step limits, the mass product, the neutral-direction filter and
+the chord steps of Newton's quadratic phase.
 
 :func:`limit_step` scales a step so that no body moves more than ``max_translation_step * L``
 nor turns more than ``max_rotation_step``; :func:`neutral_filtered` removes from a regularised
 Newton step the part only the ``stability`` mass term carries (zero-stiffness directions), so
 that Newton converges quadratically next to neutral directions (docs/solvers.md, "Neutral
-directions in Newton"); :func:`mass_times` is the tangent mass matrix times a vector.
+directions in Newton"); :func:`chord_step` reuses a kept factorisation (:func:`keep_factor`)
+where its step does what Newton's would; :func:`mass_times` is the tangent mass matrix times a
+vector.
 """
 from __future__ import annotations
 
@@ -53,11 +56,11 @@ def step_size(dq, sc) -> float:
 def keep_factor(model, f, x, sc, workspace=None):
     """The factorisation ``f`` that gave the step ``x``, kept for :func:`chord_step` (or None):
     a sparse model's step of at most ``KEEP_STEP`` (scaled). Keeping it releases the
-    assembler's spare data buffer and column layout in ``workspace`` and its own matrix (a
-    kept factorisation takes their place: at 10^5 links 0.3 GB; the buffers are rebuilt only if
-    Newton factorises again, its solves are plain ones). Not for
-    dense models (``N <= 600``): their factorisation costs little, and the batched sweep solver
-    (:mod:`poise.solvers.batched`) takes Newton's own steps, as their single solves do."""
+    assembler's spare data buffer and column layout in ``workspace`` and its own matrix (a kept
+    factorisation takes their place: at 10^5 links 0.3 GB; the buffers are rebuilt only if
+    Newton factorises again, its solves are plain ones). Not for dense models (``N <= 600``):
+    their factorisation costs little, and the batched sweep solver (:mod:`poise.solvers.batched`)
+    takes Newton's own steps, as their single solves do."""
     if model.assembler.dense or step_size(x[:model.nq], sc) > KEEP_STEP:
         return None
     if workspace is not None:
@@ -146,7 +149,7 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
     Mx = mass_times(model, state, x[:nq], Jg)
     reg = eps * Mx
     rz = float(np.maximum.reduce(np.abs(reg) / sc.r_tol))
-    size = float(np.maximum.reduce(np.abs(x[:nq]) / sc.q_len))
+    size = step_size(x[:nq], sc)
     if size <= SMALL_STEP * sc.max_error and rz <= SMALL_STEP:
         return None
     share = rz / max(zinf, 1e-300)
@@ -156,8 +159,7 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
     try:
         Sx = f.solve(np.concatenate([reg, pad]))
         y = Sx[:nq]
-        if share <= TAIL_SHARE and \
-                not float(np.maximum.reduce(np.abs(y) / sc.q_len)) > NEUTRAL_SHARE * size:
+        if share <= TAIL_SHARE and not step_size(y, sc) > NEUTRAL_SHARE * size:
             return None
         My = mass_times(model, state, y, Jg)
         xy, yy = float(Mx @ y), float(My @ y)
