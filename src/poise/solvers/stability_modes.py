@@ -23,6 +23,9 @@ N_MODES = 6            # modes described per class (as the dense path)
 AUG_RHO = (1.0, 16.0, 1.0 / 16.0)   # augmented-Lagrangian weights tried in turn (inertia-neutral)
 BERR_MAX = 1e-2        # LDL^T backward-error estimate allowed, as a fraction of the zero threshold
 SMALL_OP = 64          # mode operators up to this size are decomposed densely
+LOW_BLOCK = 1          # vectors per step of a stable frame's lowest-mode Krylov iteration
+LOW_RES = 1e-6         # ... its relative Ritz residual at which the mode is taken
+LOW_MAX = 12           # ... and its steps (solves) at most
 WEAK_DIAG = 1e-3       # scaled augmented diagonal below this: eliminated after its neighbours
 TINY_PIVOT = 1e-3      # pivots below this fraction of the zero threshold: sign not reliable
 
