@@ -568,7 +568,11 @@ def _subspace(P, op, b, iters, seed, X=None):
 def _orthonormalize(X, rtol=1e-7):
     """Orthonormal basis of the columns of tall X from its Gram matrix (one pass loses the
     directions below ``rtol`` of the largest: harmless here, they are the ones the iteration
-    discards; call twice for orthogonality to round-off). Cheaper than QR for n x 10."""
+    discards; call twice for orthogonality to round-off). Cheaper than QR for n x 10. One
+    column is scaled to unit length (none if it is zero)."""
+    if X.shape[1] == 1:
+        nx = float(np.linalg.norm(X))
+        return X / nx if nx > 0.0 else X[:, :0]
     Gm = X.T @ X
     w, V = np.linalg.eigh(0.5 * (Gm + Gm.T))
     keep = w > (rtol ** 2) * max(float(w[-1]), 0.0) if w.size else w > 0
@@ -592,31 +596,34 @@ def _lowest_mode(P, F, s):
     nq = P.nq
     b = min(LOW_BLOCK, nq)
     Q = _orthonormalize(_orthonormalize(np.random.default_rng(5).standard_normal((nq, b))))
-    # the basis and its images, filled in place (pages touched only as filled)
-    Qa = np.empty((nq, LOW_MAX * b), order="F")
+    # the basis Qa and its images Wa = op(Qa), filled in place (pages touched only as filled),
+    # and their small products H = Qa^T Wa, M = Wa^T Wa, a block of columns (and rows) a step
+    m = LOW_MAX * b
+    Qa = np.empty((nq, m), order="F")
     Wa = np.empty_like(Qa)
-    H = np.zeros((LOW_MAX * b, LOW_MAX * b))
+    H, M = np.zeros((m, m)), np.zeros((m, m))
     n = 0
     for _ in range(LOW_MAX):
         k = Q.shape[1]
         Qa[:, n:n + k] = Q
         W = Wa[:, n:n + k]
         W[...] = op.matmat(Q)
-        C = Qa[:, :n + k].T @ W                       # H's new columns (and rows: symmetric)
-        H[:n + k, n:n + k] = C
-        H[n:n + k, :n + k] = C.T
         n += k
+        C = Qa[:, :n].T @ W
+        H[:n, n - k:n], H[n - k:n, :n] = C, C.T
+        D = Wa[:, :n].T @ W
+        M[:n, n - k:n], M[n - k:n, :n] = D, D.T
         th, Y = np.linalg.eigh(0.5 * (H[:n, :n] + H[:n, :n].T))
         y, t = Y[:, -1], float(th[-1])
-        x = Wa[:, :n] @ y                             # op(Qa y)
-        if not t > 0.0 or n + b > Qa.shape[1] or \
-                np.linalg.norm(x - t * (Qa[:, :n] @ y)) <= LOW_RES * t:
+        # ||op(x) - t x||^2 = y^T M y - t^2 for x = Qa y (Qa orthonormal, y^T H y = t)
+        if not t > 0.0 or n + b > m or float(y @ M[:n, :n] @ y) - t * t <= (LOW_RES * t) ** 2:
             break
         R = W - Qa[:, :n] @ C                         # the next block: W's new directions
         R -= Qa[:, :n] @ (Qa[:, :n].T @ R)            # (twice: orthogonal to round-off)
-        Q = _orthonormalize(_orthonormalize(R))
+        Q = _orthonormalize(R if k == 1 else _orthonormalize(R))   # (one column: scaled)
         if not Q.shape[1]:                            # (an invariant subspace: nothing new)
             break
+    x = Wa[:, :n] @ y                                 # op(Qa y)
     found = sorted(P.modes(x), key=lambda mo: mo[2])
     return [mo[:2] for mo in found[:1]]
 
