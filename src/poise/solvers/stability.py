@@ -152,12 +152,36 @@ def _dense_frames(model, J, active, ok) -> list[StabilityInfo]:
         wmin = np.einsum("gi,gij,gj->g", xk, Kg, xk)                 # Rayleigh [force/length]
         for j, i in enumerate(grp):
             found = []
-            for mask in (neg[j], zero[j]):
-                ks = np.nonzero(mask)[0][:N_MODES]
+            for mask, neutral in ((neg[j], False), (zero[j], True)):
+                ks = np.nonzero(mask)[0]
                 xs = X[j][:, ks]                                     # unit, length coordinates
+                if neutral and len(ks) > 1:        # any rotation of the zero eigenspace: one
+                    xs = canonical_basis(xs)
+                xs = xs[:, :N_MODES]
                 wk = np.einsum("ik,ij,jk->k", xs, Kg[j], xs)        # Rayleigh [force/length]
-                found.append([(xs[:, c] / d, float(wk[c])) for c in range(len(ks))])
+                found.append([(xs[:, c] / d, float(wk[c])) for c in range(xs.shape[1])])
             klass = "unstable" if neg[j].any() else "neutral" if zero[j].any() else "stable"
             out[sel[i]] = classified_info(model, klass, int(neg[j].sum()), int(zero[j].sum()),
                                 found[0], found[1], wmin[j])
     return out
+
+
+def canonical_basis(B):
+    """A basis of the span of ``B``'s columns (nq, k) that does not depend on which basis
+    ``B`` is: ``C = B B[p]^-1`` (``C[p] = I``) for the coordinates ``p`` a column-pivoted
+    Gram-Schmidt picks on ``B^T`` (largest remaining row first), ordered by coordinate, unit
+    columns. For an exactly degenerate cluster (neutral modes: every zero eigenvalue is one)
+    ``eigh`` returns any rotation of the eigenspace, mixed by round-off; when that space is
+    spanned by modes of separate bodies (free spins of 10 links), the columns of ``C`` are
+    those modes, listed by body, whichever basis came in."""
+    k = B.shape[1]
+    A = np.array(B.T)                            # (k, nq): coordinates are columns
+    piv = []
+    for _ in range(k):
+        p = int(np.argmax(np.einsum("ij,ij->j", A, A)))
+        piv.append(p)
+        q = A[:, p] / np.linalg.norm(A[:, p])
+        A -= np.outer(q, q @ A)
+    piv = np.sort(np.asarray(piv))
+    C = np.linalg.solve(B[piv].T, B.T).T         # B B[piv]^-1
+    return C / np.linalg.norm(C, axis=0)
