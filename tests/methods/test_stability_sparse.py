@@ -264,6 +264,20 @@ def universal_inverted_pendulum():
     return d
 
 
+def universal_hanging_pendulum():
+    """The pendulum of :func:`universal_inverted_pendulum` hanging: stable, its two swings
+    (about the two cross axes) exactly degenerate."""
+    m, l = 2.0, 400.0
+    d = Deck()
+    d.ground()
+    d.marker(101, 1, (0, 0, 0))
+    d.body(2, 20, (0, -l / 2, 0), rot_z(-np.pi / 2), mass=m,
+           inertia=(10, m * l * l / 12, m * l * l / 12))
+    d.marker(21, 2, (0, 0, 0), rot_y(np.pi / 2))
+    d.joint(1, "UNIVERSAL", 21, 101)
+    return d
+
+
 def stiff_soft():
     return stiff_soft_deck()
 
@@ -305,6 +319,7 @@ def test_sparse_path_matches_dense_on_decks(name, monkeypatch):
 @pytest.mark.parametrize("make, expected", [
     (inverted_double_pendulum, ("unstable", 2, 0)),
     (universal_inverted_pendulum, ("unstable", 2, 0)),
+    (universal_hanging_pendulum, ("stable", 0, 0)),
     (stiff_soft, ("stable", 0, 0)),
 ])
 def test_sparse_path_matches_dense_built(make, expected, monkeypatch, runner):
