@@ -319,7 +319,7 @@ class SparsePencil:
         if G.shape[0]:
             # a numerically empty row does not constrain anything (the dense SVD's rcond);
             # ``drop``: active rows found dependent at this configuration
-            rn = np.sqrt(np.asarray(G.multiply(G).sum(axis=1)).ravel())
+            rn = _row_norms(G)
             keep = rn > 1e-10 * rn.max()
             keep[np.asarray(drop, np.int64)] = False
             if not keep.all():
@@ -464,6 +464,15 @@ class SparsePencil:
         return [(XL[:, j] / self.d, float(w[j]), float(mu[j])) for j in range(X.shape[1])]
 
 
+def _row_norms(M):
+    """Euclidean norms of the rows of a canonical CSR ``M`` (an empty row: 0)."""
+    sq = np.zeros(M.shape[0])
+    nz = np.diff(M.indptr) > 0
+    if nz.any():
+        sq[nz] = np.add.reduceat(M.data * M.data, M.indptr[:-1][nz])
+    return np.sqrt(sq)
+
+
 def _coordinate_groups(model) -> np.ndarray:
     """Group of each coordinate: one per body, one per scalar unknown."""
     nq, nb = model.nq, model.nb
@@ -490,26 +499,33 @@ def _kkt_order(model, K, G, GtG) -> np.ndarray:
     nq = model.nq
     grp = _coordinate_groups(model)
     ng = int(grp.max()) + 1
-    E = sp.csr_matrix((np.ones(nq), (np.arange(nq), grp)), shape=(nq, ng))
-    S = (abs(K) + abs(GtG)).tocsr()
-    S.sum_duplicates()
+    K, GtG = K.tocsr(), GtG.tocsr()
+    Ga = abs(G).tocsr() if G.shape[0] else None
     if ng > 1:
-        Q = (E.T @ S @ E).tocsc()
+        # the pattern of E^T (|K| + |G|^T |G|) E, from K and from the bodies each constraint
+        # row acts on (|G| E: a few entries a row), not from the larger G^T G
+        E = sp.csr_matrix((np.ones(nq), (np.arange(nq), grp)), shape=(nq, ng))
+        Q = E.T @ abs(K) @ E
+        if Ga is not None:
+            GE = Ga @ E
+            Q = Q + GE.T @ GE
+        Q = Q.tocsc()
         Q.data[:] = 1.0
         Q = (Q + sp.identity(ng, format="csc") * (ng + 1.0)).tocsc()   # diagonally dominant
         rank = spla.splu(Q, permc_spec="MMD_AT_PLUS_A").perm_c       # position of each group
     else:
         rank = np.zeros(1, np.int64)
     key = 3 * rank[grp]
-    nzr = np.diff(S.indptr) > 0
+    nzr = (np.diff(K.indptr) > 0) | (np.diff(GtG.indptr) > 0)       # rows of |K| + |GtG|
     weak = (np.abs(K.diagonal() + GtG.diagonal()) < WEAK_DIAG) & nzr   # (K + GtG)'s
     if weak.any():
+        S = (abs(K) + abs(GtG)).tocsr()
+        S.sum_duplicates()
         last = np.zeros(nq, np.int64)
         last[nzr] = np.maximum.reduceat(rank[grp[S.indices]], S.indptr[:-1][nzr])
         key[weak] = 3 * last[weak] + 2
     keys = [key]
-    if G.shape[0]:
-        Ga = abs(G).tocsr()
+    if Ga is not None:
         last = np.maximum.reduceat(rank[grp[Ga.indices]], Ga.indptr[:-1])
         keys.append(3 * last + 1)
     return np.argsort(np.concatenate(keys), kind="stable")
