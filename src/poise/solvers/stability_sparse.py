@@ -26,6 +26,7 @@ from poise.solvers.stability_modes import (
     WEAK_DIAG,
     ZERO_REL,
     StabilityInfo,
+    canonical_basis,
     classified_info,
     not_classified,
 )
@@ -683,9 +684,15 @@ def _negative_modes(P, F, s, n_neg):
 def _zero_modes(P, F, s, n_zero):
     """Up to N_MODES neutral modes. With ``F`` factorising ``kkt(s)``, ``s = -eps``, the reduced
     eigenvalues in [-eps, eps] are the dominant ones of ``op(F)`` (>= 1/(2 eps)), exactly
-    degenerate clusters included: a short block iteration and Rayleigh-Ritz give them."""
+    degenerate clusters included: a short block iteration and Rayleigh-Ritz give them. When
+    they span the whole zero eigenspace, it is described from its basis that does not depend
+    on the iteration's (:func:`canonical_basis`, as on the dense path)."""
     k = min(n_zero, N_MODES)
     w, X = _subspace(P, P.op(F), k + 4, 4, seed=11)
     X = X[:, np.argsort(np.abs(w), kind="stable")]
     found = [mo for mo in P.modes(X) if abs(mo[2]) <= 2 * P.eps]
+    if 1 < n_zero <= len(found):          # the whole zero eigenspace: described as the dense
+        C = canonical_basis(np.stack([q * P.d for q, _, _ in found[:n_zero]], axis=1))
+        w = np.einsum("ij,ij->j", C, P.Ks @ C)          # (length coordinates, unit columns)
+        found = [(C[:, j] / P.d, float(w[j])) for j in range(C.shape[1])]
     return [mo[:2] for mo in found[:k]]
