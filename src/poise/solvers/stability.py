@@ -152,17 +152,25 @@ def _dense_frames(model, J, active, ok) -> list[StabilityInfo]:
         xk = X[np.arange(len(grp)), :, kmin]
         wmin = np.einsum("gi,gij,gj->g", xk, Kg, xk)                 # Rayleigh [force/length]
         for j, i in enumerate(grp):
-            found = []
-            for mask, neutral in ((neg[j], False), (zero[j], True)):
-                ks = np.nonzero(mask)[0]
-                xs = X[j][:, ks]                                     # unit, length coordinates
-                if neutral and len(ks) > 1:        # any rotation of the zero eigenspace: one
-                    xs = canonical_basis(xs)
-                xs = xs[:, :N_MODES]
-                wk = np.einsum("ik,ij,jk->k", xs, Kg[j], xs)        # Rayleigh [force/length]
-                found.append([(xs[:, c] / d, float(wk[c])) for c in range(xs.shape[1])])
+            found = described_modes(X[j], Kg[j], neg[j], zero[j], d)
             klass = "unstable" if neg[j].any() else "neutral" if zero[j].any() else "stable"
             out[sel[i]] = classified_info(model, klass, int(neg[j].sum()), int(zero[j].sum()),
                                 found[0], found[1], wmin[j])
     return out
 
+
+def described_modes(X, K, neg, zero, d) -> list[list]:
+    """``[unstable, neutral]``: up to N_MODES ``(q, w)`` each (``q`` in model coordinates, ``w``
+    the Rayleigh quotient of ``K`` [force/length]) from the unit eigenvectors ``X`` (length
+    coordinates) selected by the masks ``neg`` / ``zero``; ``d`` the length per coordinate unit.
+    The zero eigenvalues are one eigenvalue: their modes come from the eigenbasis-independent
+    :func:`~poise.solvers.stability_modes.canonical_basis` of their space."""
+    found = []
+    for mask, neutral in ((neg, False), (zero, True)):
+        xs = X[:, np.nonzero(mask)[0]]                               # unit, length coordinates
+        if neutral and xs.shape[1] > 1:
+            xs = canonical_basis(xs)
+        xs = xs[:, :N_MODES]
+        wk = np.einsum("ik,ij,jk->k", xs, K, xs)                    # Rayleigh [force/length]
+        found.append([(xs[:, c] / d, float(wk[c])) for c in range(xs.shape[1])])
+    return found
