@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.model.evaluate import Evaluation
+from poise.solvers.gram import GramFactor, gram, projected, scaled
 from poise.solvers.superlu import lean
 
 RATIO_TOL = 1e-9     # always redundant below this pivot ratio
@@ -41,22 +42,20 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
         if red is not None:
             return red
     import scipy.sparse as sp
-    import scipy.sparse.linalg as spla
-    P = sp.csr_matrix(Phi_q) @ sp.diags(col_scale)
-    A = (P @ P.T).tocsc()
-    d = A.diagonal().copy()
+    P = scaled(Phi_q, col_scale)
+    A, d = gram(P)
     empty = d <= 1e-300
     dd = np.where(empty, 1.0, d)
-    A2 = (A + sp.diags(np.where(empty, 1.0, SHIFT * d))).tocsc()
-    del A
+    A = (A + sp.diags(np.where(empty, 1.0, SHIFT * d))).tocsr()
     perm = "NATURAL" if nc <= ORDERING_NATURAL_MAX else "MMD_AT_PLUS_A"
-    lu = spla.splu(A2, permc_spec=perm, diag_pivot_thresh=0.0,
-                   options=dict(SymmetricMode=True), **lean(nc))
-    u = lu.U.diagonal()
-    if not np.array_equal(lu.perm_r, lu.perm_c):
+    try:
+        F = GramFactor(A, perm)
+    except ValueError:
         # fall back to a dense rank-revealing QR (small systems only)
         return _dense_redundant(P.toarray())
-    ratio = u[lu.perm_r] / dd
+    del A
+    ratio = F.pivots / dd
+    del F
     thr = rank_threshold(ratio[~empty])
     red = np.nonzero((ratio < thr) | empty)[0]
     amb = np.nonzero(~empty & (ratio < RATIO_MAX) & (ratio >= AMBIGUOUS_MIN))[0]
@@ -81,7 +80,6 @@ def _resolve_ambiguous(P, cand, perm):
     remaining component is below ``SINE_TOL`` of its norm (an unsquared sine) is dependent on
     the rows before it. Returns None if the factorisation fails (the gap rule stands).
     """
-    import scipy.sparse.linalg as spla
     nc = P.shape[0]
     keep = np.ones(nc, bool)                # (np.setdiff1d: a hash of every row)
     keep[cand] = False
@@ -89,13 +87,11 @@ def _resolve_ambiguous(P, cand, perm):
     PI = P[keep]
     PC = P[cand].toarray()                                          # (c, nq)
     try:
-        lu = spla.splu((PI @ PI.T).tocsc(), permc_spec=perm, diag_pivot_thresh=0.0,
-                       options=dict(SymmetricMode=True), **lean(len(keep)))
-    except RuntimeError:
+        F = GramFactor(gram(PI)[0], perm)
+    except ValueError:
         return None
-    R = PC.T.copy()                                                 # (nq, c) residuals
-    for _ in range(2):                                              # CSNE: solve + 1 correction
-        R = R - PI.T @ lu.solve(np.asarray(PI @ R))
+    R = projected(PI, F, PC.T.copy())                               # (nq, c) residuals
+    del F
     norms = np.linalg.norm(PC, axis=1)
     Q = []
     dep = []

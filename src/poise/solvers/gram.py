@@ -1,0 +1,121 @@
+"""Gram matrices ``A = P P^T`` of a column-scaled constraint Jacobian ``P``, factorised.
+
+Redundancy detection reads the symmetric pivots of such a matrix in deck order and projects
+rows on the span of others; the least-squares multipliers solve its normal equations. A deck's
+constraint Jacobian is often *banded* in deck order (chains, ladders, tracks: each joint couples
+neighbouring bodies); then LAPACK's banded Cholesky (``pbtrf``) factorises it in that order with
+no fill outside the band, several times faster than SuperLU's general machinery. Otherwise
+SuperLU in symmetric mode (diagonal pivots, ``perm`` column order). Either way the pivots are
+those of ``A = L D L^T`` in the factorisation's order.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from poise.solvers.superlu import lean
+
+BAND_FILL = 4    # banded storage at most this many times the stored lower triangle
+
+
+def scaled(Pq, col_scale):
+    """``Pq diag(col_scale)`` as CSR (one pass over the entries, no diagonal-matrix product)."""
+    import scipy.sparse as sp  # lazy: sparse systems only
+    P = sp.csr_matrix(Pq, copy=True)
+    P.data *= col_scale[P.indices]
+    return P
+
+
+def gram(P):
+    """``P P^T`` (CSR, rows of ``P`` in order) and its diagonal."""
+    A = (P @ P.T).tocsr()
+    return A, A.diagonal()
+
+
+def band(A):
+    """Lower band storage ``ab[i - j, j] = A[i, j]`` of the CSR matrix ``A`` (symmetric), or None
+    when its band in this order would store more than ``BAND_FILL`` times its lower triangle."""
+    n = A.shape[0]
+    rows = np.repeat(np.arange(n), np.diff(A.indptr))
+    off = rows - A.indices
+    low = off >= 0
+    width = int(off[low].max()) if n else 0
+    if n * (width + 1) > BAND_FILL * max(int(np.count_nonzero(low)), 1):
+        return None
+    ab = np.zeros((width + 1, n))
+    ab[off[low], A.indices[low]] = A.data[low]
+    return ab
+
+
+class GramFactor:
+    """``A = L D L^T`` of a symmetric positive definite CSR ``A`` (diagonal pivots):
+    ``pivots[k]`` is row k's pivot ``D_kk``, ``solve(b)`` solves with ``A`` (``b`` a vector or
+    columns). Banded in row order: eliminated in that order; otherwise SuperLU's ``perm``
+    (``NATURAL``: row order, or a fill-reducing order). Raises
+    ``ValueError`` when ``A`` is not numerically positive definite or SuperLU pivoted off the
+    diagonal (the caller takes its general path). ``ab``: :func:`band` of ``A`` if known."""
+
+    def __init__(self, A, perm: str = "MMD_AT_PLUS_A", ab=None):
+        ab = band(A) if ab is None else ab
+        self.banded = ab is not None
+        if self.banded:
+            import scipy.linalg as sla  # lazy: sparse systems only
+            try:
+                self._cb = sla.cholesky_banded(ab, lower=True, check_finite=False)
+            except np.linalg.LinAlgError:
+                raise ValueError("not positive definite") from None
+            self.pivots = self._cb[0] ** 2
+            if not np.all(np.isfinite(self.pivots)):
+                raise ValueError("not finite")
+            return
+        import scipy.sparse.linalg as spla  # lazy: sparse systems only
+        n = A.shape[0]
+        try:
+            self._lu = spla.splu(A.tocsc(), permc_spec=perm,
+                                 diag_pivot_thresh=0.0, options=dict(SymmetricMode=True),
+                                 **lean(n))
+        except RuntimeError:
+            raise ValueError("exactly singular") from None
+        if not np.array_equal(self._lu.perm_r, self._lu.perm_c):
+            raise ValueError("pivoted off the diagonal")
+        self.pivots = self._lu.U.diagonal()[self._lu.perm_r]
+
+    def solve(self, b):
+        if self.banded:
+            import scipy.linalg as sla  # lazy: sparse systems only
+            return sla.cho_solve_banded((self._cb, True), b, check_finite=False)
+        return self._lu.solve(np.asarray(b, float))
+
+
+def projected(P, F, R):
+    """``R - P^T A^-1 P R`` for ``A = P P^T`` factorised as ``F``: the columns of ``R`` projected
+    on the complement of the row space of ``P`` by corrected semi-normal equations (a solve and
+    one correction: QR-like accuracy without a QR)."""
+    for _ in range(2):
+        R = R - P.T @ F.solve(np.asarray(P @ R))
+    return R
+
+
+def least_squares(Pq, w, g, active, factor):
+    """``lam`` minimising ``|| diag(w) (Pq^T lam - g) ||`` over the ``active`` rows of ``Pq``
+    (CSR, inactive rows zero; their ``lam`` 0), from the normal equations ``A lam = P w g`` of
+    ``P = Pq diag(w)`` by corrected semi-normal equations, or None when that route does not
+    apply: ``A`` not banded (:func:`band`), an active row empty or ``A`` not numerically
+    positive definite (the caller solves its augmented system). ``factor(A, factorise)``: the
+    caller's counted factorisation (:meth:`poise.solvers.data.SolveData.factor`)."""
+    import scipy.sparse as sp  # lazy: sparse systems only
+    P = scaled(Pq, w)
+    A, d = gram(P)
+    off = ~np.asarray(active, bool)
+    if np.any(off):
+        A = (A + sp.diags(off.astype(float))).tocsr()     # inactive rows: lam = 0
+    ab = band(A)
+    if ab is None or np.any(d[~off] <= 0.0):
+        return None
+    try:
+        F = factor(A, lambda A: GramFactor(A, ab=ab))
+    except ValueError:
+        return None
+    gw = w * g
+    lam = F.solve(P @ gw)
+    lam = lam + F.solve(P @ (gw - P.T @ lam))          # one correction (CSNE)
+    return lam if np.all(np.isfinite(lam)) else None
