@@ -46,33 +46,38 @@ def band(A):
     return ab
 
 
-class GramFactor:
-    """``A = L D L^T`` of a symmetric positive definite CSR ``A`` (diagonal pivots):
-    ``pivots[k]`` is row k's pivot ``D_kk``, ``solve(b)`` solves with ``A`` (``b`` a vector or
-    columns). Banded in row order: eliminated in that order; otherwise SuperLU's ``perm``
-    (``NATURAL``: row order, or a fill-reducing order). Raises
-    ``ValueError`` when ``A`` is not numerically positive definite or SuperLU pivoted off the
-    diagonal (the caller takes its general path). ``ab``: :func:`band` of ``A`` if known."""
+class BandedCholesky:
+    """``A = L L^T`` of a symmetric positive definite matrix in lower band storage ``ab``
+    (:func:`band`), eliminated in row order: ``pivots[k] = L_kk^2`` (row k's pivot of
+    ``L D L^T``), ``solve(b)`` (``b`` a vector or columns). Raises ``ValueError`` when it is
+    not numerically positive definite."""
 
-    def __init__(self, A, perm: str = "MMD_AT_PLUS_A", ab=None):
-        ab = band(A) if ab is None else ab
-        self.banded = ab is not None
-        if self.banded:
-            import scipy.linalg as sla  # lazy: sparse systems only
-            try:
-                self._cb = sla.cholesky_banded(ab, lower=True, check_finite=False)
-            except np.linalg.LinAlgError:
-                raise ValueError("not positive definite") from None
-            self.pivots = self._cb[0] ** 2
-            if not np.all(np.isfinite(self.pivots)):
-                raise ValueError("not finite")
-            return
-        import scipy.sparse.linalg as spla  # lazy: sparse systems only
-        n = A.shape[0]
+    def __init__(self, ab):
+        import scipy.linalg as sla  # lazy: sparse systems only
         try:
-            self._lu = spla.splu(A.tocsc(), permc_spec=perm,
-                                 diag_pivot_thresh=0.0, options=dict(SymmetricMode=True),
-                                 **lean(n))
+            self._cb = sla.cholesky_banded(ab, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            raise ValueError("not positive definite") from None
+        self.pivots = self._cb[0] ** 2
+        if not np.all(np.isfinite(self.pivots)):
+            raise ValueError("not finite")
+
+    def solve(self, b):
+        import scipy.linalg as sla  # lazy: sparse systems only
+        return sla.cho_solve_banded((self._cb, True), b, check_finite=False)
+
+
+class SymmetricLU:
+    """SuperLU of a symmetric positive definite CSR ``A`` in symmetric mode (diagonal pivots)
+    in the column order ``perm`` (``NATURAL``: row order): ``pivots[k]`` is row k's pivot,
+    ``solve(b)``. Raises ``ValueError`` when a pivot is exactly zero or SuperLU pivoted off the
+    diagonal."""
+
+    def __init__(self, A, perm: str = "MMD_AT_PLUS_A"):
+        import scipy.sparse.linalg as spla  # lazy: sparse systems only
+        try:
+            self._lu = spla.splu(A.tocsc(), permc_spec=perm, diag_pivot_thresh=0.0,
+                                 options=dict(SymmetricMode=True), **lean(A.shape[0]))
         except RuntimeError:
             raise ValueError("exactly singular") from None
         if not np.array_equal(self._lu.perm_r, self._lu.perm_c):
@@ -80,10 +85,27 @@ class GramFactor:
         self.pivots = self._lu.U.diagonal()[self._lu.perm_r]
 
     def solve(self, b):
-        if self.banded:
-            import scipy.linalg as sla  # lazy: sparse systems only
-            return sla.cho_solve_banded((self._cb, True), b, check_finite=False)
         return self._lu.solve(np.asarray(b, float))
+
+
+def without(ab, P, rows):
+    """The band ``ab`` and the CSR ``P`` with ``rows`` taken out: zero in ``P`` and in their
+    rows and columns of the Gram matrix, whose diagonal there reads 1 (it solves for the other
+    rows exactly as the Gram matrix of those alone, and gives 0 on ``rows``). Copies."""
+    ab = ab.copy()
+    w, n = ab.shape[0] - 1, ab.shape[1]
+    o = np.arange(w + 1)
+    ab[:, rows] = 0.0                                  # column j: ab[i - j, j]
+    i = rows[:, None]
+    j = i - o[None, :]                                  # row i: ab[o, i - o]
+    ok = j >= 0
+    ab[np.broadcast_to(o, j.shape)[ok], j[ok]] = 0.0
+    ab[0, rows] = 1.0
+    P = P.copy()
+    cut = np.zeros(P.shape[0], bool)
+    cut[rows] = True
+    P.data[np.repeat(cut, np.diff(P.indptr))] = 0.0
+    return ab, P
 
 
 def projected(P, F, R):
@@ -102,17 +124,16 @@ def least_squares(Pq, w, g, active, factor):
     apply: ``A`` not banded (:func:`band`), an active row empty or ``A`` not numerically
     positive definite (the caller solves its augmented system). ``factor(A, factorise)``: the
     caller's counted factorisation (:meth:`poise.solvers.data.SolveData.factor`)."""
-    import scipy.sparse as sp  # lazy: sparse systems only
     P = scaled(Pq, w)
     A, d = gram(P)
-    off = ~np.asarray(active, bool)
-    if np.any(off):
-        A = (A + sp.diags(off.astype(float))).tocsr()     # inactive rows: lam = 0
     ab = band(A)
+    del A
+    off = ~np.asarray(active, bool)
     if ab is None or np.any(d[~off] <= 0.0):
         return None
+    ab[0, off] += 1.0                                   # inactive rows: lam = 0
     try:
-        F = factor(A, lambda A: GramFactor(A, ab=ab))
+        F = factor(ab, BandedCholesky)
     except ValueError:
         return None
     gw = w * g
