@@ -489,8 +489,8 @@ Newton's LUs (the floor's unit, one per iteration). A Newton iteration costs ≈
 LU itself, one Jacobian evaluation and assembly (≈ 0.5), one or two residual evaluations, the
 step's solves with refinement and the neutral-direction filter's two extra solves. Outside
 Newton, redundancy detection factorises a Gram matrix (twice when a candidate row is
-ambiguous, as on these closed chains), the least-squares multipliers factorise a weighted KKT
-matrix with the same fill as Newton's, and the classification needs its own sparse LDLᵀ
+ambiguous, as on these closed chains) and the least-squares multipliers a weighted Gram matrix
+(normal equations; banded on these chains: LAPACK's banded Cholesky, a few percent of an LU), and the classification needs its own sparse LDLᵀ
 (inertia: an LU with partial pivoting has none) and a subspace iteration for the lowest mode
 (5 block solves). The classification factorises once: SuperLU's CSC copies of L and U, read for
 the pivots and the backward error, are made absolute in place and emptied one after the other.
