@@ -15,7 +15,7 @@ from poise.gen.chain import build_chain_deck
 from poise.model.compile import compile_model
 from poise.solvers.data import SolveData
 from poise.solvers.gram import (BandedCholesky, SymmetricLU, band, gram, least_squares,
-                                projected, without)
+                                may_be_banded, projected, without)
 from poise.solvers.reach import coord_weights
 from poise.solvers.redundancy import detect_redundancy, without_rows
 
@@ -58,6 +58,16 @@ def test_banded_cholesky_pivots_and_solves_are_those_of_the_matrix():
     np.testing.assert_allclose(F.solve(b), np.linalg.solve(D, b), rtol=1e-9, atol=1e-12)
 
 
+def test_the_pattern_precheck_never_refuses_a_banded_gram_matrix():
+    for seed in range(6):
+        P = _banded_rows(seed=seed)
+        for Q in (P, P[np.random.default_rng(seed).permutation(P.shape[0])]):
+            if not may_be_banded(Q):
+                assert band(gram(Q)[0]) is None
+    assert may_be_banded(_banded_rows())
+    assert not may_be_banded(_banded_rows()[np.random.default_rng(0).permutation(60)])
+
+
 def test_band_refuses_a_matrix_whose_band_would_be_mostly_zeros():
     A = sp.identity(200, format="lil")
     A[199, 0] = A[0, 199] = 0.1                      # one far entry: a band of width 199
@@ -69,14 +79,18 @@ def test_band_refuses_a_matrix_whose_band_would_be_mostly_zeros():
 def test_rows_taken_out_of_a_band_solve_like_the_gram_matrix_of_the_others():
     P = _banded_rows(seed=2)
     rows = np.array([7, 8, 30, 59])
-    ab, PI = without(band(gram(P)[0]), P, rows)
+    F = BandedCholesky(without(band(gram(P)[0]), rows))
     keep = np.setdiff1d(np.arange(P.shape[0]), rows)
     Pk = P[keep].toarray()
     R = np.random.default_rng(4).standard_normal((P.shape[1], 3))
-    got = projected(PI, BandedCholesky(ab), R)
+    got = projected(P, F, R, rows)
     ref = R - Pk.T @ np.linalg.solve(Pk @ Pk.T, Pk @ R)       # projection off the kept rows
     np.testing.assert_allclose(got, ref, atol=1e-10 * np.abs(R).max())
-    assert np.all(PI[rows].toarray() == 0.0)
+    b = np.asarray(P @ R)
+    b[rows] = 0.0
+    x = F.solve(b)
+    assert np.all(x[rows] == 0.0)
+    np.testing.assert_allclose(x[keep], np.linalg.solve(Pk @ Pk.T, b[keep]), rtol=1e-9)
 
 
 def test_least_squares_is_the_weighted_least_squares_solution():

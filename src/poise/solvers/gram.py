@@ -31,6 +31,23 @@ def gram(P):
     return A, A.diagonal()
 
 
+def may_be_banded(P) -> bool:
+    """False when the Gram matrix of the CSR ``P`` is certainly not banded (:func:`band`),
+    from ``P``'s pattern alone: its band spans, for some column, the first to the last row
+    with an entry in it, and its lower triangle has at most ``c (c + 1) / 2`` entries for each
+    column with ``c`` entries."""
+    n = P.shape[0]
+    if n == 0 or P.nnz == 0:
+        return True
+    rows = np.repeat(np.arange(n), np.diff(P.indptr))
+    lo = np.full(P.shape[1], n)
+    hi = np.full(P.shape[1], -1)
+    np.minimum.at(lo, P.indices, rows)
+    np.maximum.at(hi, P.indices, rows)
+    c = np.bincount(P.indices, minlength=P.shape[1]).astype(float)
+    return n * (int(np.max(hi - lo)) + 1) <= BAND_FILL * float(np.sum(c * (c + 1) / 2) + n)
+
+
 def band(A):
     """Lower band storage ``ab[i - j, j] = A[i, j]`` of the CSR matrix ``A`` (symmetric), or None
     when its band in this order would store more than ``BAND_FILL`` times its lower triangle."""
@@ -88,12 +105,12 @@ class SymmetricLU:
         return self._lu.solve(np.asarray(b, float))
 
 
-def without(ab, P, rows):
-    """The band ``ab`` and the CSR ``P`` with ``rows`` taken out: zero in ``P`` and in their
-    rows and columns of the Gram matrix, whose diagonal there reads 1 (it solves for the other
-    rows exactly as the Gram matrix of those alone, and gives 0 on ``rows``). Copies."""
+def without(ab, rows):
+    """The band ``ab`` of a Gram matrix with ``rows`` taken out: zero in their rows and columns,
+    1 on their diagonal (a copy). It solves for the other rows exactly as the Gram matrix of
+    those alone, and gives exactly 0 on ``rows`` when the right-hand side is 0 there."""
     ab = ab.copy()
-    w, n = ab.shape[0] - 1, ab.shape[1]
+    w = ab.shape[0] - 1
     o = np.arange(w + 1)
     ab[:, rows] = 0.0                                  # column j: ab[i - j, j]
     i = rows[:, None]
@@ -101,19 +118,19 @@ def without(ab, P, rows):
     ok = j >= 0
     ab[np.broadcast_to(o, j.shape)[ok], j[ok]] = 0.0
     ab[0, rows] = 1.0
-    P = P.copy()
-    cut = np.zeros(P.shape[0], bool)
-    cut[rows] = True
-    P.data[np.repeat(cut, np.diff(P.indptr))] = 0.0
-    return ab, P
+    return ab
 
 
-def projected(P, F, R):
+def projected(P, F, R, off=None):
     """``R - P^T A^-1 P R`` for ``A = P P^T`` factorised as ``F``: the columns of ``R`` projected
     on the complement of the row space of ``P`` by corrected semi-normal equations (a solve and
-    one correction: QR-like accuracy without a QR)."""
+    one correction: QR-like accuracy without a QR). ``off``: rows of ``P`` taken out of ``F``
+    (:func:`without`), as if they were zero."""
     for _ in range(2):
-        R = R - P.T @ F.solve(np.asarray(P @ R))
+        y = np.asarray(P @ R)
+        if off is not None:
+            y[off] = 0.0
+        R = R - P.T @ F.solve(y)
     return R
 
 
@@ -125,6 +142,8 @@ def least_squares(Pq, w, g, active, factor):
     positive definite (the caller solves its augmented system). ``factor(A, factorise)``: the
     caller's counted factorisation (:meth:`poise.solvers.data.SolveData.factor`)."""
     P = scaled(Pq, w)
+    if not may_be_banded(P):
+        return None
     A, d = gram(P)
     ab = band(A)
     del A

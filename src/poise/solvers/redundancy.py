@@ -95,10 +95,11 @@ def _resolve_ambiguous(P, cand, perm, ab=None):
     Returns None if the factorisation fails (the gap rule stands).
     """
     PC = P[cand].toarray()                                          # (c, nq)
+    off = None
     try:
         if ab is not None:
-            ab, PI = without(ab, P, cand)
-            F = BandedCholesky(ab)
+            PI, off = P, cand
+            F = BandedCholesky(without(ab, cand))
         else:
             keep = np.ones(P.shape[0], bool)    # (np.setdiff1d: a hash of every row)
             keep[cand] = False
@@ -106,7 +107,7 @@ def _resolve_ambiguous(P, cand, perm, ab=None):
             F = SymmetricLU(gram(PI)[0], perm)
     except ValueError:
         return None
-    R = projected(PI, F, PC.T.copy())                               # (nq, c) residuals
+    R = projected(PI, F, PC.T.copy(), off)                          # (nq, c) residuals
     del F
     norms = np.linalg.norm(PC, axis=1)
     Q = []
