@@ -53,7 +53,7 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
             del A
             F = BandedCholesky(_shifted(ab, shift))
         else:
-            import scipy.sparse as sp
+            import scipy.sparse as sp  # lazy: sparse systems only
             A = (A + sp.diags(shift)).tocsr()
             F = SymmetricLU(A, perm)
             del A
@@ -75,6 +75,7 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
 
 
 def _shifted(ab, shift):
+    """A copy of the band ``ab`` with ``shift`` added to its diagonal."""
     ab = ab.copy()
     ab[0] += shift
     return ab
