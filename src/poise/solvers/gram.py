@@ -51,15 +51,15 @@ def may_be_banded(P) -> bool:
 def band(A):
     """Lower band storage ``ab[i - j, j] = A[i, j]`` of the CSR matrix ``A`` (symmetric), or None
     when its band in this order would store more than ``BAND_FILL`` times its lower triangle."""
-    n = A.shape[0]
-    rows = np.repeat(np.arange(n), np.diff(A.indptr))
-    off = rows - A.indices
-    low = off >= 0
-    width = int(off[low].max()) if n else 0
-    if n * (width + 1) > BAND_FILL * max(int(np.count_nonzero(low)), 1):
+    n, ind = A.shape[0], A.indices
+    off = np.repeat(np.arange(n, dtype=ind.dtype), np.diff(A.indptr)) - ind
+    low = np.flatnonzero(off >= 0)
+    o = off[low].astype(np.intp)
+    width = int(o.max()) if len(o) else 0
+    if n * (width + 1) > BAND_FILL * max(len(low), 1):
         return None
     ab = np.zeros((width + 1, n))
-    ab[off[low], A.indices[low]] = A.data[low]
+    ab.ravel()[o * n + ind[low]] = A.data[low]      # flat index of ab[i - j, j]
     return ab
 
 
