@@ -58,21 +58,23 @@ def band(A):
     width = int(o.max()) if len(o) else 0
     if n * (width + 1) > BAND_FILL * max(len(low), 1):
         return None
-    ab = np.zeros((width + 1, n))
-    ab.ravel()[o * n + ind[low]] = A.data[low]      # flat index of ab[i - j, j]
-    return ab
+    ab = np.zeros((n, width + 1))          # stored column by column, as LAPACK reads it
+    ab.ravel()[ind[low] * (width + 1) + o] = A.data[low]
+    return ab.T                             # ab[i - j, j] = A[i, j]
 
 
 class BandedCholesky:
     """``A = L L^T`` of a symmetric positive definite matrix in lower band storage ``ab``
     (:func:`band`), eliminated in row order: ``pivots[k] = L_kk^2`` (row k's pivot of
-    ``L D L^T``), ``solve(b)`` (``b`` a vector or columns). Raises ``ValueError`` when it is
-    not numerically positive definite."""
+    ``L D L^T``), ``solve(b)`` (``b`` a vector or columns). ``own``: ``ab`` may be factorised
+    in place (column-major, as :func:`band` stores it: no copy). Raises ``ValueError`` when it
+    is not numerically positive definite."""
 
-    def __init__(self, ab):
+    def __init__(self, ab, own: bool = False):
         import scipy.linalg as sla  # lazy: sparse systems only
         try:
-            self._cb = sla.cholesky_banded(ab, lower=True, check_finite=False)
+            self._cb = sla.cholesky_banded(ab, overwrite_ab=own, lower=True,
+                                           check_finite=False)
         except np.linalg.LinAlgError:
             raise ValueError("not positive definite") from None
         self.pivots = self._cb[0] ** 2
@@ -109,7 +111,7 @@ def without(ab, rows):
     """The band ``ab`` of a Gram matrix with ``rows`` taken out: zero in their rows and columns,
     1 on their diagonal (a copy). It solves for the other rows exactly as the Gram matrix of
     those alone, and gives exactly 0 on ``rows`` when the right-hand side is 0 there."""
-    ab = ab.copy()
+    ab = ab.copy(order="F")
     w = ab.shape[0] - 1
     o = np.arange(w + 1)
     ab[:, rows] = 0.0                                  # column j: ab[i - j, j]
@@ -152,7 +154,7 @@ def least_squares(Pq, w, g, active, factor):
         return None
     ab[0, off] += 1.0                                   # inactive rows: lam = 0
     try:
-        F = factor(ab, BandedCholesky)
+        F = factor(ab, lambda ab: BandedCholesky(ab, own=True))
     except ValueError:
         return None
     gw = w * g

@@ -51,7 +51,7 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
     try:
         if ab is not None:
             del A
-            F = BandedCholesky(_shifted(ab, shift))
+            F = BandedCholesky(_shifted(ab, shift), own=True)
         else:
             import scipy.sparse as sp  # lazy: sparse systems only
             A = (A + sp.diags(shift)).tocsr()
@@ -75,8 +75,8 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
 
 
 def _shifted(ab, shift):
-    """A copy of the band ``ab`` with ``shift`` added to its diagonal."""
-    ab = ab.copy()
+    """A copy of the band ``ab`` with ``shift`` added to its diagonal (column-major)."""
+    ab = ab.copy(order="F")
     ab[0] += shift
     return ab
 
@@ -100,7 +100,7 @@ def _resolve_ambiguous(P, cand, perm, ab=None):
     try:
         if ab is not None:
             PI, off = P, cand
-            F = BandedCholesky(without(ab, cand))
+            F = BandedCholesky(without(ab, cand), own=True)
         else:
             keep = np.ones(P.shape[0], bool)    # (np.setdiff1d: a hash of every row)
             keep[cand] = False
