@@ -24,7 +24,6 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
 from poise.elements.context import row_where
-from poise.model.evaluate import evaluate as _evaluate
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.gram import least_squares
@@ -34,6 +33,7 @@ from poise.solvers.linalg import SingularMatrix
 from poise.solvers.reach import PROJECT_ABOVE, project, violation
 from poise.solvers.reach import coord_weights as _coord_weights
 from poise.solvers.reach import weighted_kkt as _weighted_kkt
+from poise.solvers.redundancy import inconsistent_redundant
 from poise.solvers.status import MESSAGES, Status
 from poise.solvers import steps as _steps
 
@@ -122,34 +122,6 @@ def singular_message(model, row):
         return f"; no stiffness or mass in {model.coord_info[row]} ({what})"
     ri = model.row_info[row - model.nq]
     return f"; at {row_where(ri)} equation {ri['equation']}"
-
-
-def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
-    """Removed (redundant) constraint rows violated at ``state`` beyond their tolerance.
-
-    Redundant rows are pinned inactive (``data.active``), so Newton never sees them; when the
-    joints contradict each other (e.g. two hinges of one door on parallel but offset axes) the
-    active rows can be met while a removed one is not. Returns a message naming the worst such
-    row, or "".
-    """
-    active = data.active
-    if model.nc == 0 or active is None or active.all():
-        return ""
-    try:
-        if model.assembler.dense:      # small: the last evaluation's kept outputs serve
-            phi = model.evaluate(state, need_jac=False, workspace=data.workspace).phi
-        else:                          # large: the constraint values alone, every row
-            phi = _evaluate(model, state, "phi", workspace=data.workspace)
-    except EvaluationError:
-        return ""
-    z = np.where(active, 0.0, np.abs(phi) / sc.phi_tol)
-    k = int(np.argmax(z))
-    if not z[k] > 1.0:
-        return ""
-    ri = model.row_info[k]
-    return (f"{row_where(ri)} equation {ri['equation']} "
-            f"(removed as redundant) is violated by {abs(phi[k]):.6g} "
-            f"(tolerance {sc.phi_tol[k]:.3g})")
 
 
 def initial_multipliers(model, state, cnt: Counters, weights=None, ev=None):
