@@ -8,6 +8,15 @@ except the ``/timings`` attributes and the version / provenance attributes::
     python -m benchmarks.digest solve --src /path/to/old/src --out /tmp/old
     python -m benchmarks.digest solve --src src --out /tmp/new
     python -m benchmarks.digest compare /tmp/old /tmp/new
+    python -m benchmarks.digest compare --answers /tmp/old /tmp/new
+
+With ``--answers`` the comparison is of answers, not bits (a change of algorithm that alters
+last bits and iterates): exit codes, refusals and every non-float value outside the histories
+must be identical (statuses, verdicts, stability classes, mode counts, redundant equations,
+warnings, labels), every float outside the histories must agree within ``ANSWER_RTOL`` times its
+dataset's largest magnitude, and the frames' residual measures only need the same convergence
+verdicts. The histories (per-iteration rows, integrator steps, MKEAM iterates, ``/counts``) are
+not answers: the decks whose iteration counts changed are listed with the counts.
 
 ``solve`` runs ``poise solve`` (``--allow-user-code``) in a fresh process per deck with the
 given ``src`` (and its sibling ``cli``) first on ``PYTHONPATH``; a deck that exits 3 or 4 keeps
@@ -25,6 +34,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 #: attributes whose values legitimately differ between two trees or two runs
+#: ``--answers``: largest difference of a float answer, relative to its dataset's largest value
+ANSWER_RTOL = 1e-9
+#: ``--answers``: per-analysis objects that are histories of the solve, not answers
+HISTORY = {"iterations", "iteration", "steps", "step", "mkeam_iterate"}
+HISTORY_PATHS = {"frames/iterations", "frames/strategy_iterations", "mkeam/iterate_position",
+                 "mkeam/iterate_orientation"}
+#: ``--answers``: residual measures at the written state (round-off level, not answers)
+RESIDUALS = {"frames/error", "frames/imbalance"}
 SKIP_ATTRS = {"poise_version", "version", "provenance", "git_commit", "created", "host",
               "python_version", "numpy_version", "scipy_version", "platform", "command"}
 
@@ -82,18 +99,59 @@ def _plain(v, f, root=None):
     return v
 
 
-def _same(a, b) -> bool:
+def _same(a, b, answers: bool = False) -> bool:
     if isinstance(a, list) or isinstance(b, list):
         return a == b
     a, b = np.asarray(a), np.asarray(b)
     if a.dtype != b.dtype or a.shape != b.shape:
         return False
     if a.dtype.kind in "fc":
-        return a.tobytes() == b.tobytes()
+        return a.tobytes() == b.tobytes() or (answers and _close(a, b))
     return np.array_equal(a, b)
 
 
-def compare_files(pa: Path, pb: Path, roots=(None, None)) -> list[str]:
+def _close(a: np.ndarray, b: np.ndarray) -> bool:
+    """Floats equal within ``ANSWER_RTOL`` of the dataset's largest finite magnitude (the same
+    non-finite entries in the same places)."""
+    fa, fb = np.isfinite(a), np.isfinite(b)
+    if not np.array_equal(fa, fb) or not np.array_equal(a[~fa], b[~fb], equal_nan=True):
+        return False
+    if not fa.any():
+        return True
+    scale = max(float(np.abs(a[fa]).max()), float(np.abs(b[fb]).max()))
+    return bool(np.all(np.abs(a[fa] - b[fb]) <= ANSWER_RTOL * scale))
+
+
+def _largest_difference(a, b) -> str:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if a.shape != b.shape:
+        return f"shapes {a.shape} != {b.shape}"
+    f = np.isfinite(a) & np.isfinite(b)
+    if not f.any():
+        return "non-finite entries differ"
+    d = float(np.abs(a[f] - b[f]).max())
+    scale = max(float(np.abs(a[f]).max()), float(np.abs(b[f]).max()), 1e-300)
+    return f"largest difference {d:.3g} ({d / scale:.3g} of the largest value)"
+
+
+def _kind(name: str) -> str:
+    """``--answers``: 'history', 'residual' or 'answer' for an object path."""
+    parts = name.split("/")
+    if parts[0] in ("timings", "counts"):
+        return "history"
+    if parts[0].startswith("analysis_") and len(parts) > 1:
+        rel = "/".join(parts[1:])
+        if parts[1] in HISTORY or rel in HISTORY_PATHS:
+            return "history"
+        if rel in RESIDUALS:
+            return "residual"
+    return "answer"
+
+
+def compare_files(pa: Path, pb: Path, roots=(None, None), answers: bool = False,
+                  notes: list | None = None) -> list[str]:
+    """Differences between two results files (bitwise, or of answers with ``answers``; then
+    changed iteration counts are appended to ``notes``)."""
     import h5py
     root_a, root_b = roots
     diffs = []
@@ -101,6 +159,9 @@ def compare_files(pa: Path, pb: Path, roots=(None, None)) -> list[str]:
         names_a, names_b = [], []
         fa.visit(names_a.append)
         fb.visit(names_b.append)
+        if answers:
+            names_a = [n for n in names_a if _kind(n) != "history"]
+            names_b = [n for n in names_b if _kind(n) != "history"]
         if sorted(names_a) != sorted(names_b):
             diffs.append(f"objects differ: {sorted(set(names_a) ^ set(names_b))}")
         for name in [""] + sorted(set(names_a) & set(names_b)):
@@ -112,20 +173,32 @@ def compare_files(pa: Path, pb: Path, roots=(None, None)) -> list[str]:
                 diffs.append(f"/{name}: attributes differ {sorted(set(aa) ^ set(ab))}")
             for k in set(aa) & set(ab):
                 va, vb = _plain(aa[k], fa, root_a), _plain(ab[k], fb, root_b)
-                if not _same(va, vb):
+                if not _same(va, vb, answers):
                     diffs.append(f"/{name} attr {k}: {str(va)[:80]} != {str(vb)[:80]}")
-            if isinstance(oa, h5py.Dataset) and not _same(_plain(oa[()], fa, root_a),
-                                                          _plain(ob[()], fb, root_b)):
-                diffs.append(f"/{name}: values differ")
+            if not isinstance(oa, h5py.Dataset) or (answers and _kind(name) == "residual"):
+                continue
+            va, vb = _plain(oa[()], fa, root_a), _plain(ob[()], fb, root_b)
+            if not _same(va, vb, answers):
+                what = (_largest_difference(va, vb) if answers and not isinstance(va, list)
+                        and np.asarray(va).dtype.kind in "fc" else "values differ")
+                diffs.append(f"/{name}: {what}")
+        if answers and notes is not None:
+            for name in sorted(n for n in fa if n.startswith("analysis_")):
+                key = f"{name}/frames/iterations"
+                if key in fa and key in fb and not np.array_equal(fa[key][()], fb[key][()]):
+                    ia, ib = fa[key][()], fb[key][()]
+                    notes.append(f"{name}: iterations {int(ia.sum())} -> {int(ib.sum())}"
+                                 f" over {len(ia)} frame(s)")
     return diffs
 
 
-def compare(a: Path, b: Path) -> int:
+def compare(a: Path, b: Path, answers: bool = False) -> int:
     names = sorted({p.stem for p in a.glob("*.rc")} | {p.stem for p in b.glob("*.rc")})
     roots = tuple((p / "ROOT").read_text() if (p / "ROOT").exists() else None for p in (a, b))
-    bad = 0
+    bad = bitwise = 0
+    changed = []
     for n in names:
-        d = []
+        d, notes = [], []
         ra, rb = a / f"{n}.rc", b / f"{n}.rc"
         if not (ra.exists() and rb.exists()):
             d.append("solved in one run only")
@@ -139,11 +212,22 @@ def compare(a: Path, b: Path) -> int:
         if ha.exists() != hb.exists():
             d.append("results file in one run only")
         elif ha.exists():
-            d += compare_files(ha, hb, roots)
+            d += compare_files(ha, hb, roots, answers, notes)
+            if answers and not d and compare_files(ha, hb, roots):
+                bitwise += 1
+        if notes:
+            changed.append(f"{n}: " + "; ".join(notes))
         if d:
             bad += 1
             print(f"{n}: " + "; ".join(d[:4]) + (f" (+{len(d) - 4})" if len(d) > 4 else ""))
-    print(f"digest: {len(names)} decks, {bad} differences")
+    if answers:
+        for line in changed:
+            print(f"iterations changed: {line}")
+        print(f"digest (answers): {len(names)} decks, {bad} answer differences, "
+              f"{len(changed)} with changed iteration counts, "
+              f"{bitwise} with the same answers but different bits")
+    else:
+        print(f"digest: {len(names)} decks, {bad} differences")
     return 1 if bad else 0
 
 
@@ -157,11 +241,13 @@ def main(argv=None) -> int:
     c = sub.add_parser("compare")
     c.add_argument("a", type=Path)
     c.add_argument("b", type=Path)
+    c.add_argument("--answers", action="store_true",
+                   help="compare answers within tolerance, not bits (histories excluded)")
     args = ap.parse_args(argv)
     if args.cmd == "solve":
         solve(args.src.resolve(), args.out, args.only)
         return 0
-    return compare(args.a, args.b)
+    return compare(args.a, args.b, args.answers)
 
 
 if __name__ == "__main__":
