@@ -142,6 +142,7 @@ class _Frames:
             self.ctx = EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
                                    workspace=workspace)
             self.lam = s.lam
+            self.kins = None         # a small model's slot kinematics, all at once (first call)
             return
         nm = len(model.marker_id)
         mb = model.marker_body
@@ -180,13 +181,20 @@ class _Frames:
         """``(t, kin, lam, out)`` of family ``fi``: ``t`` the family (tiled copy for frames),
         ``lam`` its multipliers (constraints), ``out`` the kernel's output tuple."""
         fam = self.model.families[fi]
+        kin = None
         if self.single:
             t, exact = fam, True
             index = None if fam.pattern is None else fam.pattern.slots
+            small = self.model.small
+            if small is not None:
+                if self.kins is None:
+                    self.kins = small.kinematics(self.P, self.A, self.pos) or {}
+                kin = self.kins.get(fi)
         else:
             (t, exact), index = self.tiles[fi], None
-        kin = slot_kinematics(t.markers, fam.slot_ml, t.slot_kind, self.P, self.A, self.mb,
-                              self.pos, index)
+        if kin is None:
+            kin = slot_kinematics(t.markers, fam.slot_ml, t.slot_kind, self.P, self.A, self.mb,
+                                  self.pos, index)
         lam = self.lam[t.crow] if fam.is_constraint else None
         if exact:
             return t, kin, lam, _kernel(t, kin, lam, self.ctx, need_jac)

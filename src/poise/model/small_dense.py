@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.elements.kernel import PairBlocks
+from poise.elements.kernel import PairBlocks, SlotKinematics
 from poise.elements.slot_index import POINT
 
 #: KKT size up to which a model gets the dense slot pass
@@ -85,6 +85,7 @@ class SmallDense:
             at += n * S
         self.families = tuple(tabs)
         self.S = at
+        self.kin_at = _kinematics_index(model)
         T = np.concatenate(tcols) if tcols else np.zeros((0, 3), int)
         R = np.concatenate(rcols) if rcols else np.zeros((0, 3), int)
         W = 3 * at
@@ -115,6 +116,25 @@ class SmallDense:
         self.mass3 = np.repeat(model.body_mass, 3)
         self.diag_c = np.arange(self.nc) * (self.N + 1) + nq * (self.N + 1)   # flat, in J
 
+    def kinematics(self, P, A, pos) -> dict | None:
+        """The slot kinematics of every family (``{family index: SlotKinematics}``) from the
+        marker origins ``P``, axes ``A`` and body positions ``pos`` (ground last) of one frame:
+        one gather for all (the values of :func:`~poise.elements.kernel.slot_kinematics`),
+        None when a family keeps no :class:`~poise.elements.slot_index.SlotIndex`."""
+        if self.kin_at is None:
+            return None
+        mk, ax, pt, body, fams = self.kin_at
+        Pm = P[mk]
+        Am = A[mk, :, ax]
+        Y = np.where(pt, Pm, Am)
+        V = np.where(pt, Pm - pos[body], Am)
+        out = {}
+        for fi, a, b, n, S, K, ix in fams:
+            out[fi] = SlotKinematics(Y=Y[a:b].reshape(n, S, 3), V=V[a:b].reshape(n, S, 3),
+                                     pt=ix.pt, slot_ml=ix.slot_ml, K=K, masks=ix.masks,
+                                     rounds=ix.rounds, index=ix)
+        return out
+
     def outputs(self, passes, need_jac):
         """``(r, phi, pend, items)`` of one frame from the family pass ``passes`` (the
         generator of :func:`poise.model.evaluate._family_pass`), ``pend`` a
@@ -138,6 +158,29 @@ class SmallDense:
         if not np.isfinite(r.sum()):
             return None
         return r, phi, (SmallTerms(self, B, V, rho, terms) if need_jac else None), last
+
+
+def _kinematics_index(model):
+    """``(markers, axis columns, point mask, bodies, families)`` of every slot of the model
+    (:meth:`SmallDense.kinematics`), from the families' slot indices; None if one has none."""
+    mk, ax, pt, body, fams, at = [], [], [], [], [], 0
+    for fi, fam in enumerate(model.families):
+        if fam.n == 0:
+            continue
+        ix = fam.pattern.slots
+        if ix is None:
+            return None
+        n, S = ix.mk.shape
+        mk.append(ix.mk.ravel())
+        ax.append(np.broadcast_to(ix.ax, (n, S)).ravel())
+        pt.append(ix.pt.ravel())
+        body.append(ix.body.ravel())
+        fams.append((fi, at, at + n * S, n, S, fam.markers.shape[1], ix))
+        at += n * S
+    if not fams:
+        return None
+    return (np.concatenate(mk), np.concatenate(ax), np.concatenate(pt)[:, None],
+            np.concatenate(body), tuple(fams))
 
 
 class SmallTerms:
