@@ -42,24 +42,52 @@ def small_dense(model) -> "SmallDense | None":
         return None
     if any(f.U or f.pattern is None for f in model.families):
         return None
+    rows = [np.asarray(f.crow).ravel() for f in model.families if f.is_constraint and f.n]
+    if not np.array_equal(np.sort(np.concatenate(rows)) if rows else np.zeros(0, int),
+                          np.arange(model.nc)):        # every row in one family instance
+        return None
     return SmallDense(model)
 
 
 class _FamilyTable:
     """One family's place in the slot map: its row range and structure."""
 
-    __slots__ = ("fam", "a", "b", "n", "S", "gmask")
+    __slots__ = ("fam", "a", "b", "n", "S", "gmask", "pairs", "partner")
 
     def __init__(self, fam, a, b):
         self.fam, self.a, self.b, self.n, self.S = fam, a, b, fam.n, len(fam.slot_ml)
         gb = fam.g_blocks()
         # declared G structure: blocks outside it are not part of the tangent (as assembled)
         m = None
+        self.pairs = self.partner = None
         if gb is not None:
             gb = np.asarray(gb, bool)
             if not gb.all():
                 m = np.kron(gb, np.ones((3, 3))).astype(float)
+            # at most one declared partner per slot: a PairBlocks G (c I blocks) times B is
+            # B's partner rows scaled (PairBlocks.times)
+            if (gb.sum(axis=1) <= 1).all():
+                t = gb.argmax(axis=1)
+                self.pairs = tuple((s, int(t[s])) for s in range(self.S) if gb[s, t[s]])
+                self.partner = t
         self.gmask = m
+
+    def g_times(self, G, B3):
+        """``G B_f`` (n, 3S, nq) of the family's ``G`` and its slot map ``B3`` (n, S, 3, nq)."""
+        if isinstance(G, PairBlocks) and self.pairs is not None:
+            n = self.n
+            c = np.zeros((n, self.S))
+            for s, t in self.pairs:
+                v = G.coef.get((s, t))
+                if v is not None:
+                    c[:, s] = v
+            GB = B3.take(self.partner, axis=1)
+            GB *= c[:, :, None, None]
+            return GB.reshape(n, 3 * self.S, -1)
+        Gd = G.dense() if isinstance(G, PairBlocks) else G
+        if self.gmask is not None:
+            Gd = Gd * self.gmask
+        return np.matmul(Gd, B3.reshape(self.n, 3 * self.S, -1))
 
 
 class SmallDense:
@@ -85,6 +113,11 @@ class SmallDense:
             at += n * S
         self.families = tuple(tabs)
         self.S = at
+        # the constraint rows as the families give them (eval order): the order to put back
+        crow = [np.asarray(t.fam.crow).ravel() for t in tabs if t.fam.is_constraint]
+        rows = np.concatenate(crow) if crow else np.zeros(0, int)
+        self.row_order = (None if np.array_equal(rows, np.arange(model.nc))
+                          else np.argsort(rows, kind="stable"))
         self.kin_at = _kinematics_index(model)
         T = np.concatenate(tcols) if tcols else np.zeros((0, 3), int)
         R = np.concatenate(rcols) if rcols else np.zeros((0, 3), int)
@@ -212,18 +245,16 @@ class SmallTerms:
             add = np.concatenate(mass)
         dst = tab.add_dst if stiffness else tab.add_dst[tab.n_conn:]
         K += np.bincount(dst, weights=add, minlength=nq * nq).reshape(nq, nq)
+        pqs = []
         for ft, (G, phy) in zip(tab.families, self.terms):
             Bf = B[ft.a:ft.b]
             if stiffness and G is not None:
-                Gd = G.dense() if isinstance(G, PairBlocks) else G
-                if ft.gmask is not None:
-                    Gd = Gd * ft.gmask
-                K += Bf.T @ np.matmul(Gd, Bf.reshape(ft.n, 3 * ft.S, nq)).reshape(-1, nq)
+                K += Bf.T @ ft.g_times(G, Bf.reshape(ft.n, ft.S, 3, nq)).reshape(-1, nq)
             if phy is not None:
-                fam = ft.fam
-                Pq = np.matmul(phy, Bf.reshape(ft.n, 3 * ft.S, nq)).reshape(-1, nq)
-                rows = fam.crow.ravel()
-                J[nq + rows, :nq] = Pq
+                pqs.append(np.matmul(phy, Bf.reshape(ft.n, 3 * ft.S, nq)).reshape(-1, nq))
+        if pqs:       # every constraint row once: in row order (or gathered into it)
+            Pq = np.concatenate(pqs) if len(pqs) > 1 else pqs[0]
+            J[nq:, :nq] = Pq if tab.row_order is None else Pq.take(tab.row_order, axis=0)
         if not np.logical_and.reduce(row_active, axis=None):
             off = ~row_active
             J[nq:, :nq][off] = 0.0
