@@ -169,21 +169,41 @@ class LineForce(TwoBodyForce):
     def forces(self, kin, ctx, need_jac=True):
         """``-F`` on J at its origin and nothing else: a force along the line through both
         origins has no moment about J's (:func:`apply_two_body`'s reaction torque
-        ``-(P_I - P_J) x F`` and its derivative are zero here; formed, they would be round-off)."""
-        F, _, dF, _ = self.compute(kin.Y, ctx, need_jac)
+        ``-(P_I - P_J) x F`` and its derivative are zero here; formed, they would be round-off).
+        ``G`` has the four point-slot blocks ``-/+ dF/dd`` (the values apply_two_body puts)."""
+        F, dFdd = self._line(kin.Y, ctx, need_jac)
         n = len(F)
-        rho = np.zeros((n, 3 * N_SLOTS))
-        G = np.zeros((n, 3 * N_SLOTS, 3 * N_SLOTS)) if need_jac else None
-        add_force_at_point(rho, G, S_PI, F, dF)
-        Fj, dFj = -F, (None if dF is None else -dF)
-        if np.logical_or.reduce(self.action_only, axis=None):
-            react = ~self.action_only
-            Fj = Fj * react[:, None]
-            dFj = None if dFj is None else dFj * react[:, None, None]
-        add_force_at_point(rho, G, S_PJ, Fj, dFj)
+        W = 3 * N_SLOTS
+        rho = np.zeros((n, W))
+        rho[:, sl(S_PI)] = -F
+        react = (~self.action_only if np.logical_or.reduce(self.action_only, axis=None)
+                 else None)
+        rho[:, sl(S_PJ)] = F if react is None else F * react[:, None]
+        if not need_jac:
+            return rho, None
+        G = np.zeros((n, W, W))
+        m = -dFdd
+        G[:, sl(S_PI), sl(S_PI)] = m
+        G[:, sl(S_PI), sl(S_PJ)] = dFdd
+        if react is not None:
+            m = m * react[:, None, None]
+            dFdd = dFdd * react[:, None, None]
+        G[:, sl(S_PJ), sl(S_PI)] = dFdd
+        G[:, sl(S_PJ), sl(S_PJ)] = m
         return rho, G
 
     def compute(self, Y, ctx, need_jac):
+        F, dFdd = self._line(Y, ctx, need_jac)
+        dF = None
+        if need_jac:
+            dF = np.zeros((len(F), 3, 3 * N_SLOTS))
+            dF[:, :, sl(S_PI)] = dFdd
+            dF[:, :, sl(S_PJ)] = -dFdd
+        return F, None, dF, None
+
+    def _line(self, Y, ctx, need_jac):
+        """The force ``F`` (n, 3) on I and ``dF/d(P_I - P_J)`` (n, 3, 3) (None without
+        ``need_jac``)."""
         # F = f u = -k d + c u with c = k length + preload: the first term is smooth everywhere,
         # the second needs a defined direction (L > 0) unless c = 0.
         d = Y[:, S_PI] - Y[:, S_PJ]
@@ -197,15 +217,10 @@ class LineForce(TwoBodyForce):
         Ls = np.where(L > 1e-300, L, 1.0)
         u = d / Ls[:, None]
         F = nk * d + cc * u
-        dF = None
-        if need_jac:
-            n = len(L)
-            uu = u[:, :, None] * u[:, None, :]
-            dFdd = nkI + (c / Ls)[:, None, None] * (_I3 - uu)
-            dF = np.zeros((n, 3, 3 * N_SLOTS))
-            dF[:, :, sl(S_PI)] = dFdd
-            dF[:, :, sl(S_PJ)] = -dFdd
-        return F, None, dF, None
+        if not need_jac:
+            return F, None
+        uu = u[:, :, None] * u[:, None, :]
+        return F, nkI + (c / Ls)[:, None, None] * (_I3 - uu)
 
     def potential_energy(self, kin, ctx):
         """``k/2 (L - length)^2 - preload L`` per instance (MKEAM history)."""
