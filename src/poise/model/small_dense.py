@@ -156,11 +156,11 @@ class SmallDense:
         None when a family keeps no :class:`~poise.elements.slot_index.SlotIndex`."""
         if self.kin_at is None:
             return None
-        mk, ax, pt, body, fams = self.kin_at
-        Pm = P[mk]
-        Am = A[mk, :, ax]
-        Y = np.where(pt, Pm, Am)
-        V = np.where(pt, Pm - pos[body], Am)
+        yat, vat, fams = self.kin_at
+        # Y: each slot's origin or axis column, one gather from (P, A); V: Y less its body's
+        # position for a point (the ground row of ``pos``, zeros, for an axis: Y - 0 is Y)
+        Y = np.concatenate((P.ravel(), A.ravel())).take(yat)
+        V = Y - pos.take(vat)
         out = {}
         for fi, a, b, n, S, K, ix in fams:
             out[fi] = SlotKinematics(Y=Y[a:b].reshape(n, S, 3), V=V[a:b].reshape(n, S, 3),
@@ -212,8 +212,14 @@ def _kinematics_index(model):
         at += n * S
     if not fams:
         return None
-    return (np.concatenate(mk), np.concatenate(ax), np.concatenate(pt)[:, None],
-            np.concatenate(body), tuple(fams))
+    mk, ax, pt, body = (np.concatenate(x) for x in (mk, ax, pt, body))
+    c = np.arange(3)
+    nm = model.marker_body.size
+    # flat positions in concatenate((P.ravel(), A.ravel())): P[mk, c] or A[mk, c, ax]
+    yat = np.where(pt[:, None], 3 * mk[:, None] + c, 3 * nm + 9 * mk[:, None] + 3 * c + ax[:, None])
+    # in pos (nb + 1, 3), ground last (zeros): the body's row for a point, ground's for an axis
+    vat = 3 * np.where(pt, body, model.nb)[:, None] + c
+    return yat, vat, tuple(fams)
 
 
 class SmallTerms:
