@@ -108,3 +108,25 @@ def test_one_frame_equilibration_is_the_frames_loop():
         two = equilibrate_dense(np.concatenate([K, K]), np.concatenate([G, G]))  # frames loop
         assert one[0][0].tobytes() == two[0][0].tobytes()
         assert one[1][0].tobytes() == two[1][0].tobytes()
+
+
+@pytest.mark.parametrize("name", ["fourbar_spring.xml", "chain_10_spherical.xml",
+                                  "contact_box_plane.xml", "mkeam_inverted_pendulum.xml"])
+def test_one_frame_classification_is_the_frames_path(name):
+    from poise.solvers.stability import _dense_frames
+    model = _model(name)
+    rng = np.random.default_rng(13)
+    for seed in range(3):
+        st = _moved(model, seed) if seed else model.initial_state()
+        J = np.asarray(evaluate(model, st, "jacobian").J)
+        active = np.ones(model.nc, bool)
+        if seed == 2:
+            active[rng.random(model.nc) < 0.2] = False
+        one = _dense_frames(model, J[None], active, np.ones(1, bool))[0]
+        two = _dense_frames(model, np.stack([J, J]), active, np.ones(2, bool))[0]   # stacked
+        assert (one.klass, one.n_negative, one.n_zero, one.modes) == \
+            (two.klass, two.n_negative, two.n_zero, two.modes)
+        assert np.float64(one.min_eigenvalue).tobytes() == np.float64(two.min_eigenvalue).tobytes()
+        assert repr(one.mode_list) == repr(two.mode_list)
+        assert len(one.vectors) == len(two.vectors)
+        assert all(a.tobytes() == b.tobytes() for a, b in zip(one.vectors, two.vectors))
