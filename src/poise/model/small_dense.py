@@ -173,17 +173,24 @@ class SmallDense:
         generator of :func:`poise.model.evaluate._family_pass`), ``pend`` a
         :class:`SmallTerms` when ``need_jac``; None when ``r`` is not finite (the caller's
         generic pass then names the element)."""
-        nc = self.nc
-        phi = np.zeros(nc)
-        last, rhos, levers, terms = [], [], [], []
+        last, rhos, levers, terms, phis = [], [], [], [], []
         for _, fam, kin, rho, G, ph, phy, _ in passes:
             if ph is not None:
-                phi[fam.crow.ravel()] = ph.ravel()
+                phis.append(ph.ravel())
             last.append((fam, kin, rho, phy))
             rhos.append(rho.ravel())
-            levers.append(kin.V.ravel())
+            levers.append(kin.V)
             terms.append((G, phy))
-        V = np.concatenate(levers)
+        # every constraint row once (small_dense): in row order, or gathered into it
+        phi = np.concatenate(phis) if phis else np.zeros(self.nc)
+        if self.row_order is not None:
+            phi = phi.take(self.row_order)
+        # the levers of one gather (SmallDense.kinematics, eval order) are that array already
+        V = levers[0].base
+        if V is None or V.size != 3 * self.S or any(v.base is not V for v in levers):
+            V = np.concatenate([v.ravel() for v in levers])
+        else:
+            V = V.ravel()
         B = self.B0.copy()
         B.put(self.skew_dst, np.concatenate((V, -V)).take(self.skew_src))
         rho = np.concatenate(rhos)
@@ -197,7 +204,8 @@ def _kinematics_index(model):
     """``(markers, axis columns, point mask, bodies, families)`` of every slot of the model
     (:meth:`SmallDense.kinematics`), from the families' slot indices; None if one has none."""
     mk, ax, pt, body, fams, at = [], [], [], [], [], 0
-    for fi, fam in enumerate(model.families):
+    for fi in model.eval_order:            # the slot map's order (SmallDense.outputs)
+        fam = model.families[fi]
         if fam.n == 0:
             continue
         ix = fam.pattern.slots
