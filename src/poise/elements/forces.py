@@ -209,12 +209,16 @@ class LineForce(TwoBodyForce):
         d = Y[:, S_PI] - Y[:, S_PJ]
         L = row_norms(d)
         c, live, nk, cc, nkI = self._law(ctx)
-        bad = (L <= 1e-300) & live
-        if np.logical_or.reduce(bad):
-            i = int(np.nonzero(bad)[0][0])
-            raise EvaluationError("the I and J markers coincide: the line of action is undefined",
-                                  self.element_locs[i] if self.element_locs else None)
-        Ls = np.where(L > 1e-300, L, 1.0)
+        far = L > 1e-300
+        Ls = L                          # (every line defined: the usual case, no selection)
+        if not np.logical_and.reduce(far):
+            bad = (L <= 1e-300) & live
+            if np.logical_or.reduce(bad):
+                i = int(np.nonzero(bad)[0][0])
+                raise EvaluationError("the I and J markers coincide: the line of action is "
+                                      "undefined",
+                                      self.element_locs[i] if self.element_locs else None)
+            Ls = np.where(far, L, 1.0)
         u = d / Ls[:, None]
         F = nk * d + cc * u
         if not need_jac:

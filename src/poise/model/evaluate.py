@@ -248,7 +248,8 @@ def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
                 yield fi, t, kin, None, None, ph, None, None
                 continue
             ext = out[3] if len(out) > 3 else None
-            rho = np.einsum("nmy,nm->ny", phy, lam)
+            # phi_y^T lam (one row per instance: the product itself, as the sum of one term)
+            rho = phy[:, 0] * lam if phy.shape[1] == 1 else np.einsum("nmy,nm->ny", phy, lam)
             if fam.U:
                 ext = _constraint_ext(ext, lam, len(lam), fam.m, fam.U)
         else:

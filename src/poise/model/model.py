@@ -173,8 +173,8 @@ class Model:
         mb = self.marker_body
         nm = len(mb)
         if nm <= 2 * CHUNK:
-            R = rot[mb]                                  # gathered once for both products
-            P = pos[mb] + np.einsum("nij,nj->ni", R, self.marker_s0)
+            R = rot.take(mb, 0)                          # gathered once for both products
+            P = pos.take(mb, 0) + np.einsum("nij,nj->ni", R, self.marker_s0)
             A = np.matmul(R, self.marker_A0)
             return P, A, pos
         # many markers: the same products chunk by chunk (no full-size temporaries)
