@@ -489,10 +489,11 @@ Newton's LUs (the floor's unit, one per iteration). A Newton iteration costs ≈
 LU itself, one Jacobian evaluation and assembly (≈ 0.5), one or two residual evaluations, the
 step's solves with refinement and the neutral-direction filter's two extra solves. Outside
 Newton, redundancy detection factorises a Gram matrix (twice when a candidate row is
-ambiguous, as on these closed chains), the least-squares multipliers factorise a weighted KKT
-matrix with the same fill as Newton's, and the classification needs its own sparse LDLᵀ
-(inertia: an LU with partial pivoting has none) and a subspace iteration for the lowest mode
-(5 block solves). The classification factorises once: SuperLU's CSC copies of L and U, read for
+ambiguous, as on these closed chains) and the least-squares multipliers a weighted Gram matrix
+(normal equations; banded on these chains: LAPACK's banded Cholesky, a few percent of an LU), and
+the classification needs its own sparse LDLᵀ (inertia: an LU with partial pivoting has none) and
+a Krylov iteration for the lowest mode (one-column solves until its Ritz residual is below 10⁻⁶:
+7 on these chains). The classification factorises once: SuperLU's CSC copies of L and U, read for
 the pivots and the backward error, are made absolute in place and emptied one after the other.
 From 10⁴ to 10⁵ links the solve's *user* CPU time grows ≈ 9.5× but its *system* time ≈ 20×
 (0.13 → 2.9–3.4 s): at 10⁵ links every array above glibc's mmap threshold (32 MB at most; the KKT

@@ -512,3 +512,44 @@ def test_a_control_state_does_not_change_the_mechanism_verdict(runner, monkeypat
         assert _verdict(a) == ("stable", 0, 0), a.datasets["frames/stability_modes"][0]
         np.testing.assert_allclose(a.datasets["bodies/position"][0, 0], [0, -400, 0], atol=1e-9)
         np.testing.assert_allclose(a.datasets["diffs/value"][0], [y], atol=1e-12)
+
+
+def test_neutral_modes_do_not_depend_on_the_eigenbasis():
+    """A cluster of zero eigenvalues is one eigenvalue: ``eigh`` may return any rotation of its
+    space. The described neutral modes come from a basis that does not depend on which: free
+    spins of separate bodies, mixed by a random rotation, come back as the single spins (sign
+    aside), ordered by coordinate."""
+    rng = np.random.default_rng(3)
+    nq, k = 40, 5
+    spins = np.zeros((nq, k))
+    for c, at in enumerate((3, 11, 18, 27, 36)):       # each on its own three coordinates
+        spins[at:at + 3, c] = rng.normal(size=3)
+    spins /= np.linalg.norm(spins, axis=0)
+    for _ in range(5):
+        Q, _r = np.linalg.qr(rng.normal(size=(k, k)))
+        C = stab.canonical_basis(spins @ Q)
+        assert C.shape == (nq, k)
+        np.testing.assert_allclose(np.abs(np.sum(C * spins, axis=0)), 1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("path", ["dense", "sparse"])
+@pytest.mark.parametrize("deck", ["chain_10_spherical.xml", "adm/chain_10_spherical.adm"])
+def test_spherical_chain_lists_the_first_six_spins_by_body(deck, path, monkeypatch):
+    """The 10 free spins of the spherical chain (each link about its own axis, the line
+    through its two joints): the six described are links 2..7 in body order, in the XML deck
+    and its ADM twin alike, on both paths (they were an arbitrary, round-off-chosen six, one
+    link twice)."""
+    from poise.app.api import run_deck
+    if path == "sparse":
+        monkeypatch.setattr(stab, "DENSE_LIMIT", 0)
+    a = run_deck(str(DECKS / deck)).analyses[0]
+    d = a.datasets
+    assert _verdict(a)[:3] == ("neutral", 0, 10)
+    assert int(d["frames/n_modes"][0]) == 6
+    ids = [int(b) for b in d["bodies/id"]]
+    assert [int(b) for b in d["modes/body"]] == ids[:6]
+    for k in range(6):
+        assert str(d["modes/kind"][k]) == "rotation"
+        x_link = d["bodies/orientation"][0, k][:, 0]          # the link's own axis
+        assert abs(abs(d["modes/direction"][k] @ x_link) - 1.0) < 1e-9
+        assert abs(d["modes/eigenvalue"][k]) < 1e-9

@@ -102,7 +102,9 @@ for n, m in (("parse", "reading and validating the deck"),
     _a("timings", n, "float", m, "timings", unit="s",
        optional=n.startswith("solve_") or n == "import")
 for n, m in (("residuals", "residual evaluations"), ("jacobians", "Jacobian evaluations"),
-             ("factorizations", "factorisations of the KKT matrix")):
+             ("factorizations", "factorisations of the KKT matrix, and of the least-squares "
+                                "multipliers' Gram matrix where it replaces their weighted KKT "
+                                "matrix (redundancy detection's, once per model: not counted)")):
     _a("counts", n, "int", m, "counts")
 
 # ------------------------------------------------------------------------------ /model

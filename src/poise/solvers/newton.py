@@ -27,6 +27,7 @@ from poise.elements.context import row_where
 from poise.model.evaluate import evaluate as _evaluate
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
+from poise.solvers.gram import least_squares
 from poise.solvers.history import History, Row
 from poise.solvers.iterate import Next, Solver, evolve, iterate
 from poise.solvers.linalg import SingularMatrix
@@ -157,7 +158,8 @@ def initial_multipliers(model, state, cnt: Counters, weights=None, ev=None):
     """Least-squares multipliers ``argmin ||Phi_q^T lam - Q||_{W^-1}`` at the current state
     (``weights``: ``W``, default the squared coordinate scales). ``ev``: the Jacobian
     evaluation at ``state`` with zero multipliers and the solve's active rows, if the caller
-    has it (the static prologue's)."""
+    has it (the static prologue's). Sparse models whose Gram matrix is banded solve the normal
+    equations (:func:`~poise.solvers.gram.least_squares`), others the weighted KKT system."""
     if model.nc == 0:
         return state
     st = state.copy()
@@ -165,8 +167,14 @@ def initial_multipliers(model, state, cnt: Counters, weights=None, ev=None):
     if ev is None:                # only Phi_q and r are read (the weighted KKT matrix)
         ev = cnt.evaluate(model, st, "phi_q")
     W = _coord_weights(model) if weights is None else weights
-    K = _weighted_kkt(model, ev, W)
     Q = -ev.r                     # with lam = 0, r = -Q
+    if model.reaction_feed is None and hasattr(ev.J, "indptr"):   # Phi_q^T is the KKT's B block
+        lam = least_squares(ev.J[model.nq:, :model.nq], 1.0 / np.sqrt(W), Q, cnt.mask(model),
+                            cnt.factor)
+        if lam is not None:
+            st.lam = np.where(cnt.mask(model), lam, 0.0)
+            return st
+    K = _weighted_kkt(model, ev, W)
     ev = None                     # its Jacobian goes before the factorisation
     try:
         f = cnt.factor(K)

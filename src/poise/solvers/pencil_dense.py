@@ -20,7 +20,7 @@ DENSE_PENCIL = 150        # nq + constraint rows at or below: the dense pencil (
 
 class EigenLDL:
     """Inertia and solves of a small symmetric matrix from its eigendecomposition (the
-    attributes :class:`~poise.solvers.stability_sparse.SymmetricLDL` offers the descent)."""
+    attributes :class:`~poise.solvers.symmetric_ldl.SymmetricLDL` offers the descent)."""
 
     def __init__(self, A):
         A = 0.5 * (A + A.T)

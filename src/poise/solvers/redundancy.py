@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.model.evaluate import Evaluation
+from poise.solvers.gram import BandedCholesky, SymmetricLU, band, gram, projected, scaled, without
 from poise.solvers.superlu import lean
 
 RATIO_TOL = 1e-9     # always redundant below this pivot ratio
@@ -40,28 +41,32 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
         red = _dense_natural(Phi_q, col_scale)
         if red is not None:
             return red
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as spla
-    P = sp.csr_matrix(Phi_q) @ sp.diags(col_scale)
-    A = (P @ P.T).tocsc()
-    d = A.diagonal().copy()
+    P = scaled(Phi_q, col_scale)
+    A, d = gram(P)
     empty = d <= 1e-300
     dd = np.where(empty, 1.0, d)
-    A2 = (A + sp.diags(np.where(empty, 1.0, SHIFT * d))).tocsc()
-    del A
+    shift = np.where(empty, 1.0, SHIFT * d)
+    ab = band(A)                  # banded in deck order: Cholesky in that order
     perm = "NATURAL" if nc <= ORDERING_NATURAL_MAX else "MMD_AT_PLUS_A"
-    lu = spla.splu(A2, permc_spec=perm, diag_pivot_thresh=0.0,
-                   options=dict(SymmetricMode=True), **lean(nc))
-    u = lu.U.diagonal()
-    if not np.array_equal(lu.perm_r, lu.perm_c):
+    try:
+        if ab is not None:
+            del A
+            F = BandedCholesky(_shifted(ab, shift), own=True)
+        else:
+            import scipy.sparse as sp  # lazy: sparse systems only
+            A = (A + sp.diags(shift)).tocsr()
+            F = SymmetricLU(A, perm)
+            del A
+    except ValueError:
         # fall back to a dense rank-revealing QR (small systems only)
         return _dense_redundant(P.toarray())
-    ratio = u[lu.perm_r] / dd
+    ratio = F.pivots / dd
+    del F
     thr = rank_threshold(ratio[~empty])
     red = np.nonzero((ratio < thr) | empty)[0]
     amb = np.nonzero(~empty & (ratio < RATIO_MAX) & (ratio >= AMBIGUOUS_MIN))[0]
     if 0 < len(amb) <= AMBIGUOUS_MAX:
-        dep = _resolve_ambiguous(P, np.nonzero(~empty & (ratio < RATIO_MAX))[0], perm)
+        dep = _resolve_ambiguous(P, np.nonzero(~empty & (ratio < RATIO_MAX))[0], perm, ab)
         if dep is not None:
             out = empty.copy()                  # (np.union1d: a hash of every row)
             out[dep] = True
@@ -69,7 +74,14 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
     return red
 
 
-def _resolve_ambiguous(P, cand, perm):
+def _shifted(ab, shift):
+    """A copy of the band ``ab`` with ``shift`` added to its diagonal (column-major)."""
+    ab = ab.copy(order="F")
+    ab[0] += shift
+    return ab
+
+
+def _resolve_ambiguous(P, cand, perm, ab=None):
     """Decide which rows ``cand`` (deck order) of the scaled ``P`` are dependent, accurately.
 
     The Cholesky pivots of the Gram matrix measure dependence by *squared* sines, so in very long
@@ -79,23 +91,25 @@ def _resolve_ambiguous(P, cand, perm):
     certainly independent ones) by corrected semi-normal equations — one refinement step gives
     QR-like accuracy — and the projections are orthogonalised in deck order: a candidate whose
     remaining component is below ``SINE_TOL`` of its norm (an unsquared sine) is dependent on
-    the rows before it. Returns None if the factorisation fails (the gap rule stands).
+    the rows before it. ``ab``: the band of ``P``'s Gram matrix, if banded (the candidates are
+    taken out of it, :func:`~poise.solvers.gram.without`), else SuperLU in the order ``perm``.
+    Returns None if the factorisation fails (the gap rule stands).
     """
-    import scipy.sparse.linalg as spla
-    nc = P.shape[0]
-    keep = np.ones(nc, bool)                # (np.setdiff1d: a hash of every row)
-    keep[cand] = False
-    keep = np.nonzero(keep)[0]
-    PI = P[keep]
     PC = P[cand].toarray()                                          # (c, nq)
+    off = None
     try:
-        lu = spla.splu((PI @ PI.T).tocsc(), permc_spec=perm, diag_pivot_thresh=0.0,
-                       options=dict(SymmetricMode=True), **lean(len(keep)))
-    except RuntimeError:
+        if ab is not None:
+            PI, off = P, cand
+            F = BandedCholesky(without(ab, cand), own=True)
+        else:
+            keep = np.ones(P.shape[0], bool)    # (np.setdiff1d: a hash of every row)
+            keep[cand] = False
+            PI = P[np.nonzero(keep)[0]]
+            F = SymmetricLU(gram(PI)[0], perm)
+    except ValueError:
         return None
-    R = PC.T.copy()                                                 # (nq, c) residuals
-    for _ in range(2):                                              # CSNE: solve + 1 correction
-        R = R - PI.T @ lu.solve(np.asarray(PI @ R))
+    R = projected(PI, F, PC.T.copy(), off)                          # (nq, c) residuals
+    del F
     norms = np.linalg.norm(PC, axis=1)
     Q = []
     dep = []

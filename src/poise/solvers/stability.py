@@ -26,6 +26,7 @@ from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the pub
     ZERO_REL,
     Mode,
     StabilityInfo,
+    canonical_basis,
     classified_info,
     describe_mode,
     not_classified,
@@ -154,16 +155,28 @@ def _dense_frames(model, J, active, ok) -> list[StabilityInfo]:
         xk = X[np.arange(len(grp)), :, kmin]
         wmin = np.einsum("gi,gij,gj->g", xk, Kg, xk)                 # Rayleigh [force/length]
         for j, i in enumerate(grp):
-            found = []
-            for mask in (neg[j], zero[j]):
-                ks = np.nonzero(mask)[0][:N_MODES]
-                xs = X[j][:, ks]                                     # unit, length coordinates
-                wk = np.einsum("ik,ij,jk->k", xs, Kg[j], xs)        # Rayleigh [force/length]
-                found.append([(xs[:, c] / d, float(wk[c])) for c in range(len(ks))])
+            found = described_modes(X[j], Kg[j], neg[j], zero[j], d)
             klass = "unstable" if neg[j].any() else "neutral" if zero[j].any() else "stable"
             out[sel[i]] = classified_info(model, klass, int(neg[j].sum()), int(zero[j].sum()),
                                 found[0], found[1], wmin[j])
     return out
+
+
+def described_modes(X, K, neg, zero, d) -> list[list]:
+    """``[unstable, neutral]``: up to N_MODES ``(q, w)`` each (``q`` in model coordinates, ``w``
+    the Rayleigh quotient of ``K`` [force/length]) from the unit eigenvectors ``X`` (length
+    coordinates) selected by the masks ``neg`` / ``zero``; ``d`` the length per coordinate unit.
+    The zero eigenvalues are one eigenvalue: their modes come from the eigenbasis-independent
+    :func:`~poise.solvers.stability_modes.canonical_basis` of their space."""
+    found = []
+    for mask, neutral in ((neg, False), (zero, True)):
+        xs = X[:, np.nonzero(mask)[0]]                               # unit, length coordinates
+        if neutral and xs.shape[1] > 1:
+            xs = canonical_basis(xs)
+        xs = xs[:, :N_MODES]
+        wk = np.einsum("ik,ij,jk->k", xs, K, xs)                    # Rayleigh [force/length]
+        found.append([(xs[:, c] / d, float(wk[c])) for c in range(xs.shape[1])])
+    return found
 
 
 def _dense_one(model, J, active) -> StabilityInfo:
@@ -201,12 +214,7 @@ def _dense_one(model, J, active) -> StabilityInfo:
     X /= np.maximum(row_norms(X, axis=0), 1e-300)[None, :]
     xk = X[:, int(np.argmin(w))].copy()
     wmin = float(np.einsum("gi,gij,gj->g", xk[None], Ku[None], xk[None])[0])   # [force/length]
-    found = []
-    for mask in (neg, zero):
-        ks = np.nonzero(mask)[0][:N_MODES]
-        xs = X[:, ks]                                                # unit, length coordinates
-        wk = np.einsum("ik,ij,jk->k", xs, Ku, xs)                   # Rayleigh [force/length]
-        found.append([(xs[:, c] / d, float(wk[c])) for c in range(len(ks))])
+    found = described_modes(X, Ku, neg, zero, d)
     klass = "unstable" if neg.any() else "neutral" if zero.any() else "stable"
     return classified_info(model, klass, int(neg.sum()), int(zero.sum()), found[0], found[1],
                            wmin)

@@ -23,6 +23,9 @@ N_MODES = 6            # modes described per class (as the dense path)
 AUG_RHO = (1.0, 16.0, 1.0 / 16.0)   # augmented-Lagrangian weights tried in turn (inertia-neutral)
 BERR_MAX = 1e-2        # LDL^T backward-error estimate allowed, as a fraction of the zero threshold
 SMALL_OP = 64          # mode operators up to this size are decomposed densely
+LOW_BLOCK = 1          # vectors per step of a stable frame's lowest-mode Krylov iteration
+LOW_RES = 1e-6         # ... its relative Ritz residual at which the mode is taken
+LOW_MAX = 12           # ... and its steps (solves) at most
 WEAK_DIAG = 1e-3       # scaled augmented diagonal below this: eliminated after its neighbours
 TINY_PIVOT = 1e-3      # pivots below this fraction of the zero threshold: sign not reliable
 
@@ -111,6 +114,26 @@ def classified_info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> Sta
             texts.append(f"{label}: ... {extra} more")
     return StabilityInfo(klass, int(n_neg), int(n_zero), "; ".join(texts), float(wmin),
                          tuple(modes), tuple(np.asarray(q, float) for q, _ in unstable[:N_MODES]))
+
+def canonical_basis(B):
+    """A basis of the span of ``B``'s columns (nq, k) that does not depend on which basis
+    ``B`` is: ``C = B B[p]^-1`` (``C[p] = I``) for the coordinates ``p`` a column-pivoted
+    Gram-Schmidt picks on ``B^T`` (largest remaining row first), ordered by coordinate, unit
+    columns. For an exactly degenerate cluster (neutral modes: every zero eigenvalue is one)
+    ``eigh`` returns any rotation of the eigenspace, mixed by round-off; when that space is
+    spanned by modes of separate bodies (free spins of 10 links), the columns of ``C`` are
+    those modes, listed by body, whichever basis came in."""
+    k = B.shape[1]
+    A = np.array(B.T)                            # (k, nq): coordinates are columns
+    piv = []
+    for _ in range(k):
+        p = int(np.argmax(np.einsum("ij,ij->j", A, A)))
+        piv.append(p)
+        q = A[:, p] / np.linalg.norm(A[:, p])
+        A -= np.outer(q, q @ A)
+    piv = np.sort(np.asarray(piv))
+    C = np.linalg.solve(B[piv].T, B.T).T         # B B[piv]^-1
+    return C / np.linalg.norm(C, axis=0)
 
 
 def describe_mode(model, q, klass="", eigenvalue=np.nan) -> Mode:

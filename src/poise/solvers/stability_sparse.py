@@ -14,18 +14,20 @@ from poise.solvers.equilibrate import equilibrate as _equilibrate
 from poise.solvers.equilibrate import prune_noise as _prune_noise
 from poise.solvers.equilibrate import prune_rows as _prune_rows
 from poise.solvers.redundancy import redundant_rows
-from poise.solvers.superlu import lean
+from poise.solvers.stability_iterations import lowest_mode, negative_modes, zero_modes
 from poise.solvers.stability_modes import (
     AUG_RHO,
     BERR_MAX,
-    N_MODES,
-    SMALL_OP,
     TINY_PIVOT,
     WEAK_DIAG,
     ZERO_REL,
     StabilityInfo,
     classified_info,
     not_classified,
+)
+from poise.solvers.symmetric_ldl import (  # noqa: F401 - re-exported
+    SymmetricLDL,
+    symmetric_permutation,
 )
 
 
@@ -63,7 +65,7 @@ def classify_pencil(model, P) -> StabilityInfo:
     if below == 0:
         if P.nq == m:                    # valid factorisation: Gt square and non-singular
             return StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
-        low = _lowest_mode(P, up, +eps)
+        low = lowest_mode(P, up, +eps)
         return StabilityInfo("stable", 0, 0, "", low[0][1] if low else np.nan)
     del up                       # its factors (and SuperLU's copies of L and U) go first
     dn, why = P.factor(-eps)
@@ -74,160 +76,11 @@ def classify_pencil(model, P) -> StabilityInfo:
         return not_classified(f"inconsistent inertia at the two shifts ({below} eigenvalues below "
                         f"+{eps:.1e}, {n_neg} below -{eps:.1e})")
     n_zero = below - n_neg
-    unstable = _negative_modes(P, dn, -eps, n_neg) if n_neg else []
-    neutral = _zero_modes(P, dn, -eps, n_zero) if n_zero else []
+    unstable = negative_modes(P, dn, -eps, n_neg) if n_neg else []
+    neutral = zero_modes(P, dn, -eps, n_zero) if n_zero else []
     ws = [w for _, w in unstable + neutral]
     klass = "unstable" if n_neg else "neutral"
     return classified_info(model, klass, n_neg, n_zero, unstable, neutral, min(ws) if ws else np.nan)
-
-
-class SymmetricLDL:
-    """Sparse ``L D L^T`` of a symmetric matrix with 1x1 diagonal pivots only, and its inertia.
-
-    SuperLU in symmetric mode with ``diag_pivot_thresh=0`` takes every diagonal pivot that is
-    not exactly zero; when no off-diagonal pivot was taken (``perm_r == perm_c``) the factors
-    of ``P^T A P`` satisfy ``U = D L^T`` and, by Sylvester's law of inertia, the signs of the
-    pivots ``diag(U)`` are the signs of A's eigenvalues. ``order`` is a symmetric elimination
-    order (``A[order][:, order]`` is factorised as given); None lets SuperLU choose (minimum
-    degree on A + A^T).
-
-    ``ok`` is False (with ``reason``) when a pivot was zero, non-finite or off the diagonal.
-    Without pivoting the factorisation is not backward stable in general, so
-    ``backward_error = 32 u ||(|L| |U|) 1||_inf`` estimates ``||L D L^T - A||``: the counted
-    inertia is A's when this is below A's smallest |eigenvalue| (Weyl).
-    """
-
-    def __init__(self, A, order=None, permuted: bool = False):
-        """``permuted``: ``A`` is ``A[order][:, order]`` already (:func:`symmetric_permutation`).
-        ``A`` may be a zero-argument callable returning the matrix: then only this call holds
-        it, and it goes as soon as SuperLU has its copy (before the factors are read)."""
-        self.order = None if order is None else np.asarray(order)
-        self._permuted = permuted
-        self._pos = None
-        self._b = None                    # solve_head's right-hand side (:meth:`_rhs`)
-        A = self._matrix(memory.taken(A))
-        self.n = n = A.shape[0]
-        self.ok = False
-        self.reason = ""
-        self._berr = np.inf
-        self.n_negative = self.n_positive = -1
-        try:
-            lu = self._splu(A)
-        except RuntimeError as e:
-            self.reason = f"the LDL^T factorisation failed ({e})"
-            return
-        del A                             # SuperLU holds its own copy
-        if not np.array_equal(lu.perm_r, lu.perm_c):
-            self.reason = "the LDL^T factorisation needed an off-diagonal pivot"
-            return
-        d = lu.U.diagonal()               # (SuperLU makes and keeps a CSC copy of U)
-        if not np.all(np.isfinite(d)) or np.any(d == 0.0):
-            self.reason = "the LDL^T factorisation has a zero or non-finite pivot"
-            return
-        self._berr = None                 # computed on first use (the descent never asks)
-        self.pivots = d
-        # original index of each pivot (pivot k eliminates column perm_c^-1[k] of A[order])
-        self.index = np.empty(n, np.int64)
-        self.index[lu.perm_c] = np.arange(n) if self.order is None else self.order
-        self.n_negative = int(np.count_nonzero(d < 0))
-        self.n_positive = n - self.n_negative
-        self.lu = lu
-        self.ok = True
-
-    def _matrix(self, A):
-        import scipy.sparse as sp
-        A = sp.csc_matrix(A)
-        if self.order is not None and not self._permuted:
-            A = symmetric_permutation(A, self.order)
-        return A
-
-    def _splu(self, A):
-        import scipy.sparse.linalg as spla
-        return spla.splu(A, permc_spec="MMD_AT_PLUS_A" if self.order is None else "NATURAL",
-                         diag_pivot_thresh=0.0, options=dict(SymmetricMode=True),
-                         **lean(A.shape[0]))
-
-    @property
-    def backward_error(self) -> float:
-        """``32 u ||(|L| |U|) 1||_inf`` (inf when the factorisation is not valid)."""
-        if self._berr is None:
-            # two compiled sparse products over SuperLU's CSC copies of the factors, each made
-            # absolute in place, read, and emptied before the other is made (the solves use
-            # SuperLU's own factors): one copy alive at a time, none after this
-            U = self.lu.U
-            g = _abs_matvec(U, np.ones(self.n))
-            _empty(U)
-            L = self.lu.L
-            g = _abs_matvec(L, g)
-            _empty(L)
-            self._berr = 32 * np.finfo(float).eps * float(np.max(g, initial=0.0))
-        return self._berr
-
-    @property
-    def inertia(self) -> tuple[int, int, int]:
-        """(negative, zero, positive) pivot counts (no zero pivot in a valid factorisation)."""
-        return self.n_negative, 0, self.n_positive
-
-    def solve(self, b, overwrite_b: bool = False):
-        """``A^-1 b``; ``overwrite_b``: the solution is written into ``b`` (one array of the
-        system's size fewer at a time)."""
-        b = np.asarray(b, float)
-        if self.order is None:
-            return self.lu.solve(b)
-        y = self.lu.solve(np.ascontiguousarray(b[self.order]))
-        x = b if overwrite_b else np.empty_like(y)
-        x[self.order] = y
-        return x
-
-    #: right-hand sides solved together by :meth:`solve_head` (SuperLU solves every column
-    #: alone, so the grouping changes no bit; it bounds the temporaries of a wide block)
-    HEAD_COLUMNS = 4
-
-    def solve_head(self, v, k: int):
-        """``(A^-1 [v; 0])[:k]`` for ``v`` with ``k`` rows (a vector or a block of columns),
-        bit for bit :meth:`solve`'s, without its full-size reordered copies: the right-hand
-        side is made in the factorisation's order, and only the head of the solution is
-        gathered back."""
-        v = np.asarray(v, float)
-        if self._pos is None:
-            self._pos = np.arange(self.n) if self.order is None else np.argsort(self.order)
-        at = self._pos[:k]
-        if v.ndim == 1:
-            b = np.zeros(self.n)
-            b[at] = v
-            return self.lu.solve(b)[at]
-        out = np.empty(v.shape)
-        w = self.HEAD_COLUMNS
-        for c in range(0, v.shape[1], w):
-            b = self._rhs(min(w, v.shape[1] - c))
-            b[at] = v[:, c:c + w]
-            out[:, c:c + w] = self.lu.solve(b)[at]      # (SuperLU solves a copy of b)
-        return out
-
-    def _rhs(self, w: int):
-        """A zero right-hand side of ``w`` columns in Fortran order, kept for the next block of
-        that width: :meth:`solve_head` writes the same head rows every time, the tail stays
-        zero (no fresh, page-faulted array per block of a subspace iteration)."""
-        b = self._b
-        if b is None or b.shape[1] != w:
-            b = self._b = np.zeros((self.n, w), order="F")
-        return b
-
-
-def _abs_matvec(M, x):
-    """``|M| x`` for a CSC factor copy ``M`` (SuperLU's ``L`` / ``U``), whose values are made
-    absolute in place."""
-    np.abs(M.data, out=M.data)
-    return M @ x
-
-
-def _empty(M):
-    """Free the arrays of SuperLU's cached CSC copy ``M`` of a factor: the SuperLU object keeps
-    the copy it made on the first read of ``lu.L`` / ``lu.U`` for later reads, which never come
-    (the solves use its own factors); ``M`` becomes the empty matrix of its shape."""
-    M.data = np.zeros(0)
-    M.indices = np.zeros(0, np.int32)
-    M.indptr = np.zeros(M.shape[1] + 1, np.int32)
 
 
 def _diag_scaled(M, r, c):
@@ -276,12 +129,6 @@ def _column_chunks(indptr, size=SCATTER_ENTRIES):
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
 
-def symmetric_permutation(A, order):
-    """``A[order][:, order]`` in CSC (a fresh matrix: the caller's ``A`` can go before the
-    factorisation, which then holds one copy of the matrix, not two)."""
-    return A[order][:, order].tocsc()
-
-
 class SparsePencil:
     """The reduced-stiffness eigenproblem of a large model, never formed: the length-scaled
     symmetric stiffness ``Kt`` and active constraint Jacobian ``Gt`` after a symmetric
@@ -315,7 +162,7 @@ class SparsePencil:
         if G.shape[0]:
             # a numerically empty row does not constrain anything (the dense SVD's rcond);
             # ``drop``: active rows found dependent at this configuration
-            rn = np.sqrt(np.asarray(G.multiply(G).sum(axis=1)).ravel())
+            rn = _row_norms(G)
             keep = rn > 1e-10 * rn.max()
             keep[np.asarray(drop, np.int64)] = False
             if not keep.all():
@@ -460,6 +307,15 @@ class SparsePencil:
         return [(XL[:, j] / self.d, float(w[j]), float(mu[j])) for j in range(X.shape[1])]
 
 
+def _row_norms(M):
+    """Euclidean norms of the rows of a canonical CSR ``M`` (an empty row: 0)."""
+    sq = np.zeros(M.shape[0])
+    nz = np.diff(M.indptr) > 0
+    if nz.any():
+        sq[nz] = np.add.reduceat(M.data * M.data, M.indptr[:-1][nz])
+    return np.sqrt(sq)
+
+
 def _coordinate_groups(model) -> np.ndarray:
     """Group of each coordinate: one per body, one per scalar unknown."""
     nq, nb = model.nq, model.nb
@@ -486,26 +342,33 @@ def _kkt_order(model, K, G, GtG) -> np.ndarray:
     nq = model.nq
     grp = _coordinate_groups(model)
     ng = int(grp.max()) + 1
-    E = sp.csr_matrix((np.ones(nq), (np.arange(nq), grp)), shape=(nq, ng))
-    S = (abs(K) + abs(GtG)).tocsr()
-    S.sum_duplicates()
+    K, GtG = K.tocsr(), GtG.tocsr()
+    Ga = abs(G).tocsr() if G.shape[0] else None
     if ng > 1:
-        Q = (E.T @ S @ E).tocsc()
+        # the pattern of E^T (|K| + |G|^T |G|) E, from K and from the bodies each constraint
+        # row acts on (|G| E: a few entries a row), not from the larger G^T G
+        E = sp.csr_matrix((np.ones(nq), (np.arange(nq), grp)), shape=(nq, ng))
+        Q = E.T @ abs(K) @ E
+        if Ga is not None:
+            GE = Ga @ E
+            Q = Q + GE.T @ GE
+        Q = Q.tocsc()
         Q.data[:] = 1.0
         Q = (Q + sp.identity(ng, format="csc") * (ng + 1.0)).tocsc()   # diagonally dominant
         rank = spla.splu(Q, permc_spec="MMD_AT_PLUS_A").perm_c       # position of each group
     else:
         rank = np.zeros(1, np.int64)
     key = 3 * rank[grp]
-    nzr = np.diff(S.indptr) > 0
+    nzr = (np.diff(K.indptr) > 0) | (np.diff(GtG.indptr) > 0)       # rows of |K| + |GtG|
     weak = (np.abs(K.diagonal() + GtG.diagonal()) < WEAK_DIAG) & nzr   # (K + GtG)'s
     if weak.any():
+        S = (abs(K) + abs(GtG)).tocsr()
+        S.sum_duplicates()
         last = np.zeros(nq, np.int64)
         last[nzr] = np.maximum.reduceat(rank[grp[S.indices]], S.indptr[:-1][nzr])
         key[weak] = 3 * last[weak] + 2
     keys = [key]
-    if G.shape[0]:
-        Ga = abs(G).tocsr()
+    if Ga is not None:
         last = np.maximum.reduceat(rank[grp[Ga.indices]], Ga.indptr[:-1])
         keys.append(3 * last + 1)
     return np.argsort(np.concatenate(keys), kind="stable")
@@ -522,109 +385,3 @@ def _spectral_radius(A, iters=20) -> float:
         x = A @ (x / nx)
         r = float(np.linalg.norm(x))
     return r
-
-
-def _eig_extreme(op, n, k, which, tol, maxiter=20):
-    """``k`` eigenpairs of the symmetric operator ``op`` at the end ``which`` ('LA' or 'SA'):
-    dense for small operators, else implicitly restarted Lanczos (ARPACK; on non-convergence
-    the pairs that did converge)."""
-    if n <= SMALL_OP:
-        A = op.matmat(np.eye(n))
-        w, V = np.linalg.eigh(0.5 * (A + A.T))
-        idx = np.argsort(w if which == "SA" else -w)[:k]
-        return w[idx], V[:, idx]
-    from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, eigsh
-    v0 = op.matvec(np.random.default_rng(7).standard_normal(n))     # in the range of op
-    try:
-        return eigsh(op, k=k, which=which, tol=tol, v0=v0, maxiter=maxiter)
-    except ArpackNoConvergence as e:
-        return e.eigenvalues, e.eigenvectors
-    except ArpackError:
-        return np.zeros(0), np.zeros((n, 0))
-
-
-def _subspace(P, op, b, iters, seed, X=None):
-    """Block subspace iteration on ``op`` (block size ``b``, one multi-right-hand-side solve per
-    step) followed by a Rayleigh-Ritz step on Kt: the Ritz pairs ``(mu, X)`` (mu ascending) of
-    the dominant invariant subspace of ``op``. Ritz values are Rayleigh quotients, so a Ritz
-    vector of a tight cluster is a valid mode with that value even before it has converged."""
-    b = max(1, min(b, P.nq))
-    if X is None:
-        X = np.random.default_rng(seed).standard_normal((P.nq, b))
-    X = op.matmat(X)
-    for it in range(iters + 1):
-        U = _orthonormalize(_orthonormalize(X))
-        if it < iters:
-            X = op.matmat(U)
-    H = U.T @ (P.Kt @ U)
-    w, V = np.linalg.eigh(0.5 * (H + H.T))
-    return w, U @ V
-
-
-def _orthonormalize(X, rtol=1e-7):
-    """Orthonormal basis of the columns of tall X from its Gram matrix (one pass loses the
-    directions below ``rtol`` of the largest: harmless here, they are the ones the iteration
-    discards; call twice for orthogonality to round-off). Cheaper than QR for n x 10."""
-    Gm = X.T @ X
-    w, V = np.linalg.eigh(0.5 * (Gm + Gm.T))
-    keep = w > (rtol ** 2) * max(float(w[-1]), 0.0) if w.size else w > 0
-    keep &= w > 0
-    Y = X @ V[:, keep]
-    Y /= np.sqrt(w[keep])                 # (in place: one tall temporary fewer)
-    return Y
-
-
-def _lowest_mode(P, F, s):
-    """Stable model (``kkt(s)`` has no reduced eigenvalue below ``s``): the smallest ones are
-    the dominant eigenvalues 1/(mu - s) > 0 of ``op(F)``; the lowest Ritz pair of a short block
-    iteration (a block, not Lanczos on one vector, so that clusters cost nothing extra)."""
-    _, X = _subspace(P, P.op(F), 4, 4, seed=5)
-    found = sorted(P.modes(X), key=lambda mo: mo[2])
-    return [mo[:2] for mo in found[:1]]
-
-
-def _negative_modes(P, F, s, n_neg):
-    """Up to N_MODES unstable modes, most negative first.
-
-    ``F`` factorises ``kkt(s)``, ``s = -eps``: the negative eigenvalues ``1/(mu - s)`` of
-    ``op(F)`` are exactly the n_neg unstable modes, well apart from the positive ones when the
-    instability is weak. When all of them are wanted (n_neg <= N_MODES) Lanczos takes them from
-    there. Otherwise (or if Lanczos does not deliver them all) a further factorisation at a
-    Gershgorin lower bound ``s_lo`` of the spectrum of Kt (no reduced eigenvalue below it,
-    checked by its inertia) makes the most unstable modes the dominant ones of a positive
-    operator, and a block iteration gives them (Ritz pairs: inside a tight cluster, valid
-    modes of that value). Its lowest Ritz value ``r`` then gives a closer shift ``1.1 r``,
-    used (after the same inertia check) for a few more steps: convergence goes with
-    ``(mu_1 - s) / (mu_j - s)``."""
-    k = min(n_neg, N_MODES)
-    found = []
-    if n_neg <= N_MODES:
-        th, X = _eig_extreme(P.op(F), P.nq, k, "SA", 1e-8)
-        found = [mo for mo in P.modes(X[:, th < 0]) if mo[2] < -P.eps]
-    if len(found) < k:
-        X = None
-        s_lo = -1.01 * float(abs(P.Kt).sum(axis=1).max()) - P.eps
-        for _ in range(2):
-            lo, _why = P.factor(s_lo)
-            if lo is None or lo.n_negative != P.m:
-                break
-            w, X = _subspace(P, P.op(lo), k + 6, 3, seed=3, X=X)
-            more = [mo for mo in P.modes(X) if mo[2] < -P.eps]
-            if len(more) >= len(found):
-                found = more
-            if not w.size or w[0] >= -P.eps:
-                break
-            s_lo = 1.1 * float(w[0])
-    found.sort(key=lambda mo: mo[2])
-    return [mo[:2] for mo in found[:k]]
-
-
-def _zero_modes(P, F, s, n_zero):
-    """Up to N_MODES neutral modes. With ``F`` factorising ``kkt(s)``, ``s = -eps``, the reduced
-    eigenvalues in [-eps, eps] are the dominant ones of ``op(F)`` (>= 1/(2 eps)), exactly
-    degenerate clusters included: a short block iteration and Rayleigh-Ritz give them."""
-    k = min(n_zero, N_MODES)
-    w, X = _subspace(P, P.op(F), k + 4, 4, seed=11)
-    X = X[:, np.argsort(np.abs(w), kind="stable")]
-    found = [mo for mo in P.modes(X) if abs(mo[2]) <= 2 * P.eps]
-    return [mo[:2] for mo in found[:k]]

@@ -1,0 +1,171 @@
+"""Gram matrices of the constraint Jacobian (solvers/gram.py): the banded Cholesky's pivots and
+solves are those of the matrix (dense references), the candidates taken out of a band solve like
+the Gram matrix of the other rows, the least-squares multipliers are the weighted least-squares
+solution, and redundancy detection decides the same rows banded or through SuperLU."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import poise.solvers.newton as newton_mod
+import poise.solvers.redundancy as red_mod
+from poise.deck.parser import load_deck
+from poise.gen.chain import build_chain_deck
+from poise.model.compile import compile_model
+from poise.solvers.data import SolveData
+from poise.solvers.gram import (BandedCholesky, SymmetricLU, band, gram, least_squares,
+                                may_be_banded, projected, without)
+from poise.solvers.reach import coord_weights
+from poise.solvers.redundancy import detect_redundancy, without_rows
+
+
+def _banded_rows(n=60, m=90, width=3, seed=0):
+    """A CSR matrix whose row k touches columns near 1.5 k: its Gram matrix is banded."""
+    rng = np.random.default_rng(seed)
+    rows, cols = [], []
+    for k in range(n):
+        c = np.unique(np.clip(int(1.5 * k) + rng.integers(-width, width + 1, 4), 0, m - 1))
+        rows += [k] * len(c)
+        cols += list(c)
+    return sp.csr_matrix((rng.standard_normal(len(rows)), (rows, cols)), shape=(n, m))
+
+
+def _chain(tmp_path, n, shuffle=False):
+    text = build_chain_deck(n, "revolute")          # a closed planar loop: 3 redundant rows
+    if shuffle:             # the joints in another deck order: the Gram matrix is not banded
+        lines = text.splitlines()
+        at = [i for i, s in enumerate(lines) if "<Constraint_Joint" in s]
+        order = np.random.default_rng(3).permutation(at)
+        lines = [lines[order[at.index(i)]] if i in at else s for i, s in enumerate(lines)]
+        text = "\n".join(lines)
+    p = tmp_path / f"chain_{n}_{int(shuffle)}.xml"
+    p.write_text(text)
+    return compile_model(load_deck(str(p)))
+
+
+def test_banded_cholesky_pivots_and_solves_are_those_of_the_matrix():
+    P = _banded_rows()
+    A = gram(P)[0]
+    ab = band(A)
+    assert ab is not None and ab.shape[0] <= 8
+    F = BandedCholesky(ab)
+    D = A.toarray()
+    L = np.linalg.cholesky(D)
+    np.testing.assert_allclose(F.pivots, np.diag(L) ** 2, rtol=1e-12)
+    np.testing.assert_allclose(SymmetricLU(A, "NATURAL").pivots, F.pivots, rtol=1e-10)
+    b = np.random.default_rng(1).standard_normal((A.shape[0], 2))
+    np.testing.assert_allclose(F.solve(b), np.linalg.solve(D, b), rtol=1e-9, atol=1e-12)
+
+
+def test_the_pattern_precheck_never_refuses_a_banded_gram_matrix():
+    for seed in range(6):
+        P = _banded_rows(seed=seed)
+        for Q in (P, P[np.random.default_rng(seed).permutation(P.shape[0])]):
+            if not may_be_banded(Q):
+                assert band(gram(Q)[0]) is None
+    assert may_be_banded(_banded_rows())
+    assert not may_be_banded(_banded_rows()[np.random.default_rng(0).permutation(60)])
+
+
+def test_band_refuses_a_matrix_whose_band_would_be_mostly_zeros():
+    A = sp.identity(200, format="lil")
+    A[199, 0] = A[0, 199] = 0.1                      # one far entry: a band of width 199
+    assert band(A.tocsr()) is None
+    with pytest.raises(ValueError):
+        BandedCholesky(np.array([[1.0, -1.0, 1.0], [2.0, 0.0, 0.0]]))   # indefinite
+
+
+def test_rows_taken_out_of_a_band_solve_like_the_gram_matrix_of_the_others():
+    P = _banded_rows(seed=2)
+    rows = np.array([7, 8, 30, 59])
+    F = BandedCholesky(without(band(gram(P)[0]), rows))
+    keep = np.setdiff1d(np.arange(P.shape[0]), rows)
+    Pk = P[keep].toarray()
+    R = np.random.default_rng(4).standard_normal((P.shape[1], 3))
+    got = projected(P, F, R, rows)
+    ref = R - Pk.T @ np.linalg.solve(Pk @ Pk.T, Pk @ R)       # projection off the kept rows
+    np.testing.assert_allclose(got, ref, atol=1e-10 * np.abs(R).max())
+    b = np.asarray(P @ R)
+    b[rows] = 0.0
+    x = F.solve(b)
+    assert np.all(x[rows] == 0.0)
+    np.testing.assert_allclose(x[keep], np.linalg.solve(Pk @ Pk.T, b[keep]), rtol=1e-9)
+
+
+def test_least_squares_is_the_weighted_least_squares_solution():
+    rng = np.random.default_rng(5)
+    P = _banded_rows(seed=5).tolil()
+    active = np.ones(P.shape[0], bool)
+    active[[4, 40]] = False
+    P[4, :] = 0.0
+    P[40, :] = 0.0
+    P = P.tocsr()
+    w = rng.uniform(0.1, 10.0, P.shape[1])
+    g = rng.standard_normal(P.shape[1])
+    counted = []
+    lam = least_squares(P, w, g, active, lambda A, f: counted.append(1) or f(A))
+    Pa = P[np.nonzero(active)[0]].toarray()
+    ref = np.linalg.lstsq((Pa * w).T, w * g, rcond=None)[0]     # min || diag(w)(Pa^T l - g) ||
+    np.testing.assert_allclose(lam[active], ref, rtol=1e-11, atol=1e-12 * np.abs(ref).max())
+    assert np.all(lam[~active] == 0.0) and counted == [1]
+    # an empty active row (a singular system): not this route
+    assert least_squares(P, w, g, np.ones(P.shape[0], bool), lambda A, f: f(A)) is None
+
+
+@pytest.mark.parametrize("shuffle", [False, True])
+def test_initial_multipliers_of_a_sparse_chain_are_the_weighted_least_squares_ones(
+        tmp_path, monkeypatch, shuffle):
+    model = _chain(tmp_path, 120, shuffle)
+    assert not model.assembler.dense
+    state = model.initial_state()
+    state.pos = state.pos + 1e-3 * np.sin(np.arange(state.pos.size)).reshape(state.pos.shape)
+    data = SolveData.for_model(model)
+    ev = data.evaluate(model, state, "phi_q", every_row=True)
+    red = detect_redundancy(model, state, evaluation=ev)
+    assert len(red) == 3
+    data.set_redundancy(red)
+    ev = without_rows(model, ev, data.mask(model))
+    Q = -ev.r.copy()
+    Pa = ev.J[model.nq:, :model.nq].toarray()[data.mask(model)]
+    got = newton_mod.initial_multipliers(model, state, data, ev=ev)
+    assert data.factorizations == 1
+    # the least-squares optimality condition B (w Q - B^T lam) = 0, B = Pa diag(w), holds to
+    # round-off (a dense SVD solution of this loop, condition 7e5, meets it only to 2e-15)
+    B = Pa / np.sqrt(coord_weights(model))
+    g = Q / np.sqrt(coord_weights(model))
+    lam = got.lam[data.mask(model)]
+    assert (np.linalg.norm(B @ (g - B.T @ lam))
+            <= 1e-15 * np.linalg.norm(B) * np.linalg.norm(g))
+    scale = np.abs(lam).max()
+    assert np.all(got.lam[red] == 0.0)
+    monkeypatch.setattr(newton_mod, "least_squares", lambda *a: None)    # the KKT system
+    kkt = newton_mod.initial_multipliers(model, state, data)
+    np.testing.assert_allclose(got.lam, kkt.lam, atol=1e-10 * scale)
+
+
+@pytest.mark.parametrize("n", [120, 1000])
+def test_redundancy_of_long_loops_is_the_same_banded_or_through_superlu(tmp_path, monkeypatch,
+                                                                        n):
+    model = _chain(tmp_path, n)
+    state = model.initial_state()
+    ev = model.evaluate(state, need_jac=True)
+    red = detect_redundancy(model, state, evaluation=ev)
+    last = 5 * (n + 1)
+    assert list(red) == [last - 3, last - 2, last - 1]   # deck order: the closing joint's rows
+    monkeypatch.setattr(red_mod, "band", lambda A: None)
+    assert list(detect_redundancy(model, state, evaluation=ev)) == list(red)
+
+
+def test_redundancy_of_a_loop_in_another_deck_order(tmp_path):
+    model = _chain(tmp_path, 120, shuffle=True)
+    state = model.initial_state()
+    P = model.evaluate(state, need_jac=True).J[model.nq:, :model.nq]
+    assert band(gram(sp.csr_matrix(P))[0]) is None          # SuperLU's path
+    red = detect_redundancy(model, state)
+    assert len(red) == 3
+    active = np.ones(model.nc, bool)
+    active[red] = False
+    Pa = P.toarray()[active] * np.where(model.q_kind == 1, 1 / model.L, 1.0)
+    sv = np.linalg.svd(Pa / np.linalg.norm(Pa, axis=1)[:, None], compute_uv=False)
+    assert sv[-1] > 1e-4                                # what is left is of full rank
