@@ -485,9 +485,11 @@ classification of the converged state and the Gram factorisations of redundancy 
 iterative refinement.
 
 **Floor (issue 25 §2).** The phase table of *Static solve vs its floor* gives each phase in
-Newton's LUs (the floor's unit, one per iteration). A Newton iteration costs ≈ 2.5 of them: the
-LU itself, one Jacobian evaluation and assembly (≈ 0.5), one or two residual evaluations, the
-step's solves with refinement and the neutral-direction filter's two extra solves. Outside
+Newton's LUs (the floor's unit, one per iteration). Newton's five iterations on these chains
+cost ≈ 5–7 of them: three LUs (the last two iterations are chord steps by the third, Newton's
+quadratic phase: `steps.chord_step`), three Jacobian evaluations and assemblies (≈ 0.5 each), a
+residual evaluation per iteration, the steps' solves with refinement and the neutral-direction
+filter's extra solve (a second one only next to neutral directions). Outside
 Newton, redundancy detection factorises a Gram matrix (twice when a candidate row is
 ambiguous, as on these closed chains) and the least-squares multipliers a weighted Gram matrix
 (normal equations; banded on these chains: LAPACK's banded Cholesky, a few percent of an LU), and

@@ -24,7 +24,6 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
 from poise.elements.context import row_where
-from poise.model.evaluate import evaluate as _evaluate
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.gram import least_squares
@@ -34,10 +33,9 @@ from poise.solvers.linalg import SingularMatrix
 from poise.solvers.reach import PROJECT_ABOVE, project, violation
 from poise.solvers.reach import coord_weights as _coord_weights
 from poise.solvers.reach import weighted_kkt as _weighted_kkt
+from poise.solvers.redundancy import inconsistent_redundant
 from poise.solvers.status import MESSAGES, Status
-from poise.solvers.steps import limit_step as _limit_step_trial
-from poise.solvers.steps import mass_times as _mass_times
-from poise.solvers.steps import neutral_filtered as _neutral_filtered
+from poise.solvers import steps as _steps
 
 ARMIJO = 1e-4
 ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step);
@@ -126,34 +124,6 @@ def singular_message(model, row):
     return f"; at {row_where(ri)} equation {ri['equation']}"
 
 
-def inconsistent_redundant(model, state, sc: Scales, data: SolveData) -> str:
-    """Removed (redundant) constraint rows violated at ``state`` beyond their tolerance.
-
-    Redundant rows are pinned inactive (``data.active``), so Newton never sees them; when the
-    joints contradict each other (e.g. two hinges of one door on parallel but offset axes) the
-    active rows can be met while a removed one is not. Returns a message naming the worst such
-    row, or "".
-    """
-    active = data.active
-    if model.nc == 0 or active is None or active.all():
-        return ""
-    try:
-        if model.assembler.dense:      # small: the last evaluation's kept outputs serve
-            phi = model.evaluate(state, need_jac=False, workspace=data.workspace).phi
-        else:                          # large: the constraint values alone, every row
-            phi = _evaluate(model, state, "phi", workspace=data.workspace)
-    except EvaluationError:
-        return ""
-    z = np.where(active, 0.0, np.abs(phi) / sc.phi_tol)
-    k = int(np.argmax(z))
-    if not z[k] > 1.0:
-        return ""
-    ri = model.row_info[k]
-    return (f"{row_where(ri)} equation {ri['equation']} "
-            f"(removed as redundant) is violated by {abs(phi[k]):.6g} "
-            f"(tolerance {sc.phi_tol[k]:.3g})")
-
-
 def initial_multipliers(model, state, cnt: Counters, weights=None, ev=None):
     """Least-squares multipliers ``argmin ||Phi_q^T lam - Q||_{W^-1}`` at the current state
     (``weights``: ``W``, default the squared coordinate scales). ``ev``: the Jacobian
@@ -230,6 +200,7 @@ class NewtonIteration(Solver[_Newtoning]):
         self.probe = probe
         self.sc = Scales(model, settings)
         self.eps = float(np.sqrt(settings.stability))
+        self._kept = None      # (factorisation, step since): a cache for steps.chord_step
 
     def _ev_at(self, st):
         # Jacobian deferred: line-search trials pay for the residual only, the accepted point
@@ -310,6 +281,7 @@ class NewtonIteration(Solver[_Newtoning]):
 
     def postprocess(self, s, status, used):
         ws = getattr(self.cnt, "workspace", None)
+        self._kept = None
         if ws is not None:
             self.model.assembler.release(ws)       # its iterations' matrix buffers
         if s.outcome is None:
@@ -328,9 +300,15 @@ class NewtonIteration(Solver[_Newtoning]):
     def _iteration(self, s):
         model, settings, sc, eps, state, ev = (self.model, self.settings, self.sc, self.eps,
                                                s.state, s.ev)
+        b = -np.concatenate([ev.r, ev.phi])
+        kept, self._kept = self._kept, None
+        # in Newton's last, quadratic phase a step by a kept factorisation (steps.chord_step)
+        x = _steps.chord_step(kept, b, sc, s.zinf) if not s.robust else None
+        chord, f, kept = x is not None, kept[0] if x is not None else None, None
         try:
-            f = self.cnt.factor(self.cnt.jacobian(model, ev), equilibrate=self.equilibrate)
-            x = f.solve(-np.concatenate([ev.r, ev.phi]))
+            if not chord:
+                f = self.cnt.factor(self.cnt.jacobian(model, ev), equilibrate=self.equilibrate)
+                x = f.solve(b)
         except SingularMatrix as e:
             return self._fail(s, Status.SINGULAR_JACOBIAN,
                               MESSAGES[Status.SINGULAR_JACOBIAN] + singular_message(model, e.row))
@@ -355,14 +333,16 @@ class NewtonIteration(Solver[_Newtoning]):
         # the limited full step is retracted only when asked: by the filter's test, or by the
         # line search when the filtered step is not taken (otherwise a retraction per iteration
         # for nothing)
-        limit = functools.cache(lambda: _limit_step_trial(model, state, x[:model.nq], settings))
-        xf = _neutral_filtered(model, state, f, x, eps, sc, s.zinf, lambda: limit()[0] < 1.0,
-                               Jg=ev.inertia)
-        del f                # the factorisation is not needed by the trials (memory at 10^5)
+        limit = functools.cache(lambda: _steps.limit_step(model, state, x[:model.nq], settings))
+        xf = _steps.neutral_filtered(model, state, f, x, eps, sc, s.zinf,
+                                     lambda: limit()[0] < 1.0, Jg=ev.inertia)
+        # the factorisation is not needed by the trials (memory at 10^5) unless kept for a chord
+        keep = _steps.keep_factor(model, f, x, sc, getattr(self.cnt, "workspace", None))
+        del f
         if xf is not None:
             # the regularisation dominates the step (near-neutral directions): try the step with
             # those directions filtered out first, keep it if it decreases the merit
-            af, tf = _limit_step_trial(model, state, xf[:model.nq], settings)
+            af, tf = _steps.limit_step(model, state, xf[:model.nq], settings)
             if tf is None:
                 tf = model.retract(state, af * xf[:model.nq])
             tf.lam = tf.lam + af * xf[model.nq:]
@@ -422,6 +402,8 @@ class NewtonIteration(Solver[_Newtoning]):
             if down is not None:
                 return self._down(evolve(s, stall=m0, runaway=Runaway(model, ev.r)), state,
                                   down)
+        if keep is not None and best[1] == 1.0 and not s.robust:      # a full step: kept
+            self._kept = (keep, _steps.step_size(dq, sc))
         return self._take(s, state, (best[2], best[3], best[0], best[1]), dq, merit=best[0])
 
     def _onto(self, s, state):
@@ -441,8 +423,8 @@ class NewtonIteration(Solver[_Newtoning]):
         trials."""
         model, settings = self.model, self.settings
         return downhill_step(model, state, ev, dq, self.cnt,
-                             lambda st, d: _limit_step_trial(model, st, d, settings),
-                             self._measure, lambda st, v: _mass_times(model, st, v), self.eps)
+                             lambda st, d: _steps.limit_step(model, st, d, settings),
+                             self._measure, lambda st, v: _steps.mass_times(model, st, v), self.eps)
 
     def _down(self, s, state, down):
         """Accept the downhill step ``down`` (:func:`~poise.solvers.downhill.downhill_step`),

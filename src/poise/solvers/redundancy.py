@@ -1,4 +1,4 @@
-"""Detection of redundant constraint equations.
+"""Detection of redundant constraint equations, and the check that the removed ones still hold.
 
 The constraint Jacobian is scaled (rotation columns by 1/L so every coordinate is a length) and
 the Gram matrix ``A = Phi_q D^2 Phi_q^T`` is factorised with symmetric diagonal pivoting in the
@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.errors import EvaluationError
+from poise.elements.context import row_where
 from poise.model.evaluate import Evaluation
+from poise.model.evaluate import evaluate as _evaluate
 from poise.solvers.gram import BandedCholesky, SymmetricLU, band, gram, projected, scaled, without
 from poise.solvers.superlu import lean
 
@@ -274,3 +277,33 @@ def without_rows(model, ev, active):
             J[:, off] = 0.0
             J[off, off] = 1.0
     return Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0), J=J, workspace=ev.workspace)
+
+
+def inconsistent_redundant(model, state, sc, data) -> str:
+    """Removed (redundant) constraint rows violated at ``state`` beyond their tolerance.
+
+    ``sc``: the solve's tolerance scales (:class:`~poise.solvers.newton.Scales`), ``data``: its
+    :class:`~poise.solvers.data.SolveData`. Redundant rows are pinned inactive (``data.active``),
+    so Newton never sees them; when the
+    joints contradict each other (e.g. two hinges of one door on parallel but offset axes) the
+    active rows can be met while a removed one is not. Returns a message naming the worst such
+    row, or "".
+    """
+    active = data.active
+    if model.nc == 0 or active is None or active.all():
+        return ""
+    try:
+        if model.assembler.dense:      # small: the last evaluation's kept outputs serve
+            phi = model.evaluate(state, need_jac=False, workspace=data.workspace).phi
+        else:                          # large: the constraint values alone, every row
+            phi = _evaluate(model, state, "phi", workspace=data.workspace)
+    except EvaluationError:
+        return ""
+    z = np.where(active, 0.0, np.abs(phi) / sc.phi_tol)
+    k = int(np.argmax(z))
+    if not z[k] > 1.0:
+        return ""
+    ri = model.row_info[k]
+    return (f"{row_where(ri)} equation {ri['equation']} "
+            f"(removed as redundant) is violated by {abs(phi[k]):.6g} "
+            f"(tolerance {sc.phi_tol[k]:.3g})")
