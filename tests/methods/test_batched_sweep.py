@@ -179,7 +179,9 @@ def test_an_invalid_case_is_reported_as_its_single_solve_reports_it():
 
 def test_each_case_takes_its_single_solves_iterates():
     """Per case the batch records the rows a single solve records (imbalance, error, step and
-    line-search length per Newton iteration, then the converged row): the same iterates."""
+    line-search length per Newton iteration, then the converged row): the same iterates (to
+    round-off: a single small solve sums its residual in another order than the batch, so the
+    measures at the round-off floor agree to 1e-9 of the column's first, largest, values)."""
     from poise.app.cases import apply_case
     deck, params, cases, job = _setup("fourbar_spring.xml",
                                       {"Force_SpringDamper[1].stiffness": "0.5,2,6"})
@@ -195,7 +197,9 @@ def test_each_case_takes_its_single_solves_iterates():
         rows = np.array(r.rows, float)
         for k, name in enumerate(("imbalance", "error", "step_norm", "step_length")):
             ref = np.asarray(one[f"iterations/{name}"], float)
-            assert np.allclose(rows[:, k], ref, rtol=1e-9, atol=1e-12, equal_nan=True), name
+            floor = 1e-9 * float(np.max(np.abs(ref[np.isfinite(ref)]), initial=0.0))
+            assert np.allclose(rows[:, k], ref, rtol=1e-9, atol=max(floor, 1e-12),
+                               equal_nan=True), name
 
 
 def test_a_small_batched_sweep_is_solved_in_the_sweeping_process(tmp_path, monkeypatch):

@@ -70,7 +70,10 @@ def test_slender_rod_converges_quadratically_without_fallback(runner, stability)
     # at stability 0.01 gives 40 at 3.7e-5 N; a stall gives ~ 1/a0)
     imb = np.asarray(d["iterations/imbalance"], float)
     imb = imb[np.isfinite(imb)]
-    pairs = [(a0, a1) for a0, a1 in zip(imb[:-1], imb[1:]) if a0 < 0.05 and a1 > 1e-12]
+    # pairs above the round-off floor (2-4e-15 N here; at stability 1e-10 the path Newton takes
+    # along the rod's spin follows the round-off of the regularised step, so the last pair above
+    # the floor may be at 1e-13)
+    pairs = [(a0, a1) for a0, a1 in zip(imb[:-1], imb[1:]) if a0 < 0.05 and a1 > 2e-14]
     assert len(pairs) >= 2
     for a0, a1 in pairs:
         assert a1 <= 30.0 * a0 ** 2, (a0, a1)

@@ -102,35 +102,43 @@ class Coincident(ConstraintFamily):
 @dataclass(frozen=True, eq=False, kw_only=True)
 class Perpendicular(ConstraintFamily):
     """``a_I . b_J + c (a2_I . b2_J) = 0``. Slots: a_I, b_J, a2_I, b2_J; c in {0, 1}
-    (``coef2`` (n,))."""
+    (``coef2`` (n,)); ``paired``: some instance has ``c = 1`` (else the second product, exact
+    zeros, is not formed)."""
 
     coef2: np.ndarray
+    paired: bool = True
 
     @classmethod
     def build(cls, name, I, J, ci, cj, ci2, cj2, coef2, owner, **layout):
         kinds = np.stack([ci, cj, ci2, cj2], 1).astype(int)
+        coef2 = np.asarray(coef2, float)
         return cls(name=name, markers=np.stack([I, J], 1).astype(int),
                    slot_ml=np.array([0, 1, 0, 1]), slot_kind=kinds,
-                   owner=np.asarray(owner, int), m=1, coef2=np.asarray(coef2, float), **layout)
+                   owner=np.asarray(owner, int), m=1, coef2=coef2,
+                   paired=bool(np.any(coef2 != 0)), **layout)
 
     def values(self, kin, ctx):
         Y = kin.Y
-        return (np.einsum("ni,ni->n", Y[:, 0], Y[:, 1])
-                + self.coef2 * np.einsum("ni,ni->n", Y[:, 2], Y[:, 3]))[:, None]
+        phi = np.einsum("ni,ni->n", Y[:, 0], Y[:, 1])
+        if self.paired:
+            phi = phi + self.coef2 * np.einsum("ni,ni->n", Y[:, 2], Y[:, 3])
+        return phi[:, None]
 
     def constraints(self, kin, lam, ctx):
         Y = kin.Y
-        c = self.coef2
-        phi = (np.einsum("ni,ni->n", Y[:, 0], Y[:, 1])
-               + c * np.einsum("ni,ni->n", Y[:, 2], Y[:, 3]))[:, None]
         n = self.n
+        phi = np.einsum("ni,ni->n", Y[:, 0], Y[:, 1])
         phi_y = np.zeros((n, 1, 12))
         phi_y[:, 0, 0:3] = Y[:, 1]
         phi_y[:, 0, 3:6] = Y[:, 0]
-        phi_y[:, 0, 6:9] = c[:, None] * Y[:, 3]
-        phi_y[:, 0, 9:12] = c[:, None] * Y[:, 2]
         # G: lam I on the (a_I, b_J) blocks, lam c I on (a2_I, b2_J); compact (PairBlocks)
         l = lam[:, 0]
+        if not self.paired:            # c = 0 everywhere: x + 0 y is x, the c blocks zeros
+            return phi[:, None], phi_y, PairBlocks(n, 4, {(0, 1): l, (1, 0): l})
+        c = self.coef2
+        phi = (phi + c * np.einsum("ni,ni->n", Y[:, 2], Y[:, 3]))[:, None]
+        phi_y[:, 0, 6:9] = c[:, None] * Y[:, 3]
+        phi_y[:, 0, 9:12] = c[:, None] * Y[:, 2]
         l2 = l * c
         return phi, phi_y, PairBlocks(n, 4, {(0, 1): l, (1, 0): l, (2, 3): l2, (3, 2): l2})
 

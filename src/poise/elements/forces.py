@@ -64,26 +64,32 @@ def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
     """Assemble ``rho`` (n, 33) and ``G`` (n, 33, 33) from the action (F, T) on I.
 
     ``action_only`` (n,) bool (or None: all react): no reaction on J for those instances.
-    ``T`` (and ``dT``) None: no torque on I (the line forces): nothing is added for it, the
-    same values as a zero torque.
+    ``T`` (and ``dT``) None: no torque on I (the line forces); ``F`` (and ``dF``) None: no force
+    (the torques): nothing is added for it, the same values as a zero torque or force.
     """
     n, S = Y.shape[:2]              # any slot count >= 11: extra slots enter only through dF, dT
     W = 3 * S
     rho = np.zeros((n, W))
     G = np.zeros((n, W, W)) if need_jac else None
-    add_force_at_point(rho, G, S_PI, F, dF)
+    if F is not None:
+        add_force_at_point(rho, G, S_PI, F, dF)
     if T is not None:
         add_torque_via_axes(rho, G, (S_XI, S_YI, S_ZI), T, dT, Y)
     # x * 1.0 is x: every instance reacting multiplies by nothing
     react = (None if action_only is None or not np.logical_or.reduce(action_only, axis=None)
              else ~np.asarray(action_only, bool))
     if react is None or np.logical_or.reduce(react):
-        d = Y[:, S_PI] - Y[:, S_PJ]
-        # -0 - x is -x: a missing torque subtracts nothing
-        Tj = -cross3(d, F) if T is None else -T - cross3(d, F)
-        Fj = -F
-        dFj = dTj = None
-        if need_jac:
+        Fj = dFj = dTj = None
+        if F is None:                       # a pure torque: no offset moment
+            Tj = -T
+            if need_jac:
+                dTj = -dT
+        else:
+            d = Y[:, S_PI] - Y[:, S_PJ]
+            # -0 - x is -x: a missing torque subtracts nothing
+            Tj = -cross3(d, F) if T is None else -T - cross3(d, F)
+            Fj = -F
+        if need_jac and F is not None:
             dFj = -dF
             # d(d x F) = -[F]x dd + [d]x dF, dd = I / -I on P_I / P_J: -[F]x dd added exactly
             dcross = np.matmul(skew(d), dF)
@@ -92,10 +98,13 @@ def apply_two_body(Y, F, T, dF, dT, action_only, need_jac):
             dcross[:, :, sl(S_PJ)] += sF
             dTj = -dcross if dT is None else -dT - dcross
         if react is not None:
-            Fj, Tj = Fj * react[:, None], Tj * react[:, None]
+            Tj = Tj * react[:, None]
+            Fj = None if Fj is None else Fj * react[:, None]
             if need_jac:
-                dFj, dTj = dFj * react[:, None, None], dTj * react[:, None, None]
-        add_force_at_point(rho, G, S_PJ, Fj, dFj)
+                dTj = dTj * react[:, None, None]
+                dFj = None if dFj is None else dFj * react[:, None, None]
+        if Fj is not None:
+            add_force_at_point(rho, G, S_PJ, Fj, dFj)
         add_torque_via_axes(rho, G, (S_XJ, S_YJ, S_ZJ), Tj, dTj, Y)
     return rho, G
 
@@ -125,7 +134,7 @@ class TwoBodyForce(ForceFamily):
 
     def compute(self, Y, ctx, need_jac):
         """Return F, T (n,3) and dF, dT (n,3,33); T and dT None: no torque on I (a law along a
-        line: nothing is applied for it)."""
+        line: nothing is applied for it); F and dF None: no force (a pure torque)."""
         raise NotImplementedError
 
     def forces(self, kin, ctx, need_jac=True):
@@ -157,29 +166,65 @@ class LineForce(TwoBodyForce):
                                (-self.k)[:, None, None] * _I3)
         return law
 
+    def forces(self, kin, ctx, need_jac=True):
+        """``-F`` on J at its origin and nothing else: a force along the line through both
+        origins has no moment about J's (:func:`apply_two_body`'s reaction torque
+        ``-(P_I - P_J) x F`` and its derivative are zero here; formed, they would be round-off).
+        ``G`` has the four point-slot blocks ``-/+ dF/dd`` (the values apply_two_body puts)."""
+        F, dFdd = self._line(kin.Y, ctx, need_jac)
+        n = len(F)
+        W = 3 * N_SLOTS
+        rho = np.zeros((n, W))
+        rho[:, sl(S_PI)] = -F
+        react = (~self.action_only if np.logical_or.reduce(self.action_only, axis=None)
+                 else None)
+        rho[:, sl(S_PJ)] = F if react is None else F * react[:, None]
+        if not need_jac:
+            return rho, None
+        G = np.zeros((n, W, W))
+        m = -dFdd
+        G[:, sl(S_PI), sl(S_PI)] = m
+        G[:, sl(S_PI), sl(S_PJ)] = dFdd
+        if react is not None:
+            m = m * react[:, None, None]
+            dFdd = dFdd * react[:, None, None]
+        G[:, sl(S_PJ), sl(S_PI)] = dFdd
+        G[:, sl(S_PJ), sl(S_PJ)] = m
+        return rho, G
+
     def compute(self, Y, ctx, need_jac):
+        F, dFdd = self._line(Y, ctx, need_jac)
+        dF = None
+        if need_jac:
+            dF = np.zeros((len(F), 3, 3 * N_SLOTS))
+            dF[:, :, sl(S_PI)] = dFdd
+            dF[:, :, sl(S_PJ)] = -dFdd
+        return F, None, dF, None
+
+    def _line(self, Y, ctx, need_jac):
+        """The force ``F`` (n, 3) on I and ``dF/d(P_I - P_J)`` (n, 3, 3) (None without
+        ``need_jac``)."""
         # F = f u = -k d + c u with c = k length + preload: the first term is smooth everywhere,
         # the second needs a defined direction (L > 0) unless c = 0.
         d = Y[:, S_PI] - Y[:, S_PJ]
         L = row_norms(d)
         c, live, nk, cc, nkI = self._law(ctx)
-        bad = (L <= 1e-300) & live
-        if np.logical_or.reduce(bad):
-            i = int(np.nonzero(bad)[0][0])
-            raise EvaluationError("the I and J markers coincide: the line of action is undefined",
-                                  self.element_locs[i] if self.element_locs else None)
-        Ls = np.where(L > 1e-300, L, 1.0)
+        far = L > 1e-300
+        Ls = L                          # (every line defined: the usual case, no selection)
+        if not np.logical_and.reduce(far):
+            bad = (L <= 1e-300) & live
+            if np.logical_or.reduce(bad):
+                i = int(np.nonzero(bad)[0][0])
+                raise EvaluationError("the I and J markers coincide: the line of action is "
+                                      "undefined",
+                                      self.element_locs[i] if self.element_locs else None)
+            Ls = np.where(far, L, 1.0)
         u = d / Ls[:, None]
         F = nk * d + cc * u
-        dF = None
-        if need_jac:
-            n = len(L)
-            uu = u[:, :, None] * u[:, None, :]
-            dFdd = nkI + (c / Ls)[:, None, None] * (_I3 - uu)
-            dF = np.zeros((n, 3, 3 * N_SLOTS))
-            dF[:, :, sl(S_PI)] = dFdd
-            dF[:, :, sl(S_PJ)] = -dFdd
-        return F, None, dF, None
+        if not need_jac:
+            return F, None
+        uu = u[:, :, None] * u[:, None, :]
+        return F, nkI + (c / Ls)[:, None, None] * (_I3 - uu)
 
     def potential_energy(self, kin, ctx):
         """``k/2 (L - length)^2 - preload L`` per instance (MKEAM history)."""
@@ -223,15 +268,13 @@ class AxisTorque(TwoBodyForce):
         tau = -self.k * (theta - self.length) + self.preload
         z = Y[:, S_ZJ]
         T = tau[:, None] * z
-        F = np.zeros_like(T)
-        dF = dT = None
+        F = dF = dT = None                  # a pure torque (no force, no offset moment)
         if need_jac:
             n = len(T)
             g = angle_gradient(Y, 2)
             dT = np.zeros((n, 3, 3 * N_SLOTS))
             dT += z[:, :, None] * (-self.k)[:, None, None] * g[:, None, :]
             dT[:, :, sl(S_ZJ)] += tau[:, None, None] * _I3
-            dF = np.zeros_like(dT)
         return F, T, dF, dT
 
     def potential_energy(self, kin, ctx):

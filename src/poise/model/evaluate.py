@@ -36,6 +36,7 @@ from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, de
 from poise.model.assembly import Scatter
 from poise.model.frame_batch import add_block, stack_ext, tiles
 from poise.model.recent import RecentEvaluations
+from poise.model.small_dense import SmallTerms
 from poise.model.workspace import Workspace
 
 WHAT = ("residual", "jacobian", "defer", "phi_q", "phi", "energy")
@@ -141,6 +142,7 @@ class _Frames:
             self.ctx = EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
                                    workspace=workspace)
             self.lam = s.lam
+            self.kins = None         # a small model's slot kinematics, all at once (first call)
             return
         nm = len(model.marker_id)
         mb = model.marker_body
@@ -179,13 +181,20 @@ class _Frames:
         """``(t, kin, lam, out)`` of family ``fi``: ``t`` the family (tiled copy for frames),
         ``lam`` its multipliers (constraints), ``out`` the kernel's output tuple."""
         fam = self.model.families[fi]
+        kin = None
         if self.single:
             t, exact = fam, True
             index = None if fam.pattern is None else fam.pattern.slots
+            small = self.model.small
+            if small is not None:
+                if self.kins is None:
+                    self.kins = small.kinematics(self.P, self.A, self.pos) or {}
+                kin = self.kins.get(fi)
         else:
             (t, exact), index = self.tiles[fi], None
-        kin = slot_kinematics(t.markers, fam.slot_ml, t.slot_kind, self.P, self.A, self.mb,
-                              self.pos, index)
+        if kin is None:
+            kin = slot_kinematics(t.markers, fam.slot_ml, t.slot_kind, self.P, self.A, self.mb,
+                                  self.pos, index)
         lam = self.lam[t.crow] if fam.is_constraint else None
         if exact:
             return t, kin, lam, _kernel(t, kin, lam, self.ctx, need_jac)
@@ -239,7 +248,8 @@ def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
                 yield fi, t, kin, None, None, ph, None, None
                 continue
             ext = out[3] if len(out) > 3 else None
-            rho = np.einsum("nmy,nm->ny", phy, lam)
+            # phi_y^T lam (one row per instance: the product itself, as the sum of one term)
+            rho = phy[:, 0] * lam if phy.shape[1] == 1 else np.einsum("nmy,nm->ny", phy, lam)
             if fam.U:
                 ext = _constraint_ext(ext, lam, len(lam), fam.m, fam.U)
         else:
@@ -271,8 +281,16 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     feed = model.reaction_feed
     state, done = fr.states[0], ({} if feed is not None else None)
     if feed is None and model.assembler.dense:
+        small = model.small
+        if small is None:
+            def compute(call):
+                return _family_outputs(model, fr, need_jac, None, call)
+        else:      # one dense pass (poise.model.small_dense); the generic one names a NaN
+            def compute(call):
+                return (small.outputs(_family_pass(model, fr, need_jac, call=call), need_jac)
+                        or _family_outputs(model, fr, need_jac, None, call))
         r, phi, pend, last = fr.ws.scratch(RecentEvaluations, RecentEvaluations).of(model).outputs(
-            fr, need_jac, _kernel, lambda call: _family_outputs(model, fr, need_jac, None, call))
+            fr, need_jac, _kernel, compute)
     else:
         r, phi, pend, last = _family_outputs(model, fr, need_jac, done)
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
@@ -284,7 +302,8 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     if need_jac:
         if feed is not None:       # d r_reader / d (lambda, q) through the channels
             ev._coupling = feed.coupling(model, done, fr.P, fr.A, mask, pend, fr.dg)
-        pend = [p for p in pend if p is not None]     # assembly order: model.families
+        if not isinstance(pend, SmallTerms):
+            pend = [p for p in pend if p is not None]     # assembly order: model.families
         ev._pending = (state, pend, eps_mass, mask.copy(), what != "phi_q")
     return ev
 
@@ -322,6 +341,13 @@ def jacobian(model, ev: Evaluation):
         return ev.J
     t_start = phases.now()
     state, pend, eps_mass, row_active, stiffness = ev._pending
+    if isinstance(pend, SmallTerms):        # a small model: the dense slot pass
+        Jg = model.world_inertia(state)
+        ev.J = pend.jacobian(Jg, eps_mass, row_active, stiffness)
+        ev.inertia = Jg
+        ev._pending = None
+        phases.add("assemble", phases.now() - t_start)
+        return ev.J
     vals = []
     for fam, kin, rho, G, phy, ext in pend:
         pat = local_pattern(fam)

@@ -23,6 +23,7 @@ from poise.elements.registry import energy_terms, kernel_types, time_sources
 from poise.elements.rows import RowTable, Texts
 from poise.model.assembly import Assembler
 from poise.model.model import DENSE_MAX, Model
+from poise.model.small_dense import small_dense
 
 
 def lay_out(families, body_off, body_kind, marker_body, nb: int, nq_bodies: int) -> tuple:
@@ -112,6 +113,7 @@ def build_model(*, bodies: dict, markers: dict, result, nq_bodies: int, L: float
     f["frame_hooks"] = tuple(h.bind(view) if hasattr(h, "bind") else h for h in res.frame_hooks)
     f["assembler"] = Assembler(N, _blocks(view, feed), dense=f["dense"],
                                groups=_order_groups(view))
+    f["small"] = small_dense(SimpleNamespace(**f))
     model = Model(**f)
     # the tables of text and numbers (one entry per row, coordinate, ...) hold no array: not
     # walked (tests/methods/test_model_frozen.py checks every array of the model is sealed)

@@ -91,6 +91,7 @@ class Model:
     energy_terms : ``(family index, potential_energy)`` the energy pass sums (the element
         types' declarations, :func:`poise.elements.registry.energy_terms`)
     assembler : the fixed-pattern KKT assembler; dense : N <= DENSE_MAX
+    small : the dense slot pass of a small model (:mod:`poise.model.small_dense`) or None
     trans_idx, rot_idx, rot_body, extra_idx, extra_off, q_kind, q_scale, body_scale, row_kind :
         coordinate and row index maps (:func:`poise.model.layout.build_model`)
     eval_order : family evaluation order (reaction readers after the others, gravity last)
@@ -146,6 +147,7 @@ class Model:
     q_scale: np.ndarray
     row_kind: np.ndarray
     eval_order: tuple
+    small: object = None             # SmallDense tables (poise.model.small_dense) or None
 
     # ------------------------------------------------------------------ state
     def initial_state(self, t: float = 0.0) -> State:
@@ -171,8 +173,8 @@ class Model:
         mb = self.marker_body
         nm = len(mb)
         if nm <= 2 * CHUNK:
-            R = rot[mb]                                  # gathered once for both products
-            P = pos[mb] + np.einsum("nij,nj->ni", R, self.marker_s0)
+            R = rot.take(mb, 0)                          # gathered once for both products
+            P = pos.take(mb, 0) + np.einsum("nij,nj->ni", R, self.marker_s0)
             A = np.matmul(R, self.marker_A0)
             return P, A, pos
         # many markers: the same products chunk by chunk (no full-size temporaries)

@@ -238,6 +238,9 @@ def equilibrate_dense(Ks, G, iters=12, tol=0.1):
     R = np.add.reduce(A, axis=2)
     nbr = np.maximum(R, mx(np.where(A > 0.0, R[:, None, :], 0.0), axis=2, initial=0.0))
     cap = _cap(R, nbr)
+    if F == 1:
+        Dq, Dl = _equilibrate_one(A[0], B[0], cap[0], iters, tol)
+        return Dq[None], Dl[None]
     Dq, Dl = np.minimum(np.ones((F, n)), cap), np.ones((F, m))
     bufA, bufB = np.empty_like(A), np.empty_like(B)
     go = np.ones(F, bool)
@@ -262,3 +265,27 @@ def equilibrate_dense(Ks, G, iters=12, tol=0.1):
         Dq = np.minimum(Dq / np.sqrt(rq), cap)
         Dl = Dl / np.sqrt(rl)
     return Dq, Dl
+
+
+def _equilibrate_one(A, B, cap, iters, tol):
+    """:func:`equilibrate_dense` of one frame (a static solve's), ``A = |Ks|`` (n, n), ``B =
+    |G|`` (m, n), ``cap`` (n,): the absolute KKT matrix ``[[A, B^T], [B, 0]]`` with one scaling
+    ``[Dq; Dl]`` (no cap on ``Dl``), so that an iteration is one product and one maximum per
+    row: the same products and maxima as the frames' loop, the same factors."""
+    n, m = A.shape[0], B.shape[0]
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = A
+    M[:n, n:] = B.T
+    M[n:, :n] = B
+    capx = np.concatenate([cap, np.full(m, np.inf)])
+    D = np.concatenate([np.minimum(1.0, cap), np.ones(m)])
+    buf = np.empty_like(M)
+    mx = np.maximum.reduce
+    for _ in range(iters):
+        r = mx(np.multiply(M, D, out=buf), axis=1, initial=0.0)
+        r *= D
+        r[(r <= 0.0) | ((D >= capx) & (r < 1.0))] = 1.0   # all-zero row, or at its cap
+        if mx(np.abs(r - 1.0), axis=None, initial=0.0) <= tol:     # (NaN: never)
+            break
+        D = np.minimum(D / np.sqrt(r), capx)
+    return D[:n], D[n:]

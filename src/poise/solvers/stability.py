@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core import memory
+from poise.core.lean import row_norms
 from poise.solvers.equilibrate import equilibrate_dense, prune_noise_dense, prune_rows_dense
 from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the public names
     AUG_RHO,
@@ -107,6 +108,8 @@ def _dense_frames(model, J, active, ok) -> list[StabilityInfo]:
     unknown = StabilityInfo("unknown", -1, -1, "", np.nan)
     if nq == 0:
         return [StabilityInfo("stable", 0, 0, "", np.nan) if k else unknown for k in ok]
+    if F == 1 and ok[0]:
+        return [_dense_one(model, J[0], active)]
     out = [unknown] * F
     sel = np.nonzero(ok)[0]
     if not len(sel):
@@ -174,3 +177,44 @@ def described_modes(X, K, neg, zero, d) -> list[list]:
         wk = np.einsum("ik,ij,jk->k", xs, K, xs)                    # Rayleigh [force/length]
         found.append([(xs[:, c] / d, float(wk[c])) for c in range(xs.shape[1])])
     return found
+
+
+def _dense_one(model, J, active) -> StabilityInfo:
+    """:func:`_dense_frames` of one frame (a static solve's): the same operations on the
+    frame's 2-d arrays, without the stacking (the same numbers)."""
+    nq = model.nq
+    d = model.q_scale
+    Ku = J[:nq, :nq] / d[:, None] / d[None, :]
+    Ku = 0.5 * (Ku + Ku.T)
+    G = J[nq:, :nq][active] / d[None, :]
+    if G.shape[0]:
+        rn = row_norms(G)
+        G = np.where((rn > 1e-10 * np.maximum.reduce(rn))[:, None], G, 0.0)
+        G = prune_rows_dense(G[None])[0]
+    Ks = prune_noise_dense(Ku[None])
+    Dq, Dl = equilibrate_dense(Ks, G[None])
+    Ks, Dq, Dl = Ks[0], Dq[0], Dl[0]
+    Kt = Ks * Dq[:, None] * Dq[None, :]
+    if G.shape[0]:
+        _, s, vh = np.linalg.svd(G * Dl[:, None] * Dq[None, :], full_matrices=True)
+        tol = 1e-10 * (np.maximum.reduce(s) if s.size else 0.0)
+        rank = int(np.add.reduce(s > tol))
+    else:
+        vh = np.eye(nq)
+        rank = 0
+    eps = ZERO_REL * max(float(np.maximum.reduce(np.abs(np.linalg.eigvalsh(Kt)))), 1.0)
+    Z = vh[rank:, :].T                                               # (nq, k) null space
+    if Z.shape[1] == 0:
+        return StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
+    Kr = Z.T @ (Kt @ Z)
+    w, V = np.linalg.eigh(0.5 * (Kr + Kr.T))
+    neg = w < -eps
+    zero = np.abs(w) <= eps
+    X = Dq[:, None] * (Z @ V)                   # eigenvectors in (length) coordinates
+    X /= np.maximum(row_norms(X, axis=0), 1e-300)[None, :]
+    xk = X[:, int(np.argmin(w))].copy()
+    wmin = float(np.einsum("gi,gij,gj->g", xk[None], Ku[None], xk[None])[0])   # [force/length]
+    found = described_modes(X, Ku, neg, zero, d)
+    klass = "unstable" if neg.any() else "neutral" if zero.any() else "stable"
+    return classified_info(model, klass, int(neg.sum()), int(zero.sum()), found[0], found[1],
+                           wmin)
