@@ -34,6 +34,7 @@ from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, de
                                    slot_kinematics,
                                    tangent_compact)
 from poise.model.assembly import Scatter
+from poise.model.energy import potential_energy
 from poise.model.frame_batch import add_block, stack_ext, tiles
 from poise.model.recent import RecentEvaluations
 from poise.model.small_dense import SmallTerms
@@ -109,8 +110,8 @@ def evaluate(model, states, what: str = "jacobian", *, active=None, keep: bool =
     ws = Workspace() if workspace is None else workspace
     if what == "energy":             # summed per frame: one frame at a time
         if single:
-            return _energy(model, _Frames(model, [states], True, ws))
-        return np.array([_energy(model, _Frames(model, [s], True, ws)) for s in states])
+            return potential_energy(model, _Frames(model, [states], True, ws))
+        return np.array([potential_energy(model, _Frames(model, [s], True, ws)) for s in states])
     t_start = phases.now()
     try:
         fr = _Frames(model, [states] if single else list(states), single, ws)
@@ -441,39 +442,6 @@ def _many_frames(model, fr, need_jac):
         val = np.concatenate(jval) if jval else np.zeros(0)
         J = np.bincount(idx, weights=val, minlength=F * N * N).reshape(F, N, N)
     return FrameEvaluation(r=r, phi=phi, J=J, items=items)
-
-
-def _energy(model, fr) -> float:
-    """Potential energy at one frame: the sum of what the element types declare for their
-    families (``Model.energy_terms``: gravity, springs, contacts, ...; constraints add nothing);
-    NaN when one declares none (a non-conservative force: MKEAM's descent measure and restart
-    rule, ``--require-stable``)."""
-    V = 0.0
-    view = _EnergyView(model, fr)
-    for fi, fn in model.energy_terms:
-        e = fn(model.families[fi], view)
-        if e is None:
-            return np.nan
-        V += float(np.sum(e))
-    return V
-
-
-class _EnergyView:
-    """What a declared ``potential_energy(fam, frame)`` reads at one frame
-    (:mod:`poise.elements.registry`): slot kinematics, time and angles, fixed markers."""
-
-    def __init__(self, model, fr):
-        self.model, self.fr = model, fr
-        self.ctx = EvalContext(t=fr.ctx.t, angle=fr.ctx.angle, workspace=fr.ws)
-
-    def kinematics(self, fam):
-        fr = self.fr
-        return slot_kinematics(fam.markers, fam.slot_ml, fam.slot_kind, fr.P, fr.A, fr.mb,
-                               fr.pos)
-
-    def on_ground(self, fam):
-        """(n, K) bool: which of each instance's markers are fixed."""
-        return self.fr.mb[fam.markers] == self.model.nb
 
 
 # ---------------------------------------------------------------------------- helpers

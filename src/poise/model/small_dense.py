@@ -94,7 +94,7 @@ class SmallDense:
     """Index tables of the dense slot pass of one model (built once, at layout time)."""
 
     def __init__(self, model):
-        nq, nb = model.nq, model.nb
+        nq = model.nq
         self.nq, self.nc, self.N = nq, model.nc, model.N
         tabs, tcols, rcols, at = [], [], [], 0
         for fi in model.eval_order:
