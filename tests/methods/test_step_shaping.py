@@ -151,11 +151,15 @@ def test_the_certifying_step_saves_the_last_factorisation(tmp_path, monkeypatch)
     assert a.converged
     its = int(a.datasets["frames/iterations"][0])
     assert ra.counts["factorizations"] < its + 1       # prologue 1 + Newton's, fewer than its
+    ev = list(a.datasets["iterations/event"])
+    chords = ev.count("newton-chord")                 # the history names the chord steps
+    assert chords >= 1 and ra.counts["factorizations"] == its + 1 - chords
     monkeypatch.setattr(steps, "CHORD_STEP", -1.0)    # no chord step is small enough
     rb = run_deck(str(p))
     b = rb.analyses[0]
     assert b.converged and int(b.datasets["frames/iterations"][0]) == its
     assert rb.counts["factorizations"] == its + 1
+    assert "newton-chord" not in list(b.datasets["iterations/event"])
     L = float(np.max(np.abs(b.datasets["bodies/position"])))
     np.testing.assert_allclose(a.datasets["bodies/position"], b.datasets["bodies/position"],
                                rtol=0, atol=1e-9 * L)

@@ -306,8 +306,9 @@ for n, t, u, m in (
          "Newton step)"),
         ("worst_equation", "str", "", "element and equation with the largest scaled residual, "
          "e.g. `<Constraint_Joint id=5> rot_x`"),
-        ("event", "str", "", "what the row was: `assembly`, `newton`, `substep`, `mkeam`, "
-         "`polish`, `ida`, `fallback: <reason>`, …"),
+        ("event", "str", "", "what the row was: `assembly`, `newton`, `newton-chord` (a "
+         "step by an earlier iterate's factorisation in Newton's quadratic phase), `substep`, "
+         "`mkeam`, `polish`, `ida`, `fallback: <reason>`, …"),
         ("strategy", "str", "", "recovery stage of the row: `plain`, `stability`, "
          "`continuation`, `mkeam`, `polish`")):
     _d(A, f"iterations/{n}", t, ("N",), u, m, "iterations")

@@ -404,7 +404,9 @@ class NewtonIteration(Solver[_Newtoning]):
                                   down)
         if keep is not None and best[1] == 1.0 and not s.robust:      # a full step: kept
             self._kept = (keep, _steps.step_size(dq, sc))
-        return self._take(s, state, (best[2], best[3], best[0], best[1]), dq, merit=best[0])
+        # a chord step's row says so (``newton-chord``: no Jacobian, no factorisation)
+        return self._take(s, state, (best[2], best[3], best[0], best[1]), dq,
+                          "chord" if chord else None, merit=best[0])
 
     def _onto(self, s, state):
         """The iterate projected back onto its constraints or, beyond their reach, the last
