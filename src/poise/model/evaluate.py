@@ -342,13 +342,21 @@ def jacobian(model, ev: Evaluation):
         return ev.J
     t_start = phases.now()
     state, pend, eps_mass, row_active, stiffness = ev._pending
+    Jg = model.world_inertia(state)
     if isinstance(pend, SmallTerms):        # a small model: the dense slot pass
-        Jg = model.world_inertia(state)
         ev.J = pend.jacobian(Jg, eps_mass, row_active, stiffness)
-        ev.inertia = Jg
-        ev._pending = None
-        phases.add("assemble", phases.now() - t_start)
-        return ev.J
+    else:
+        ev.J = _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness)
+    ev.inertia = Jg                  # Newton's step filter multiplies by the same mass matrix
+    ev._pending = None
+    phases.add("assemble", phases.now() - t_start)
+    return ev.J
+
+
+def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
+    """The KKT matrix through the model's fixed-pattern assembler: every family's tangent and
+    constraint values in registration order, then the mass shift, the unit diagonal of the
+    removed rows and the reaction coupling."""
     vals = []
     for fam, kin, rho, G, phy, ext in pend:
         pat = local_pattern(fam)
@@ -378,15 +386,10 @@ def jacobian(model, ev: Evaluation):
             vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
         else:
             vals.append(Kl)
-    Jg = model.world_inertia(state)
     vals += [eps_mass * model.body_mass.repeat(3), eps_mass * Jg,
              (~row_active).astype(float)]
     vals += ev._coupling
-    ev.J = model.assembler.assemble(vals, ev.workspace)
-    ev.inertia = Jg                  # Newton's step filter multiplies by the same mass matrix
-    ev._pending = None
-    phases.add("assemble", phases.now() - t_start)
-    return ev.J
+    return model.assembler.assemble(vals, ev.workspace)
 
 
 def _many_frames(model, fr, need_jac):
