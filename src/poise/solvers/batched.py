@@ -27,7 +27,7 @@ from poise.solvers.newton import ARMIJO, ALPHA_STALL, Scales
 from poise.solvers.reach import coord_weights
 from poise.solvers.stability import classify_dense_frames
 from poise.model.retract_many import limit_many, retract_many
-from poise.solvers.steps import TAIL_SHARE, neutral_filtered
+from poise.solvers.steps import TAIL_SHARE, neutral_filtered, step_size
 
 SINGULAR_REL = 1e-15          # the dense Factor's singular-value test (solvers/linalg.py)
 
@@ -216,7 +216,7 @@ class CaseBatch:
                 bm, ba, bs, bev = best[j]
                 if zinf[j] <= 1.0 and not bm < m0[j]:
                     # round-off floor: the error is the step not taken (newton.py)
-                    nxt = float(np.max(np.abs(dq[j]) / sc.q_len)) if nq else 0.0
+                    nxt = step_size(dq[j], sc)
                     e = float(max(cerr[j], nxt))
                     res[i] = CaseResult(alone=False, iterations=it, error=e,
                                         rows=res[i].rows + [(float(imb[j]), e, np.nan, np.nan)])
@@ -231,7 +231,7 @@ class CaseBatch:
                     self._give_up(res, [i], "stalled line search")
                     live[i] = False
                     continue
-                last[i] = float(np.max(np.abs(ba * dq[j]) / sc.q_len)) if nq else 0.0
+                last[i] = step_size(ba * dq[j], sc)
                 res[i].rows.append((float(imb[j]), float(err[j]), last[i], ba))
                 states[i] = bs
                 self.cache[i] = bev

@@ -26,6 +26,7 @@ from poise.solvers.newton import Scales, measures, newton
 from poise.solvers.pencil_dense import DENSE_PENCIL, DensePencil
 from poise.solvers.stability import AUG_RHO, SparsePencil
 from poise.solvers.status import Status
+from poise.solvers.steps import step_size
 from poise.solvers.trials import Chord, LagrangeTest, Projector, trial_tol, violation_work
 
 STEP_TRANS = 0.4          # x L: largest translation of one descent step
@@ -185,7 +186,7 @@ class Descent(Solver):
             alpha *= 0.5
         if accepted is not None and alpha == 1.0 and sigma > 0.0 and big == 1.0:
             alpha, accepted = _extend(model, state, dq, proj, cnt, pe, slope, accepted, work)
-        row = Row(frame, steps, imb, cerr, float(np.max(np.abs(alpha * dq) / self.sc.q_len)),
+        row = Row(frame, steps, imb, cerr, step_size(alpha * dq, self.sc),
                   alpha if accepted else np.nan, worst, f"stable-descent sigma={sigma:.3g}",
                   pos=state.pos, rot=state.rot)
         if zinf <= 1.0 and (accepted is None or

@@ -383,7 +383,7 @@ class NewtonIteration(Solver[_Newtoning]):
             # every equation within tolerance and no step along Newton's direction improves
             # them: the residual is at its round-off floor, the step is noise. The error is the
             # step not taken (the distance Newton still sees), not the last one taken
-            nxt = float(np.max(np.abs(dq) / sc.q_len)) if dq.size else 0.0
+            nxt = _steps.step_size(dq, sc)
             return Next(self._converged(s, max(s.cerr, nxt)), 0)
         s = evolve(s, merits=s.merits + (m0,))
         cw = settings.limits.crawl_window
@@ -446,7 +446,7 @@ class NewtonIteration(Solver[_Newtoning]):
         ``alpha * dq``: the iteration's history row. ``merit``: the trial's merit when the
         line search measured it (kept: the next iteration's starting merit)."""
         st, ev, _, alpha = trial
-        last_step = float(np.max(np.abs(alpha * dq) / self.sc.q_len)) if dq.size else 0.0
+        last_step = _steps.step_size(alpha * dq, self.sc)
         s2 = evolve(s, state=st, ev=ev, last_step=last_step, merit=merit,
                      feasible=(st, ev) if violation(self.model, ev.phi) <= PROJECT_ABOVE
                      else s.feasible)
