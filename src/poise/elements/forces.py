@@ -1,13 +1,10 @@
 """Force families between two markers, vectorised.
 
-All two-body force elements share one slot layout (markers I, J, R):
-``[P_I, x_I, y_I, z_I, P_J, x_J, y_J, z_J, x_R, y_R, z_R]`` (slots 0..10), where R is the
-reference marker of vector-force components (the global frame when absent).
-
-Each family computes the force ``F`` and torque ``T`` acting on the body of I at the I origin
-(global components) and their derivatives with respect to the slot vectors. The generic
-:func:`~poise.elements.two_body.apply_two_body` then applies ``(F, T)`` to I and, unless the element is action-only, the
-equal and opposite action to J: ``-F`` at ``P_J`` plus the torque ``-T - (P_I - P_J) x F``.
+Every two-body force element shares one slot layout (markers I, J and the reference marker R of
+vector-force components; :mod:`poise.elements.two_body`). Each family computes the force ``F``
+and torque ``T`` acting on the body of I at the I origin (global components) and their
+derivatives with respect to the slot vectors; :func:`~poise.elements.two_body.apply_two_body`
+applies them to I and, unless the element is action-only, the equal and opposite action to J.
 Laws follow ``conventions.md`` (statics: velocities are zero, damping vanishes).
 """
 from __future__ import annotations

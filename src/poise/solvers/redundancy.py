@@ -284,10 +284,9 @@ def inconsistent_redundant(model, state, sc, data) -> str:
 
     ``sc``: the solve's tolerance scales (:class:`~poise.solvers.newton.Scales`), ``data``: its
     :class:`~poise.solvers.data.SolveData`. Redundant rows are pinned inactive (``data.active``),
-    so Newton never sees them; when the
-    joints contradict each other (e.g. two hinges of one door on parallel but offset axes) the
-    active rows can be met while a removed one is not. Returns a message naming the worst such
-    row, or "".
+    so Newton never sees them; when the joints contradict each other (e.g. two hinges of one
+    door on parallel but offset axes) the active rows can be met while a removed one is not.
+    Returns a message naming the worst such row, or "".
     """
     active = data.active
     if model.nc == 0 or active is None or active.all():

@@ -115,6 +115,7 @@ def classified_info(model, klass, n_neg, n_zero, unstable, neutral, wmin) -> Sta
     return StabilityInfo(klass, int(n_neg), int(n_zero), "; ".join(texts), float(wmin),
                          tuple(modes), tuple(np.asarray(q, float) for q, _ in unstable[:N_MODES]))
 
+
 def canonical_basis(B):
     """A basis of the span of ``B``'s columns (nq, k) that does not depend on which basis
     ``B`` is: ``C = B B[p]^-1`` (``C[p] = I``) for the coordinates ``p`` a column-pivoted

@@ -71,7 +71,7 @@ def keep_factor(model, f, x, sc, workspace=None):
 
 def chord_step(kept, b, sc, zinf):
     """The step ``f^-1 b`` by a kept factorisation ``kept = (f, d)`` of an earlier iterate's
-    Jacobian (``d``: the size of the full step taken since it was used; or None) when it does
+    Jacobian (``d``: the size of the full step taken since it was used) when it does
     what Newton's step would, else None.
 
     Its contraction ``delta = |f^-1 b| / d`` (scaled sizes) estimates the relative change a
