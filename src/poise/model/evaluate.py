@@ -19,7 +19,7 @@ keeps between calls (assembly buffer, tiled families, kernels' caches) is in the
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import partial
+from functools import cached_property, partial
 
 import numpy as np
 
@@ -137,12 +137,8 @@ class _Frames:
         self.dg = None                    # reaction channels' (F, T), global (reaction feed)
         nb = model.nb
         if single:
-            s = states[0]
-            self.P, self.A, self.pos = model.marker_kinematics(s)
             self.mb = model.marker_body
-            self.ctx = EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
-                                   workspace=workspace)
-            self.lam = s.lam
+            self.lam = states[0].lam
             self.kins = None         # a small model's slot kinematics, all at once (first call)
             return
         nm = len(model.marker_id)
@@ -168,6 +164,30 @@ class _Frames:
                                A=self.A, extra=ext, workspace=workspace)
         self.ctxs = None
         self.tiles = tiles(model, F, workspace)
+
+    # one frame's marker kinematics and context, made on first use (an evaluation served
+    # whole by the workspace's RecentEvaluations reads neither); frames set them in __init__
+    @cached_property
+    def _markers(self):
+        return self.model.marker_kinematics(self.states[0])
+
+    @cached_property
+    def P(self):
+        return self._markers[0]
+
+    @cached_property
+    def A(self):
+        return self._markers[1]
+
+    @cached_property
+    def pos(self):
+        return self._markers[2]
+
+    @cached_property
+    def ctx(self):
+        s = self.states[0]
+        return EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
+                           workspace=self.ws)
 
     def scatter(self, fam) -> Scatter:
         """The family's residual scatter (:class:`~poise.model.assembly.Scatter`), kept in
@@ -263,7 +283,12 @@ def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
 
 
 def _phi(model, fr, active):
-    """Constraint values of the frames (no force element is called)."""
+    """Constraint values of the frames (no force element is called; one frame's are those of
+    a kept evaluation at its state when there is one, :mod:`poise.model.recent`)."""
+    kept = (_recent(model, fr).phi(fr.states[0])
+            if fr.single and model.reaction_feed is None else None)
+    if kept is not None:
+        return kept if active is None else np.where(np.asarray(active, bool), kept, 0.0)
     phi = np.zeros(fr.F * model.nc)
     for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, "phi", only="phi"):
         phi[t.crow.ravel()] = ph.ravel()
@@ -277,11 +302,11 @@ def _phi(model, fr, active):
 
 def _one_frame(model, fr, what, active, keep, eps_mass):
     """Residual (and Jacobian, now or deferred) of one frame (the Jacobian through the model's
-    fixed-pattern assembler); small models reuse kept outputs (:mod:`poise.model.recent`)."""
+    fixed-pattern assembler); kept outputs are reused (:mod:`poise.model.recent`)."""
     need_jac = what != "residual"
     feed = model.reaction_feed
     state, done = fr.states[0], ({} if feed is not None else None)
-    if feed is None and model.assembler.dense:
+    if feed is None:
         small = model.small
         if small is None:
             def compute(call):
@@ -290,8 +315,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
             def compute(call):
                 return (small.outputs(_family_pass(model, fr, need_jac, call=call), need_jac)
                         or _family_outputs(model, fr, need_jac, None, call))
-        r, phi, pend, last = fr.ws.scratch(RecentEvaluations, RecentEvaluations).of(model).outputs(
-            fr, need_jac, _kernel, compute)
+        r, phi, pend, last = _recent(model, fr).outputs(fr, need_jac, _kernel, compute)
     else:
         r, phi, pend, last = _family_outputs(model, fr, need_jac, done)
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
@@ -307,6 +331,11 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
             pend = [p for p in pend if p is not None]     # assembly order: model.families
         ev._pending = (state, pend, eps_mass, mask.copy(), what != "phi_q")
     return ev
+
+
+def _recent(model, fr) -> RecentEvaluations:
+    """The workspace's memo of ``model``'s last evaluations."""
+    return fr.ws.scratch(RecentEvaluations, RecentEvaluations).of(model)
 
 
 def _family_outputs(model, fr, need_jac, done, call=None):

@@ -1,13 +1,14 @@
-"""The evaluations a small model's solve keeps for reuse: the family outputs of its last states.
+"""The evaluations a solve keeps for reuse: the family outputs of its last states.
 
 A solve evaluates some states more than once: Newton's last iterate again for the redundant-row
 check and the output measures (only the active-row mask, the mass shift and the assembly
 differ), Newton's first iterate at the start's configuration with new multipliers (the forces
-and slot kinematics are the same), the static prologue's start. For models assembled dense
-(``Model.assembler.dense``, no reaction feed) the solve's workspace keeps the kernel outputs of
-the last :attr:`RecentEvaluations.SIZE` states, keyed by the bytes of everything a kernel
-reads (time, positions, axes, multipliers, angles, scalar unknowns): a hit is bitwise the
-evaluation it skips. Big models keep nothing (their outputs are large and rarely repeated).
+and slot kinematics are the same), the static prologue's start. For models with no reaction
+feed the solve's workspace keeps the kernel outputs of the last states (two for a model
+assembled dense, one for a sparse one: its outputs are large, and Newton holds that one anyway
+while it is its iterate or trial), keyed by the bytes of everything a kernel reads (time,
+positions, axes, multipliers, angles, scalar unknowns): a hit is bitwise the evaluation it
+skips.
 """
 from __future__ import annotations
 
@@ -16,18 +17,27 @@ class RecentEvaluations:
     """The family outputs of a small model's last evaluated states (a solve's workspace keeps
     one, :func:`poise.model.evaluate.evaluate` fills and reads it; see the module doc)."""
 
-    __slots__ = ("entries", "model")
-    SIZE = 2
+    __slots__ = ("entries", "model", "size")
+    SIZE = 2           # states kept for a dense model (one for a sparse one)
 
     def __init__(self):
         self.entries = []
         self.model = None
+        self.size = self.SIZE
 
     def of(self, model):
         """This memo for ``model`` (emptied when the workspace evaluates another model)."""
         if self.model is not model:
             self.model, self.entries = model, []
+            self.size = self.SIZE if model.assembler.dense else 1
         return self
+
+    def phi(self, state):
+        """The all-row constraint values kept for ``state`` (a copy), or None."""
+        if not self.entries:
+            return None
+        hit = self.get(self.key(state), False)
+        return None if hit is None else hit[1].copy()
 
     def outputs(self, fr, need_jac, kernel, compute):
         """``(r, phi, pend, items)`` at the one state of ``fr`` (``pend`` with the Jacobian's
@@ -84,5 +94,6 @@ class RecentEvaluations:
         return None
 
     def put(self, key, need_jac, *out):
-        self.entries = [e for e in self.entries if e[0] != key][-(self.SIZE - 1):]
+        kept = [e for e in self.entries if e[0] != key]
+        self.entries = kept[max(0, len(kept) + 1 - self.size):]
         self.entries.append((key, need_jac, out))
