@@ -33,7 +33,7 @@ from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, de
                                    local_pattern, local_residual_tangent, local_tangent,
                                    slot_kinematics,
                                    tangent_compact)
-from poise.model.assembly import Scatter
+from poise.model.assembly import Few, Scatter, Zeros
 from poise.model.energy import potential_energy
 from poise.model.frame_batch import add_block, stack_ext, tiles
 from poise.model.recent import RecentEvaluations
@@ -392,7 +392,7 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
         U = fam.U
         parts = None if U else spans(kin)
         if not stiffness:  # "phi_q": the tangent entries read zero (nothing else shares them)
-            Kl = np.zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
+            Kl = Zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
         elif pat.compact:  # straight into the registered (entry-major block) order
             Kl = (tangent_compact(kin, rho, G, fam.K, pat) if parts is None else
                   tangent_values(kin, rho, G, fam.K, pat, parts))
@@ -411,12 +411,15 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
                 Pq = Pq * act[:, :, None]
             Pq = Pq.reshape(fam.n, -1)
             if pat.pidx is not None:
-                Pq = Pq[:, pat.pidx]
+                Pq = Pq.take(pat.pidx, axis=1)      # C order: no copy when it is scattered
             vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
         else:
             vals.append(Kl)
-    vals += [eps_mass * model.body_mass.repeat(3), eps_mass * Jg,
-             (~row_active).astype(float)]
+    nr = len(Jg)
+    removed = np.flatnonzero(~row_active)           # their unit diagonal, nothing elsewhere
+    vals += [eps_mass * model.body_mass.repeat(3), eps_mass * Jg] if eps_mass else [
+        Zeros(3 * len(model.body_mass)), Zeros(9 * nr)]
+    vals.append(Few(row_active.size, removed, np.ones(removed.size)))
     vals += ev._coupling
     return model.assembler.assemble(vals, ev.workspace)
 
