@@ -159,3 +159,32 @@ def test_euler_parameters_are_the_formula_sums():
     assert np.allclose(4 * qk ** 2, diag[np.arange(len(Rs)), k], rtol=1e-12, atol=1e-15)
     assert np.allclose(R.expm_so3(R.rotation_vector(Rs)), Rs, atol=1e-12)
     assert np.all((q[:, 0] > 0) | ((q[:, 0] == 0) & (q[:, 1:] != 0).any(axis=1)))
+
+
+def test_entry_major_constraint_jacobian_is_the_instance_major_one():
+    # made component by component over the instances (and chunk by chunk, with removed rows)
+    # it is the same bits as constraint_jacobian_local's entries
+    from poise.elements.chunked import constraint_values
+    rng = np.random.default_rng(5)
+    for t in range(12):
+        n, k_, s_, m = 700 + t, int(rng.integers(1, 4)), int(rng.integers(1, 6)), 1 + t % 3
+        ml = rng.integers(0, k_, s_)
+        kind = np.where(rng.random((1, s_)) < 0.5, 0, rng.integers(1, 4, (1, s_))).repeat(n, 0)
+        if t % 3 == 0:                  # a slot that is a point in some instances only
+            kind[::2, 0], kind[1::2, 0] = 0, 2
+        markers = rng.integers(0, 9, (n, k_))
+        body = rng.integers(-1, 5, 9)
+        P, A, pos = rng.standard_normal((9, 3)), rng.standard_normal((9, 3, 3)), \
+            rng.standard_normal((5, 3))
+        kin = K.slot_kinematics(markers, ml, kind, P, A, body, pos)
+        py = rng.standard_normal((n, m, 3 * s_))
+        py[:, :, ::4] = -0.0
+        ref = K.constraint_jacobian_local(kin, py, k_)                 # (n, m, 6K)
+        pidx = None if t % 2 else np.flatnonzero(rng.random(m * 6 * k_) < 0.6)
+        act = rng.random((n, m)) < (0.9 if t % 4 else 1.1)
+        want = (ref * act[:, :, None] if not act.all() else ref).reshape(n, -1)
+        want = want if pidx is None else want[:, pidx]
+        whole = constraint_values(kin, py, k_, act, pidx, None)
+        parts = constraint_values(kin, py, k_, act, pidx, [(0, 300), (300, n)])
+        assert whole.tobytes() == np.ascontiguousarray(want.T).tobytes()
+        assert parts.tobytes() == whole.tobytes()

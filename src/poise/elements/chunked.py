@@ -17,7 +17,7 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
 from poise.elements.kernel import (PairBlocks, SlotKinematics, local_residual,
-                                   constraint_jacobian_local, tangent_compact)
+                                   constraint_jacobian_major, tangent_compact)
 
 CHUNK = 1 << 14
 
@@ -66,22 +66,29 @@ def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.
     return out
 
 
-def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list) -> np.ndarray:
-    """The constraint Jacobian's registered values (n, P) of the whole family (no scalar
-    columns), chunk by chunk: ``phi_y B``, rows multiplied by the active mask ``act`` (n, m)
-    when a row is removed (``x * 1.0`` is ``x``: only then), entries ``pidx`` (None: all)."""
+def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list | None
+                      ) -> np.ndarray:
+    """The constraint Jacobian's registered values of a family with no scalar columns,
+    entry-major ``(P, n)`` (:func:`~poise.elements.kernel.constraint_jacobian_major`; chunk by
+    chunk, ``parts`` from :func:`spans`, None: in one piece): ``phi_y B``, rows multiplied by
+    the active mask ``act`` (n, m) when a row is removed (``x * 1.0`` is ``x``: only then),
+    entries ``pidx`` (None: all)."""
     n = kin.pt.shape[0]
+    m = phy.shape[1]
     if np.logical_and.reduce(act, axis=None):
         act = None
+    else:                                     # each entry's row of the instance
+        rows_ = np.arange(m * 6 * K) // (6 * K)
+        act = np.ascontiguousarray(act.T).take(rows_ if pidx is None else rows_[pidx], 0)
+    if parts is None:
+        out = constraint_jacobian_major(kin, phy, K, pidx)
+        return out if act is None else out * act
     out = None
     for a, b in parts:
-        Pq = constraint_jacobian_local(rows(kin, a, b), phy[a:b], K)
+        Pq = constraint_jacobian_major(rows(kin, a, b), phy[a:b], K, pidx)
         if act is not None:
-            Pq = Pq * act[a:b, :, None]
-        Pq = Pq.reshape(b - a, -1)
-        if pidx is not None:
-            Pq = Pq[:, pidx]
+            Pq = Pq * act[:, a:b]
         if out is None:
-            out = np.empty((n, Pq.shape[1]))
-        out[a:b] = Pq
+            out = np.empty((Pq.shape[0], n))
+        out[:, a:b] = Pq
     return out

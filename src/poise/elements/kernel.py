@@ -21,6 +21,7 @@ _NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])   # component i: i+1, i+
 _GATHER_MAX = 1 << 14      # entries up to which cross products gather components by index
 _SKEW_ROWS = np.array([6, 5, 1, 2, 6, 3, 4, 0, 6])   # skew's entries from (v, -v, 0), row-major
 _DIAG9 = np.array([0, 4, 8])                           # a 3x3 block's diagonal, flat
+_MAJOR_MIN = 512           # instances from which the constraint Jacobian is made entry-major
 
 
 class SlotKinematics:
@@ -394,6 +395,39 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
         elif p_any[s]:
             Pq[:, :, 2 * k] += py[:, :, s] * pt[:, s][:, None, None]
     return Pq.reshape(n, m, 6 * K)
+
+
+def constraint_jacobian_major(kin: SlotKinematics, phi_y: np.ndarray, K: int,
+                              pidx=None) -> np.ndarray:
+    """The entries ``pidx`` (None: all) of :func:`constraint_jacobian_local`'s flattened
+    ``(m, 6K)`` rows, entry-major ``(P, n)`` (the order the model registers them in): the same
+    values, bit for bit, made component by component over all instances at once (long
+    vector operations instead of the instance-major layout's 3-wide ones)."""
+    n, S = kin.pt.shape
+    m = phi_y.shape[1]
+    if kin.index is not None or n < _MAJOR_MIN:     # small: the instance-major kernel
+        Pq = constraint_jacobian_local(kin, phi_y, K).reshape(n, m * 6 * K)
+        return np.ascontiguousarray((Pq if pidx is None else Pq[:, pidx]).T)
+    V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))                  # (S, 3, n)
+    py = np.ascontiguousarray(phi_y.reshape(n, m, S, 3).transpose(1, 2, 3, 0))  # (m, S, 3, n)
+    out = np.zeros((m, 2 * K, 3, n))
+    p_all, p_any = kin.masks
+    pt = kin.pt
+    ml = kin.slot_ml
+    for s in range(S):
+        k = ml[s]
+        v, p = V[s], py[:, s]                                         # (3, n), (m, 3, n)
+        rot = out[:, 2 * k + 1]
+        # (v x p) component by component, as cross3 forms it
+        rot[:, 0] += v[1] * p[:, 2] - v[2] * p[:, 1]
+        rot[:, 1] += v[2] * p[:, 0] - v[0] * p[:, 2]
+        rot[:, 2] += v[0] * p[:, 1] - v[1] * p[:, 0]
+        if p_all[s]:
+            out[:, 2 * k] += p
+        elif p_any[s]:
+            out[:, 2 * k] += p * pt[:, s]
+    out = out.reshape(m * 6 * K, n)
+    return out if pidx is None else out.take(pidx, 0)
 
 
 def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray | None,

@@ -399,13 +399,12 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
         else:
             Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)
             Kl = _gather(Kl, pat.order)
-        if fam.is_constraint and parts is not None:        # big family: chunk by chunk
+        if fam.is_constraint and not U:      # entry-major (P, n); big family: chunk by chunk
             Pq = constraint_values(kin, phy, fam.K, row_active[fam.crow], pat.pidx, parts)
             vals += [Kl, Pq, Pq]
-        elif fam.is_constraint:
-            Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
-            if U:
-                Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
+        elif fam.is_constraint:          # with scalar columns: instance-major (n, P)
+            Pq = np.concatenate([constraint_jacobian_local(kin, phy, fam.K), ext["phi_s"]],
+                                axis=2)                                 # (n, m, 6K + U)
             act = row_active[fam.crow]
             if not np.logical_and.reduce(act, axis=None):   # x * 1.0 is x: only with removed rows
                 Pq = Pq * act[:, :, None]
