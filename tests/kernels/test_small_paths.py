@@ -188,3 +188,26 @@ def test_entry_major_constraint_jacobian_is_the_instance_major_one():
         parts = constraint_values(kin, py, k_, act, pidx, [(0, 300), (300, n)])
         assert whole.tobytes() == np.ascontiguousarray(want.T).tobytes()
         assert parts.tobytes() == whole.tobytes()
+
+
+def test_many_instances_local_residual_is_the_slot_loop():
+    # above _MAJOR_MIN instances the residual is made component-major: the same bits
+    rng = np.random.default_rng(6)
+    for t in range(8):
+        n, k_, s_ = 600 + t, int(rng.integers(1, 4)), int(rng.integers(1, 6))
+        ml = rng.integers(0, k_, s_)
+        kind = np.where(rng.random((1, s_)) < 0.5, 0, rng.integers(1, 4, (1, s_))).repeat(n, 0)
+        if t % 2 == 0:                  # a slot that is a point in some instances only
+            kind[::2, 0], kind[1::2, 0] = 0, 3
+        markers = rng.integers(0, 9, (n, k_))
+        body = rng.integers(-1, 5, 9)
+        P, A, pos = rng.standard_normal((9, 3)), rng.standard_normal((9, 3, 3)), \
+            rng.standard_normal((5, 3))
+        kin = K.slot_kinematics(markers, ml, kind, P, A, body, pos)
+        rho = rng.standard_normal((n, 3 * s_))
+        rho[::3, 1] = -0.0
+        big = K.local_residual(kin, rho, k_)
+        small = np.concatenate([K.local_residual(K.SlotKinematics(
+            Y=kin.Y[a:a + 100], V=kin.V[a:a + 100], pt=kin.pt[a:a + 100], slot_ml=kin.slot_ml,
+            K=kin.K), rho[a:a + 100], k_) for a in range(0, n, 100)])
+        assert big.shape == (n, 6 * k_) and big.tobytes() == small.tobytes()

@@ -231,6 +231,8 @@ def local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     """``B^T rho`` (n, 6K): per slot ``pt_s rho_s`` on the marker's translation and
     ``v_s x rho_s`` on its rotation."""
     n, S = kin.pt.shape
+    if kin.rounds is None and kin.index is None and n >= _MAJOR_MIN:
+        return _local_residual_major(kin, rho, K)
     rho3 = rho.reshape(n, S, 3)
     vr = cross3(kin.V, rho3)                                   # (n, S, 3)
     if kin.rounds is not None and kin.index is not None:
@@ -249,6 +251,29 @@ def local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
         elif p_any[s]:
             r[:, 2 * k] += rho3[:, s] * pt[:, s][:, None]
     return r.reshape(n, 6 * K)
+
+
+def _local_residual_major(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
+    """:func:`local_residual` of many instances, made component by component over all of them
+    (long vector operations instead of 3-wide ones): the same operations on the same values,
+    so the same bits."""
+    n, S = kin.pt.shape
+    V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))                  # (S, 3, n)
+    W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))   # (S, 3, n)
+    out = np.zeros((2 * K, 3, n))
+    p_all, p_any = kin.masks
+    for s in range(S):
+        k = kin.slot_ml[s]
+        v, w = V[s], W[s]
+        rot = out[2 * k + 1]
+        rot[0] += v[1] * w[2] - v[2] * w[1]             # v x w, as cross3 forms it
+        rot[1] += v[2] * w[0] - v[0] * w[2]
+        rot[2] += v[0] * w[1] - v[1] * w[0]
+        if p_all[s]:
+            out[2 * k] += w
+        elif p_any[s]:
+            out[2 * k] += w * kin.pt[:, s]
+    return np.ascontiguousarray(out.reshape(6 * K, n).T)
 
 
 def _round_sums(rounds, rot_rows, trans_rows, rot, trans, lead=()):
