@@ -378,6 +378,8 @@ def jacobian(model, ev: Evaluation):
         ev.J = _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness)
     ev.inertia = Jg                  # Newton's step filter multiplies by the same mass matrix
     ev._pending = None
+    if model.reaction_feed is None and ev.workspace is not None:
+        ev.workspace.scratch(RecentEvaluations, RecentEvaluations).of(model).release()
     phases.add("assemble", phases.now() - t_start)
     return ev.J
 

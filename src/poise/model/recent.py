@@ -6,7 +6,8 @@ differ), Newton's first iterate at the start's configuration with new multiplier
 and slot kinematics are the same), the static prologue's start. For models with no reaction
 feed the solve's workspace keeps the kernel outputs of the last states (two for a model
 assembled dense, one for a sparse one: its outputs are large, and Newton holds that one anyway
-while it is its iterate or trial), keyed by the bytes of everything a kernel reads (time,
+while it is its iterate or trial; once its Jacobian is assembled only its residual and constraint
+values stay), keyed by the bytes of everything a kernel reads (time,
 positions, axes, multipliers, angles, scalar unknowns): a hit is bitwise the evaluation it
 skips.
 """
@@ -36,8 +37,18 @@ class RecentEvaluations:
         """The all-row constraint values kept for ``state`` (a copy), or None."""
         if not self.entries:
             return None
-        hit = self.get(self.key(state), False)
-        return None if hit is None else hit[1].copy()
+        key = self.key(state)
+        for k, _, out in self.entries:
+            if k == key:
+                return out[1].copy()
+        return None
+
+    def release(self):
+        """Keep only the residuals and constraint values of a sparse model's entries (its
+        Jacobian has been assembled: the kernel outputs would sit beside the factorisation,
+        ~100 MB at 10^5 links, where a solve without this memo has freed them)."""
+        if self.size == 1:
+            self.entries = [(k, None, out[:2]) for k, _, out in self.entries]
 
     def outputs(self, fr, need_jac, kernel, compute):
         """``(r, phi, pend, items)`` at the one state of ``fr`` (``pend`` with the Jacobian's
@@ -78,8 +89,8 @@ class RecentEvaluations:
                 s.angle.tobytes(), None if s.extra is None else s.extra.tobytes())
 
     def get(self, key, need_jac):
-        for k, jac, out in self.entries:
-            if (jac or not need_jac) and k == key:
+        for k, jac, out in self.entries:       # jac None: released (constraint values only)
+            if jac is not None and (jac or not need_jac) and k == key:
                 return out
         return None
 
@@ -89,7 +100,7 @@ class RecentEvaluations:
         forces and slot kinematics are the same), or None."""
         pose = key[:3] + key[4:]
         for k, jac, out in self.entries:
-            if (jac or not need_jac) and k[:3] + k[4:] == pose:
+            if jac is not None and (jac or not need_jac) and k[:3] + k[4:] == pose:
                 return out[4]
         return None
 
