@@ -16,8 +16,9 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
-from poise.elements.kernel import (PairBlocks, SlotKinematics, local_residual,
-                                   constraint_jacobian_major, tangent_compact)
+from poise.elements.kernel import (PairBlocks, SlotKinematics, constraint_jacobian_local,
+                                   local_residual, tangent_compact)
+from poise.elements.major import MAJOR_MIN, constraint_jacobian_major
 
 CHUNK = 1 << 14
 
@@ -69,7 +70,7 @@ def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.
 def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list | None
                       ) -> np.ndarray:
     """The constraint Jacobian's registered values of a family with no scalar columns,
-    entry-major ``(P, n)`` (:func:`~poise.elements.kernel.constraint_jacobian_major`; chunk by
+    entry-major ``(P, n)`` (:func:`~poise.elements.major.constraint_jacobian_major`; chunk by
     chunk, ``parts`` from :func:`spans`, None: in one piece): ``phi_y B``, rows multiplied by
     the active mask ``act`` (n, m) when a row is removed (``x * 1.0`` is ``x``: only then),
     entries ``pidx`` (None: all)."""
@@ -81,14 +82,24 @@ def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list |
         rows_ = np.arange(m * 6 * K) // (6 * K)
         act = np.ascontiguousarray(act.T).take(rows_ if pidx is None else rows_[pidx], 0)
     if parts is None:
-        out = constraint_jacobian_major(kin, phy, K, pidx)
+        out = _entry_major(kin, phy, K, pidx)
         return out if act is None else out * act
     out = None
     for a, b in parts:
-        Pq = constraint_jacobian_major(rows(kin, a, b), phy[a:b], K, pidx)
+        Pq = _entry_major(rows(kin, a, b), phy[a:b], K, pidx)
         if act is not None:
             Pq = Pq * act[:, a:b]
         if out is None:
             out = np.empty((Pq.shape[0], n))
         out[:, a:b] = Pq
     return out
+
+
+def _entry_major(kin: SlotKinematics, phy, K: int, pidx) -> np.ndarray:
+    """The entries ``pidx`` of ``phi_y B`` entry-major (P, n): component by component for many
+    instances, else the instance-major kernel's values transposed (the same bits)."""
+    n = kin.pt.shape[0]
+    if kin.index is None and n >= MAJOR_MIN:
+        return constraint_jacobian_major(kin, phy, K, pidx)
+    Pq = constraint_jacobian_local(kin, phy, K).reshape(n, -1)
+    return np.ascontiguousarray((Pq if pidx is None else Pq[:, pidx]).T)

@@ -15,13 +15,13 @@ import numpy as np
 from poise.elements.rotation import skew
 from poise.elements.slot_index import AX_X, AX_Y, AX_Z, POINT, SlotIndex  # noqa: F401 (API)
 from poise.elements.local_pattern import LocalPattern, local_pattern  # noqa: F401 (API)
+from poise.elements.major import MAJOR_MIN, local_residual_major
 
 _I3 = np.eye(3)
 _NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])   # component i: i+1, i+2
 _GATHER_MAX = 1 << 14      # entries up to which cross products gather components by index
 _SKEW_ROWS = np.array([6, 5, 1, 2, 6, 3, 4, 0, 6])   # skew's entries from (v, -v, 0), row-major
 _DIAG9 = np.array([0, 4, 8])                           # a 3x3 block's diagonal, flat
-_MAJOR_MIN = 512           # instances from which the constraint Jacobian is made entry-major
 
 
 class SlotKinematics:
@@ -231,8 +231,8 @@ def local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     """``B^T rho`` (n, 6K): per slot ``pt_s rho_s`` on the marker's translation and
     ``v_s x rho_s`` on its rotation."""
     n, S = kin.pt.shape
-    if kin.rounds is None and kin.index is None and n >= _MAJOR_MIN:
-        return _local_residual_major(kin, rho, K)
+    if kin.rounds is None and kin.index is None and n >= MAJOR_MIN:
+        return local_residual_major(kin, rho, K)
     rho3 = rho.reshape(n, S, 3)
     vr = cross3(kin.V, rho3)                                   # (n, S, 3)
     if kin.rounds is not None and kin.index is not None:
@@ -251,29 +251,6 @@ def local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
         elif p_any[s]:
             r[:, 2 * k] += rho3[:, s] * pt[:, s][:, None]
     return r.reshape(n, 6 * K)
-
-
-def _local_residual_major(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
-    """:func:`local_residual` of many instances, made component by component over all of them
-    (long vector operations instead of 3-wide ones): the same operations on the same values,
-    so the same bits."""
-    n, S = kin.pt.shape
-    V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))                  # (S, 3, n)
-    W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))   # (S, 3, n)
-    out = np.zeros((2 * K, 3, n))
-    p_all, p_any = kin.masks
-    for s in range(S):
-        k = kin.slot_ml[s]
-        v, w = V[s], W[s]
-        rot = out[2 * k + 1]
-        rot[0] += v[1] * w[2] - v[2] * w[1]             # v x w, as cross3 forms it
-        rot[1] += v[2] * w[0] - v[0] * w[2]
-        rot[2] += v[0] * w[1] - v[1] * w[0]
-        if p_all[s]:
-            out[2 * k] += w
-        elif p_any[s]:
-            out[2 * k] += w * kin.pt[:, s]
-    return np.ascontiguousarray(out.reshape(6 * K, n).T)
 
 
 def _round_sums(rounds, rot_rows, trans_rows, rot, trans, lead=()):
@@ -420,39 +397,6 @@ def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) ->
         elif p_any[s]:
             Pq[:, :, 2 * k] += py[:, :, s] * pt[:, s][:, None, None]
     return Pq.reshape(n, m, 6 * K)
-
-
-def constraint_jacobian_major(kin: SlotKinematics, phi_y: np.ndarray, K: int,
-                              pidx=None) -> np.ndarray:
-    """The entries ``pidx`` (None: all) of :func:`constraint_jacobian_local`'s flattened
-    ``(m, 6K)`` rows, entry-major ``(P, n)`` (the order the model registers them in): the same
-    values, bit for bit, made component by component over all instances at once (long
-    vector operations instead of the instance-major layout's 3-wide ones)."""
-    n, S = kin.pt.shape
-    m = phi_y.shape[1]
-    if kin.index is not None or n < _MAJOR_MIN:     # small: the instance-major kernel
-        Pq = constraint_jacobian_local(kin, phi_y, K).reshape(n, m * 6 * K)
-        return np.ascontiguousarray((Pq if pidx is None else Pq[:, pidx]).T)
-    V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))                  # (S, 3, n)
-    py = np.ascontiguousarray(phi_y.reshape(n, m, S, 3).transpose(1, 2, 3, 0))  # (m, S, 3, n)
-    out = np.zeros((m, 2 * K, 3, n))
-    p_all, p_any = kin.masks
-    pt = kin.pt
-    ml = kin.slot_ml
-    for s in range(S):
-        k = ml[s]
-        v, p = V[s], py[:, s]                                         # (3, n), (m, 3, n)
-        rot = out[:, 2 * k + 1]
-        # (v x p) component by component, as cross3 forms it
-        rot[:, 0] += v[1] * p[:, 2] - v[2] * p[:, 1]
-        rot[:, 1] += v[2] * p[:, 0] - v[0] * p[:, 2]
-        rot[:, 2] += v[0] * p[:, 1] - v[1] * p[:, 0]
-        if p_all[s]:
-            out[:, 2 * k] += p
-        elif p_any[s]:
-            out[:, 2 * k] += p * pt[:, s]
-    out = out.reshape(m * 6 * K, n)
-    return out if pidx is None else out.take(pidx, 0)
 
 
 def local_residual_tangent(kin: SlotKinematics, rho: np.ndarray, G: np.ndarray | None,

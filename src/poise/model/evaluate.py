@@ -26,16 +26,17 @@ import numpy as np
 from poise.core import phases
 from poise.core.lean import all_finite
 from poise.core.errors import EvaluationError
-from poise.elements.chunked import constraint_values, local_residuals, spans, tangent_values
-from poise.elements.context import row_where
+from poise.elements.chunked import (constraint_values, local_residuals, rows, spans,
+                                    tangent_values)
 from poise.expr import EvalContext
-from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, dense_g,
+from poise.elements.kernel import (constraint_jacobian_local, dense_g,
                                    local_pattern, local_residual_tangent, local_tangent,
                                    slot_kinematics,
                                    tangent_compact)
 from poise.model.assembly import Few, Scatter, Zeros
 from poise.model.energy import potential_energy
 from poise.model.frame_batch import add_block, stack_ext, tiles
+from poise.model.nonfinite import family_nonfinite, nonfinite_message
 from poise.model.recent import RecentEvaluations
 from poise.model.small_dense import SmallTerms
 from poise.model.workspace import Workspace
@@ -165,29 +166,21 @@ class _Frames:
         self.ctxs = None
         self.tiles = tiles(model, F, workspace)
 
-    # one frame's marker kinematics and context, made on first use (an evaluation served
-    # whole by the workspace's RecentEvaluations reads neither); frames set them in __init__
-    @cached_property
-    def _markers(self):
-        return self.model.marker_kinematics(self.states[0])
-
-    @cached_property
-    def P(self):
-        return self._markers[0]
-
-    @cached_property
-    def A(self):
-        return self._markers[1]
-
-    @cached_property
-    def pos(self):
-        return self._markers[2]
-
     @cached_property
     def ctx(self):
+        """One frame's context, with its marker kinematics ``P``, ``A``, ``pos``: made on first
+        use (an evaluation served whole by the workspace's RecentEvaluations reads neither;
+        frames set them in ``__init__``)."""
         s = self.states[0]
+        self.P, self.A, self.pos = self.model.marker_kinematics(s)
         return EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
                            workspace=self.ws)
+
+    def __getattr__(self, name):          # one frame's P, A, pos: made with its context
+        if name in ("P", "A", "pos") and self.single:
+            _ = self.ctx
+            return self.__dict__[name]
+        raise AttributeError(name)
 
     def scatter(self, fam) -> Scatter:
         """The family's residual scatter (:class:`~poise.model.assembly.Scatter`), kept in
@@ -225,7 +218,7 @@ class _Frames:
                                      extra=s.extra, workspace=self.ws)
                          for f, s in enumerate(self.states)]
         n = fam.n
-        outs = [_kernel(fam, _slice_kin(kin, f * n, (f + 1) * n),
+        outs = [_kernel(fam, rows(kin, f * n, (f + 1) * n),
                         self.lam2[f][fam.crow] if fam.is_constraint else None, self.ctxs[f],
                         need_jac) for f in range(self.F)]
         k = 3 if fam.is_constraint else 2
@@ -293,7 +286,7 @@ def _phi(model, fr, active):
     for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, "phi", only="phi"):
         phi[t.crow.ravel()] = ph.ravel()
     if not np.all(np.isfinite(phi)):
-        raise EvaluationError(_nonfinite_message(model, np.zeros(0), phi[:model.nc])
+        raise EvaluationError(nonfinite_message(model, np.zeros(0), phi[:model.nc])
                               if fr.single else "a constraint equation is not finite (NaN/Inf)")
     if fr.single:
         return phi if active is None else np.where(np.asarray(active, bool), phi, 0.0)
@@ -322,7 +315,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     if active is not None:
         phi = np.where(mask, phi, 0.0)
     if not (all_finite(r) and all_finite(phi)):
-        raise EvaluationError(_nonfinite_message(model, r, phi))
+        raise EvaluationError(nonfinite_message(model, r, phi))
     ev = Evaluation(r=r, phi=phi, J=None, items=list(last) if keep else None, workspace=fr.ws)
     if need_jac:
         if feed is not None:       # d r_reader / d (lambda, q) through the channels
@@ -355,11 +348,11 @@ def _family_outputs(model, fr, need_jac, done, call=None):
         parts = None if fam.U else spans(kin)
         if parts is not None:      # big family: chunk by chunk (no full-size temporaries)
             fr.scatter(fam).add_parts(r, local_residuals(kin, rho, fam.K, parts,
-                                                         partial(_family_nonfinite, fam)))
+                                                         partial(family_nonfinite, fam)))
             continue
         rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
         if not all_finite(rl):
-            raise EvaluationError(_family_nonfinite(fam, rl))
+            raise EvaluationError(family_nonfinite(fam, rl))
         fr.scatter(fam).add(r, rl)
     return r, phi, pend, last
 
@@ -481,11 +474,6 @@ def _many_frames(model, fr, need_jac):
 
 
 # ---------------------------------------------------------------------------- helpers
-def _slice_kin(kin, a, b):
-    return SlotKinematics(Y=kin.Y[a:b], V=kin.V[a:b], pt=kin.pt[a:b], slot_ml=kin.slot_ml,
-                          K=kin.K)
-
-
 def _gather(Kl, idx):
     """Flattened local tangent restricted to the family's structural entries."""
     Kl = Kl.reshape(Kl.shape[0], -1)
@@ -503,23 +491,3 @@ def _constraint_ext(ext, lam, n, m, U):
     if ext.get("G_ys") is not None and ext.get("G_sy") is None:
         ext["G_sy"] = np.swapaxes(ext["G_ys"], 1, 2)
     return ext
-
-
-def _family_nonfinite(fam, rl, first: int = 0) -> str:
-    """Message naming the deck element whose kernel produced NaN/Inf (``rl``: the local
-    residuals of the instances from ``first`` on)."""
-    k = first + int(np.nonzero(~np.isfinite(rl).all(axis=1))[0][0])
-    locs = fam.element_locs
-    if locs:
-        return f"{locs[k].prefix()} produced a non-finite force (NaN/Inf)"
-    return f"element family {fam.name} (instance {k}) produced a non-finite value (NaN/Inf)"
-
-
-def _nonfinite_message(model, r, phi):
-    bad = np.nonzero(~np.isfinite(phi))[0]
-    if len(bad):
-        ri = model.row_info[bad[0]]
-        return f"{row_where(ri)}: equation {ri['equation']} is not finite (NaN/Inf)"
-    bad = np.nonzero(~np.isfinite(r))[0]
-    ci = model.coord_info[bad[0]]
-    return f"non-finite force on {ci} (NaN/Inf produced by an element acting on it)"
