@@ -519,3 +519,27 @@ def test_elimination_order_from_the_solves_column_order(tmp_path, joint, up, exp
     b = stab_sparse.classify_sparse(model, J, active, kkt_columns=columns)
     assert (a.klass, a.n_negative, a.n_zero) == (b.klass, b.n_negative, b.n_zero) == expected
     np.testing.assert_allclose(b.min_eigenvalue, a.min_eigenvalue, rtol=1e-9, atol=1e-12)
+
+
+def test_untrusted_count_in_the_solves_order_retries_in_the_pencils_own(tmp_path, monkeypatch):
+    """A count the solve's column order does not give reliably is retried in the pencil's own
+    minimum-degree order before the frame is called unknown."""
+    p = tmp_path / "chain.xml"
+    p.write_text(build_chain_deck(100, "revolute"))
+    model, state, drv = _solved(p)
+    active = drv.data.mask(model)
+    J = model.evaluate(state, need_jac=True, eps_mass=0.0).J
+    columns = model.assembler.column_order()
+    own = stab_sparse.SparsePencil(model, J, active=active).order
+    seen = []
+    real = stab_sparse.classify_pencil
+
+    def first_fails(m, P):
+        seen.append(P.order)
+        if len(seen) == 1:
+            return stab.not_classified("not reliable (test)")
+        return real(m, P)
+    monkeypatch.setattr(stab_sparse, "classify_pencil", first_fails)
+    info = stab_sparse.classify_sparse(model, J, active, kkt_columns=columns)
+    assert len(seen) == 2 and np.array_equal(seen[1], own)
+    assert (info.klass, info.n_negative, info.n_zero) == ("stable", 0, 0)

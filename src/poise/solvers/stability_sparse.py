@@ -39,12 +39,16 @@ def classify_sparse(model, J, active=None, kkt_columns=None) -> StabilityInfo:
     ``J`` may be a zero-argument callable returning the matrix (:class:`SparsePencil`);
     ``kkt_columns``: the solve's column order of the KKT matrix, if it has one
     (:meth:`~poise.model.assembly.Assembler.ordered`): it ranks the bodies (no ordering of
-    its own)."""
+    its own; if it gives no trustworthy count, the pencil's own order is tried)."""
     try:
         # lean: a stable model needs Gt^T Gt for one matrix only
         P = SparsePencil(model, J, active=active, lean=True, kkt_columns=kkt_columns)
         J = None
         info = classify_pencil(model, P)
+        if info.klass == "unknown" and kkt_columns is not None:
+            # no trustworthy count in the solve's order: the pencil's own (minimum degree)
+            P = SparsePencil(model, P, active=active, lean=True)
+            info = classify_pencil(model, P)
         if info.klass == "unknown" and P.singular:
             red = redundant_rows(P.G_active, np.ones(model.nq))
             if len(red):
