@@ -6,10 +6,9 @@ differ), Newton's first iterate at the start's configuration with new multiplier
 and slot kinematics are the same), the static prologue's start. For models with no reaction
 feed the solve's workspace keeps the kernel outputs of the last states (two for a model
 assembled dense, one for a sparse one: its outputs are large, and Newton holds that one anyway
-while it is its iterate or trial; once its Jacobian is assembled only its residual and constraint
-values stay), keyed by the bytes of everything a kernel reads (time,
-positions, axes, multipliers, angles, scalar unknowns): a hit is bitwise the evaluation it
-skips.
+while it is its iterate or trial; once its Jacobian is assembled only its constraint values
+stay), keyed by the bytes of everything a kernel reads (time, positions, axes, multipliers,
+angles, scalar unknowns): a hit is bitwise the evaluation it skips.
 """
 from __future__ import annotations
 
@@ -44,11 +43,11 @@ class RecentEvaluations:
         return None
 
     def release(self):
-        """Keep only the residuals and constraint values of a sparse model's entries (its
-        Jacobian has been assembled: the kernel outputs would sit beside the factorisation,
-        ~100 MB at 10^5 links, where a solve without this memo has freed them)."""
+        """Keep only the constraint values of a sparse model's entries (its Jacobian has been
+        assembled: the kernel outputs would sit beside the factorisation, ~100 MB at 10^5
+        links, where a solve without this memo has freed them)."""
         if self.size == 1:
-            self.entries = [(k, None, out[:2]) for k, _, out in self.entries]
+            self.entries = [(k, None, (None, out[1])) for k, _, out in self.entries]
 
     def outputs(self, fr, need_jac, kernel, compute):
         """``(r, phi, pend, items)`` at the one state of ``fr`` (``pend`` with the Jacobian's
