@@ -193,7 +193,7 @@ def test_entry_major_constraint_jacobian_is_the_instance_major_one():
         want = want if pidx is None else want[:, pidx]
         whole = constraint_values(kin, py, k_, act, pidx, None)
         parts = constraint_values(kin, py, k_, act, pidx, [(0, 300), (300, n)])
-        assert whole.tobytes() == np.ascontiguousarray(want.T).tobytes()
+        assert whole.tobytes() == np.ascontiguousarray(want).tobytes()
         assert parts.tobytes() == whole.tobytes()
 
 

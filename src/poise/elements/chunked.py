@@ -69,11 +69,12 @@ def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.
 
 def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list | None
                       ) -> np.ndarray:
-    """The constraint Jacobian's registered values of a family with no scalar columns,
-    entry-major ``(P, n)`` (:func:`~poise.elements.major.constraint_jacobian_major`; chunk by
-    chunk, ``parts`` from :func:`spans`, None: in one piece): ``phi_y B``, rows multiplied by
-    the active mask ``act`` (n, m) when a row is removed (``x * 1.0`` is ``x``: only then),
-    entries ``pidx`` (None: all)."""
+    """The constraint Jacobian's registered values (n, P) of a family with no scalar columns
+    (instance-major, as the model registers them: a scatter of neighbouring entries), made
+    entry-major (:func:`~poise.elements.major.constraint_jacobian_major`) chunk by chunk
+    (``parts`` from :func:`spans`, None: in one piece) and transposed: ``phi_y B``, rows
+    multiplied by the active mask ``act`` (n, m) when a row is removed (``x * 1.0`` is ``x``:
+    only then), entries ``pidx`` (None: all)."""
     n = kin.pt.shape[0]
     m = phy.shape[1]
     if np.logical_and.reduce(act, axis=None):
@@ -81,17 +82,14 @@ def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list |
     else:                                     # each entry's row of the instance
         rows_ = np.arange(m * 6 * K) // (6 * K)
         act = np.ascontiguousarray(act.T).take(rows_ if pidx is None else rows_[pidx], 0)
-    if parts is None:
-        out = _entry_major(kin, phy, K, pidx)
-        return out if act is None else out * act
     out = None
-    for a, b in parts:
+    for a, b in [(0, n)] if parts is None else parts:
         Pq = _entry_major(rows(kin, a, b), phy[a:b], K, pidx)
         if act is not None:
             Pq = Pq * act[:, a:b]
         if out is None:
-            out = np.empty((Pq.shape[0], n))
-        out[:, a:b] = Pq
+            out = np.empty((n, Pq.shape[0]))
+        out[a:b] = Pq.T
     return out
 
 
@@ -102,4 +100,4 @@ def _entry_major(kin: SlotKinematics, phy, K: int, pidx) -> np.ndarray:
     if kin.index is None and n >= MAJOR_MIN:
         return constraint_jacobian_major(kin, phy, K, pidx)
     Pq = constraint_jacobian_local(kin, phy, K).reshape(n, -1)
-    return np.ascontiguousarray((Pq if pidx is None else Pq[:, pidx]).T)
+    return (Pq if pidx is None else Pq[:, pidx]).T

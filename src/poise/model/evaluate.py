@@ -394,7 +394,7 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
         else:
             Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)
             Kl = _gather(Kl, pat.order)
-        if fam.is_constraint and not U:      # entry-major (P, n); big family: chunk by chunk
+        if fam.is_constraint and not U:      # (n, P); big family: chunk by chunk
             Pq = constraint_values(kin, phy, fam.K, row_active[fam.crow], pat.pidx, parts)
             vals += [Kl, Pq, Pq]
         elif fam.is_constraint:          # with scalar columns: instance-major (n, P)

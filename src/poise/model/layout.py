@@ -140,11 +140,8 @@ def _blocks(m, feed):
         if fam.is_constraint:
             rows = m.nq + fam.crow
             pr, pc = np.nonzero(pat.pmask)
-            r, c = rows[:, pr], g[:, pc]
-            if not fam.U:          # entry-major, as chunked.constraint_values fills them
-                r, c = r.T, c.T
-            yield r, c
-            yield c, r
+            yield rows[:, pr], g[:, pc]
+            yield g[:, pc], rows[:, pr]
     # mass blocks (regularisation): translational diagonal, rotational 3x3
     rigid = m.body_kind == 0
     tb = m.body_off[:, None] + np.arange(3)
