@@ -157,7 +157,9 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
         return None
     pad = np.zeros(len(x) - nq)
     try:
-        Sx = f.solve(np.concatenate([reg, pad]))
+        # corrections by the factorisation whose solve (x) was checked: plain solves (the
+        # filtered step is tried by the line search, kept only where it lowers the merit)
+        Sx = f.solve(np.concatenate([reg, pad]), checked=False)
         y = Sx[:nq]
         if share <= TAIL_SHARE and not step_size(y, sc) > NEUTRAL_SHARE * size:
             return None
@@ -167,7 +169,7 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
             xf = x + Sx                          # S small on x: no neutral content to filter
         else:
             z = x + 2.0 * Sx
-            xf = z - f.solve(np.concatenate([reg + (2.0 * eps) * My, pad]))
+            xf = z - f.solve(np.concatenate([reg + (2.0 * eps) * My, pad]), checked=False)
     except SingularMatrix:
         return None
     return xf if np.all(np.isfinite(xf)) else None
