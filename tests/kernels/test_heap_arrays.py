@@ -52,6 +52,21 @@ def test_large_runs_keep_arrays_in_the_heap_and_restore_glibc_limits(monkeypatch
     assert 0 < memory._KEEP < 2 ** 31                   # mallopt takes an int
 
 
+def test_stages_inside_keep_their_pages_and_nested_blocks_change_nothing(monkeypatch):
+    """Inside the block :func:`memory.release` trims nothing (the next stage reuses the pages);
+    a nested block leaves glibc's limits to the outer one; outside, release trims again."""
+    fake = _FakeLibc()
+    monkeypatch.setattr(memory, "_libc", fake)
+    with memory.heap_arrays(1 << 30):
+        n = len(fake.calls)
+        assert memory.release(1 << 40, memory.SOLVE_LARGE) is False
+        with memory.heap_arrays(1 << 30) as inner:
+            assert inner is False
+        assert len(fake.calls) == n                     # no trim, no mallopt
+    assert memory.release(1 << 40, memory.SOLVE_LARGE) is True
+    assert fake.calls[-1] == ("trim", 0)
+
+
 def _faults_of_second(n):
     """Minor page faults while a fresh ``n``-float array is filled, one of that size freed
     just before (as one factorisation's storage after the last one's)."""
