@@ -50,7 +50,7 @@ def _columns_ordered(J, order):
     column selection (two fresh copies of the matrix: at 10^5 links 0.2 GB of new pages)."""
     if getattr(J, "format", "") != "csr":
         return J.tocsc()[:, order]
-    import scipy.sparse as sp
+    import scipy.sparse as sp  # lazy: sparse systems only
     idx = J.indices.dtype
     rank = np.empty(J.shape[1], idx)
     rank[order] = np.arange(J.shape[1], dtype=idx)
