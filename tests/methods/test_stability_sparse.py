@@ -485,3 +485,61 @@ def test_dense_pencil_inertia_matches_sparse_pencil(name):
         xd = Fd.solve(b)
         assert np.allclose(Pd.kkt(s, 1.0) @ xd, b, atol=1e-8 * np.abs(b).max())
     assert len(seen) >= 2          # both a positive definite and an indefinite reduced matrix
+
+
+
+@pytest.mark.parametrize("joint, up, expected", [("revolute", False, ("stable", 0, 0)),
+                                                 ("spherical", False, ("neutral", 0, 100)),
+                                                 ("revolute", True, ("unstable", 98, 0))])
+def test_elimination_order_from_the_solves_column_order(tmp_path, joint, up, expected):
+    """The sparse classification ranks the bodies as the solve's KKT column order does (no
+    minimum-degree ordering of its own): every constraint row still comes after each body it
+    acts on, and the inertia and the lowest eigenvalue are those of its own order's."""
+    txt = build_chain_deck(100, joint)
+    if up:
+        txt = txt.replace('grav_y="-9810."', 'grav_y="9810."')
+    p = tmp_path / "chain.xml"
+    p.write_text(txt)
+    model, state, drv = _solved(p)
+    assert not model.assembler.dense and model.nq > stab.DENSE_LIMIT
+    active = drv.data.mask(model)
+    J = model.evaluate(state, need_jac=True, eps_mass=0.0).J
+    columns = model.assembler.column_order()
+    P = stab_sparse.SparsePencil(model, J, active=active, kkt_columns=columns)
+    assert sorted(P.order) == list(range(P.nq + P.m))
+    grp = stab_sparse._coordinate_groups(model)
+    at = np.argsort(P.order)
+    last = np.zeros(int(grp.max()) + 1, np.int64)
+    np.maximum.at(last, grp, at[:P.nq])           # each body's last coordinate
+    G = P.Gt.tocsr()
+    for i in range(P.m):
+        acts = grp[G.indices[G.indptr[i]:G.indptr[i + 1]]]
+        assert at[P.nq + i] > last[acts].max()
+    a = stab_sparse.classify_sparse(model, J, active)
+    b = stab_sparse.classify_sparse(model, J, active, kkt_columns=columns)
+    assert (a.klass, a.n_negative, a.n_zero) == (b.klass, b.n_negative, b.n_zero) == expected
+    np.testing.assert_allclose(b.min_eigenvalue, a.min_eigenvalue, rtol=1e-9, atol=1e-12)
+
+
+def test_untrusted_count_in_the_solves_order_retries_in_the_pencils_own(tmp_path, monkeypatch):
+    """A count the solve's column order does not give reliably is retried in the pencil's own
+    minimum-degree order before the frame is called unknown."""
+    p = tmp_path / "chain.xml"
+    p.write_text(build_chain_deck(100, "revolute"))
+    model, state, drv = _solved(p)
+    active = drv.data.mask(model)
+    J = model.evaluate(state, need_jac=True, eps_mass=0.0).J
+    columns = model.assembler.column_order()
+    own = stab_sparse.SparsePencil(model, J, active=active).order
+    seen = []
+    real = stab_sparse.classify_pencil
+
+    def first_fails(m, P):
+        seen.append(P.order)
+        if len(seen) == 1:
+            return stab.not_classified("not reliable (test)")
+        return real(m, P)
+    monkeypatch.setattr(stab_sparse, "classify_pencil", first_fails)
+    info = stab_sparse.classify_sparse(model, J, active, kkt_columns=columns)
+    assert len(seen) == 2 and np.array_equal(seen[1], own)
+    assert (info.klass, info.n_negative, info.n_zero) == ("stable", 0, 0)

@@ -25,6 +25,7 @@ from poise.solvers.newton import Scales
 from poise.solvers.outputs import element_loads, loads_of
 from poise.solvers.path import cached_info
 from poise.solvers.record import FrameSet, GroupLoads
+from poise.solvers import stability
 from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
 from poise.solvers.stability import (
     DENSE_LIMIT,
@@ -43,10 +44,13 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
     # one evaluation (all rows active, slot data kept) serves the minimum-norm reactions,
     # the element loads and the stability classification
     saved = env.data.mask(model)
-    J = None
+    J = columns = None
     dep = np.asarray(redundancy, int)
     outcomes = list(outcomes)
     measured = None
+    done = env.data.classified
+    known = (done[1] if done is not None and done[0] is state
+             else cached_info(env.data, state))
     try:
         # in the solve's workspace: its buffers serve, no second set held by J till the end
         ev = model.evaluate(state, need_jac=True, keep=True, workspace=env.data.workspace)
@@ -64,6 +68,8 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
         loads = element_loads(model, state, lam=lam, ev=ev)
         ev = Pfull = Y = None     # the evaluation's kept slot data go before the classification
         if not model.assembler.dense:        # ... so do the assembly buffers (J keeps its data):
+            if known is None:                # the solve's column order, before it goes
+                columns = _kkt_columns(model, env)
             if env.kind == "static":         # the static solve's workspace has served (all of it)
                 env.data.workspace.clear()
             else:                            # the next frames reuse its scatters and order
@@ -71,20 +77,26 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
         memory.release(model.nq * 1000, memory.SOLVE_LARGE)  # ... and their pages (large)
     except EvaluationError:
         loads = {}
-    done = env.data.classified
-    known = (done[1] if done is not None and done[0] is state
-             else cached_info(env.data, state))
     if known is not None and (len(outcomes) == 1 or all(o.ok for o in outcomes)):
         # classified by the solve: also an equilibrium --require-stable refused (neutral),
         # or a path's located end
         infos = [known]
     elif all(o.ok for o in outcomes) and J is not None:
         jac, J = memory.hand_over(J), None    # the classification drops J once it is read
-        infos = [classify(model, state, J=jac, active=saved)]
+        infos = [classify(model, state, J=jac, active=saved, kkt_columns=columns)]
     else:   # the same records either way: frames of a sequence are concatenated
         infos = [unknown_info()] * len(outcomes)
     return frame_set(model, [state], {g: (F[None], T[None]) for g, (F, T) in loads.items()},
                      dep, outcomes, infos, [measured])
+
+
+def _kkt_columns(model, env):
+    """The solve's column order of ``model``'s KKT matrix (computed once per solve and kept in
+    its workspace; None for a dense assembler): the sparse classification's elimination order
+    ranks the bodies as it does, without an ordering of its own."""
+    if model.assembler.dense or model.nq <= stability.DENSE_LIMIT:    # (read at call time)
+        return None
+    return model.assembler.ordered(env.data.workspace)
 
 
 def frame_set(model, frames, loads, dep, outcomes, stability, measures) -> FrameSet:
@@ -205,8 +217,9 @@ def measure_frames(env, redundancy, frames, outcomes) -> FrameSet | None:
             elif model.nq <= DENSE_LIMIT:
                 infos += classify_dense_frames(model, ev.J, saved, ok)
             else:                                     # sparse inertia, frame by frame
-                infos += [classify(model, None, J=ev.J[j], active=saved) if ok[j] else
-                          unknown_info()
+                columns = _kkt_columns(model, env)
+                infos += [classify(model, None, J=ev.J[j], active=saved, kkt_columns=columns)
+                          if ok[j] else unknown_info()
                           for j in range(len(chunk))]
     except EvaluationError:
         return None

@@ -42,9 +42,10 @@ from poise.solvers.stability_sparse import (  # noqa: F401 - re-exported
 )
 
 
-def classify(model, state, J=None, active=None) -> StabilityInfo:
+def classify(model, state, J=None, active=None, kkt_columns=None) -> StabilityInfo:
     """Classify the equilibrium ``state`` of ``model``; ``active``: the solve's active
-    constraint rows (None: all).
+    constraint rows (None: all); ``kkt_columns``: the solve's column order of the KKT matrix
+    if it has one (a large model's elimination order then ranks the bodies as it does).
 
     ``J`` may be a KKT Jacobian already evaluated at ``state`` without regularisation (with
     any active rows: inactive rows are dropped here), or handed over
@@ -65,7 +66,7 @@ def classify(model, state, J=None, active=None) -> StabilityInfo:
                 view, Jr, lift = red
                 return _lifted(classify_sparse(view, Jr, active), lift)
             J = memory.hand_over(J)
-        return classify_sparse(model, J, active)
+        return classify_sparse(model, J, active, kkt_columns)
     J = memory.taken(J)
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
     return classify_dense_frames(model, J[None], active)[0]

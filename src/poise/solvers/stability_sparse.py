@@ -31,21 +31,29 @@ from poise.solvers.symmetric_ldl import (  # noqa: F401 - re-exported
 )
 
 
-def classify_sparse(model, J, active=None) -> StabilityInfo:
+def classify_sparse(model, J, active=None, kkt_columns=None) -> StabilityInfo:
     """Inertia by spectrum slicing with sparse LDL^T factorisations of the equilibrated KKT
     matrix (module docstring, "Large models"). Active constraint rows that have become
     dependent at this configuration (a tiny pivot at a constraint row) are found by the
     redundancy test of the static driver and dropped (the null space is unchanged), once.
-    ``J`` may be a zero-argument callable returning the matrix (:class:`SparsePencil`)."""
+    ``J`` may be a zero-argument callable returning the matrix (:class:`SparsePencil`);
+    ``kkt_columns``: the solve's column order of the KKT matrix, if it has one
+    (:meth:`~poise.model.assembly.Assembler.ordered`): it ranks the bodies (no ordering of
+    its own; if it gives no trustworthy count, the pencil's own order is tried)."""
     try:
         # lean: a stable model needs Gt^T Gt for one matrix only
-        P = SparsePencil(model, J, active=active, lean=True)
+        P = SparsePencil(model, J, active=active, lean=True, kkt_columns=kkt_columns)
         J = None
         info = classify_pencil(model, P)
+        if info.klass == "unknown" and kkt_columns is not None:
+            # no trustworthy count in the solve's order: the pencil's own (minimum degree)
+            P = SparsePencil(model, P, active=active, lean=True)
+            info = classify_pencil(model, P)
         if info.klass == "unknown" and P.singular:
             red = redundant_rows(P.G_active, np.ones(model.nq))
             if len(red):
-                P = SparsePencil(model, P, drop=red, active=active, lean=True)
+                P = SparsePencil(model, P, drop=red, active=active, lean=True,
+                                 kkt_columns=kkt_columns)
                 info = classify_pencil(model, P)
         return info
     except (RuntimeError, ValueError, ArithmeticError, MemoryError,
@@ -134,7 +142,8 @@ class SparsePencil:
     symmetric stiffness ``Kt`` and active constraint Jacobian ``Gt`` after a symmetric
     equilibration of the KKT matrix, the KKT elimination order, and factorisations at shifts."""
 
-    def __init__(self, model, J, drop=(), active=None, like=None, lean: bool = False):
+    def __init__(self, model, J, drop=(), active=None, like=None, lean: bool = False,
+                 kkt_columns=None):
         """``J``: the KKT Jacobian, a zero-argument callable returning it (then it goes as soon
         as its blocks are read) or a pencil of the same Jacobian (its stiffness and constraint
         rows are taken, e.g. to ``drop`` rows). ``like``: a pencil of the same model at a
@@ -142,7 +151,10 @@ class SparsePencil:
         its scaling starts the equilibration, when it has the same constraint rows (an order is
         a permutation: any one gives the inertia; a poor one shows as a failed factorisation,
         and the caller builds a fresh pencil). ``lean``: ``Gt^T Gt`` is dropped once a matrix
-        is built from it (:attr:`GtG` makes it again when needed)."""
+        is built from it (:attr:`GtG` makes it again when needed). ``kkt_columns``: a
+        fill-reducing column order of the model's KKT matrix (the solve's, computed once per
+        solve): the bodies are eliminated in its order instead of a minimum-degree order of
+        their own (:func:`_kkt_order`)."""
         import scipy.sparse as sp
         nq = model.nq
         d = np.asarray(model.q_scale, float)
@@ -177,7 +189,8 @@ class SparsePencil:
         self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
         self.nq, self.m = nq, self.Gt.shape[0]
         self.reused = same
-        self.order = like.order if same else _kkt_order(model, self.Kt, self.Gt, self.GtG)
+        self.order = (like.order if same else
+                      _kkt_order(model, self.Kt, self.Gt, self.GtG, kkt_columns))
         # zero threshold: ZERO_REL of the spectral radius of Kt (an upper bound of the reduced
         # matrix's), at least ZERO_REL (Kt has a unit-scale diagonal block after equilibration)
         self.eps = ZERO_REL * max(_spectral_radius(self.Kt), 1.0)
@@ -329,10 +342,11 @@ def _coordinate_groups(model) -> np.ndarray:
     return grp
 
 
-def _kkt_order(model, K, G, GtG) -> np.ndarray:
+def _kkt_order(model, K, G, GtG, kkt_columns=None) -> np.ndarray:
     """Symmetric elimination order of the KKT matrix for 1x1 pivots. Bodies (and scalar
-    unknowns) are ordered by minimum degree on the quotient graph (one node per body) of
-    ``|K| + |G|^T |G|``; every constraint row comes right after the last of the bodies it acts
+    unknowns) are ordered as in ``kkt_columns`` (a fill-reducing column order of the KKT
+    matrix, the solve's LU order) or else by minimum degree on the quotient graph (one node
+    per body) of ``|K| + |G|^T |G|``; every constraint row comes right after the last of the bodies it acts
     on (its pivot is then ``-g A^-1 g^T``, not its zero diagonal), and so does every *weak*
     coordinate (augmented diagonal ``|K_ii + (G^T G)_ii|`` below ``WEAK_DIAG``, e.g. a scalar
     unknown with no stiffness of its own): eliminated first, its near-zero pivot would blow up
@@ -344,7 +358,14 @@ def _kkt_order(model, K, G, GtG) -> np.ndarray:
     ng = int(grp.max()) + 1
     K, GtG = K.tocsr(), GtG.tocsr()
     Ga = abs(G).tocsr() if G.shape[0] else None
-    if ng > 1:
+    if kkt_columns is not None and ng > 1:
+        # a group's rank: the position of its first coordinate among the KKT columns (ranks
+        # need not be consecutive: only their order counts)
+        at = np.empty(len(kkt_columns), np.int64)
+        at[kkt_columns] = np.arange(len(kkt_columns))
+        rank = np.full(ng, len(kkt_columns), np.int64)
+        np.minimum.at(rank, grp, at[:nq])
+    elif ng > 1:
         # the pattern of E^T (|K| + |G|^T |G|) E, from K and from the bodies each constraint
         # row acts on (|G| E: a few entries a row), not from the larger G^T G
         E = sp.csr_matrix((np.ones(nq), (np.arange(nq), grp)), shape=(nq, ng))
