@@ -36,38 +36,6 @@ def test_a_factor_without_its_matrix_solves_plainly():
     assert d.J is not None and np.allclose(M @ d.solve(b), b)
 
 
-def test_a_further_right_hand_side_solves_plainly_when_asked():
-    """``checked=False``: no residual and no refinement (a correction by a factorisation whose
-    first solve was checked); the same solution as the checked solve where that one needed no
-    refinement, dense, sparse and equilibrated; a singular system's garbage is the caller's to
-    test (no SingularMatrix), while the checked solve still refuses it."""
-    rng = np.random.default_rng(5)
-    M = sp.random(40, 40, density=0.2, random_state=6) + sp.diags(np.linspace(1.0, 1e3, 40))
-    b = rng.standard_normal(40)
-    for J, eq in ((sp.csr_matrix(M), False), (sp.csr_matrix(M), True), (M.toarray(), False)):
-        f = Factor(J, equilibrate=eq)
-        np.testing.assert_array_equal(f.solve(b, checked=False), f.solve(b))
-        np.testing.assert_allclose(M @ f.solve(b, checked=False), b, rtol=0, atol=1e-9)
-    calls = []
-    f = Factor(sp.csr_matrix(M))
-    f.J = _Counting(f.J, calls)
-    f.solve(b, checked=False)
-    assert calls == []                 # no residual formed
-    f.solve(b)
-    assert len(calls) == 1             # the checked solve's one residual
-
-
-class _Counting:
-    """A matrix that counts its products (the refinement's residuals)."""
-
-    def __init__(self, A, calls):
-        self.A, self.calls = A, calls
-
-    def __matmul__(self, x):
-        self.calls.append(1)
-        return self.A @ x
-
-
 def test_column_ordered_factorisation_from_csr_is_the_selected_one():
     """A matrix with the assembler's column order is factorised as ``J[:, order]``: built from
     the CSR matrix in one conversion, the very matrix the CSC column selection gives (bitwise

@@ -55,7 +55,7 @@ class _Dense:
     def __init__(self, J):
         self.J = J
 
-    def solve(self, b, checked=True):           # exact (LAPACK gesv): nothing to check
+    def solve(self, b):
         return np.linalg.solve(self.J, b)
 
 

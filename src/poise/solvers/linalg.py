@@ -184,20 +184,17 @@ class Factor:
         if not self.numpy:
             self.J = None
 
-    def solve(self, b, refine: int = 2, rtol: float = 1e-8, checked: bool = True):
+    def solve(self, b, refine: int = 2, rtol: float = 1e-8):
         """Solve with iterative refinement; raise SingularMatrix if the residual stays large
-        (plain solves once :meth:`drop_matrix` was called). ``checked=False``: a plain solve,
-        for a further right-hand side of a factorisation whose residual was checked already by
-        the caller's first solve (a correction to that solution: its accuracy is the factors',
-        and the caller tests what it is used for)."""
+        (plain solves once :meth:`drop_matrix` was called)."""
         if self.scale is not None:
             r, c = self.scale
-            return c * self._solve_refined(r * np.asarray(b, float), refine, rtol, checked)
-        return self._solve_refined(b, refine, rtol, checked)
+            return c * self._solve_refined(r * np.asarray(b, float), refine, rtol)
+        return self._solve_refined(b, refine, rtol)
 
-    def _solve_refined(self, b, refine, rtol, checked=True):
+    def _solve_refined(self, b, refine, rtol):
         x = self._solve(b)
-        if self.J is None or not checked:
+        if self.J is None:
             return x
         nb = norm(b)
         if nb == 0:

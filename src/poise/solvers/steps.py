@@ -157,9 +157,7 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
         return None
     pad = np.zeros(len(x) - nq)
     try:
-        # corrections by the factorisation whose solve (x) was checked: plain solves (the
-        # filtered step is tried by the line search, kept only where it lowers the merit)
-        Sx = f.solve(np.concatenate([reg, pad]), checked=False)
+        Sx = f.solve(np.concatenate([reg, pad]))
         y = Sx[:nq]
         if share <= TAIL_SHARE and not step_size(y, sc) > NEUTRAL_SHARE * size:
             return None
@@ -169,7 +167,7 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
             xf = x + Sx                          # S small on x: no neutral content to filter
         else:
             z = x + 2.0 * Sx
-            xf = z - f.solve(np.concatenate([reg + (2.0 * eps) * My, pad]), checked=False)
+            xf = z - f.solve(np.concatenate([reg + (2.0 * eps) * My, pad]))
     except SingularMatrix:
         return None
     return xf if np.all(np.isfinite(xf)) else None
