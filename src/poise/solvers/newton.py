@@ -16,7 +16,6 @@
 from __future__ import annotations
 
 import copy
-import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -333,7 +332,12 @@ class NewtonIteration(Solver[_Newtoning]):
         # the limited full step is retracted only when asked: by the filter's test, or by the
         # line search when the filtered step is not taken (otherwise a retraction per iteration
         # for nothing)
-        limit = functools.cache(lambda: _steps.limit_step(model, state, x[:model.nq], settings))
+        limited = []
+
+        def limit():          # once, when first asked
+            if not limited:
+                limited.append(_steps.limit_step(model, state, x[:model.nq], settings))
+            return limited[0]
         xf = _steps.neutral_filtered(model, state, f, x, eps, sc, s.zinf,
                                      lambda: limit()[0] < 1.0, Jg=ev.inertia)
         # the factorisation is not needed by the trials (memory at 10^5) unless kept for a chord
