@@ -22,7 +22,7 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
-from poise.elements.context import row_where
+from poise.elements.context import row_equation, row_where
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.gram import least_squares
@@ -94,8 +94,7 @@ def measures(model, ev, sc: Scales):
         if k < model.nq:
             worst = model.coord_info[k]
         else:
-            ri = model.row_info[k - model.nq]
-            worst = f"{row_where(ri)} {ri['equation']}"
+            worst = "%s %s" % row_equation(model.row_info, k - model.nq)
     return imb, cerr, float(mx(z)) if z.size else 0.0, worst
 
 
