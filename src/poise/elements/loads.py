@@ -55,7 +55,7 @@ def loads_of(model, items, lam=None, frames: int = 1):
         Ti = np.zeros((fam.n, 3))
         slots, distinct = _layout(fam)
         if any(k == 2 for _, k in slots):   # a slot that is a point in some instances only
-            for s, k in slots:
+            for s, _ in slots:
                 pt = fam.slot_kind[:, s] == 0
                 Fi[pt] -= rho3[pt, s]
                 ax = ~pt
