@@ -93,8 +93,8 @@ def _layout(fam):
                 pt = fam.slot_kind[:, s] == 0
                 slots.append((s, 0 if np.logical_and.reduce(pt)
                               else 1 if not np.logical_or.reduce(pt) else 2))
-        own = np.asarray(fam.owner)
-        got = _LAYOUTS[fam] = (tuple(slots), len(np.unique(own)) == own.size)
+        own = np.asarray(fam.owner).ravel().tolist()     # (np.unique imports numpy.ma)
+        got = _LAYOUTS[fam] = (tuple(slots), len(set(own)) == len(own))
     return got
 
 
