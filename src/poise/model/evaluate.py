@@ -136,13 +136,9 @@ class _Frames:
         self.F = F = len(states)
         self.dg = None                    # reaction channels' (F, T), global (reaction feed)
         nb = model.nb
-        if single:
-            s = states[0]
-            self.P, self.A, self.pos = model.marker_kinematics(s)
+        if single:               # P, A, pos and ctx on first use (:meth:`__getattr__`)
             self.mb = model.marker_body
-            self.ctx = EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
-                                   workspace=workspace)
-            self.lam = s.lam
+            self.lam = states[0].lam
             self.kins = None         # a small model's slot kinematics, all at once (first call)
             return
         nm = len(model.marker_id)
@@ -168,6 +164,16 @@ class _Frames:
                                A=self.A, extra=ext, workspace=workspace)
         self.ctxs = None
         self.tiles = tiles(model, F, workspace)
+
+    def __getattr__(self, name):    # one frame's P, A, pos, ctx, made when first read: an
+        # evaluation a small model's kept outputs answer (poise.model.recent) never reads them
+        if name not in ("P", "A", "pos", "ctx") or not self.__dict__.get("single"):
+            raise AttributeError(name)
+        s = self.states[0]
+        self.P, self.A, self.pos = self.model.marker_kinematics(s)
+        self.ctx = EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
+                               workspace=self.ws)
+        return self.__dict__[name]
 
     def scatter(self, fam) -> Scatter:
         """The family's residual scatter (:class:`~poise.model.assembly.Scatter`), kept in
