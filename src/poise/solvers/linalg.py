@@ -45,6 +45,19 @@ def equilibration(J):
     return r, c
 
 
+def _columns_ordered(J, order):
+    """``J[:, order]`` in CSC. From CSR in one conversion (its columns renamed to their rank in
+    ``order``: the same matrix, rows ascending in every column) instead of a CSC copy and a
+    column selection (two fresh copies of the matrix: at 10^5 links 0.2 GB of new pages)."""
+    if getattr(J, "format", "") != "csr":
+        return J.tocsc()[:, order]
+    import scipy.sparse as sp  # lazy: sparse systems only
+    idx = J.indices.dtype
+    rank = np.empty(J.shape[1], idx)
+    rank[order] = np.arange(J.shape[1], dtype=idx)
+    return sp.csr_matrix((J.data, rank[J.indices], J.indptr), shape=J.shape).tocsc()
+
+
 def _clearly_regular(J):
     """The inverse of a small dense ``J`` when ``J`` is certainly far from the singularity
     threshold (``sigma_min / sigma_max > 1e-15``), else None: ``||J||_F ||J^-1||_F`` bounds the
@@ -101,7 +114,7 @@ class Factor:
                     lay = getattr(J, "poise_csc_layout", None)
                     lay = None if lay is None else lay()
                     A = (lay.matrix(J) if lay is not None and lay.fits(J)
-                         else J.tocsc()[:, self.order])
+                         else _columns_ordered(J, self.order))
                     self.lu = spla.splu(A, permc_spec="NATURAL", **lean(J.shape[0]))
                     del A
                 else:
