@@ -25,7 +25,8 @@ _LAZY = {"solve": "poise.app.api", "sweep": "poise.app.api", "open_sweep": "pois
 def __getattr__(name):
     if name in _LAZY:
         import importlib
-        return getattr(importlib.import_module(_LAZY[name]), name)
+        value = globals()[name] = getattr(importlib.import_module(_LAZY[name]), name)
+        return value        # kept: later lookups find it without this hook
     raise AttributeError(f"module 'poise' has no attribute {name!r}")
 
 

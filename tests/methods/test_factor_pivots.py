@@ -36,6 +36,34 @@ def test_a_factor_without_its_matrix_solves_plainly():
     assert d.J is not None and np.allclose(M @ d.solve(b), b)
 
 
+def test_column_ordered_factorisation_from_csr_is_the_selected_one():
+    """A matrix with the assembler's column order is factorised as ``J[:, order]``: built from
+    the CSR matrix in one conversion, the very matrix the CSC column selection gives (bitwise
+    the same solutions), unsorted and duplicate CSR entries included."""
+    import scipy.sparse.linalg as spla
+
+    from poise.solvers.linalg import _columns_ordered
+    rng = np.random.default_rng(8)
+    M = (sp.random(60, 60, density=0.1, random_state=9) + sp.diags(rng.uniform(1, 2, 60))).tocsr()
+    order = rng.permutation(60)
+    A = _columns_ordered(M, order)
+    ref = M.tocsc()[:, order]
+    for a, r in ((A.indptr, ref.indptr), (A.indices, ref.indices), (A.data, ref.data)):
+        np.testing.assert_array_equal(a, r)
+    # unsorted column indices and a duplicate entry in row 0 (summed by neither)
+    D = sp.csr_matrix((np.r_[1.0, 2.0, 3.0, 4.0], np.r_[2, 0, 2, 1], np.r_[0, 3, 4]),
+                      shape=(2, 3))
+    o = np.array([2, 0, 1])
+    np.testing.assert_array_equal(_columns_ordered(D, o).toarray(), D.toarray()[:, o])
+    M.poise_column_order = lambda: order
+    b = rng.standard_normal(60)
+    x = Factor(M).solve(b)
+    lu = spla.splu(ref, permc_spec="NATURAL")
+    y = np.empty(60)
+    y[order] = lu.solve(b)
+    np.testing.assert_array_equal(x, y)
+
+
 def test_non_finite_sparse_matrix_refused():
     """At the factorisation (a non-finite pivot) or at the solve (a non-finite solution)."""
     for bad in ([[1.0, 0.0], [0.0, np.nan]], [[np.inf, 1.0], [1.0, 1.0]], [[1.0, np.nan], [0.0, 1.0]]):

@@ -39,6 +39,9 @@ INEXACT = {"chain_10", "chain_10_spherical", "mkeam_chain_20", "elem_user_constr
 ULP_SENSITIVE = ("frames/min_stiffness_eigenvalue", "frames/stability_modes", "modes/body",
                  "modes/direction", "modes/eigenvalue", "iterations/step_length",
                  "iterations/imbalance", "iterations/error", "frames/imbalance", "frames/error")
+#: ... and their iteration rows and counts: a twin reproduced to 1 ulp may end Newton at the
+#: round-off floor one noise step apart (the answers above are compared)
+HISTORY = ("iterations/", "frames/iterations", "frames/strategy_iterations")
 
 #: XML elements with no Adams statement (their decks need no twin), and attribute values that
 #: have none either
@@ -88,8 +91,9 @@ def test_example_twin_solves_to_the_xml_results(twin):
     xml = DECKS / f"{twin.stem}.xml"
     a = run_deck(str(xml), quiet=True)
     b = run_deck(str(twin), _compliance_request(xml), quiet=True)
-    if twin.stem in INEXACT:
-        assert differences(a, b, rtol=1e-9, skip=ULP_SENSITIVE) == []
+    if twin.stem in INEXACT:      # their histories too: Newton's last, round-off-floor step
+        hist = {k for x in a.analyses for k in x.datasets if k.startswith(HISTORY)}
+        assert differences(a, b, rtol=1e-9, skip=ULP_SENSITIVE + tuple(hist)) == []
     else:
         assert differences(a, b, rtol=1e-12) == []
     assert [x.status for x in b.analyses] == [x.status for x in a.analyses]

@@ -233,6 +233,23 @@ def plan(spec: DeckSpec, overrides: dict | None) -> list[AnalysisRequest]:
     return out
 
 
+def _planned(spec: DeckSpec, overrides: dict | None, kept: dict | None) -> list:
+    """:func:`plan` of ``spec``; for a kept deck (``kept``: its model's memo, poise.app.deck_cache)
+    made once per set of overrides (the deck's file and the overrides decide it) and read only
+    afterwards: the settings' validation is not repeated at every run."""
+    try:
+        key = ("plan", tuple(sorted((overrides or {}).items())))
+        hash(key)
+    except TypeError:             # an unhashable override value: planned afresh
+        key = None
+    if kept is None or key is None:
+        return plan(spec, overrides)
+    got = kept.get(key)
+    if got is None:
+        got = kept[key] = tuple(plan(spec, overrides))
+    return list(got)
+
+
 def _check_compliance_markers(spec, s, el, from_cli: bool) -> None:
     """Marker ids named by ``compliance_markers`` must exist (checked before any solve): a
     usage error when the ids come from the command line / API, else the deck's."""
@@ -287,7 +304,7 @@ def _run(path, overrides, command, progress, allow_user_code, ignore=(),
         model = deck_cache.compiled(spec, user_code, compile_model)
         kept = deck_cache.memo(model)      # a kept deck's model: its model datasets made once
     t2 = now()
-    analyses = plan(spec, overrides)
+    analyses = _planned(spec, overrides, kept)
     problems = []
     for req in analyses:
         cls, msg = strategy_for(req)

@@ -391,6 +391,16 @@ class _ElementMarkers:
         return mi, mj
 
 
+def row_equation(row_info, r) -> tuple[str, str]:
+    """``(row_where(row_info[r]), its equation)`` of constraint row ``r`` (a
+    :class:`~poise.elements.rows.RowTable` gives them without the row's dictionary)."""
+    fast = getattr(row_info, "where_equation", None)
+    if fast is not None:
+        return fast(r)
+    ri = row_info[r]
+    return row_where(ri), ri["equation"]
+
+
 def row_where(ri: dict) -> str:
     """``FILE:LINE: <Tag id=N>`` (or ``FILE:LINE: JOINT/3`` for an Adams dataset) of a
     constraint row's element."""

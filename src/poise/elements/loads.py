@@ -6,6 +6,8 @@ on the element families' slot data, so they live with the elements.
 """
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from poise.elements.kernel import cross3
@@ -51,18 +53,62 @@ def loads_of(model, items, lam=None, frames: int = 1):
         rho3 = rho.reshape(fam.n, S, 3)
         Fi = np.zeros((fam.n, 3))
         Ti = np.zeros((fam.n, 3))
-        for s in range(S):
-            if fam.slot_ml[s] != 0:
-                continue
-            pt = fam.slot_kind[:, s] == 0
-            if np.logical_and.reduce(pt):             # a point in every instance
-                Fi -= rho3[:, s]
-            elif not np.logical_or.reduce(pt):        # an axis in every instance
-                Ti -= cross3(kin.Y[:, s], rho3[:, s])
-            else:
+        slots, distinct = _layout(fam)
+        if any(k == 2 for _, k in slots):   # a slot that is a point in some instances only
+            for s, _ in slots:
+                pt = fam.slot_kind[:, s] == 0
                 Fi[pt] -= rho3[pt, s]
                 ax = ~pt
                 Ti[ax] -= cross3(kin.Y[ax, s], rho3[ax, s])
-        np.add.at(F, fam.owner, Fi)
-        np.add.at(T, fam.owner, Ti)
+        else:                               # each slot's terms in slot order
+            axes = [s for s, k in slots if k == 1]
+            for s, k in slots:
+                if k == 0:
+                    Fi -= rho3[:, s]
+            if axes:                        # their cross products at once (elementwise)
+                C = cross3(kin.Y[:, axes], rho3[:, axes])
+                for j in range(len(axes)):
+                    Ti -= C[:, j]
+        if distinct:           # one instance per owner: add.at's sums, without its slow path
+            F[fam.owner] += Fi
+            T[fam.owner] += Ti
+        else:
+            np.add.at(F, fam.owner, Fi)
+            np.add.at(T, fam.owner, Ti)
     return out
+
+
+#: family -> its :func:`_layout` (the family's arrays never change: computed once)
+_LAYOUTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _layout(fam):
+    """``([(slot, kind)], owners distinct)``: the I marker's slots of ``fam`` (``slot_ml ==
+    0``), kind 0 a point in every instance, 1 an axis in every instance, 2 either."""
+    got = _LAYOUTS.get(fam)
+    if got is None:
+        slots = []
+        for s in range(len(fam.slot_ml)):
+            if fam.slot_ml[s] == 0:
+                pt = fam.slot_kind[:, s] == 0
+                slots.append((s, 0 if np.logical_and.reduce(pt)
+                              else 1 if not np.logical_or.reduce(pt) else 2))
+        own = np.asarray(fam.owner).ravel().tolist()     # (np.unique imports numpy.ma)
+        got = _LAYOUTS[fam] = (tuple(slots), len(set(own)) == len(own))
+    return got
+
+
+def _mixed(fam, kin, rho3, Fi, Ti):
+    """The slot terms of a family whose slots are points in some instances only."""
+    for s in range(len(fam.slot_ml)):
+        if fam.slot_ml[s] != 0:
+            continue
+        pt = fam.slot_kind[:, s] == 0
+        if np.logical_and.reduce(pt):
+            Fi -= rho3[:, s]
+        elif not np.logical_or.reduce(pt):
+            Ti -= cross3(kin.Y[:, s], rho3[:, s])
+        else:
+            Fi[pt] -= rho3[pt, s]
+            ax = ~pt
+            Ti[ax] -= cross3(kin.Y[ax, s], rho3[ax, s])

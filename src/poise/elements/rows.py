@@ -191,6 +191,17 @@ class RowTable(Sequence):
     def __iter__(self):
         return (self[r] for r in range(self._n))
 
+    def where_equation(self, r) -> tuple[str, str]:
+        """``(row_where(self[r]), equation)`` of row ``r`` without building its dictionary
+        (Newton names its worst equation at every iteration)."""
+        r = _position(self, r, "constraint row")
+        e = int(self._el[r])
+        where = self._elements[5][e]
+        if not where:
+            tag, ident, line, file = (col[e] for col in self._elements[:4])
+            where = f"{file}:{line}: <{tag} id={ident}>"
+        return where, self._codes["equation"][int(self._eq[r])]
+
     def kind_is(self, kind: str) -> np.ndarray:
         """Boolean array: the rows whose ``kind`` is ``kind`` (no dictionary built)."""
         codes = self._codes["kind"]

@@ -19,7 +19,7 @@ keeps between calls (assembly buffer, tiled families, kernels' caches) is in the
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property, partial
+from functools import partial
 
 import numpy as np
 
@@ -137,7 +137,7 @@ class _Frames:
         self.F = F = len(states)
         self.dg = None                    # reaction channels' (F, T), global (reaction feed)
         nb = model.nb
-        if single:
+        if single:               # P, A, pos and ctx on first use (:meth:`__getattr__`)
             self.mb = model.marker_body
             self.lam = states[0].lam
             self.kins = None         # a small model's slot kinematics, all at once (first call)
@@ -166,21 +166,15 @@ class _Frames:
         self.ctxs = None
         self.tiles = tiles(model, F, workspace)
 
-    @cached_property
-    def ctx(self):
-        """One frame's context, with its marker kinematics ``P``, ``A``, ``pos``: made on first
-        use (an evaluation served whole by the workspace's RecentEvaluations reads neither;
-        frames set them in ``__init__``)."""
+    def __getattr__(self, name):    # one frame's P, A, pos, ctx, made when first read: an
+        # evaluation the kept outputs answer (poise.model.recent) never reads them
+        if name not in ("P", "A", "pos", "ctx") or not self.__dict__.get("single"):
+            raise AttributeError(name)
         s = self.states[0]
         self.P, self.A, self.pos = self.model.marker_kinematics(s)
-        return EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
-                           workspace=self.ws)
-
-    def __getattr__(self, name):          # one frame's P, A, pos: made with its context
-        if name in ("P", "A", "pos") and self.single:
-            _ = self.ctx
-            return self.__dict__[name]
-        raise AttributeError(name)
+        self.ctx = EvalContext(t=s.t, angle=s.angle, P=self.P, A=self.A, extra=s.extra,
+                               workspace=self.ws)
+        return self.__dict__[name]
 
     def scatter(self, fam) -> Scatter:
         """The family's residual scatter (:class:`~poise.model.assembly.Scatter`), kept in

@@ -11,11 +11,10 @@ demoted to ``Status.TOLERANCE_NOT_MET`` and the message says which tolerance it 
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from poise.model.evaluate import Evaluation
+from poise.solvers.iterate import evolve
 from poise.solvers.newton import Scales, measures
 from poise.solvers.status import Status
 
@@ -30,7 +29,7 @@ def certify(model, settings, outcome, r, phi, sc=None) -> tuple:
     sc = sc if sc is not None else Scales(model, settings)
     imb, cerr, zinf, worst = measures(model, Evaluation(r=r, phi=phi, J=None), sc)
     own = outcome.error
-    outcome = replace(outcome, imbalance=imb,
+    outcome = evolve(outcome, imbalance=imb,
                       error=max(cerr, float(own)) if np.isfinite(own) else cerr)
     measured = (imb, cerr, worst)
     if not outcome.ok:
@@ -49,6 +48,6 @@ def certify(model, settings, outcome, r, phi, sc=None) -> tuple:
         what = f"error {outcome.error:.3g} > max_error {settings.max_error:g}"
     else:
         return outcome, measured
-    return replace(outcome, status=Status.TOLERANCE_NOT_MET,
+    return evolve(outcome, status=Status.TOLERANCE_NOT_MET,
                    message=(f"not converged: {what} at the reported state"
                             + (f"; worst equation: {worst}" if worst else ""))), measured

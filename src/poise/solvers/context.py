@@ -11,7 +11,7 @@ constraints, least-squares multipliers.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Callable, Generic, TypeVar
 
 import numpy as np
@@ -19,7 +19,7 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.solvers.data import SolveData
 from poise.solvers.history import History
-from poise.solvers.iterate import Next, Solver
+from poise.solvers.iterate import Next, Solver, evolve
 from poise.solvers.newton import FrameOutcome, initial_multipliers
 from poise.solvers.reach import assemble
 from poise.solvers.redundancy import detect_redundancy, without_rows
@@ -54,7 +54,7 @@ class Env:
 
 @dataclass(frozen=True)
 class Analysis(Generic[M]):
-    """One analysis in progress, frozen (``replace`` / the helpers make the next).
+    """One analysis in progress, frozen (``evolve`` / the helpers make the next).
 
     ``times``: the output times; ``frames`` / ``outcomes``: the solved frames and their
     :class:`~poise.solvers.newton.FrameOutcome`; ``notes``: message parts; ``redundancy``:
@@ -75,11 +75,11 @@ class Analysis(Generic[M]):
 
     def added(self, state, outcome, *notes) -> "Analysis[M]":
         """With one more frame (``state``, its ``outcome``) and ``notes``."""
-        return replace(self, frames=self.frames + (state,), outcomes=self.outcomes + (outcome,),
+        return evolve(self, frames=self.frames + (state,), outcomes=self.outcomes + (outcome,),
                        notes=self.notes + tuple(n for n in notes if n))
 
     def noted(self, *notes) -> "Analysis[M]":
-        return replace(self, notes=self.notes + tuple(n for n in notes if n))
+        return evolve(self, notes=self.notes + tuple(n for n in notes if n))
 
     @property
     def finished(self) -> bool:
@@ -92,12 +92,12 @@ class Analysis(Generic[M]):
         ``state`` when no frame was solved yet; else the last frame's outcome when it has none,
         else a repeat of the last frame)."""
         out = FrameOutcome(Status.NONFINITE, 0, np.nan, np.nan, message)
-        a = self if self.redundancy is not None else replace(self, redundancy=np.zeros(0, int))
+        a = self if self.redundancy is not None else evolve(self, redundancy=np.zeros(0, int))
         if not a.frames:
-            return replace(a, frames=(state,), outcomes=(out,))
+            return evolve(a, frames=(state,), outcomes=(out,))
         if len(a.outcomes) < len(a.frames):
-            return replace(a, outcomes=a.outcomes + (out,))
-        return replace(a, frames=a.frames + (a.frames[-1],), outcomes=a.outcomes + (out,))
+            return evolve(a, outcomes=a.outcomes + (out,))
+        return evolve(a, frames=a.frames + (a.frames[-1],), outcomes=a.outcomes + (out,))
 
 
 @dataclass(frozen=True)
@@ -178,13 +178,13 @@ def begin(env: Env, a: Analysis, state, multipliers: bool = True):
         ev = data.evaluate(model, state, "phi_q", every_row=True) if model.nc else None
         red = detect_redundancy(model, state, data.workspace, evaluation=ev)
     data.set_redundancy(red)
-    a = replace(a, redundancy=red)
+    a = evolve(a, redundancy=red)
     if len(red):
         a = a.noted(f"{len(red)} redundant constraint equations removed")
     if ev is not None:
         ev = without_rows(model, ev, data.mask(model))
     state, moved, ast = assemble(model, state, env.settings, env.history, 0, data, ev=ev)
-    a = replace(a, moved=moved)
+    a = evolve(a, moved=moved)
     if moved:
         a = a.noted("initial configuration assembled onto the constraints")
     if not ast.ok:
@@ -205,6 +205,6 @@ def replicated(a: Analysis) -> Analysis:
         st.t = float(t)
         frames.append(st)
         outcomes.append(FrameOutcome(out.status, 0, out.imbalance, out.error, "replicated"))
-    return replace(a, frames=a.frames + tuple(frames), outcomes=a.outcomes + tuple(outcomes),
+    return evolve(a, frames=a.frames + tuple(frames), outcomes=a.outcomes + tuple(outcomes),
                    notes=a.notes + ("nothing in the scene depends on time: solved once, frame "
                                     "replicated",))

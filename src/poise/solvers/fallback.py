@@ -17,7 +17,7 @@ import numpy as np
 from poise.core.errors import EvaluationError
 from poise.solvers import freedom
 from poise.solvers.history import Row
-from poise.solvers.iterate import Next, Solver, iterate
+from poise.solvers.iterate import Next, Solver, evolve, iterate
 from poise.solvers.newton import FrameOutcome, Scales, merit, newton
 from poise.solvers.status import MESSAGES, Status
 
@@ -38,7 +38,7 @@ def solve_frame(model, state, settings, history, frame, cnt, event="newton"):
     start = state.copy()
     st, out = newton(model, state, settings, history, frame, cnt, event=event,
                      probe=freedom.probe)
-    out = replace(out, counts={"plain": out.iterations})
+    out = evolve(out, counts={"plain": out.iterations})
     if out.ok:
         return st, out
     return recover(model, start, st, out, settings, history, frame, cnt)
@@ -50,7 +50,7 @@ def recover(model, start, st, out, settings, history, frame, cnt):
     ``(state, outcome)`` with the frame's total iterations; the failed plain result when the
     chain does not converge or is not to be tried."""
     plain = int(out.counts.get("plain", out.iterations)) if out.counts else int(out.iterations)
-    out = replace(out, counts={"plain": plain}, iterations=plain)
+    out = evolve(out, counts={"plain": plain}, iterations=plain)
     if out.ok or not settings.fallback or out.status in NO_RECOVERY:
         return st, out
     if out.final:

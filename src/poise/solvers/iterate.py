@@ -26,12 +26,23 @@ S = TypeVar("S")
 @functools.cache
 def _init_fields(cls):
     """The field names of dataclass ``cls`` when :func:`evolve` may copy its instances (every
-    field set by ``__init__``, no ``__post_init__``, no slots), else None."""
+    field set by ``__init__``, no ``__post_init__``, none in slots), else None."""
     fs = dataclasses.fields(cls)
-    if (hasattr(cls, "__post_init__") or hasattr(cls, "__slots__")
+    names = frozenset(f.name for f in fs)
+    if (hasattr(cls, "__post_init__") or not cls.__dictoffset__ or _slot_names(cls) & names
             or not all(f.init for f in fs)):
         return None
-    return frozenset(f.name for f in fs)
+    return names
+
+
+def _slot_names(cls) -> set:
+    """The names ``cls`` or a base keeps in slots (``typing.Generic`` declares none: an
+    ``Analysis`` keeps its fields in its ``__dict__``)."""
+    out = set()
+    for c in cls.__mro__:
+        s = c.__dict__.get("__slots__", ())
+        out.update((s,) if isinstance(s, str) else s)
+    return out
 
 
 def evolve(obj, /, **changes):

@@ -16,14 +16,13 @@
 from __future__ import annotations
 
 import copy
-import functools
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
-from poise.elements.context import row_where
+from poise.elements.context import row_equation, row_where
 from poise.solvers.data import SolveData
 from poise.solvers.downhill import Runaway, downhill_step
 from poise.solvers.gram import least_squares
@@ -95,8 +94,7 @@ def measures(model, ev, sc: Scales):
         if k < model.nq:
             worst = model.coord_info[k]
         else:
-            ri = model.row_info[k - model.nq]
-            worst = f"{row_where(ri)} {ri['equation']}"
+            worst = "%s %s" % row_equation(model.row_info, k - model.nq)
     return imb, cerr, float(mx(z)) if z.size else 0.0, worst
 
 
@@ -333,7 +331,12 @@ class NewtonIteration(Solver[_Newtoning]):
         # the limited full step is retracted only when asked: by the filter's test, or by the
         # line search when the filtered step is not taken (otherwise a retraction per iteration
         # for nothing)
-        limit = functools.cache(lambda: _steps.limit_step(model, state, x[:model.nq], settings))
+        limited = []
+
+        def limit():          # once, when first asked
+            if not limited:
+                limited.append(_steps.limit_step(model, state, x[:model.nq], settings))
+            return limited[0]
         xf = _steps.neutral_filtered(model, state, f, x, eps, sc, s.zinf,
                                      lambda: limit()[0] < 1.0, Jg=ev.inertia)
         # the factorisation is not needed by the trials (memory at 10^5) unless kept for a chord

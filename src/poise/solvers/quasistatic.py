@@ -14,7 +14,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from poise.solvers.branch import MAX_PATH_STEP, BranchPath, distance
 from poise.solvers.context import AnalysisSolver, Finished, begin, replicated
 from poise.solvers.fallback import NO_RECOVERY, recover, solve_frame
 from poise.solvers.history import Row
-from poise.solvers.iterate import Next, Solver, iterate
+from poise.solvers.iterate import Next, Solver, evolve, iterate
 from poise.solvers.newton import FrameOutcome, branch_newton
 from poise.solvers.status import Status
 from poise.solvers.stability import classify
@@ -37,7 +37,7 @@ def first_frame(env, a, state):
     a, state, out = begin(env, a, state)
     if out is not None:
         return a, state, out
-    a = replace(a, start=state.copy())
+    a = evolve(a, start=state.copy())
     state, out = solve_frame(env.model, state, env.settings, env.history, 0, env.data)
     if out.strategy != "plain" and env.kind == "quasistatic":
         a = a.noted(f"frame 0: plain Newton failed; converged with the fallback strategy "
@@ -110,7 +110,7 @@ class SubStepping(Solver[_Stepping]):
         pred, known = branch.predict(t)
         if known and s.dt > self.min_dt and distance(model, branch.hist[-1], pred) > MAX_PATH_STEP:
             # a step the path's shape cannot be trusted over
-            return Next(replace(s, dt=s.dt * 0.5, n_sub=s.n_sub + 1))
+            return Next(evolve(s, dt=s.dt * 0.5, n_sub=s.n_sub + 1))
         full = s.n_sub == 0 and t == t_target
         st, out = branch_newton(model, pred, self.settings, self.history, self.frame, self.data,
                                 self.max_iter, "newton" if full else "substep")
@@ -119,47 +119,47 @@ class SubStepping(Solver[_Stepping]):
         if not why:
             branch.accept(st)
             if t == t_target:
-                return Next(replace(s, total_it=total, result=(st, replace(out,
+                return Next(evolve(s, total_it=total, result=(st, evolve(out,
                                                                             iterations=total))))
-            return Next(replace(s, total_it=total, t_prev=t, dt=min(2.0 * s.dt, t_target - t)))
+            return Next(evolve(s, total_it=total, t_prev=t, dt=min(2.0 * s.dt, t_target - t)))
         dt = s.dt * 0.5
         row = Row(self.frame, 0, out.imbalance, out.error, np.nan, np.nan,
                   f"step to t={t:.9g} failed ({why}); halving to {dt:.3g}", "substep_retry")
-        s = replace(s, dt=dt, n_sub=s.n_sub + 1, total_it=total, t=t, st=st, out=out, why=why)
+        s = evolve(s, dt=dt, n_sub=s.n_sub + 1, total_it=total, t=t, st=st, out=out, why=why)
         if not s.ended and (dt < self.min_dt or branch.near_singular(self.frames)):
-            return Next(replace(s, phase="end"), 1, (row,))
-        return Next(replace(s, phase="step" if dt >= self.min_dt else "fail"), 1, (row,))
+            return Next(evolve(s, phase="end"), 1, (row,))
+        return Next(evolve(s, phase="step" if dt >= self.min_dt else "fail"), 1, (row,))
 
     def _end(self, s):
         """Where the branch ends (:func:`branch_end`): a located singular configuration ends
         the step; else on (or to ``fail``)."""
-        s = replace(s, ended=True)
+        s = evolve(s, ended=True)
         end = branch_end(self.model, self.data, self.history, self.frame, s.branch,
                          self.frames, s.t)
         if end is not None:
             st, sing, its, row = end
             n = s.total_it + its
-            return Next(replace(s, result=(st, replace(sing, iterations=n, counts={"plain": n}))),
+            return Next(evolve(s, result=(st, evolve(sing, iterations=n, counts={"plain": n}))),
                         0, (row,))
-        s = replace(s, total_it=s.total_it + s.branch.probe_iterations,
+        s = evolve(s, total_it=s.total_it + s.branch.probe_iterations,
                     t_prev=s.branch.hist[-1].t)
-        return Next(replace(s, phase="step" if s.dt >= self.min_dt else "fail"), 0)
+        return Next(evolve(s, phase="step" if s.dt >= self.min_dt else "fail"), 0)
 
     def _fail(self, s):
         """No smaller sub-step: a jump fails the frame; a Newton failure goes to the fallback
         chain (``recover``) unless it cannot help."""
-        out = replace(s.out, iterations=s.total_it, counts={"plain": s.total_it})
+        out = evolve(s.out, iterations=s.total_it, counts={"plain": s.total_it})
         if out.ok:          # Newton converged, but off the branch, however small the step
-            return Next(replace(s, result=(s.branch.hist[-1], FrameOutcome(
+            return Next(evolve(s, result=(s.branch.hist[-1], FrameOutcome(
                 Status.STEP_TOO_SMALL, s.total_it, np.nan, np.nan,
                 f"the equilibrium path jumps at t = {s.t:.6g}: {s.why}, also on sub-steps of "
                 f"{2 * s.dt:.3g} (a discontinuous load or motion?)", out.counts))), 0)
         if not self.settings.fallback or out.status in NO_RECOVERY:
-            return Next(replace(s, result=(s.st, out)), 0)
+            return Next(evolve(s, result=(s.st, out)), 0)
         row = Row(self.frame, 0, out.imbalance, out.error, np.nan, np.nan,
                   f"step to t={self.t_target:.9g} failed after {s.n_sub} halvings; fallback "
                   "chain from the frame's predictor", "substep_retry")
-        return Next(replace(s, out=out, phase="recover"), 0, (row,))
+        return Next(evolve(s, out=out, phase="recover"), 0, (row,))
 
     def _recover(self, s):
         pred, known = s.branch.predict(self.t_target)
@@ -170,7 +170,7 @@ class SubStepping(Solver[_Stepping]):
             out = FrameOutcome(Status.STEP_TOO_SMALL, out.iterations, out.imbalance, out.error,
                                f"the fallback chain's equilibrium at t = {self.t_target:.6g} is "
                                f"not on the branch: {why}", out.counts, out.strategy)
-        return Next(replace(s, result=(st, out)), 0)
+        return Next(evolve(s, result=(st, out)), 0)
 
 
 def fims_step(model, frames, t_target, settings, history, counters, frame, min_dt,
@@ -219,7 +219,7 @@ def branch_end(model, data, history, frame, branch, frames, t_fail):
         branch.probe_iterations = its
         return None
     if branch.located_from is not hist[-1]:   # the fold's time, closer than probes can reach
-        info = replace(info, time=singular.fold_time(model, data, info.kind, branch.located_from,
+        info = evolve(info, time=singular.fold_time(model, data, info.kind, branch.located_from,
                                                      hist[-1], t_fail))
     row = Row(frame, 0, np.nan, np.nan, np.nan, np.nan, info.message(), "singular")
     return hist[-1], singular.singular_outcome(info, 0), its, row
@@ -252,7 +252,7 @@ class NewtonFrames(AnalysisSolver):
         a, st, out = first_frame(env, a, state)
         if out.ok and s.require_stable:
             a, st, out = require_stable(env, a, st, out)
-        a = replace(a.added(st, out), method=_Fims(checked=env.kind != "quasistatic"))
+        a = evolve(a.added(st, out), method=_Fims(checked=env.kind != "quasistatic"))
         if out.ok and a.time_independent and len(a.times) > 1:
             a = replicated(a)
         return a
@@ -266,15 +266,15 @@ class NewtonFrames(AnalysisSolver):
         env = self.env
         if a.finished:
             a, rows = path.check(env, a, fims_step)
-            return Next(replace(a, method=replace(a.method, checked=True)), 0, rows)
+            return Next(evolve(a, method=evolve(a.method, checked=True)), 0, rows)
         k, ts = len(a.frames), a.times
         min_dt = env.settings.limits.min_substep_fraction * (ts[k] - ts[k - 1])
         m = a.method
         if m.orient is None:
-            m = replace(m, orient=singular.Orientation(env.model, env.data))
+            m = evolve(m, orient=singular.Orientation(env.model, env.data))
         st, o, nsub = fims_step(env.model, list(a.frames), float(ts[k]), env.settings,
                                 env.history, env.data, k, min_dt, m.orient)
-        a = replace(a.added(st, o, f"frame {k}: {nsub} sub-step halvings" if nsub else "",
+        a = evolve(a.added(st, o, f"frame {k}: {nsub} sub-step halvings" if nsub else "",
                             f"frame {k}: converged with the fallback strategy '{o.strategy}'"
                             if o.strategy != "plain" else ""), method=m)
         env.report("FIM_S", k + 1, len(ts))
@@ -302,4 +302,4 @@ def require_stable(env, a, state, out):
     st, o, info, note = seek_stable(model, state, s, env.history, 0, data, info,
                                     lambda x: classify(model, x, active=active), a.start)
     data.classified = (st, info)     # also a failed one: its class is reported
-    return a.noted(note), st, replace(o, iterations=out.iterations + o.iterations)
+    return a.noted(note), st, evolve(o, iterations=out.iterations + o.iterations)

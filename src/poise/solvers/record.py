@@ -11,6 +11,7 @@ is the one module that maps them onto the results file's paths (``docs/results-f
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -66,11 +67,12 @@ class FrameSet:
         outs[k] = outcome
         return replace(self, outcomes=tuple(outs))
 
-    @property
+    @cached_property
     def strategy_iterations(self) -> np.ndarray:
         """(F, len(STRATEGIES)) each frame's iterations split by recovery stage (columns in
         :data:`~poise.solvers.history.STRATEGIES` order; a frame's work not split is
-        ``plain``: the rows sum to the frames' iterations)."""
+        ``plain``: the rows sum to the frames' iterations). Made once (the frames' dataset
+        and the stage totals read it)."""
         it = np.zeros((len(self.outcomes), len(STRATEGIES)), np.int64)
         for k, o in enumerate(self.outcomes):
             c = o.counts or {"plain": o.iterations}
