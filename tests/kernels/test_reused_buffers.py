@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from poise.model.assembly import POOL_ABOVE, Assembler, Scatter
+from poise.model.assembly import POOL_ABOVE, Assembler, Few, Scatter, Zeros
 from poise.model.workspace import Workspace
 from support.builders import perturbed_chain
 from poise.solvers.data import SolveData
@@ -65,7 +65,8 @@ def test_pooled_assembly_sums_like_bincount_and_spares_live_matrices(chain, monk
     orig = Assembler.assemble
 
     def grab(self, values, workspace=None):
-        vals.extend(np.asarray(v, float).ravel() for v in values)
+        vals.extend(v.dense() if isinstance(v, Zeros) else np.asarray(v, float).ravel()
+                    for v in values)
         return orig(self, values, workspace)
 
     monkeypatch.setattr(Assembler, "assemble", grab)
@@ -170,3 +171,22 @@ def test_a_matrix_no_longer_referred_to_lends_its_buffer_to_the_next(chain):
     assert _bits(J.data, first)
     model.assembler.release(data.workspace)                      # dropped: J keeps its own
     assert _bits(J.data, first)
+
+
+@pytest.mark.parametrize("n", [40, 2 * POOL_ABOVE])
+def test_zero_and_few_blocks_sum_like_their_dense_values(n):
+    # blocks of zeros (some -0.0) skipped, a block that is zero but at a few entries added
+    # there only: the same bits as the dense blocks, in the bincount and the pooled paths
+    rng = np.random.default_rng(3)
+    N = 30
+    blocks = [(rng.integers(-1, N, n), rng.integers(0, N, n)) for _ in range(4)]
+    asm = Assembler(N, list(blocks))
+    dense = [rng.standard_normal(n), -np.zeros(n), rng.standard_normal(n), np.zeros(n)]
+    dense[0][::7] = -0.0
+    idx = np.array([1, 5, n - 1])
+    dense[3][idx] = [2.0, -0.0, -3.5]
+    got = asm.assemble([dense[0], Zeros(n), dense[2], Few(n, idx, dense[3][idx])],
+                       Workspace())
+    ref = asm.assemble(dense, Workspace())
+    assert _bits(got.data, ref.data)
+    assert not np.any(np.signbit(got.data) & (got.data == 0.0))      # never -0.0

@@ -159,3 +159,54 @@ def test_euler_parameters_are_the_formula_sums():
     assert np.allclose(4 * qk ** 2, diag[np.arange(len(Rs)), k], rtol=1e-12, atol=1e-15)
     assert np.allclose(R.expm_so3(R.rotation_vector(Rs)), Rs, atol=1e-12)
     assert np.all((q[:, 0] > 0) | ((q[:, 0] == 0) & (q[:, 1:] != 0).any(axis=1)))
+
+
+def _many_instances(rng, n, mixed, other):
+    """Slot kinematics of ``n`` random instances (1-3 markers, 1-5 slots, points and axes;
+    ``mixed``: the first slot is a point in every other instance, an axis ``other`` else)."""
+    k_, s_ = int(rng.integers(1, 4)), int(rng.integers(1, 6))
+    ml = rng.integers(0, k_, s_)
+    kind = np.where(rng.random((1, s_)) < 0.5, 0, rng.integers(1, 4, (1, s_))).repeat(n, 0)
+    if mixed:
+        kind[::2, 0], kind[1::2, 0] = 0, other
+    markers = rng.integers(0, 9, (n, k_))
+    body = rng.integers(-1, 5, 9)
+    P, A, pos = rng.standard_normal((9, 3)), rng.standard_normal((9, 3, 3)), \
+        rng.standard_normal((5, 3))
+    return K.slot_kinematics(markers, ml, kind, P, A, body, pos), k_, s_
+
+
+def test_entry_major_constraint_jacobian_is_the_instance_major_one():
+    # made component by component over the instances (and chunk by chunk, with removed rows)
+    # it is the same bits as constraint_jacobian_local's entries
+    from poise.elements.chunked import constraint_values
+    rng = np.random.default_rng(5)
+    for t in range(12):
+        n, m = 700 + t, 1 + t % 3
+        kin, k_, s_ = _many_instances(rng, n, t % 3 == 0, 2)
+        py = rng.standard_normal((n, m, 3 * s_))
+        py[:, :, ::4] = -0.0
+        ref = K.constraint_jacobian_local(kin, py, k_)                 # (n, m, 6K)
+        pidx = None if t % 2 else np.flatnonzero(rng.random(m * 6 * k_) < 0.6)
+        act = rng.random((n, m)) < (0.9 if t % 4 else 1.1)
+        want = (ref * act[:, :, None] if not act.all() else ref).reshape(n, -1)
+        want = want if pidx is None else want[:, pidx]
+        whole = constraint_values(kin, py, k_, act, pidx, None)
+        parts = constraint_values(kin, py, k_, act, pidx, [(0, 300), (300, n)])
+        assert whole.tobytes() == np.ascontiguousarray(want).tobytes()
+        assert parts.tobytes() == whole.tobytes()
+
+
+def test_many_instances_local_residual_is_the_slot_loop():
+    # from MAJOR_MIN instances the residual is made component-major: the same bits
+    rng = np.random.default_rng(6)
+    for t in range(8):
+        n = 600 + t
+        kin, k_, s_ = _many_instances(rng, n, t % 2 == 0, 3)
+        rho = rng.standard_normal((n, 3 * s_))
+        rho[::3, 1] = -0.0
+        big = K.local_residual(kin, rho, k_)
+        small = np.concatenate([K.local_residual(K.SlotKinematics(
+            Y=kin.Y[a:a + 100], V=kin.V[a:a + 100], pt=kin.pt[a:a + 100], slot_ml=kin.slot_ml,
+            K=kin.K), rho[a:a + 100], k_) for a in range(0, n, 100)])
+        assert big.shape == (n, 6 * k_) and big.tobytes() == small.tobytes()

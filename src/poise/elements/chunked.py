@@ -16,8 +16,9 @@ import numpy as np
 
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
-from poise.elements.kernel import (PairBlocks, SlotKinematics, local_residual,
-                                   constraint_jacobian_local, tangent_compact)
+from poise.elements.kernel import (PairBlocks, SlotKinematics, constraint_jacobian_local,
+                                   local_residual, tangent_compact)
+from poise.elements.major import MAJOR_MIN, constraint_jacobian_major
 
 CHUNK = 1 << 14
 
@@ -66,22 +67,37 @@ def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.
     return out
 
 
-def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list) -> np.ndarray:
-    """The constraint Jacobian's registered values (n, P) of the whole family (no scalar
-    columns), chunk by chunk: ``phi_y B``, rows multiplied by the active mask ``act`` (n, m)
-    when a row is removed (``x * 1.0`` is ``x``: only then), entries ``pidx`` (None: all)."""
+def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list | None
+                      ) -> np.ndarray:
+    """The constraint Jacobian's registered values (n, P) of a family with no scalar columns
+    (instance-major, as the model registers them: a scatter of neighbouring entries), made
+    entry-major (:func:`~poise.elements.major.constraint_jacobian_major`) chunk by chunk
+    (``parts`` from :func:`spans`, None: in one piece) and transposed: ``phi_y B``, rows
+    multiplied by the active mask ``act`` (n, m) when a row is removed (``x * 1.0`` is ``x``:
+    only then), entries ``pidx`` (None: all)."""
     n = kin.pt.shape[0]
+    m = phy.shape[1]
     if np.logical_and.reduce(act, axis=None):
         act = None
+    else:                                     # each entry's row of the instance
+        rows_ = np.arange(m * 6 * K) // (6 * K)
+        act = np.ascontiguousarray(act.T).take(rows_ if pidx is None else rows_[pidx], 0)
     out = None
-    for a, b in parts:
-        Pq = constraint_jacobian_local(rows(kin, a, b), phy[a:b], K)
+    for a, b in [(0, n)] if parts is None else parts:
+        Pq = _entry_major(rows(kin, a, b), phy[a:b], K, pidx)
         if act is not None:
-            Pq = Pq * act[a:b, :, None]
-        Pq = Pq.reshape(b - a, -1)
-        if pidx is not None:
-            Pq = Pq[:, pidx]
+            Pq = Pq * act[:, a:b]
         if out is None:
-            out = np.empty((n, Pq.shape[1]))
-        out[a:b] = Pq
+            out = np.empty((n, Pq.shape[0]))
+        out[a:b] = Pq.T
     return out
+
+
+def _entry_major(kin: SlotKinematics, phy, K: int, pidx) -> np.ndarray:
+    """The entries ``pidx`` of ``phi_y B`` entry-major (P, n): component by component for many
+    instances, else the instance-major kernel's values transposed (the same bits)."""
+    n = kin.pt.shape[0]
+    if kin.index is None and n >= MAJOR_MIN:
+        return constraint_jacobian_major(kin, phy, K, pidx)
+    Pq = constraint_jacobian_local(kin, phy, K).reshape(n, -1)
+    return (Pq if pidx is None else Pq[:, pidx]).T

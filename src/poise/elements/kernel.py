@@ -15,6 +15,7 @@ import numpy as np
 from poise.elements.rotation import skew
 from poise.elements.slot_index import AX_X, AX_Y, AX_Z, POINT, SlotIndex  # noqa: F401 (API)
 from poise.elements.local_pattern import LocalPattern, local_pattern  # noqa: F401 (API)
+from poise.elements.major import MAJOR_MIN, local_residual_major
 
 _I3 = np.eye(3)
 _NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])   # component i: i+1, i+2
@@ -189,10 +190,10 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
     mk = markers[:, slot_ml]                                   # (n, S)
     kind = slot_kind
     pt = kind == POINT
-    if pt.all():
-        Pm = P[mk]
+    if pt.all():                 # the same values as P[mk] etc., gathered faster by take
+        Pm = P.take(mk, 0)
         Y = Pm
-        V = Pm - body_pos[np.maximum(marker_body[mk], 0)]
+        V = Pm - body_pos.take(np.maximum(marker_body.take(mk), 0), 0)
     elif not pt.any():
         Y = A[mk, :, kind - 1]                                 # (n, S, 3): column kind-1
         V = Y
@@ -230,6 +231,8 @@ def local_residual(kin: SlotKinematics, rho: np.ndarray, K: int) -> np.ndarray:
     """``B^T rho`` (n, 6K): per slot ``pt_s rho_s`` on the marker's translation and
     ``v_s x rho_s`` on its rotation."""
     n, S = kin.pt.shape
+    if kin.rounds is None and kin.index is None and n >= MAJOR_MIN:
+        return local_residual_major(kin, rho, K)
     rho3 = rho.reshape(n, S, 3)
     vr = cross3(kin.V, rho3)                                   # (n, S, 3)
     if kin.rounds is not None and kin.index is not None:

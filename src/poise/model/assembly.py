@@ -100,11 +100,16 @@ class Assembler:
         """Assemble the matrix from a list of value arrays (same order/shapes as the blocks);
         ``workspace``: the solve's (its value buffer, below ``POOL_ABOVE`` entries, or its data
         buffers above, are reused: no fresh pages for every assembly; its column order is the
-        sparse matrix's)."""
+        sparse matrix's).
+
+        A block's values may also be :class:`Zeros` (every value 0) or :class:`Few` (0 but at
+        a few of its entries): the same matrix, bit for bit (every sum starts from +0.0, so it
+        is never -0.0 and adding a zero leaves it as it is), without a pass over the zeros."""
         if workspace is None or self.nnz < POOL_ABOVE:
             buf = (np.empty(self.slot_all.size) if workspace is None
                    else workspace.scratch(self, _Scratch).values(self.slot_all.size))
-            vals = np.concatenate([np.asarray(v, float).ravel() for v in values], out=buf)
+            vals = np.concatenate([v.dense() if isinstance(v, (Zeros, Few))
+                                   else np.asarray(v, float).ravel() for v in values], out=buf)
             data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
         else:
             # the same sums (each entry from 0, values added in registration order) into a
@@ -117,6 +122,11 @@ class Assembler:
             out = workspace.scratch(self, _Scratch).free_data(self.nnz + 1)
             at = 0
             for v in values:
+                if isinstance(v, (Zeros, Few)):
+                    if isinstance(v, Few) and v.idx.size:
+                        np.add.at(out, self.slot_all[at + v.idx], v.vals)
+                    at += v.size
+                    continue
                 v = np.asarray(v, float).ravel()
                 for i in range(0, v.size, _CHUNK):
                     np.add.at(out, self.slot_all[at + i:at + min(i + _CHUNK, v.size)],
@@ -214,6 +224,34 @@ class Assembler:
         # size does not change it (panel_size=1: a third less time at 10^5 links)
         pc = spla.splu(Q, permc_spec="COLAMD", panel_size=1).perm_c
         return np.argsort(pc[grp], kind="stable")      # pc[g]: the rank of group g
+
+
+class Zeros:
+    """A block of ``size`` zero values for :meth:`Assembler.assemble` (nothing to add)."""
+
+    __slots__ = ("size",)
+
+    def __init__(self, size: int):
+        self.size = int(size)
+
+    def dense(self) -> np.ndarray:
+        return np.zeros(self.size)
+
+
+class Few(Zeros):
+    """A block of ``size`` values, zero but ``vals`` at the entries ``idx`` (ascending)."""
+
+    __slots__ = ("idx", "vals")
+
+    def __init__(self, size: int, idx, vals):
+        super().__init__(size)
+        self.idx = np.asarray(idx, np.intp)
+        self.vals = np.asarray(vals, float)
+
+    def dense(self) -> np.ndarray:
+        out = np.zeros(self.size)
+        out[self.idx] = self.vals
+        return out
 
 
 class CSCLayout:

@@ -26,16 +26,17 @@ import numpy as np
 from poise.core import phases
 from poise.core.lean import all_finite
 from poise.core.errors import EvaluationError
-from poise.elements.chunked import constraint_values, local_residuals, spans, tangent_values
-from poise.elements.context import row_where
+from poise.elements.chunked import (constraint_values, local_residuals, rows, spans,
+                                    tangent_values)
 from poise.expr import EvalContext
-from poise.elements.kernel import (SlotKinematics, constraint_jacobian_local, dense_g,
+from poise.elements.kernel import (constraint_jacobian_local, dense_g,
                                    local_pattern, local_residual_tangent, local_tangent,
                                    slot_kinematics,
                                    tangent_compact)
-from poise.model.assembly import Scatter
+from poise.model.assembly import Few, Scatter, Zeros
 from poise.model.energy import potential_energy
 from poise.model.frame_batch import add_block, stack_ext, tiles
+from poise.model.nonfinite import family_nonfinite, nonfinite_message
 from poise.model.recent import RecentEvaluations
 from poise.model.small_dense import SmallTerms
 from poise.model.workspace import Workspace
@@ -166,7 +167,7 @@ class _Frames:
         self.tiles = tiles(model, F, workspace)
 
     def __getattr__(self, name):    # one frame's P, A, pos, ctx, made when first read: an
-        # evaluation a small model's kept outputs answer (poise.model.recent) never reads them
+        # evaluation the kept outputs answer (poise.model.recent) never reads them
         if name not in ("P", "A", "pos", "ctx") or not self.__dict__.get("single"):
             raise AttributeError(name)
         s = self.states[0]
@@ -211,7 +212,7 @@ class _Frames:
                                      extra=s.extra, workspace=self.ws)
                          for f, s in enumerate(self.states)]
         n = fam.n
-        outs = [_kernel(fam, _slice_kin(kin, f * n, (f + 1) * n),
+        outs = [_kernel(fam, rows(kin, f * n, (f + 1) * n),
                         self.lam2[f][fam.crow] if fam.is_constraint else None, self.ctxs[f],
                         need_jac) for f in range(self.F)]
         k = 3 if fam.is_constraint else 2
@@ -269,12 +270,17 @@ def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
 
 
 def _phi(model, fr, active):
-    """Constraint values of the frames (no force element is called)."""
+    """Constraint values of the frames (no force element is called; one frame's are those of
+    a kept evaluation at its state when there is one, :mod:`poise.model.recent`)."""
+    kept = (_recent(model, fr).phi(fr.states[0])
+            if fr.single and model.reaction_feed is None else None)
+    if kept is not None:
+        return kept if active is None else np.where(np.asarray(active, bool), kept, 0.0)
     phi = np.zeros(fr.F * model.nc)
     for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, "phi", only="phi"):
         phi[t.crow.ravel()] = ph.ravel()
     if not np.all(np.isfinite(phi)):
-        raise EvaluationError(_nonfinite_message(model, np.zeros(0), phi[:model.nc])
+        raise EvaluationError(nonfinite_message(model, np.zeros(0), phi[:model.nc])
                               if fr.single else "a constraint equation is not finite (NaN/Inf)")
     if fr.single:
         return phi if active is None else np.where(np.asarray(active, bool), phi, 0.0)
@@ -283,11 +289,11 @@ def _phi(model, fr, active):
 
 def _one_frame(model, fr, what, active, keep, eps_mass):
     """Residual (and Jacobian, now or deferred) of one frame (the Jacobian through the model's
-    fixed-pattern assembler); small models reuse kept outputs (:mod:`poise.model.recent`)."""
+    fixed-pattern assembler); kept outputs are reused (:mod:`poise.model.recent`)."""
     need_jac = what != "residual"
     feed = model.reaction_feed
     state, done = fr.states[0], ({} if feed is not None else None)
-    if feed is None and model.assembler.dense:
+    if feed is None:
         small = model.small
         if small is None:
             def compute(call):
@@ -296,15 +302,14 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
             def compute(call):
                 return (small.outputs(_family_pass(model, fr, need_jac, call=call), need_jac)
                         or _family_outputs(model, fr, need_jac, None, call))
-        r, phi, pend, last = fr.ws.scratch(RecentEvaluations, RecentEvaluations).of(model).outputs(
-            fr, need_jac, _kernel, compute)
+        r, phi, pend, last = _recent(model, fr).outputs(fr, need_jac, _kernel, compute)
     else:
         r, phi, pend, last = _family_outputs(model, fr, need_jac, done)
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
     if active is not None:
         phi = np.where(mask, phi, 0.0)
     if not (all_finite(r) and all_finite(phi)):
-        raise EvaluationError(_nonfinite_message(model, r, phi))
+        raise EvaluationError(nonfinite_message(model, r, phi))
     ev = Evaluation(r=r, phi=phi, J=None, items=list(last) if keep else None, workspace=fr.ws)
     if need_jac:
         if feed is not None:       # d r_reader / d (lambda, q) through the channels
@@ -313,6 +318,11 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
             pend = [p for p in pend if p is not None]     # assembly order: model.families
         ev._pending = (state, pend, eps_mass, mask.copy(), what != "phi_q")
     return ev
+
+
+def _recent(model, fr) -> RecentEvaluations:
+    """The workspace's memo of ``model``'s last evaluations."""
+    return fr.ws.scratch(RecentEvaluations, RecentEvaluations).of(model)
 
 
 def _family_outputs(model, fr, need_jac, done, call=None):
@@ -332,11 +342,11 @@ def _family_outputs(model, fr, need_jac, done, call=None):
         parts = None if fam.U else spans(kin)
         if parts is not None:      # big family: chunk by chunk (no full-size temporaries)
             fr.scatter(fam).add_parts(r, local_residuals(kin, rho, fam.K, parts,
-                                                         partial(_family_nonfinite, fam)))
+                                                         partial(family_nonfinite, fam)))
             continue
         rl, _ = local_residual_tangent(kin, rho, G, fam.slot_ml, fam.K, False, ext, fam.U)
         if not all_finite(rl):
-            raise EvaluationError(_family_nonfinite(fam, rl))
+            raise EvaluationError(family_nonfinite(fam, rl))
         fr.scatter(fam).add(r, rl)
     return r, phi, pend, last
 
@@ -355,6 +365,8 @@ def jacobian(model, ev: Evaluation):
         ev.J = _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness)
     ev.inertia = Jg                  # Newton's step filter multiplies by the same mass matrix
     ev._pending = None
+    if model.reaction_feed is None and ev.workspace is not None:
+        ev.workspace.scratch(RecentEvaluations, RecentEvaluations).of(model).release()
     phases.add("assemble", phases.now() - t_start)
     return ev.J
 
@@ -369,31 +381,33 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
         U = fam.U
         parts = None if U else spans(kin)
         if not stiffness:  # "phi_q": the tangent entries read zero (nothing else shares them)
-            Kl = np.zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
+            Kl = Zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
         elif pat.compact:  # straight into the registered (entry-major block) order
             Kl = (tangent_compact(kin, rho, G, fam.K, pat) if parts is None else
                   tangent_values(kin, rho, G, fam.K, pat, parts))
         else:
             Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)
             Kl = _gather(Kl, pat.order)
-        if fam.is_constraint and parts is not None:        # big family: chunk by chunk
+        if fam.is_constraint and not U:      # (n, P); big family: chunk by chunk
             Pq = constraint_values(kin, phy, fam.K, row_active[fam.crow], pat.pidx, parts)
             vals += [Kl, Pq, Pq]
-        elif fam.is_constraint:
-            Pq = constraint_jacobian_local(kin, phy, fam.K)         # (n, m, 6K)
-            if U:
-                Pq = np.concatenate([Pq, ext["phi_s"]], axis=2)
+        elif fam.is_constraint:          # with scalar columns: instance-major (n, P)
+            Pq = np.concatenate([constraint_jacobian_local(kin, phy, fam.K), ext["phi_s"]],
+                                axis=2)                                 # (n, m, 6K + U)
             act = row_active[fam.crow]
             if not np.logical_and.reduce(act, axis=None):   # x * 1.0 is x: only with removed rows
                 Pq = Pq * act[:, :, None]
             Pq = Pq.reshape(fam.n, -1)
             if pat.pidx is not None:
-                Pq = Pq[:, pat.pidx]
+                Pq = Pq.take(pat.pidx, axis=1)      # C order: no copy when it is scattered
             vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
         else:
             vals.append(Kl)
-    vals += [eps_mass * model.body_mass.repeat(3), eps_mass * Jg,
-             (~row_active).astype(float)]
+    nr = len(Jg)
+    removed = np.flatnonzero(~row_active)           # their unit diagonal, nothing elsewhere
+    vals += [eps_mass * model.body_mass.repeat(3), eps_mass * Jg] if eps_mass else [
+        Zeros(3 * len(model.body_mass)), Zeros(9 * nr)]
+    vals.append(Few(row_active.size, removed, np.ones(removed.size)))
     vals += ev._coupling
     return model.assembler.assemble(vals, ev.workspace)
 
@@ -454,11 +468,6 @@ def _many_frames(model, fr, need_jac):
 
 
 # ---------------------------------------------------------------------------- helpers
-def _slice_kin(kin, a, b):
-    return SlotKinematics(Y=kin.Y[a:b], V=kin.V[a:b], pt=kin.pt[a:b], slot_ml=kin.slot_ml,
-                          K=kin.K)
-
-
 def _gather(Kl, idx):
     """Flattened local tangent restricted to the family's structural entries."""
     Kl = Kl.reshape(Kl.shape[0], -1)
@@ -476,23 +485,3 @@ def _constraint_ext(ext, lam, n, m, U):
     if ext.get("G_ys") is not None and ext.get("G_sy") is None:
         ext["G_sy"] = np.swapaxes(ext["G_ys"], 1, 2)
     return ext
-
-
-def _family_nonfinite(fam, rl, first: int = 0) -> str:
-    """Message naming the deck element whose kernel produced NaN/Inf (``rl``: the local
-    residuals of the instances from ``first`` on)."""
-    k = first + int(np.nonzero(~np.isfinite(rl).all(axis=1))[0][0])
-    locs = fam.element_locs
-    if locs:
-        return f"{locs[k].prefix()} produced a non-finite force (NaN/Inf)"
-    return f"element family {fam.name} (instance {k}) produced a non-finite value (NaN/Inf)"
-
-
-def _nonfinite_message(model, r, phi):
-    bad = np.nonzero(~np.isfinite(phi))[0]
-    if len(bad):
-        ri = model.row_info[bad[0]]
-        return f"{row_where(ri)}: equation {ri['equation']} is not finite (NaN/Inf)"
-    bad = np.nonzero(~np.isfinite(r))[0]
-    ci = model.coord_info[bad[0]]
-    return f"non-finite force on {ci} (NaN/Inf produced by an element acting on it)"

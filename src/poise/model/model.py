@@ -181,8 +181,8 @@ class Model:
         P, A = np.empty((nm, 3)), np.empty((nm, 3, 3))
         for a in range(0, nm, CHUNK):
             b = min(a + CHUNK, nm)
-            R = rot[mb[a:b]]
-            P[a:b] = pos[mb[a:b]] + np.einsum("nij,nj->ni", R, self.marker_s0[a:b])
+            R = rot.take(mb[a:b], 0)
+            P[a:b] = pos.take(mb[a:b], 0) + np.einsum("nij,nj->ni", R, self.marker_s0[a:b])
             A[a:b] = np.matmul(R, self.marker_A0[a:b])
         return P, A, pos
 
