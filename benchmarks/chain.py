@@ -509,9 +509,8 @@ the classification's equilibration and permuted KKT scatter work in passes over 
 so their temporaries stay below the threshold (≈ 0.5–1 GB fewer fresh pages per 10⁵ solve).
 What remains is mostly SuperLU's: its factor storage (≈ 2 GB per solve, inside the floor), a copy
 of every right-hand-side block it solves, and scipy's full copies of the matrices it factorises.
-Solves whose Jacobian values exceed glibc's largest threshold keep their big arrays in the heap
-(`core/memory.heap_arrays`: no mmap per block, no trim between stages; ≈ 25 % fewer page faults
-at 10⁵ links, the peak within 0.03 GB). The solve's memory peaks in Newton
+Keeping big arrays in the heap (a raised mmap threshold) cuts ≈ 1 s of system time at 10⁵ links
+but lifts the peak RSS to 1.50 GB (heap fragmentation). The solve's memory peaks in Newton
 (*after newton*); the *whole worker* column adds the bench's own reference LU (COLAMD, default
 options) and evaluations after the solve, which a `poise solve` does not run. The parsed deck is
 dropped before the solve and its pages returned to the OS (`malloc_trim`).

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core import memory
 from poise.solvers.compliance import compliance_step
 from poise.solvers.context import Analysis, Env
 from poise.solvers.data import SolveData
@@ -90,17 +89,14 @@ class Driver:
             times, independent = np.array([state.t]), False
         a = Analysis(times=times, redundancy=self.redundancy, time_independent=independent)
         strategy = cls(env)
-        # a large model's factorisations and Jacobians reuse heap memory instead of fresh pages
-        with memory.heap_arrays(8 * self.model.assembler.nnz):
-            try:
-                done = iterate(strategy, len(times), env.history, a, state)
-            finally:
-                if env.kind == "quasistatic":
-                    env.report(strategy.name, None, len(times))
-            a = done.analysis
-            self.redundancy = a.redundancy
-            record = build_result(env, a, strategy, index, done.method_data, done.attrs)
-        return a.frames[-1], record
+        try:
+            done = iterate(strategy, len(times), env.history, a, state)
+        finally:
+            if env.kind == "quasistatic":
+                env.report(strategy.name, None, len(times))
+        a = done.analysis
+        self.redundancy = a.redundancy
+        return a.frames[-1], build_result(env, a, strategy, index, done.method_data, done.attrs)
 
 
 def build_result(env, a, strategy, index, method_data=None, method_attrs=None) -> AnalysisRecord:
