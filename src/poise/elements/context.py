@@ -18,7 +18,7 @@ import numpy as np
 from poise.core.errors import ProblemCollector
 from poise.deck.spec import DeckSpec, Element, Expr
 from poise.elements.base import GLOBAL
-from poise.elements.rows import RowTable
+from poise.elements.rows import RowTable, element_where
 
 __all__ = ["GLOBAL", "CompileContext", "CompileResult", "Geometry", "MarkerPoses", "num"]
 
@@ -405,4 +405,4 @@ def row_where(ri: dict) -> str:
     """``FILE:LINE: <Tag id=N>`` (or ``FILE:LINE: JOINT/3`` for an Adams dataset) of a
     constraint row's element."""
     w = ri.get("where")
-    return w if w else f"{ri['file']}:{ri['line']}: <{ri['tag']} id={ri['id']}>"
+    return w if w else element_where(ri["tag"], ri["id"], ri["line"], ri["file"])

@@ -97,18 +97,3 @@ def _layout(fam):
         got = _LAYOUTS[fam] = (tuple(slots), len(set(own)) == len(own))
     return got
 
-
-def _mixed(fam, kin, rho3, Fi, Ti):
-    """The slot terms of a family whose slots are points in some instances only."""
-    for s in range(len(fam.slot_ml)):
-        if fam.slot_ml[s] != 0:
-            continue
-        pt = fam.slot_kind[:, s] == 0
-        if np.logical_and.reduce(pt):
-            Fi -= rho3[:, s]
-        elif not np.logical_or.reduce(pt):
-            Ti -= cross3(kin.Y[:, s], rho3[:, s])
-        else:
-            Fi[pt] -= rho3[pt, s]
-            ax = ~pt
-            Ti[ax] -= cross3(kin.Y[ax, s], rho3[ax, s])

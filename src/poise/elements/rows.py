@@ -92,6 +92,11 @@ class _Codes:
         return self._values[int(self._code[k])]
 
 
+def element_where(tag, ident, line, file) -> str:
+    """``FILE:LINE: <Tag id=N>``: where a deck element is (messages name it so)."""
+    return f"{file}:{line}: <{tag} id={ident}>"
+
+
 class RowTable(Sequence):
     """Constraint rows: ``len(t)``, ``t[r]`` (a fresh dict per call: the model's table cannot
     be changed through it), iteration, slices (tuples of dicts). Built row by row
@@ -198,8 +203,7 @@ class RowTable(Sequence):
         e = int(self._el[r])
         where = self._elements[5][e]
         if not where:
-            tag, ident, line, file = (col[e] for col in self._elements[:4])
-            where = f"{file}:{line}: <{tag} id={ident}>"
+            where = element_where(*(col[e] for col in self._elements[:4]))
         return where, self._codes["equation"][int(self._eq[r])]
 
     def kind_is(self, kind: str) -> np.ndarray:

@@ -272,7 +272,7 @@ def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
 def _phi(model, fr, active):
     """Constraint values of the frames (no force element is called; one frame's are those of
     a kept evaluation at its state when there is one, :mod:`poise.model.recent`)."""
-    kept = (_recent(model, fr).phi(fr.states[0])
+    kept = (_recent(model, fr.ws).phi(fr.states[0])
             if fr.single and model.reaction_feed is None else None)
     if kept is not None:
         return kept if active is None else np.where(np.asarray(active, bool), kept, 0.0)
@@ -302,7 +302,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
             def compute(call):
                 return (small.outputs(_family_pass(model, fr, need_jac, call=call), need_jac)
                         or _family_outputs(model, fr, need_jac, None, call))
-        r, phi, pend, last = _recent(model, fr).outputs(fr, need_jac, _kernel, compute)
+        r, phi, pend, last = _recent(model, fr.ws).outputs(fr, need_jac, _kernel, compute)
     else:
         r, phi, pend, last = _family_outputs(model, fr, need_jac, done)
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
@@ -320,9 +320,9 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
     return ev
 
 
-def _recent(model, fr) -> RecentEvaluations:
-    """The workspace's memo of ``model``'s last evaluations."""
-    return fr.ws.scratch(RecentEvaluations, RecentEvaluations).of(model)
+def _recent(model, ws) -> RecentEvaluations:
+    """Workspace ``ws``'s memo of ``model``'s last evaluations."""
+    return ws.scratch(RecentEvaluations, RecentEvaluations).of(model)
 
 
 def _family_outputs(model, fr, need_jac, done, call=None):
@@ -366,7 +366,7 @@ def jacobian(model, ev: Evaluation):
     ev.inertia = Jg                  # Newton's step filter multiplies by the same mass matrix
     ev._pending = None
     if model.reaction_feed is None and ev.workspace is not None:
-        ev.workspace.scratch(RecentEvaluations, RecentEvaluations).of(model).release()
+        _recent(model, ev.workspace).release()
     phases.add("assemble", phases.now() - t_start)
     return ev.J
 
