@@ -365,7 +365,9 @@ def jacobian(model, ev: Evaluation):
         ev.J = _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness)
     ev.inertia = Jg                  # Newton's step filter multiplies by the same mass matrix
     ev._pending = None
-    if model.reaction_feed is None and ev.workspace is not None:
+    # a "phi_q" evaluation (the static prologue's start) keeps its outputs: Newton's first
+    # iterate is the same pose with new multipliers (poise.model.recent)
+    if model.reaction_feed is None and ev.workspace is not None and stiffness:
         _recent(model, ev.workspace).release()
     phases.add("assemble", phases.now() - t_start)
     return ev.J

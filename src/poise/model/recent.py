@@ -7,7 +7,8 @@ and slot kinematics are the same), the static prologue's start. For models with 
 feed the solve's workspace keeps the kernel outputs of the last states (two for a model
 assembled dense, one for a sparse one: its outputs are large, and Newton holds that one anyway
 while it is its iterate or trial; once its Jacobian is assembled only its constraint values
-stay), keyed by the bytes of everything a kernel reads (time, positions, axes, multipliers,
+stay, except after a constraint-Jacobian-only ``"phi_q"`` assembly: the static prologue's
+start, whose forces and slot kinematics Newton's first iterate reuses), keyed by the bytes of everything a kernel reads (time, positions, axes, multipliers,
 angles, scalar unknowns): a hit is bitwise the evaluation it skips.
 """
 from __future__ import annotations
