@@ -358,12 +358,13 @@ def jacobian(model, ev: Evaluation):
         return ev.J
     t_start = phases.now()
     state, pend, eps_mass, row_active, stiffness = ev._pending
-    Jg = model.world_inertia(state)
     if isinstance(pend, SmallTerms):        # a small model: the dense slot pass
+        Jg = model.world_inertia(state)
         ev.J = pend.jacobian(Jg, eps_mass, row_active, stiffness)
-    else:
+    else:      # only the mass shift reads the inertias: none at eps 0 (prologue, written state)
+        Jg = model.world_inertia(state) if eps_mass else None
         ev.J = _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness)
-    ev.inertia = Jg                  # Newton's step filter multiplies by the same mass matrix
+    ev.inertia = Jg        # Newton's step filter multiplies by the same mass matrix (or None)
     ev._pending = None
     # a "phi_q" evaluation (the static prologue's start) keeps its outputs: Newton's first
     # iterate is the same pose with new multipliers (poise.model.recent)
@@ -405,7 +406,7 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
             vals += [Kl, Pq, Pq]   # second block is indexed (col, row): the transpose
         else:
             vals.append(Kl)
-    nr = len(Jg)
+    nr = len(model.rot_body)
     removed = np.flatnonzero(~row_active)           # their unit diagonal, nothing elsewhere
     vals += [eps_mass * model.body_mass.repeat(3), eps_mass * Jg] if eps_mass else [
         Zeros(3 * len(model.body_mass)), Zeros(9 * nr)]
