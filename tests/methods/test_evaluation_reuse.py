@@ -1,7 +1,8 @@
 """A small model's evaluations at a state already evaluated in the solve reuse its family
 outputs (:mod:`poise.model.recent`): every reused result is bitwise the evaluation it
 replaces (residual, constraint values, Jacobian under any row mask and mass shift, and an
-evaluation that differs only in the multipliers)."""
+evaluation that differs only in the multipliers); a sparse model's static prologue start
+serves Newton's first iterate."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -66,3 +67,29 @@ def test_a_moved_state_is_evaluated_again(model_state):
     fresh = evaluate(model, st2, "jacobian")
     assert _same(again.r, fresh.r) and _same(again.phi, fresh.phi) and _same(again.J, fresh.J)
     assert not _same(again.phi, evaluate(model, st, "residual").phi)
+
+
+def test_sparse_prologue_outputs_serve_newtons_first_iterate(tmp_path, monkeypatch):
+    """A sparse model keeps the outputs of a constraint-Jacobian-only ("phi_q") evaluation, the
+    static prologue's start: the same pose with new multipliers (Newton's first iterate) calls
+    no force kernel again, and its residual and Jacobian are bitwise a fresh evaluation's."""
+    from tests.support.builders import perturbed_chain
+    model, st = perturbed_chain(tmp_path, 120, seed=5)
+    assert not model.assembler.dense
+    ws = Workspace()
+    st0 = st.copy()
+    st0.lam[:] = 0.0
+    pro = evaluate(model, st0, "phi_q", workspace=ws)
+    assert pro.inertia is None            # no mass shift: the world inertias are not made
+    calls = []
+    for cls in {type(fam) for fam in model.families if not fam.is_constraint}:
+        monkeypatch.setattr(cls, "forces",
+                            lambda *a, _o=cls.forces, **k: calls.append(1) or _o(*a, **k))
+    again = evaluate(model, st, "defer", eps_mass=1e-4, workspace=ws)
+    assert calls == []
+    Ja = model.jacobian(again)
+    monkeypatch.undo()
+    fresh = evaluate(model, st, "jacobian", eps_mass=1e-4)
+    assert _same(again.r, fresh.r) and _same(again.phi, fresh.phi)
+    assert _same(Ja.data, fresh.J.data) and _same(Ja.indices, fresh.J.indices)
+    assert _same(again.inertia, model.world_inertia(st))
