@@ -14,6 +14,7 @@ from poise.deck.parser import load_deck
 from poise.model.compile import compile_model
 from poise.model.evaluate import evaluate
 from poise.model.workspace import Workspace
+from support.builders import perturbed_chain
 
 DECKS = Path(__file__).resolve().parents[2] / "decks"
 
@@ -73,7 +74,6 @@ def test_sparse_prologue_outputs_serve_newtons_first_iterate(tmp_path, monkeypat
     """A sparse model keeps the outputs of a constraint-Jacobian-only ("phi_q") evaluation, the
     static prologue's start: the same pose with new multipliers (Newton's first iterate) calls
     no force kernel again, and its residual and Jacobian are bitwise a fresh evaluation's."""
-    from tests.support.builders import perturbed_chain
     model, st = perturbed_chain(tmp_path, 120, seed=5)
     assert not model.assembler.dense
     ws = Workspace()
