@@ -206,7 +206,19 @@ def dependent_rows(Phi_q, active, rel=1e-8, Y=None) -> np.ndarray:
     if np.all(active):
         return np.zeros(0, int)
     Y = np.abs(left_null_basis(Phi_q, active) if Y is None else Y)
-    return np.nonzero(Y.max(axis=1) > rel * Y.max())[0]
+    return np.nonzero(_row_max(Y) > rel * Y.max())[0]
+
+
+def _row_max(A):
+    """``A.max(axis=1)`` of a tall array of a few columns, column by column (numpy's reduction
+    along a short inner axis costs ~30 ns an entry: 1.7 ms for 50 000 x 3, this 0.1 ms; the
+    same maxima)."""
+    if not 0 < A.shape[1] <= 64:
+        return A.max(axis=1)
+    m = A[:, 0].copy()
+    for j in range(1, A.shape[1]):
+        np.maximum(m, A[:, j], out=m)
+    return m
 
 
 def left_null_basis(Phi_q, active):
