@@ -126,7 +126,7 @@ def _low_start(nq, b):
     the weight a random start gives it (the constant only adds to it: a mode is missing only
     if the two cancel exactly, as unlikely as a random start without it), and the stopping
     test is unchanged; the constant weighs the smooth, global modes that are typically the
-    softest (a chain's swing): one solve fewer on the 10^3 and 10^4 link chains."""
+    softest (a chain's swing): one solve fewer on the 10^3 to 10^5 link chains."""
     X = np.random.default_rng(5).standard_normal((nq, b))
     X /= np.linalg.norm(X, axis=0)
     X += 1.0 / np.sqrt(nq)
