@@ -150,11 +150,12 @@ def _worker(deck: str, n: int) -> dict:
     model_datasets(model)
     state = model.initial_state()
     drv = Driver(model, reqs[0], redundancy=None)
-    c2 = time.process_time()
+    c2, u2, f2 = time.process_time(), os.times(), _minor_faults()
     state, rec = drv.run(state, index=0)
     ar = AnalysisResult.of(rec)          # laid out, as runner.run does
     t3 = time.perf_counter()
     solve_cpu = time.process_time() - c2
+    u3, f3 = os.times(), _minor_faults()
     peak_solve = rss_now()               # the process's peak up to the end of the solve
     iters = int(np.sum(ar.datasets["frames/iterations"]))
     status, counters, redundant = ar.status, drv.data.as_dict(), int(len(drv.redundancy))
@@ -183,12 +184,24 @@ def _worker(deck: str, n: int) -> dict:
                 iterations=iters, newton_s=newton_s,
                 iteration_s=newton_s / iters if iters else None,
                 lu_s=statistics.median(lu_times), evaluate_s=statistics.median(ev_times),
-                solve_cpu_s=solve_cpu, newton_lu_s=newton_lu, newton_lu_cpu_s=newton_lu_cpu,
+                solve_cpu_s=solve_cpu, solve_user_s=u3.user - u2.user,
+                solve_sys_s=u3.system - u2.system, solve_faults=None if f2 is None else f3 - f2,
+                newton_lu_s=newton_lu, newton_lu_cpu_s=newton_lu_cpu,
                 phases=phases, phases_cpu=phases_cpu,
                 phases_peak=phases_peak, phases_own_peak=phases_own_peak, counters=counters,
                 redundant=redundant, status=status,
                 peak_rss_bytes=int(peak), peak_parse_bytes=int(peak_parse),
                 peak_compile_bytes=int(peak_compile), peak_solve_bytes=int(peak_solve))
+
+
+def _minor_faults() -> int | None:
+    """The process's minor page faults so far (None where ``resource`` is missing): with the
+    solve's system time, how much fresh memory the kernel mapped and zeroed for it."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 
 
 class _HighWater:
@@ -298,7 +311,8 @@ def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
     deck.write_text(build_chain_deck(n, "revolute"))
     runs = [_run_worker(deck, n) for _ in range(repeat)]
     keys = ("import_s", "parse_s", "compile_s", "solve_s", "newton_s", "iteration_s", "lu_s",
-            "evaluate_s", "peak_rss_bytes", "solve_cpu_s", "newton_lu_s", "newton_lu_cpu_s",
+            "evaluate_s", "peak_rss_bytes", "solve_cpu_s", "solve_user_s", "solve_sys_s",
+            "solve_faults", "newton_lu_s", "newton_lu_cpu_s",
             "peak_parse_bytes", "peak_compile_bytes", "peak_solve_bytes")
     out = dict(bench="chain", n=n, joint="revolute", repeat=repeat)
     for k in ("nq", "nc", "nnz", "kkt_size", "iterations", "redundant", "status", "counters"):
