@@ -521,8 +521,20 @@ products, conversions or column selections) and pooled assembly widens its int32
 at a time; families above 2¹⁵ instances make their kernel outputs in chunks of instances, and
 the classification's equilibration and permuted KKT scatter work in passes over small buffers,
 so their temporaries stay below the threshold (≈ 0.5–1 GB fewer fresh pages per 10⁵ solve).
-What remains is mostly SuperLU's: its factor storage (≈ 2 GB per solve, inside the floor), a copy
-of every right-hand-side block it solves, and scipy's full copies of the matrices it factorises.
+What remains (S14, one 10⁵ solve: user 5.0–5.6 s, system 1.4–2.4 s run to run, ≈ 0.4 M small
+and ≈ 1.2 k huge-page faults, ≈ 4 GB zeroed) is, by allocation site: SuperLU's factor storage in
+its six factorisations (3 in Newton, the LDLᵀ, the Gram matrix of the left null basis, the COLAMD
+ordering), ≈ 300 k small-page faults (1.2 GB, 0.4 s of system time inside `splu`; scipy offers no
+way to hand SuperLU a reused workspace); numpy/scipy arrays above the threshold, ≈ 1.5 GB in ≈ 40
+allocations, nearly all made once per solve (column order, CSC layout, the classification's
+permuted KKT, SuperLU's CSC copy of U for the pivots, Krylov blocks; 3 tangent blocks of 58 MB);
+and the heap regrown after trims (≈ 1.2 GB by `brk`, 0.6 GB given back by `malloc_trim` between
+stages). Reuse that the peak allows gains nothing measurable against the run-to-run noise: no trims
+inside the solve (the classification's own peak 1.26 → 1.31–1.35 GB, same CPU), a 128–512 MB trim
+threshold (80 k fewer faults, same system time, peak +40 MB), the CSC layout from the first
+factorisation (35 k fewer faults, same time). Only huge pages for SuperLU's storage
+(`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`, set before the process starts) cut the faults 0.41 →
+0.06 M (solve CPU median 7.5 → 7.0 s over 3 alternations, system 2.15 → 1.83 s).
 Keeping big arrays in the heap (a raised mmap threshold) cuts ≈ 1 s of system time at 10⁵ links
 but lifts the peak RSS to 1.50 GB (heap fragmentation). The solve's memory peaks in Newton
 (*after newton*); the *whole worker* column adds the bench's own reference LU (COLAMD, default
