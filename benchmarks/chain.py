@@ -532,9 +532,10 @@ and the heap regrown after trims (≈ 1.2 GB by `brk`, 0.6 GB given back by `mal
 stages). Reuse that the peak allows gains nothing measurable against the run-to-run noise: no trims
 inside the solve (the classification's own peak 1.26 → 1.31–1.35 GB, same CPU), a 128–512 MB trim
 threshold (80 k fewer faults, same system time, peak +40 MB), the CSC layout from the first
-factorisation (35 k fewer faults, same time). Only huge pages for SuperLU's storage
-(`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`, set before the process starts) cut the faults 0.41 →
-0.06 M (solve CPU median 7.5 → 7.0 s over 3 alternations, system 2.15 → 1.83 s).
+factorisation (35 k fewer faults, same time). Huge pages for SuperLU's storage too
+(`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`) cut the faults 0.41 → 0.06 M but not the time (7
+alternations: system medians 2.15 s both, solve CPU 7.3 vs 7.5 s): the kernel's cost is per byte
+zeroed, not per fault; only fewer fresh bytes would lower it.
 Keeping big arrays in the heap (a raised mmap threshold) cuts ≈ 1 s of system time at 10⁵ links
 but lifts the peak RSS to 1.50 GB (heap fragmentation). The solve's memory peaks in Newton
 (*after newton*); the *whole worker* column adds the bench's own reference LU (COLAMD, default
