@@ -194,11 +194,19 @@ def euler_313(R: np.ndarray, singular_tol: float = 1e-14) -> np.ndarray:
     sig = np.arctan2(R[..., 1, 0] - R[..., 0, 1], R[..., 0, 0] + R[..., 1, 1])   # psi + phi
     dif = np.arctan2(R[..., 1, 0] + R[..., 0, 1], R[..., 0, 0] - R[..., 1, 1])   # psi - phi
     sing = st <= singular_tol
-    psi_d = np.where(sing, 0.0, psi_d)
-    phi_d = np.where(sing, 0.0, phi_d)
-    c = np.where(up, wrap_angle(sig - (psi_d + phi_d)), wrap_angle(dif - (psi_d - phi_d)))
-    psi = np.where(sing, np.where(up, sig, dif), psi_d + 0.5 * c)
-    phi = np.where(sing, 0.0, phi_d + np.where(up, 0.5, -0.5) * c)
+    locked = bool(np.logical_or.reduce(sing, axis=None))
+    if locked:
+        psi_d = np.where(sing, 0.0, psi_d)
+        phi_d = np.where(sing, 0.0, phi_d)
+    # the well-conditioned sum (or difference) less the one of the direct angles, wrapped
+    # (elementwise: the branch of each entry's tilt, one wrap for both)
+    sd = np.where(up, sig, dif)
+    c = wrap_angle(sd - np.where(up, psi_d + phi_d, psi_d - phi_d))
+    psi = psi_d + 0.5 * c
+    phi = phi_d + np.where(up, 0.5, -0.5) * c
+    if locked:
+        psi = np.where(sing, sd, psi)
+        phi = np.where(sing, 0.0, phi)
     return np.stack([wrap_angle(psi), theta, wrap_angle(phi)], -1)
 
 

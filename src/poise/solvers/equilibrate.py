@@ -233,14 +233,14 @@ def equilibrate_dense(Ks, G, iters=12, tol=0.1):
     keeps its factors). Returns ``Dq`` (F, n), ``Dl`` (F, m)."""
     F, n = Ks.shape[:2]
     m = G.shape[1]
+    if F == 1:
+        Dq, Dl = _equilibrate_one(Ks[0], G[0], iters, tol)
+        return Dq[None], Dl[None]
     A, B = np.abs(Ks), np.abs(G)
     mx = np.maximum.reduce                   # the reductions without their Python wrappers
     R = np.add.reduce(A, axis=2)
     nbr = np.maximum(R, mx(np.where(A > 0.0, R[:, None, :], 0.0), axis=2, initial=0.0))
     cap = _cap(R, nbr)
-    if F == 1:
-        Dq, Dl = _equilibrate_one(A[0], B[0], cap[0], iters, tol)
-        return Dq[None], Dl[None]
     Dq, Dl = np.minimum(np.ones((F, n)), cap), np.ones((F, m))
     bufA, bufB = np.empty_like(A), np.empty_like(B)
     go = np.ones(F, bool)
@@ -267,24 +267,31 @@ def equilibrate_dense(Ks, G, iters=12, tol=0.1):
     return Dq, Dl
 
 
-def _equilibrate_one(A, B, cap, iters, tol):
-    """:func:`equilibrate_dense` of one frame (a static solve's), ``A = |Ks|`` (n, n), ``B =
-    |G|`` (m, n), ``cap`` (n,): the absolute KKT matrix ``[[A, B^T], [B, 0]]`` with one scaling
-    ``[Dq; Dl]`` (no cap on ``Dl``), so that an iteration is one product and one maximum per
-    row: the same products and maxima as the frames' loop, the same factors."""
-    n, m = A.shape[0], B.shape[0]
+def _equilibrate_one(Ks, G, iters, tol):
+    """:func:`equilibrate_dense` of one frame (a static solve's), ``Ks`` (n, n), ``G`` (m, n),
+    on 2-d arrays (the frames' cap, without the stacking): the absolute KKT matrix ``M = [[A,
+    B^T], [B, 0]]`` (``A = |Ks|``, ``B = |G|``) with one scaling ``[Dq; Dl]`` (no cap on
+    ``Dl``), so that an iteration is one product and one maximum per row: the same products and
+    maxima as the frames' loop, the same factors."""
+    n, m = Ks.shape[0], G.shape[0]
+    mx = np.maximum.reduce                   # the reductions without their Python wrappers
     M = np.zeros((n + m, n + m))
-    M[:n, :n] = A
-    M[:n, n:] = B.T
-    M[n:, :n] = B
+    A = M[:n, :n]
+    np.abs(Ks, out=A)
+    M[n:, :n] = G
+    np.abs(M[n:, :n], out=M[n:, :n])
+    M[:n, n:] = M[n:, :n].T
+    R = np.add.reduce(A, axis=1)
+    cap = _cap(R, np.maximum(R, mx(np.where(A > 0.0, R, 0.0), axis=1, initial=0.0)))
     capx = np.concatenate([cap, np.full(m, np.inf)])
     D = np.concatenate([np.minimum(1.0, cap), np.ones(m)])
     buf = np.empty_like(M)
-    mx = np.maximum.reduce
     for _ in range(iters):
         r = mx(np.multiply(M, D, out=buf), axis=1, initial=0.0)
         r *= D
-        r[(r <= 0.0) | ((D >= capx) & (r < 1.0))] = 1.0   # all-zero row, or at its cap
+        # at its cap: at least 1 (a True is 1; NaN stays); then an all-zero row: 1
+        np.maximum(r, D >= capx, out=r)
+        r[r <= 0.0] = 1.0
         if mx(np.abs(r - 1.0), axis=None, initial=0.0) <= tol:     # (NaN: never)
             break
         D = np.minimum(D / np.sqrt(r), capx)

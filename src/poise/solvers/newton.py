@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import copy
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,15 +69,30 @@ Counters = SolveData
 
 
 class Scales:
-    """Tolerances per equation from the settings and the model size L."""
+    """Tolerances per equation from the settings and the model size L. The arrays depend on
+    the model and two settings only: made once per model and pair (read-only, shared by the
+    solves and the written state's measures; a small model's solve made them three times)."""
+
+    _made: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()   # model -> {pair: arrays}
 
     def __init__(self, model, settings):
         L = model.L
         self.L = L
-        self.r_tol = np.where(model.q_kind == 1, settings.max_imbalance * L, settings.max_imbalance)
-        self.phi_tol = np.where(model.row_kind == 1, settings.max_error, settings.max_error * L)
-        self.q_len = np.where(model.q_kind == 0, L, 1.0)     # update scale: trans / L, rad, scalars
-        self.max_error = settings.max_error
+        self.max_error = me = settings.max_error
+        mi = settings.max_imbalance
+        per = Scales._made.get(model)
+        if per is None:
+            per = Scales._made[model] = {}
+        got = per.get((mi, me))
+        if got is None:
+            got = (np.where(model.q_kind == 1, mi * L, mi),
+                   np.where(model.row_kind == 1, me, me * L),
+                   np.where(model.q_kind == 0, L, 1.0))   # update scale: trans / L, rad, scalars
+            for a in got:
+                a.setflags(write=False)
+            if len(per) < 8:
+                per[(mi, me)] = got
+        self.r_tol, self.phi_tol, self.q_len = got
 
 
 def measures(model, ev, sc: Scales):
