@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core.lean import row_norms, take_along_last
+from poise.core.lean import einsum, row_norms, take_along_last
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix, ``skew(v) @ u == cross(v, u)``.
@@ -79,7 +79,7 @@ def screw_exp(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(expm_so3(w), se3_left_jacobian(w))`` (bitwise), sharing ``|w|``, ``skew(w)`` and its
     square: the rotation and translation of a spatial twist's exponential."""
     th, K, KK = parts = _axis_parts(np.asarray(w, dtype=float))
-    if not np.all(th >= 1e-6):             # a small angle: the series where it is small
+    if not np.logical_and.reduce(th >= 1e-6, axis=None):   # a small angle: the series there
         return _expm(*parts), _left_jacobian(*parts)
     # no angle small (the usual step): the closed forms alone, sin and cos taken once
     th = np.asarray(th)                   # an array like the series' (its powers, ufuncs)
@@ -169,9 +169,9 @@ def euler_parameters(R: np.ndarray) -> np.ndarray:
     X = R9.take(_OFF_A, -1) + R9.take(_OFF_B, -1) * _OFF_SG
     M = np.concatenate([T, X], -1).take(_M16, -1)            # (..., 16), row-major
     # its row with the largest diagonal is q times the largest |q_k|
-    q = take_along_last(M, _ROWS[np.argmax(T, axis=-1)])
+    q = take_along_last(M, _ROWS[T.argmax(axis=-1)])
     # sign: e0 > 0, else the first non-zero vector component > 0 (deterministic at 180 deg)
-    lead = take_along_last(q, np.argmax(q != 0, axis=-1)[..., None])[..., 0]
+    lead = take_along_last(q, (q != 0).argmax(axis=-1)[..., None])[..., 0]
     q = np.where((lead < 0)[..., None], -q, q)
     return q / row_norms(q)[..., None]
 
@@ -233,6 +233,6 @@ def lift_rotation_vector(v: np.ndarray, guess: np.ndarray) -> np.ndarray:
                  v / np.where(small, 1.0, a)[..., None])
     # signed length of the guess: the angle |v| moves by n.w to first order for any increment
     # w, so this stays right when the axis tilts (a projection g.n would shrink)
-    p = np.where(np.einsum("...i,...i->...", g, n) < 0, -gn, gn)
+    p = np.where(einsum("...i,...i->...", g, n) < 0, -gn, gn)
     k = np.round((p - a) / (2.0 * np.pi))
     return (a + 2.0 * np.pi * k)[..., None] * n

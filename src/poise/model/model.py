@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from poise.core.lean import row_norms
+from poise.core.lean import einsum, row_norms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.chunked import CHUNK
@@ -174,7 +174,7 @@ class Model:
         nm = len(mb)
         if nm <= 2 * CHUNK:
             R = rot.take(mb, 0)                          # gathered once for both products
-            P = pos.take(mb, 0) + np.einsum("nij,nj->ni", R, self.marker_s0)
+            P = pos.take(mb, 0) + einsum("nij,nj->ni", R, self.marker_s0)
             A = np.matmul(R, self.marker_A0)
             return P, A, pos
         # many markers: the same products chunk by chunk (no full-size temporaries)
@@ -225,7 +225,7 @@ class Model:
         if nsub > 1:
             v0 = v0 / nsub
         E, V = screw_exp(w)
-        Vv = np.einsum("nij,nj->ni", V, v0)
+        Vv = einsum("nij,nj->ni", V, v0)
         move_pt = len(rb) < self.nb          # rot_body: distinct bodies
         if move_pt:
             pt = np.ones(self.nb, bool)
@@ -241,7 +241,7 @@ class Model:
             if move_pt:
                 new.pos[pt] += dtp
             if len(rb):
-                p = np.einsum("nij,nj->ni", E, p) + Vv
+                p = einsum("nij,nj->ni", E, p) + Vv
                 R = np.matmul(E, R)
                 if na:
                     rots[k, rb] = R
