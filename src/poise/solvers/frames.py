@@ -109,8 +109,9 @@ def frame_set(model, frames, loads, dep, outcomes, stability, measures) -> Frame
     zero. ``dep``: constraint rows taking part in a dependency (not unique).
     """
     nf = len(frames)
-    rot = np.stack([s.rot for s in frames])
+    rot = _stacked([s.rot for s in frames])
     groups = {}
+    owners = None
     for g, o in model.outputs.items():
         n_out = len(o["ids"])
         zero = np.zeros((nf, n_out, 3))
@@ -118,19 +119,26 @@ def frame_set(model, frames, loads, dep, outcomes, stability, measures) -> Frame
         uniq = None
         if g in ("joints", "jprims"):
             uniq = np.ones(n_out, bool)
-            grp, own = group_owner(model.row_info, dep)
+            if owners is None:
+                owners = group_owner(model.row_info, dep)
+            grp, own = owners
             uniq[own[grp == g]] = False
         groups[g] = GroupLoads(ids=np.asarray(o["ids"]), force=F, torque=T, unique=uniq,
                                tag=np.asarray(o["tag"], dtype=str) if g == "forces" else None)
     if all(s.rotvec is not None for s in frames):       # every frame at once
-        rv = model.rotation_from_input(None, rot, np.stack([s.rotvec for s in frames]))
+        rv = model.rotation_from_input(None, rot, _stacked([s.rotvec for s in frames]))
     else:
         rv = np.stack([model.rotation_from_input(s) for s in frames])
     return FrameSet(states=tuple(frames), time=np.array([s.t for s in frames]),
                     body_id=model.body_id,
-                    position=np.stack([s.pos for s in frames]), orientation=rot,
+                    position=_stacked([s.pos for s in frames]), orientation=rot,
                     rotation_from_input=rv, groups=groups, outcomes=tuple(outcomes),
                     stability=tuple(stability), measures=tuple(measures))
+
+
+def _stacked(arrays):
+    """``np.stack(arrays)`` (a static solve's one frame: its copy with a leading axis)."""
+    return arrays[0][None].copy() if len(arrays) == 1 else np.stack(arrays)
 
 
 def frame_outputs(model, state) -> dict:

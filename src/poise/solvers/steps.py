@@ -170,4 +170,4 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
             xf = z - f.solve(np.concatenate([reg + (2.0 * eps) * My, pad]))
     except SingularMatrix:
         return None
-    return xf if np.all(np.isfinite(xf)) else None
+    return xf if all_finite(xf) else None
