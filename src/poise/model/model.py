@@ -207,7 +207,15 @@ class Model:
         Rotation increments larger than ``MAX_SUBSTEP_ROTATION`` are applied in equal sub-steps
         so that continuous angles count every full turn.
         """
-        new = state.copy()
+        if self.nb and len(self.rot_body) == self.nb:
+            # every body rigid: positions and axes are new arrays below, so are the
+            # multipliers with ``dlam`` and the tracked rotation vectors (no copies made first)
+            new = State(state.pos, state.rot, state.lam if dlam is not None else state.lam.copy(),
+                        state.angle.copy(), state.t,
+                        None if state.extra is None else state.extra.copy(), state.rotvec,
+                        state.rotvec_drift)
+        else:
+            new = state.copy()
         dq = np.asarray(dq, float)
         dt = dq[self.trans_idx].reshape(-1, 3)
         dr = dq[self.rot_idx].reshape(-1, 3) if len(self.rot_idx) else np.zeros((0, 3))
@@ -270,10 +278,10 @@ class Model:
         rb = self.rot_body
         if old.rotvec is None or not len(rb):
             return
-        rv = old.rotvec.copy()
         if len(rb) == self.nb:
-            rv += w
+            rv = old.rotvec + w
         else:
+            rv = old.rotvec.copy()
             rv[rb] += w
         new.rotvec = rv
         new.rotvec_drift = old.rotvec_drift + (
