@@ -52,9 +52,13 @@ class Run:
 
 
 def _chain(r: Run) -> Out:
+    from benchmarks import floor
     out = Out()
     for n in [int(x) for x in r.args.sizes.split(",") if x.strip()]:
-        c = bench_chain(n, max(1, r.args.repeat), r.tmp)
+        reps = max(1, r.args.repeat)
+        if n in floor.SIZES and not r.args.quick:
+            reps = max(reps, floor.REPEAT)
+        c = bench_chain(n, reps, r.tmp)
         _log(f"chain N={n}: parse {_s(c['parse_s']['median'])} s, compile "
              f"{_s(c['compile_s']['median'])} s, solve {_s(c['solve_s']['median'])} s, "
              f"{c['iterations']} iterations, {c['status']}")

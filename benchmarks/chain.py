@@ -549,10 +549,13 @@ def render_markdown(results: list[dict], machine: dict) -> str:
     for name, lim, meas, ok in targets(results):
         out.append(f"| {name} | {lim} | {meas} | {_pf(ok)} |")
     if chains:
-        rep = chains[0]["repeat"]
+        reps = sorted({c["repeat"] for c in chains})
+        more = ", ".join(str(c["n"]) for c in chains if c["repeat"] != reps[0])
+        rep = f"{reps[0]} runs" + (f" ({more} links: {reps[-1]}, the sizes of the floor targets)"
+                                   if more else "")
         out += ["", "## Hanging chains (revolute joints)", "",
                 f"`poise.gen.chain` decks (link 100 mm, span 0.8·N·100 mm, 3 redundant "
-                f"equations). Median of {rep} runs (min–max), each in a fresh process; times in "
+                f"equations). Median of {rep} (min–max), each in a fresh process; times in "
                 "seconds. *LU* is one `splu` (COLAMD) of the KKT matrix at the solution; "
                 "*iter/LU* is the Newton time per iteration over that. *Peak RSS* is the whole "
                 "worker process (`ru_maxrss`, interpreter and libraries included).", "",
