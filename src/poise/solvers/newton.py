@@ -104,14 +104,30 @@ def measures(model, ev, sc: Scales):
     zp = np.abs(ev.phi) / sc.phi_tol if ev.phi.size else np.zeros(0)
     cerr = float(mx(zp) * sc.max_error) if zp.size else 0.0
     z = np.concatenate([zr, zp])
-    k = int(z.argmax()) if z.size else 0
-    worst = ""
-    if z.size:
-        if k < model.nq:
-            worst = model.coord_info[k]
-        else:
-            worst = "%s %s" % row_equation(model.row_info, k - model.nq)
-    return imb, cerr, float(mx(z)) if z.size else 0.0, worst
+    if not z.size:
+        return imb, cerr, 0.0, ""
+    k = int(z.argmax())                 # its entry is the largest (the first NaN, if any)
+    return imb, cerr, float(z[k]), equation_name(model, k)
+
+
+#: a small model's equation names (coordinates, then constraint rows), made once per model
+_NAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_NAMES_MAX = 600                # KKT unknowns up to which the names are kept (the dense range)
+
+
+def equation_name(model, k) -> str:
+    """The name of equation ``k`` of the KKT system (a coordinate's, or a constraint row's
+    ``FILE:LINE: <Tag id=N> equation``): Newton names its worst equation every iteration."""
+    names = _NAMES.get(model)
+    if names is None and model.N <= _NAMES_MAX:
+        names = _NAMES[model] = (tuple(model.coord_info[i] for i in range(model.nq))
+                                 + tuple("%s %s" % row_equation(model.row_info, r)
+                                         for r in range(model.nc)))
+    if names is not None:
+        return names[k]
+    if k < model.nq:
+        return model.coord_info[k]
+    return "%s %s" % row_equation(model.row_info, k - model.nq)
 
 
 def merit(ev, sc):
