@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core.lean import einsum, row_norms, take_along_last
+from poise.core.lean import einsum, row_norms, take_along_last, where
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix, ``skew(v) @ u == cross(v, u)``.
@@ -48,17 +48,17 @@ def _axis_parts(w):
 
 def _expm(th, K, KK):
     small = th < 1e-8
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    ths = where(small, 1.0, th)
+    a = where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
+    b = where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
     return _I3 + a[..., None, None] * K + b[..., None, None] * KK
 
 
 def _left_jacobian(th, K, KK):
     small = th < 1e-6
-    ths = np.where(small, 1.0, th)
-    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
-    c = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
+    ths = where(small, 1.0, th)
+    b = where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    c = where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
     return _I3 + b[..., None, None] * K + c[..., None, None] * KK
 
 
@@ -172,7 +172,7 @@ def euler_parameters(R: np.ndarray) -> np.ndarray:
     q = take_along_last(M, _ROWS[T.argmax(axis=-1)])
     # sign: e0 > 0, else the first non-zero vector component > 0 (deterministic at 180 deg)
     lead = take_along_last(q, (q != 0).argmax(axis=-1)[..., None])[..., 0]
-    q = np.where((lead < 0)[..., None], -q, q)
+    q = where((lead < 0)[..., None], -q, q)
     return q / row_norms(q)[..., None]
 
 
@@ -196,17 +196,17 @@ def euler_313(R: np.ndarray, singular_tol: float = 1e-14) -> np.ndarray:
     sing = st <= singular_tol
     locked = bool(np.logical_or.reduce(sing, axis=None))
     if locked:
-        psi_d = np.where(sing, 0.0, psi_d)
-        phi_d = np.where(sing, 0.0, phi_d)
+        psi_d = where(sing, 0.0, psi_d)
+        phi_d = where(sing, 0.0, phi_d)
     # the well-conditioned sum (or difference) less the one of the direct angles, wrapped
     # (elementwise: the branch of each entry's tilt, one wrap for both)
-    sd = np.where(up, sig, dif)
-    c = wrap_angle(sd - np.where(up, psi_d + phi_d, psi_d - phi_d))
+    sd = where(up, sig, dif)
+    c = wrap_angle(sd - where(up, psi_d + phi_d, psi_d - phi_d))
     psi = psi_d + 0.5 * c
-    phi = phi_d + np.where(up, 0.5, -0.5) * c
+    phi = phi_d + where(up, 0.5, -0.5) * c
     if locked:
-        psi = np.where(sing, sd, psi)
-        phi = np.where(sing, 0.0, phi)
+        psi = where(sing, sd, psi)
+        phi = where(sing, 0.0, phi)
     return np.stack([wrap_angle(psi), theta, wrap_angle(phi)], -1)
 
 
@@ -216,7 +216,7 @@ def rotation_vector(R: np.ndarray) -> np.ndarray:
     q = euler_parameters(R)
     s = row_norms(q[..., 1:])
     th = 2.0 * np.arctan2(s, q[..., 0])
-    f = np.where(s > 0, th / np.where(s > 0, s, 1.0), 2.0)
+    f = where(s > 0, th / where(s > 0, s, 1.0), 2.0)
     return f[..., None] * q[..., 1:]
 
 
@@ -229,10 +229,10 @@ def lift_rotation_vector(v: np.ndarray, guess: np.ndarray) -> np.ndarray:
     a = row_norms(v)
     gn = row_norms(g)
     small = a < 1e-300
-    n = np.where(small[..., None], g / np.where(gn > 0, gn, 1.0)[..., None],
-                 v / np.where(small, 1.0, a)[..., None])
+    n = where(small[..., None], g / where(gn > 0, gn, 1.0)[..., None],
+                 v / where(small, 1.0, a)[..., None])
     # signed length of the guess: the angle |v| moves by n.w to first order for any increment
     # w, so this stays right when the axis tilts (a projection g.n would shrink)
-    p = np.where(einsum("...i,...i->...", g, n) < 0, -gn, gn)
+    p = where(einsum("...i,...i->...", g, n) < 0, -gn, gn)
     k = np.round((p - a) / (2.0 * np.pi))
     return (a + 2.0 * np.pi * k)[..., None] * n

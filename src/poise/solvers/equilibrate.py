@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.lean import where
 from poise.solvers.stability_modes import DIAG_FLOOR, NOISE_REL
 
 
@@ -63,7 +64,7 @@ def prune_rows(G):
 def prune_rows_dense(G):
     """:func:`prune_rows` of a stack of dense constraint rows (F, m, n)."""
     B = np.abs(G)
-    return np.where(B > NOISE_REL * B.max(axis=2, keepdims=True, initial=0.0), G, 0.0)
+    return where(B > NOISE_REL * B.max(axis=2, keepdims=True, initial=0.0), G, 0.0)
 
 
 def prune_noise_dense(Ks):
@@ -71,11 +72,11 @@ def prune_noise_dense(Ks):
     A = np.abs(Ks)
     rmax = A.max(axis=2)
     keep = A > NOISE_REL * np.maximum(rmax[:, :, None], rmax[:, None, :])
-    return np.where(keep, Ks, 0.0)
+    return where(keep, Ks, 0.0)
 
 
 def _cap(R, nbr):
-    return np.where(nbr > 0.0, 1.0 / np.sqrt(DIAG_FLOOR * np.where(nbr > 0.0, nbr, 1.0)), np.inf)
+    return where(nbr > 0.0, 1.0 / np.sqrt(DIAG_FLOOR * where(nbr > 0.0, nbr, 1.0)), np.inf)
 
 
 def coordinate_caps(Ks) -> np.ndarray:
@@ -239,7 +240,7 @@ def equilibrate_dense(Ks, G, iters=12, tol=0.1):
     A, B = np.abs(Ks), np.abs(G)
     mx = np.maximum.reduce                   # the reductions without their Python wrappers
     R = np.add.reduce(A, axis=2)
-    nbr = np.maximum(R, mx(np.where(A > 0.0, R[:, None, :], 0.0), axis=2, initial=0.0))
+    nbr = np.maximum(R, mx(where(A > 0.0, R[:, None, :], 0.0), axis=2, initial=0.0))
     cap = _cap(R, nbr)
     Dq, Dl = np.minimum(np.ones((F, n)), cap), np.ones((F, m))
     bufA, bufB = np.empty_like(A), np.empty_like(B)
@@ -282,7 +283,7 @@ def _equilibrate_one(Ks, G, iters, tol):
     np.abs(M[n:, :n], out=M[n:, :n])
     M[:n, n:] = M[n:, :n].T
     R = np.add.reduce(A, axis=1)
-    cap = _cap(R, np.maximum(R, mx(np.where(A > 0.0, R, 0.0), axis=1, initial=0.0)))
+    cap = _cap(R, np.maximum(R, mx(where(A > 0.0, R, 0.0), axis=1, initial=0.0)))
     capx = np.concatenate([cap, np.full(m, np.inf)])
     D = np.concatenate([np.minimum(1.0, cap), np.ones(m)])
     buf = np.empty_like(M)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core import memory
+from poise.core.lean import where
 from poise.core.errors import EvaluationError
 from poise.elements.rows import group_owner
 from poise.model.evaluate import evaluate
@@ -55,14 +56,14 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
         # in the solve's workspace: its buffers serve, no second set held by J till the end
         ev = model.evaluate(state, need_jac=True, keep=True, workspace=env.data.workspace)
         J = ev.J
-        phi = np.where(saved, ev.phi, 0.0)
+        phi = where(saved, ev.phi, 0.0)
         for i, o in enumerate(outcomes):
             outcomes[i], measured = certify(model, env.settings, o, ev.r, phi)
         lam = state.lam
         if len(redundancy) and model.nc:
             Pfull = J[model.nq:, :model.nq]
             Y = left_null_basis(Pfull, saved)       # one factorisation serves both
-            w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
+            w = where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
             lam = min_norm_multipliers(Pfull, state.lam, saved, w, Y=Y)
             dep = dependent_rows(Pfull, saved, Y=Y)
         loads = element_loads(model, state, lam=lam, ev=ev)
@@ -193,7 +194,7 @@ def measure_frames(env, redundancy, frames, outcomes) -> FrameSet | None:
     saved = env.data.mask(model)
     red = np.asarray(redundancy, int)
     dep = red
-    w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
+    w = where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
     loads = {}
     infos, measured = [], []
     C = chunk_size(model)
