@@ -189,15 +189,17 @@ class SmallDense:
             phi = phi.take(self.row_order)
         # the levers of one gather (SmallDense.kinematics, eval order) are that array already
         V = levers[0].base
-        if V is None or V.size != 3 * self.S or any(v.base is not V for v in levers):
-            V = np.concatenate([v.ravel() for v in levers])
-        else:
-            V = V.ravel()
+        if V is not None and V.size == 3 * self.S:
+            for v in levers:
+                if v.base is not V:
+                    V = None
+                    break
+        V = np.concatenate([v.ravel() for v in levers]) if V is None else V.ravel()
         B = self.B0.copy()
         B.put(self.skew_dst, V.take(self.skew_src) * self.skew_sgn)
         rho = np.concatenate(rhos)
         r = rho @ B
-        if not np.isfinite(r.sum()):
+        if not np.isfinite(np.add.reduce(r)):      # (r.sum() without its Python wrapper)
             return None
         return r, phi, (SmallTerms(self, B, V, rho, terms) if need_jac else None), last
 
