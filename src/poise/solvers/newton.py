@@ -80,9 +80,12 @@ class Scales:
         self.L = L
         self.max_error = me = settings.max_error
         mi = settings.max_imbalance
-        per = Scales._made.get(model)
-        if per is None:
-            per = Scales._made[model] = {}
+        try:
+            per = Scales._made.get(model)
+            if per is None:
+                per = Scales._made[model] = {}
+        except TypeError:              # a model without weak references (a test's namespace)
+            per = {}
         got = per.get((mi, me))
         if got is None:
             got = (np.where(model.q_kind == 1, mi * L, mi),
@@ -118,11 +121,14 @@ _NAMES_MAX = 600                # KKT unknowns up to which the names are kept (t
 def equation_name(model, k) -> str:
     """The name of equation ``k`` of the KKT system (a coordinate's, or a constraint row's
     ``FILE:LINE: <Tag id=N> equation``): Newton names its worst equation every iteration."""
-    names = _NAMES.get(model)
-    if names is None and model.N <= _NAMES_MAX:
-        names = _NAMES[model] = (tuple(model.coord_info[i] for i in range(model.nq))
-                                 + tuple("%s %s" % row_equation(model.row_info, r)
-                                         for r in range(model.nc)))
+    try:
+        names = _NAMES.get(model)
+        if names is None and model.N <= _NAMES_MAX:
+            names = _NAMES[model] = (tuple(model.coord_info[i] for i in range(model.nq))
+                                     + tuple("%s %s" % row_equation(model.row_info, r)
+                                             for r in range(model.nc)))
+    except (TypeError, AttributeError):     # not a compiled model (a test's namespace)
+        names = None
     if names is not None:
         return names[k]
     if k < model.nq:
