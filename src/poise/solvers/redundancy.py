@@ -159,14 +159,16 @@ def _dense_natural(Phi_q, col_scale):
     """
     P = (Phi_q.toarray() if hasattr(Phi_q, "toarray") else np.asarray(Phi_q, float)) * col_scale
     A = P @ P.T
-    d = np.diag(A).copy()
+    n = A.shape[0]
+    diag = A.reshape(-1)[::n + 1]            # the diagonal, a view (np.diag's entries)
+    d = diag.copy()
     empty = d <= 1e-300
-    A[np.diag_indices_from(A)] += np.where(empty, 1.0, SHIFT * d)
+    diag += np.where(empty, 1.0, SHIFT * d)
     try:
         Lc = np.linalg.cholesky(A)
     except np.linalg.LinAlgError:
         return None
-    ratio = np.diag(Lc) ** 2 / np.where(empty, 1.0, d)
+    ratio = Lc.reshape(-1)[::n + 1] ** 2 / np.where(empty, 1.0, d)
     thr = rank_threshold(ratio[~empty])
     return np.nonzero((ratio < thr) | empty)[0]
 
