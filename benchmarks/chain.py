@@ -150,11 +150,12 @@ def _worker(deck: str, n: int) -> dict:
     model_datasets(model)
     state = model.initial_state()
     drv = Driver(model, reqs[0], redundancy=None)
-    c2 = time.process_time()
+    c2, u2, f2 = time.process_time(), os.times(), _minor_faults()
     state, rec = drv.run(state, index=0)
     ar = AnalysisResult.of(rec)          # laid out, as runner.run does
     t3 = time.perf_counter()
     solve_cpu = time.process_time() - c2
+    u3, f3 = os.times(), _minor_faults()
     peak_solve = rss_now()               # the process's peak up to the end of the solve
     iters = int(np.sum(ar.datasets["frames/iterations"]))
     status, counters, redundant = ar.status, drv.data.as_dict(), int(len(drv.redundancy))
@@ -183,12 +184,24 @@ def _worker(deck: str, n: int) -> dict:
                 iterations=iters, newton_s=newton_s,
                 iteration_s=newton_s / iters if iters else None,
                 lu_s=statistics.median(lu_times), evaluate_s=statistics.median(ev_times),
-                solve_cpu_s=solve_cpu, newton_lu_s=newton_lu, newton_lu_cpu_s=newton_lu_cpu,
+                solve_cpu_s=solve_cpu, solve_user_s=u3.user - u2.user,
+                solve_sys_s=u3.system - u2.system, solve_faults=None if f2 is None else f3 - f2,
+                newton_lu_s=newton_lu, newton_lu_cpu_s=newton_lu_cpu,
                 phases=phases, phases_cpu=phases_cpu,
                 phases_peak=phases_peak, phases_own_peak=phases_own_peak, counters=counters,
                 redundant=redundant, status=status,
                 peak_rss_bytes=int(peak), peak_parse_bytes=int(peak_parse),
                 peak_compile_bytes=int(peak_compile), peak_solve_bytes=int(peak_solve))
+
+
+def _minor_faults() -> int | None:
+    """The process's minor page faults so far (None where ``resource`` is missing): with the
+    solve's system time, how much fresh memory the kernel mapped and zeroed for it."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 
 
 class _HighWater:
@@ -298,7 +311,8 @@ def bench_chain(n: int, repeat: int, tmp: Path) -> dict:
     deck.write_text(build_chain_deck(n, "revolute"))
     runs = [_run_worker(deck, n) for _ in range(repeat)]
     keys = ("import_s", "parse_s", "compile_s", "solve_s", "newton_s", "iteration_s", "lu_s",
-            "evaluate_s", "peak_rss_bytes", "solve_cpu_s", "newton_lu_s", "newton_lu_cpu_s",
+            "evaluate_s", "peak_rss_bytes", "solve_cpu_s", "solve_user_s", "solve_sys_s",
+            "solve_faults", "newton_lu_s", "newton_lu_cpu_s",
             "peak_parse_bytes", "peak_compile_bytes", "peak_solve_bytes")
     out = dict(bench="chain", n=n, joint="revolute", repeat=repeat)
     for k in ("nq", "nc", "nnz", "kkt_size", "iterations", "redundant", "status", "counters"):
@@ -507,8 +521,21 @@ products, conversions or column selections) and pooled assembly widens its int32
 at a time; families above 2¹⁵ instances make their kernel outputs in chunks of instances, and
 the classification's equilibration and permuted KKT scatter work in passes over small buffers,
 so their temporaries stay below the threshold (≈ 0.5–1 GB fewer fresh pages per 10⁵ solve).
-What remains is mostly SuperLU's: its factor storage (≈ 2 GB per solve, inside the floor), a copy
-of every right-hand-side block it solves, and scipy's full copies of the matrices it factorises.
+What remains (S14, one 10⁵ solve: user 5.0–5.6 s, system 1.4–2.4 s run to run, ≈ 0.4 M small
+and ≈ 1.2 k huge-page faults, ≈ 4 GB zeroed) is, by allocation site: SuperLU's factor storage in
+its six factorisations (3 in Newton, the LDLᵀ, the Gram matrix of the left null basis, the COLAMD
+ordering), ≈ 300 k small-page faults (1.2 GB, 0.4 s of system time inside `splu`; scipy offers no
+way to hand SuperLU a reused workspace); numpy/scipy arrays above the threshold, ≈ 1.5 GB in ≈ 40
+allocations, nearly all made once per solve (column order, CSC layout, the classification's
+permuted KKT, SuperLU's CSC copy of U for the pivots, Krylov blocks; 3 tangent blocks of 58 MB);
+and the heap regrown after trims (≈ 1.2 GB by `brk`, 0.6 GB given back by `malloc_trim` between
+stages). Reuse that the peak allows gains nothing measurable against the run-to-run noise: no trims
+inside the solve (the classification's own peak 1.26 → 1.31–1.35 GB, same CPU), a 128–512 MB trim
+threshold (80 k fewer faults, same system time, peak +40 MB), the CSC layout from the first
+factorisation (35 k fewer faults, same time). Huge pages for SuperLU's storage too
+(`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`) cut the faults 0.41 → 0.06 M but not the time (7
+alternations: system medians 2.15 s both, solve CPU 7.3 vs 7.5 s): the kernel's cost is per byte
+zeroed, not per fault; only fewer fresh bytes would lower it.
 Keeping big arrays in the heap (a raised mmap threshold) cuts ≈ 1 s of system time at 10⁵ links
 but lifts the peak RSS to 1.50 GB (heap fragmentation). The solve's memory peaks in Newton
 (*after newton*); the *whole worker* column adds the bench's own reference LU (COLAMD, default

@@ -1,15 +1,26 @@
 """numpy's own arithmetic on small arrays without the Python argument handling of its
 convenience functions, which costs more than the work itself on the few-element arrays of a
 small model's solve: Euclidean norms (``np.linalg.norm``'s results, bit for bit, for real
-arrays), the all-finite test and a gather along the last axis."""
+arrays), the all-finite test, a gather along the last axis, and ``einsum`` and ``where``: numpy's
+C functions that ``np.einsum`` (without ``optimize``) and ``np.where`` call after Python
+wrappers costing more than their work on 3x3 blocks."""
 from __future__ import annotations
 
 import numpy as np
 
+try:
+    from numpy._core.multiarray import c_einsum as einsum
+except ImportError:  # numpy < 2 (its C function elsewhere): the public one
+    einsum = np.einsum
+
+#: ``np.where(cond, x, y)``: numpy's C function without its ``__array_function__`` dispatch
+#: (a Python call that costs as much as the selection of a few dozen entries)
+where = getattr(np.where, "_implementation", np.where)
+
 
 def norm(x) -> np.floating:
     """``np.linalg.norm(x)`` of a real array (every entry: the Frobenius norm of a matrix)."""
-    x = np.ravel(x)
+    x = x.ravel() if type(x) is np.ndarray else np.ravel(x)
     return np.sqrt(x.dot(x))
 
 

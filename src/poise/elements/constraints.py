@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poise.core.lean import einsum
+
 from poise.elements.base import ConstraintFamily
 from poise.elements.kernel import POINT, PairBlocks
 from poise.elements.registry import (ElementType, FDCase, OutputGroup, claimed_types, static,
@@ -119,15 +121,15 @@ class Perpendicular(ConstraintFamily):
 
     def values(self, kin, ctx):
         Y = kin.Y
-        phi = np.einsum("ni,ni->n", Y[:, 0], Y[:, 1])
+        phi = einsum("ni,ni->n", Y[:, 0], Y[:, 1])
         if self.paired:
-            phi = phi + self.coef2 * np.einsum("ni,ni->n", Y[:, 2], Y[:, 3])
+            phi = phi + self.coef2 * einsum("ni,ni->n", Y[:, 2], Y[:, 3])
         return phi[:, None]
 
     def constraints(self, kin, lam, ctx):
         Y = kin.Y
         n = self.n
-        phi = np.einsum("ni,ni->n", Y[:, 0], Y[:, 1])
+        phi = einsum("ni,ni->n", Y[:, 0], Y[:, 1])
         phi_y = np.zeros((n, 1, 12))
         phi_y[:, 0, 0:3] = Y[:, 1]
         phi_y[:, 0, 3:6] = Y[:, 0]
@@ -136,7 +138,7 @@ class Perpendicular(ConstraintFamily):
         if not self.paired:            # c = 0 everywhere: x + 0 y is x, the c blocks zeros
             return phi[:, None], phi_y, PairBlocks(n, 4, {(0, 1): l, (1, 0): l})
         c = self.coef2
-        phi = (phi + c * np.einsum("ni,ni->n", Y[:, 2], Y[:, 3]))[:, None]
+        phi = (phi + c * einsum("ni,ni->n", Y[:, 2], Y[:, 3]))[:, None]
         phi_y[:, 0, 6:9] = c[:, None] * Y[:, 3]
         phi_y[:, 0, 9:12] = c[:, None] * Y[:, 2]
         l2 = l * c
@@ -163,13 +165,13 @@ class InPlane(ConstraintFamily):
 
     def values(self, kin, ctx):
         Y = kin.Y
-        return np.einsum("ni,ni->n", Y[:, 0] - Y[:, 1], Y[:, 2])[:, None]
+        return einsum("ni,ni->n", Y[:, 0] - Y[:, 1], Y[:, 2])[:, None]
 
     def constraints(self, kin, lam, ctx):
         Y = kin.Y
         d = Y[:, 0] - Y[:, 1]
         b = Y[:, 2]
-        phi = np.einsum("ni,ni->n", d, b)[:, None]
+        phi = einsum("ni,ni->n", d, b)[:, None]
         n = self.n
         phi_y = np.zeros((n, 1, 9))
         phi_y[:, 0, 0:3] = b

@@ -25,6 +25,7 @@ from poise.elements.two_body import (ANGLE_SLOTS, N_SLOTS, S_PI, S_PJ, S_XI, S_X
                                      angle_gradient, apply_two_body, principal_angle, sl)
 
 _I3 = np.eye(3)
+_SL_PI, _SL_PJ = sl(S_PI), sl(S_PJ)      # the I and J point slots' columns
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -93,21 +94,21 @@ class LineForce(TwoBodyForce):
         n = len(F)
         W = 3 * N_SLOTS
         rho = np.zeros((n, W))
-        rho[:, sl(S_PI)] = -F
+        rho[:, _SL_PI] = -F
         react = (~self.action_only if np.logical_or.reduce(self.action_only, axis=None)
                  else None)
-        rho[:, sl(S_PJ)] = F if react is None else F * react[:, None]
+        rho[:, _SL_PJ] = F if react is None else F * react[:, None]
         if not need_jac:
             return rho, None
         G = np.zeros((n, W, W))
         m = -dFdd
-        G[:, sl(S_PI), sl(S_PI)] = m
-        G[:, sl(S_PI), sl(S_PJ)] = dFdd
+        G[:, _SL_PI, _SL_PI] = m
+        G[:, _SL_PI, _SL_PJ] = dFdd
         if react is not None:
             m = m * react[:, None, None]
             dFdd = dFdd * react[:, None, None]
-        G[:, sl(S_PJ), sl(S_PI)] = dFdd
-        G[:, sl(S_PJ), sl(S_PJ)] = m
+        G[:, _SL_PJ, _SL_PI] = dFdd
+        G[:, _SL_PJ, _SL_PJ] = m
         return rho, G
 
     def compute(self, Y, ctx, need_jac):
@@ -115,8 +116,8 @@ class LineForce(TwoBodyForce):
         dF = None
         if need_jac:
             dF = np.zeros((len(F), 3, 3 * N_SLOTS))
-            dF[:, :, sl(S_PI)] = dFdd
-            dF[:, :, sl(S_PJ)] = -dFdd
+            dF[:, :, _SL_PI] = dFdd
+            dF[:, :, _SL_PJ] = -dFdd
         return F, None, dF, None
 
     def _line(self, Y, ctx, need_jac):
@@ -231,8 +232,8 @@ class Bushing(TwoBodyForce):
             W = 3 * N_SLOTS
             dD = np.zeros((n, 3, W))
             AJt = np.swapaxes(AJ, 1, 2)
-            dD[:, :, sl(S_PI)] = AJt
-            dD[:, :, sl(S_PJ)] = -AJt
+            dD[:, :, _SL_PI] = AJt
+            dD[:, :, _SL_PJ] = -AJt
             for k, s in enumerate((S_XJ, S_YJ, S_ZJ)):
                 dD[:, k, sl(s)] += d
             dth = np.stack([angle_gradient(Y, k) for k in range(3)], axis=1)   # (n,3,W)

@@ -10,6 +10,8 @@ import weakref
 
 import numpy as np
 
+from poise.core.lean import einsum
+
 from poise.elements.kernel import cross3
 
 
@@ -37,7 +39,7 @@ def loads_of(model, items, lam=None, frames: int = 1):
     out = {}
     for fam, kin, rho, phy in items:
         if phy is not None and lam is not None:
-            rho = np.einsum("nmy,nm->ny", phy, lam[fam.crow])
+            rho = einsum("nmy,nm->ny", phy, lam[fam.crow])
         group = fam.group
         if group is None or group not in model.outputs:
             continue

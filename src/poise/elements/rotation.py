@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core.lean import row_norms, take_along_last
+from poise.core.lean import einsum, row_norms, take_along_last, where
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix, ``skew(v) @ u == cross(v, u)``.
@@ -48,17 +48,17 @@ def _axis_parts(w):
 
 def _expm(th, K, KK):
     small = th < 1e-8
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    ths = where(small, 1.0, th)
+    a = where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
+    b = where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
     return _I3 + a[..., None, None] * K + b[..., None, None] * KK
 
 
 def _left_jacobian(th, K, KK):
     small = th < 1e-6
-    ths = np.where(small, 1.0, th)
-    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
-    c = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
+    ths = where(small, 1.0, th)
+    b = where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    c = where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
     return _I3 + b[..., None, None] * K + c[..., None, None] * KK
 
 
@@ -79,7 +79,7 @@ def screw_exp(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(expm_so3(w), se3_left_jacobian(w))`` (bitwise), sharing ``|w|``, ``skew(w)`` and its
     square: the rotation and translation of a spatial twist's exponential."""
     th, K, KK = parts = _axis_parts(np.asarray(w, dtype=float))
-    if not np.all(th >= 1e-6):             # a small angle: the series where it is small
+    if not np.logical_and.reduce(th >= 1e-6, axis=None):   # a small angle: the series there
         return _expm(*parts), _left_jacobian(*parts)
     # no angle small (the usual step): the closed forms alone, sin and cos taken once
     th = np.asarray(th)                   # an array like the series' (its powers, ufuncs)
@@ -169,10 +169,10 @@ def euler_parameters(R: np.ndarray) -> np.ndarray:
     X = R9.take(_OFF_A, -1) + R9.take(_OFF_B, -1) * _OFF_SG
     M = np.concatenate([T, X], -1).take(_M16, -1)            # (..., 16), row-major
     # its row with the largest diagonal is q times the largest |q_k|
-    q = take_along_last(M, _ROWS[np.argmax(T, axis=-1)])
+    q = take_along_last(M, _ROWS[T.argmax(axis=-1)])
     # sign: e0 > 0, else the first non-zero vector component > 0 (deterministic at 180 deg)
-    lead = take_along_last(q, np.argmax(q != 0, axis=-1)[..., None])[..., 0]
-    q = np.where((lead < 0)[..., None], -q, q)
+    lead = take_along_last(q, (q != 0).argmax(axis=-1)[..., None])[..., 0]
+    q = where((lead < 0)[..., None], -q, q)
     return q / row_norms(q)[..., None]
 
 
@@ -194,11 +194,19 @@ def euler_313(R: np.ndarray, singular_tol: float = 1e-14) -> np.ndarray:
     sig = np.arctan2(R[..., 1, 0] - R[..., 0, 1], R[..., 0, 0] + R[..., 1, 1])   # psi + phi
     dif = np.arctan2(R[..., 1, 0] + R[..., 0, 1], R[..., 0, 0] - R[..., 1, 1])   # psi - phi
     sing = st <= singular_tol
-    psi_d = np.where(sing, 0.0, psi_d)
-    phi_d = np.where(sing, 0.0, phi_d)
-    c = np.where(up, wrap_angle(sig - (psi_d + phi_d)), wrap_angle(dif - (psi_d - phi_d)))
-    psi = np.where(sing, np.where(up, sig, dif), psi_d + 0.5 * c)
-    phi = np.where(sing, 0.0, phi_d + np.where(up, 0.5, -0.5) * c)
+    locked = bool(np.logical_or.reduce(sing, axis=None))
+    if locked:
+        psi_d = where(sing, 0.0, psi_d)
+        phi_d = where(sing, 0.0, phi_d)
+    # the well-conditioned sum (or difference) less the one of the direct angles, wrapped
+    # (elementwise: the branch of each entry's tilt, one wrap for both)
+    sd = where(up, sig, dif)
+    c = wrap_angle(sd - where(up, psi_d + phi_d, psi_d - phi_d))
+    psi = psi_d + 0.5 * c
+    phi = phi_d + where(up, 0.5, -0.5) * c
+    if locked:
+        psi = where(sing, sd, psi)
+        phi = where(sing, 0.0, phi)
     return np.stack([wrap_angle(psi), theta, wrap_angle(phi)], -1)
 
 
@@ -208,7 +216,7 @@ def rotation_vector(R: np.ndarray) -> np.ndarray:
     q = euler_parameters(R)
     s = row_norms(q[..., 1:])
     th = 2.0 * np.arctan2(s, q[..., 0])
-    f = np.where(s > 0, th / np.where(s > 0, s, 1.0), 2.0)
+    f = where(s > 0, th / where(s > 0, s, 1.0), 2.0)
     return f[..., None] * q[..., 1:]
 
 
@@ -221,10 +229,10 @@ def lift_rotation_vector(v: np.ndarray, guess: np.ndarray) -> np.ndarray:
     a = row_norms(v)
     gn = row_norms(g)
     small = a < 1e-300
-    n = np.where(small[..., None], g / np.where(gn > 0, gn, 1.0)[..., None],
-                 v / np.where(small, 1.0, a)[..., None])
+    n = where(small[..., None], g / where(gn > 0, gn, 1.0)[..., None],
+                 v / where(small, 1.0, a)[..., None])
     # signed length of the guess: the angle |v| moves by n.w to first order for any increment
     # w, so this stays right when the axis tilts (a projection g.n would shrink)
-    p = np.where(np.einsum("...i,...i->...", g, n) < 0, -gn, gn)
+    p = where(einsum("...i,...i->...", g, n) < 0, -gn, gn)
     k = np.round((p - a) / (2.0 * np.pi))
     return (a + 2.0 * np.pi * k)[..., None] * n

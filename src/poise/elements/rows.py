@@ -239,7 +239,7 @@ class CoordNames(Sequence):
         k = _position(self, k, "coordinate")
         if k >= self._nq_bodies:
             return self._extra[k - self._nq_bodies]
-        b = int(np.searchsorted(self._off, k, side="right")) - 1
+        b = int(self._off.searchsorted(k, side="right")) - 1
         return self._prefix[b] + self.SUFFIX[k - int(self._off[b])]
 
     def __iter__(self):

@@ -24,7 +24,7 @@ from functools import partial
 import numpy as np
 
 from poise.core import phases
-from poise.core.lean import all_finite
+from poise.core.lean import all_finite, einsum, where
 from poise.core.errors import EvaluationError
 from poise.elements.chunked import (constraint_values, local_residuals, rows, spans,
                                     tangent_values)
@@ -257,7 +257,7 @@ def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
                 continue
             ext = out[3] if len(out) > 3 else None
             # phi_y^T lam (one row per instance: the product itself, as the sum of one term)
-            rho = phy[:, 0] * lam if phy.shape[1] == 1 else np.einsum("nmy,nm->ny", phy, lam)
+            rho = phy[:, 0] * lam if phy.shape[1] == 1 else einsum("nmy,nm->ny", phy, lam)
             if fam.U:
                 ext = _constraint_ext(ext, lam, len(lam), fam.m, fam.U)
         else:
@@ -307,7 +307,7 @@ def _one_frame(model, fr, what, active, keep, eps_mass):
         r, phi, pend, last = _family_outputs(model, fr, need_jac, done)
     mask = np.ones(model.nc, bool) if active is None else np.asarray(active, bool)
     if active is not None:
-        phi = np.where(mask, phi, 0.0)
+        phi = where(mask, phi, 0.0)
     if not (all_finite(r) and all_finite(phi)):
         raise EvaluationError(nonfinite_message(model, r, phi))
     ev = Evaluation(r=r, phi=phi, J=None, items=list(last) if keep else None, workspace=fr.ws)

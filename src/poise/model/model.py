@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from poise.core.lean import row_norms
+from poise.core.lean import einsum, row_norms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.chunked import CHUNK
@@ -174,7 +174,7 @@ class Model:
         nm = len(mb)
         if nm <= 2 * CHUNK:
             R = rot.take(mb, 0)                          # gathered once for both products
-            P = pos.take(mb, 0) + np.einsum("nij,nj->ni", R, self.marker_s0)
+            P = pos.take(mb, 0) + einsum("nij,nj->ni", R, self.marker_s0)
             A = np.matmul(R, self.marker_A0)
             return P, A, pos
         # many markers: the same products chunk by chunk (no full-size temporaries)
@@ -207,7 +207,15 @@ class Model:
         Rotation increments larger than ``MAX_SUBSTEP_ROTATION`` are applied in equal sub-steps
         so that continuous angles count every full turn.
         """
-        new = state.copy()
+        if self.nb and len(self.rot_body) == self.nb:
+            # every body rigid: positions and axes are new arrays below, so are the
+            # multipliers with ``dlam`` and the tracked rotation vectors (no copies made first)
+            new = State(state.pos, state.rot, state.lam if dlam is not None else state.lam.copy(),
+                        state.angle.copy(), state.t,
+                        None if state.extra is None else state.extra.copy(), state.rotvec,
+                        state.rotvec_drift)
+        else:
+            new = state.copy()
         dq = np.asarray(dq, float)
         dt = dq[self.trans_idx].reshape(-1, 3)
         dr = dq[self.rot_idx].reshape(-1, 3) if len(self.rot_idx) else np.zeros((0, 3))
@@ -225,7 +233,7 @@ class Model:
         if nsub > 1:
             v0 = v0 / nsub
         E, V = screw_exp(w)
-        Vv = np.einsum("nij,nj->ni", V, v0)
+        Vv = einsum("nij,nj->ni", V, v0)
         move_pt = len(rb) < self.nb          # rot_body: distinct bodies
         if move_pt:
             pt = np.ones(self.nb, bool)
@@ -241,7 +249,7 @@ class Model:
             if move_pt:
                 new.pos[pt] += dtp
             if len(rb):
-                p = np.einsum("nij,nj->ni", E, p) + Vv
+                p = einsum("nij,nj->ni", E, p) + Vv
                 R = np.matmul(E, R)
                 if na:
                     rots[k, rb] = R
@@ -270,10 +278,10 @@ class Model:
         rb = self.rot_body
         if old.rotvec is None or not len(rb):
             return
-        rv = old.rotvec.copy()
         if len(rb) == self.nb:
-            rv += w
+            rv = old.rotvec + w
         else:
+            rv = old.rotvec.copy()
             rv[rb] += w
         new.rotvec = rv
         new.rotvec_drift = old.rotvec_drift + (

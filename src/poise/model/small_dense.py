@@ -128,12 +128,14 @@ class SmallDense:
         self.B0 = B0
         # rotation columns: -skew(v) of each slot whose marker's body rotates
         rot = np.nonzero((R >= 0).all(axis=1))[0]
-        dst, src = [], []
+        dst, src, sgn = [], [], []
         for a, b, k in _NSKEW:
             dst.append((3 * rot + a) * nq + R[rot, b])
-            src.append(np.where(k < 3, 3 * rot + k, 3 * at + 3 * rot + (k - 3)))
+            src.append(3 * rot + k % 3)
+            sgn.append(np.full(rot.size, 1.0 if k < 3 else -1.0))
         self.skew_dst = np.concatenate(dst)
-        self.skew_src = np.concatenate(src)
+        self.skew_src = np.concatenate(src)       # lever entries, times their sign (exact)
+        self.skew_sgn = np.concatenate(sgn)
         # additive terms of the coordinate block, one bincount: the connection term of every
         # rotating slot (its 3x3 block), then the mass shift (translations, rotations)
         i3 = np.arange(3)
@@ -187,15 +189,17 @@ class SmallDense:
             phi = phi.take(self.row_order)
         # the levers of one gather (SmallDense.kinematics, eval order) are that array already
         V = levers[0].base
-        if V is None or V.size != 3 * self.S or any(v.base is not V for v in levers):
-            V = np.concatenate([v.ravel() for v in levers])
-        else:
-            V = V.ravel()
+        if V is not None and V.size == 3 * self.S:
+            for v in levers:
+                if v.base is not V:
+                    V = None
+                    break
+        V = np.concatenate([v.ravel() for v in levers]) if V is None else V.ravel()
         B = self.B0.copy()
-        B.put(self.skew_dst, np.concatenate((V, -V)).take(self.skew_src))
+        B.put(self.skew_dst, V.take(self.skew_src) * self.skew_sgn)
         rho = np.concatenate(rhos)
         r = rho @ B
-        if not np.isfinite(r.sum()):
+        if not np.isfinite(np.add.reduce(r)):      # (r.sum() without its Python wrapper)
             return None
         return r, phi, (SmallTerms(self, B, V, rho, terms) if need_jac else None), last
 

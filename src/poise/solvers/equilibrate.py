@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.lean import where
 from poise.solvers.stability_modes import DIAG_FLOOR, NOISE_REL
 
 
@@ -63,7 +64,7 @@ def prune_rows(G):
 def prune_rows_dense(G):
     """:func:`prune_rows` of a stack of dense constraint rows (F, m, n)."""
     B = np.abs(G)
-    return np.where(B > NOISE_REL * B.max(axis=2, keepdims=True, initial=0.0), G, 0.0)
+    return where(B > NOISE_REL * B.max(axis=2, keepdims=True, initial=0.0), G, 0.0)
 
 
 def prune_noise_dense(Ks):
@@ -71,11 +72,11 @@ def prune_noise_dense(Ks):
     A = np.abs(Ks)
     rmax = A.max(axis=2)
     keep = A > NOISE_REL * np.maximum(rmax[:, :, None], rmax[:, None, :])
-    return np.where(keep, Ks, 0.0)
+    return where(keep, Ks, 0.0)
 
 
 def _cap(R, nbr):
-    return np.where(nbr > 0.0, 1.0 / np.sqrt(DIAG_FLOOR * np.where(nbr > 0.0, nbr, 1.0)), np.inf)
+    return where(nbr > 0.0, 1.0 / np.sqrt(DIAG_FLOOR * where(nbr > 0.0, nbr, 1.0)), np.inf)
 
 
 def coordinate_caps(Ks) -> np.ndarray:
@@ -233,14 +234,14 @@ def equilibrate_dense(Ks, G, iters=12, tol=0.1):
     keeps its factors). Returns ``Dq`` (F, n), ``Dl`` (F, m)."""
     F, n = Ks.shape[:2]
     m = G.shape[1]
+    if F == 1:
+        Dq, Dl = _equilibrate_one(Ks[0], G[0], iters, tol)
+        return Dq[None], Dl[None]
     A, B = np.abs(Ks), np.abs(G)
     mx = np.maximum.reduce                   # the reductions without their Python wrappers
     R = np.add.reduce(A, axis=2)
-    nbr = np.maximum(R, mx(np.where(A > 0.0, R[:, None, :], 0.0), axis=2, initial=0.0))
+    nbr = np.maximum(R, mx(where(A > 0.0, R[:, None, :], 0.0), axis=2, initial=0.0))
     cap = _cap(R, nbr)
-    if F == 1:
-        Dq, Dl = _equilibrate_one(A[0], B[0], cap[0], iters, tol)
-        return Dq[None], Dl[None]
     Dq, Dl = np.minimum(np.ones((F, n)), cap), np.ones((F, m))
     bufA, bufB = np.empty_like(A), np.empty_like(B)
     go = np.ones(F, bool)
@@ -267,24 +268,31 @@ def equilibrate_dense(Ks, G, iters=12, tol=0.1):
     return Dq, Dl
 
 
-def _equilibrate_one(A, B, cap, iters, tol):
-    """:func:`equilibrate_dense` of one frame (a static solve's), ``A = |Ks|`` (n, n), ``B =
-    |G|`` (m, n), ``cap`` (n,): the absolute KKT matrix ``[[A, B^T], [B, 0]]`` with one scaling
-    ``[Dq; Dl]`` (no cap on ``Dl``), so that an iteration is one product and one maximum per
-    row: the same products and maxima as the frames' loop, the same factors."""
-    n, m = A.shape[0], B.shape[0]
+def _equilibrate_one(Ks, G, iters, tol):
+    """:func:`equilibrate_dense` of one frame (a static solve's), ``Ks`` (n, n), ``G`` (m, n),
+    on 2-d arrays (the frames' cap, without the stacking): the absolute KKT matrix ``M = [[A,
+    B^T], [B, 0]]`` (``A = |Ks|``, ``B = |G|``) with one scaling ``[Dq; Dl]`` (no cap on
+    ``Dl``), so that an iteration is one product and one maximum per row: the same products and
+    maxima as the frames' loop, the same factors."""
+    n, m = Ks.shape[0], G.shape[0]
+    mx = np.maximum.reduce                   # the reductions without their Python wrappers
     M = np.zeros((n + m, n + m))
-    M[:n, :n] = A
-    M[:n, n:] = B.T
-    M[n:, :n] = B
+    A = M[:n, :n]
+    np.abs(Ks, out=A)
+    M[n:, :n] = G
+    np.abs(M[n:, :n], out=M[n:, :n])
+    M[:n, n:] = M[n:, :n].T
+    R = np.add.reduce(A, axis=1)
+    cap = _cap(R, np.maximum(R, mx(where(A > 0.0, R, 0.0), axis=1, initial=0.0)))
     capx = np.concatenate([cap, np.full(m, np.inf)])
     D = np.concatenate([np.minimum(1.0, cap), np.ones(m)])
     buf = np.empty_like(M)
-    mx = np.maximum.reduce
     for _ in range(iters):
         r = mx(np.multiply(M, D, out=buf), axis=1, initial=0.0)
         r *= D
-        r[(r <= 0.0) | ((D >= capx) & (r < 1.0))] = 1.0   # all-zero row, or at its cap
+        # at its cap: at least 1 (a True is 1; NaN stays); then an all-zero row: 1
+        np.maximum(r, D >= capx, out=r)
+        r[r <= 0.0] = 1.0
         if mx(np.abs(r - 1.0), axis=None, initial=0.0) <= tol:     # (NaN: never)
             break
         D = np.minimum(D / np.sqrt(r), capx)

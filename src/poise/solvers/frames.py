@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core import memory
+from poise.core.lean import where
 from poise.core.errors import EvaluationError
 from poise.elements.rows import group_owner
 from poise.model.evaluate import evaluate
@@ -55,14 +56,14 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
         # in the solve's workspace: its buffers serve, no second set held by J till the end
         ev = model.evaluate(state, need_jac=True, keep=True, workspace=env.data.workspace)
         J = ev.J
-        phi = np.where(saved, ev.phi, 0.0)
+        phi = where(saved, ev.phi, 0.0)
         for i, o in enumerate(outcomes):
             outcomes[i], measured = certify(model, env.settings, o, ev.r, phi)
         lam = state.lam
         if len(redundancy) and model.nc:
             Pfull = J[model.nq:, :model.nq]
             Y = left_null_basis(Pfull, saved)       # one factorisation serves both
-            w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
+            w = where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
             lam = min_norm_multipliers(Pfull, state.lam, saved, w, Y=Y)
             dep = dependent_rows(Pfull, saved, Y=Y)
         loads = element_loads(model, state, lam=lam, ev=ev)
@@ -109,8 +110,9 @@ def frame_set(model, frames, loads, dep, outcomes, stability, measures) -> Frame
     zero. ``dep``: constraint rows taking part in a dependency (not unique).
     """
     nf = len(frames)
-    rot = np.stack([s.rot for s in frames])
+    rot = _stacked([s.rot for s in frames])
     groups = {}
+    owners = None
     for g, o in model.outputs.items():
         n_out = len(o["ids"])
         zero = np.zeros((nf, n_out, 3))
@@ -118,19 +120,26 @@ def frame_set(model, frames, loads, dep, outcomes, stability, measures) -> Frame
         uniq = None
         if g in ("joints", "jprims"):
             uniq = np.ones(n_out, bool)
-            grp, own = group_owner(model.row_info, dep)
+            if owners is None:
+                owners = group_owner(model.row_info, dep)
+            grp, own = owners
             uniq[own[grp == g]] = False
         groups[g] = GroupLoads(ids=np.asarray(o["ids"]), force=F, torque=T, unique=uniq,
                                tag=np.asarray(o["tag"], dtype=str) if g == "forces" else None)
     if all(s.rotvec is not None for s in frames):       # every frame at once
-        rv = model.rotation_from_input(None, rot, np.stack([s.rotvec for s in frames]))
+        rv = model.rotation_from_input(None, rot, _stacked([s.rotvec for s in frames]))
     else:
         rv = np.stack([model.rotation_from_input(s) for s in frames])
     return FrameSet(states=tuple(frames), time=np.array([s.t for s in frames]),
                     body_id=model.body_id,
-                    position=np.stack([s.pos for s in frames]), orientation=rot,
+                    position=_stacked([s.pos for s in frames]), orientation=rot,
                     rotation_from_input=rv, groups=groups, outcomes=tuple(outcomes),
                     stability=tuple(stability), measures=tuple(measures))
+
+
+def _stacked(arrays):
+    """``np.stack(arrays)`` (a static solve's one frame: its copy with a leading axis)."""
+    return arrays[0][None].copy() if len(arrays) == 1 else np.stack(arrays)
 
 
 def frame_outputs(model, state) -> dict:
@@ -185,7 +194,7 @@ def measure_frames(env, redundancy, frames, outcomes) -> FrameSet | None:
     saved = env.data.mask(model)
     red = np.asarray(redundancy, int)
     dep = red
-    w = np.where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
+    w = where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
     loads = {}
     infos, measured = [], []
     C = chunk_size(model)

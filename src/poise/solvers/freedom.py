@@ -47,7 +47,7 @@ def probe(model, state, settings, cnt, f, x, eps, zinf) -> str:
         return ""
     sc = Scales(model, settings)
     reg = eps * mass_times(model, state, x[:model.nq])
-    if not float(np.max(np.abs(reg) / sc.r_tol)) >= SHARE * max(zinf, 1e-300):
+    if not float(np.maximum.reduce(np.abs(reg) / sc.r_tol)) >= SHARE * max(zinf, 1e-300):
         return ""
     return certify(model, state, settings, cnt, _free_part(model, state, f, x, eps))
 

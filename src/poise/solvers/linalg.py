@@ -15,6 +15,19 @@ from poise.solvers.superlu import lean
 NUMPY_DENSE_MAX = 120
 
 
+try:
+    from numpy.linalg import _umath_linalg
+except ImportError:  # (numpy's layout changed: the public function)
+    _umath_linalg = None
+
+
+def _inverse(J):
+    """``np.linalg.inv(J)`` of a real square matrix (the same LAPACK call and result)."""
+    if _umath_linalg is None or J.dtype != np.float64:
+        return np.linalg.inv(J)
+    return _umath_linalg.inv(J, signature="d->d")
+
+
 class SingularMatrix(Exception):
     """Raised when a factorisation is (numerically) singular; ``row`` is the worst row if known."""
 
@@ -66,8 +79,11 @@ def _clearly_regular(J):
     decides. The inverse then serves the solves (a product each, refined against ``J``)."""
     with np.errstate(all="ignore"):
         try:
-            Ji = np.linalg.inv(J)
-        except np.linalg.LinAlgError:        # an exactly zero pivot
+            # numpy's LAPACK inverse itself (np.linalg.inv's work without its wrapper, which
+            # costs about a sixth of a 38x38 inverse): an exactly zero pivot gives NaNs here
+            # (errors ignored), a LinAlgError through np.linalg.inv; None either way
+            Ji = _inverse(J)
+        except np.linalg.LinAlgError:
             return None
         k = norm(J) * norm(Ji)
     return Ji if k < 1e13 else None          # None for NaN/Inf (overflowing inverse)

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import copy
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,15 +69,33 @@ Counters = SolveData
 
 
 class Scales:
-    """Tolerances per equation from the settings and the model size L."""
+    """Tolerances per equation from the settings and the model size L. The arrays depend on
+    the model and two settings only: made once per model and pair (read-only, shared by the
+    solves and the written state's measures; a small model's solve made them three times)."""
+
+    _made: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()   # model -> {pair: arrays}
 
     def __init__(self, model, settings):
         L = model.L
         self.L = L
-        self.r_tol = np.where(model.q_kind == 1, settings.max_imbalance * L, settings.max_imbalance)
-        self.phi_tol = np.where(model.row_kind == 1, settings.max_error, settings.max_error * L)
-        self.q_len = np.where(model.q_kind == 0, L, 1.0)     # update scale: trans / L, rad, scalars
-        self.max_error = settings.max_error
+        self.max_error = me = settings.max_error
+        mi = settings.max_imbalance
+        try:
+            per = Scales._made.get(model)
+            if per is None:
+                per = Scales._made[model] = {}
+        except TypeError:              # a model without weak references (a test's namespace)
+            per = {}
+        got = per.get((mi, me))
+        if got is None:
+            got = (np.where(model.q_kind == 1, mi * L, mi),
+                   np.where(model.row_kind == 1, me, me * L),
+                   np.where(model.q_kind == 0, L, 1.0))   # update scale: trans / L, rad, scalars
+            for a in got:
+                a.setflags(write=False)
+            if len(per) < 8:
+                per[(mi, me)] = got
+        self.r_tol, self.phi_tol, self.q_len = got
 
 
 def measures(model, ev, sc: Scales):
@@ -88,14 +107,33 @@ def measures(model, ev, sc: Scales):
     zp = np.abs(ev.phi) / sc.phi_tol if ev.phi.size else np.zeros(0)
     cerr = float(mx(zp) * sc.max_error) if zp.size else 0.0
     z = np.concatenate([zr, zp])
-    k = int(z.argmax()) if z.size else 0
-    worst = ""
-    if z.size:
-        if k < model.nq:
-            worst = model.coord_info[k]
-        else:
-            worst = "%s %s" % row_equation(model.row_info, k - model.nq)
-    return imb, cerr, float(mx(z)) if z.size else 0.0, worst
+    if not z.size:
+        return imb, cerr, 0.0, ""
+    k = int(z.argmax())                 # its entry is the largest (the first NaN, if any)
+    return imb, cerr, float(z[k]), equation_name(model, k)
+
+
+#: a small model's equation names (coordinates, then constraint rows), made once per model
+_NAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_NAMES_MAX = 600                # KKT unknowns up to which the names are kept (the dense range)
+
+
+def equation_name(model, k) -> str:
+    """The name of equation ``k`` of the KKT system (a coordinate's, or a constraint row's
+    ``FILE:LINE: <Tag id=N> equation``): Newton names its worst equation every iteration."""
+    try:
+        names = _NAMES.get(model)
+        if names is None and model.N <= _NAMES_MAX:
+            names = _NAMES[model] = (tuple(model.coord_info[i] for i in range(model.nq))
+                                     + tuple("%s %s" % row_equation(model.row_info, r)
+                                             for r in range(model.nc)))
+    except (TypeError, AttributeError):     # not a compiled model (a test's namespace)
+        names = None
+    if names is not None:
+        return names[k]
+    if k < model.nq:
+        return model.coord_info[k]
+    return "%s %s" % row_equation(model.row_info, k - model.nq)
 
 
 def merit(ev, sc):

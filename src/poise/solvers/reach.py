@@ -11,6 +11,7 @@ its step instead of iterating from an unassemblable point. Details: docs/solvers
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -77,7 +78,24 @@ def violation(model, phi) -> float:
     """Largest constraint violation, translations relative to L, rotations in radians."""
     if not phi.size:
         return 0.0
-    return float(np.max(np.abs(phi) / np.where(model.row_kind == 1, 1.0, model.L)))
+    return float(np.maximum.reduce(np.abs(phi) / _row_lengths(model)))
+
+
+_ROW_LENGTHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _row_lengths(model) -> np.ndarray:
+    """Per constraint row 1 (rotational) or L (translational): :func:`violation`'s divisor,
+    made once per model (read-only)."""
+    try:
+        got = _ROW_LENGTHS.get(model)
+    except TypeError:                  # a model without weak references (a test's namespace)
+        return np.where(model.row_kind == 1, 1.0, model.L)
+    if got is None:
+        got = np.where(model.row_kind == 1, 1.0, model.L)
+        got.setflags(write=False)
+        _ROW_LENGTHS[model] = got
+    return got
 
 
 def project(model, state, cnt, ev=None, limits: Limits = LIMITS):

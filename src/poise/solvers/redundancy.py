@@ -159,14 +159,16 @@ def _dense_natural(Phi_q, col_scale):
     """
     P = (Phi_q.toarray() if hasattr(Phi_q, "toarray") else np.asarray(Phi_q, float)) * col_scale
     A = P @ P.T
-    d = np.diag(A).copy()
+    n = A.shape[0]
+    diag = A.reshape(-1)[::n + 1]            # the diagonal, a view (np.diag's entries)
+    d = diag.copy()
     empty = d <= 1e-300
-    A[np.diag_indices_from(A)] += np.where(empty, 1.0, SHIFT * d)
+    diag += np.where(empty, 1.0, SHIFT * d)
     try:
         Lc = np.linalg.cholesky(A)
     except np.linalg.LinAlgError:
         return None
-    ratio = np.diag(Lc) ** 2 / np.where(empty, 1.0, d)
+    ratio = Lc.reshape(-1)[::n + 1] ** 2 / np.where(empty, 1.0, d)
     thr = rank_threshold(ratio[~empty])
     return np.nonzero((ratio < thr) | empty)[0]
 
@@ -206,7 +208,19 @@ def dependent_rows(Phi_q, active, rel=1e-8, Y=None) -> np.ndarray:
     if np.all(active):
         return np.zeros(0, int)
     Y = np.abs(left_null_basis(Phi_q, active) if Y is None else Y)
-    return np.nonzero(Y.max(axis=1) > rel * Y.max())[0]
+    return np.nonzero(_row_max(Y) > rel * Y.max())[0]
+
+
+def _row_max(A):
+    """``A.max(axis=1)`` of a tall array of a few columns, column by column (numpy's reduction
+    along a short inner axis costs ~30 ns an entry: 1.7 ms for 50 000 x 3, this 0.1 ms; the
+    same maxima)."""
+    if not 0 < A.shape[1] <= 64:
+        return A.max(axis=1)
+    m = A[:, 0].copy()
+    for j in range(1, A.shape[1]):
+        np.maximum(m, A[:, j], out=m)
+    return m
 
 
 def left_null_basis(Phi_q, active):

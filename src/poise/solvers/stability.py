@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core import memory
-from poise.core.lean import row_norms
+from poise.core.lean import einsum, row_norms
 from poise.solvers.equilibrate import equilibrate_dense, prune_noise_dense, prune_rows_dense
 from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the public names
     AUG_RHO,
@@ -154,7 +154,7 @@ def _dense_frames(model, J, active, ok) -> list[StabilityInfo]:
         X /= np.maximum(np.linalg.norm(X, axis=1), 1e-300)[:, None, :]
         kmin = np.argmin(w, axis=1)
         xk = X[np.arange(len(grp)), :, kmin]
-        wmin = np.einsum("gi,gij,gj->g", xk, Kg, xk)                 # Rayleigh [force/length]
+        wmin = einsum("gi,gij,gj->g", xk, Kg, xk)                 # Rayleigh [force/length]
         for j, i in enumerate(grp):
             found = described_modes(X[j], Kg[j], neg[j], zero[j], d)
             klass = "unstable" if neg[j].any() else "neutral" if zero[j].any() else "stable"
@@ -175,7 +175,7 @@ def described_modes(X, K, neg, zero, d) -> list[list]:
         if neutral and xs.shape[1] > 1:
             xs = canonical_basis(xs)
         xs = xs[:, :N_MODES]
-        wk = np.einsum("ik,ij,jk->k", xs, K, xs)                    # Rayleigh [force/length]
+        wk = einsum("ik,ij,jk->k", xs, K, xs)                    # Rayleigh [force/length]
         found.append([(xs[:, c] / d, float(wk[c])) for c in range(xs.shape[1])])
     return found
 
@@ -214,7 +214,7 @@ def _dense_one(model, J, active) -> StabilityInfo:
     X = Dq[:, None] * (Z @ V)                   # eigenvectors in (length) coordinates
     X /= np.maximum(row_norms(X, axis=0), 1e-300)[None, :]
     xk = X[:, int(np.argmin(w))].copy()
-    wmin = float(np.einsum("gi,gij,gj->g", xk[None], Ku[None], xk[None])[0])   # [force/length]
+    wmin = float(einsum("gi,gij,gj->g", xk[None], Ku[None], xk[None])[0])   # [force/length]
     found = described_modes(X, Ku, neg, zero, d)
     klass = "unstable" if neg.any() else "neutral" if zero.any() else "stable"
     return classified_info(model, klass, int(neg.sum()), int(zero.sum()), found[0], found[1],

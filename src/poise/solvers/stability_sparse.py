@@ -399,10 +399,11 @@ def _spectral_radius(A, iters=20) -> float:
     """Power-iteration estimate (a lower bound) of the spectral radius of symmetric A."""
     x = np.random.default_rng(20240611).standard_normal(A.shape[0])
     r = 0.0
+    nx = np.linalg.norm(x)
     for _ in range(iters):
-        nx = np.linalg.norm(x)
         if nx == 0.0:
             break
         x = A @ (x / nx)
-        r = float(np.linalg.norm(x))
+        nx = np.linalg.norm(x)          # (the next step's divisor too)
+        r = float(nx)
     return r

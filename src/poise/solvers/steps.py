@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core.lean import all_finite, row_norms
+from poise.core.lean import all_finite, einsum, row_norms
 from poise.solvers.linalg import SingularMatrix
 
 NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neutral directions
@@ -111,7 +111,7 @@ def mass_times(model, state, v, Jg=None):
     if len(model.rot_idx):
         if Jg is None:
             Jg = model.world_inertia(state)
-        out[model.rot_idx] = np.einsum("nij,nj->ni", Jg,
+        out[model.rot_idx] = einsum("nij,nj->ni", Jg,
                                        v[model.rot_idx].reshape(-1, 3)).ravel()
     return out
 
@@ -170,4 +170,4 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
             xf = z - f.solve(np.concatenate([reg + (2.0 * eps) * My, pad]))
     except SingularMatrix:
         return None
-    return xf if np.all(np.isfinite(xf)) else None
+    return xf if all_finite(xf) else None
