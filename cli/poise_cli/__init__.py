@@ -9,6 +9,12 @@ import _signal  # the C module: ``signal`` imports enum, a window for an import 
 import sys as _sys
 
 
+#: set by the command's Ctrl-C/SIGTERM handlers (:mod:`poise_cli.main`) before they raise
+#: KeyboardInterrupt: code that turns that exception into another one (Cython's ImportError when
+#: the signal lands inside an import) cannot hide that the user interrupted the command
+signalled = False
+
+
 def _early_interrupt(signum, frame):  # pragma: no cover - timing dependent
     """Ctrl-C/SIGTERM while the command line interface is still starting (imports): one line,
     exit 130 (a KeyboardInterrupt here would print an import traceback)."""

@@ -29,7 +29,12 @@ def _one_line(text: str) -> str:
 
 def _interrupted(exc: BaseException) -> bool:
     """``exc`` is, or was caused by, a KeyboardInterrupt (Ctrl-C/SIGTERM landing inside code
-    that wraps exceptions, e.g. ``RuntimeError: Error calling __set_name__`` at import)."""
+    that wraps exceptions, e.g. ``RuntimeError: Error calling __set_name__`` at import), or the
+    command's handler saw Ctrl-C/SIGTERM before it (:data:`poise_cli.signalled`: code that
+    replaces the KeyboardInterrupt without chaining it, e.g. Cython's ``ImportError: Failed to
+    import 'zlib.decompress'`` when the signal lands inside an import)."""
+    if getattr(sys.modules.get("poise_cli"), "signalled", False):
+        return True
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):

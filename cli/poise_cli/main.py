@@ -106,9 +106,13 @@ def _quiet_exit(code: int) -> None:
     os._exit(code)
 
 
-def _terminate(signum, frame):
-    """SIGTERM is handled like Ctrl-C: unwinds (temporary files removed), exit 130."""
+def _interrupt(signum, frame):
+    """Ctrl-C in a command: remembered (:data:`poise_cli.signalled`), then raised as
+    KeyboardInterrupt: unwinds (temporary files removed), exit 130. SIGTERM is handled alike."""
+    import poise_cli
+    poise_cli.signalled = True
     raise KeyboardInterrupt
+
 
 
 #: True in the process the console script (or ``python -m poise_cli``) runs: the command owns
@@ -125,9 +129,9 @@ def _install_sigterm() -> dict:
     if threading.current_thread() is threading.main_thread():
         try:
             if signal.getsignal(signal.SIGINT) is _early_interrupt:
-                previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
+                previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
             if signal.getsignal(signal.SIGTERM) in (signal.SIG_DFL, _early_interrupt):
-                previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _terminate)
+                previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _interrupt)
         except (ValueError, OSError):
             pass
     return previous

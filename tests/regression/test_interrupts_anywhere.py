@@ -171,3 +171,20 @@ def test_an_interrupt_inside_a_callback_is_not_lost():
                        timeout=60, preexec_fn=_default_sigint)
     assert p.stdout.strip() == "interrupted", p.stdout + p.stderr
     assert "Traceback" not in p.stderr and "ignored" not in p.stderr, p.stderr
+
+
+def test_an_interrupt_another_exception_replaced_is_still_an_interrupt(monkeypatch, capsys):
+    """Ctrl-C landing inside a Cython module's import comes out as ``ImportError: Failed to
+    import 'zlib.decompress'``, the KeyboardInterrupt not chained: the command's handler has
+    remembered the signal, so the run ends as interrupted (exit 130), not an internal error."""
+    import poise_cli
+    from poise_cli import errors, main
+    wrapped = ImportError("Failed to import 'zlib.decompress'")
+    monkeypatch.setattr(poise_cli, "signalled", False)
+    assert errors.report_exception(wrapped)[0] == errors.EXIT_INTERNAL    # no signal: a bug
+    with pytest.raises(KeyboardInterrupt):
+        main._interrupt(signal.SIGINT, None)
+    assert poise_cli.signalled is True
+    code, info = errors.report_exception(wrapped)
+    assert code == errors.EXIT_INTERRUPTED == 130 and info["status"] == "interrupted"
+    assert capsys.readouterr().err.splitlines()[-1] == "poise: interrupted"
