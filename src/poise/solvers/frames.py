@@ -27,7 +27,8 @@ from poise.solvers.outputs import element_loads, loads_of
 from poise.solvers.path import cached_info
 from poise.solvers.record import FrameSet, GroupLoads
 from poise.solvers import stability
-from poise.solvers.redundancy import dependent_rows, left_null_basis, min_norm_multipliers
+from poise.solvers.redundancy import (column_scale, dependent_rows, left_null_basis,
+                                      min_norm_multipliers)
 from poise.solvers.stability import (
     DENSE_LIMIT,
     classify,
@@ -62,10 +63,10 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
         lam = state.lam
         if len(redundancy) and model.nc:
             Pfull = J[model.nq:, :model.nq]
-            Y = left_null_basis(Pfull, saved)       # one factorisation serves both
+            Y = left_null_basis(Pfull, saved, column_scale(model))   # one factorisation, both
             w = where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
-            lam = min_norm_multipliers(Pfull, state.lam, saved, w, Y=Y)
-            dep = dependent_rows(Pfull, saved, Y=Y)
+            lam = min_norm_multipliers(state.lam, saved, w, Y)
+            dep = dependent_rows(saved, Y)
         loads = element_loads(model, state, lam=lam, ev=ev)
         ev = Pfull = Y = None     # the evaluation's kept slot data go before the classification
         if not model.assembler.dense:        # ... so do the assembly buffers (J keeps its data):
@@ -209,12 +210,13 @@ def measure_frames(env, redundancy, frames, outcomes) -> FrameSet | None:
             lam = np.stack([s.lam for s in chunk]) if nc else np.zeros((len(chunk), 0))
             if len(red) and nc:
                 lam = lam.copy()
+                cs = column_scale(model)
                 for j in range(len(chunk)):
                     Pf = ev.J[j, nq:, :nq]
-                    Y = left_null_basis(Pf, saved)
-                    lam[j] = min_norm_multipliers(Pf, lam[j], saved, w, Y=Y)
+                    Y = left_null_basis(Pf, saved, cs)
+                    lam[j] = min_norm_multipliers(lam[j], saved, w, Y)
                     if a + j == 0:
-                        dep = dependent_rows(Pf, saved, Y=Y)
+                        dep = dependent_rows(saved, Y)
             for g, (Fg, Tg) in loads_of(model, ev.items, lam.ravel(), frames=len(chunk)).items():
                 n_out = len(model.outputs[g]["ids"])
                 loads.setdefault(g, []).append((Fg.reshape(-1, n_out, 3),

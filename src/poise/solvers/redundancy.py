@@ -182,32 +182,30 @@ def _dense_redundant(P):
     return np.sort(piv[rank:])
 
 
-def min_norm_multipliers(Phi_q, lam, active, row_weight, Y=None):
+def min_norm_multipliers(lam, active, row_weight, Y):
     """Minimum-norm multipliers equivalent to ``lam`` (which is zero on inactive rows).
 
     Among all ``mu`` with ``Phi_q^T mu = Phi_q^T lam`` returns the one minimising
     ``sum(row_weight * mu**2)``. Uses the left null space of ``Phi_q``: for each redundant row k,
-    ``y_k = e_k - Phi_ind-coefficients`` from the normal equations of the independent rows.
-    ``Y`` may pass a basis already computed by :func:`left_null_basis`.
+    ``y_k = e_k - Phi_ind-coefficients`` from the normal equations of the independent rows
+    (``Y``, :func:`left_null_basis`).
     """
     red = np.nonzero(~active)[0]
     if len(red) == 0:
         return lam
-    if Y is None:
-        Y = left_null_basis(Phi_q, active)
     Wy = row_weight[:, None] * Y
     M = Y.T @ Wy
     mu = lam - Y @ np.linalg.solve(M, Wy.T @ lam)
     return mu
 
 
-def dependent_rows(Phi_q, active, rel=1e-8, Y=None) -> np.ndarray:
+def dependent_rows(active, Y, rel=1e-8) -> np.ndarray:
     """Rows taking part in a dependency (their multipliers are not unique): every row with a
-    non-negligible entry in a left null vector of ``Phi_q``, removed or kept (``Y`` as in
-    :func:`min_norm_multipliers`)."""
+    non-negligible entry in a left null vector of ``Phi_q``, removed or kept (``Y``:
+    :func:`left_null_basis`)."""
     if np.all(active):
         return np.zeros(0, int)
-    Y = np.abs(left_null_basis(Phi_q, active) if Y is None else Y)
+    Y = np.abs(Y)
     return np.nonzero(_row_max(Y) > rel * Y.max())[0]
 
 
@@ -223,21 +221,30 @@ def _row_max(A):
     return m
 
 
-def left_null_basis(Phi_q, active):
+def left_null_basis(Phi_q, active, col_scale):
     """Columns ``y_k = e_k - (coefficients of row k on the independent rows)`` for each removed
-    row k: a basis of the left null space of ``Phi_q`` (``y^T Phi_q = 0``)."""
+    row k: a basis of the left null space of ``Phi_q`` (``y^T Phi_q = 0``).
+
+    The coefficients solve the normal equations of the independent rows, which square their
+    condition: ``col_scale`` (:func:`column_scale`: rotation columns by 1/L; the null space does
+    not depend on it) and one step of refinement against ``Phi_q`` keep them
+    accurate (unscaled, a 10^4-link chain's came out 96 % off, and 13 joints' reactions were
+    called unique that are not)."""
     red = np.nonzero(~active)[0]
     if Phi_q.shape[0] <= DENSE_MAX_ROWS:    # numpy only: no scipy import on small decks
         P = Phi_q.toarray() if hasattr(Phi_q, "toarray") else np.asarray(Phi_q, float)
+        P = P * col_scale
         ind = np.nonzero(active)[0]
         Pi = P[ind]
+        G = Pi @ Pi.T
         Y = np.zeros((P.shape[0], len(red)))
         Y[red, np.arange(len(red))] = 1.0
-        Y[ind] = -np.linalg.solve(Pi @ Pi.T, Pi @ P[red].T)
+        Y[ind] = -np.linalg.solve(G, Pi @ P[red].T)
+        if len(red):
+            Y[ind] -= np.linalg.solve(G, Pi @ (P.T @ Y))
         return Y
-    import scipy.sparse as sp
     import scipy.sparse.linalg as spla
-    P = sp.csr_matrix(Phi_q)
+    P = scaled(Phi_q, col_scale)
     ind = np.nonzero(active)[0]
     Pi = P[ind]
     G = (Pi @ Pi.T).tocsc()
@@ -246,6 +253,7 @@ def left_null_basis(Phi_q, active):
     if len(red):      # every removed row at once: the same sums and column solves as one by one
         Y[ind] = -lu.solve(Pi @ np.asfortranarray(P[red].toarray().T))
         Y[red, np.arange(len(red))] = 1.0
+        Y[ind] -= lu.solve(Pi @ np.asfortranarray(P.T @ Y))     # the refinement step
     return Y
 
 
@@ -260,8 +268,13 @@ def detect_redundancy(model, state, workspace=None, evaluation=None) -> np.ndarr
          else model.evaluate(state, need_jac=True, workspace=workspace).J)
     Pq = J[model.nq:, :model.nq]
     del J                 # the KKT matrix (the workspace keeps its buffer): only Phi_q is needed
-    col = np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
-    return redundant_rows(Pq, col)
+    return redundant_rows(Pq, column_scale(model))
+
+
+def column_scale(model) -> np.ndarray:
+    """(nq,) scaling of ``Phi_q``'s columns that makes every coordinate a length: rotations by
+    1/L (the redundancy test's and the left null basis's)."""
+    return np.where(model.q_kind == 1, 1.0 / model.L, 1.0)
 
 
 def without_rows(model, ev, active):
