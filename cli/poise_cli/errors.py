@@ -15,6 +15,8 @@ import traceback
 
 import click
 
+import poise_cli
+
 EXIT_OK = 0
 EXIT_NOT_CONVERGED = 1
 EXIT_USAGE = 2
@@ -33,7 +35,7 @@ def _interrupted(exc: BaseException) -> bool:
     command's handler saw Ctrl-C/SIGTERM before it (:data:`poise_cli.signalled`: code that
     replaces the KeyboardInterrupt without chaining it, e.g. Cython's ``ImportError: Failed to
     import 'zlib.decompress'`` when the signal lands inside an import)."""
-    if getattr(sys.modules.get("poise_cli"), "signalled", False):
+    if poise_cli.signalled:
         return True
     seen = set()
     while exc is not None and id(exc) not in seen:

@@ -10,6 +10,7 @@ import sys
 
 import click
 
+import poise_cli
 from poise import __version__
 
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
@@ -109,7 +110,6 @@ def _quiet_exit(code: int) -> None:
 def _interrupt(signum, frame):
     """Ctrl-C in a command: remembered (:data:`poise_cli.signalled`), then raised as
     KeyboardInterrupt: unwinds (temporary files removed), exit 130. SIGTERM is handled alike."""
-    import poise_cli
     poise_cli.signalled = True
     raise KeyboardInterrupt
 

@@ -20,12 +20,17 @@ _SCALARS = frozenset((str, int, float, bool, type(None)))
 _SLOTS: dict = {}
 
 
-def _slots(cls) -> tuple:
-    """The ``__slots__`` names of ``cls`` and its bases (cached per class)."""
+def slot_names(cls) -> tuple:
+    """The names ``cls`` and its bases keep in ``__slots__`` (cached per class; a single
+    name may be given as a string)."""
     names = _SLOTS.get(cls)
     if names is None:
-        names = _SLOTS[cls] = tuple(s for c in cls.__mro__ for s in getattr(c, "__slots__", ())
-                                    if s not in ("__dict__", "__weakref__"))
+        names = []
+        for c in cls.__mro__:
+            s = c.__dict__.get("__slots__", ())
+            names += [n for n in ((s,) if isinstance(s, str) else s)
+                      if n not in ("__dict__", "__weakref__")]
+        names = _SLOTS[cls] = tuple(names)
     return names
 
 
@@ -66,7 +71,7 @@ def reachable(root, skip=()):
         d = getattr(o, "__dict__", None)
         if d is not None:
             stack.extend([v for v in d.values() if type(v) not in _SCALARS])
-        for s in _slots(t):
+        for s in slot_names(t):
             v = getattr(o, s, None)
             if v is not None:
                 stack.append(v)

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.core.lean import einsum
-
 from poise.elements.base import ConstraintFamily
 from poise.elements.kernel import POINT, PairBlocks
 from poise.elements.registry import (ElementType, FDCase, OutputGroup, claimed_types, static,

@@ -6,12 +6,10 @@ on the element families' slot data, so they live with the elements.
 """
 from __future__ import annotations
 
-import weakref
-
 import numpy as np
 
+from poise.core import per_object
 from poise.core.lean import einsum
-
 from poise.elements.kernel import cross3
 
 
@@ -80,15 +78,14 @@ def loads_of(model, items, lam=None, frames: int = 1):
     return out
 
 
-#: family -> its :func:`_layout` (the family's arrays never change: computed once)
-_LAYOUTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: family -> its :func:`_layout` (the family's arrays never change: made once)
+_LAYOUTS = per_object.table()
 
 
 def _layout(fam):
     """``([(slot, kind)], owners distinct)``: the I marker's slots of ``fam`` (``slot_ml ==
     0``), kind 0 a point in every instance, 1 an axis in every instance, 2 either."""
-    got = _LAYOUTS.get(fam)
-    if got is None:
+    def make():
         slots = []
         for s in range(len(fam.slot_ml)):
             if fam.slot_ml[s] == 0:
@@ -96,6 +93,5 @@ def _layout(fam):
                 slots.append((s, 0 if np.logical_and.reduce(pt)
                               else 1 if not np.logical_or.reduce(pt) else 2))
         own = np.asarray(fam.owner).ravel().tolist()     # (np.unique imports numpy.ma)
-        got = _LAYOUTS[fam] = (tuple(slots), len(set(own)) == len(own))
-    return got
-
+        return tuple(slots), len(set(own)) == len(own)
+    return per_object.once_per(_LAYOUTS, fam, make)

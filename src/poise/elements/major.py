@@ -43,22 +43,8 @@ def constraint_jacobian_major(kin, phi_y: np.ndarray, K: int,
 
 def local_residual_major(kin, rho: np.ndarray, K: int) -> np.ndarray:
     """:func:`~poise.elements.kernel.local_residual` (n, 6K) of a family without a
-    :class:`~poise.elements.slot_index.SlotIndex`: the same operations on the same values, so
-    the same bits."""
-    n, S = kin.pt.shape
-    V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))                  # (S, 3, n)
-    W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))   # (S, 3, n)
-    out = np.zeros((2 * K, 3, n))
-    p_all, p_any = kin.masks
-    for s in range(S):
-        k = kin.slot_ml[s]
-        v, w = V[s], W[s]
-        rot = out[2 * k + 1]
-        rot[0] += v[1] * w[2] - v[2] * w[1]             # v x w, as cross3 forms it
-        rot[1] += v[2] * w[0] - v[0] * w[2]
-        rot[2] += v[0] * w[1] - v[1] * w[0]
-        if p_all[s]:
-            out[2 * k] += w
-        elif p_any[s]:
-            out[2 * k] += w * kin.pt[:, s]
-    return np.ascontiguousarray(out.reshape(6 * K, n).T)
+    :class:`~poise.elements.slot_index.SlotIndex`: ``B^T rho`` is
+    :func:`constraint_jacobian_major` of one row ``rho`` (the same operations on the same
+    values, so the same bits)."""
+    n = kin.pt.shape[0]
+    return np.ascontiguousarray(constraint_jacobian_major(kin, rho.reshape(n, 1, -1), K).T)

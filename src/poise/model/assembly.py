@@ -108,7 +108,7 @@ class Assembler:
         if workspace is None or self.nnz < POOL_ABOVE:
             buf = (np.empty(self.slot_all.size) if workspace is None
                    else workspace.scratch(self, _Scratch).values(self.slot_all.size))
-            vals = np.concatenate([v.dense() if isinstance(v, (Zeros, Few))
+            vals = np.concatenate([v.dense() if isinstance(v, Zeros)
                                    else np.asarray(v, float).ravel() for v in values], out=buf)
             data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
         else:
@@ -122,7 +122,7 @@ class Assembler:
             out = workspace.scratch(self, _Scratch).free_data(self.nnz + 1)
             at = 0
             for v in values:
-                if isinstance(v, (Zeros, Few)):
+                if isinstance(v, Zeros):
                     if isinstance(v, Few) and v.idx.size:
                         np.add.at(out, self.slot_all[at + v.idx], v.vals)
                     at += v.size
@@ -227,7 +227,8 @@ class Assembler:
 
 
 class Zeros:
-    """A block of ``size`` zero values for :meth:`Assembler.assemble` (nothing to add)."""
+    """A block of ``size`` zero values for :meth:`Assembler.assemble` (nothing to add; the base
+    of :class:`Few`)."""
 
     __slots__ = ("size",)
 

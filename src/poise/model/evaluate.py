@@ -272,19 +272,18 @@ def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
 def _phi(model, fr, active):
     """Constraint values of the frames (no force element is called; one frame's are those of
     a kept evaluation at its state when there is one, :mod:`poise.model.recent`)."""
-    kept = (_recent(model, fr.ws).phi(fr.states[0])
-            if fr.single and model.reaction_feed is None else None)
-    if kept is not None:
-        return kept if active is None else np.where(np.asarray(active, bool), kept, 0.0)
-    phi = np.zeros(fr.F * model.nc)
-    for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, "phi", only="phi"):
-        phi[t.crow.ravel()] = ph.ravel()
-    if not np.all(np.isfinite(phi)):
-        raise EvaluationError(nonfinite_message(model, np.zeros(0), phi[:model.nc])
-                              if fr.single else "a constraint equation is not finite (NaN/Inf)")
-    if fr.single:
-        return phi if active is None else np.where(np.asarray(active, bool), phi, 0.0)
-    return phi.reshape(fr.F, model.nc)
+    phi = (_recent(model, fr.ws).phi(fr.states[0])
+           if fr.single and model.reaction_feed is None else None)
+    if phi is None:
+        phi = np.zeros(fr.F * model.nc)
+        for _, t, _, _, _, ph, _, _ in _family_pass(model, fr, "phi", only="phi"):
+            phi[t.crow.ravel()] = ph.ravel()
+        if not np.all(np.isfinite(phi)):
+            raise EvaluationError(nonfinite_message(model, np.zeros(0), phi[:model.nc]) if
+                                  fr.single else "a constraint equation is not finite (NaN/Inf)")
+        if not fr.single:
+            return phi.reshape(fr.F, model.nc)
+    return phi if active is None else np.where(np.asarray(active, bool), phi, 0.0)
 
 
 def _one_frame(model, fr, what, active, keep, eps_mass):

@@ -8,14 +8,15 @@ feed the solve's workspace keeps the kernel outputs of the last states (two for 
 assembled dense, one for a sparse one: its outputs are large, and Newton holds that one anyway
 while it is its iterate or trial; once its Jacobian is assembled only its constraint values
 stay, except after a constraint-Jacobian-only ``"phi_q"`` assembly: the static prologue's
-start, whose forces and slot kinematics Newton's first iterate reuses), keyed by the bytes of everything a kernel reads (time, positions, axes, multipliers,
-angles, scalar unknowns): a hit is bitwise the evaluation it skips.
+start, whose forces and slot kinematics Newton's first iterate reuses), keyed by the bytes of
+everything a kernel reads (time, positions, axes, multipliers, angles, scalar unknowns): a hit
+is bitwise the evaluation it skips.
 """
 from __future__ import annotations
 
 
 class RecentEvaluations:
-    """The family outputs of a small model's last evaluated states (a solve's workspace keeps
+    """The family outputs of a model's last evaluated states (a solve's workspace keeps
     one, :func:`poise.model.evaluate.evaluate` fills and reads it; see the module doc)."""
 
     __slots__ = ("entries", "model", "size")

@@ -30,7 +30,7 @@ def certify(model, settings, outcome, r, phi, sc=None) -> tuple:
     imb, cerr, zinf, worst = measures(model, Evaluation(r=r, phi=phi, J=None), sc)
     own = outcome.error
     outcome = evolve(outcome, imbalance=imb,
-                      error=max(cerr, float(own)) if np.isfinite(own) else cerr)
+                     error=max(cerr, float(own)) if np.isfinite(own) else cerr)
     measured = (imb, cerr, worst)
     if not outcome.ok:
         return outcome, measured
@@ -49,5 +49,5 @@ def certify(model, settings, outcome, r, phi, sc=None) -> tuple:
     else:
         return outcome, measured
     return evolve(outcome, status=Status.TOLERANCE_NOT_MET,
-                   message=(f"not converged: {what} at the reported state"
-                            + (f"; worst equation: {worst}" if worst else ""))), measured
+                  message=(f"not converged: {what} at the reported state"
+                           + (f"; worst equation: {worst}" if worst else ""))), measured

@@ -76,7 +76,7 @@ class Analysis(Generic[M]):
     def added(self, state, outcome, *notes) -> "Analysis[M]":
         """With one more frame (``state``, its ``outcome``) and ``notes``."""
         return evolve(self, frames=self.frames + (state,), outcomes=self.outcomes + (outcome,),
-                       notes=self.notes + tuple(n for n in notes if n))
+                      notes=self.notes + tuple(n for n in notes if n))
 
     def noted(self, *notes) -> "Analysis[M]":
         return evolve(self, notes=self.notes + tuple(n for n in notes if n))
@@ -206,5 +206,5 @@ def replicated(a: Analysis) -> Analysis:
         frames.append(st)
         outcomes.append(FrameOutcome(out.status, 0, out.imbalance, out.error, "replicated"))
     return evolve(a, frames=a.frames + tuple(frames), outcomes=a.outcomes + tuple(outcomes),
-                   notes=a.notes + ("nothing in the scene depends on time: solved once, frame "
-                                    "replicated",))
+                  notes=a.notes + ("nothing in the scene depends on time: solved once, frame "
+                                   "replicated",))

@@ -17,6 +17,7 @@ import functools
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
+from poise.core.readonly import slot_names
 from poise.solvers.history import Row
 from poise.solvers.status import Status
 
@@ -29,20 +30,10 @@ def _init_fields(cls):
     field set by ``__init__``, no ``__post_init__``, none in slots), else None."""
     fs = dataclasses.fields(cls)
     names = frozenset(f.name for f in fs)
-    if (hasattr(cls, "__post_init__") or not cls.__dictoffset__ or _slot_names(cls) & names
-            or not all(f.init for f in fs)):
+    if (hasattr(cls, "__post_init__") or not cls.__dictoffset__
+            or names.intersection(slot_names(cls)) or not all(f.init for f in fs)):
         return None
     return names
-
-
-def _slot_names(cls) -> set:
-    """The names ``cls`` or a base keeps in slots (``typing.Generic`` declares none: an
-    ``Analysis`` keeps its fields in its ``__dict__``)."""
-    out = set()
-    for c in cls.__mro__:
-        s = c.__dict__.get("__slots__", ())
-        out.update((s,) if isinstance(s, str) else s)
-    return out
 
 
 def evolve(obj, /, **changes):

@@ -16,11 +16,11 @@
 from __future__ import annotations
 
 import copy
-import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from poise.core import per_object
 from poise.core.errors import EvaluationError
 from poise.core.lean import all_finite
 from poise.elements.context import row_equation, row_where
@@ -73,19 +73,14 @@ class Scales:
     the model and two settings only: made once per model and pair (read-only, shared by the
     solves and the written state's measures; a small model's solve made them three times)."""
 
-    _made: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()   # model -> {pair: arrays}
+    _made = per_object.table()         # model -> {(max_imbalance, max_error): arrays}
 
     def __init__(self, model, settings):
         L = model.L
         self.L = L
         self.max_error = me = settings.max_error
         mi = settings.max_imbalance
-        try:
-            per = Scales._made.get(model)
-            if per is None:
-                per = Scales._made[model] = {}
-        except TypeError:              # a model without weak references (a test's namespace)
-            per = {}
+        per = per_object.once_per(Scales._made, model, dict)
         got = per.get((mi, me))
         if got is None:
             got = (np.where(model.q_kind == 1, mi * L, mi),
@@ -114,23 +109,20 @@ def measures(model, ev, sc: Scales):
 
 
 #: a small model's equation names (coordinates, then constraint rows), made once per model
-_NAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_NAMES = per_object.table()
 _NAMES_MAX = 600                # KKT unknowns up to which the names are kept (the dense range)
 
 
 def equation_name(model, k) -> str:
     """The name of equation ``k`` of the KKT system (a coordinate's, or a constraint row's
     ``FILE:LINE: <Tag id=N> equation``): Newton names its worst equation every iteration."""
-    try:
-        names = _NAMES.get(model)
-        if names is None and model.N <= _NAMES_MAX:
-            names = _NAMES[model] = (tuple(model.coord_info[i] for i in range(model.nq))
-                                     + tuple("%s %s" % row_equation(model.row_info, r)
-                                             for r in range(model.nc)))
-    except (TypeError, AttributeError):     # not a compiled model (a test's namespace)
-        names = None
-    if names is not None:
-        return names[k]
+    if getattr(model, "N", _NAMES_MAX + 1) <= _NAMES_MAX:
+        return per_object.once_per(_NAMES, model, lambda: tuple(
+            _equation_name(model, i) for i in range(model.N)))[k]
+    return _equation_name(model, k)
+
+
+def _equation_name(model, k) -> str:
     if k < model.nq:
         return model.coord_info[k]
     return "%s %s" % row_equation(model.row_info, k - model.nq)
@@ -285,7 +277,7 @@ class NewtonIteration(Solver[_Newtoning]):
 
     def _fail(self, s, status, message):
         return Next(evolve(s, last_row=self._row(s, s.it),
-                            outcome=FrameOutcome(status, s.it, s.imb, s.err, message)), 0)
+                           outcome=FrameOutcome(status, s.it, s.imb, s.err, message)), 0)
 
     def _measured(self, s):
         """``s`` with the measures of its iterate, converged when they are within tolerance."""
@@ -489,8 +481,8 @@ class NewtonIteration(Solver[_Newtoning]):
         st, ev, _, alpha = trial
         last_step = _steps.step_size(alpha * dq, self.sc)
         s2 = evolve(s, state=st, ev=ev, last_step=last_step, merit=merit,
-                     feasible=(st, ev) if violation(self.model, ev.phi) <= PROJECT_ABOVE
-                     else s.feasible)
+                    feasible=(st, ev) if violation(self.model, ev.phi) <= PROJECT_ABOVE
+                    else s.feasible)
         # the row of the iterate it measured (``state``: its measures), with the step taken
         return Next(s2, 1, (self._row(s2, s.it, last_step, alpha, pose=state, event=event),))
 

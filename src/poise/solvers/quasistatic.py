@@ -119,8 +119,8 @@ class SubStepping(Solver[_Stepping]):
         if not why:
             branch.accept(st)
             if t == t_target:
-                return Next(evolve(s, total_it=total, result=(st, evolve(out,
-                                                                            iterations=total))))
+                return Next(evolve(s, total_it=total,
+                                   result=(st, evolve(out, iterations=total))))
             return Next(evolve(s, total_it=total, t_prev=t, dt=min(2.0 * s.dt, t_target - t)))
         dt = s.dt * 0.5
         row = Row(self.frame, 0, out.imbalance, out.error, np.nan, np.nan,
@@ -142,7 +142,7 @@ class SubStepping(Solver[_Stepping]):
             return Next(evolve(s, result=(st, evolve(sing, iterations=n, counts={"plain": n}))),
                         0, (row,))
         s = evolve(s, total_it=s.total_it + s.branch.probe_iterations,
-                    t_prev=s.branch.hist[-1].t)
+                   t_prev=s.branch.hist[-1].t)
         return Next(evolve(s, phase="step" if s.dt >= self.min_dt else "fail"), 0)
 
     def _fail(self, s):
@@ -220,7 +220,7 @@ def branch_end(model, data, history, frame, branch, frames, t_fail):
         return None
     if branch.located_from is not hist[-1]:   # the fold's time, closer than probes can reach
         info = evolve(info, time=singular.fold_time(model, data, info.kind, branch.located_from,
-                                                     hist[-1], t_fail))
+                                                    hist[-1], t_fail))
     row = Row(frame, 0, np.nan, np.nan, np.nan, np.nan, info.message(), "singular")
     return hist[-1], singular.singular_outcome(info, 0), its, row
 
@@ -275,8 +275,8 @@ class NewtonFrames(AnalysisSolver):
         st, o, nsub = fims_step(env.model, list(a.frames), float(ts[k]), env.settings,
                                 env.history, env.data, k, min_dt, m.orient)
         a = evolve(a.added(st, o, f"frame {k}: {nsub} sub-step halvings" if nsub else "",
-                            f"frame {k}: converged with the fallback strategy '{o.strategy}'"
-                            if o.strategy != "plain" else ""), method=m)
+                           f"frame {k}: converged with the fallback strategy '{o.strategy}'"
+                           if o.strategy != "plain" else ""), method=m)
         env.report("FIM_S", k + 1, len(ts))
         return Next(a, 1)
 

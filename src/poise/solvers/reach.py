@@ -11,11 +11,11 @@ its step instead of iterating from an unassemblable point. Details: docs/solvers
 """
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from poise.core import per_object
 from poise.core.errors import EvaluationError
 from poise.solvers.history import Row
 from poise.solvers.iterate import Next, Solver, iterate
@@ -81,21 +81,17 @@ def violation(model, phi) -> float:
     return float(np.maximum.reduce(np.abs(phi) / _row_lengths(model)))
 
 
-_ROW_LENGTHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_ROW_LENGTHS = per_object.table()
 
 
 def _row_lengths(model) -> np.ndarray:
     """Per constraint row 1 (rotational) or L (translational): :func:`violation`'s divisor,
     made once per model (read-only)."""
-    try:
-        got = _ROW_LENGTHS.get(model)
-    except TypeError:                  # a model without weak references (a test's namespace)
-        return np.where(model.row_kind == 1, 1.0, model.L)
-    if got is None:
+    def make():
         got = np.where(model.row_kind == 1, 1.0, model.L)
         got.setflags(write=False)
-        _ROW_LENGTHS[model] = got
-    return got
+        return got
+    return per_object.once_per(_ROW_LENGTHS, model, make)
 
 
 def project(model, state, cnt, ev=None, limits: Limits = LIMITS):

@@ -346,11 +346,11 @@ def _kkt_order(model, K, G, GtG, kkt_columns=None) -> np.ndarray:
     """Symmetric elimination order of the KKT matrix for 1x1 pivots. Bodies (and scalar
     unknowns) are ordered as in ``kkt_columns`` (a fill-reducing column order of the KKT
     matrix, the solve's LU order) or else by minimum degree on the quotient graph (one node
-    per body) of ``|K| + |G|^T |G|``; every constraint row comes right after the last of the bodies it acts
-    on (its pivot is then ``-g A^-1 g^T``, not its zero diagonal), and so does every *weak*
-    coordinate (augmented diagonal ``|K_ii + (G^T G)_ii|`` below ``WEAK_DIAG``, e.g. a scalar
-    unknown with no stiffness of its own): eliminated first, its near-zero pivot would blow up
-    the rest of the factor."""
+    per body) of ``|K| + |G|^T |G|``; every constraint row comes right after the last of the
+    bodies it acts on (its pivot is then ``-g A^-1 g^T``, not its zero diagonal), and so does
+    every *weak* coordinate (augmented diagonal ``|K_ii + (G^T G)_ii|`` below ``WEAK_DIAG``,
+    e.g. a scalar unknown with no stiffness of its own): eliminated first, its near-zero pivot
+    would blow up the rest of the factor."""
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
     nq = model.nq
