@@ -27,7 +27,7 @@ from poise.solvers.newton import ARMIJO, ALPHA_STALL, Scales
 from poise.solvers.reach import coord_weights
 from poise.solvers.stability import classify_dense_frames
 from poise.model.retract_many import limit_many, retract_many
-from poise.solvers.steps import TAIL_SHARE, neutral_filtered, step_size
+from poise.solvers.steps import TAIL_SHARE, grew, neutral_filtered, step_size
 
 SINGULAR_REL = 1e-15          # the dense Factor's singular-value test (solvers/linalg.py)
 
@@ -197,10 +197,13 @@ class CaseBatch:
             dq, dl = x[:, :nq], x[:, nq:]
             # step limits and the neutral-direction filter, per case (the plain path's)
             alpha, trials = limit_many(model, cur, dq, settings)
+            # examined as the plain path does: a limited step, or one longer than the last
+            odd = (alpha < 1.0) | np.array([grew(dq[j], last[i], sc) for j, i in enumerate(idx)],
+                                           bool)
             filt = {}
-            for j in np.nonzero(self._may_filter(cur, x, zinf, alpha < 1.0))[0]:
+            for j in np.nonzero(self._may_filter(cur, x, zinf, odd))[0]:
                 xf = neutral_filtered(model, cur[j], _Dense(A[j]), x[j], self.eps, sc,
-                                      float(zinf[j]), alpha[j] < 1.0)
+                                      float(zinf[j]), bool(odd[j]))
                 if xf is not None:
                     filt[j] = xf
             try:

@@ -20,6 +20,7 @@ NEUTRAL_SHARE = 0.1           # S dx above this share of a limited step dx: neut
 TAIL_SHARE = 1e-6             # eps M dx above this share of the residual: filter the step
 SMALL_S = 1e-3                # <Sx, Sx>_M / <x, Sx>_M below this: one solve, (I + S) x
 SMALL_STEP = 1e-3             # step and eps M dx this far below their tolerances: as it is
+REFILTER = 1e3                # |dx| above this many filtered steps: the filter's round-off refiltered
 CHORD_STEP = 1e-2             # a chord step's share of the tolerances (steps.chord_step)
 CHORD_RATE = 1e-2             # a chord step contracting this much: Newton's quadratic phase
 KEEP_STEP = 1e-2              # a full step this small: its factorisation kept for a chord step
@@ -51,6 +52,14 @@ def step_size(dq, sc) -> float:
     """A coordinate step's size as Newton's convergence test measures it (translations relative
     to the model size, rotations in radians; the largest)."""
     return float(np.maximum.reduce(np.abs(dq) / sc.q_len)) if len(dq) else 0.0
+
+
+def grew(dq, last_step: float, sc) -> bool:
+    """Whether the step ``dq`` is longer than the last step taken (``last_step``; inf before
+    the first): near a solution Newton's steps shrink, so a longer one is examined by
+    :func:`neutral_filtered` for neutral content whose regularisation force is too small for
+    its tail-share test (a neutral direction of tiny inertia, the spin of a slender rod)."""
+    return bool(np.isfinite(last_step)) and step_size(dq, sc) > last_step
 
 
 def keep_factor(model, f, x, sc, workspace=None):
@@ -170,4 +179,13 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
             xf = z - f.solve(np.concatenate([reg + (2.0 * eps) * My, pad]))
     except SingularMatrix:
         return None
-    return xf if all_finite(xf) else None
+    if not all_finite(xf):
+        return None
+    # the filter cancels x's neutral content; when that content dwarfs what is left, the
+    # cancellation's round-off (relative to |x|, and along the neutral directions) is itself a
+    # spurious neutral step, of a size set by round-off: filter what is left once more
+    if size > REFILTER * step_size(xf[:nq], sc):
+        again = neutral_filtered(model, state, f, xf, eps, sc, zinf, True, Jg)
+        if again is not None:
+            xf = again
+    return xf
