@@ -139,13 +139,16 @@ def neutral_filtered(model, state, f, x, eps, sc, zinf, limited, Jg=None):
     along stiff ones (Newton's step, quadratic convergence for ``eps << lambda``). Examined only
     when ``eps M x`` carries more than ``TAIL_SHARE`` of the residual (then the regularisation
     would slow Newton down to a linear rate ``eps/lambda``), or when the step limits cut ``x``
-    (``limited``) and ``S x`` is more than ``NEUTRAL_SHARE`` of ``x`` (scaled); never for a step
+    or it is longer than the last step taken (``limited``, :func:`grew`) and ``S x`` is more
+    than ``NEUTRAL_SHARE`` of ``x`` (scaled); never for a step
     ``SMALL_STEP`` below the convergence tolerance with a regularisation force as far below
     the force tolerance (no step shape can matter there). ``S x`` costs a solve with the same
     factorisation; ``S^2 x`` a second one, only when ``S`` is not small on ``x``
     (``<Sx, Sx>_M > SMALL_S <x, Sx>_M``, the M-norm estimate of ``|S^2 x| / |S x|``, which
     neutral content of ``x`` lifts towards 1); otherwise the step is ``(I + S) x``, Newton's
-    step to ``O((eps/lambda)^2)`` (it differs from the two-solve step by ``2 S^2 x``).
+    step to ``O((eps/lambda)^2)`` (it differs from the two-solve step by ``2 S^2 x``). A
+    filtered step more than ``REFILTER`` times shorter than ``x`` is filtered once more: the
+    cancellation's round-off, relative to ``|x|``, lies along the neutral directions too.
     ``limited`` may be a callable, asked only when the tail share alone does not decide (the
     step limits cost a retraction). ``Jg``: the world inertias at ``state`` when the caller has
     them (``Evaluation.inertia``).
