@@ -175,12 +175,15 @@ class _RowMaxima:
             self.groups = []
             for w in lengths.tolist():
                 rows = np.flatnonzero(cnt == w)
-                at = indptr[:-1][rows] + np.arange(w)[:, None]
+                # the entries row by row (contiguous reads), then laid out (w, rows)
+                at = indptr[:-1][rows][:, None] + np.arange(w)
                 target = rows + r0
                 if target[-1] - target[0] == target.size - 1:     # a range: a slice (views)
                     target = slice(int(target[0]), int(target[-1]) + 1)
-                cols = indices[at] + c0 if c0 else indices[at]
-                self.groups.append((target, a[at], cols.astype(np.intp, copy=False)))
+                cols = indices[at].astype(np.intp).T.copy()
+                if c0:
+                    cols += c0
+                self.groups.append((target, a[at].T.copy(), cols))
         else:
             nz = cnt > 0
             self.target = np.nonzero(nz)[0] + r0
