@@ -149,9 +149,10 @@ def _random_csr(rng, nr, nc, lo, hi):
 
 
 def test_diagonal_scaling_is_scipys_products_bit_for_bit():
-    # the pencil's scaled blocks (diag(r) M diag(c), M diag(c)) are the very CSR arrays that
-    # scipy's sparse products give: entry order (reversed rows after one product), exact zeros
-    # dropped (explicit zeros, products that underflow), empty first/last rows, int dtypes
+    # the pencil's scaled blocks (diag(r) M diag(c), and the Jacobian's blocks M diag(c)) are
+    # the very CSR arrays that scipy's sparse products give (one product: the same entries in
+    # M's sorted order, where scipy reverses each row): exact zeros dropped (explicit zeros,
+    # products that underflow), empty first/last rows, int dtypes
     rng = np.random.default_rng(11)
     for trial in range(60):
         n, k = int(rng.integers(1, 30)), int(rng.integers(1, 30))
@@ -162,19 +163,21 @@ def test_diagonal_scaling_is_scipys_products_bit_for_bit():
             M.data[0] = 1e-300                             # (1e-300 r) c underflows to 0
         r = rng.uniform(0.1, 10.0, n) * (1e-20 if trial % 4 == 1 else 1.0)
         c = rng.uniform(0.1, 10.0, k) * (1e-20 if trial % 4 == 1 else 1.0)
-        for rr in (r, None):
-            ref = (M @ sp.diags(c) if rr is None
-                   else sp.diags(rr) @ M @ sp.diags(c)).tocsr()
-            got = stab_sparse._diag_scaled(M, rr, c)
+        ref = (sp.diags(r) @ M @ sp.diags(c)).tocsr()
+        got = stab_sparse._diag_scaled(M, r, c)
+        ref1 = (M @ sp.diags(c)).tocsr()
+        ref1.sort_indices()
+        got1 = stab_sparse._scaled_block(M.copy(), None, c)
+        for g, f in ((got, ref), (got1, ref1)):
             for a in ("data", "indices", "indptr"):
-                x, y = getattr(got, a), getattr(ref, a)
-                assert x.dtype == y.dtype and np.array_equal(x, y), (trial, rr is None, a)
+                x, y = getattr(g, a), getattr(f, a)
+                assert x.dtype == y.dtype and np.array_equal(x, y), (trial, a)
 
 
-def test_equilibration_row_maxima_padded_or_by_segments_agree_bit_for_bit(monkeypatch):
-    # the KKT blocks' scaled row maxima laid out padded (rows of a few entries) are those of
-    # the segmented reduction, to the last bit: empty rows, row and column offsets, one block
-    # with a long row (not padded)
+def test_equilibration_row_maxima_by_length_or_by_segments_agree_bit_for_bit(monkeypatch):
+    # the KKT blocks' scaled row maxima, rows grouped by length (a few lengths) or reduced by
+    # segments (many), in passes of any size, are the maxima of the products (|m_ij| D_i) D_j
+    # to the last bit: empty rows, row and column offsets, a long row
     import poise.solvers.equilibrate as eqm
     from poise.solvers.equilibrate import _RowMaxima
     rng = np.random.default_rng(3)
@@ -186,29 +189,22 @@ def test_equilibration_row_maxima_padded_or_by_segments_agree_bit_for_bit(monkey
         M.data *= rng.choice([-1.0, 1.0], size=M.nnz) * 10.0 ** rng.uniform(-8, 8, M.nnz)
         r0, c0 = (0, nr) if trial % 2 else (nc, 0)
         D = 10.0 ** rng.uniform(-4, 4, max(r0 + M.shape[0], c0 + nc))
-        got = []
-        for padded in (True, False):
+        rows = np.repeat(np.arange(M.shape[0]), np.diff(M.indptr)) + r0
+        ref = np.zeros(len(D))
+        np.maximum.at(ref, rows, (np.abs(M.data) * D[rows]) * D[M.indices + c0])
+        for lengths in (eqm.MAX_LENGTHS, 0):               # grouped by length, by segments
+            monkeypatch.setattr(eqm, "MAX_LENGTHS", lengths)
             pt = _RowMaxima(M.indptr, M.indices, M.data, r0, c0)
-            if padded != pt.padded:                  # the other layout, built for the check
-                if not padded:
-                    cnt = np.diff(M.indptr)
-                    pt.padded, pt.a, pt.cols = False, np.abs(M.data), (M.indices + c0)
-                    pt.rows = np.repeat(np.arange(r0, r0 + len(cnt)), cnt)
-                    pt.starts = M.indptr[:-1][cnt > 0]
-                    pt.buf, pt.tmp = np.empty(M.nnz), np.empty(M.nnz)
-                else:
-                    continue
+            assert pt.padded == (lengths > 0 and M.nnz > 0)
             r = np.zeros(len(D))
             pt.into(r, D)
-            got.append(r)
+            assert np.array_equal(r, ref), (trial, lengths)
             if pt.padded:                            # in passes of a few rows: the same maxima
                 monkeypatch.setattr(eqm, "PASS_ENTRIES", int(rng.integers(1, 12)))
                 r2 = np.zeros(len(D))
                 pt.into(r2, D, eqm._Scratch())
-                monkeypatch.undo()
-                assert np.array_equal(r, r2), trial
-        if len(got) == 2:
-            assert np.array_equal(got[0], got[1]), trial
+                assert np.array_equal(r2, ref), trial
+            monkeypatch.undo()
 
 
 # ------------------------------------------------------------------ sparse == dense

@@ -129,9 +129,13 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
     return D[:nq], D[nq:]
 
 
-#: slots of a padded block (:class:`_RowMaxima`) per pass: the pass buffers, shared by the
-#: blocks and the sweeps, stay a few MB however large the model (no fresh pages per block)
+#: entries of a block (:class:`_RowMaxima`) per pass: the pass buffers, shared by the blocks
+#: and the sweeps, stay a few MB however large the model (no fresh pages per block)
 PASS_ENTRIES = 1 << 18
+
+#: distinct row lengths of a block laid out by length (:class:`_RowMaxima`); a block with more
+#: is reduced by segments
+MAX_LENGTHS = 16
 
 
 class _Scratch:
@@ -154,61 +158,63 @@ class _Scratch:
 class _RowMaxima:
     """Row maxima of ``|M| * D[row] * D[col]`` for a compressed block ``M`` of the KKT matrix
     at row offset ``r0`` and column offset ``c0`` (the same products, in the same order, as on
-    the assembled matrix). Rows of a few entries (every row at most ``w``, ``w`` rows x the
-    non-empty rows no more than twice the entries) are laid out padded, ``(w, rows)``: the
-    row factor is then one broadcast and the maxima ``w - 1`` elementwise passes, instead of
-    a gather and a segmented reduction; other blocks are reduced by segments."""
+    the assembled matrix). The rows are grouped by their number of entries ``w`` (a few
+    lengths: a model's rows repeat a few patterns), each group laid out ``(w, rows)``: its row
+    factors are one broadcast and its maxima ``w - 1`` elementwise passes over exactly its
+    entries, instead of a gather and a segmented reduction; a block of many lengths is reduced
+    by segments."""
 
     def __init__(self, indptr, indices, data, r0, c0):
         cnt = np.diff(indptr)
-        nz = cnt > 0
-        self.target = np.nonzero(nz)[0] + r0
         a = np.abs(data)
-        cols = (indices + c0 if c0 else indices).astype(np.intp)
-        w = int(cnt.max(initial=0))
-        self.padded = a.size > 0 and w * self.target.size <= 2 * a.size
+        lengths = np.flatnonzero(np.bincount(cnt)) if cnt.size else cnt
+        lengths = lengths[lengths > 0]
+        self.padded = a.size > 0 and len(lengths) <= MAX_LENGTHS
         if self.padded:
-            # entry j of row i at [j, i] (rows without entries left out); padding: |0| at col 0
-            k = np.arange(a.size) - np.repeat(indptr[:-1], cnt)
-            at = k * self.target.size + np.repeat(np.arange(self.target.size), cnt[nz])
-            self.a = np.zeros(w * self.target.size)
-            self.a[at] = a
-            self.a = self.a.reshape(w, -1)
-            self.cols = np.zeros(self.a.size, np.intp)
-            self.cols[at] = cols
-            self.cols = self.cols.reshape(w, -1)
+            # per length w: (target rows, |entries| (w, rows), their columns (w, rows))
+            self.groups = []
+            for w in lengths.tolist():
+                rows = np.flatnonzero(cnt == w)
+                # the entries row by row (contiguous reads), then laid out (w, rows)
+                at = indptr[:-1][rows][:, None] + np.arange(w)
+                target = rows + r0
+                if target[-1] - target[0] == target.size - 1:     # a range: a slice (views)
+                    target = slice(int(target[0]), int(target[-1]) + 1)
+                cols = indices[at].astype(np.intp).T.copy()
+                if c0:
+                    cols += c0
+                self.groups.append((target, a[at].T.copy(), cols))
         else:
+            nz = cnt > 0
+            self.target = np.nonzero(nz)[0] + r0
             self.a = a
             self.rows = np.repeat(np.arange(r0, r0 + len(cnt)), cnt)
-            self.cols = cols
+            self.cols = (indices + c0 if c0 else indices).astype(np.intp)
             self.starts = indptr[:-1][nz]
             self.buf = np.empty(self.a.shape)
             self.tmp = np.empty(self.a.shape)
-        t = self.target             # every row of a range has entries: a slice (views, no copies)
-        if t.size and t[-1] - t[0] == t.size - 1:
-            self.target = slice(int(t[0]), int(t[-1]) + 1)
 
     def _padded_into(self, r, D, scratch):
-        """The padded block's maxima in passes of at most ``PASS_ENTRIES`` slots over
-        ``scratch``'s two buffers (the maxima are exact: the passes give the same factors)."""
-        w, rows = self.a.shape
-        step = max(1, PASS_ENTRIES // w)
-        t = self.target
-        for j0 in range(0, rows, step):
-            j1 = min(j0 + step, rows)
-            tj = (slice(t.start + j0, t.start + j1) if isinstance(t, slice) else t[j0:j1])
-            buf, tmp, m = scratch.take(w, j1 - j0)
-            np.multiply(self.a[:, j0:j1], D[tj], out=buf)
-            np.take(D, self.cols[:, j0:j1], out=tmp)
-            np.multiply(buf, tmp, out=buf)
-            np.maximum.reduce(buf, axis=0, out=m)
-            _max_into(r, tj, m)
+        """The groups' maxima in passes of at most ``PASS_ENTRIES`` entries over ``scratch``'s
+        two buffers (the maxima are exact: the passes give the same factors)."""
+        for t, a, cols in self.groups:
+            w, rows = a.shape
+            step = max(1, PASS_ENTRIES // w)
+            for j0 in range(0, rows, step):
+                j1 = min(j0 + step, rows)
+                tj = (slice(t.start + j0, t.start + j1) if isinstance(t, slice) else t[j0:j1])
+                buf, tmp, m = scratch.take(w, j1 - j0)
+                np.multiply(a[:, j0:j1], D[tj], out=buf)
+                np.take(D, cols[:, j0:j1], out=tmp)
+                np.multiply(buf, tmp, out=buf)
+                np.maximum.reduce(buf, axis=0, out=m)
+                _max_into(r, tj, m)
 
     def into(self, r, D, scratch=None):
-        if not self.a.size:
-            return
         if self.padded:
             self._padded_into(r, D, _Scratch() if scratch is None else scratch)
+            return
+        if not self.a.size:
             return
         np.take(D, self.rows, out=self.buf)
         np.multiply(self.a, self.buf, out=self.buf)

@@ -243,18 +243,31 @@ def left_null_basis(Phi_q, active, col_scale):
         if len(red):
             Y[ind] -= np.linalg.solve(G, Pi @ (P.T @ Y))
         return Y
-    import scipy.sparse.linalg as spla
     P = scaled(Phi_q, col_scale)
     ind = np.nonzero(active)[0]
     Pi = P[ind]
-    G = (Pi @ Pi.T).tocsc()
-    lu = spla.splu(G, **lean(G.shape[0]))
+    lu = _gram_factor(Pi)
     Y = np.zeros((P.shape[0], len(red)))
     if len(red):      # every removed row at once: the same sums and column solves as one by one
         Y[ind] = -lu.solve(Pi @ np.asfortranarray(P[red].toarray().T))
         Y[red, np.arange(len(red))] = 1.0
         Y[ind] -= lu.solve(Pi @ np.asfortranarray(P.T @ Y))     # the refinement step
     return Y
+
+
+def _gram_factor(Pi):
+    """A factorisation of the Gram matrix ``Pi Pi^T`` of the independent rows (positive
+    definite), with a ``solve``: LAPACK's banded Cholesky in row order when it is banded there
+    (chains, ladders: as the redundancy test's, :mod:`poise.solvers.gram`), else SuperLU."""
+    A, _ = gram(Pi)
+    ab = band(A)
+    if ab is not None:
+        try:
+            return BandedCholesky(ab, own=True)
+        except ValueError:          # not numerically positive definite: SuperLU's LU decides
+            pass
+    import scipy.sparse.linalg as spla
+    return spla.splu(A.tocsc(), **lean(A.shape[0]))
 
 
 def detect_redundancy(model, state, workspace=None, evaluation=None) -> np.ndarray:

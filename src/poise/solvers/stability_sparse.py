@@ -92,32 +92,27 @@ def classify_pencil(model, P) -> StabilityInfo:
 
 
 def _diag_scaled(M, r, c):
-    """``diags(r) @ M @ diags(c)`` for a CSR ``M`` (``r`` None: ``M @ diags(c)``), the very
-    arrays scipy's two (one) sparse products give, without them: each entry ``(r_i m_ij) c_j``,
-    exact zeros dropped, and every product of scipy's reverses the entries of each row (one
-    product: reversed rows; two: ``M``'s order). ``M`` with duplicate entries (which those
-    products would sum) takes scipy's products."""
+    """``diags(r) @ M @ diags(c)`` for a CSR ``M``, the very arrays scipy's two sparse products
+    give, without them: each entry ``(r_i m_ij) c_j``, exact zeros dropped, entries in ``M``'s
+    order. ``M`` with duplicate entries (which those products would sum) takes scipy's
+    products."""
     import scipy.sparse as sp
     if not M.has_canonical_format:
-        Dc = sp.diags(c)
-        return (M @ Dc if r is None else sp.diags(r) @ M @ Dc).tocsr()
-    cnt = np.diff(M.indptr)
-    data = M.data * np.repeat(r, cnt) if r is not None else M.data.copy()
-    data *= c[M.indices]
-    indices, indptr = M.indices, M.indptr
-    nz = data != 0.0
-    if not nz.all():                 # (scipy's products drop the entries that are 0)
-        data, indices = data[nz], indices[nz]
-        kept = np.zeros(len(nz) + 1, indptr.dtype)
-        np.cumsum(nz, out=kept[1:])
-        indptr = kept[indptr]
-        cnt = np.diff(indptr)
-    else:
-        indices, indptr = indices.copy(), indptr.copy()
-    if r is None and len(data):      # one product: each row reversed
-        at = np.repeat(indptr[1:] + indptr[:-1] - 1, cnt) - np.arange(len(data))
-        data, indices = data[at], indices[at]
-    return sp.csr_matrix((data, indices, indptr), shape=M.shape)
+        return (sp.diags(r) @ M @ sp.diags(c)).tocsr()
+    return _scaled_block(sp.csr_matrix((M.data.copy(), M.indices.copy(), M.indptr.copy()),
+                                       shape=M.shape), r, c)
+
+
+def _scaled_block(M, r, c):
+    """``M`` (a CSR block of the Jacobian: a fresh copy, scaled in place) with each entry
+    ``(r_i m_ij) c_j`` (``r`` None: ``m_ij c_j``), exact zeros dropped (explicit ones, and
+    products that underflow), entries in ``M``'s order."""
+    if r is not None:
+        M.data *= np.repeat(r, np.diff(M.indptr))
+    M.data *= c[M.indices]
+    if not M.data.all():
+        M.eliminate_zeros()
+    return M
 
 
 #: entries scattered per pass by :meth:`SparsePencil.permuted_kkt`: its index temporaries
@@ -165,9 +160,12 @@ class SparsePencil:
             J = sp.csr_matrix(memory.taken(J))
             nnz = J.nnz
             Di = 1.0 / d
-            Ku = _diag_scaled(J[:nq, :nq], Di, Di)
-            Ks = _prune_noise(((Ku + Ku.T) * 0.5).tocsr())
-            G = _diag_scaled(J[nq:, :nq][rows], None, Di)
+            Ku = _scaled_block(J[:nq, :nq], Di, Di)
+            Ku = Ku + Ku.T.tocsr()
+            Ku.data *= 0.5
+            Ks = _prune_noise(Ku)
+            G = J[nq:, :nq]
+            G = _scaled_block(G if len(rows) == G.shape[0] else G[rows], None, Di)
             J = Ku = None                 # (a handed-over Jacobian goes here)
         self.G_active = G                 # active rows, length-scaled (dependent-row check)
         self.rows = rows                  # constraint rows of Gt (model indices)
@@ -223,7 +221,13 @@ class SparsePencil:
         segment put at its permuted column (no block matrix, no fancy-indexed copies)."""
         import scipy.sparse as sp
         nq, n = self.nq, self.nq + self.m
-        A = (self.Kt + rho * self.GtG - s * sp.identity(nq, format="csr")).tocsc()
+        # the upper-left block by columns: the rows of its transpose, Kt^T + rho Gt^T Gt - s I
+        # (Gt^T Gt is symmetric bit for bit: each entry sums the same products in the same
+        # order), the very entries kkt(s, rho)'s block has, without transposing that block
+        GtG = self.GtG if rho == 1.0 else rho * self.GtG
+        A = self.Kt.T.tocsr() + GtG - s * sp.identity(nq, format="csr")
+        A = sp.csc_matrix((A.data, A.indices, A.indptr), shape=(nq, nq))
+        GtG = None
         if self.lean:
             self._GtG = None
         if self._pos is None:
@@ -357,7 +361,7 @@ def _kkt_order(model, K, G, GtG, kkt_columns=None) -> np.ndarray:
     grp = _coordinate_groups(model)
     ng = int(grp.max()) + 1
     K, GtG = K.tocsr(), GtG.tocsr()
-    Ga = abs(G).tocsr() if G.shape[0] else None
+    Gp = G.tocsr() if G.shape[0] else None        # (its pattern: the bodies of each row)
     if kkt_columns is not None and ng > 1:
         # a group's rank: the position of its first coordinate among the KKT columns (ranks
         # need not be consecutive: only their order counts)
@@ -370,8 +374,8 @@ def _kkt_order(model, K, G, GtG, kkt_columns=None) -> np.ndarray:
         # row acts on (|G| E: a few entries a row), not from the larger G^T G
         E = sp.csr_matrix((np.ones(nq), (np.arange(nq), grp)), shape=(nq, ng))
         Q = E.T @ abs(K) @ E
-        if Ga is not None:
-            GE = Ga @ E
+        if Gp is not None:
+            GE = abs(Gp) @ E
             Q = Q + GE.T @ GE
         Q = Q.tocsc()
         Q.data[:] = 1.0
@@ -389,21 +393,29 @@ def _kkt_order(model, K, G, GtG, kkt_columns=None) -> np.ndarray:
         last[nzr] = np.maximum.reduceat(rank[grp[S.indices]], S.indptr[:-1][nzr])
         key[weak] = 3 * last[weak] + 2
     keys = [key]
-    if Ga is not None:
-        last = np.maximum.reduceat(rank[grp[Ga.indices]], Ga.indptr[:-1])
+    if Gp is not None:
+        last = np.maximum.reduceat(rank[grp[Gp.indices]], Gp.indptr[:-1])
         keys.append(3 * last + 1)
     return np.argsort(np.concatenate(keys), kind="stable")
 
 
 def _spectral_radius(A, iters=20) -> float:
-    """Power-iteration estimate (a lower bound) of the spectral radius of symmetric A."""
-    x = np.random.default_rng(20240611).standard_normal(A.shape[0])
+    """Power-iteration estimate (a lower bound) of the spectral radius of symmetric CSR A: the
+    products ``A @ (x / |x|)`` written into two buffers kept across the steps (the same sums as
+    ``A @ v``: each row's from zero, in its order)."""
+    from scipy.sparse import _sparsetools
+    n = A.shape[0]
+    x = np.random.default_rng(20240611).standard_normal(n)
+    v, y = np.empty(n), np.empty(n)
     r = 0.0
     nx = np.linalg.norm(x)
     for _ in range(iters):
         if nx == 0.0:
             break
-        x = A @ (x / nx)
+        np.divide(x, nx, out=v)
+        y[:] = 0.0
+        _sparsetools.csr_matvec(n, A.shape[1], A.indptr, A.indices, A.data, v, y)
+        x, y = y, x
         nx = np.linalg.norm(x)          # (the next step's divisor too)
         r = float(nx)
     return r
