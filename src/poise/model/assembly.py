@@ -151,19 +151,16 @@ class Assembler:
         sc = workspace.scratch(self, _Scratch)
         sc.data = []
         sc.layout = None
-        sc.factorised = 0
         if values:
             sc.buf = None
 
-    def csc_layout(self, workspace) -> "CSCLayout | None":
+    def csc_layout(self, workspace) -> "CSCLayout":
         """The :class:`CSCLayout` of this pattern in its column order (:meth:`ordered`), kept
-        in ``workspace`` until :meth:`release`; None at the first factorisation (a single one
-        does not pay for the layout, the iterations of a solver do)."""
+        in ``workspace`` until :meth:`release`. Made at the first factorisation: building it
+        costs about what the one-off column-ordered copy of the matrix costs (a CSC conversion),
+        so waiting for a second factorisation would pay for both."""
         sc = workspace.scratch(self, _Scratch)
         if sc.layout is None:
-            sc.factorised += 1
-            if sc.factorised < 2:
-                return None
             sc.layout = CSCLayout(self, self.ordered(workspace))
         return sc.layout
 
@@ -311,7 +308,7 @@ class _Scratch:
     """An assembler's scratch in a solve's workspace: the value buffer, the matrices' data
     buffers, the column order and its CSC layout."""
 
-    __slots__ = ("buf", "order", "data", "layout", "factorised", "free_refs")
+    __slots__ = ("buf", "order", "data", "layout", "free_refs")
 
     DATA_BUFFERS = 2      # kept for reuse: the iterate's matrix and the one before it
 
@@ -320,7 +317,6 @@ class _Scratch:
         self.order = None
         self.data = []
         self.layout = None
-        self.factorised = 0
         self.free_refs = -1
 
     def values(self, n: int) -> np.ndarray:
