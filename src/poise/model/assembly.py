@@ -292,7 +292,9 @@ class CSCLayout:
         import scipy.sparse as sp             # lazy
         take, buf = self.take, self.buf
         for i in range(0, take.size, _CHUNK):
-            np.take(J.data, take[i:i + _CHUNK], out=buf[i:i + _CHUNK])
+            # mode="clip": the positions are valid; numpy's default ("raise") gathers into a
+            # temporary copy of ``out`` and copies it back (a third more time per gather)
+            np.take(J.data, take[i:i + _CHUNK], out=buf[i:i + _CHUNK], mode="clip")
         A = sp.csc_matrix((self.buf, self.indices, self.indptr), shape=J.shape, copy=False)
         A.has_canonical_format = True         # sorted rows, no duplicates: made so above
         return A
