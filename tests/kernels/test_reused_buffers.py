@@ -96,8 +96,8 @@ def test_the_csc_layout_is_the_column_ordered_matrix_and_factorises_alike(chain)
     ws = Workspace()
     J = model.evaluate(st, need_jac=True, eps_mass=1e-3, workspace=ws).J
     order = J.poise_column_order()
-    assert J.poise_csc_layout() is None          # the first factorisation: no layout yet
-    lay = J.poise_csc_layout()
+    lay = J.poise_csc_layout()                   # made at the first factorisation, kept
+    assert J.poise_csc_layout() is lay
     assert lay.fits(J) and not lay.fits(sp.csr_matrix(J.toarray()))
     A = lay.matrix(J)
     B = J.tocsc()[:, order]
@@ -150,7 +150,6 @@ def test_large_patterns_keep_int32_indices_and_assemble_alike(chain, monkeypatch
     J = model.evaluate(st, need_jac=True, eps_mass=1e-3, workspace=ws).J
     fresh = model.evaluate(st, need_jac=True, eps_mass=1e-3).J    # bincount, no pool
     assert _bits(J.data, fresh.data)
-    J.poise_csc_layout()
     lay = J.poise_csc_layout()
     assert lay.take.dtype == np.int32
     whole = lay.matrix(J).data.copy()

@@ -205,7 +205,7 @@ class _RowMaxima:
                 tj = (slice(t.start + j0, t.start + j1) if isinstance(t, slice) else t[j0:j1])
                 buf, tmp, m = scratch.take(w, j1 - j0)
                 np.multiply(a[:, j0:j1], D[tj], out=buf)
-                np.take(D, cols[:, j0:j1], out=tmp)
+                np.take(D, cols[:, j0:j1], out=tmp, mode="clip")   # valid: no copy of out
                 np.multiply(buf, tmp, out=buf)
                 np.maximum.reduce(buf, axis=0, out=m)
                 _max_into(r, tj, m)
@@ -216,9 +216,9 @@ class _RowMaxima:
             return
         if not self.a.size:
             return
-        np.take(D, self.rows, out=self.buf)
+        np.take(D, self.rows, out=self.buf, mode="clip")      # valid indices: no copy of out
         np.multiply(self.a, self.buf, out=self.buf)
-        np.take(D, self.cols, out=self.tmp)
+        np.take(D, self.cols, out=self.tmp, mode="clip")
         np.multiply(self.buf, self.tmp, out=self.buf)
         _max_into(r, self.target, np.maximum.reduceat(self.buf, self.starts))
 
