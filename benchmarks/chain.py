@@ -255,14 +255,16 @@ class _HighWater:
 def _newton_lu(model, state, settings, active, repeat: int = 5):
     """Median wall and CPU seconds of the factorisation Newton performs at ``state``:
     :class:`poise.solvers.linalg.Factor` of the KKT Jacobian as Newton assembles it (mass
-    shift, active rows), with the column order its solve computed once (not timed)."""
+    shift, active rows), in the model's column order (made once per model: the solve made it)
+    and through the column-ordered CSC layout, as Newton's factorisations (the layout is built
+    at the first factorisation, the untimed one below)."""
     import numpy as np
     from poise.model.workspace import Workspace
     from poise.solvers.linalg import Factor
     ws = Workspace()
     eps = float(np.sqrt(settings.stability))
     J = model.evaluate(state, need_jac=True, eps_mass=eps, active=active, workspace=ws).J
-    Factor(J)                              # the solve's column order, computed once
+    Factor(J)                              # a first factorisation, as Newton's (not timed)
     wall, cpu = [], []
     for _ in range(repeat):
         t0, c0 = time.perf_counter(), time.process_time()

@@ -2,8 +2,8 @@
 
 For a static FIM_S solve the floor is *iterations × the LU Newton performs*: the worker
 (:func:`benchmarks.chain._newton_lu`) times :class:`poise.solvers.linalg.Factor` of the KKT
-matrix at the solution exactly as Newton factorises it (its column order computed once per
-solve, not timed). Ratios are of CPU seconds (``time.process_time``, one BLAS thread) of the
+matrix at the solution exactly as Newton factorises it (its column order made once per
+model, not timed). Ratios are of CPU seconds (``time.process_time``, one BLAS thread) of the
 same worker process, so that the load of this shared machine, which stretches wall times
 unevenly, cancels; wall-time ratios are shown next to them.
 """

@@ -96,6 +96,7 @@ def test_the_csc_layout_is_the_column_ordered_matrix_and_factorises_alike(chain)
     ws = Workspace()
     J = model.evaluate(st, need_jac=True, eps_mass=1e-3, workspace=ws).J
     order = J.poise_column_order()
+    assert order is model.assembler.order and not order.flags.writeable   # the model's, kept
     lay = J.poise_csc_layout()                   # made at the first factorisation, kept
     assert J.poise_csc_layout() is lay
     assert lay.fits(J) and not lay.fits(sp.csr_matrix(J.toarray()))

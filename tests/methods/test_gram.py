@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+import poise.solvers.gram as gram_mod
 import poise.solvers.newton as newton_mod
-import poise.solvers.redundancy as red_mod
 from poise.deck.parser import load_deck
 from poise.gen.chain import build_chain_deck
 from poise.model.compile import compile_model
 from poise.solvers.data import SolveData
-from poise.solvers.gram import (BandedCholesky, SymmetricLU, band, gram, least_squares,
-                                may_be_banded, projected, without)
+from poise.solvers.gram import (BandedCholesky, SymmetricLU, band, banded_gram, gram,
+                                least_squares, may_be_banded, projected, scaled, without)
 from poise.solvers.reach import coord_weights
 from poise.solvers.redundancy import detect_redundancy, without_rows
 
@@ -46,7 +46,7 @@ def _chain(tmp_path, n, shuffle=False):
 
 def test_banded_cholesky_pivots_and_solves_are_those_of_the_matrix():
     P = _banded_rows()
-    A = gram(P)[0]
+    A = gram(P)
     ab = band(A)
     assert ab is not None and ab.shape[0] <= 8
     F = BandedCholesky(ab)
@@ -58,12 +58,49 @@ def test_banded_cholesky_pivots_and_solves_are_those_of_the_matrix():
     np.testing.assert_allclose(F.solve(b), np.linalg.solve(D, b), rtol=1e-9, atol=1e-12)
 
 
+def test_the_banded_gram_diagonal_and_the_scaled_rows_are_those_of_the_matrix():
+    P = _banded_rows().tolil()
+    P[7, :] = 0.0                                        # an empty row: a zero diagonal
+    P = sp.csr_matrix(P)
+    w = np.random.default_rng(3).uniform(0.5, 2.0, P.shape[1])
+    S = scaled(P, w)
+    ref = sp.csr_matrix(P, copy=True)
+    ref.data *= w[ref.indices]
+    assert np.array_equal(S.data.view(np.int64), ref.data.view(np.int64))
+    assert np.array_equal(S.indices, ref.indices) and np.array_equal(S.indptr, ref.indptr)
+    A, ab, d = banded_gram(S)
+    assert ab is not None and d[7] == 0.0
+    assert np.array_equal(d.view(np.int64), A.diagonal().view(np.int64))
+    assert np.array_equal(ab.view(np.int64), band(A).view(np.int64))
+    d[0] = -1.0                                          # a copy, not a view of the band
+    assert ab[0, 0] > 0.0
+
+
+def test_the_pattern_precheck_is_its_bound_on_the_band_and_the_lower_triangle():
+    from poise.solvers.gram import BAND_FILL
+    rng = np.random.default_rng(4)
+    for n, m, width in ((60, 90, 3), (40, 200, 30), (80, 50, 1)):
+        P = _banded_rows(n, m, width, seed=n).tolil()
+        P[:, ::7] = 0.0                                  # empty columns
+        P = sp.csr_matrix(P)
+        P.eliminate_zeros()
+        for Q in (P, P[rng.permutation(n)]):
+            D = Q.toarray() != 0
+            used = D.any(axis=0)
+            rows = np.arange(n)[:, None]
+            lo = np.where(D, rows, n).min(axis=0)[used]
+            hi = np.where(D, rows, -1).max(axis=0)[used]
+            c = D.sum(axis=0).astype(float)
+            bound = n * (int(np.max(hi - lo)) + 1) <= BAND_FILL * (np.sum(c * (c + 1) / 2) + n)
+            assert may_be_banded(Q) == bound
+
+
 def test_the_pattern_precheck_never_refuses_a_banded_gram_matrix():
     for seed in range(6):
         P = _banded_rows(seed=seed)
         for Q in (P, P[np.random.default_rng(seed).permutation(P.shape[0])]):
             if not may_be_banded(Q):
-                assert band(gram(Q)[0]) is None
+                assert band(gram(Q)) is None
     assert may_be_banded(_banded_rows())
     assert not may_be_banded(_banded_rows()[np.random.default_rng(0).permutation(60)])
 
@@ -79,7 +116,7 @@ def test_band_refuses_a_matrix_whose_band_would_be_mostly_zeros():
 def test_rows_taken_out_of_a_band_solve_like_the_gram_matrix_of_the_others():
     P = _banded_rows(seed=2)
     rows = np.array([7, 8, 30, 59])
-    F = BandedCholesky(without(band(gram(P)[0]), rows))
+    F = BandedCholesky(without(band(gram(P)), rows))
     keep = np.setdiff1d(np.arange(P.shape[0]), rows)
     Pk = P[keep].toarray()
     R = np.random.default_rng(4).standard_normal((P.shape[1], 3))
@@ -153,7 +190,7 @@ def test_redundancy_of_long_loops_is_the_same_banded_or_through_superlu(tmp_path
     red = detect_redundancy(model, state, evaluation=ev)
     last = 5 * (n + 1)
     assert list(red) == [last - 3, last - 2, last - 1]   # deck order: the closing joint's rows
-    monkeypatch.setattr(red_mod, "band", lambda A: None)
+    monkeypatch.setattr(gram_mod, "band", lambda A: None)
     assert list(detect_redundancy(model, state, evaluation=ev)) == list(red)
 
 
@@ -161,7 +198,7 @@ def test_redundancy_of_a_loop_in_another_deck_order(tmp_path):
     model = _chain(tmp_path, 120, shuffle=True)
     state = model.initial_state()
     P = model.evaluate(state, need_jac=True).J[model.nq:, :model.nq]
-    assert band(gram(sp.csr_matrix(P))[0]) is None          # SuperLU's path
+    assert band(gram(sp.csr_matrix(P))) is None          # SuperLU's path
     red = detect_redundancy(model, state)
     assert len(red) == 3
     active = np.ones(model.nc, bool)

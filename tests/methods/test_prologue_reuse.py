@@ -8,7 +8,7 @@ import scipy.sparse as sp
 from poise.deck.parser import load_deck
 from poise.gen.chain import build_chain_deck
 from poise.model.compile import compile_model
-from poise.solvers.redundancy import detect_redundancy, without_rows
+from poise.solvers.redundancy import _transposed, detect_redundancy, without_rows
 
 
 def _model(tmp_path, n):
@@ -40,6 +40,10 @@ def test_all_rows_evaluation_read_with_active_rows_is_the_masked_evaluation(tmp_
     if n == 120:             # the assembler's column order goes with the matrix (linalg.Factor)
         assert got.J.poise_column_order is not None
         np.testing.assert_array_equal(got.J.indices, ref.J.indices)
+        # the removed rows' columns found in the rows they touch are every entry of them
+        J, cols = ref.J, model.nq + red
+        at = _transposed(J, cols)
+        np.testing.assert_array_equal(np.sort(at), np.flatnonzero(np.isin(J.indices, cols)))
     assert _dense(got.J)[model.nq + red[0], model.nq + red[0]] == 1.0
 
 

@@ -3,10 +3,10 @@
 Blocks of (row, col) index arrays are registered at compile time (``-1`` marks an entry that
 does not exist, e.g. a ground coordinate). The union pattern is sorted once; every later
 assembly is one ``np.bincount`` of the concatenated values into the CSR data array (or into a
-dense array for small systems). The assembler is part of the immutable model: the value buffer
-and the fill-reducing column order live in the solve's workspace
-(:class:`poise.model.workspace.Workspace`); a sparse matrix carries its order as a
-:class:`KKTMatrix`.
+dense array for small systems). The assembler is part of the immutable model, and so is the
+fill-reducing column order of its pattern (made at its first use, once per model); the value
+buffers live in the solve's workspace (:class:`poise.model.workspace.Workspace`); a sparse
+matrix carries its order as a :class:`KKTMatrix`.
 """
 from __future__ import annotations
 
@@ -36,10 +36,13 @@ class Assembler:
         not held twice).
     dense : bool
         Produce dense ``ndarray`` instead of CSR.
+    groups : (N,) ints or None
+        Group of each unknown for the fill-reducing column order (:meth:`ordered`): it depends
+        on the pattern alone, so every factorisation of every solve of the model reuses it.
     """
 
     __slots__ = ("N", "dense", "groups", "sizes", "nnz", "indices", "indptr", "slot",
-                 "slot_all")
+                 "slot_all", "order")
 
     def __init__(self, N: int, blocks, dense: bool = False, groups=None):
         self.N = N
@@ -95,6 +98,8 @@ class Assembler:
                 part[:] = self.nnz
                 part[v] = s
             del key, s
+        del keys, valids, uniq
+        self.order = None                   # made at its first use (:meth:`ordered`)
 
     def assemble(self, values, workspace=None):
         """Assemble the matrix from a list of value arrays (same order/shapes as the blocks);
@@ -139,7 +144,7 @@ class Assembler:
             return data.reshape(self.N, self.N)
         M = _kkt_class()((data, self.indices, self.indptr), shape=(self.N, self.N))
         if self.groups is not None:
-            M.poise_column_order = partial(self.ordered, workspace)   # used by linalg.Factor
+            M.poise_column_order = self.ordered                    # used by linalg.Factor
             if workspace is not None:
                 M.poise_csc_layout = partial(self.csc_layout, workspace)
         return M
@@ -161,17 +166,20 @@ class Assembler:
         so waiting for a second factorisation would pay for both."""
         sc = workspace.scratch(self, _Scratch)
         if sc.layout is None:
-            sc.layout = CSCLayout(self, self.ordered(workspace))
+            sc.layout = CSCLayout(self, self.ordered())
         return sc.layout
 
-    def ordered(self, workspace=None) -> np.ndarray:
-        """:meth:`column_order`, computed once per solve (kept in ``workspace``)."""
-        if workspace is None:
-            return self.column_order()
-        sc = workspace.scratch(self, _Scratch)
-        if sc.order is None:
-            sc.order = self.column_order()
-        return sc.order
+    def ordered(self) -> np.ndarray:
+        """The fill-reducing column order (:meth:`column_order`), made at its first use and
+        kept with the pattern (read-only): every later factorisation of the model, in this
+        solve or the next (frames, sweeps, other analyses), reads it. Not made at compile: a
+        large deck's parsed elements are alive then, and what compile keeps or imports beside
+        them raises the solve's peak memory."""
+        if self.order is None:
+            order = self.column_order()
+            order.flags.writeable = False
+            self.order = order
+        return self.order
 
     def pattern(self):
         """Structural pattern: ``(rows, cols)`` of every entry an assembly can fill, unique and
@@ -191,7 +199,7 @@ class Assembler:
         quotient keeps each group contiguous, costs a fraction of one factorisation, and gives
         SuperLU the same fill as COLAMD on the element-dense pattern (structural zeros inside
         element blocks — which the fixed pattern omits — otherwise mislead COLAMD into a worse
-        order). Reused by every factorisation of the solve (:meth:`ordered`).
+        order). Made once per model (:meth:`ordered`).
         """
         import scipy.sparse as sp             # lazy: sparse models only
         import scipy.sparse.linalg as spla    # lazy
@@ -308,15 +316,14 @@ def _same(a, b) -> bool:
 
 class _Scratch:
     """An assembler's scratch in a solve's workspace: the value buffer, the matrices' data
-    buffers, the column order and its CSC layout."""
+    buffers and the CSC layout."""
 
-    __slots__ = ("buf", "order", "data", "layout", "free_refs")
+    __slots__ = ("buf", "data", "layout", "free_refs")
 
     DATA_BUFFERS = 2      # kept for reuse: the iterate's matrix and the one before it
 
     def __init__(self):
         self.buf = None
-        self.order = None
         self.data = []
         self.layout = None
         self.free_refs = -1
@@ -355,7 +362,7 @@ def _kkt_class():
 
     class KKTMatrix(sp.csr_matrix):
         """A CSR matrix of a model's fixed KKT pattern: ``poise_column_order()`` gives its
-        fill-reducing column order (computed once per solve, :meth:`Assembler.ordered`);
+        fill-reducing column order (made with the pattern, :meth:`Assembler.ordered`);
         None for matrices derived from it."""
 
         poise_column_order = None

@@ -2,8 +2,8 @@
 
 The compiled model is immutable (MuJoCo's ``mjModel``/``mjData`` split); what evaluating it
 fills in and reuses lives here, one :class:`Workspace` per solve (``SolveData`` owns one and
-passes it to every evaluation): the assembler's value buffer and the fill-reducing column
-order of its pattern, the families tiled across ``F`` frames (:mod:`poise.model.frame_batch`),
+passes it to every evaluation): the assembler's value buffers and the column-ordered layout
+of its pattern, the families tiled across ``F`` frames (:mod:`poise.model.frame_batch`),
 motion targets per time and the integrals of velocity / acceleration motions, analytic curves'
 tiled programs. Entries are kept per owning object (by identity); an evaluation without a
 workspace gets a fresh one, so nothing outlives the call.

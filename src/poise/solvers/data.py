@@ -3,8 +3,8 @@
 The compiled :class:`~poise.model.model.Model` is immutable (MuJoCo's ``mjModel``/``mjData``
 split). A :class:`SolveData` carries the mutable part of one analysis: the active constraint-row
 mask (redundant rows removed), the counters and the solve's
-:class:`~poise.model.workspace.Workspace` (what evaluations keep between calls: assembly buffer,
-column order, tiled families, kernels' caches), and it is the one counted way to evaluate and
+:class:`~poise.model.workspace.Workspace` (what evaluations keep between calls: assembly buffers,
+tiled families, kernels' caches), and it is the one counted way to evaluate and
 to factorise: :meth:`SolveData.evaluate` (residual, Jacobian,
 deferred Jacobian, constraint values; one frame or many), :meth:`SolveData.jacobian` (a
 deferred Jacobian assembled) and :meth:`SolveData.factor`. Every solver strategy (Newton,

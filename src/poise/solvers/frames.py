@@ -70,7 +70,7 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
         loads = element_loads(model, state, lam=lam, ev=ev)
         ev = Pfull = Y = None     # the evaluation's kept slot data go before the classification
         if not model.assembler.dense:        # ... so do the assembly buffers (J keeps its data):
-            if known is None:                # the solve's column order, before it goes
+            if known is None:                # the model's column order (its pattern's)
                 columns = _kkt_columns(model, env)
             if env.kind == "static":         # the static solve's workspace has served (all of it)
                 env.data.workspace.clear()
@@ -93,12 +93,12 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
 
 
 def _kkt_columns(model, env):
-    """The solve's column order of ``model``'s KKT matrix (computed once per solve and kept in
-    its workspace; None for a dense assembler): the sparse classification's elimination order
+    """The column order of ``model``'s KKT matrix (made once per model at its first use; None
+    for a dense assembler): the sparse classification's elimination order
     ranks the bodies as it does, without an ordering of its own."""
     if model.assembler.dense or model.nq <= stability.DENSE_LIMIT:    # (read at call time)
         return None
-    return model.assembler.ordered(env.data.workspace)
+    return model.assembler.ordered()
 
 
 def frame_set(model, frames, loads, dep, outcomes, stability, measures) -> FrameSet:

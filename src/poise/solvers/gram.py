@@ -18,17 +18,26 @@ BAND_FILL = 4    # banded storage at most this many times the stored lower trian
 
 
 def scaled(Pq, col_scale):
-    """``Pq diag(col_scale)`` as CSR (one pass over the entries, no diagonal-matrix product)."""
+    """``Pq diag(col_scale)`` as CSR (one pass over the entries, no diagonal-matrix product);
+    it shares ``Pq``'s pattern arrays (CSR ``Pq``: neither is changed in place)."""
     import scipy.sparse as sp  # lazy: sparse systems only
-    P = sp.csr_matrix(Pq, copy=True)
-    P.data *= col_scale[P.indices]
-    return P
+    Pq = sp.csr_matrix(Pq)
+    return sp.csr_matrix((Pq.data * col_scale[Pq.indices], Pq.indices, Pq.indptr),
+                         shape=Pq.shape)
 
 
 def gram(P):
-    """``P P^T`` (CSR, rows of ``P`` in order) and its diagonal."""
-    A = (P @ P.T).tocsr()
-    return A, A.diagonal()
+    """``P P^T`` (CSR, rows of ``P`` in order)."""
+    return (P @ P.T).tocsr()
+
+
+def banded_gram(P):
+    """``(A, ab, d)``: the Gram matrix ``A`` of ``P`` (:func:`gram`), its lower band ``ab``
+    (:func:`band`; None when not banded) and its diagonal ``d`` (read off the band when there
+    is one: the same values, no pass over ``A``)."""
+    A = gram(P)
+    ab = band(A)
+    return A, ab, (A.diagonal() if ab is None else ab[0].copy())
 
 
 def may_be_banded(P) -> bool:
@@ -146,8 +155,7 @@ def least_squares(Pq, w, g, active, factor):
     P = scaled(Pq, w)
     if not may_be_banded(P):
         return None
-    A, d = gram(P)
-    ab = band(A)
+    A, ab, d = banded_gram(P)
     del A
     off = ~np.asarray(active, bool)
     if ab is None or np.any(d[~off] <= 0.0):

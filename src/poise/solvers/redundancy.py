@@ -15,7 +15,8 @@ from poise.core.errors import EvaluationError
 from poise.elements.context import row_where
 from poise.model.evaluate import Evaluation
 from poise.model.evaluate import evaluate as _evaluate
-from poise.solvers.gram import BandedCholesky, SymmetricLU, band, gram, projected, scaled, without
+from poise.solvers.gram import (BandedCholesky, SymmetricLU, banded_gram, gram, projected,
+                                scaled, without)
 from poise.solvers.superlu import lean
 
 RATIO_TOL = 1e-9     # always redundant below this pivot ratio
@@ -45,11 +46,10 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
         if red is not None:
             return red
     P = scaled(Phi_q, col_scale)
-    A, d = gram(P)
+    A, ab, d = banded_gram(P)     # banded in deck order: Cholesky in that order
     empty = d <= 1e-300
     dd = np.where(empty, 1.0, d)
     shift = np.where(empty, 1.0, SHIFT * d)
-    ab = band(A)                  # banded in deck order: Cholesky in that order
     perm = "NATURAL" if nc <= ORDERING_NATURAL_MAX else "MMD_AT_PLUS_A"
     try:
         if ab is not None:
@@ -108,7 +108,7 @@ def _resolve_ambiguous(P, cand, perm, ab=None):
             keep = np.ones(P.shape[0], bool)    # (np.setdiff1d: a hash of every row)
             keep[cand] = False
             PI = P[np.nonzero(keep)[0]]
-            F = SymmetricLU(gram(PI)[0], perm)
+            F = SymmetricLU(gram(PI), perm)
     except ValueError:
         return None
     R = projected(PI, F, PC.T.copy(), off)                          # (nq, c) residuals
@@ -259,8 +259,7 @@ def _gram_factor(Pi):
     """A factorisation of the Gram matrix ``Pi Pi^T`` of the independent rows (positive
     definite), with a ``solve``: LAPACK's banded Cholesky in row order when it is banded there
     (chains, ladders: as the redundancy test's, :mod:`poise.solvers.gram`), else SuperLU."""
-    A, _ = gram(Pi)
-    ab = band(A)
+    A, ab, _ = banded_gram(Pi)
     if ab is not None:
         try:
             return BandedCholesky(ab, own=True)
@@ -305,9 +304,12 @@ def without_rows(model, ev, active):
     J = ev.J
     if len(off):
         if hasattr(J, "indptr"):                  # CSR of the fixed pattern, sorted rows
-            bad = np.zeros(J.shape[1], bool)
-            bad[off] = True
-            J.data[bad[J.indices]] = 0.0          # transposed columns (and the diagonals)
+            at = _transposed(J, off)
+            if at is None:
+                bad = np.zeros(J.shape[1], bool)
+                bad[off] = True
+                at = bad[J.indices]
+            J.data[at] = 0.0                      # transposed columns (and the diagonals)
             for k in off:
                 lo, hi = J.indptr[k], J.indptr[k + 1]
                 J.data[lo:hi] = 0.0
@@ -317,6 +319,33 @@ def without_rows(model, ev, active):
             J[:, off] = 0.0
             J[off, off] = 1.0
     return Evaluation(r=ev.r, phi=np.where(active, ev.phi, 0.0), J=J, workspace=ev.workspace)
+
+
+#: rows' entries searched one row at a time up to this many (beyond: one pass over the matrix)
+TRANSPOSED_MAX = 4096
+
+
+def _transposed(J, off):
+    """Positions in ``J.data`` of the entries of columns ``off`` of the sorted CSR ``J``: the
+    entry ``(j, k)`` for every ``j`` in row ``k``'s pattern. The KKT pattern is structurally
+    symmetric in its multiplier rows and columns (each constraint block is registered with
+    its transpose, :func:`poise.model.layout._blocks`; no reaction feed here), so these are
+    all of them, found in the few rows concerned instead of a pass over every entry. None
+    when they are too many to search row by row, or one is missing (the caller then passes
+    over the matrix)."""
+    ind, ptr = J.indices, J.indptr
+    rows = [ind[ptr[k]:ptr[k + 1]] for k in off]
+    if sum(r.size for r in rows) > TRANSPOSED_MAX:
+        return None
+    at = []
+    for k, cols in zip(off, rows):
+        for j in cols:
+            lo, hi = ptr[j], ptr[j + 1]
+            p = lo + int(np.searchsorted(ind[lo:hi], k))
+            if p >= hi or ind[p] != k:
+                return None
+            at.append(p)
+    return np.array(at, np.intp)
 
 
 def inconsistent_redundant(model, state, sc, data) -> str:

@@ -147,8 +147,8 @@ class SparsePencil:
         a permutation: any one gives the inertia; a poor one shows as a failed factorisation,
         and the caller builds a fresh pencil). ``lean``: ``Gt^T Gt`` is dropped once a matrix
         is built from it (:attr:`GtG` makes it again when needed). ``kkt_columns``: a
-        fill-reducing column order of the model's KKT matrix (the solve's, computed once per
-        solve): the bodies are eliminated in its order instead of a minimum-degree order of
+        fill-reducing column order of the model's KKT matrix (made once per model, at its
+        first use): the bodies are eliminated in its order instead of a minimum-degree order of
         their own (:func:`_kkt_order`)."""
         import scipy.sparse as sp
         nq = model.nq
