@@ -22,6 +22,7 @@ import numpy as np
 from poise.core.lean import einsum
 from poise.elements.base import ConstraintFamily
 from poise.elements.kernel import POINT, PairBlocks
+from poise.elements.local_pattern import LocalPattern
 from poise.elements.registry import (ElementType, FDCase, OutputGroup, claimed_types, static,
                                      workless)
 
@@ -86,12 +87,20 @@ class Coincident(ConstraintFamily):
         return kin.Y[:, 0] - kin.Y[:, 1]
 
     def constraints(self, kin, lam, ctx):
-        n = self.n
         phi = kin.Y[:, 0] - kin.Y[:, 1]
-        phi_y = np.zeros((n, 3, 6))
-        phi_y[:, :, 0:3] = _I3
-        phi_y[:, :, 3:6] = -_I3
-        return phi, phi_y, None
+        return phi, self._phi_y(ctx), None
+
+    def _phi_y(self, ctx):
+        """``phi_y = [I, -I]`` of every instance (n, 3, 6), read-only: made once per solve (the
+        solve's workspace) and shared by its evaluations."""
+        sc = ctx.workspace.scratch(self, dict) if getattr(ctx, "workspace", None) else {}
+        phi_y = sc.get("phi_y")
+        if phi_y is None:
+            phi_y = sc["phi_y"] = np.zeros((self.n, 3, 6))
+            phi_y[:, :, 0:3] = _I3
+            phi_y[:, :, 3:6] = -_I3
+            phi_y.setflags(write=False)
+        return phi_y
 
     def g_blocks(self):
         return np.zeros((2, 2), bool)                        # G is always None
@@ -103,20 +112,32 @@ class Coincident(ConstraintFamily):
 @dataclass(frozen=True, eq=False, kw_only=True)
 class Perpendicular(ConstraintFamily):
     """``a_I . b_J + c (a2_I . b2_J) = 0``. Slots: a_I, b_J, a2_I, b2_J; c in {0, 1}
-    (``coef2`` (n,)); ``paired``: some instance has ``c = 1`` (else the second product, exact
-    zeros, is not formed)."""
+    (``coef2`` (n,)); ``paired``: some instance has ``c = 1``. A big family with no pair
+    (every row but the constant-velocity twist) has the slots a_I, b_J only: the second
+    product's slots would carry exact zeros (no reaction, no Jacobian entry; its markers'
+    entries are the first product's), which the big families' elementwise kernels add onto
+    sums started from +0.0, so the values are the same bits without them, for half the slot
+    work. Families small enough for a :class:`~poise.elements.slot_index.SlotIndex` with two
+    slots keep the four (and their kernel paths): the index's sums and the dense slot pass of
+    small models are matrix products over every slot, in an order the slot count changes."""
 
     coef2: np.ndarray
     paired: bool = True
 
     @classmethod
     def build(cls, name, I, J, ci, cj, ci2, cj2, coef2, owner, **layout):
-        kinds = np.stack([ci, cj, ci2, cj2], 1).astype(int)
         coef2 = np.asarray(coef2, float)
+        paired = bool(np.any(coef2 != 0))
+        four = paired or 2 * len(I) <= LocalPattern.SLOT_INDEX_MAX     # (no SlotIndex either way)
+        kinds = np.stack([ci, cj, ci2, cj2] if four else [ci, cj], 1).astype(int)
         return cls(name=name, markers=np.stack([I, J], 1).astype(int),
-                   slot_ml=np.array([0, 1, 0, 1]), slot_kind=kinds,
-                   owner=np.asarray(owner, int), m=1, coef2=coef2,
-                   paired=bool(np.any(coef2 != 0)), **layout)
+                   slot_ml=np.array([0, 1, 0, 1] if four else [0, 1]), slot_kind=kinds,
+                   owner=np.asarray(owner, int), m=1, coef2=coef2, paired=paired, **layout)
+
+    @property
+    def four(self) -> bool:
+        """The family has the four slots a_I, b_J, a2_I, b2_J (else a_I, b_J only)."""
+        return len(self.slot_ml) == 4
 
     def values(self, kin, ctx):
         Y = kin.Y
@@ -129,13 +150,13 @@ class Perpendicular(ConstraintFamily):
         Y = kin.Y
         n = self.n
         phi = einsum("ni,ni->n", Y[:, 0], Y[:, 1])
-        phi_y = np.zeros((n, 1, 12))
+        phi_y = np.zeros((n, 1, 12 if self.four else 6))
         phi_y[:, 0, 0:3] = Y[:, 1]
         phi_y[:, 0, 3:6] = Y[:, 0]
         # G: lam I on the (a_I, b_J) blocks, lam c I on (a2_I, b2_J); compact (PairBlocks)
         l = lam[:, 0]
         if not self.paired:            # c = 0 everywhere: x + 0 y is x, the c blocks zeros
-            return phi[:, None], phi_y, PairBlocks(n, 4, {(0, 1): l, (1, 0): l})
+            return phi[:, None], phi_y, PairBlocks(n, len(self.slot_ml), {(0, 1): l, (1, 0): l})
         c = self.coef2
         phi = (phi + c * einsum("ni,ni->n", Y[:, 2], Y[:, 3]))[:, None]
         phi_y[:, 0, 6:9] = c[:, None] * Y[:, 3]
@@ -144,9 +165,9 @@ class Perpendicular(ConstraintFamily):
         return phi, phi_y, PairBlocks(n, 4, {(0, 1): l, (1, 0): l, (2, 3): l2, (3, 2): l2})
 
     def g_blocks(self):
-        gb = np.zeros((4, 4), bool)
+        gb = np.zeros((4, 4) if self.four else (2, 2), bool)
         gb[0, 1] = gb[1, 0] = True
-        if np.any(self.coef2 != 0):
+        if self.paired:
             gb[2, 3] = gb[3, 2] = True
         return gb
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core import per_object
 from poise.elements.rotation import skew
 from poise.elements.slot_index import AX_X, AX_Y, AX_Z, POINT, SlotIndex  # noqa: F401 (API)
 from poise.elements.local_pattern import LocalPattern, local_pattern  # noqa: F401 (API)
@@ -150,8 +151,24 @@ def dense_g(G, rows=None):
     return G[rows]
 
 
+_POINTS = per_object.table()      # family -> (point mask (n, S), its slot masks)
+
+
+def slot_points(fam) -> tuple:
+    """``(pt, (pt.all(axis=0), pt.any(axis=0)))`` of a family's slot kinds (``pt``: point
+    slots), made once per family: a big family without a
+    :class:`~poise.elements.slot_index.SlotIndex` read them at every evaluation (at 10^5
+    links a few ms each)."""
+    def make():
+        pt = np.asarray(fam.slot_kind) == POINT
+        pt.setflags(write=False)
+        return pt, (pt.all(axis=0), pt.any(axis=0))
+    return per_object.once_per(_POINTS, fam, make)
+
+
 def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
-                    index: SlotIndex | None = None) -> SlotKinematics:
+                    index: SlotIndex | None = None, points: tuple | None = None
+                    ) -> SlotKinematics:
     """Evaluate slot vectors (the B-matrices are implicit, see :class:`SlotKinematics`).
 
     Parameters
@@ -170,6 +187,7 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
         Body reference (CG) positions.
     index : the family's :class:`SlotIndex` for these markers, kinds and marker bodies (the
         same gathers, made once), or None.
+    points : :func:`slot_points` of the family (without ``index``), or None (made here).
     """
     if index is not None:
         mk, ix = index.mk, index
@@ -189,7 +207,7 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
     n, K = markers.shape
     mk = markers[:, slot_ml]                                   # (n, S)
     kind = slot_kind
-    pt = kind == POINT
+    pt, masks = (kind == POINT, None) if points is None else points
     if pt.all():                 # the same values as P[mk] etc., gathered faster by take
         Pm = P.take(mk, 0)
         Y = Pm
@@ -205,7 +223,7 @@ def slot_kinematics(markers, slot_ml, slot_kind, P, A, marker_body, body_pos,
         Y = np.where(is_pt, Pm, Am)
         lever = Pm - body_pos[np.maximum(marker_body[mk], 0)]
         V = np.where(is_pt, lever, Am)
-    return SlotKinematics(Y=Y, V=V, pt=pt, slot_ml=np.asarray(slot_ml), K=K)
+    return SlotKinematics(Y=Y, V=V, pt=pt, slot_ml=np.asarray(slot_ml), K=K, masks=masks)
 
 
 def cross3(a, b):

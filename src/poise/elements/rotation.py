@@ -86,8 +86,15 @@ def screw_exp(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     s = np.sin(th)
     a, b, c = s / th, (1.0 - np.cos(th)) / th**2, (th - s) / th**3
     b = b[..., None, None]
-    return (_I3 + a[..., None, None] * K + b * KK,
-            _I3 + b * K + c[..., None, None] * KK)
+    # (I + a K) + b KK and (I + b K) + c KK, the same operations into two arrays (at 10^5
+    # bodies each temporary is 7 MB)
+    E = a[..., None, None] * K
+    E += _I3
+    E += b * KK
+    V = np.multiply(b, K, out=K)
+    V += _I3
+    V += np.multiply(c[..., None, None], KK, out=KK)
+    return E, V
 
 
 def orthonormalize(R: np.ndarray) -> np.ndarray:

@@ -31,7 +31,7 @@ from poise.elements.chunked import (constraint_values, local_residuals, rows, sp
 from poise.expr import EvalContext
 from poise.elements.kernel import (constraint_jacobian_local, dense_g,
                                    local_pattern, local_residual_tangent, local_tangent,
-                                   slot_kinematics,
+                                   slot_kinematics, slot_points,
                                    tangent_compact)
 from poise.model.assembly import Few, Scatter, Zeros
 from poise.model.energy import potential_energy
@@ -202,7 +202,7 @@ class _Frames:
             (t, exact), index = self.tiles[fi], None
         if kin is None:
             kin = slot_kinematics(t.markers, fam.slot_ml, t.slot_kind, self.P, self.A, self.mb,
-                                  self.pos, index)
+                                  self.pos, index, None if index is not None else slot_points(t))
         lam = self.lam[t.crow] if fam.is_constraint else None
         if exact:
             return t, kin, lam, _kernel(t, kin, lam, self.ctx, need_jac)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from poise.core import per_object
 from poise.core.lean import einsum, row_norms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
@@ -28,6 +29,8 @@ DENSE_MAX = 600                    # KKT size up to which dense LU is used
 
 _I3 = np.eye(3)
 _I3.flags.writeable = False
+_GROUND_MARKERS = per_object.table()     # model -> the markers on the ground
+_RIGID_BLOCKS = per_object.table()       # model -> Model.rigid_blocks()
 
 @dataclass
 class State:
@@ -159,21 +162,19 @@ class Model:
         return st
 
     def _ext(self, state):
-        nb = self.nb
-        pos = np.zeros((nb + 1, 3))
-        rot = np.zeros((nb + 1, 3, 3))
-        pos[:nb] = state.pos
-        rot[:nb] = state.rot
-        rot[nb] = _I3
-        return pos, rot
+        """Positions (nb + 1, 3), the ground's last (zero): read at a marker's body index, -1
+        for the ground."""
+        pos = np.zeros((self.nb + 1, 3))
+        pos[:self.nb] = state.pos
+        return pos
 
     def marker_kinematics(self, state):
         """Marker origins (nm,3) and axes (nm,3,3) in global components."""
-        pos, rot = self._ext(state)
+        pos, rot = self._ext(state), state.rot
         mb = self.marker_body
         nm = len(mb)
         if nm <= 2 * CHUNK:
-            R = rot.take(mb, 0)                          # gathered once for both products
+            R = self._marker_rot(rot, mb, 0)             # gathered once for both products
             P = pos.take(mb, 0) + einsum("nij,nj->ni", R, self.marker_s0)
             A = np.matmul(R, self.marker_A0)
             return P, A, pos
@@ -181,10 +182,22 @@ class Model:
         P, A = np.empty((nm, 3)), np.empty((nm, 3, 3))
         for a in range(0, nm, CHUNK):
             b = min(a + CHUNK, nm)
-            R = rot.take(mb[a:b], 0)
+            R = self._marker_rot(rot, mb[a:b], a)
             P[a:b] = pos.take(mb[a:b], 0) + np.einsum("nij,nj->ni", R, self.marker_s0[a:b])
             A[a:b] = np.matmul(R, self.marker_A0[a:b])
         return P, A, pos
+
+    def _marker_rot(self, rot, mb, at: int):
+        """The rotations of the markers ``mb`` (body indices, the ground's -1 or ``nb``;
+        markers ``at`` on): the bodies' ``rot`` (nb, 3, 3) gathered, the ground's rows the
+        identity, as a gather from the extended array (ground last) would give, without that
+        copy of every rotation."""
+        R = rot.take(mb, 0, mode="clip") if len(rot) else np.empty((len(mb), 3, 3))
+        g = per_object.once_per(_GROUND_MARKERS, self, lambda: np.flatnonzero(
+            (self.marker_body < 0) | (self.marker_body >= self.nb)))
+        g = g[(g >= at) & (g < at + len(mb))] - at
+        R[g] = _I3
+        return R
 
     def _principal_angles(self, state):
         return self._angles_of(state.rot)
@@ -217,8 +230,7 @@ class Model:
         else:
             new = state.copy()
         dq = np.asarray(dq, float)
-        dt = dq[self.trans_idx].reshape(-1, 3)
-        dr = dq[self.rot_idx].reshape(-1, 3) if len(self.rot_idx) else np.zeros((0, 3))
+        dt, dr = self.coord_parts(dq)
         nsub = 1
         if len(self.angle_I) and len(dr):
             nsub = max(1, int(np.ceil(float(np.max(row_norms(dr))) / MAX_SUBSTEP_ROTATION)))
@@ -268,6 +280,25 @@ class Model:
             new.lam = new.lam + dlam
         self.track_rotation(new, state, dr)
         return new
+
+    def rigid_blocks(self) -> bool:
+        """Every body rigid, its six coordinates (translation, rotation) the ``6 b`` to
+        ``6 b + 5``: a tangent vector's translations and rotations are then strided views of
+        its first ``6 nb`` entries (no index gathers or scatters)."""
+        return per_object.once_per(_RIGID_BLOCKS, self, lambda: (
+            len(self.rot_body) == self.nb
+            and np.array_equal(self.trans_idx, (6 * np.arange(self.nb)[:, None]
+                                                + np.arange(3)).ravel())
+            and np.array_equal(self.rot_idx, np.asarray(self.trans_idx) + 3)))
+
+    def coord_parts(self, v: np.ndarray) -> tuple:
+        """``(v[trans_idx].reshape(-1, 3), v[rot_idx].reshape(-1, 3))``: the translations
+        (nb, 3) and rotations (nr, 3) of a tangent vector, new arrays."""
+        if self.rigid_blocks():
+            v6 = v[:6 * self.nb].reshape(self.nb, 6)
+            return v6[:, :3].copy(), v6[:, 3:].copy()
+        return (v[self.trans_idx].reshape(-1, 3),
+                v[self.rot_idx].reshape(-1, 3) if len(self.rot_idx) else np.zeros((0, 3)))
 
     def track_rotation(self, new: State, old: State, w: np.ndarray) -> None:
         """Carry ``rotvec`` from ``old`` to ``new`` (``w``: the spatial rotation increments of
@@ -344,8 +375,11 @@ class Model:
     def world_inertia(self, state):
         """The rigid bodies' inertias about their CGs in global axes (nr, 3, 3): the
         rotational mass blocks alone."""
-        R = state.rot[self.rot_body]
-        return np.matmul(R, np.matmul(self.body_inertia[self.rot_body], R.swapaxes(1, 2)))
+        R, I = state.rot, self.body_inertia
+        # every body rigid (rot_body is 0..nb-1): the arrays the gathers would copy
+        if not (len(self.rot_body) == self.nb and R.flags.c_contiguous and I.flags.c_contiguous):
+            R, I = R[self.rot_body], I[self.rot_body]
+        return np.matmul(R, np.matmul(I, R.swapaxes(1, 2)))
 
     def mass_diagonal(self, state) -> np.ndarray:
         """Diagonal of the mass matrix in tangent coordinates, (nq,)."""

@@ -116,6 +116,14 @@ def mass_times(model, state, v, Jg=None):
     rotations, zero on scalar unknowns. ``Jg``: the world inertias at ``state``
     (``model.world_inertia(state)``) when the caller has them already."""
     out = np.zeros(model.nq)
+    if model.rigid_blocks():         # translations and rotations: strided views, no gathers
+        vt, vr = model.coord_parts(v)
+        o6 = out[:6 * model.nb].reshape(model.nb, 6)
+        o6[:, :3] = model.body_mass[:, None] * vt
+        if len(vr):
+            o6[:, 3:] = einsum("nij,nj->ni",
+                               model.world_inertia(state) if Jg is None else Jg, vr)
+        return out
     out[model.trans_idx] = model.body_mass.repeat(3) * v[model.trans_idx]
     if len(model.rot_idx):
         if Jg is None:
