@@ -71,7 +71,7 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
         ev = Pfull = Y = None     # the evaluation's kept slot data go before the classification
         if not model.assembler.dense:        # ... so do the assembly buffers (J keeps its data):
             if known is None:                # the model's column order (its pattern's)
-                columns = _kkt_columns(model, env)
+                columns = _kkt_columns(model)
             if env.kind == "static":         # the static solve's workspace has served (all of it)
                 env.data.workspace.clear()
             else:                            # the next frames reuse its scatters and order
@@ -92,7 +92,7 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
                      dep, outcomes, infos, [measured])
 
 
-def _kkt_columns(model, env):
+def _kkt_columns(model):
     """The column order of ``model``'s KKT matrix (made once per model at its first use; None
     for a dense assembler): the sparse classification's elimination order
     ranks the bodies as it does, without an ordering of its own."""
@@ -228,7 +228,7 @@ def measure_frames(env, redundancy, frames, outcomes) -> FrameSet | None:
             elif model.nq <= DENSE_LIMIT:
                 infos += classify_dense_frames(model, ev.J, saved, ok)
             else:                                     # sparse inertia, frame by frame
-                columns = _kkt_columns(model, env)
+                columns = _kkt_columns(model)
                 infos += [classify(model, None, J=ev.J[j], active=saved, kkt_columns=columns)
                           if ok[j] else unknown_info()
                           for j in range(len(chunk))]
