@@ -218,8 +218,8 @@ class CaseBatch:
                     continue
                 bm, ba, bs, bev = best[j]
                 if zinf[j] <= 1.0 and not bm < m0[j]:
-                    # round-off floor: the error is the step not taken (newton.py)
-                    nxt = step_size(dq[j], sc)
+                    # round-off floor: the error is the step not taken, filtered (newton.py)
+                    nxt = step_size(filt[j][:nq] if j in filt else dq[j], sc)
                     e = float(max(cerr[j], nxt))
                     res[i] = CaseResult(alone=False, iterations=it, error=e,
                                         rows=res[i].rows + [(float(imb[j]), e, np.nan, np.nan)])

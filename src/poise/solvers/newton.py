@@ -418,8 +418,10 @@ class NewtonIteration(Solver[_Newtoning]):
         if s.res_ok and not best[0] < m0:
             # every equation within tolerance and no step along Newton's direction improves
             # them: the residual is at its round-off floor, the step is noise. The error is the
-            # step not taken (the distance Newton still sees), not the last one taken
-            nxt = _steps.step_size(dq, sc)
+            # step not taken (the distance Newton still sees), not the last one taken; the
+            # filtered step when there is one: along neutral directions every point is an
+            # equilibrium, so their round-off share of the step is no distance to one
+            nxt = _steps.step_size(xf[:model.nq] if xf is not None else dq, sc)
             return Next(self._converged(s, max(s.cerr, nxt)), 0)
         s = evolve(s, merits=s.merits + (m0,))
         cw = settings.limits.crawl_window
