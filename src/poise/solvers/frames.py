@@ -196,6 +196,7 @@ def measure_frames(env, redundancy, frames, outcomes) -> FrameSet | None:
     red = np.asarray(redundancy, int)
     dep = red
     w = where(model.row_kind == 1, 1.0 / model.L ** 2, 1.0)
+    cs = column_scale(model)
     loads = {}
     infos, measured = [], []
     C = chunk_size(model)
@@ -210,7 +211,6 @@ def measure_frames(env, redundancy, frames, outcomes) -> FrameSet | None:
             lam = np.stack([s.lam for s in chunk]) if nc else np.zeros((len(chunk), 0))
             if len(red) and nc:
                 lam = lam.copy()
-                cs = column_scale(model)
                 for j in range(len(chunk)):
                     Pf = ev.J[j, nq:, :nq]
                     Y = left_null_basis(Pf, saved, cs)

@@ -368,10 +368,11 @@ class NewtonIteration(Solver[_Newtoning]):
                 limited.append(_steps.limit_step(model, state, x[:model.nq], settings))
             return limited[0]
         # a step longer than the last one taken may carry neutral content that the tail share
-        # does not see (a tiny inertia along it): the filter examines it too
-        grew = _steps.grew(dq, s.last_step, sc)
-        xf = _steps.neutral_filtered(model, state, f, x, eps, sc, s.zinf,
-                                     lambda: grew or limit()[0] < 1.0, Jg=ev.inertia)
+        # does not see (a tiny inertia along it): the filter examines it too (both asked only
+        # when the tail share does not decide)
+        xf = _steps.neutral_filtered(
+            model, state, f, x, eps, sc, s.zinf,
+            lambda: _steps.grew(dq, s.last_step, sc) or limit()[0] < 1.0, Jg=ev.inertia)
         # the factorisation is not needed by the trials (memory at 10^5) unless kept for a chord
         keep = _steps.keep_factor(model, f, x, sc, getattr(self.cnt, "workspace", None))
         del f

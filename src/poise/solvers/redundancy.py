@@ -304,7 +304,9 @@ def without_rows(model, ev, active):
     J = ev.J
     if len(off):
         if hasattr(J, "indptr"):                  # CSR of the fixed pattern, sorted rows
-            at = _transposed(J, off)
+            # a few rows' entries are searched where they are; else one pass over the matrix
+            few = J.indptr[off + 1].sum() - J.indptr[off].sum() <= TRANSPOSED_SHARE * J.nnz
+            at = _transposed(J, off) if few else None
             if at is None:
                 bad = np.zeros(J.shape[1], bool)
                 bad[off] = True
@@ -323,6 +325,9 @@ def without_rows(model, ev, active):
 
 #: rows' entries searched one row at a time up to this many (beyond: one pass over the matrix)
 TRANSPOSED_MAX = 4096
+#: ... and only when they are at most this share of the matrix's entries (:func:`without_rows`:
+#: one vectorised pass over a small matrix costs less than the searches, a Python step each)
+TRANSPOSED_SHARE = 1e-3
 
 
 def _transposed(J, off):
