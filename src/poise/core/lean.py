@@ -1,9 +1,11 @@
 """numpy's own arithmetic on small arrays without the Python argument handling of its
 convenience functions, which costs more than the work itself on the few-element arrays of a
 small model's solve: Euclidean norms (``np.linalg.norm``'s results, bit for bit, for real
-arrays), the all-finite test, a gather along the last axis, and ``einsum`` and ``where``: numpy's
+arrays), the all-finite test, a gather along the last axis, ``einsum`` and ``where``: numpy's
 C functions that ``np.einsum`` (without ``optimize``) and ``np.where`` call after Python
-wrappers costing more than their work on 3x3 blocks."""
+wrappers costing more than their work on 3x3 blocks; and the LAPACK decompositions of
+``np.linalg`` (``svd``, ``eigh``, ``eigvalsh``) of one real matrix, its gufuncs called as it calls
+them (same routines, same results, same errors) without its argument checks and conversions."""
 from __future__ import annotations
 
 import numpy as np
@@ -12,6 +14,11 @@ try:
     from numpy._core.multiarray import c_einsum as einsum
 except ImportError:  # numpy < 2 (its C function elsewhere): the public one
     einsum = np.einsum
+
+try:
+    from numpy.linalg import _umath_linalg
+except ImportError:  # (numpy's layout changed: the public functions below)
+    _umath_linalg = None
 
 #: ``np.where(cond, x, y)``: numpy's C function without its ``__array_function__`` dispatch
 #: (a Python call that costs as much as the selection of a few dozen entries)
@@ -40,3 +47,44 @@ def take_along_last(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     flat = a.reshape(-1, m)
     rows = np.arange(flat.shape[0])[:, None]
     return flat[rows, idx.reshape(-1, j)].reshape(idx.shape)
+
+
+def _no_eigenvalues(err, flag):
+    raise np.linalg.LinAlgError("Eigenvalues did not converge")
+
+
+def _no_svd(err, flag):
+    raise np.linalg.LinAlgError("SVD did not converge")
+
+
+def _lapack(a) -> bool:
+    """Whether ``a`` goes to the gufuncs directly: a real float64 matrix."""
+    return _umath_linalg is not None and type(a) is np.ndarray and a.dtype == np.float64 \
+        and a.ndim == 2
+
+
+def svd(a):
+    """``np.linalg.svd(a, full_matrices=True)`` of a real matrix: ``(u, s, vh)``."""
+    if not _lapack(a):
+        return np.linalg.svd(a, full_matrices=True)
+    with np.errstate(call=_no_svd, invalid="call", over="ignore", divide="ignore",
+                     under="ignore"):
+        return _umath_linalg.svd_f(a, signature="d->ddd")
+
+
+def eigh(a):
+    """``np.linalg.eigh(a)`` of a real symmetric matrix (its lower triangle): ``(w, v)``."""
+    if not _lapack(a):
+        return tuple(np.linalg.eigh(a))
+    with np.errstate(call=_no_eigenvalues, invalid="call", over="ignore", divide="ignore",
+                     under="ignore"):
+        return _umath_linalg.eigh_lo(a, signature="d->dd")
+
+
+def eigvalsh(a):
+    """``np.linalg.eigvalsh(a)`` of a real symmetric matrix (its lower triangle)."""
+    if not _lapack(a):
+        return np.linalg.eigvalsh(a)
+    with np.errstate(call=_no_eigenvalues, invalid="call", over="ignore", divide="ignore",
+                     under="ignore"):
+        return _umath_linalg.eigvalsh_lo(a, signature="d->d")

@@ -27,24 +27,34 @@ import time
 
 PHASES = ("evaluate", "assemble", "factorise")
 
-_local = threading.local()
+class _Local(threading.local):
+    """This thread's import total and phase times (the class values until it sets its own:
+    read as plain attributes, the solvers read the clock a few dozen times per small solve)."""
+
+    imports = 0.0
+    acc = None
+    depth = 0
+    finding = False
+
+
+_local = _Local()
 _clock = time.perf_counter
 
 
 def now() -> float:
     """Seconds on a per-thread clock that does not advance while a module is being imported
     (inside :func:`counting_imports`); differences of it are wall times without imports."""
-    return _clock() - getattr(_local, "imports", 0.0)
+    return _clock() - _local.imports
 
 
 def import_seconds() -> float:
     """Seconds this thread has spent importing modules inside :func:`counting_imports` (a
     running total: take differences)."""
-    return getattr(_local, "imports", 0.0)
+    return _local.imports
 
 
 def _acc() -> dict:
-    acc = getattr(_local, "acc", None)
+    acc = _local.acc
     if acc is None:
         acc = _local.acc = dict.fromkeys(PHASES, 0.0)
     return acc
@@ -57,7 +67,9 @@ def reset() -> None:
 
 def add(phase: str, seconds: float) -> None:
     """Add ``seconds`` of wall time to ``phase``."""
-    acc = _acc()
+    acc = _local.acc
+    if acc is None:
+        acc = _acc()
     acc[phase] = acc.get(phase, 0.0) + seconds
 
 
@@ -70,7 +82,7 @@ def snapshot() -> dict:
 @contextlib.contextmanager
 def _timed():
     """Time the block as import work of this thread; nested imports count once (outermost)."""
-    depth = getattr(_local, "depth", 0)
+    depth = _local.depth
     _local.depth = depth + 1
     t0 = _clock()
     try:
@@ -78,7 +90,7 @@ def _timed():
     finally:
         _local.depth = depth
         if depth == 0:
-            _local.imports = getattr(_local, "imports", 0.0) + (_clock() - t0)
+            _local.imports = _local.imports + (_clock() - t0)
 
 
 class _TimedLoader:
@@ -115,7 +127,7 @@ class _ImportClock:
     and wraps the loader it returns in a :class:`_TimedLoader`."""
 
     def find_spec(self, name, path, target=None):
-        if getattr(_local, "finding", False):
+        if _local.finding:
             return None
         _local.finding = True
         try:

@@ -192,12 +192,13 @@ class _Frames:
         kin = None
         if self.single:
             t, exact = fam, True
-            index = None if fam.pattern is None else fam.pattern.slots
             small = self.model.small
             if small is not None:
                 if self.kins is None:
                     self.kins = small.kinematics(self.P, self.A, self.pos) or {}
                 kin = self.kins.get(fi)
+            if kin is None:
+                index = None if fam.pattern is None else fam.pattern.slots
         else:
             (t, exact), index = self.tiles[fi], None
         if kin is None:
@@ -225,7 +226,8 @@ class _Frames:
 
 
 def _kernel(fam, kin, lam, ctx, need_jac):
-    if fam.is_constraint:
+    # (a constraint family's multipliers are an array, a force family's None: every caller)
+    if lam is not None:
         if need_jac == "phi":                  # constraint values alone
             return fam.values(kin, ctx), None, None
         return fam.constraints(kin, lam, ctx)
@@ -243,14 +245,15 @@ def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
     (:mod:`poise.model.recent`)."""
     for fi in model.eval_order:
         fam = model.families[fi]
-        if only == "phi" and not fam.is_constraint:
+        constraint = fam.is_constraint
+        if only == "phi" and not constraint:
             continue
         if done is not None and fr.ctx.reactions is None and fam.reads_reactions:
             # reaction channels from every family evaluated so far (exact at this iterate)
             fr.ctx.reactions, fr.dg = model.reaction_feed.values(model, done.values(), fr.P,
                                                                  fr.A)
         t, kin, lam, out = (fr.call if call is None else call)(fi, need_jac)
-        if fam.is_constraint:
+        if constraint:
             ph, phy, G = out[:3]
             if only == "phi":
                 yield fi, t, kin, None, None, ph, None, None

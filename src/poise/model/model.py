@@ -195,7 +195,8 @@ class Model:
         R = rot.take(mb, 0, mode="clip") if len(rot) else np.empty((len(mb), 3, 3))
         g = per_object.once_per(_GROUND_MARKERS, self, lambda: np.flatnonzero(
             (self.marker_body < 0) | (self.marker_body >= self.nb)))
-        g = g[(g >= at) & (g < at + len(mb))] - at
+        if at or len(mb) < len(self.marker_body):     # a chunk: its own ground markers
+            g = g[(g >= at) & (g < at + len(mb))] - at
         R[g] = _I3
         return R
 

@@ -146,12 +146,13 @@ class Factor:
                 raise SingularMatrix("singular matrix (zero pivot)", row=self.pivot_row)
         elif np.asarray(J).shape[0] <= NUMPY_DENSE_MAX:
             J = np.asarray(J)
-            if not all_finite(J):
-                raise SingularMatrix("matrix has non-finite entries")
             self.numpy = True
             self._pivot_row = None
+            # an inverse it returns has a finite bound ||J|| ||J^-1||: J is finite then
             self.inverse = _clearly_regular(J)
             if self.inverse is None:
+                if not all_finite(J):
+                    raise SingularMatrix("matrix has non-finite entries")
                 _u, sv, vh = np.linalg.svd(J)
                 # the coordinate/equation most involved in the weakest direction: the culprit
                 self._pivot_row = int(np.argmax(np.abs(vh[-1])))

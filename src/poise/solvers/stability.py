@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from poise.core import memory
+from poise.core import lean
 from poise.core.lean import einsum, row_norms
 from poise.solvers.equilibrate import equilibrate_dense, prune_noise_dense, prune_rows_dense
 from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the public names
@@ -197,18 +198,18 @@ def _dense_one(model, J, active) -> StabilityInfo:
     Ks, Dq, Dl = Ks[0], Dq[0], Dl[0]
     Kt = Ks * Dq[:, None] * Dq[None, :]
     if G.shape[0]:
-        _, s, vh = np.linalg.svd(G * Dl[:, None] * Dq[None, :], full_matrices=True)
+        _, s, vh = lean.svd(G * Dl[:, None] * Dq[None, :])
         tol = 1e-10 * (np.maximum.reduce(s) if s.size else 0.0)
         rank = int(np.add.reduce(s > tol))
     else:
         vh = np.eye(nq)
         rank = 0
-    eps = ZERO_REL * max(float(np.maximum.reduce(np.abs(np.linalg.eigvalsh(Kt)))), 1.0)
+    eps = ZERO_REL * max(float(np.maximum.reduce(np.abs(lean.eigvalsh(Kt)))), 1.0)
     Z = vh[rank:, :].T                                               # (nq, k) null space
     if Z.shape[1] == 0:
         return StabilityInfo("stable", 0, 0, "no degrees of freedom", np.inf)
     Kr = Z.T @ (Kt @ Z)
-    w, V = np.linalg.eigh(0.5 * (Kr + Kr.T))
+    w, V = lean.eigh(0.5 * (Kr + Kr.T))
     neg = w < -eps
     zero = np.abs(w) <= eps
     X = Dq[:, None] * (Z @ V)                   # eigenvectors in (length) coordinates
