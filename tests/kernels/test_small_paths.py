@@ -124,6 +124,23 @@ def test_lean_is_numpy():
     assert not all_finite(np.array([1.0, np.nan])) and not all_finite(np.array([[np.inf]]))
 
 
+def test_lean_decompositions_are_numpy():
+    from poise.core import lean
+    rng = np.random.default_rng(7)
+    for n in (1, 6, 38):
+        a = rng.standard_normal((n, n))
+        s = a + a.T
+        for got, ref in zip(lean.svd(a), np.linalg.svd(a)):
+            assert got.tobytes() == ref.tobytes()
+        for got, ref in zip(lean.eigh(s), np.linalg.eigh(s)):
+            assert got.tobytes() == ref.tobytes()
+        assert lean.eigvalsh(s).tobytes() == np.linalg.eigvalsh(s).tobytes()
+    bad = np.full((4, 4), np.nan)
+    for f in (lean.svd, lean.eigh, lean.eigvalsh):      # numpy's error, not NaNs
+        with pytest.raises(np.linalg.LinAlgError):
+            f(bad)
+
+
 def test_phi_q_jacobian_is_the_jacobian_without_tangents():
     """The static prologue's evaluation: the constraint blocks and the residual bit for bit
     those of the full Jacobian, no stiffness in the coordinate block."""

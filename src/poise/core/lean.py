@@ -17,6 +17,8 @@ except ImportError:  # numpy < 2 (its C function elsewhere): the public one
 
 try:
     from numpy.linalg import _umath_linalg
+    if not all(hasattr(_umath_linalg, f) for f in ("svd_f", "eigh_lo", "eigvalsh_lo")):
+        _umath_linalg = None
 except ImportError:  # (numpy's layout changed: the public functions below)
     _umath_linalg = None
 
