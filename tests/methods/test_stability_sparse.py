@@ -174,37 +174,79 @@ def test_diagonal_scaling_is_scipys_products_bit_for_bit():
                 assert x.dtype == y.dtype and np.array_equal(x, y), (trial, a)
 
 
-def test_equilibration_row_maxima_by_length_or_by_segments_agree_bit_for_bit(monkeypatch):
-    # the KKT blocks' scaled row maxima, rows grouped by length (a few lengths) or reduced by
-    # segments (many), in passes of any size, are the maxima of the products (|m_ij| D_i) D_j
-    # to the last bit: empty rows, row and column offsets, a long row
-    import poise.solvers.equilibrate as eqm
-    from poise.solvers.equilibrate import _RowMaxima
-    rng = np.random.default_rng(3)
-    for trial in range(30):
-        nr, nc = int(rng.integers(1, 50)), int(rng.integers(1, 50))
-        M = _random_csr(rng, nr, nc, 0.02, 0.3)
-        if trial % 4 == 0:
-            M = sp.vstack([M, sp.csr_matrix(np.ones((1, nc)))]).tocsr()   # one long row
+def _kkt_blocks(rng, trial):
+    """A random stiffness ``Ks`` (n x n) and constraint rows ``G`` (m x n, maybe none), CSR,
+    entries of either sign over 16 decades: empty rows, a long row, an empty ``Ks``."""
+    n, m = int(rng.integers(1, 40)), int(rng.integers(0, 30)) * (trial % 5 != 0)
+    Ks = _random_csr(rng, n, n, 0.0 if trial % 7 == 0 else 0.02, 0.3)
+    G = _random_csr(rng, m, n, 0.02, 0.3)
+    if m and trial % 4 == 0:
+        G = sp.vstack([G, sp.csr_matrix(np.ones((1, n)))]).tocsr()   # one long row
+    for M in (Ks, G):
         M.data *= rng.choice([-1.0, 1.0], size=M.nnz) * 10.0 ** rng.uniform(-8, 8, M.nnz)
-        r0, c0 = (0, nr) if trial % 2 else (nc, 0)
-        D = 10.0 ** rng.uniform(-4, 4, max(r0 + M.shape[0], c0 + nc))
-        rows = np.repeat(np.arange(M.shape[0]), np.diff(M.indptr)) + r0
-        ref = np.zeros(len(D))
-        np.maximum.at(ref, rows, (np.abs(M.data) * D[rows]) * D[M.indices + c0])
-        for lengths in (eqm.MAX_LENGTHS, 0):               # grouped by length, by segments
+    return Ks, G
+
+
+def _ruiz_reference(Ks, G, start=None, iters=12, tol=0.1):
+    """The equilibration written plainly on the assembled KKT matrix (its rows' maxima of
+    ``(|m_ij| D_i) D_j`` by ``np.maximum.at``)."""
+    from poise.solvers.equilibrate import coordinate_caps
+    nq = Ks.shape[0]
+    M = sp.bmat([[Ks, G.T], [G, None]], format="csr") if G.shape[0] else Ks
+    n = M.shape[0]
+    rows = np.repeat(np.arange(n), np.diff(M.indptr))
+    a = np.abs(M.data)
+    cap = coordinate_caps(Ks)
+    D = np.ones(n) if start is None else np.concatenate(start)
+    D[:nq] = np.minimum(D[:nq], cap)
+    for _ in range(iters):
+        r = np.zeros(n)
+        np.maximum.at(r, rows, (a * D[rows]) * D[M.indices])
+        r[r <= 0.0] = 1.0
+        rq = r[:nq]
+        rq[(D[:nq] >= cap) & (rq < 1.0)] = 1.0
+        if np.abs(r - 1.0).max() <= tol:
+            break
+        D = D / np.sqrt(r)
+        D[:nq] = np.minimum(D[:nq], cap)
+    return D[:nq], D[nq:]
+
+
+def test_equilibration_is_the_plain_ruiz_scaling_bit_for_bit(monkeypatch):
+    # the KKT rows' scaled maxima, the coordinates' rows grouped by pattern and the constraint
+    # rows by length (a few patterns) or the assembled matrix reduced by segments (many), in
+    # passes of any size, are the maxima of the products (|m_ij| D_i) D_j to the last bit,
+    # on the unknowns renumbered; and the factors are those of the plain Ruiz iteration on the
+    # assembled matrix (from ones, and from given factors)
+    import poise.solvers.equilibrate as eqm
+    rng = np.random.default_rng(3)
+    moved = 0
+    for trial in range(40):
+        Ks, G = _kkt_blocks(rng, trial)
+        nq, n = Ks.shape[0], Ks.shape[0] + G.shape[0]
+        M = sp.bmat([[Ks, G.T], [G, None]], format="csr") if G.shape[0] else Ks
+        D = 10.0 ** rng.uniform(-4, 4, n)
+        rows = np.repeat(np.arange(n), np.diff(M.indptr))
+        ref = np.zeros(n)
+        np.maximum.at(ref, rows, (np.abs(M.data) * D[rows]) * D[M.indices])
+        start = (10.0 ** rng.uniform(-2, 2, nq), 10.0 ** rng.uniform(-2, 2, n - nq))
+        want = [_ruiz_reference(Ks, G), _ruiz_reference(Ks, G, start)]
+        moved += bool(np.any(np.concatenate(want[0]) != 1.0))      # (the scaling did work)
+        for lengths in (1 << 20, 0):                      # grouped by pattern, by segments
             monkeypatch.setattr(eqm, "MAX_LENGTHS", lengths)
-            pt = _RowMaxima(M.indptr, M.indices, M.data, r0, c0)
-            assert pt.padded == (lengths > 0 and M.nnz > 0)
-            r = np.zeros(len(D))
-            pt.into(r, D)
-            assert np.array_equal(r, ref), (trial, lengths)
-            if pt.padded:                            # in passes of a few rows: the same maxima
-                monkeypatch.setattr(eqm, "PASS_ENTRIES", int(rng.integers(1, 12)))
-                r2 = np.zeros(len(D))
-                pt.into(r2, D, eqm._Scratch())
-                assert np.array_equal(r2, ref), trial
+            for passes in (eqm.PASS_ENTRIES, int(rng.integers(1, 12))):
+                monkeypatch.setattr(eqm, "PASS_ENTRIES", passes)
+                rm = eqm._KKTRows(Ks, G)
+                assert rm.padded == (lengths > 0)
+                assert np.array_equal(np.sort(rm.order), np.arange(n))
+                assert np.all(rm.order[:nq] < nq)          # the coordinates first
+                r = np.zeros(n)
+                rm.into(r, D[rm.order], eqm._Scratch())
+                assert np.array_equal(r, ref[rm.order]), (trial, lengths, passes)
+                for w, got in zip(want, (eqm.equilibrate(Ks, G), eqm.equilibrate(Ks, G, start=start))):
+                    assert all(np.array_equal(x, y) for x, y in zip(got, w)), (trial, lengths)
             monkeypatch.undo()
+    assert moved >= 30
 
 
 # ------------------------------------------------------------------ sparse == dense

@@ -19,6 +19,7 @@ import numpy as np
 
 from poise.core.lean import where
 from poise.solvers.stability_modes import DIAG_FLOOR, NOISE_REL
+from poise.solvers.symmetric_ldl import inverse
 
 
 def _row_max(M):
@@ -98,27 +99,23 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
     ``i`` is never scaled beyond :func:`coordinate_caps`. Returns the coordinate and row
     factors (``start``: the factors to start from, e.g. a nearby configuration's).
 
-    The KKT matrix is never assembled: its row maxima are those of ``Ks``, ``G^T`` (``G`` by
-    columns) and ``G``, each taken over preallocated buffers (a maximum is exact, so the
-    factors are those of the assembled matrix)."""
+    The sweeps run on the unknowns renumbered by :class:`_KKTRows` (rows of one pattern
+    together, coordinates first): each row's maximum is written in place, with no scatter;
+    a maximum is exact and the other steps act entry by entry, so the factors are those of the
+    assembled matrix in its own numbering."""
     nq = Ks.shape[0]
     cap = coordinate_caps(Ks)
-    Ks = Ks.tocsr()
-    parts = [_RowMaxima(Ks.indptr, Ks.indices, Ks.data, 0, 0)]
-    if G.shape[0]:
-        Gr, Gc = G.tocsr(), G.tocsc()
-        parts += [_RowMaxima(Gc.indptr, Gc.indices, Gc.data, 0, nq),   # rows of G^T
-                  _RowMaxima(Gr.indptr, Gr.indices, Gr.data, nq, 0)]
-    n = nq + G.shape[0]
-    D = np.ones(n) if start is None else np.concatenate(start)
+    rows = _KKTRows(Ks.tocsr(), G)
+    at = rows.order                                   # the unknown at each renumbered place
+    D = np.ones(len(at)) if start is None else np.concatenate(start)[at]
+    cap = cap[at[:nq]]
+    n = len(at)
     np.minimum(D[:nq], cap, out=D[:nq])
-    r, e = np.empty(n), np.empty(n)
+    r, e = np.zeros(n), np.empty(n)
     Dq, rq = D[:nq], r[:nq]
     scratch = _Scratch()
     for _ in range(iters):
-        r[:] = 0.0
-        for pt in parts:
-            pt.into(r, D, scratch)
+        rows.into(r, D, scratch)
         r[r <= 0.0] = 1.0                              # an all-zero row keeps its scale
         rq[(Dq >= cap) & (rq < 1.0)] = 1.0             # at its cap: as far as it goes
         np.subtract(r, 1.0, out=e)
@@ -126,112 +123,132 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
             break
         D /= np.sqrt(r, out=r)
         np.minimum(Dq, cap, out=Dq)
-    return D[:nq], D[nq:]
+    out = np.empty(n)
+    out[at] = D
+    return out[:nq], out[nq:]
 
 
-#: entries of a block (:class:`_RowMaxima`) per pass: the pass buffers, shared by the blocks
-#: and the sweeps, stay a few MB however large the model (no fresh pages per block)
+#: entries of a group (:class:`_KKTRows`) per pass: the pass buffers, shared by the groups
+#: and the sweeps, stay a few MB however large the model (no fresh pages per group)
 PASS_ENTRIES = 1 << 18
 
-#: distinct row lengths of a block laid out by length (:class:`_RowMaxima`); a block with more
-#: is reduced by segments
+#: distinct row patterns of the KKT matrix laid out by pattern (:class:`_KKTRows`); a matrix
+#: with more is reduced by segments
 MAX_LENGTHS = 16
 
 
 class _Scratch:
-    """Two ``(w, k)`` buffers and a ``(k,)`` one, views of flat arrays kept across the blocks
-    and sweeps of one equilibration (grown, never shrunk)."""
+    """Two ``(w, k)`` buffers, views of one flat array kept across the groups and sweeps of one
+    equilibration (grown, never shrunk)."""
 
     def __init__(self):
         self.flat = np.empty((2, 0))
-        self.mflat = np.empty(0)
 
     def take(self, w, k):
         if self.flat.shape[1] < w * k:
             self.flat = np.empty((2, w * k))
-        if self.mflat.size < k:
-            self.mflat = np.empty(k)
-        return (self.flat[0, :w * k].reshape(w, k), self.flat[1, :w * k].reshape(w, k),
-                self.mflat[:k])
+        return self.flat[0, :w * k].reshape(w, k), self.flat[1, :w * k].reshape(w, k)
 
 
-class _RowMaxima:
-    """Row maxima of ``|M| * D[row] * D[col]`` for a compressed block ``M`` of the KKT matrix
-    at row offset ``r0`` and column offset ``c0`` (the same products, in the same order, as on
-    the assembled matrix). The rows are grouped by their number of entries ``w`` (a few
-    lengths: a model's rows repeat a few patterns), each group laid out ``(w, rows)``: its row
-    factors are one broadcast and its maxima ``w - 1`` elementwise passes over exactly its
-    entries, instead of a gather and a segmented reduction; a block of many lengths is reduced
-    by segments."""
+def kkt_rows(Ks, G):
+    """``[[Ks, G^T], [G, 0]]`` (CSR ``Ks``, ``G``) as CSR, by scipy's compiled stacking (no
+    block matrix of COO triplets)."""
+    import scipy.sparse as sp
+    n = Ks.shape[0] + G.shape[0]
+    if not G.shape[0]:
+        return Ks
+    upper = sp.hstack([Ks, G.tocsc().T], format="csr")      # (a CSC's transpose is CSR)
+    lower = sp.csr_matrix((G.data, G.indices, G.indptr), shape=(G.shape[0], n))
+    return sp.vstack([upper, lower], format="csr")
 
-    def __init__(self, indptr, indices, data, r0, c0):
-        cnt = np.diff(indptr)
-        a = np.abs(data)
-        lengths = np.flatnonzero(np.bincount(cnt)) if cnt.size else cnt
-        lengths = lengths[lengths > 0]
-        self.padded = a.size > 0 and len(lengths) <= MAX_LENGTHS
-        if self.padded:
-            # per length w: (target rows, |entries| (w, rows), their columns (w, rows))
-            self.groups = []
-            for w in lengths.tolist():
-                rows = np.flatnonzero(cnt == w)
-                # the entries row by row (contiguous reads), then laid out (w, rows)
-                at = indptr[:-1][rows][:, None] + np.arange(w)
-                target = rows + r0
-                if target[-1] - target[0] == target.size - 1:     # a range: a slice (views)
-                    target = slice(int(target[0]), int(target[-1]) + 1)
-                cols = indices[at].astype(np.intp).T.copy()
-                if c0:
-                    cols += c0
-                self.groups.append((target, a[at].T.copy(), cols))
-        else:
+
+class _KKTRows:
+    """Row maxima of ``(|KKT_ij| D_i) D_j`` for the KKT matrix of ``Ks`` (CSR) and ``G``
+    (the products of the assembled matrix, in their order), on the unknowns renumbered by
+    ``order`` (``order[p]``: the unknown at place ``p``).
+
+    With a few row patterns (a model's rows repeat a few), the coordinates' rows are ordered
+    by their numbers of ``Ks`` and ``G^T`` entries, then the constraint rows by length
+    (stable): each pattern is a range of places, its entries laid out ``(w, rows)``, so that
+    its row factors are one broadcast and its maxima ``w - 1`` elementwise passes written
+    straight into the range (no scatter). With many patterns the rows keep their numbering and
+    the assembled matrix is reduced by segments."""
+
+    def __init__(self, Ks, G):
+        nq, m = Ks.shape[0], G.shape[0]
+        n = nq + m
+        blocks = [(Ks, 0)]                     # (CSR rows, offset of their column numbers)
+        if m:
+            Gr, Gc = G.tocsr(), G.tocsc()
+            blocks.append((Gc.T, nq))          # (a CSC's transpose is CSR: the rows of G^T)
+        kk = np.diff(Ks.indptr)
+        kg = np.diff(blocks[1][0].indptr) if m else np.zeros(nq, np.int64)
+        base = int(kg.max(initial=0)) + 1
+        key = kk * base + kg                   # a coordinate row's pattern: (kk, kg)
+        keys = np.flatnonzero(np.bincount(key)) if nq else key
+        lens = np.diff(Gr.indptr) if m else np.zeros(0, np.int64)
+        lengths = np.flatnonzero(np.bincount(lens)) if m else lens
+        self.padded = len(keys) + len(lengths) <= MAX_LENGTHS
+        if not self.padded:
+            self.order = np.arange(n)
+            M = kkt_rows(Ks, G)
+            cnt = np.diff(M.indptr)
             nz = cnt > 0
-            self.target = np.nonzero(nz)[0] + r0
-            self.a = a
-            self.rows = np.repeat(np.arange(r0, r0 + len(cnt)), cnt)
-            self.cols = (indices + c0 if c0 else indices).astype(np.intp)
-            self.starts = indptr[:-1][nz]
-            self.buf = np.empty(self.a.shape)
-            self.tmp = np.empty(self.a.shape)
+            self.target = np.flatnonzero(nz)
+            self.a = np.abs(M.data)
+            self.rows = np.repeat(np.arange(n), cnt)
+            self.cols = M.indices.astype(np.intp)
+            self.starts = M.indptr[:-1][nz]
+            self.buf, self.tmp = np.empty(self.a.shape), np.empty(self.a.shape)
+            return
+        # places: the coordinates by pattern, then the constraint rows by length; each range
+        # with the blocks holding its rows' entries: [(CSR rows, column offset, count)]
+        spans = [(np.flatnonzero(key == c), [(b, c0, int(w)) for (b, c0), w in
+                                             zip(blocks, divmod(c, base))])
+                 for c in keys.tolist()]
+        spans += [(nq + np.flatnonzero(lens == w), [(Gr, 0, w)]) for w in lengths.tolist()]
+        self.order = np.concatenate([rows for rows, _ in spans]) if spans else np.arange(n)
+        place = inverse(self.order)
+        self.groups = []                    # (places, |entries| (w, rows), their places)
+        p = 0
+        for rows, parts in spans:
+            k = rows.size
+            w = sum(c for _, _, c in parts)
+            if w:
+                a, cols = np.empty((w, k)), np.empty((w, k), np.intp)
+                j = 0
+                local = rows - (nq if rows[0] >= nq else 0)          # rows of their block
+                for M, c0, c in parts:
+                    if c:       # the entries row by row (contiguous reads), laid out (c, rows)
+                        at = M.indptr[:-1][local][:, None] + np.arange(c)
+                        np.abs(M.data[at].T, out=a[j:j + c])
+                        cols[j:j + c] = place[M.indices[at] + c0 if c0 else M.indices[at]].T
+                        j += c
+                self.groups.append((slice(p, p + k), a, cols))
+            p += k
 
-    def _padded_into(self, r, D, scratch):
-        """The groups' maxima in passes of at most ``PASS_ENTRIES`` entries over ``scratch``'s
-        two buffers (the maxima are exact: the passes give the same factors)."""
+    def into(self, r, D, scratch):
+        """``r[p]``: the maximum of row ``order[p]`` for ``D`` (renumbered); an empty row's
+        ``r`` is left as it is."""
+        if not self.padded:
+            if self.a.size:
+                np.take(D, self.rows, out=self.buf, mode="clip")   # valid: no copy of out
+                np.multiply(self.a, self.buf, out=self.buf)
+                np.take(D, self.cols, out=self.tmp, mode="clip")
+                np.multiply(self.buf, self.tmp, out=self.buf)
+                r[self.target] = np.maximum.reduceat(self.buf, self.starts)
+            return
         for t, a, cols in self.groups:
-            w, rows = a.shape
+            w, k = a.shape
             step = max(1, PASS_ENTRIES // w)
-            for j0 in range(0, rows, step):
-                j1 = min(j0 + step, rows)
-                tj = (slice(t.start + j0, t.start + j1) if isinstance(t, slice) else t[j0:j1])
-                buf, tmp, m = scratch.take(w, j1 - j0)
-                np.multiply(a[:, j0:j1], D[tj], out=buf)
-                np.take(D, cols[:, j0:j1], out=tmp, mode="clip")   # valid: no copy of out
+            for j0 in range(t.start, t.stop, step):
+                j1 = min(j0 + step, t.stop)
+                buf, tmp = scratch.take(w, j1 - j0)
+                c = slice(j0 - t.start, j1 - t.start)
+                np.multiply(a[:, c], D[j0:j1], out=buf)
+                np.take(D, cols[:, c], out=tmp, mode="clip")       # valid: no copy of out
                 np.multiply(buf, tmp, out=buf)
-                np.maximum.reduce(buf, axis=0, out=m)
-                _max_into(r, tj, m)
-
-    def into(self, r, D, scratch=None):
-        if self.padded:
-            self._padded_into(r, D, _Scratch() if scratch is None else scratch)
-            return
-        if not self.a.size:
-            return
-        np.take(D, self.rows, out=self.buf, mode="clip")      # valid indices: no copy of out
-        np.multiply(self.a, self.buf, out=self.buf)
-        np.take(D, self.cols, out=self.tmp, mode="clip")
-        np.multiply(self.buf, self.tmp, out=self.buf)
-        _max_into(r, self.target, np.maximum.reduceat(self.buf, self.starts))
-
-
-def _max_into(r, t, m):
-    """``r[t] = max(r[t], m)`` (``t`` a slice: in place on the view; else indices, ``m``
-    overwritten)."""
-    if isinstance(t, slice):
-        rt = r[t]
-        np.maximum(rt, m, out=rt)
-    else:
-        np.maximum(r[t], m, out=m)
-        r[t] = m
+                np.maximum.reduce(buf, axis=0, out=r[j0:j1])
 
 
 def equilibrate_dense(Ks, G, iters=12, tol=0.1):

@@ -27,6 +27,7 @@ from poise.solvers.stability_modes import (
 )
 from poise.solvers.symmetric_ldl import (  # noqa: F401 - re-exported
     SymmetricLDL,
+    inverse,
     symmetric_permutation,
 )
 
@@ -231,7 +232,7 @@ class SparsePencil:
         if self.lean:
             self._GtG = None
         if self._pos is None:
-            self._pos = np.argsort(self.order)
+            self._pos = inverse(self.order)
         pos = self._pos
         parts = [(A, 0, 0)]                          # (CSC columns, first column, row offset)
         if self.m:                                   # Gt's rows: the columns of Gt^T

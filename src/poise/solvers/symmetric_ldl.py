@@ -123,7 +123,7 @@ class SymmetricLDL:
         gathered back."""
         v = np.asarray(v, float)
         if self._pos is None:
-            self._pos = np.arange(self.n) if self.order is None else np.argsort(self.order)
+            self._pos = np.arange(self.n) if self.order is None else inverse(self.order)
         at = self._pos[:k]
         if v.ndim == 1:
             b = np.zeros(self.n)
@@ -161,6 +161,14 @@ def _empty(M):
     M.data = np.zeros(0)
     M.indices = np.zeros(0, np.int32)
     M.indptr = np.zeros(M.shape[1] + 1, np.int32)
+
+
+def inverse(order):
+    """The inverse of the permutation ``order`` (``inverse(order)[order[k]] = k``): one
+    scatter, where ``argsort`` would sort."""
+    out = np.empty(len(order), np.intp)
+    out[order] = np.arange(len(order))
+    return out
 
 
 def symmetric_permutation(A, order):
