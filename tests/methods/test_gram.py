@@ -69,11 +69,39 @@ def test_the_banded_gram_diagonal_and_the_scaled_rows_are_those_of_the_matrix():
     assert np.array_equal(S.data.view(np.int64), ref.data.view(np.int64))
     assert np.array_equal(S.indices, ref.indices) and np.array_equal(S.indptr, ref.indptr)
     A, ab, d = banded_gram(S)
-    assert ab is not None and d[7] == 0.0
+    assert A is None and ab is not None and d[7] == 0.0
+    A = gram(S)                                          # made block by block: the same bits
     assert np.array_equal(d.view(np.int64), A.diagonal().view(np.int64))
     assert np.array_equal(ab.view(np.int64), band(A).view(np.int64))
     d[0] = -1.0                                          # a copy, not a view of the band
     assert ab[0, 0] > 0.0
+
+
+@pytest.mark.parametrize("block", [1, 7, 64, 8192])
+def test_the_band_made_block_by_block_is_that_of_the_whole_gram_matrix(monkeypatch, block):
+    monkeypatch.setattr(gram_mod, "BLOCK_ROWS", block)
+    monkeypatch.setattr(gram_mod, "BLOCKED_ROWS", 0)       # every matrix block by block
+    rng = np.random.default_rng(block)
+    P = _banded_rows(seed=block)
+    zeros = sp.csr_matrix(P, copy=True)                  # far entries stored as explicit zeros:
+    zeros.data[zeros.indices > 1.5 * np.repeat(np.arange(60), np.diff(zeros.indptr))] = 0.0
+    n = 100                  # a pattern that allows a band, values that do not fill it:
+    ind = np.zeros(2 * n - 1, int)                       # rows i > 0: (i, 0) and (i, i)
+    ind[2::2] = np.arange(1, n)
+    val = np.r_[1.0, np.zeros(2 * n - 2)]
+    val[2::2] = 1.0
+    val[-2] = 0.1                                         # (n - 1, 0): one far Gram entry
+    wide = sp.csr_matrix((val, ind, np.r_[0, np.arange(1, 2 * n, 2)]), shape=(n, n))
+    assert gram_mod.may_be_banded(wide) and band(gram(wide)) is None
+    for Q in (P, zeros, P[rng.permutation(60)], wide):
+        A, ab, d = banded_gram(Q)
+        ref = band(gram(Q))
+        if ref is None:
+            assert ab is None and (A != gram(Q)).nnz == 0
+            continue
+        assert A is None and ab.flags.f_contiguous
+        assert ab.shape == ref.shape and np.array_equal(ab.view(np.int64), ref.view(np.int64))
+        assert np.array_equal(d.view(np.int64), ref[0].view(np.int64))
 
 
 def test_the_pattern_precheck_is_its_bound_on_the_band_and_the_lower_triangle():
@@ -190,7 +218,8 @@ def test_redundancy_of_long_loops_is_the_same_banded_or_through_superlu(tmp_path
     red = detect_redundancy(model, state, evaluation=ev)
     last = 5 * (n + 1)
     assert list(red) == [last - 3, last - 2, last - 1]   # deck order: the closing joint's rows
-    monkeypatch.setattr(gram_mod, "band", lambda A: None)
+    monkeypatch.setattr(gram_mod, "BAND_FILL", 0)            # no band: SuperLU's path
+    assert gram_mod.banded_gram(sp.csr_matrix(ev.J[model.nq:, :model.nq]))[1] is None
     assert list(detect_redundancy(model, state, evaluation=ev)) == list(red)
 
 

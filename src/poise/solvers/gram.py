@@ -31,30 +31,121 @@ def gram(P):
     return (P @ P.T).tocsr()
 
 
-def banded_gram(P):
-    """``(A, ab, d)``: the Gram matrix ``A`` of ``P`` (:func:`gram`), its lower band ``ab``
-    (:func:`band`; None when not banded) and its diagonal ``d`` (read off the band when there
-    is one: the same values, no pass over ``A``)."""
-    A = gram(P)
-    ab = band(A)
-    return A, ab, (A.diagonal() if ab is None else ab[0].copy())
+def banded_gram(P, PT=None):
+    """``(A, ab, d)``: the Gram matrix of ``P`` (CSR) as its lower band ``ab`` (:func:`band`)
+    and diagonal ``d`` with ``A`` None, or, when it is not banded, as the CSR ``A``
+    (:func:`gram`) with ``ab`` None. ``PT``: :func:`transposed` ``P``, if the caller has it
+    (its stored zeros are dropped).
+
+    From ``BLOCKED_ROWS`` rows on, a band the pattern allows (:func:`may_be_banded`) is made
+    block by block (:func:`_band_by_blocks`) and ``A`` is never held: there ``A`` and
+    :func:`band`'s index arrays are too large for the allocator to reuse (fresh pages each
+    time, hundreds of MB at 10^5 links). Either way the band is kept as :func:`band` decides."""
+    width = None
+    if P.shape[0] >= BLOCKED_ROWS:
+        PT = transposed(P) if PT is None else PT
+        width = _pattern_width(P.shape[0], PT)
+    if width is not None:
+        PT.eliminate_zeros()                # stored zeros make no product: a narrower band
+        ab = _band_by_blocks(P, _span(PT))
+        A = gram(P) if ab is None else None
+    else:
+        A = gram(P)
+        ab = band(A)
+    if ab is None:
+        return A, None, A.diagonal()
+    return None, ab, ab[0].copy()
 
 
-def may_be_banded(P) -> bool:
+#: rows from which :func:`banded_gram` makes a band block by block
+BLOCKED_ROWS = 1 << 17
+
+
+def may_be_banded(P, PT=None) -> bool:
     """False when the Gram matrix of the CSR ``P`` is certainly not banded (:func:`band`),
     from ``P``'s pattern alone: its band spans, for some column, the first to the last row
     with an entry in it, and its lower triangle has at most ``c (c + 1) / 2`` entries for each
-    column with ``c`` entries."""
+    column with ``c`` entries. ``PT``: :func:`transposed` ``P``, if the caller has it."""
+    return _pattern_width(P.shape[0], transposed(P) if PT is None else PT) is not None
+
+
+def transposed(P):
+    """``P^T`` (``P`` CSR) as CSR: ``P``'s columns, the rows in each ascending (the order
+    SciPy's conversion writes them in; sorted here if not)."""
+    PT = P.T.tocsr()
+    if not PT.has_sorted_indices:
+        PT.sort_indices()
+    return PT
+
+
+def _pattern_width(n, PT):
+    """The band width of the Gram matrix of ``P`` allowed by its pattern (``PT``:
+    :func:`transposed`): the largest of its columns' last row less first row; None when
+    :func:`may_be_banded` refuses the pattern."""
+    width = _span(PT)
+    c = np.diff(PT.indptr).astype(float)
+    if n * (width + 1) > BAND_FILL * float(np.sum(c * (c + 1) / 2) + n):
+        return None
+    return width
+
+
+def _span(PT):
+    """The largest last row less first row of a column of ``P`` (``PT``: :func:`transposed`),
+    0 when it has no entry: no two rows further apart share a column."""
+    c = np.diff(PT.indptr)
+    used = c > 0
+    if not used.any():
+        return 0
+    return int(np.max(PT.indices[PT.indptr[1:][used] - 1] - PT.indices[PT.indptr[:-1][used]]))
+
+
+#: rows of the Gram matrix made at once (:func:`_band_by_blocks`: their products stay in cache)
+BLOCK_ROWS = 8192
+
+
+def _band_by_blocks(P, width):
+    """The lower band of ``P P^T`` in :func:`band`'s layout, or None when :func:`band` would
+    refuse it, made ``BLOCK_ROWS`` rows at a time into storage of the pattern's ``width``.
+
+    Rows ``r0:r1`` of the product are those of ``P[r0:r1] P[c0:r1]^T`` (``c0 = r0 - width``:
+    no entry of the band lies further left) in the columns these rows use: SciPy's product
+    sums each entry on its own, over the row's entries in their order, and drops exact zeros,
+    so they are ``P P^T``'s bit for bit; and its work arrays span the block, not the matrix."""
+    import scipy.sparse as sp  # lazy: sparse systems only
     n = P.shape[0]
-    if n == 0 or P.nnz == 0:
-        return True
-    rows = np.repeat(np.arange(n), np.diff(P.indptr))
-    lo = np.full(P.shape[1], n)
-    hi = np.full(P.shape[1], -1)
-    np.minimum.at(lo, P.indices, rows)
-    np.maximum.at(hi, P.indices, rows)
-    c = np.bincount(P.indices, minlength=P.shape[1]).astype(float)
-    return n * (int(np.max(hi - lo)) + 1) <= BAND_FILL * float(np.sum(c * (c + 1) / 2) + n)
+    ptr, ind, data = P.indptr, P.indices, P.data
+    rows = np.zeros((n, width + 1))         # rows[j, o] = A[j + o, j]
+    flat = rows.reshape(-1)
+    used, low = 0, 0
+    for r0 in range(0, n, BLOCK_ROWS):
+        r1 = min(n, r0 + BLOCK_ROWS)
+        c0 = max(0, r0 - width)
+        e0, e1 = ptr[c0], ptr[r1]
+        if e1 == e0:
+            continue
+        cols = ind[e0:e1]
+        lo = int(cols.min())
+        cols = cols - lo
+        span = int(cols.max()) + 1
+        W = sp.csr_matrix((data[e0:e1], cols, ptr[c0:r1 + 1] - e0), shape=(r1 - c0, span))
+        b0 = ptr[r0] - e0
+        B = sp.csr_matrix((data[e0 + b0:e1], cols[b0:], ptr[r0:r1 + 1] - ptr[r0]),
+                          shape=(r1 - r0, span)) @ W.T
+        j = B.indices.astype(np.intp)
+        off = np.repeat(np.arange(r0 - c0, r1 - c0), np.diff(B.indptr)) - j
+        at = np.flatnonzero(off >= 0)
+        o = off[at]
+        if len(o):
+            used = max(used, int(o.max()))
+        if used > width:       # a stored zero times a non-finite value: the whole product
+            return band(gram(P))
+        low += len(at)
+        flat[(j[at] + c0) * (width + 1) + o] = B.data[at]
+    if n * (used + 1) > BAND_FILL * max(low, 1):
+        return None
+    if used < width:
+        rows = np.ascontiguousarray(rows[:, :used + 1])
+    return rows.T                           # ab[i - j, j] = A[i, j], column-major
 
 
 def band(A):
@@ -116,11 +207,12 @@ class SymmetricLU:
         return self._lu.solve(np.asarray(b, float))
 
 
-def without(ab, rows):
+def without(ab, rows, own: bool = False):
     """The band ``ab`` of a Gram matrix with ``rows`` taken out: zero in their rows and columns,
-    1 on their diagonal (a copy). It solves for the other rows exactly as the Gram matrix of
-    those alone, and gives exactly 0 on ``rows`` when the right-hand side is 0 there."""
-    ab = ab.copy(order="F")
+    1 on their diagonal (a copy; ``own``: ``ab`` itself, changed in place when column-major).
+    It solves for the other rows exactly as the Gram matrix of those alone, and gives exactly
+    0 on ``rows`` when the right-hand side is 0 there."""
+    ab = np.asfortranarray(ab) if own else ab.copy(order="F")
     w = ab.shape[0] - 1
     o = np.arange(w + 1)
     ab[:, rows] = 0.0                                  # column j: ab[i - j, j]
@@ -153,10 +245,11 @@ def least_squares(Pq, w, g, active, factor):
     positive definite (the caller solves its augmented system). ``factor(A, factorise)``: the
     caller's counted factorisation (:meth:`poise.solvers.data.SolveData.factor`)."""
     P = scaled(Pq, w)
-    if not may_be_banded(P):
+    PT = transposed(P)
+    if not may_be_banded(P, PT):
         return None
-    A, ab, d = banded_gram(P)
-    del A
+    _, ab, d = banded_gram(P, PT)
+    del PT
     off = ~np.asarray(active, bool)
     if ab is None or np.any(d[~off] <= 0.0):
         return None

@@ -53,7 +53,6 @@ def redundant_rows(Phi_q, col_scale: np.ndarray) -> np.ndarray:
     perm = "NATURAL" if nc <= ORDERING_NATURAL_MAX else "MMD_AT_PLUS_A"
     try:
         if ab is not None:
-            del A
             F = BandedCholesky(_shifted(ab, shift), own=True)
         else:
             import scipy.sparse as sp  # lazy: sparse systems only
@@ -95,7 +94,8 @@ def _resolve_ambiguous(P, cand, perm, ab=None):
     QR-like accuracy — and the projections are orthogonalised in deck order: a candidate whose
     remaining component is below ``SINE_TOL`` of its norm (an unsquared sine) is dependent on
     the rows before it. ``ab``: the band of ``P``'s Gram matrix, if banded (the candidates are
-    taken out of it, :func:`~poise.solvers.gram.without`), else SuperLU in the order ``perm``.
+    taken out of it in place, :func:`~poise.solvers.gram.without`), else SuperLU in the order
+    ``perm``.
     Returns None if the factorisation fails (the gap rule stands).
     """
     PC = P[cand].toarray()                                          # (c, nq)
@@ -103,7 +103,7 @@ def _resolve_ambiguous(P, cand, perm, ab=None):
     try:
         if ab is not None:
             PI, off = P, cand
-            F = BandedCholesky(without(ab, cand), own=True)
+            F = BandedCholesky(without(ab, cand, own=True), own=True)
         else:
             keep = np.ones(P.shape[0], bool)    # (np.setdiff1d: a hash of every row)
             keep[cand] = False
@@ -264,7 +264,7 @@ def _gram_factor(Pi):
         try:
             return BandedCholesky(ab, own=True)
         except ValueError:          # not numerically positive definite: SuperLU's LU decides
-            pass
+            A = gram(Pi)
     import scipy.sparse.linalg as spla
     return spla.splu(A.tocsc(), **lean(A.shape[0]))
 
