@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from poise.model.assembly import POOL_ABOVE, Assembler, Few, Pieces, Scatter, Zeros
+from poise.model.assembly import POOL_ABOVE, Assembler, Few, Scatter, Zeros
 from poise.model.workspace import Workspace
 from support.builders import perturbed_chain
 from poise.solvers.data import SolveData
@@ -65,7 +65,7 @@ def test_pooled_assembly_sums_like_bincount_and_spares_live_matrices(chain, monk
     orig = Assembler.assemble
 
     def grab(self, values, workspace=None):
-        vals.extend(v.dense() if isinstance(v, (Zeros, Pieces)) else np.asarray(v, float).ravel()
+        vals.extend(v.dense() if isinstance(v, Zeros) else np.asarray(v, float).ravel()
                     for v in values)
         return orig(self, values, workspace)
 
@@ -190,25 +190,3 @@ def test_zero_and_few_blocks_sum_like_their_dense_values(n):
     ref = asm.assemble(dense, Workspace())
     assert _bits(got.data, ref.data)
     assert not np.any(np.signbit(got.data) & (got.data == 0.0))      # never -0.0
-
-
-@pytest.mark.parametrize("N, n", [(30, 40), (300, 2 * POOL_ABOVE)])
-def test_pieces_sum_like_their_whole_block(N, n):
-    # an entry-major block (entries x n) given in instance ranges: added entry by entry, each
-    # entry's ranges in order, the registered order of the whole block, so the same bits in
-    # the bincount path (a small pattern) and the pooled one (slots repeat within and across
-    # blocks: the order of the sums counts)
-    rng = np.random.default_rng(5)
-    E = 6
-    blocks = [(rng.integers(-1, N, E * n), rng.integers(0, N, E * n)) for _ in range(3)]
-    asm = Assembler(N, list(blocks))
-    assert (asm.nnz >= POOL_ABOVE) == (N > 30)
-    dense = [rng.standard_normal(E * n) * 10.0 ** rng.integers(-8, 8, E * n) for _ in range(3)]
-    whole = dense[1].reshape(E, n)
-    cuts = [0, n // 3, n // 3 + 1, n]
-    pieces = Pieces(E, n, [(a, b, whole[:, a:b].copy()) for a, b in zip(cuts[:-1], cuts[1:])])
-    assert _bits(pieces.dense(), dense[1])
-    got = asm.assemble([dense[0], pieces, dense[2]], Workspace())
-    assert _bits(got.data, asm.assemble(dense, Workspace()).data)
-    ref = np.bincount(asm.slot_all, weights=np.concatenate(dense), minlength=asm.nnz + 1)
-    assert _bits(got.data, ref[:asm.nnz])

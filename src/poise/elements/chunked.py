@@ -59,14 +59,12 @@ def local_residuals(kin: SlotKinematics, rho: np.ndarray, K: int, parts: list, m
         yield rl
 
 
-def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> list:
-    """:func:`~poise.elements.kernel.tangent_compact` of the whole family, chunk by chunk: the
-    ``(first, end, values)`` of every chunk ``parts``, ``values`` entry-major
-    ``(9 * nblocks, end - first)`` (for :class:`~poise.model.assembly.Pieces`: no array of the
-    whole family, ~58 MB of fresh pages per Jacobian at 10^5 chain links, nor the copy into
-    it)."""
-    return [(a, b, tangent_compact(rows(kin, a, b), rho[a:b], g_rows(G, a, b), K, pat))
-            for a, b in parts]
+def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.ndarray:
+    """:func:`~poise.elements.kernel.tangent_compact` of the whole family, chunk by chunk."""
+    out = np.empty((9 * pat.nblocks, kin.pt.shape[0]))
+    for a, b in parts:
+        out[:, a:b] = tangent_compact(rows(kin, a, b), rho[a:b], g_rows(G, a, b), K, pat)
+    return out
 
 
 def constraint_values(kin: SlotKinematics, phy, K: int, act, pidx, parts: list | None

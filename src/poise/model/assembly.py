@@ -109,13 +109,11 @@ class Assembler:
 
         A block's values may also be :class:`Zeros` (every value 0) or :class:`Few` (0 but at
         a few of its entries): the same matrix, bit for bit (every sum starts from +0.0, so it
-        is never -0.0 and adding a zero leaves it as it is), without a pass over the zeros; or
-        :class:`Pieces` (entry-major values made in instance ranges: added in the registered
-        order, piece by piece, without an array of the whole block)."""
+        is never -0.0 and adding a zero leaves it as it is), without a pass over the zeros."""
         if workspace is None or self.nnz < POOL_ABOVE:
             buf = (np.empty(self.slot_all.size) if workspace is None
                    else workspace.scratch(self, _Scratch).values(self.slot_all.size))
-            vals = np.concatenate([v.dense() if isinstance(v, (Zeros, Pieces))
+            vals = np.concatenate([v.dense() if isinstance(v, Zeros)
                                    else np.asarray(v, float).ravel() for v in values], out=buf)
             data = np.bincount(self.slot_all, weights=vals, minlength=self.nnz + 1)[:self.nnz]
         else:
@@ -132,13 +130,6 @@ class Assembler:
                 if isinstance(v, Zeros):
                     if isinstance(v, Few) and v.idx.size:
                         np.add.at(out, self.slot_all[at + v.idx], v.vals)
-                    at += v.size
-                    continue
-                if isinstance(v, Pieces):      # entry by entry, its instance ranges in order
-                    for e in range(v.entries):
-                        first = at + e * v.n
-                        for a, b, part in v.parts:
-                            np.add.at(out, self.slot_all[first + a:first + b], part[e])
                     at += v.size
                     continue
                 v = np.asarray(v, float).ravel()
@@ -267,26 +258,6 @@ class Few(Zeros):
         out = np.zeros(self.size)
         out[self.idx] = self.vals
         return out
-
-
-class Pieces:
-    """A block of ``entries x n`` values, entry-major (the order a family's compact tangent is
-    registered in), made for ranges of its ``n`` instances: ``parts`` is ``[(first, end,
-    values (entries, end - first))]``, the ranges consecutive from 0 to ``n``. The assembler adds
-    them entry by entry, each entry's ranges in order: the registered order, so the same sums
-    as of the whole array, which is never made (a big family's tangent: 58 MB at 10^5 links)."""
-
-    __slots__ = ("entries", "n", "parts", "size")
-
-    def __init__(self, entries: int, n: int, parts: list):
-        self.entries, self.n, self.parts = int(entries), int(n), parts
-        self.size = self.entries * self.n
-
-    def dense(self) -> np.ndarray:
-        out = np.empty((self.entries, self.n))
-        for a, b, part in self.parts:
-            out[:, a:b] = part
-        return out.ravel()
 
 
 class CSCLayout:

@@ -33,7 +33,7 @@ from poise.elements.kernel import (constraint_jacobian_local, dense_g,
                                    local_pattern, local_residual_tangent, local_tangent,
                                    slot_kinematics, slot_points,
                                    tangent_compact)
-from poise.model.assembly import Few, Pieces, Scatter, Zeros
+from poise.model.assembly import Few, Scatter, Zeros
 from poise.model.energy import potential_energy
 from poise.model.frame_batch import add_block, stack_ext, tiles
 from poise.model.nonfinite import family_nonfinite, nonfinite_message
@@ -387,7 +387,7 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
             Kl = Zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
         elif pat.compact:  # straight into the registered (entry-major block) order
             Kl = (tangent_compact(kin, rho, G, fam.K, pat) if parts is None else
-                  Pieces(9 * pat.nblocks, fam.n, tangent_values(kin, rho, G, fam.K, pat, parts)))
+                  tangent_values(kin, rho, G, fam.K, pat, parts))
         else:
             Kl = local_tangent(kin, rho, G, fam.slot_ml, fam.K, ext, U, pat)
             Kl = _gather(Kl, pat.order)
