@@ -42,7 +42,7 @@ class Assembler:
     """
 
     __slots__ = ("N", "dense", "groups", "sizes", "nnz", "indices", "indptr", "slot",
-                 "slot_all", "order", "alone")
+                 "slot_all", "order")
 
     def __init__(self, N: int, blocks, dense: bool = False, groups=None):
         self.N = N
@@ -100,27 +100,6 @@ class Assembler:
             del key, s
         del keys, valids, uniq
         self.order = None                   # made at its first use (:meth:`ordered`)
-        self.alone = self._alone()
-
-    def _alone(self) -> tuple:
-        """Per block: every entry it fills is filled by it alone, once (a constraint Jacobian
-        block: its rows are its instances'). Its sums are then its values, ``+0.0 + v``:
-        assembled by an assignment instead of ``np.add.at``'s slower accumulation."""
-        if self.dense or self.nnz < POOL_ABOVE:          # only the pooled path reads them
-            return (False,) * len(self.sizes)
-        # int32 counts, chunk by chunk: bincount would widen all the slots to intp and count
-        # in int64 (at 10^5 links 0.2 GB at once, above the compile's own peak)
-        count = np.zeros(self.nnz + 1, np.int32)
-        one = np.ones(min(_CHUNK, self.slot_all.size), np.int32)   # (an array: add.at's fast loop)
-        for i in range(0, self.slot_all.size, _CHUNK):
-            part = self.slot_all[i:i + _CHUNK]
-            np.add.at(count, part, one[:part.size])
-        count[self.nnz] = 1                  # the bin of entries that do not exist
-        alone, at = [], 0
-        for size in self.sizes:
-            alone.append(bool(size) and bool(np.all(count[self.slot_all[at:at + size]] == 1)))
-            at += size
-        return tuple(alone)
 
     def assemble(self, values, workspace=None):
         """Assemble the matrix from a list of value arrays (same order/shapes as the blocks);
@@ -147,18 +126,16 @@ class Assembler:
             # widened slots in one piece would be fresh pages (above malloc's reuse) every time
             out = workspace.scratch(self, _Scratch).free_data(self.nnz + 1)
             at = 0
-            for k, v in enumerate(values):
+            for v in values:
                 if isinstance(v, Zeros):
                     if isinstance(v, Few) and v.idx.size:
                         np.add.at(out, self.slot_all[at + v.idx], v.vals)
                     at += v.size
                     continue
                 v = np.asarray(v, float).ravel()
-                # a block alone on its entries: +0.0 + v assigned (the sum, -0.0 made +0.0)
-                add = _assign_sum if self.alone[k] else np.add.at
                 for i in range(0, v.size, _CHUNK):
-                    add(out, self.slot_all[at + i:at + min(i + _CHUNK, v.size)],
-                        v[i:i + _CHUNK])
+                    np.add.at(out, self.slot_all[at + i:at + min(i + _CHUNK, v.size)],
+                              v[i:i + _CHUNK])
                 at += v.size
             if at != self.slot_all.size:
                 raise ValueError(f"assemble: {at} values for {self.slot_all.size} entries")
@@ -329,12 +306,6 @@ class CSCLayout:
         A = sp.csc_matrix((self.buf, self.indices, self.indptr), shape=J.shape, copy=False)
         A.has_canonical_format = True         # sorted rows, no duplicates: made so above
         return A
-
-
-def _assign_sum(out: np.ndarray, idx: np.ndarray, v: np.ndarray) -> None:
-    """``np.add.at(out, idx, v)`` where ``out[idx]`` is +0.0 and ``idx`` distinct (but for the
-    bin of entries that do not exist): ``out[idx] = 0.0 + v``, bit for bit."""
-    out[idx] = np.add(v, 0.0)
 
 
 def _same(a, b) -> bool:

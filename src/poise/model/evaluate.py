@@ -63,6 +63,7 @@ class Evaluation:
     _coupling: list = field(default_factory=list, repr=False)  # reaction feed d r / d lambda
     items: list = field(default=None, repr=False)   # per-family slot data (keep=True)
     inertia: object = field(default=None, repr=False)  # world inertias its Jacobian used
+    scaled: tuple = field(default=None, repr=False)  # the residual by tolerance (newton.scaled)
 
 
 @dataclass

@@ -93,15 +93,25 @@ class Scales:
         self.r_tol, self.phi_tol, self.q_len = got
 
 
+def scaled(ev, sc: Scales) -> np.ndarray:
+    """``[|r| / r_tol; |phi| / phi_tol]`` of an evaluation, made once per evaluation and
+    tolerances (kept on ``ev``): the merit of a line-search trial and the measures of the one
+    taken read the same array."""
+    got = ev.scaled
+    if got is not None and got[0] is sc.r_tol and got[1] is sc.phi_tol:
+        return got[2]
+    z = np.concatenate([np.abs(ev.r) / sc.r_tol, np.abs(ev.phi) / sc.phi_tol])
+    ev.scaled = (sc.r_tol, sc.phi_tol, z)
+    return z
+
+
 def measures(model, ev, sc: Scales):
     """(imbalance, constraint error (relative), scaled infinity norm, worst-equation name)."""
     mx = np.maximum.reduce              # (np.max without its Python wrapper)
-    ar = np.abs(ev.r)
-    imb = float(mx(ar)) if ev.r.size else 0.0
-    zr = ar / sc.r_tol
-    zp = np.abs(ev.phi) / sc.phi_tol if ev.phi.size else np.zeros(0)
+    imb = float(mx(np.abs(ev.r))) if ev.r.size else 0.0
+    z = scaled(ev, sc)
+    zp = z[len(ev.r):]
     cerr = float(mx(zp) * sc.max_error) if zp.size else 0.0
-    z = np.concatenate([zr, zp])
     if not z.size:
         return imb, cerr, 0.0, ""
     k = int(z.argmax())                 # its entry is the largest (the first NaN, if any)
@@ -129,7 +139,8 @@ def _equation_name(model, k) -> str:
 
 
 def merit(ev, sc):
-    z = np.concatenate([ev.r / sc.r_tol, ev.phi / sc.phi_tol])
+    """Half the squared norm of the residual by tolerance (:func:`scaled`)."""
+    z = scaled(ev, sc)
     with np.errstate(over="ignore", invalid="ignore"):     # inf: a residual beyond any scale
         return 0.5 * float(z @ z)
 
