@@ -178,9 +178,10 @@ def test_zero_and_few_blocks_sum_like_their_dense_values(n):
     # blocks of zeros (some -0.0) skipped, a block that is zero but at a few entries added
     # there only: the same bits as the dense blocks, in the bincount and the pooled paths
     rng = np.random.default_rng(3)
-    N = 30
+    N = 30 if n < POOL_ABOVE else 300         # a pattern of POOL_ABOVE entries or more: pooled
     blocks = [(rng.integers(-1, N, n), rng.integers(0, N, n)) for _ in range(4)]
     asm = Assembler(N, list(blocks))
+    assert (asm.nnz >= POOL_ABOVE) == (n >= POOL_ABOVE)
     dense = [rng.standard_normal(n), -np.zeros(n), rng.standard_normal(n), np.zeros(n)]
     dense[0][::7] = -0.0
     idx = np.array([1, 5, n - 1])
