@@ -539,7 +539,15 @@ factorisation (35 k fewer faults, same time). Huge pages for SuperLU's storage t
 alternations: system medians 2.15 s both, solve CPU 7.3 vs 7.5 s): the kernel's cost is per byte
 zeroed, not per fault; only fewer fresh bytes would lower it.
 Keeping big arrays in the heap (a raised mmap threshold) cuts ≈ 1 s of system time at 10⁵ links
-but lifts the peak RSS to 1.50 GB (heap fragmentation). The solve's memory peaks in Newton
+but lifts the peak RSS to 1.50 GB (heap fragmentation). S16: a large model's solve runs with the
+heap kept (`core/memory.kept_heap` around `Driver.run`, ≥ 2¹⁹ unknowns: glibc `mallopt`, no mmap
+and no trim of the heap's top; glibc's defaults restored and the heap trimmed after), and each
+SuperLU factorisation inside it trims the heap and maps its storage afresh (`memory.mapped`):
+SuperLU grows its factors by reallocation, and from a kept heap the outgrown copies stayed
+resident and set the peak (whole `poise solve` 1.47–1.61 GB without `mapped`). With both, 10⁵
+links (3 lockstep pairs): system 2.19 → 1.84 s, solve CPU 9.67 → 9.47 s, whole `poise solve`
+peak 1.41 → 1.37–1.38 GB.
+The solve's memory peaks in Newton
 (*after newton*); the *whole worker* column adds the bench's own reference LU (COLAMD, default
 options) and evaluations after the solve, which a `poise solve` does not run. The parsed deck is
 dropped before the solve and its pages returned to the OS (`malloc_trim`).

@@ -7,10 +7,20 @@ later peak (the factorisations) stacks on them. :func:`release` asks glibc to re
 (``malloc_trim(0)``: whole free pages anywhere in the heap). It is called only after large
 stages (callers pass the size that was freed), costs a few milliseconds, and is a no-op where
 the C library is not glibc (macOS, Windows, musl).
+
+Inside a large solve the freed memory is worth keeping instead: glibc maps every array above
+its mmap threshold (at most 32 MB) afresh and unmaps it when freed, so the solve's big
+temporaries are pages the kernel zeroes again at each allocation. :func:`kept_heap` (around a
+large model's solve, ``Driver.run``) has glibc serve them from the heap and keep its freed
+pages; SuperLU's factorisations, which set the solve's peak, still get fresh mapped storage
+(:func:`mapped`); afterwards the settings are restored and the heap trimmed.
 """
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
+import threading
 
 #: Stages smaller than this many bytes of input (or of model unknowns x 1000) are not followed
 #: by a trim: their freed memory is small and small runs stay free of the call.
@@ -20,27 +30,108 @@ LARGE = 1 << 23
 #: that costs more than the memory held (10^4 links: ~50 ms, for a peak the trim does not set).
 SOLVE_LARGE = 1 << 27
 
+#: Models with at least this many unknowns (``nq + nc``) solve inside :func:`kept_heap` (a
+#: 10^5-link chain has 1.1 M); below, the solve's arrays are mostly under glibc's mmap threshold
+#: and reuse the heap anyway.
+KEEP_LARGE = 1 << 19
+#: Inside a kept heap, factorisations of systems of at least this many unknowns are
+#: :func:`mapped`.
+MAPPED_LARGE = 1 << 15
+
 _trim = None          # glibc's malloc_trim, False when unavailable
+_mallopt = None       # glibc's mallopt, False when unavailable
+# mallopt's parameters (malloc.h), glibc's defaults (restored) and the kept heap's trim threshold
+# (mallopt takes an int: 2 GB, so the heap's free top is not given back)
+_M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4
+_DEFAULT_TRIM_THRESHOLD, _DEFAULT_MMAP_MAX = 128 * 1024, 65536
+_KEEP_TRIM_THRESHOLD = 2 ** 31 - 1
+#: environment variables that set what :func:`kept_heap` changes: the user's choice stands
+_USER_SETTINGS = ("MALLOC_MMAP_MAX_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_",
+                  "MALLOC_TOP_PAD_")
+_lock = threading.Lock()
+_kept = {"users": 0}
 
 
 def release(size: int = LARGE, large: int = LARGE) -> bool:
     """Return freed heap memory to the OS when ``size`` (of what a stage dropped, in bytes)
     is at least ``large`` (:data:`LARGE`, or :data:`SOLVE_LARGE` between a solve's stages);
     True when glibc trimmed something."""
-    global _trim
-    if size < large or not sys.platform.startswith("linux"):
-        return False
-    if _trim is None:
-        try:
-            import ctypes        # lazy: only large runs on Linux get here
-            _trim = ctypes.CDLL(None).malloc_trim
-            _trim.argtypes = [ctypes.c_size_t]
-            _trim.restype = ctypes.c_int
-        except (OSError, AttributeError):      # not glibc
-            _trim = False
-    if _trim is False:
+    if size < large or not glibc():
         return False
     return bool(_trim(0))
+
+
+def glibc() -> bool:
+    """Whether glibc's ``malloc_trim`` and ``mallopt`` are at hand (looked up once, on Linux)."""
+    global _trim, _mallopt
+    if _trim is None:
+        _trim = _mallopt = False
+        if sys.platform.startswith("linux"):
+            try:
+                import ctypes        # lazy: only large runs on Linux get here
+                libc = ctypes.CDLL(None)
+                trim, mallopt = libc.malloc_trim, libc.mallopt
+            except (OSError, AttributeError):      # not glibc
+                return False
+            trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+            mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+            _trim, _mallopt = trim, mallopt
+    return _trim is not False
+
+
+def user_chosen() -> bool:
+    """Whether the environment sets glibc's malloc thresholds (``MALLOC_*_`` variables or
+    ``glibc.malloc`` tunables): then :func:`kept_heap` changes nothing."""
+    return (any(v in os.environ for v in _USER_SETTINGS)
+            or "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", ""))
+
+
+@contextlib.contextmanager
+def kept_heap(size: int):
+    """Inside the block, when ``size`` (a model's unknowns) is at least :data:`KEEP_LARGE`,
+    glibc serves every allocation from the heap (``M_MMAP_MAX`` 0) and keeps its free top
+    (``M_TRIM_THRESHOLD`` 2 GB): freed arrays are reused, not fresh pages. After it glibc's
+    defaults are restored (its dynamic mmap threshold stays where it was, fixed, as after any
+    ``mallopt``) and the heap is trimmed. Re-entrant and thread-safe (the last one out restores;
+    the setting is the process's); a no-op off glibc, for smaller models and when the
+    environment sets the thresholds (:func:`user_chosen`)."""
+    if size < KEEP_LARGE or not glibc() or user_chosen():
+        yield
+        return
+    with _lock:
+        if _kept["users"] == 0:
+            _mallopt(_M_MMAP_MAX, 0)
+            _mallopt(_M_TRIM_THRESHOLD, _KEEP_TRIM_THRESHOLD)
+        _kept["users"] += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _kept["users"] -= 1
+            if _kept["users"] == 0:
+                _mallopt(_M_MMAP_MAX, _DEFAULT_MMAP_MAX)
+                _mallopt(_M_TRIM_THRESHOLD, _DEFAULT_TRIM_THRESHOLD)
+                _trim(0)
+
+
+@contextlib.contextmanager
+def mapped(size: int):
+    """Inside a :func:`kept_heap`, around a factorisation of ``size`` unknowns (at least
+    :data:`MAPPED_LARGE`): the heap's free pages go back to the OS first and large allocations
+    are mapped again. SuperLU grows its factors by reallocating them: from a kept heap the
+    outgrown copies, and the free pages beside them, would stay resident and set the solve's
+    peak. Elsewhere a no-op."""
+    with _lock:
+        active = _kept["users"] > 0 and size >= MAPPED_LARGE
+        if active:
+            _trim(0)
+            _mallopt(_M_MMAP_MAX, _DEFAULT_MMAP_MAX)
+    try:
+        yield
+    finally:
+        if active:
+            with _lock:
+                _mallopt(_M_MMAP_MAX, 0 if _kept["users"] else _DEFAULT_MMAP_MAX)
 
 
 def hand_over(obj):

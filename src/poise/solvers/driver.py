@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core import memory
 from poise.solvers.compliance import compliance_step
 from poise.solvers.context import Analysis, Env
 from poise.solvers.data import SolveData
@@ -79,6 +80,12 @@ class Driver:
         return self.env.data
 
     def run(self, state, index: int = 0):
+        """Solve the analysis from ``state`` (a large model's with the heap kept,
+        :func:`poise.core.memory.kept_heap`): ``(last frame's state, AnalysisRecord)``."""
+        with memory.kept_heap(self.model.nq + self.model.nc):
+            return self._run(state, index)
+
+    def _run(self, state, index):
         env, cls = self.env, self.strategy_cls
         state = state.copy()
         if env.kind == "quasistatic":

@@ -5,7 +5,7 @@ import warnings
 
 import numpy as np
 
-from poise.core import phases
+from poise.core import memory, phases
 from poise.core.lean import all_finite, norm
 from poise.solvers.superlu import lean
 
@@ -131,10 +131,14 @@ class Factor:
                     lay = None if lay is None else lay()
                     A = (lay.matrix(J) if lay is not None and lay.fits(J)
                          else _columns_ordered(J, self.order))
-                    self.lu = spla.splu(A, permc_spec="NATURAL", **lean(J.shape[0]))
+                    with memory.mapped(J.shape[0]):     # (a large solve: fresh storage)
+                        self.lu = spla.splu(A, permc_spec="NATURAL", **lean(J.shape[0]))
                     del A
                 else:
-                    self.lu = spla.splu(J.tocsc(), permc_spec="COLAMD", **lean(J.shape[0]))
+                    A = J.tocsc()
+                    with memory.mapped(J.shape[0]):
+                        self.lu = spla.splu(A, permc_spec="COLAMD", **lean(J.shape[0]))
+                    del A
             except RuntimeError as e:
                 raise SingularMatrix(str(e)) from None
             # SuperLU refuses an exactly zero pivot (RuntimeError above); the pivots of a finite
