@@ -15,6 +15,7 @@ from functools import cache, partial
 
 import numpy as np
 
+from poise.core.permutation import inverse
 
 # sums of more entries than this go into reused buffers (np.add.at), smaller ones into fresh
 # arrays (np.bincount: the same sums, no pool to look after)
@@ -275,8 +276,7 @@ class CSCLayout:
         # every column), no column selection and no float copy of the positions
         small = asm.nnz < np.iinfo(np.int32).max and asm.N < np.iinfo(np.int32).max
         idx = np.int32 if small else np.intp
-        rank = np.empty(asm.N, idx)
-        rank[order] = np.arange(asm.N, dtype=idx)
+        rank = inverse(order, idx)
         cols = rank[asm.indices]
         del rank
         A = sp.csr_matrix((np.arange(asm.nnz, dtype=idx), cols, asm.indptr),

@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.lean import where
+from poise.core.permutation import inverse
 from poise.solvers.stability_modes import DIAG_FLOOR, NOISE_REL
-from poise.solvers.symmetric_ldl import inverse
 
 
 def _row_max(M):

@@ -7,6 +7,7 @@ import numpy as np
 
 from poise.core import memory, phases
 from poise.core.lean import all_finite, norm
+from poise.core.permutation import inverse
 from poise.solvers.superlu import lean
 
 # Dense systems up to this size are solved with numpy's LAPACK (the inverse of the regularity
@@ -65,9 +66,7 @@ def _columns_ordered(J, order):
     if getattr(J, "format", "") != "csr":
         return J.tocsc()[:, order]
     import scipy.sparse as sp  # lazy: sparse systems only
-    idx = J.indices.dtype
-    rank = np.empty(J.shape[1], idx)
-    rank[order] = np.arange(J.shape[1], dtype=idx)
+    rank = inverse(order, J.indices.dtype)
     return sp.csr_matrix((J.data, rank[J.indices], J.indptr), shape=J.shape).tocsc()
 
 

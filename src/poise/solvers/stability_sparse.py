@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core import memory
+from poise.core.permutation import inverse
 from poise.solvers.equilibrate import equilibrate as _equilibrate
 from poise.solvers.equilibrate import prune_noise as _prune_noise
 from poise.solvers.equilibrate import prune_rows as _prune_rows
@@ -27,7 +28,6 @@ from poise.solvers.stability_modes import (
 )
 from poise.solvers.symmetric_ldl import (  # noqa: F401 - re-exported
     SymmetricLDL,
-    inverse,
     symmetric_permutation,
 )
 
@@ -366,8 +366,7 @@ def _kkt_order(model, K, G, GtG, kkt_columns=None) -> np.ndarray:
     if kkt_columns is not None and ng > 1:
         # a group's rank: the position of its first coordinate among the KKT columns (ranks
         # need not be consecutive: only their order counts)
-        at = np.empty(len(kkt_columns), np.int64)
-        at[kkt_columns] = np.arange(len(kkt_columns))
+        at = inverse(kkt_columns, np.int64)
         rank = np.full(ng, len(kkt_columns), np.int64)
         np.minimum.at(rank, grp, at[:nq])
     elif ng > 1:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core import memory
+from poise.core.permutation import inverse
 
 
 class SymmetricLDL:
@@ -163,14 +164,6 @@ def _empty(M):
     M.data = np.zeros(0)
     M.indices = np.zeros(0, np.int32)
     M.indptr = np.zeros(M.shape[1] + 1, np.int32)
-
-
-def inverse(order):
-    """The inverse of the permutation ``order`` (``inverse(order)[order[k]] = k``): one
-    scatter, where ``argsort`` would sort."""
-    out = np.empty(len(order), np.intp)
-    out[order] = np.arange(len(order))
-    return out
 
 
 def symmetric_permutation(A, order):
