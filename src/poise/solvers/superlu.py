@@ -11,6 +11,8 @@ SuperLU's default and their results stay bitwise those of before.
 """
 from __future__ import annotations
 
+from poise.core import memory
+
 #: Systems with at least this many unknowns are factorised column by column.
 COLUMNWISE_MIN = 50_000
 
@@ -18,3 +20,12 @@ COLUMNWISE_MIN = 50_000
 def lean(n: int) -> dict:
     """Keyword arguments for ``scipy.sparse.linalg.splu`` of an ``n x n`` system."""
     return {"panel_size": 1} if n >= COLUMNWISE_MIN else {}
+
+
+def splu(A, **options):
+    """``scipy.sparse.linalg.splu(A, **options)`` of the CSC ``A``, with :func:`lean`'s options
+    for its size unless ``options`` name them, inside :func:`poise.core.memory.mapped` (in a
+    large solve the factors get fresh storage, not the kept heap's)."""
+    import scipy.sparse.linalg as spla  # lazy: sparse systems only
+    with memory.mapped(A.shape[0]):
+        return spla.splu(A, **{**lean(A.shape[0]), **options})
