@@ -7,7 +7,9 @@ poise's models have narrow supernodes, where panels buy nothing: with ``panel_si
 factors are the same size and the factorisation is faster (0.79 -> 0.52 s at 10⁵ links,
 0.071 -> 0.032 s at 10⁴) with a third of the transient memory. The pivots and fill are the
 same, but the updates are summed in another order (round-off differs), so small systems keep
-SuperLU's default and their results stay bitwise those of before.
+SuperLU's default and their results stay bitwise those of before. :func:`splu` is the one
+call of SuperLU's factorisation for the solvers' systems (Newton's, the stability LDL^T's):
+with these options, and in a large solve's kept heap on fresh mapped storage.
 """
 from __future__ import annotations
 
