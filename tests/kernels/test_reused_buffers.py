@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from poise.core.readonly import slot_names
 from poise.model.assembly import POOL_ABOVE, Assembler, Few, Scatter, Zeros
 from poise.model.workspace import Workspace
 from support.builders import perturbed_chain
@@ -96,7 +97,7 @@ def test_the_csc_layout_is_the_column_ordered_matrix_and_factorises_alike(chain)
     ws = Workspace()
     J = model.evaluate(st, need_jac=True, eps_mass=1e-3, workspace=ws).J
     order = J.poise_column_order()
-    assert order is model.assembler.order and not order.flags.writeable   # the model's, kept
+    assert order is model.assembler.ordered() and not order.flags.writeable   # the model's, kept
     lay = J.poise_csc_layout()                   # made at the first factorisation, kept
     assert J.poise_csc_layout() is lay
     assert lay.fits(J) and not lay.fits(sp.csr_matrix(J.toarray()))
@@ -136,7 +137,7 @@ def test_the_column_order_is_that_of_the_quotient_pattern_whatever_the_group_lab
     for grp in (rng.permutation(G)[asm.groups],                # contiguous, labels shuffled
                 rng.integers(0, G // 3, asm.N)):              # interleaved rows
         other = object.__new__(Assembler)
-        for name in Assembler.__slots__:
+        for name in slot_names(Assembler):
             setattr(other, name, getattr(asm, name))
         other.groups = grp
         assert np.array_equal(other.column_order(), quotient_order(asm, grp))

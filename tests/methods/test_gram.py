@@ -178,6 +178,21 @@ def test_least_squares_is_the_weighted_least_squares_solution():
     assert least_squares(P, w, g, np.ones(P.shape[0], bool), lambda A, f: f(A)) is None
 
 
+def test_least_squares_by_blocks_reads_the_pattern_width_once(monkeypatch):
+    rng = np.random.default_rng(6)
+    P = _banded_rows(seed=6)
+    w = rng.uniform(0.1, 10.0, P.shape[1])
+    g = rng.standard_normal(P.shape[1])
+    active = np.ones(P.shape[0], bool)
+    ref = least_squares(P, w, g, active, lambda A, f: f(A))
+    monkeypatch.setattr(gram_mod, "BLOCKED_ROWS", 0)       # the band made block by block
+    calls = []
+    real = gram_mod.pattern_width
+    monkeypatch.setattr(gram_mod, "pattern_width", lambda *a: calls.append(1) or real(*a))
+    got = least_squares(P, w, g, active, lambda A, f: f(A))
+    assert calls == [1] and ref is not None and np.array_equal(got, ref)
+
+
 @pytest.mark.parametrize("shuffle", [False, True])
 def test_initial_multipliers_of_a_sparse_chain_are_the_weighted_least_squares_ones(
         tmp_path, monkeypatch, shuffle):

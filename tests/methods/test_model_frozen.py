@@ -80,6 +80,19 @@ def test_other_methods_leave_the_model_unchanged(deck, overrides, monkeypatch):
     _solve_and_check(deck, overrides, monkeypatch)
 
 
+def test_a_sparse_solve_leaves_the_model_unchanged(tmp_path, monkeypatch):
+    # a sparse model's factorisations make its pattern's column order at the first use: kept
+    # beside the assembler (Assembler.ordered), the compiled model stays as compile made it
+    from poise.gen.chain import build_chain_deck
+    deck = tmp_path / "chain_120.xml"
+    deck.write_text(build_chain_deck(120))
+    (m, _), = _solve_and_check(str(deck), None, monkeypatch)
+    assert not m.assembler.dense
+    order = m.assembler.ordered()
+    assert order is m.assembler.ordered() and not order.flags.writeable
+    assert all(order is not o for o, _ in reachable(m).values())
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("deck", [d for d in ALL if d not in QUICK])
 def test_every_example_deck_leaves_its_models_unchanged(deck, monkeypatch):

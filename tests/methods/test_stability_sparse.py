@@ -65,6 +65,22 @@ def test_ldlt_indefinite_kkt_and_refusals():
     assert F.ok and F.backward_error > 1e-5
 
 
+def test_ldlt_backward_error_empties_the_factor_copies_and_leaves_the_solves():
+    # the estimate reads SciPy's cached CSC copies of L and U once and empties both (the
+    # documented effect); the solves, which use SuperLU's own factors, give the same bits
+    rng = np.random.default_rng(7)
+    A = _random_symmetric(rng, 40)
+    F = stab.SymmetricLDL(A, rng.permutation(40))
+    assert F.ok and F.lu.L.nnz > 0 and F.lu.U.nnz > 0
+    x = np.arange(1.0, 41.0)
+    before = F.solve(x)
+    berr = F.backward_error
+    assert np.isfinite(berr) and berr > 0.0 and F.backward_error == berr
+    for M in (F.lu.L, F.lu.U):
+        assert M.shape == (40, 40) and M.nnz == 0 and M.indptr.size == 41
+    assert np.array_equal(F.solve(x), before)
+
+
 def test_ldlt_head_solves_are_the_full_solves_bit_for_bit():
     # ``solve_head`` (the mode operators): the right-hand side ``[v; 0]`` made in the
     # factorisation's order and the head of the solution gathered back, in groups of columns,

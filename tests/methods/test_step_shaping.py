@@ -70,6 +70,40 @@ def test_mass_times_with_the_inertias_given_is_the_same_product(tmp_path):
     np.testing.assert_allclose(mass_times(model, st, v), M @ v, rtol=1e-13, atol=1e-12)
 
 
+def test_mass_times_of_a_batch_is_each_case_s_product(tmp_path, monkeypatch):
+    # the batched sweep path (``CaseBatch._may_filter``) takes the cases' products at once:
+    # each row is the case's own product (to round-off: numpy's einsum sums a batch's 3-term
+    # products in another order); a single product is the same by strided views or by gathers
+    model, st, _, x = _setup(tmp_path, 1e-3)
+    rng = np.random.default_rng(3)
+    states = [model.retract(st, 1e-2 * rng.standard_normal(model.nq)) for _ in range(3)]
+    V = rng.standard_normal((3, model.nq))
+    Jg = np.stack([model.world_inertia(s) for s in states])
+    many = mass_times(model, None, V, Jg)
+    assert model.rigid_blocks() and many.shape == V.shape
+    strided = [mass_times(model, s, V[c]) for c, s in enumerate(states)]
+    for c in range(3):
+        np.testing.assert_allclose(many[c], strided[c], rtol=1e-14, atol=1e-14 * np.abs(
+            strided[c]).max())
+        assert np.array_equal(many[c][model.trans_idx], strided[c][model.trans_idx])
+    monkeypatch.setattr(type(model), "rigid_blocks", lambda self: False)   # by gathers
+    for c, s in enumerate(states):
+        assert mass_times(model, s, V[c]).tobytes() == strided[c].tobytes()
+
+
+def test_a_stalled_line_search_by_each_of_its_three_tests():
+    # Newton and the batched sweep path decide with the same test (newton.stalled)
+    from poise.solvers.newton import ALPHA_STALL, ARMIJO, stalled
+    halving = (16.0, 8.0, 4.0, 2.0)
+    assert not stalled(halving, 1.0, 1.0, 2)                       # Armijo decrease at alpha 1
+    assert stalled((16.0, 12.0, 9.0), 1.0, 1.0, 2)                 # not halved in 2 iterations
+    assert not stalled((16.0, 12.0, 9.0), 1.0, 1.0, 3)             # (a window not yet full)
+    assert stalled(halving, 1.0, 0.5 * ALPHA_STALL, 2)             # cut too short
+    assert stalled(halving, (1 - ARMIJO) * 2.0 * 1.0000001, 1.0, 2)   # no Armijo decrease
+    assert not stalled(halving, (1 - ARMIJO) * 2.0, 1.0, 2)
+    assert stalled(halving, np.nan, 1.0, 2)                        # no finite trial merit
+
+
 class _Counted:
     """A factorisation whose solves are counted."""
 

@@ -3,8 +3,9 @@
 Blocks of (row, col) index arrays are registered at compile time (``-1`` marks an entry that
 does not exist, e.g. a ground coordinate). The union pattern is sorted once; every later
 assembly is one ``np.bincount`` of the concatenated values into the CSR data array (or into a
-dense array for small systems). The assembler is part of the immutable model, and so is the
-fill-reducing column order of its pattern (made at its first use, once per model); the value
+dense array for small systems). The assembler is part of the immutable model; the
+fill-reducing column order of its pattern is made at its first use, once per model, and kept
+beside it (:meth:`Assembler.ordered`); the value
 buffers live in the solve's workspace (:class:`poise.model.workspace.Workspace`); a sparse
 matrix carries its order as a :class:`KKTMatrix`.
 """
@@ -15,15 +16,21 @@ from functools import cache, partial
 
 import numpy as np
 
+from poise.core import per_object
 from poise.core.permutation import inverse
 
 # sums of more entries than this go into reused buffers (np.add.at), smaller ones into fresh
 # arrays (np.bincount: the same sums, no pool to look after)
 POOL_ABOVE = 1 << 15
 
+#: assembler -> its fill-reducing column order (:meth:`Assembler.ordered`), kept beside it
+_ORDERS = per_object.table()
+
 
 class Assembler:
-    """Fixed-pattern assembler for an ``N x N`` matrix.
+    """Fixed-pattern assembler for an ``N x N`` matrix, unchanged once made (the compiled
+    model seals its arrays); the column order of its pattern, made at its first use, is kept
+    beside it (:meth:`ordered`), not in it.
 
     Parameters
     ----------
@@ -43,7 +50,7 @@ class Assembler:
     """
 
     __slots__ = ("N", "dense", "groups", "sizes", "nnz", "indices", "indptr", "slot",
-                 "slot_all", "order")
+                 "slot_all", "__weakref__")
 
     def __init__(self, N: int, blocks, dense: bool = False, groups=None):
         self.N = N
@@ -100,7 +107,6 @@ class Assembler:
                 part[v] = s
             del key, s
         del keys, valids, uniq
-        self.order = None                   # made at its first use (:meth:`ordered`)
 
     def assemble(self, values, workspace=None):
         """Assemble the matrix from a list of value arrays (same order/shapes as the blocks);
@@ -172,15 +178,17 @@ class Assembler:
 
     def ordered(self) -> np.ndarray:
         """The fill-reducing column order (:meth:`column_order`), made at its first use and
-        kept with the pattern (read-only): every later factorisation of the model, in this
-        solve or the next (frames, sweeps, other analyses), reads it. Not made at compile: a
-        large deck's parsed elements are alive then, and what compile keeps or imports beside
-        them raises the solve's peak memory."""
-        if self.order is None:
-            order = self.column_order()
-            order.flags.writeable = False
-            self.order = order
-        return self.order
+        kept while the assembler lives (read-only; in a table beside it, so the compiled model
+        stays as compile made it): every later factorisation of the model, in this solve or
+        the next (frames, sweeps, other analyses), reads it. Not made at compile: a large
+        deck's parsed elements are alive then, and what compile keeps or imports beside them
+        raises the solve's peak memory."""
+        return per_object.once_per(_ORDERS, self, self._read_only_order)
+
+    def _read_only_order(self) -> np.ndarray:
+        order = self.column_order()
+        order.flags.writeable = False
+        return order
 
     def pattern(self):
         """Structural pattern: ``(rows, cols)`` of every entry an assembly can fill, unique and

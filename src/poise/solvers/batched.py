@@ -23,11 +23,11 @@ from poise.core.errors import EvaluationError
 from poise.model.evaluate import evaluate
 from poise.model.frame_batch import set_tiles, tiles
 from poise.model.workspace import Workspace
-from poise.solvers.newton import ARMIJO, ALPHA_STALL, Scales
+from poise.solvers.newton import ARMIJO, Scales, stalled
 from poise.solvers.reach import coord_weights
 from poise.solvers.stability import classify_dense_frames
 from poise.model.retract_many import limit_many, retract_many
-from poise.solvers.steps import TAIL_SHARE, grew, neutral_filtered, step_size
+from poise.solvers.steps import TAIL_SHARE, grew, mass_times, neutral_filtered, step_size
 
 SINGULAR_REL = 1e-15          # the dense Factor's singular-value test (solvers/linalg.py)
 
@@ -226,11 +226,8 @@ class CaseBatch:
                     live[i] = False
                     continue
                 merits[i].append(m0[j])
-                ms = merits[i]
-                cw = settings.limits.crawl_window
-                crawl = len(ms) > cw and not m0[j] <= 0.5 * ms[-1 - cw]
-                if settings.line_search and zinf[j] > 1.0 and (
-                        crawl or ba < ALPHA_STALL or not bm <= (1 - ARMIJO * ba) * m0[j]):
+                if settings.line_search and zinf[j] > 1.0 and stalled(
+                        merits[i], bm, ba, settings.limits.crawl_window):
                     self._give_up(res, [i], "stalled line search")
                     live[i] = False
                     continue
@@ -247,13 +244,8 @@ class CaseBatch:
         model, eps = self.model, self.eps
         if not eps > 0 or model.nq == 0:
             return np.zeros(len(states), bool)
-        nq = model.nq
-        reg = np.zeros((len(states), nq))
-        reg[:, model.trans_idx] = np.repeat(model.body_mass, 3)[None] * x[:, model.trans_idx]
-        if len(model.rot_idx):
-            Jg = self._inertia(states)
-            v = x[:, model.rot_idx].reshape(len(states), -1, 3)
-            reg[:, model.rot_idx] = np.einsum("cnij,cnj->cni", Jg, v).reshape(len(states), -1)
+        Jg = self._inertia(states) if len(model.rot_idx) else None
+        reg = mass_times(model, None, x[:, :model.nq], Jg)
         share = np.max(np.abs(eps * reg) / self.sc.r_tol[None], axis=1) / np.maximum(zinf, 1e-300)
         return limited | (share > TAIL_SHARE)
 

@@ -31,20 +31,22 @@ def gram(P):
     return (P @ P.T).tocsr()
 
 
-def banded_gram(P, PT=None):
+def banded_gram(P, PT=None, width=None):
     """``(A, ab, d)``: the Gram matrix of ``P`` (CSR) as its lower band ``ab`` (:func:`band`)
     and diagonal ``d`` with ``A`` None, or, when it is not banded, as the CSR ``A``
     (:func:`gram`) with ``ab`` None. ``PT``: :func:`transposed` ``P``, if the caller has it
-    (its stored zeros are dropped).
+    (its stored zeros are dropped); ``width``: :func:`pattern_width` of ``P``, if the caller
+    has it (not None).
 
     From ``BLOCKED_ROWS`` rows on, a band the pattern allows (:func:`may_be_banded`) is made
     block by block (:func:`_band_by_blocks`) and ``A`` is never held: there ``A`` and
     :func:`band`'s index arrays are too large for the allocator to reuse (fresh pages each
     time, hundreds of MB at 10^5 links). Either way the band is kept as :func:`band` decides."""
-    width = None
-    if P.shape[0] >= BLOCKED_ROWS:
+    if P.shape[0] < BLOCKED_ROWS:
+        width = None
+    else:
         PT = transposed(P) if PT is None else PT
-        width = _pattern_width(P.shape[0], PT)
+        width = pattern_width(P, PT) if width is None else width
     if width is not None:
         PT.eliminate_zeros()                # stored zeros make no product: a narrower band
         ab = _band_by_blocks(P, _span(PT))
@@ -66,7 +68,7 @@ def may_be_banded(P, PT=None) -> bool:
     from ``P``'s pattern alone: its band spans, for some column, the first to the last row
     with an entry in it, and its lower triangle has at most ``c (c + 1) / 2`` entries for each
     column with ``c`` entries. ``PT``: :func:`transposed` ``P``, if the caller has it."""
-    return _pattern_width(P.shape[0], transposed(P) if PT is None else PT) is not None
+    return pattern_width(P, PT) is not None
 
 
 def transposed(P):
@@ -78,10 +80,12 @@ def transposed(P):
     return PT
 
 
-def _pattern_width(n, PT):
-    """The band width of the Gram matrix of ``P`` allowed by its pattern (``PT``:
-    :func:`transposed`): the largest of its columns' last row less first row; None when
-    :func:`may_be_banded` refuses the pattern."""
+def pattern_width(P, PT=None):
+    """The band width of the Gram matrix of the CSR ``P`` allowed by its pattern: the largest
+    of its columns' last row less first row; None when :func:`may_be_banded` refuses the
+    pattern. ``PT``: :func:`transposed` ``P``, if the caller has it."""
+    n = P.shape[0]
+    PT = transposed(P) if PT is None else PT
     width = _span(PT)
     c = np.diff(PT.indptr).astype(float)
     if n * (width + 1) > BAND_FILL * float(np.sum(c * (c + 1) / 2) + n):
@@ -246,9 +250,10 @@ def least_squares(Pq, w, g, active, factor):
     caller's counted factorisation (:meth:`poise.solvers.data.SolveData.factor`)."""
     P = scaled(Pq, w)
     PT = transposed(P)
-    if not may_be_banded(P, PT):
+    width = pattern_width(P, PT)        # (banded_gram's too, from BLOCKED_ROWS rows on)
+    if width is None:
         return None
-    _, ab, d = banded_gram(P, PT)
+    _, ab, d = banded_gram(P, PT, width)
     del PT
     off = ~np.asarray(active, bool)
     if ab is None or np.any(d[~off] <= 0.0):

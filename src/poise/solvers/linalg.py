@@ -5,10 +5,10 @@ import warnings
 
 import numpy as np
 
-from poise.core import memory, phases
+from poise.core import phases
 from poise.core.lean import all_finite, norm
 from poise.core.permutation import inverse
-from poise.solvers.superlu import lean
+from poise.solvers.superlu import splu
 
 # Dense systems up to this size are solved with numpy's LAPACK (the inverse of the regularity
 # bound, else gesv) and checked with an SVD where that bound does not decide: no scipy import on
@@ -119,7 +119,6 @@ class Factor:
         self.order = None
         self.numpy = False
         if self.sparse:
-            import scipy.sparse.linalg as spla
             order = getattr(J, "poise_column_order", None)
             try:
                 if order is not None:
@@ -130,13 +129,11 @@ class Factor:
                     lay = None if lay is None else lay()
                     A = (lay.matrix(J) if lay is not None and lay.fits(J)
                          else _columns_ordered(J, self.order))
-                    with memory.mapped(J.shape[0]):     # (a large solve: fresh storage)
-                        self.lu = spla.splu(A, permc_spec="NATURAL", **lean(J.shape[0]))
+                    self.lu = splu(A, permc_spec="NATURAL")
                     del A
                 else:
                     A = J.tocsc()
-                    with memory.mapped(J.shape[0]):
-                        self.lu = spla.splu(A, permc_spec="COLAMD", **lean(J.shape[0]))
+                    self.lu = splu(A, permc_spec="COLAMD")
                     del A
             except RuntimeError as e:
                 raise SingularMatrix(str(e)) from None

@@ -38,8 +38,17 @@ from poise.solvers.status import MESSAGES, Status
 from poise.solvers import steps as _steps
 
 ARMIJO = 1e-4
-ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step);
-                              # so has one whose merit did not halve in Limits.crawl_window its
+ALPHA_STALL = 1.0 / 32        # a line search cut below this has stalled (see downhill_step)
+
+
+def stalled(merits, best: float, alpha: float, crawl_window: int) -> bool:
+    """Whether Newton's line search has stalled (then it walks down the potential; the batched
+    sweep path solves the case alone): the merit, ``merits`` at each iteration up to this one,
+    did not halve in ``crawl_window`` iterations, the step was cut below ``ALPHA_STALL``, or
+    the best trial's merit ``best`` (at ``alpha``) is no Armijo decrease."""
+    m0 = merits[-1]
+    crawl = len(merits) > crawl_window and not m0 <= 0.5 * merits[-1 - crawl_window]
+    return crawl or alpha < ALPHA_STALL or not best <= (1 - ARMIJO * alpha) * m0
 
 
 @dataclass(frozen=True)
@@ -436,10 +445,8 @@ class NewtonIteration(Solver[_Newtoning]):
             nxt = _steps.step_size(xf[:model.nq] if xf is not None else dq, sc)
             return Next(self._converged(s, max(s.cerr, nxt)), 0)
         s = evolve(s, merits=s.merits + (m0,))
-        cw = settings.limits.crawl_window
-        crawl = len(s.merits) > cw and not m0 <= 0.5 * s.merits[-1 - cw]
-        if settings.line_search and self.walks_down and not s.res_ok and (
-                crawl or best[1] < ALPHA_STALL or not best[0] <= (1 - ARMIJO * best[1]) * m0):
+        if settings.line_search and self.walks_down and not s.res_ok and stalled(
+                s.merits, best[0], best[1], settings.limits.crawl_window):
             # the merit stalls: from now on every trial is kept on the constraints (the
             # iterate first, if Newton's linearisation left them), and where the merit has a
             # valley that is no equilibrium, steps go down the potential energy instead until

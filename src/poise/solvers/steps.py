@@ -114,9 +114,10 @@ def chord_step(kept, b, sc, zinf):
 def mass_times(model, state, v, Jg=None):
     """``M v`` for a tangent vector ``v`` (nq,): body masses on translations, world inertia on
     rotations, zero on scalar unknowns. ``Jg``: the world inertias at ``state``
-    (``model.world_inertia(state)``) when the caller has them already."""
-    out = np.zeros(model.nq)
-    if model.rigid_blocks():         # translations and rotations: strided views, no gathers
+    (``model.world_inertia(state)``) when the caller has them already. Cases of a batch
+    (:mod:`poise.solvers.batched`): ``v`` (C, nq) and their ``Jg`` (C, nr, 3, 3) given."""
+    out = np.zeros(v.shape[:-1] + (model.nq,))
+    if v.ndim == 1 and model.rigid_blocks():     # translations and rotations: strided views
         vt, vr = model.coord_parts(v)
         o6 = out[:6 * model.nb].reshape(model.nb, 6)
         o6[:, :3] = model.body_mass[:, None] * vt
@@ -124,12 +125,13 @@ def mass_times(model, state, v, Jg=None):
             o6[:, 3:] = einsum("nij,nj->ni",
                                model.world_inertia(state) if Jg is None else Jg, vr)
         return out
-    out[model.trans_idx] = model.body_mass.repeat(3) * v[model.trans_idx]
+    out[..., model.trans_idx] = model.body_mass.repeat(3) * v[..., model.trans_idx]
     if len(model.rot_idx):
         if Jg is None:
             Jg = model.world_inertia(state)
-        out[model.rot_idx] = einsum("nij,nj->ni", Jg,
-                                       v[model.rot_idx].reshape(-1, 3)).ravel()
+        vr = v[..., model.rot_idx]
+        out[..., model.rot_idx] = einsum("...nij,...nj->...ni", Jg,
+                                         vr.reshape(vr.shape[:-1] + (-1, 3))).reshape(vr.shape)
     return out
 
 

@@ -11,6 +11,7 @@ import numpy as np
 
 from poise.core import memory
 from poise.core.permutation import inverse
+from poise.solvers.superlu import splu
 
 
 class SymmetricLDL:
@@ -27,6 +28,11 @@ class SymmetricLDL:
     Without pivoting the factorisation is not backward stable in general, so
     ``backward_error = 32 u ||(|L| |U|) 1||_inf`` estimates ``||L D L^T - A||``: the counted
     inertia is A's when this is below A's smallest |eigenvalue| (Weyl).
+
+    ``lu`` is SciPy's SuperLU object. Its first read of ``lu.U`` (the pivots, here) makes and
+    caches CSC copies of both factors; :attr:`backward_error` reads them and then empties
+    both (the solves use SuperLU's own factors): after it, ``lu.L`` and ``lu.U`` are empty
+    matrices of their shapes.
     """
 
     def __init__(self, A, order=None, permuted: bool = False):
@@ -52,7 +58,7 @@ class SymmetricLDL:
         if not np.array_equal(lu.perm_r, lu.perm_c):
             self.reason = "the LDL^T factorisation needed an off-diagonal pivot"
             return
-        d = lu.U.diagonal()               # (SuperLU makes and keeps a CSC copy of U)
+        d = lu.U.diagonal()               # (SciPy makes and keeps CSC copies of U and L)
         if not np.all(np.isfinite(d)) or np.any(d == 0.0):
             self.reason = "the LDL^T factorisation has a zero or non-finite pivot"
             return
@@ -77,19 +83,17 @@ class SymmetricLDL:
         """SuperLU column by column at any size (``panel_size=1``): the KKT matrices' supernodes
         are narrow, so panels buy nothing (``poise.solvers.superlu``; 4.4 -> 3.1 ms at 11 000
         unknowns); the pivots, hence the inertia, are the same."""
-        import scipy.sparse.linalg as spla
-        with memory.mapped(A.shape[0]):     # (a large solve: fresh storage)
-            return spla.splu(A, permc_spec="MMD_AT_PLUS_A" if self.order is None else "NATURAL",
-                             diag_pivot_thresh=0.0, options=dict(SymmetricMode=True),
-                             panel_size=1)
+        return splu(A, permc_spec="MMD_AT_PLUS_A" if self.order is None else "NATURAL",
+                    diag_pivot_thresh=0.0, options=dict(SymmetricMode=True), panel_size=1)
 
     @property
     def backward_error(self) -> float:
-        """``32 u ||(|L| |U|) 1||_inf`` (inf when the factorisation is not valid)."""
+        """``32 u ||(|L| |U|) 1||_inf`` (inf when the factorisation is not valid). Empties
+        ``lu.L`` and ``lu.U`` (SciPy's cached copies of the factors) once it has read them."""
         if self._berr is None:
-            # two compiled sparse products over SuperLU's CSC copies of the factors, each made
-            # absolute in place, read, and emptied before the other is made (the solves use
-            # SuperLU's own factors): one copy alive at a time, none after this
+            # two compiled sparse products over SciPy's CSC copies of the factors (both made at
+            # the first read of lu.U), each made absolute in place, read, and emptied (the
+            # solves use SuperLU's own factors): neither copy is held after this
             U = self.lu.U
             g = _abs_matvec(U, np.ones(self.n))
             _empty(U)
