@@ -4,7 +4,7 @@ small model's solve: Euclidean norms (``np.linalg.norm``'s results, bit for bit,
 arrays), the all-finite test, a gather along the last axis, ``einsum`` and ``where``: numpy's
 C functions that ``np.einsum`` (without ``optimize``) and ``np.where`` call after Python
 wrappers costing more than their work on 3x3 blocks; and the LAPACK decompositions of
-``np.linalg`` (``svd``, ``eigh``, ``eigvalsh``) of one real matrix, its gufuncs called as it calls
+``np.linalg`` (``svd``, ``eigh``, ``eigvalsh``, ``cholesky``, ``solve``) of one real matrix, its gufuncs called as it calls
 them (same routines, same results, same errors) without its argument checks and conversions."""
 from __future__ import annotations
 
@@ -17,7 +17,8 @@ except ImportError:  # numpy < 2 (its C function elsewhere): the public one
 
 try:
     from numpy.linalg import _umath_linalg
-    if not all(hasattr(_umath_linalg, f) for f in ("svd_f", "eigh_lo", "eigvalsh_lo")):
+    if not all(hasattr(_umath_linalg, f) for f in ("svd_f", "eigh_lo", "eigvalsh_lo", "solve",
+                                                   "solve1", "cholesky_lo")):
         _umath_linalg = None
 except ImportError:  # (numpy's layout changed: the public functions below)
     _umath_linalg = None
@@ -59,6 +60,14 @@ def _no_svd(err, flag):
     raise np.linalg.LinAlgError("SVD did not converge")
 
 
+def _singular(err, flag):
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
+def _not_positive_definite(err, flag):
+    raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+
 def _lapack(a) -> bool:
     """Whether ``a`` goes to the gufuncs directly: a real float64 matrix."""
     return _umath_linalg is not None and type(a) is np.ndarray and a.dtype == np.float64 \
@@ -90,3 +99,23 @@ def eigvalsh(a):
     with np.errstate(call=_no_eigenvalues, invalid="call", over="ignore", divide="ignore",
                      under="ignore"):
         return _umath_linalg.eigvalsh_lo(a, signature="d->d")
+
+
+def solve(a, b):
+    """``np.linalg.solve(a, b)`` of a real matrix and a real vector (or matrix of columns)."""
+    if not (_lapack(a) and type(b) is np.ndarray and b.dtype == np.float64 and b.ndim <= 2):
+        return np.linalg.solve(a, b)
+    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore",
+                     under="ignore"):
+        if b.ndim == 1:
+            return _umath_linalg.solve1(a, b, signature="dd->d")
+        return _umath_linalg.solve(a, b, signature="dd->d")
+
+
+def cholesky(a):
+    """``np.linalg.cholesky(a)`` (lower) of a real symmetric matrix."""
+    if not _lapack(a):
+        return np.linalg.cholesky(a)
+    with np.errstate(call=_not_positive_definite, invalid="call", over="ignore",
+                     divide="ignore", under="ignore"):
+        return _umath_linalg.cholesky_lo(a, signature="d->d")

@@ -163,12 +163,10 @@ class SmallDense:
         # position for a point (the ground row of ``pos``, zeros, for an axis: Y - 0 is Y)
         Y = np.concatenate((P.ravel(), A.ravel())).take(yat)
         V = Y - pos.take(vat)
-        out = {}
-        for fi, a, b, n, S, K, ix in fams:
-            out[fi] = SlotKinematics(Y=Y[a:b].reshape(n, S, 3), V=V[a:b].reshape(n, S, 3),
-                                     pt=ix.pt, slot_ml=ix.slot_ml, K=K, masks=ix.masks,
-                                     rounds=ix.rounds, index=ix)
-        return out
+        # (positional arguments: a keyword call per family costs more than its views)
+        return {fi: SlotKinematics(Y[a:b].reshape(shape), V[a:b].reshape(shape), ix.pt,
+                                   ix.slot_ml, K, None, ix.masks, ix.rounds, ix)
+                for fi, a, b, shape, K, ix in fams}
 
     def outputs(self, passes, need_jac):
         """``(r, phi, pend, items)`` of one frame from the family pass ``passes`` (the
@@ -220,7 +218,7 @@ def _kinematics_index(model):
         ax.append(np.broadcast_to(ix.ax, (n, S)).ravel())
         pt.append(ix.pt.ravel())
         body.append(ix.body.ravel())
-        fams.append((fi, at, at + n * S, n, S, fam.markers.shape[1], ix))
+        fams.append((fi, at, at + n * S, (n, S, 3), fam.markers.shape[1], ix))
         at += n * S
     if not fams:
         return None
