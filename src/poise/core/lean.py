@@ -1,11 +1,12 @@
 """numpy's own arithmetic on small arrays without the Python argument handling of its
 convenience functions, which costs more than the work itself on the few-element arrays of a
 small model's solve: Euclidean norms (``np.linalg.norm``'s results, bit for bit, for real
-arrays), the all-finite test, a gather along the last axis, ``einsum`` and ``where``: numpy's
-C functions that ``np.einsum`` (without ``optimize``) and ``np.where`` call after Python
-wrappers costing more than their work on 3x3 blocks; and the LAPACK decompositions of
-``np.linalg`` (``svd``, ``eigh``, ``eigvalsh``, ``cholesky``, ``solve``) of one real matrix, its gufuncs called as it calls
-them (same routines, same results, same errors) without its argument checks and conversions."""
+arrays), the all-finite test, a gather along the last axis, ``einsum``, ``where`` and
+``concatenate``: numpy's C functions that ``np.einsum`` (without ``optimize``), ``np.where`` and
+``np.concatenate`` call after Python wrappers costing more than their work on 3x3 blocks; and
+the LAPACK routines of ``np.linalg`` (``svd``, ``eigh``, ``eigvalsh``, ``cholesky``, ``solve``) of
+one real matrix, its gufuncs called as it calls them (same routines, same results, same
+errors) without its argument checks and conversions."""
 from __future__ import annotations
 
 import numpy as np
@@ -26,6 +27,8 @@ except ImportError:  # (numpy's layout changed: the public functions below)
 #: ``np.where(cond, x, y)``: numpy's C function without its ``__array_function__`` dispatch
 #: (a Python call that costs as much as the selection of a few dozen entries)
 where = getattr(np.where, "_implementation", np.where)
+#: ``np.concatenate``: the same (a small model's evaluation joins a few dozen small arrays)
+concatenate = getattr(np.concatenate, "_implementation", np.concatenate)
 
 
 def norm(x) -> np.floating:

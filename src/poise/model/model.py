@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.core import per_object
-from poise.core.lean import einsum, row_norms
+from poise.core.lean import concatenate, einsum, row_norms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.chunked import CHUNK
@@ -176,7 +176,7 @@ class Model:
         nm = len(mb)
         if nm <= 2 * CHUNK:
             # gathered once for both products, the ground's identity appended (one gather)
-            R = np.concatenate((rot, _I3[None])).take(self._marker_rows(), 0)
+            R = concatenate((rot, _I3[None])).take(self._marker_rows(), 0)
             P = pos.take(mb, 0) + einsum("nij,nj->ni", R, self.marker_s0)
             A = np.matmul(R, self.marker_A0)
             return P, A, pos
