@@ -1,11 +1,12 @@
 """numpy's own arithmetic on small arrays without the Python argument handling of its
 convenience functions, which costs more than the work itself on the few-element arrays of a
 small model's solve: Euclidean norms (``np.linalg.norm``'s results, bit for bit, for real
-arrays), the all-finite test, a gather along the last axis, ``einsum`` and ``where``: numpy's
-C functions that ``np.einsum`` (without ``optimize``) and ``np.where`` call after Python
-wrappers costing more than their work on 3x3 blocks; and the LAPACK decompositions of
-``np.linalg`` (``svd``, ``eigh``, ``eigvalsh``) of one real matrix, its gufuncs called as it calls
-them (same routines, same results, same errors) without its argument checks and conversions."""
+arrays), the all-finite test, a gather along the last axis, ``einsum``, ``where`` and
+``concatenate``: numpy's C functions that ``np.einsum`` (without ``optimize``), ``np.where`` and
+``np.concatenate`` call after Python wrappers costing more than their work on 3x3 blocks; and
+the LAPACK routines of ``np.linalg`` (``svd``, ``eigh``, ``eigvalsh``, ``cholesky``, ``solve``) of
+one real matrix, its gufuncs called as it calls them (same routines, same results, same
+errors) without its argument checks and conversions."""
 from __future__ import annotations
 
 import numpy as np
@@ -17,7 +18,8 @@ except ImportError:  # numpy < 2 (its C function elsewhere): the public one
 
 try:
     from numpy.linalg import _umath_linalg
-    if not all(hasattr(_umath_linalg, f) for f in ("svd_f", "eigh_lo", "eigvalsh_lo")):
+    if not all(hasattr(_umath_linalg, f) for f in ("svd_f", "eigh_lo", "eigvalsh_lo", "solve",
+                                                   "solve1", "cholesky_lo")):
         _umath_linalg = None
 except ImportError:  # (numpy's layout changed: the public functions below)
     _umath_linalg = None
@@ -25,6 +27,8 @@ except ImportError:  # (numpy's layout changed: the public functions below)
 #: ``np.where(cond, x, y)``: numpy's C function without its ``__array_function__`` dispatch
 #: (a Python call that costs as much as the selection of a few dozen entries)
 where = getattr(np.where, "_implementation", np.where)
+#: ``np.concatenate``: the same (a small model's evaluation joins a few dozen small arrays)
+concatenate = getattr(np.concatenate, "_implementation", np.concatenate)
 
 
 def norm(x) -> np.floating:
@@ -59,6 +63,14 @@ def _no_svd(err, flag):
     raise np.linalg.LinAlgError("SVD did not converge")
 
 
+def _singular(err, flag):
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
+def _not_positive_definite(err, flag):
+    raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+
 def _lapack(a) -> bool:
     """Whether ``a`` goes to the gufuncs directly: a real float64 matrix."""
     return _umath_linalg is not None and type(a) is np.ndarray and a.dtype == np.float64 \
@@ -90,3 +102,23 @@ def eigvalsh(a):
     with np.errstate(call=_no_eigenvalues, invalid="call", over="ignore", divide="ignore",
                      under="ignore"):
         return _umath_linalg.eigvalsh_lo(a, signature="d->d")
+
+
+def solve(a, b):
+    """``np.linalg.solve(a, b)`` of a real matrix and a real vector (or matrix of columns)."""
+    if not (_lapack(a) and type(b) is np.ndarray and b.dtype == np.float64 and b.ndim <= 2):
+        return np.linalg.solve(a, b)
+    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore",
+                     under="ignore"):
+        if b.ndim == 1:
+            return _umath_linalg.solve1(a, b, signature="dd->d")
+        return _umath_linalg.solve(a, b, signature="dd->d")
+
+
+def cholesky(a):
+    """``np.linalg.cholesky(a)`` (lower) of a real symmetric matrix."""
+    if not _lapack(a):
+        return np.linalg.cholesky(a)
+    with np.errstate(call=_not_positive_definite, invalid="call", over="ignore",
+                     divide="ignore", under="ignore"):
+        return _umath_linalg.cholesky_lo(a, signature="d->d")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from poise.core.lean import einsum, row_norms, take_along_last, where
+from poise.core.lean import concatenate, einsum, row_norms, take_along_last, where
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix, ``skew(v) @ u == cross(v, u)``.
@@ -22,7 +22,7 @@ def skew(v: np.ndarray) -> np.ndarray:
     """
     v = np.asarray(v, dtype=float)
     if v.size <= 1 << 13:   # small: the nine entries gathered from (v, -v, 0) in one step
-        e = np.concatenate([v, -v, np.zeros(v.shape[:-1] + (1,))], axis=-1)
+        e = concatenate([v, -v, np.zeros(v.shape[:-1] + (1,))], axis=-1)
         return e.take(_SKEW, -1).reshape(v.shape[:-1] + (3, 3))
     S = np.zeros(v.shape[:-1] + (3, 3))      # large: entry by entry (no gathered copies)
     S[..., 0, 1] = -v[..., 2]
@@ -174,7 +174,7 @@ def euler_parameters(R: np.ndarray) -> np.ndarray:
     # p01, p02, p12 (R_ij + R_ji)
     T = ((1 + D[..., 0:1] * _SG[0]) + D[..., 1:2] * _SG[1]) + D[..., 2:3] * _SG[2]
     X = R9.take(_OFF_A, -1) + R9.take(_OFF_B, -1) * _OFF_SG
-    M = np.concatenate([T, X], -1).take(_M16, -1)            # (..., 16), row-major
+    M = concatenate([T, X], -1).take(_M16, -1)            # (..., 16), row-major
     # its row with the largest diagonal is q times the largest |q_k|
     q = take_along_last(M, _ROWS[T.argmax(axis=-1)])
     # sign: e0 > 0, else the first non-zero vector component > 0 (deterministic at 180 deg)

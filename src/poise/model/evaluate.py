@@ -244,19 +244,21 @@ def _family_pass(model, fr, need_jac, only=None, done=None, call=None):
     reaction feed's record of the families evaluated so far; the channels are computed before
     the first family that reads them. ``call``: used instead of ``fr.call``
     (:mod:`poise.model.recent`)."""
+    families, phi_only = model.families, only == "phi"
+    call = fr.call if call is None else call
     for fi in model.eval_order:
-        fam = model.families[fi]
+        fam = families[fi]
         constraint = fam.is_constraint
-        if only == "phi" and not constraint:
+        if phi_only and not constraint:
             continue
         if done is not None and fr.ctx.reactions is None and fam.reads_reactions:
             # reaction channels from every family evaluated so far (exact at this iterate)
             fr.ctx.reactions, fr.dg = model.reaction_feed.values(model, done.values(), fr.P,
                                                                  fr.A)
-        t, kin, lam, out = (fr.call if call is None else call)(fi, need_jac)
+        t, kin, lam, out = call(fi, need_jac)
         if constraint:
             ph, phy, G = out[:3]
-            if only == "phi":
+            if phi_only:
                 yield fi, t, kin, None, None, ph, None, None
                 continue
             ext = out[3] if len(out) > 3 else None

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from poise.core import per_object
-from poise.core.lean import einsum, row_norms
+from poise.core.lean import concatenate, einsum, row_norms
 from poise.model.assembly import Assembler
 from poise.model.evaluate import Evaluation, evaluate, jacobian
 from poise.elements.chunked import CHUNK
@@ -30,6 +30,7 @@ DENSE_MAX = 600                    # KKT size up to which dense LU is used
 _I3 = np.eye(3)
 _I3.flags.writeable = False
 _GROUND_MARKERS = per_object.table()     # model -> the markers on the ground
+_MARKER_ROWS = per_object.table()        # model -> Model._marker_rows()
 _RIGID_BLOCKS = per_object.table()       # model -> Model.rigid_blocks()
 
 @dataclass
@@ -174,7 +175,8 @@ class Model:
         mb = self.marker_body
         nm = len(mb)
         if nm <= 2 * CHUNK:
-            R = self._marker_rot(rot, mb, 0)             # gathered once for both products
+            # gathered once for both products, the ground's identity appended (one gather)
+            R = concatenate((rot, _I3[None])).take(self._marker_rows(), 0)
             P = pos.take(mb, 0) + einsum("nij,nj->ni", R, self.marker_s0)
             A = np.matmul(R, self.marker_A0)
             return P, A, pos
@@ -186,6 +188,12 @@ class Model:
             P[a:b] = pos.take(mb[a:b], 0) + np.einsum("nij,nj->ni", R, self.marker_s0[a:b])
             A[a:b] = np.matmul(R, self.marker_A0[a:b])
         return P, A, pos
+
+    def _marker_rows(self) -> np.ndarray:
+        """Each marker's row in the bodies' rotations with the identity appended (ground's
+        markers: the last row), made once per model."""
+        return per_object.once_per(_MARKER_ROWS, self, lambda: np.where(
+            (self.marker_body < 0) | (self.marker_body >= self.nb), self.nb, self.marker_body))
 
     def _marker_rot(self, rot, mb, at: int):
         """The rotations of the markers ``mb`` (body indices, the ground's -1 or ``nb``;

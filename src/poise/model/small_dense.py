@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from poise.core.lean import concatenate
 from poise.elements.kernel import PairBlocks, SlotKinematics
 from poise.elements.slot_index import POINT
 
@@ -161,14 +162,12 @@ class SmallDense:
         yat, vat, fams = self.kin_at
         # Y: each slot's origin or axis column, one gather from (P, A); V: Y less its body's
         # position for a point (the ground row of ``pos``, zeros, for an axis: Y - 0 is Y)
-        Y = np.concatenate((P.ravel(), A.ravel())).take(yat)
+        Y = concatenate((P.ravel(), A.ravel())).take(yat)
         V = Y - pos.take(vat)
-        out = {}
-        for fi, a, b, n, S, K, ix in fams:
-            out[fi] = SlotKinematics(Y=Y[a:b].reshape(n, S, 3), V=V[a:b].reshape(n, S, 3),
-                                     pt=ix.pt, slot_ml=ix.slot_ml, K=K, masks=ix.masks,
-                                     rounds=ix.rounds, index=ix)
-        return out
+        # (positional arguments: a keyword call per family costs more than its views)
+        return {fi: SlotKinematics(Y[a:b].reshape(shape), V[a:b].reshape(shape), ix.pt,
+                                   ix.slot_ml, K, None, ix.masks, ix.rounds, ix)
+                for fi, a, b, shape, K, ix in fams}
 
     def outputs(self, passes, need_jac):
         """``(r, phi, pend, items)`` of one frame from the family pass ``passes`` (the
@@ -184,7 +183,7 @@ class SmallDense:
             levers.append(kin.V)
             terms.append((G, phy))
         # every constraint row once (small_dense): in row order, or gathered into it
-        phi = np.concatenate(phis) if phis else np.zeros(self.nc)
+        phi = concatenate(phis) if phis else np.zeros(self.nc)
         if self.row_order is not None:
             phi = phi.take(self.row_order)
         # the levers of one gather (SmallDense.kinematics, eval order) are that array already
@@ -194,10 +193,10 @@ class SmallDense:
                 if v.base is not V:
                     V = None
                     break
-        V = np.concatenate([v.ravel() for v in levers]) if V is None else V.ravel()
+        V = concatenate([v.ravel() for v in levers]) if V is None else V.ravel()
         B = self.B0.copy()
         B.put(self.skew_dst, V.take(self.skew_src) * self.skew_sgn)
-        rho = np.concatenate(rhos)
+        rho = concatenate(rhos)
         r = rho @ B
         if not np.isfinite(np.add.reduce(r)):      # (r.sum() without its Python wrapper)
             return None
@@ -220,7 +219,7 @@ def _kinematics_index(model):
         ax.append(np.broadcast_to(ix.ax, (n, S)).ravel())
         pt.append(ix.pt.ravel())
         body.append(ix.body.ravel())
-        fams.append((fi, at, at + n * S, n, S, fam.markers.shape[1], ix))
+        fams.append((fi, at, at + n * S, (n, S, 3), fam.markers.shape[1], ix))
         at += n * S
     if not fams:
         return None
@@ -258,9 +257,9 @@ class SmallTerms:
             W3 = self.rho.reshape(-1, 3)
             C = V3[:, :, None] * W3[:, None, :]
             C.reshape(-1, 9)[:, ::4] -= np.add.reduce(V3 * W3, axis=1)[:, None]
-            add = np.concatenate((C.ravel().take(tab.conn_src),) + mass)
+            add = concatenate((C.ravel().take(tab.conn_src),) + mass)
         else:
-            add = np.concatenate(mass)
+            add = concatenate(mass)
         dst = tab.add_dst if stiffness else tab.add_dst[tab.n_conn:]
         K += np.bincount(dst, weights=add, minlength=nq * nq).reshape(nq, nq)
         pqs = []
@@ -271,7 +270,7 @@ class SmallTerms:
             if phy is not None:
                 pqs.append(np.matmul(phy, Bf.reshape(ft.n, 3 * ft.S, nq)).reshape(-1, nq))
         if pqs:       # every constraint row once: in row order (or gathered into it)
-            Pq = np.concatenate(pqs) if len(pqs) > 1 else pqs[0]
+            Pq = concatenate(pqs) if len(pqs) > 1 else pqs[0]
             J[nq:, :nq] = Pq if tab.row_order is None else Pq.take(tab.row_order, axis=0)
         if not np.logical_and.reduce(row_active, axis=None):
             off = ~row_active

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from poise.core.errors import EvaluationError
+from poise.core.lean import cholesky, solve
 from poise.elements.context import row_where
 from poise.model.evaluate import Evaluation
 from poise.model.evaluate import evaluate as _evaluate
@@ -165,7 +166,7 @@ def _dense_natural(Phi_q, col_scale):
     empty = d <= 1e-300
     diag += np.where(empty, 1.0, SHIFT * d)
     try:
-        Lc = np.linalg.cholesky(A)
+        Lc = cholesky(A)
     except np.linalg.LinAlgError:
         return None
     ratio = Lc.reshape(-1)[::n + 1] ** 2 / np.where(empty, 1.0, d)
@@ -195,7 +196,7 @@ def min_norm_multipliers(lam, active, row_weight, Y):
         return lam
     Wy = row_weight[:, None] * Y
     M = Y.T @ Wy
-    mu = lam - Y @ np.linalg.solve(M, Wy.T @ lam)
+    mu = lam - Y @ solve(M, Wy.T @ lam)
     return mu
 
 
@@ -239,9 +240,9 @@ def left_null_basis(Phi_q, active, col_scale):
         G = Pi @ Pi.T
         Y = np.zeros((P.shape[0], len(red)))
         Y[red, np.arange(len(red))] = 1.0
-        Y[ind] = -np.linalg.solve(G, Pi @ P[red].T)
+        Y[ind] = -solve(G, Pi @ P[red].T)
         if len(red):
-            Y[ind] -= np.linalg.solve(G, Pi @ (P.T @ Y))
+            Y[ind] -= solve(G, Pi @ (P.T @ Y))
         return Y
     P = scaled(Phi_q, col_scale)
     ind = np.nonzero(active)[0]
