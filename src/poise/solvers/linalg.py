@@ -207,6 +207,14 @@ class Factor:
         if not self.numpy:
             self.J = None
 
+    @property
+    def unchecked(self):
+        """These factors' plain solves (``unchecked.solve(b)``, no refinement check): for a
+        correction to a solution just checked with them, whose error counts relative to that
+        solution, not to its own right-hand side (the neutral filter's ``S x``,
+        :func:`~poise.solvers.steps.neutral_filtered`)."""
+        return _Unchecked(self)
+
     def solve(self, b, refine: int = 2, rtol: float = 1e-8):
         """Solve with iterative refinement; raise SingularMatrix if the residual stays large
         (plain solves once :meth:`drop_matrix` was called)."""
@@ -234,3 +242,19 @@ class Factor:
             raise SingularMatrix("singular matrix (linear solve residual "
                                  f"{np.linalg.norm(res) / nb:.1e})", row=self.pivot_row)
         return x
+
+
+class _Unchecked:
+    """:attr:`Factor.unchecked`: ``solve(b)`` by the factors alone (scaled as they are)."""
+
+    __slots__ = ("f",)
+
+    def __init__(self, f):
+        self.f = f
+
+    def solve(self, b):
+        f = self.f
+        if f.scale is not None:
+            r, c = f.scale
+            return c * f._solve(r * np.asarray(b, float))
+        return f._solve(b)
