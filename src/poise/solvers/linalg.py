@@ -218,10 +218,15 @@ class Factor:
     def solve(self, b, refine: int = 2, rtol: float = 1e-8):
         """Solve with iterative refinement; raise SingularMatrix if the residual stays large
         (plain solves once :meth:`drop_matrix` was called)."""
+        return self._scaled(self._solve_refined, b, refine, rtol)
+
+    def _scaled(self, solve, b, *args):
+        """``solve(b, *args)`` of the factorised (equilibrated) system, mapped to and from
+        ``J``'s."""
         if self.scale is not None:
             r, c = self.scale
-            return c * self._solve_refined(r * np.asarray(b, float), refine, rtol)
-        return self._solve_refined(b, refine, rtol)
+            return c * solve(r * np.asarray(b, float), *args)
+        return solve(b, *args)
 
     def _solve_refined(self, b, refine, rtol):
         x = self._solve(b)
@@ -253,8 +258,4 @@ class _Unchecked:
         self.f = f
 
     def solve(self, b):
-        f = self.f
-        if f.scale is not None:
-            r, c = f.scale
-            return c * f._solve(r * np.asarray(b, float))
-        return f._solve(b)
+        return self.f._scaled(self.f._solve, b)
