@@ -218,6 +218,8 @@ class Factor:
     def solve(self, b, refine: int = 2, rtol: float = 1e-8):
         """Solve with iterative refinement; raise SingularMatrix if the residual stays large
         (plain solves once :meth:`drop_matrix` was called)."""
+        if self.scale is None:          # (no extra call on the common path)
+            return self._solve_refined(b, refine, rtol)
         return self._scaled(self._solve_refined, b, refine, rtol)
 
     def _scaled(self, solve, b, *args):
