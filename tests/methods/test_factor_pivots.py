@@ -1,6 +1,6 @@
 """linalg.Factor of a sparse matrix: the pivots are read only when asked (SuperLU's ``.U``
 copies both factors), and a singular or non-finite matrix is still refused, naming its row;
-factors kept without their matrix solve plainly."""
+factors kept without their matrix solve plainly, as do the unchecked solves."""
 from __future__ import annotations
 
 import numpy as np
@@ -34,6 +34,26 @@ def test_a_factor_without_its_matrix_solves_plainly():
     d = Factor(M.toarray())
     d.drop_matrix()
     assert d.J is not None and np.allclose(M @ d.solve(b), b)
+
+
+def test_unchecked_solves_are_the_factors_own():
+    """``Factor.unchecked``: the solves without the refinement check, equilibrated or not, for
+    every path (sparse, numpy's small dense, LAPACK dense): the checked solve's result when its
+    check needs no refinement step, and no residual is formed (the matrix is not read)."""
+    rng = np.random.default_rng(5)
+    M = sp.random(150, 150, density=0.05, random_state=6) + sp.diags(np.linspace(1.0, 1e3, 150))
+    b = rng.standard_normal(150)
+    for J in (sp.csr_matrix(M), M.toarray()[:40, :40], M.toarray()):
+        for eq in (False, True):
+            f = Factor(J, equilibrate=eq)
+            bb = b[:J.shape[0]]
+            ref = f.solve(bb)
+            assert np.allclose(J @ ref, bb, rtol=0, atol=1e-10)
+            x = f.unchecked.solve(bb)
+            assert x.tobytes() == ref.tobytes()
+            if not f.numpy:          # (numpy's small dense path solves with its matrix)
+                f.J = None           # no residual can be formed: the same plain solve
+                assert f.unchecked.solve(bb).tobytes() == ref.tobytes()
 
 
 def test_column_ordered_factorisation_from_csr_is_the_selected_one():

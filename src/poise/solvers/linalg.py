@@ -204,13 +204,28 @@ class Factor:
         if not self.numpy:
             self.J = None
 
+    @property
+    def unchecked(self):
+        """These factors' plain solves (``unchecked.solve(b)``, no refinement check): for a
+        correction to a solution just checked with them, whose error counts relative to that
+        solution, not to its own right-hand side (the neutral filter's ``S x``,
+        :func:`~poise.solvers.steps.neutral_filtered`)."""
+        return _Unchecked(self)
+
     def solve(self, b, refine: int = 2, rtol: float = 1e-8):
         """Solve with iterative refinement; raise SingularMatrix if the residual stays large
         (plain solves once :meth:`drop_matrix` was called)."""
+        if self.scale is None:          # (no extra call on the common path)
+            return self._solve_refined(b, refine, rtol)
+        return self._scaled(self._solve_refined, b, refine, rtol)
+
+    def _scaled(self, solve, b, *args):
+        """``solve(b, *args)`` of the factorised (equilibrated) system, mapped to and from
+        ``J``'s."""
         if self.scale is not None:
             r, c = self.scale
-            return c * self._solve_refined(r * np.asarray(b, float), refine, rtol)
-        return self._solve_refined(b, refine, rtol)
+            return c * solve(r * np.asarray(b, float), *args)
+        return solve(b, *args)
 
     def _solve_refined(self, b, refine, rtol):
         x = self._solve(b)
@@ -231,3 +246,15 @@ class Factor:
             raise SingularMatrix("singular matrix (linear solve residual "
                                  f"{np.linalg.norm(res) / nb:.1e})", row=self.pivot_row)
         return x
+
+
+class _Unchecked:
+    """:attr:`Factor.unchecked`: ``solve(b)`` by the factors alone (scaled as they are)."""
+
+    __slots__ = ("f",)
+
+    def __init__(self, f):
+        self.f = f
+
+    def solve(self, b):
+        return self.f._scaled(self.f._solve, b)

@@ -389,9 +389,10 @@ class NewtonIteration(Solver[_Newtoning]):
             return limited[0]
         # a step longer than the last one taken may carry neutral content that the tail share
         # does not see (a tiny inertia along it): the filter examines it too (both asked only
-        # when the tail share does not decide)
+        # when the tail share does not decide); its solves are plain ones with the factors that
+        # just gave x (checked, or a chord step's already plain): S x is a correction to x
         xf = _steps.neutral_filtered(
-            model, state, f, x, eps, sc, s.zinf,
+            model, state, f.unchecked, x, eps, sc, s.zinf,
             lambda: _steps.grew(dq, s.last_step, sc) or limit()[0] < 1.0, Jg=ev.inertia)
         # the factorisation is not needed by the trials (memory at 10^5) unless kept for a chord
         keep = _steps.keep_factor(model, f, x, sc, getattr(self.cnt, "workspace", None))
