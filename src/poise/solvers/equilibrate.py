@@ -128,9 +128,10 @@ def equilibrate(Ks, G, iters=12, tol=0.1, start=None):
     return out[:nq], out[nq:]
 
 
-#: entries of a group (:class:`_KKTRows`) per pass: the pass buffers, shared by the groups
-#: and the sweeps, stay a few MB however large the model (no fresh pages per group)
-PASS_ENTRIES = 1 << 18
+#: entries of a group (:class:`_KKTRows`) per pass: the two pass buffers, shared by the groups
+#: and the sweeps, stay within a core's L2 cache however large the model (no fresh pages per
+#: group, no trip to memory between a pass's products and its maxima)
+PASS_ENTRIES = 1 << 16
 
 #: distinct row patterns of the KKT matrix laid out by pattern (:class:`_KKTRows`); a matrix
 #: with more is reduced by segments

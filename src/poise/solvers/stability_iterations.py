@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from poise.solvers.stability_modes import (
+    LOW_ANGLE,
     LOW_BLOCK,
     LOW_MAX,
-    LOW_RES,
     N_MODES,
     SMALL_OP,
     canonical_basis,
@@ -78,12 +78,15 @@ def lowest_mode(P, F, s):
     """Stable model (``kkt(s)`` has no reduced eigenvalue below ``s``): the smallest ones are
     the dominant eigenvalues ``theta = 1/(mu - s) > 0`` of ``op(F)``, found by Krylov
     iteration (``LOW_BLOCK`` vectors a step, fully reorthogonalised) with Rayleigh-Ritz on
-    ``op`` over the whole basis: one solve per step, until the dominant Ritz pair's residual
-    ``||op(x) - theta x||`` is below ``LOW_RES theta`` (``LOW_MAX`` steps at most; the Ritz
-    value is then within ``LOW_RES^2 theta^2 / gap`` of op's eigenvalue). The mode is
-    ``op(x)``, one power step past ``x`` and on the manifold, made of the solves done. An
-    exactly degenerate lowest eigenvalue is one eigenvalue to a Krylov iteration; in a tight
-    cluster a Ritz vector is a valid mode of its value."""
+    ``op`` over the whole basis: one solve per step, until the dominant Ritz vector ``x`` is
+    within ``LOW_ANGLE`` of the eigenvector by the a-posteriori bound ``||op(x) - theta x|| /
+    (theta - theta_2)`` (``theta_2``: the next Ritz value; ``LOW_MAX`` steps at most). The
+    mode is ``op(x)``, one power step past ``x`` and on the manifold, made of the solves done:
+    its Rayleigh quotient is within ``LOW_ANGLE^2 theta_2 / theta`` of ``mu - s`` (relative).
+    So the stop is on the value reported (a narrow gap asks for a smaller residual, a wide one
+    for a larger), not on the residual alone. An exactly degenerate lowest eigenvalue is one
+    eigenvalue to a Krylov iteration; in a tight cluster a Ritz vector is a valid mode of its
+    value."""
     op = P.op(F)
     nq = P.nq
     b = min(LOW_BLOCK, nq)
@@ -108,7 +111,9 @@ def lowest_mode(P, F, s):
         th, Y = np.linalg.eigh(0.5 * (H[:n, :n] + H[:n, :n].T))
         y, t = Y[:, -1], float(th[-1])
         # ||op(x) - t x||^2 = y^T M y - t^2 for x = Qa y (Qa orthonormal, y^T H y = t)
-        if not t > 0.0 or n + b > m or float(y @ M[:n, :n] @ y) - t * t <= (LOW_RES * t) ** 2:
+        gap = t - float(th[-2]) if n > 1 else 0.0
+        if not t > 0.0 or n + b > m or \
+                float(y @ M[:n, :n] @ y) - t * t <= (LOW_ANGLE * gap) ** 2:
             break
         R = W - Qa[:, :n] @ C                         # the next block: W's new directions
         R -= Qa[:, :n] @ (Qa[:, :n].T @ R)            # (twice: orthogonal to round-off)

@@ -12,6 +12,7 @@ import numpy as np
 from poise.core import memory
 from poise.core.permutation import inverse
 from poise.solvers.equilibrate import equilibrate as _equilibrate
+from poise.solvers.equilibrate import kkt_rows
 from poise.solvers.equilibrate import prune_noise as _prune_noise
 from poise.solvers.equilibrate import prune_rows as _prune_rows
 from poise.solvers.redundancy import redundant_rows
@@ -116,23 +117,6 @@ def _scaled_block(M, r, c):
     return M
 
 
-#: entries scattered per pass by :meth:`SparsePencil.permuted_kkt`: its index temporaries
-#: (8 bytes per entry) stay below glibc's mmap threshold and reuse freed heap memory instead of
-#: fresh, kernel-zeroed pages at every factorisation of a large model
-SCATTER_ENTRIES = 1 << 20
-
-
-def _column_chunks(indptr, size=SCATTER_ENTRIES):
-    """``(a, b)`` column ranges of a compressed matrix holding about ``size`` entries each (a
-    column with more entries is a range of its own)."""
-    n = len(indptr) - 1
-    if int(indptr[-1]) <= size:
-        return [(0, n)] if n else []
-    cuts = np.searchsorted(indptr, np.arange(size, int(indptr[-1]), size), side="right") - 1
-    edges = np.unique(np.concatenate(([0], cuts, [n])))
-    return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
-
-
 class SparsePencil:
     """The reduced-stiffness eigenproblem of a large model, never formed: the length-scaled
     symmetric stiffness ``Kt`` and active constraint Jacobian ``Gt`` after a symmetric
@@ -216,50 +200,38 @@ class SparsePencil:
 
     def permuted_kkt(self, s, rho):
         """``kkt(s, rho)[order][:, order]`` in CSC, the very arrays :func:`symmetric_permutation`
-        gives (each column holds its entries in the unpermuted row order, relabelled), written
-        straight from the blocks: the upper-left block's columns, ``Gt``'s columns under them,
-        ``Gt``'s rows as the last columns (in sorted order, as the block matrix has them), each
-        segment put at its permuted column (no block matrix, no fancy-indexed copies)."""
+        gives (each column holds its entries in the unpermuted row order, relabelled), by
+        scipy's compiled kernels: the KKT matrix's columns are the rows of its transpose,
+        stacked as CSR (:func:`~poise.solvers.equilibrate.kkt_rows`: the upper-left block's
+        columns, ``Gt``'s columns under them, ``Gt``'s rows as the last columns, in sorted order
+        as the block matrix has them), gathered in the elimination order and their row indices
+        relabelled (no block matrix, no fancy-indexed copies, no scatter)."""
         import scipy.sparse as sp
+        from scipy.sparse import _sparsetools
         nq, n = self.nq, self.nq + self.m
         # the upper-left block by columns: the rows of its transpose, Kt^T + rho Gt^T Gt - s I
         # (Gt^T Gt is symmetric bit for bit: each entry sums the same products in the same
         # order), the very entries kkt(s, rho)'s block has, without transposing that block
         GtG = self.GtG if rho == 1.0 else rho * self.GtG
         A = self.Kt.T.tocsr() + GtG - s * sp.identity(nq, format="csr")
-        A = sp.csc_matrix((A.data, A.indices, A.indptr), shape=(nq, nq))
         GtG = None
         if self.lean:
             self._GtG = None
         if self._pos is None:
             self._pos = inverse(self.order)
-        pos = self._pos
-        parts = [(A, 0, 0)]                          # (CSC columns, first column, row offset)
-        if self.m:                                   # Gt's rows: the columns of Gt^T
-            Gr = self.Gt if self.Gt.has_sorted_indices else self.Gt.sorted_indices()
-            parts += [(self.Gt.tocsc(), 0, nq), (Gr, nq, 0)]
-        count = np.zeros(n, np.int64)
-        for M, c0, _ in parts:
-            count[c0:c0 + len(M.indptr) - 1] += np.diff(M.indptr)
-        indptr = np.zeros(n + 1, np.int64)
-        np.cumsum(count[self.order], out=indptr[1:])
-        start = indptr[:-1][pos]                     # where each unpermuted column begins
+        Gr = self.Gt if self.Gt.has_sorted_indices else self.Gt.sorted_indices()
+        T = kkt_rows(A, Gr)                  # row j: column j of kkt(s, rho)
+        A = Gr = None
+        ix = T.indptr.dtype
+        indptr = np.zeros(n + 1, ix)
+        np.cumsum(np.diff(T.indptr)[self.order], out=indptr[1:])
         nnz = int(indptr[-1])
-        data = np.empty(nnz)
-        indices = np.empty(nnz, np.int32)
-        for M, c0, r0 in parts:
-            for a, b in _column_chunks(M.indptr):   # (temporaries of <= SCATTER_ENTRIES)
-                cnt = np.diff(M.indptr[a:b + 1])
-                col = np.arange(c0 + a, c0 + b)
-                e0, e1 = int(M.indptr[a]), int(M.indptr[b])
-                at = np.repeat(start[col] - M.indptr[a:b], cnt)
-                at += np.arange(e0, e1)
-                start[col] += cnt                    # the next block's segment goes after
-                data[at] = M.data[e0:e1]
-                ix = M.indices[e0:e1]
-                indices[at] = pos[ix + r0] if r0 else pos[ix]
-                at = ix = None
-        A = sp.csc_matrix((data, indices, indptr.astype(np.int32)), shape=(n, n))
+        data, indices = np.empty(nnz), np.empty(nnz, T.indices.dtype)
+        _sparsetools.csr_row_index(n, self.order.astype(ix), T.indptr, T.indices, T.data,
+                                   indices, data)
+        T = None
+        np.take(self._pos.astype(indices.dtype), indices, out=indices)
+        A = sp.csc_matrix((data, indices, indptr), shape=(n, n))
         memory.release(nnz * 16, memory.SOLVE_LARGE)    # the temporaries' pages (large models)
         return A
 
