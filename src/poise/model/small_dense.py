@@ -141,14 +141,19 @@ class SmallDense:
         # rotating slot (its 3x3 block), then the mass shift (translations, rotations)
         i3 = np.arange(3)
         cdst = ((R[rot][:, :, None] * nq + R[rot][:, None, :])).ravel()
-        csrc = (9 * rot[:, None] + np.arange(9)).ravel()
         tb = (model.body_off[:, None] + i3).ravel()
         rigid = model.body_kind == 0
         rb = model.body_off[rigid][:, None] + 3 + i3
         jdst = (rb[:, :, None] * nq + rb[:, None, :]).ravel()
-        self.conn_src = csrc
+        # entry (a, b) of slot s's term: lever entry 3 s + a times reaction entry 3 s + b, less
+        # the slot's v . rho on the diagonal (the rotating slots' entries only, none formed for
+        # the others)
+        self.conn_v = (3 * rot[:, None] + np.repeat(i3, 3)).ravel()
+        self.conn_w = (3 * rot[:, None] + np.tile(i3, 3)).ravel()
+        self.conn_diag = (9 * np.arange(rot.size)[:, None] + 4 * i3).ravel()
+        self.conn_slot = np.repeat(rot, 3)
         self.add_dst = np.concatenate([cdst, tb * (nq + 1), jdst])
-        self.n_conn = csrc.size
+        self.n_conn = 9 * rot.size
         self.mass3 = np.repeat(model.body_mass, 3)
         self.diag_c = np.arange(self.nc) * (self.N + 1) + nq * (self.N + 1)   # flat, in J
 
@@ -253,11 +258,10 @@ class SmallTerms:
         K = J[:nq, :nq]
         mass = (eps_mass * tab.mass3, eps_mass * Jg.ravel())
         if stiffness:
-            V3 = self.V.reshape(-1, 3)
-            W3 = self.rho.reshape(-1, 3)
-            C = V3[:, :, None] * W3[:, None, :]
-            C.reshape(-1, 9)[:, ::4] -= np.add.reduce(V3 * W3, axis=1)[:, None]
-            add = concatenate((C.ravel().take(tab.conn_src),) + mass)
+            V, rho = self.V, self.rho
+            C = V.take(tab.conn_v) * rho.take(tab.conn_w)      # the outer products' entries
+            C[tab.conn_diag] -= np.add.reduce((V * rho).reshape(-1, 3), axis=1).take(tab.conn_slot)
+            add = concatenate((C,) + mass)
         else:
             add = concatenate(mass)
         dst = tab.add_dst if stiffness else tab.add_dst[tab.n_conn:]

@@ -216,7 +216,8 @@ def _dense_one(model, J, active) -> StabilityInfo:
     X /= np.maximum(row_norms(X, axis=0), 1e-300)[None, :]
     xk = X[:, int(np.argmin(w))].copy()
     wmin = float(einsum("gi,gij,gj->g", xk[None], Ku[None], xk[None])[0])   # [force/length]
-    found = described_modes(X, Ku, neg, zero, d)
-    klass = "unstable" if neg.any() else "neutral" if zero.any() else "stable"
-    return classified_info(model, klass, int(neg.sum()), int(zero.sum()), found[0], found[1],
-                           wmin)
+    n_neg, n_zero = int(np.add.reduce(neg)), int(np.add.reduce(zero))
+    # (a stable frame has no mode to describe)
+    found = described_modes(X, Ku, neg, zero, d) if n_neg or n_zero else [[], []]
+    klass = "unstable" if n_neg else "neutral" if n_zero else "stable"
+    return classified_info(model, klass, n_neg, n_zero, found[0], found[1], wmin)
