@@ -521,8 +521,10 @@ reuse freed heap memory. That, more than cache misses, sets the solve-time expon
 assembler's column order and column-ordered CSC layout are built from index arrays (no sparse
 products, conversions or column selections) and pooled assembly widens its int32 slots a chunk
 at a time; families above 2¹⁵ instances make their kernel outputs in chunks of instances, and
-the classification's equilibration and permuted KKT scatter work in passes over small buffers,
-so their temporaries stay below the threshold (≈ 0.5–1 GB fewer fresh pages per 10⁵ solve).
+the classification's equilibration works in passes over small buffers, so its temporaries stay
+below the threshold (≈ 0.5–1 GB fewer fresh pages per 10⁵ solve); its permuted KKT matrix is
+gathered by scipy's compiled kernels from whole-size arrays, which the kept heap serves (S17:
+no more page faults in the 10⁵ classification than the former chunked scatter).
 What remains (S14, one 10⁵ solve: user 5.0–5.6 s, system 1.4–2.4 s run to run, ≈ 0.4 M small
 and ≈ 1.2 k huge-page faults, ≈ 4 GB zeroed) is, by allocation site: SuperLU's factor storage in
 its six factorisations (3 in Newton, the LDLᵀ, the Gram matrix of the left null basis, the COLAMD
