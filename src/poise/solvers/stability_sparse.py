@@ -207,7 +207,6 @@ class SparsePencil:
         as the block matrix has them), gathered in the elimination order and their row indices
         relabelled (no block matrix, no fancy-indexed copies, no scatter)."""
         import scipy.sparse as sp
-        from scipy.sparse import _sparsetools
         nq, n = self.nq, self.nq + self.m
         # the upper-left block by columns: the rows of its transpose, Kt^T + rho Gt^T Gt - s I
         # (Gt^T Gt is symmetric bit for bit: each entry sums the same products in the same
@@ -222,13 +221,9 @@ class SparsePencil:
         Gr = self.Gt if self.Gt.has_sorted_indices else self.Gt.sorted_indices()
         T = kkt_rows(A, Gr)                  # row j: column j of kkt(s, rho)
         A = Gr = None
-        ix = T.indptr.dtype
-        indptr = np.zeros(n + 1, ix)
-        np.cumsum(np.diff(T.indptr)[self.order], out=indptr[1:])
+        T = T[self.order]                    # (scipy's compiled row gather)
+        indptr, indices, data = T.indptr, T.indices, T.data
         nnz = int(indptr[-1])
-        data, indices = np.empty(nnz), np.empty(nnz, T.indices.dtype)
-        _sparsetools.csr_row_index(n, self.order.astype(ix), T.indptr, T.indices, T.data,
-                                   indices, data)
         T = None
         np.take(self._pos.astype(indices.dtype), indices, out=indices)
         A = sp.csc_matrix((data, indices, indptr), shape=(n, n))
