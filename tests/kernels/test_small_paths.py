@@ -141,6 +141,27 @@ def test_lean_decompositions_are_numpy():
             f(bad)
 
 
+def test_lean_solves_and_joins_are_numpy():
+    """``solve`` (one right-hand side or columns), ``cholesky`` and ``concatenate``: numpy's
+    results bit for bit (empty systems too) and numpy's errors."""
+    from poise.core import lean
+    rng = np.random.default_rng(8)
+    for n in (0, 1, 6, 38):
+        a = rng.standard_normal((n, n))
+        spd = a @ a.T + n * np.eye(n)
+        for b in (rng.standard_normal(n), rng.standard_normal((n, 3))):
+            assert lean.solve(a, b).shape == b.shape
+            assert lean.solve(a, b).tobytes() == np.linalg.solve(a, b).tobytes()
+        assert lean.cholesky(spd).tobytes() == np.linalg.cholesky(spd).tobytes()
+        parts = (a, spd[:1], np.zeros((0, n)))
+        assert np.array_equal(lean.concatenate(parts), np.concatenate(parts))
+    with pytest.raises(np.linalg.LinAlgError):
+        lean.solve(np.zeros((3, 3)), np.ones(3))                  # exactly singular
+    with pytest.raises(np.linalg.LinAlgError):
+        lean.cholesky(-np.eye(3))                                 # not positive definite
+    assert lean.solve(np.eye(2, dtype=np.float32), np.ones(2)).tolist() == [1.0, 1.0]  # numpy's
+
+
 def test_phi_q_jacobian_is_the_jacobian_without_tangents():
     """The static prologue's evaluation: the constraint blocks and the residual bit for bit
     those of the full Jacobian, no stiffness in the coordinate block."""
