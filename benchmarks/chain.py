@@ -545,9 +545,10 @@ but lifts the peak RSS to 1.50 GB (heap fragmentation). S16: a large model's sol
 heap kept (`core/memory.kept_heap` around `Driver.run`, ≥ 2¹⁹ unknowns: glibc `mallopt`, no mmap
 and no trim of the heap's top; glibc's defaults restored and the heap trimmed after), and each
 SuperLU factorisation inside it trims the heap and maps its storage afresh (`memory.mapped`):
-SuperLU grows its factors by reallocation, and from a kept heap the outgrown copies stayed
-resident and set the peak (whole `poise solve` 1.47–1.61 GB without `mapped`). With both, 10⁵
-links (3 lockstep pairs): system 2.19 → 1.84 s, solve CPU 9.67 → 9.47 s, whole `poise solve`
+SuperLU reserves its factors' storage by its fill estimate and touches what it fills (S17, strace:
+no reallocation); from a kept heap, arrays made between two factorisations shift the next one's
+storage, and the pages both touched stayed resident and set the peak (whole `poise solve`
+1.47–1.61 GB without `mapped`). With both, 10⁵ links (3 lockstep pairs): system 2.19 → 1.84 s, solve CPU 9.67 → 9.47 s, whole `poise solve`
 peak 1.41 → 1.37–1.38 GB.
 The solve's memory peaks in Newton
 (*after newton*); the *whole worker* column adds the bench's own reference LU (COLAMD, default

@@ -13,7 +13,8 @@ its mmap threshold (at most 32 MB) afresh and unmaps it when freed, so the solve
 temporaries are pages the kernel zeroes again at each allocation. :func:`kept_heap` (around a
 large model's solve, ``Driver.run``) has glibc serve them from the heap and keep its freed
 pages; SuperLU's factorisations, which set the solve's peak, still get fresh mapped storage
-(:func:`mapped`, around them in :func:`poise.solvers.superlu.splu`); afterwards the settings are restored and the heap trimmed.
+(:func:`mapped`, around them in :func:`poise.solvers.superlu.splu`); afterwards the settings
+are restored and the heap trimmed.
 """
 from __future__ import annotations
 

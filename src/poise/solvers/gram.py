@@ -36,7 +36,8 @@ def banded_gram(P, PT=None, width=None):
     and diagonal ``d`` with ``A`` None, or, when it is not banded, as the CSR ``A``
     (:func:`gram`) with ``ab`` None. ``PT``: :func:`transposed` ``P``, if the caller has it
     (its stored zeros are dropped); ``width``: :func:`pattern_width` of ``P``, if the caller
-    has it (not None).
+    has it (not None: it admits the blocks; the band is as wide as ``PT`` without its stored
+    zeros).
 
     From ``BLOCKED_ROWS`` rows on, a band the pattern allows (:func:`may_be_banded`) is made
     block by block (:func:`_band_by_blocks`) and ``A`` is never held: there ``A`` and

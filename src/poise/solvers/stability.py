@@ -14,8 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from poise.core import memory
-from poise.core import lean
+from poise.core import lean, memory
 from poise.core.lean import einsum, row_norms
 from poise.solvers.equilibrate import equilibrate_dense, prune_noise_dense, prune_rows_dense
 from poise.solvers.stability_modes import (  # noqa: F401 - re-exported: the public names
