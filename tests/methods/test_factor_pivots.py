@@ -132,3 +132,36 @@ def test_small_dense_factor_refuses_non_finite_and_exactly_singular():
     with pytest.raises(SingularMatrix) as e:
         Factor(np.array([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0], [0.0, 0.0, 1.0]]))
     assert e.value.row in (0, 1)
+
+
+def test_stored_zeros_are_not_factorised():
+    """``stored_nonzeros``: a matrix with stored exact zeros (an assembled pattern's entries
+    that are zero for this model) is factorised without them: the same matrix and pivots, the
+    factors without the fill those entries would add, and the caller's arrays untouched (they
+    may be a reused layout's); a matrix without stored zeros is passed on as it is."""
+    from poise.solvers.linalg import stored_nonzeros
+    rng = np.random.default_rng(7)
+    n = 300
+    M = (sp.random(n, n, density=0.01, random_state=8) + sp.diags(np.linspace(1.0, 1e2, n)))
+    M = sp.csc_matrix(M)
+    # stored zeros: every pair (i, j), (j, i) of a random set, as a block pattern would have
+    zi, zj = rng.integers(0, n, 400), rng.integers(0, n, 400)
+    Md = M.toarray()
+    mask = Md != 0.0
+    mask[np.r_[zi, zj], np.r_[zj, zi]] = True
+    r, c = np.nonzero(mask)
+    A = sp.csc_matrix((Md[r, c], (r, c)), shape=(n, n))   # M's values in a wider pattern
+    assert np.count_nonzero(A.data == 0.0) > 500
+    data, indices, indptr = A.data.copy(), A.indices.copy(), A.indptr.copy()
+    B = stored_nonzeros(A)
+    assert np.array_equal(A.data, data) and np.array_equal(A.indices, indices)
+    assert np.array_equal(A.indptr, indptr)                        # the caller's arrays
+    assert B.nnz == np.count_nonzero(data) and np.all(B.data != 0.0)
+    assert (B != A).nnz == 0 and B.has_sorted_indices
+    assert stored_nonzeros(B) is B
+    full = Factor(A)                                  # (COLAMD path: a plain CSC/CSR matrix)
+    plain = Factor(sp.csc_matrix(M))
+    assert full.lu.nnz == plain.lu.nnz
+    b = rng.standard_normal(n)
+    np.testing.assert_allclose(full.solve(b), plain.solve(b), rtol=1e-12, atol=1e-14)
+    assert np.allclose(A @ full.solve(b), b, rtol=0, atol=1e-10)

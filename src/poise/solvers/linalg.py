@@ -29,6 +29,24 @@ def _inverse(J):
     return _umath_linalg.inv(J, signature="d->d")
 
 
+def stored_nonzeros(A):
+    """The CSC ``A`` without its stored exact zeros: ``A`` itself when it has none, else a new
+    matrix (``A``'s arrays may be a reused layout's). SuperLU takes every stored entry for a
+    nonzero, and the model's pattern stores every entry a family's block may fill, also where
+    the block is zero for this model at every configuration (a marker at its body's reference
+    point has no rotational terms): the factors would carry that fill and every solve its
+    work. The same matrix, the same pivots; only the factors' round-off may differ."""
+    data = A.data
+    keep = data != 0.0
+    if keep.all():
+        return A
+    import scipy.sparse as sp  # lazy: sparse systems only
+    at = np.empty(keep.size + 1, A.indptr.dtype)
+    at[0] = 0
+    np.cumsum(keep, out=at[1:])
+    return sp.csc_matrix((data[keep], A.indices[keep], at[A.indptr]), shape=A.shape)
+
+
 class SingularMatrix(Exception):
     """Raised when a factorisation is (numerically) singular; ``row`` is the worst row if known."""
 
@@ -129,10 +147,10 @@ class Factor:
                     lay = None if lay is None else lay()
                     A = (lay.matrix(J) if lay is not None and lay.fits(J)
                          else _columns_ordered(J, self.order))
-                    self.lu = splu(A, permc_spec="NATURAL")
+                    self.lu = splu(stored_nonzeros(A), permc_spec="NATURAL")
                     del A
                 else:
-                    A = J.tocsc()
+                    A = stored_nonzeros(J.tocsc())
                     self.lu = splu(A, permc_spec="COLAMD")
                     del A
             except RuntimeError as e:
