@@ -144,7 +144,7 @@ def test_permuted_kkt_is_the_permuted_block_matrix_bit_for_bit():
         P.nq, P.m, P._pos = nq, m, None
         P.order = rng.permutation(nq + m)
         P.Gt = _unsorted(Gt, rng) if trial % 2 else Gt
-        P._GtG, P.lean = (Gt.T @ Gt).tocsr(), bool(trial % 2)
+        P._GtG, P._Gc, P.lean = (Gt.T @ Gt).tocsr(), None, bool(trial % 2)
         s, rho = float(rng.normal()), float(rng.choice([1.0, 16.0, 1.0 / 16.0]))
         if trial % 3 == 0 and P.GtG.nnz:             # cancellations: K = -rho GtG, diag = s
             GtG = (Gt.T @ Gt).tocsr()
@@ -157,6 +157,26 @@ def test_permuted_kkt_is_the_permuted_block_matrix_bit_for_bit():
         assert np.array_equal(P.permuted_kkt(s, rho).data, got.data)
         for a in ("data", "indices", "indptr"):
             assert np.array_equal(getattr(got, a), getattr(ref, a)), (trial, a)
+
+
+def test_gtg_is_scipys_product_bit_for_bit():
+    # the pencil's Gt^T Gt (its rows times Gt, indices sorted in place) is the very CSR matrix
+    # scipy's product converted to CSR gives: sorted and unsorted Gt, empty rows and columns,
+    # no constraint rows; the CSC kept beside it is Gt's
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        nq = int(rng.integers(1, 40))
+        m = 0 if trial % 7 == 0 else int(rng.integers(1, 2 * nq + 1))
+        Gt = _random_csr(rng, m, nq, 0.02, 0.5)
+        P = stab_sparse.SparsePencil.__new__(stab_sparse.SparsePencil)
+        P.Gt = _unsorted(Gt, rng) if trial % 2 else Gt
+        P._GtG = P._Gc = None
+        ref = (P.Gt.T @ P.Gt).tocsr()
+        got = P.GtG
+        assert got.format == "csr" and got.has_sorted_indices
+        for a in ("data", "indices", "indptr"):
+            assert np.array_equal(getattr(got, a), getattr(ref, a)), (trial, a)
+        assert (P.Gc != Gt.tocsc()).nnz == 0
 
 
 def _random_csr(rng, nr, nc, lo, hi):

@@ -151,14 +151,15 @@ class _Scratch:
         return self.flat[0, :w * k].reshape(w, k), self.flat[1, :w * k].reshape(w, k)
 
 
-def kkt_rows(Ks, G):
+def kkt_rows(Ks, G, Gc=None):
     """``[[Ks, G^T], [G, 0]]`` (CSR ``Ks``, ``G``) as CSR, by scipy's compiled stacking (no
-    block matrix of COO triplets)."""
+    block matrix of COO triplets); ``Gc``: ``G`` in CSC, if at hand."""
     import scipy.sparse as sp
     n = Ks.shape[0] + G.shape[0]
     if not G.shape[0]:
         return Ks
-    upper = sp.hstack([Ks, G.tocsc().T], format="csr")      # (a CSC's transpose is CSR)
+    Gc = G.tocsc() if Gc is None else Gc
+    upper = sp.hstack([Ks, Gc.T], format="csr")             # (a CSC's transpose is CSR)
     lower = sp.csr_matrix((G.data, G.indices, G.indptr), shape=(G.shape[0], n))
     return sp.vstack([upper, lower], format="csr")
 

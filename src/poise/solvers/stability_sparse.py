@@ -108,7 +108,11 @@ def _diag_scaled(M, r, c):
 def _scaled_block(M, r, c):
     """``M`` (a CSR block of the Jacobian: a fresh copy, scaled in place) with each entry
     ``(r_i m_ij) c_j`` (``r`` None: ``m_ij c_j``), exact zeros dropped (explicit ones, and
-    products that underflow), entries in ``M``'s order."""
+    products that underflow), entries in ``M``'s order. The explicit zeros go before the
+    scaling (the stiffness block of an assembled Jacobian is mostly stored zeros of its
+    pattern): the same entries, fewer products."""
+    if not M.data.all():
+        M.eliminate_zeros()
     if r is not None:
         M.data *= np.repeat(r, np.diff(M.indptr))
     M.data *= c[M.indices]
@@ -168,7 +172,7 @@ class SparsePencil:
         dq, dl = _equilibrate(Ks, G, start=(like.dq, like.dl) if same else None)
         self.Kt = _diag_scaled(Ks, dq, dq)
         self.Gt = _diag_scaled(G, dl, dq)
-        self._GtG = None
+        self._GtG = self._Gc = None
         self.Ks, self.d, self.dq, self.dl = Ks, d, dq, dl
         self.nq, self.m = nq, self.Gt.shape[0]
         self.reused = same
@@ -184,11 +188,25 @@ class SparsePencil:
 
     @property
     def GtG(self):
-        """``Gt^T Gt`` (kept until a :attr:`lean` pencil's factorisation drops it, then made
-        again when needed: the same matrix)."""
+        """``Gt^T Gt`` in canonical CSR (kept until a :attr:`lean` pencil's factorisation drops
+        it, then made again when needed: the same matrix). The product of ``Gt^T``'s rows
+        (:attr:`Gc`) and ``Gt``'s is scipy's ``Gt.T @ Gt`` kernel call, with its indices sorted in
+        place: entry ``(i, j)`` sums the products ``g_ki g_kj`` in ascending ``k`` as ``(j, i)``
+        does, so the matrix is symmetric bit for bit and these are the arrays of its CSC copy
+        converted to CSR, without that conversion."""
         if self._GtG is None:
-            self._GtG = (self.Gt.T @ self.Gt).tocsr()
+            G = self.Gc.T @ self.Gt
+            G.sort_indices()
+            self._GtG = G
         return self._GtG
+
+    @property
+    def Gc(self):
+        """``Gt`` in CSC (its transpose's rows: :attr:`GtG` and :meth:`permuted_kkt` read them),
+        kept and dropped with :attr:`GtG`."""
+        if self._Gc is None:
+            self._Gc = self.Gt.tocsc()
+        return self._Gc
 
     def kkt(self, s, rho):
         """``[[Kt - s I + rho Gt^T Gt, Gt^T], [Gt, 0]]`` (congruent to the rho = 0 matrix)."""
@@ -214,13 +232,13 @@ class SparsePencil:
         GtG = self.GtG if rho == 1.0 else rho * self.GtG
         A = self.Kt.T.tocsr() + GtG - s * sp.identity(nq, format="csr")
         GtG = None
-        if self.lean:
-            self._GtG = None
         if self._pos is None:
             self._pos = inverse(self.order)
         Gr = self.Gt if self.Gt.has_sorted_indices else self.Gt.sorted_indices()
-        T = kkt_rows(A, Gr)                  # row j: column j of kkt(s, rho)
+        T = kkt_rows(A, Gr, self.Gc)         # row j: column j of kkt(s, rho)
         A = Gr = None
+        if self.lean:
+            self._GtG = self._Gc = None
         T = T[self.order]                    # (scipy's compiled row gather)
         indptr, indices, data = T.indptr, T.indices, T.data
         nnz = int(indptr[-1])
