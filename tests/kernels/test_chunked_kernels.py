@@ -45,7 +45,7 @@ def test_chunked_evaluation_keeps_every_bit(chain, monkeypatch):
     calls = []
     orig = chunked.tangent_compact
     monkeypatch.setattr(chunked, "tangent_compact",
-                        lambda kin, *a: calls.append(kin.pt.shape[0]) or orig(kin, *a))
+                        lambda kin, *a, **kw: calls.append(kin.pt.shape[0]) or orig(kin, *a, **kw))
     parts = _outputs(model, st)
     assert calls and max(calls) <= 200 and min(calls) >= 100      # really split, balanced
     assert len(whole) == len(parts)

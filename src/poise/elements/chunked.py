@@ -63,7 +63,7 @@ def tangent_values(kin: SlotKinematics, rho, G, K: int, pat, parts: list) -> np.
     """:func:`~poise.elements.kernel.tangent_compact` of the whole family, chunk by chunk."""
     out = np.empty((9 * pat.nblocks, kin.pt.shape[0]))
     for a, b in parts:
-        out[:, a:b] = tangent_compact(rows(kin, a, b), rho[a:b], g_rows(G, a, b), K, pat)
+        tangent_compact(rows(kin, a, b), rho[a:b], g_rows(G, a, b), K, pat, out=out[:, a:b])
     return out
 
 

@@ -319,7 +319,8 @@ def _cross_rows(M, u):
     return out
 
 
-def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> np.ndarray:
+def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
+                    out: np.ndarray | None = None) -> np.ndarray:
     """``B^T G B + C`` of a family with a compact pattern (``pat.compact``), as
     ``(9 * nblocks, n)`` values (entry-major) in the order of ``pat.order``, built block-wise.
 
@@ -329,12 +330,20 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> n
     (trans k, trans l), with ``Sk = skew(v)`` applied as cross products. Blocks are built
     component-major, ``(nblocks, 3, 3, n)``: every operation runs over all instances at once
     (no per-instance 3x3 products) and the model registers the entries in this order (no
-    transpose). Slots without a reaction (``rho_s = 0``) add no connection term.
+    transpose). Slots without a reaction (``rho_s = 0``) add no connection term. ``out``: a
+    ``(9 * nblocks, n)`` array (a view: a big family's columns of one chunk) the values are
+    built in and returned (no copy of a chunk's values into the family's).
     """
     n, S = kin.pt.shape
     ml = kin.slot_ml
     bpos = pat.bpos
-    Kb = np.zeros((pat.nblocks, 3, 3, n))
+    if out is None:
+        Kb = np.zeros((pat.nblocks, 3, 3, n))
+    else:
+        Kb = out.reshape(pat.nblocks, 3, 3, n)
+        if not np.may_share_memory(Kb, out):
+            raise ValueError("tangent_compact: out must reshape to (nblocks, 3, 3, n) as a view")
+        Kb[...] = 0.0
     V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))          # (S, 3, n)
     W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))
     # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
@@ -389,7 +398,7 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern) -> n
                 if wt is not None:
                     blk = blk * wt
                 Kb[bpos[2 * k, 2 * l]] += blk
-    return Kb.reshape(-1, n)
+    return Kb.reshape(-1, n) if out is None else out
 
 
 def constraint_jacobian_local(kin: SlotKinematics, phi_y: np.ndarray, K: int) -> np.ndarray:
