@@ -505,13 +505,19 @@ Newton's LUs (the floor's unit, one per iteration). Newton's five iterations on 
 cost ≈ 5–7 of them: three LUs (the last two iterations are chord steps by the third, Newton's
 quadratic phase: `steps.chord_step`), three Jacobian evaluations and assemblies (≈ 0.5 each), a
 residual evaluation per iteration, the steps' solves with refinement and the neutral-direction
-filter's extra solve (a second one only next to neutral directions). Outside
+filter's extra solve (a second one only next to neutral directions). Newton's factorisations
+leave out the KKT matrix's stored exact zeros (`linalg.stored_nonzeros`, S18): the assembled
+pattern holds every entry a family's block may fill, and on these chains 45 % of them are zero at
+every iteration (markers at their bodies' reference points have no rotational terms); SuperLU
+counts them as nonzeros, and they doubled the factors' fill (10⁴ links: 2.3 M → 1.0 M entries in
+L and U, the same pivots). That halved the LU and its solves — and with it the floor's unit, so
+the ratios rose while every solve got faster. Outside
 Newton, redundancy detection factorises a Gram matrix (twice when a candidate row is
 ambiguous, as on these closed chains) and the least-squares multipliers a weighted Gram matrix
 (normal equations; banded on these chains: LAPACK's banded Cholesky, a few percent of an LU), and
 the classification needs its own sparse LDLᵀ (inertia: an LU with partial pivoting has none) and
-a Krylov iteration for the lowest mode (one-column solves until its Ritz residual is below 10⁻⁶:
-7 on these chains). The classification factorises once: SuperLU's CSC copies of L and U, read for
+a Krylov iteration for the lowest mode (one-column solves until the angle bound of its Ritz
+vector is below 10⁻⁵: 5 on these chains). The classification factorises once: SuperLU's CSC copies of L and U, read for
 the pivots and the backward error, are made absolute in place and emptied one after the other.
 From 10⁴ to 10⁵ links the solve's *user* CPU time grows ≈ 9.5× but its *system* time ≈ 20×
 (0.13 → 2.9–3.4 s): at 10⁵ links every array above glibc's mmap threshold (32 MB at most; the KKT
