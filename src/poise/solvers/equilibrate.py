@@ -19,6 +19,7 @@ import numpy as np
 
 from poise.core.lean import where
 from poise.core.permutation import inverse
+from poise.solvers.linalg import kept_entries
 from poise.solvers.stability_modes import DIAG_FLOOR, NOISE_REL
 
 
@@ -33,23 +34,13 @@ def _row_max(M):
     return a, rmax, np.repeat(np.arange(M.shape[0]), cnt)
 
 
-def _kept(M, keep):
-    """``M`` without its entries where ``keep`` is False (a copy only when one goes)."""
-    if keep.all():
-        return M
-    M = M.copy()
-    M.data[~keep] = 0.0
-    M.eliminate_zeros()
-    return M
-
-
 def prune_noise(Ks):
     """Drop the entries of sparse Ks at round-off level of both rows they couple (``|K_ij| <=
     NOISE_REL max(max_k |K_ik|, max_k |K_jk|)``): a perturbation of the size of the rounding in
     those rows, but equilibration would otherwise scale a 1e-19-relative coupling next to a
     zero diagonal (a box's yaw on a plane) up to unit size and count a negative eigenvalue."""
     a, rmax, rows = _row_max(Ks)
-    return _kept(Ks, a > NOISE_REL * np.maximum(rmax[rows], rmax[Ks.indices]))
+    return kept_entries(Ks, a > NOISE_REL * np.maximum(rmax[rows], rmax[Ks.indices]))
 
 
 def prune_rows(G):
@@ -59,7 +50,7 @@ def prune_rows(G):
     until that rounding is of unit size, and the SVD would count it as constrained."""
     G = G.tocsr()
     a, rmax, rows = _row_max(G)
-    return _kept(G, a > NOISE_REL * rmax[rows])
+    return kept_entries(G, a > NOISE_REL * rmax[rows])
 
 
 def prune_rows_dense(G):

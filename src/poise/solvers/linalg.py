@@ -29,22 +29,26 @@ def _inverse(J):
     return _umath_linalg.inv(J, signature="d->d")
 
 
-def stored_nonzeros(A):
-    """The CSC ``A`` without its stored exact zeros: ``A`` itself when it has none, else a new
-    matrix (``A``'s arrays may be a reused layout's). SuperLU takes every stored entry for a
-    nonzero, and the model's pattern stores every entry a family's block may fill, also where
-    the block is zero for this model at every configuration (a marker at its body's reference
-    point has no rotational terms): the factors would carry that fill and every solve its
-    work. The same matrix, the same pivots; only the factors' round-off may differ."""
-    data = A.data
-    keep = data != 0.0
+def kept_entries(M, keep):
+    """The CSR or CSC ``M`` without its stored entries where ``keep`` (one flag per entry) is
+    False: ``M`` itself when all stay, else a new matrix of the kept entries in ``M``'s order
+    (``M``'s arrays, which may be shared, are left as they are)."""
     if keep.all():
-        return A
-    import scipy.sparse as sp  # lazy: sparse systems only
-    at = np.empty(keep.size + 1, A.indptr.dtype)
+        return M
+    at = np.empty(keep.size + 1, M.indptr.dtype)    # kept entries before each one
     at[0] = 0
     np.cumsum(keep, out=at[1:])
-    return sp.csc_matrix((data[keep], A.indices[keep], at[A.indptr]), shape=A.shape)
+    return type(M)((M.data[keep], M.indices[keep], at[M.indptr]), shape=M.shape)
+
+
+def stored_nonzeros(A):
+    """The CSC ``A`` without its stored exact zeros (:func:`kept_entries`). SuperLU takes every
+    stored entry for a nonzero, and the model's pattern stores every entry a family's block may
+    fill, also where the block is zero for this model at every configuration (a marker at its
+    body's reference point has no rotational terms): the factors would carry that fill and
+    every solve its work. The same matrix, the same pivots; only the factors' round-off may
+    differ."""
+    return kept_entries(A, A.data != 0.0)
 
 
 class SingularMatrix(Exception):
