@@ -29,7 +29,7 @@ from poise.core.errors import EvaluationError
 from poise.elements.chunked import (constraint_values, local_residuals, rows, spans,
                                     tangent_values)
 from poise.expr import EvalContext
-from poise.elements.kernel import (constraint_jacobian_local, dense_g,
+from poise.elements.kernel import (PairBlocks, constraint_jacobian_local, dense_g,
                                    local_pattern, local_residual_tangent, local_tangent,
                                    slot_kinematics, slot_points,
                                    tangent_compact)
@@ -388,7 +388,10 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
         pat = local_pattern(fam)
         U = fam.U
         parts = None if U else spans(kin)
-        if not stiffness:  # "phi_q": the tangent entries read zero (nothing else shares them)
+        # "phi_q": the tangent entries read zero (nothing else shares them); a family with no
+        # reaction and no G (a constraint family whose multipliers are all zero: the
+        # out-of-plane rows of a planar model) has a zero tangent: not formed, nothing added
+        if not stiffness or _no_tangent(rho, G, U):
             Kl = Zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
         elif pat.compact:  # straight into the registered (entry-major block) order
             Kl = (tangent_compact(kin, rho, G, fam.K, pat) if parts is None else
@@ -476,6 +479,19 @@ def _many_frames(model, fr, need_jac):
 
 
 # ---------------------------------------------------------------------------- helpers
+def _no_tangent(rho, G, U: int) -> bool:
+    """Whether a family's tangent ``B^T G B + C(rho)`` is zero (every value +-0: adding it
+    leaves the Jacobian's sums, started from +0.0, as they are): no scalar columns, every slot
+    reaction ``rho`` zero and ``G`` None or zero."""
+    if U or rho.any():
+        return False
+    if G is None:
+        return True
+    if isinstance(G, PairBlocks):
+        return not any(c.any() for c in G.coef.values())
+    return not np.any(G)
+
+
 def _gather(Kl, idx):
     """Flattened local tangent restricted to the family's structural entries."""
     Kl = Kl.reshape(Kl.shape[0], -1)
