@@ -338,6 +338,8 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
     n, S = kin.pt.shape
     ml = kin.slot_ml
     bpos = pat.bpos
+    if not pat.nblocks:             # no entry registered (a load at its body's reference point)
+        return np.zeros((0, n)) if out is None else out
     if out is None:
         Kb = np.zeros((pat.nblocks, 3, 3, n))
     else:
@@ -345,8 +347,6 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
         if not np.may_share_memory(Kb, out):
             raise ValueError("tangent_compact: out must reshape to (nblocks, 3, 3, n) as a view")
         Kb[...] = 0.0
-    if not pat.nblocks:             # no entry registered (a load at its body's reference point)
-        return Kb.reshape(-1, n) if out is None else out
     V = np.ascontiguousarray(kin.V.transpose(1, 2, 0))          # (S, 3, n)
     W = np.ascontiguousarray(rho.reshape(n, S, 3).transpose(1, 2, 0))
     # connection term: v w^T - (v . w) I on (rot k, rot k) per slot
