@@ -344,6 +344,10 @@ def _family_outputs(model, fr, need_jac, done, call=None):
         last.append((fam, kin, rho, phy))
         if need_jac:
             pend[fi] = (fam, kin, rho, G, phy, ext)
+        if not fam.U and not rho.any() and all_finite(kin.V):
+            # no reaction on any slot (a constraint family whose multipliers are all zero):
+            # B^T rho is zeros, which leave the residual's sums (started from +0.0) as they are
+            continue
         parts = None if fam.U else spans(kin)
         if parts is not None:      # big family: chunk by chunk (no full-size temporaries)
             fr.scatter(fam).add_parts(r, local_residuals(kin, rho, fam.K, parts,
