@@ -273,7 +273,8 @@ class CSCLayout:
     """A sparse assembler's matrices as SuperLU factorises them: ``A[:, order]`` in CSC, the
     pattern (row indices, column pointers) computed once and the values one gather of the CSR
     data into a reused buffer (instead of a CSC conversion and a column selection, two fresh
-    copies of the matrix, per factorisation)."""
+    copies of the matrix, per factorisation). ``kept``: the layout of a part of its entries
+    (:meth:`part`: those nonzero in the last matrix factorised, SuperLU's input), or None."""
 
     __slots__ = ("indices", "indptr", "take", "buf", "rows", "cols", "kept", "mask")
 
