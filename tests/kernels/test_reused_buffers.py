@@ -16,7 +16,7 @@ from poise.model.assembly import POOL_ABOVE, Assembler, Few, Scatter, Zeros
 from poise.model.workspace import Workspace
 from support.builders import perturbed_chain
 from poise.solvers.data import SolveData
-from poise.solvers.linalg import Factor
+from poise.solvers.linalg import Factor, _layout_nonzeros, stored_nonzeros
 
 
 @pytest.fixture(scope="module")
@@ -110,6 +110,28 @@ def test_the_csc_layout_is_the_column_ordered_matrix_and_factorises_alike(chain)
     plain = sp.csr_matrix(J)
     plain.poise_column_order = lambda: order     # no layout: CSC conversion + selection
     assert _bits(x_layout, Factor(plain).solve(b))
+
+
+def test_the_layout_of_the_nonzeros_gives_the_stored_nonzeros_while_the_zeros_stay(chain):
+    model, st = chain
+    ws = Workspace()
+    J1 = model.evaluate(st, need_jac=True, workspace=ws).J
+    lay = J1.poise_csc_layout()
+    st2 = model.retract(st, 1e-3 * np.ones(model.nq))
+    J2 = model.evaluate(st2, need_jac=True, workspace=ws).J
+    J3 = model.evaluate(st2, need_jac=True, eps_mass=1e-3, workspace=ws).J   # other zeros
+    assert np.array_equal(J1.data != 0, J2.data != 0)
+    assert not np.array_equal(J1.data != 0, J3.data != 0)
+    assert (J1.data == 0).sum() > J1.nnz // 20          # stored zeros to leave out
+    subs = []
+    for J in (J1, J2, J3, J1):
+        want = stored_nonzeros(lay.matrix(J))
+        got = _layout_nonzeros(lay, J)
+        assert want.nnz < J.nnz and _bits(got.data, want.data)
+        assert _bits(got.indices, want.indices) and _bits(got.indptr, want.indptr)
+        subs.append(lay.kept)
+    # made at the first, kept at the second (the same zeros), made anew at a change of zeros
+    assert subs[1] is subs[0] and subs[2] is not subs[1] and subs[3] is not subs[2]
 
 
 def quotient_order(asm, groups):

@@ -117,6 +117,13 @@ class Family:
         that can be non-zero, or None (the default): dense."""
         return None
 
+    def zero_lever(self):
+        """(S,) bool array of the point slots at their body's reference point (the CG marker:
+        a lever of exactly zero), whose connection term ``v rho^T - (v . rho) I`` is zero: not
+        formed and kept out of the sparse KKT pattern; or None (the default): every slot may
+        have a lever."""
+        return None
+
     def tile_fields(self, F: int, model) -> dict:
         """Fields of the copy covering ``F`` frames besides the per-instance arrays the frame
         tiler repeats (:mod:`poise.model.frame_batch`; tileable kernels only)."""

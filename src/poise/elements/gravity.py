@@ -40,6 +40,9 @@ class GravityLoad(ForceFamily):
     def g_blocks(self):
         return np.zeros((1, 1), bool)        # a constant load: no tangent
 
+    def zero_lever(self):
+        return np.ones(1, bool)              # at the CG marker: no moment, no connection term
+
     def acceleration(self, t) -> np.ndarray:
         """``g`` per instance, (n, 3) or (1, 3); ``t`` one time or one per frame of a tiled
         copy (instances frame-major)."""

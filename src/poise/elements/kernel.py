@@ -330,13 +330,16 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
     (trans k, trans l), with ``Sk = skew(v)`` applied as cross products. Blocks are built
     component-major, ``(nblocks, 3, 3, n)``: every operation runs over all instances at once
     (no per-instance 3x3 products) and the model registers the entries in this order (no
-    transpose). Slots without a reaction (``rho_s = 0``) add no connection term. ``out``: a
-    ``(9 * nblocks, n)`` array (a view: a big family's columns of one chunk) the values are
-    built in and returned (no copy of a chunk's values into the family's).
+    transpose). Slots without a reaction (``rho_s = 0``) or at their body's reference point
+    (not ``pat.conn``) add no connection term. ``out``: a ``(9 * nblocks, n)`` array (a view: a
+    big family's columns of one chunk) the values are built in and returned (no copy of a
+    chunk's values into the family's).
     """
     n, S = kin.pt.shape
     ml = kin.slot_ml
     bpos = pat.bpos
+    if not pat.nblocks:             # no entry registered (a load at its body's reference point)
+        return np.zeros((0, n)) if out is None else out
     if out is None:
         Kb = np.zeros((pat.nblocks, 3, 3, n))
     else:
@@ -363,7 +366,7 @@ def tangent_compact(kin: SlotKinematics, rho, G, K: int, pat: LocalPattern,
     else:
         live = np.logical_or.reduce(W.reshape(S, -1), axis=1).tolist()   # with a reaction
         for s in range(S):
-            if not live[s]:
+            if not (live[s] and pat.conn[s]):
                 continue
             v, w = V[s], W[s]
             k = ml[s]

@@ -19,7 +19,8 @@ class LocalPattern:
     no scalar columns; :func:`poise.elements.kernel.tangent_compact` fills them directly,
     entry-major: all instances of one entry after the other), else ``kidx`` (instance-major).
     ``slots``: the family's :class:`SlotIndex` (small families of a model, ``marker_body``
-    given), else None.
+    given), else None. ``conn`` (S,): the slots with a connection term (not those the family
+    declares at their body's reference point, :meth:`Family.zero_lever`).
     """
 
     #: families with at most this many slot instances (n * S) keep a :class:`SlotIndex`
@@ -44,7 +45,10 @@ class LocalPattern:
         def rt(k):
             return slice(6 * k + 3, 6 * k + 6)
 
-        for s in range(S):                                     # connection term
+        zl = fam.zero_lever()
+        # slots with a connection term (a slot at its body's reference point has none)
+        conn = np.ones(S, bool) if zl is None else ~np.asarray(zl, bool)
+        for s in np.flatnonzero(conn).tolist():                # connection term
             km[rt(ml[s]), rt(ml[s])] = True
         pairs = np.argwhere(gb)
         for s, t in pairs:
@@ -64,6 +68,7 @@ class LocalPattern:
         self.t_idx = pairs[:, 1].copy()
         self.pairs = [(int(a), int(b)) for a, b in pairs]
         self.pt_any = pt_any
+        self.conn = conn
         self.pt_all = (np.asarray(fam.slot_kind) == POINT).all(axis=0) if fam.n else pt_any
         self.kmask = km
         self.kidx = None if km.all() else np.flatnonzero(km)
@@ -83,8 +88,8 @@ class LocalPattern:
             # the connection term's (rot k, rot k) blocks of each slot round (tangent_compact):
             # a slice when evenly spaced (views), else an index array
             rot = 2 * np.arange(K) + 1
-            self.conn_rounds = [(as_slice(self.bpos[rot[ks], rot[ks]]), ss)
-                                for ks, ss in self.slot_rounds]
+            self.conn_rounds = [(as_slice(self.bpos[rot[ks], rot[ks]]), ss) for ks, ss in
+                                slot_rounds(ml.tolist(), np.flatnonzero(conn).tolist())]
             if self.compact:
                 r = 3 * bi[:, None, None] + np.arange(3)[None, :, None]
                 c = 3 * bj[:, None, None] + np.arange(3)[None, None, :]

@@ -273,9 +273,10 @@ class CSCLayout:
     """A sparse assembler's matrices as SuperLU factorises them: ``A[:, order]`` in CSC, the
     pattern (row indices, column pointers) computed once and the values one gather of the CSR
     data into a reused buffer (instead of a CSC conversion and a column selection, two fresh
-    copies of the matrix, per factorisation)."""
+    copies of the matrix, per factorisation). ``kept``: the layout of a part of its entries
+    (:meth:`part`: those nonzero in the last matrix factorised, SuperLU's input), or None."""
 
-    __slots__ = ("indices", "indptr", "take", "buf", "rows", "cols")
+    __slots__ = ("indices", "indptr", "take", "buf", "rows", "cols", "kept", "mask")
 
     def __init__(self, asm: Assembler, order: np.ndarray):
         import scipy.sparse as sp             # lazy: sparse models only
@@ -297,6 +298,19 @@ class CSCLayout:
         del A
         self.rows, self.cols = asm.indices, asm.indptr      # the CSR pattern it maps from
         self.buf = np.empty(asm.nnz)
+        self.kept = self.mask = None
+
+    def part(self, take, indices, indptr, mask) -> "CSCLayout":
+        """The layout of some of this one's entries (positions ``take`` in the CSR data, CSC
+        ``indices``/``indptr``), kept in ``kept`` with ``mask`` (what they were chosen for: its
+        user's test whether it still fits, :func:`poise.solvers.linalg.stored_nonzeros`)."""
+        sub = object.__new__(CSCLayout)
+        sub.take, sub.indices, sub.indptr = take, indices, indptr
+        sub.rows, sub.cols = self.rows, self.cols
+        sub.buf = np.empty(take.size)
+        sub.kept, sub.mask = None, mask
+        self.kept = sub
+        return sub
 
     def fits(self, J) -> bool:
         """Whether ``J`` is a CSR matrix of this layout's pattern (its very index arrays)."""

@@ -29,7 +29,7 @@ from poise.core.errors import EvaluationError
 from poise.elements.chunked import (constraint_values, local_residuals, rows, spans,
                                     tangent_values)
 from poise.expr import EvalContext
-from poise.elements.kernel import (constraint_jacobian_local, dense_g,
+from poise.elements.kernel import (PairBlocks, constraint_jacobian_local, dense_g,
                                    local_pattern, local_residual_tangent, local_tangent,
                                    slot_kinematics, slot_points,
                                    tangent_compact)
@@ -344,6 +344,8 @@ def _family_outputs(model, fr, need_jac, done, call=None):
         last.append((fam, kin, rho, phy))
         if need_jac:
             pend[fi] = (fam, kin, rho, G, phy, ext)
+        if _no_reaction(fam, kin, rho):
+            continue
         parts = None if fam.U else spans(kin)
         if parts is not None:      # big family: chunk by chunk (no full-size temporaries)
             fr.scatter(fam).add_parts(r, local_residuals(kin, rho, fam.K, parts,
@@ -388,7 +390,10 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
         pat = local_pattern(fam)
         U = fam.U
         parts = None if U else spans(kin)
-        if not stiffness:  # "phi_q": the tangent entries read zero (nothing else shares them)
+        # "phi_q": the tangent entries read zero (nothing else shares them); a family with no
+        # reaction and no G (a constraint family whose multipliers are all zero: the
+        # out-of-plane rows of a planar model) has a zero tangent: not formed, nothing added
+        if not stiffness or _no_tangent(fam, kin, rho, G):
             Kl = Zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
         elif pat.compact:  # straight into the registered (entry-major block) order
             Kl = (tangent_compact(kin, rho, G, fam.K, pat) if parts is None else
@@ -476,6 +481,27 @@ def _many_frames(model, fr, need_jac):
 
 
 # ---------------------------------------------------------------------------- helpers
+def _no_reaction(fam, kin, rho) -> bool:
+    """Whether a family's residual rows ``B^T rho`` are zero: no scalar columns, no reaction on
+    any slot (a constraint family whose multipliers are all zero: the out-of-plane rows of a
+    planar model) and finite levers (else its values are formed, and reported non-finite).
+    Zeros leave the residual's sums (started from +0.0) as they are: not formed, not added."""
+    return not fam.U and not rho.any() and all_finite(kin.V)
+
+
+def _no_tangent(fam, kin, rho, G) -> bool:
+    """Whether a family's tangent ``B^T G B + C(rho)`` is zero (every value +-0: adding it
+    leaves the Jacobian's sums, started from +0.0, as they are): :func:`_no_reaction` and
+    ``G`` None or zero."""
+    if not _no_reaction(fam, kin, rho):
+        return False
+    if G is None:
+        return True
+    if isinstance(G, PairBlocks):
+        return not any(c.any() for c in G.coef.values())
+    return not np.any(G)
+
+
 def _gather(Kl, idx):
     """Flattened local tangent restricted to the family's structural entries."""
     Kl = Kl.reshape(Kl.shape[0], -1)

@@ -51,6 +51,24 @@ def stored_nonzeros(A):
     return kept_entries(A, A.data != 0.0)
 
 
+def _layout_nonzeros(lay, J):
+    """``stored_nonzeros(lay.matrix(J))`` (the column-ordered CSC ``J`` without its stored
+    exact zeros, ``lay`` its :class:`~poise.model.assembly.CSCLayout`) through the layout of
+    ``J``'s nonzero entries (:meth:`~poise.model.assembly.CSCLayout.part`), kept while ``J``'s
+    zeros are where they were (Newton's matrices of a model: the same entries are zero at every
+    iteration): then a gather of the nonzero values alone, instead of a gather of every entry
+    and its compaction (a running count, copies of the kept values and row indices: fresh
+    arrays) at every factorisation. The same matrix, bit for bit."""
+    nz = J.data != 0.0
+    sub = lay.kept
+    if sub is None or not np.array_equal(nz, sub.mask):
+        import scipy.sparse as sp  # lazy: sparse systems only
+        at = kept_entries(sp.csc_matrix((lay.take, lay.indices, lay.indptr), shape=J.shape),
+                          nz[lay.take])                 # CSR positions of the kept entries
+        sub = lay.part(at.data, at.indices, at.indptr, nz)
+    return sub.matrix(J)
+
+
 class SingularMatrix(Exception):
     """Raised when a factorisation is (numerically) singular; ``row`` is the worst row if known."""
 
@@ -149,9 +167,9 @@ class Factor:
                     self.order = order()
                     lay = getattr(J, "poise_csc_layout", None)
                     lay = None if lay is None else lay()
-                    A = (lay.matrix(J) if lay is not None and lay.fits(J)
-                         else _columns_ordered(J, self.order))
-                    self.lu = splu(stored_nonzeros(A), permc_spec="NATURAL")
+                    A = (_layout_nonzeros(lay, J) if lay is not None and lay.fits(J)
+                         else stored_nonzeros(_columns_ordered(J, self.order)))
+                    self.lu = splu(A, permc_spec="NATURAL")
                     del A
                 else:
                     A = stored_nonzeros(J.tocsc())
