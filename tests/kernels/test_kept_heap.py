@@ -55,6 +55,21 @@ def test_settings_restored_once_by_the_last_one_out(calls):
     assert memory._kept["users"] == 0
 
 
+def test_no_trim_between_stages_inside(calls, monkeypatch):
+    """Inside a kept heap a stage's release (SOLVE_LARGE) keeps the pages for the next stage;
+    outside it, and for a large stage's release (LARGE, e.g. the parsed deck), glibc trims."""
+    monkeypatch.setattr(memory, "glibc", lambda: True)
+    with memory.kept_heap(memory.KEEP_LARGE):
+        del calls[:]
+        assert not memory.release(1 << 40, memory.SOLVE_LARGE)
+        assert calls == []
+        assert memory.release(1 << 40)
+        assert calls == [("trim", 0)]
+    del calls[:]
+    assert memory.release(1 << 40, memory.SOLVE_LARGE)
+    assert calls == [("trim", 0)]
+
+
 def test_restored_even_when_the_solve_raises(calls):
     with pytest.raises(ZeroDivisionError):
         with memory.kept_heap(memory.KEEP_LARGE):
