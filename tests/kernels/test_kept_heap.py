@@ -20,6 +20,7 @@ def calls(monkeypatch):
     log = []
     monkeypatch.setattr(memory, "_trim", lambda pad: log.append(("trim", pad)) or 1)
     monkeypatch.setattr(memory, "_mallopt", lambda p, v: log.append((p, v)) or 1)
+    monkeypatch.setattr(memory, "_free", lambda: memory.MAPPED_TRIM)     # enough to trim
     for name in memory._USER_SETTINGS + ("GLIBC_TUNABLES",):
         monkeypatch.delenv(name, raising=False)
     return log
@@ -53,6 +54,40 @@ def test_settings_restored_once_by_the_last_one_out(calls):
     assert calls[5:] == [(memory._M_MMAP_MAX, memory._DEFAULT_MMAP_MAX),
                          (memory._M_TRIM_THRESHOLD, memory._DEFAULT_TRIM_THRESHOLD), ("trim", 0)]
     assert memory._kept["users"] == 0
+
+
+def test_no_trim_between_stages_inside(calls, monkeypatch):
+    """Inside a kept heap a stage's release (SOLVE_LARGE) keeps the pages for the next stage;
+    outside it, and for a large stage's release (LARGE, e.g. the parsed deck), glibc trims."""
+    monkeypatch.setattr(memory, "glibc", lambda: True)
+    with memory.kept_heap(memory.KEEP_LARGE):
+        del calls[:]
+        assert not memory.release(1 << 40, memory.SOLVE_LARGE)
+        assert calls == []
+        assert memory.release(1 << 40)
+        assert calls == [("trim", 0)]
+    del calls[:]
+    assert memory.release(1 << 40, memory.SOLVE_LARGE)
+    assert calls == [("trim", 0)]
+
+
+def test_factorisation_trims_only_a_large_free_heap(calls, monkeypatch):
+    """Before a factorisation the heap is trimmed only when it holds MAPPED_TRIM free bytes
+    (less is what the next iteration reuses); without mallinfo2 it is always trimmed."""
+    free = [memory.MAPPED_TRIM - 1]
+    monkeypatch.setattr(memory, "_free", lambda: free[0])
+    with memory.kept_heap(memory.KEEP_LARGE):
+        del calls[:]
+        with memory.mapped(memory.MAPPED_LARGE):
+            assert calls == [(memory._M_MMAP_MAX, memory._DEFAULT_MMAP_MAX)]
+        free[0] = memory.MAPPED_TRIM
+        del calls[:]
+        with memory.mapped(memory.MAPPED_LARGE):
+            assert calls[0] == ("trim", 0)
+        monkeypatch.setattr(memory, "_free", None)
+        del calls[:]
+        with memory.mapped(memory.MAPPED_LARGE):
+            assert calls[0] == ("trim", 0)
 
 
 def test_restored_even_when_the_solve_raises(calls):

@@ -38,9 +38,14 @@ KEEP_LARGE = 1 << 19
 #: Inside a kept heap, factorisations of systems of at least this many unknowns are
 #: :func:`mapped`.
 MAPPED_LARGE = 1 << 15
+#: ... and the heap is trimmed before them only when it holds at least this many free bytes:
+#: less is what the next iteration's temporaries reuse (a Newton iteration's, ~150 MB at 10^5
+#: links), and handing it back costs more in re-faulted pages than it lowers the peak.
+MAPPED_TRIM = 1 << 28
 
 _trim = None          # glibc's malloc_trim, False when unavailable
 _mallopt = None       # glibc's mallopt, False when unavailable
+_free = None          # bytes free in glibc's heap (mallinfo2), None when unavailable
 # mallopt's parameters (malloc.h), glibc's defaults (restored) and the kept heap's trim threshold
 # (mallopt takes an int: 2 GB, so the heap's free top is not given back)
 _M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4
@@ -56,15 +61,18 @@ _kept = {"users": 0}
 def release(size: int = LARGE, large: int = LARGE) -> bool:
     """Return freed heap memory to the OS when ``size`` (of what a stage dropped, in bytes)
     is at least ``large`` (:data:`LARGE`, or :data:`SOLVE_LARGE` between a solve's stages);
-    True when glibc trimmed something."""
-    if size < large or not glibc():
+    True when glibc trimmed something. Between the stages of a solve inside a
+    :func:`kept_heap` nothing is trimmed: the next stage's temporaries reuse those pages, and
+    the one place where freed pages would stack on the peak, a factorisation, trims first
+    (:func:`mapped`)."""
+    if size < large or not glibc() or (large == SOLVE_LARGE and _kept["users"]):
         return False
     return bool(_trim(0))
 
 
 def glibc() -> bool:
     """Whether glibc's ``malloc_trim`` and ``mallopt`` are at hand (looked up once, on Linux)."""
-    global _trim, _mallopt
+    global _trim, _mallopt, _free
     if _trim is None:
         _trim = _mallopt = False
         if sys.platform.startswith("linux"):
@@ -77,7 +85,24 @@ def glibc() -> bool:
             trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
             mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
             _trim, _mallopt = trim, mallopt
+            _free = _heap_free(libc, ctypes)
     return _trim is not False
+
+
+def _heap_free(libc, ctypes):
+    """A callable giving the free bytes in glibc's heap (``mallinfo2().fordblks``, glibc >=
+    2.33), or None."""
+    info = getattr(libc, "mallinfo2", None)
+    if info is None:
+        return None
+
+    class _Info(ctypes.Structure):
+        _fields_ = [(f, ctypes.c_size_t) for f in (
+            "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks",
+            "fordblks", "keepcost")]
+
+    info.argtypes, info.restype = [], _Info
+    return lambda: info().fordblks
 
 
 def user_chosen() -> bool:
@@ -118,8 +143,8 @@ def kept_heap(size: int):
 @contextlib.contextmanager
 def mapped(size: int):
     """Inside a :func:`kept_heap`, around a factorisation of ``size`` unknowns (at least
-    :data:`MAPPED_LARGE`): the heap's free pages go back to the OS first and large allocations
-    are mapped again. SuperLU reserves its factors' storage by its fill estimate (gigabytes of
+    :data:`MAPPED_LARGE`): the heap's free pages go back to the OS first (when at least
+    :data:`MAPPED_TRIM` bytes are free) and large allocations are mapped again. SuperLU reserves its factors' storage by its fill estimate (gigabytes of
     address space at 10^5 links) and touches only what the factors fill: mapped, the untouched
     part costs nothing; from a kept heap, arrays made between two factorisations take the start
     of the freed region, the next factors land beside it, and the pages both touched stay
@@ -127,7 +152,8 @@ def mapped(size: int):
     with _lock:
         active = _kept["users"] > 0 and size >= MAPPED_LARGE
         if active:
-            _trim(0)
+            if _free is None or _free() >= MAPPED_TRIM:
+                _trim(0)
             _mallopt(_M_MMAP_MAX, _DEFAULT_MMAP_MAX)
     try:
         yield

@@ -16,7 +16,7 @@ from functools import cache, partial
 
 import numpy as np
 
-from poise.core import per_object
+from poise.core import memory, per_object
 from poise.core.permutation import inverse
 
 # sums of more entries than this go into reused buffers (np.add.at), smaller ones into fresh
@@ -235,8 +235,12 @@ class Assembler:
         Q.data[:] = 1.0
         Q = (Q + sp.identity(G, format="csc") * (G + 1.0)).tocsc()   # diagonally dominant
         # only the ordering is used: it is computed before the factorisation, whose panel
-        # size does not change it (panel_size=1: a third less time at 10^5 links)
-        pc = spla.splu(Q, permc_spec="COLAMD", panel_size=1).perm_c
+        # size does not change it (panel_size=1: a third less time at 10^5 links); mapped, as
+        # the solvers' factorisations: in a large solve's kept heap SuperLU's reservations
+        # (its fill estimate, ~1 GB at 10^5 links) would otherwise leave the heap a free top
+        # that the next factorisation trims, with the freed pages Newton's first step reuses
+        with memory.mapped(G):
+            pc = spla.splu(Q, permc_spec="COLAMD", panel_size=1).perm_c
         return np.argsort(pc[grp], kind="stable")      # pc[g]: the rank of group g
 
 
