@@ -144,11 +144,12 @@ def kept_heap(size: int):
 def mapped(size: int):
     """Inside a :func:`kept_heap`, around a factorisation of ``size`` unknowns (at least
     :data:`MAPPED_LARGE`): the heap's free pages go back to the OS first (when at least
-    :data:`MAPPED_TRIM` bytes are free) and large allocations are mapped again. SuperLU reserves its factors' storage by its fill estimate (gigabytes of
-    address space at 10^5 links) and touches only what the factors fill: mapped, the untouched
-    part costs nothing; from a kept heap, arrays made between two factorisations take the start
-    of the freed region, the next factors land beside it, and the pages both touched stay
-    resident at the solve's peak. Elsewhere a no-op."""
+    :data:`MAPPED_TRIM` bytes are free) and large allocations are mapped again. SuperLU
+    reserves its factors' storage by its fill estimate (gigabytes of address space at 10^5
+    links) and touches only what the factors fill: mapped, the untouched part costs nothing;
+    from a kept heap, arrays made between two factorisations take the start of the freed
+    region, the next factors land beside it, and the pages both touched stay resident at the
+    solve's peak. Elsewhere a no-op."""
     with _lock:
         active = _kept["users"] > 0 and size >= MAPPED_LARGE
         if active:
