@@ -508,7 +508,9 @@ residual evaluation per iteration, the steps' solves with refinement and the neu
 filter's extra solve (a second one only next to neutral directions). Newton's factorisations
 leave out the KKT matrix's stored exact zeros (`linalg.stored_nonzeros`, S18): the assembled
 pattern holds every entry a family's block may fill, and on these chains 45 % of them are zero at
-every iteration (markers at their bodies' reference points have no rotational terms); SuperLU
+every iteration (the out-of-plane multipliers and components of a planar chain: the model's
+zeros, not the families', see DESIGN.md; a family whose multipliers are all zero forms no
+values, S19); SuperLU
 counts them as nonzeros, and they doubled the factors' fill (10⁴ links: 2.3 M → 1.0 M entries in
 L and U, the same pivots). That halved the LU and its solves — and with it the floor's unit, so
 the ratios rose while every solve got faster. Outside

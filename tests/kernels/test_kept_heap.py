@@ -62,12 +62,12 @@ def test_no_trim_between_stages_inside(calls, monkeypatch):
     monkeypatch.setattr(memory, "glibc", lambda: True)
     with memory.kept_heap(memory.KEEP_LARGE):
         del calls[:]
-        assert not memory.release(1 << 40, memory.SOLVE_LARGE)
+        assert not memory.release_stage(1 << 40)
         assert calls == []
         assert memory.release(1 << 40)
         assert calls == [("trim", 0)]
     del calls[:]
-    assert memory.release(1 << 40, memory.SOLVE_LARGE)
+    assert memory.release_stage(1 << 40)
     assert calls == [("trim", 0)]
 
 

@@ -60,14 +60,18 @@ _kept = {"users": 0}
 
 def release(size: int = LARGE, large: int = LARGE) -> bool:
     """Return freed heap memory to the OS when ``size`` (of what a stage dropped, in bytes)
-    is at least ``large`` (:data:`LARGE`, or :data:`SOLVE_LARGE` between a solve's stages);
-    True when glibc trimmed something. Between the stages of a solve inside a
-    :func:`kept_heap` nothing is trimmed: the next stage's temporaries reuse those pages, and
-    the one place where freed pages would stack on the peak, a factorisation, trims first
-    (:func:`mapped`)."""
-    if size < large or not glibc() or (large == SOLVE_LARGE and _kept["users"]):
+    is at least ``large``; True when glibc trimmed something."""
+    if size < large or not glibc():
         return False
     return bool(_trim(0))
+
+
+def release_stage(size: int) -> bool:
+    """:func:`release` between a solve's stages (:data:`SOLVE_LARGE`), except inside a
+    :func:`kept_heap`: there nothing is trimmed, the next stage's temporaries reuse those
+    pages, and the one place where freed pages would stack on the peak, a factorisation, trims
+    first (:func:`mapped`)."""
+    return False if _kept["users"] else release(size, SOLVE_LARGE)
 
 
 def glibc() -> bool:

@@ -76,7 +76,7 @@ def measure_frame(env, redundancy, state, outcomes) -> FrameSet:
                 env.data.workspace.clear()
             else:                            # the next frames reuse its scatters and order
                 model.assembler.release(env.data.workspace, values=True)
-        memory.release(model.nq * 1000, memory.SOLVE_LARGE)  # ... and their pages (large)
+        memory.release_stage(model.nq * 1000)  # ... and their pages (large)
     except EvaluationError:
         loads = {}
     if known is not None and (len(outcomes) == 1 or all(o.ok for o in outcomes)):

@@ -44,8 +44,8 @@ def kept_entries(M, keep):
 def stored_nonzeros(A):
     """The CSC ``A`` without its stored exact zeros (:func:`kept_entries`). SuperLU takes every
     stored entry for a nonzero, and the model's pattern stores every entry a family's block may
-    fill, also where the block is zero for this model at every configuration (a marker at its
-    body's reference point has no rotational terms): the factors would carry that fill and
+    fill, also where the block is zero for this model at every configuration (the out-of-plane
+    multipliers and components of a planar model): the factors would carry that fill and
     every solve its work. The same matrix, the same pivots; only the factors' round-off may
     differ."""
     return kept_entries(A, A.data != 0.0)

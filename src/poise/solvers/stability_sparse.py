@@ -184,7 +184,7 @@ class SparsePencil:
         self.singular = False             # a tiny pivot at a constraint row was met
         self.lean = lean                  # Gt^T Gt not kept beside a factorisation
         self._pos = None                  # the permuted position of each unknown
-        memory.release(nnz * 16, memory.SOLVE_LARGE)    # the temporaries' pages (large models)
+        memory.release_stage(nnz * 16)    # the temporaries' pages (large models)
 
     @property
     def GtG(self):
@@ -245,7 +245,7 @@ class SparsePencil:
         T = None
         np.take(self._pos.astype(indices.dtype), indices, out=indices)
         A = sp.csc_matrix((data, indices, indptr), shape=(n, n))
-        memory.release(nnz * 16, memory.SOLVE_LARGE)    # the temporaries' pages (large models)
+        memory.release_stage(nnz * 16)    # the temporaries' pages (large models)
         return A
 
     def ldl(self, s, rho):
