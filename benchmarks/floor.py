@@ -20,6 +20,76 @@ REPEAT = 5
 FLOOR_RATIO = 2.0            # solve <= 2 x iterations x Newton's LU
 EXPONENT = 1.03              # solve time 10^4 -> 10^5 links
 PEAK_BYTES = 1.5e9           # peak RSS at 10^5 links (GB = 10^9 bytes)
+#: what a certified static solve with a stability verdict cannot leave out on these chains:
+#: Newton's five iterations (3 LUs, the last two chord steps), a Jacobian at each LU, a
+#: residual at each chord step and at the written state, a solve per iteration, the inertia's
+#: LDL^T at the written state and the lowest mode's solves with it (5 on these chains)
+LEAST = dict(lu=3, jac=3, res=3, solve=5, ldl=1, ldl_solve=5)
+
+
+def verdict_parts(model, state, settings, active, repeat: int = 3) -> dict:
+    """Median CPU seconds of the operations :data:`LEAST` counts, each as poise performs it at
+    the solution ``state`` (a chain worker calls this after its solve): ``jac`` an evaluation
+    with the KKT Jacobian assembled, ``res`` a residual-only one (two states alternate, so that
+    the solve's memo of its last evaluation never answers), ``solve`` a plain solve with
+    Newton's factors (no refinement), ``ldl`` the classification's LDL^T of the equilibrated
+    KKT matrix (SuperLU in symmetric mode, its matrix formed, its pivots read) and
+    ``ldl_solve`` one of the lowest mode's solves with it."""
+    import dataclasses
+    import itertools
+    import statistics
+    import time
+
+    import numpy as np
+
+    from poise.model.workspace import Workspace
+    from poise.solvers.frames import _kkt_columns
+    from poise.solvers.linalg import Factor
+    from poise.solvers.stability_modes import AUG_RHO
+    from poise.solvers.stability_sparse import SparsePencil
+
+    def cpu(fn):
+        fn()                                         # a first call, not timed
+        ts = []
+        for _ in range(repeat):
+            c = time.process_time()
+            fn()
+            ts.append(time.process_time() - c)
+        return statistics.median(ts)
+
+    eps = float(np.sqrt(settings.stability))
+    ws = Workspace()
+    other = dataclasses.replace(state, lam=state.lam * (1.0 + 1e-9))
+    states = itertools.cycle((state, other))
+    out = {}
+    out["jac"] = cpu(lambda: model.evaluate(next(states), need_jac=True, eps_mass=eps,
+                                            active=active, workspace=ws))
+    out["res"] = cpu(lambda: model.evaluate(next(states), need_jac=False, eps_mass=eps,
+                                            active=active, workspace=ws))
+    J = model.evaluate(state, need_jac=True, eps_mass=eps, active=active, workspace=ws).J
+    F = Factor(J)
+    b = J @ np.random.default_rng(0).standard_normal(J.shape[0])
+    out["solve"] = cpu(lambda: F._solve(b))
+    del F, J
+    ws.clear()
+    J0 = model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J
+    P = SparsePencil(model, lambda: J0, active=active, lean=True,
+                     kkt_columns=_kkt_columns(model))
+    del J0
+    out["ldl"] = cpu(lambda: P.ldl(0.0, AUG_RHO[0]))
+    L = P.ldl(0.0, AUG_RHO[0])
+    v = np.random.default_rng(1).standard_normal(model.nq)
+    out["ldl_solve"] = cpu(lambda: L.solve_head(v, model.nq))
+    out["ldl_ok"] = bool(L.ok)
+    return out
+
+
+def least(r):
+    """The cost of :data:`LEAST` in Newton's LUs for a chain row (None if not measured)."""
+    parts, lu = r.get("verdict_parts"), _med(r, "newton_lu_cpu_s")
+    if not parts or not lu:
+        return None
+    return LEAST["lu"] + sum(LEAST[k] * _med(parts, k) / lu for k in LEAST if k != "lu")
 
 
 def _med(r, key):
@@ -112,6 +182,39 @@ def section(chains) -> list[str]:
                  f"{_s(_med(r, 'solve_s') - nw if nw is not None else None)} | "
                  f"{r['peak_rss_bytes']['max'] / 2**20:.0f} |")
     L += _phases(rows)
+    L += _least(rows)
+    return L
+
+
+def _least(rows) -> list[str]:
+    """Markdown: what a certified solve with a stability verdict cannot leave out
+    (:data:`LEAST`), each part in Newton's LUs, against the target's budget."""
+    from benchmarks.report import _s
+    rows = [r for r in rows if least(r) is not None]
+    if not rows:
+        return []
+    c = LEAST
+    L = ["", f"What a solve with a certified verdict cannot leave out on these chains, each "
+         f"part timed alone at the solution in the same worker (CPU, median) and given in "
+         f"Newton's LUs: Newton's {c['lu']} LUs, {c['jac']} Jacobians (evaluation and "
+         f"assembly) and {c['res']} residual-only evaluations (the chord steps' and the "
+         f"written state's), {c['solve']} solves with Newton's factors (no refinement), the "
+         "inertia's LDLᵀ at the written state (an LU with partial pivoting has no inertia; "
+         "SuperLU in symmetric mode, its matrix formed and its pivots read) and the lowest "
+         f"mode's {c['ldl_solve']} solves with it. *Left* is what the target (≤ "
+         f"{FLOOR_RATIO:g} × iterations) leaves for everything else a verdict needs: "
+         "redundancy detection (these closed chains have redundant rows), initial "
+         "multipliers, the line search, refinement, reactions, outputs and the kernel's "
+         "fresh pages.", "",
+         "| N | Newton's LU [ms] | Jacobian | residual | solve | LDLᵀ | LDLᵀ solve | least | "
+         "target | left | measured solve |", "|---" * 11 + "|"]
+    for r in rows:
+        lu, p = _med(r, "newton_lu_cpu_s"), r["verdict_parts"]
+        budget = FLOOR_RATIO * r["iterations"]
+        cells = [f"{_med(p, k) / lu:.2f}" for k in ("jac", "res", "solve", "ldl", "ldl_solve")]
+        L.append(f"| {r['n']} | {_s(lu * 1e3)} | " + " | ".join(cells)
+                 + f" | **{least(r):.1f}** | {budget:g} | {budget - least(r):.1f} | "
+                 f"{_med(r, 'solve_cpu_s') / lu:.1f} |")
     return L
 
 
