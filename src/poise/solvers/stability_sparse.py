@@ -385,22 +385,16 @@ def _kkt_order(model, K, G, GtG, kkt_columns=None) -> np.ndarray:
 
 
 def _spectral_radius(A, iters=20) -> float:
-    """Power-iteration estimate (a lower bound) of the spectral radius of symmetric CSR A: the
-    products ``A @ (x / |x|)`` written into two buffers kept across the steps (the same sums as
-    ``A @ v``: each row's from zero, in its order)."""
-    from scipy.sparse import _sparsetools
+    """Power-iteration estimate (a lower bound) of the spectral radius of symmetric CSR A:
+    ``x <- A @ (x / |x|)``, ``iters`` times."""
     n = A.shape[0]
     x = np.random.default_rng(20240611).standard_normal(n)
-    v, y = np.empty(n), np.empty(n)
     r = 0.0
     nx = np.linalg.norm(x)
     for _ in range(iters):
         if nx == 0.0:
             break
-        np.divide(x, nx, out=v)
-        y[:] = 0.0
-        _sparsetools.csr_matvec(n, A.shape[1], A.indptr, A.indices, A.data, v, y)
-        x, y = y, x
+        x = A @ (x / nx)
         nx = np.linalg.norm(x)          # (the next step's divisor too)
         r = float(nx)
     return r
