@@ -535,9 +535,11 @@ That LDLᵀ costs 2.2–2.9 of Newton's LUs (S20, 10⁴ links: its L has 0.93 M 
 Newton's L and U together, but SciPy's only sparse direct solver computes U = D Lᵀ as well, twice
 an LDLᵀ's work, and its pivots are read from a copy of U). The table *What a solve with a
 certified verdict cannot leave out* adds up what no certified FIM_S solve with a stability verdict
-can skip on these chains, each part as poise does it: at 10⁵ links it exceeds the target's whole
-budget (2 × iterations) before redundancy detection, the initial multipliers, the line search,
-reactions and outputs are counted; at 10³ and 10⁴ it leaves less than those measure.
+can skip on these chains, each part as poise does it. At 10⁴ and 10⁵ links it comes to the
+target's whole budget (2 × iterations) or within a few tenths of an LU of it (S20: 9.8 and 10.8
+LUs of 10) before redundancy detection (1.3–2.5 LUs there; these closed chains have redundant
+rows), the initial multipliers, the line search, refinement, reactions and outputs are counted;
+at 10³ it leaves about two LUs, less than those measure there (≈ 3.7).
 From 10⁴ to 10⁵ links the solve's *user* CPU time grows ≈ 9.5× but its *system* time ≈ 20×
 (0.13 → 2.9–3.4 s): at 10⁵ links every array above glibc's mmap threshold (32 MB at most; the KKT
 matrix's data are 140 MB, a family's tangent blocks 50–200 MB) is mapped afresh and its pages
