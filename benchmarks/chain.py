@@ -536,10 +536,10 @@ Newton's L and U together, but SciPy's only sparse direct solver computes U = D 
 an LDLᵀ's work, and its pivots are read from a copy of U). The table *What a solve with a
 certified verdict cannot leave out* adds up what no certified FIM_S solve with a stability verdict
 can skip on these chains, each part as poise does it. At 10⁴ and 10⁵ links it comes to the
-target's whole budget (2 × iterations) or within a few tenths of an LU of it (S20: 9.8 and 10.8
+target's whole budget (2 × iterations) or within a few tenths of an LU of it (S20: 9.5 and 11.0
 LUs of 10) before redundancy detection (1.3–2.5 LUs there; these closed chains have redundant
 rows), the initial multipliers, the line search, refinement, reactions and outputs are counted;
-at 10³ it leaves about two LUs, less than those measure there (≈ 3.7).
+at 10³ it leaves 2–3 LUs, less than those measure there (≈ 4).
 From 10⁴ to 10⁵ links the solve's *user* CPU time grows ≈ 9.5× but its *system* time ≈ 20×
 (0.13 → 2.9–3.4 s): at 10⁵ links every array above glibc's mmap threshold (32 MB at most; the KKT
 matrix's data are 140 MB, a family's tangent blocks 50–200 MB) is mapped afresh and its pages
