@@ -531,13 +531,13 @@ the classification needs its own sparse LDLᵀ (inertia: an LU with partial pivo
 a Krylov iteration for the lowest mode (one-column solves until the angle bound of its Ritz
 vector is below 10⁻⁵: 5 on these chains). The classification factorises once: SuperLU's CSC copies of L and U, read for
 the pivots and the backward error, are made absolute in place and emptied one after the other.
-That LDLᵀ costs 2.2–2.9 of Newton's LUs (S20, 10⁴ links: its L has 0.93 M entries, as many as
-Newton's L and U together, but SciPy's only sparse direct solver computes U = D Lᵀ as well, twice
-an LDLᵀ's work, and its pivots are read from a copy of U). The table *What a solve with a
+That LDLᵀ costs 1.5–3.0 of Newton's LUs (S20, 10³–10⁵ links). At 10⁴ its L has 0.93 M
+entries, as many as Newton's L and U together, but SciPy's only sparse direct solver computes
+U = D Lᵀ as well, twice an LDLᵀ's work, and its pivots are read from a copy of U. The table *What a solve with a
 certified verdict cannot leave out* adds up what no certified FIM_S solve with a stability verdict
 can skip on these chains, each part as poise does it. At 10⁴ and 10⁵ links it comes to the
 target's whole budget (2 × iterations) or within a few tenths of an LU of it (S20: 9.5 and 11.0
-LUs of 10) before redundancy detection (1.3–2.5 LUs there; these closed chains have redundant
+LUs of 10) before redundancy detection (1.3–2.4 LUs there; these closed chains have redundant
 rows), the initial multipliers, the line search, refinement, reactions and outputs are counted;
 at 10³ it leaves 2–3 LUs, less than those measure there (≈ 4).
 From 10⁴ to 10⁵ links the solve's *user* CPU time grows ≈ 9.5× but its *system* time ≈ 20×

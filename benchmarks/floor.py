@@ -42,6 +42,7 @@ def verdict_parts(model, state, settings, active, repeat: int = 3) -> dict:
 
     import numpy as np
 
+    from poise.core import memory
     from poise.model.workspace import Workspace
     from poise.solvers.frames import _kkt_columns
     from poise.solvers.linalg import Factor
@@ -66,16 +67,16 @@ def verdict_parts(model, state, settings, active, repeat: int = 3) -> dict:
                                             active=active, workspace=ws))
     out["res"] = cpu(lambda: model.evaluate(next(states), need_jac=False, eps_mass=eps,
                                             active=active, workspace=ws))
-    J = model.evaluate(state, need_jac=True, eps_mass=eps, active=active, workspace=ws).J
-    F = Factor(J)
-    b = J @ np.random.default_rng(0).standard_normal(J.shape[0])
-    out["solve"] = cpu(lambda: F._solve(b))
-    del F, J
+    def newton_solve():
+        J = model.evaluate(state, need_jac=True, eps_mass=eps, active=active, workspace=ws).J
+        F = Factor(J)
+        b = J @ np.random.default_rng(0).standard_normal(J.shape[0])
+        return cpu(lambda: F._solve(b))
+
+    out["solve"] = newton_solve()              # (its matrix and factors go with the call)
     ws.clear()
-    J0 = model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J
-    P = SparsePencil(model, lambda: J0, active=active, lean=True,
-                     kkt_columns=_kkt_columns(model))
-    del J0
+    J0 = memory.hand_over(model.evaluate(state, need_jac=True, eps_mass=0.0, active=active).J)
+    P = SparsePencil(model, J0, active=active, lean=True, kkt_columns=_kkt_columns(model))
     out["ldl"] = cpu(lambda: P.ldl(0.0, AUG_RHO[0]))
     L = P.ldl(0.0, AUG_RHO[0])
     v = np.random.default_rng(1).standard_normal(model.nq)
