@@ -277,10 +277,11 @@ class CSCLayout:
     """A sparse assembler's matrices as SuperLU factorises them: ``A[:, order]`` in CSC, the
     pattern (row indices, column pointers) computed once and the values one gather of the CSR
     data into a reused buffer (instead of a CSC conversion and a column selection, two fresh
-    copies of the matrix, per factorisation). ``kept``: the layout of a part of its entries
-    (:meth:`part`: those nonzero in the last matrix factorised, SuperLU's input), or None."""
+    copies of the matrix, per factorisation). ``kept``: ``(mask, layout)``, the layout of a
+    part of its entries and what they were chosen for (:meth:`part`: those nonzero in the last
+    matrix factorised, SuperLU's input), or None."""
 
-    __slots__ = ("indices", "indptr", "take", "buf", "rows", "cols", "kept", "mask")
+    __slots__ = ("indices", "indptr", "take", "buf", "rows", "cols", "kept")
 
     def __init__(self, asm: Assembler, order: np.ndarray):
         import scipy.sparse as sp             # lazy: sparse models only
@@ -302,7 +303,7 @@ class CSCLayout:
         del A
         self.rows, self.cols = asm.indices, asm.indptr      # the CSR pattern it maps from
         self.buf = np.empty(asm.nnz)
-        self.kept = self.mask = None
+        self.kept = None
 
     def part(self, take, indices, indptr, mask) -> "CSCLayout":
         """The layout of some of this one's entries (positions ``take`` in the CSR data, CSC
@@ -312,8 +313,8 @@ class CSCLayout:
         sub.take, sub.indices, sub.indptr = take, indices, indptr
         sub.rows, sub.cols = self.rows, self.cols
         sub.buf = np.empty(take.size)
-        sub.kept, sub.mask = None, mask
-        self.kept = sub
+        sub.kept = None
+        self.kept = (mask, sub)
         return sub
 
     def fits(self, J) -> bool:

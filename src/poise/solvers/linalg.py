@@ -60,13 +60,12 @@ def _layout_nonzeros(lay, J):
     and its compaction (a running count, copies of the kept values and row indices: fresh
     arrays) at every factorisation. The same matrix, bit for bit."""
     nz = J.data != 0.0
-    sub = lay.kept
-    if sub is None or not np.array_equal(nz, sub.mask):
-        import scipy.sparse as sp  # lazy: sparse systems only
-        at = kept_entries(sp.csc_matrix((lay.take, lay.indices, lay.indptr), shape=J.shape),
-                          nz[lay.take])                 # CSR positions of the kept entries
-        sub = lay.part(at.data, at.indices, at.indptr, nz)
-    return sub.matrix(J)
+    if lay.kept is not None and np.array_equal(nz, lay.kept[0]):
+        return lay.kept[1].matrix(J)
+    import scipy.sparse as sp  # lazy: sparse systems only
+    at = kept_entries(sp.csc_matrix((lay.take, lay.indices, lay.indptr), shape=J.shape),
+                      nz[lay.take])                     # CSR positions of the kept entries
+    return lay.part(at.data, at.indices, at.indptr, nz).matrix(J)
 
 
 class SingularMatrix(Exception):
