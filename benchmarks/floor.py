@@ -71,7 +71,7 @@ def verdict_parts(model, state, settings, active, repeat: int = 3) -> dict:
         J = model.evaluate(state, need_jac=True, eps_mass=eps, active=active, workspace=ws).J
         F = Factor(J)
         b = J @ np.random.default_rng(0).standard_normal(J.shape[0])
-        return cpu(lambda: F._solve(b))
+        return cpu(lambda: F.unchecked.solve(b))
 
     out["solve"] = newton_solve()              # (its matrix and factors go with the call)
     ws.clear()

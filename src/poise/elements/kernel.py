@@ -113,6 +113,10 @@ class PairBlocks:
     def __init__(self, n: int, S: int, coef: dict):
         self.n, self.S, self.coef = n, S, coef
 
+    def any(self) -> bool:
+        """Whether any coefficient is non-zero (as ``ndarray.any`` of the dense ``G``)."""
+        return any(c.any() for c in self.coef.values())
+
     def block(self, s: int, t: int) -> np.ndarray:
         """Block ``(s, t)`` component-major (3, 3, n) (zeros when it has no coefficient)."""
         c = self.coef.get((s, t))

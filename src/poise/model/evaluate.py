@@ -29,7 +29,7 @@ from poise.core.errors import EvaluationError
 from poise.elements.chunked import (constraint_values, local_residuals, rows, spans,
                                     tangent_values)
 from poise.expr import EvalContext
-from poise.elements.kernel import (PairBlocks, constraint_jacobian_local, dense_g,
+from poise.elements.kernel import (constraint_jacobian_local, dense_g,
                                    local_pattern, local_residual_tangent, local_tangent,
                                    slot_kinematics, slot_points,
                                    tangent_compact)
@@ -342,9 +342,10 @@ def _family_outputs(model, fr, need_jac, done, call=None):
         if ph is not None:
             phi[fam.crow.ravel()] = ph.ravel()
         last.append((fam, kin, rho, phy))
+        quiet = _no_reaction(fam, kin, rho)
         if need_jac:
-            pend[fi] = (fam, kin, rho, G, phy, ext)
-        if _no_reaction(fam, kin, rho):
+            pend[fi] = (fam, kin, rho, G, phy, ext, quiet)
+        if quiet:
             continue
         parts = None if fam.U else spans(kin)
         if parts is not None:      # big family: chunk by chunk (no full-size temporaries)
@@ -386,14 +387,14 @@ def _assembled(model, ev, pend, Jg, eps_mass, row_active, stiffness):
     constraint values in registration order, then the mass shift, the unit diagonal of the
     removed rows and the reaction coupling."""
     vals = []
-    for fam, kin, rho, G, phy, ext in pend:
+    for fam, kin, rho, G, phy, ext, quiet in pend:
         pat = local_pattern(fam)
         U = fam.U
         parts = None if U else spans(kin)
         # "phi_q": the tangent entries read zero (nothing else shares them); a family with no
         # reaction and no G (a constraint family whose multipliers are all zero: the
         # out-of-plane rows of a planar model) has a zero tangent: not formed, nothing added
-        if not stiffness or _no_tangent(fam, kin, rho, G):
+        if not stiffness or _no_tangent(G, quiet):
             Kl = Zeros(fam.n * ((6 * fam.K + U) ** 2 if pat.order is None else pat.order.size))
         elif pat.compact:  # straight into the registered (entry-major block) order
             Kl = (tangent_compact(kin, rho, G, fam.K, pat) if parts is None else
@@ -489,17 +490,12 @@ def _no_reaction(fam, kin, rho) -> bool:
     return not fam.U and not rho.any() and all_finite(kin.V)
 
 
-def _no_tangent(fam, kin, rho, G) -> bool:
+def _no_tangent(G, quiet: bool) -> bool:
     """Whether a family's tangent ``B^T G B + C(rho)`` is zero (every value +-0: adding it
-    leaves the Jacobian's sums, started from +0.0, as they are): :func:`_no_reaction` and
-    ``G`` None or zero."""
-    if not _no_reaction(fam, kin, rho):
-        return False
-    if G is None:
-        return True
-    if isinstance(G, PairBlocks):
-        return not any(c.any() for c in G.coef.values())
-    return not np.any(G)
+    leaves the Jacobian's sums, started from +0.0, as they are): no reaction (``quiet``, its
+    :func:`_no_reaction` of the residual pass) and ``G`` None or zero (an array or a
+    :class:`~poise.elements.kernel.PairBlocks`)."""
+    return quiet and (G is None or not G.any())
 
 
 def _gather(Kl, idx):
